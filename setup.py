@@ -1,0 +1,36 @@
+"""ament_python package: installs the same executables for `colcon build` + `ros2 run`
+(into lib/star_tracker, see setup.cfg) and for `pip install -e .` (into the venv's bin)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "star_tracker"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+        (f"share/{PACKAGE}/msg_docs", glob("msg_docs/*.md")),
+    ],
+    package_data={PACKAGE: ["ros/fastdds_profile.xml"]},
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="star_tracker developers",
+    maintainer_email="star-tracker@example.org",
+    description="Simulated spacecraft star tracker as ROS 2 nodes",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    entry_points={
+        "console_scripts": [
+            "camera_simulator = star_tracker.ros.camera_simulator_node:main",
+            "centroider = star_tracker.ros.centroider_node:main",
+            "identifier = star_tracker.ros.identifier_node:main",
+            "star-tracker = star_tracker.cli:main",
+        ],
+    },
+)

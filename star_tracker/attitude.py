@@ -1,0 +1,264 @@
+"""Attitude: quaternion utilities, QUEST with covariance, Davenport q-method cross-check.
+
+Quaternions are (x, y, z, w) like ROS `geometry_msgs/Quaternion`, unit norm, w >= 0.
+An attitude quaternion q is the orientation of the sensor frame in ICRS: it maps
+sensor-frame vectors to ICRS, v_icrs = R(q) v_sensor.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+ARCSEC = np.pi / (180.0 * 3600.0)
+
+
+def normalize_quaternion(q: np.ndarray) -> np.ndarray:
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., 3:4] < 0.0, -q, q)
+
+
+def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix R (3x3) of the (x, y, z, w) quaternion: v_parent = R v_child."""
+    x, y, z, w = normalize_quaternion(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
+    """(x, y, z, w) quaternion of a rotation matrix (Shepperd's method, stable everywhere)."""
+    m = np.asarray(rot, dtype=float)
+    trace = np.trace(m)
+    candidates = np.array([m[0, 0], m[1, 1], m[2, 2], trace])
+    i = int(np.argmax(candidates))
+    if i == 3:
+        w = 0.5 * np.sqrt(1.0 + trace)
+        x = (m[2, 1] - m[1, 2]) / (4 * w)
+        y = (m[0, 2] - m[2, 0]) / (4 * w)
+        z = (m[1, 0] - m[0, 1]) / (4 * w)
+    elif i == 0:
+        x = 0.5 * np.sqrt(1.0 + 2 * m[0, 0] - trace)
+        w = (m[2, 1] - m[1, 2]) / (4 * x)
+        y = (m[0, 1] + m[1, 0]) / (4 * x)
+        z = (m[0, 2] + m[2, 0]) / (4 * x)
+    elif i == 1:
+        y = 0.5 * np.sqrt(1.0 + 2 * m[1, 1] - trace)
+        w = (m[0, 2] - m[2, 0]) / (4 * y)
+        x = (m[0, 1] + m[1, 0]) / (4 * y)
+        z = (m[1, 2] + m[2, 1]) / (4 * y)
+    else:
+        z = 0.5 * np.sqrt(1.0 + 2 * m[2, 2] - trace)
+        w = (m[1, 0] - m[0, 1]) / (4 * z)
+        x = (m[0, 2] + m[2, 0]) / (4 * z)
+        y = (m[1, 2] + m[2, 1]) / (4 * z)
+    return normalize_quaternion(np.array([x, y, z, w]))
+
+
+def rotation_vector_to_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotation by |rotvec| [rad] about rotvec's direction."""
+    rotvec = np.asarray(rotvec, dtype=float)
+    angle = float(np.linalg.norm(rotvec))
+    if angle < 1e-12:
+        return np.eye(3) + skew(rotvec)
+    axis = rotvec / angle
+    k = skew(axis)
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+
+
+def matrix_to_rotation_vector(rot: np.ndarray) -> np.ndarray:
+    """Inverse of rotation_vector_to_matrix (angle in [0, pi])."""
+    q = matrix_to_quaternion(rot)
+    sin_half = np.linalg.norm(q[:3])
+    angle = 2.0 * np.arctan2(sin_half, q[3])
+    if sin_half < 1e-15:
+        return 2.0 * q[:3]
+    return q[:3] / sin_half * angle
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def radec_roll_to_matrix(ra: float, dec: float, roll: float) -> np.ndarray:
+    """Sensor-to-ICRS rotation for a boresight (+Z) at (ra, dec) [rad] and a roll [rad].
+
+    roll = 0 puts image "up" (-Y, toward smaller row numbers) toward celestial north; a
+    positive roll turns the camera about its boresight by the right-hand rule about +Z.
+    """
+    z = np.array([np.cos(dec) * np.cos(ra), np.cos(dec) * np.sin(ra), np.sin(dec)])
+    north = np.array([0.0, 0.0, 1.0])
+    east = np.cross(north, z)
+    if np.linalg.norm(east) < 1e-9:  # boresight at a pole: pick the x axis as "east"
+        east = np.array([1.0, 0.0, 0.0]) if dec < 0 else np.array([0.0, 1.0, 0.0])
+    east /= np.linalg.norm(east)
+    up = np.cross(z, east)
+    # With up = -Y and +Z forward, +X = Y x Z = (-up) x z = east seen from inside the sphere
+    # is mirrored on the sky as in any camera image: x = -up x z.
+    y_axis = -up
+    x_axis = np.cross(y_axis, z)
+    base = np.stack([x_axis, y_axis, z], axis=1)
+    return base @ rotation_vector_to_matrix(np.array([0.0, 0.0, roll]))
+
+
+def matrix_to_radec_roll(rot: np.ndarray) -> tuple[float, float, float]:
+    """Inverse of radec_roll_to_matrix: boresight RA, Dec and roll [rad]."""
+    z = rot[:, 2]
+    ra = float(np.mod(np.arctan2(z[1], z[0]), 2 * np.pi))
+    dec = float(np.arcsin(np.clip(z[2], -1.0, 1.0)))
+    base = radec_roll_to_matrix(ra, dec, 0.0)
+    rel = base.T @ rot
+    roll = float(np.arctan2(rel[1, 0], rel[0, 0]))
+    return ra, dec, roll
+
+
+def attitude_error(rot_est: np.ndarray, rot_true: np.ndarray) -> tuple[float, float, float]:
+    """Small-angle error of an estimate in the sensor frame [rad].
+
+    Returns (cross_boresight, roll, total): the rotation R_true^T R_est as a rotation
+    vector; cross-boresight = norm of its X, Y part, roll = |Z part|.
+    """
+    rotvec = matrix_to_rotation_vector(rot_true.T @ rot_est)
+    return float(np.hypot(rotvec[0], rotvec[1])), float(abs(rotvec[2])), float(np.linalg.norm(rotvec))
+
+
+@dataclass(frozen=True)
+class AttitudeSolution:
+    """quaternion: (x, y, z, w) sensor -> ICRS; rotation: same as a 3x3 matrix;
+    covariance: 3x3 small-angle attitude error covariance in the sensor frame [rad^2];
+    loss: Wahba loss at the optimum (sum of weighted squared residuals / 2)."""
+
+    quaternion: np.ndarray
+    rotation: np.ndarray
+    covariance: np.ndarray
+    loss: float
+
+
+def _davenport_k(body: np.ndarray, ref: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # Attitude profile matrix B = sum_i w_i b_i r_i^T (Shuster's convention: A maps ref -> body).
+    b_matrix = (weights[:, None] * body).T @ ref
+    s = b_matrix + b_matrix.T
+    z = np.array([b_matrix[1, 2] - b_matrix[2, 1], b_matrix[2, 0] - b_matrix[0, 2],
+                  b_matrix[0, 1] - b_matrix[1, 0]])
+    k = np.zeros((4, 4))
+    k[:3, :3] = s - np.trace(b_matrix) * np.eye(3)
+    k[:3, 3] = z
+    k[3, :3] = z
+    k[3, 3] = np.trace(b_matrix)
+    return k, b_matrix
+
+
+def attitude_covariance(body: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+    """QUEST measurement-model covariance in the sensor frame [rad^2]:
+    P = [sum_i sigma_i^-2 (I - b_i b_i^T)]^-1 (Shuster & Oh)."""
+    info = np.zeros((3, 3))
+    for b, s in zip(body, sigmas):
+        info += (np.eye(3) - np.outer(b, b)) / (s * s)
+    return np.linalg.pinv(info) if np.linalg.cond(info) > 1e12 else np.linalg.inv(info)
+
+
+def davenport_q_method(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:
+    """Optimal Wahba solution by eigen-decomposition (cross-check; robust for any geometry)."""
+    body, ref, sigmas = _as_inputs(body, ref, sigmas)
+    weights = 1.0 / sigmas**2
+    k, _ = _davenport_k(body, ref, weights)
+    vals, vecs = np.linalg.eigh(k)
+    return _solution(_shuster_attitude_matrix(vecs[:, -1]), body, ref, weights, sigmas)
+
+
+def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:
+    """QUEST (Shuster & Oh 1981): Newton-Raphson on the characteristic polynomial of K,
+    starting at lambda = sum(weights); a sequential rotation is applied when the optimal
+    rotation is near pi (QUEST's singularity); falls back to the q-method if Newton fails.
+
+    body: (N, 3) sensor-frame unit vectors; ref: (N, 3) ICRS unit vectors; sigmas: (N,) 1-sigma
+    direction errors [rad]. N >= 2 non-parallel vectors are needed.
+    """
+    body, ref, sigmas = _as_inputs(body, ref, sigmas)
+    weights = 1.0 / sigmas**2
+    unit_weights = weights / weights.sum()  # sum to 1: keeps the adjugate terms well scaled
+    # Sequential rotations: QUEST's adjugate form degenerates (X and gamma -> 0) when the
+    # optimal rotation is near pi, so evaluate the reference frame rotated by pi about each
+    # axis as well and keep the one with the largest unnormalized |gamma|.
+    best = None
+    for axis in (None, 0, 1, 2):
+        ref_rot = ref if axis is None else _rotate_pi(ref, axis)
+        k, b_matrix = _davenport_k(body, ref_rot, unit_weights)
+        s = b_matrix + b_matrix.T
+        z = k[:3, 3]
+        sigma = np.trace(b_matrix)
+        kappa = np.trace(_adjugate(s))
+        delta = np.linalg.det(s)
+        a = sigma * sigma - kappa
+        b = sigma * sigma + z @ z
+        c = delta + z @ s @ z
+        d = z @ s @ s @ z
+        lam = 1.0
+        for _ in range(50):
+            f = (lam * lam - a) * (lam * lam - b) - c * lam + c * sigma - d
+            fp = 2 * lam * (2 * lam * lam - a - b) - c
+            step = f / fp if fp != 0 else 0.0
+            lam -= step
+            if abs(step) < 1e-14 * max(1.0, abs(lam)):
+                break
+        alpha = lam * lam - sigma * sigma + kappa
+        beta = lam - sigma
+        gamma = (lam + sigma) * alpha - delta
+        x = (alpha * np.eye(3) + beta * s + s @ s) @ z
+        # (x, gamma) = c q4 q with c = prod(lambda_max - lambda_i), the same in every frame,
+        # so the largest |gamma| marks the frame where the rotation is farthest from pi.
+        if best is None or abs(gamma) > abs(best[1]):
+            best = (x, gamma, axis)
+    x, gamma, axis = best
+    norm = np.hypot(gamma, np.linalg.norm(x))
+    if not np.isfinite(norm) or norm == 0.0:
+        return davenport_q_method(body, ref, sigmas)
+    a_matrix = _shuster_attitude_matrix(np.append(x, gamma) / norm)
+    if axis is not None:  # b = A' R_pi r, so A = A' R_pi
+        a_matrix = a_matrix @ np.diag(np.where(np.arange(3) == axis, 1.0, -1.0))
+    return _solution(a_matrix, body, ref, weights, sigmas)
+
+
+def _as_inputs(body, ref, sigmas):
+    body = np.asarray(body, dtype=float).reshape(-1, 3)
+    ref = np.asarray(ref, dtype=float).reshape(-1, 3)
+    sigmas = np.broadcast_to(np.asarray(sigmas, dtype=float), (body.shape[0],)).copy()
+    if body.shape != ref.shape or body.shape[0] < 2:
+        raise ValueError(f"need >= 2 matched vector pairs, got body {body.shape}, ref {ref.shape}")
+    if not (np.all(np.isfinite(body)) and np.all(np.isfinite(ref)) and np.all(sigmas > 0)):
+        raise ValueError("vectors must be finite and sigmas > 0")
+    body = body / np.linalg.norm(body, axis=1, keepdims=True)
+    ref = ref / np.linalg.norm(ref, axis=1, keepdims=True)
+    return body, ref, sigmas
+
+
+def _adjugate(m: np.ndarray) -> np.ndarray:
+    return np.array([
+        [m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1], m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2], m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]],
+        [m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2], m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0], m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]],
+        [m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0], m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1], m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]],
+    ])
+
+
+def _rotate_pi(vectors: np.ndarray, axis: int) -> np.ndarray:
+    out = -vectors.copy()
+    out[:, axis] = vectors[:, axis]
+    return out
+
+
+def _solution(a_matrix: np.ndarray, body, ref, weights, sigmas) -> AttitudeSolution:
+    # A (Shuster) maps ICRS -> sensor; its transpose is the sensor -> ICRS rotation we publish.
+    rot = a_matrix.T
+    residual = body - ref @ a_matrix.T
+    loss = 0.5 * float(np.sum(weights * np.sum(residual**2, axis=1)))
+    return AttitudeSolution(matrix_to_quaternion(rot), rot, attitude_covariance(body, sigmas), loss)
+
+
+def _shuster_attitude_matrix(q: np.ndarray) -> np.ndarray:
+    q = q / np.linalg.norm(q)
+    v, s = q[:3], q[3]
+    return (s * s - v @ v) * np.eye(3) + 2.0 * np.outer(v, v) - 2.0 * s * skew(v)

@@ -1,0 +1,122 @@
+"""Camera geometry: pinhole intrinsics + Brown-Conrady distortion, OpenCV conventions.
+
+Sensor frame `star_tracker_optical`: +Z boresight, +X image right (columns), +Y image down
+(rows). Pixel (0, 0) is the centre of the top-left pixel. Distortion coefficients are
+OpenCV / ROS `plumb_bob` order (k1, k2, p1, p2, k3), so `CameraInfo` K and D describe
+the model exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """width, height [px]; fx, fy, cx, cy [px]; distortion (k1, k2, p1, p2, k3) [-]."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    _k: np.ndarray = field(init=False, repr=False, compare=False)
+    _d: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        problems = []
+        if not (int(self.width) > 0 and int(self.height) > 0):
+            problems.append(f"image size {self.width}x{self.height} must be positive")
+        for name in ("fx", "fy", "cx", "cy"):
+            value = float(getattr(self, name))
+            if not np.isfinite(value):
+                problems.append(f"{name}={value} is not finite")
+        if np.isfinite(self.fx) and np.isfinite(self.fy) and (self.fx <= 0 or self.fy <= 0):
+            problems.append(f"focal lengths fx={self.fx}, fy={self.fy} must be > 0")
+        if len(self.distortion) != 5 or not np.all(np.isfinite(self.distortion)):
+            problems.append(f"distortion {self.distortion} must be 5 finite plumb_bob coefficients")
+        if problems:
+            raise ValueError("invalid camera model: " + "; ".join(problems))
+        object.__setattr__(self, "_k", self.intrinsic_matrix())
+        object.__setattr__(self, "_d", np.asarray(self.distortion, dtype=float))
+
+    @staticmethod
+    def from_fov(width: int, height: int, fov_x_rad: float,
+                 distortion: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)) -> "CameraModel":
+        """Square pixels, principal point at the image centre, horizontal FOV [rad]."""
+        f = 0.5 * width / np.tan(0.5 * fov_x_rad)
+        return CameraModel(int(width), int(height), f, f, (width - 1) / 2.0, (height - 1) / 2.0,
+                           tuple(float(d) for d in distortion))
+
+    def intrinsic_matrix(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(np.asarray(self.distortion) != 0.0))
+
+    @property
+    def pixel_scale_rad(self) -> float:
+        """Angle subtended by one pixel at the principal point [rad/px]."""
+        return 1.0 / np.sqrt(self.fx * self.fy)
+
+    @property
+    def half_diagonal_fov_rad(self) -> float:
+        """Angle from the boresight to the farthest image corner [rad]."""
+        corners = np.array([[0, 0], [self.width - 1, 0], [0, self.height - 1],
+                            [self.width - 1, self.height - 1]], dtype=float)
+        rays = self.pixel_to_ray(corners[:, 0], corners[:, 1])
+        return float(np.max(np.arccos(np.clip(rays[:, 2], -1.0, 1.0))))
+
+    def distort_normalized(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Apply Brown-Conrady distortion to normalized image coordinates (x=X/Z, y=Y/Z)."""
+        if not self.has_distortion:
+            return x, y
+        k1, k2, p1, p2, k3 = self.distortion
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return xd, yd
+
+    def project(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sensor-frame directions (N, 3) -> pixel u, v [px] and a mask of rays in front of the
+        camera (Z > 0). Matches cv2.projectPoints with K, D."""
+        rays = np.asarray(rays, dtype=float)
+        z = rays[..., 2]
+        in_front = z > 1e-9
+        safe_z = np.where(in_front, z, 1.0)
+        x, y = self.distort_normalized(rays[..., 0] / safe_z, rays[..., 1] / safe_z)
+        return self.fx * x + self.cx, self.fy * y + self.cy, in_front
+
+    def in_image(self, u: np.ndarray, v: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """True where (u, v) lies within the pixel area shrunk by `margin` [px]."""
+        return ((u >= -0.5 + margin) & (u <= self.width - 0.5 - margin)
+                & (v >= -0.5 + margin) & (v <= self.height - 0.5 - margin))
+
+    def pixel_to_ray(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Pixel coordinates [px] -> unit direction vectors (N, 3) in the sensor frame."""
+        u = np.asarray(u, dtype=float).ravel()
+        v = np.asarray(v, dtype=float).ravel()
+        if self.has_distortion:
+            pts = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
+            und = cv2.undistortPoints(
+                pts, self._k, self._d,
+                criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)).reshape(-1, 2)
+            x, y = und[:, 0], und[:, 1]
+        else:
+            x = (u - self.cx) / self.fx
+            y = (v - self.cy) / self.fy
+        rays = np.stack([x, y, np.ones_like(x)], axis=-1)
+        return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+
+    def pixel_covariance_to_ray_sigma(self, cov_px: np.ndarray) -> np.ndarray:
+        """1-sigma angular error [rad] of a ray from a 2x2 pixel covariance (N, 2, 2), using
+        the mean variance per axis and the local pixel scale (distortion neglected)."""
+        cov_px = np.asarray(cov_px, dtype=float).reshape(-1, 2, 2)
+        var_px = 0.5 * (cov_px[:, 0, 0] + cov_px[:, 1, 1])
+        return np.sqrt(np.maximum(var_px, 0.0)) * self.pixel_scale_rad

@@ -1,0 +1,196 @@
+"""The common identification interface and the machinery every algorithm shares.
+
+An algorithm only proposes hypotheses: (pattern spot indices, database star indices). The
+base class turns each into an attitude, verifies it against all spots with the
+false-positive bound of `verify`, refines the accepted one with QUEST over every matched
+star, and enforces the per-frame time budget.
+"""
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field, replace
+from typing import Iterator
+
+import numpy as np
+
+from ..attitude import AttitudeSolution, quest
+from ..camera import CameraModel
+from ..centroid import Spots
+from .database import StarDatabase
+from .verify import verify
+
+SOLVED = "solved"
+TOO_FEW_SPOTS = "too_few_spots"
+NO_MATCH = "no_match"
+TIMEOUT = "timeout"
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    """max_pattern_spots: brightest spots used to form patterns; sigma_multiplier: pattern
+    tolerance in standard deviations; angle_tolerance_floor_rad: added to every angle
+    tolerance for model errors (aberration, distortion calibration) [rad];
+    centroid_sigma_floor_px: lower bound on a spot's 1-sigma [px]; match_radius_px: spot
+    to projected-star radius for verification [px]; false_positive_bound: largest accepted
+    probability that a published solution is a chance match (all hypotheses of the frame);
+    max_time_s: time budget of one identify() call [s]; max_candidates_per_pattern: cap on
+    hypotheses taken from one pattern (a pattern with more is ambiguous)."""
+
+    max_pattern_spots: int = 12
+    sigma_multiplier: float = 3.0
+    angle_tolerance_floor_rad: float = 2.0e-5
+    centroid_sigma_floor_px: float = 0.05
+    match_radius_px: float = 1.5
+    false_positive_bound: float = 1.0e-6
+    max_time_s: float = 0.5
+    max_candidates_per_pattern: int = 50
+
+    def __post_init__(self) -> None:
+        bad = []
+        if not (3 <= self.max_pattern_spots <= 100):
+            bad.append(f"max_pattern_spots={self.max_pattern_spots} must be in [3, 100]")
+        if not (0 < self.sigma_multiplier <= 20):
+            bad.append(f"sigma_multiplier={self.sigma_multiplier} must be in (0, 20]")
+        if not (0 <= self.angle_tolerance_floor_rad < 0.01):
+            bad.append(f"angle_tolerance_floor_rad={self.angle_tolerance_floor_rad} must be in [0, 0.01)")
+        if not (0 < self.centroid_sigma_floor_px <= 10):
+            bad.append(f"centroid_sigma_floor_px={self.centroid_sigma_floor_px} must be in (0, 10]")
+        if not (0 < self.match_radius_px <= 50):
+            bad.append(f"match_radius_px={self.match_radius_px} must be in (0, 50]")
+        if not (0 < self.false_positive_bound < 1):
+            bad.append(f"false_positive_bound={self.false_positive_bound} must be in (0, 1)")
+        if not (0 < self.max_time_s <= 60):
+            bad.append(f"max_time_s={self.max_time_s} must be in (0, 60]")
+        if not (1 <= self.max_candidates_per_pattern <= 100000):
+            bad.append(f"max_candidates_per_pattern={self.max_candidates_per_pattern} must be >= 1")
+        if bad:
+            raise ValueError("invalid identify config: " + "; ".join(bad))
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Result of one identify() call.
+
+    status: "solved", "too_few_spots", "no_match" or "timeout"; reason: human-readable.
+    When solved: spot_index (M,) into the input spots; hip (M,); star_vectors (M, 3) ICRS;
+    body_vectors (M, 3) sensor frame; residual_rad (M,) angle between each measured and
+    predicted direction [rad]; attitude: QUEST solution (sensor -> ICRS, covariance [rad^2]);
+    false_positive_probability: bound over all hypotheses of the frame.
+    """
+
+    status: str
+    reason: str
+    algorithm: str
+    elapsed_s: float
+    hypotheses: int = 0
+    spot_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    hip: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    star_vectors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    body_vectors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    residual_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    attitude: AttitudeSolution | None = None
+    false_positive_probability: float = 1.0
+
+    @property
+    def solved(self) -> bool:
+        return self.status == SOLVED
+
+
+@dataclass
+class SpotGeometry:
+    """Per-frame quantities algorithms share: rays (N, 3) sensor frame, sigma (N,) [rad]."""
+
+    rays: np.ndarray
+    sigma: np.ndarray
+    pattern_count: int
+
+
+class StarIdentifier(ABC):
+    """Lost-in-space identification. Subclasses implement `hypotheses`."""
+
+    name = "base"
+
+    def __init__(self, database: StarDatabase, config: IdentifyConfig):
+        self.database = database
+        self.config = config
+
+    @abstractmethod
+    def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """Yield (pattern spot indices, database star indices) correspondences, most
+        promising first. Spot indices refer to the flux-sorted spot list."""
+
+    def angle_tolerance(self, sigma_a: np.ndarray, sigma_b: np.ndarray) -> np.ndarray:
+        """Half-width of the accepted interval for an inter-star angle [rad]."""
+        return self.config.sigma_multiplier * np.sqrt(sigma_a**2 + sigma_b**2) + self.config.angle_tolerance_floor_rad
+
+    def identify(self, spots: Spots, camera: CameraModel) -> Identification:
+        started = time.perf_counter()
+        deadline = started + self.config.max_time_s
+        finite = np.isfinite(spots.x) & np.isfinite(spots.y)
+        if not np.all(finite):
+            spots = spots.take(np.flatnonzero(finite))
+        if len(spots) < 3:
+            return self._fail(TOO_FEW_SPOTS, f"{len(spots)} spots; at least 3 are needed", started, 0)
+        order = np.argsort(-np.nan_to_num(spots.flux, nan=-np.inf), kind="stable")
+        spots = spots.take(order)
+        sigma_px = np.sqrt(np.maximum(0.5 * (spots.cov[:, 0, 0] + spots.cov[:, 1, 1]), 0.0))
+        sigma_px = np.maximum(np.nan_to_num(sigma_px, nan=1.0), self.config.centroid_sigma_floor_px)
+        geometry = SpotGeometry(
+            rays=camera.pixel_to_ray(spots.x, spots.y),
+            sigma=sigma_px * camera.pixel_scale_rad,
+            pattern_count=min(len(spots), self.config.max_pattern_spots))
+
+        tested = 0
+        for pattern_spots, stars in self.hypotheses(geometry, deadline):
+            if time.perf_counter() > deadline:
+                return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after "
+                                  f"{tested} hypotheses", started, tested)
+            tested += 1
+            try:
+                candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars], geometry.sigma[pattern_spots])
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            check = verify(candidate.rotation, spots.x, spots.y, self.database, camera,
+                           self.config.match_radius_px, hypothesis_spots=len(pattern_spots))
+            if check.false_positive_probability * tested > self.config.false_positive_bound:
+                continue
+            result = self._refine(spots, geometry, camera, check, len(pattern_spots), tested, started)
+            if result is not None:
+                return replace(result, spot_index=order[result.spot_index])
+        if time.perf_counter() > deadline:
+            return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after "
+                              f"{tested} hypotheses", started, tested)
+        return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, "
+                          f"{len(spots)} spots)", started, tested)
+
+    def _refine(self, spots: Spots, geometry: SpotGeometry, camera: CameraModel, check, pattern_size: int,
+                tested: int, started: float) -> Identification | None:
+        """QUEST over all matches, then re-match with the refined attitude (once)."""
+        for _ in range(2):
+            solution = quest(geometry.rays[check.spot_index], self.database.vectors[check.star_index],
+                             geometry.sigma[check.spot_index])
+            check = verify(solution.rotation, spots.x, spots.y, self.database, camera,
+                           self.config.match_radius_px, hypothesis_spots=pattern_size)
+            if check.spot_index.size < 3:
+                return None
+        fp = check.false_positive_probability * tested
+        if fp > self.config.false_positive_bound:
+            return None
+        solution = quest(geometry.rays[check.spot_index], self.database.vectors[check.star_index],
+                         geometry.sigma[check.spot_index])
+        body = geometry.rays[check.spot_index]
+        star = self.database.vectors[check.star_index]
+        predicted = star @ solution.rotation  # ICRS -> sensor: R^T r, as row vectors
+        residual = np.arccos(np.clip(np.sum(body * predicted, axis=1), -1.0, 1.0))
+        order = np.argsort(check.spot_index)
+        return Identification(
+            status=SOLVED, reason=f"{check.spot_index.size} stars matched, false-positive bound {fp:.1e}",
+            algorithm=self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
+            spot_index=check.spot_index[order], hip=self.database.hip[check.star_index][order],
+            star_vectors=star[order], body_vectors=body[order], residual_rad=residual[order],
+            attitude=solution, false_positive_probability=fp)
+
+    def _fail(self, status: str, reason: str, started: float, tested: int) -> Identification:
+        return Identification(status=status, reason=reason, algorithm=self.name,
+                              elapsed_s=time.perf_counter() - started, hypotheses=tested)

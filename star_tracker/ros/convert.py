@@ -1,0 +1,226 @@
+"""Message <-> core-record conversion. Layouts are documented in msg_docs/.
+
+Raises ValueError with a message naming the problem for any malformed message.
+"""
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, Vector3Stamped
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
+from std_msgs.msg import Header
+
+from ..attitude import AttitudeSolution
+from ..camera import CameraModel
+from ..centroid import Spots
+from ..identify.base import Identification
+
+ICRS_FRAME = "icrs"
+OPTICAL_FRAME = "star_tracker_optical"
+MAX_IMAGE_PIXELS = 64 * 1024 * 1024
+
+_IMAGE_DTYPES = {"mono8": np.uint8, "8UC1": np.uint8, "mono16": np.uint16, "16UC1": np.uint16}
+
+
+# ----------------------------------------------------------------------------- time
+def stamp_to_ns(stamp: Time) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int) -> Time:
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return Time(sec=int(sec), nanosec=int(nanosec))
+
+
+# ----------------------------------------------------------------------------- image
+def image_to_array(msg: Image) -> np.ndarray:
+    """A mono8/mono16 Image as a (height, width) array view-free copy in native byte order."""
+    dtype = _IMAGE_DTYPES.get(msg.encoding)
+    if dtype is None:
+        raise ValueError(f"unsupported image encoding {msg.encoding!r}; expected one of {sorted(_IMAGE_DTYPES)}")
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height <= 0 or width <= 0:
+        raise ValueError(f"empty image {width}x{height}")
+    if height * width > MAX_IMAGE_PIXELS:
+        raise ValueError(f"image {width}x{height} exceeds the {MAX_IMAGE_PIXELS}-pixel limit")
+    item = np.dtype(dtype).itemsize
+    if step < width * item:
+        raise ValueError(f"step {step} < width*bytes_per_pixel {width * item}")
+    data = msg.data
+    buffer = np.frombuffer(data.tobytes() if hasattr(data, "tobytes") else bytes(data), dtype=np.uint8)
+    if buffer.size != step * height:
+        raise ValueError(f"data size {buffer.size} != step*height {step * height}")
+    rows = buffer.reshape(height, step)[:, : width * item]
+    array = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(">" if msg.is_bigendian else "<"))
+    return array.astype(dtype, copy=False)
+
+
+def array_to_image(array: np.ndarray, stamp_ns: int, frame_id: str) -> Image:
+    if array.dtype == np.uint16:
+        encoding = "mono16"
+    elif array.dtype == np.uint8:
+        encoding = "mono8"
+    else:
+        raise ValueError(f"unsupported array dtype {array.dtype}")
+    array = np.ascontiguousarray(array.astype(array.dtype.newbyteorder("<"), copy=False))
+    msg = Image()
+    msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+    msg.height, msg.width = int(array.shape[0]), int(array.shape[1])
+    msg.encoding = encoding
+    msg.is_bigendian = 0
+    msg.step = int(array.shape[1] * array.itemsize)
+    msg.data = array.tobytes()
+    return msg
+
+
+# ----------------------------------------------------------------------------- camera info
+def camera_to_info(camera: CameraModel, stamp_ns: int, frame_id: str) -> CameraInfo:
+    msg = CameraInfo()
+    msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+    msg.width, msg.height = camera.width, camera.height
+    msg.distortion_model = "plumb_bob"
+    msg.d = [float(d) for d in camera.distortion]
+    msg.k = [float(v) for v in camera.intrinsic_matrix().ravel()]
+    msg.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    msg.p = [camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return msg
+
+
+def info_to_camera(msg: CameraInfo) -> CameraModel:
+    """CameraModel from K and D (plumb_bob or empty D = no distortion)."""
+    k = np.asarray(msg.k, dtype=float)
+    if k.size != 9 or not np.all(np.isfinite(k)):
+        raise ValueError(f"CameraInfo K must be 9 finite values, got {list(k)}")
+    d = list(msg.d)
+    if msg.distortion_model not in ("plumb_bob", "") and d:
+        raise ValueError(f"unsupported distortion model {msg.distortion_model!r}; expected plumb_bob")
+    if len(d) not in (0, 5):
+        raise ValueError(f"plumb_bob needs 5 distortion coefficients, got {len(d)}")
+    d = tuple(float(x) for x in (d or [0.0] * 5))
+    return CameraModel(int(msg.width), int(msg.height), k[0], k[4], k[2], k[5], d)
+
+
+# ----------------------------------------------------------------------------- point clouds
+def _fields(spec: list[tuple[str, int]]) -> tuple[list[PointField], np.dtype]:
+    kinds = {PointField.FLOAT32: "<f4", PointField.UINT32: "<u4", PointField.FLOAT64: "<f8"}
+    fields, names, formats, offsets, offset = [], [], [], [], 0
+    for name, datatype in spec:
+        fields.append(PointField(name=name, offset=offset, datatype=datatype, count=1))
+        names.append(name)
+        formats.append(kinds[datatype])
+        offsets.append(offset)
+        offset += np.dtype(kinds[datatype]).itemsize
+    return fields, np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": offset})
+
+
+SPOT_FIELDS, SPOT_DTYPE = _fields([
+    ("x", PointField.FLOAT32), ("y", PointField.FLOAT32), ("flux", PointField.FLOAT32),
+    ("snr", PointField.FLOAT32), ("cov_xx", PointField.FLOAT32), ("cov_xy", PointField.FLOAT32),
+    ("cov_yy", PointField.FLOAT32), ("flags", PointField.UINT32)])
+
+MATCH_FIELDS, MATCH_DTYPE = _fields([
+    ("x", PointField.FLOAT32), ("y", PointField.FLOAT32), ("z", PointField.FLOAT32),
+    ("hip_id", PointField.UINT32), ("pixel_x", PointField.FLOAT32), ("pixel_y", PointField.FLOAT32),
+    ("residual", PointField.FLOAT32), ("magnitude", PointField.FLOAT32)])
+
+TRUTH_STAR_FIELDS, TRUTH_STAR_DTYPE = _fields([
+    ("hip_id", PointField.UINT32), ("pixel_x", PointField.FLOAT32), ("pixel_y", PointField.FLOAT32),
+    ("electrons", PointField.FLOAT32)])
+
+
+def records_to_cloud(records: np.ndarray, fields: list[PointField], stamp_ns: int, frame_id: str) -> PointCloud2:
+    msg = PointCloud2()
+    msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+    msg.height = 1
+    msg.width = int(records.size)
+    msg.fields = fields
+    msg.is_bigendian = False
+    msg.point_step = int(records.dtype.itemsize)
+    msg.row_step = msg.point_step * msg.width
+    msg.is_dense = True
+    msg.data = records.tobytes()
+    return msg
+
+
+def cloud_to_records(msg: PointCloud2, fields: list[PointField], dtype: np.dtype) -> np.ndarray:
+    """Decode a PointCloud2 whose layout must equal `fields` (name, offset, datatype)."""
+    got = [(f.name, int(f.offset), int(f.datatype)) for f in msg.fields]
+    want = [(f.name, f.offset, f.datatype) for f in fields]
+    if got != want:
+        raise ValueError(f"unexpected PointCloud2 layout {got}; expected {want}")
+    if msg.is_bigendian:
+        raise ValueError("big-endian PointCloud2 is not supported")
+    if int(msg.point_step) != dtype.itemsize:
+        raise ValueError(f"point_step {msg.point_step} != {dtype.itemsize}")
+    count = int(msg.width) * int(msg.height)
+    data = msg.data
+    raw = data.tobytes() if hasattr(data, "tobytes") else bytes(data)
+    if len(raw) != count * dtype.itemsize:
+        raise ValueError(f"PointCloud2 data has {len(raw)} bytes, expected {count * dtype.itemsize}")
+    return np.frombuffer(raw, dtype=dtype)
+
+
+def spots_to_cloud(spots: Spots, stamp_ns: int, frame_id: str) -> PointCloud2:
+    rec = np.zeros(len(spots), SPOT_DTYPE)
+    rec["x"], rec["y"], rec["flux"], rec["snr"] = spots.x, spots.y, spots.flux, spots.snr
+    rec["cov_xx"], rec["cov_xy"], rec["cov_yy"] = spots.cov[:, 0, 0], spots.cov[:, 0, 1], spots.cov[:, 1, 1]
+    rec["flags"] = spots.flags
+    return records_to_cloud(rec, SPOT_FIELDS, stamp_ns, frame_id)
+
+
+def cloud_to_spots(msg: PointCloud2, width: int, height: int) -> Spots:
+    rec = cloud_to_records(msg, SPOT_FIELDS, SPOT_DTYPE)
+    n = rec.size
+    cov = np.empty((n, 2, 2))
+    cov[:, 0, 0] = rec["cov_xx"]
+    cov[:, 1, 1] = rec["cov_yy"]
+    cov[:, 0, 1] = cov[:, 1, 0] = rec["cov_xy"]
+    return Spots(x=rec["x"].astype(float), y=rec["y"].astype(float), flux=rec["flux"].astype(float),
+                 snr=rec["snr"].astype(float), cov=cov, flags=rec["flags"].astype(np.uint32),
+                 area=np.zeros(n, np.int32), peak=np.zeros(n), width=width, height=height)
+
+
+def identification_to_cloud(result: Identification, spots: Spots, magnitudes: np.ndarray,
+                            stamp_ns: int, frame_id: str) -> PointCloud2:
+    rec = np.zeros(result.hip.size, MATCH_DTYPE)
+    rec["x"], rec["y"], rec["z"] = result.star_vectors.T
+    rec["hip_id"] = result.hip
+    rec["pixel_x"] = spots.x[result.spot_index]
+    rec["pixel_y"] = spots.y[result.spot_index]
+    rec["residual"] = result.residual_rad
+    rec["magnitude"] = magnitudes
+    return records_to_cloud(rec, MATCH_FIELDS, stamp_ns, frame_id)
+
+
+# ----------------------------------------------------------------------------- attitude
+def quaternion_msg(q_xyzw: np.ndarray, stamp_ns: int, frame_id: str = ICRS_FRAME) -> QuaternionStamped:
+    msg = QuaternionStamped()
+    msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+    msg.quaternion.x, msg.quaternion.y, msg.quaternion.z, msg.quaternion.w = (float(v) for v in q_xyzw)
+    return msg
+
+
+def quaternion_from_msg(msg: QuaternionStamped) -> np.ndarray:
+    q = msg.quaternion
+    return np.array([q.x, q.y, q.z, q.w])
+
+
+def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int, frame_id: str = ICRS_FRAME) -> PoseWithCovarianceStamped:
+    """Orientation + 6x6 covariance: the position block is unknown (-1 on its diagonal); the
+    rotation block is the sensor-frame small-angle attitude error covariance [rad^2]."""
+    msg = PoseWithCovarianceStamped()
+    msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+    o = msg.pose.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in solution.quaternion)
+    cov = np.zeros((6, 6))
+    cov[0, 0] = cov[1, 1] = cov[2, 2] = -1.0
+    cov[3:, 3:] = solution.covariance
+    msg.pose.covariance = [float(v) for v in cov.ravel()]
+    return msg
+
+
+def vector3_msg(vector: np.ndarray, stamp_ns: int, frame_id: str) -> Vector3Stamped:
+    msg = Vector3Stamped()
+    msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+    msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in vector)
+    return msg

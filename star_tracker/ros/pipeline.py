@@ -1,0 +1,241 @@
+"""Run the three nodes as separate processes and watch their outputs against truth.
+
+Used by `star-tracker demo` and by the integration tests: real processes, real DDS.
+"""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import Image, PointCloud2
+
+from ..attitude import attitude_error, quaternion_to_matrix
+from . import convert
+from .common import RESULT_QOS, SENSOR_QOS, configure_middleware
+
+NODE_MODULES = {
+    "camera_simulator": "star_tracker.ros.camera_simulator_node",
+    "centroider": "star_tracker.ros.centroider_node",
+    "identifier": "star_tracker.ros.identifier_node",
+}
+
+
+def isolated_ros_environment(domain_id: int | None = None) -> dict[str, str]:
+    """Environment for a private DDS graph on this host: a random domain id and
+    localhost-only discovery, plus the Fast DDS profile."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(100, 199))
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy; conflicts with the range setting
+    configure_middleware(env)
+    return env
+
+
+def parameter_arguments(params: dict[str, object]) -> list[str]:
+    """`-p name:=value` arguments in ROS 2 YAML syntax (lists as [a, b])."""
+    args = []
+    for name, value in params.items():
+        if isinstance(value, (list, tuple)):
+            text = "[" + ", ".join(repr(float(v)) if isinstance(v, float) else str(v) for v in value) + "]"
+        elif isinstance(value, bool):
+            text = "true" if value else "false"
+        elif isinstance(value, float):
+            text = repr(value)
+        else:
+            text = str(value)
+        args += ["-p", f"{name}:={text}"]
+    return args
+
+
+class NodeProcesses:
+    """The three nodes as child processes (own process groups), logs in `log_dir`."""
+
+    def __init__(self, env: dict[str, str], log_dir: Path, params: dict[str, dict] | None = None,
+                 params_file: Path | None = None, nodes: tuple[str, ...] = tuple(NODE_MODULES)):
+        self.env, self.log_dir = env, Path(log_dir)
+        self.params = params or {}
+        self.params_file = params_file
+        self.nodes = nodes
+        self.processes: dict[str, subprocess.Popen] = {}
+        self._logs = {}
+
+    def start(self) -> "NodeProcesses":
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        for name in self.nodes:
+            cmd = [sys.executable, "-m", NODE_MODULES[name], "--ros-args"]
+            if self.params_file:
+                cmd += ["--params-file", str(self.params_file)]
+            cmd += parameter_arguments(self.params.get(name, {}))
+            log = open(self.log_dir / f"{name}.log", "w")
+            self._logs[name] = log
+            self.processes[name] = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                                                    stdin=subprocess.DEVNULL, start_new_session=True)
+        return self
+
+    def wait_ready(self, timeout_s: float = 120.0) -> None:
+        """Block until every node logged `ready`; raise with its log if one died or hung."""
+        deadline = time.monotonic() + timeout_s
+        pending = set(self.processes)
+        while pending:
+            for name in list(pending):
+                text = (self.log_dir / f"{name}.log").read_text(errors="replace")
+                if "]: ready" in text:
+                    pending.discard(name)
+                elif self.processes[name].poll() is not None:
+                    raise RuntimeError(f"{name} exited with {self.processes[name].returncode}:\n{text}")
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"nodes not ready after {timeout_s} s: {sorted(pending)}")
+            time.sleep(0.1)
+
+    def stop(self, timeout_s: float = 15.0) -> dict[str, int]:
+        """SIGINT every node, wait, SIGKILL what is left. Returns exit codes."""
+        for proc in self.processes.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout_s
+        codes = {}
+        for name, proc in self.processes.items():
+            try:
+                codes[name] = proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                codes[name] = proc.wait()
+        for log in self._logs.values():
+            log.close()
+        return codes
+
+    def __enter__(self) -> "NodeProcesses":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+@dataclass
+class FrameRecord:
+    """Everything seen for one frame (keyed by its mid-exposure stamp)."""
+
+    stamp_ns: int
+    first_seen: float = field(default_factory=time.monotonic)
+    truth: np.ndarray | None = None  # sensor -> ICRS rotation
+    spot_count: int | None = None
+    attitude: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    attitude_latency_s: float | None = None
+    matched: np.ndarray | None = None  # MATCH_DTYPE records
+    truth_stars: np.ndarray | None = None  # TRUTH_STAR_DTYPE records
+    image: np.ndarray | None = None
+
+    def error(self) -> tuple[float, float, float] | None:
+        """(cross-boresight, roll, total) attitude error vs truth [rad]."""
+        if self.truth is None or self.attitude is None:
+            return None
+        return attitude_error(self.attitude, self.truth)
+
+
+class TrackerMonitor(Node):
+    """Subscribes to truth and to every output; joins them by stamp."""
+
+    def __init__(self, keep_images: bool = False, name: str = "star_tracker_monitor"):
+        super().__init__(name)
+        self.frames: dict[int, FrameRecord] = {}
+        self.keep_images = keep_images
+        self._executor: SingleThreadedExecutor | None = None
+        self.create_subscription(QuaternionStamped, "truth/attitude", self._on_truth, RESULT_QOS)
+        self.create_subscription(PointCloud2, "truth/stars", self._on_truth_stars, RESULT_QOS)
+        self.create_subscription(PointCloud2, "spots", self._on_spots, SENSOR_QOS)
+        self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, RESULT_QOS)
+        self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, RESULT_QOS)
+        self.create_subscription(PointCloud2, "matched_stars", self._on_matches, RESULT_QOS)
+        if keep_images:
+            self.create_subscription(Image, "image_raw", self._on_image, SENSOR_QOS)
+
+    def frame(self, stamp) -> FrameRecord:
+        ns = convert.stamp_to_ns(stamp)
+        if ns not in self.frames:
+            self.frames[ns] = FrameRecord(ns)
+        return self.frames[ns]
+
+    def _on_truth(self, msg: QuaternionStamped) -> None:
+        self.frame(msg.header.stamp).truth = quaternion_to_matrix(convert.quaternion_from_msg(msg))
+
+    def _on_truth_stars(self, msg: PointCloud2) -> None:
+        self.frame(msg.header.stamp).truth_stars = convert.cloud_to_records(
+            msg, convert.TRUTH_STAR_FIELDS, convert.TRUTH_STAR_DTYPE).copy()
+
+    def _on_spots(self, msg: PointCloud2) -> None:
+        self.frame(msg.header.stamp).spot_count = int(msg.width) * int(msg.height)
+
+    def _on_attitude(self, msg: QuaternionStamped) -> None:
+        record = self.frame(msg.header.stamp)
+        record.attitude = quaternion_to_matrix(convert.quaternion_from_msg(msg))
+        record.attitude_latency_s = self.get_clock().now().nanoseconds * 1e-9 - record.stamp_ns * 1e-9
+
+    def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        self.frame(msg.header.stamp).covariance = np.asarray(msg.pose.covariance).reshape(6, 6)[3:, 3:]
+
+    def _on_matches(self, msg: PointCloud2) -> None:
+        self.frame(msg.header.stamp).matched = convert.cloud_to_records(msg, convert.MATCH_FIELDS, convert.MATCH_DTYPE).copy()
+
+    def _on_image(self, msg: Image) -> None:
+        record = self.frame(msg.header.stamp)
+        record.image = convert.image_to_array(msg)
+        # Keep only the newest few images in memory.
+        with_images = [ns for ns, r in self.frames.items() if r.image is not None]
+        for ns in sorted(with_images)[:-8]:
+            self.frames[ns].image = None
+
+    def spin_for(self, seconds: float, until=None) -> None:
+        """Process callbacks for `seconds`, or until `until()` is true."""
+        if self._executor is None:
+            self._executor = SingleThreadedExecutor(context=self.context)
+            self._executor.add_node(self)
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and self.context.ok():
+            self._executor.spin_once(timeout_sec=0.05)
+            if until is not None and until():
+                return
+
+    def destroy_node(self) -> None:
+        if self._executor is not None:
+            self._executor.remove_node(self)
+            self._executor.shutdown()
+            self._executor = None
+        super().destroy_node()
+
+
+def summarize(frames: list[FrameRecord]) -> dict:
+    """Identification rate, attitude error statistics [arcsec] and latency [ms]."""
+    with_truth = [f for f in frames if f.truth is not None]
+    errors = np.array([f.error() for f in with_truth if f.attitude is not None]).reshape(-1, 3)
+    arcsec = np.degrees(errors) * 3600.0
+    latency = np.array([f.attitude_latency_s for f in with_truth if f.attitude_latency_s is not None])
+    identified = int(errors.shape[0])
+
+    def pct(values, q):
+        return float(np.percentile(values, q)) if values.size else float("nan")
+
+    return {
+        "frames": len(with_truth),
+        "frames_with_spots": sum(1 for f in with_truth if f.spot_count is not None),
+        "identified": identified,
+        "identification_rate": identified / len(with_truth) if with_truth else 0.0,
+        "wrong_over_60_arcsec": int(np.sum(arcsec[:, 2] > 60.0)) if identified else 0,
+        "cross_boresight_arcsec_median": pct(arcsec[:, 0], 50) if identified else float("nan"),
+        "cross_boresight_arcsec_p95": pct(arcsec[:, 0], 95) if identified else float("nan"),
+        "roll_arcsec_median": pct(arcsec[:, 1], 50) if identified else float("nan"),
+        "roll_arcsec_p95": pct(arcsec[:, 1], 95) if identified else float("nan"),
+        "max_error_arcsec": float(arcsec[:, 2].max()) if identified else float("nan"),
+        "latency_ms_median": pct(latency * 1e3, 50),
+        "latency_ms_max": float(latency.max() * 1e3) if latency.size else float("nan"),
+    }

@@ -1,0 +1,38 @@
+"""Shared fixtures. The star catalog and pattern database are built once per test session
+into a private cache directory, so a run never depends on a developer's ~/.cache."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory):
+    if "STAR_TRACKER_TEST_CACHE" in os.environ:  # opt-in reuse for quick local iterations
+        os.environ["STAR_TRACKER_CACHE"] = os.environ["STAR_TRACKER_TEST_CACHE"]
+    else:
+        os.environ["STAR_TRACKER_CACHE"] = str(tmp_path_factory.mktemp("star_tracker_cache"))
+    yield
+
+
+@pytest.fixture(scope="session")
+def catalog():
+    from star_tracker.catalog import load_hipparcos
+
+    return load_hipparcos()
+
+
+@pytest.fixture(scope="session")
+def database():
+    from star_tracker.identify import DatabaseConfig, load_or_build_database
+
+    return load_or_build_database(DatabaseConfig())
+
+
+@pytest.fixture(scope="session")
+def nominal_camera():
+    from star_tracker.camera import CameraModel
+
+    return CameraModel.from_fov(1024, 1024, np.radians(15.0))

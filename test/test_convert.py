@@ -1,0 +1,92 @@
+"""Message <-> record conversion (real ROS message classes, no ROS graph needed)."""
+import numpy as np
+import pytest
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from star_tracker.attitude import AttitudeSolution, matrix_to_quaternion, radec_roll_to_matrix
+from star_tracker.camera import CameraModel
+from star_tracker.centroid import Spots
+from star_tracker.ros import convert
+
+
+def test_mono16_and_mono8_round_trip():
+    rng = np.random.default_rng(0)
+    for dtype in (np.uint16, np.uint8):
+        array = rng.integers(0, np.iinfo(dtype).max, (7, 5), dtype=dtype)
+        msg = convert.array_to_image(array, 1_700_000_000_123_456_789, "star_tracker_optical")
+        assert msg.encoding == ("mono16" if dtype == np.uint16 else "mono8")
+        assert convert.stamp_to_ns(msg.header.stamp) == 1_700_000_000_123_456_789
+        assert np.array_equal(convert.image_to_array(msg), array)
+
+
+def test_big_endian_and_padded_rows_are_decoded():
+    array = np.arange(12, dtype=np.uint16).reshape(3, 4) * 1000
+    msg = Image(height=3, width=4, encoding="mono16", is_bigendian=1, step=10)
+    padded = np.zeros((3, 10), np.uint8)
+    padded[:, :8] = array.astype(">u2").view(np.uint8).reshape(3, 8)
+    msg.data = padded.tobytes()
+    assert np.array_equal(convert.image_to_array(msg), array)
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(encoding="rgb8"), "unsupported image encoding"),
+    (dict(step=3), "step"),
+    (dict(height=0), "empty image"),
+    (dict(data=b"\x00" * 7), "data size"),
+])
+def test_malformed_images_raise_clear_errors(change, match):
+    msg = Image(height=2, width=2, encoding="mono16", is_bigendian=0, step=4, data=b"\x00" * 8)
+    for key, value in change.items():
+        setattr(msg, key, value)
+    with pytest.raises(ValueError, match=match):
+        convert.image_to_array(msg)
+
+
+def test_camera_info_round_trip_and_validation():
+    camera = CameraModel(1024, 768, 3900.0, 3890.0, 515.3, 380.9, (-0.12, 0.05, 1e-4, -2e-4, 0.01))
+    back = convert.info_to_camera(convert.camera_to_info(camera, 5, "star_tracker_optical"))
+    assert back == camera
+    bad = convert.camera_to_info(camera, 5, "x")
+    bad.k = [float("nan")] * 9
+    with pytest.raises(ValueError, match="K must be 9 finite"):
+        convert.info_to_camera(bad)
+    bad = convert.camera_to_info(camera, 5, "x")
+    bad.k = [0.0] * 9
+    with pytest.raises(ValueError, match="invalid camera model"):
+        convert.info_to_camera(bad)
+    with pytest.raises(ValueError, match="invalid camera model"):
+        convert.info_to_camera(CameraInfo())
+
+
+def test_spots_cloud_round_trip_and_layout():
+    n = 4
+    cov = np.tile(np.array([[0.04, 0.01], [0.01, 0.09]]), (n, 1, 1))
+    spots = Spots(np.arange(n) + 0.25, np.arange(n) + 0.5, np.full(n, 1e4), np.full(n, 80.0), cov,
+                  np.array([0, 1, 2, 3], np.uint32), np.ones(n, np.int32), np.ones(n), 1024, 1024)
+    msg = convert.spots_to_cloud(spots, 42, "star_tracker_optical")
+    assert msg.point_step == 32 and msg.row_step == 32 * n and msg.height == 1 and msg.width == n
+    assert [(f.name, f.offset) for f in msg.fields] == [("x", 0), ("y", 4), ("flux", 8), ("snr", 12), ("cov_xx", 16),
+                                                         ("cov_xy", 20), ("cov_yy", 24), ("flags", 28)]
+    back = convert.cloud_to_spots(msg, 1024, 1024)
+    assert np.allclose(back.x, spots.x) and np.allclose(back.y, spots.y)
+    assert np.allclose(back.cov, spots.cov) and np.array_equal(back.flags, spots.flags)
+
+
+def test_malformed_spot_clouds_raise_clear_errors():
+    msg = PointCloud2(height=1, width=3, point_step=12, data=b"\x00" * 36)
+    with pytest.raises(ValueError, match="unexpected PointCloud2 layout"):
+        convert.cloud_to_spots(msg, 10, 10)
+    good = convert.spots_to_cloud(Spots.empty(10, 10), 1, "f")
+    good.width = 2  # claims two points, carries none
+    with pytest.raises(ValueError, match="bytes, expected"):
+        convert.cloud_to_spots(good, 10, 10)
+
+
+def test_pose_with_covariance_layout():
+    rot = radec_roll_to_matrix(1.0, 0.2, 0.3)
+    cov = np.diag([1e-10, 2e-10, 3e-9])
+    msg = convert.pose_with_covariance_msg(AttitudeSolution(matrix_to_quaternion(rot), rot, cov, 0.0), 7)
+    full = np.asarray(msg.pose.covariance).reshape(6, 6)
+    assert np.allclose(full[3:, 3:], cov)
+    assert np.all(np.diag(full)[:3] == -1.0)  # position unknown
+    assert msg.header.frame_id == "icrs" and convert.stamp_to_ns(msg.header.stamp) == 7

@@ -1,0 +1,94 @@
+"""Renderer and centroider against the simulator's truth."""
+import numpy as np
+import pytest
+
+from star_tracker.attitude import radec_roll_to_matrix
+from star_tracker.centroid import CentroidConfig, extract_spots
+from star_tracker.motion import ConstantRateMotion
+from star_tracker.render import SensorModel, StarFieldRenderer
+
+
+def render(catalog, camera, rate_deg_s=(0.0, 0.0, 0.0), seed=0, sensor=SensorModel(), pointing=(1.4, 0.35, 0.2)):
+    renderer = StarFieldRenderer(camera, sensor, catalog, magnitude_limit=7.5)
+    motion = ConstantRateMotion(radec_roll_to_matrix(*pointing), np.radians(rate_deg_s))
+    return renderer.render(motion.rotations_at, 10.0, motion.body_rate, np.random.default_rng(seed))
+
+
+def match_to_truth(spots, truth, radius=2.0):
+    d = np.hypot(spots.x[:, None] - truth.x[None], spots.y[:, None] - truth.y[None])
+    nearest = d.argmin(axis=1)
+    return nearest, d[np.arange(len(spots)), nearest] < radius
+
+
+def isolated(truth, min_separation=12.0):
+    d = np.hypot(truth.x[:, None] - truth.x[None], truth.y[:, None] - truth.y[None])
+    np.fill_diagonal(d, np.inf)
+    return d.min(axis=1) > min_separation
+
+
+def test_same_seed_same_frame(catalog, nominal_camera):
+    a = render(catalog, nominal_camera, seed=7).image
+    b = render(catalog, nominal_camera, seed=7).image
+    c = render(catalog, nominal_camera, seed=8).image
+    assert a.dtype == np.uint16 and a.shape == (1024, 1024)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+
+
+@pytest.mark.parametrize("rate", [(0.0, 0.0, 0.0), (0.3, 0.4, 0.0)])
+def test_centroids_match_truth_within_their_covariance(catalog, nominal_camera, rate):
+    frame = render(catalog, nominal_camera, rate)
+    spots = extract_spots(frame.image, CentroidConfig())
+    nearest, ok = match_to_truth(spots, frame.truth)
+    alone = isolated(frame.truth)[nearest] & ok & (spots.flags == 0)
+    assert alone.sum() >= 40
+    ex = spots.x[alone] - frame.truth.x[nearest[alone]]
+    ey = spots.y[alone] - frame.truth.y[nearest[alone]]
+    bright = spots.snr[alone] > 50
+    # Mid-exposure position recovered: constant-rate smear is symmetric about mid-exposure.
+    assert np.sqrt(np.mean(ex[bright] ** 2 + ey[bright] ** 2)) < 0.1
+    # The reported covariance describes the actual errors (normalized errors ~ unit variance).
+    normalized = np.concatenate([ex / np.sqrt(spots.cov[alone, 0, 0]), ey / np.sqrt(spots.cov[alone, 1, 1])])
+    assert 0.6 < np.std(normalized) < 1.6
+
+
+def test_detects_the_stars_that_should_be_seen(catalog, nominal_camera):
+    sensor = SensorModel()
+    frame = render(catalog, nominal_camera, sensor=sensor)
+    spots = extract_spots(frame.image, CentroidConfig())
+    truth = frame.truth
+    # Expected SNR of each true star inside ~ a 3-sigma PSF aperture.
+    pixels = np.pi * (3 * sensor.psf_sigma_px) ** 2
+    snr = truth.electrons / np.sqrt(truth.electrons + pixels * (sensor.background_e + sensor.read_noise_e ** 2))
+    inside = (truth.x > 5) & (truth.x < 1018) & (truth.y > 5) & (truth.y < 1018)
+    want = (snr >= 10) & inside & isolated(truth, 6.0)
+    d = np.hypot(truth.x[want][:, None] - spots.x[None], truth.y[want][:, None] - spots.y[None])
+    found = d.min(axis=1) < 1.5
+    assert want.sum() >= 30
+    assert found.mean() >= 0.98
+
+
+def test_photometry_matches_expected_electrons(catalog, nominal_camera):
+    sensor = SensorModel(gain_e_per_adu=2.0)
+    frame = render(catalog, nominal_camera, sensor=sensor)
+    spots = extract_spots(frame.image, CentroidConfig(gain_e_per_adu=2.0))
+    nearest, ok = match_to_truth(spots, frame.truth)
+    use = ok & isolated(frame.truth, 15.0)[nearest] & (spots.snr > 30) & (spots.flags == 0)
+    ratio = spots.flux[use] * sensor.gain_e_per_adu / frame.truth.electrons[nearest[use]]
+    # The footprint captures nearly all of the PSF: flux within a few percent of truth.
+    assert use.sum() >= 10
+    assert 0.85 < np.median(ratio) < 1.02
+
+
+def test_star_free_frame_gives_no_spots(catalog, nominal_camera):
+    sensor = SensorModel(zero_point_e_per_s=1e-6)  # stars far below the noise
+    frame = render(catalog, nominal_camera, sensor=sensor, seed=3)
+    assert len(extract_spots(frame.image, CentroidConfig())) <= 1
+
+
+def test_bad_images_are_rejected_clearly():
+    with pytest.raises(ValueError, match="2-D"):
+        extract_spots(np.zeros((0, 5), np.uint16))
+    with pytest.raises(ValueError, match="2-D"):
+        extract_spots(np.zeros((4, 4, 3), np.uint8))
+    flat = extract_spots(np.full((64, 64), 1000, np.uint16))
+    assert len(flat) == 0
