@@ -19,16 +19,22 @@ def stretch(image: np.ndarray) -> np.ndarray:
 def annotate_frame(image: np.ndarray, pixel_x: np.ndarray, pixel_y: np.ndarray, hip: np.ndarray,
                    title: str = "", spots_xy: np.ndarray | None = None) -> np.ndarray:
     """BGR picture: detected spots as small grey squares, identified stars as green circles
-    labelled with their HIP number, and a title line."""
+    labelled with their HIP number, and a title band above the frame."""
     canvas = cv2.cvtColor(stretch(image), cv2.COLOR_GRAY2BGR)
     if spots_xy is not None:
         for x, y in np.asarray(spots_xy).reshape(-1, 2):
             cv2.rectangle(canvas, (int(x) - 5, int(y) - 5), (int(x) + 5, int(y) + 5), (140, 140, 140), 1)
+    width = canvas.shape[1]
     for x, y, h in zip(pixel_x, pixel_y, hip):
         centre = (int(round(x)), int(round(y)))
+        label = f"HIP {int(h)}"
+        (text_w, _), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+        # Label right of the circle, or left of it near the right edge.
+        text_x = centre[0] + 14 if centre[0] + 14 + text_w < width else centre[0] - 14 - text_w
         cv2.circle(canvas, centre, 12, (60, 220, 60), 1, cv2.LINE_AA)
-        cv2.putText(canvas, f"HIP {int(h)}", (centre[0] + 14, centre[1] - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+        cv2.putText(canvas, label, (text_x, max(centre[1] - 8, 12)), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
                     (60, 220, 60), 1, cv2.LINE_AA)
     if title:
-        cv2.putText(canvas, title, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+        canvas = cv2.copyMakeBorder(canvas, 34, 0, 0, 0, cv2.BORDER_CONSTANT, value=(0, 0, 0))
+        cv2.putText(canvas, title, (10, 23), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
     return canvas

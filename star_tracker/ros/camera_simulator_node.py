@@ -87,38 +87,42 @@ class CameraSimulatorNode(Node):
         self.pub_truth_rate = self.create_publisher(Vector3Stamped, "truth/angular_velocity", RESULT_QOS)
         self.pub_truth_stars = self.create_publisher(PointCloud2, "truth/stars", RESULT_QOS)
         self.diag = Diagnostics(self)
-        self.timer = self.create_timer(1.0 / self.rate_hz, self.on_timer)
-        if not self.wait_for_subscribers:
+        self.timer = None
+        if self.wait_for_subscribers:
+            self.waiting_timer = self.create_timer(0.05, self.start_when_subscribed)
+        else:
             self.start()
         self.get_logger().info(
             f"{width}x{height} px, FOV {fov_x_deg:.2f} deg, {self.rate_hz:g} Hz, exposure {sensor.exposure_s * 1e3:g} ms, "
             f"{len(self.renderer.catalog)} stars to Hp {magnitude_limit}, body rate {np.degrees(rate)} deg/s")
 
     def start(self) -> None:
-        """Fix the time origin: the motion starts now, the first exposure after start_delay_s."""
+        """Fix the time origin and start the frame timer. Its ticks fall at now + n*period and
+        are never early, so exposures end 1 ms before a tick: the frame is rendered right
+        after its exposure, and a late tick only delays it."""
         now_ns = self.get_clock().now().nanoseconds
-        # Called at init or from a timer tick: ticks fall at now + n*period. Exposures end half a
-        # period before a tick, so timer jitter below period/2 never looks like a missed frame.
         delay_ticks = int(np.ceil(self.start_delay_s * 1e9 / self.period_ns))
-        self.t0_ns = now_ns + delay_ticks * self.period_ns - self.period_ns // 2
+        self.t0_ns = now_ns + delay_ticks * self.period_ns - 1_000_000
         self.motion = ConstantRateMotion(self.initial_rotation, self.body_rate, t0=self.t0_ns * 1e-9)
+        self.timer = self.create_timer(self.period_ns * 1e-9, self.on_timer)
+
+    def start_when_subscribed(self) -> None:
+        publishers = (self.pub_image, self.pub_info, self.pub_truth)
+        if all(pub.get_subscription_count() > 0 for pub in publishers):
+            self.destroy_timer(self.waiting_timer)
+            self.get_logger().info("subscribers connected; starting exposures")
+            self.start()
+        else:
+            self.diag.set(DiagnosticStatus.OK, "waiting for subscribers")
 
     def on_timer(self) -> None:
-        if self.t0_ns is None:
-            publishers = (self.pub_image, self.pub_info, self.pub_truth)
-            if all(pub.get_subscription_count() > 0 for pub in publishers):
-                self.get_logger().info("subscribers connected; starting exposures")
-                self.start()
-            else:
-                self.diag.set(DiagnosticStatus.OK, "waiting for subscribers")
-            return
         if self.max_frames and self.frame_index >= self.max_frames:
             if self.frame_index == self.max_frames:
                 self.get_logger().info(f"published {self.max_frames} frames; idle")
                 self.diag.set(DiagnosticStatus.OK, "finished", frames=self.frame_index)
                 self.frame_index += 1
             return
-        # Frame k's exposure ends at its nominal tick t0 + (k+1) T_frame; its stamp is mid-exposure.
+        # Frame k's exposure ends at t0 + (k+1) period; its stamp is mid-exposure.
         now_ns = self.get_clock().now().nanoseconds
         due = (now_ns - self.t0_ns) // self.period_ns  # frames whose exposure has ended
         if due < self.frame_index + 1:

@@ -1,0 +1,46 @@
+"""The star-tracker command line, run for real."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import cv2
+import pytest
+
+CLI = [sys.executable, "-m", "star_tracker.cli"]
+
+
+def run(args, timeout=180):
+    return subprocess.run(CLI + args, capture_output=True, text=True, timeout=timeout)
+
+
+def test_help_lists_every_subcommand_and_option():
+    top = run(["--help"])
+    assert top.returncode == 0 and "demo" in top.stdout
+    demo = run(["demo", "--help"])
+    assert demo.returncode == 0
+    for option in ("--scenario", "--duration", "--rate", "--output", "default", "rest", "fast"):
+        assert option in demo.stdout
+
+
+def test_bad_arguments_give_a_clear_error():
+    result = run(["demo", "--duration", "-1"])
+    assert result.returncode == 2 and "--duration and --rate must be > 0" in result.stderr
+    result = run(["demo", "--scenario", "nowhere"])
+    assert result.returncode == 2 and "invalid choice" in result.stderr
+
+
+@pytest.mark.integration
+def test_demo_runs_the_nodes_and_writes_its_outputs(tmp_path):
+    result = run(["demo", "--duration", "4", "--output", str(tmp_path)])
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = [line for line in result.stdout.splitlines() if line.strip()[:1].isdigit()]
+    assert len(lines) == 40  # one status line per frame
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["frames"] == 40
+    assert summary["identification_rate"] >= 0.9 and summary["wrong_over_60_arcsec"] == 0
+    assert summary["node_exit_codes"] == {"camera_simulator": 0, "centroider": 0, "identifier": 0}
+    picture = cv2.imread(str(tmp_path / "frame.png"))
+    assert picture is not None and picture.shape[1] == 1024 and picture.shape[0] > 1024
+    assert "summary:" in result.stdout
