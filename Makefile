@@ -24,3 +24,9 @@ test: $(STAMP)
 
 clean:
 	rm -rf build install log demo_output .pytest_cache
+
+# Render-time benchmark (writes its section of docs/BENCHMARKS.md) and the simulator figures.
+.PHONY: bench
+bench: $(STAMP)
+	$(PY) -m bench.bench_render --output docs/BENCHMARKS.md
+	$(PY) -m bench.simulator_figures

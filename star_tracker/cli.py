@@ -13,9 +13,15 @@ import numpy as np
 
 SCENARIOS = {
     # camera_simulator parameter overrides; everything else is the default configuration.
-    "default": {"attitude.body_rate_deg_s": [0.3, 0.4, 0.05]},
-    "rest": {"attitude.body_rate_deg_s": [0.0, 0.0, 0.0]},
-    "fast": {"attitude.body_rate_deg_s": [1.2, 0.9, 0.2]},
+    "default": {"attitude.profile": "constant_rate", "attitude.body_rate_deg_s": [0.3, 0.4, 0.05]},
+    "rest": {"attitude.profile": "fixed"},
+    "fast": {"attitude.profile": "constant_rate", "attitude.body_rate_deg_s": [1.2, 0.9, 0.2]},
+    "slew": {"attitude.profile": "slew", "attitude.slew.axis": [0.6, 0.8, 0.0], "attitude.slew.angle_deg": 20.0,
+             "attitude.slew.max_rate_deg_s": 2.0, "attitude.slew.accel_deg_s2": 0.5, "attitude.slew.start_s": 3.0},
+    "tumble": {"attitude.profile": "tumble", "attitude.tumble.initial_rate_deg_s": [0.4, 0.2, 1.0],
+               "attitude.tumble.inertia_kg_m2": [10.0, 12.0, 8.0]},
+    "jitter": {"attitude.profile": "jitter", "attitude.body_rate_deg_s": [0.1, 0.0, 0.0],
+               "attitude.jitter.amplitudes_rad": [5e-5, 5e-5, 2e-5], "attitude.jitter.frequencies_hz": [3.0]},
 }
 
 
@@ -149,7 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
                                       "stars, attitude error vs truth, latency), then a summary; write "
                                       "OUTPUT/frame.png, summary.json and frames.csv.")
     demo.add_argument("--scenario", choices=sorted(SCENARIOS), default="default",
-                      help="attitude motion: default = 0.5 deg/s cross-boresight + slow roll; rest; fast ~1.5 deg/s")
+                      help="attitude motion: default = 0.5 deg/s cross-boresight + slow roll; rest; fast ~1.5 deg/s; "
+                           "slew = 20 deg at up to 2 deg/s from t = 3 s; tumble = torque-free tumble ~1.1 deg/s; "
+                           "jitter = 0.1 deg/s + 10\" sinusoidal jitter at 3 Hz")
     demo.add_argument("--duration", type=float, default=30.0, help="seconds of frames to simulate (default 30)")
     demo.add_argument("--rate", type=float, default=10.0, help="frame rate [Hz] (default 10)")
     demo.add_argument("--output", default="demo_output", help="output directory (default demo_output)")

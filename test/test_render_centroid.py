@@ -5,13 +5,13 @@ import pytest
 from star_tracker.attitude import radec_roll_to_matrix
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.motion import ConstantRateMotion
-from star_tracker.render import SensorModel, StarFieldRenderer
+from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
 
 
 def render(catalog, camera, rate_deg_s=(0.0, 0.0, 0.0), seed=0, sensor=SensorModel(), pointing=(1.4, 0.35, 0.2)):
     renderer = StarFieldRenderer(camera, sensor, catalog, magnitude_limit=7.5)
     motion = ConstantRateMotion(radec_roll_to_matrix(*pointing), np.radians(rate_deg_s))
-    return renderer.render(motion.rotations_at, 10.0, motion.body_rate, np.random.default_rng(seed))
+    return renderer.render(motion, 10.0, frame_seed(0, seed))
 
 
 def match_to_truth(spots, truth, radius=2.0):
@@ -58,7 +58,8 @@ def test_detects_the_stars_that_should_be_seen(catalog, nominal_camera):
     truth = frame.truth
     # Expected SNR of each true star inside ~ a 3-sigma PSF aperture.
     pixels = np.pi * (3 * sensor.psf_sigma_px) ** 2
-    snr = truth.electrons / np.sqrt(truth.electrons + pixels * (sensor.background_e + sensor.read_noise_e ** 2))
+    background_e = (sensor.background_e_per_px_s + sensor.dark_e_per_px_s) * sensor.exposure_s
+    snr = truth.electrons / np.sqrt(truth.electrons + pixels * (background_e + sensor.read_noise_e ** 2))
     inside = (truth.x > 5) & (truth.x < 1018) & (truth.y > 5) & (truth.y < 1018)
     want = (snr >= 10) & inside & isolated(truth, 6.0)
     d = np.hypot(truth.x[want][:, None] - spots.x[None], truth.y[want][:, None] - spots.y[None])
@@ -80,7 +81,7 @@ def test_photometry_matches_expected_electrons(catalog, nominal_camera):
 
 
 def test_star_free_frame_gives_no_spots(catalog, nominal_camera):
-    sensor = SensorModel(zero_point_e_per_s=1e-6)  # stars far below the noise
+    sensor = SensorModel(photon_flux_hp0=1e-3)  # stars far below the noise
     frame = render(catalog, nominal_camera, sensor=sensor, seed=3)
     assert len(extract_spots(frame.image, CentroidConfig())) <= 1
 

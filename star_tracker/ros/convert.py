@@ -123,9 +123,9 @@ MATCH_FIELDS, MATCH_DTYPE = _fields([
     ("hip_id", PointField.UINT32), ("pixel_x", PointField.FLOAT32), ("pixel_y", PointField.FLOAT32),
     ("residual", PointField.FLOAT32), ("magnitude", PointField.FLOAT32)])
 
-TRUTH_STAR_FIELDS, TRUTH_STAR_DTYPE = _fields([
+TRUTH_OBJECT_FIELDS, TRUTH_OBJECT_DTYPE = _fields([
     ("hip_id", PointField.UINT32), ("pixel_x", PointField.FLOAT32), ("pixel_y", PointField.FLOAT32),
-    ("electrons", PointField.FLOAT32)])
+    ("electrons", PointField.FLOAT32), ("kind", PointField.UINT32)])
 
 
 def records_to_cloud(records: np.ndarray, fields: list[PointField], stamp_ns: int, frame_id: str) -> PointCloud2:

@@ -133,7 +133,7 @@ class FrameRecord:
     covariance: np.ndarray | None = None
     attitude_latency_s: float | None = None
     matched: np.ndarray | None = None  # MATCH_DTYPE records
-    truth_stars: np.ndarray | None = None  # TRUTH_STAR_DTYPE records
+    truth_objects: np.ndarray | None = None  # TRUTH_OBJECT_DTYPE records
     image: np.ndarray | None = None
 
     def error(self) -> tuple[float, float, float] | None:
@@ -152,7 +152,7 @@ class TrackerMonitor(Node):
         self.keep_images = keep_images
         self._executor: SingleThreadedExecutor | None = None
         self.create_subscription(QuaternionStamped, "truth/attitude", self._on_truth, RESULT_QOS)
-        self.create_subscription(PointCloud2, "truth/stars", self._on_truth_stars, RESULT_QOS)
+        self.create_subscription(PointCloud2, "truth/objects", self._on_truth_objects, RESULT_QOS)
         self.create_subscription(PointCloud2, "spots", self._on_spots, SENSOR_QOS)
         self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, RESULT_QOS)
         self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, RESULT_QOS)
@@ -169,9 +169,9 @@ class TrackerMonitor(Node):
     def _on_truth(self, msg: QuaternionStamped) -> None:
         self.frame(msg.header.stamp).truth = quaternion_to_matrix(convert.quaternion_from_msg(msg))
 
-    def _on_truth_stars(self, msg: PointCloud2) -> None:
-        self.frame(msg.header.stamp).truth_stars = convert.cloud_to_records(
-            msg, convert.TRUTH_STAR_FIELDS, convert.TRUTH_STAR_DTYPE).copy()
+    def _on_truth_objects(self, msg: PointCloud2) -> None:
+        self.frame(msg.header.stamp).truth_objects = convert.cloud_to_records(
+            msg, convert.TRUTH_OBJECT_FIELDS, convert.TRUTH_OBJECT_DTYPE).copy()
 
     def _on_spots(self, msg: PointCloud2) -> None:
         self.frame(msg.header.stamp).spot_count = int(msg.width) * int(msg.height)
