@@ -62,7 +62,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import rclpy
 
     rclpy.init(args=[])
-    monitor = TrackerMonitor(keep_images=True, name="star_tracker_demo_monitor")
+    monitor = TrackerMonitor(name="star_tracker_demo_monitor")
     nodes = NodeProcesses(env, out / "logs", params, default_params_file())
     printed: set[int] = set()
     index = 0
@@ -71,9 +71,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
         nodes.wait_ready()
         print(f"nodes running (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, logs in {out / 'logs'})", flush=True)
         print(f"{'frame':>5}  {'stamp [s]':>16}  {'spots':>5}  {'ident':>5}  {'cross-bore':>10}  {'roll':>8}  {'latency':>8}")
-        end = time.monotonic() + args.duration + 8.0
+        started_frames = time.monotonic()
+        end = started_frames + args.duration + 8.0
         while time.monotonic() < end:
             monitor.spin_for(0.2)
+            if time.monotonic() > started_frames + args.duration - 2.0:
+                monitor.enable_images()  # for the picture: only the last frames are needed
             now = time.monotonic()
             ready = sorted(ns for ns, f in monitor.frames.items() if ns not in printed and f.truth is not None
                            and (f.attitude is not None and f.matched is not None or now - f.first_seen > 1.5))

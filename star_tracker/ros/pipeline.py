@@ -157,8 +157,14 @@ class TrackerMonitor(Node):
         self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, RESULT_QOS)
         self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, RESULT_QOS)
         self.create_subscription(PointCloud2, "matched_stars", self._on_matches, RESULT_QOS)
+        self._image_subscription = None
         if keep_images:
-            self.create_subscription(Image, "image_raw", self._on_image, SENSOR_QOS)
+            self.enable_images()
+
+    def enable_images(self) -> None:
+        """Start keeping images (each costs a 2 MiB copy: subscribe only when one is needed)."""
+        if self._image_subscription is None:
+            self._image_subscription = self.create_subscription(Image, "image_raw", self._on_image, SENSOR_QOS)
 
     def frame(self, stamp) -> FrameRecord:
         ns = convert.stamp_to_ns(stamp)
