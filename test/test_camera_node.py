@@ -109,3 +109,25 @@ def test_slew_profile_truth_is_consistent(driver, tmp_path):
     kinds = np.concatenate([convert.cloud_to_records(m, convert.TRUTH_OBJECT_FIELDS, convert.TRUTH_OBJECT_DTYPE)["kind"]
                             for m in received["objects"]])
     assert np.sum(kinds == 2) >= frames // 2
+
+
+@pytest.mark.integration
+def test_cmos_camera_profile_loads_over_the_defaults(driver, tmp_path):
+    from pathlib import Path
+
+    env, node, received, spin = driver
+    config = Path(__file__).resolve().parents[1] / "config"
+    infos = []
+    node.create_subscription(CameraInfo, "camera_info", infos.append, SENSOR_QOS)
+    cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": {"max_frames": 3, "wait_for_subscribers": True}},
+                        [config / "star_tracker.yaml", config / "camera_cmos_rolling_shutter.yaml"],
+                        nodes=("camera_simulator",))
+    try:
+        cam.start()
+        cam.wait_ready()
+        spin(30.0, until=lambda: len(infos) >= 2)
+    finally:
+        codes = cam.stop()
+    assert codes == {"camera_simulator": 0}
+    assert infos and infos[-1].width == 2048 and infos[-1].height == 2048
+    assert list(infos[-1].d)[:2] == [-0.05, 0.01]

@@ -274,3 +274,36 @@ def test_cosmic_ray_count_follows_the_rate(catalog, nominal_camera, rate):
               for k in range(20)]
     expected = rate * (1024 * 13e-4) ** 2 * sensor.exposure_s
     assert abs(np.mean(counts) - expected) <= 4 * np.sqrt(max(expected, 1e-9) / 20) + 1e-9
+
+
+def test_background_vignetting_gradient_dark_and_adc_levels(nominal_camera, catalog):
+    """Star-free, noise-free frames: every static term at the level its formula gives."""
+    cam = nominal_camera
+    base = dict(noise=False, read_noise_e=0.0, background_e_per_px_s=4000.0, dark_e_per_px_s=100.0,
+                gain_e_per_adu=0.25, bias_adu=200.0)
+
+    def level(**changes):
+        sensor = SensorModel(**{**base, **changes})
+        frame = StarFieldRenderer(cam, sensor, catalog, magnitude_limit=-5.0).render(
+            ConstantRateMotion(POINTING, np.zeros(3)), 1.0, 0)
+        return (frame.image.astype(float) - sensor.bias_adu) * sensor.gain_e_per_adu  # electrons
+
+    t = 0.1
+    flat = level()
+    assert np.allclose(flat, (4000.0 + 100.0) * t, atol=0.13)  # within ADC rounding (0.125 e-)
+    # Vignetting: 1 - a r^2 / r_corner^2 on the sky light only (dark current is not light).
+    vignetted = level(vignetting_at_corner=0.2)
+    assert vignetted[0, 0] == pytest.approx(4000.0 * t * (1 - 0.2 * 2 * 511.5 ** 2 / (2 * 512.0 ** 2)) + 100.0 * t, abs=0.13)
+    assert vignetted[512, 512] == pytest.approx(flat[512, 512], abs=0.13)
+    # Stray-light gradient: linear in x and y about the image centre.
+    graded = level(stray_light_gradient_e_per_px2_s=(2.0, -1.0))
+    assert graded[300, 1000] - graded[300, 100] == pytest.approx(2.0 * 900 * t, abs=0.3)
+    assert graded[1000, 400] - graded[100, 400] == pytest.approx(-1.0 * 900 * t, abs=0.3)
+    # Dark current doubles every dark_doubling_k kelvin.
+    warm = level(temperature_k=293.15 + 12.0)
+    assert np.mean(warm - flat) == pytest.approx(100.0 * t * (2 ** 2 - 1), abs=0.05)
+    # A 12-bit ADC saturates at 4095 ADU.
+    sensor = SensorModel(noise=False, background_e_per_px_s=1e6, adc_bits=12, full_well_e=1e6)
+    image = StarFieldRenderer(cam, sensor, catalog, magnitude_limit=-5.0).render(
+        ConstantRateMotion(POINTING, np.zeros(3)), 1.0, 0).image
+    assert image.max() == 4095 and np.all(image == 4095)

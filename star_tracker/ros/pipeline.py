@@ -61,10 +61,12 @@ class NodeProcesses:
     """The three nodes as child processes (own process groups), logs in `log_dir`."""
 
     def __init__(self, env: dict[str, str], log_dir: Path, params: dict[str, dict] | None = None,
-                 params_file: Path | None = None, nodes: tuple[str, ...] = tuple(NODE_MODULES)):
+                 params_files: Path | list[Path] | None = None, nodes: tuple[str, ...] = tuple(NODE_MODULES)):
+        """params_files: ros2 parameter files, later ones overriding earlier ones; `params`
+        (per node name) override both."""
         self.env, self.log_dir = env, Path(log_dir)
         self.params = params or {}
-        self.params_file = params_file
+        self.params_files = [params_files] if isinstance(params_files, (str, Path)) else list(params_files or [])
         self.nodes = nodes
         self.processes: dict[str, subprocess.Popen] = {}
         self._logs = {}
@@ -73,8 +75,8 @@ class NodeProcesses:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         for name in self.nodes:
             cmd = [sys.executable, "-m", NODE_MODULES[name], "--ros-args"]
-            if self.params_file:
-                cmd += ["--params-file", str(self.params_file)]
+            for path in self.params_files:
+                cmd += ["--params-file", str(path)]
             cmd += parameter_arguments(self.params.get(name, {}))
             log = open(self.log_dir / f"{name}.log", "w")
             self._logs[name] = log
