@@ -30,6 +30,12 @@ class CentroiderNode(Node):
             gain_e_per_adu=p("gain_e_per_adu", 1.0, "sensor gain for the shot-noise term [e-/ADU]", 1e-3, 1e4),
             saturation_adu=p("saturation_adu", 0.0, "saturation level [ADU]; 0 = dtype maximum", 0.0, 1e9),
             max_spots=p("max_spots", 500, "most spots reported per frame (brightest)", 1, 100000),
+            psf_sigma_px=p("psf_sigma_px", 1.0, "expected PSF 1-sigma for the shape test; 0 = no shape test [px]", 0.0, 50.0),
+            max_peak_fraction=p("max_peak_fraction", 0.5, "reject a spot whose brightest pixel holds more of its flux "
+                                                           "(hot pixels) [-]", 0.01, 1.0),
+            min_width_fraction=p("min_width_fraction", 0.6, "reject a spot narrower than this x psf_sigma_px^2 "
+                                                             "(cosmic rays) [-]", 0.0, 1.0),
+            shape_min_snr=p("shape_min_snr", 10.0, "smallest SNR for the width test", 0.0, 1e6),
         )
         self.pub = self.create_publisher(PointCloud2, "spots", SENSOR_QOS)
         self.sub = self.create_subscription(Image, "image_raw", self.on_image, SENSOR_QOS)
@@ -51,6 +57,7 @@ class CentroiderNode(Node):
         out.header = msg.header  # unchanged stamp and frame
         self.pub.publish(out)
         self.diag.count("frames_processed")
+        self.diag.count("spots_rejected_shape", spots.rejected_shape)
         self.diag.set(DiagnosticStatus.OK, "ok", last_spot_count=len(spots),
                       last_processing_ms=f"{(time.perf_counter() - started) * 1e3:.2f}",
                       last_noise_adu=f"{spots.noise_adu:.2f}")

@@ -1,0 +1,274 @@
+"""Centroiding benchmark: accuracy against the Cramér-Rao bound, completeness and purity,
+and speed (with peers when installed: requirements-bench.txt).
+
+    python -m bench.bench_centroid [--quick] [--output docs/BENCHMARKS.md]
+
+Scenes: a grid of stars of one flux (random sub-pixel phases), rendered by the simulator
+with its full noise model; smear from a body rate about the sensor x axis (streaks along the
+image y axis). SNR = F / sqrt(F + N_eff (B + r^2)), N_eff = 4 pi sigma^2 (the optimal-aperture
+SNR of a Gaussian PSF); F star electrons, B static level per pixel, r read noise.
+
+The Cramér-Rao bound is computed independently of the renderer's code from the same model:
+mu_i(x0, y0) = F/K sum_k PSF integrated over pixel i at the k-th point of the streak,
+var_i = mu_i + B + r^2 (+ quantization g^2/12), I = sum_i grad(mu_i) grad(mu_i)^T / var_i,
+CRB = I^-1 (flux and background known; for a symmetric PSF position decouples from them).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.special import erf
+
+from star_tracker.attitude import radec_roll_to_matrix
+from star_tracker.camera import CameraModel
+from star_tracker.catalog import StarCatalog, unit_to_radec
+from star_tracker.centroid import CentroidConfig, extract_spots
+from star_tracker.motion import ConstantRateMotion
+from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
+
+CAMERA = CameraModel.from_fov(1024, 1024, np.radians(15.0))
+POINTING = radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.0)
+EXPOSURE = 0.1
+
+
+def grid_scene(sensor: SensorModel, flux_e: float, rng: np.random.Generator, spacing: int = 110):
+    """A catalog of stars on a pixel grid (random sub-pixel phase) of flux `flux_e` [e-]."""
+    cols, rows = np.meshgrid(np.arange(80, 1024 - 80, spacing), np.arange(80, 1024 - 80, spacing))
+    x = cols.ravel() + rng.uniform(-0.5, 0.5, cols.size)
+    y = rows.ravel() + rng.uniform(-0.5, 0.5, rows.size)
+    ra, dec = unit_to_radec(CAMERA.pixel_to_ray(x, y) @ POINTING.T)
+    hp = -2.5 * np.log10(flux_e / (sensor.zero_point_e_per_s * sensor.exposure_s))
+    n = x.size
+    return StarCatalog(hip=np.arange(1, n + 1, dtype=np.int32), ra=ra, dec=dec, pm_ra=np.zeros(n), pm_dec=np.zeros(n),
+                       hp=np.full(n, hp), b_v=np.zeros(n), epoch_jyear=2026.0)
+
+
+def expected_counts(x0, y0, flux, sigma, smear_px, half=8, steps=64):
+    """Pixel-integrated, smeared Gaussian around (x0, y0): (mu window, origin col, origin row)."""
+    c0, r0 = int(np.floor(x0)) - half, int(np.floor(y0 - smear_px / 2)) - half
+    cols = np.arange(c0, c0 + 2 * half + 2)
+    rows = np.arange(r0, r0 + 2 * half + int(np.ceil(smear_px)) + 2)
+    yk = y0 + ((np.arange(steps) + 0.5) / steps - 0.5) * smear_px
+    s = 1.0 / (np.sqrt(2.0) * sigma)
+    px = 0.5 * (erf((cols + 0.5 - x0) * s) - erf((cols - 0.5 - x0) * s))  # (C,)
+    py = 0.5 * (erf((rows[None, :] + 0.5 - yk[:, None]) * s) - erf((rows[None, :] - 0.5 - yk[:, None]) * s))  # (K, R)
+    return flux * np.outer(py.mean(axis=0), px)
+
+
+def cramer_rao(flux, sigma, smear_px, static_e, read_e, gain, rng, phases=24):
+    """Mean over sub-pixel phases of the CRB of (x, y) [px^2] for one star."""
+    var_x, var_y = [], []
+    h = 1e-4
+    for _ in range(phases):
+        x0, y0 = 100.0 + rng.uniform(-0.5, 0.5), 100.0 + rng.uniform(-0.5, 0.5)
+        mu = expected_counts(x0, y0, flux, sigma, smear_px)
+        dx = (expected_counts(x0 + h, y0, flux, sigma, smear_px) - expected_counts(x0 - h, y0, flux, sigma, smear_px)) / (2 * h)
+        dy = (expected_counts(x0, y0 + h, flux, sigma, smear_px) - expected_counts(x0, y0 - h, flux, sigma, smear_px)) / (2 * h)
+        var = mu + static_e + read_e ** 2 + gain ** 2 / 12.0
+        info = np.array([[np.sum(dx * dx / var), np.sum(dx * dy / var)], [np.sum(dx * dy / var), np.sum(dy * dy / var)]])
+        crb = np.linalg.inv(info)
+        var_x.append(crb[0, 0])
+        var_y.append(crb[1, 1])
+    return float(np.mean(var_x)), float(np.mean(var_y))
+
+
+def flux_for_snr(snr, sensor: SensorModel):
+    """Solve SNR = F / sqrt(F + N_eff (B + r^2)) for F."""
+    noise = 4 * np.pi * sensor.psf_sigma_px ** 2 * (static_level(sensor) + sensor.read_noise_e ** 2)
+    return 0.5 * (snr ** 2 + np.sqrt(snr ** 4 + 4 * snr ** 2 * noise))
+
+
+def static_level(sensor: SensorModel) -> float:
+    return (sensor.background_e_per_px_s + sensor.dark_e_per_px_s_at_temperature) * sensor.exposure_s
+
+
+def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig()):
+    """RMS 2-D error [px] of our centroids vs truth, detection rate, and sqrt(CRB_x + CRB_y)."""
+    flux = flux_for_snr(snr, sensor)
+    rate = smear_px / (EXPOSURE * CAMERA.fy)
+    errors, found, total = [], 0, 0
+    for k in range(frames):
+        catalog = grid_scene(sensor, flux, rng)
+        renderer = StarFieldRenderer(CAMERA, sensor, catalog, magnitude_limit=30.0)
+        frame = renderer.render(ConstantRateMotion(POINTING, np.array([rate, 0.0, 0.0])), 1.0, frame_seed(int(snr * 10 + smear_px), k))
+        spots = extract_spots(frame.image, config)
+        t = frame.truth
+        # Score stars whose whole streak lies inside the image (truth also lists off-chip stars
+        # whose light reaches the edge; their visible part is not a mid-exposure position).
+        margin = 5.0 + smear_px / 2
+        stars = (t.kind == 0) & (t.x > margin) & (t.x < CAMERA.width - 1 - margin) \
+            & (t.y > margin) & (t.y < CAMERA.height - 1 - margin)
+        tx, ty = t.x[stars], t.y[stars]
+        total += tx.size
+        if len(spots):
+            d = np.hypot(tx[:, None] - spots.x[None], ty[:, None] - spots.y[None])
+            nearest = d.argmin(axis=1)
+            hit = d[np.arange(tx.size), nearest] < 3.0 + smear_px / 2
+            found += int(hit.sum())
+            errors.extend((spots.x[nearest[hit]] - tx[hit]) ** 2 + (spots.y[nearest[hit]] - ty[hit]) ** 2)
+    crb_x, crb_y = cramer_rao(flux, sensor.psf_sigma_px, smear_px, static_level(sensor), sensor.read_noise_e,
+                              sensor.gain_e_per_adu, rng)
+    rms = float(np.sqrt(np.mean(errors))) if errors else float("nan")
+    return {"snr": snr, "smear_px": smear_px, "flux_e": flux, "rms_px": rms, "crb_px": float(np.sqrt(crb_x + crb_y)),
+            "ratio": rms / np.sqrt(crb_x + crb_y) if errors else float("nan"), "detected": found / max(total, 1),
+            "stars": total}
+
+
+def false_detections(frames, rng):
+    """Detections per star-free frame with every detector effect of the node defaults on."""
+    sensor = SensorModel(dsnu_fraction=0.1, prnu_fraction=0.01, hot_pixel_fraction=2e-5, cosmic_ray_rate_per_cm2_s=5.0,
+                         vignetting_at_corner=0.1)
+    empty = StarCatalog(*(np.zeros(0) for _ in range(7)))
+    counts = []
+    for k in range(frames):
+        renderer = StarFieldRenderer(CAMERA, sensor, empty, fixed_pattern_seed=k)
+        frame = renderer.render(ConstantRateMotion(POINTING, np.zeros(3)), 1.0, frame_seed(77, k))
+        counts.append(len(extract_spots(frame.image, CentroidConfig(saturation_adu=60000.0))))
+    return float(np.mean(counts)), int(np.max(counts))
+
+
+def speed(frames, rng):
+    """Median time [ms] of centroid extraction on a 1024^2 frame with ~50 stars (and peers)."""
+    sensor = SensorModel(dsnu_fraction=0.1, prnu_fraction=0.01, hot_pixel_fraction=2e-5, cosmic_ray_rate_per_cm2_s=5.0,
+                         vignetting_at_corner=0.1)
+    from star_tracker.catalog import load_hipparcos
+
+    renderer = StarFieldRenderer(CAMERA, sensor, load_hipparcos().at_epoch(2026.0), magnitude_limit=6.3)
+    images = [renderer.render(ConstantRateMotion(POINTING, np.zeros(3)), 1.0, frame_seed(5, k)) for k in range(frames)]
+    methods = {"star_tracker": lambda im: extract_spots(im, CentroidConfig(saturation_adu=60000.0))}
+    try:
+        from bench import peers
+
+        for name, fn in (("tetra3rs", "tetra3rs_centroids"), ("cedar-solve", "cedar_centroids")):
+            if peers.available().get(name) is None:
+                methods[name] = getattr(peers, fn)
+    except ImportError:
+        pass
+    results = {}
+    for name, fn in methods.items():
+        fn(images[0].image)  # warm-up
+        times, errors, counts = [], [], []
+        for frame in images:
+            t0 = time.perf_counter()
+            out = fn(frame.image)
+            times.append(time.perf_counter() - t0)
+            xy = np.column_stack([out.x, out.y]) if hasattr(out, "x") else np.asarray(out).reshape(-1, 2)
+            t = frame.truth
+            stars = (t.kind == 0) & (t.x > 3) & (t.x < 1020) & (t.y > 3) & (t.y < 1020)
+            d = np.hypot(t.x[stars][:, None] - xy[None, :, 0], t.y[stars][:, None] - xy[None, :, 1]) if len(xy) else None
+            if d is not None:
+                hit = d.min(axis=1) < 2.0
+                counts.append(hit.mean())
+                errors.extend(d.min(axis=1)[hit] ** 2)
+        results[name] = {"median_ms": 1e3 * float(np.median(times)), "p95_ms": 1e3 * float(np.percentile(times, 95)),
+                         "rms_px": float(np.sqrt(np.mean(errors))) if errors else float("nan"),
+                         "detected": float(np.mean(counts)) if counts else 0.0,
+                         "stars": int(np.sum((images[0].truth.kind == 0)))}
+    return results
+
+
+def plot(rows, path: Path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    for smear in sorted({r["smear_px"] for r in rows}):
+        pts = [r for r in rows if r["smear_px"] == smear]
+        ax.semilogx([r["snr"] for r in pts], [r["ratio"] for r in pts], "o-", label=f"smear {smear:g} px")
+    ax.axhline(1.2, color="k", ls="--", lw=0.8, label="goal 1.2x (no smear)")
+    ax.axhline(1.5, color="grey", ls=":", lw=0.8, label="goal 1.5x (20 px smear)")
+    ax.set_xlabel("SNR")
+    ax.set_ylabel("RMS position error / sqrt(CRB)")
+    ax.set_title("star_tracker centroider (centre of gravity) vs the Cramér-Rao bound")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def write_section(path: Path, text: str, header="## Centroiding") -> None:
+    body = path.read_text() if path.exists() else "# Benchmarks\n"
+    if header in body:
+        start = body.index(header)
+        nxt = body.find("\n## ", start + len(header))
+        body = body[:start] + text + (body[nxt + 1:] if nxt >= 0 else "")
+    else:
+        body = body.rstrip("\n") + "\n\n" + text
+    path.write_text(body)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer points and frames (smoke run)")
+    parser.add_argument("--output", type=Path, help="write the '## Centroiding' section of this Markdown file")
+    args = parser.parse_args(argv)
+    rng = np.random.default_rng(2026)
+    sensor = SensorModel(full_well_e=1e8)  # no saturation: the CRB model has none (SNR 1000 = 1e6 e-)
+    snrs = [5, 20, 100, 1000] if args.quick else [5, 10, 20, 50, 100, 300, 1000]
+    smears = [0, 20] if args.quick else [0, 10, 20, 40]
+    frames = 1 if args.quick else 3
+    started = time.perf_counter()
+    rows = [measure_accuracy(snr, smear, frames, sensor, rng) for smear in smears for snr in snrs]
+    fp_mean, fp_max = false_detections(3 if args.quick else 10, rng)
+    timing = speed(5 if args.quick else 30, rng)
+    elapsed = time.perf_counter() - started
+
+    lines = ["| smear px | SNR | flux e- | RMS error px | sqrt(CRB) px | ratio | detected |", "|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['smear_px']:g} | {r['snr']:g} | {r['flux_e']:.0f} | {r['rms_px']:.4f} | {r['crb_px']:.4f} | "
+                     f"{r['ratio']:.2f} | {100 * r['detected']:.1f} % |")
+    speed_lines = ["| extractor | median ms | p95 ms | time ratio to star_tracker | detected (<2 px) | RMS error px |",
+                   "|---|---:|---:|---:|---:|---:|"]
+    ours = timing["star_tracker"]["median_ms"]
+    for name, t in timing.items():
+        speed_lines.append(f"| {name} | {t['median_ms']:.2f} | {t['p95_ms']:.2f} | {t['median_ms'] / ours:.2f} | "
+                           f"{100 * t['detected']:.1f} % | {t['rms_px']:.3f} |")
+    detected_10 = [r["detected"] for r in rows if r["snr"] >= 10 and r["smear_px"] == 0]
+    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), "?")
+    text = "\n".join([
+        "## Centroiding",
+        "",
+        f"Command: `python -m bench.bench_centroid{' --quick' if args.quick else ''} --output docs/BENCHMARKS.md`. "
+        f"Measured {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC in {elapsed:.0f} s. Machine: `nproc` = {os.cpu_count()}, "
+        f"{cpu}; Python {platform.python_version()}, numpy {np.__version__}.",
+        "",
+        "Method: grids of equal stars (random sub-pixel phase) rendered by the simulator (PSF sigma 1 px, background "
+        "42 e-/px, read noise 8 e-, gain 1 e-/ADU, full well raised to 1e8 e- so that SNR 1000 does not saturate), centroided by `extract_spots` (centre of gravity over the detection "
+        "footprint grown by 1 px, shape test on). SNR = F / sqrt(F + 4 pi sigma^2 (B + r^2)). The CRB is the Fisher bound of the "
+        "pixel-integrated, smeared Gaussian under the same noise model (see the module docstring). This is the "
+        "baseline for the issue-4 work: the centre of gravity stays 1.4-2.2x above the bound at SNR 10-300, has a "
+        "~0.02 px floor from footprint truncation (12x the bound at SNR 1000), and misses faint streaks.",
+        "",
+        "![error / CRB](images/centroid_crb.png)",
+        "",
+        *lines,
+        "",
+        f"Completeness without smear: {100 * min(detected_10):.1f} % of stars with SNR >= 10 detected (worst point "
+        "above); with smear, detection of faint streaks falls off (SNR <= 20 at 20 px; table) because the "
+        "detector looks for PSF-sized spots, not streaks. "
+        f"Purity: {fp_mean:.1f} false detections per star-free frame on average (max {fp_max}) with hot pixels "
+        "(2e-5), cosmic rays (5 /cm^2/s), DSNU and PRNU on, after the shape test (peak fraction and minor width) that "
+        "rejects hot pixels and cosmic rays.",
+        "",
+        "Speed, 1024x1024 mono16, all detector effects on, ~50 stars in view, identical frames for every extractor "
+        "(peers with their default settings, via bench/peers.py when requirements-bench.txt is installed):",
+        "",
+        *speed_lines,
+        "",
+    ])
+    print(text)
+    if args.output:
+        plot(rows, args.output.parent / "images" / "centroid_crb.png")
+        write_section(args.output, text)
+
+
+if __name__ == "__main__":
+    main()
