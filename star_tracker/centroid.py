@@ -9,9 +9,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.special import erf
 
 FLAG_SATURATED = 1 << 0
 FLAG_EDGE = 1 << 1
+CENTROID_METHODS = ("cog", "gaussian")
 
 
 @dataclass(frozen=True)
@@ -66,7 +68,11 @@ class CentroidConfig:
     its brightest pixel holds more than max_peak_fraction of its flux (a Gaussian of sigma
     1 px puts at most ~16 % in one pixel), or, for spots with SNR >= shape_min_snr, when its
     narrowest second moment is below min_width_fraction * psf_sigma_px^2 (a PSF-blurred star
-    is never thinner than the PSF; a cosmic-ray track is)."""
+    is never thinner than the PSF; a cosmic-ray track is).
+    method: "cog" = centre of gravity over the grown detection footprint; "gaussian" =
+    weighted least-squares fit of the pixel-integrated Gaussian PSF (sigma = psf_sigma_px)
+    to a 9x9 window, with the covariance of the fit; spots elongated beyond the PSF
+    (streaks) keep the centre of gravity."""
 
     detection_sigma: float = 5.0
     min_area: int = 2
@@ -76,6 +82,7 @@ class CentroidConfig:
     gain_e_per_adu: float = 1.0
     saturation_adu: float = 0.0
     max_spots: int = 500
+    method: str = "cog"
     psf_sigma_px: float = 1.0
     max_peak_fraction: float = 0.5
     min_width_fraction: float = 0.6
@@ -97,6 +104,10 @@ class CentroidConfig:
             bad.append(f"max_spots={self.max_spots} must be >= 1")
         if not (0 <= self.psf_sigma_px <= 50):
             bad.append(f"psf_sigma_px={self.psf_sigma_px} must be in [0, 50] (0 disables the shape test)")
+        if self.method not in CENTROID_METHODS:
+            bad.append(f"method={self.method!r} must be one of {CENTROID_METHODS}")
+        if self.method == "gaussian" and self.psf_sigma_px <= 0:
+            bad.append("method 'gaussian' needs psf_sigma_px > 0")
         if not (0 < self.max_peak_fraction <= 1 and 0 <= self.min_width_fraction <= 1 and self.shape_min_snr >= 0):
             bad.append("need 0 < max_peak_fraction <= 1, 0 <= min_width_fraction <= 1, shape_min_snr >= 0")
         if bad:
@@ -178,16 +189,18 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig()) 
     keep[1:] = ((area[1:] >= config.min_area) & (area[1:] <= config.max_area) & (flux[1:] > 0)
                 & np.isfinite(cx[1:]) & np.isfinite(cy[1:]) & (snr[1:] >= config.min_snr))
     rejected = 0
+    # Shape: intensity moments of the positive signal (minor/major = narrowest/widest width).
+    positive = np.maximum(w, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        total = np.bincount(lab, positive, n)
+        mxx = np.bincount(lab, positive * dx * dx, n) / total
+        myy = np.bincount(lab, positive * dy * dy, n) / total
+        mxy = np.bincount(lab, positive * dx * dy, n) / total
+        spread = np.sqrt(0.25 * (mxx - myy) ** 2 + mxy ** 2)
+        minor = 0.5 * (mxx + myy) - spread
+        major = 0.5 * (mxx + myy) + spread
+        sharp = peak / flux
     if config.psf_sigma_px > 0:
-        # Shape: intensity moments of the positive signal; the minor axis is the narrowest width.
-        positive = np.maximum(w, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            total = np.bincount(lab, positive, n)
-            mxx = np.bincount(lab, positive * dx * dx, n) / total
-            myy = np.bincount(lab, positive * dy * dy, n) / total
-            mxy = np.bincount(lab, positive * dx * dy, n) / total
-            minor = 0.5 * (mxx + myy) - np.sqrt(0.25 * (mxx - myy) ** 2 + mxy ** 2)
-            sharp = peak / flux
         # Sharpness is robust at any SNR; the width needs a well-measured spot.
         defect = keep & ((sharp > config.max_peak_fraction)
                          | ((snr >= config.shape_min_snr) & (minor < config.min_width_fraction * config.psf_sigma_px ** 2)))
@@ -204,6 +217,73 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig()) 
     cov[:, 0, 0] = cov_xx[sel]
     cov[:, 1, 1] = cov_yy[sel]
     cov[:, 0, 1] = cov[:, 1, 0] = cov_xy[sel]
-    return Spots(x=cx[sel], y=cy[sel], flux=flux[sel], snr=snr[sel], cov=cov, flags=flags,
+    x_out, y_out, flux_out = cx[sel].copy(), cy[sel].copy(), flux[sel].copy()
+    if config.method == "gaussian" and sel.size:
+        # Point-like spots only: a streak is wider than the PSF along its length.
+        point = (major[sel] < 2.5 * (config.psf_sigma_px ** 2 + 1.0 / 12.0)) & (flags & FLAG_SATURATED == 0)
+        fit = fit_gaussian_psf(residual, x_out[point], y_out[point], flux_out[point], config.psf_sigma_px,
+                               noise, config.gain_e_per_adu)
+        good = fit[4]
+        idx_point = np.flatnonzero(point)[good]
+        x_out[idx_point], y_out[idx_point], flux_out[idx_point] = fit[0][good], fit[1][good], fit[2][good]
+        cov[idx_point] = fit[3][good]
+    return Spots(x=x_out, y=y_out, flux=flux_out, snr=snr[sel], cov=cov, flags=flags,
                  area=area[sel].astype(np.int32), peak=peak[sel], width=width, height=height,
                  background_adu=float(np.median(background[::16, ::16])), noise_adu=noise, rejected_shape=rejected)
+
+
+def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0: np.ndarray, sigma: float,
+                     noise: float, gain: float, half: int = 4, iterations: int = 8):
+    """Weighted least-squares fit of a pixel-integrated Gaussian (fixed sigma [px]) to
+    (2 half + 1)^2 windows of the background-subtracted image [ADU], all spots at once.
+
+    Model: mu_ij = F P_x(j; x) P_y(i; y), P = PSF integral over the pixel (erf differences);
+    weights 1 / (mu / gain + noise^2). Gauss-Newton on (x, y, F); the covariance of (x, y)
+    is the inverse normal matrix's block (the Cramer-Rao bound at the solution).
+    Returns x, y [px], flux [ADU], cov (N, 2, 2) [px^2], converged (N,) bool."""
+    n = x0.size
+    if n == 0:
+        return x0, y0, flux0, np.zeros((0, 2, 2)), np.zeros(0, bool)
+    height, width = residual.shape
+    offsets = np.arange(-half, half + 1)
+    cols = np.rint(x0).astype(np.int64)[:, None] + offsets[None, :]
+    rows = np.rint(y0).astype(np.int64)[:, None] + offsets[None, :]
+    inside = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
+    data = residual[np.clip(rows, 0, height - 1)[:, :, None], np.clip(cols, 0, width - 1)[:, None, :]].astype(float)
+    x, y, flux = x0.astype(float).copy(), y0.astype(float).copy(), flux0.astype(float).copy()
+    inv_s = 1.0 / sigma
+    root2 = np.sqrt(2.0)
+
+    def axis_terms(edges_lo, centre):
+        a = (edges_lo - centre[:, None]) * inv_s
+        b = a + inv_s  # pixel width 1 px
+        prob = 0.5 * (erf(b / root2) - erf(a / root2))
+        # d prob / d centre = (phi(a) - phi(b)) / sigma
+        deriv = (np.exp(-0.5 * a * a) - np.exp(-0.5 * b * b)) * (inv_s / np.sqrt(2 * np.pi))
+        return prob, deriv
+
+    normal = np.zeros((n, 3, 3))
+    for _ in range(iterations):
+        px, dpx = axis_terms(cols - 0.5, x)
+        py, dpy = axis_terms(rows - 0.5, y)
+        shape = py[:, :, None] * px[:, None, :]
+        model = flux[:, None, None] * shape
+        weight = np.where(inside, 1.0 / (np.maximum(model, 0.0) / gain + noise * noise), 0.0)
+        jac = np.stack([flux[:, None, None] * py[:, :, None] * dpx[:, None, :],
+                        flux[:, None, None] * dpy[:, :, None] * px[:, None, :], shape], axis=-1)  # (n, S, S, 3)
+        jw = jac * weight[..., None]
+        normal = np.einsum("nijk,nijl->nkl", jw, jac)
+        gradient = np.einsum("nijk,nij->nk", jw, data - model)
+        try:
+            step = np.linalg.solve(normal, gradient[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            step = np.zeros((n, 3))
+        step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)  # trust region: at most 1 px per iteration
+        x, y, flux = x + step[:, 0], y + step[:, 1], np.maximum(flux + step[:, 2], 1e-9)
+        if np.all(np.abs(step[:, :2]) < 1e-5):
+            break
+    with np.errstate(invalid="ignore"):
+        cov = np.linalg.inv(normal)[:, :2, :2] if n else np.zeros((0, 2, 2))
+    converged = (np.all(np.isfinite(cov.reshape(n, -1)), axis=1) & (np.abs(x - x0) < half - 1)
+                 & (np.abs(y - y0) < half - 1) & np.isfinite(x) & np.isfinite(y))
+    return x, y, flux, cov, converged

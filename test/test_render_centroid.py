@@ -133,3 +133,24 @@ def test_hot_pixels_and_cosmic_rays_are_never_reported_as_stars(catalog, nominal
     assert stars_found >= 0.99 * stars_wanted
     # Measured on 8 frames: 70 of 80 tracks with SNR >= 10 rejected; allow at most 15 % through.
     assert tracks_total >= 20 and tracks_reported <= 0.15 * tracks_total
+
+
+def test_gaussian_fit_reaches_its_covariance_and_beats_cog(catalog, nominal_camera):
+    frame = render(catalog, nominal_camera, seed=31)
+    t = frame.truth
+    results = {}
+    for method in ("cog", "gaussian"):
+        spots = extract_spots(frame.image, CentroidConfig(method=method))
+        nearest, ok = match_to_truth(spots, t)
+        use = ok & isolated(t, 12.0)[nearest] & (spots.flags == 0) & (spots.snr > 10) & (t.kind[nearest] == 0)
+        ex = spots.x[use] - t.x[nearest[use]]
+        ey = spots.y[use] - t.y[nearest[use]]
+        results[method] = (ex, ey, spots.cov[use])
+    ex, ey, cov = results["gaussian"]
+    assert ex.size >= 60
+    # The fit's covariance describes its errors: normalized errors have unit variance.
+    normalized = np.concatenate([ex / np.sqrt(cov[:, 0, 0]), ey / np.sqrt(cov[:, 1, 1])])
+    assert 0.8 < np.std(normalized) < 1.25 and abs(np.mean(normalized)) < 0.2
+    # And it is more accurate than the centre of gravity on the same stars.
+    rms = {m: np.sqrt(np.mean(r[0] ** 2 + r[1] ** 2)) for m, r in results.items()}
+    assert rms["gaussian"] < 0.8 * rms["cog"]
