@@ -142,8 +142,7 @@ def speed(frames, rng):
     renderer = StarFieldRenderer(CAMERA, sensor, load_hipparcos().at_epoch(2026.0), magnitude_limit=6.3)
     images = [renderer.render(ConstantRateMotion(POINTING, np.zeros(3)), 1.0, frame_seed(5, k)) for k in range(frames)]
     methods = {"star_tracker": lambda im: extract_spots(im, CentroidConfig(saturation_adu=60000.0)),
-               "star_tracker gaussian": lambda im: extract_spots(im, CentroidConfig(saturation_adu=60000.0,
-                                                                                     method="gaussian"))}
+               "star_tracker cog": lambda im: extract_spots(im, CentroidConfig(saturation_adu=60000.0, method="cog"))}
     try:
         from bench import peers
 

@@ -69,10 +69,10 @@ class CentroidConfig:
     1 px puts at most ~16 % in one pixel), or, for spots with SNR >= shape_min_snr, when its
     narrowest second moment is below min_width_fraction * psf_sigma_px^2 (a PSF-blurred star
     is never thinner than the PSF; a cosmic-ray track is).
-    method: "cog" = centre of gravity over the grown detection footprint; "gaussian" =
-    weighted least-squares fit of the pixel-integrated Gaussian PSF (sigma = psf_sigma_px)
-    to a 9x9 window, with the covariance of the fit; spots elongated beyond the PSF
-    (streaks) keep the centre of gravity."""
+    method: "gaussian" (default) = weighted least-squares fit of the pixel-integrated
+    Gaussian PSF (sigma = psf_sigma_px) to a 9x9 window, with the covariance of the fit;
+    spots elongated beyond the PSF (streaks) and saturated spots keep the centre of gravity;
+    "cog" = centre of gravity over the grown detection footprint for every spot."""
 
     detection_sigma: float = 5.0
     min_area: int = 2
@@ -82,7 +82,7 @@ class CentroidConfig:
     gain_e_per_adu: float = 1.0
     saturation_adu: float = 0.0
     max_spots: int = 500
-    method: str = "cog"
+    method: str = "gaussian"
     psf_sigma_px: float = 1.0
     max_peak_fraction: float = 0.5
     min_width_fraction: float = 0.6

@@ -58,7 +58,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     frames_wanted = int(round(args.duration * args.rate))
     params = {"camera_simulator": {**SCENARIOS[args.scenario], "rate_hz": float(args.rate),
-                                   "max_frames": frames_wanted, "start_delay_s": 1.0, "wait_for_subscribers": True}}
+                                   "max_frames": frames_wanted, "start_delay_s": 2.0, "wait_for_subscribers": True}}
     import rclpy
 
     rclpy.init(args=[])

@@ -30,7 +30,7 @@ def ros_graph(monkeypatch):
 
 def run_pipeline(env, tmp_path, camera_params):
     monitor = TrackerMonitor(name="integration_monitor")
-    params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 1.0, "wait_for_subscribers": True, "rate_hz": 10.0, **camera_params}}
+    params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 2.0, "wait_for_subscribers": True, "rate_hz": 10.0, **camera_params}}
     nodes = NodeProcesses(env, tmp_path / "logs", params, REPO / "config" / "star_tracker.yaml")
     try:
         nodes.start()

@@ -30,7 +30,7 @@ class CentroiderNode(Node):
             gain_e_per_adu=p("gain_e_per_adu", 1.0, "sensor gain for the shot-noise term [e-/ADU]", 1e-3, 1e4),
             saturation_adu=p("saturation_adu", 0.0, "saturation level [ADU]; 0 = dtype maximum", 0.0, 1e9),
             max_spots=p("max_spots", 500, "most spots reported per frame (brightest)", 1, 100000),
-            method=p("method", "cog", "sub-pixel method: cog (centre of gravity) or gaussian (PSF fit; streaks use cog)"),
+            method=p("method", "gaussian", "sub-pixel method: gaussian (PSF fit; streaks use cog) or cog (centre of gravity)"),
             psf_sigma_px=p("psf_sigma_px", 1.0, "expected PSF 1-sigma for the shape test; 0 = no shape test [px]", 0.0, 50.0),
             max_peak_fraction=p("max_peak_fraction", 0.5, "reject a spot whose brightest pixel holds more of its flux "
                                                            "(hot pixels) [-]", 0.01, 1.0),
