@@ -18,7 +18,9 @@ from sensor_msgs.msg import CameraInfo, PointCloud2  # noqa: E402
 from star_tracker.attitude import attitude_error, quaternion_to_matrix, radec_roll_to_matrix  # noqa: E402
 from star_tracker.centroid import Spots  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
-from star_tracker.ros.common import RESULT_QOS, SENSOR_QOS  # noqa: E402
+from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)
+
+from star_tracker.ros.common import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
 
 ARCSEC = np.radians(1 / 3600)

@@ -19,7 +19,7 @@ from ..catalog import julian_year_from_unix, load_hipparcos
 from ..motion import SampledMotion, motion_from_parameters
 from ..render import FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
 from . import convert
-from .common import RESULT_QOS, SENSOR_QOS, Diagnostics, ThrottledLog, declare, run_node
+from .common import IMAGE_QOS, RESULT_QOS, Diagnostics, ThrottledLog, declare, run_node
 
 
 class CameraSimulatorNode(Node):
@@ -136,8 +136,8 @@ class CameraSimulatorNode(Node):
             raise ValueError(f"sensor.exposure_s={sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s")
         self.frame_index = 0
 
-        self.pub_image = self.create_publisher(Image, "image_raw", SENSOR_QOS)
-        self.pub_info = self.create_publisher(CameraInfo, "camera_info", SENSOR_QOS)
+        self.pub_image = self.create_publisher(Image, "image_raw", IMAGE_QOS)
+        self.pub_info = self.create_publisher(CameraInfo, "camera_info", IMAGE_QOS)
         self.pub_truth = self.create_publisher(QuaternionStamped, "truth/attitude", RESULT_QOS)
         self.pub_truth_rate = self.create_publisher(Vector3Stamped, "truth/angular_velocity", RESULT_QOS)
         self.pub_truth_objects = self.create_publisher(PointCloud2, "truth/objects", RESULT_QOS)

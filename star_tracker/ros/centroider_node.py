@@ -14,7 +14,7 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from ..centroid import CentroidConfig, extract_spots
 from . import convert
-from .common import SENSOR_QOS, Diagnostics, ThrottledLog, declare, run_node
+from .common import IMAGE_QOS, SPOTS_QOS, Diagnostics, ThrottledLog, declare, run_node
 
 
 class CentroiderNode(Node):
@@ -38,8 +38,8 @@ class CentroiderNode(Node):
                                                              "(cosmic rays) [-]", 0.0, 1.0),
             shape_min_snr=p("shape_min_snr", 10.0, "smallest SNR for the width test", 0.0, 1e6),
         )
-        self.pub = self.create_publisher(PointCloud2, "spots", SENSOR_QOS)
-        self.sub = self.create_subscription(Image, "image_raw", self.on_image, SENSOR_QOS)
+        self.pub = self.create_publisher(PointCloud2, "spots", SPOTS_QOS)
+        self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
 

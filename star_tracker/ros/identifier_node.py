@@ -19,7 +19,7 @@ from ..attitude import ARCSEC
 from ..camera import CameraModel
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from . import convert
-from .common import RESULT_QOS, SENSOR_QOS, Diagnostics, ThrottledLog, declare, run_node
+from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, Diagnostics, ThrottledLog, declare, run_node
 
 
 class IdentifierNode(Node):
@@ -55,8 +55,8 @@ class IdentifierNode(Node):
         self.pub_attitude = self.create_publisher(QuaternionStamped, "attitude", RESULT_QOS)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "attitude_with_covariance", RESULT_QOS)
         self.pub_matches = self.create_publisher(PointCloud2, "matched_stars", RESULT_QOS)
-        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.on_camera_info, SENSOR_QOS)
-        self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, SENSOR_QOS)
+        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.on_camera_info, IMAGE_QOS)
+        self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, SPOTS_QOS)
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
 

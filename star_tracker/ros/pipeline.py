@@ -21,7 +21,13 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from ..attitude import attitude_error, quaternion_to_matrix
 from . import convert
-from .common import RESULT_QOS, SENSOR_QOS, configure_middleware
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from .common import IMAGE_QOS, configure_middleware, sensor_qos
+
+# The monitor must see every message: deep queues (it can stall like any process here).
+MONITOR_RESULT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+MONITOR_SENSOR_QOS = sensor_qos(100)
 
 NODE_MODULES = {
     "camera_simulator": "star_tracker.ros.camera_simulator_node",
@@ -153,12 +159,12 @@ class TrackerMonitor(Node):
         self.frames: dict[int, FrameRecord] = {}
         self.keep_images = keep_images
         self._executor: SingleThreadedExecutor | None = None
-        self.create_subscription(QuaternionStamped, "truth/attitude", self._on_truth, RESULT_QOS)
-        self.create_subscription(PointCloud2, "truth/objects", self._on_truth_objects, RESULT_QOS)
-        self.create_subscription(PointCloud2, "spots", self._on_spots, SENSOR_QOS)
-        self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, RESULT_QOS)
-        self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, RESULT_QOS)
-        self.create_subscription(PointCloud2, "matched_stars", self._on_matches, RESULT_QOS)
+        self.create_subscription(QuaternionStamped, "truth/attitude", self._on_truth, MONITOR_RESULT_QOS)
+        self.create_subscription(PointCloud2, "truth/objects", self._on_truth_objects, MONITOR_RESULT_QOS)
+        self.create_subscription(PointCloud2, "spots", self._on_spots, MONITOR_SENSOR_QOS)
+        self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, MONITOR_RESULT_QOS)
+        self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, MONITOR_RESULT_QOS)
+        self.create_subscription(PointCloud2, "matched_stars", self._on_matches, MONITOR_RESULT_QOS)
         self._image_subscription = None
         if keep_images:
             self.enable_images()
@@ -166,7 +172,7 @@ class TrackerMonitor(Node):
     def enable_images(self) -> None:
         """Start keeping images (each costs a 2 MiB copy: subscribe only when one is needed)."""
         if self._image_subscription is None:
-            self._image_subscription = self.create_subscription(Image, "image_raw", self._on_image, SENSOR_QOS)
+            self._image_subscription = self.create_subscription(Image, "image_raw", self._on_image, IMAGE_QOS)
 
     def frame(self, stamp) -> FrameRecord:
         ns = convert.stamp_to_ns(stamp)
