@@ -262,6 +262,9 @@ def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0
         deriv = (np.exp(-0.5 * a * a) - np.exp(-0.5 * b * b)) * (inv_s / np.sqrt(2 * np.pi))
         return prob, deriv
 
+    def damping(normal):  # relative 1e-12 on the diagonal (plus an absolute floor)
+        return (1e-12 * np.abs(np.diagonal(normal, axis1=1, axis2=2)) + 1e-300)[:, :, None] * np.eye(3)[None]
+
     normal = np.zeros((n, 3, 3))
     for _ in range(iterations):
         px, dpx = axis_terms(cols - 0.5, x)
@@ -274,16 +277,14 @@ def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0
         jw = jac * weight[..., None]
         normal = np.einsum("nijk,nijl->nkl", jw, jac)
         gradient = np.einsum("nijk,nij->nk", jw, data - model)
-        try:
-            step = np.linalg.solve(normal, gradient[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = np.zeros((n, 3))
+        # A whisper of Levenberg-Marquardt damping keeps every spot's system solvable, so one
+        # degenerate spot (e.g. flux ~ 0) cannot fail the batch; it is flagged below instead.
+        step = np.linalg.solve(normal + damping(normal), gradient[..., None])[..., 0]
         step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)  # trust region: at most 1 px per iteration
         x, y, flux = x + step[:, 0], y + step[:, 1], np.maximum(flux + step[:, 2], 1e-9)
         if np.all(np.abs(step[:, :2]) < 1e-5):
             break
-    with np.errstate(invalid="ignore"):
-        cov = np.linalg.inv(normal)[:, :2, :2] if n else np.zeros((0, 2, 2))
-    converged = (np.all(np.isfinite(cov.reshape(n, -1)), axis=1) & (np.abs(x - x0) < half - 1)
-                 & (np.abs(y - y0) < half - 1) & np.isfinite(x) & np.isfinite(y))
+    cov = np.linalg.inv(normal + damping(normal))[:, :2, :2]
+    converged = (np.all(np.isfinite(cov.reshape(n, -1)), axis=1) & (cov[:, 0, 0] > 0) & (cov[:, 1, 1] > 0)
+                 & (np.abs(x - x0) < half - 1) & (np.abs(y - y0) < half - 1) & np.isfinite(x) & np.isfinite(y))
     return x, y, flux, cov, converged

@@ -219,10 +219,12 @@ class StarFieldRenderer:
         hot = hot_rng.random(dark.shape) < sensor.hot_pixel_fraction
         dark[hot] *= sensor.hot_pixel_dark_factor
         self.hot_pixels = np.flatnonzero(hot)
+        self._hot_xy = np.stack([self.hot_pixels % cam.width, self.hot_pixels // cam.width]).astype(float)
         gx, gy = sensor.stray_light_gradient_e_per_px2_s
         sky = np.maximum(sensor.background_e_per_px_s + gx * (xx - cam.cx) + gy * (yy - cam.cy), 0.0)
         # Expected electrons per exposure of everything but the objects, and its noise sigma.
         self.static_e = ((sky * self.response + dark) * sensor.exposure_s).astype(np.float32)
+        self._hot_static_e = self.static_e.reshape(-1)[self.hot_pixels].astype(float)
         self.static_sigma = np.sqrt(self.static_e + sensor.read_noise_e ** 2).astype(np.float32)
         self._noise = np.empty((cam.height, cam.width), np.float32)
 
@@ -301,14 +303,13 @@ class StarFieldRenderer:
         image_e = self._detector(signal, rng, seed)
         cosmic = self._cosmic_rays(image_e, rng)
 
-        hot_x = (self.hot_pixels % cam.width).astype(float)
-        hot_y = (self.hot_pixels // cam.width).astype(float)
+        hot_x, hot_y = self._hot_xy
         n_cosmic, n_hot = cosmic[0].size, hot_x.size
         u_all = np.concatenate([u_mid, cosmic[0], hot_x])
         v_all = np.concatenate([v_mid, cosmic[1], hot_y])
         kind = np.concatenate(kinds + [np.full(n_cosmic, KIND_COSMIC_RAY), np.full(n_hot, KIND_HOT_PIXEL)])
         hip = np.concatenate(hips + [np.zeros(n_cosmic + n_hot, np.int32)]).astype(np.int32)
-        expected = np.concatenate(electrons + [cosmic[2], self.static_e.reshape(-1)[self.hot_pixels]])
+        expected = np.concatenate(electrons + [cosmic[2], self._hot_static_e])
         extent = np.concatenate(extents + [cosmic[3], np.zeros(n_hot)])
         # Listed if any of its light can land on the chip: PSF wings and streaks included.
         on_chip = cam.in_image(u_all, v_all, margin=-(self._half + 0.5 * extent)) & np.isfinite(u_all)

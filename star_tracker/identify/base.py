@@ -134,11 +134,11 @@ class StarIdentifier(ABC):
             return self._fail(TOO_FEW_SPOTS, f"{len(spots)} spots; at least 3 are needed", started, 0)
         order = np.argsort(-np.nan_to_num(spots.flux, nan=-np.inf), kind="stable")
         spots = spots.take(order)
-        sigma_px = np.sqrt(np.maximum(0.5 * (spots.cov[:, 0, 0] + spots.cov[:, 1, 1]), 0.0))
-        sigma_px = np.maximum(np.nan_to_num(sigma_px, nan=1.0), self.config.centroid_sigma_floor_px)
+        # Direction 1-sigma from each spot's covariance; unknown (NaN) counts as 1 px; floored.
+        sigma = np.nan_to_num(camera.pixel_covariance_to_ray_sigma(spots.cov), nan=camera.pixel_scale_rad)
         geometry = SpotGeometry(
             rays=camera.pixel_to_ray(spots.x, spots.y),
-            sigma=sigma_px * camera.pixel_scale_rad,
+            sigma=np.maximum(sigma, self.config.centroid_sigma_floor_px * camera.pixel_scale_rad),
             pattern_count=min(len(spots), self.config.max_pattern_spots))
 
         tested = 0

@@ -14,15 +14,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 
 from ..attitude import attitude_error, quaternion_to_matrix
 from . import convert
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-
 from .common import IMAGE_QOS, configure_middleware, sensor_qos
 
 # The monitor must see every message: deep queues (it can stall like any process here).
@@ -165,6 +165,8 @@ class TrackerMonitor(Node):
         self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, MONITOR_RESULT_QOS)
         self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, MONITOR_RESULT_QOS)
         self.create_subscription(PointCloud2, "matched_stars", self._on_matches, MONITOR_RESULT_QOS)
+        self.diagnostics: dict[str, dict[str, str]] = {}  # latest key/values per status name
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self._image_subscription = None
         if keep_images:
             self.enable_images()
@@ -179,6 +181,10 @@ class TrackerMonitor(Node):
         if ns not in self.frames:
             self.frames[ns] = FrameRecord(ns)
         return self.frames[ns]
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            self.diagnostics[status.name] = {kv.key: kv.value for kv in status.values}
 
     def _on_truth(self, msg: QuaternionStamped) -> None:
         self.frame(msg.header.stamp).truth = quaternion_to_matrix(convert.quaternion_from_msg(msg))
