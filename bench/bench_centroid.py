@@ -29,9 +29,12 @@ from star_tracker.attitude import radec_roll_to_matrix
 from star_tracker.camera import CameraModel
 from star_tracker.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid import CentroidConfig, extract_spots
+from star_tracker.centroid.streak import SmearModel
 from star_tracker.motion import ConstantRateMotion
 from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
 
+# Name in the tables -> (CentroidConfig.method, rate aid on).
+VARIANTS = {"cog": ("cog", False), "wcog": ("wcog", False), "auto": ("auto", False), "auto + rate": ("auto", True)}
 CAMERA = CameraModel.from_fov(1024, 1024, np.radians(15.0))
 POINTING = radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.0)
 EXPOSURE = 0.1
@@ -88,16 +91,18 @@ def static_level(sensor: SensorModel) -> float:
     return (sensor.background_e_per_px_s + sensor.dark_e_per_px_s_at_temperature) * sensor.exposure_s
 
 
-def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig()):
-    """RMS 2-D error [px] of our centroids vs truth, detection rate, and sqrt(CRB_x + CRB_y)."""
+def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig(), rate_aided=False):
+    """RMS 2-D error [px] of our centroids vs truth, detection rate, and sqrt(CRB_x + CRB_y).
+    rate_aided: give the centroider the true body rate and exposure (SmearModel)."""
     flux = flux_for_snr(snr, sensor)
     rate = smear_px / (EXPOSURE * CAMERA.fy)
+    smear = SmearModel(CAMERA, np.array([rate, 0.0, 0.0]), EXPOSURE) if rate_aided else None
     errors, found, total = [], 0, 0
     for k in range(frames):
         catalog = grid_scene(sensor, flux, rng)
         renderer = StarFieldRenderer(CAMERA, sensor, catalog, magnitude_limit=30.0)
         frame = renderer.render(ConstantRateMotion(POINTING, np.array([rate, 0.0, 0.0])), 1.0, frame_seed(int(snr * 10 + smear_px), k))
-        spots = extract_spots(frame.image, config)
+        spots = extract_spots(frame.image, config, smear)
         t = frame.truth
         # Score stars whose whole streak lies inside the image (truth also lists off-chip stars
         # whose light reaches the edge; their visible part is not a mid-exposure position).
@@ -181,10 +186,14 @@ def plot(rows, path: Path):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
-    for method, style in (("cog", "o--"), ("gaussian", "s-")):
-        for smear in sorted({r["smear_px"] for r in rows}):
-            pts = [r for r in rows if r["smear_px"] == smear and r["method"] == method]
-            ax.semilogx([r["snr"] for r in pts], [r["ratio"] for r in pts], style, label=f"{method}, smear {smear:g} px")
+    smears = sorted({r["smear_px"] for r in rows})
+    colours = dict(zip(smears, ("C0", "C1", "C2", "C3", "C4")))
+    for method, style in (("cog", "o:"), ("wcog", "v:"), ("auto", "s-"), ("auto + rate", "D--")):
+        for smear in smears:
+            pts = [r for r in rows if r["smear_px"] == smear and r["method"] == method and np.isfinite(r["ratio"])]
+            if pts:
+                ax.semilogx([r["snr"] for r in pts], [r["ratio"] for r in pts], style, color=colours[smear],
+                            label=f"{method}, smear {smear:g} px", ms=4)
     ax.axhline(1.2, color="k", ls="--", lw=0.8, label="goal 1.2x (no smear)")
     ax.axhline(1.5, color="grey", ls=":", lw=0.8, label="goal 1.5x (20 px smear)")
     ax.set_xlabel("SNR")
@@ -221,8 +230,8 @@ def main(argv=None) -> None:
     frames = 1 if args.quick else 3
     started = time.perf_counter()
     rows = [{**measure_accuracy(snr, smear, frames, sensor, np.random.default_rng(snr * 100 + smear),
-                                CentroidConfig(method=method, gain_e_per_adu=4.0)), "method": method}
-            for method in ("cog", "gaussian") for smear in smears for snr in snrs]
+                                CentroidConfig(method=method, gain_e_per_adu=4.0), rate_aided), "method": name}
+            for name, (method, rate_aided) in VARIANTS.items() for smear in smears for snr in snrs]
     fp_mean, fp_max = false_detections(3 if args.quick else 10, rng)
     timing = speed(5 if args.quick else 30, rng)
     elapsed = time.perf_counter() - started

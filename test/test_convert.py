@@ -62,14 +62,17 @@ def test_spots_cloud_round_trip_and_layout():
     n = 4
     cov = np.tile(np.array([[0.04, 0.01], [0.01, 0.09]]), (n, 1, 1))
     spots = Spots(np.arange(n) + 0.25, np.arange(n) + 0.5, np.full(n, 1e4), np.full(n, 80.0), cov,
-                  np.array([0, 1, 2, 3], np.uint32), np.ones(n, np.int32), np.ones(n), 1024, 1024)
+                  np.array([0, 1, 2, 4], np.uint32), np.ones(n, np.int32), np.ones(n), 1024, 1024,
+                  streak_length=np.array([0.0, 0.0, 0.0, 21.5]), streak_angle=np.array([0.0, 0.0, 0.0, -1.25]))
     msg = convert.spots_to_cloud(spots, 42, "star_tracker_optical")
-    assert msg.point_step == 32 and msg.row_step == 32 * n and msg.height == 1 and msg.width == n
+    assert msg.point_step == 40 and msg.row_step == 40 * n and msg.height == 1 and msg.width == n
     assert [(f.name, f.offset) for f in msg.fields] == [("x", 0), ("y", 4), ("flux", 8), ("snr", 12), ("cov_xx", 16),
-                                                         ("cov_xy", 20), ("cov_yy", 24), ("flags", 28)]
+                                                         ("cov_xy", 20), ("cov_yy", 24), ("flags", 28),
+                                                         ("streak_length", 32), ("streak_angle", 36)]
     back = convert.cloud_to_spots(msg, 1024, 1024)
     assert np.allclose(back.x, spots.x) and np.allclose(back.y, spots.y)
     assert np.allclose(back.cov, spots.cov) and np.array_equal(back.flags, spots.flags)
+    assert np.allclose(back.streak_length, spots.streak_length) and np.allclose(back.streak_angle, spots.streak_angle)
 
 
 def test_malformed_spot_clouds_raise_clear_errors():

@@ -197,7 +197,14 @@ def test_every_spot_is_traceable_to_truth(catalog, nominal_camera):
         d = np.hypot(spots.x[:, None] - t.x[None], spots.y[:, None] - t.y[None])
         reach = 3.0 + 0.5 * t.extent_px[None, :]
         owned = d <= reach
-        assert owned.any(axis=1).all(), spots.take(np.flatnonzero(~owned.any(axis=1)))
+        # Or a blend: on the segment between two objects less than 12 px apart (shape test off,
+        # so a hot pixel next to a star is measured with it).
+        close = np.hypot(t.x[:, None] - t.x[None], t.y[:, None] - t.y[None]) < 12.0
+        pair_sum = d[:, :, None] + d[:, None, :]
+        blend = ((pair_sum <= np.hypot(t.x[:, None] - t.x[None], t.y[:, None] - t.y[None])[None] + 1.0)
+                 & close[None]).any(axis=(1, 2))
+        traceable = owned.any(axis=1) | blend
+        assert traceable.all(), spots.take(np.flatnonzero(~traceable))
         kinds_seen |= set(t.kind[np.argmin(np.where(owned, d, np.inf), axis=1)].tolist())
     assert {KIND_STAR, KIND_PLANET, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL} <= kinds_seen
 

@@ -1,6 +1,12 @@
-"""Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions with covariance)."""
-from .extract import (CENTROID_METHODS, FLAG_EDGE, FLAG_SATURATED, CentroidConfig, Spots, estimate_background,
-                      extract_spots, fit_gaussian_psf, robust_sigma)
+"""Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions at mid-exposure with covariance).
 
-__all__ = ["CENTROID_METHODS", "FLAG_EDGE", "FLAG_SATURATED", "CentroidConfig", "Spots", "estimate_background",
-           "extract_spots", "fit_gaussian_psf", "robust_sigma"]
+detect (background, noise, threshold, components) -> measure (hot-pixel cleaning, centre of
+gravity, shape) -> psf_fit (Gaussian PSF, blends) / streak (smeared stars) -> `Spots`.
+"""
+from .detect import estimate_background, robust_sigma
+from .extract import CENTROID_METHODS, CentroidConfig, extract_spots
+from .psf_fit import fit_gaussian_psf
+from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
+
+__all__ = ["CENTROID_METHODS", "FLAG_BLENDED", "FLAG_EDGE", "FLAG_RATE_AIDED", "FLAG_SATURATED", "FLAG_STREAK",
+           "CentroidConfig", "Spots", "estimate_background", "extract_spots", "fit_gaussian_psf", "robust_sigma"]

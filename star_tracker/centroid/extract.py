@@ -1,97 +1,76 @@
-"""Spot extraction: background, detection, sub-pixel centroids with covariance.
+"""Spot extraction: detect -> measure -> reject defects -> sub-pixel fit -> `Spots`.
 
 Input: a 2-D image in ADU (uint8/uint16/float). Output: `Spots` in pixel coordinates with
-(0, 0) at the centre of the top-left pixel, sorted by flux (brightest first).
+(0, 0) at the centre of the top-left pixel, sorted by flux (brightest first). Optionally a
+`SmearModel` (camera + body rate + exposure) turns on rate-aided detection and fitting.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-from scipy.special import erf
 
-FLAG_SATURATED = 1 << 0
-FLAG_EDGE = 1 << 1
-CENTROID_METHODS = ("cog", "gaussian")
+from .detect import Detections, detect
+from .measure import (aperture_moments, clean_hot_pixels, secondary_peaks, significant_peaks,
+                      star_peak_to_neighbour_ratio)
+from .psf_fit import fit_psf_windows, gather_windows
+from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
 
+if TYPE_CHECKING:
+    from .streak import SmearModel
 
-@dataclass(frozen=True)
-class Spots:
-    """Detected spots as parallel arrays (N entries, brightest first).
-
-    x, y: centroid [px]; flux: background-subtracted sum [ADU]; snr: flux / its 1-sigma [-];
-    cov: (N, 2, 2) centroid covariance [px^2] from the noise model; flags: bit set
-    (FLAG_SATURATED, FLAG_EDGE); area: pixels above threshold; peak: max residual [ADU].
-    width, height: image size [px]; background_adu, noise_adu: frame background level and
-    1-sigma pixel noise [ADU]; rejected_shape: detections dropped as hot pixels or cosmic
-    rays (too sharp or too thin for the PSF).
-    """
-
-    x: np.ndarray
-    y: np.ndarray
-    flux: np.ndarray
-    snr: np.ndarray
-    cov: np.ndarray
-    flags: np.ndarray
-    area: np.ndarray
-    peak: np.ndarray
-    width: int
-    height: int
-    background_adu: float = 0.0
-    noise_adu: float = 0.0
-    rejected_shape: int = 0
-
-    def __len__(self) -> int:
-        return int(self.x.size)
-
-    @staticmethod
-    def empty(width: int, height: int) -> "Spots":
-        z = np.zeros(0)
-        return Spots(z, z, z, z, np.zeros((0, 2, 2)), np.zeros(0, np.uint32), np.zeros(0, np.int32),
-                     z, width, height)
-
-    def take(self, index: np.ndarray) -> "Spots":
-        return Spots(self.x[index], self.y[index], self.flux[index], self.snr[index], self.cov[index],
-                     self.flags[index], self.area[index], self.peak[index], self.width, self.height,
-                     self.background_adu, self.noise_adu, self.rejected_shape)
+CENTROID_METHODS = ("auto", "cog", "wcog", "gaussian", "streak")
 
 
 @dataclass(frozen=True)
 class CentroidConfig:
-    """detection_sigma: threshold in units of the pixel noise of the PSF-matched image;
-    min_area/max_area: accepted component sizes [px]; min_snr: reported spots' SNR floor;
-    background_block_px: background mesh size [px]; gain_e_per_adu: for the shot-noise term
-    of the covariance; saturation_adu: a spot with a pixel at or above it is flagged
-    (0 = the image dtype's maximum); max_spots: keep at most this many (brightest).
-    Shape test (hot pixels, cosmic rays), only when psf_sigma_px > 0: a spot is rejected when
-    its brightest pixel holds more than max_peak_fraction of its flux (a Gaussian of sigma
-    1 px puts at most ~16 % in one pixel), or, for spots with SNR >= shape_min_snr, when its
-    narrowest second moment is below min_width_fraction * psf_sigma_px^2 (a PSF-blurred star
-    is never thinner than the PSF; a cosmic-ray track is).
-    method: "gaussian" (default) = weighted least-squares fit of the pixel-integrated
-    Gaussian PSF (sigma = psf_sigma_px) to a 9x9 window, with the covariance of the fit;
-    spots elongated beyond the PSF (streaks) and saturated spots keep the centre of gravity;
-    "cog" = centre of gravity over the grown detection footprint for every spot."""
+    """Parameters of `extract_spots` (the centroider node's parameters, same names).
 
-    detection_sigma: float = 5.0
+    detection_sigma: threshold in units of the noise of the PSF-matched detection image;
+    binning: detection grid bin factor (1 or 2; 2 is 4x cheaper and splits pairs >= ~4 px);
+    min_area/max_area: accepted footprint sizes [full-resolution px]; min_snr: reported spots'
+    SNR floor; background_block_px: background mesh size [px]; gain_e_per_adu: for the
+    shot-noise term of the covariance; saturation_adu: a spot with a pixel at or above it is
+    flagged (0 = the image dtype's maximum); max_spots: keep at most this many (brightest).
+    psf_sigma_px: the optics' PSF 1-sigma [px]; sets the fit model, windows, hot-pixel test.
+    Shape test (hot pixels, cosmic rays; psf_sigma_px > 0): isolated pixels brighter than a
+    PSF allows are replaced by their neighbours' mean first; then a spot is rejected when its
+    brightest pixel holds more than max_peak_fraction of its flux, or, at SNR >= shape_min_snr,
+    when its narrowest second moment is below min_width_fraction * psf_sigma_px^2 (a star is
+    never thinner than the PSF; a cosmic-ray track is).
+    method: "auto" (default) = PSF fit for point-like spots, streak model for elongated ones;
+    "gaussian" = PSF fit for point-like spots, centre of gravity for streaks; "streak" = streak
+    model for every spot; "cog" = centre of gravity; "wcog" = intensity-weighted (squared)
+    centre of gravity. Saturated spots always use the centre of gravity.
+    split_blends: fit two PSFs jointly when a point-like spot shows a second peak.
+    min_smear_px: with a known body rate, predicted smears shorter than this are point-like.
+    """
+
+    detection_sigma: float = 4.5
+    binning: int = 2
     min_area: int = 2
-    max_area: int = 5000
+    max_area: int = 20000
     min_snr: float = 5.0
     background_block_px: int = 32
     gain_e_per_adu: float = 1.0
     saturation_adu: float = 0.0
     max_spots: int = 500
-    method: str = "gaussian"
+    method: str = "auto"
     psf_sigma_px: float = 1.0
     max_peak_fraction: float = 0.5
     min_width_fraction: float = 0.6
     shape_min_snr: float = 10.0
+    split_blends: bool = True
+    min_smear_px: float = 1.5
 
     def __post_init__(self) -> None:
         bad = []
         if not (np.isfinite(self.detection_sigma) and self.detection_sigma > 0):
             bad.append(f"detection_sigma={self.detection_sigma} must be > 0")
+        if self.binning not in (1, 2):
+            bad.append(f"binning={self.binning} must be 1 or 2")
         if not (1 <= self.min_area <= self.max_area):
             bad.append(f"need 1 <= min_area ({self.min_area}) <= max_area ({self.max_area})")
         if not (np.isfinite(self.min_snr) and self.min_snr >= 0):
@@ -106,185 +85,404 @@ class CentroidConfig:
             bad.append(f"psf_sigma_px={self.psf_sigma_px} must be in [0, 50] (0 disables the shape test)")
         if self.method not in CENTROID_METHODS:
             bad.append(f"method={self.method!r} must be one of {CENTROID_METHODS}")
-        if self.method == "gaussian" and self.psf_sigma_px <= 0:
-            bad.append("method 'gaussian' needs psf_sigma_px > 0")
+        if self.method in ("auto", "gaussian", "streak") and self.psf_sigma_px <= 0:
+            bad.append(f"method {self.method!r} needs psf_sigma_px > 0")
         if not (0 < self.max_peak_fraction <= 1 and 0 <= self.min_width_fraction <= 1 and self.shape_min_snr >= 0):
             bad.append("need 0 < max_peak_fraction <= 1, 0 <= min_width_fraction <= 1, shape_min_snr >= 0")
+        if not (np.isfinite(self.min_smear_px) and self.min_smear_px >= 0):
+            bad.append(f"min_smear_px={self.min_smear_px} must be >= 0")
         if bad:
             raise ValueError("invalid centroid config: " + "; ".join(bad))
 
-
-def estimate_background(image: np.ndarray, block: int) -> np.ndarray:
-    """Smooth background [ADU]: median of each block (on every 4th pixel of every 4th row:
-    64 samples per 32 px block), bilinearly interpolated back to full size. Robust to stars;
-    follows stray-light gradients."""
-    h, w = image.shape
-    step = 4 if block >= 16 else 1
-    sub = image[::step, ::step]
-    b = max(2, block // step)
-    ph, pw = -sub.shape[0] % b, -sub.shape[1] % b
-    if ph or pw:
-        sub = np.pad(sub, ((0, ph), (0, pw)), mode="reflect" if min(sub.shape) > 1 else "edge")
-    tiles = sub.reshape(sub.shape[0] // b, b, sub.shape[1] // b, b).swapaxes(1, 2)
-    medians = np.median(tiles.reshape(tiles.shape[0], tiles.shape[1], -1), axis=2).astype(np.float32)
-    full = cv2.resize(medians, (medians.shape[1] * block, medians.shape[0] * block), interpolation=cv2.INTER_LINEAR)
-    return full[:h, :w]
+    @property
+    def window_half(self) -> int:
+        """Half size of a point-spot window [px]: the PSF to 3 sigma plus half a pixel."""
+        return int(max(4, np.ceil(3.0 * max(self.psf_sigma_px, 1.0) + 0.5)))
 
 
-def robust_sigma(values: np.ndarray) -> float:
-    """1.4826 x median absolute deviation: the Gaussian sigma, ignoring outliers (stars)."""
-    values = values.ravel()
-    med = np.median(values)
-    return float(1.4826 * np.median(np.abs(values - med)))
+@dataclass
+class _Candidates:
+    """Working table of measured detections (one entry per candidate spot)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    flux: np.ndarray
+    snr: np.ndarray
+    cov: np.ndarray
+    minor: np.ndarray
+    major: np.ndarray
+    angle: np.ndarray
+    peak: np.ndarray
+    peak_raw: np.ndarray
+    edge: np.ndarray
+    area: np.ndarray
+    cleaned: np.ndarray
+    wx: np.ndarray  # intensity-weighted centre of gravity and its covariance
+    wy: np.ndarray
+    wcov: np.ndarray
+    has_window: np.ndarray  # small spots keep their cleaned fit window (n, S, S), top-left pixel
+    window: np.ndarray
+    window_valid: np.ndarray
+    window_col0: np.ndarray
+    window_row0: np.ndarray
+    peaks: list  # large spots: (K, 2) full-resolution (x, y) of separate peaks (K >= 2: a blend)
 
 
-def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig()) -> Spots:
-    """Detect spots and compute intensity-weighted centres of gravity with covariance."""
+def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
+                  smear: "SmearModel | None" = None) -> Spots:
+    """Detect spots and measure them (see CentroidConfig). `smear`, when given, predicts each
+    star's streak from the body rate and exposure: detection uses the matched streak kernel
+    and positions come from a fit on the predicted path (mid-exposure, curved arcs included)."""
     if image.ndim != 2 or image.size == 0:
         raise ValueError(f"expected a non-empty 2-D image, got shape {image.shape}")
+    if image.dtype.kind not in "uif":
+        raise ValueError(f"expected a numeric image, got dtype {image.dtype}")
     height, width = image.shape
+    binning = config.binning if min(height, width) >= 16 * config.binning else 1
     saturation = config.saturation_adu or (np.iinfo(image.dtype).max if image.dtype.kind in "ui" else np.inf)
-    data = image.astype(np.float32)
-    background = estimate_background(data, config.background_block_px)
-    residual = data - background
-    noise = robust_sigma(residual[::5, ::5])
-    if not np.isfinite(noise) or noise <= 0:
-        noise = max(float(np.std(residual)), 1e-3)  # flat or quantized image: fall back
-    # Detect on the PSF-matched (3x3 Gaussian) image: better sensitivity than raw pixels.
-    smoothed = cv2.GaussianBlur(residual, (5, 5), 1.0)
-    smooth_noise = robust_sigma(smoothed[::5, ::5]) or noise
-    mask = (smoothed > config.detection_sigma * smooth_noise).astype(np.uint8)
-    # Measure each spot over its detection footprint grown by one pixel (captures the wings):
-    # label the grown mask directly; footprints closer than 2 px merge into one spot.
-    grown = cv2.dilate(mask, np.ones((3, 3), np.uint8))
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(grown, connectivity=8)
-    if count <= 1:
-        return Spots.empty(width, height)
-    idx = np.flatnonzero(labels)
-    lab = labels.ravel()[idx]
-    area = np.bincount(lab[mask.ravel()[idx] > 0], minlength=count)  # pixels above threshold
-    w = residual.ravel()[idx].astype(np.float64)
-    xs = (idx % width).astype(np.float64)
-    ys = (idx // width).astype(np.float64)
-    n = count
-    flux = np.bincount(lab, w, n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cx = np.bincount(lab, w * xs, n) / flux
-        cy = np.bincount(lab, w * ys, n) / flux
-        # Noise-model variance of each pixel [ADU^2]: shot noise of the signal + pixel noise.
-        var_pix = np.maximum(w, 0.0) / config.gain_e_per_adu + noise * noise
-        dx = xs - cx[lab]
-        dy = ys - cy[lab]
-        f2 = flux * flux
-        cov_xx = np.bincount(lab, var_pix * dx * dx, n) / f2
-        cov_yy = np.bincount(lab, var_pix * dy * dy, n) / f2
-        cov_xy = np.bincount(lab, var_pix * dx * dy, n) / f2
-        snr = flux / np.sqrt(np.bincount(lab, var_pix, n))
-    peak_value = np.full(n, -np.inf)
-    np.maximum.at(peak_value, lab, data.ravel()[idx])
-    peak = np.full(n, -np.inf)
-    np.maximum.at(peak, lab, w)
+    sigma = max(config.psf_sigma_px, 0.5)
+    rate_aided = smear is not None and _typical_smear_px(smear, width, height) >= config.min_smear_px
+    det = detect(image, binning=binning, background_block_px=config.background_block_px,
+                 detection_sigma=config.detection_sigma, psf_sigma_px=config.psf_sigma_px,
+                 min_area=config.min_area, max_area=config.max_area,
+                 smear_kernel=_smear_kernel(smear, width, height, sigma, binning) if rate_aided else None)
+    frame_values = dict(background_adu=float(np.median(det.background[::8, ::8])), noise_adu=det.noise_adu)
+    if det.x.size == 0:
+        return Spots.empty(width, height, **frame_values)
+    noise, gain = det.noise_adu, config.gain_e_per_adu
+    cand = _measure(image, det, config, sigma)
 
-    keep = np.zeros(n, bool)
-    keep[1:] = ((area[1:] >= config.min_area) & (area[1:] <= config.max_area) & (flux[1:] > 0)
-                & np.isfinite(cx[1:]) & np.isfinite(cy[1:]) & (snr[1:] >= config.min_snr))
-    rejected = 0
-    # Shape: intensity moments of the positive signal (minor/major = narrowest/widest width).
-    positive = np.maximum(w, 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        total = np.bincount(lab, positive, n)
-        mxx = np.bincount(lab, positive * dx * dx, n) / total
-        myy = np.bincount(lab, positive * dy * dy, n) / total
-        mxy = np.bincount(lab, positive * dx * dy, n) / total
-        spread = np.sqrt(0.25 * (mxx - myy) ** 2 + mxy ** 2)
-        minor = 0.5 * (mxx + myy) - spread
-        major = 0.5 * (mxx + myy) + spread
-        sharp = peak / flux
+    # Defects: cleaned-away hot pixels (nothing left) and spots too sharp or too thin for the PSF.
+    rejected = np.zeros(cand.x.size, bool)
     if config.psf_sigma_px > 0:
-        # Sharpness is robust at any SNR; the width needs a well-measured spot.
-        defect = keep & ((sharp > config.max_peak_fraction)
-                         | ((snr >= config.shape_min_snr) & (minor < config.min_width_fraction * config.psf_sigma_px ** 2)))
-        rejected = int(defect.sum())
-        keep &= ~defect
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sharp = cand.peak / cand.flux
+        rejected = ((cand.cleaned & (cand.snr < config.min_snr)) | (sharp > config.max_peak_fraction)
+                    | ((cand.snr >= config.shape_min_snr) & (cand.minor < config.min_width_fraction * sigma ** 2)))
+        rejected &= np.isfinite(cand.x)
+    # Streaks spread their signal: their footprint SNR understates what the streak fit recovers,
+    # so they pass a lower first cut and face min_snr with the fit's SNR.
+    streaky = (rate_aided or (cand.major > 2.5 * (sigma ** 2 + 1.0 / 12.0))) & (config.method in ("auto", "streak"))
+    first_cut = np.where(streaky, 0.4 * config.min_snr, config.min_snr)
+    keep = (~rejected & np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.flux > 0) & (cand.snr >= first_cut)
+            & (cand.area >= config.min_area))
     sel = np.flatnonzero(keep)
-    sel = sel[np.argsort(-flux[sel], kind="stable")][: config.max_spots]
-    flags = np.zeros(sel.size, np.uint32)
-    flags[peak_value[sel] >= saturation] |= FLAG_SATURATED
-    x0, y0 = stats[sel, cv2.CC_STAT_LEFT], stats[sel, cv2.CC_STAT_TOP]
-    x1, y1 = x0 + stats[sel, cv2.CC_STAT_WIDTH], y0 + stats[sel, cv2.CC_STAT_HEIGHT]
-    flags[(x0 <= 0) | (y0 <= 0) | (x1 >= width) | (y1 >= height)] |= FLAG_EDGE
-    cov = np.empty((sel.size, 2, 2))
-    cov[:, 0, 0] = cov_xx[sel]
-    cov[:, 1, 1] = cov_yy[sel]
-    cov[:, 0, 1] = cov[:, 1, 0] = cov_xy[sel]
-    x_out, y_out, flux_out = cx[sel].copy(), cy[sel].copy(), flux[sel].copy()
-    if config.method == "gaussian" and sel.size:
-        # Point-like spots only: a streak is wider than the PSF along its length.
-        point = (major[sel] < 2.5 * (config.psf_sigma_px ** 2 + 1.0 / 12.0)) & (flags & FLAG_SATURATED == 0)
-        fit = fit_gaussian_psf(residual, x_out[point], y_out[point], flux_out[point], config.psf_sigma_px,
-                               noise, config.gain_e_per_adu)
-        good = fit[4]
-        idx_point = np.flatnonzero(point)[good]
-        x_out[idx_point], y_out[idx_point], flux_out[idx_point] = fit[0][good], fit[1][good], fit[2][good]
-        cov[idx_point] = fit[3][good]
-    return Spots(x=x_out, y=y_out, flux=flux_out, snr=snr[sel], cov=cov, flags=flags,
-                 area=area[sel].astype(np.int32), peak=peak[sel], width=width, height=height,
-                 background_adu=float(np.median(background[::16, ::16])), noise_adu=noise, rejected_shape=rejected)
+    n = sel.size
+    x, y, flux, cov = cand.x[sel].copy(), cand.y[sel].copy(), cand.flux[sel].copy(), cand.cov[sel].copy()
+    snr = cand.snr[sel].copy()
+    flags = np.zeros(n, np.uint32)
+    flags[cand.peak_raw[sel] >= saturation] |= FLAG_SATURATED
+    flags[cand.edge[sel]] |= FLAG_EDGE
+    length, angle = np.zeros(n), np.zeros(n)
+    saturated = (flags & FLAG_SATURATED) != 0
+    # Elongated beyond the PSF (second moment of a segment of length L is L^2/12).
+    elongated = cand.major[sel] > 2.5 * (sigma ** 2 + 1.0 / 12.0)
+    # Several separate peaks with dips between them: stars blended into one footprint, not a streak.
+    multi = np.array([len(cand.peaks[i]) >= 2 for i in sel], bool) & ~saturated
+    flags[multi] |= FLAG_BLENDED
+    extra = []  # (x, y, flux, cov, snr, peak) of further stars split off blends
+    if config.method == "wcog":
+        x, y, cov = cand.wx[sel].copy(), cand.wy[sel].copy(), cand.wcov[sel].copy()
+    elif config.method != "cog":
+        if config.method == "streak" or (rate_aided and config.method == "auto"):
+            as_streak = ~saturated
+        elif config.method == "auto":
+            as_streak = ~saturated & elongated
+        else:  # gaussian: streaks keep the centre of gravity
+            as_streak = np.zeros(n, bool)
+        as_streak &= ~multi
+        as_point = ~saturated & ~as_streak & ~elongated & ~multi
+        if config.split_blends and multi.any() and not rate_aided:
+            extra += _fit_blends(image, det, config, sigma, np.flatnonzero(multi), x, y, flux, cov, snr, cand, sel)
+        if as_point.any():
+            extra += _fit_points(image, det, config, sigma, np.flatnonzero(as_point), x, y, flux, cov, snr, flags,
+                                 cand, sel)
+        if as_streak.any():
+            _fit_streak_spots(image, det, config, sigma, np.flatnonzero(as_streak), x, y, flux, cov, snr, flags,
+                              length, angle, cand, sel, smear if rate_aided else None, noise, gain)
+    area, peak = cand.area[sel], cand.peak[sel]
+    if extra:
+        ex = np.array([e[:3] for e in extra])
+        x, y, flux = np.concatenate([x, ex[:, 0]]), np.concatenate([y, ex[:, 1]]), np.concatenate([flux, ex[:, 2]])
+        cov = np.concatenate([cov, np.array([e[3] for e in extra])])
+        snr = np.concatenate([snr, np.array([e[4] for e in extra])])
+        flags = np.concatenate([flags, np.full(len(extra), FLAG_BLENDED, np.uint32)])
+        area = np.concatenate([area, np.zeros(len(extra), area.dtype)])
+        peak = np.concatenate([peak, np.array([e[5] for e in extra])])
+        length, angle = np.concatenate([length, np.zeros(len(extra))]), np.concatenate([angle, np.zeros(len(extra))])
+    final = np.flatnonzero(snr >= config.min_snr)
+    order = final[np.argsort(-flux[final], kind="stable")][: config.max_spots]
+    return Spots(x=x[order], y=y[order], flux=flux[order], snr=snr[order], cov=cov[order], flags=flags[order],
+                 area=area[order].astype(np.int32), peak=peak[order], width=width, height=height,
+                 rejected_shape=int(rejected.sum()), streak_length=length[order], streak_angle=angle[order],
+                 **frame_values)
 
 
-def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0: np.ndarray, sigma: float,
-                     noise: float, gain: float, half: int = 4, iterations: int = 8):
-    """Weighted least-squares fit of a pixel-integrated Gaussian (fixed sigma [px]) to
-    (2 half + 1)^2 windows of the background-subtracted image [ADU], all spots at once.
+def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float) -> _Candidates:
+    """Aperture (small components) or footprint (large ones) measurements of every detection,
+    after hot-pixel cleaning."""
+    half = config.window_half
+    size = 2 * half + 1  # spot (and PSF-fit) window
+    big = size + 4  # search window: the spot window is re-centred on the brightest 3x3 sum in it
+    height, width = image.shape
+    noise, gain = det.noise_adu, config.gain_e_per_adu
+    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma) if config.psf_sigma_px > 0 else np.inf
+    m = det.x.size
+    weighted = config.method == "wcog"
+    small = ((det.right - det.left) <= big - 2) & ((det.bottom - det.top) <= big - 2)
+    out = {k: np.full(m, np.nan) for k in ("x", "y", "flux", "snr", "minor", "major", "angle", "peak", "peak_raw",
+                                           "wx", "wy")}
+    out["cov"], out["wcov"] = np.full((m, 2, 2), np.nan), np.full((m, 2, 2), np.nan)
+    out["edge"], out["cleaned"] = np.zeros(m, bool), np.zeros(m, bool)
+    out["window"], out["window_valid"] = np.zeros((m, size, size)), np.zeros((m, size, size), bool)
+    out["window_col0"], out["window_row0"] = np.zeros(m, np.int64), np.zeros(m, np.int64)
+    idx = np.flatnonzero(small)
+    out["has_window"] = small.copy()
+    out["peaks"] = [np.zeros((0, 2))] * m
+    if idx.size:
+        c0 = np.rint(det.x[idx]).astype(np.int64) - big // 2
+        r0 = np.rint(det.y[idx]).astype(np.int64) - big // 2
+        raw, valid = gather_windows(image, c0, r0, big)
+        bg = det.background_at(det.x[idx], det.y[idx])
+        win, hit = clean_hot_pixels(np.where(valid, raw - bg[:, None, None], 0.0), valid, noise, ratio_limit)
+        box = cv2.boxFilter(win.astype(np.float32).reshape(-1, big), -1, (3, 3), normalize=False,
+                            borderType=cv2.BORDER_CONSTANT).reshape(idx.size, big, big)
+        # Seed: the brightest 3x3 sum inside the footprint's box (hot pixels already cleaned away),
+        # at least half a spot window from the search window's border.
+        lo, hi = half, big - 1 - half  # seed rows/cols allowed: [lo, hi]
+        span = np.arange(big)
+        in_rows = (span[None] >= np.clip(det.top[idx] - r0, lo, hi)[:, None]) \
+            & (span[None] < np.clip(det.bottom[idx] - r0, lo + 1, hi + 1)[:, None])
+        in_cols = (span[None] >= np.clip(det.left[idx] - c0, lo, hi)[:, None]) \
+            & (span[None] < np.clip(det.right[idx] - c0, lo + 1, hi + 1)[:, None])
+        core = np.where(in_rows[:, :, None] & in_cols[:, None, :], 0.0, -np.inf).astype(np.float32)
+        best = (box + core).reshape(idx.size, -1).argmax(axis=1)
+        br, bc = best // big, best % big
+        sub_r = (br - half)[:, None] + np.arange(size)[None, :]
+        sub_c = (bc - half)[:, None] + np.arange(size)[None, :]
+        k = np.arange(idx.size)[:, None, None]
+        w = win[k, sub_r[:, :, None], sub_c[:, None, :]]
+        v = valid[k, sub_r[:, :, None], sub_c[:, None, :]]
+        rawv = raw[k, sub_r[:, :, None], sub_c[:, None, :]]
+        col0, row0 = c0 + bc - half, r0 + br - half
+        rr, cc = np.mgrid[0:size, 0:size]
+        aperture = (np.hypot(rr - half, cc - half) <= min(max(2.5, 3.0 * sigma), half))[None] & v
+        mom = aperture_moments(w, aperture, col0, row0, noise, gain, power=1)
+        wmom = aperture_moments(w, aperture, col0, row0, noise, gain, power=2) if weighted else mom
+        for key in ("x", "y", "flux", "minor", "major", "angle", "peak", "cov"):
+            out[key][idx] = getattr(mom, key)
+        # SNR in a near-optimal aperture (radius 1.6 sigma for a background-limited Gaussian):
+        # the wide measuring aperture would count several times the noise of a faint star.
+        snr_ap = (np.hypot(rr - half, cc - half) <= max(1.5, 1.6 * sigma))[None] & v
+        signal = np.where(snr_ap, w, 0.0)
+        variance = np.where(snr_ap, np.maximum(w, 0.0) / gain + noise * noise, 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out["snr"][idx] = signal.sum(axis=(1, 2)) / np.sqrt(variance.sum(axis=(1, 2)))
+        out["wx"][idx], out["wy"][idx], out["wcov"][idx] = wmom.x, wmom.y, wmom.cov
+        out["peak_raw"][idx] = np.where(aperture, rawv, -np.inf).reshape(idx.size, -1).max(axis=1)
+        out["edge"][idx] = ~v.all(axis=(1, 2)) | (col0 <= 0) | (row0 <= 0) | (col0 + size >= width) \
+            | (row0 + size >= height)
+        out["cleaned"][idx] = hit.any(axis=(1, 2))
+        out["window"][idx], out["window_valid"][idx] = w, v
+        out["window_col0"][idx], out["window_row0"][idx] = col0, row0
+    margin = int(np.ceil(3.0 * sigma)) + 2
+    for i in np.flatnonzero(~small):
+        left, top = max(int(det.left[i]) - margin, 0), max(int(det.top[i]) - margin, 0)
+        right, bottom = min(int(det.right[i]) + margin, width), min(int(det.bottom[i]) + margin, height)
+        b = det.binning
+        lab = det.labels[top // b:(bottom + b - 1) // b, left // b:(right + b - 1) // b] == det.label[i]
+        foot = cv2.dilate(lab.astype(np.uint8), np.ones((3, 3), np.uint8))
+        if b > 1:
+            foot = np.repeat(np.repeat(foot, b, axis=0), b, axis=1)
+        foot = foot[top - (top // b) * b:, left - (left // b) * b:][:bottom - top, :right - left] > 0
+        raw = image[top:bottom, left:right].astype(np.float64)
+        bg = det.background[np.clip(np.arange(top, bottom) // b, 0, det.background.shape[0] - 1)[:, None],
+                            np.clip(np.arange(left, right) // b, 0, det.background.shape[1] - 1)[None, :]]
+        valid = np.ones((1,) + raw.shape, bool)
+        win, hit = clean_hot_pixels((raw - bg)[None], valid, noise, ratio_limit)
+        use = foot[None]
+        mom = aperture_moments(win, use, np.array([left]), np.array([top]), noise, gain, power=1)
+        wmom = aperture_moments(win, use, np.array([left]), np.array([top]), noise, gain, power=2) if weighted else mom
+        # Shape from the pixels clearly above the noise: the wide footprint's positive noise
+        # would otherwise inflate the second moments of a faint spot.
+        # The threshold also thins the cross-track profile of a faint spot, so the narrowest
+        # moment (the cosmic-ray test) is only trusted when the peak stands 10 sigma clear.
+        shape = aperture_moments(win, use & (win > 2.0 * noise), np.array([left]), np.array([top]), noise, gain)
+        for key in ("x", "y", "flux", "snr", "peak", "cov", "major", "angle"):
+            out[key][i] = getattr(shape if key in ("major", "angle") else mom, key)[0]
+        out["minor"][i] = shape.minor[0] if shape.peak[0] >= 10.0 * noise else np.inf
+        out["wx"][i], out["wy"][i], out["wcov"][i] = wmom.x[0], wmom.y[0], wmom.cov[0]
+        out["peak_raw"][i] = raw[foot].max()
+        out["edge"][i] = det.left[i] <= 0 or det.top[i] <= 0 or det.right[i] >= width or det.bottom[i] >= height
+        out["cleaned"][i] = bool(hit.any())
+        found = significant_peaks(win[0], foot, 3.0 * config.detection_sigma * noise, max(2.0, 2.0 * sigma), noise,
+                                  gain)
+        out["peaks"][i] = np.column_stack([found[:, 1] + left, found[:, 0] + top]).astype(float)
+    return _Candidates(area=det.area.astype(np.int64), **out)
 
-    Model: mu_ij = F P_x(j; x) P_y(i; y), P = PSF integral over the pixel (erf differences);
-    weights 1 / (mu / gain + noise^2). Gauss-Newton on (x, y, F); the covariance of (x, y)
-    is the inverse normal matrix's block (the Cramer-Rao bound at the solution).
-    Returns x, y [px], flux [ADU], cov (N, 2, 2) [px^2], converged (N,) bool."""
-    n = x0.size
-    if n == 0:
-        return x0, y0, flux0, np.zeros((0, 2, 2)), np.zeros(0, bool)
+
+def _fit_points(image, det, config, sigma, which, x, y, flux, cov, snr, flags, cand, sel):
+    """Gaussian PSF fit of point-like spots `which` (in place); blends get a joint 2-PSF fit.
+    Returns the split-off second stars as (x, y, flux, cov, snr, peak) tuples."""
+    half = config.window_half
+    size = 2 * half + 1
+    noise, gain = det.noise_adu, config.gain_e_per_adu
+    # Windows measured already (small spots, centred on their peak) are reused.
+    source = sel[which]
+    win, valid = cand.window[source].copy(), cand.window_valid[source].copy()
+    col0, row0 = cand.window_col0[source].copy(), cand.window_row0[source].copy()
+    fresh = np.flatnonzero(~cand.has_window[source])
+    if fresh.size:
+        col0[fresh] = np.rint(x[which[fresh]]).astype(np.int64) - half
+        row0[fresh] = np.rint(y[which[fresh]]).astype(np.int64) - half
+        raw, valid[fresh] = gather_windows(image, col0[fresh], row0[fresh], size)
+        bg = det.background_at(x[which[fresh]], y[which[fresh]])
+        win[fresh], _ = clean_hot_pixels(np.where(valid[fresh], raw - bg[:, None, None], 0.0), valid[fresh], noise,
+                                         2.0 * star_peak_to_neighbour_ratio(sigma))
+    blended = np.zeros(which.size, bool)
+    extra = []
+    if config.split_blends:
+        found, pr, pc = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
+                                        min_separation=max(2.0, 2.0 * sigma), radius=half - 1.5)
+        # A second peak that is another detected spot is fitted jointly but not reported twice.
+        px, py = col0 + pc, row0 + pr
+        others = np.hypot(px[:, None] - x[None, :], py[:, None] - y[None, :])
+        others[np.arange(which.size), which] = np.inf
+        duplicate = others.min(axis=1) < 2.0 if x.size > 1 else np.zeros(which.size, bool)
+        blended = found
+        if blended.any():
+            b = np.flatnonzero(blended)
+            bx0 = np.column_stack([x[which[b]], px[b].astype(float)])
+            by0 = np.column_stack([y[which[b]], py[b].astype(float)])
+            bf0 = np.column_stack([flux[which[b]], np.maximum(win[b, pr[b], pc[b]] * 2 * np.pi * sigma ** 2, 1.0)])
+            fx, fy, ff, fc, ok, fv = fit_psf_windows(win[b], valid[b], col0[b], row0[b], bx0, by0, bf0, sigma, noise,
+                                                     gain)
+            for j, k in enumerate(b):
+                if not ok[j].all():
+                    blended[k] = False
+                    continue
+                t = which[k]
+                x[t], y[t], flux[t], cov[t], snr[t] = fx[j, 0], fy[j, 0], ff[j, 0], fc[j, 0], ff[j, 0] / np.sqrt(fv[j, 0])
+                flags[t] |= FLAG_BLENDED
+                if not duplicate[k]:
+                    second_snr = ff[j, 1] / np.sqrt(fv[j, 1])
+                    if second_snr >= config.min_snr:
+                        extra.append((fx[j, 1], fy[j, 1], ff[j, 1], fc[j, 1], second_snr, float(win[k, pr[k], pc[k]])))
+    single = np.flatnonzero(~blended)
+    if single.size:
+        fx, fy, ff, fc, ok, fv = fit_psf_windows(win[single], valid[single], col0[single], row0[single],
+                                                 x[which[single]][:, None], y[which[single]][:, None],
+                                                 flux[which[single]][:, None], sigma, noise, gain)
+        good = ok[:, 0]
+        t = which[single[good]]
+        x[t], y[t], flux[t], cov[t] = fx[good, 0], fy[good, 0], ff[good, 0], fc[good, 0]
+        snr[t] = ff[good, 0] / np.sqrt(fv[good, 0])
+    return extra
+
+
+def _fit_blends(image, det, config, sigma, which, x, y, flux, cov, snr, cand, sel):
+    """Joint fit of one PSF per peak over the footprint window of each blended spot `which`
+    (in place for the brightest star); returns the others as (x, y, flux, cov, snr, peak)."""
+    noise, gain = det.noise_adu, config.gain_e_per_adu
+    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma)
+    margin = int(np.ceil(3.0 * sigma)) + 2
+    extra = []
+    for t in which:
+        peaks = cand.peaks[sel[t]]
+        left = int(np.floor(peaks[:, 0].min())) - margin
+        top = int(np.floor(peaks[:, 1].min())) - margin
+        size = int(max(np.ptp(peaks[:, 0]), np.ptp(peaks[:, 1]))) + 2 * margin + 1
+        raw, valid = gather_windows(image, np.array([left]), np.array([top]), size)
+        bg = det.background_at(np.array([peaks[0, 0]]), np.array([peaks[0, 1]]))
+        win, _ = clean_hot_pixels(np.where(valid, raw - bg[:, None, None], 0.0), valid, noise, ratio_limit)
+        amplitude = win[0, (peaks[:, 1] - top).astype(int), (peaks[:, 0] - left).astype(int)]
+        flux0 = np.maximum(amplitude * 2.0 * np.pi * sigma ** 2, 1.0)
+        fx, fy, ff, fc, ok, fv = fit_psf_windows(win, valid, np.array([left]), np.array([top]), peaks[None, :, 0],
+                                                 peaks[None, :, 1], flux0[None], sigma, noise, gain)
+        if not ok[0].all():
+            continue  # keep the centre of gravity, flagged as a blend
+        order = np.argsort(-ff[0])
+        first = order[0]
+        x[t], y[t], flux[t], cov[t] = fx[0, first], fy[0, first], ff[0, first], fc[0, first]
+        snr[t] = ff[0, first] / np.sqrt(fv[0, first])
+        for k in order[1:]:
+            snr_k = ff[0, k] / np.sqrt(fv[0, k])
+            if snr_k >= config.min_snr:
+                extra.append((fx[0, k], fy[0, k], ff[0, k], fc[0, k], snr_k, float(amplitude[k])))
+    return extra
+
+
+def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, flags, length, angle, cand, sel,
+                      smear, noise, gain):
+    """Streak-model fit of spots `which` (in place): on the predicted path when `smear` is
+    given, else a free line segment seeded from the spot's moments."""
+    from .streak import fit_streaks, fit_streaks_on_path
+
+    def length_hint(t):  # half the extent to cover [px]: the predicted smear, else the spot's size
+        if smear is not None:
+            return 0.5 * float(np.linalg.norm(smear.smear_vectors(x[t:t + 1], y[t:t + 1])[0])) + 1.0
+        return np.sqrt(max(3.0 * cand.major[sel[t]], 0.0)) + 1.0
+
+    full_bg = cv2.resize(det.background, (det.background.shape[1] * det.binning,
+                                          det.background.shape[0] * det.binning), interpolation=cv2.INTER_NEAREST)
+    residual = image.astype(np.float32)
+    h, w = min(full_bg.shape[0], residual.shape[0]), min(full_bg.shape[1], residual.shape[1])
+    residual[:h, :w] -= full_bg[:h, :w]
+    if h < residual.shape[0] or w < residual.shape[1]:  # odd sizes: last row/column from the edge value
+        residual[h:, :] -= det.background[-1, -1]
+        residual[:h, w:] -= det.background[-1, -1]
+    # Hot pixels near the streaks would pull the fit: clean them around each streak first.
+    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma)
     height, width = residual.shape
-    offsets = np.arange(-half, half + 1)
-    cols = np.rint(x0).astype(np.int64)[:, None] + offsets[None, :]
-    rows = np.rint(y0).astype(np.int64)[:, None] + offsets[None, :]
-    inside = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
-    data = residual[np.clip(rows, 0, height - 1)[:, :, None], np.clip(cols, 0, width - 1)[:, None, :]].astype(float)
-    x, y, flux = x0.astype(float).copy(), y0.astype(float).copy(), flux0.astype(float).copy()
-    inv_s = 1.0 / sigma
-    root2 = np.sqrt(2.0)
+    for t in which:
+        i = sel[t]
+        pad = int(np.ceil(4.0 * sigma)) + 2 + int(length_hint(t))
+        top, bottom = max(int(y[t]) - pad, 0), min(int(y[t]) + pad + 1, height)
+        left, right = max(int(x[t]) - pad, 0), min(int(x[t]) + pad + 1, width)
+        region = residual[top:bottom, left:right]
+        cleaned, hit = clean_hot_pixels(region[None].astype(np.float64), np.ones((1,) + region.shape, bool), noise,
+                                        ratio_limit)
+        if hit.any():
+            residual[top:bottom, left:right] = cleaned[0]
+    if smear is not None:
+        path = smear.path(x[which], y[which])
+        fit = fit_streaks_on_path(residual, x[which], y[which], flux[which], path, sigma, noise, gain)
+        extra_flag = FLAG_STREAK | FLAG_RATE_AIDED
+    else:
+        major, minor = cand.major[sel][which], cand.minor[sel][which]
+        length0 = np.sqrt(np.maximum(12.0 * (major - sigma ** 2), 0.0))
+        fit = fit_streaks(residual, x[which], y[which], flux[which], length0, cand.angle[sel][which], sigma, noise,
+                          gain)
+        extra_flag = FLAG_STREAK
+    good = fit.converged
+    t = which[good]
+    x[t], y[t], flux[t], cov[t] = fit.x[good], fit.y[good], fit.flux[good], fit.cov[good]
+    length[t], angle[t] = fit.length[good], np.nan_to_num(fit.angle[good])
+    flags[t] |= extra_flag
+    with np.errstate(divide="ignore", invalid="ignore"):
+        snr[t] = fit.flux[good] / fit.flux_sigma[good]  # the fit's (matched-filter) SNR
+    snr[which[~good]] = 0.0  # the streak model could not describe it: not reported
 
-    def axis_terms(edges_lo, centre):
-        a = (edges_lo - centre[:, None]) * inv_s
-        b = a + inv_s  # pixel width 1 px
-        prob = 0.5 * (erf(b / root2) - erf(a / root2))
-        # d prob / d centre = (phi(a) - phi(b)) / sigma
-        deriv = (np.exp(-0.5 * a * a) - np.exp(-0.5 * b * b)) * (inv_s / np.sqrt(2 * np.pi))
-        return prob, deriv
 
-    def damping(normal):  # relative 1e-12 on the diagonal (plus an absolute floor)
-        return (1e-12 * np.abs(np.diagonal(normal, axis1=1, axis2=2)) + 1e-300)[:, :, None] * np.eye(3)[None]
+def _typical_smear_px(smear: "SmearModel", width: int, height: int) -> float:
+    """Largest predicted smear length [px] over a 3x3 grid of field points."""
+    gx, gy = np.meshgrid(np.linspace(0.1, 0.9, 3) * (width - 1), np.linspace(0.1, 0.9, 3) * (height - 1))
+    return float(np.max(np.linalg.norm(smear.smear_vectors(gx.ravel(), gy.ravel()), axis=1)))
 
-    normal = np.zeros((n, 3, 3))
-    for _ in range(iterations):
-        px, dpx = axis_terms(cols - 0.5, x)
-        py, dpy = axis_terms(rows - 0.5, y)
-        shape = py[:, :, None] * px[:, None, :]
-        model = flux[:, None, None] * shape
-        weight = np.where(inside, 1.0 / (np.maximum(model, 0.0) / gain + noise * noise), 0.0)
-        jac = np.stack([flux[:, None, None] * py[:, :, None] * dpx[:, None, :],
-                        flux[:, None, None] * dpy[:, :, None] * px[:, None, :], shape], axis=-1)  # (n, S, S, 3)
-        jw = jac * weight[..., None]
-        normal = np.einsum("nijk,nijl->nkl", jw, jac)
-        gradient = np.einsum("nijk,nij->nk", jw, data - model)
-        # A whisper of Levenberg-Marquardt damping keeps every spot's system solvable, so one
-        # degenerate spot (e.g. flux ~ 0) cannot fail the batch; it is flagged below instead.
-        step = np.linalg.solve(normal + damping(normal), gradient[..., None])[..., 0]
-        step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)  # trust region: at most 1 px per iteration
-        x, y, flux = x + step[:, 0], y + step[:, 1], np.maximum(flux + step[:, 2], 1e-9)
-        if np.all(np.abs(step[:, :2]) < 1e-5):
-            break
-    cov = np.linalg.inv(normal + damping(normal))[:, :2, :2]
-    converged = (np.all(np.isfinite(cov.reshape(n, -1)), axis=1) & (cov[:, 0, 0] > 0) & (cov[:, 1, 1] > 0)
-                 & (np.abs(x - x0) < half - 1) & (np.abs(y - y0) < half - 1) & np.isfinite(x) & np.isfinite(y))
-    return x, y, flux, cov, converged
+
+def _smear_kernel(smear: "SmearModel", width: int, height: int, sigma: float, binning: int) -> np.ndarray | None:
+    """Matched-filter kernel on the detection grid for a smear that is about the same over the
+    field (cross-boresight rates); None when it varies by more than 30 % (roll-dominated)."""
+    gx, gy = np.meshgrid(np.linspace(0.1, 0.9, 3) * (width - 1), np.linspace(0.1, 0.9, 3) * (height - 1))
+    vectors = smear.smear_vectors(gx.ravel(), gy.ravel()) / binning
+    mean = vectors.mean(axis=0)
+    if np.max(np.linalg.norm(vectors - mean, axis=1)) > 0.3 * max(np.linalg.norm(mean), 1e-9):
+        return None
+    s = max(0.5, sigma / binning)
+    half = int(np.ceil(0.5 * np.max(np.abs(mean)) + 2.5 * s))
+    yy, xx = np.mgrid[-half:half + 1, -half:half + 1].astype(np.float64)
+    kernel = np.zeros_like(xx)
+    steps = max(2, int(np.ceil(np.linalg.norm(mean) * 2)))
+    for t in (np.arange(steps) + 0.5) / steps - 0.5:
+        kernel += np.exp(-0.5 * ((xx - t * mean[0]) ** 2 + (yy - t * mean[1]) ** 2) / s ** 2)
+    return (kernel / kernel.sum()).astype(np.float32)

@@ -2,19 +2,30 @@
 
 The spots message carries the image's header unchanged (stamp = mid-exposure). A malformed
 image is logged, counted in /diagnostics and skipped; the next good one is processed.
+
+Rate aid (optional, never required): with `exposure_time_s` > 0, a camera model from
+`camera_info` and a body rate (the `angular_velocity` topic or the `angular_velocity_rad_s`
+parameter), each star's smear over the exposure is predicted; detection uses the matched
+streak filter and positions come from a fit on the predicted (possibly curved) path.
 """
 from __future__ import annotations
 
 import sys
 import time
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import Vector3Stamped
 from rclpy.node import Node
-from sensor_msgs.msg import Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from ..centroid import CentroidConfig, extract_spots
+from ..camera import CameraModel
+from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
+from ..centroid.streak import SmearModel
 from . import convert
-from .common import IMAGE_QOS, SPOTS_QOS, Diagnostics, ThrottledLog, declare, run_node
+from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, Diagnostics, ThrottledLog, declare, run_node
+
+RATE_SOURCES = ("topic", "parameter", "none")
 
 
 class CentroiderNode(Node):
@@ -22,46 +33,108 @@ class CentroiderNode(Node):
         super().__init__("centroider")
         p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
         self.config = CentroidConfig(
-            detection_sigma=p("detection_sigma", 5.0, "detection threshold [noise sigmas]", 1.0, 100.0),
-            min_area=p("min_area", 2, "smallest accepted spot [px]", 1, 10000),
-            max_area=p("max_area", 5000, "largest accepted spot [px]", 1, 1000000),
+            detection_sigma=p("detection_sigma", 4.5, "detection threshold [noise sigmas]", 1.0, 100.0),
+            binning=p("binning", 2, "detection grid bin factor: 2 = 4x cheaper; 1 = full resolution", 1, 2),
+            min_area=p("min_area", 2, "smallest accepted footprint [px]", 1, 10000),
+            max_area=p("max_area", 20000, "largest accepted footprint [px]", 1, 1000000),
             min_snr=p("min_snr", 5.0, "smallest reported SNR", 0.0, 1e6),
             background_block_px=p("background_block_px", 32, "background mesh size [px]", 4, 1024),
             gain_e_per_adu=p("gain_e_per_adu", 1.0, "sensor gain for the shot-noise term [e-/ADU]", 1e-3, 1e4),
             saturation_adu=p("saturation_adu", 0.0, "saturation level [ADU]; 0 = dtype maximum", 0.0, 1e9),
             max_spots=p("max_spots", 500, "most spots reported per frame (brightest)", 1, 100000),
-            method=p("method", "gaussian", "sub-pixel method: gaussian (PSF fit; streaks use cog) or cog (centre of gravity)"),
-            psf_sigma_px=p("psf_sigma_px", 1.0, "expected PSF 1-sigma for the shape test; 0 = no shape test [px]", 0.0, 50.0),
+            method=p("method", "auto", "sub-pixel method: " + " | ".join(CENTROID_METHODS)
+                     + " (auto = PSF fit for points, streak model for streaks)"),
+            psf_sigma_px=p("psf_sigma_px", 1.0, "PSF 1-sigma of the optics; 0 = no shape test [px]", 0.0, 50.0),
             max_peak_fraction=p("max_peak_fraction", 0.5, "reject a spot whose brightest pixel holds more of its flux "
                                                            "(hot pixels) [-]", 0.01, 1.0),
             min_width_fraction=p("min_width_fraction", 0.6, "reject a spot narrower than this x psf_sigma_px^2 "
                                                              "(cosmic rays) [-]", 0.0, 1.0),
             shape_min_snr=p("shape_min_snr", 10.0, "smallest SNR for the width test", 0.0, 1e6),
+            split_blends=p("split_blends", True, "fit two PSFs when a point-like spot has a second peak"),
+            min_smear_px=p("min_smear_px", 1.5, "predicted smears shorter than this are point-like [px]", 0.0, 1e4),
         )
+        self.exposure_s = p("exposure_time_s", 0.0, "exposure time for the rate aid; 0 = unknown (no rate aid) [s]",
+                            0.0, 100.0)
+        self.rate_source = p("rate_source", "topic", "body rate for the rate aid: " + " | ".join(RATE_SOURCES))
+        rate_param = p("angular_velocity_rad_s", [0.0, 0.0, 0.0],
+                       "body rate in the sensor frame when rate_source is 'parameter' [rad/s]")
+        self.max_rate_age_s = p("max_rate_age_s", 0.5, "ignore a rate message further than this from the image "
+                                                        "stamp [s]", 0.0, 1e6)
+        problems = []
+        if self.rate_source not in RATE_SOURCES:
+            problems.append(f"rate_source={self.rate_source!r} must be one of {RATE_SOURCES}")
+        if len(rate_param) != 3 or not np.all(np.isfinite(rate_param)):
+            problems.append(f"angular_velocity_rad_s={list(rate_param)} must be 3 finite values")
+        if problems:
+            raise ValueError("; ".join(problems))
+        self.rate_param = np.asarray(rate_param, float)
+        self.camera: CameraModel | None = None
+        self._camera_key = None
+        self.rate: tuple[int, np.ndarray] | None = None  # (stamp ns, rad/s) of the latest rate message
         self.pub = self.create_publisher(PointCloud2, "spots", SPOTS_QOS)
         self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
+        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.on_camera_info, IMAGE_QOS)
+        if self.rate_source == "topic":
+            self.sub_rate = self.create_subscription(Vector3Stamped, "angular_velocity", self.on_rate, RESULT_QOS)
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
+
+    def on_camera_info(self, msg: CameraInfo) -> None:
+        key = (msg.width, msg.height, tuple(msg.k), tuple(msg.d), msg.distortion_model)
+        if key == self._camera_key:
+            return
+        try:
+            self.camera = convert.info_to_camera(msg)
+            self._camera_key = key
+        except ValueError as exc:
+            self.diag.count("camera_info_rejected")
+            self.log.warn("bad_info", f"rejected camera_info: {exc}")
+
+    def on_rate(self, msg: Vector3Stamped) -> None:
+        vector = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
+        if not np.all(np.isfinite(vector)):
+            self.diag.count("rates_rejected")
+            self.log.warn("bad_rate", f"rejected angular_velocity with non-finite values {vector}")
+            return
+        self.rate = (convert.stamp_to_ns(msg.header.stamp), vector)
+
+    def smear_for(self, stamp_ns: int, width: int, height: int) -> SmearModel | None:
+        """The smear prediction for an image, or None when exposure, camera or rate is unknown."""
+        if self.exposure_s <= 0 or self.rate_source == "none" or self.camera is None:
+            return None
+        if (self.camera.width, self.camera.height) != (width, height):
+            return None
+        if self.rate_source == "parameter":
+            omega = self.rate_param
+        elif self.rate is None or abs(self.rate[0] - stamp_ns) > self.max_rate_age_s * 1e9:
+            return None
+        else:
+            omega = self.rate[1]
+        return SmearModel(self.camera, omega, self.exposure_s)
 
     def on_image(self, msg: Image) -> None:
         started = time.perf_counter()
         self.diag.count("frames_received")
+        stamp_ns = convert.stamp_to_ns(msg.header.stamp)
         try:
             image = convert.image_to_array(msg)
-            spots = extract_spots(image, self.config)
+            smear = self.smear_for(stamp_ns, image.shape[1], image.shape[0])
+            spots = extract_spots(image, self.config, smear)
         except ValueError as exc:
             self.diag.count("frames_rejected")
             self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
             self.log.warn("bad_image", f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
             return
-        out = convert.spots_to_cloud(spots, convert.stamp_to_ns(msg.header.stamp), msg.header.frame_id)
+        out = convert.spots_to_cloud(spots, stamp_ns, msg.header.frame_id)
         out.header = msg.header  # unchanged stamp and frame
         self.pub.publish(out)
         self.diag.count("frames_processed")
+        if smear is not None:
+            self.diag.count("frames_rate_aided")
         self.diag.count("spots_rejected_shape", spots.rejected_shape)
         self.diag.set(DiagnosticStatus.OK, "ok", last_spot_count=len(spots),
                       last_processing_ms=f"{(time.perf_counter() - started) * 1e3:.2f}",
-                      last_noise_adu=f"{spots.noise_adu:.2f}")
+                      last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None))
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -116,7 +116,8 @@ def _fields(spec: list[tuple[str, int]]) -> tuple[list[PointField], np.dtype]:
 SPOT_FIELDS, SPOT_DTYPE = _fields([
     ("x", PointField.FLOAT32), ("y", PointField.FLOAT32), ("flux", PointField.FLOAT32),
     ("snr", PointField.FLOAT32), ("cov_xx", PointField.FLOAT32), ("cov_xy", PointField.FLOAT32),
-    ("cov_yy", PointField.FLOAT32), ("flags", PointField.UINT32)])
+    ("cov_yy", PointField.FLOAT32), ("flags", PointField.UINT32), ("streak_length", PointField.FLOAT32),
+    ("streak_angle", PointField.FLOAT32)])
 
 MATCH_FIELDS, MATCH_DTYPE = _fields([
     ("x", PointField.FLOAT32), ("y", PointField.FLOAT32), ("z", PointField.FLOAT32),
@@ -165,6 +166,7 @@ def spots_to_cloud(spots: Spots, stamp_ns: int, frame_id: str) -> PointCloud2:
     rec["x"], rec["y"], rec["flux"], rec["snr"] = spots.x, spots.y, spots.flux, spots.snr
     rec["cov_xx"], rec["cov_xy"], rec["cov_yy"] = spots.cov[:, 0, 0], spots.cov[:, 0, 1], spots.cov[:, 1, 1]
     rec["flags"] = spots.flags
+    rec["streak_length"], rec["streak_angle"] = spots.streak_length, spots.streak_angle
     return records_to_cloud(rec, SPOT_FIELDS, stamp_ns, frame_id)
 
 
@@ -177,7 +179,8 @@ def cloud_to_spots(msg: PointCloud2, width: int, height: int) -> Spots:
     cov[:, 0, 1] = cov[:, 1, 0] = rec["cov_xy"]
     return Spots(x=rec["x"].astype(float), y=rec["y"].astype(float), flux=rec["flux"].astype(float),
                  snr=rec["snr"].astype(float), cov=cov, flags=rec["flags"].astype(np.uint32),
-                 area=np.zeros(n, np.int32), peak=np.zeros(n), width=width, height=height)
+                 area=np.zeros(n, np.int32), peak=np.zeros(n), width=width, height=height,
+                 streak_length=rec["streak_length"].astype(float), streak_angle=rec["streak_angle"].astype(float))
 
 
 def identification_to_cloud(result: Identification, spots: Spots, magnitudes: np.ndarray,

@@ -1,0 +1,147 @@
+"""Detection: background, noise, thresholding and connected components.
+
+Works on the image binned `binning` x `binning` (mean of the block, OpenCV INTER_AREA): a
+2x2 bin keeps a PSF of sigma >= 1 px well sampled, loses little sensitivity, and makes the
+whole-frame work 4x cheaper. Positions are measured later on the full-resolution pixels.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+MAD_TO_SIGMA = 1.4826
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Connected components of the thresholded, PSF-matched image (M of them).
+
+    label: each component's value in `labels`; left, top, right, bottom: bounding box on the full-resolution image [px] (right/bottom
+    exclusive); x, y: footprint centroid [px]; area: footprint size on the full-resolution
+    grid [px]; labels: component label image on the binned grid (0 = background);
+    background: background on the binned grid [ADU]; noise_adu: 1-sigma full-resolution pixel
+    noise [ADU]; binning: bin factor of the detection grid.
+    """
+
+    label: np.ndarray
+    left: np.ndarray
+    top: np.ndarray
+    right: np.ndarray
+    bottom: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    area: np.ndarray
+    labels: np.ndarray
+    background: np.ndarray
+    noise_adu: float
+    binning: int
+
+    def background_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Background [ADU] at full-resolution positions (nearest detection-grid pixel)."""
+        h, w = self.background.shape
+        col = np.clip((np.asarray(x) / self.binning).astype(np.int64), 0, w - 1)
+        row = np.clip((np.asarray(y) / self.binning).astype(np.int64), 0, h - 1)
+        return self.background[row, col].astype(float)
+
+
+def bin_image(image: np.ndarray, binning: int) -> np.ndarray:
+    """Mean over binning x binning blocks (trailing rows/columns that do not fill a block are
+    dropped); integer images stay integer (rounded mean), others become float32."""
+    if image.dtype.kind == "f" and image.dtype != np.float32:
+        image = image.astype(np.float32)
+    elif image.dtype.kind in "ui" and image.dtype not in (np.uint8, np.uint16):
+        image = np.clip(image, 0, 65535).astype(np.uint16)
+    if binning == 1:
+        return image
+    h, w = (image.shape[0] // binning), (image.shape[1] // binning)
+    return cv2.resize(image[:h * binning, :w * binning], (w, h), interpolation=cv2.INTER_AREA)
+
+
+def robust_sigma(values: np.ndarray) -> float:
+    """1.4826 x median absolute deviation: the Gaussian sigma, ignoring outliers (stars)."""
+    values = np.asarray(values, dtype=np.float32).ravel()
+    if values.size == 0:
+        return 0.0
+    mid = values.size // 2
+    med = np.partition(values, mid)[mid]
+    dev = np.abs(values - med)
+    return float(MAD_TO_SIGMA * np.partition(dev, mid)[mid])
+
+
+def estimate_background(image: np.ndarray, block: int) -> np.ndarray:
+    """Smooth background [same units]: the median of each block x block tile (of at most 8x8
+    samples on a regular sub-grid), bilinearly interpolated back to full size. Robust to stars;
+    follows stray-light gradients."""
+    h, w = image.shape
+    block = max(2, min(block, h, w))
+    step = max(1, block // 8)
+    sub = image[::step, ::step]
+    b = max(1, block // step)
+    ph, pw = -sub.shape[0] % b, -sub.shape[1] % b
+    if ph or pw:
+        sub = np.pad(sub, ((0, ph), (0, pw)), mode="reflect" if min(sub.shape) > 1 else "edge")
+    ty, tx = sub.shape[0] // b, sub.shape[1] // b
+    tiles = np.ascontiguousarray(sub.reshape(ty, b, tx, b).transpose(0, 2, 1, 3)).reshape(ty * tx, b * b)
+    medians = np.partition(tiles, (b * b) // 2, axis=1)[:, (b * b) // 2].reshape(ty, tx).astype(np.float32)
+    full = cv2.resize(medians, (tx * block, ty * block), interpolation=cv2.INTER_LINEAR)
+    return full[:h, :w]
+
+
+def detect(image: np.ndarray, *, binning: int, background_block_px: int, detection_sigma: float,
+           psf_sigma_px: float, min_area: int, max_area: int, smear_kernel: np.ndarray | None = None) -> Detections:
+    """Threshold the PSF-matched residual at detection_sigma x its own robust noise.
+
+    smear_kernel: when the body rate is known, a kernel on the detection grid (unit sum)
+    matching the predicted streak; it replaces the PSF-sized Gaussian (matched filter).
+    """
+    binned = bin_image(image, binning)
+    background = estimate_background(binned, max(2, background_block_px // binning))
+    residual = cv2.subtract(binned, background, dtype=cv2.CV_32F) if binned.dtype != np.float32 else binned - background
+    sample = residual[::3, ::3] if residual.size > 40000 else residual
+    sigma_binned = robust_sigma(sample)
+    quantization = 1.0 / 12.0 if binned.dtype.kind in "ui" else 0.0
+    # White pixel noise: the mean of binning^2 pixels has 1/binning of its sigma.
+    noise = binning * float(np.sqrt(max(sigma_binned ** 2 - quantization, 0.25 * sigma_binned ** 2)))
+    if not np.isfinite(noise) or noise <= 0:
+        noise = max(float(np.std(residual)) * binning, 1e-3)  # flat or quantized image: fall back
+    # Matched filter: the PSF on the binned grid, widened by the star's unknown phase within a
+    # bin (found best on simulated frames: 99 % of SNR-9 stars at 4.5 sigma, 0 false per frame).
+    psf = psf_sigma_px if psf_sigma_px > 0 else 1.0
+    psf_sigma_binned = float(np.sqrt((psf / binning) ** 2 + 0.25 * (binning - 1)))
+    if smear_kernel is not None:
+        smoothed = cv2.filter2D(residual, cv2.CV_32F, smear_kernel, borderType=cv2.BORDER_REFLECT)
+    else:
+        size = 2 * int(np.ceil(2.0 * psf_sigma_binned)) + 1
+        smoothed = cv2.GaussianBlur(residual, (size, size), psf_sigma_binned)
+    smooth_noise = robust_sigma(smoothed[::3, ::3] if smoothed.size > 40000 else smoothed) or noise
+    mask = (smoothed > detection_sigma * smooth_noise).view(np.uint8)
+    count, labels = cv2.connectedComponents(mask, connectivity=8)
+    # Component statistics from the (few) mask pixels only: cheaper than OpenCV's full-frame pass.
+    pixels = np.flatnonzero(mask)
+    lab = labels.ravel()[pixels]
+    order = np.argsort(lab, kind="stable")
+    lab, pixels = lab[order], pixels[order]
+    starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]]) if lab.size else np.zeros(0, np.int64)
+    cols, rows = pixels % labels.shape[1], pixels // labels.shape[1]
+    n_comp = starts.size
+    area_b = np.diff(np.r_[starts, lab.size])
+    stats = np.zeros((n_comp, 4), np.int64)
+    centroids = np.zeros((n_comp, 2))
+    if n_comp:
+        stats[:, 0], stats[:, 1] = np.minimum.reduceat(cols, starts), np.minimum.reduceat(rows, starts)
+        stats[:, 2] = np.maximum.reduceat(cols, starts) + 1
+        stats[:, 3] = np.maximum.reduceat(rows, starts) + 1
+        centroids[:, 0] = np.add.reduceat(cols, starts) / area_b
+        centroids[:, 1] = np.add.reduceat(rows, starts) / area_b
+    area = area_b * binning * binning
+    keep = np.flatnonzero((area >= min_area) & (area <= max_area))
+    left, top = stats[keep, 0] * binning, stats[keep, 1] * binning
+    right, bottom = stats[keep, 2] * binning, stats[keep, 3] * binning
+    # Edge of the last (partial) block: extend boxes that touch the binned grid's border.
+    right = np.where(right >= labels.shape[1] * binning, image.shape[1], right)
+    bottom = np.where(bottom >= labels.shape[0] * binning, image.shape[0], bottom)
+    centre = centroids[keep] * binning + 0.5 * (binning - 1)
+    return Detections(label=lab[starts[keep]] if n_comp else keep, left=left, top=top, right=right, bottom=bottom,
+                      x=centre[:, 0], y=centre[:, 1], area=area[keep], labels=labels, background=background, noise_adu=noise, binning=binning)

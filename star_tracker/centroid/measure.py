@@ -1,0 +1,165 @@
+"""Per-spot measurements on small windows: hot-pixel cleaning, centre of gravity (plain or
+intensity-weighted) with its noise-model covariance, shape moments, blend peaks."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.special import erf
+
+
+def star_peak_to_neighbour_ratio(psf_sigma_px: float) -> float:
+    """Largest ratio of a star's brightest pixel to its brightest 4-neighbour (star centred on
+    a pixel): P0 / P1 with P0, P1 the PSF fractions of the central and next pixel along an axis."""
+    s = np.sqrt(2.0) * max(psf_sigma_px, 1e-3)
+    p0 = erf(0.5 / s)
+    p1 = 0.5 * (erf(1.5 / s) - erf(0.5 / s))
+    return float(p0 / max(p1, 1e-12))
+
+
+_CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
+
+
+def clean_hot_pixels(windows: np.ndarray, valid: np.ndarray, noise: float, ratio_limit: float):
+    """Replace isolated hot pixels / cosmic-ray hits in background-subtracted windows (n, S, S)
+    [ADU] by the mean of their 4 neighbours: a pixel brighter than ratio_limit x its brightest
+    neighbour + 5 noise sigmas cannot come from a PSF that wide. Returns (cleaned, hit mask)."""
+    n, rows, cols = windows.shape
+    if not np.isfinite(ratio_limit):
+        return windows, np.zeros(windows.shape, bool)
+    stacked = np.where(valid, windows, 0.0).astype(np.float32).reshape(n * rows, cols)
+    brightest = cv2.dilate(stacked, _CROSS, borderType=cv2.BORDER_REPLICATE).reshape(n, rows, cols)
+    hit = valid & (windows > ratio_limit * np.maximum(brightest, 0.0) + 5.0 * noise)
+    hit[:, 0, :] = hit[:, -1, :] = False  # stacked windows: their first/last rows see a neighbour window
+    if not hit.any():
+        return windows, hit
+    mean4 = cv2.filter2D(stacked, -1, _CROSS.astype(np.float32) * 0.25, borderType=cv2.BORDER_REPLICATE)
+    return np.where(hit, mean4.reshape(n, rows, cols), windows), hit
+
+
+@dataclass(frozen=True)
+class Moments:
+    """Aperture measurements (n spots): flux [ADU], centre of gravity x, y [px], its covariance
+    cov (n, 2, 2) [px^2], snr, second moments mxx, myy, mxy of the positive signal [px^2],
+    minor/major principal moments [px^2], peak (brightest pixel) [ADU]."""
+
+    flux: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    cov: np.ndarray
+    snr: np.ndarray
+    minor: np.ndarray
+    major: np.ndarray
+    angle: np.ndarray
+    peak: np.ndarray
+
+
+def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row0: np.ndarray, noise: float,
+                     gain: float, power: int = 1) -> Moments:
+    """Centre of gravity of the pixels in `use` (n, R, C) of background-subtracted windows
+    whose top-left pixel is (col0, row0) [px].
+
+    power 1: plain centre of gravity, weights r_i; power 2: intensity-weighted, weights
+    max(r_i, 0)^2 (less noise from the faint wings, more pixel-phase bias). The covariance
+    propagates the per-pixel variance var_i = max(r_i, 0)/gain + noise^2 through the weights.
+    """
+    n, size_r, size_c = windows.shape
+    lr, lc = np.mgrid[0:size_r, 0:size_c]
+    lc, lr = lc.ravel().astype(float), lr.ravel().astype(float)
+    features = np.stack([np.ones_like(lc), lc, lr, lc * lc, lr * lr, lc * lr], axis=1)  # (P, 6)
+    r = np.where(use, windows, 0.0).reshape(n, -1)
+    positive = np.maximum(r, 0.0)
+    var = np.where(use.reshape(n, -1), positive / gain + noise * noise, 0.0)
+    if power == 1:
+        weight, dweight = r, use.reshape(n, -1).astype(float)
+    else:
+        weight, dweight = positive * positive, 2.0 * positive
+    sw, sv, sp = weight @ features, (var * dweight * dweight) @ features, positive @ features
+    flux = r.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        snr = flux / np.sqrt(var.sum(axis=1))
+        cx, cy = sw[:, 1] / sw[:, 0], sw[:, 2] / sw[:, 0]
+        # d cx / d r_i = dweight_i (x_i - cx) / total; sums of var dw^2 (x_i - cx)(y_i - cy) expanded.
+        t2 = sw[:, 0] ** 2
+        cov = np.empty((n, 2, 2))
+        cov[:, 0, 0] = (sv[:, 3] - 2 * cx * sv[:, 1] + cx * cx * sv[:, 0]) / t2
+        cov[:, 1, 1] = (sv[:, 4] - 2 * cy * sv[:, 2] + cy * cy * sv[:, 0]) / t2
+        cov[:, 0, 1] = cov[:, 1, 0] = (sv[:, 5] - cx * sv[:, 2] - cy * sv[:, 1] + cx * cy * sv[:, 0]) / t2
+        # Shape from the positive signal around its own centre.
+        px, py = sp[:, 1] / sp[:, 0], sp[:, 2] / sp[:, 0]
+        mxx = sp[:, 3] / sp[:, 0] - px * px
+        myy = sp[:, 4] / sp[:, 0] - py * py
+        mxy = sp[:, 5] / sp[:, 0] - px * py
+    spread = np.sqrt(0.25 * (mxx - myy) ** 2 + mxy ** 2)
+    angle = 0.5 * np.arctan2(2.0 * mxy, mxx - myy)
+    peak = np.where(use.reshape(n, -1), r, -np.inf).max(axis=1)
+    return Moments(flux=flux, x=cx + np.asarray(col0, float), y=cy + np.asarray(row0, float), cov=cov, snr=snr,
+                   minor=0.5 * (mxx + myy) - spread, major=0.5 * (mxx + myy) + spread, angle=angle, peak=peak)
+
+
+def secondary_peaks(windows: np.ndarray, valid: np.ndarray, centre: int, threshold: float, min_separation: float,
+                    radius: float):
+    """The brightest local maximum of the 3x3 box sum of each window (n, S, S) that is at least
+    `min_separation` px from the window centre, within `radius` px of it, above `threshold`
+    [ADU, box sum] and separated from the central peak by a dip (the box sum half-way between
+    them is below 0.9x the fainter peak). Returns (found (n,), row, col) in window pixels."""
+    n, size, _ = windows.shape
+    stacked = np.where(valid, windows, 0.0).astype(np.float32).reshape(n * size, size)
+    box = cv2.boxFilter(stacked, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    ring = np.ones((3, 3), np.uint8)
+    ring[1, 1] = 0
+    neighbours = cv2.dilate(box, ring, borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf).reshape(n, size, size)
+    box = box.reshape(n, size, size)
+    rr, cc = np.mgrid[0:size, 0:size]
+    dist = np.hypot(rr - centre, cc - centre)
+    candidate = (box > neighbours) & (box > threshold) & (dist >= min_separation) & (dist <= radius) & valid
+    score = np.where(candidate, box, -np.inf).reshape(n, -1)
+    best = score.argmax(axis=1)
+    found = np.isfinite(score[np.arange(n), best])
+    row, col = best // size, best % size
+    mid_r = np.rint(0.5 * (row + centre)).astype(int)
+    mid_c = np.rint(0.5 * (col + centre)).astype(int)
+    idx = np.arange(n)
+    dip = box[idx, mid_r, mid_c] < 0.9 * np.minimum(box[idx, row, col], box[idx, centre, centre])
+    return found & dip, row, col
+
+
+def significant_peaks(window: np.ndarray, use: np.ndarray, threshold: float, min_separation: float,
+                      noise: float, gain: float, max_peaks: int = 4) -> np.ndarray:
+    """Local maxima of the 3x3 box sum of one window (R, C) [ADU] inside `use`, above
+    `threshold` [ADU, box sum], each separated from every brighter kept peak by at least
+    `min_separation` px and by a real dip: the box sum's minimum on the segment between them is
+    below 0.8x the fainter peak and more than 5 sigma (its shot + pixel noise) under it -- two
+    stars, not noise bumps on one smooth spot or along a streak. Returns (K, 2) (row, col)
+    window pixels, brightest first, at most max_peaks."""
+    signal = np.where(use, window, 0.0).astype(np.float32)
+    box = cv2.boxFilter(signal, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    box_var = cv2.boxFilter(np.maximum(signal, 0.0) / gain, -1, (3, 3), normalize=False,
+                            borderType=cv2.BORDER_CONSTANT) + 9.0 * noise * noise
+    ring = np.ones((3, 3), np.uint8)
+    ring[1, 1] = 0
+    neighbours = cv2.dilate(box, ring, borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf)
+    rows, cols = np.nonzero((box > neighbours) & (box > threshold) & use)
+    order = np.argsort(-box[rows, cols])
+    kept: list[tuple[int, int]] = []
+    for r, c in zip(rows[order], cols[order]):
+        ok = True
+        for kr, kc in kept:
+            if np.hypot(r - kr, c - kc) < min_separation:
+                ok = False
+                break
+            # Minimum of the box sum along the segment between the two peaks.
+            steps = int(np.ceil(np.hypot(r - kr, c - kc))) + 1
+            lr = np.rint(np.linspace(r, kr, steps)).astype(int)
+            lc = np.rint(np.linspace(c, kc, steps)).astype(int)
+            fainter = min(box[r, c], box[kr, kc])
+            dip = fainter - box[lr, lc].min()
+            if dip <= 0.2 * fainter or dip <= 5.0 * np.sqrt(2.0 * box_var[r, c]):
+                ok = False
+                break
+        if ok:
+            kept.append((int(r), int(c)))
+            if len(kept) == max_peaks:
+                break
+    return np.array(kept, dtype=np.int64).reshape(-1, 2)
