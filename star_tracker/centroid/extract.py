@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from .detect import Detections, detect
-from .measure import (aperture_moments, clean_hot_pixels, secondary_peaks, significant_peaks,
+from .measure import (aperture_moments, box_sums, clean_hot_pixels, secondary_peaks, significant_peaks,
                       star_peak_to_neighbour_ratio)
 from .psf_fit import fit_psf_windows, gather_windows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
@@ -150,7 +150,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     if det.x.size == 0:
         return Spots.empty(width, height, **frame_values)
     noise, gain = det.noise_adu, config.gain_e_per_adu
-    cand = _measure(image, det, config, sigma)
+    cand = _measure(image, det, config, sigma, find_blends=config.split_blends and not rate_aided)
 
     # Defects: cleaned-away hot pixels (nothing left) and spots too sharp or too thin for the PSF.
     rejected = np.zeros(cand.x.size, bool)
@@ -218,7 +218,8 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
                  **frame_values)
 
 
-def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float) -> _Candidates:
+def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float,
+             find_blends: bool = True) -> _Candidates:
     """Aperture (small components) or footprint (large ones) measurements of every detection,
     after hot-pixel cleaning."""
     half = config.window_half
@@ -285,40 +286,60 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
         out["cleaned"][idx] = hit.any(axis=(1, 2))
         out["window"][idx], out["window_valid"][idx] = w, v
         out["window_col0"][idx], out["window_row0"][idx] = col0, row0
-    margin = int(np.ceil(3.0 * sigma)) + 2
-    for i in np.flatnonzero(~small):
-        left, top = max(int(det.left[i]) - margin, 0), max(int(det.top[i]) - margin, 0)
-        right, bottom = min(int(det.right[i]) + margin, width), min(int(det.bottom[i]) + margin, height)
-        b = det.binning
-        lab = det.labels[top // b:(bottom + b - 1) // b, left // b:(right + b - 1) // b] == det.label[i]
-        foot = cv2.dilate(lab.astype(np.uint8), np.ones((3, 3), np.uint8))
-        if b > 1:
-            foot = np.repeat(np.repeat(foot, b, axis=0), b, axis=1)
-        foot = foot[top - (top // b) * b:, left - (left // b) * b:][:bottom - top, :right - left] > 0
-        raw = image[top:bottom, left:right].astype(np.float64)
-        bg = det.background[np.clip(np.arange(top, bottom) // b, 0, det.background.shape[0] - 1)[:, None],
-                            np.clip(np.arange(left, right) // b, 0, det.background.shape[1] - 1)[None, :]]
-        valid = np.ones((1,) + raw.shape, bool)
-        win, hit = clean_hot_pixels((raw - bg)[None], valid, noise, ratio_limit)
-        use = foot[None]
-        mom = aperture_moments(win, use, np.array([left]), np.array([top]), noise, gain, power=1)
-        wmom = aperture_moments(win, use, np.array([left]), np.array([top]), noise, gain, power=2) if weighted else mom
-        # Shape from the pixels clearly above the noise: the wide footprint's positive noise
-        # would otherwise inflate the second moments of a faint spot.
-        # The threshold also thins the cross-track profile of a faint spot, so the narrowest
-        # moment (the cosmic-ray test) is only trusted when the peak stands 10 sigma clear.
-        shape = aperture_moments(win, use & (win > 2.0 * noise), np.array([left]), np.array([top]), noise, gain)
-        for key in ("x", "y", "flux", "snr", "peak", "cov", "major", "angle"):
-            out[key][i] = getattr(shape if key in ("major", "angle") else mom, key)[0]
-        out["minor"][i] = shape.minor[0] if shape.peak[0] >= 10.0 * noise else np.inf
-        out["wx"][i], out["wy"][i], out["wcov"][i] = wmom.x[0], wmom.y[0], wmom.cov[0]
-        out["peak_raw"][i] = raw[foot].max()
-        out["edge"][i] = det.left[i] <= 0 or det.top[i] <= 0 or det.right[i] >= width or det.bottom[i] >= height
-        out["cleaned"][i] = bool(hit.any())
-        found = significant_peaks(win[0], foot, 3.0 * config.detection_sigma * noise, max(2.0, 2.0 * sigma), noise,
-                                  gain)
-        out["peaks"][i] = np.column_stack([found[:, 1] + left, found[:, 0] + top]).astype(float)
+    large = np.flatnonzero(~small)
+    if large.size:
+        _measure_large(image, det, config, sigma, large, out, find_blends)
     return _Candidates(area=det.area.astype(np.int64), **out)
+
+
+def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> None:
+    """Footprint measurements of the spots too large for a point window (streaks, bright or
+    blended stars), batched by window size: the footprint (grown by one detection-grid pixel)
+    gives flux, centre of gravity and SNR; its pixels 2 sigma above the noise give the shape."""
+    height, width = image.shape
+    noise, gain, b = det.noise_adu, config.gain_e_per_adu, det.binning
+    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma) if config.psf_sigma_px > 0 else np.inf
+    margin = int(np.ceil(3.0 * sigma)) + 2
+    left, top = det.left[idx] - margin, det.top[idx] - margin
+    n_rows = -(-(det.bottom[idx] + margin - top) // 8) * 8  # sizes rounded up to 8 px: few batches
+    n_cols = -(-(det.right[idx] + margin - left) // 8) * 8
+    grid_h, grid_w = det.labels.shape
+    for size_r, size_c in sorted(set(zip(n_rows.tolist(), n_cols.tolist()))):
+        k = np.flatnonzero((n_rows == size_r) & (n_cols == size_c))
+        members = idx[k]
+        col0, row0 = left[k], top[k]
+        raw, valid = gather_windows(image, col0, row0, (size_r, size_c))
+        grid_r = np.clip((row0[:, None] + np.arange(size_r)) // b, 0, grid_h - 1)
+        grid_c = np.clip((col0[:, None] + np.arange(size_c)) // b, 0, grid_w - 1)
+        bg = det.background[grid_r[:, :, None], grid_c[:, None, :]]
+        labels = det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[members][:, None, None]
+        grow = 2 * b + 1
+        foot = cv2.dilate(labels.astype(np.uint8).reshape(-1, size_c), np.ones((grow, grow), np.uint8))
+        use = (foot.reshape(labels.shape) > 0) & valid
+        win, hit = clean_hot_pixels(np.where(valid, raw - bg, 0.0), valid, noise, ratio_limit)
+        mom = aperture_moments(win, use, col0, row0, noise, gain, power=1)
+        # Shape from the pixels clearly above the noise: the wide footprint's positive noise would
+        # inflate a faint spot's second moments. The threshold also thins the cross-track
+        # profile, so the narrowest moment (cosmic-ray test) needs a peak 10 sigma clear.
+        shape = aperture_moments(win, use & (win > 2.0 * noise), col0, row0, noise, gain)
+        wmom = aperture_moments(win, use, col0, row0, noise, gain, power=2) if config.method == "wcog" else mom
+        for key in ("x", "y", "flux", "snr", "peak", "cov"):
+            out[key][members] = getattr(mom, key)
+        out["major"][members], out["angle"][members] = shape.major, shape.angle
+        out["minor"][members] = np.where(shape.peak >= 10.0 * noise, shape.minor, np.inf)
+        out["wx"][members], out["wy"][members], out["wcov"][members] = wmom.x, wmom.y, wmom.cov
+        out["peak_raw"][members] = np.where(use, raw, -np.inf).reshape(k.size, -1).max(axis=1)
+        out["edge"][members] = ((det.left[members] <= 0) | (det.top[members] <= 0) | (det.right[members] >= width)
+                                | (det.bottom[members] >= height))
+        out["cleaned"][members] = hit.any(axis=(1, 2))
+        if not find_blends:  # (streaks under the rate aid are not split)
+            continue
+        box, box_var, maxima = box_sums(win, use, gain, noise)
+        threshold = 3.0 * config.detection_sigma * noise
+        several = ((maxima & (box > threshold)).sum(axis=(1, 2)) >= 2)
+        for j in np.flatnonzero(several):
+            found = significant_peaks(box[j], box_var[j], maxima[j], threshold, max(2.0, 2.0 * sigma))
+            out["peaks"][members[j]] = np.column_stack([found[:, 1] + col0[j], found[:, 0] + row0[j]]).astype(float)
 
 
 def _fit_points(image, det, config, sigma, which, x, y, flux, cov, snr, flags, cand, sel):
@@ -418,11 +439,6 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
     given, else a free line segment seeded from the spot's moments."""
     from .streak import fit_streaks, fit_streaks_on_path
 
-    def length_hint(t):  # half the extent to cover [px]: the predicted smear, else the spot's size
-        if smear is not None:
-            return 0.5 * float(np.linalg.norm(smear.smear_vectors(x[t:t + 1], y[t:t + 1])[0])) + 1.0
-        return np.sqrt(max(3.0 * cand.major[sel[t]], 0.0)) + 1.0
-
     full_bg = cv2.resize(det.background, (det.background.shape[1] * det.binning,
                                           det.background.shape[0] * det.binning), interpolation=cv2.INTER_NEAREST)
     residual = image.astype(np.float32)
@@ -431,19 +447,10 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
     if h < residual.shape[0] or w < residual.shape[1]:  # odd sizes: last row/column from the edge value
         residual[h:, :] -= det.background[-1, -1]
         residual[:h, w:] -= det.background[-1, -1]
-    # Hot pixels near the streaks would pull the fit: clean them around each streak first.
+    # Hot pixels near the streaks would pull the fit: clean the frame (one pass, OpenCV).
     ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma)
-    height, width = residual.shape
-    for t in which:
-        i = sel[t]
-        pad = int(np.ceil(4.0 * sigma)) + 2 + int(length_hint(t))
-        top, bottom = max(int(y[t]) - pad, 0), min(int(y[t]) + pad + 1, height)
-        left, right = max(int(x[t]) - pad, 0), min(int(x[t]) + pad + 1, width)
-        region = residual[top:bottom, left:right]
-        cleaned, hit = clean_hot_pixels(region[None].astype(np.float64), np.ones((1,) + region.shape, bool), noise,
-                                        ratio_limit)
-        if hit.any():
-            residual[top:bottom, left:right] = cleaned[0]
+    cleaned, _ = clean_hot_pixels(residual[None], np.ones((1,) + residual.shape, bool), noise, ratio_limit)
+    residual = cleaned[0].astype(np.float32)
     if smear is not None:
         path = smear.path(x[which], y[which])
         fit = fit_streaks_on_path(residual, x[which], y[which], flux[which], path, sigma, noise, gain)

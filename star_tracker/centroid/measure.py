@@ -2,6 +2,7 @@
 intensity-weighted) with its noise-model covariance, shape moments, blend peaks."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -28,7 +29,7 @@ def clean_hot_pixels(windows: np.ndarray, valid: np.ndarray, noise: float, ratio
     n, rows, cols = windows.shape
     if not np.isfinite(ratio_limit):
         return windows, np.zeros(windows.shape, bool)
-    stacked = np.where(valid, windows, 0.0).astype(np.float32).reshape(n * rows, cols)
+    stacked = (windows if valid.all() else np.where(valid, windows, 0.0)).astype(np.float32).reshape(n * rows, cols)
     brightest = cv2.dilate(stacked, _CROSS, borderType=cv2.BORDER_REPLICATE).reshape(n, rows, cols)
     hit = valid & (windows > ratio_limit * np.maximum(brightest, 0.0) + 5.0 * noise)
     hit[:, 0, :] = hit[:, -1, :] = False  # stacked windows: their first/last rows see a neighbour window
@@ -55,6 +56,14 @@ class Moments:
     peak: np.ndarray
 
 
+@functools.lru_cache(maxsize=64)
+def _moment_features(size_r: int, size_c: int) -> np.ndarray:
+    """(P, 6) per-pixel 1, x, y, x^2, y^2, xy of an R x C window (local coordinates)."""
+    lr, lc = np.mgrid[0:size_r, 0:size_c]
+    lc, lr = lc.ravel().astype(float), lr.ravel().astype(float)
+    return np.stack([np.ones_like(lc), lc, lr, lc * lc, lr * lr, lc * lr], axis=1)
+
+
 def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row0: np.ndarray, noise: float,
                      gain: float, power: int = 1) -> Moments:
     """Centre of gravity of the pixels in `use` (n, R, C) of background-subtracted windows
@@ -65,9 +74,7 @@ def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row
     propagates the per-pixel variance var_i = max(r_i, 0)/gain + noise^2 through the weights.
     """
     n, size_r, size_c = windows.shape
-    lr, lc = np.mgrid[0:size_r, 0:size_c]
-    lc, lr = lc.ravel().astype(float), lr.ravel().astype(float)
-    features = np.stack([np.ones_like(lc), lc, lr, lc * lc, lr * lr, lc * lr], axis=1)  # (P, 6)
+    features = _moment_features(size_r, size_c)
     r = np.where(use, windows, 0.0).reshape(n, -1)
     positive = np.maximum(r, 0.0)
     var = np.where(use.reshape(n, -1), positive / gain + noise * noise, 0.0)
@@ -125,22 +132,32 @@ def secondary_peaks(windows: np.ndarray, valid: np.ndarray, centre: int, thresho
     return found & dip, row, col
 
 
-def significant_peaks(window: np.ndarray, use: np.ndarray, threshold: float, min_separation: float,
-                      noise: float, gain: float, max_peaks: int = 4) -> np.ndarray:
-    """Local maxima of the 3x3 box sum of one window (R, C) [ADU] inside `use`, above
-    `threshold` [ADU, box sum], each separated from every brighter kept peak by at least
-    `min_separation` px and by a real dip: the box sum's minimum on the segment between them is
-    below 0.8x the fainter peak and more than 5 sigma (its shot + pixel noise) under it -- two
-    stars, not noise bumps on one smooth spot or along a streak. Returns (K, 2) (row, col)
-    window pixels, brightest first, at most max_peaks."""
-    signal = np.where(use, window, 0.0).astype(np.float32)
+def box_sums(windows: np.ndarray, use: np.ndarray, gain: float, noise: float):
+    """3x3 box sums of windows (n, R, C) [ADU] inside `use`, their variance (shot + pixel
+    noise) and a mask of their local maxima. Windows are processed stacked (one OpenCV call);
+    a window's first and last rows are never maxima (they see the neighbouring window)."""
+    n, rows, cols = windows.shape
+    signal = np.where(use, windows, 0.0).astype(np.float32).reshape(n * rows, cols)
     box = cv2.boxFilter(signal, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
     box_var = cv2.boxFilter(np.maximum(signal, 0.0) / gain, -1, (3, 3), normalize=False,
                             borderType=cv2.BORDER_CONSTANT) + 9.0 * noise * noise
     ring = np.ones((3, 3), np.uint8)
     ring[1, 1] = 0
     neighbours = cv2.dilate(box, ring, borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf)
-    rows, cols = np.nonzero((box > neighbours) & (box > threshold) & use)
+    maxima = (box > neighbours).reshape(n, rows, cols) & use
+    maxima[:, 0, :] = maxima[:, -1, :] = False
+    return box.reshape(n, rows, cols), box_var.reshape(n, rows, cols), maxima
+
+
+def significant_peaks(box: np.ndarray, box_var: np.ndarray, maxima: np.ndarray, threshold: float,
+                      min_separation: float, max_peaks: int = 4) -> np.ndarray:
+    """Separate peaks of one window from its box sums (see box_sums): local maxima above
+    `threshold` [ADU, box sum], each at least `min_separation` px from every brighter kept peak
+    and separated from it by a real dip: the box sum's minimum on the segment between them is
+    below 0.8x the fainter peak and more than 5 sigma (its shot + pixel noise) under it -- two
+    stars, not noise bumps on one smooth spot or along a streak. Returns (K, 2) (row, col)
+    window pixels, brightest first, at most max_peaks."""
+    rows, cols = np.nonzero(maxima & (box > threshold))
     order = np.argsort(-box[rows, cols])
     kept: list[tuple[int, int]] = []
     for r, c in zip(rows[order], cols[order]):
@@ -149,7 +166,6 @@ def significant_peaks(window: np.ndarray, use: np.ndarray, threshold: float, min
             if np.hypot(r - kr, c - kc) < min_separation:
                 ok = False
                 break
-            # Minimum of the box sum along the segment between the two peaks.
             steps = int(np.ceil(np.hypot(r - kr, c - kc))) + 1
             lr = np.rint(np.linspace(r, kr, steps)).astype(int)
             lc = np.rint(np.linspace(c, kc, steps)).astype(int)

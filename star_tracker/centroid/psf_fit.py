@@ -39,13 +39,14 @@ def _inverse_3x3(a: np.ndarray) -> np.ndarray:
         return out / det[:, None, None]
 
 
-def gather_windows(image: np.ndarray, col0: np.ndarray, row0: np.ndarray, size: int):
-    """(n, size, size) float windows with top-left pixel (col0, row0) [px], and a mask of the
-    pixels inside the image (outside ones read as 0)."""
+def gather_windows(image: np.ndarray, col0: np.ndarray, row0: np.ndarray, size: int | tuple[int, int]):
+    """(n, rows, cols) float windows with top-left pixel (col0, row0) [px] (size: an int for
+    square windows or (rows, cols)), and a mask of the pixels inside the image (outside ones
+    read as 0)."""
     height, width = image.shape
-    offsets = np.arange(size)
-    rows = np.asarray(row0, np.int64)[:, None] + offsets[None, :]
-    cols = np.asarray(col0, np.int64)[:, None] + offsets[None, :]
+    size_r, size_c = (size, size) if np.isscalar(size) else size
+    rows = np.asarray(row0, np.int64)[:, None] + np.arange(size_r)[None, :]
+    cols = np.asarray(col0, np.int64)[:, None] + np.arange(size_c)[None, :]
     inside = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
     data = image[np.clip(rows, 0, height - 1)[:, :, None], np.clip(cols, 0, width - 1)[:, None, :]]
     return np.where(inside, data.astype(np.float64), 0.0), inside

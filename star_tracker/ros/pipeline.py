@@ -67,10 +67,12 @@ class NodeProcesses:
     """The three nodes as child processes (own process groups), logs in `log_dir`."""
 
     def __init__(self, env: dict[str, str], log_dir: Path, params: dict[str, dict] | None = None,
-                 params_files: Path | list[Path] | None = None, nodes: tuple[str, ...] = tuple(NODE_MODULES)):
+                 params_files: Path | list[Path] | None = None, nodes: tuple[str, ...] = tuple(NODE_MODULES),
+                 remaps: dict[str, dict[str, str]] | None = None):
         """params_files: ros2 parameter files, later ones overriding earlier ones; `params`
-        (per node name) override both."""
+        (per node name) override both; remaps: per node name, topic -> new name (`-r`)."""
         self.env, self.log_dir = env, Path(log_dir)
+        self.remaps = remaps or {}
         self.params = params or {}
         self.params_files = [params_files] if isinstance(params_files, (str, Path)) else list(params_files or [])
         self.nodes = nodes
@@ -84,6 +86,8 @@ class NodeProcesses:
             for path in self.params_files:
                 cmd += ["--params-file", str(path)]
             cmd += parameter_arguments(self.params.get(name, {}))
+            for old, new in self.remaps.get(name, {}).items():
+                cmd += ["-r", f"{old}:={new}"]
             log = open(self.log_dir / f"{name}.log", "w")
             self._logs[name] = log
             self.processes[name] = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
