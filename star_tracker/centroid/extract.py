@@ -468,7 +468,11 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
     flags[t] |= extra_flag
     with np.errstate(divide="ignore", invalid="ignore"):
         snr[t] = fit.flux[good] / fit.flux_sigma[good]  # the fit's (matched-filter) SNR
-    snr[which[~good]] = 0.0  # the streak model could not describe it: not reported
+    # A spot the streak model could not describe is not reported when it should be a streak
+    # (rate aided, or elongated: a fragment or a defect); a point-like one keeps its centroid.
+    failed = which[~good]
+    elongated = cand.major[sel][failed] > 2.5 * (sigma ** 2 + 1.0 / 12.0)
+    snr[failed[elongated | (smear is not None)]] = 0.0
 
 
 def _typical_smear_px(smear: "SmearModel", width: int, height: int) -> float:
