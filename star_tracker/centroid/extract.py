@@ -96,8 +96,9 @@ class CentroidConfig:
 
     @property
     def window_half(self) -> int:
-        """Half size of a point-spot window [px]: the PSF to 3 sigma plus half a pixel."""
-        return int(max(4, np.ceil(3.0 * max(self.psf_sigma_px, 1.0) + 0.5)))
+        """Half size of a point-spot window [px]: the PSF to 3 sigma (beyond, a
+        pixel carries < 1 % of the position information)."""
+        return int(max(3, np.ceil(3.0 * max(self.psf_sigma_px, 1.0))))
 
 
 @dataclass
@@ -222,8 +223,8 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
              find_blends: bool = True) -> _Candidates:
     """Aperture (small components) or footprint (large ones) measurements of every detection,
     after hot-pixel cleaning."""
-    half = config.window_half
-    size = 2 * half + 1  # spot (and PSF-fit) window
+    half = config.window_half + 1  # measuring window: the fit window plus a pixel of room
+    size = 2 * half + 1
     big = size + 4  # search window: the spot window is re-centred on the brightest 3x3 sum in it
     height, width = image.shape
     noise, gain = det.noise_adu, config.gain_e_per_adu
@@ -342,24 +343,34 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
             out["peaks"][members[j]] = np.column_stack([found[:, 1] + col0[j], found[:, 0] + row0[j]]).astype(float)
 
 
+def _cleaned_windows(image, col0, row0, size, background, noise, sigma):
+    """Background-subtracted (n, size, size) windows with hot pixels cleaned; cleaned on windows
+    one pixel larger, so that a hot pixel on the border is judged against its true neighbours."""
+    raw, valid = gather_windows(image, np.asarray(col0) - 1, np.asarray(row0) - 1, size + 2)
+    win, _ = clean_hot_pixels(np.where(valid, raw - np.asarray(background)[:, None, None], 0.0), valid, noise,
+                              2.0 * star_peak_to_neighbour_ratio(sigma))
+    return win[:, 1:-1, 1:-1], valid[:, 1:-1, 1:-1]
+
+
 def _fit_points(image, det, config, sigma, which, x, y, flux, cov, snr, flags, cand, sel):
     """Gaussian PSF fit of point-like spots `which` (in place); blends get a joint 2-PSF fit.
     Returns the split-off second stars as (x, y, flux, cov, snr, peak) tuples."""
     half = config.window_half
     size = 2 * half + 1
     noise, gain = det.noise_adu, config.gain_e_per_adu
-    # Windows measured already (small spots, centred on their peak) are reused.
+    # Windows measured already (small spots, centred on their peak) are reused, cropped to the
+    # fit window around the same centre pixel.
     source = sel[which]
-    win, valid = cand.window[source].copy(), cand.window_valid[source].copy()
-    col0, row0 = cand.window_col0[source].copy(), cand.window_row0[source].copy()
+    crop = (cand.window.shape[1] - size) // 2
+    win = cand.window[source][:, crop:crop + size, crop:crop + size].copy()
+    valid = cand.window_valid[source][:, crop:crop + size, crop:crop + size].copy()
+    col0, row0 = cand.window_col0[source] + crop, cand.window_row0[source] + crop
     fresh = np.flatnonzero(~cand.has_window[source])
     if fresh.size:
         col0[fresh] = np.rint(x[which[fresh]]).astype(np.int64) - half
         row0[fresh] = np.rint(y[which[fresh]]).astype(np.int64) - half
-        raw, valid[fresh] = gather_windows(image, col0[fresh], row0[fresh], size)
         bg = det.background_at(x[which[fresh]], y[which[fresh]])
-        win[fresh], _ = clean_hot_pixels(np.where(valid[fresh], raw - bg[:, None, None], 0.0), valid[fresh], noise,
-                                         2.0 * star_peak_to_neighbour_ratio(sigma))
+        win[fresh], valid[fresh] = _cleaned_windows(image, col0[fresh], row0[fresh], size, bg, noise, sigma)
     blended = np.zeros(which.size, bool)
     extra = []
     if config.split_blends:
@@ -405,7 +416,6 @@ def _fit_blends(image, det, config, sigma, which, x, y, flux, cov, snr, cand, se
     """Joint fit of one PSF per peak over the footprint window of each blended spot `which`
     (in place for the brightest star); returns the others as (x, y, flux, cov, snr, peak)."""
     noise, gain = det.noise_adu, config.gain_e_per_adu
-    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma)
     margin = int(np.ceil(3.0 * sigma)) + 2
     extra = []
     for t in which:
@@ -413,9 +423,8 @@ def _fit_blends(image, det, config, sigma, which, x, y, flux, cov, snr, cand, se
         left = int(np.floor(peaks[:, 0].min())) - margin
         top = int(np.floor(peaks[:, 1].min())) - margin
         size = int(max(np.ptp(peaks[:, 0]), np.ptp(peaks[:, 1]))) + 2 * margin + 1
-        raw, valid = gather_windows(image, np.array([left]), np.array([top]), size)
         bg = det.background_at(np.array([peaks[0, 0]]), np.array([peaks[0, 1]]))
-        win, _ = clean_hot_pixels(np.where(valid, raw - bg[:, None, None], 0.0), valid, noise, ratio_limit)
+        win, valid = _cleaned_windows(image, np.array([left]), np.array([top]), size, bg, noise, sigma)
         amplitude = win[0, (peaks[:, 1] - top).astype(int), (peaks[:, 0] - left).astype(int)]
         flux0 = np.maximum(amplitude * 2.0 * np.pi * sigma ** 2, 1.0)
         fx, fy, ff, fc, ok, fv = fit_psf_windows(win, valid, np.array([left]), np.array([top]), peaks[None, :, 0],
@@ -439,18 +448,8 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
     given, else a free line segment seeded from the spot's moments."""
     from .streak import fit_streaks, fit_streaks_on_path
 
-    full_bg = cv2.resize(det.background, (det.background.shape[1] * det.binning,
-                                          det.background.shape[0] * det.binning), interpolation=cv2.INTER_NEAREST)
-    residual = image.astype(np.float32)
-    h, w = min(full_bg.shape[0], residual.shape[0]), min(full_bg.shape[1], residual.shape[1])
-    residual[:h, :w] -= full_bg[:h, :w]
-    if h < residual.shape[0] or w < residual.shape[1]:  # odd sizes: last row/column from the edge value
-        residual[h:, :] -= det.background[-1, -1]
-        residual[:h, w:] -= det.background[-1, -1]
-    # Hot pixels near the streaks would pull the fit: clean the frame (one pass, OpenCV).
-    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma)
-    cleaned, _ = clean_hot_pixels(residual[None], np.ones((1,) + residual.shape, bool), noise, ratio_limit)
-    residual = cleaned[0].astype(np.float32)
+    residual = _streak_residual(image, det, sigma, noise, x[which], y[which],
+                                _streak_reach(cand, sel, which, x, y, smear, sigma))
     if smear is not None:
         path = smear.path(x[which], y[which])
         fit = fit_streaks_on_path(residual, x[which], y[which], flux[which], path, sigma, noise, gain)
@@ -473,6 +472,51 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
     failed = which[~good]
     elongated = cand.major[sel][failed] > 2.5 * (sigma ** 2 + 1.0 / 12.0)
     snr[failed[elongated | (smear is not None)]] = 0.0
+
+
+def _streak_reach(cand, sel, which, x, y, smear, sigma) -> np.ndarray:
+    """Half size [px] of the region each streak fit may read: half the predicted (or measured)
+    streak length plus the PSF's reach and slack for the window the fitter builds."""
+    if smear is not None:
+        half_length = 0.5 * np.linalg.norm(smear.smear_vectors(x[which], y[which]), axis=1)
+    else:
+        half_length = np.sqrt(np.maximum(3.0 * cand.major[sel][which], 0.0))
+    return half_length * 1.2 + 5.0 * sigma + 4.0
+
+
+def _streak_residual(image, det, sigma, noise, x, y, reach) -> np.ndarray:
+    """Background-subtracted, hot-pixel-cleaned float32 image for the streak fits: the whole
+    frame when there are many streaks (two OpenCV passes), else only square regions of half
+    size `reach` [px] around (x, y), the rest left at 0 (the fits read nothing else)."""
+    height, width = image.shape
+    b = det.binning
+    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma)
+    if x.size > 20:
+        full_bg = cv2.resize(det.background, (det.background.shape[1] * b, det.background.shape[0] * b),
+                             interpolation=cv2.INTER_NEAREST)
+        residual = image.astype(np.float32)
+        h, w = min(full_bg.shape[0], height), min(full_bg.shape[1], width)
+        residual[:h, :w] -= full_bg[:h, :w]
+        residual[h:, :] -= det.background[-1, -1]  # odd sizes: the last row/column
+        residual[:h, w:] -= det.background[-1, -1]
+        cleaned, _ = clean_hot_pixels(residual[None], np.ones((1,) + residual.shape, bool), noise, ratio_limit)
+        return cleaned[0].astype(np.float32)
+    residual = np.zeros((height, width), np.float32)
+    grid_h, grid_w = det.background.shape
+    for cx, cy, r in zip(x, y, reach):
+        if not (np.isfinite(cx) and np.isfinite(cy)):
+            continue
+        # One pixel more than the fit reads, so that its border pixels have true neighbours.
+        top, bottom = max(int(cy - r) - 1, 0), min(int(cy + r) + 2, height)
+        left, right = max(int(cx - r) - 1, 0), min(int(cx + r) + 2, width)
+        if top >= bottom or left >= right:
+            continue
+        bg = det.background[np.clip(np.arange(top, bottom) // b, 0, grid_h - 1)[:, None],
+                            np.clip(np.arange(left, right) // b, 0, grid_w - 1)[None, :]]
+        region = image[top:bottom, left:right].astype(np.float32) - bg
+        cleaned, _ = clean_hot_pixels(region[None], np.ones((1,) + region.shape, bool), noise, ratio_limit)
+        residual[top:bottom, left:right] = cleaned[0]
+    return residual
 
 
 def _typical_smear_px(smear: "SmearModel", width: int, height: int) -> float:

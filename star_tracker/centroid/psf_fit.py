@@ -103,9 +103,13 @@ def fit_psf_windows(data: np.ndarray, valid: np.ndarray, col0: np.ndarray, row0:
 
     # Gauss-Newton on the windows not yet converged (most need two steps from a centre of gravity).
     active = np.arange(n)
+    full = np.full((n, 3 * m, 3 * m), np.nan)
     for _ in range(iterations):
         normal, gradient = normal_equations(active)
         inv = inverse(damped(normal))
+        # The covariance is the inverse information of the last step: once converged the step
+        # is below 1 % of a sigma, so it is the information at the solution.
+        full[active] = inv
         step = (inv @ gradient[..., None])[..., 0].reshape(active.size, m, 3)
         step[:, :, :2] = np.clip(step[:, :, :2], -1.0, 1.0)  # trust region: 1 px per step
         x[active] += step[:, :, 0]
@@ -117,8 +121,6 @@ def fit_psf_windows(data: np.ndarray, valid: np.ndarray, col0: np.ndarray, row0:
         active = active[moving]
         if active.size == 0:
             break
-    normal, _ = normal_equations(np.arange(n))
-    full = inverse(damped(normal))
     cov = np.empty((n, m, 2, 2))
     flux_var = np.empty((n, m))
     for k in range(m):
