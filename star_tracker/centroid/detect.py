@@ -117,31 +117,16 @@ def detect(image: np.ndarray, *, binning: int, background_block_px: int, detecti
         smoothed = cv2.GaussianBlur(residual, (size, size), psf_sigma_binned)
     smooth_noise = robust_sigma(smoothed[::3, ::3] if smoothed.size > 40000 else smoothed) or noise
     mask = (smoothed > detection_sigma * smooth_noise).view(np.uint8)
-    count, labels = cv2.connectedComponents(mask, connectivity=8)
-    # Component statistics from the (few) mask pixels only: cheaper than OpenCV's full-frame pass.
-    pixels = np.flatnonzero(mask)
-    lab = labels.ravel()[pixels]
-    order = np.argsort(lab, kind="stable")
-    lab, pixels = lab[order], pixels[order]
-    starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]]) if lab.size else np.zeros(0, np.int64)
-    cols, rows = pixels % labels.shape[1], pixels // labels.shape[1]
-    n_comp = starts.size
-    area_b = np.diff(np.r_[starts, lab.size])
-    stats = np.zeros((n_comp, 4), np.int64)
-    centroids = np.zeros((n_comp, 2))
-    if n_comp:
-        stats[:, 0], stats[:, 1] = np.minimum.reduceat(cols, starts), np.minimum.reduceat(rows, starts)
-        stats[:, 2] = np.maximum.reduceat(cols, starts) + 1
-        stats[:, 3] = np.maximum.reduceat(rows, starts) + 1
-        centroids[:, 0] = np.add.reduceat(cols, starts) / area_b
-        centroids[:, 1] = np.add.reduceat(rows, starts) / area_b
-    area = area_b * binning * binning
-    keep = np.flatnonzero((area >= min_area) & (area <= max_area))
-    left, top = stats[keep, 0] * binning, stats[keep, 1] * binning
-    right, bottom = stats[keep, 2] * binning, stats[keep, 3] * binning
+    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    area = stats[1:, cv2.CC_STAT_AREA] * binning * binning
+    keep = np.flatnonzero((area >= min_area) & (area <= max_area)) + 1
+    left = stats[keep, cv2.CC_STAT_LEFT] * binning
+    top = stats[keep, cv2.CC_STAT_TOP] * binning
+    right = left + stats[keep, cv2.CC_STAT_WIDTH] * binning
+    bottom = top + stats[keep, cv2.CC_STAT_HEIGHT] * binning
     # Edge of the last (partial) block: extend boxes that touch the binned grid's border.
     right = np.where(right >= labels.shape[1] * binning, image.shape[1], right)
     bottom = np.where(bottom >= labels.shape[0] * binning, image.shape[0], bottom)
     centre = centroids[keep] * binning + 0.5 * (binning - 1)
-    return Detections(label=lab[starts[keep]] if n_comp else keep, left=left, top=top, right=right, bottom=bottom,
-                      x=centre[:, 0], y=centre[:, 1], area=area[keep], labels=labels, background=background, noise_adu=noise, binning=binning)
+    return Detections(label=keep, left=left, top=top, right=right, bottom=bottom,
+                      x=centre[:, 0], y=centre[:, 1], area=area[keep - 1], labels=labels, background=background, noise_adu=noise, binning=binning)

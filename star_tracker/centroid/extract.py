@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 
 from .detect import Detections, detect
-from .measure import (aperture_moments, box_sums, clean_hot_pixels, secondary_peaks, significant_peaks,
-                      star_peak_to_neighbour_ratio)
+from .measure import (aperture_moments, box_sums, clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio,
+                      two_peaks)
 from .psf_fit import fit_psf_windows, gather_windows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
 
@@ -193,7 +193,20 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
             as_streak = np.zeros(n, bool)
         as_streak &= ~multi
         as_point = ~saturated & ~as_streak & ~elongated & ~multi
-        if config.split_blends and multi.any() and not rate_aided:
+        # In a smeared frame (most well-measured spots are streaks) a spot with several peaks is
+        # streaks crossing stars or streaks, which point-PSF fits would misplace: it keeps its
+        # centre of gravity with a covariance as wide as the spot itself (its second moments).
+        clear = (cand.snr[sel] >= 20) & ~saturated
+        smeared_frame = rate_aided or (np.sum(elongated & clear & ~multi) >= max(5, 0.5 * np.sum(clear)))
+        if multi.any() and (smeared_frame or not config.split_blends):
+            b = np.flatnonzero(multi)
+            major, minor, theta = cand.major[sel][b], cand.minor[sel][b], cand.angle[sel][b]
+            minor = np.where(np.isfinite(minor), minor, major)
+            c, s_ = np.cos(theta), np.sin(theta)
+            cov[b, 0, 0] = major * c * c + minor * s_ * s_
+            cov[b, 1, 1] = major * s_ * s_ + minor * c * c
+            cov[b, 0, 1] = cov[b, 1, 0] = (major - minor) * c * s_
+        elif multi.any():
             extra += _fit_blends(image, det, config, sigma, np.flatnonzero(multi), x, y, flux, cov, snr, cand, sel)
         if as_point.any():
             extra += _fit_points(image, det, config, sigma, np.flatnonzero(as_point), x, y, flux, cov, snr, flags,
@@ -273,6 +286,22 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
         wmom = aperture_moments(w, aperture, col0, row0, noise, gain, power=2) if weighted else mom
         for key in ("x", "y", "flux", "minor", "major", "angle", "peak", "cov"):
             out[key][idx] = getattr(mom, key)
+        # The aperture truncates a short faint streak; its detection footprint (matched-filter
+        # mask) over the search window shows the elongation: keep the longer of the two.
+        b = det.binning
+        grid_r = np.clip((r0[:, None] + np.arange(big)) // b, 0, det.labels.shape[0] - 1)
+        grid_c = np.clip((c0[:, None] + np.arange(big)) // b, 0, det.labels.shape[1] - 1)
+        footprint = (det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[idx][:, None, None]) & valid
+        ridge = aperture_moments(win, footprint, c0, r0, noise, gain, signed_shape=True)
+        longer = ridge.major > mom.major
+        out["major"][idx] = np.where(longer, ridge.major, mom.major)
+        out["angle"][idx] = np.where(longer, ridge.angle, mom.angle)
+        if find_blends:  # two stars in one small footprint (elongated, so not fitted as a point)
+            box, box_var, maxima = box_sums(win, footprint, gain, noise)
+            found, pk_r, pk_c = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
+                                          max(2.0, 2.0 * sigma))
+            for j in np.flatnonzero(found & (out["major"][idx] > 2.5 * (sigma ** 2 + 1.0 / 12.0))):
+                out["peaks"][idx[j]] = np.column_stack([pk_c[j] + c0[j], pk_r[j] + r0[j]]).astype(float)
         # SNR in a near-optimal aperture (radius 1.6 sigma for a background-limited Gaussian):
         # the wide measuring aperture would count several times the noise of a faint star.
         snr_ap = (np.hypot(rr - half, cc - half) <= max(1.5, 1.6 * sigma))[None] & v
@@ -326,7 +355,12 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
         wmom = aperture_moments(win, use, col0, row0, noise, gain, power=2) if config.method == "wcog" else mom
         for key in ("x", "y", "flux", "snr", "peak", "cov"):
             out[key][members] = getattr(mom, key)
-        out["major"][members], out["angle"][members] = shape.major, shape.angle
+        # A faint streak has few pixels 2 sigma clear; its detection footprint (the matched-filter
+        # mask, not grown) traces it: the spot is as elongated as the longer of the two says.
+        ridge = aperture_moments(win, labels & valid, col0, row0, noise, gain, signed_shape=True)
+        longer = ridge.major > shape.major
+        out["major"][members] = np.where(longer, ridge.major, shape.major)
+        out["angle"][members] = np.where(longer, ridge.angle, shape.angle)
         out["minor"][members] = np.where(shape.peak >= 10.0 * noise, shape.minor, np.inf)
         out["wx"][members], out["wy"][members], out["wcov"][members] = wmom.x, wmom.y, wmom.cov
         out["peak_raw"][members] = np.where(use, raw, -np.inf).reshape(k.size, -1).max(axis=1)
@@ -336,11 +370,10 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
         if not find_blends:  # (streaks under the rate aid are not split)
             continue
         box, box_var, maxima = box_sums(win, use, gain, noise)
-        threshold = 3.0 * config.detection_sigma * noise
-        several = ((maxima & (box > threshold)).sum(axis=(1, 2)) >= 2)
-        for j in np.flatnonzero(several):
-            found = significant_peaks(box[j], box_var[j], maxima[j], threshold, max(2.0, 2.0 * sigma))
-            out["peaks"][members[j]] = np.column_stack([found[:, 1] + col0[j], found[:, 0] + row0[j]]).astype(float)
+        found, rows, cols = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
+                                      max(2.0, 2.0 * sigma))
+        for j in np.flatnonzero(found):
+            out["peaks"][members[j]] = np.column_stack([cols[j] + col0[j], rows[j] + row0[j]]).astype(float)
 
 
 def _cleaned_windows(image, col0, row0, size, background, noise, sigma):
