@@ -167,3 +167,26 @@ def test_the_rate_aid_finds_faint_streaks_the_blind_search_misses():
     index, aided = nearest(aided_spots, tx, ty)
     assert np.mean(aided < 2.0) >= 0.9 and np.mean(blind < 2.0) < 0.5
     assert np.all(aided_spots.flags[index[aided < 2.0]] & FLAG_RATE_AIDED)
+
+
+def test_smeared_real_sky_spots_have_honest_covariances(catalog, nominal_camera):
+    # 1.5 deg/s with some roll: ~10 px streaks, faint ones included. A streak measured as a point
+    # (or a blend as one star) would be off by many of its claimed sigmas and pull the attitude.
+    renderer = StarFieldRenderer(nominal_camera, SensorModel(), catalog, magnitude_limit=7.5)
+    motion = ConstantRateMotion(radec_roll_to_matrix(1.4, 0.35, 0.2), np.radians([1.2, 0.9, 0.2]))
+    squared = []
+    for k in range(3):
+        frame = renderer.render(motion, 10.0 + k, frame_seed(0, k))
+        spots = extract_spots(frame.image, CentroidConfig(saturation_adu=60000.0))
+        t = frame.truth
+        sx, sy = t.x[t.kind == 0], t.y[t.kind == 0]
+        d = np.hypot(spots.x[:, None] - sx[None], spots.y[:, None] - sy[None])
+        use = (d.min(axis=1) < 3.0) & (spots.snr >= 10) & ((spots.flags & 2) == 0)
+        j = d.argmin(axis=1)[use]
+        ex, ey, c = spots.x[use] - sx[j], spots.y[use] - sy[j], spots.cov[use]
+        squared.extend((c[:, 1, 1] * ex * ex - 2 * c[:, 0, 1] * ex * ey + c[:, 0, 0] * ey * ey)
+                       / (c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] ** 2))
+    squared = np.array(squared)
+    assert squared.size >= 200
+    assert np.mean(squared > 25.0) <= 0.01  # Mahalanobis distance > 5: at most 1 %
+    assert 1.5 < np.mean(squared[squared <= 25.0]) < 3.0  # chi-square with 2 DOF: mean 2
