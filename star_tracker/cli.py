@@ -45,7 +45,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"star_tracker demo: scenario '{args.scenario}', {args.duration:g} s at {args.rate:g} Hz", flush=True)
+    print(f"star_tracker demo: scenario '{args.scenario}', {args.duration:g} s at {args.rate:g} Hz"
+          + (", centroider rate-aided by the true body rate (--gyro)" if args.gyro else ""), flush=True)
     started = time.perf_counter()
     load_hipparcos()
     load_or_build_database(DatabaseConfig())
@@ -63,7 +64,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     rclpy.init(args=[])
     monitor = TrackerMonitor(name="star_tracker_demo_monitor")
-    nodes = NodeProcesses(env, out / "logs", params, default_params_file())
+    # --gyro: the centroider gets the true body rate, as from a gyro, and uses its rate aid.
+    remaps = {"centroider": {"angular_velocity": "truth/angular_velocity"}} if args.gyro else None
+    nodes = NodeProcesses(env, out / "logs", params, default_params_file(), remaps=remaps)
     printed: set[int] = set()
     index = 0
     try:
@@ -164,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--duration", type=float, default=30.0, help="seconds of frames to simulate (default 30)")
     demo.add_argument("--rate", type=float, default=10.0, help="frame rate [Hz] (default 10)")
     demo.add_argument("--output", default="demo_output", help="output directory (default demo_output)")
+    demo.add_argument("--gyro", action="store_true",
+                      help="feed the simulator's true body rate to the centroider's angular_velocity input "
+                           "(as a gyro would): streaks are detected with a matched filter and fitted on their "
+                           "predicted path")
     demo.set_defaults(func=cmd_demo)
     return parser
 

@@ -20,7 +20,7 @@ def test_help_lists_every_subcommand_and_option():
     assert top.returncode == 0 and "demo" in top.stdout
     demo = run(["demo", "--help"])
     assert demo.returncode == 0
-    for option in ("--scenario", "--duration", "--rate", "--output", "default", "rest", "fast"):
+    for option in ("--scenario", "--duration", "--rate", "--output", "--gyro", "default", "rest", "fast"):
         assert option in demo.stdout
 
 

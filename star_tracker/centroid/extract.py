@@ -287,21 +287,33 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
         for key in ("x", "y", "flux", "minor", "major", "angle", "peak", "cov"):
             out[key][idx] = getattr(mom, key)
         # The aperture truncates a short faint streak; its detection footprint (matched-filter
-        # mask) over the search window shows the elongation: keep the longer of the two.
-        b = det.binning
-        grid_r = np.clip((r0[:, None] + np.arange(big)) // b, 0, det.labels.shape[0] - 1)
-        grid_c = np.clip((c0[:, None] + np.arange(big)) // b, 0, det.labels.shape[1] - 1)
-        footprint = (det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[idx][:, None, None]) & valid
-        ridge = aperture_moments(win, footprint, c0, r0, noise, gain, signed_shape=True)
-        longer = ridge.major > mom.major
-        out["major"][idx] = np.where(longer, ridge.major, mom.major)
-        out["angle"][idx] = np.where(longer, ridge.angle, mom.angle)
-        if find_blends:  # two stars in one small footprint (elongated, so not fitted as a point)
-            box, box_var, maxima = box_sums(win, footprint, gain, noise)
-            found, pk_r, pk_c = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
-                                          max(2.0, 2.0 * sigma))
-            for j in np.flatnonzero(found & (out["major"][idx] > 2.5 * (sigma ** 2 + 1.0 / 12.0))):
-                out["peaks"][idx[j]] = np.column_stack([pk_c[j] + c0[j], pk_r[j] + r0[j]]).astype(float)
+        # mask) over the search window shows the elongation: keep the longer of the two. Only
+        # footprints wider than the aperture can hide one.
+        extent = np.maximum(det.right[idx] - det.left[idx], det.bottom[idx] - det.top[idx])
+        wide = np.flatnonzero(extent > 2.0 * max(2.5, 3.0 * sigma) + 1.0)
+        if wide.size:
+            b, iw = det.binning, idx[wide]
+            grid_r = np.clip((r0[wide][:, None] + np.arange(big)) // b, 0, det.labels.shape[0] - 1)
+            grid_c = np.clip((c0[wide][:, None] + np.arange(big)) // b, 0, det.labels.shape[1] - 1)
+            footprint = (det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[iw][:, None, None]) \
+                & valid[wide]
+            ridge = aperture_moments(win[wide], footprint, c0[wide], r0[wide], noise, gain, signed_shape=True)
+            longer = ridge.major > mom.major[wide]
+            out["major"][iw] = np.where(longer, ridge.major, mom.major[wide])
+            out["angle"][iw] = np.where(longer, ridge.angle, mom.angle[wide])
+            stretched = out["major"][iw] > 2.5 * (sigma ** 2 + 1.0 / 12.0)
+            if stretched.any():  # cross-track width of an elongated spot: see _streak_width
+                e = np.flatnonzero(stretched)
+                out["minor"][iw[e]] = np.minimum(out["minor"][iw[e]], _streak_width(
+                    win[wide][e], footprint[e], valid[wide][e], out["major"][iw[e]], noise, sigma, b))
+            if find_blends and stretched.any():  # two stars in one small footprint: not a streak
+                e = np.flatnonzero(stretched)
+                box, box_var, maxima = box_sums(win[wide][e], footprint[e], gain, noise)
+                found, pk_r, pk_c = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
+                                              max(2.0, 2.0 * sigma))
+                for j in np.flatnonzero(found):
+                    k = wide[e[j]]
+                    out["peaks"][idx[k]] = np.column_stack([pk_c[j] + c0[k], pk_r[j] + r0[k]]).astype(float)
         # SNR in a near-optimal aperture (radius 1.6 sigma for a background-limited Gaussian):
         # the wide measuring aperture would count several times the noise of a faint star.
         snr_ap = (np.hypot(rr - half, cc - half) <= max(1.5, 1.6 * sigma))[None] & v
@@ -362,6 +374,10 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
         out["major"][members] = np.where(longer, ridge.major, shape.major)
         out["angle"][members] = np.where(longer, ridge.angle, shape.angle)
         out["minor"][members] = np.where(shape.peak >= 10.0 * noise, shape.minor, np.inf)
+        stretched = np.flatnonzero(out["major"][members] > 2.5 * (sigma ** 2 + 1.0 / 12.0))
+        if stretched.size:
+            out["minor"][members[stretched]] = np.minimum(out["minor"][members[stretched]], _streak_width(
+                win[stretched], labels[stretched], valid[stretched], out["major"][members[stretched]], noise, sigma, b))
         out["wx"][members], out["wy"][members], out["wcov"][members] = wmom.x, wmom.y, wmom.cov
         out["peak_raw"][members] = np.where(use, raw, -np.inf).reshape(k.size, -1).max(axis=1)
         out["edge"][members] = ((det.left[members] <= 0) | (det.top[members] <= 0) | (det.right[members] >= width)
@@ -374,6 +390,29 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
                                       max(2.0, 2.0 * sigma))
         for j in np.flatnonzero(found):
             out["peaks"][members[j]] = np.column_stack([cols[j] + col0[j], rows[j] + row0[j]]).astype(float)
+
+
+def _streak_width(win, footprint, valid, major, noise, sigma, binning) -> np.ndarray:
+    """Stand-in for the narrowest second moment [px^2] of elongated spots, for the width test.
+
+    Second moments of a faint streak are too noisy to tell a PSF-wide streak from a cosmic-ray
+    track a pixel wide, so count instead: where the ridge is >= 10 noise sigmas, a PSF of sigma
+    >= 1 px puts >= 5-sigma signal on >= ~2.5 pixels across the track per pixel of length, a
+    cosmic-ray track on ~1. Returns 0 (fails the width test) for a spot with fewer than 1.8
+    such pixels per pixel of length (length from the major moment), else inf (no verdict)."""
+    n, rows, cols = win.shape
+    grow = 2 * binning + 1
+    grown = cv2.dilate(footprint.astype(np.uint8).reshape(n * rows, cols), np.ones((grow, grow), np.uint8))
+    use = (grown.reshape(n, rows, cols) > 0) & valid
+    signal = np.where(use, win, 0.0)
+    strong = (signal > 5.0 * noise).sum(axis=(1, 2))
+    length = np.sqrt(np.maximum(12.0 * (major - sigma ** 2), 0.0)) + 1.0
+    # The ridge level: the median of the spot's brightest `length` pixels (a noise peak or two
+    # must not make a faint streak look bright).
+    ranked = -np.sort(-signal.reshape(n, -1), axis=1)
+    take = np.clip(np.rint(length).astype(int), 1, ranked.shape[1])
+    ridge = ranked[np.arange(n), take // 2]
+    return np.where((ridge >= 10.0 * noise) & (strong < 1.8 * length), 0.0, np.inf)
 
 
 def _cleaned_windows(image, col0, row0, size, background, noise, sigma):
