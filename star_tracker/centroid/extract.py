@@ -290,7 +290,7 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
         # mask) over the search window shows the elongation: keep the longer of the two. Only
         # footprints wider than the aperture can hide one.
         extent = np.maximum(det.right[idx] - det.left[idx], det.bottom[idx] - det.top[idx])
-        wide = np.flatnonzero(extent > 2.0 * max(2.5, 3.0 * sigma) + 3.0)
+        wide = np.flatnonzero(extent > 2.0 * max(2.5, 3.0 * sigma) + 1.0)
         if wide.size:
             b, iw = det.binning, idx[wide]
             grid_r = np.clip((r0[wide][:, None] + np.arange(big)) // b, 0, det.labels.shape[0] - 1)
