@@ -52,10 +52,17 @@ def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None):
                           remaps=remaps).start()
     try:
         procs.wait_ready()
+        # Until every frame is processed (the centroider's own count) and nothing more arrives:
+        # a best-effort message lost on a loaded host must not stall the test.
         end = time.monotonic() + 60.0
-        while time.monotonic() < end and not (len(spots) >= FRAMES and len(truth) >= FRAMES
-                                              and int(diag.get("frames_processed", 0)) >= FRAMES):
+        last_count, quiet_since = -1, time.monotonic()
+        while time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
+            if len(spots) != last_count:
+                last_count, quiet_since = len(spots), time.monotonic()
+            done = int(diag.get("frames_processed", 0)) >= FRAMES and len(truth) >= FRAMES
+            if done and (len(spots) >= FRAMES or time.monotonic() - quiet_since > 2.0):
+                break
     finally:
         procs.stop()
         node.destroy_node()

@@ -166,3 +166,16 @@ def test_gaussian_fit_survives_a_degenerate_spot_in_the_batch():
                                         np.array([900.0, 0.0]), 1.0, 1.0, 1.0)
     assert abs(x[0] - 20.3) < 1e-3 and abs(y[0] - 30.7) < 1e-3 and ok[0]
     assert not ok[1] or cov[1, 0, 0] > 1e6  # flagged, or honestly uninformative
+
+
+def test_compiled_psf_fit_is_the_numpy_fit(catalog, nominal_camera, monkeypatch):
+    import star_tracker.centroid.psf_fit as psf_fit
+
+    frame = render(catalog, nominal_camera, seed=41)
+    compiled = extract_spots(frame.image, CentroidConfig())
+    monkeypatch.setattr(psf_fit, "USE_COMPILED", False)
+    reference = extract_spots(frame.image, CentroidConfig())
+    assert len(compiled) == len(reference) >= 50
+    assert np.allclose(compiled.x, reference.x, atol=1e-9) and np.allclose(compiled.y, reference.y, atol=1e-9)
+    assert np.allclose(compiled.cov, reference.cov, rtol=1e-9, atol=1e-15)
+    assert np.allclose(compiled.snr, reference.snr, rtol=1e-9)

@@ -8,6 +8,7 @@ import numpy as np
 from scipy.special import erf
 
 _ROOT2 = np.sqrt(2.0)
+USE_COMPILED = True  # single-PSF fits through kernels.fit_single_psf (False: the numpy path)
 _INV_ROOT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 
 
@@ -72,6 +73,15 @@ def fit_psf_windows(data: np.ndarray, valid: np.ndarray, col0: np.ndarray, row0:
     size = data.shape[1]
     if n == 0:
         return x0, y0, flux0, np.zeros((0, m, 2, 2)), np.zeros((0, m), bool), np.zeros((0, m))
+    if m == 1 and USE_COMPILED:  # the common case, compiled: numpy's per-call overhead dominates it
+        from .kernels import fit_single_psf
+
+        out = fit_single_psf(np.ascontiguousarray(data, np.float64), np.ascontiguousarray(valid, np.bool_),
+                             np.asarray(col0, np.float64), np.asarray(row0, np.float64), x0[:, 0].copy(),
+                             y0[:, 0].copy(), flux0[:, 0].copy(), float(sigma), float(noise), float(gain),
+                             int(iterations))
+        x, y, flux, cov, flux_var, ok = out
+        return x[:, None], y[:, None], flux[:, None], cov[:, None], ok[:, None], flux_var[:, None]
     edges_c = (np.asarray(col0, float)[:, None] + np.arange(size) - 0.5)[:, None, :]  # (n, 1, S)
     edges_r = (np.asarray(row0, float)[:, None] + np.arange(size) - 0.5)[:, None, :]
     x, y, flux = x0.copy(), y0.copy(), np.maximum(flux0.copy(), 1e-9)

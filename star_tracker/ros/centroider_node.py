@@ -21,6 +21,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..camera import CameraModel
 from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
+from ..centroid.kernels import warm_up
 from ..centroid.streak import SmearModel
 from . import convert
 from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, Diagnostics, ThrottledLog, declare, run_node
@@ -71,6 +72,7 @@ class CentroiderNode(Node):
         self.camera: CameraModel | None = None
         self._camera_key = None
         self.rate: tuple[int, np.ndarray] | None = None  # (stamp ns, rad/s) of the latest rate message
+        warm_up()  # compile the centroider's kernels before the first frame arrives (~3 s once, then cached)
         self.pub = self.create_publisher(PointCloud2, "spots", SPOTS_QOS)
         self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.on_camera_info, IMAGE_QOS)
