@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .kernels import component_stats
+
 MAD_TO_SIGMA = 1.4826
 
 
@@ -117,13 +119,13 @@ def detect(image: np.ndarray, *, binning: int, background_block_px: int, detecti
         smoothed = cv2.GaussianBlur(residual, (size, size), psf_sigma_binned)
     smooth_noise = robust_sigma(smoothed[::3, ::3] if smoothed.size > 40000 else smoothed) or noise
     mask = (smoothed > detection_sigma * smooth_noise).view(np.uint8)
-    count, labels, stats, centroids = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    area = stats[1:, cv2.CC_STAT_AREA] * binning * binning
+    count, labels = cv2.connectedComponents(mask, connectivity=8)
+    bl, bt, br, bb, area_b, cx_b, cy_b = component_stats(labels, count)
+    area = area_b[1:] * binning * binning
     keep = np.flatnonzero((area >= min_area) & (area <= max_area)) + 1
-    left = stats[keep, cv2.CC_STAT_LEFT] * binning
-    top = stats[keep, cv2.CC_STAT_TOP] * binning
-    right = left + stats[keep, cv2.CC_STAT_WIDTH] * binning
-    bottom = top + stats[keep, cv2.CC_STAT_HEIGHT] * binning
+    left, top = bl[keep] * binning, bt[keep] * binning
+    right, bottom = br[keep] * binning, bb[keep] * binning
+    centroids = np.column_stack([cx_b, cy_b])
     # Edge of the last (partial) block: extend boxes that touch the binned grid's border.
     right = np.where(right >= labels.shape[1] * binning, image.shape[1], right)
     bottom = np.where(bottom >= labels.shape[0] * binning, image.shape[0], bottom)

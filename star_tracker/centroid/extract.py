@@ -15,6 +15,8 @@ import numpy as np
 from .detect import Detections, detect
 from .measure import (aperture_moments, box_sums, clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio,
                       two_peaks)
+from . import psf_fit
+from .kernels import measure_small
 from .psf_fit import fit_psf_windows, gather_windows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
 
@@ -255,37 +257,64 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
     out["has_window"] = small.copy()
     out["peaks"] = [np.zeros((0, 2))] * m
     if idx.size:
-        c0 = np.rint(det.x[idx]).astype(np.int64) - big // 2
-        r0 = np.rint(det.y[idx]).astype(np.int64) - big // 2
-        raw, valid = gather_windows(image, c0, r0, big)
         bg = det.background_at(det.x[idx], det.y[idx])
-        win, hit = clean_hot_pixels(np.where(valid, raw - bg[:, None, None], 0.0), valid, noise, ratio_limit)
-        box = cv2.boxFilter(win.astype(np.float32).reshape(-1, big), -1, (3, 3), normalize=False,
-                            borderType=cv2.BORDER_CONSTANT).reshape(idx.size, big, big)
-        # Seed: the brightest 3x3 sum inside the footprint's box (hot pixels already cleaned away),
-        # at least half a spot window from the search window's border.
-        lo, hi = half, big - 1 - half  # seed rows/cols allowed: [lo, hi]
-        span = np.arange(big)
-        in_rows = (span[None] >= np.clip(det.top[idx] - r0, lo, hi)[:, None]) \
-            & (span[None] < np.clip(det.bottom[idx] - r0, lo + 1, hi + 1)[:, None])
-        in_cols = (span[None] >= np.clip(det.left[idx] - c0, lo, hi)[:, None]) \
-            & (span[None] < np.clip(det.right[idx] - c0, lo + 1, hi + 1)[:, None])
-        core = np.where(in_rows[:, :, None] & in_cols[:, None, :], 0.0, -np.inf).astype(np.float32)
-        best = (box + core).reshape(idx.size, -1).argmax(axis=1)
-        br, bc = best // big, best % big
-        sub_r = (br - half)[:, None] + np.arange(size)[None, :]
-        sub_c = (bc - half)[:, None] + np.arange(size)[None, :]
-        k = np.arange(idx.size)[:, None, None]
-        w = win[k, sub_r[:, :, None], sub_c[:, None, :]]
-        v = valid[k, sub_r[:, :, None], sub_c[:, None, :]]
-        rawv = raw[k, sub_r[:, :, None], sub_c[:, None, :]]
-        col0, row0 = c0 + bc - half, r0 + br - half
-        rr, cc = np.mgrid[0:size, 0:size]
-        aperture = (np.hypot(rr - half, cc - half) <= min(max(2.5, 3.0 * sigma), half))[None] & v
-        mom = aperture_moments(w, aperture, col0, row0, noise, gain, power=1)
-        wmom = aperture_moments(w, aperture, col0, row0, noise, gain, power=2) if weighted else mom
-        for key in ("x", "y", "flux", "minor", "major", "angle", "peak", "cov"):
-            out[key][idx] = getattr(mom, key)
+        if psf_fit.USE_COMPILED and np.isfinite(ratio_limit):
+            res = measure_small(image, det.x[idx], det.y[idx], bg, det.top[idx], det.bottom[idx], det.left[idx],
+                                det.right[idx], half, float(sigma), float(noise), float(gain), float(ratio_limit),
+                                weighted)
+            for key, value in zip(("x", "y", "flux", "snr", "minor", "major", "angle", "peak", "peak_raw", "cov", "wx",
+                                   "wy", "wcov", "edge", "cleaned", "window", "window_valid", "window_col0",
+                                   "window_row0"), res[:19]):
+                out[key][idx] = value
+            win, valid, c0, r0 = res[19:]
+            if not weighted:
+                out["wx"][idx], out["wy"][idx], out["wcov"][idx] = res[0], res[1], res[9]
+        else:  # numpy reference path
+            c0 = np.rint(det.x[idx]).astype(np.int64) - big // 2
+            r0 = np.rint(det.y[idx]).astype(np.int64) - big // 2
+            raw, valid = gather_windows(image, c0, r0, big)
+            win, hit = clean_hot_pixels(np.where(valid, raw - bg[:, None, None], 0.0), valid, noise, ratio_limit)
+            box = cv2.boxFilter(win.astype(np.float32).reshape(-1, big), -1, (3, 3), normalize=False,
+                                borderType=cv2.BORDER_CONSTANT).reshape(idx.size, big, big)
+            # Seed: the brightest 3x3 sum inside the footprint's box (hot pixels already cleaned away),
+            # at least half a spot window from the search window's border.
+            lo, hi = half, big - 1 - half  # seed rows/cols allowed: [lo, hi]
+            span = np.arange(big)
+            in_rows = (span[None] >= np.clip(det.top[idx] - r0, lo, hi)[:, None]) \
+                & (span[None] < np.clip(det.bottom[idx] - r0, lo + 1, hi + 1)[:, None])
+            in_cols = (span[None] >= np.clip(det.left[idx] - c0, lo, hi)[:, None]) \
+                & (span[None] < np.clip(det.right[idx] - c0, lo + 1, hi + 1)[:, None])
+            core = np.where(in_rows[:, :, None] & in_cols[:, None, :], 0.0, -np.inf).astype(np.float32)
+            best = (box + core).reshape(idx.size, -1).argmax(axis=1)
+            br, bc = best // big, best % big
+            sub_r = (br - half)[:, None] + np.arange(size)[None, :]
+            sub_c = (bc - half)[:, None] + np.arange(size)[None, :]
+            k = np.arange(idx.size)[:, None, None]
+            w = win[k, sub_r[:, :, None], sub_c[:, None, :]]
+            v = valid[k, sub_r[:, :, None], sub_c[:, None, :]]
+            rawv = raw[k, sub_r[:, :, None], sub_c[:, None, :]]
+            col0, row0 = c0 + bc - half, r0 + br - half
+            rr, cc = np.mgrid[0:size, 0:size]
+            aperture = (np.hypot(rr - half, cc - half) <= min(max(2.5, 3.0 * sigma), half))[None] & v
+            mom = aperture_moments(w, aperture, col0, row0, noise, gain, power=1)
+            wmom = aperture_moments(w, aperture, col0, row0, noise, gain, power=2) if weighted else mom
+            for key in ("x", "y", "flux", "minor", "major", "angle", "peak", "cov"):
+                out[key][idx] = getattr(mom, key)
+            # SNR in a near-optimal aperture (radius 1.6 sigma for a background-limited Gaussian):
+            # the wide measuring aperture would count several times the noise of a faint star.
+            snr_ap = (np.hypot(rr - half, cc - half) <= max(1.5, 1.6 * sigma))[None] & v
+            signal = np.where(snr_ap, w, 0.0)
+            variance = np.where(snr_ap, np.maximum(w, 0.0) / gain + noise * noise, 0.0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                out["snr"][idx] = signal.sum(axis=(1, 2)) / np.sqrt(variance.sum(axis=(1, 2)))
+            out["wx"][idx], out["wy"][idx], out["wcov"][idx] = wmom.x, wmom.y, wmom.cov
+            out["peak_raw"][idx] = np.where(aperture, rawv, -np.inf).reshape(idx.size, -1).max(axis=1)
+            out["edge"][idx] = ~v.all(axis=(1, 2)) | (col0 <= 0) | (row0 <= 0) | (col0 + size >= width) \
+                | (row0 + size >= height)
+            out["cleaned"][idx] = hit.any(axis=(1, 2))
+            out["window"][idx], out["window_valid"][idx] = w, v
+            out["window_col0"][idx], out["window_row0"][idx] = col0, row0
+        major_ap, angle_ap = out["major"][idx].copy(), out["angle"][idx].copy()
         # The aperture truncates a short faint streak; its detection footprint (matched-filter
         # mask) over the search window shows the elongation: keep the longer of the two. Only
         # footprints wider than the aperture can hide one.
@@ -298,9 +327,9 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
             footprint = (det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[iw][:, None, None]) \
                 & valid[wide]
             ridge = aperture_moments(win[wide], footprint, c0[wide], r0[wide], noise, gain, signed_shape=True)
-            longer = ridge.major > mom.major[wide]
-            out["major"][iw] = np.where(longer, ridge.major, mom.major[wide])
-            out["angle"][iw] = np.where(longer, ridge.angle, mom.angle[wide])
+            longer = ridge.major > major_ap[wide]
+            out["major"][iw] = np.where(longer, ridge.major, major_ap[wide])
+            out["angle"][iw] = np.where(longer, ridge.angle, angle_ap[wide])
             stretched = out["major"][iw] > 2.5 * (sigma ** 2 + 1.0 / 12.0)
             if stretched.any():  # cross-track width of an elongated spot: see _streak_width
                 e = np.flatnonzero(stretched)
@@ -314,20 +343,6 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
                 for j in np.flatnonzero(found):
                     k = wide[e[j]]
                     out["peaks"][idx[k]] = np.column_stack([pk_c[j] + c0[k], pk_r[j] + r0[k]]).astype(float)
-        # SNR in a near-optimal aperture (radius 1.6 sigma for a background-limited Gaussian):
-        # the wide measuring aperture would count several times the noise of a faint star.
-        snr_ap = (np.hypot(rr - half, cc - half) <= max(1.5, 1.6 * sigma))[None] & v
-        signal = np.where(snr_ap, w, 0.0)
-        variance = np.where(snr_ap, np.maximum(w, 0.0) / gain + noise * noise, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out["snr"][idx] = signal.sum(axis=(1, 2)) / np.sqrt(variance.sum(axis=(1, 2)))
-        out["wx"][idx], out["wy"][idx], out["wcov"][idx] = wmom.x, wmom.y, wmom.cov
-        out["peak_raw"][idx] = np.where(aperture, rawv, -np.inf).reshape(idx.size, -1).max(axis=1)
-        out["edge"][idx] = ~v.all(axis=(1, 2)) | (col0 <= 0) | (row0 <= 0) | (col0 + size >= width) \
-            | (row0 + size >= height)
-        out["cleaned"][idx] = hit.any(axis=(1, 2))
-        out["window"][idx], out["window_valid"][idx] = w, v
-        out["window_col0"][idx], out["window_row0"][idx] = col0, row0
     large = np.flatnonzero(~small)
     if large.size:
         _measure_large(image, det, config, sigma, large, out, find_blends)
