@@ -46,7 +46,7 @@ def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None):
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
     params = {"camera_simulator": {"attitude.profile": "constant_rate", "attitude.body_rate_deg_s": RATE_DEG_S,
                                    "max_frames": FRAMES, "rate_hz": 5.0, "wait_for_subscribers": True,
-                                   "start_delay_s": 1.0},
+                                   "start_delay_s": 2.0},
               "centroider": {"saturation_adu": 60000.0, **centroider_params}}
     procs = NodeProcesses(env, tmp_path / "logs", params, nodes=("camera_simulator", "centroider"),
                           remaps=remaps).start()
@@ -93,12 +93,15 @@ def test_centroider_measures_streaks_at_mid_exposure_with_and_without_the_rate(t
     # Rate aid from a gyro-like topic: the simulator's true rate remapped onto angular_velocity.
     frames, diag = run_pipeline(tmp_path / "aided", monkeypatch, {"exposure_time_s": 0.1, "rate_source": "topic"},
                                 remaps={"centroider": {"angular_velocity": "truth/angular_velocity"}})
-    assert len(frames) >= FRAMES - 1
+    assert len(frames) >= FRAMES - 2  # best effort: an early spots message may precede discovery
     assert int(diag["frames_rate_aided"]) >= FRAMES - 2  # the first frame may precede the first rate
-    errors, flags, lengths = streak_errors(frames)
+    # Frames that had a rate (the first one or two can precede the first rate message).
+    aided_frames = {k: v for k, v in frames.items() if np.any(v[0]["flags"] & FLAG_RATE_AIDED)}
+    assert len(aided_frames) >= FRAMES - 3
+    errors, flags, lengths = streak_errors(aided_frames)
     assert errors.size >= 50
     aided = (flags & FLAG_RATE_AIDED) != 0
-    assert aided.mean() > 0.8 and np.all(flags[aided] & FLAG_STREAK)
+    assert aided.mean() > 0.9 and np.all(flags[aided] & FLAG_STREAK)
     assert np.sqrt(np.mean(errors[aided] ** 2)) < 0.15
     assert abs(np.median(lengths[aided]) / expected_length - 1) < 0.03
 

@@ -23,6 +23,7 @@ from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLA
 if TYPE_CHECKING:
     from .streak import SmearModel
 
+SEARCH_MARGIN = 8  # search window = spot window + this [px]: footprints up to 15 px take the point path
 CENTROID_METHODS = ("auto", "cog", "wcog", "gaussian", "streak")
 
 
@@ -240,7 +241,7 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
     after hot-pixel cleaning."""
     half = config.window_half + 1  # measuring window: the fit window plus a pixel of room
     size = 2 * half + 1
-    big = size + 4  # search window: the spot window is re-centred on the brightest 3x3 sum in it
+    big = size + SEARCH_MARGIN  # search window: the spot window is re-centred on the brightest 3x3 sum in it
     height, width = image.shape
     noise, gain = det.noise_adu, config.gain_e_per_adu
     ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma) if config.psf_sigma_px > 0 else np.inf
@@ -260,8 +261,8 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
         bg = det.background_at(det.x[idx], det.y[idx])
         if psf_fit.USE_COMPILED and np.isfinite(ratio_limit):
             res = measure_small(image, det.x[idx], det.y[idx], bg, det.top[idx], det.bottom[idx], det.left[idx],
-                                det.right[idx], half, float(sigma), float(noise), float(gain), float(ratio_limit),
-                                weighted)
+                                det.right[idx], half, SEARCH_MARGIN, float(sigma), float(noise), float(gain),
+                                float(ratio_limit), weighted)
             for key, value in zip(("x", "y", "flux", "snr", "minor", "major", "angle", "peak", "peak_raw", "cov", "wx",
                                    "wy", "wcov", "edge", "cleaned", "window", "window_valid", "window_col0",
                                    "window_row0"), res[:19]):

@@ -113,7 +113,7 @@ def warm_up() -> None:
     for image in (np.zeros((32, 32), np.uint16), np.zeros((32, 32), np.uint8), np.zeros((32, 32), np.float32)):
         one = np.full(1, 16.0)
         index = np.full(1, 14, np.int64)
-        measure_small(image, one, one, np.zeros(1), index, index + 4, index, index + 4, 4, 1.0, 1.0, 1.0, 3.0, False)
+        measure_small(image, one, one, np.zeros(1), index, index + 4, index, index + 4, 4, 8, 1.0, 1.0, 1.0, 3.0, False)
 
 
 @njit(cache=True)
@@ -149,7 +149,8 @@ def component_stats(labels: np.ndarray, count: int):
 
 
 @njit(cache=True)
-def measure_small(image, cx, cy, bg, top, bottom, left, right, half, sigma, noise, gain, ratio_limit, weighted):
+def measure_small(image, cx, cy, bg, top, bottom, left, right, half, search_margin, sigma, noise, gain, ratio_limit,
+                  weighted):
     """The point-window measurements of extract._measure (numpy reference: its loop-free
     path), compiled. Per spot n: a search window of (2 half + 5)^2 around (cx, cy) [px] minus
     bg [ADU], hot pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels), re-centred
@@ -161,7 +162,7 @@ def measure_small(image, cx, cy, bg, top, bottom, left, right, half, sigma, nois
     height, width = image.shape
     n = cx.size
     size = 2 * half + 1
-    big = size + 4
+    big = size + search_margin
     r_ap = min(max(2.5, 3.0 * sigma), float(half))
     r_snr = max(1.5, 1.6 * sigma)
     out_x = np.full(n, np.nan)
