@@ -190,3 +190,17 @@ def test_smeared_real_sky_spots_have_honest_covariances(catalog, nominal_camera)
     assert squared.size >= 200
     assert np.mean(squared > 25.0) <= 0.01  # Mahalanobis distance > 5: at most 1 %
     assert 1.5 < np.mean(squared[squared <= 25.0]) < 3.0  # chi-square with 2 DOF: mean 2
+
+
+def test_a_strong_stray_light_gradient_neither_hides_stars_nor_makes_false_ones():
+    # Stray light rising by 4000 e-/px/s across the frame (400 e- per pixel in 0.1 s, about
+    # 10x the sky background at the far corner): the background mesh must follow it.
+    rng = np.random.default_rng(21)
+    x, y = grid(8, 120, 80, rng)
+    sensor = SensorModel(stray_light_gradient_e_per_px2_s=(3.0, 1.0))
+    frame = render_stars(x, y, np.full(x.size, 1500.0), sensor=sensor, seed=13)  # SNR ~15 stars
+    tx, ty = star_truth(frame)
+    spots = extract_spots(frame.image, CentroidConfig())
+    _, distance = nearest(spots, tx, ty)
+    assert np.mean(distance < 0.5) >= 0.98
+    assert len(spots) <= x.size + 1

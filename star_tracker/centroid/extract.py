@@ -168,8 +168,9 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     # so they pass a lower first cut and face min_snr with the fit's SNR.
     streaky = (rate_aided or (cand.major > 2.5 * (sigma ** 2 + 1.0 / 12.0))) & (config.method in ("auto", "streak"))
     first_cut = np.where(streaky, 0.4 * config.min_snr, config.min_snr)
-    keep = (~rejected & np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.flux > 0) & (cand.snr >= first_cut)
-            & (cand.area >= config.min_area))
+    local = _local_noise_factor(det, cand.x, cand.y, cand.flux, sigma, gain)
+    keep = (~rejected & np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.flux > 0)
+            & (cand.snr / np.sqrt(local) >= first_cut) & (cand.area >= config.min_area))
     sel = np.flatnonzero(keep)
     n = sel.size
     x, y, flux, cov = cand.x[sel].copy(), cand.y[sel].copy(), cand.flux[sel].copy(), cand.cov[sel].copy()
@@ -227,6 +228,10 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         area = np.concatenate([area, np.zeros(len(extra), area.dtype)])
         peak = np.concatenate([peak, np.array([e[5] for e in extra])])
         length, angle = np.concatenate([length, np.zeros(len(extra))]), np.concatenate([angle, np.zeros(len(extra))])
+    # Measurements above used the frame's typical pixel noise; where stray light makes the local
+    # noise higher (or lower), scale the SNR and covariance by the local/typical variance ratio.
+    local = _local_noise_factor(det, x, y, flux, sigma, gain)
+    snr, cov = snr / np.sqrt(local), cov * local[:, None, None]
     final = np.flatnonzero(snr >= config.min_snr)
     order = final[np.argsort(-flux[final], kind="stable")][: config.max_spots]
     return Spots(x=x[order], y=y[order], flux=flux[order], snr=snr[order], cov=cov[order], flags=flags[order],
@@ -605,6 +610,15 @@ def _streak_residual(image, det, sigma, noise, x, y, reach) -> np.ndarray:
         cleaned, _ = clean_hot_pixels(region[None], np.ones((1,) + region.shape, bool), noise, ratio_limit)
         residual[top:bottom, left:right] = cleaned[0]
     return residual
+
+
+def _local_noise_factor(det: Detections, x, y, flux, sigma, gain) -> np.ndarray:
+    """Variance ratio of a spot's measurement under the local pixel noise vs the frame's typical
+    one: (F/g + N s_local^2) / (F/g + N s^2), N = 4 pi sigma^2 the PSF's effective pixels."""
+    scale = det.noise_scale_at(np.nan_to_num(x), np.nan_to_num(y))
+    shot = np.maximum(np.nan_to_num(flux), 0.0) / gain
+    pixels = 4.0 * np.pi * sigma ** 2 * det.noise_adu ** 2
+    return (shot + pixels * scale ** 2) / (shot + pixels)
 
 
 def _typical_smear_px(smear: "SmearModel", width: int, height: int) -> float:
