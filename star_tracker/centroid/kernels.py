@@ -149,6 +149,22 @@ def component_stats(labels: np.ndarray, count: int):
 
 
 @njit(cache=True)
+def _centre_and_covariance(weighted_sums, variance_sums, col0, row0, out_x, out_y, out_cov, s):
+    """Centre of gravity from sums of w (1, x, y) and its covariance from sums of
+    var (dw/dr)^2 (1, x, y, x^2, y^2, xy) (local window coordinates; written at index s)."""
+    total = weighted_sums[0]
+    if total == 0.0:
+        return
+    x, y = weighted_sums[1] / total, weighted_sums[2] / total
+    v = variance_sums
+    t2 = total * total
+    out_x[s], out_y[s] = x + col0, y + row0
+    out_cov[s, 0, 0] = (v[3] - 2 * x * v[1] + x * x * v[0]) / t2
+    out_cov[s, 1, 1] = (v[4] - 2 * y * v[2] + y * y * v[0]) / t2
+    out_cov[s, 0, 1] = out_cov[s, 1, 0] = (v[5] - x * v[2] - y * v[1] + x * y * v[0]) / t2
+
+
+@njit(cache=True)
 def measure_small(image, cx, cy, bg, top, bottom, left, right, half, search_margin, sigma, noise, gain, ratio_limit,
                   weighted):
     """The point-window measurements of extract._measure (numpy reference: its loop-free
@@ -192,6 +208,8 @@ def measure_small(image, cx, cy, bg, top, bottom, left, right, half, search_marg
     win = np.zeros((big, big))
     valid = np.zeros((big, big), np.bool_)
     lo, hi = half, big - 1 - half
+    feat = np.ones(6)
+    sig, var_sum, pos, sq, sq_var = np.zeros(6), np.zeros(6), np.zeros(6), np.zeros(6), np.zeros(6)
     for s in range(n):
         c0 = int(np.rint(cx[s])) - big // 2
         r0 = int(np.rint(cy[s])) - big // 2
@@ -243,11 +261,13 @@ def measure_small(image, cx, cy, bg, top, bottom, left, right, half, search_marg
         col0, row0 = c0 + bc - half, r0 + br - half
         col0_out[s], row0_out[s] = col0, row0
         # Aperture sums (local coordinates of the spot window).
-        s0 = s1 = s2 = 0.0
-        v0 = v1 = v2 = v3 = v4 = v5 = 0.0
-        p0 = p1 = p2 = p3 = p4 = p5 = 0.0
-        q0 = q1 = q2 = 0.0
-        u0 = u1 = u2 = u3 = u4 = u5 = 0.0
+        # Sums over the aperture of weight x (1, x, y, x^2, y^2, xy): signal, its variance, the
+        # positive signal (shape), squared signal and its variance (intensity-weighted centre).
+        sig[:] = 0.0
+        var_sum[:] = 0.0
+        pos[:] = 0.0
+        sq[:] = 0.0
+        sq_var[:] = 0.0
         flux = 0.0
         peak = -np.inf
         peak_raw = -np.inf
@@ -269,36 +289,18 @@ def measure_small(image, cx, cy, bg, top, bottom, left, right, half, search_marg
                     snr_var += positive / gain + noise * noise
                 if d > r_ap:
                     continue
-                lc, lr = float(j), float(i)
+                feat[1], feat[2] = float(j), float(i)
+                feat[3], feat[4], feat[5] = feat[1] * feat[1], feat[2] * feat[2], feat[1] * feat[2]
                 var = positive / gain + noise * noise
                 flux += value
-                s0 += value
-                s1 += value * lc
-                s2 += value * lr
-                v0 += var
-                v1 += var * lc
-                v2 += var * lr
-                v3 += var * lc * lc
-                v4 += var * lr * lr
-                v5 += var * lc * lr
-                p0 += positive
-                p1 += positive * lc
-                p2 += positive * lr
-                p3 += positive * lc * lc
-                p4 += positive * lr * lr
-                p5 += positive * lc * lr
+                for k in range(6):
+                    sig[k] += value * feat[k]
+                    var_sum[k] += var * feat[k]
+                    pos[k] += positive * feat[k]
                 if weighted:
-                    w2 = positive * positive
-                    dw2 = 4.0 * positive * positive * var
-                    q0 += w2
-                    q1 += w2 * lc
-                    q2 += w2 * lr
-                    u0 += dw2
-                    u1 += dw2 * lc
-                    u2 += dw2 * lr
-                    u3 += dw2 * lc * lc
-                    u4 += dw2 * lr * lr
-                    u5 += dw2 * lc * lr
+                    for k in range(6):
+                        sq[k] += positive * positive * feat[k]
+                        sq_var[k] += 4.0 * positive * positive * var * feat[k]
                 if value > peak:
                     peak = value
                 rv = raw[br - half + i, bc - half + j]
@@ -308,29 +310,18 @@ def measure_small(image, cx, cy, bg, top, bottom, left, right, half, search_marg
         out_peak[s] = peak
         out_peak_raw[s] = peak_raw
         out_snr[s] = snr_signal / math.sqrt(snr_var) if snr_var > 0 else np.nan
-        if s0 != 0.0:
-            x, y = s1 / s0, s2 / s0
-            t2 = s0 * s0
-            out_x[s], out_y[s] = x + col0, y + row0
-            out_cov[s, 0, 0] = (v3 - 2 * x * v1 + x * x * v0) / t2
-            out_cov[s, 1, 1] = (v4 - 2 * y * v2 + y * y * v0) / t2
-            out_cov[s, 0, 1] = out_cov[s, 1, 0] = (v5 - x * v2 - y * v1 + x * y * v0) / t2
-        if p0 > 0.0:
-            px, py = p1 / p0, p2 / p0
-            mxx = p3 / p0 - px * px
-            myy = p4 / p0 - py * py
-            mxy = p5 / p0 - px * py
+        _centre_and_covariance(sig, var_sum, col0, row0, out_x, out_y, out_cov, s)
+        if pos[0] > 0.0:
+            px, py = pos[1] / pos[0], pos[2] / pos[0]
+            mxx = pos[3] / pos[0] - px * px
+            myy = pos[4] / pos[0] - py * py
+            mxy = pos[5] / pos[0] - px * py
             spread = math.sqrt(0.25 * (mxx - myy) ** 2 + mxy * mxy)
             out_minor[s] = 0.5 * (mxx + myy) - spread
             out_major[s] = 0.5 * (mxx + myy) + spread
             out_angle[s] = 0.5 * math.atan2(2.0 * mxy, mxx - myy)
-        if weighted and q0 > 0.0:
-            x, y = q1 / q0, q2 / q0
-            t2 = q0 * q0
-            out_wx[s], out_wy[s] = x + col0, y + row0
-            out_wcov[s, 0, 0] = (u3 - 2 * x * u1 + x * x * u0) / t2
-            out_wcov[s, 1, 1] = (u4 - 2 * y * u2 + y * y * u0) / t2
-            out_wcov[s, 0, 1] = out_wcov[s, 1, 0] = (u5 - x * u2 - y * u1 + x * y * u0) / t2
+        if weighted:
+            _centre_and_covariance(sq, sq_var, col0, row0, out_wx, out_wy, out_wcov, s)
         out_edge[s] = (not all_valid) or col0 <= 0 or row0 <= 0 or col0 + size >= width or row0 + size >= height
     return (out_x, out_y, out_flux, out_snr, out_minor, out_major, out_angle, out_peak, out_peak_raw, out_cov,
             out_wx, out_wy, out_wcov, out_edge, out_cleaned, windows, windows_valid, col0_out, row0_out,
