@@ -44,3 +44,14 @@ def test_demo_runs_the_nodes_and_writes_its_outputs(tmp_path):
     picture = cv2.imread(str(tmp_path / "frame.png"))
     assert picture is not None and picture.shape[1] == 1024 and picture.shape[0] > 1024
     assert "summary:" in result.stdout
+
+
+@pytest.mark.integration
+def test_demo_with_the_gyro_input_tracks_a_fast_rotation(tmp_path):
+    # ~1.5 deg/s: ~10 px streaks, fitted on the paths predicted from the true rate (--gyro).
+    result = run(["demo", "--scenario", "fast", "--gyro", "--duration", "6", "--rate", "5", "--output", str(tmp_path)])
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "rate-aided by the true body rate" in result.stdout
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["frames"] >= 27 and summary["identification_rate"] >= 0.9
+    assert summary["wrong_over_60_arcsec"] == 0 and summary["cross_boresight_arcsec_median"] < 2.0
