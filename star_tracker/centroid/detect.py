@@ -157,5 +157,5 @@ def detect(image: np.ndarray, *, binning: int, background_block_px: int, detecti
     bottom = np.where(bottom >= labels.shape[0] * binning, image.shape[0], bottom)
     centre = centroids[keep] * binning + 0.5 * (binning - 1)
     return Detections(label=keep, left=left, top=top, right=right, bottom=bottom,
-                      x=centre[:, 0], y=centre[:, 1], area=area[keep - 1], labels=labels, background=background, noise_adu=noise, binning=binning,
-                      noise_scale=noise_scale)
+                      x=centre[:, 0], y=centre[:, 1], area=area[keep - 1], labels=labels, background=background,
+                      noise_adu=noise, binning=binning, noise_scale=noise_scale)

@@ -15,7 +15,6 @@ import numpy as np
 from .detect import Detections, detect
 from .measure import (aperture_moments, box_sums, clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio,
                       two_peaks)
-from . import psf_fit
 from .kernels import measure_small
 from .psf_fit import fit_psf_windows, gather_windows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
@@ -166,7 +165,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         rejected &= np.isfinite(cand.x)
     # Streaks spread their signal: their footprint SNR understates what the streak fit recovers,
     # so they pass a lower first cut and face min_snr with the fit's SNR.
-    streaky = (rate_aided or (cand.major > 2.5 * (sigma ** 2 + 1.0 / 12.0))) & (config.method in ("auto", "streak"))
+    streaky = (rate_aided or (cand.major > _elongation_limit(sigma))) & (config.method in ("auto", "streak"))
     first_cut = np.where(streaky, 0.4 * config.min_snr, config.min_snr)
     local = _local_noise_factor(det, cand.x, cand.y, cand.flux, sigma, gain)
     keep = (~rejected & np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.flux > 0)
@@ -181,7 +180,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     length, angle = np.zeros(n), np.zeros(n)
     saturated = (flags & FLAG_SATURATED) != 0
     # Elongated beyond the PSF (second moment of a segment of length L is L^2/12).
-    elongated = cand.major[sel] > 2.5 * (sigma ** 2 + 1.0 / 12.0)
+    elongated = cand.major[sel] > _elongation_limit(sigma)
     # Several separate peaks with dips between them: stars blended into one footprint, not a streak.
     multi = np.array([len(cand.peaks[i]) >= 2 for i in sel], bool) & ~saturated
     flags[multi] |= FLAG_BLENDED
@@ -249,7 +248,7 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
     big = size + SEARCH_MARGIN  # search window: the spot window is re-centred on the brightest 3x3 sum in it
     height, width = image.shape
     noise, gain = det.noise_adu, config.gain_e_per_adu
-    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma) if config.psf_sigma_px > 0 else np.inf
+    ratio_limit = _hot_pixel_ratio(config, sigma)
     m = det.x.size
     weighted = config.method == "wcog"
     small = ((det.right - det.left) <= big - 2) & ((det.bottom - det.top) <= big - 2)
@@ -264,91 +263,24 @@ def _measure(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: 
     out["peaks"] = [np.zeros((0, 2))] * m
     if idx.size:
         bg = det.background_at(det.x[idx], det.y[idx])
-        if psf_fit.USE_COMPILED and np.isfinite(ratio_limit):
-            res = measure_small(image, det.x[idx], det.y[idx], bg, det.top[idx], det.bottom[idx], det.left[idx],
-                                det.right[idx], half, SEARCH_MARGIN, float(sigma), float(noise), float(gain),
-                                float(ratio_limit), weighted)
-            for key, value in zip(("x", "y", "flux", "snr", "minor", "major", "angle", "peak", "peak_raw", "cov", "wx",
-                                   "wy", "wcov", "edge", "cleaned", "window", "window_valid", "window_col0",
-                                   "window_row0"), res[:19]):
-                out[key][idx] = value
-            win, valid, c0, r0 = res[19:]
-            if not weighted:
-                out["wx"][idx], out["wy"][idx], out["wcov"][idx] = res[0], res[1], res[9]
-        else:  # numpy reference path
-            c0 = np.rint(det.x[idx]).astype(np.int64) - big // 2
-            r0 = np.rint(det.y[idx]).astype(np.int64) - big // 2
-            raw, valid = gather_windows(image, c0, r0, big)
-            win, hit = clean_hot_pixels(np.where(valid, raw - bg[:, None, None], 0.0), valid, noise, ratio_limit)
-            box = cv2.boxFilter(win.astype(np.float32).reshape(-1, big), -1, (3, 3), normalize=False,
-                                borderType=cv2.BORDER_CONSTANT).reshape(idx.size, big, big)
-            # Seed: the brightest 3x3 sum inside the footprint's box (hot pixels already cleaned away),
-            # at least half a spot window from the search window's border.
-            lo, hi = half, big - 1 - half  # seed rows/cols allowed: [lo, hi]
-            span = np.arange(big)
-            in_rows = (span[None] >= np.clip(det.top[idx] - r0, lo, hi)[:, None]) \
-                & (span[None] < np.clip(det.bottom[idx] - r0, lo + 1, hi + 1)[:, None])
-            in_cols = (span[None] >= np.clip(det.left[idx] - c0, lo, hi)[:, None]) \
-                & (span[None] < np.clip(det.right[idx] - c0, lo + 1, hi + 1)[:, None])
-            core = np.where(in_rows[:, :, None] & in_cols[:, None, :], 0.0, -np.inf).astype(np.float32)
-            best = (box + core).reshape(idx.size, -1).argmax(axis=1)
-            br, bc = best // big, best % big
-            sub_r = (br - half)[:, None] + np.arange(size)[None, :]
-            sub_c = (bc - half)[:, None] + np.arange(size)[None, :]
-            k = np.arange(idx.size)[:, None, None]
-            w = win[k, sub_r[:, :, None], sub_c[:, None, :]]
-            v = valid[k, sub_r[:, :, None], sub_c[:, None, :]]
-            rawv = raw[k, sub_r[:, :, None], sub_c[:, None, :]]
-            col0, row0 = c0 + bc - half, r0 + br - half
-            rr, cc = np.mgrid[0:size, 0:size]
-            aperture = (np.hypot(rr - half, cc - half) <= min(max(2.5, 3.0 * sigma), half))[None] & v
-            mom = aperture_moments(w, aperture, col0, row0, noise, gain, power=1)
-            wmom = aperture_moments(w, aperture, col0, row0, noise, gain, power=2) if weighted else mom
-            for key in ("x", "y", "flux", "minor", "major", "angle", "peak", "cov"):
-                out[key][idx] = getattr(mom, key)
-            # SNR in a near-optimal aperture (radius 1.6 sigma for a background-limited Gaussian):
-            # the wide measuring aperture would count several times the noise of a faint star.
-            snr_ap = (np.hypot(rr - half, cc - half) <= max(1.5, 1.6 * sigma))[None] & v
-            signal = np.where(snr_ap, w, 0.0)
-            variance = np.where(snr_ap, np.maximum(w, 0.0) / gain + noise * noise, 0.0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                out["snr"][idx] = signal.sum(axis=(1, 2)) / np.sqrt(variance.sum(axis=(1, 2)))
-            out["wx"][idx], out["wy"][idx], out["wcov"][idx] = wmom.x, wmom.y, wmom.cov
-            out["peak_raw"][idx] = np.where(aperture, rawv, -np.inf).reshape(idx.size, -1).max(axis=1)
-            out["edge"][idx] = ~v.all(axis=(1, 2)) | (col0 <= 0) | (row0 <= 0) | (col0 + size >= width) \
-                | (row0 + size >= height)
-            out["cleaned"][idx] = hit.any(axis=(1, 2))
-            out["window"][idx], out["window_valid"][idx] = w, v
-            out["window_col0"][idx], out["window_row0"][idx] = col0, row0
-        major_ap, angle_ap = out["major"][idx].copy(), out["angle"][idx].copy()
-        # The aperture truncates a short faint streak; its detection footprint (matched-filter
-        # mask) over the search window shows the elongation: keep the longer of the two. Only
-        # footprints wider than the aperture can hide one.
+        res = measure_small(image, det.x[idx], det.y[idx], bg, det.top[idx], det.bottom[idx], det.left[idx],
+                            det.right[idx], half, SEARCH_MARGIN, float(sigma), float(noise), float(gain),
+                            float(ratio_limit), weighted)
+        for key, value in zip(("x", "y", "flux", "snr", "minor", "major", "angle", "peak", "peak_raw", "cov", "wx",
+                               "wy", "wcov", "edge", "cleaned", "window", "window_valid", "window_col0",
+                               "window_row0"), res[:19]):
+            out[key][idx] = value
+        win, valid, c0, r0 = res[19:]
+        # The aperture truncates a short faint streak: footprints wider than it get their
+        # elongation (and blend peaks) from the detection footprint too.
         extent = np.maximum(det.right[idx] - det.left[idx], det.bottom[idx] - det.top[idx])
         wide = np.flatnonzero(extent > 2.0 * max(2.5, 3.0 * sigma) + 1.0)
         if wide.size:
-            b, iw = det.binning, idx[wide]
-            grid_r = np.clip((r0[wide][:, None] + np.arange(big)) // b, 0, det.labels.shape[0] - 1)
-            grid_c = np.clip((c0[wide][:, None] + np.arange(big)) // b, 0, det.labels.shape[1] - 1)
-            footprint = (det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[iw][:, None, None]) \
-                & valid[wide]
-            ridge = aperture_moments(win[wide], footprint, c0[wide], r0[wide], noise, gain, signed_shape=True)
-            longer = ridge.major > major_ap[wide]
-            out["major"][iw] = np.where(longer, ridge.major, major_ap[wide])
-            out["angle"][iw] = np.where(longer, ridge.angle, angle_ap[wide])
-            stretched = out["major"][iw] > 2.5 * (sigma ** 2 + 1.0 / 12.0)
-            if stretched.any():  # cross-track width of an elongated spot: see _streak_width
-                e = np.flatnonzero(stretched)
-                out["minor"][iw[e]] = np.minimum(out["minor"][iw[e]], _streak_width(
-                    win[wide][e], footprint[e], valid[wide][e], out["major"][iw[e]], noise, sigma, b))
-            if find_blends and stretched.any():  # two stars in one small footprint: not a streak
-                e = np.flatnonzero(stretched)
-                box, box_var, maxima = box_sums(win[wide][e], footprint[e], gain, noise)
-                found, pk_r, pk_c = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
-                                              max(2.0, 2.0 * sigma))
-                for j in np.flatnonzero(found):
-                    k = wide[e[j]]
-                    out["peaks"][idx[k]] = np.column_stack([pk_c[j] + c0[k], pk_r[j] + r0[k]]).astype(float)
+            grid_r = np.clip((r0[wide][:, None] + np.arange(big)) // det.binning, 0, det.labels.shape[0] - 1)
+            grid_c = np.clip((c0[wide][:, None] + np.arange(big)) // det.binning, 0, det.labels.shape[1] - 1)
+            footprint = det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[idx[wide]][:, None, None]
+            _footprint_shape(win[wide], footprint & valid[wide], valid[wide], c0[wide], r0[wide], idx[wide], out,
+                             det, config, sigma, find_blends, blend_use=footprint & valid[wide])
     large = np.flatnonzero(~small)
     if large.size:
         _measure_large(image, det, config, sigma, large, out, find_blends)
@@ -361,7 +293,7 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
     gives flux, centre of gravity and SNR; its pixels 2 sigma above the noise give the shape."""
     height, width = image.shape
     noise, gain, b = det.noise_adu, config.gain_e_per_adu, det.binning
-    ratio_limit = 2.0 * star_peak_to_neighbour_ratio(sigma) if config.psf_sigma_px > 0 else np.inf
+    ratio_limit = _hot_pixel_ratio(config, sigma)
     margin = int(np.ceil(3.0 * sigma)) + 2
     left, top = det.left[idx] - margin, det.top[idx] - margin
     n_rows = -(-(det.bottom[idx] + margin - top) // 8) * 8  # sizes rounded up to 8 px: few batches
@@ -388,29 +320,53 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
         wmom = aperture_moments(win, use, col0, row0, noise, gain, power=2) if config.method == "wcog" else mom
         for key in ("x", "y", "flux", "snr", "peak", "cov"):
             out[key][members] = getattr(mom, key)
-        # A faint streak has few pixels 2 sigma clear; its detection footprint (the matched-filter
-        # mask, not grown) traces it: the spot is as elongated as the longer of the two says.
-        ridge = aperture_moments(win, labels & valid, col0, row0, noise, gain, signed_shape=True)
-        longer = ridge.major > shape.major
-        out["major"][members] = np.where(longer, ridge.major, shape.major)
-        out["angle"][members] = np.where(longer, ridge.angle, shape.angle)
+        out["major"][members], out["angle"][members] = shape.major, shape.angle
         out["minor"][members] = np.where(shape.peak >= 10.0 * noise, shape.minor, np.inf)
-        stretched = np.flatnonzero(out["major"][members] > 2.5 * (sigma ** 2 + 1.0 / 12.0))
-        if stretched.size:
-            out["minor"][members[stretched]] = np.minimum(out["minor"][members[stretched]], _streak_width(
-                win[stretched], labels[stretched], valid[stretched], out["major"][members[stretched]], noise, sigma, b))
         out["wx"][members], out["wy"][members], out["wcov"][members] = wmom.x, wmom.y, wmom.cov
         out["peak_raw"][members] = np.where(use, raw, -np.inf).reshape(k.size, -1).max(axis=1)
         out["edge"][members] = ((det.left[members] <= 0) | (det.top[members] <= 0) | (det.right[members] >= width)
                                 | (det.bottom[members] >= height))
         out["cleaned"][members] = hit.any(axis=(1, 2))
-        if not find_blends:  # (streaks under the rate aid are not split)
-            continue
-        box, box_var, maxima = box_sums(win, use, gain, noise)
+        _footprint_shape(win, labels & valid, valid, col0, row0, members, out, det, config, sigma, find_blends,
+                         blend_use=use)
+
+
+def _footprint_shape(win, footprint, valid, col0, row0, members, out, det, config, sigma, find_blends, blend_use):
+    """Refine the shape of spots `members` from their detection footprint (the matched-filter
+    mask, not grown), which traces a faint streak that a threshold or an aperture cuts short:
+    the spot is as elongated as the longer measure says; elongated spots get the cross-track
+    width test (_streak_width) and, with find_blends, a search for two stars (two_peaks over
+    `blend_use`). win, footprint, valid: (n, R, C) windows with top-left pixel (col0, row0)."""
+    noise, gain = det.noise_adu, config.gain_e_per_adu
+    ridge = aperture_moments(win, footprint, col0, row0, noise, gain, signed_shape=True)
+    longer = ridge.major > out["major"][members]
+    out["major"][members] = np.where(longer, ridge.major, out["major"][members])
+    out["angle"][members] = np.where(longer, ridge.angle, out["angle"][members])
+    stretched = np.flatnonzero(out["major"][members] > _elongation_limit(sigma))
+    if stretched.size == 0:
+        return
+    out["minor"][members[stretched]] = np.minimum(out["minor"][members[stretched]], _streak_width(
+        win[stretched], footprint[stretched], valid[stretched], out["major"][members[stretched]], noise, sigma,
+        det.binning))
+    if find_blends:
+        box, box_var, maxima = box_sums(win[stretched], blend_use[stretched], gain, noise)
         found, rows, cols = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
                                       max(2.0, 2.0 * sigma))
         for j in np.flatnonzero(found):
-            out["peaks"][members[j]] = np.column_stack([cols[j] + col0[j], rows[j] + row0[j]]).astype(float)
+            k = stretched[j]
+            out["peaks"][members[k]] = np.column_stack([cols[j] + col0[k], rows[j] + row0[k]]).astype(float)
+
+
+def _elongation_limit(sigma: float) -> float:
+    """Largest second moment [px^2] of a point-like spot: 2.5x a pixelated PSF's (a segment of
+    length L adds L^2 / 12)."""
+    return 2.5 * (sigma ** 2 + 1.0 / 12.0)
+
+
+def _hot_pixel_ratio(config: "CentroidConfig", sigma: float) -> float:
+    """Peak-to-brightest-neighbour ratio above which a pixel is a defect, not starlight
+    (twice what the PSF allows); inf (no cleaning) without a PSF."""
+    return 2.0 * star_peak_to_neighbour_ratio(sigma) if config.psf_sigma_px > 0 else np.inf
 
 
 def _streak_width(win, footprint, valid, major, noise, sigma, binning) -> np.ndarray:
@@ -468,7 +424,7 @@ def _fit_points(image, det, config, sigma, which, x, y, flux, cov, snr, flags, c
     extra = []
     if config.split_blends:
         found, pr, pc = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
-                                        min_separation=max(2.0, 2.0 * sigma), radius=half - 1.5)
+                                        min_separation=max(2.0, 2.0 * sigma), radius=half - 1.5, gain=gain, noise=noise)
         # A second peak that is another detected spot is fitted jointly but not reported twice.
         px, py = col0 + pc, row0 + pr
         others = np.hypot(px[:, None] - x[None, :], py[:, None] - y[None, :])
@@ -548,8 +504,7 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
         fit = fit_streaks_on_path(residual, x[which], y[which], flux[which], path, sigma, noise, gain)
         extra_flag = FLAG_STREAK | FLAG_RATE_AIDED
     else:
-        major, minor = cand.major[sel][which], cand.minor[sel][which]
-        length0 = np.sqrt(np.maximum(12.0 * (major - sigma ** 2), 0.0))
+        length0 = np.sqrt(np.maximum(12.0 * (cand.major[sel][which] - sigma ** 2), 0.0))
         fit = fit_streaks(residual, x[which], y[which], flux[which], length0, cand.angle[sel][which], sigma, noise,
                           gain)
         extra_flag = FLAG_STREAK
@@ -563,7 +518,7 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
     # A spot the streak model could not describe is not reported when it should be a streak
     # (rate aided, or elongated: a fragment or a defect); a point-like one keeps its centroid.
     failed = which[~good]
-    elongated = cand.major[sel][failed] > 2.5 * (sigma ** 2 + 1.0 / 12.0)
+    elongated = cand.major[sel][failed] > _elongation_limit(sigma)
     snr[failed[elongated | (smear is not None)]] = 0.0
 
 

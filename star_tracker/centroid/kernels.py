@@ -167,14 +167,14 @@ def _centre_and_covariance(weighted_sums, variance_sums, col0, row0, out_x, out_
 @njit(cache=True)
 def measure_small(image, cx, cy, bg, top, bottom, left, right, half, search_margin, sigma, noise, gain, ratio_limit,
                   weighted):
-    """The point-window measurements of extract._measure (numpy reference: its loop-free
-    path), compiled. Per spot n: a search window of (2 half + 5)^2 around (cx, cy) [px] minus
+    """The point-window measurements of extract._measure, compiled. Per spot n: a search window of (2 half + 5)^2 around (cx, cy) [px] minus
     bg [ADU], hot pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels), re-centred
     on the brightest 3x3 sum inside the footprint box (top/bottom/left/right, full-resolution
     px), then a (2 half + 1)^2 window measured in a circular aperture (measure.aperture_moments:
     centre of gravity, covariance, second moments; with `weighted` also the intensity-weighted
     centre), SNR in the near-optimal aperture, brightest raw value, edge flag.
-    Returns a dict-free tuple of arrays, in the order unpacked by extract._measure."""
+    ratio_limit = inf switches the cleaning off. Returns a tuple of arrays, in the order
+    unpacked by extract._measure."""
     height, width = image.shape
     n = cx.size
     size = 2 * half + 1

@@ -110,21 +110,16 @@ def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row
 
 
 def secondary_peaks(windows: np.ndarray, valid: np.ndarray, centre: int, threshold: float, min_separation: float,
-                    radius: float):
-    """The brightest local maximum of the 3x3 box sum of each window (n, S, S) that is at least
-    `min_separation` px from the window centre, within `radius` px of it, above `threshold`
-    [ADU, box sum] and separated from the central peak by a dip (the box sum half-way between
-    them is below 0.9x the fainter peak). Returns (found (n,), row, col) in window pixels."""
+                    radius: float, gain: float, noise: float):
+    """The brightest local maximum of the 3x3 box sum (box_sums) of each window (n, S, S) that
+    is at least `min_separation` px from the window centre, within `radius` px of it, above
+    `threshold` [ADU, box sum] and separated from the central peak by a dip (the box sum
+    half-way between them is below 0.9x the fainter peak). Returns (found (n,), row, col)."""
     n, size, _ = windows.shape
-    stacked = np.where(valid, windows, 0.0).astype(np.float32).reshape(n * size, size)
-    box = cv2.boxFilter(stacked, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    ring = np.ones((3, 3), np.uint8)
-    ring[1, 1] = 0
-    neighbours = cv2.dilate(box, ring, borderType=cv2.BORDER_CONSTANT, borderValue=-np.inf).reshape(n, size, size)
-    box = box.reshape(n, size, size)
+    box, _, maxima = box_sums(windows, valid, gain, noise)
     rr, cc = np.mgrid[0:size, 0:size]
     dist = np.hypot(rr - centre, cc - centre)
-    candidate = (box > neighbours) & (box > threshold) & (dist >= min_separation) & (dist <= radius) & valid
+    candidate = maxima & (box > threshold) & (dist >= min_separation) & (dist <= radius)
     score = np.where(candidate, box, -np.inf).reshape(n, -1)
     best = score.argmax(axis=1)
     found = np.isfinite(score[np.arange(n), best])

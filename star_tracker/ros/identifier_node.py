@@ -16,10 +16,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ..attitude import ARCSEC
-from ..camera import CameraModel
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from . import convert
-from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, Diagnostics, ThrottledLog, declare, run_node
+from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, CameraInfoInput, Diagnostics, ThrottledLog, declare, run_node
 
 
 class IdentifierNode(Node):
@@ -49,52 +48,42 @@ class IdentifierNode(Node):
         self.get_logger().info(
             f"algorithm {algorithm}: {self.database.star_count} guide stars to Hp {db_config.magnitude_limit}, "
             f"{self.database.pair_a.size} pairs, loaded in {time.perf_counter() - started:.2f} s")
-        self.camera: CameraModel | None = None
-        self._camera_key = None
 
         self.pub_attitude = self.create_publisher(QuaternionStamped, "attitude", RESULT_QOS)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "attitude_with_covariance", RESULT_QOS)
         self.pub_matches = self.create_publisher(PointCloud2, "matched_stars", RESULT_QOS)
-        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.on_camera_info, IMAGE_QOS)
-        self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, SPOTS_QOS)
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
+        self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
+        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
+        self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, SPOTS_QOS)
 
-    def on_camera_info(self, msg: CameraInfo) -> None:
-        key = (msg.width, msg.height, tuple(msg.k), tuple(msg.d), msg.distortion_model)
-        if key == self._camera_key:
-            return
-        try:
-            camera = convert.info_to_camera(msg)
-        except ValueError as exc:
-            self.diag.count("camera_info_rejected")
-            self.log.warn("bad_info", f"rejected camera_info: {exc}")
-            return
+    def fov_problem(self, camera) -> str | None:
+        """Why the pattern database cannot serve this camera, or None."""
         diagonal = 2 * camera.half_diagonal_fov_rad
-        if diagonal > self.database.config.max_pair_angle_rad:
-            self.diag.count("camera_info_rejected")
-            self.log.warn("fov", f"camera diagonal FOV {np.degrees(diagonal):.2f} deg exceeds "
-                                 f"database.max_pair_angle_deg {np.degrees(self.database.config.max_pair_angle_rad):.2f}")
-            return
-        self.camera, self._camera_key = camera, key
-        self.get_logger().info(f"camera model: {camera.width}x{camera.height} px, fx={camera.fx:.2f} px")
+        limit = self.database.config.max_pair_angle_rad
+        if diagonal > limit:
+            return (f"camera diagonal FOV {np.degrees(diagonal):.2f} deg exceeds database.max_pair_angle_deg "
+                    f"{np.degrees(limit):.2f}")
+        return None
 
     def on_spots(self, msg: PointCloud2) -> None:
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
-        if self.camera is None:
+        camera = self.camera_info.camera
+        if camera is None:
             self.diag.count("frames_without_camera_info")
             self.diag.set(DiagnosticStatus.WARN, "waiting for camera_info")
             self.log.warn("no_info", "spots received before any valid camera_info; frame skipped")
             return
         try:
-            spots = convert.cloud_to_spots(msg, self.camera.width, self.camera.height)
+            spots = convert.cloud_to_spots(msg, camera.width, camera.height)
         except ValueError as exc:
             self.diag.count("frames_rejected")
             self.diag.set(DiagnosticStatus.WARN, f"rejected spots: {exc}")
             self.log.warn("bad_spots", f"rejected spots message: {exc}")
             return
-        result = self.identifier.identify(spots, self.camera)
+        result = self.identifier.identify(spots, camera)
         self.diag.values["last_identify_ms"] = f"{result.elapsed_s * 1e3:.2f}"
         if not result.solved:
             self.diag.count(f"not_identified_{result.status}")
