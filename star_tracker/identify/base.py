@@ -91,6 +91,7 @@ class Identification:
     residual_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
     attitude: AttitudeSolution | None = None
     false_positive_probability: float = 1.0
+    stats: dict = field(default_factory=dict)
 
     @property
     def solved(self) -> bool:
@@ -99,11 +100,15 @@ class Identification:
 
 @dataclass
 class SpotGeometry:
-    """Per-frame quantities algorithms share: rays (N, 3) sensor frame, sigma (N,) [rad]."""
+    """Per-frame quantities algorithms share, for the flux-sorted spots: rays (N, 3) unit
+    vectors in the sensor frame; sigma (N,) 1-sigma direction error [rad]; pattern_count: how
+    many of the brightest spots may form patterns; magnitude (N,) instrumental magnitude
+    -2.5 log10(flux) [mag] with an unknown zero point (NaN where flux <= 0)."""
 
     rays: np.ndarray
     sigma: np.ndarray
     pattern_count: int
+    magnitude: np.ndarray | None = None
 
 
 class StarIdentifier(ABC):
@@ -114,6 +119,9 @@ class StarIdentifier(ABC):
     def __init__(self, database: StarDatabase, config: IdentifyConfig):
         self.database = database
         self.config = config
+        # Per-call counters an algorithm may fill (e.g. "pivots", "patterns"); reset by
+        # identify() and returned in Identification.stats.
+        self.stats: dict[str, float] = {}
 
     @abstractmethod
     def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -136,10 +144,14 @@ class StarIdentifier(ABC):
         spots = spots.take(order)
         # Direction 1-sigma from each spot's covariance; unknown (NaN) counts as 1 px; floored.
         sigma = np.nan_to_num(camera.pixel_covariance_to_ray_sigma(spots.cov), nan=camera.pixel_scale_rad)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            magnitude = np.where(spots.flux > 0, -2.5 * np.log10(np.where(spots.flux > 0, spots.flux, 1.0)), np.nan)
         geometry = SpotGeometry(
             rays=camera.pixel_to_ray(spots.x, spots.y),
             sigma=np.maximum(sigma, self.config.centroid_sigma_floor_px * camera.pixel_scale_rad),
-            pattern_count=min(len(spots), self.config.max_pattern_spots))
+            pattern_count=min(len(spots), self.config.max_pattern_spots),
+            magnitude=magnitude)
+        self.stats = {}
 
         tested = 0
         for pattern_spots, stars in self.hypotheses(geometry, deadline):
@@ -189,8 +201,8 @@ class StarIdentifier(ABC):
             algorithm=self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
             spot_index=check.spot_index[order], hip=self.database.hip[check.star_index][order],
             star_vectors=star[order], body_vectors=body[order], residual_rad=residual[order],
-            attitude=solution, false_positive_probability=fp)
+            attitude=solution, false_positive_probability=fp, stats=dict(self.stats))
 
     def _fail(self, status: str, reason: str, started: float, tested: int) -> Identification:
         return Identification(status=status, reason=reason, algorithm=self.name,
-                              elapsed_s=time.perf_counter() - started, hypotheses=tested)
+                              elapsed_s=time.perf_counter() - started, hypotheses=tested, stats=dict(self.stats))
