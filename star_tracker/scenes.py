@@ -165,9 +165,9 @@ NOMINAL_CAMERA = CameraModel.from_fov(1024, 1024, np.radians(15.0))
 SETUPS: dict[str, SceneSetup] = {s.name: s for s in (
     SceneSetup("nominal", NOMINAL_CAMERA, None, 6.5, 0.3 * NOMINAL_CAMERA.pixel_scale_rad, 0.1,
                description="15 deg square FOV, 1024^2, Hp <= 6.5, 0.3 px, 0.1 mag"),
-    SceneSetup("cole", _circular_camera(np.radians(8.0)), np.radians(4.0), 6.0, 87e-6, 0.0,
-               description="Cole & Crassidis Table 2: 8 deg circular FOV, magnitude 6.0, 87 urad per star"),
-    SceneSetup("cole_false", _circular_camera(np.radians(8.0)), np.radians(4.0), 6.0, 87e-6, 0.0, false_stars=1,
+    SceneSetup("cole", _circular_camera(np.radians(8.0)), np.radians(4.0), 6.0, 87e-6, 0.1,
+               description="Cole & Crassidis Table 2: 8 deg circular FOV, magnitude 6.0, 87 urad per star, 0.1 mag"),
+    SceneSetup("cole_false", _circular_camera(np.radians(8.0)), np.radians(4.0), 6.0, 87e-6, 0.1, false_stars=1,
                description="the same with one false star"),
     SceneSetup("toloei_6_50", NOMINAL_CAMERA, None, 6.5, 0.3 * NOMINAL_CAMERA.pixel_scale_rad, 0.1,
                real_stars=6, false_stars=50, description="Toloei: 6 real stars among 56 spots (nominal camera)"),

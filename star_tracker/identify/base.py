@@ -18,7 +18,7 @@ from ..attitude import AttitudeSolution, quest
 from ..camera import CameraModel
 from ..centroid import Spots
 from .database import StarDatabase
-from .verify import verify
+from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 
 SOLVED = "solved"
 TOO_FEW_SPOTS = "too_few_spots"
@@ -122,6 +122,12 @@ class StarIdentifier(ABC):
         # Per-call counters an algorithm may fill (e.g. "pivots", "patterns"); reset by
         # identify() and returned in Identification.stats.
         self.stats: dict[str, float] = {}
+        self._mean_density = database.star_count / (4.0 * np.pi)  # [1/sr]
+        self._sorted_magnitudes = np.sort(database.magnitude)
+
+    # Smallest magnitude residual credited as evidence [mag]: below it, agreement is luck of
+    # the noise, not information (see verify.log_magnitude_agreement).
+    magnitude_floor = 0.05
 
     @abstractmethod
     def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -163,11 +169,7 @@ class StarIdentifier(ABC):
                 candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars], geometry.sigma[pattern_spots])
             except (ValueError, np.linalg.LinAlgError):
                 continue
-            check = verify(candidate.rotation, spots.x, spots.y, self.database, camera,
-                           self.config.match_radius_px, hypothesis_spots=len(pattern_spots))
-            if check.false_positive_probability * tested > self.config.false_positive_bound:
-                continue
-            result = self._refine(spots, geometry, camera, check, len(pattern_spots), tested, started)
+            result = self._refine(spots, geometry, camera, candidate.rotation, tested, started)
             if result is not None:
                 return replace(result, spot_index=order[result.spot_index])
         if time.perf_counter() > deadline:
@@ -176,30 +178,52 @@ class StarIdentifier(ABC):
         return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, "
                           f"{len(spots)} spots)", started, tested)
 
-    def _refine(self, spots: Spots, geometry: SpotGeometry, camera: CameraModel, check, pattern_size: int,
+    def verification_radius_px(self, geometry: SpotGeometry, camera: CameraModel) -> float:
+        """Verification radius: the configured one, widened to 4 sigma of the typical spot."""
+        typical_px = float(np.median(geometry.sigma)) / camera.pixel_scale_rad
+        return max(self.config.match_radius_px, 4.0 * typical_px)
+
+    def _refine(self, spots: Spots, geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray,
                 tested: int, started: float) -> Identification | None:
-        """QUEST over all matches, then re-match with the refined attitude (once)."""
+        """Match all spots under `rotation`, refine with QUEST over the matches (twice), drop
+        matches beyond 5 sigma, and accept only under the false-positive bound of `verify`."""
+        radius = self.verification_radius_px(geometry, camera)
+        vectors = self.database.vectors
+        spot_index = star_index = None
         for _ in range(2):
-            solution = quest(geometry.rays[check.spot_index], self.database.vectors[check.star_index],
-                             geometry.sigma[check.spot_index])
-            check = verify(solution.rotation, spots.x, spots.y, self.database, camera,
-                           self.config.match_radius_px, hypothesis_spots=pattern_size)
-            if check.spot_index.size < 3:
+            check = verify(rotation, spots.x, spots.y, self.database, camera, radius)
+            if check.spot_index.size < MIN_STARS:
                 return None
-        fp = check.false_positive_probability * tested
+            spot_index, star_index = check.spot_index, check.star_index
+            solution = quest(geometry.rays[spot_index], vectors[star_index], geometry.sigma[spot_index])
+            rotation = solution.rotation
+        body = geometry.rays[spot_index]
+        normalized = np.linalg.norm(body - vectors[star_index] @ rotation, axis=1) / geometry.sigma[spot_index]
+        keep = normalized <= 5.0
+        if not np.all(keep):
+            spot_index, star_index, body = spot_index[keep], star_index[keep], body[keep]
+            if spot_index.size < MIN_STARS:
+                return None
+            solution = quest(body, vectors[star_index], geometry.sigma[spot_index])
+            normalized = np.linalg.norm(body - vectors[star_index] @ solution.rotation, axis=1) / geometry.sigma[spot_index]
+        sigma = geometry.sigma[spot_index]
+        chi2 = float(np.sum(normalized**2))
+        density = max(self._mean_density, check.stars_in_view / (camera.width * camera.height * camera.pixel_scale_rad**2))
+        log_t = log_chance_tuples(body, sigma, chi2, density)
+        if geometry.magnitude is not None:
+            log_t += log_magnitude_agreement(geometry.magnitude[spot_index], self.database.magnitude[star_index],
+                                             self._sorted_magnitudes, self.magnitude_floor)
+        fp = false_positive_bound(log_t, len(spots), spot_index.size)
         if fp > self.config.false_positive_bound:
             return None
-        solution = quest(geometry.rays[check.spot_index], self.database.vectors[check.star_index],
-                         geometry.sigma[check.spot_index])
-        body = geometry.rays[check.spot_index]
-        star = self.database.vectors[check.star_index]
+        star = vectors[star_index]
         predicted = star @ solution.rotation  # ICRS -> sensor: R^T r, as row vectors
         residual = np.arccos(np.clip(np.sum(body * predicted, axis=1), -1.0, 1.0))
-        order = np.argsort(check.spot_index)
+        order = np.argsort(spot_index)
         return Identification(
-            status=SOLVED, reason=f"{check.spot_index.size} stars matched, false-positive bound {fp:.1e}",
+            status=SOLVED, reason=f"{spot_index.size} stars matched, false-positive bound {fp:.1e}",
             algorithm=self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
-            spot_index=check.spot_index[order], hip=self.database.hip[check.star_index][order],
+            spot_index=spot_index[order], hip=self.database.hip[star_index][order],
             star_vectors=star[order], body_vectors=body[order], residual_rad=residual[order],
             attitude=solution, false_positive_probability=fp, stats=dict(self.stats))
 

@@ -1,20 +1,38 @@
 """Verification of a candidate attitude against every spot, with a false-positive bound.
 
-Null hypothesis: the candidate attitude is wrong, so the guide stars it projects into the
-image are unrelated to the spots. Then each spot not used to form the hypothesis falls
-within the match radius r of one of the K projected stars with probability at most
-    p = K * pi * r^2 / (W * H)
-(union bound over the stars' disks), independently of the others. The chance that m or more
-of the n remaining spots match by luck is the binomial tail P(X >= m; n, p). Testing H
-hypotheses in one frame multiplies this bound by H (Bonferroni). A candidate is accepted
-only if H * P(X >= m; n, p) <= the configured bound (default 1e-6).
+Null hypothesis: the spots are unrelated to the catalog stars they are matched to (false
+stars, or real stars given a wrong identity). For a set of m spots, unit vectors b_i with
+1-sigma direction errors s_i, the catalog stars are modelled as a uniform random field of
+density rho [1/sr]. The expected number of ordered catalog m-tuples that some rotation R
+maps onto the spots with weighted residual chi^2 = sum |b_i - R^T r_i|^2 / s_i^2 <= c is the
+density of tuples times the volume of a tube of radius sqrt(c) around the 3-D orbit of
+rotations, in coordinates scaled by s_i:
+
+    lambda_m(c) = prod_i (rho s_i^2) * 8 pi^2 sqrt(det G) * V_{2m-3}(sqrt(c)),
+    G = sum_i (I - b_i b_i^T) / s_i^2   (the inverse of the QUEST covariance),
+
+with 8 pi^2 the volume of SO(3) and V_d(r) the volume of a d-ball. Magnitudes add
+independent evidence when fluxes are known: with the zero point fitted on the matches and
+d the largest magnitude residual (at least `magnitude_floor`), the chance that random
+catalog stars agree as well is M = prod_i [F(m_i + d) - F(m_i - d)] over all but one star
+(one degree of freedom went into the zero point), F the catalog magnitude CDF.
+
+For one spot subset the statistic T = lambda_m(c) * M satisfies P(T <= t) <= t (1 + ln 1/t)
+(a product of two p-values). The search could have found any of the C(n, m) subsets of the
+n spots, for any m in 4..n, so the bound on a chance solution is
+
+    P_fp <= (n - 3) * C(n, m) * T (1 + ln 1/T),
+
+and a candidate is accepted only when P_fp <= the configured bound (default 1e-6). This
+covers every hypothesis any algorithm tests in the frame. rho is the larger of the whole
+catalog's mean density and the density of catalog stars in this field of view.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import bdtrc
+from scipy.special import gammaln
 
 from ..camera import CameraModel
 from .database import StarDatabase
@@ -23,14 +41,12 @@ from .database import StarDatabase
 @dataclass(frozen=True)
 class Verification:
     """spot_index, star_index: one-to-one matches (database star indices);
-    distance_px: projected-star to spot distance [px]; false_positive_probability: the
-    per-hypothesis binomial tail (multiply by hypotheses for the frame's bound);
-    stars_in_view: K; radius_px: r."""
+    distance_px: projected-star to spot distance [px]; stars_in_view: database stars
+    projected inside the image; radius_px: match radius [px]."""
 
     spot_index: np.ndarray
     star_index: np.ndarray
     distance_px: np.ndarray
-    false_positive_probability: float
     stars_in_view: int
     radius_px: float
 
@@ -67,24 +83,60 @@ def match_spots(spot_x: np.ndarray, spot_y: np.ndarray, star_u: np.ndarray, star
     return spot_i[keep], star_j[keep], dist[keep]
 
 
-def binomial_tail(successes: int, trials: int, p: float) -> float:
-    """P(X >= successes) for X ~ Binomial(trials, p)."""
-    if successes <= 0:
-        return 1.0
-    if successes > trials:
+LN_8PI2 = float(np.log(8.0 * np.pi**2))
+MIN_STARS = 4
+
+
+def log_ball_volume(dimension: int, radius: float) -> float:
+    """ln of the volume of a d-dimensional ball of the given radius."""
+    d = dimension
+    return 0.5 * d * np.log(np.pi) - gammaln(0.5 * d + 1.0) + d * np.log(max(radius, 1e-300))
+
+
+def log_chance_tuples(body: np.ndarray, sigma: np.ndarray, chi2: float, density_per_sr: float) -> float:
+    """ln lambda_m(c): expected number of catalog m-tuples (uniform density [1/sr]) fitting the
+    m sensor-frame unit vectors `body` (sigma [rad] each) with weighted chi^2 <= `chi2`."""
+    m = body.shape[0]
+    info = np.einsum("i,ijk->jk", 1.0 / sigma**2, np.eye(3)[None] - body[:, :, None] * body[:, None, :])
+    sign, logdet = np.linalg.slogdet(info)
+    if sign <= 0:
+        return 0.0  # degenerate geometry: no evidence
+    return (float(np.sum(np.log(density_per_sr * sigma**2))) + LN_8PI2 + 0.5 * logdet
+            + log_ball_volume(2 * m - 3, np.sqrt(max(chi2, 1e-12))))
+
+
+def log_magnitude_agreement(spot_magnitude: np.ndarray, star_magnitude: np.ndarray,
+                            sorted_catalog_magnitudes: np.ndarray, floor: float) -> float:
+    """ln M: chance that random catalog stars agree with the spots' instrumental magnitudes
+    (zero point fitted) as well as the matched stars do; 0 when magnitudes are unknown."""
+    ok = np.isfinite(spot_magnitude)
+    if np.count_nonzero(ok) < 2:
         return 0.0
-    return float(bdtrc(successes - 1, trials, min(max(p, 0.0), 1.0)))
+    offset = spot_magnitude[ok] - star_magnitude[ok]
+    zero_point = float(np.median(offset))
+    expected = spot_magnitude[ok] - zero_point  # the catalog magnitude each spot implies
+    half_width = max(float(np.max(np.abs(offset - zero_point))), floor)
+    n = sorted_catalog_magnitudes.size
+    window = (np.searchsorted(sorted_catalog_magnitudes, expected + half_width, "right")
+              - np.searchsorted(sorted_catalog_magnitudes, expected - half_width, "left")) / n
+    window = np.sort(np.clip(window, 1.0 / n, 1.0))[1:]  # the zero point used one star
+    return float(np.sum(np.log(window)))
+
+
+def false_positive_bound(log_statistic: float, spots: int, matched: int) -> float:
+    """P_fp <= (n - 3) C(n, m) T (1 + ln 1/T) for T = exp(log_statistic) (see module doc)."""
+    if matched < MIN_STARS or spots < matched:
+        return 1.0
+    log_t = min(log_statistic, 0.0)
+    log_subsets = gammaln(spots + 1.0) - gammaln(matched + 1.0) - gammaln(spots - matched + 1.0)
+    log_p = np.log(spots - 3.0) + log_subsets + log_t + np.log1p(-log_t)
+    return float(min(1.0, np.exp(log_p)))
 
 
 def verify(rotation: np.ndarray, spot_x: np.ndarray, spot_y: np.ndarray, database: StarDatabase,
-           camera: CameraModel, radius_px: float, hypothesis_spots: int) -> Verification:
-    """Match the spots to the database stars projected with `rotation` and bound the
-    probability that so many matches arise by chance. `hypothesis_spots` spots were used to
-    form the candidate and count neither as trials nor as evidence."""
+           camera: CameraModel, radius_px: float) -> Verification:
+    """Match the spots to the database stars projected with `rotation` (sensor -> ICRS):
+    one-to-one nearest matches within `radius_px`."""
     star_idx, u, v = project_database(rotation, database, camera)
     spot_i, star_j, dist = match_spots(spot_x, spot_y, u, v, radius_px)
-    trials = max(spot_x.size - hypothesis_spots, 0)
-    evidence = max(spot_i.size - hypothesis_spots, 0)
-    p = min(1.0, star_idx.size * np.pi * radius_px**2 / (camera.width * camera.height))
-    return Verification(spot_i, star_idx[star_j], dist, binomial_tail(evidence, trials, p),
-                        int(star_idx.size), float(radius_px))
+    return Verification(spot_i, star_idx[star_j], dist, int(star_idx.size), float(radius_px))
