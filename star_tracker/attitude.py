@@ -155,9 +155,9 @@ def _davenport_k(body: np.ndarray, ref: np.ndarray, weights: np.ndarray) -> tupl
 def attitude_covariance(body: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
     """QUEST measurement-model covariance in the sensor frame [rad^2]:
     P = [sum_i sigma_i^-2 (I - b_i b_i^T)]^-1 (Shuster & Oh)."""
-    info = np.zeros((3, 3))
-    for b, s in zip(body, sigmas):
-        info += (np.eye(3) - np.outer(b, b)) / (s * s)
+    body = np.asarray(body, dtype=float).reshape(-1, 3)
+    weights = 1.0 / np.asarray(sigmas, dtype=float) ** 2
+    info = np.sum(weights) * np.eye(3) - (weights[:, None] * body).T @ body
     return np.linalg.pinv(info) if np.linalg.cond(info) > 1e12 else np.linalg.inv(info)
 
 

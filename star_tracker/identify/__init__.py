@@ -5,12 +5,14 @@ from __future__ import annotations
 
 from .base import Identification, IdentifyConfig, StarIdentifier
 from .database import DatabaseConfig, StarDatabase, load_or_build_database
+from .hybrid import HybridIdentifier
 from .pyramid import PyramidIdentifier
 
 ALGORITHMS: dict[str, type[StarIdentifier]] = {
     PyramidIdentifier.name: PyramidIdentifier,
+    HybridIdentifier.name: HybridIdentifier,
 }
-DEFAULT_ALGORITHM = PyramidIdentifier.name
+DEFAULT_ALGORITHM = HybridIdentifier.name
 
 
 def make_identifier(name: str, database: StarDatabase, config: IdentifyConfig | None = None) -> StarIdentifier:

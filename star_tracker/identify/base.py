@@ -103,12 +103,15 @@ class SpotGeometry:
     """Per-frame quantities algorithms share, for the flux-sorted spots: rays (N, 3) unit
     vectors in the sensor frame; sigma (N,) 1-sigma direction error [rad]; pattern_count: how
     many of the brightest spots may form patterns; magnitude (N,) instrumental magnitude
-    -2.5 log10(flux) [mag] with an unknown zero point (NaN where flux <= 0)."""
+    -2.5 log10(flux) [mag] with an unknown zero point (NaN where flux <= 0); x, y (N,) pixel
+    positions [px]."""
 
     rays: np.ndarray
     sigma: np.ndarray
     pattern_count: int
-    magnitude: np.ndarray | None = None
+    magnitude: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
 
 
 class StarIdentifier(ABC):
@@ -138,27 +141,35 @@ class StarIdentifier(ABC):
         """Half-width of the accepted interval for an inter-star angle [rad]."""
         return self.config.sigma_multiplier * np.sqrt(sigma_a**2 + sigma_b**2) + self.config.angle_tolerance_floor_rad
 
+    def prepare(self, spots: Spots, camera: CameraModel) -> tuple[np.ndarray, SpotGeometry]:
+        """Indices (into `spots`) of the finite spots sorted by flux, brightest first, and the
+        geometry algorithms work on, in that order. Resets the per-call stats."""
+        x, y, flux = spots.x, spots.y, spots.flux
+        finite = np.isfinite(x) & np.isfinite(y)
+        key = np.where(finite, -np.nan_to_num(flux, nan=-np.inf), np.inf)
+        order = np.argsort(key, kind="stable")
+        if not finite.all():
+            order = order[: int(finite.sum())]
+        x, y, flux = x[order], y[order], flux[order]
+        # Direction 1-sigma from each spot's covariance; unknown (NaN) counts as 1 px; floored.
+        cov = spots.cov[order]
+        sigma_px = np.sqrt(np.maximum(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]), 0.0))
+        sigma_px = np.maximum(np.nan_to_num(sigma_px, nan=1.0), self.config.centroid_sigma_floor_px)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            magnitude = -2.5 * np.log10(np.where(flux > 0, flux, np.nan))
+        self.stats = {}
+        return order, SpotGeometry(rays=camera.pixel_to_ray(x, y), sigma=sigma_px * camera.pixel_scale_rad,
+                                   pattern_count=min(x.size, self.config.max_pattern_spots),
+                                   magnitude=magnitude, x=x, y=y)
+
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
+        """Identify the stars behind `spots` (pixel positions in `camera`); see Identification."""
         started = time.perf_counter()
         deadline = started + self.config.max_time_s
-        finite = np.isfinite(spots.x) & np.isfinite(spots.y)
-        if not np.all(finite):
-            spots = spots.take(np.flatnonzero(finite))
-        if len(spots) < 3:
-            return self._fail(TOO_FEW_SPOTS, f"{len(spots)} spots; at least 3 are needed", started, 0)
-        order = np.argsort(-np.nan_to_num(spots.flux, nan=-np.inf), kind="stable")
-        spots = spots.take(order)
-        # Direction 1-sigma from each spot's covariance; unknown (NaN) counts as 1 px; floored.
-        sigma = np.nan_to_num(camera.pixel_covariance_to_ray_sigma(spots.cov), nan=camera.pixel_scale_rad)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            magnitude = np.where(spots.flux > 0, -2.5 * np.log10(np.where(spots.flux > 0, spots.flux, 1.0)), np.nan)
-        geometry = SpotGeometry(
-            rays=camera.pixel_to_ray(spots.x, spots.y),
-            sigma=np.maximum(sigma, self.config.centroid_sigma_floor_px * camera.pixel_scale_rad),
-            pattern_count=min(len(spots), self.config.max_pattern_spots),
-            magnitude=magnitude)
-        self.stats = {}
-
+        order, geometry = self.prepare(spots, camera)
+        n = order.size
+        if n < MIN_STARS:
+            return self._fail(TOO_FEW_SPOTS, f"{n} spots; at least {MIN_STARS} are needed", started, 0)
         tested = 0
         for pattern_spots, stars in self.hypotheses(geometry, deadline):
             if time.perf_counter() > deadline:
@@ -169,21 +180,21 @@ class StarIdentifier(ABC):
                 candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars], geometry.sigma[pattern_spots])
             except (ValueError, np.linalg.LinAlgError):
                 continue
-            result = self._refine(spots, geometry, camera, candidate.rotation, tested, started)
+            result = self._refine(geometry, camera, candidate.rotation, tested, started)
             if result is not None:
                 return replace(result, spot_index=order[result.spot_index])
         if time.perf_counter() > deadline:
             return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after "
                               f"{tested} hypotheses", started, tested)
         return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, "
-                          f"{len(spots)} spots)", started, tested)
+                          f"{n} spots)", started, tested)
 
     def verification_radius_px(self, geometry: SpotGeometry, camera: CameraModel) -> float:
         """Verification radius: the configured one, widened to 4 sigma of the typical spot."""
         typical_px = float(np.median(geometry.sigma)) / camera.pixel_scale_rad
         return max(self.config.match_radius_px, 4.0 * typical_px)
 
-    def _refine(self, spots: Spots, geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray,
+    def _refine(self, geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray,
                 tested: int, started: float) -> Identification | None:
         """Match all spots under `rotation`, refine with QUEST over the matches (twice), drop
         matches beyond 5 sigma, and accept only under the false-positive bound of `verify`."""
@@ -191,7 +202,7 @@ class StarIdentifier(ABC):
         vectors = self.database.vectors
         spot_index = star_index = None
         for _ in range(2):
-            check = verify(rotation, spots.x, spots.y, self.database, camera, radius)
+            check = verify(rotation, geometry.x, geometry.y, self.database, camera, radius)
             if check.spot_index.size < MIN_STARS:
                 return None
             spot_index, star_index = check.spot_index, check.star_index
@@ -210,13 +221,18 @@ class StarIdentifier(ABC):
         chi2 = float(np.sum(normalized**2))
         density = max(self._mean_density, check.stars_in_view / (camera.width * camera.height * camera.pixel_scale_rad**2))
         log_t = log_chance_tuples(body, sigma, chi2, density)
-        if geometry.magnitude is not None:
-            log_t += log_magnitude_agreement(geometry.magnitude[spot_index], self.database.magnitude[star_index],
-                                             self._sorted_magnitudes, self.magnitude_floor)
-        fp = false_positive_bound(log_t, len(spots), spot_index.size)
+        log_t += log_magnitude_agreement(geometry.magnitude[spot_index], self.database.magnitude[star_index],
+                                         self._sorted_magnitudes, self.magnitude_floor)
+        fp = false_positive_bound(log_t, geometry.x.size, spot_index.size)
         if fp > self.config.false_positive_bound:
             return None
-        star = vectors[star_index]
+        return self.solved(geometry, spot_index, star_index, solution, fp, tested, started)
+
+    def solved(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
+               solution: AttitudeSolution, fp: float, tested: int, started: float) -> Identification:
+        """The Identification of an accepted solution (spot_index into the flux-sorted spots)."""
+        body = geometry.rays[spot_index]
+        star = self.database.vectors[star_index]
         predicted = star @ solution.rotation  # ICRS -> sensor: R^T r, as row vectors
         residual = np.arccos(np.clip(np.sum(body * predicted, axis=1), -1.0, 1.0))
         order = np.argsort(spot_index)

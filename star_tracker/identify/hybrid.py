@@ -1,0 +1,128 @@
+"""The default identifier: compiled pyramid-order triangle search with immediate verification.
+
+It combines what measured best in the seed papers:
+- spot triangles in Mortari's pyramid order over the brightest spots (moves away from a
+  false spot fastest), then every further spot, dimmest last, while time remains (Toloei's
+  robustness to many false stars comes from searching beyond the brightest few);
+- each side looked up in the pair k-vector within sigma_multiplier x the angle sigma of
+  Cole's eq. (14), sqrt(s_a^2 + s_b^2), plus a floor;
+- the handedness (mirror) test of van Bezooijen on every catalog triangle;
+- each surviving catalog triangle verified against all spots at once (the 4th-star
+  confirmation of the pyramid generalised), with the false-positive bound of `verify`,
+  which uses magnitudes when they are known (van Bezooijen) and never needs them.
+The search, the q-method, the matching and the bound run in numba (kernels.py) in batches of
+triangles, so the time budget is checked between batches.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+from functools import lru_cache
+
+import numpy as np
+
+from ..attitude import AttitudeSolution, attitude_covariance, matrix_to_quaternion
+from ..camera import CameraModel
+from ..centroid import Spots
+from . import kernels
+from .base import NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier
+from .database import StarDatabase
+from .pyramid import pyramid_order
+from .skygrid import SkyGrid
+from .verify import MIN_STARS
+
+BATCH_TRIANGLES = 64  # triangles per compiled call after the first batch: the deadline is checked between calls
+
+
+@lru_cache(maxsize=128)
+def pyramid_triangles(pattern_count: int) -> np.ndarray:
+    """(T, 3) spot triangles in pyramid order over the first `pattern_count` spots."""
+    return np.array(list(pyramid_order(pattern_count)), dtype=np.int64).reshape(-1, 3)
+
+
+@lru_cache(maxsize=256)
+def triangles_closing_at(k: int) -> np.ndarray:
+    """(C(k, 2), 3) triangles (i, j, k), i < j < k: the ones spot k adds."""
+    i, j = np.triu_indices(k, 1)
+    return np.stack([i, j, np.full(i.size, k)], axis=1).astype(np.int64)
+
+
+def triangle_batches(pattern_count: int, spot_count: int):
+    """Spot triangles in search order, as arrays: the pyramid over the brightest
+    `pattern_count` spots, then the triangles each further spot adds (brightest first), in
+    slices of at most BATCH_TRIANGLES."""
+    yield pyramid_triangles(pattern_count)
+    for k in range(pattern_count, spot_count):
+        block = triangles_closing_at(k)
+        for start in range(0, block.shape[0], BATCH_TRIANGLES):
+            yield block[start:start + BATCH_TRIANGLES]
+
+
+class HybridIdentifier(StarIdentifier):
+    name = "hybrid"
+
+    def __init__(self, database: StarDatabase, config: IdentifyConfig):
+        super().__init__(database, config)
+        self.grid = SkyGrid.build(database.vectors)
+        self._head_ik = np.full(database.star_count, -1, np.int64)
+        self._head_jk = np.full(database.star_count, -1, np.int64)
+        kv = database.kvector
+        self._kvector = (kv.sorted_values, kv.k.astype(np.int64), float(kv.slope), float(kv.intercept))
+        self._pairs = (database.pair_a.astype(np.int64), database.pair_b.astype(np.int64))
+        self._vectors = np.ascontiguousarray(database.vectors, dtype=float)
+        self._star_magnitude = np.asarray(database.magnitude, dtype=float)
+
+    def hypotheses(self, geometry, deadline):
+        raise NotImplementedError("hybrid verifies inside its compiled search; call identify()")
+
+    def warm_up(self, camera: CameraModel) -> None:
+        """Compile the kernels (or load them from numba's cache) on a small random scene."""
+        rng = np.random.default_rng(0)
+        n = 8
+        x, y = rng.uniform(0, camera.width - 1, n), rng.uniform(0, camera.height - 1, n)
+        self.identify(Spots(x, y, np.linspace(2e4, 1e3, n), np.full(n, 50.0), np.tile(np.eye(2) * 0.01, (n, 1, 1)),
+                            np.zeros(n, np.uint32), np.full(n, 9, np.int32), np.full(n, 1e3),
+                            camera.width, camera.height), camera)
+
+    def identify(self, spots: Spots, camera: CameraModel) -> Identification:
+        started = time.perf_counter()
+        deadline = started + self.config.max_time_s
+        order, geometry = self.prepare(spots, camera)
+        n = order.size
+        if n < MIN_STARS:
+            return self._fail(TOO_FEW_SPOTS, f"{n} spots; at least {MIN_STARS} are needed", started, 0)
+        radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad, self.grid.max_radius_rad)
+        chord = 2.0 * math.sin(0.5 * radius_rad)
+        magnitude = geometry.magnitude
+        out_spot = np.empty(n, np.int64)
+        out_star = np.empty(n, np.int64)
+        values, k, slope, intercept = self._kvector
+        pair_a, pair_b = self._pairs
+        tested = tried = 0
+        for triangles in triangle_batches(geometry.pattern_count, n):
+            if time.perf_counter() > deadline:
+                self.stats["triangles"] = tried
+                return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after {tried} "
+                                  f"of {math.comb(n, 3)} triangles", started, tested)
+            status, count, rotation, fp, hypotheses, stopped = kernels.search_triangles(
+                triangles, 0, triangles.shape[0], geometry.rays, geometry.sigma, magnitude,
+                self.config.sigma_multiplier, self.config.angle_tolerance_floor_rad,
+                self.config.max_candidates_per_pattern, values, k, slope, intercept, pair_a, pair_b, self._vectors,
+                self._star_magnitude, self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell,
+                self.grid.grid, self.grid.cell_density, self._mean_density, chord, MIN_STARS, self.magnitude_floor,
+                self.config.false_positive_bound, self._head_ik, self._head_jk, out_spot, out_star)
+            tested += hypotheses
+            tried += stopped
+            if status == 1:
+                self.stats["triangles"] = tried
+                spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
+                body = geometry.rays[spot_index]
+                sigma = geometry.sigma[spot_index]
+                residual = body - self._vectors[star_index] @ rotation
+                solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, attitude_covariance(body, sigma),
+                                            0.5 * float(np.sum(np.sum(residual**2, axis=1) / sigma**2)))
+                result = self.solved(geometry, spot_index, star_index, solution, fp, tested, started)
+                return replace(result, spot_index=order[result.spot_index])
+        self.stats["triangles"] = tried
+        return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, {n} spots)", started, tested)

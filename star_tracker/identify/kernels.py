@@ -1,0 +1,357 @@
+"""Compiled identification kernels (numba): triangle search over the pair k-vector, the
+q-method, spot-to-star matching on the sky grid and the false-positive bound of `verify`,
+in one call per batch of spot triangles so a frame costs microseconds, not Python overhead.
+
+The mathematics is the one documented in base.py and verify.py; these are its loops.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .skygrid import cell_of, cells_near
+
+LN_8PI2 = math.log(8.0 * math.pi**2)
+LN_PI = math.log(math.pi)
+
+
+@njit(cache=True)
+def kvector_range(values, k, slope, intercept, lo, hi):
+    """[start, stop) of the sorted `values` inside [lo, hi] (see kvector.KVector.range)."""
+    n = k.size
+    if hi < lo or hi < values[0] or lo > values[n - 1]:
+        return 0, 0
+    j_lo = int(math.floor((lo - intercept) / slope))
+    j_hi = int(math.ceil((hi - intercept) / slope))
+    start = k[min(j_lo - 1, n - 1)] if j_lo >= 1 else 0
+    stop = k[j_hi] if 0 <= j_hi < n else n
+    while start < stop and values[start] < lo:
+        start += 1
+    while stop > start and values[stop - 1] > hi:
+        stop -= 1
+    return start, stop
+
+
+@njit(cache=True)
+def q_method(body, ref, weights):
+    """Sensor -> ICRS rotation maximizing sum w |b - R^T r|^2 agreement (Davenport)."""
+    b = np.zeros((3, 3))
+    for i in range(body.shape[0]):
+        for r in range(3):
+            for c in range(3):
+                b[r, c] += weights[i] * body[i, r] * ref[i, c]
+    tr = b[0, 0] + b[1, 1] + b[2, 2]
+    kmat = np.empty((4, 4))
+    for r in range(3):
+        for c in range(3):
+            kmat[r, c] = b[r, c] + b[c, r] - (tr if r == c else 0.0)
+    z0, z1, z2 = b[1, 2] - b[2, 1], b[2, 0] - b[0, 2], b[0, 1] - b[1, 0]
+    kmat[0, 3] = kmat[3, 0] = z0
+    kmat[1, 3] = kmat[3, 1] = z1
+    kmat[2, 3] = kmat[3, 2] = z2
+    kmat[3, 3] = tr
+    _, vecs = np.linalg.eigh(kmat)
+    x, y, z, w = vecs[0, 3], vecs[1, 3], vecs[2, 3], vecs[3, 3]
+    # Shuster's A(q) maps ICRS -> sensor; the published rotation is its transpose.
+    a = np.empty((3, 3))
+    a[0, 0] = w * w + x * x - y * y - z * z
+    a[0, 1] = 2 * (x * y + w * z)
+    a[0, 2] = 2 * (x * z - w * y)
+    a[1, 0] = 2 * (x * y - w * z)
+    a[1, 1] = w * w - x * x + y * y - z * z
+    a[1, 2] = 2 * (y * z + w * x)
+    a[2, 0] = 2 * (x * z + w * y)
+    a[2, 1] = 2 * (y * z - w * x)
+    a[2, 2] = w * w - x * x - y * y + z * z
+    return a.T.copy()
+
+
+@njit(cache=True)
+def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, out_dot):
+    """One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star
+    within `chord` (2 sin(radius/2)); a star claimed by two spots goes to the closer one.
+    Returns the number of matches written to out_*."""
+    n = rays.shape[0]
+    radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
+    cells = np.empty(4, np.int64)
+    best_star = np.full(n, -1, np.int64)
+    best_dot = np.full(n, -2.0)
+    cos_limit = 1.0 - 0.5 * chord * chord
+    for s in range(n):
+        px = rotation[0, 0] * rays[s, 0] + rotation[0, 1] * rays[s, 1] + rotation[0, 2] * rays[s, 2]
+        py = rotation[1, 0] * rays[s, 0] + rotation[1, 1] * rays[s, 1] + rotation[1, 2] * rays[s, 2]
+        pz = rotation[2, 0] * rays[s, 0] + rotation[2, 1] * rays[s, 1] + rotation[2, 2] * rays[s, 2]
+        m = cells_near(px, py, pz, radius, grid, cells)
+        for q in range(m):
+            c = cells[q]
+            for e in range(cell_start[c], cell_start[c + 1]):
+                star = star_of_cell[e]
+                dot = px * vectors[star, 0] + py * vectors[star, 1] + pz * vectors[star, 2]
+                if dot >= cos_limit and dot > best_dot[s]:
+                    best_dot[s] = dot
+                    best_star[s] = star
+    count = 0
+    order = np.argsort(-best_dot)
+    for t in range(n):
+        s = order[t]
+        if best_star[s] < 0:
+            break
+        taken = False
+        for q in range(count):
+            if out_star[q] == best_star[s]:
+                taken = True
+                break
+        if not taken:
+            out_spot[count] = s
+            out_star[count] = best_star[s]
+            out_dot[count] = best_dot[s]
+            count += 1
+    return count
+
+
+@njit(cache=True)
+def log_chance_tuples(body, sigma, chi2, density):
+    """ln lambda_m(c) of verify.log_chance_tuples."""
+    m = body.shape[0]
+    info = np.zeros((3, 3))
+    total = 0.0
+    for i in range(m):
+        w = 1.0 / (sigma[i] * sigma[i])
+        for r in range(3):
+            for c in range(3):
+                info[r, c] += w * ((1.0 if r == c else 0.0) - body[i, r] * body[i, c])
+        total += math.log(density * sigma[i] * sigma[i])
+    det = np.linalg.det(info)
+    if det <= 0.0:
+        return 0.0
+    d = 2 * m - 3
+    radius = math.sqrt(max(chi2, 1e-12))
+    log_ball = 0.5 * d * LN_PI - math.lgamma(0.5 * d + 1.0) + d * math.log(radius)
+    return total + LN_8PI2 + 0.5 * math.log(det) + log_ball
+
+
+@njit(cache=True)
+def log_magnitude_agreement(spot_mag, star_mag, sorted_catalog, floor):
+    """ln M of verify.log_magnitude_agreement (0 when fewer than two magnitudes are known)."""
+    m = spot_mag.size
+    offset = np.empty(m)
+    count = 0
+    for i in range(m):
+        if np.isfinite(spot_mag[i]):
+            offset[count] = spot_mag[i] - star_mag[i]
+            count += 1
+    if count < 2:
+        return 0.0
+    zero_point = np.median(offset[:count])
+    half = floor
+    for i in range(count):
+        half = max(half, abs(offset[i] - zero_point))
+    n = sorted_catalog.size
+    window = np.empty(count)
+    q = 0
+    for i in range(m):
+        if np.isfinite(spot_mag[i]):
+            expected = spot_mag[i] - zero_point
+            hi = np.searchsorted(sorted_catalog, expected + half, side="right")
+            lo = np.searchsorted(sorted_catalog, expected - half, side="left")
+            window[q] = min(max((hi - lo) / n, 1.0 / n), 1.0)
+            q += 1
+    window.sort()
+    total = 0.0
+    for i in range(1, count):
+        total += math.log(window[i])
+    return total
+
+
+@njit(cache=True)
+def false_positive_bound(log_statistic, spots, matched, min_stars):
+    """P_fp of verify.false_positive_bound."""
+    if matched < min_stars or spots < matched:
+        return 1.0
+    log_t = min(log_statistic, 0.0)
+    log_subsets = math.lgamma(spots + 1.0) - math.lgamma(matched + 1.0) - math.lgamma(spots - matched + 1.0)
+    log_p = math.log(spots - 3.0) + log_subsets + log_t + math.log1p(-log_t)
+    return min(1.0, math.exp(log_p))
+
+
+@njit(cache=True)
+def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes,
+                     cell_start, star_of_cell, grid, cell_density, mean_density, chord, min_stars,
+                     magnitude_floor, out_spot, out_star):
+    """Match every spot under `rotation`, refine with the q-method over the matches (twice),
+    drop matches beyond 5 sigma and bound the false-positive probability.
+    Returns (matches written to out_*, refined rotation, false-positive bound, chi^2)."""
+    n = rays.shape[0]
+    dots = np.empty(n)
+    count = 0
+    for _ in range(2):
+        count = match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, dots)
+        if count < min_stars:
+            return count, rotation, 1.0, 0.0
+        body = np.empty((count, 3))
+        ref = np.empty((count, 3))
+        w = np.empty(count)
+        for i in range(count):
+            body[i] = rays[out_spot[i]]
+            ref[i] = vectors[out_star[i]]
+            w[i] = 1.0 / sigma[out_spot[i]] ** 2
+        rotation = q_method(body, ref, w)
+    kept = count
+    chi2 = 0.0
+    for _ in range(2):  # drop 5-sigma outliers, refit once
+        kept = 0
+        chi2 = 0.0
+        for i in range(count):
+            s, t = out_spot[i], out_star[i]
+            r2 = 0.0
+            for a in range(3):
+                pred = rotation[0, a] * vectors[t, 0] + rotation[1, a] * vectors[t, 1] + rotation[2, a] * vectors[t, 2]
+                r2 += (rays[s, a] - pred) ** 2
+            r2 /= sigma[s] ** 2
+            if r2 <= 25.0:
+                out_spot[kept] = s
+                out_star[kept] = t
+                chi2 += r2
+                kept += 1
+        if kept < min_stars:
+            return kept, rotation, 1.0, 0.0
+        if kept == count:
+            break
+        count = kept
+        body = np.empty((count, 3))
+        ref = np.empty((count, 3))
+        w = np.empty(count)
+        for i in range(count):
+            body[i] = rays[out_spot[i]]
+            ref[i] = vectors[out_star[i]]
+            w[i] = 1.0 / sigma[out_spot[i]] ** 2
+        rotation = q_method(body, ref, w)
+    count = kept
+    body = np.empty((count, 3))
+    sig = np.empty(count)
+    smag = np.empty(count)
+    cmag = np.empty(count)
+    for i in range(count):
+        body[i] = rays[out_spot[i]]
+        sig[i] = sigma[out_spot[i]]
+        smag[i] = magnitude[out_spot[i]]
+        cmag[i] = star_magnitude[out_star[i]]
+    density = max(mean_density, cell_density[cell_of(rotation[0, 2], rotation[1, 2], rotation[2, 2], grid)])
+    log_t = log_chance_tuples(body, sig, chi2, density)
+    log_t += log_magnitude_agreement(smag, cmag, sorted_magnitudes, magnitude_floor)
+    return count, rotation, false_positive_bound(log_t, n, count, min_stars), chi2
+
+
+@njit(cache=True)
+def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multiplier, tolerance_floor,
+                     max_candidates, pair_angle, k, slope, intercept, pair_a, pair_b, vectors,
+                     star_magnitude, sorted_magnitudes, cell_start, star_of_cell, grid, cell_density,
+                     mean_density, chord, min_stars, magnitude_floor, fp_limit, head_ik, head_jk,
+                     out_spot, out_star):
+    """Try spot triangles triangles[first:last] in order: catalog triangles whose three sides
+    match within the angle tolerance and whose handedness agrees (mirror test) are verified
+    against all spots at once. Returns (status, matches, rotation, fp, hypotheses, last tried
+    + 1): status 1 = accepted (matches in out_*), 0 = none in this batch.
+    head_ik, head_jk: scratch arrays of -1, one per catalog star (restored on return)."""
+    n_windows = 0
+    hypotheses = 0
+    best_rotation = np.eye(3)
+    max_window = pair_a.size
+    for t in range(first, last):
+        i, j, kk = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        spot = (i, j, kk)
+        lo = np.empty(3, np.int64)
+        hi = np.empty(3, np.int64)
+        empty = False
+        for e in range(3):
+            a, b = (i, j) if e == 0 else ((i, kk) if e == 1 else (j, kk))
+            dot = rays[a, 0] * rays[b, 0] + rays[a, 1] * rays[b, 1] + rays[a, 2] * rays[b, 2]
+            dx = rays[a, 0] - rays[b, 0]
+            dy = rays[a, 1] - rays[b, 1]
+            dz = rays[a, 2] - rays[b, 2]
+            angle = 2.0 * math.asin(min(1.0, 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz)))
+            tol = sigma_multiplier * math.sqrt(sigma[a] ** 2 + sigma[b] ** 2) + tolerance_floor
+            lo[e], hi[e] = kvector_range(pair_angle, k, slope, intercept, angle - tol, angle + tol)
+            if hi[e] <= lo[e]:
+                empty = True
+        if empty:
+            continue
+        n_windows += 1
+        # Adjacency lists (linked through `nxt`) of the i-k and j-k windows, both orientations.
+        size_ik = 2 * (hi[1] - lo[1])
+        size_jk = 2 * (hi[2] - lo[2])
+        nxt_ik = np.empty(size_ik, np.int64)
+        to_ik = np.empty(size_ik, np.int64)
+        nxt_jk = np.empty(size_jk, np.int64)
+        to_jk = np.empty(size_jk, np.int64)
+        e = 0
+        for p in range(lo[1], hi[1]):
+            for a, b in ((pair_a[p], pair_b[p]), (pair_b[p], pair_a[p])):
+                nxt_ik[e] = head_ik[a]
+                to_ik[e] = b
+                head_ik[a] = e
+                e += 1
+        e = 0
+        for p in range(lo[2], hi[2]):
+            for a, b in ((pair_a[p], pair_b[p]), (pair_b[p], pair_a[p])):
+                nxt_jk[e] = head_jk[a]
+                to_jk[e] = b
+                head_jk[a] = e
+                e += 1
+        spot_sign = (rays[i, 0] * (rays[j, 1] * rays[kk, 2] - rays[j, 2] * rays[kk, 1])
+                     - rays[i, 1] * (rays[j, 0] * rays[kk, 2] - rays[j, 2] * rays[kk, 0])
+                     + rays[i, 2] * (rays[j, 0] * rays[kk, 1] - rays[j, 1] * rays[kk, 0]))
+        cand = np.empty((max_candidates + 1, 3), np.int64)
+        n_cand = 0
+        for p in range(lo[0], hi[0]):
+            for sa, sb in ((pair_a[p], pair_b[p]), (pair_b[p], pair_a[p])):
+                q = head_ik[sa]
+                while q >= 0 and n_cand <= max_candidates:
+                    sc = to_ik[q]
+                    q = nxt_ik[q]
+                    if sc == sb:
+                        continue
+                    r = head_jk[sb]
+                    found = False
+                    while r >= 0:
+                        if to_jk[r] == sc:
+                            found = True
+                            break
+                        r = nxt_jk[r]
+                    if not found:
+                        continue
+                    va, vb, vc = vectors[sa], vectors[sb], vectors[sc]
+                    star_sign = (va[0] * (vb[1] * vc[2] - vb[2] * vc[1]) - va[1] * (vb[0] * vc[2] - vb[2] * vc[0])
+                                 + va[2] * (vb[0] * vc[1] - vb[1] * vc[0]))
+                    if (star_sign > 0) != (spot_sign > 0):
+                        continue  # mirror image
+                    cand[n_cand, 0], cand[n_cand, 1], cand[n_cand, 2] = sa, sb, sc
+                    n_cand += 1
+        # Restore the scratch heads.
+        for p in range(lo[1], hi[1]):
+            head_ik[pair_a[p]] = -1
+            head_ik[pair_b[p]] = -1
+        for p in range(lo[2], hi[2]):
+            head_jk[pair_a[p]] = -1
+            head_jk[pair_b[p]] = -1
+        if n_cand > max_candidates:
+            continue  # ambiguous triangle: others will do
+        body = np.empty((3, 3))
+        w = np.empty(3)
+        for q in range(3):
+            body[q] = rays[spot[q]]
+            w[q] = 1.0 / sigma[spot[q]] ** 2
+        for c in range(n_cand):
+            hypotheses += 1
+            ref = np.empty((3, 3))
+            for q in range(3):
+                ref[q] = vectors[cand[c, q]]
+            rotation = q_method(body, ref, w)
+            count, rotation, fp, _ = verify_candidate(
+                rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes, cell_start,
+                star_of_cell, grid, cell_density, mean_density, chord, min_stars, magnitude_floor, out_spot, out_star)
+            if fp <= fp_limit:
+                return 1, count, rotation, fp, hypotheses, t + 1
+    return 0, 0, best_rotation, 1.0, hypotheses, last

@@ -1,0 +1,108 @@
+"""The false-positive bound, its compiled twin, the sky grid, and the default identifier's
+behaviour on the seed setups (against simulator truth)."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from star_tracker.identify import DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+from star_tracker.identify import kernels, verify
+from star_tracker.identify.base import TIMEOUT
+from star_tracker.identify.skygrid import SkyGrid
+from star_tracker.scenes import SETUPS, make_scene
+
+
+@pytest.fixture(scope="module")
+def sky(catalog):
+    return catalog.at_epoch(2026.0)
+
+
+def test_sky_grid_finds_every_star_within_the_radius(database):
+    grid = SkyGrid.build(database.vectors)
+    rng = np.random.default_rng(1)
+    radius = 0.8 * grid.max_radius_rad
+    chord = 2 * np.sin(radius / 2)
+    rays = rng.normal(size=(400, 3))
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    # Put half the rays right next to catalog stars so there is something to find.
+    rays[:200] = database.vectors[rng.choice(database.star_count, 200, replace=False)] + rng.normal(scale=0.3 * radius, size=(200, 3))
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    out_spot, out_star, out_dot = np.empty(400, np.int64), np.empty(400, np.int64), np.empty(400)
+    count = kernels.match_all(rays, np.eye(3), database.vectors, grid.cell_start, grid.star_of_cell, grid.grid,
+                              chord, out_spot, out_star, out_dot)
+    dots = rays @ database.vectors.T
+    nearest = np.argmax(dots, axis=1)
+    within = dots[np.arange(400), nearest] >= 1 - chord**2 / 2
+    found = dict(zip(out_spot[:count], out_star[:count]))
+    # Every ray with a star inside the radius is matched to its nearest star (one-to-one
+    # conflicts are impossible here: the rays near stars use distinct stars almost surely).
+    for s in np.flatnonzero(within):
+        assert found.get(s) == nearest[s]
+    assert set(found) <= set(np.flatnonzero(within))
+
+
+def test_compiled_bound_equals_the_documented_one(database):
+    rng = np.random.default_rng(2)
+    sorted_mag = np.sort(database.magnitude)
+    for m in (4, 6, 12):
+        body = rng.normal(size=(m, 3)) * [0.05, 0.05, 1]
+        body /= np.linalg.norm(body, axis=1, keepdims=True)
+        sigma = rng.uniform(2e-5, 1e-4, m)
+        spot_mag = rng.uniform(-8, -3, m)
+        star_mag = spot_mag + 9 + rng.normal(scale=0.1, size=m)
+        a = verify.log_chance_tuples(body, sigma, 7.0, 600.0) + verify.log_magnitude_agreement(
+            spot_mag, star_mag, sorted_mag, 0.05)
+        b = kernels.log_chance_tuples(body, sigma, 7.0, 600.0) + kernels.log_magnitude_agreement(
+            spot_mag, star_mag, sorted_mag, 0.05)
+        assert a == pytest.approx(b, rel=1e-9)
+        assert verify.false_positive_bound(a, 40, m) == pytest.approx(kernels.false_positive_bound(b, 40, m, 4), rel=1e-9)
+
+
+def test_bound_is_conservative_on_random_spots(database, sky):
+    """With the acceptance threshold opened to 0.5, random-spot scenes must still almost never
+    yield a solution with a small bound: P(bound <= t) <= t is what the math promises."""
+    identifier = make_identifier(DEFAULT_ALGORITHM, database, IdentifyConfig(false_positive_bound=0.5, max_time_s=0.2))
+    setup = replace(SETUPS["nominal"], real_stars=0, false_stars=15)
+    rng = np.random.default_rng(3)
+    bounds = []
+    for _ in range(60):
+        scene = make_scene(setup, sky, rng)
+        result = identifier.identify(scene.spots, setup.camera)
+        bounds.append(result.false_positive_probability if result.solved else 1.0)
+    bounds = np.array(bounds)
+    assert np.mean(bounds <= 0.1) <= 0.1 + 0.05
+    assert not np.any(bounds <= 1e-3)
+
+
+@pytest.mark.parametrize("setup_name", ["cole", "fast", "toloei_6_50"])
+def test_default_identifier_on_seed_setups(setup_name, sky):
+    """Exact HIP ids on the seed papers' setups, never a wrong one."""
+    setup = SETUPS[setup_name]
+    limit = {"cole": (6.0, 8.2), "fast": (6.5, 11.5)}.get(setup_name, (6.5, 22.0))
+    database = load_or_build_database(DatabaseConfig(magnitude_limit=limit[0], max_pair_angle_rad=np.radians(limit[1])))
+    identifier = make_identifier(DEFAULT_ALGORITHM, database, IdentifyConfig(max_time_s=2.0))
+    rng = np.random.default_rng(4)
+    solved = eligible = 0
+    for _ in range(20):
+        scene = make_scene(setup, sky, rng)
+        result = identifier.identify(scene.spots, setup.camera)
+        identifiable = np.count_nonzero(np.isin(scene.hip, database.hip)) >= 5
+        eligible += identifiable
+        if result.solved:
+            assert np.all(result.hip == scene.hip[result.spot_index]), setup_name
+            assert result.false_positive_probability <= 1e-6
+            solved += identifiable
+    assert solved >= 0.9 * eligible
+
+
+def test_time_bound_is_respected(sky, database):
+    """140 spots with 4 real stars cannot be solved in 50 ms; the call must stop near then."""
+    identifier = make_identifier(DEFAULT_ALGORITHM, database, IdentifyConfig(max_time_s=0.05))
+    setup = SETUPS["toloei_4_136"]
+    scene = make_scene(setup, sky, np.random.default_rng(5))
+    result = identifier.identify(scene.spots, setup.camera)
+    if result.solved:  # allowed, but then it must be right
+        assert np.all(result.hip == scene.hip[result.spot_index])
+    else:
+        assert result.status == TIMEOUT
+    assert result.elapsed_s < 0.05 + 0.3
