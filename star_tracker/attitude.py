@@ -158,7 +158,10 @@ def attitude_covariance(body: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
     body = np.asarray(body, dtype=float).reshape(-1, 3)
     weights = 1.0 / np.asarray(sigmas, dtype=float) ** 2
     info = np.sum(weights) * np.eye(3) - (weights[:, None] * body).T @ body
-    return np.linalg.pinv(info) if np.linalg.cond(info) > 1e12 else np.linalg.inv(info)
+    # Ill-conditioned (e.g. two stars): the pseudo-inverse keeps the observable axes finite.
+    if abs(np.linalg.det(info)) < 1e-12 * np.trace(info) ** 3:
+        return np.linalg.pinv(info)
+    return np.linalg.inv(info)
 
 
 def davenport_q_method(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:

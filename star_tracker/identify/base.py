@@ -146,17 +146,21 @@ class StarIdentifier(ABC):
         geometry algorithms work on, in that order. Resets the per-call stats."""
         x, y, flux = spots.x, spots.y, spots.flux
         finite = np.isfinite(x) & np.isfinite(y)
-        key = np.where(finite, -np.nan_to_num(flux, nan=-np.inf), np.inf)
-        order = np.argsort(key, kind="stable")
-        if not finite.all():
-            order = order[: int(finite.sum())]
+        brightness = np.where(np.isnan(flux), -np.inf, flux)
+        if finite.all():
+            order = np.argsort(-brightness, kind="stable")
+        else:
+            kept = np.flatnonzero(finite)
+            order = kept[np.argsort(-brightness[kept], kind="stable")]
         x, y, flux = x[order], y[order], flux[order]
         # Direction 1-sigma from each spot's covariance; unknown (NaN) counts as 1 px; floored.
         cov = spots.cov[order]
-        sigma_px = np.sqrt(np.maximum(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]), 0.0))
-        sigma_px = np.maximum(np.nan_to_num(sigma_px, nan=1.0), self.config.centroid_sigma_floor_px)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            magnitude = -2.5 * np.log10(np.where(flux > 0, flux, np.nan))
+        variance = 0.5 * (cov[:, 0, 0] + cov[:, 1, 1])
+        sigma_px = np.sqrt(np.where(np.isnan(variance), 1.0, np.maximum(variance, 0.0)))
+        sigma_px = np.maximum(sigma_px, self.config.centroid_sigma_floor_px)
+        magnitude = np.full(flux.size, np.nan)
+        bright = flux > 0  # NaN compares False
+        magnitude[bright] = -2.5 * np.log10(flux[bright])
         self.stats = {}
         return order, SpotGeometry(rays=camera.pixel_to_ray(x, y), sigma=sigma_px * camera.pixel_scale_rad,
                                    pattern_count=min(x.size, self.config.max_pattern_spots),

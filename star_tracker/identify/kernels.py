@@ -69,6 +69,29 @@ def q_method(body, ref, weights):
 
 
 @njit(cache=True)
+def triad(b1, b2, r1, r2):
+    """Sensor -> ICRS rotation taking b1 exactly onto r1 and b2 into the r1-r2 plane (TRIAD):
+    a cheap first attitude for screening candidates."""
+    rot = np.zeros((3, 3))
+    fb = np.empty((3, 3))
+    fr = np.empty((3, 3))
+    for src, dst1, dst2 in ((fb, b1, b2), (fr, r1, r2)):
+        src[0] = dst1
+        cx = dst1[1] * dst2[2] - dst1[2] * dst2[1]
+        cy = dst1[2] * dst2[0] - dst1[0] * dst2[2]
+        cz = dst1[0] * dst2[1] - dst1[1] * dst2[0]
+        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
+        src[1, 0], src[1, 1], src[1, 2] = cx / norm, cy / norm, cz / norm
+        src[2, 0] = src[0, 1] * src[1, 2] - src[0, 2] * src[1, 1]
+        src[2, 1] = src[0, 2] * src[1, 0] - src[0, 0] * src[1, 2]
+        src[2, 2] = src[0, 0] * src[1, 1] - src[0, 1] * src[1, 0]
+    for r in range(3):
+        for c in range(3):
+            rot[r, c] = fr[0, r] * fb[0, c] + fr[1, r] * fb[1, c] + fr[2, r] * fb[2, c]
+    return rot
+
+
+@njit(cache=True)
 def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, out_dot):
     """One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star
     within `chord` (2 sin(radius/2)); a star claimed by two spots goes to the closer one.
@@ -338,17 +361,15 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
             head_jk[pair_b[p]] = -1
         if n_cand > max_candidates:
             continue  # ambiguous triangle: others will do
-        body = np.empty((3, 3))
-        w = np.empty(3)
-        for q in range(3):
-            body[q] = rays[spot[q]]
-            w[q] = 1.0 / sigma[spot[q]] ** 2
+        dots = np.empty(rays.shape[0])
         for c in range(n_cand):
             hypotheses += 1
-            ref = np.empty((3, 3))
-            for q in range(3):
-                ref[q] = vectors[cand[c, q]]
-            rotation = q_method(body, ref, w)
+            # Screen with a TRIAD attitude: the full verification (q-method refits) only runs
+            # when at least one spot beyond the triangle lands on a catalog star.
+            rotation = triad(rays[i], rays[j], vectors[cand[c, 0]], vectors[cand[c, 1]])
+            if match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star,
+                         dots) < min_stars:
+                continue
             count, rotation, fp, _ = verify_candidate(
                 rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes, cell_start,
                 star_of_cell, grid, cell_density, mean_density, chord, min_stars, magnitude_floor, out_spot, out_star)

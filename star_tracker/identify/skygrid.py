@@ -81,7 +81,7 @@ class SkyGrid:
 
     @staticmethod
     def build(vectors: np.ndarray, grid: int = 32, density_radius_rad: float = math.radians(8.0)) -> "SkyGrid":
-        cells = np.array([cell_of(v[0], v[1], v[2], grid) for v in vectors], dtype=np.int64)
+        cells = _cells_of(np.ascontiguousarray(vectors, dtype=float), grid)
         order = np.argsort(cells, kind="stable")
         counts = np.bincount(cells, minlength=6 * grid * grid)
         cell_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -92,6 +92,14 @@ class SkyGrid:
         # Cells are 2/G wide in (u, v); the box half-width d is at most 3.15 r (u = v = 1).
         return SkyGrid(grid, cell_start, order.astype(np.int64), np.asarray(near, float) / cap,
                        0.9 / (grid * 3.15))
+
+
+@njit(cache=True)
+def _cells_of(vectors: np.ndarray, grid: int) -> np.ndarray:
+    out = np.empty(vectors.shape[0], np.int64)
+    for i in range(vectors.shape[0]):
+        out[i] = cell_of(vectors[i, 0], vectors[i, 1], vectors[i, 2], grid)
+    return out
 
 
 def _cell_centres(grid: int) -> np.ndarray:

@@ -16,6 +16,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ..attitude import ARCSEC
+from ..camera import CameraModel
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from . import convert
 from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, CameraInfoInput, Diagnostics, ThrottledLog, declare, run_node
@@ -45,6 +46,8 @@ class IdentifierNode(Node):
         started = time.perf_counter()
         self.database = load_or_build_database(db_config)
         self.identifier = make_identifier(algorithm, self.database, self.config)
+        if hasattr(self.identifier, "warm_up"):  # compiled kernels: ~50 s the first time, then cached
+            self.identifier.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
         self.get_logger().info(
             f"algorithm {algorithm}: {self.database.star_count} guide stars to Hp {db_config.magnitude_limit}, "
             f"{self.database.pair_a.size} pairs, loaded in {time.perf_counter() - started:.2f} s")
