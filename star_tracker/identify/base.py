@@ -195,7 +195,7 @@ class StarIdentifier(ABC):
 
     def verification_radius_px(self, geometry: SpotGeometry, camera: CameraModel) -> float:
         """Verification radius: the configured one, widened to 4 sigma of the typical spot."""
-        typical_px = float(np.median(geometry.sigma)) / camera.pixel_scale_rad
+        typical_px = float(np.partition(geometry.sigma, geometry.sigma.size // 2)[geometry.sigma.size // 2]) / camera.pixel_scale_rad
         return max(self.config.match_radius_px, 4.0 * typical_px)
 
     def _refine(self, geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray,

@@ -51,7 +51,8 @@ def triangles_closing_at(k: int) -> np.ndarray:
 def triangle_batches(pattern_count: int, spot_count: int):
     """Spot triangles in search order, as arrays: the pyramid over the brightest
     `pattern_count` spots, then the triangles each further spot adds (brightest first), in
-    slices of at most BATCH_TRIANGLES."""
+    slices of at most BATCH_TRIANGLES. The 4th-star screen looks at the pattern spots during
+    the pyramid and at every spot afterwards."""
     yield pyramid_triangles(pattern_count)
     for k in range(pattern_count, spot_count):
         block = triangles_closing_at(k)
@@ -111,7 +112,8 @@ class HybridIdentifier(StarIdentifier):
                 self.config.max_candidates_per_pattern, values, k, slope, intercept, pair_a, pair_b, self._vectors,
                 self._star_magnitude, self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell,
                 self.grid.grid, self.grid.cell_density, self._mean_density, chord, MIN_STARS, self.magnitude_floor,
-                self.config.false_positive_bound, self._head_ik, self._head_jk, out_spot, out_star)
+                self.config.false_positive_bound, self._head_ik, self._head_jk, out_spot, out_star,
+                geometry.pattern_count if tried == 0 else n)
             tested += hypotheses
             tried += stopped
             if status == 1:

@@ -92,6 +92,29 @@ def triad(b1, b2, r1, r2):
 
 
 @njit(cache=True)
+def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, vectors, cell_start, star_of_cell, grid, chord):
+    """True when any spot in [0, limit) other than the three given lands within `chord` of a
+    catalog star under `rotation`: the pyramid's 4th-star confirmation, used as a screen."""
+    radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
+    cos_limit = 1.0 - 0.5 * chord * chord
+    cells = np.empty(4, np.int64)
+    for s in range(min(limit, rays.shape[0])):
+        if s == skip_a or s == skip_b or s == skip_c:
+            continue
+        px = rotation[0, 0] * rays[s, 0] + rotation[0, 1] * rays[s, 1] + rotation[0, 2] * rays[s, 2]
+        py = rotation[1, 0] * rays[s, 0] + rotation[1, 1] * rays[s, 1] + rotation[1, 2] * rays[s, 2]
+        pz = rotation[2, 0] * rays[s, 0] + rotation[2, 1] * rays[s, 1] + rotation[2, 2] * rays[s, 2]
+        m = cells_near(px, py, pz, radius, grid, cells)
+        for q in range(m):
+            c = cells[q]
+            for e in range(cell_start[c], cell_start[c + 1]):
+                star = star_of_cell[e]
+                if px * vectors[star, 0] + py * vectors[star, 1] + pz * vectors[star, 2] >= cos_limit:
+                    return True
+    return False
+
+
+@njit(cache=True)
 def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, out_dot):
     """One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star
     within `chord` (2 sin(radius/2)); a star claimed by two spots goes to the closer one.
@@ -272,12 +295,13 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
                      max_candidates, pair_angle, k, slope, intercept, pair_a, pair_b, vectors,
                      star_magnitude, sorted_magnitudes, cell_start, star_of_cell, grid, cell_density,
                      mean_density, chord, min_stars, magnitude_floor, fp_limit, head_ik, head_jk,
-                     out_spot, out_star):
+                     out_spot, out_star, screen_limit):
     """Try spot triangles triangles[first:last] in order: catalog triangles whose three sides
     match within the angle tolerance and whose handedness agrees (mirror test) are verified
     against all spots at once. Returns (status, matches, rotation, fp, hypotheses, last tried
     + 1): status 1 = accepted (matches in out_*), 0 = none in this batch.
-    head_ik, head_jk: scratch arrays of -1, one per catalog star (restored on return)."""
+    head_ik, head_jk: scratch arrays of -1, one per catalog star (restored on return);
+    screen_limit: spots [0, screen_limit) are tried for the 4th-star screen."""
     n_windows = 0
     hypotheses = 0
     best_rotation = np.eye(3)
@@ -361,15 +385,22 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
             head_jk[pair_b[p]] = -1
         if n_cand > max_candidates:
             continue  # ambiguous triangle: others will do
-        dots = np.empty(rays.shape[0])
         for c in range(n_cand):
             hypotheses += 1
             # Screen with a TRIAD attitude: the full verification (q-method refits) only runs
-            # when at least one spot beyond the triangle lands on a catalog star.
+            # when a spot beyond the triangle (among the first `screen_limit`) lands on a star.
             rotation = triad(rays[i], rays[j], vectors[cand[c, 0]], vectors[cand[c, 1]])
-            if match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star,
-                         dots) < min_stars:
+            if not lands_on_star(rays, i, j, kk, screen_limit, rotation, vectors, cell_start, star_of_cell,
+                                 grid, chord):
                 continue
+            body = np.empty((3, 3))
+            ref = np.empty((3, 3))
+            w = np.empty(3)
+            for q in range(3):
+                body[q] = rays[spot[q]]
+                ref[q] = vectors[cand[c, q]]
+                w[q] = 1.0 / sigma[spot[q]] ** 2
+            rotation = q_method(body, ref, w)  # all three stars, weighted: better than TRIAD
             count, rotation, fp, _ = verify_candidate(
                 rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes, cell_start,
                 star_of_cell, grid, cell_density, mean_density, chord, min_stars, magnitude_floor, out_spot, out_star)
