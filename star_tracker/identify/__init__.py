@@ -5,12 +5,16 @@ from __future__ import annotations
 
 from .base import Identification, IdentifyConfig, StarIdentifier
 from .database import DatabaseConfig, StarDatabase, load_or_build_database
+from .angle_pivot import AnglePivotIdentifier
 from .hybrid import HybridIdentifier
+from .match_groups import MatchGroupIdentifier
 from .pyramid import PyramidIdentifier
 
 ALGORITHMS: dict[str, type[StarIdentifier]] = {
     PyramidIdentifier.name: PyramidIdentifier,
     HybridIdentifier.name: HybridIdentifier,
+    AnglePivotIdentifier.name: AnglePivotIdentifier,
+    MatchGroupIdentifier.name: MatchGroupIdentifier,
 }
 DEFAULT_ALGORITHM = HybridIdentifier.name
 

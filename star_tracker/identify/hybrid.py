@@ -28,7 +28,6 @@ from ..centroid import Spots
 from . import kernels
 from .base import NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier
 from .database import StarDatabase
-from .pyramid import pyramid_order
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
 
@@ -37,8 +36,15 @@ BATCH_TRIANGLES = 64  # triangles per compiled call after the first batch: the d
 
 @lru_cache(maxsize=128)
 def pyramid_triangles(pattern_count: int) -> np.ndarray:
-    """(T, 3) spot triangles in pyramid order over the first `pattern_count` spots."""
-    return np.array(list(pyramid_order(pattern_count)), dtype=np.int64).reshape(-1, 3)
+    """(T, 3) spot triangles in pyramid order (pyramid.pyramid_order) over the first
+    `pattern_count` spots, built with numpy."""
+    n = pattern_count
+    blocks = [np.zeros((0, 3), np.int64)]
+    for dj in range(1, n - 1):
+        for dk in range(1, n - dj):
+            i = np.arange(0, n - dj - dk, dtype=np.int64)
+            blocks.append(np.stack([i, i + dj, i + dj + dk], axis=1))
+    return np.concatenate(blocks)
 
 
 @lru_cache(maxsize=256)
