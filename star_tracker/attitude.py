@@ -6,6 +6,7 @@ sensor-frame vectors to ICRS, v_icrs = R(q) v_sensor.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,31 +32,33 @@ def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
 
 def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
     """(x, y, z, w) quaternion of a rotation matrix (Shepperd's method, stable everywhere)."""
-    m = np.asarray(rot, dtype=float)
-    trace = np.trace(m)
-    candidates = np.array([m[0, 0], m[1, 1], m[2, 2], trace])
-    i = int(np.argmax(candidates))
+    m = np.asarray(rot, dtype=float).tolist()  # Python floats: this runs once per frame, fast
+    trace = m[0][0] + m[1][1] + m[2][2]
+    candidates = (m[0][0], m[1][1], m[2][2], trace)
+    i = max(range(4), key=candidates.__getitem__)
     if i == 3:
-        w = 0.5 * np.sqrt(1.0 + trace)
-        x = (m[2, 1] - m[1, 2]) / (4 * w)
-        y = (m[0, 2] - m[2, 0]) / (4 * w)
-        z = (m[1, 0] - m[0, 1]) / (4 * w)
+        w = 0.5 * math.sqrt(1.0 + trace)
+        x = (m[2][1] - m[1][2]) / (4 * w)
+        y = (m[0][2] - m[2][0]) / (4 * w)
+        z = (m[1][0] - m[0][1]) / (4 * w)
     elif i == 0:
-        x = 0.5 * np.sqrt(1.0 + 2 * m[0, 0] - trace)
-        w = (m[2, 1] - m[1, 2]) / (4 * x)
-        y = (m[0, 1] + m[1, 0]) / (4 * x)
-        z = (m[0, 2] + m[2, 0]) / (4 * x)
+        x = 0.5 * math.sqrt(1.0 + 2 * m[0][0] - trace)
+        w = (m[2][1] - m[1][2]) / (4 * x)
+        y = (m[0][1] + m[1][0]) / (4 * x)
+        z = (m[0][2] + m[2][0]) / (4 * x)
     elif i == 1:
-        y = 0.5 * np.sqrt(1.0 + 2 * m[1, 1] - trace)
-        w = (m[0, 2] - m[2, 0]) / (4 * y)
-        x = (m[0, 1] + m[1, 0]) / (4 * y)
-        z = (m[1, 2] + m[2, 1]) / (4 * y)
+        y = 0.5 * math.sqrt(1.0 + 2 * m[1][1] - trace)
+        w = (m[0][2] - m[2][0]) / (4 * y)
+        x = (m[0][1] + m[1][0]) / (4 * y)
+        z = (m[1][2] + m[2][1]) / (4 * y)
     else:
-        z = 0.5 * np.sqrt(1.0 + 2 * m[2, 2] - trace)
-        w = (m[1, 0] - m[0, 1]) / (4 * z)
-        x = (m[0, 2] + m[2, 0]) / (4 * z)
-        y = (m[1, 2] + m[2, 1]) / (4 * z)
-    return normalize_quaternion(np.array([x, y, z, w]))
+        z = 0.5 * math.sqrt(1.0 + 2 * m[2][2] - trace)
+        w = (m[1][0] - m[0][1]) / (4 * z)
+        x = (m[0][2] + m[2][0]) / (4 * z)
+        y = (m[1][2] + m[2][1]) / (4 * z)
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    sign = 1.0 if w >= 0 else -1.0  # w >= 0, as normalize_quaternion
+    return np.array([x, y, z, w]) * (sign / norm)
 
 
 def rotation_vector_to_matrix(rotvec: np.ndarray) -> np.ndarray:

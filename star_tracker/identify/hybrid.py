@@ -17,16 +17,15 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
 
-from ..attitude import AttitudeSolution, attitude_covariance, matrix_to_quaternion
+from ..attitude import AttitudeSolution, matrix_to_quaternion
 from ..camera import CameraModel
 from ..centroid import Spots
 from . import kernels
-from .base import NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier
+from .base import NO_MATCH, SOLVED, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, SpotGeometry, StarIdentifier
 from .database import StarDatabase
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
@@ -91,11 +90,21 @@ class HybridIdentifier(StarIdentifier):
         self.identify(Spots(x, y, np.linspace(2e4, 1e3, n), np.full(n, 50.0), np.tile(np.eye(2) * 0.01, (n, 1, 1)),
                             np.zeros(n, np.uint32), np.full(n, 9, np.int32), np.full(n, 1e3),
                             camera.width, camera.height), camera)
+        three = np.arange(3, dtype=np.int64)
+        kernels.solution_arrays(np.eye(3), np.ones(3), np.eye(3), three, three, np.eye(3))
 
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
         started = time.perf_counter()
         deadline = started + self.config.max_time_s
-        order, geometry = self.prepare(spots, camera)
+        if camera.has_distortion:
+            order, geometry = self.prepare(spots, camera)
+        else:  # one compiled call instead of a dozen numpy ones
+            order, rays, sigma, magnitude = kernels.prepare_spots(
+                spots.x, spots.y, spots.flux, spots.cov, camera.fx, camera.fy, camera.cx, camera.cy,
+                self.config.centroid_sigma_floor_px)
+            self.stats = {}
+            geometry = SpotGeometry(rays, sigma, min(order.size, self.config.max_pattern_spots), magnitude,
+                                    spots.x[order], spots.y[order])
         n = order.size
         if n < MIN_STARS:
             return self._fail(TOO_FEW_SPOTS, f"{n} spots; at least {MIN_STARS} are needed", started, 0)
@@ -125,12 +134,17 @@ class HybridIdentifier(StarIdentifier):
             if status == 1:
                 self.stats["triangles"] = tried
                 spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
-                body = geometry.rays[spot_index]
-                sigma = geometry.sigma[spot_index]
-                residual = body - self._vectors[star_index] @ rotation
-                solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, attitude_covariance(body, sigma),
-                                            0.5 * float(np.sum(np.sum(residual**2, axis=1) / sigma**2)))
-                result = self.solved(geometry, spot_index, star_index, solution, fp, tested, started)
-                return replace(result, spot_index=order[result.spot_index])
+                covariance, residual, loss = kernels.solution_arrays(geometry.rays, geometry.sigma, self._vectors,
+                                                                     spot_index, star_index, rotation)
+                solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, covariance, loss)
+                by_spot = np.argsort(spot_index)
+                spot_index, star_index = spot_index[by_spot], star_index[by_spot]
+                return Identification(
+                    status=SOLVED, reason=f"{count} stars matched, false-positive bound {fp:.1e}",
+                    algorithm=self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
+                    spot_index=order[spot_index], hip=self.database.hip[star_index],
+                    star_vectors=self._vectors[star_index], body_vectors=geometry.rays[spot_index],
+                    residual_rad=residual[by_spot], attitude=solution, false_positive_probability=fp,
+                    stats=dict(self.stats))
         self.stats["triangles"] = tried
         return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, {n} spots)", started, tested)

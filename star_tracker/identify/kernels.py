@@ -407,3 +407,63 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
             if fp <= fp_limit:
                 return 1, count, rotation, fp, hypotheses, t + 1
     return 0, 0, best_rotation, 1.0, hypotheses, last
+
+
+@njit(cache=True)
+def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px):
+    """The compiled form of StarIdentifier.prepare for cameras without distortion: indices of
+    the finite spots sorted by flux (brightest first, NaN flux last, stable), their unit rays
+    (N, 3), 1-sigma direction errors [rad] and instrumental magnitudes (NaN for flux <= 0)."""
+    n = x.size
+    keep = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if np.isfinite(x[i]) and np.isfinite(y[i]):
+            keep[m] = i
+            m += 1
+    key = np.empty(m)
+    for q in range(m):
+        f = flux[keep[q]]
+        key[q] = -f if not np.isnan(f) else np.inf
+    order = keep[:m][np.argsort(key, kind="mergesort")]
+    rays = np.empty((m, 3))
+    sigma = np.empty(m)
+    magnitude = np.empty(m)
+    scale = 1.0 / math.sqrt(fx * fy)
+    for q in range(m):
+        i = order[q]
+        u = (x[i] - cx) / fx
+        v = (y[i] - cy) / fy
+        norm = math.sqrt(u * u + v * v + 1.0)
+        rays[q, 0], rays[q, 1], rays[q, 2] = u / norm, v / norm, 1.0 / norm
+        variance = 0.5 * (cov[i, 0, 0] + cov[i, 1, 1])
+        s = 1.0 if np.isnan(variance) else math.sqrt(max(variance, 0.0))
+        sigma[q] = max(s, sigma_floor_px) * scale
+        magnitude[q] = -2.5 * math.log10(flux[i]) if flux[i] > 0 else np.nan
+    return order, rays, sigma, magnitude
+
+
+@njit(cache=True)
+def solution_arrays(rays, sigma, vectors, spot_index, star_index, rotation):
+    """For accepted matches: the QUEST covariance [rad^2] (sensor frame), residual angles
+    [rad] and the Wahba loss (half the weighted chi^2)."""
+    m = spot_index.size
+    info = np.zeros((3, 3))
+    residual = np.empty(m)
+    loss = 0.0
+    for q in range(m):
+        b = rays[spot_index[q]]
+        w = 1.0 / sigma[spot_index[q]] ** 2
+        for r in range(3):
+            for c in range(3):
+                info[r, c] += w * ((1.0 if r == c else 0.0) - b[r] * b[c])
+        r2 = 0.0
+        dot = 0.0
+        for a in range(3):
+            pred = (rotation[0, a] * vectors[star_index[q], 0] + rotation[1, a] * vectors[star_index[q], 1]
+                    + rotation[2, a] * vectors[star_index[q], 2])
+            r2 += (b[a] - pred) ** 2
+            dot += b[a] * pred
+        residual[q] = math.acos(min(1.0, max(-1.0, dot)))
+        loss += 0.5 * w * r2
+    return np.linalg.inv(info), residual, loss
