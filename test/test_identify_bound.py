@@ -107,4 +107,4 @@ def test_time_bound_is_respected(sky, database):
         assert np.all(result.hip == scene.hip[result.spot_index])
     else:
         assert result.status == TIMEOUT
-    assert result.elapsed_s < 0.05 + 0.3
+    assert result.elapsed_s < 0.05 + 1.0  # slack for a loaded 2-core CI host; the point is "bounded"

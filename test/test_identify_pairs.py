@@ -89,7 +89,7 @@ def test_time_bound_is_respected(algorithm, sky, database):
     identifier = ALGORITHMS[algorithm](database, IdentifyConfig(max_pattern_spots=56, max_time_s=0.1))
     for scene in scenes("toloei_6_50", sky, database, 2, seed=24, min_guide_stars=0):
         result = identifier.identify(scene.spots, scene.setup.camera)
-        assert result.elapsed_s < 0.1 + 0.3
+        assert result.elapsed_s < 0.1 + 1.0  # slack for a loaded CI host
         if result.solved:
             assert_exact(result, scene)
 

@@ -6,15 +6,19 @@ from __future__ import annotations
 from .base import Identification, IdentifyConfig, StarIdentifier
 from .database import DatabaseConfig, StarDatabase, load_or_build_database
 from .angle_pivot import AnglePivotIdentifier
+from .composite import CompositeIdentifier
 from .hybrid import HybridIdentifier
 from .match_groups import MatchGroupIdentifier
 from .pyramid import PyramidIdentifier
+from .spherical_triangle import SphericalTriangleIdentifier
 
 ALGORITHMS: dict[str, type[StarIdentifier]] = {
     PyramidIdentifier.name: PyramidIdentifier,
     HybridIdentifier.name: HybridIdentifier,
     AnglePivotIdentifier.name: AnglePivotIdentifier,
     MatchGroupIdentifier.name: MatchGroupIdentifier,
+    SphericalTriangleIdentifier.name: SphericalTriangleIdentifier,
+    CompositeIdentifier.name: CompositeIdentifier,
 }
 DEFAULT_ALGORITHM = HybridIdentifier.name
 

@@ -1,0 +1,228 @@
+"""Toloei, Arani & Abaszadeh's composite of the pyramid and planar triangle methods (seed 001,
+sec. 3.5).
+
+A base triangle of three spots is described by its planar area (Heron with s = (a+b+c)/2,
+eq. 1) and polar moment I = A (a^2+b^2+c^2)/36 (eq. 2), a, b, c its sides [rad]. Catalog
+triangles within beta sigma of the area (k-vector over planar area) and of the moment are the
+base candidates; as in `spherical_triangle`, a candidate's vertices are assigned to the spots
+by the sides, and the handedness must agree (mirror test). Then, like the pyramid, a fourth
+spot r is sought: the three further triangles (i, j, r), (i, k, r), (j, k, r) must each match
+the catalog triangles (s_i, s_j, s), (s_i, s_k, s), (s_j, s_k, s) on planar area and
+moment for one catalog star s ("a unique response"). The catalog stars s tried are the
+database neighbours of s_i, so the fourth star need not be among the thinned guide stars.
+Confirmed four-star identities are the hypotheses, the base candidates with the most
+confirming fourth spots first.
+
+Base triangles are enumerated in Mortari's pyramid order over the brightest pattern spots;
+for fields crowded with false stars, the enumeration then continues over fainter spots (one
+new spot at a time, each with every pair of the brighter ones) up to `max_spots`, within the
+time budget.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+from numba import njit
+
+from .base import IdentifyConfig, SpotGeometry, StarIdentifier
+from .database import StarDatabase
+from .pyramid import pyramid_order
+from .spherical_triangle import fitting_triples
+from .triangles import (TriangleConfig, _arc, _det, _heron_area, _planar_jacobians, _side_covariance, _tolerance,
+                        load_or_build_triangles, match_triangles, measured_features, warm_up)
+
+
+@dataclass(frozen=True)
+class CompositeSettings:
+    """max_spots: spots (brightest first) the base triangles and fourth stars are drawn from
+    once the brightest `pattern_count` are exhausted; batch_size: base triangles matched per
+    catalog search (small: the first good triangle is reached sooner)."""
+
+    max_spots: int = 150
+    batch_size: int = 32
+
+    def __post_init__(self) -> None:
+        if not (4 <= self.max_spots <= 1000):
+            raise ValueError(f"max_spots={self.max_spots} must be in [4, 1000]")
+        if not (1 <= self.batch_size <= 100_000):
+            raise ValueError(f"batch_size={self.batch_size} must be in [1, 1e5]")
+
+
+def neighbour_lists(database: StarDatabase) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetric CSR (indptr, indices) of every database pair (all angles stored)."""
+    a = np.concatenate([database.pair_a, database.pair_b]).astype(np.int64)
+    b = np.concatenate([database.pair_b, database.pair_a]).astype(np.int32)
+    order = np.argsort(a, kind="stable")
+    indptr = np.zeros(database.star_count + 1, np.int64)
+    np.cumsum(np.bincount(a, minlength=database.star_count), out=indptr[1:])
+    return indptr, b[order]
+
+
+_NEIGHBOURS: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+
+@njit(cache=True)
+def _planar_match(rays, sigma, dist, x, y, r, vectors, sx, sy, s, beta, floor, cov, jac_a, jac_m) -> bool:
+    """Do spot triangle (x, y, r) and catalog triangle (sx, sy, s) agree on planar area and
+    polar moment (eqs. 1-2) within tolerance, with the same handedness?"""
+    a, b, c = dist[x, y], dist[y, r], dist[r, x]
+    ca, cb, cc = _arc(vectors[sx], vectors[sy]), _arc(vectors[sy], vectors[s]), _arc(vectors[s], vectors[sx])
+    _side_covariance(rays[x], rays[y], rays[r], sigma[x], sigma[y], sigma[r], cov)
+    _planar_jacobians(a, b, c, jac_a, jac_m)
+    area = _heron_area(a, b, c)
+    cat_area = _heron_area(ca, cb, cc)
+    if abs(area - cat_area) > _tolerance(jac_a, cov, beta, floor):
+        return False
+    moment = area * (a * a + b * b + c * c) / 36.0
+    cat_moment = cat_area * (ca * ca + cb * cb + cc * cc) / 36.0
+    if abs(moment - cat_moment) > _tolerance(jac_m, cov, beta, floor):
+        return False
+    det = _det(rays[x], rays[y], rays[r])
+    if abs(det) <= beta * max(sigma[x], sigma[y], sigma[r]) * (a + b + c):
+        return True  # too flat for a handedness test
+    return (det > 0.0) == (_det(vectors[sx], vectors[sy], vectors[s]) > 0.0)
+
+
+@njit(cache=True)
+def _confirm_kernel(i, j, k, base_stars, rays, sigma, dist, dist_order, dist_sorted, nb_ptr, nb_idx, vectors,
+                    beta, floor, loose, out_count, out_r, out_s):
+    """For each base candidate (stars of spots i, j, k): the fourth spots r for which exactly
+    one neighbour star s of s_i makes all three side triangles match. out_count: how many
+    such r; out_r, out_s: the brightest one (-1 if none)."""
+    n = dist.shape[0]
+    hits = np.zeros(n, np.int64)
+    star_of = np.full(n, -1, np.int64)
+    cov = np.empty((3, 3))
+    jac_a, jac_m = np.empty(3), np.empty(3)
+    row_i = dist_sorted[i]
+    for c in range(base_stars.shape[0]):
+        si, sj, sk = base_stars[c, 0], base_stars[c, 1], base_stars[c, 2]
+        hits[:] = 0
+        for p in range(nb_ptr[si], nb_ptr[si + 1]):
+            s = nb_idx[p]
+            if s == sj or s == sk:
+                continue
+            d_si = _arc(vectors[s], vectors[si])
+            lo = np.searchsorted(row_i, d_si - loose)
+            hi = np.searchsorted(row_i, d_si + loose, side="right")
+            if lo >= hi:
+                continue
+            d_sj = _arc(vectors[s], vectors[sj])
+            d_sk = _arc(vectors[s], vectors[sk])
+            for m in range(lo, hi):
+                r = dist_order[i, m]
+                if r == i or r == j or r == k:
+                    continue
+                if abs(dist[j, r] - d_sj) > loose or abs(dist[k, r] - d_sk) > loose:
+                    continue
+                if not _planar_match(rays, sigma, dist, i, j, r, vectors, si, sj, s, beta, floor, cov, jac_a, jac_m):
+                    continue
+                if not _planar_match(rays, sigma, dist, i, k, r, vectors, si, sk, s, beta, floor, cov, jac_a, jac_m):
+                    continue
+                if not _planar_match(rays, sigma, dist, j, k, r, vectors, sj, sk, s, beta, floor, cov, jac_a, jac_m):
+                    continue
+                hits[r] += 1
+                star_of[r] = s
+        out_count[c] = 0
+        out_r[c] = -1
+        out_s[c] = -1
+        for r in range(n):
+            if hits[r] == 1:  # a unique response
+                if out_count[c] == 0:
+                    out_r[c], out_s[c] = r, star_of[r]
+                out_count[c] += 1
+
+
+def base_triangle_batches(pattern_count: int, spot_count: int, size: int) -> Iterator[np.ndarray]:
+    """Base triangles in batches of at most `size`: Mortari's pyramid order over the pattern
+    spots, then for each further spot k every triple (i, j, k) with i < j < k."""
+    first = np.array(list(pyramid_order(pattern_count)), np.int64).reshape(-1, 3)
+    for start in range(0, first.shape[0], size):
+        yield first[start:start + size]
+    for k in range(pattern_count, spot_count):
+        i, j = np.triu_indices(k, 1)
+        triples = np.column_stack([i, j, np.full(i.size, k)]).astype(np.int64)
+        for start in range(0, triples.shape[0], size):
+            yield triples[start:start + size]
+
+
+class CompositeIdentifier(StarIdentifier):
+    """Toloei's composite pyramid / planar triangle identification."""
+
+    name = "composite"
+
+    def __init__(self, database: StarDatabase, config: IdentifyConfig,
+                 triangle_config: TriangleConfig | None = None, settings: CompositeSettings | None = None):
+        super().__init__(database, config)
+        self.triangles = load_or_build_triangles(database, triangle_config)
+        self.settings = settings or CompositeSettings()
+        key = database.config.cache_key()
+        if key not in _NEIGHBOURS:
+            _NEIGHBOURS[key] = neighbour_lists(database)
+        self.neighbours = _NEIGHBOURS[key]
+        warm_up(self.triangles, database)
+        self._warm_up_confirmation()
+
+    def _warm_up_confirmation(self) -> None:
+        """Compile (or load) the fourth-star kernel now rather than in the first frame."""
+        rays = np.array([[0.0, 0.0, 1.0], [0.01, 0.0, 1.0], [0.0, 0.01, 1.0], [0.01, 0.01, 1.0]])
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        dist = np.zeros((4, 4))
+        order = np.zeros((4, 4), np.int64)
+        out = np.zeros(1, np.int64)
+        _confirm_kernel(0, 1, 2, np.zeros((1, 3), np.int64), rays, np.full(4, 1e-5), dist, order, dist,
+                        *self.neighbours, self.database.vectors, 3.0, 0.0, 1e-4, out, out.copy(), out.copy())
+
+    def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        n = min(geometry.rays.shape[0], self.settings.max_spots)
+        if n < 4:
+            return
+        rays = np.ascontiguousarray(geometry.rays[:n])
+        sigma = np.ascontiguousarray(geometry.sigma[:n])
+        beta, floor = self.config.sigma_multiplier, self.config.angle_tolerance_floor_rad
+        dist = 2.0 * np.arcsin(np.clip(0.5 * np.linalg.norm(rays[:, None] - rays[None], axis=-1), 0.0, 1.0))
+        dist_order = np.argsort(dist, axis=1, kind="stable")
+        dist_sorted = np.ascontiguousarray(np.take_along_axis(dist, dist_order, axis=1))
+        # Prefilter on the fourth star's three distances: twice the widest side tolerance.
+        loose = 2.0 * float(self.angle_tolerance(np.max(sigma), np.max(sigma)))
+        slack = 0.5 * loose
+        nb_ptr, nb_idx = self.neighbours
+        vectors = self.database.vectors
+        self.stats.update(base_triangles=0, base_candidates=0, confirmed=0, spots_used=0)
+        yielded: set[tuple] = set()
+        for batch in base_triangle_batches(min(geometry.pattern_count, n), n, self.settings.batch_size):
+            if time.perf_counter() > deadline:
+                return
+            self.stats["spots_used"] = int(batch.max()) + 1 if batch.size else 0
+            triples = fitting_triples(rays, batch, self.triangles.config.max_side_rad, slack)
+            if triples.shape[0] == 0:
+                continue
+            self.stats["base_triangles"] += int(triples.shape[0])
+            features = measured_features(rays, sigma, triples, spherical=False, beta=beta, floor=floor)
+            matches = match_triangles(self.triangles, self.database, features, spherical=False,
+                                      cap=self.config.max_candidates_per_pattern)
+            bounds = np.searchsorted(matches.query, np.arange(triples.shape[0] + 1))
+            for t in np.flatnonzero(np.diff(bounds)):
+                if time.perf_counter() > deadline:
+                    return
+                i, j, k = (int(v) for v in triples[t])
+                base = np.ascontiguousarray(matches.stars[bounds[t]:bounds[t + 1]])
+                self.stats["base_candidates"] += int(base.shape[0])
+                count = np.empty(base.shape[0], np.int64)
+                fourth_spot, fourth_star = np.empty_like(count), np.empty_like(count)
+                _confirm_kernel(i, j, k, base, rays, sigma, dist, dist_order, dist_sorted, nb_ptr, nb_idx, vectors,
+                                beta, floor, loose, count, fourth_spot, fourth_star)
+                for c in np.argsort(-count, kind="stable"):
+                    if count[c] == 0:
+                        break
+                    spots = np.array([i, j, k, fourth_spot[c]])
+                    stars = np.append(base[c], fourth_star[c]).astype(np.int64)
+                    key = tuple(sorted(zip(spots.tolist(), stars.tolist())))
+                    if key in yielded:
+                        continue
+                    yielded.add(key)
+                    self.stats["confirmed"] += 1
+                    yield spots, stars
