@@ -6,6 +6,7 @@ from star_tracker.attitude import attitude_error, radec_roll_to_matrix
 from star_tracker.centroid import Spots
 from star_tracker.identify import ALGORITHMS, IdentifyConfig, make_identifier
 from star_tracker.identify.base import NO_MATCH, TOO_FEW_SPOTS
+from star_tracker.scenes import SETUPS, make_scene
 
 ARCSEC = np.radians(1 / 3600)
 
@@ -85,9 +86,24 @@ def test_too_few_spots_and_unknown_algorithm(database, nominal_camera):
         make_identifier("no_such_method", database)
 
 
-def test_false_stars_among_real_ones(database, nominal_camera, catalog):
+@pytest.mark.parametrize("algorithm", sorted(ALGORITHMS))
+def test_every_algorithm_respects_its_time_budget(algorithm, database, catalog):
+    """140 spots, 4 of them real: unsolvable under the bound, so every algorithm must give up
+    near its budget (1 s slack for a loaded CI host; the point is "bounded")."""
+    identifier = make_identifier(algorithm, database, IdentifyConfig(max_time_s=0.05, max_pattern_spots=100))
+    if hasattr(identifier, "warm_up"):
+        identifier.warm_up(SETUPS["toloei_4_136"].camera)
+    scene = make_scene(SETUPS["toloei_4_136"], catalog.at_epoch(2026.0), np.random.default_rng(15))
+    result = identifier.identify(scene.spots, SETUPS["toloei_4_136"].camera)
+    assert result.elapsed_s < 0.05 + 1.0
+    if result.solved:
+        assert np.all(result.hip == scene.hip[result.spot_index])
+
+
+@pytest.mark.parametrize("algorithm", sorted(ALGORITHMS))
+def test_false_stars_among_real_ones(algorithm, database, nominal_camera, catalog):
     # A third of the brightest spots are false: still solved, with correct HIP ids only.
-    identifier = make_identifier("pyramid", database)
+    identifier = make_identifier(algorithm, database)
     rng = np.random.default_rng(14)
     solved = 0
     for _ in range(10):
@@ -107,4 +123,6 @@ def test_false_stars_among_real_ones(database, nominal_camera, catalog):
             assert real.all()
             assert np.array_equal(result.hip, hip[result.spot_index - k])
             assert attitude_error(result.attitude.rotation, truth)[0] < 3 * ARCSEC
-    assert solved >= 9
+    # The angle method is the one the papers show to suffer from false stars (Cole & Crassidis
+    # Table 2: 25 % with one false star); it still never answers wrongly.
+    assert solved >= (7 if algorithm == "angle_pivot" else 9)
