@@ -205,7 +205,7 @@ class StarIdentifier(ABC):
         radius = self.verification_radius_px(geometry, camera)
         vectors = self.database.vectors
         spot_index = star_index = None
-        for _ in range(2):
+        for _ in range(3):  # match, refit; the third match uses the refined attitude
             check = verify(rotation, geometry.x, geometry.y, self.database, camera, radius)
             if check.spot_index.size < MIN_STARS:
                 return None

@@ -117,8 +117,8 @@ def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, vectors, cell_s
 @njit(cache=True)
 def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, out_dot):
     """One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star
-    within `chord` (2 sin(radius/2)); a star claimed by two spots goes to the closer one.
-    Returns the number of matches written to out_*."""
+    within `chord` (2 sin(radius/2)); a star with another spot within twice the radius
+    matches no spot (ambiguous). Returns the number of matches written to out_*."""
     n = rays.shape[0]
     radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
     cells = np.empty(4, np.int64)
@@ -138,20 +138,28 @@ def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, ou
                 if dot >= cos_limit and dot > best_dot[s]:
                     best_dot[s] = dot
                     best_star[s] = star
+    # A star with a second spot within twice the radius is ambiguous (e.g. a false object
+    # beside a star that pulled the fit toward itself): no spot is matched to it, so no
+    # identity can be claimed for the wrong one.
+    cos_wide = math.cos(min(2.0 * radius, math.pi))
     count = 0
-    order = np.argsort(-best_dot)
-    for t in range(n):
-        s = order[t]
-        if best_star[s] < 0:
-            break
-        taken = False
-        for q in range(count):
-            if out_star[q] == best_star[s]:
-                taken = True
+    for s in range(n):
+        star = best_star[s]
+        if star < 0:
+            continue
+        rivals = 0
+        for t in range(n):
+            if t == s:
+                continue
+            dot = 0.0
+            for a in range(3):
+                dot += (rotation[a, 0] * rays[t, 0] + rotation[a, 1] * rays[t, 1] + rotation[a, 2] * rays[t, 2]) * vectors[star, a]
+            if dot >= cos_wide:
+                rivals += 1
                 break
-        if not taken:
+        if rivals == 0:
             out_spot[count] = s
-            out_star[count] = best_star[s]
+            out_star[count] = star
             out_dot[count] = best_dot[s]
             count += 1
     return count
@@ -232,7 +240,7 @@ def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, 
     n = rays.shape[0]
     dots = np.empty(n)
     count = 0
-    for _ in range(2):
+    for _ in range(3):  # match, refit; the third match uses the refined attitude
         count = match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, dots)
         if count < min_stars:
             return count, rotation, 1.0, 0.0

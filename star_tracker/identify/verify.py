@@ -63,24 +63,21 @@ def project_database(rotation: np.ndarray, database: StarDatabase, camera: Camer
 
 def match_spots(spot_x: np.ndarray, spot_y: np.ndarray, star_u: np.ndarray, star_v: np.ndarray,
                 radius_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Greedy one-to-one nearest matches within radius: (spot idx, star idx, distance)."""
+    """Each spot's nearest star within the radius: (spot idx, star idx, distance). A star
+    with a second spot within twice the radius is ambiguous (e.g. a false object beside a
+    star that pulled the fit toward itself) and matches no spot, so no identity is claimed
+    for the wrong one."""
     if spot_x.size == 0 or star_u.size == 0:
         empty = np.zeros(0, np.int64)
         return empty, empty, np.zeros(0)
     d = np.hypot(spot_x[:, None] - star_u[None, :], spot_y[:, None] - star_v[None, :])
-    spot_i, star_j = np.nonzero(d <= radius_px)
-    dist = d[spot_i, star_j]
-    order = np.argsort(dist, kind="stable")
-    used_spot = np.zeros(spot_x.size, bool)
-    used_star = np.zeros(star_u.size, bool)
-    keep = []
-    for k in order:
-        si, sj = spot_i[k], star_j[k]
-        if not used_spot[si] and not used_star[sj]:
-            used_spot[si] = used_star[sj] = True
-            keep.append(k)
-    keep = np.asarray(keep, dtype=np.int64)
-    return spot_i[keep], star_j[keep], dist[keep]
+    nearest = np.argmin(d, axis=1)
+    dist = d[np.arange(spot_x.size), nearest]
+    spot_i = np.flatnonzero(dist <= radius_px)
+    star_j = nearest[spot_i]
+    unique = np.count_nonzero(d[:, star_j] <= 2.0 * radius_px, axis=0) == 1
+    spot_i, star_j = spot_i[unique], star_j[unique]
+    return spot_i, star_j, dist[spot_i]
 
 
 LN_8PI2 = float(np.log(8.0 * np.pi**2))

@@ -1,0 +1,93 @@
+"""Pattern-database build and load times and sizes (issue goal: build <= 10 s, load < 1 s).
+
+Each database is built into an empty temporary cache (so nothing is reused), then loaded
+back from it in a fresh call, best of 3 loads. Writes the "### Pattern databases" table to
+stdout (and into docs/BENCHMARKS.md after the identification section with --output).
+
+    python -m bench.bench_databases [--output docs/BENCHMARKS.md]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from star_tracker.catalog import load_hipparcos
+from star_tracker.identify import DatabaseConfig, load_or_build_database
+from star_tracker.identify.triangles import TriangleConfig, load_or_build_triangles
+
+CASES = [
+    ("nominal 15 deg, Hp <= 6.5 (default)", DatabaseConfig()),
+    ("Cole 8 deg, mag 6.0", DatabaseConfig(magnitude_limit=6.0, max_pair_angle_rad=float(np.radians(8.2)))),
+    ("FAST 11.3 deg, Hp <= 7.0", DatabaseConfig(magnitude_limit=7.0, max_pair_angle_rad=float(np.radians(11.5)))),
+]
+
+
+def _cache_bytes(directory: Path, prefix: str) -> int:
+    return sum(p.stat().st_size for p in directory.glob(prefix + "*"))
+
+
+def measure(label: str, config: DatabaseConfig) -> list[list[str]]:
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        os.environ["STAR_TRACKER_CACHE"] = tmp
+        directory = Path(tmp)
+        load_hipparcos()  # the parsed catalog is cached too; not part of a pattern build
+        started = time.perf_counter()
+        database = load_or_build_database(config, directory)
+        build = time.perf_counter() - started
+        loads = []
+        for _ in range(3):
+            started = time.perf_counter()
+            load_or_build_database(config, directory)
+            loads.append(time.perf_counter() - started)
+        rows.append([label, "star pairs (k-vector)", f"{database.star_count}", f"{database.pair_a.size:,}",
+                     f"{build:.2f}", f"{min(loads):.2f}", f"{_cache_bytes(directory, 'pairs_') / 1e6:.1f}"])
+        started = time.perf_counter()
+        triangles = load_or_build_triangles(database, TriangleConfig.for_database(database))
+        build = time.perf_counter() - started
+        loads = []
+        for _ in range(3):
+            started = time.perf_counter()
+            load_or_build_triangles(database, TriangleConfig.for_database(database))
+            loads.append(time.perf_counter() - started)
+        count = int(triangles.spherical.stars.shape[0])
+        size = sum(p.stat().st_size for p in directory.glob("*") if not p.name.startswith(("pairs_", "hip2_")))
+        rows.append([label, "triangles (spherical + planar features)", f"{int(triangles.guide_stars.size)}",
+                     f"{count:,}", f"{build:.2f}", f"{min(loads):.2f}", f"{size / 1e6:.1f}"])
+    return rows
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--output", type=Path, default=None, help="markdown file to append the table to")
+    args = parser.parse_args(argv)
+    header = ["setup", "database", "stars", "entries", "build [s]", "load [s]", "size [MB]"]
+    rows = [row for label, config in CASES for row in measure(label, config)]
+    lines = ["### Pattern databases", "",
+             f"Command: `python -m bench.bench_databases`, {time.strftime('%Y-%m-%d')}. Built into an empty cache; "
+             "load = best of 3 loads of the cached file (checksum validated).", "",
+             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.output:
+        content = args.output.read_text()
+        start = content.find("### Pattern databases")
+        if start >= 0:
+            end = content.find("\n## ", start)
+            end = len(content) if end < 0 else end + 1
+            content = content[:start] + text + "\n" + content[end:]
+        else:
+            anchor = content.find("## Identification")
+            nxt = content.find("\n## ", anchor + 1) if anchor >= 0 else -1
+            content = content + "\n" + text if nxt < 0 else content[:nxt + 1] + text + "\n" + content[nxt + 1:]
+        args.output.write_text(content)
+
+
+if __name__ == "__main__":
+    main()
