@@ -14,6 +14,7 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements-dev.txt
 	$(PY) -m pip install --quiet --no-deps -e .
+	$(PY) -m star_tracker.warm_up  # compile the numba kernels now, not at the first node start
 	touch $(STAMP)
 
 demo: $(STAMP)

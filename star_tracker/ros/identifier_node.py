@@ -56,6 +56,7 @@ class IdentifierNode(Node):
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "attitude_with_covariance", RESULT_QOS)
         self.pub_matches = self.create_publisher(PointCloud2, "matched_stars", RESULT_QOS)
         self.diag = Diagnostics(self)
+        self.diag.values["algorithm"] = algorithm
         self.log = ThrottledLog(self)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
