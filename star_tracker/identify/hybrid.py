@@ -30,7 +30,10 @@ from .database import StarDatabase
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
 
-BATCH_TRIANGLES = 64  # triangles per compiled call after the first batch: the deadline is checked between calls
+# Triangles per compiled call; the deadline is checked between calls. The first pyramid
+# batch holds all 220 triangles of the default 12 pattern spots (one call on easy frames).
+PYRAMID_BATCH = 256
+BATCH_TRIANGLES = 64
 
 
 @lru_cache(maxsize=128)
@@ -54,15 +57,17 @@ def triangles_closing_at(k: int) -> np.ndarray:
 
 
 def triangle_batches(pattern_count: int, spot_count: int):
-    """Spot triangles in search order, as arrays: the pyramid over the brightest
+    """(triangles, screen_limit) in search order: the pyramid over the brightest
     `pattern_count` spots, then the triangles each further spot adds (brightest first), in
-    slices of at most BATCH_TRIANGLES. The 4th-star screen looks at the pattern spots during
-    the pyramid and at every spot afterwards."""
-    yield pyramid_triangles(pattern_count)
+    slices of at most PYRAMID_BATCH / BATCH_TRIANGLES so the deadline is checked often. The
+    4th-star screen looks at the pattern spots during the pyramid and at every spot after."""
+    pyramid = pyramid_triangles(pattern_count)
+    for start in range(0, pyramid.shape[0], PYRAMID_BATCH):
+        yield pyramid[start:start + PYRAMID_BATCH], pattern_count
     for k in range(pattern_count, spot_count):
         block = triangles_closing_at(k)
         for start in range(0, block.shape[0], BATCH_TRIANGLES):
-            yield block[start:start + BATCH_TRIANGLES]
+            yield block[start:start + BATCH_TRIANGLES], spot_count
 
 
 class HybridIdentifier(StarIdentifier):
@@ -116,7 +121,7 @@ class HybridIdentifier(StarIdentifier):
         values, k, slope, intercept = self._kvector
         pair_a, pair_b = self._pairs
         tested = tried = 0
-        for triangles in triangle_batches(geometry.pattern_count, n):
+        for triangles, screen_limit in triangle_batches(geometry.pattern_count, n):
             if time.perf_counter() > deadline:
                 self.stats["triangles"] = tried
                 return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after {tried} "
@@ -127,8 +132,7 @@ class HybridIdentifier(StarIdentifier):
                 self.config.max_candidates_per_pattern, values, k, slope, intercept, pair_a, pair_b, self._vectors,
                 self._star_magnitude, self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell,
                 self.grid.grid, self.grid.cell_density, self._mean_density, chord, MIN_STARS, self.magnitude_floor,
-                self.config.false_positive_bound, self._head_ik, self._head_jk, out_spot, out_star,
-                geometry.pattern_count if tried == 0 else n)
+                self.config.false_positive_bound, self._head_ik, self._head_jk, out_spot, out_star, screen_limit)
             tested += hypotheses
             tried += stopped
             if status == 1:
