@@ -42,3 +42,4 @@ bench: $(BENCH_STAMP)
 	$(PY) -m bench.simulator_figures
 	$(PY) -m bench.bench_centroid --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_identify --output docs/BENCHMARKS.md
+	$(PY) -m bench.bench_databases --output docs/BENCHMARKS.md

@@ -1,8 +1,8 @@
 """Pattern-database build and load times and sizes (issue goal: build <= 10 s, load < 1 s).
 
 Each database is built into an empty temporary cache (so nothing is reused), then loaded
-back from it in a fresh call, best of 3 loads. Writes the "### Pattern databases" table to
-stdout (and into docs/BENCHMARKS.md after the identification section with --output).
+back from it in a fresh call, best of 3 loads. Writes the "## Pattern databases" table to
+stdout (and as the "## Pattern databases" section of docs/BENCHMARKS.md with --output).
 
     python -m bench.bench_databases [--output docs/BENCHMARKS.md]
 """
@@ -70,7 +70,7 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     header = ["setup", "database", "stars", "entries", "build [s]", "load [s]", "size [MB]"]
     rows = [row for label, config in CASES for row in measure(label, config)]
-    lines = ["### Pattern databases", "",
+    lines = ["## Pattern databases", "",
              f"Command: `python -m bench.bench_databases`, {time.strftime('%Y-%m-%d')}. Built into an empty cache; "
              "load = best of 3 loads of the cached file (checksum validated).", "",
              "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -79,17 +79,14 @@ def main(argv=None) -> None:
     print(text)
     if args.output:
         content = args.output.read_text()
-        start = content.find("### Pattern databases")
+        start = content.find("## Pattern databases")
         if start >= 0:
-            end = content.find("\n## ", start)
+            end = content.find("\n## ", start + 1)
             end = len(content) if end < 0 else end + 1
-            content = content[:start] + text + "\n" + content[end:]
+            content = content[:start] + text + ("\n" if end < len(content) else "") + content[end:]
         else:
-            anchor = content.find("## Identification")
-            nxt = content.find("\n## ", anchor + 1) if anchor >= 0 else -1
-            content = content + "\n" + text if nxt < 0 else content[:nxt + 1] + text + "\n" + content[nxt + 1:]
+            content = content.rstrip("\n") + "\n\n" + text
         args.output.write_text(content)
-
 
 if __name__ == "__main__":
     main()

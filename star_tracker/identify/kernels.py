@@ -231,6 +231,19 @@ def false_positive_bound(log_statistic, spots, matched, min_stars):
 
 
 @njit(cache=True)
+def refit(rays, sigma, vectors, spot_index, star_index, count):
+    """q-method attitude (sensor -> ICRS) over the first `count` matches, weights 1/sigma^2."""
+    body = np.empty((count, 3))
+    ref = np.empty((count, 3))
+    w = np.empty(count)
+    for i in range(count):
+        body[i] = rays[spot_index[i]]
+        ref[i] = vectors[star_index[i]]
+        w[i] = 1.0 / sigma[spot_index[i]] ** 2
+    return q_method(body, ref, w)
+
+
+@njit(cache=True)
 def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes,
                      cell_start, star_of_cell, grid, cell_density, mean_density, chord, min_stars,
                      magnitude_floor, out_spot, out_star):
@@ -244,14 +257,7 @@ def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, 
         count = match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, dots)
         if count < min_stars:
             return count, rotation, 1.0, 0.0
-        body = np.empty((count, 3))
-        ref = np.empty((count, 3))
-        w = np.empty(count)
-        for i in range(count):
-            body[i] = rays[out_spot[i]]
-            ref[i] = vectors[out_star[i]]
-            w[i] = 1.0 / sigma[out_spot[i]] ** 2
-        rotation = q_method(body, ref, w)
+        rotation = refit(rays, sigma, vectors, out_spot, out_star, count)
     kept = count
     chi2 = 0.0
     for _ in range(2):  # drop 5-sigma outliers, refit once
@@ -274,14 +280,7 @@ def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, 
         if kept == count:
             break
         count = kept
-        body = np.empty((count, 3))
-        ref = np.empty((count, 3))
-        w = np.empty(count)
-        for i in range(count):
-            body[i] = rays[out_spot[i]]
-            ref[i] = vectors[out_star[i]]
-            w[i] = 1.0 / sigma[out_spot[i]] ** 2
-        rotation = q_method(body, ref, w)
+        rotation = refit(rays, sigma, vectors, out_spot, out_star, count)
     count = kept
     body = np.empty((count, 3))
     sig = np.empty(count)
@@ -310,10 +309,8 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
     + 1): status 1 = accepted (matches in out_*), 0 = none in this batch.
     head_ik, head_jk: scratch arrays of -1, one per catalog star (restored on return);
     screen_limit: spots [0, screen_limit) are tried for the 4th-star screen."""
-    n_windows = 0
     hypotheses = 0
     best_rotation = np.eye(3)
-    max_window = pair_a.size
     for t in range(first, last):
         i, j, kk = triangles[t, 0], triangles[t, 1], triangles[t, 2]
         spot = (i, j, kk)
@@ -322,7 +319,6 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
         empty = False
         for e in range(3):
             a, b = (i, j) if e == 0 else ((i, kk) if e == 1 else (j, kk))
-            dot = rays[a, 0] * rays[b, 0] + rays[a, 1] * rays[b, 1] + rays[a, 2] * rays[b, 2]
             dx = rays[a, 0] - rays[b, 0]
             dy = rays[a, 1] - rays[b, 1]
             dz = rays[a, 2] - rays[b, 2]
@@ -333,7 +329,6 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
                 empty = True
         if empty:
             continue
-        n_windows += 1
         # Adjacency lists (linked through `nxt`) of the i-k and j-k windows, both orientations.
         size_ik = 2 * (hi[1] - lo[1])
         size_jk = 2 * (hi[2] - lo[2])

@@ -79,23 +79,35 @@ class NodeProcesses:
         self.processes: dict[str, subprocess.Popen] = {}
         self._logs = {}
 
-    def start(self) -> "NodeProcesses":
+    def start(self, timeout_s: float = 120.0) -> "NodeProcesses":
+        """Start the processing nodes, wait until they are ready (compiled kernels loaded,
+        database built), then the camera: no frame is published into a pipeline still
+        starting."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        for name in self.nodes:
-            cmd = [sys.executable, "-m", NODE_MODULES[name], "--ros-args"]
-            for path in self.params_files:
-                cmd += ["--params-file", str(path)]
-            cmd += parameter_arguments(self.params.get(name, {}))
-            for old, new in self.remaps.get(name, {}).items():
-                cmd += ["-r", f"{old}:={new}"]
-            log = open(self.log_dir / f"{name}.log", "w")
-            self._logs[name] = log
-            self.processes[name] = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
-                                                    stdin=subprocess.DEVNULL, start_new_session=True)
+        sources = [name for name in self.nodes if name == "camera_simulator"]
+        processors = [name for name in self.nodes if name not in sources]
+        for name in processors:
+            self._launch(name)
+        if sources and processors:
+            self.wait_ready(timeout_s)
+        for name in sources:
+            self._launch(name)
         return self
 
+    def _launch(self, name: str) -> None:
+        cmd = [sys.executable, "-m", NODE_MODULES[name], "--ros-args"]
+        for path in self.params_files:
+            cmd += ["--params-file", str(path)]
+        cmd += parameter_arguments(self.params.get(name, {}))
+        for old, new in self.remaps.get(name, {}).items():
+            cmd += ["-r", f"{old}:={new}"]
+        log = open(self.log_dir / f"{name}.log", "w")
+        self._logs[name] = log
+        self.processes[name] = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                                                stdin=subprocess.DEVNULL, start_new_session=True)
+
     def wait_ready(self, timeout_s: float = 120.0) -> None:
-        """Block until every node logged `ready`; raise with its log if one died or hung."""
+        """Block until every started node logged `ready`; raise with its log if one died or hung."""
         deadline = time.monotonic() + timeout_s
         pending = set(self.processes)
         while pending:
