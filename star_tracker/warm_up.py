@@ -12,14 +12,21 @@ import numpy as np
 
 
 def main() -> None:
-    from .camera import CameraModel
+    from .catalog import load_hipparcos
     from .centroid.kernels import warm_up as warm_centroid
-    from .identify import DatabaseConfig, load_or_build_database, make_identifier
+    from .identify import ALGORITHMS, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+    from .scenes import SETUPS, make_scene
 
     started = time.perf_counter()
     warm_centroid()
-    identifier = make_identifier("hybrid", load_or_build_database(DatabaseConfig()))
-    identifier.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
+    database = load_or_build_database(DatabaseConfig())
+    setup = SETUPS["nominal"]
+    scene = make_scene(setup, load_hipparcos().at_epoch(database.config.epoch_jyear), np.random.default_rng(0))
+    for name in ALGORITHMS:  # one solve each, without a time budget: every kernel compiles
+        identifier = make_identifier(name, database, IdentifyConfig(max_time_s=60.0))
+        if hasattr(identifier, "warm_up"):
+            identifier.warm_up(setup.camera)
+        identifier.identify(scene.spots, setup.camera)
     print(f"numba kernels ready in {time.perf_counter() - started:.1f} s")
 
 
