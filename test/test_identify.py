@@ -112,7 +112,7 @@ def test_every_algorithm_respects_its_time_budget(algorithm, database, catalog):
 @pytest.mark.parametrize("algorithm", sorted(ALGORITHMS))
 def test_false_stars_among_real_ones(algorithm, database, nominal_camera, catalog):
     # A third of the brightest spots are false: still solved, with correct HIP ids only.
-    identifier = make_identifier(algorithm, database)
+    identifier = warmed(algorithm, database, catalog)
     rng = np.random.default_rng(14)
     solved = 0
     for _ in range(10):

@@ -4,6 +4,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.special import gammaln
 
 from star_tracker.identify import DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from star_tracker.identify import kernels, verify
@@ -43,21 +44,31 @@ def test_sky_grid_finds_every_star_within_the_radius(database):
     assert set(found) == set(np.flatnonzero(expected))
 
 
-def test_compiled_bound_equals_the_documented_one(database):
+def documented_log_chance(body, sigma, chi2, density):
+    """lambda_m(c) of docs/IDENTIFICATION.md written out independently with numpy/scipy."""
+    m = body.shape[0]
+    info = sum((np.eye(3) - np.outer(b, b)) / s**2 for b, s in zip(body, sigma))
+    d = 2 * m - 3
+    log_ball = 0.5 * d * np.log(np.pi) - gammaln(0.5 * d + 1) + 0.5 * d * np.log(chi2)
+    return np.sum(np.log(density * sigma**2)) + np.log(8 * np.pi**2) + 0.5 * np.log(np.linalg.det(info)) + log_ball
+
+
+def test_bound_follows_the_documented_formula(database):
     rng = np.random.default_rng(2)
-    sorted_mag = np.sort(database.magnitude)
     for m in (4, 6, 12):
         body = rng.normal(size=(m, 3)) * [0.05, 0.05, 1]
         body /= np.linalg.norm(body, axis=1, keepdims=True)
         sigma = rng.uniform(2e-5, 1e-4, m)
-        spot_mag = rng.uniform(-8, -3, m)
-        star_mag = spot_mag + 9 + rng.normal(scale=0.1, size=m)
-        a = verify.log_chance_tuples(body, sigma, 7.0, 600.0) + verify.log_magnitude_agreement(
-            spot_mag, star_mag, sorted_mag, 0.05)
-        b = kernels.log_chance_tuples(body, sigma, 7.0, 600.0) + kernels.log_magnitude_agreement(
-            spot_mag, star_mag, sorted_mag, 0.05)
-        assert a == pytest.approx(b, rel=1e-9)
-        assert verify.false_positive_bound(a, 40, m) == pytest.approx(kernels.false_positive_bound(b, 40, m, 4), rel=1e-9)
+        assert verify.log_chance_tuples(body, sigma, 7.0, 600.0) == pytest.approx(
+            documented_log_chance(body, sigma, 7.0, 600.0), rel=1e-9)
+        t = 1e-20
+        subsets = np.exp(gammaln(41) - gammaln(m + 1) - gammaln(41 - m))
+        assert verify.false_positive_bound(np.log(t), 40, m) == pytest.approx(min(1.0, 37 * subsets * t * (1 - np.log(t))), rel=1e-9)
+    # Magnitudes: exact agreement on a tight floor gives strong evidence, NaN gives none.
+    sorted_mag = np.sort(database.magnitude)
+    spot = rng.uniform(-8, -3, 6)
+    assert verify.log_magnitude_agreement(spot, spot + 9.0, sorted_mag, 0.05) < -5
+    assert verify.log_magnitude_agreement(np.full(6, np.nan), spot + 9.0, sorted_mag, 0.05) == 0.0
 
 
 def test_bound_is_conservative_on_random_spots(database, sky):

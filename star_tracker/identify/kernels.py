@@ -92,25 +92,34 @@ def triad(b1, b2, r1, r2):
 
 
 @njit(cache=True)
+def nearest_star(rotation, ray, chord, vectors, cell_start, star_of_cell, grid, cells):
+    """The catalog star nearest to the sensor-frame `ray` rotated to ICRS, if within `chord`
+    (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of 4."""
+    radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
+    cos_limit = 1.0 - 0.5 * chord * chord
+    px = rotation[0, 0] * ray[0] + rotation[0, 1] * ray[1] + rotation[0, 2] * ray[2]
+    py = rotation[1, 0] * ray[0] + rotation[1, 1] * ray[1] + rotation[1, 2] * ray[2]
+    pz = rotation[2, 0] * ray[0] + rotation[2, 1] * ray[1] + rotation[2, 2] * ray[2]
+    best, best_dot = -1, -2.0
+    for q in range(cells_near(px, py, pz, radius, grid, cells)):
+        c = cells[q]
+        for e in range(cell_start[c], cell_start[c + 1]):
+            star = star_of_cell[e]
+            dot = px * vectors[star, 0] + py * vectors[star, 1] + pz * vectors[star, 2]
+            if dot >= cos_limit and dot > best_dot:
+                best, best_dot = star, dot
+    return best, best_dot
+
+
+@njit(cache=True)
 def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, vectors, cell_start, star_of_cell, grid, chord):
     """True when any spot in [0, limit) other than the three given lands within `chord` of a
     catalog star under `rotation`: the pyramid's 4th-star confirmation, used as a screen."""
-    radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
-    cos_limit = 1.0 - 0.5 * chord * chord
     cells = np.empty(4, np.int64)
     for s in range(min(limit, rays.shape[0])):
-        if s == skip_a or s == skip_b or s == skip_c:
-            continue
-        px = rotation[0, 0] * rays[s, 0] + rotation[0, 1] * rays[s, 1] + rotation[0, 2] * rays[s, 2]
-        py = rotation[1, 0] * rays[s, 0] + rotation[1, 1] * rays[s, 1] + rotation[1, 2] * rays[s, 2]
-        pz = rotation[2, 0] * rays[s, 0] + rotation[2, 1] * rays[s, 1] + rotation[2, 2] * rays[s, 2]
-        m = cells_near(px, py, pz, radius, grid, cells)
-        for q in range(m):
-            c = cells[q]
-            for e in range(cell_start[c], cell_start[c + 1]):
-                star = star_of_cell[e]
-                if px * vectors[star, 0] + py * vectors[star, 1] + pz * vectors[star, 2] >= cos_limit:
-                    return True
+        if s != skip_a and s != skip_b and s != skip_c:
+            if nearest_star(rotation, rays[s], chord, vectors, cell_start, star_of_cell, grid, cells)[0] >= 0:
+                return True
     return False
 
 
@@ -124,20 +133,8 @@ def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, ou
     cells = np.empty(4, np.int64)
     best_star = np.full(n, -1, np.int64)
     best_dot = np.full(n, -2.0)
-    cos_limit = 1.0 - 0.5 * chord * chord
     for s in range(n):
-        px = rotation[0, 0] * rays[s, 0] + rotation[0, 1] * rays[s, 1] + rotation[0, 2] * rays[s, 2]
-        py = rotation[1, 0] * rays[s, 0] + rotation[1, 1] * rays[s, 1] + rotation[1, 2] * rays[s, 2]
-        pz = rotation[2, 0] * rays[s, 0] + rotation[2, 1] * rays[s, 1] + rotation[2, 2] * rays[s, 2]
-        m = cells_near(px, py, pz, radius, grid, cells)
-        for q in range(m):
-            c = cells[q]
-            for e in range(cell_start[c], cell_start[c + 1]):
-                star = star_of_cell[e]
-                dot = px * vectors[star, 0] + py * vectors[star, 1] + pz * vectors[star, 2]
-                if dot >= cos_limit and dot > best_dot[s]:
-                    best_dot[s] = dot
-                    best_star[s] = star
+        best_star[s], best_dot[s] = nearest_star(rotation, rays[s], chord, vectors, cell_start, star_of_cell, grid, cells)
     # A star with a second spot within twice the radius is ambiguous (e.g. a false object
     # beside a star that pulled the fit toward itself): no spot is matched to it, so no
     # identity can be claimed for the wrong one.

@@ -32,9 +32,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaln
 
 from ..camera import CameraModel
+from . import kernels
 from .database import StarDatabase
 
 
@@ -80,54 +80,27 @@ def match_spots(spot_x: np.ndarray, spot_y: np.ndarray, star_u: np.ndarray, star
     return spot_i, star_j, dist[spot_i]
 
 
-LN_8PI2 = float(np.log(8.0 * np.pi**2))
 MIN_STARS = 4
-
-
-def log_ball_volume(dimension: int, radius: float) -> float:
-    """ln of the volume of a d-dimensional ball of the given radius."""
-    d = dimension
-    return 0.5 * d * np.log(np.pi) - gammaln(0.5 * d + 1.0) + d * np.log(max(radius, 1e-300))
 
 
 def log_chance_tuples(body: np.ndarray, sigma: np.ndarray, chi2: float, density_per_sr: float) -> float:
     """ln lambda_m(c): expected number of catalog m-tuples (uniform density [1/sr]) fitting the
     m sensor-frame unit vectors `body` (sigma [rad] each) with weighted chi^2 <= `chi2`."""
-    m = body.shape[0]
-    info = np.einsum("i,ijk->jk", 1.0 / sigma**2, np.eye(3)[None] - body[:, :, None] * body[:, None, :])
-    sign, logdet = np.linalg.slogdet(info)
-    if sign <= 0:
-        return 0.0  # degenerate geometry: no evidence
-    return (float(np.sum(np.log(density_per_sr * sigma**2))) + LN_8PI2 + 0.5 * logdet
-            + log_ball_volume(2 * m - 3, np.sqrt(max(chi2, 1e-12))))
+    return float(kernels.log_chance_tuples(np.ascontiguousarray(body, float), np.asarray(sigma, float),
+                                           float(chi2), float(density_per_sr)))
 
 
 def log_magnitude_agreement(spot_magnitude: np.ndarray, star_magnitude: np.ndarray,
                             sorted_catalog_magnitudes: np.ndarray, floor: float) -> float:
     """ln M: chance that random catalog stars agree with the spots' instrumental magnitudes
     (zero point fitted) as well as the matched stars do; 0 when magnitudes are unknown."""
-    ok = np.isfinite(spot_magnitude)
-    if np.count_nonzero(ok) < 2:
-        return 0.0
-    offset = spot_magnitude[ok] - star_magnitude[ok]
-    zero_point = float(np.median(offset))
-    expected = spot_magnitude[ok] - zero_point  # the catalog magnitude each spot implies
-    half_width = max(float(np.max(np.abs(offset - zero_point))), floor)
-    n = sorted_catalog_magnitudes.size
-    window = (np.searchsorted(sorted_catalog_magnitudes, expected + half_width, "right")
-              - np.searchsorted(sorted_catalog_magnitudes, expected - half_width, "left")) / n
-    window = np.sort(np.clip(window, 1.0 / n, 1.0))[1:]  # the zero point used one star
-    return float(np.sum(np.log(window)))
+    return float(kernels.log_magnitude_agreement(np.asarray(spot_magnitude, float), np.asarray(star_magnitude, float),
+                                                 np.asarray(sorted_catalog_magnitudes, float), float(floor)))
 
 
 def false_positive_bound(log_statistic: float, spots: int, matched: int) -> float:
     """P_fp <= (n - 3) C(n, m) T (1 + ln 1/T) for T = exp(log_statistic) (see module doc)."""
-    if matched < MIN_STARS or spots < matched:
-        return 1.0
-    log_t = min(log_statistic, 0.0)
-    log_subsets = gammaln(spots + 1.0) - gammaln(matched + 1.0) - gammaln(spots - matched + 1.0)
-    log_p = np.log(spots - 3.0) + log_subsets + log_t + np.log1p(-log_t)
-    return float(min(1.0, np.exp(log_p)))
+    return float(kernels.false_positive_bound(float(log_statistic), int(spots), int(matched), MIN_STARS))
 
 
 def verify(rotation: np.ndarray, spot_x: np.ndarray, spot_y: np.ndarray, database: StarDatabase,
