@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, Vector3Stamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, TwistWithCovarianceStamped, Vector3Stamped
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
@@ -226,4 +226,18 @@ def vector3_msg(vector: np.ndarray, stamp_ns: int, frame_id: str) -> Vector3Stam
     msg = Vector3Stamped()
     msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
     msg.vector.x, msg.vector.y, msg.vector.z = (float(v) for v in vector)
+    return msg
+
+
+def rate_with_covariance_msg(rate, frame_id: str) -> TwistWithCovarianceStamped:
+    """Body rate (sensor frame, rad/s) with its 3x3 covariance [rad^2/s^2] in the angular
+    block of a TwistWithCovarianceStamped; the linear part is unknown (-1 on its diagonal)."""
+    msg = TwistWithCovarianceStamped()
+    msg.header = Header(stamp=ns_to_stamp(rate.stamp_ns), frame_id=frame_id)
+    msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z = (
+        float(v) for v in rate.angular_velocity)
+    cov = np.zeros((6, 6))
+    cov[0, 0] = cov[1, 1] = cov[2, 2] = -1.0
+    cov[3:, 3:] = rate.covariance
+    msg.twist.covariance = [float(v) for v in cov.ravel()]
     return msg

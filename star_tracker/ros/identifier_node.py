@@ -1,23 +1,32 @@
-"""identifier: lost-in-space star identification + QUEST attitude from `spots`.
+"""identifier: star identification (lost-in-space, then tracking) + attitude and body rate.
 
 Needs the camera model from `camera_info`. Publishes attitude, attitude_with_covariance and
-matched_stars with the spots' stamp, only for verified solutions; otherwise it publishes
-nothing, logs why and reports it on /diagnostics.
+matched_stars with the spots' stamp, only for verified solutions, and angular_velocity once two
+solutions are in the rate window; otherwise it publishes nothing, logs why and reports it on
+/diagnostics (mode, counters).
+
+A lost-in-space solve runs in a worker thread. When it ends within `inline_wait_s` its frame is
+published as usual; when it takes longer, the frames arriving meanwhile are bridged by
+frame-to-frame rotations (Tracker.bridge, seed 004) and the newest one is published, verified,
+when the solve ends (delay compensation).
 """
 from __future__ import annotations
 
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, TwistWithCovarianceStamped, Vector3Stamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ..attitude import ARCSEC
 from ..camera import CameraModel
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+from ..identify.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
 from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, CameraInfoInput, Diagnostics, ThrottledLog, declare, run_node
 
@@ -43,11 +52,27 @@ class IdentifierNode(Node):
             false_positive_bound=p("false_positive_bound", 1.0e-6, "largest accepted chance-match probability", 1e-30, 0.5),
             max_time_s=p("max_time_s", 0.5, "time budget per frame [s]", 1e-3, 60.0),
         )
+        self.tracking_enabled = p("tracking.enabled", True, "track from the previous attitude; false = lost-in-space on every frame")
+        tracking_config = TrackingConfig(
+            gate_sigma=p("tracking.gate_sigma", 5.0, "searched region around the predicted attitude [sigmas]", 1.0, 20.0),
+            min_stars=p("tracking.min_stars", 3, "fewest verified stars a tracked frame needs", 2, 10),
+            max_gate_fov_radii=p("tracking.max_gate_fov_radii", 2.0, "largest search radius [field radii]", 0.1, 4.0),
+            max_coast_s=p("tracking.max_coast_s", 2.0, "longest prediction without a new solution [s]", 0.01, 60.0),
+            max_angular_rate_rad_s=p("tracking.max_angular_rate_rad_s", 0.0873,
+                                     "rate prior per axis before a rate estimate exists [rad/s]", 1e-4, 1.0),
+            max_angular_acceleration_rad_s2=p("tracking.max_angular_acceleration_rad_s2", 0.00873,
+                                              "assumed bound on angular acceleration [rad/s^2]", 0.0, 1.0),
+            rate_window_s=p("tracking.rate_window_s", 0.45, "attitudes used for the rate estimate [s]", 0.01, 10.0),
+            false_positive_bound=self.config.false_positive_bound,
+        )
+        self.inline_wait_s = p("inline_wait_s", 0.05, "wait this long for a lost-in-space solve before bridging "
+                               "newer frames (delay compensation) [s]", 0.0, 10.0)
         started = time.perf_counter()
         self.database = load_or_build_database(db_config)
         self.identifier = make_identifier(algorithm, self.database, self.config)
-        if hasattr(self.identifier, "warm_up"):  # compiled kernels: ~50 s the first time, then cached
-            self.identifier.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
+        self.tracker = Tracker(self.identifier, tracking_config)
+        # Compiled kernels: ~50 s the first time, then loaded from numba's cache.
+        self.tracker.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
         self.get_logger().info(
             f"algorithm {algorithm}: {self.database.star_count} guide stars to Hp {db_config.magnitude_limit}, "
             f"{self.database.pair_a.size} pairs, loaded in {time.perf_counter() - started:.2f} s")
@@ -55,8 +80,15 @@ class IdentifierNode(Node):
         self.pub_attitude = self.create_publisher(QuaternionStamped, "attitude", RESULT_QOS)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "attitude_with_covariance", RESULT_QOS)
         self.pub_matches = self.create_publisher(PointCloud2, "matched_stars", RESULT_QOS)
+        self.pub_rate = self.create_publisher(Vector3Stamped, "angular_velocity", RESULT_QOS)
+        self.pub_rate_cov = self.create_publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance", RESULT_QOS)
         self.diag = Diagnostics(self)
         self.diag.values["algorithm"] = algorithm
+        self.diag.values["mode"] = MODE_LOST
+        self._lock = threading.Lock()  # tracker state: executor thread vs the acquisition timer
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
+        self._acquisition = None  # (future, stamp_ns, spots, camera, frame_id) of a running solve
+        self._acquisition_timer = self.create_timer(0.005, self.poll_acquisition)
         self.log = ThrottledLog(self)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
@@ -87,23 +119,95 @@ class IdentifierNode(Node):
             self.diag.set(DiagnosticStatus.WARN, f"rejected spots: {exc}")
             self.log.warn("bad_spots", f"rejected spots message: {exc}")
             return
-        result = self.identifier.identify(spots, camera)
+        with self._lock:
+            self.process(stamp_ns, spots, camera, msg.header.frame_id)
+
+    def process(self, stamp_ns: int, spots, camera, sensor_frame: str) -> None:
+        """Track, or start (or bridge during) a lost-in-space solve. Holds the lock."""
+        received = time.perf_counter()
+        if self._acquisition is not None:
+            if not self._acquisition[0].done():
+                if self.tracker.bridge(stamp_ns, spots, camera):
+                    self.diag.count("frames_bridged")
+                else:
+                    self.diag.count("frames_not_bridged")
+                    self.log.warn("bridge", "a frame during a lost-in-space solve shares too few stars with "
+                                  "the previous one; it is not identified")
+                return
+            self._finish_acquisition()
+        if self.tracking_enabled:
+            prediction = self.tracker.predict(stamp_ns)
+            if prediction is not None:
+                tracked = self.tracker.accept_tracked(stamp_ns, spots, camera, prediction)
+                if tracked.solved:
+                    self.publish(tracked, spots, sensor_frame, received)
+                    return
+                self.diag.count("tracking_failed")
+        else:
+            self.tracker.reset()
+        self.tracker.begin_acquisition(stamp_ns, spots, camera)
+        future = self._worker.submit(self.identifier.identify, spots, camera)
+        self._acquisition = (future, stamp_ns, spots, camera, sensor_frame, received)
+        try:
+            future.result(timeout=self.inline_wait_s)
+        except TimeoutError:
+            return  # still running: the timer or the next frame finishes it
+        self._finish_acquisition()
+
+    def poll_acquisition(self) -> None:
+        with self._lock:
+            if self._acquisition is not None and self._acquisition[0].done():
+                self._finish_acquisition()
+
+    def _finish_acquisition(self) -> None:
+        future, stamp_ns, spots, camera, sensor_frame, received = self._acquisition
+        self._acquisition = None
+        result = future.result()
         self.diag.values["last_identify_ms"] = f"{result.elapsed_s * 1e3:.2f}"
         if not result.solved:
+            self.tracker.complete_acquisition(result)
             self.diag.count(f"not_identified_{result.status}")
+            self.diag.values["mode"] = MODE_LOST
             self.diag.set(DiagnosticStatus.WARN, f"not identified: {result.reason}", last_spot_count=len(spots))
-            self.log.warn("unsolved", f"frame {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} not identified: {result.reason}")
+            self.log.warn("unsolved", f"frame {stamp_ns * 1e-9:.3f} not identified: {result.reason}")
             return
+        newest_spots = self.tracker.pending_spots()
+        tracked = self.tracker.complete_acquisition(result)
+        if tracked is None:
+            self.diag.count("bridge_not_verified")
+            self.diag.values["mode"] = MODE_LOST
+            self.log.warn("bridge_failed", "lost-in-space solved an older frame but the bridged attitude was "
+                          "not verified on the newest frame")
+            return
+        self.publish(tracked, newest_spots if tracked.bridged_frames else spots, sensor_frame, received)
+
+    def publish(self, tracked: TrackedFrame, spots, sensor_frame: str, received: float) -> None:
+        result, stamp_ns = tracked.identification, tracked.stamp_ns
         solution = result.attitude
         self.pub_attitude.publish(convert.quaternion_msg(solution.quaternion, stamp_ns, self.frame_id))
         self.pub_pose.publish(convert.pose_with_covariance_msg(solution, stamp_ns, self.frame_id))
         magnitudes = self.database.magnitude[np.searchsorted(self.database.hip, result.hip)]  # hip is sorted
         self.pub_matches.publish(convert.identification_to_cloud(result, spots, magnitudes, stamp_ns, self.frame_id))
+        if tracked.rate is not None:
+            frame = sensor_frame or convert.OPTICAL_FRAME
+            self.pub_rate.publish(convert.vector3_msg(tracked.rate.angular_velocity, stamp_ns, frame))
+            self.pub_rate_cov.publish(convert.rate_with_covariance_msg(tracked.rate, frame))
+            sigma_rate = np.degrees(tracked.rate.sigma)
+            self.diag.values["last_rate_sigma_deg_s_xyz"] = f"{sigma_rate[0]:.4f},{sigma_rate[1]:.4f},{sigma_rate[2]:.4f}"
         self.diag.count("frames_identified")
+        self.diag.count(f"frames_{tracked.mode}")
+        self.diag.values["mode"] = tracked.mode
+        latency_ms = (time.perf_counter() - received) * 1e3
         sigma = np.sqrt(np.diag(solution.covariance)) / ARCSEC
         self.diag.set(DiagnosticStatus.OK, "identified", last_stars_matched=result.hip.size,
                       last_spot_count=len(spots), last_sigma_arcsec_xyz=f"{sigma[0]:.2f},{sigma[1]:.2f},{sigma[2]:.2f}",
-                      last_false_positive_bound=f"{result.false_positive_probability:.1e}")
+                      last_false_positive_bound=f"{result.false_positive_probability:.1e}",
+                      last_processing_ms=f"{latency_ms:.2f}", last_bridged_frames=tracked.bridged_frames,
+                      last_gate_px="" if tracked.gate_px is None else f"{tracked.gate_px:.1f}")
+
+    def destroy_node(self) -> None:
+        self._worker.shutdown(wait=True, cancel_futures=True)
+        super().destroy_node()
 
 
 def main(argv: list[str] | None = None) -> None:
