@@ -176,6 +176,18 @@ def davenport_q_method(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) ->
     return _solution(_shuster_attitude_matrix(vecs[:, -1]), body, ref, weights, sigmas)
 
 
+def svd_attitude(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:
+    """Markley's SVD solution of Wahba's problem (cross-check; no singularity at any angle).
+
+    B = sum_i w_i b_i r_i^T = U S V^T gives A = U diag(1, 1, det U det V) V^T, the proper
+    rotation closest to B (ICRS -> sensor). Inputs and result as `quest`."""
+    body, ref, sigmas = _as_inputs(body, ref, sigmas)
+    weights = 1.0 / sigmas**2
+    u, _, vt = np.linalg.svd((weights[:, None] * body).T @ ref)
+    a_matrix = u @ np.diag([1.0, 1.0, np.linalg.det(u) * np.linalg.det(vt)]) @ vt
+    return _solution(a_matrix, body, ref, weights, sigmas)
+
+
 def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:
     """QUEST (Shuster & Oh 1981): Newton-Raphson on the characteristic polynomial of K,
     starting at lambda = sum(weights); a sequential rotation is applied when the optimal

@@ -29,7 +29,9 @@ def ros_graph(monkeypatch):
     rclpy.try_shutdown()
 
 
-def run_pipeline(env, tmp_path, camera_params):
+def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None):
+    """Run FRAMES frames through the three nodes; `diagnostics`, when given, receives the latest
+    /diagnostics values per status name."""
     monitor = TrackerMonitor(name="integration_monitor")
     params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 2.0, "wait_for_subscribers": True, "rate_hz": RATE_HZ, **camera_params}}
     nodes = NodeProcesses(env, tmp_path / "logs", params, REPO / "config" / "star_tracker.yaml")
@@ -44,6 +46,8 @@ def run_pipeline(env, tmp_path, camera_params):
         codes = nodes.stop()
     frames = [monitor.frames[ns] for ns in sorted(monitor.frames)]
     camera_diagnostics = monitor.diagnostics.get("star_tracker/camera_simulator", {})
+    if diagnostics is not None:
+        diagnostics.update(monitor.diagnostics)
     monitor.destroy_node()
     logs = {p.name: p.read_text() for p in (tmp_path / "logs").glob("*.log")}
     return frames, codes, logs, camera_diagnostics

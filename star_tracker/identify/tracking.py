@@ -57,7 +57,7 @@ class TrackingConfig:
     max_gate_fov_radii: float = 2.0
     max_coast_s: float = 2.0
     max_angular_rate_rad_s: float = math.radians(5.0)
-    max_angular_acceleration_rad_s2: float = math.radians(0.5)
+    max_angular_acceleration_rad_s2: float = math.radians(2.0)
     rate_window_s: float = 0.45
     false_positive_bound: float = 1.0e-6
     max_pattern_spots: int = 40
@@ -318,13 +318,15 @@ class Tracker:
         # Roll error spreads the displacement over the field; the bins must hold that spread.
         roll_spread = (self.config.gate_sigma * math.sqrt(max(prediction.covariance[2, 2], 0.0))
                        * half_diagonal / camera.pixel_scale_rad)
-        if gate <= 3.0 * tolerance_px:
+        if gate <= 3.0 * tolerance_px:  # small gate: nearest stars directly
             dx = dy = 0.0
+            radius = gate
         else:
             dx, dy, votes = vote_displacement(sx, sy, u, v, gate, max(2.0 * tolerance_px, roll_spread))
             if votes < 2:
                 return fail(f"no displacement shared by two stars within the {gate:.0f} px gate")
-        spot_i, star_j = unique_nearest(sx, sy, u + dx, v + dy, max(tolerance_px, min(roll_spread, gate)))
+            radius = max(tolerance_px, min(roll_spread, gate))
+        spot_i, star_j = unique_nearest(sx, sy, u + dx, v + dy, radius)
         if spot_i.size < 2:
             return fail(f"{spot_i.size} spots near predicted stars")
         rough = kernels.q_method(geometry.rays[spot_i], self._vectors[near[star_j]], 1.0 / geometry.sigma[spot_i] ** 2)

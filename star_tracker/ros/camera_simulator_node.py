@@ -6,6 +6,7 @@ truth/objects, all with the frame's mid-exposure stamp. See msg_docs/.
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -135,6 +136,9 @@ class CameraSimulatorNode(Node):
         if sensor.exposure_s * 1e9 > self.period_ns:
             raise ValueError(f"sensor.exposure_s={sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s")
         self.frame_index = 0
+        blank = p("faults.blank_frames", [-1], "frame indices rendered with the field occulted (no stars, "
+                  "e.g. Earth or a baffle): to exercise loss and re-acquisition; -1 = none")
+        self.blank_frames = {int(k) for k in blank if int(k) >= 0}
 
         self.pub_image = self.create_publisher(Image, "image_raw", IMAGE_QOS)
         self.pub_info = self.create_publisher(CameraInfo, "camera_info", IMAGE_QOS)
@@ -244,6 +248,9 @@ class CameraSimulatorNode(Node):
             self.diag.set(DiagnosticStatus.WARN, f"frame skipped: {exc}")
             self.log.warn("no_attitude", f"frame {k} skipped: {exc}")
             return
+        if k in self.blank_frames:  # occulted field: background and noise only, no objects
+            frame = self._blank(frame, k)
+            self.diag.count("frames_blanked")
         truth = frame.truth
         self.pub_image.publish(convert.array_to_image(frame.image, stamp_ns, self.frame_id))
         self.pub_info.publish(convert.camera_to_info(self.camera, stamp_ns, self.frame_id))
@@ -256,6 +263,19 @@ class CameraSimulatorNode(Node):
         self.frame_index += 1
         self.diag.count("frames_published")
         self.diag.set(DiagnosticStatus.OK, "publishing", objects_in_view=truth.hip.size, smear_substeps=frame.substeps)
+
+
+    def _blank(self, frame, k: int):
+        """The frame with the field occulted: its median level plus read noise, nothing in view."""
+        rng = np.random.default_rng(frame_seed(self.seed, k) ^ 0x5EED)
+        level = float(np.median(frame.image))
+        noise = self.sensor.read_noise_e / self.sensor.gain_e_per_adu
+        image = np.clip(np.round(rng.normal(level, noise, frame.image.shape)), 0, np.iinfo(frame.image.dtype).max)
+        truth = frame.truth
+        none = np.zeros(0, bool)
+        empty = replace(truth, kind=truth.kind[none], hip=truth.hip[none], x=truth.x[none], y=truth.y[none],
+                        electrons=truth.electrons[none], extent_px=truth.extent_px[none])
+        return replace(frame, image=image.astype(frame.image.dtype), truth=empty)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -60,7 +60,7 @@ class IdentifierNode(Node):
             max_coast_s=p("tracking.max_coast_s", 2.0, "longest prediction without a new solution [s]", 0.01, 60.0),
             max_angular_rate_rad_s=p("tracking.max_angular_rate_rad_s", 0.0873,
                                      "rate prior per axis before a rate estimate exists [rad/s]", 1e-4, 1.0),
-            max_angular_acceleration_rad_s2=p("tracking.max_angular_acceleration_rad_s2", 0.00873,
+            max_angular_acceleration_rad_s2=p("tracking.max_angular_acceleration_rad_s2", 0.0349,
                                               "assumed bound on angular acceleration [rad/s^2]", 0.0, 1.0),
             rate_window_s=p("tracking.rate_window_s", 0.45, "attitudes used for the rate estimate [s]", 0.01, 10.0),
             false_positive_bound=self.config.false_positive_bound,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, TwistWithCovarianceStamped, Vector3Stamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -159,6 +159,9 @@ class FrameRecord:
     matched: np.ndarray | None = None  # MATCH_DTYPE records
     truth_objects: np.ndarray | None = None  # TRUTH_OBJECT_DTYPE records
     image: np.ndarray | None = None
+    truth_rate: np.ndarray | None = None  # (3,) [rad/s], sensor frame
+    rate: np.ndarray | None = None  # identifier's estimate (3,) [rad/s]
+    rate_covariance: np.ndarray | None = None  # (3, 3) [rad^2/s^2]
 
     def error(self) -> tuple[float, float, float] | None:
         """(cross-boresight, roll, total) attitude error vs truth [rad]."""
@@ -181,6 +184,9 @@ class TrackerMonitor(Node):
         self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, MONITOR_RESULT_QOS)
         self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, MONITOR_RESULT_QOS)
         self.create_subscription(PointCloud2, "matched_stars", self._on_matches, MONITOR_RESULT_QOS)
+        self.create_subscription(Vector3Stamped, "truth/angular_velocity", self._on_truth_rate, MONITOR_RESULT_QOS)
+        self.create_subscription(TwistWithCovarianceStamped, "angular_velocity_with_covariance", self._on_rate,
+                                 MONITOR_RESULT_QOS)
         self.diagnostics: dict[str, dict[str, str]] = {}  # latest key/values per status name
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self._image_subscription = None
@@ -204,6 +210,15 @@ class TrackerMonitor(Node):
 
     def _on_truth(self, msg: QuaternionStamped) -> None:
         self.frame(msg.header.stamp).truth = quaternion_to_matrix(convert.quaternion_from_msg(msg))
+
+    def _on_truth_rate(self, msg: Vector3Stamped) -> None:
+        self.frame(msg.header.stamp).truth_rate = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
+
+    def _on_rate(self, msg: TwistWithCovarianceStamped) -> None:
+        record = self.frame(msg.header.stamp)
+        w = msg.twist.twist.angular
+        record.rate = np.array([w.x, w.y, w.z])
+        record.rate_covariance = np.asarray(msg.twist.covariance).reshape(6, 6)[3:, 3:]
 
     def _on_truth_objects(self, msg: PointCloud2) -> None:
         self.frame(msg.header.stamp).truth_objects = convert.cloud_to_records(
