@@ -161,9 +161,10 @@ def attitude_covariance(body: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
     body = np.asarray(body, dtype=float).reshape(-1, 3)
     weights = 1.0 / np.asarray(sigmas, dtype=float) ** 2
     info = np.sum(weights) * np.eye(3) - (weights[:, None] * body).T @ body
-    # Ill-conditioned (e.g. two stars): the pseudo-inverse keeps the observable axes finite.
+    # Singular (parallel vectors): a tiny ridge keeps the unobservable axis finite but huge,
+    # never the zero variance (false certainty) a pseudo-inverse would report there.
     if abs(np.linalg.det(info)) < 1e-12 * np.trace(info) ** 3:
-        return np.linalg.pinv(info)
+        return np.linalg.inv(info + 1e-12 * np.trace(info) * np.eye(3))
     return np.linalg.inv(info)
 
 
@@ -216,6 +217,7 @@ def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolu
         c = delta + z @ s @ z
         d = z @ s @ s @ z
         lam = 1.0
+        fp = 0.0
         for _ in range(50):
             f = (lam * lam - a) * (lam * lam - b) - c * lam + c * sigma - d
             fp = 2 * lam * (2 * lam * lam - a - b) - c
@@ -223,6 +225,10 @@ def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolu
             lam -= step
             if abs(step) < 1e-14 * max(1.0, abs(lam)):
                 break
+        # A tiny slope at the root means a nearly double largest eigenvalue (two close stars,
+        # unequal weights): the root's rounding error would mix in the second eigenvector.
+        if abs(fp) < 1e-3:
+            return davenport_q_method(body, ref, sigmas)
         alpha = lam * lam - sigma * sigma + kappa
         beta = lam - sigma
         gamma = (lam + sigma) * alpha - delta

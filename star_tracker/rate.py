@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
@@ -78,10 +79,15 @@ class AttitudeRateEstimator:
             if fit is None:
                 return None
             omega, covariance, chi2, dof = fit
-            if dof == 0 or chi2 <= chi2_distribution.ppf(0.99, dof) or len(history) == 2:
+            if dof == 0 or chi2 <= _chi2_limit(dof) or len(history) == 2:
                 return RateEstimate(history[-1][0], omega, covariance, len(history), "attitudes")
             history = history[1:]
         return None
+
+
+@lru_cache(maxsize=64)
+def _chi2_limit(dof: int) -> float:
+    return float(chi2_distribution.ppf(0.99, dof))
 
 
 def _fit(history, alpha_max: float):

@@ -27,6 +27,9 @@ def main() -> None:
         if hasattr(identifier, "warm_up"):
             identifier.warm_up(setup.camera)
         identifier.identify(scene.spots, setup.camera)
+    from .identify.tracking import Tracker  # the tracking path calls some kernels from Python
+
+    Tracker(make_identifier("hybrid", database)).warm_up(setup.camera)
     print(f"numba kernels ready in {time.perf_counter() - started:.1f} s")
 
 
