@@ -44,3 +44,4 @@ bench: $(BENCH_STAMP)
 	$(PY) -m bench.bench_identify --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_databases --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_attitude --output docs/BENCHMARKS.md
+	$(PY) -m bench.bench_tracking --output docs/BENCHMARKS.md

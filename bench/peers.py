@@ -328,3 +328,43 @@ class CedarSolver(_CachedPeerDatabase):
 def _cedar_status(code) -> str:
     """tetra3's numeric status (MATCH_FOUND=1, NO_MATCH=2, TIMEOUT=3, CANCELLED=4, TOO_FEW=5)."""
     return {1: "solved", 2: "no_match", 3: "timeout", 4: "cancelled", 5: "too_few"}.get(code, str(code))
+
+
+# --------------------------------------------------------------------------------------------
+# Tracking peer, for bench/bench_tracking.py.
+#
+# tetra3rs 0.14 has a tracking mode: ``solve_from_centroids(..., attitude_hint=R_icrs_to_camera,
+# hint_uncertainty_rad=..., strict_hint=...)`` projects the catalog stars near the hint, matches
+# them to the centroids by nearest neighbour and runs its lost-in-space verification and refit
+# ("Succeeds with as few as 3 matched stars"); with strict_hint=False it falls back to
+# lost-in-space on failure. SolveResult does not say which mode produced it, so the bench
+# calls it with strict_hint=True (tracking alone, timed on its own) and then, on failure, the
+# plain lost-in-space solve, as our Tracker.process does.
+# --------------------------------------------------------------------------------------------
+
+
+def tetra3rs_solve_with_hint(solver: Tetra3rsSolver, x: np.ndarray, y: np.ndarray, hint_rotation: np.ndarray,
+                             hint_uncertainty_rad: float | None = None, strict_hint: bool = True) -> PeerSolution:
+    """tetra3rs tracking-mode solve of centroids x, y [px, our convention, brightest first] with
+    the attitude hint `hint_rotation` (sensor -> ICRS, ours; transposed to tetra3rs's ICRS ->
+    camera) of angular uncertainty `hint_uncertainty_rad` [rad] (None: tetra3rs's default,
+    1 deg). Same database and solve settings as `solver` (its lost-in-space-only keywords are
+    ignored by the peer in tracking mode). strict_hint=True: no lost-in-space fallback."""
+    cam = solver.camera
+    xy = np.stack([np.asarray(x, float) - (cam.width - 1) / 2.0, np.asarray(y, float) - (cam.height - 1) / 2.0],
+                  axis=1)
+    hint = dict(attitude_hint=np.ascontiguousarray(np.asarray(hint_rotation, float).T), strict_hint=strict_hint)
+    if hint_uncertainty_rad is not None:
+        hint["hint_uncertainty_rad"] = float(hint_uncertainty_rad)
+    started = time.perf_counter()
+    result = solver._db.solve_from_centroids(xy, fov_estimate_deg=cam.fov_x_deg, image_width=cam.width,
+                                             image_height=cam.height, **solver.solve_settings, **hint)
+    elapsed = time.perf_counter() - started
+    if not result:
+        return PeerSolution(False, str(result.status), elapsed)
+    ids = np.asarray(result.matched_catalog_ids, np.int64)
+    matched = np.asarray(result.matched_centroids, np.int64)
+    if bool(result.parity_flip):
+        return PeerSolution(True, "parity_flip", elapsed, None, matched, ids)
+    u, _, vt = np.linalg.svd(np.asarray(result.rotation_matrix_icrs_to_camera, dtype=float).T)  # nearest rotation
+    return PeerSolution(True, "solved", elapsed, u @ vt, matched, ids)
