@@ -45,6 +45,7 @@ from star_tracker.centroid.streak import SmearModel
 from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from star_tracker.motion import ConstantRateMotion
 from star_tracker.render import KIND_STAR, SensorModel, StarFieldRenderer, frame_seed
+from .report import cpu_model, write_section
 
 SECTION = "## Attitude accuracy and covariance"
 SEED = 2026
@@ -291,12 +292,7 @@ def summarize(records: list[dict], floor_px: float) -> dict:
 
 
 def machine_info() -> dict:
-    cpu = "?"
-    try:
-        cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), "?")
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "python": sys.version.split()[0], "numpy": np.__version__,
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "python": sys.version.split()[0], "numpy": np.__version__,
             "platform": platform.platform()}
 
 
@@ -484,18 +480,6 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
         lines.append(f"| {c['name']} | {t['render']:.1f} | {t['centroid']:.1f} | {t['identify']:.2f} | "
                      f"{c['elapsed_s']:.0f} |")
     return "\n".join(lines) + "\n"
-
-
-def write_section(path: Path, text: str, header: str = SECTION) -> None:
-    """Replace the `header` section of the Markdown file at `path` (or append it)."""
-    body = path.read_text() if path.exists() else "# Benchmarks\n"
-    if header in body:
-        start = body.index(header)
-        nxt = body.find("\n## ", start + len(header))
-        body = body[:start] + text + (body[nxt + 1:] if nxt >= 0 else "")
-    else:
-        body = body.rstrip("\n") + "\n\n" + text
-    path.write_text(body)
 
 
 def findings(cases: list[dict], floor_px: float, clip_level: float) -> list[str]:

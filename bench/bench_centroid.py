@@ -32,6 +32,7 @@ from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.motion import ConstantRateMotion
 from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
+from .report import cpu_model, write_section
 
 # Name in the tables -> (CentroidConfig.method, rate aid on).
 ROUNDS = 3  # speed: best of this many rounds
@@ -278,17 +279,6 @@ def plot(rows, path: Path):
     fig.savefig(path, dpi=110)
 
 
-def write_section(path: Path, text: str, header="## Centroiding") -> None:
-    body = path.read_text() if path.exists() else "# Benchmarks\n"
-    if header in body:
-        start = body.index(header)
-        nxt = body.find("\n## ", start + len(header))
-        body = body[:start] + text + (body[nxt + 1:] if nxt >= 0 else "")
-    else:
-        body = body.rstrip("\n") + "\n\n" + text
-    path.write_text(body)
-
-
 def speed_table(timing: dict, reference_ms: float) -> list[str]:
     ours_name = next(iter(timing))
     ours = timing[ours_name]
@@ -351,7 +341,7 @@ def main(argv=None) -> None:
         f"{'yes' if fp_mean <= 1 else 'no'} |",
         f"| 1024x1024, ~50 spots, <= 5 ms median | {ours_ms:.1f} ms | {'yes' if ours_ms <= 5 else 'no'} |",
     ]
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")), "?")
+    cpu = cpu_model()
     text = "\n".join([
         "## Centroiding",
         "",

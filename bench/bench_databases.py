@@ -20,6 +20,7 @@ from star_tracker.catalog import load_hipparcos
 from star_tracker.identify import DatabaseConfig, load_or_build_database
 from star_tracker.identify import triangles as triangle_module
 from star_tracker.identify.triangles import TriangleConfig, load_or_build_triangles
+from .report import write_section
 
 CASES = [
     ("nominal 15 deg, Hp <= 6.5 (default)", DatabaseConfig()),
@@ -78,15 +79,8 @@ def main(argv=None) -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     if args.output:
-        content = args.output.read_text()
-        start = content.find("## Pattern databases")
-        if start >= 0:
-            end = content.find("\n## ", start + 1)
-            end = len(content) if end < 0 else end + 1
-            content = content[:start] + text + ("\n" if end < len(content) else "") + content[end:]
-        else:
-            content = content.rstrip("\n") + "\n\n" + text
-        args.output.write_text(content)
+        write_section(args.output, text)
+
 
 if __name__ == "__main__":
     main()

@@ -51,6 +51,7 @@ from star_tracker.identify import (ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig
 from star_tracker.scenes import SETUPS, Scene, SceneSetup, make_scene
 
 from . import peers as peer_adapters
+from .report import cpu_model, write_section
 
 EPOCH_JYEAR = 2026.0
 DEFAULT_SEED = 2026
@@ -461,19 +462,13 @@ def _short(value) -> str:
 
 
 def machine_info() -> dict:
-    cpu = "?"
-    try:
-        cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
-                   "?")
-    except OSError:
-        pass
     versions = {"numpy": np.__version__}
     for package in ("tetra3rs", "cedar-solve"):
         try:
             versions[package] = metadata.version(package)
         except metadata.PackageNotFoundError:
             versions[package] = None
-    return {"cpu": cpu, "cores": os.cpu_count(), "python": sys.version.replace("\n", " "),
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "python": sys.version.replace("\n", " "),
             "platform": platform.platform(), "versions": versions}
 
 
@@ -540,18 +535,6 @@ def render_markdown(results: dict) -> str:
                   "Build times are those of the first build (databases are cached per settings under "
                   "`~/.cache/star_tracker/bench_peers`).", "", *peer_settings_lines(results), ""]
     return "\n".join(lines)
-
-
-def write_section(path: Path, text: str, header: str = "## Identification") -> None:
-    """Replace (or append) the `header` section of a Markdown file, keeping the rest."""
-    body = path.read_text() if path.exists() else "# Benchmarks\n"
-    if header in body:
-        start = body.index(header)
-        nxt = body.find("\n## ", start + len(header))
-        body = body[:start] + text.rstrip("\n") + "\n" + (body[nxt:] if nxt >= 0 else "")
-    else:
-        body = body.rstrip("\n") + "\n\n" + text.rstrip("\n") + "\n"
-    path.write_text(body)
 
 
 def _names(text: str | None, known, what: str) -> list[str]:

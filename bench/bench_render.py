@@ -40,6 +40,7 @@ from star_tracker.camera import CameraModel
 from star_tracker.catalog import load_hipparcos
 from star_tracker.motion import ConstantRateMotion
 from star_tracker.render import KIND_STAR, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+from .report import cpu_model, write_section
 
 SECTION_HEADER = "## Camera simulator render time"
 GOAL_MS = 20.0
@@ -223,14 +224,7 @@ class CpuMonitor:
 
 # ---------------------------------------------------------------------- reporting
 def machine_info() -> dict[str, str]:
-    cpu = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     try:
         nproc = subprocess.run(["nproc"], capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
@@ -341,22 +335,6 @@ def scaling_summary(stars: list[Point], smears: list[Point], sizes: list[Point])
             f"(~{smears[0].stars} stars); {i_pix:.1f} ms + {s_pix:.1f} ms per 2²⁰ pixels. The per-pixel "
             "terms (noise generation, digitisation) dominate a sparse field; per-star cost grows "
             "with the streak's bounding box and its number of sub-steps.")
-
-
-def write_section(path: Path, section: str) -> None:
-    """Replace the section (header up to the next '## ' header) or append it."""
-    text = path.read_text() if path.exists() else "# Benchmarks\n\n"
-    lines = text.splitlines(keepends=True)
-    start = next((i for i, line in enumerate(lines) if line.rstrip() == SECTION_HEADER), None)
-    body = section.rstrip("\n") + "\n"
-    if start is None:
-        new = text.rstrip("\n") + "\n\n" + body if text.strip() else body
-    else:
-        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
-        tail = "".join(lines[end:])
-        new = "".join(lines[:start]) + body + ("\n" + tail if tail else "")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(new)
 
 
 def code_version() -> str:

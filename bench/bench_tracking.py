@@ -53,6 +53,7 @@ from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
 from star_tracker.streak_rate import rate_from_streaks
 
 from . import peers as peer_adapters
+from .report import cpu_model, write_section
 
 SEED = 2026
 EPOCH_JYEAR = 2026.0
@@ -889,26 +890,8 @@ def figures(summaries: dict[str, dict], constant: dict[str, list[Sequence]], sle
     return written
 
 
-def write_section(path: Path, text: str, header="## Tracking") -> None:
-    body = path.read_text() if path.exists() else "# Benchmarks\n"
-    if header + "\n" in body:
-        start = body.index(header + "\n")
-        nxt = body.find("\n## ", start + len(header))
-        body = body[:start] + text + (body[nxt + 1:] if nxt >= 0 else "")
-    else:
-        body = body.rstrip("\n") + "\n\n" + text
-    path.write_text(body)
-
-
 def machine() -> dict:
-    cpu = platform.processor() or ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     versions = {"numpy": np.__version__}
     try:
         versions["tetra3rs"] = metadata.version("tetra3rs")

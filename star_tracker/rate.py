@@ -29,14 +29,12 @@ from .attitude import matrix_to_rotation_vector
 @dataclass(frozen=True)
 class RateEstimate:
     """angular_velocity: (3,) body rate in the sensor frame [rad/s] at `stamp_ns`;
-    covariance: (3, 3) [rad^2/s^2]; frames: attitudes used; source: "attitudes", "streaks"
-    or "attitudes+streaks"."""
+    covariance: (3, 3) [rad^2/s^2]; frames: attitudes used."""
 
     stamp_ns: int
     angular_velocity: np.ndarray
     covariance: np.ndarray
     frames: int
-    source: str
 
     @property
     def sigma(self) -> np.ndarray:
@@ -80,7 +78,7 @@ class AttitudeRateEstimator:
                 return None
             omega, covariance, chi2, dof = fit
             if dof == 0 or chi2 <= _chi2_limit(dof) or len(history) == 2:
-                return RateEstimate(history[-1][0], omega, covariance, len(history), "attitudes")
+                return RateEstimate(history[-1][0], omega, covariance, len(history))
             history = history[1:]
         return None
 
@@ -124,12 +122,3 @@ def _fit(history, alpha_max: float):
         lag = -float(np.sum(weights * times) / np.sum(weights))
         covariance = covariance + np.eye(3) * (alpha_max * lag) ** 2 / 3.0
     return params[3:6], 0.5 * (covariance + covariance.T), chi2, dof
-
-
-def fuse(a: RateEstimate, b: RateEstimate) -> RateEstimate:
-    """Inverse-covariance combination of two independent estimates at the same stamp."""
-    ia, ib = np.linalg.inv(a.covariance), np.linalg.inv(b.covariance)
-    covariance = np.linalg.inv(ia + ib)
-    omega = covariance @ (ia @ a.angular_velocity + ib @ b.angular_velocity)
-    return RateEstimate(a.stamp_ns, omega, 0.5 * (covariance + covariance.T), max(a.frames, b.frames),
-                        f"{a.source}+{b.source}")

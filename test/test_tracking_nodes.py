@@ -7,24 +7,10 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from test_integration import REPO, run_pipeline  # noqa: E402  (same pipeline harness)
-
-from star_tracker.ros.pipeline import isolated_ros_environment  # noqa: E402
+from test_integration import ros_graph, run_pipeline  # noqa: E402,F401  (same harness and fixture)
 
 ARCSEC = np.radians(1 / 3600)
-FRAMES = 60
 BLANK = 30  # frame index of the occulted frame
-
-
-@pytest.fixture
-def ros_graph(monkeypatch):
-    env = isolated_ros_environment()
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        monkeypatch.setenv(key, env[key])
-    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
-    rclpy.init(args=[])
-    yield env
-    rclpy.try_shutdown()
 
 
 @pytest.mark.integration

@@ -17,6 +17,7 @@ import numpy as np
 from ..attitude import AttitudeSolution, quest
 from ..camera import CameraModel
 from ..centroid import Spots
+from . import kernels
 from .database import StarDatabase
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 
@@ -143,25 +144,30 @@ class StarIdentifier(ABC):
 
     def prepare(self, spots: Spots, camera: CameraModel) -> tuple[np.ndarray, SpotGeometry]:
         """Indices (into `spots`) of the finite spots sorted by flux, brightest first, and the
-        geometry algorithms work on, in that order. Resets the per-call stats."""
+        geometry algorithms work on, in that order. Resets the per-call stats. Compiled
+        (kernels.prepare_spots) for undistorted cameras, numpy with distortion."""
+        self.stats = {}
+        floor_px = self.config.centroid_sigma_floor_px
+        if not camera.has_distortion:
+            as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
+            order, rays, sigma, magnitude = kernels.prepare_spots(
+                as_float(spots.x), as_float(spots.y), as_float(spots.flux), as_float(spots.cov),
+                camera.fx, camera.fy, camera.cx, camera.cy, floor_px)
+            return order, SpotGeometry(rays, sigma, min(order.size, self.config.max_pattern_spots), magnitude,
+                                       spots.x[order], spots.y[order])
         x, y, flux = spots.x, spots.y, spots.flux
         finite = np.isfinite(x) & np.isfinite(y)
         brightness = np.where(np.isnan(flux), -np.inf, flux)
-        if finite.all():
-            order = np.argsort(-brightness, kind="stable")
-        else:
-            kept = np.flatnonzero(finite)
-            order = kept[np.argsort(-brightness[kept], kind="stable")]
+        kept = np.flatnonzero(finite)
+        order = kept[np.argsort(-brightness[kept], kind="stable")]
         x, y, flux = x[order], y[order], flux[order]
         # Direction 1-sigma from each spot's covariance; unknown (NaN) counts as 1 px; floored.
         cov = spots.cov[order]
         variance = 0.5 * (cov[:, 0, 0] + cov[:, 1, 1])
-        sigma_px = np.sqrt(np.where(np.isnan(variance), 1.0, np.maximum(variance, 0.0)))
-        sigma_px = np.maximum(sigma_px, self.config.centroid_sigma_floor_px)
+        sigma_px = np.maximum(np.sqrt(np.where(np.isnan(variance), 1.0, np.maximum(variance, 0.0))), floor_px)
         magnitude = np.full(flux.size, np.nan)
         bright = flux > 0  # NaN compares False
         magnitude[bright] = -2.5 * np.log10(flux[bright])
-        self.stats = {}
         return order, SpotGeometry(rays=camera.pixel_to_ray(x, y), sigma=sigma_px * camera.pixel_scale_rad,
                                    pattern_count=min(x.size, self.config.max_pattern_spots),
                                    magnitude=magnitude, x=x, y=y)

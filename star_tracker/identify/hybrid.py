@@ -25,7 +25,7 @@ from ..attitude import AttitudeSolution, matrix_to_quaternion
 from ..camera import CameraModel
 from ..centroid import Spots
 from . import kernels
-from .base import NO_MATCH, SOLVED, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, SpotGeometry, StarIdentifier
+from .base import NO_MATCH, SOLVED, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier
 from .database import StarDatabase
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
@@ -101,15 +101,7 @@ class HybridIdentifier(StarIdentifier):
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
         started = time.perf_counter()
         deadline = started + self.config.max_time_s
-        if camera.has_distortion:
-            order, geometry = self.prepare(spots, camera)
-        else:  # one compiled call instead of a dozen numpy ones
-            order, rays, sigma, magnitude = kernels.prepare_spots(
-                spots.x, spots.y, spots.flux, spots.cov, camera.fx, camera.fy, camera.cx, camera.cy,
-                self.config.centroid_sigma_floor_px)
-            self.stats = {}
-            geometry = SpotGeometry(rays, sigma, min(order.size, self.config.max_pattern_spots), magnitude,
-                                    spots.x[order], spots.y[order])
+        order, geometry = self.prepare(spots, camera)
         n = order.size
         if n < MIN_STARS:
             return self._fail(TOO_FEW_SPOTS, f"{n} spots; at least {MIN_STARS} are needed", started, 0)

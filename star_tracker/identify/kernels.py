@@ -218,12 +218,13 @@ def log_magnitude_agreement(spot_mag, star_mag, sorted_catalog, floor):
 
 @njit(cache=True)
 def false_positive_bound(log_statistic, spots, matched, min_stars):
-    """P_fp of verify.false_positive_bound."""
+    """P_fp of verify.false_positive_bound: (n - min_stars + 1) C(n, m) T (1 + ln 1/T), the
+    look-elsewhere factor over every subset size min_stars..n."""
     if matched < min_stars or spots < matched:
         return 1.0
     log_t = min(log_statistic, 0.0)
     log_subsets = math.lgamma(spots + 1.0) - math.lgamma(matched + 1.0) - math.lgamma(spots - matched + 1.0)
-    log_p = math.log(spots - 3.0) + log_subsets + log_t + math.log1p(-log_t)
+    log_p = math.log(spots - min_stars + 1.0) + log_subsets + log_t + math.log1p(-log_t)
     return min(1.0, math.exp(log_p))
 
 

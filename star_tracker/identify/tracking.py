@@ -27,13 +27,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..attitude import AttitudeSolution, matrix_to_quaternion, matrix_to_rotation_vector, quest, rotation_vector_to_matrix
+from ..attitude import (AttitudeSolution, attitude_covariance, matrix_to_quaternion, matrix_to_rotation_vector,
+                        rotation_vector_to_matrix)
 from ..camera import CameraModel
 from ..centroid import Spots
 from ..rate import AttitudeRateEstimator, RateEstimate
 from . import kernels
-from .base import SOLVED, Identification, SpotGeometry, StarIdentifier
-from .skygrid import SkyGrid
+from .base import SOLVED, Identification, StarIdentifier
+from .skygrid import SkyGrid, cell_of
 
 MODE_TRACKING = "tracking"
 MODE_LOST_IN_SPACE = "lost_in_space"
@@ -124,35 +125,24 @@ def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float
     sensor-frame unit vectors `body` with weighted chi^2 <= `chi2` under some attitude inside
     the region_sigma ellipsoid of `region_covariance` [rad^2] (sensor frame).
 
-    As verify.log_chance_tuples with the volume of SO(3) (8 pi^2) replaced by the searched
-    region: in coordinates scaled by G^(1/2) (G = sum (I - b b^T)/s^2) the ellipsoid has
-    semi-axes region_sigma sqrt(mu_i), mu_i the eigenvalues of G P; the tube of radius sqrt(c)
-    around it has 3-D cross-section at most (4/3) pi prod(region_sigma sqrt(mu_i) + sqrt(c)),
-    capped at the whole group's 8 pi^2 sqrt(det G)."""
-    m = body.shape[0]
+    verify.log_chance_tuples with the volume of SO(3) (8 pi^2 sqrt(det G) in coordinates scaled
+    by G^(1/2), G = sum (I - b b^T)/s^2) replaced by the searched region: there the ellipsoid
+    has semi-axes region_sigma sqrt(mu_i), mu_i the eigenvalues of G P, and the tube of radius
+    sqrt(c) around it a 3-D cross-section of at most (4/3) pi prod(region_sigma sqrt(mu_i) +
+    sqrt(c)); never more than the whole group. The subset bound is kernels.false_positive_bound
+    with min_stars = TrackingConfig.min_stars."""
+    body = np.ascontiguousarray(body, dtype=float)
+    sigma = np.asarray(sigma, dtype=float)
+    whole = float(kernels.log_chance_tuples(body, sigma, float(chi2), float(density_per_sr)))
     weights = 1.0 / sigma**2
     info = np.sum(weights) * np.eye(3) - (weights[:, None] * body).T @ body
     det = float(np.linalg.det(info))
     if det <= 0.0:
-        return 0.0
+        return whole
     radius = math.sqrt(max(chi2, 1e-12))
     mu = np.clip(np.linalg.eigvals(info @ region_covariance).real, 0.0, None)
     log_region = math.log(4.0 / 3.0 * math.pi) + float(np.sum(np.log(region_sigma * np.sqrt(mu) + radius)))
-    log_volume = min(log_region, LN_8PI2 + 0.5 * math.log(det))
-    d = 2 * m - 3
-    log_ball = 0.5 * d * math.log(math.pi) - math.lgamma(0.5 * d + 1.0) + d * math.log(radius)
-    return float(np.sum(np.log(density_per_sr * sigma**2))) + log_volume + log_ball
-
-
-def region_false_positive_bound(log_statistic: float, spots: int, matched: int, min_stars: int) -> float:
-    """P_fp <= (n - min_stars + 1) C(n, m) T (1 + ln 1/T): as verify.false_positive_bound with
-    tuples of min_stars..n stars admitted."""
-    if matched < min_stars or spots < matched:
-        return 1.0
-    log_t = min(log_statistic, 0.0)
-    log_subsets = math.lgamma(spots + 1.0) - math.lgamma(matched + 1.0) - math.lgamma(spots - matched + 1.0)
-    log_p = math.log(spots - min_stars + 1.0) + log_subsets + log_t + math.log1p(-log_t)
-    return min(1.0, math.exp(log_p))
+    return whole + min(0.0, log_region - (LN_8PI2 + 0.5 * math.log(det)))
 
 
 def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray, ref_y: np.ndarray,
@@ -220,10 +210,6 @@ class Tracker:
         self._last, self.rate = None, None
         self.rates.reset()
         self._pending, self._chain = [], []
-
-    def mode(self, stamp_ns: int) -> str:
-        """'tracking' while a prediction for `stamp_ns` is available, else 'lost'."""
-        return MODE_TRACKING if self.predict(stamp_ns) is not None else MODE_LOST
 
     def predict(self, stamp_ns: int) -> Prediction | None:
         """Predicted attitude at `stamp_ns` from the last solution and the rate, or None when
@@ -296,7 +282,7 @@ class Tracker:
         """Local recognition of `spots` around `prediction`: (result, gate [px])."""
         started = time.perf_counter()
         lis = self.lost_in_space
-        order, geometry = self.prepare(spots, camera)
+        order, geometry = self.lost_in_space.prepare(spots, camera)
         n = order.size
         tolerance_px = lis.verification_radius_px(geometry, camera) if n else lis.config.match_radius_px
         gate = self.gate_px(camera, prediction, tolerance_px)
@@ -360,7 +346,7 @@ class Tracker:
         log_t = log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance, self.config.gate_sigma)
         log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self._star_magnitude[star_index],
                                                        self._sorted_magnitudes, lis.magnitude_floor))
-        fp = region_false_positive_bound(log_t, n, count, self.config.min_stars)
+        fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))
         if fp > self.config.false_positive_bound:
             return Identification("no_match", f"{count} stars matched but false-positive bound {fp:.1e} > "
                                   f"{self.config.false_positive_bound:.0e}", "tracking", elapsed()), gate
@@ -374,16 +360,6 @@ class Tracker:
             elapsed_s=elapsed(), hypotheses=1, spot_index=order[spot_index], hip=self.database.hip[star_index],
             star_vectors=self._vectors[star_index], body_vectors=geometry.rays[spot_index],
             residual_rad=residual[by_spot], attitude=solution, false_positive_probability=fp), gate
-
-    def prepare(self, spots: Spots, camera: CameraModel):
-        """The identifier's flux-sorted spot geometry (compiled for undistorted cameras)."""
-        if camera.has_distortion:
-            return self.lost_in_space.prepare(spots, camera)
-        order, rays, sigma, magnitude = kernels.prepare_spots(
-            spots.x, spots.y, spots.flux, spots.cov, camera.fx, camera.fy, camera.cx, camera.cy,
-            self.lost_in_space.config.centroid_sigma_floor_px)
-        return order, SpotGeometry(rays, sigma, min(order.size, self.config.max_pattern_spots), magnitude,
-                                   spots.x[order], spots.y[order])
 
     def _half_diagonal(self, camera: CameraModel) -> float:
         key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.distortion))
@@ -409,7 +385,6 @@ class Tracker:
         self._last, self.rate = saved
 
     def _cell(self, direction: np.ndarray) -> int:
-        from .skygrid import cell_of
         return int(cell_of(float(direction[0]), float(direction[1]), float(direction[2]), self.grid.grid))
 
     # --- delay compensation ------------------------------------------------------------
@@ -417,10 +392,6 @@ class Tracker:
         """A lost-in-space solve of this frame starts (elsewhere, e.g. in a worker thread)."""
         self._pending = [(stamp_ns, spots, camera)]
         self._chain = []
-
-    @property
-    def acquiring(self) -> bool:
-        return bool(self._pending)
 
     def pending_spots(self) -> Spots | None:
         """Spots of the newest frame waiting for the running solve (what complete_acquisition
@@ -475,16 +446,15 @@ class Tracker:
         frame a's spots land in frame b, the displacement is voted, spots are paired, and
         dR is the q-method fit of the pairs. None with fewer than 3 pairs."""
         lis = self.lost_in_space
-        _, ga = self.prepare(spots_a, camera_a)
-        _, gb = self.prepare(spots_b, camera_b)
+        _, ga = self.lost_in_space.prepare(spots_a, camera_a)
+        _, gb = self.lost_in_space.prepare(spots_b, camera_b)
         if ga.x.size < 3 or gb.x.size < 3:
             return None
-        start = Prediction(0, np.eye(3), np.zeros((3, 3)))
-        predicted = self._propagate(0, start.rotation, start.covariance, max(dt, 0.0))
+        predicted = self._propagate(0, np.eye(3), np.zeros((3, 3)), max(dt, 0.0))
         # Frame a's rays seen from frame b: b = dR^T a.
         u, v, front = camera_b.project(ga.rays @ predicted.rotation)
         keep = np.flatnonzero(front)
-        tolerance_px = max(lis.verification_radius_px(gb, camera_b), 3.0 * float(np.median(np.hypot(ga.sigma, 0.0)))
+        tolerance_px = max(lis.verification_radius_px(gb, camera_b), 3.0 * float(np.median(ga.sigma))
                            / camera_b.pixel_scale_rad)
         gate = self.gate_px(camera_b, predicted, tolerance_px)
         roll_spread = (self.config.gate_sigma * math.sqrt(predicted.covariance[2, 2])
@@ -500,14 +470,13 @@ class Tracker:
             return None
         body_b, body_a = gb.rays[spot_i], ga.rays[keep[ref_j]]
         sigma = np.hypot(gb.sigma[spot_i], ga.sigma[keep[ref_j]])
-        rough = quest(body_b, body_a, sigma)  # rotation b -> a: body_a = dR body_b
+        rough = kernels.q_method(body_b, body_a, 1.0 / sigma**2)  # b -> a: body_a = dR body_b
         # Second pass with the fitted rotation: all spots, tight radius.
-        u, v, front = camera_b.project(ga.rays @ rough.rotation)
+        u, v, front = camera_b.project(ga.rays @ rough)
         keep = np.flatnonzero(front)
         spot_i, ref_j = unique_nearest(gb.x, gb.y, u[keep], v[keep], tolerance_px)
         if spot_i.size < 3:
             return None
         body_b, body_a = gb.rays[spot_i], ga.rays[keep[ref_j]]
         sigma = np.hypot(gb.sigma[spot_i], ga.sigma[keep[ref_j]])
-        fit = quest(body_b, body_a, sigma)
-        return fit.rotation, fit.covariance
+        return kernels.q_method(body_b, body_a, 1.0 / sigma**2), attitude_covariance(body_b, sigma)

@@ -215,11 +215,17 @@ def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int, frame_id
     msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
     o = msg.pose.pose.orientation
     o.x, o.y, o.z, o.w = (float(v) for v in solution.quaternion)
+    msg.pose.covariance = _rotation_block_covariance(solution.covariance)
+    return msg
+
+
+def _rotation_block_covariance(block: np.ndarray) -> list[float]:
+    """Row-major 6x6 covariance of a pose/twist whose linear part is unknown (-1 on its
+    diagonal, as REP 145 suggests) and whose angular part is `block` (3x3)."""
     cov = np.zeros((6, 6))
     cov[0, 0] = cov[1, 1] = cov[2, 2] = -1.0
-    cov[3:, 3:] = solution.covariance
-    msg.pose.covariance = [float(v) for v in cov.ravel()]
-    return msg
+    cov[3:, 3:] = block
+    return [float(v) for v in cov.ravel()]
 
 
 def vector3_msg(vector: np.ndarray, stamp_ns: int, frame_id: str) -> Vector3Stamped:
@@ -236,8 +242,5 @@ def rate_with_covariance_msg(rate, frame_id: str) -> TwistWithCovarianceStamped:
     msg.header = Header(stamp=ns_to_stamp(rate.stamp_ns), frame_id=frame_id)
     msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z = (
         float(v) for v in rate.angular_velocity)
-    cov = np.zeros((6, 6))
-    cov[0, 0] = cov[1, 1] = cov[2, 2] = -1.0
-    cov[3:, 3:] = rate.covariance
-    msg.twist.covariance = [float(v) for v in cov.ravel()]
+    msg.twist.covariance = _rotation_block_covariance(rate.covariance)
     return msg

@@ -88,7 +88,9 @@ class IdentifierNode(Node):
         self._lock = threading.Lock()  # tracker state: executor thread vs the acquisition timer
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
         self._acquisition = None  # (future, stamp_ns, spots, camera, frame_id) of a running solve
+        # Polls a solve that outlived inline_wait_s; runs only while one does.
         self._acquisition_timer = self.create_timer(0.005, self.poll_acquisition)
+        self._acquisition_timer.cancel()
         self.log = ThrottledLog(self)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
@@ -151,7 +153,8 @@ class IdentifierNode(Node):
         try:
             future.result(timeout=self.inline_wait_s)
         except TimeoutError:
-            return  # still running: the timer or the next frame finishes it
+            self._acquisition_timer.reset()  # still running: the timer or the next frame finishes it
+            return
         self._finish_acquisition()
 
     def poll_acquisition(self) -> None:
@@ -162,6 +165,7 @@ class IdentifierNode(Node):
     def _finish_acquisition(self) -> None:
         future, stamp_ns, spots, camera, sensor_frame, received = self._acquisition
         self._acquisition = None
+        self._acquisition_timer.cancel()
         result = future.result()
         self.diag.values["last_identify_ms"] = f"{result.elapsed_s * 1e3:.2f}"
         if not result.solved:
