@@ -14,7 +14,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..attitude import AttitudeSolution, quest
+from ..attitude import AttitudeSolution, matrix_to_quaternion, quest
 from ..camera import CameraModel
 from ..centroid import Spots
 from . import kernels
@@ -252,6 +252,25 @@ class StarIdentifier(ABC):
             spot_index=spot_index[order], hip=self.database.hip[star_index][order],
             star_vectors=star[order], body_vectors=body[order], residual_rad=residual[order],
             attitude=solution, false_positive_probability=fp, stats=dict(self.stats))
+
+    def solved_at_rotation(self, geometry: SpotGeometry, order: np.ndarray, spot_index: np.ndarray,
+                           star_index: np.ndarray, rotation: np.ndarray, fp: float, tested: int, started: float,
+                           algorithm: str | None = None) -> Identification:
+        """The Identification of matches accepted under an already refined `rotation`
+        (sensor -> ICRS): covariance, residuals and loss from the compiled kernel; spot_index
+        refers to the flux-sorted spots and is mapped back to the input through `order`."""
+        vectors = np.ascontiguousarray(self.database.vectors, dtype=float)
+        covariance, residual, loss = kernels.solution_arrays(geometry.rays, geometry.sigma, vectors,
+                                                             spot_index, star_index, rotation)
+        solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, covariance, loss)
+        by_spot = np.argsort(spot_index)
+        spot_index, star_index = spot_index[by_spot], star_index[by_spot]
+        return Identification(
+            status=SOLVED, reason=f"{spot_index.size} stars matched, false-positive bound {fp:.1e}",
+            algorithm=algorithm or self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
+            spot_index=order[spot_index], hip=self.database.hip[star_index], star_vectors=vectors[star_index],
+            body_vectors=geometry.rays[spot_index], residual_rad=residual[by_spot], attitude=solution,
+            false_positive_probability=fp, stats=dict(self.stats))
 
     def _fail(self, status: str, reason: str, started: float, tested: int) -> Identification:
         return Identification(status=status, reason=reason, algorithm=self.name,

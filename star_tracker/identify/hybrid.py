@@ -21,11 +21,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..attitude import AttitudeSolution, matrix_to_quaternion
 from ..camera import CameraModel
 from ..centroid import Spots
 from . import kernels
-from .base import NO_MATCH, SOLVED, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier
+from .base import NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier
 from .database import StarDatabase
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
@@ -129,18 +128,7 @@ class HybridIdentifier(StarIdentifier):
             tried += stopped
             if status == 1:
                 self.stats["triangles"] = tried
-                spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
-                covariance, residual, loss = kernels.solution_arrays(geometry.rays, geometry.sigma, self._vectors,
-                                                                     spot_index, star_index, rotation)
-                solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, covariance, loss)
-                by_spot = np.argsort(spot_index)
-                spot_index, star_index = spot_index[by_spot], star_index[by_spot]
-                return Identification(
-                    status=SOLVED, reason=f"{count} stars matched, false-positive bound {fp:.1e}",
-                    algorithm=self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
-                    spot_index=order[spot_index], hip=self.database.hip[star_index],
-                    star_vectors=self._vectors[star_index], body_vectors=geometry.rays[spot_index],
-                    residual_rad=residual[by_spot], attitude=solution, false_positive_probability=fp,
-                    stats=dict(self.stats))
+                return self.solved_at_rotation(geometry, order, out_spot[:count].copy(), out_star[:count].copy(),
+                                               rotation, fp, tested, started)
         self.stats["triangles"] = tried
         return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, {n} spots)", started, tested)

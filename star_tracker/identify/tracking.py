@@ -27,13 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..attitude import (AttitudeSolution, attitude_covariance, matrix_to_quaternion, matrix_to_rotation_vector,
-                        rotation_vector_to_matrix)
+from ..attitude import attitude_covariance, matrix_to_rotation_vector, rotation_vector_to_matrix
 from ..camera import CameraModel
 from ..centroid import Spots
 from ..rate import AttitudeRateEstimator, RateEstimate
 from . import kernels
-from .base import SOLVED, Identification, StarIdentifier
+from .base import Identification, StarIdentifier
 from .skygrid import SkyGrid, cell_of
 
 MODE_TRACKING = "tracking"
@@ -350,16 +349,8 @@ class Tracker:
         if fp > self.config.false_positive_bound:
             return Identification("no_match", f"{count} stars matched but false-positive bound {fp:.1e} > "
                                   f"{self.config.false_positive_bound:.0e}", "tracking", elapsed()), gate
-        covariance, residual, loss = kernels.solution_arrays(geometry.rays, geometry.sigma, self._vectors,
-                                                             spot_index, star_index, rotation)
-        solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, covariance, loss)
-        by_spot = np.argsort(spot_index)
-        spot_index, star_index = spot_index[by_spot], star_index[by_spot]
-        return Identification(
-            status=SOLVED, reason=f"{count} stars matched, false-positive bound {fp:.1e}", algorithm="tracking",
-            elapsed_s=elapsed(), hypotheses=1, spot_index=order[spot_index], hip=self.database.hip[star_index],
-            star_vectors=self._vectors[star_index], body_vectors=geometry.rays[spot_index],
-            residual_rad=residual[by_spot], attitude=solution, false_positive_probability=fp), gate
+        return lis.solved_at_rotation(geometry, order, spot_index, star_index, rotation, fp, 1, started,
+                                      algorithm="tracking"), gate
 
     def _half_diagonal(self, camera: CameraModel) -> float:
         key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.distortion))
