@@ -200,3 +200,27 @@ def test_rate_estimator_gls_matches_its_covariance():
         err = estimate.angular_velocity - omega
         nees.append(err @ np.linalg.solve(estimate.covariance, err))
     assert 2.6 < np.mean(nees) < 3.4
+
+
+def test_rate_window_restarts_after_a_rate_step():
+    """A rate step before the newest attitude breaks the window's model: the fit falls back to
+    the newest two attitudes, whose constant-rate slope (with the lag term) covers the truth."""
+    rng = np.random.default_rng(5)
+    start = radec_roll_to_matrix(0.4, -0.3, 1.0)
+    cov = np.diag([(1 * ARCSEC) ** 2, (1 * ARCSEC) ** 2, (6 * ARCSEC) ** 2])
+    before, after = np.radians([0.5, 0.0, 0.0]), np.radians([0.5, 1.0, 0.0])
+    alpha_max = np.radians(20.0)  # the step happens within 0.05 s: |d omega/dt| = 20 deg/s^2
+    estimator = AttitudeRateEstimator(window_s=0.6, max_angular_acceleration_rad_s2=alpha_max)
+    for k in range(6):
+        t = 0.1 * k
+        rotation = start @ rotation_vector_to_matrix(before * t)
+        if k == 5:  # the rate changed at t = 0.45
+            rotation = start @ rotation_vector_to_matrix(before * 0.45) @ rotation_vector_to_matrix(after * 0.05)
+        estimate = estimator.add(int(t * 1e9), rotation @ rotation_vector_to_matrix(
+            rng.multivariate_normal(np.zeros(3), cov)), cov)
+        if k == 4:
+            assert estimate.frames == 5
+            assert np.all(np.abs(estimate.angular_velocity - before) < 4 * estimate.sigma)
+    assert estimate.frames == 2
+    # The two-frame slope is the mean rate of the last interval; the truth is `after`.
+    assert np.all(np.abs(estimate.angular_velocity - after) < 3 * estimate.sigma)

@@ -244,14 +244,15 @@ def refit(rays, sigma, vectors, spot_index, star_index, count):
 @njit(cache=True)
 def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes,
                      cell_start, star_of_cell, grid, cell_density, mean_density, chord, min_stars,
-                     magnitude_floor, out_spot, out_star):
-    """Match every spot under `rotation`, refine with the q-method over the matches (twice),
-    drop matches beyond 5 sigma and bound the false-positive probability.
+                     magnitude_floor, out_spot, out_star, match_passes=3):
+    """Match every spot under `rotation`, refine with the q-method over the matches
+    (match_passes times: a hypothesis from 3-4 stars needs 3, a tracked attitude fitted to
+    dozens of stars 2), drop matches beyond 5 sigma and bound the false-positive probability.
     Returns (matches written to out_*, refined rotation, false-positive bound, chi^2)."""
     n = rays.shape[0]
     dots = np.empty(n)
     count = 0
-    for _ in range(3):  # match, refit; the third match uses the refined attitude
+    for _ in range(match_passes):  # match, refit; each match uses the previous refit
         count = match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, dots)
         if count < min_stars:
             return count, rotation, 1.0, 0.0
@@ -468,3 +469,58 @@ def solution_arrays(rays, sigma, vectors, spot_index, star_index, rotation):
         residual[q] = math.acos(min(1.0, max(-1.0, dot)))
         loss += 0.5 * w * r2
     return np.linalg.inv(info), residual, loss
+
+
+@njit(cache=True)
+def log_chance_tuples_in_region(body, sigma, chi2, density, region_covariance, region_sigma):
+    """ln of the expected chance m-tuples fitting `body` with chi^2 <= `chi2` under an attitude
+    inside the region_sigma ellipsoid of `region_covariance` [rad^2]: log_chance_tuples with
+    the volume of SO(3) replaced by the searched region when that is smaller (see
+    tracking.log_chance_tuples_in_region for the math)."""
+    whole = log_chance_tuples(body, sigma, chi2, density)
+    m = body.shape[0]
+    info = np.zeros((3, 3))
+    for i in range(m):
+        w = 1.0 / (sigma[i] * sigma[i])
+        for r in range(3):
+            for c in range(3):
+                info[r, c] += w * ((1.0 if r == c else 0.0) - body[i, r] * body[i, c])
+    det = np.linalg.det(info)
+    if det <= 0.0:
+        return whole
+    # Eigenvalues of G P through the symmetric L^T G L (P = L L^T).
+    lower = np.linalg.cholesky(region_covariance)
+    mu = np.linalg.eigvalsh(lower.T @ info @ lower)
+    radius = math.sqrt(max(chi2, 1e-12))
+    log_region = math.log(4.0 / 3.0 * math.pi)
+    for i in range(3):
+        log_region += math.log(region_sigma * math.sqrt(max(mu[i], 0.0)) + radius)
+    return whole + min(0.0, log_region - (LN_8PI2 + 0.5 * math.log(det)))
+
+
+@njit(cache=True)
+def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius):
+    """One-to-one pairs within `radius` [px]: a spot with exactly one reference within the
+    radius, whose reference has no other spot within it. Returns (spot idx, ref idx)."""
+    n, m = spot_x.size, ref_x.size
+    r2 = radius * radius
+    refs_near_spot = np.zeros(n, np.int64)
+    spots_near_ref = np.zeros(m, np.int64)
+    nearest = np.full(n, -1, np.int64)
+    for i in range(n):
+        for j in range(m):
+            dx = spot_x[i] - ref_x[j]
+            dy = spot_y[i] - ref_y[j]
+            if dx * dx + dy * dy <= r2:
+                refs_near_spot[i] += 1
+                spots_near_ref[j] += 1
+                nearest[i] = j
+    count = 0
+    out_spot = np.empty(n, np.int64)
+    out_ref = np.empty(n, np.int64)
+    for i in range(n):
+        if refs_near_spot[i] == 1 and spots_near_ref[nearest[i]] == 1:
+            out_spot[count] = i
+            out_ref[count] = nearest[i]
+            count += 1
+    return out_spot[:count], out_ref[:count]

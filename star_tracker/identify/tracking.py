@@ -38,7 +38,6 @@ from .skygrid import SkyGrid, cell_of
 MODE_TRACKING = "tracking"
 MODE_LOST_IN_SPACE = "lost_in_space"
 MODE_LOST = "lost"
-LN_8PI2 = math.log(8.0 * math.pi**2)
 
 
 @dataclass(frozen=True)
@@ -130,18 +129,9 @@ def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float
     sqrt(c) around it a 3-D cross-section of at most (4/3) pi prod(region_sigma sqrt(mu_i) +
     sqrt(c)); never more than the whole group. The subset bound is kernels.false_positive_bound
     with min_stars = TrackingConfig.min_stars."""
-    body = np.ascontiguousarray(body, dtype=float)
-    sigma = np.asarray(sigma, dtype=float)
-    whole = float(kernels.log_chance_tuples(body, sigma, float(chi2), float(density_per_sr)))
-    weights = 1.0 / sigma**2
-    info = np.sum(weights) * np.eye(3) - (weights[:, None] * body).T @ body
-    det = float(np.linalg.det(info))
-    if det <= 0.0:
-        return whole
-    radius = math.sqrt(max(chi2, 1e-12))
-    mu = np.clip(np.linalg.eigvals(info @ region_covariance).real, 0.0, None)
-    log_region = math.log(4.0 / 3.0 * math.pi) + float(np.sum(np.log(region_sigma * np.sqrt(mu) + radius)))
-    return whole + min(0.0, log_region - (LN_8PI2 + 0.5 * math.log(det)))
+    return float(kernels.log_chance_tuples_in_region(
+        np.ascontiguousarray(body, dtype=float), np.ascontiguousarray(sigma, dtype=float), float(chi2),
+        float(density_per_sr), np.ascontiguousarray(region_covariance, dtype=float), float(region_sigma)))
 
 
 def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray, ref_y: np.ndarray,
@@ -172,16 +162,8 @@ def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray,
 def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius_px: float) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one nearest pairs within `radius_px` (a reference claimed by two spots, or a
     spot with two references within the radius, is dropped): (spot idx, ref idx)."""
-    if spot_x.size == 0 or ref_x.size == 0:
-        empty = np.zeros(0, np.int64)
-        return empty, empty
-    d = np.hypot(spot_x[:, None] - ref_x[None, :], spot_y[:, None] - ref_y[None, :])
-    within = d <= radius_px
-    one_ref = np.count_nonzero(within, axis=1) == 1
-    spot_i = np.flatnonzero(one_ref)
-    ref_j = np.argmax(within[spot_i], axis=1)
-    one_spot = np.count_nonzero(within[:, ref_j], axis=0) == 1
-    return spot_i[one_spot], ref_j[one_spot]
+    as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
+    return kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y), float(radius_px))
 
 
 class Tracker:
@@ -328,7 +310,7 @@ class Tracker:
             rotation, geometry.rays, geometry.sigma, geometry.magnitude, self._vectors, self._star_magnitude,
             self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell, self.grid.grid,
             self.grid.cell_density, self._mean_density, chord, self.config.min_stars, lis.magnitude_floor,
-            out_spot, out_star)
+            out_spot, out_star, 2)  # the rough rotation is already fitted to the voters' pairs
         elapsed = lambda: time.perf_counter() - started  # noqa: E731
         if count < self.config.min_stars:
             return Identification("no_match", f"{count} stars verified; tracking needs {self.config.min_stars}",
@@ -342,7 +324,8 @@ class Tracker:
         spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
         body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
         density = max(self._mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
-        log_t = log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance, self.config.gate_sigma)
+        log_t = float(kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
+                                                          self.config.gate_sigma))
         log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self._star_magnitude[star_index],
                                                        self._sorted_magnitudes, lis.magnitude_floor))
         fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))
@@ -374,6 +357,12 @@ class Tracker:
         self._last, self.rate = (0, rotation, np.eye(3) * 1e-8), None
         self.track(spots, camera, self.predict(100_000_000))
         self._last, self.rate = saved
+        # The bound and the rate fit, whether or not the synthetic frame verified.
+        log_chance_tuples_in_region(np.eye(3), np.full(3, 1e-5), 3.0, 1.0, np.eye(3) * 1e-8, 5.0)
+        rates = AttitudeRateEstimator(1.0, 0.01)
+        for k in range(4):
+            rates.add(k * 100_000_000, rotation @ rotation_vector_to_matrix(np.array([0.0, 0.0, 1e-3 * k])),
+                      np.eye(3) * 1e-10)
 
     def _cell(self, direction: np.ndarray) -> int:
         return int(cell_of(float(direction[0]), float(direction[1]), float(direction[2]), self.grid.grid))
