@@ -9,8 +9,9 @@ import pytest
 from star_tracker.attitude import radec_roll_to_matrix
 from star_tracker.camera import CameraModel
 from star_tracker.catalog import StarCatalog, unit_to_radec
-from star_tracker.centroid import (FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_STREAK, CENTROID_METHODS, CentroidConfig,
-                                   extract_spots)
+from star_tracker.centroid import (FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, CENTROID_METHODS,
+                                   CentroidConfig, extract_spots)
+from star_tracker.centroid import extract as extract_module
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.motion import ConstantRateMotion
 from star_tracker.render import KIND_HOT_PIXEL, SensorModel, StarFieldRenderer, frame_seed
@@ -190,6 +191,87 @@ def test_smeared_real_sky_spots_have_honest_covariances(catalog, nominal_camera)
     assert squared.size >= 200
     assert np.mean(squared > 25.0) <= 0.01  # Mahalanobis distance > 5: at most 1 %
     assert 1.5 < np.mean(squared[squared <= 25.0]) < 3.0  # chi-square with 2 DOF: mean 2
+
+
+def chi2_of(spots, index, tx, ty):
+    """Squared Mahalanobis distance of each spot `index` from the truth under its covariance."""
+    e = np.stack([spots.x[index] - tx, spots.y[index] - ty], axis=1)
+    return np.einsum("ni,nij,nj->n", e, np.linalg.inv(spots.cov[index]), e)
+
+
+@pytest.mark.parametrize("rate_deg_s", [(0.0, 0.0, 0.0), (0.5, 0.2, 0.0)])
+def test_clipped_stars_are_flagged_by_their_flat_top_and_keep_an_honest_covariance(rate_deg_s):
+    # Default config: saturation_adu = 0 (the uint16 maximum, 65535), but the default sensor clips
+    # at full well 60000 e- + 100 ADU bias. Every other star peaks ~8x over the full well, the
+    # rest at ~0.8x: only the first are flagged; fitted without their clipped core, their
+    # positions stay within their (larger) covariances. As points or as 3.6 px streaks.
+    rng = np.random.default_rng(14)
+    x, y = grid(8, 120, 80, rng)
+    electrons = np.where(np.arange(x.size) % 2 == 0, 3.0e6, 3.0e5)
+    rate = np.radians(rate_deg_s)
+    frame = render_stars(x, y, electrons, rate=rate, seed=15)
+    tx, ty = star_truth(frame)
+    smear = SmearModel(CAMERA, rate, EXPOSURE) if np.any(rate) else None
+    spots = extract_spots(frame.image, CentroidConfig(), smear)
+    index, distance = nearest(spots, tx, ty)
+    assert np.all(distance < 0.5)
+    clipped = electrons > 1e6
+    flagged = (spots.flags[index] & FLAG_SATURATED) != 0
+    assert np.array_equal(flagged, clipped)
+    chi2 = chi2_of(spots, index, tx, ty)
+    assert chi2[clipped].max() < 25.0 and chi2[clipped].mean() < 4.0
+    assert chi2[~clipped].mean() < 4.0
+    assert np.all(np.sqrt(spots.cov[index[clipped], 0, 0]) < 0.2)  # still well measured, from the wings
+
+
+@pytest.mark.parametrize("rate_deg_s", [(0.0, 0.0, 0.0), (0.0, 0.0, 3.0)])
+def test_stars_clipped_in_one_or_two_pixels_are_found_by_their_fits(rate_deg_s, monkeypatch):
+    # 1.1-1.4x the full well at the peak: one or two clipped pixels, mostly no flat top. The fit
+    # gives them away (the model exceeds the clipped pixel by many sigmas); refitted without
+    # it, the positions keep honest covariances. Without that test they are many sigmas off.
+    rng = np.random.default_rng(18)
+    x, y = grid(8, 120, 80, rng)
+    rate = np.radians(rate_deg_s)
+    frame = render_stars(x, y, np.full(x.size, 5.5e5), rate=rate, seed=19)
+    tx, ty = star_truth(frame)
+    smear = SmearModel(CAMERA, rate, EXPOSURE) if np.any(rate) else None
+    spots = extract_spots(frame.image, CentroidConfig(), smear)
+    index, distance = nearest(spots, tx, ty)
+    assert np.all(distance < 0.5)
+    assert np.mean((spots.flags[index] & FLAG_SATURATED) != 0) >= 0.75
+    chi2 = chi2_of(spots, index, tx, ty)
+    assert chi2.mean() < 3.0 and chi2.max() < 25.0
+    monkeypatch.setattr(extract_module, "UNDERSHOOT_SIGMA", np.inf)
+    unchecked = extract_spots(frame.image, CentroidConfig(), smear)
+    index, _ = nearest(unchecked, tx, ty)
+    assert chi2_of(unchecked, index, tx, ty).mean() > 4.0
+
+
+def test_merged_streaks_on_the_predicted_path_are_fitted_as_two_stars(monkeypatch):
+    # Pairs 2.5 px apart across a 14 px smear (one detection each): a one-star fit sits between
+    # the two, many of its sigmas off; two stars on the predicted path recover both.
+    rng = np.random.default_rng(16)
+    cx, cy = grid(7, 130, 110, rng)
+    rate = np.array([0.0, 14.0 / (EXPOSURE * CAMERA.fy), 0.0])  # image moves 14 px along x
+    offset = np.column_stack([rng.uniform(-4.0, 4.0, cx.size), rng.choice([-2.5, 2.5], cx.size)])
+    x = np.column_stack([cx, cx + offset[:, 0]]).ravel()
+    y = np.column_stack([cy, cy + offset[:, 1]]).ravel()
+    electrons = np.tile([30000.0, 15000.0], cx.size)
+    frame = render_stars(x, y, electrons, rate=rate, seed=17)
+    tx, ty = star_truth(frame)
+    smear = SmearModel(CAMERA, rate, EXPOSURE)
+    spots = extract_spots(frame.image, CentroidConfig(), smear)
+    index, distance = nearest(spots, tx, ty)
+    found = distance < 0.5
+    assert found.mean() >= 0.95
+    assert np.all(spots.flags[index[found]] & FLAG_BLENDED)
+    chi2 = chi2_of(spots, index[found], tx[found], ty[found])
+    assert chi2.mean() < 3.0 and np.mean(chi2 > 16.0) < 0.03
+    # Without the split, each pair is one spot between its stars.
+    monkeypatch.setattr(extract_module, "MERGED_MIN_SNR", np.inf)
+    single = extract_spots(frame.image, CentroidConfig(), smear)
+    index, distance = nearest(single, tx, ty)
+    assert np.median(chi2_of(single, index, tx, ty)) > 25.0
 
 
 def test_a_strong_stray_light_gradient_neither_hides_stars_nor_makes_false_ones():

@@ -6,6 +6,7 @@ Input: a 2-D image in ADU (uint8/uint16/float). Output: `Spots` in pixel coordin
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -13,8 +14,8 @@ import cv2
 import numpy as np
 
 from .detect import Detections, detect
-from .measure import (aperture_moments, box_sums, clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio,
-                      two_peaks)
+from .measure import (aperture_moments, box_sums, clean_hot_pixels, cog_phase_bias_rms, secondary_peaks,
+                      star_peak_to_neighbour_ratio, two_peaks)
 from .kernels import measure_small
 from .psf_fit import fit_psf_windows, gather_windows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
@@ -175,27 +176,45 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     x, y, flux, cov = cand.x[sel].copy(), cand.y[sel].copy(), cand.flux[sel].copy(), cand.cov[sel].copy()
     snr = cand.snr[sel].copy()
     flags = np.zeros(n, np.uint32)
-    flags[cand.peak_raw[sel] >= saturation] |= FLAG_SATURATED
+    # Clipped spots: their pixels at the clip level carry no shape information, so every fit
+    # below leaves them out (`excluded`); a saturated spot no fit describes gets a covariance
+    # as wide as the spot.
+    clip = _clip_levels(image, det, sel, cand.peak_raw[sel], cand.x[sel], cand.y[sel], saturation, gain)
+    saturated = np.isfinite(clip)
+    flags[saturated] |= FLAG_SATURATED
     flags[cand.edge[sel]] |= FLAG_EDGE
     length, angle = np.zeros(n), np.zeros(n)
-    saturated = (flags & FLAG_SATURATED) != 0
+    excluded = _clipped_pixels(image, det, sel[saturated], clip[saturated], sigma) if saturated.any() else None
+    fitted = np.zeros(n, bool)  # saturated spots measured by a fit without their clipped pixels
     # Elongated beyond the PSF (second moment of a segment of length L is L^2/12).
     elongated = cand.major[sel] > _elongation_limit(sigma)
     # Several separate peaks with dips between them: stars blended into one footprint, not a streak.
     multi = np.array([len(cand.peaks[i]) >= 2 for i in sel], bool) & ~saturated
     flags[multi] |= FLAG_BLENDED
-    extra = []  # (x, y, flux, cov, snr, peak) of further stars split off blends
+    extra = []  # further stars split off blends: (x, y, flux, cov, snr, peak[, length, angle, flags])
     if config.method == "wcog":
         x, y, cov = cand.wx[sel].copy(), cand.wy[sel].copy(), cand.wcov[sel].copy()
-    elif config.method != "cog":
+    # An aperture centre of gravity is biased by the star's sub-pixel phase, beyond its noise
+    # term: add that bias's RMS, computed for this PSF and aperture (measure_small's), to the
+    # covariance of the spots measured so. A fit below replaces both.
+    aperture = np.flatnonzero(cand.has_window[sel])
+    phase = cog_phase_bias_rms(sigma, min(max(2.5, 3.0 * sigma), float(config.window_half + 1)),
+                               2 if config.method == "wcog" else 1)
+    cov[aperture] += phase ** 2 * np.eye(2)
+    if config.method in ("cog", "wcog") and multi.any():
+        # Two stars in one footprint: a centre of gravity between them, as wide as the spot.
+        cov[multi] = _moment_covariance(cand, sel[multi])
+    if config.method not in ("cog", "wcog"):
         if config.method == "streak" or (rate_aided and config.method == "auto"):
-            as_streak = ~saturated
+            as_streak = np.ones(n, bool)
         elif config.method == "auto":
-            as_streak = ~saturated & elongated
+            as_streak = elongated.copy()
         else:  # gaussian: streaks keep the centre of gravity
             as_streak = np.zeros(n, bool)
         as_streak &= ~multi
-        as_point = ~saturated & ~as_streak & ~elongated & ~multi
+        as_point = ~as_streak & ~elongated & ~multi
+        clipped_point = as_point & saturated
+        as_point &= ~saturated
         # In a smeared frame (most well-measured spots are streaks) a spot with several peaks is
         # streaks crossing stars or streaks, which point-PSF fits would misplace: it keeps its
         # centre of gravity with a covariance as wide as the spot itself (its second moments).
@@ -203,30 +222,54 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         smeared_frame = rate_aided or (np.sum(elongated & clear & ~multi) >= max(5, 0.5 * np.sum(clear)))
         if multi.any() and (smeared_frame or not config.split_blends):
             b = np.flatnonzero(multi)
-            major, minor, theta = cand.major[sel][b], cand.minor[sel][b], cand.angle[sel][b]
-            minor = np.where(np.isfinite(minor), minor, major)
-            c, s_ = np.cos(theta), np.sin(theta)
-            cov[b, 0, 0] = major * c * c + minor * s_ * s_
-            cov[b, 1, 1] = major * s_ * s_ + minor * c * c
-            cov[b, 0, 1] = cov[b, 1, 0] = (major - minor) * c * s_
+            cov[b] = _moment_covariance(cand, sel[b])
         elif multi.any():
             extra += _fit_blends(image, det, config, sigma, np.flatnonzero(multi), x, y, flux, cov, snr, cand, sel)
         if as_point.any():
             extra += _fit_points(image, det, config, sigma, np.flatnonzero(as_point), x, y, flux, cov, snr, flags,
-                                 cand, sel)
+                                 cand, sel, excluded)
+        if clipped_point.any():
+            fitted[clipped_point] = _fit_clipped_points(image, det, config, sigma, np.flatnonzero(clipped_point),
+                                                        x, y, flux, cov, snr, excluded)
         if as_streak.any():
-            _fit_streak_spots(image, det, config, sigma, np.flatnonzero(as_streak), x, y, flux, cov, snr, flags,
-                              length, angle, cand, sel, smear if rate_aided else None, noise, gain)
+            extra += _fit_streak_spots(image, det, config, sigma, np.flatnonzero(as_streak), x, y, flux, cov, snr,
+                                       flags, length, angle, cand, sel, smear if rate_aided else None, noise, gain,
+                                       excluded)
+            fitted |= as_streak & ((flags & FLAG_STREAK) != 0)
+        # A star clipped in a single pixel has no flat top, but its fit shows it: the model at its
+        # brightest pixel exceeds the data there by many sigmas. Those are refitted without it.
+        path_fitted = (flags & FLAG_RATE_AIDED) != 0
+        probe = np.flatnonzero(~saturated & ~multi & ((as_point & (snr > 0)) | path_fitted))
+        level = _undershot_peaks(image, det, sel[probe], x[probe], y[probe], flux[probe],
+                                 smear.path(x[probe], y[probe]) if rate_aided and probe.size else None, sigma, gain)
+        hit = probe[np.isfinite(level)]
+        if hit.size:
+            clip[hit], saturated[hit] = level[np.isfinite(level)], True
+            flags[hit] |= FLAG_SATURATED
+            more = _clipped_pixels(image, det, sel[hit], clip[hit], sigma)
+            excluded = more if excluded is None else excluded | more
+            points, streaks = hit[~path_fitted[hit]], hit[path_fitted[hit]]
+            if points.size:
+                fitted[points] = _fit_clipped_points(image, det, config, sigma, points, x, y, flux, cov, snr, excluded)
+            if streaks.size:
+                extra += _fit_streak_spots(image, det, config, sigma, streaks, x, y, flux, cov, snr, flags, length,
+                                           angle, cand, sel, smear, noise, gain, excluded)
+                fitted[streaks] = snr[streaks] > 0
+    wide = np.flatnonzero(saturated & ~fitted)
+    if wide.size:
+        cov[wide] = _moment_covariance(cand, sel[wide])
     area, peak = cand.area[sel], cand.peak[sel]
     if extra:
         ex = np.array([e[:3] for e in extra])
         x, y, flux = np.concatenate([x, ex[:, 0]]), np.concatenate([y, ex[:, 1]]), np.concatenate([flux, ex[:, 2]])
         cov = np.concatenate([cov, np.array([e[3] for e in extra])])
         snr = np.concatenate([snr, np.array([e[4] for e in extra])])
-        flags = np.concatenate([flags, np.full(len(extra), FLAG_BLENDED, np.uint32)])
+        # Point blends carry (x, y, flux, cov, snr, peak); split streaks add (length, angle, flags).
+        flags = np.concatenate([flags, np.array([e[8] if len(e) > 8 else FLAG_BLENDED for e in extra], np.uint32)])
         area = np.concatenate([area, np.zeros(len(extra), area.dtype)])
         peak = np.concatenate([peak, np.array([e[5] for e in extra])])
-        length, angle = np.concatenate([length, np.zeros(len(extra))]), np.concatenate([angle, np.zeros(len(extra))])
+        length = np.concatenate([length, np.array([e[6] if len(e) > 8 else 0.0 for e in extra])])
+        angle = np.concatenate([angle, np.array([e[7] if len(e) > 8 else 0.0 for e in extra])])
     # Measurements above used the frame's typical pixel noise; where stray light makes the local
     # noise higher (or lower), scale the SNR and covariance by the local/typical variance ratio.
     local = _local_noise_factor(det, x, y, flux, sigma, gain)
@@ -357,6 +400,147 @@ def _footprint_shape(win, footprint, valid, col0, row0, members, out, det, confi
             out["peaks"][members[k]] = np.column_stack([cols[j] + col0[k], rows[j] + row0[k]]).astype(float)
 
 
+# Flat top: several pixels of a spot at exactly its brightest raw value, a tie that shot noise
+# makes improbable (chance below FLAT_TOP_CHANCE), mark a clipped spot (the sensor's full
+# well or ADC ceiling, whatever saturation_adu says). Only spots whose brightest pixel is
+# FLAT_TOP_MIN_SIGMA noise sigmas above the background are examined (fainter ones cannot be
+# clipped by a sensor whose noise is that far below its ceiling). A false flag costs only the
+# information of the pixels left out, never a wrong covariance.
+FLAT_TOP_MIN_SIGMA = 50.0
+FLAT_TOP_CHANCE = 0.01
+
+
+def _clip_levels(image, det, sel, peak_raw, x, y, configured, gain) -> np.ndarray:
+    """Raw level [ADU] from which each spot's pixels are clipped (inf: not saturated): the
+    configured saturation level when its brightest raw pixel reaches it, else the value m of
+    a flat top in its detection box grown by 2 px: k >= 2 pixels at exactly m, where the
+    chance of such a tie is C(near - 1, k - 1) p^(k - 1) < FLAT_TOP_CHANCE, p = 1 ADU times
+    the peak density 1 / (sqrt(2 pi) s) of a pixel's value, s = sqrt((m - bg) / gain +
+    noise^2) its shot + pixel noise, near = pixels within 2 s of m (a streak's ridge has many
+    near the top, a clipped core has only its clipped pixels). sel: detection indices."""
+    n = sel.size
+    level = np.full(n, np.inf)
+    reached = peak_raw >= configured
+    level[reached] = configured
+    background = det.background_at(np.nan_to_num(x), np.nan_to_num(y))
+    bright = np.flatnonzero(~reached & (peak_raw - background >= FLAT_TOP_MIN_SIGMA * det.noise_adu))
+    height, width = image.shape
+    for k in bright:
+        d = sel[k]
+        box = image[max(det.top[d] - 2, 0):min(det.bottom[d] + 2, height),
+                    max(det.left[d] - 2, 0):min(det.right[d] + 2, width)]
+        top = float(box.max())
+        ties = int(np.count_nonzero(box == top))
+        if ties < 2:
+            continue
+        spread = np.sqrt(max(top - background[k], 0.0) / gain + det.noise_adu ** 2)
+        near = int(np.count_nonzero(box >= top - 2.0 * spread))
+        chance = math.comb(near - 1, ties - 1) * (1.0 / (np.sqrt(2.0 * np.pi) * spread)) ** (ties - 1)
+        if chance < FLAT_TOP_CHANCE:
+            level[k] = top
+    return level
+
+
+# A fitted spot whose model exceeds its brightest raw pixel by more than UNDERSHOOT_SIGMA of
+# that pixel's noise has a clipped core (a pixel can only read low when it is clipped).
+UNDERSHOOT_SIGMA = 6.0
+
+
+def _undershot_peaks(image, det, sel, x, y, flux, path, sigma, gain) -> np.ndarray:
+    """Clip level [ADU] of fitted spots whose brightest raw pixel (in their detection box grown
+    by 2 px) reads UNDERSHOOT_SIGMA below the fitted model there (inf: none): clipped in too
+    few pixels for a flat top. Only spots FLAT_TOP_MIN_SIGMA above the background are
+    examined. x, y, flux: the fits (N,); path: (N, K, 2) offsets of fits on a predicted path
+    (the model is their mean PSF, the fits' approximation), None for point fits (the
+    pixel-integrated Gaussian)."""
+    from .psf_fit import pixel_integrated_profile
+
+    level = np.full(sel.size, np.inf)
+    height, width = image.shape
+    background = det.background_at(np.nan_to_num(x), np.nan_to_num(y))
+    var_eff = sigma * sigma + 1.0 / 12.0
+    for k, d in enumerate(sel):
+        top, left = max(det.top[d] - 2, 0), max(det.left[d] - 2, 0)
+        box = image[top:min(det.bottom[d] + 2, height), left:min(det.right[d] + 2, width)]
+        if box.size == 0 or not np.isfinite(flux[k]):
+            continue
+        row, col = np.unravel_index(int(np.argmax(box)), box.shape)
+        value = float(box[row, col])
+        if value - background[k] < FLAT_TOP_MIN_SIGMA * det.noise_adu:
+            continue
+        row, col = row + top, col + left
+        if path is None:
+            px, _ = pixel_integrated_profile(np.array([col - 0.5]), np.array([x[k]]), sigma)
+            py, _ = pixel_integrated_profile(np.array([row - 0.5]), np.array([y[k]]), sigma)
+            model = flux[k] * float(px[0] * py[0])
+        else:
+            dx, dy = col - x[k] - path[k, :, 0], row - y[k] - path[k, :, 1]
+            model = flux[k] * float(np.mean(np.exp(-0.5 * (dx * dx + dy * dy) / var_eff))) / (2.0 * np.pi * var_eff)
+        noise = np.sqrt(max(model, 0.0) / gain + det.noise_adu ** 2)
+        if value - background[k] < model - UNDERSHOOT_SIGMA * noise:
+            level[k] = value
+    return level
+
+
+def _clipped_pixels(image, det, sel, level, sigma) -> np.ndarray:
+    """(H, W) bool: the pixels at or above their spot's clip level `level` [ADU] in the
+    detection boxes `sel`, grown by the PSF's reach (any fit reading them leaves them out)."""
+    height, width = image.shape
+    out = np.zeros(image.shape, bool)
+    grow = int(np.ceil(3.0 * sigma)) + 2
+    for d, value in zip(sel, level):
+        rows = slice(max(det.top[d] - grow, 0), min(det.bottom[d] + grow, height))
+        cols = slice(max(det.left[d] - grow, 0), min(det.right[d] + grow, width))
+        out[rows, cols] |= image[rows, cols] >= value
+    return out
+
+
+def _moment_covariance(cand, idx) -> np.ndarray:
+    """(n, 2, 2) covariance [px^2] as wide as the spots `idx` themselves (their second
+    moments): for centres of gravity no noise model describes (blends of streaks, clipped
+    spots no fit could measure), so that the identifier gives them little weight."""
+    major, minor, theta = cand.major[idx], cand.minor[idx], cand.angle[idx]
+    minor = np.where(np.isfinite(minor), minor, major)
+    c, s = np.cos(theta), np.sin(theta)
+    cov = np.empty((idx.size, 2, 2))
+    cov[:, 0, 0] = major * c * c + minor * s * s
+    cov[:, 1, 1] = major * s * s + minor * c * c
+    cov[:, 0, 1] = cov[:, 1, 0] = (major - minor) * c * s
+    return cov
+
+
+def _fit_clipped_points(image, det, config, sigma, which, x, y, flux, cov, snr, excluded) -> np.ndarray:
+    """PSF fit of saturated point-like spots `which` (in place) without their clipped pixels:
+    the wings alone fix the centre, and the inverse Fisher information of those pixels is its
+    covariance. The window is the point window grown by the clipped core's radius. Returns
+    which of them converged (the others keep their centre of gravity)."""
+    noise, gain = det.noise_adu, config.gain_e_per_adu
+    cx, cy = np.rint(x[which]).astype(np.int64), np.rint(y[which]).astype(np.int64)
+    ok = np.zeros(which.size, bool)
+    probe = config.window_half
+    core, _ = gather_windows(excluded, cx - probe, cy - probe, 2 * probe + 1)
+    radius = np.ceil(np.sqrt(core.sum(axis=(1, 2)) / np.pi)).astype(np.int64)
+    half_all = config.window_half + radius
+    for half in np.unique(half_all):
+        k = np.flatnonzero(half_all == half)
+        size = 2 * int(half) + 1
+        col0, row0 = cx[k] - half, cy[k] - half
+        win, valid = _cleaned_windows(image, col0, row0, size, det.background_at(x[which[k]], y[which[k]]), noise,
+                                      sigma)
+        clipped, _ = gather_windows(excluded, col0, row0, size)
+        valid &= clipped == 0
+        # The flux is linear in the model: start from the window's sum (the clipped core short).
+        flux0 = np.maximum(np.where(valid, win, 0.0).sum(axis=(1, 2)), flux[which[k]])
+        fx, fy, ff, fc, good, fv = fit_psf_windows(win, valid, col0, row0, x[which[k]][:, None],
+                                                   y[which[k]][:, None], flux0[:, None], sigma, noise, gain)
+        good = good[:, 0] & (valid.sum(axis=(1, 2)) > 6)
+        t = which[k[good]]
+        x[t], y[t], flux[t], cov[t] = fx[good, 0], fy[good, 0], ff[good, 0], fc[good, 0]
+        snr[t] = ff[good, 0] / np.sqrt(fv[good, 0])
+        ok[k] = good
+    return ok
+
+
 def _elongation_limit(sigma: float) -> float:
     """Largest second moment [px^2] of a point-like spot: 2.5x a pixelated PSF's (a segment of
     length L adds L^2 / 12)."""
@@ -401,8 +585,9 @@ def _cleaned_windows(image, col0, row0, size, background, noise, sigma):
     return win[:, 1:-1, 1:-1], valid[:, 1:-1, 1:-1]
 
 
-def _fit_points(image, det, config, sigma, which, x, y, flux, cov, snr, flags, cand, sel):
+def _fit_points(image, det, config, sigma, which, x, y, flux, cov, snr, flags, cand, sel, excluded=None):
     """Gaussian PSF fit of point-like spots `which` (in place); blends get a joint 2-PSF fit.
+    Pixels `excluded` (a neighbour's clipped core; None = none) are left out of the fits.
     Returns the split-off second stars as (x, y, flux, cov, snr, peak) tuples."""
     half = config.window_half
     size = 2 * half + 1
@@ -420,6 +605,9 @@ def _fit_points(image, det, config, sigma, which, x, y, flux, cov, snr, flags, c
         row0[fresh] = np.rint(y[which[fresh]]).astype(np.int64) - half
         bg = det.background_at(x[which[fresh]], y[which[fresh]])
         win[fresh], valid[fresh] = _cleaned_windows(image, col0[fresh], row0[fresh], size, bg, noise, sigma)
+    if excluded is not None:
+        clipped, _ = gather_windows(excluded, col0, row0, size)
+        valid &= clipped == 0
     blended = np.zeros(which.size, bool)
     extra = []
     if config.split_blends:
@@ -492,21 +680,28 @@ def _fit_blends(image, det, config, sigma, which, x, y, flux, cov, snr, cand, se
 
 
 def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, flags, length, angle, cand, sel,
-                      smear, noise, gain):
+                      smear, noise, gain, excluded=None) -> list:
     """Streak-model fit of spots `which` (in place): on the predicted path when `smear` is
-    given, else a free line segment seeded from the spot's moments."""
+    given, else a free line segment seeded from the spot's moments; pixels `excluded`
+    (clipped; None = none) are left out. On the predicted path, a spot whose fit leaves
+    another star's light is refitted with it (_split_merged_streaks); returns the stars split
+    off so as extra-spot tuples (x, y, flux, cov, snr, peak, length, angle, flags)."""
     from .streak import fit_streaks, fit_streaks_on_path
 
-    residual = _streak_residual(image, det, sigma, noise, x[which], y[which],
-                                _streak_reach(cand, sel, which, x, y, smear, sigma))
+    reach = _streak_reach(cand, sel, which, x, y, smear, sigma)
+    if smear is not None:
+        reach = 2.0 * reach  # room for a merged neighbour's path (a pair's window covers both)
+    residual = _streak_residual(image, det, sigma, noise, x[which], y[which], reach)
+    extra = []
     if smear is not None:
         path = smear.path(x[which], y[which])
-        fit = fit_streaks_on_path(residual, x[which], y[which], flux[which], path, sigma, noise, gain)
+        fit = fit_streaks_on_path(residual, x[which], y[which], flux[which], path, sigma, noise, gain,
+                                  excluded=excluded)
         extra_flag = FLAG_STREAK | FLAG_RATE_AIDED
     else:
         length0 = np.sqrt(np.maximum(12.0 * (cand.major[sel][which] - sigma ** 2), 0.0))
         fit = fit_streaks(residual, x[which], y[which], flux[which], length0, cand.angle[sel][which], sigma, noise,
-                          gain)
+                          gain, excluded=excluded)
         extra_flag = FLAG_STREAK
     good = fit.converged
     t = which[good]
@@ -515,11 +710,97 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
     flags[t] |= extra_flag
     with np.errstate(divide="ignore", invalid="ignore"):
         snr[t] = fit.flux[good] / fit.flux_sigma[good]  # the fit's (matched-filter) SNR
+    if smear is not None and good.any():
+        extra = _split_merged_streaks(residual, fit, which, path, x, y, flux, cov, snr, flags, config, sigma, noise,
+                                      gain, excluded)
     # A spot the streak model could not describe is not reported when it should be a streak
     # (rate aided, or elongated: a fragment or a defect); a point-like one keeps its centroid.
     failed = which[~good]
     elongated = cand.major[sel][failed] > _elongation_limit(sigma)
     snr[failed[elongated | (smear is not None)]] = 0.0
+    return extra
+
+
+# Merged streaks: when the residual of a fit on the predicted path holds a further star at a
+# matched-filter SNR of MERGED_MIN_SNR or more, whose path comes within MERGED_OVERLAP_SIGMA
+# PSF sigmas of the spot's, the spot is refitted with that star added (up to MERGED_MAX_STARS
+# per spot); the larger group is kept when it lowers chi^2 on the same window by more than
+# MERGED_MIN_DCHI2 (three more parameters, searched over the window: chance alone gives
+# ~10-15).
+MERGED_MIN_SNR = 5.0
+MERGED_MIN_DCHI2 = 25.0
+MERGED_MAX_STARS = 3
+MERGED_OVERLAP_SIGMA = 5.0
+
+
+def _split_merged_streaks(residual, fit, which, path, x, y, flux, cov, snr, flags, config, sigma, noise, gain,
+                          excluded) -> list:
+    """Several stars on one predicted path (streaks merged into one detection, or a
+    neighbour's streak in the window): the one-star fit of such a spot is pulled toward the
+    other stars far beyond its covariance. Spots `which` with one-star fit `fit` (path (n, K,
+    2)) whose residual holds another star (MERGED_*) are refitted jointly with it, seeded at
+    the matched-filter peak of the residual, as long as that helps. When a group wins, its
+    first star (the spot's own) replaces the spot (in place, flag BLENDED, covariance of the
+    joint fit) and the others are returned as extra-spot tuples unless they are spots
+    already (within 2 px) or below min_snr."""
+    from .streak import fit_star_groups_on_path, second_source_on_path
+
+    k = np.flatnonzero(fit.converged)
+    # One row per spot, one column per star of its group so far (NaN: no such star).
+    gx, gy, gf, gs = fit.x[k][:, None], fit.y[k][:, None], fit.flux[k][:, None], fit.flux_sigma[k][:, None]
+    gcov = fit.cov[k][:, None]
+    chi2 = fit.chi2[k].copy()
+    growing = np.ones(k.size, bool)
+    for stars in range(1, MERGED_MAX_STARS):
+        tried = np.flatnonzero(growing)
+        if tried.size == 0:
+            break
+        sx, sy, sf, found = second_source_on_path(residual, gx[tried, :stars], gy[tried, :stars],
+                                                  gf[tried, :stars], path[k[tried]], sigma, noise, gain, excluded)
+        # Only a star whose image overlaps the spot's own (its path within MERGED_OVERLAP_SIGMA
+        # PSF sigmas of the spot's path somewhere) can pull the fit; others merely share the window.
+        offset = np.stack([sx - gx[tried, 0], sy - gy[tried, 0]], axis=1)
+        chords = path[k[tried]][:, :, None, :] - path[k[tried]][:, None, :, :]  # (n, K, K, 2): o_a - o_b
+        gap = np.min(np.linalg.norm(offset[:, None, None, :] - chords, axis=3), axis=(1, 2))
+        seeded = (found >= MERGED_MIN_SNR) & (sf > 0) & (gap <= MERGED_OVERLAP_SIGMA * sigma)
+        tried, sx, sy, sf = tried[seeded], sx[seeded], sy[seeded], sf[seeded]
+        growing[:] = False
+        if tried.size == 0:
+            break
+        fits = fit_star_groups_on_path(residual, np.column_stack([gx[tried, :stars], sx]),
+                                       np.column_stack([gy[tried, :stars], sy]),
+                                       np.column_stack([gf[tried, :stars], sf]), path[k[tried]], sigma, noise, gain,
+                                       excluded=excluded)
+        better = fits[0].converged & (chi2[tried] - fits[0].chi2 > MERGED_MIN_DCHI2)
+        if not better.any():
+            break
+        won = tried[better]
+        growing[won] = True
+        pad = lambda a: np.concatenate([a, np.full((a.shape[0], 1) + a.shape[2:], np.nan)], axis=1)  # noqa: E731
+        gx, gy, gf, gs, gcov = pad(gx), pad(gy), pad(gf), pad(gs), pad(gcov)
+        for m, f in enumerate(fits):
+            gx[won, m], gy[won, m], gf[won, m] = f.x[better], f.y[better], f.flux[better]
+            gs[won, m], gcov[won, m] = f.flux_sigma[better], f.cov[better]
+        chi2[won] = fits[0].chi2[better]
+    extra = []
+    split = np.flatnonzero(np.isfinite(gx[:, 1:]).any(axis=1)) if gx.shape[1] > 1 else np.zeros(0, np.int64)
+    for j in split:
+        # Star 0 is the spot's own (its window, started from its fit); the others are neighbours.
+        t = which[k[j]]
+        x[t], y[t], flux[t], cov[t] = gx[j, 0], gy[j, 0], gf[j, 0], gcov[j, 0]
+        snr[t] = gf[j, 0] / gs[j, 0]
+        flags[t] |= FLAG_BLENDED
+        for m in np.flatnonzero(np.isfinite(gx[j]))[1:]:
+            star_snr = gf[j, m] / gs[j, m]
+            others = np.hypot(np.r_[x, [e[0] for e in extra]] - gx[j, m], np.r_[y, [e[1] for e in extra]] - gy[j, m])
+            others[t] = np.inf
+            if star_snr >= config.min_snr and not np.any(others < 2.0):  # not a spot (or split-off star) already
+                row = int(np.clip(np.rint(gy[j, m]), 0, residual.shape[0] - 1))
+                col = int(np.clip(np.rint(gx[j, m]), 0, residual.shape[1] - 1))
+                extra.append((gx[j, m], gy[j, m], gf[j, m], gcov[j, m], star_snr, float(residual[row, col]),
+                              fit.length[k[j]], np.nan_to_num(fit.angle[k[j]]),
+                              FLAG_STREAK | FLAG_RATE_AIDED | FLAG_BLENDED))
+    return extra
 
 
 def _streak_reach(cand, sel, which, x, y, smear, sigma) -> np.ndarray:
@@ -528,7 +809,7 @@ def _streak_reach(cand, sel, which, x, y, smear, sigma) -> np.ndarray:
     if smear is not None:
         half_length = 0.5 * np.linalg.norm(smear.smear_vectors(x[which], y[which]), axis=1)
     else:
-        half_length = np.sqrt(np.maximum(3.0 * cand.major[sel][which], 0.0))
+        half_length = np.sqrt(np.maximum(np.nan_to_num(3.0 * cand.major[sel][which]), 0.0))  # NaN: no extent
     return half_length * 1.2 + 5.0 * sigma + 4.0
 
 

@@ -19,6 +19,30 @@ def star_peak_to_neighbour_ratio(psf_sigma_px: float) -> float:
     return float(p0 / max(p1, 1e-12))
 
 
+@functools.lru_cache(maxsize=32)
+def cog_phase_bias_rms(psf_sigma_px: float, radius_px: float, power: int = 1) -> float:
+    """RMS [px per axis] of the centre-of-gravity bias of a noiseless, pixel-integrated
+    Gaussian PSF (1-sigma psf_sigma_px [px]) measured in a circular aperture of radius
+    radius_px [px] centred on the pixel nearest to the star, over the star's sub-pixel phase
+    (uniform). power 1: plain centre of gravity; 2: intensity-weighted (weights r^2). The
+    aperture cuts the PSF's wings unevenly unless the star sits on a pixel centre: a bias of
+    up to a few hundredths of a pixel that no noise term contains (0.021 px for a 1 px PSF,
+    the measured excess error of bright centres of gravity in the simulator)."""
+    sigma = max(psf_sigma_px, 1e-3)
+    reach = int(np.ceil(radius_px)) + 1
+    k = np.arange(-reach, reach + 1, dtype=float)
+    inside = np.hypot(k[:, None], k[None, :]) <= radius_px
+    phases = (np.arange(24) + 0.5) / 24 - 0.5
+    bias = []
+    for dy in phases[::2]:
+        py = 0.5 * (erf((k + 0.5 - dy) / (np.sqrt(2.0) * sigma)) - erf((k - 0.5 - dy) / (np.sqrt(2.0) * sigma)))
+        for dx in phases:
+            px = 0.5 * (erf((k + 0.5 - dx) / (np.sqrt(2.0) * sigma)) - erf((k - 0.5 - dx) / (np.sqrt(2.0) * sigma)))
+            weight = (np.outer(py, px) ** power) * inside
+            bias.append(np.sum(weight * k[None, :]) / np.sum(weight) - dx)
+    return float(np.sqrt(np.mean(np.square(bias))))
+
+
 _CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
 
 

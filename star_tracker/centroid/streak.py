@@ -9,6 +9,9 @@ gravity (which is off the path when the path is curved).
   model (distortion included).
 - fit_streaks: free fit of a straight streak (x, y, flux, length, angle) seeded from moments.
 - fit_streaks_on_path: fit of (x, y, flux) on a known path (a straight line or a roll arc).
+- second_source_on_path, fit_star_groups_on_path: the star a known-path fit leaves in its
+  window (matched filter of the residual), and the joint fit of several stars on one path
+  shape (streaks merged into one detection).
 
 Image convention: pixel (0, 0) is the centre of the top-left pixel; x = column, y = row [px].
 Angles are measured from +x toward +y (clockwise on the displayed image, y down) [rad].
@@ -41,7 +44,8 @@ from scipy.spatial.transform import Rotation
 
 from ..camera import CameraModel
 
-__all__ = ["SmearModel", "StreakFit", "fit_streaks", "fit_streaks_on_path"]
+__all__ = ["SmearModel", "StreakFit", "fit_star_groups_on_path", "fit_streaks", "fit_streaks_on_path",
+           "second_source_on_path"]
 
 PSF_RADIUS_SIGMA = 4.0  # window margin beyond the streak ends [sigma] (plus 1 px)
 PATH_SPACING_PX = 0.5  # SmearModel.path's default: samples at most this far apart [px]
@@ -149,7 +153,10 @@ class StreakFit:
     flux above SIGNIFICANT_FLUX sigma, a finite covariance and its centre inside its window,
     on a window free of non-finite pixels (the values are filled in either way when a fit
     was possible, NaN otherwise). flux_sigma [ADU], angle_sigma [rad] (0 on a given path):
-    1-sigma errors.
+    1-sigma errors. chi2: weighted sum of squared residuals over the window at the solution
+    (weights of the noise model); dof: the window's used pixels minus the fitted parameters.
+    chi2 well above dof (by many sqrt(2 dof)) means light the model does not describe: a
+    neighbour's star or streak merged into the spot.
     """
 
     x: np.ndarray
@@ -162,6 +169,13 @@ class StreakFit:
     converged: np.ndarray
     flux_sigma: np.ndarray
     angle_sigma: np.ndarray
+    chi2: np.ndarray | None = None
+    dof: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("chi2", "dof"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(self.x.size, np.nan))
 
     def __len__(self) -> int:
         return int(self.x.size)
@@ -192,10 +206,10 @@ class _Windows:
     bounds: np.ndarray
 
 
-def _cut_windows(residual: np.ndarray, col_lo, col_hi, row_lo, row_hi) -> _Windows:
+def _cut_windows(residual: np.ndarray, col_lo, col_hi, row_lo, row_hi, excluded=None) -> _Windows:
     """Windows [col_lo, col_hi] x [row_lo, row_hi] (integer pixel bounds, inclusive) padded to
-    the largest; pixels outside the image, outside the spot's own window or non-finite are
-    masked."""
+    the largest; pixels outside the image, outside the spot's own window, non-finite or
+    `excluded` ((H, W) bool, e.g. clipped at the full well; None = none) are masked."""
     height, width = residual.shape
     n_cols = int(np.max(col_hi - col_lo)) + 1
     n_rows = int(np.max(row_hi - row_lo)) + 1
@@ -206,6 +220,8 @@ def _cut_windows(residual: np.ndarray, col_lo, col_hi, row_lo, row_hi) -> _Windo
     flat = np.clip(rows, 0, height - 1)[:, :, None] * width + np.clip(cols, 0, width - 1)[:, None, :]
     data = np.take(residual.reshape(-1), flat).astype(np.float32)
     use = row_ok[:, :, None] & col_ok[:, None, :]
+    if excluded is not None:
+        use &= ~np.take(excluded.reshape(-1), flat)
     finite = np.isfinite(data)
     bad = ~np.all(finite | ~use, axis=(1, 2))
     use &= finite
@@ -314,7 +330,7 @@ def _levenberg_marquardt(evaluate, params, win: _Windows, valid, noise: float, g
     g^T N^-1 g (the chi^2 still to gain) is below DECREMENT_TOLERANCE. The Fisher matrix
     returned is N.
     Returns params, Fisher matrices (N, P, P) at the solution, done (N,) bool (a minimum was
-    reached within the iterations)."""
+    reached within the iterations), chi2 (N,) at the solution (inf where never evaluated)."""
     n, n_par = params.shape
     noise2, inv_gain = np.float32(noise * noise), np.float32(1.0 / gain)
     normal = np.zeros((n, n_par, n_par))
@@ -418,7 +434,7 @@ def _levenberg_marquardt(evaluate, params, win: _Windows, valid, noise: float, g
         stuck = worse[lam[worse] > 1e12]  # no step lowers chi^2: a minimum to rounding
         done[stuck] = True
         active = active[~np.isin(active, stuck)]
-    return params, normal, done
+    return params, normal, done, chi2
 
 
 def _secant_update(correction, index, step, model_matrix, gradient_change) -> None:
@@ -454,6 +470,16 @@ def _check_common(residual, sigma, noise, gain, iterations, *per_spot):
     if len({a.size for a in arrays}) > 1:
         raise ValueError(f"per-spot inputs must have one length, got sizes {[a.size for a in arrays]}")
     return residual, arrays
+
+
+def _check_excluded(excluded, residual: np.ndarray):
+    """`excluded` as a (H, W) bool image matching `residual`, or None."""
+    if excluded is None:
+        return None
+    excluded = np.asarray(excluded, dtype=bool)
+    if excluded.shape != residual.shape:
+        raise ValueError(f"excluded must have the residual's shape {residual.shape}, got {excluded.shape}")
+    return excluded
 
 
 def _window_bounds(residual, valid, lo_x, hi_x, lo_y, hi_y):
@@ -520,9 +546,10 @@ def _batched_inverse(matrices: np.ndarray) -> np.ndarray:
         return out
 
 
-def _store(result: StreakFit, batch, win: _Windows, params, inverse, done, valid) -> np.ndarray:
-    """Write x, y, flux, cov, flux_sigma, converged of a batch; return the 1-sigma errors of
-    all parameters (n, P). Converged: the fit stopped at a minimum with a finite covariance,
+def _store(result: StreakFit, batch, win: _Windows, params, inverse, done, valid, chi2) -> np.ndarray:
+    """Write x, y, flux, cov, flux_sigma, converged, chi2, dof of a batch; return the 1-sigma
+    errors of all parameters (n, P). Converged: the fit stopped at a minimum with a finite
+    covariance,
     its centre inside its window, a significant flux, on a window free of non-finite
     pixels."""
     n = batch.size
@@ -542,6 +569,8 @@ def _store(result: StreakFit, batch, win: _Windows, params, inverse, done, valid
     result.flux[batch] = np.where(valid, flux, np.nan)
     result.cov[batch] = np.where(valid[:, None, None], cov, np.nan)
     result.flux_sigma[batch] = np.where(valid, sigmas[:, 2], np.nan)
+    result.chi2[batch] = np.where(valid & np.isfinite(chi2), chi2, np.nan)
+    result.dof[batch] = np.where(valid, win.mask.sum(axis=1) - params.shape[1], np.nan)
     return sigmas
 
 
@@ -554,7 +583,7 @@ def _flux_start(flux0: np.ndarray, win: _Windows, noise: float) -> np.ndarray:
 # ---------------------------------------------------------------- free straight-streak fit
 
 def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: float, gain: float,
-                iterations: int = 30) -> StreakFit:
+                iterations: int = 30, excluded: np.ndarray | None = None) -> StreakFit:
     """Fit straight streaks (the PSF swept uniformly along a segment) to a background-
     subtracted image; all spots at once.
 
@@ -564,7 +593,8 @@ def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: f
     initial directions [rad] from +x toward +y (the moments' major axis). NaN length0 or
     angle0: a window for a point-like spot and a start from its moments. sigma: PSF 1-sigma
     [px]; noise: 1-sigma pixel noise [ADU]; gain [e-/ADU]; iterations: at most this many
-    Levenberg-Marquardt steps per spot.
+    Levenberg-Marquardt steps per spot; excluded: (H, W) bool, pixels no fit may use (clipped
+    at the full well: they carry no shape information), or None.
 
     Model: F times the PSF (module docstring) averaged along the segment of length L at angle
     theta centred on (x, y): parameters (x, y, F, L, theta). The centre is the mid-exposure
@@ -583,6 +613,7 @@ def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: f
     """
     residual, (x0, y0, flux0, length0, angle0) = _check_common(residual, sigma, noise, gain, iterations,
                                                                x0, y0, flux0, length0, angle0)
+    excluded = _check_excluded(excluded, residual)
     n = x0.size
     result = StreakFit._failed(n)
     valid = np.isfinite(x0) & np.isfinite(y0) & (np.abs(x0) < 1e7) & (np.abs(y0) < 1e7)
@@ -598,7 +629,7 @@ def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: f
     with np.errstate(all="ignore"):  # degenerate spots end up non-finite or unconverged, not as warnings
         for batch in _batches(valid, bounds, 5):
             _fit_free_batch(residual, batch, bounds[batch], x0[batch], y0[batch], flux0[batch], length0[batch],
-                            angle0[batch], guess_ok[batch], sigma, noise, gain, iterations, result)
+                            angle0[batch], guess_ok[batch], sigma, noise, gain, iterations, result, excluded)
     return result
 
 
@@ -624,8 +655,8 @@ def _even_intervals(count: np.ndarray) -> np.ndarray:
 
 
 def _fit_free_batch(residual, batch, bounds, x0, y0, flux0, length0, angle0, guess_ok, sigma, noise, gain,
-                    iterations, result: StreakFit) -> None:
-    win = _cut_windows(residual, *bounds.T)
+                    iterations, result: StreakFit, excluded=None) -> None:
+    win = _cut_windows(residual, *bounds.T, excluded)
     length, angle = length0.copy(), angle0.copy()
     if not np.all(guess_ok):
         major, axis = _window_moments(win)
@@ -702,9 +733,9 @@ def _fit_free_batch(residual, batch, bounds, x0, y0, flux0, length0, angle0, gue
 
     params = np.column_stack([x0, y0, _flux_start(flux0, win, noise), length, angle])
     valid = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > 6)
-    params, normal, done = _levenberg_marquardt(evaluate, params, win, valid, noise, gain, iterations, max_step,
-                                                constrain, scale_of, undetermined)
-    sigmas = _store(result, batch, win, params, _inverse_fisher(normal, scale_of(params)), done, valid)
+    params, normal, done, chi2 = _levenberg_marquardt(evaluate, params, win, valid, noise, gain, iterations,
+                                                      max_step, constrain, scale_of, undetermined)
+    sigmas = _store(result, batch, win, params, _inverse_fisher(normal, scale_of(params)), done, valid, chi2)
     fitted_length, fitted_angle = params[:, 3], params[:, 4]
     result.converged[batch] &= fitted_length <= max_length
     # Direction of an undirected segment in (-pi/2, pi/2]; undefined for an unresolved one.
@@ -719,7 +750,7 @@ def _fit_free_batch(residual, batch, bounds, x0, y0, flux0, length0, angle0, gue
 # ---------------------------------------------------------------- fit on a known path
 
 def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: float, gain: float,
-                        iterations: int = 20) -> StreakFit:
+                        iterations: int = 20, excluded: np.ndarray | None = None) -> StreakFit:
     """Fit streaks whose shape is known from the body rate (e.g. SmearModel.path); all spots
     at once.
 
@@ -727,7 +758,7 @@ def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: floa
     positions [px] and total fluxes [ADU] (<= 0 or NaN: the window sum); path: (N, K, 2)
     offsets [px] of each star's image at K equally spaced times across the exposure from its
     mid-exposure position (a straight line, or an arc under roll); sigma, noise, gain,
-    iterations as fit_streaks.
+    iterations, excluded as fit_streaks.
 
     Model: F mean_k PSF(pixel - (c + path[n, k])); only c = (x, y) and F are fitted, so
     curved paths and uneven speed are modelled exactly. The path's shape changes slowly with
@@ -742,6 +773,7 @@ def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: floa
     not finite is returned unconverged; others are unaffected.
     """
     residual, (x0, y0, flux0) = _check_common(residual, sigma, noise, gain, iterations, x0, y0, flux0)
+    excluded = _check_excluded(excluded, residual)
     n = x0.size
     try:
         path = np.asarray(path, dtype=float)
@@ -761,7 +793,7 @@ def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: floa
     with np.errstate(all="ignore"):  # degenerate spots end up non-finite or unconverged, not as warnings
         for batch in _batches(valid, bounds, 3):
             _fit_path_batch(residual, batch, bounds[batch], x0[batch], y0[batch], flux0[batch], path[batch], sigma,
-                            noise, gain, iterations, result)
+                            noise, gain, iterations, result, excluded)
     if path.shape[1] >= 2:  # the samples are mid-points of K slices of the exposure
         chord = (path[:, -1] - path[:, 0]) * path.shape[1] / (path.shape[1] - 1)
     else:
@@ -776,8 +808,8 @@ def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: floa
 
 
 def _fit_path_batch(residual, batch, bounds, x0, y0, flux0, offsets, sigma, noise, gain, iterations,
-                    result: StreakFit) -> None:
-    win = _cut_windows(residual, *bounds.T)
+                    result: StreakFit, excluded=None) -> None:
+    win = _cut_windows(residual, *bounds.T, excluded)
     weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
     var_eff = sigma * sigma + 1.0 / 12.0
     scale = 1.0 / np.sqrt(2.0 * var_eff)
@@ -807,6 +839,179 @@ def _fit_path_batch(residual, batch, bounds, x0, y0, flux0, offsets, sigma, nois
 
     params = np.column_stack([x0, y0, _flux_start(flux0, win, noise)])
     valid = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > 4)
-    params, normal, done = _levenberg_marquardt(evaluate, params, win, valid, noise, gain, iterations, max_step,
-                                                lambda index, p: p, scale_of)
-    _store(result, batch, win, params, _inverse_fisher(normal, scale_of(params)), done, valid)
+    params, normal, done, chi2 = _levenberg_marquardt(evaluate, params, win, valid, noise, gain, iterations,
+                                                      max_step, lambda index, p: p, scale_of)
+    _store(result, batch, win, params, _inverse_fisher(normal, scale_of(params)), done, valid, chi2)
+
+
+# ---------------------------------------------------------------- merged pairs on a known path
+
+def _path_windows(residual, x, y, path, reach, valid):
+    """Integer bounds of windows covering the paths `path` (n, K, 2) around every centre
+    x, y (n, M) [px], grown by `reach` [px] (see _window_bounds)."""
+    cx, cy = np.round(np.where(valid[:, None], x, 0.0)), np.round(np.where(valid[:, None], y, 0.0))
+    return _window_bounds(residual, valid, cx.min(axis=1) + path[:, :, 0].min(axis=1) - reach,
+                          cx.max(axis=1) + path[:, :, 0].max(axis=1) + reach,
+                          cy.min(axis=1) + path[:, :, 1].min(axis=1) - reach,
+                          cy.max(axis=1) + path[:, :, 1].max(axis=1) + reach)
+
+
+def _path_model(win: _Windows, x, y, flux, offsets, sigma: float) -> np.ndarray:
+    """(n, R*C) model [ADU] of one star per window on its path (the fits' PSF model)."""
+    var_eff = sigma * sigma + 1.0 / 12.0
+    scale = 1.0 / np.sqrt(2.0 * var_eff)
+    sx = (x - win.origin[:, 0])[:, None] + offsets[:, :, 0]
+    sy = (y - win.origin[:, 1])[:, None] + offsets[:, :, 1]
+    weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
+    shape = _sample_sums(win, sx, sy, weights, None, scale)[:, 0]
+    return shape * (flux / (2.0 * np.pi * var_eff))[:, None]
+
+
+def second_source_on_path(residual, x, y, flux, path, sigma: float, noise: float, gain: float,
+                          excluded: np.ndarray | None = None):
+    """Where one more star on the same path shape would best explain what a fit of M stars
+    (x, y, flux (N,) or (N, M) [px, ADU]; path (N, K, 2) as fit_streaks_on_path) leaves in
+    the window of the first star (the window fit_streaks_on_path uses): the residual (data -
+    model) correlated with the path's own unit-flux profile t (a matched filter), divided by
+    its noise sqrt(sum var t^2) (var = max(data, 0) / gain + noise^2 per pixel). Returns, at
+    the peak of that ratio, x, y [px], the template's least-squares flux [ADU] and the ratio
+    (the matched-filter SNR of the best extra star), each (N,); NaN where nothing is usable.
+    All windows at once (padded to one size, correlations by FFT)."""
+    residual = np.asarray(residual)
+    excluded = _check_excluded(excluded, residual)
+    x, y, flux = (np.asarray(v, dtype=float).reshape(np.shape(v)[0], -1) for v in (x, y, flux))
+    path = np.asarray(path, dtype=float)
+    n = x.shape[0]
+    out = np.full((4, n), np.nan)
+    ok = np.all(np.isfinite(x) & np.isfinite(y) & np.isfinite(flux), axis=1) & np.isfinite(path).all(axis=(1, 2))
+    ok, bounds = _path_windows(residual, x[:, :1], y[:, :1], np.where(ok[:, None, None], path, 0.0),
+                               PSF_RADIUS_SIGMA * sigma + 2.0, ok)
+    use = np.flatnonzero(ok)
+    if use.size == 0:
+        return out[0], out[1], out[2], out[3]
+    win = _cut_windows(residual, *bounds[use].T, excluded)
+    offsets = path[use]
+    model = sum(_path_model(win, x[use, m], y[use, m], flux[use, m], offsets, sigma) for m in range(x.shape[1])
+                if np.all(np.isfinite(x[use, m])))
+    shape = (use.size, win.n_rows, win.n_cols)
+    left = ((win.data - model) * win.mask).reshape(shape)
+    variance = ((np.maximum(win.data, 0.0) / gain + noise * noise) * win.mask).reshape(shape)
+    # Templates: each path's unit-flux profile (the fits' PSF model) on a grid centred on its
+    # mid-exposure point, one size for all: separable sums over the path samples.
+    var_eff = sigma * sigma + 1.0 / 12.0
+    half = np.ceil(np.max(np.abs(offsets), axis=(0, 1)) + 3.0 * np.sqrt(var_eff)).astype(int)
+    gx = np.arange(-half[0], half[0] + 1, dtype=float)
+    gy = np.arange(-half[1], half[1] + 1, dtype=float)
+    px = np.exp(-0.5 * (gx[None, None, :] - offsets[:, :, 0, None]) ** 2 / var_eff)  # (n, K, TC)
+    py = np.exp(-0.5 * (gy[None, None, :] - offsets[:, :, 1, None]) ** 2 / var_eff)  # (n, K, TR)
+    template = np.matmul(np.transpose(py, (0, 2, 1)), px)  # (n, TR, TC)
+    template /= template.sum(axis=(1, 2), keepdims=True)
+    # Correlation with the template centred: score[c] = sum_u left[c + u - h] t[u], i.e. the
+    # full convolution with the flipped template, cropped at (h, h).
+    size = (win.n_rows + gy.size - 1, win.n_cols + gx.size - 1)
+
+    def correlate(image, kernel):
+        full = np.fft.irfft2(np.fft.rfft2(image, size) * np.fft.rfft2(kernel[:, ::-1, ::-1], size), size)
+        return full[:, half[1]:half[1] + win.n_rows, half[0]:half[0] + win.n_cols]
+
+    score = correlate(left, template)
+    spread = correlate(variance, template * template)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where((win.mask.reshape(shape) > 0) & (spread > 0), score / np.sqrt(np.abs(spread)), -np.inf)
+    flat = ratio.reshape(use.size, -1)
+    best = np.argmax(flat, axis=1)
+    found = np.isfinite(flat[np.arange(use.size), best])
+    row, col = best // win.n_cols, best % win.n_cols
+    keep = use[found]
+    out[0, keep] = win.origin[found, 0] + col[found]
+    out[1, keep] = win.origin[found, 1] + row[found]
+    out[2, keep] = (score.reshape(use.size, -1)[np.arange(use.size), best][found]
+                    / np.sum(template * template, axis=(1, 2))[found])
+    out[3, keep] = flat[np.arange(use.size), best][found]
+    return out[0], out[1], out[2], out[3]
+
+
+def fit_star_groups_on_path(residual, x0, y0, flux0, path, sigma: float, noise: float, gain: float,
+                            iterations: int = 30, excluded: np.ndarray | None = None) -> list[StreakFit]:
+    """Joint fit of M stars moving on the same path shape (streaks merged into one spot, or a
+    neighbour's streak in its window): x0, y0, flux0 (N, M) initial positions [px] and fluxes
+    [ADU], the first star of each group the one whose window is fitted (the window
+    fit_streaks_on_path uses for it, so that the chi^2 of the two fits compare); path (N, K,
+    2) and the rest as fit_streaks_on_path. Returns M StreakFit (star m of every group) with
+    positions, fluxes and covariances (blocks of the joint inverse Fisher matrix: each star's
+    error includes what the others' uncertainty does to it); all carry the group's chi2 and
+    dof. converged: the first star's test of fit_streaks_on_path, and finite values for the
+    others (whose centres may lie outside the window: only their light inside it is used)."""
+    residual = np.asarray(residual)
+    excluded = _check_excluded(excluded, residual)
+    x0, y0, flux0 = (np.asarray(v, dtype=float) for v in (x0, y0, flux0))
+    n, m_stars = x0.shape
+    path = np.asarray(path, dtype=float)
+    fits = [StreakFit._failed(n) for _ in range(m_stars)]
+    if n == 0:
+        return fits
+    valid = (np.all(np.isfinite(x0) & np.isfinite(y0) & np.isfinite(flux0), axis=1)
+             & np.isfinite(path).all(axis=(1, 2)))
+    path = np.where(valid[:, None, None], path, 0.0)
+    valid, bounds = _path_windows(residual, x0[:, :1], y0[:, :1], path, PSF_RADIUS_SIGMA * sigma + 2.0, valid)
+    var_eff = sigma * sigma + 1.0 / 12.0
+    scale = 1.0 / np.sqrt(2.0 * var_eff)
+    amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)
+    n_par = 3 * m_stars
+
+    def max_step(p):
+        limit = np.full_like(p, 1.0)  # px per iteration
+        limit[:, 2::3] = np.inf  # the model is linear in the fluxes
+        return limit
+
+    def scale_of(p):
+        units = np.ones_like(p)
+        units[:, 2::3] = np.maximum(np.abs(p[:, 2::3]), noise)
+        return units
+
+    with np.errstate(all="ignore"):  # degenerate groups end up non-finite or unconverged
+        for batch in _batches(valid, bounds, n_par):
+            win = _cut_windows(residual, *bounds[batch].T, excluded)
+            offsets = path[batch]
+            weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
+
+            def evaluate(index, p, win=win, offsets=offsets, weights=weights):
+                aug = np.zeros((index.size, n_par + 1, win.data.shape[1]), np.float32)  # jacobian rows, model
+                for m in range(m_stars):
+                    sx = (p[:, 3 * m] - win.origin[index, 0])[:, None] + offsets[index, :, 0]
+                    sy = (p[:, 3 * m + 1] - win.origin[index, 1])[:, None] + offsets[index, :, 1]
+                    sums = _sample_sums(win, sx, sy, weights[index], None, scale)  # shape, gx', gy'
+                    a = (p[:, 3 * m + 2] * amplitude_unit).astype(np.float32)[:, None]
+                    aug[:, 3 * m] = a * np.float32(2.0 * scale) * sums[:, 1]
+                    aug[:, 3 * m + 1] = a * np.float32(2.0 * scale) * sums[:, 2]
+                    aug[:, 3 * m + 2] = np.float32(amplitude_unit) * sums[:, 0]
+                    aug[:, n_par] += a * sums[:, 0]
+                return aug
+
+            params = np.stack([x0[batch], y0[batch], flux0[batch]], axis=2).reshape(batch.size, n_par)
+            ok = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > n_par + 1)
+            params, normal, done, chi2 = _levenberg_marquardt(evaluate, params, win, ok, noise, gain, iterations,
+                                                              max_step, lambda index, p: p, scale_of)
+            inverse = _inverse_fisher(normal, scale_of(params))
+            for m, result in enumerate(fits):
+                block = slice(3 * m, 3 * m + 3)
+                _store(result, batch, win, params[:, block], inverse[:, block, block], done, ok, chi2)
+                result.dof[batch] -= n_par - 3  # the group's parameters
+                if m > 0:  # a neighbour: only its light in the window matters
+                    result.converged[batch] = (done & ok & ~win.bad & np.all(np.isfinite(params), axis=1)
+                                               & np.isfinite(result.cov[batch]).all(axis=(1, 2))
+                                               & (result.cov[batch, 0, 0] > 0) & (result.cov[batch, 1, 1] > 0))
+    every = np.all([f.converged for f in fits], axis=0)
+    if path.shape[1] >= 2:
+        chord = (path[:, -1] - path[:, 0]) * path.shape[1] / (path.shape[1] - 1)
+    else:
+        chord = np.zeros((n, 2))
+    length = np.hypot(chord[:, 0], chord[:, 1])
+    for result in fits:
+        result.converged[:] = every
+        fitted = np.isfinite(result.x)
+        result.length[:] = np.where(fitted, length, np.nan)
+        result.length_sigma[:] = np.where(fitted, 0.0, np.nan)
+        result.angle[:] = np.where(fitted & (length > 0), np.arctan2(chord[:, 1], chord[:, 0]), np.nan)
+        result.angle_sigma[:] = np.where(fitted & (length > 0), 0.0, np.nan)
+    return fits

@@ -2,8 +2,10 @@
 
 An algorithm only proposes hypotheses: (pattern spot indices, database star indices). The
 base class turns each into an attitude, verifies it against all spots with the
-false-positive bound of `verify`, refines the accepted one with QUEST over every matched
-star, and enforces the per-frame time budget.
+false-positive bound of `verify`, refines the accepted one over every matched star (QUEST
+for matching, with spot sigmas floored at centroid_sigma_floor_px; then the published fit,
+`final_fit`, weighted by each spot's own 2-D covariance), and enforces the per-frame time
+budget.
 """
 from __future__ import annotations
 
@@ -13,8 +15,9 @@ from dataclasses import dataclass, field, replace
 from typing import Iterator
 
 import numpy as np
+from numba import njit
 
-from ..attitude import AttitudeSolution, matrix_to_quaternion, quest
+from ..attitude import AttitudeSolution, quest, refine_with_covariances
 from ..camera import CameraModel
 from ..centroid import Spots
 from . import kernels
@@ -27,13 +30,33 @@ NO_MATCH = "no_match"
 TIMEOUT = "timeout"
 
 
+def _without_coincident(spots: Spots, separation_px: float = 0.01) -> Spots:
+    """`spots` with the later of any two spots closer than `separation_px` given a NaN position
+    (prepare skips it; indices are kept): coincident spots carry no geometry, and their
+    parallel rays make kernels.triad divide by zero."""
+    from scipy.spatial import cKDTree
+
+    finite = np.flatnonzero(np.isfinite(spots.x) & np.isfinite(spots.y))
+    if finite.size < 2:
+        return spots
+    close = cKDTree(np.stack([spots.x[finite], spots.y[finite]], axis=1)).query_pairs(separation_px,
+                                                                                         output_type="ndarray")
+    if not close.size:
+        return spots
+    x = np.array(spots.x, dtype=float)
+    x[finite[close.max(axis=1)]] = np.nan
+    return replace(spots, x=x)
+
+
 @dataclass(frozen=True)
 class IdentifyConfig:
     """max_pattern_spots: brightest spots used to form patterns; sigma_multiplier: pattern
     tolerance in standard deviations; angle_tolerance_floor_rad: added to every angle
     tolerance for model errors (aberration, distortion calibration) [rad];
-    centroid_sigma_floor_px: lower bound on a spot's 1-sigma [px]; match_radius_px: spot
-    to projected-star radius for verification [px]; false_positive_bound: largest accepted
+    centroid_sigma_floor_px: lower bound on a spot's 1-sigma for matching (pattern tolerances,
+    verification radius) [px] -- the published attitude and its covariance use each spot's own
+    covariance (final_fit); match_radius_px: spot to projected-star radius for verification
+    [px]; false_positive_bound: largest accepted
     probability that a published solution is a chance match (all hypotheses of the frame);
     max_time_s: time budget of one identify() call [s]; max_candidates_per_pattern: cap on
     hypotheses taken from one pattern (a pattern with more is ambiguous)."""
@@ -102,10 +125,14 @@ class Identification:
 @dataclass
 class SpotGeometry:
     """Per-frame quantities algorithms share, for the flux-sorted spots: rays (N, 3) unit
-    vectors in the sensor frame; sigma (N,) 1-sigma direction error [rad]; pattern_count: how
-    many of the brightest spots may form patterns; magnitude (N,) instrumental magnitude
-    -2.5 log10(flux) [mag] with an unknown zero point (NaN where flux <= 0); x, y (N,) pixel
-    positions [px]."""
+    vectors in the sensor frame; sigma (N,) 1-sigma direction error [rad] for matching
+    (floored at centroid_sigma_floor_px: pattern tolerances, verification radius);
+    pattern_count: how many of the brightest spots may form patterns; magnitude (N,)
+    instrumental magnitude -2.5 log10(flux) [mag] with an unknown zero point (NaN where
+    flux <= 0); x, y (N,) pixel positions [px]; pixel_cov (N, 2, 2) each spot's own
+    covariance [px^2] (the centroider's, not floored; unknown counts as 1 px^2) and jacobian
+    (N, 3, 2) d ray / d pixel [rad/px] (ray_jacobian): the weights of the final attitude fit
+    and its published covariance (None: isotropic, sigma)."""
 
     rays: np.ndarray
     sigma: np.ndarray
@@ -113,6 +140,64 @@ class SpotGeometry:
     magnitude: np.ndarray
     x: np.ndarray
     y: np.ndarray
+    pixel_cov: np.ndarray | None = None
+    jacobian: np.ndarray | None = None
+
+
+# Added to every spot's variance in the final fit [px, 1-sigma]: a guard against a zero or
+# singular covariance (an infinite weight), far below any real centroid's error.
+MIN_FIT_SIGMA_PX = 1e-4
+# Final fit: a matched star whose residual exceeds this many of its own sigmas is left out of
+# the attitude (a neighbour's light or a clipped core the centroider did not see).
+FIT_OUTLIER_SIGMA = 5.0
+
+
+def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3, 2) derivative of the sensor-frame unit ray with respect to the pixel position
+    (x, y) [rad/px]: for the pinhole, ray = p / |p| with p = ((x - cx) / fx, (y - cy) / fy, 1),
+    J = r_z (I - r r^T)[:, :2] diag(1/fx, 1/fy) (compiled; `rays` if already known); with
+    distortion, central differences of camera.pixel_to_ray."""
+    x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
+    if camera.has_distortion:
+        h = 0.5
+        jx = (camera.pixel_to_ray(x + h, y) - camera.pixel_to_ray(x - h, y)) / (2 * h)
+        jy = (camera.pixel_to_ray(x, y + h) - camera.pixel_to_ray(x, y - h)) / (2 * h)
+        return np.stack([jx, jy], axis=2)
+    rays = camera.pixel_to_ray(x, y) if rays is None else rays
+    return _pinhole_jacobian(np.ascontiguousarray(rays, dtype=float), float(camera.fx), float(camera.fy))
+
+
+@njit(cache=True)
+def _pinhole_jacobian(rays, fx, fy):
+    out = np.empty((rays.shape[0], 3, 2))
+    for i in range(rays.shape[0]):
+        a, b = rays[i, 2] / fx, rays[i, 2] / fy
+        for r in range(3):
+            out[i, r, 0] = a * ((1.0 if r == 0 else 0.0) - rays[i, r] * rays[i, 0])
+            out[i, r, 1] = b * ((1.0 if r == 1 else 0.0) - rays[i, r] * rays[i, 1])
+    return out
+
+
+def sanitized_covariance(cov_px: np.ndarray) -> np.ndarray:
+    """Spot covariances (N, 2, 2) [px^2] for the final fit: unknown (non-finite) ones count as
+    1 px^2, and MIN_FIT_SIGMA_PX^2 is added on both axes."""
+    cov_px = np.asarray(cov_px, dtype=float).reshape(-1, 2, 2)
+    cov = np.where(np.isfinite(cov_px).all(axis=(1, 2))[:, None, None], cov_px, np.eye(2)[None])
+    return cov + MIN_FIT_SIGMA_PX ** 2 * np.eye(2)[None]
+
+
+def direction_covariance(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) covariance [rad^2] of the sensor-frame rays of spots at (x, y) [px] with
+    pixel covariance cov_px (N, 2, 2) [px^2]: J C J^T (ray_jacobian, sanitized_covariance)."""
+    jac = ray_jacobian(camera, x, y)
+    return jac @ sanitized_covariance(cov_px) @ np.transpose(jac, (0, 2, 1))
+
+
+def direction_sigma(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
+    """Isotropic 1-sigma direction error [rad] of the rays of spots at (x, y) [px] with pixel
+    covariance cov_px (N, 2, 2) [px^2]: sqrt(trace(J C J^T) / 2) (direction_covariance), so
+    the field angle's foreshortening and the spot's anisotropy enter the variance."""
+    return np.sqrt(0.5 * np.trace(direction_covariance(camera, x, y, cov_px), axis1=1, axis2=2))
 
 
 class StarIdentifier(ABC):
@@ -147,14 +232,16 @@ class StarIdentifier(ABC):
         geometry algorithms work on, in that order. Resets the per-call stats. Compiled
         (kernels.prepare_spots) for undistorted cameras, numpy with distortion."""
         self.stats = {}
+        spots = _without_coincident(spots)
         floor_px = self.config.centroid_sigma_floor_px
         if not camera.has_distortion:
             as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
             order, rays, sigma, magnitude = kernels.prepare_spots(
                 as_float(spots.x), as_float(spots.y), as_float(spots.flux), as_float(spots.cov),
                 camera.fx, camera.fy, camera.cx, camera.cy, floor_px)
+            x, y = spots.x[order], spots.y[order]
             return order, SpotGeometry(rays, sigma, min(order.size, self.config.max_pattern_spots), magnitude,
-                                       spots.x[order], spots.y[order])
+                                       x, y, sanitized_covariance(spots.cov[order]), ray_jacobian(camera, x, y, rays))
         x, y, flux = spots.x, spots.y, spots.flux
         finite = np.isfinite(x) & np.isfinite(y)
         brightness = np.where(np.isnan(flux), -np.inf, flux)
@@ -164,13 +251,14 @@ class StarIdentifier(ABC):
         # Direction 1-sigma from each spot's covariance; unknown (NaN) counts as 1 px; floored.
         cov = spots.cov[order]
         variance = 0.5 * (cov[:, 0, 0] + cov[:, 1, 1])
-        sigma_px = np.maximum(np.sqrt(np.where(np.isnan(variance), 1.0, np.maximum(variance, 0.0))), floor_px)
+        sigma_px = np.maximum(np.sqrt(np.where(np.isfinite(variance), np.maximum(variance, 0.0), 1.0)), floor_px)
         magnitude = np.full(flux.size, np.nan)
         bright = flux > 0  # NaN compares False
         magnitude[bright] = -2.5 * np.log10(flux[bright])
         return order, SpotGeometry(rays=camera.pixel_to_ray(x, y), sigma=sigma_px * camera.pixel_scale_rad,
                                    pattern_count=min(x.size, self.config.max_pattern_spots),
-                                   magnitude=magnitude, x=x, y=y)
+                                   magnitude=magnitude, x=x, y=y, pixel_cov=sanitized_covariance(cov),
+                                   jacobian=ray_jacobian(camera, x, y))
 
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
         """Identify the stars behind `spots` (pixel positions in `camera`); see Identification."""
@@ -240,11 +328,11 @@ class StarIdentifier(ABC):
 
     def solved(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
                solution: AttitudeSolution, fp: float, tested: int, started: float) -> Identification:
-        """The Identification of an accepted solution (spot_index into the flux-sorted spots)."""
+        """The Identification of an accepted solution (spot_index into the flux-sorted spots);
+        the attitude is refitted with the final weights (final_fit)."""
+        solution, residual = self.final_fit(geometry, spot_index, star_index, solution.rotation)
         body = geometry.rays[spot_index]
         star = self.database.vectors[star_index]
-        predicted = star @ solution.rotation  # ICRS -> sensor: R^T r, as row vectors
-        residual = np.arccos(np.clip(np.sum(body * predicted, axis=1), -1.0, 1.0))
         order = np.argsort(spot_index)
         return Identification(
             status=SOLVED, reason=f"{spot_index.size} stars matched, false-positive bound {fp:.1e}",
@@ -257,12 +345,10 @@ class StarIdentifier(ABC):
                            star_index: np.ndarray, rotation: np.ndarray, fp: float, tested: int, started: float,
                            algorithm: str | None = None) -> Identification:
         """The Identification of matches accepted under an already refined `rotation`
-        (sensor -> ICRS): covariance, residuals and loss from the compiled kernel; spot_index
-        refers to the flux-sorted spots and is mapped back to the input through `order`."""
+        (sensor -> ICRS), refitted with the final weights (final_fit); spot_index refers to the
+        flux-sorted spots and is mapped back to the input through `order`."""
         vectors = np.ascontiguousarray(self.database.vectors, dtype=float)
-        covariance, residual, loss = kernels.solution_arrays(geometry.rays, geometry.sigma, vectors,
-                                                             spot_index, star_index, rotation)
-        solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, covariance, loss)
+        solution, residual = self.final_fit(geometry, spot_index, star_index, rotation)
         by_spot = np.argsort(spot_index)
         spot_index, star_index = spot_index[by_spot], star_index[by_spot]
         return Identification(
@@ -271,6 +357,29 @@ class StarIdentifier(ABC):
             spot_index=order[spot_index], hip=self.database.hip[star_index], star_vectors=vectors[star_index],
             body_vectors=geometry.rays[spot_index], residual_rad=residual[by_spot], attitude=solution,
             false_positive_probability=fp, stats=dict(self.stats))
+
+    def final_fit(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
+                  rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray]:
+        """The published attitude of accepted matches, weighted by each spot's own covariance
+        (the centroider's, without the matching floor): from `rotation` (the matching fit,
+        sensor -> ICRS, weighted with the floored sigma), a maximum-likelihood refinement with
+        each ray's full 2-D covariance (attitude.refine_with_covariances; a streak's error is
+        far larger along its smear than across it). Stars whose residual exceeds
+        FIT_OUTLIER_SIGMA of their own covariance (chi^2 > FIT_OUTLIER_SIGMA^2) are left out of
+        the fit (once; never below MIN_STARS). Returns the solution (sensor -> ICRS; covariance
+        [rad^2] in the sensor frame, the inverse information of the fit: Shuster & Oh's for
+        isotropic covariances) and every match's residual angle [rad] under it."""
+        body, stars = geometry.rays[spot_index], self.database.vectors[star_index]
+        if geometry.pixel_cov is None:  # isotropic
+            weights = dict(ray_cov=geometry.sigma[spot_index, None, None] ** 2
+                           * (np.eye(3)[None] - body[:, :, None] * body[:, None, :]))
+        else:
+            weights = dict(pixel_cov=geometry.pixel_cov[spot_index], jacobian=geometry.jacobian[spot_index])
+        solution, chi2, residual = refine_with_covariances(rotation, body, stars, **weights)
+        inlier = chi2 <= FIT_OUTLIER_SIGMA ** 2
+        if not inlier.all() and inlier.sum() >= MIN_STARS:
+            solution, _, residual = refine_with_covariances(solution.rotation, body, stars, used=inlier, **weights)
+        return solution, residual
 
     def _fail(self, status: str, reason: str, started: float, tested: int) -> Identification:
         return Identification(status=status, reason=reason, algorithm=self.name,

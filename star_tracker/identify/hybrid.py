@@ -21,6 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..attitude import refine_with_covariances
 from ..camera import CameraModel
 from ..centroid import Spots
 from . import kernels
@@ -96,6 +97,7 @@ class HybridIdentifier(StarIdentifier):
                             camera.width, camera.height), camera)
         three = np.arange(3, dtype=np.int64)
         kernels.solution_arrays(np.eye(3), np.ones(3), np.eye(3), three, three, np.eye(3))
+        refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
 
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
         started = time.perf_counter()
