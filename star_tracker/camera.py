@@ -102,7 +102,7 @@ class CameraModel:
         """Pixel coordinates [px] -> unit direction vectors (N, 3) in the sensor frame."""
         u = np.asarray(u, dtype=float).ravel()
         v = np.asarray(v, dtype=float).ravel()
-        if self.has_distortion:
+        if self.has_distortion and u.size:  # cv2.undistortPoints returns None for no points
             pts = np.stack([u, v], axis=-1).reshape(-1, 1, 2)
             und = cv2.undistortPoints(
                 pts, self._k, self._d,

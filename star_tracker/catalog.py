@@ -153,8 +153,9 @@ def _file_fingerprint(path: Path) -> str:
 def _payload_checksum(arrays: dict[str, np.ndarray]) -> str:
     digest = hashlib.sha256()
     for key in sorted(arrays):
-        digest.update(key.encode())
-        digest.update(np.ascontiguousarray(arrays[key]).tobytes())
+        array = np.ascontiguousarray(arrays[key])
+        digest.update(f"{key}|{array.dtype.str}|{array.shape}|".encode())  # bytes alone admit a retyped array
+        digest.update(array.tobytes())
     return digest.hexdigest()
 
 
@@ -189,11 +190,16 @@ def load_hipparcos(path: Path | None = None) -> StarCatalog:
         return _CATALOG_MEMO[key]
     cache_file = cache_dir() / f"hip2_{key}.npz"
     arrays = load_validated_npz(cache_file)
+    columns = ("hip", "ra", "dec", "pm_ra", "pm_dec", "hp", "b_v")
+    if arrays is not None and (sorted(arrays) != sorted(columns) or arrays["hip"].dtype != np.int32
+                               or len({a.shape for a in arrays.values()}) != 1 or arrays["hip"].ndim != 1):
+        arrays = None  # checksum-valid but not a catalog this code wrote: rebuild
     if arrays is None:
         catalog = parse_hip2(path)
-        save_validated_npz(cache_file, {
-            "hip": catalog.hip, "ra": catalog.ra, "dec": catalog.dec, "pm_ra": catalog.pm_ra,
-            "pm_dec": catalog.pm_dec, "hp": catalog.hp, "b_v": catalog.b_v})
+        try:
+            save_validated_npz(cache_file, {name: getattr(catalog, name) for name in columns})
+        except OSError:
+            pass  # an unwritable cache costs a parse at every start, not the catalog
     else:
         catalog = StarCatalog(**arrays)
     _CATALOG_MEMO[key] = catalog

@@ -64,7 +64,11 @@ class AttitudeRateEstimator:
         if self._history and stamp_ns <= self._history[-1][0]:
             self._history.clear()
         covariance = np.asarray(covariance, float)
-        self._history.append((int(stamp_ns), np.asarray(rotation, float), np.linalg.inv(covariance), covariance))
+        try:
+            information = np.linalg.inv(covariance)
+        except np.linalg.LinAlgError:
+            raise ValueError("attitude covariance must be invertible") from None
+        self._history.append((int(stamp_ns), np.asarray(rotation, float), information, covariance))
         while self._history and stamp_ns - self._history[0][0] > self.window_ns:
             self._history.popleft()
         return self.estimate()

@@ -133,6 +133,8 @@ class FalseObjectModel:
         if not (0 <= self.planets_per_frame <= 100 and 0 <= self.debris_per_frame <= 100):
             raise ValueError("planets_per_frame and debris_per_frame must be in [0, 100]")
         for name in ("planet_magnitude_range", "debris_magnitude_range", "debris_speed_px_s"):
+            if len(getattr(self, name)) != 2:
+                raise ValueError(f"{name} needs 2 values (low, high), got {list(getattr(self, name))}")
             lo, hi = getattr(self, name)
             if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
                 raise ValueError(f"{name}=({lo}, {hi}) must be finite with low <= high")

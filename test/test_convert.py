@@ -93,3 +93,61 @@ def test_pose_with_covariance_layout():
     assert np.allclose(full[3:, 3:], cov)
     assert np.all(np.diag(full)[:3] == -1.0)  # position unknown
     assert msg.header.frame_id == "icrs" and convert.stamp_to_ns(msg.header.stamp) == 7
+
+
+def test_big_endian_arrays_are_encoded_as_mono16():
+    array = (np.arange(6, dtype=np.uint16).reshape(2, 3) * 4097).astype(">u2")
+    msg = convert.array_to_image(array, 1, "f")
+    assert msg.encoding == "mono16" and msg.is_bigendian == 0
+    assert np.array_equal(convert.image_to_array(msg), array)
+    with pytest.raises(ValueError, match="uint8/uint16"):
+        convert.array_to_image(np.zeros((2, 2), np.float32), 1, "f")
+
+
+def test_stamps_outside_builtin_time_are_refused():
+    assert convert.stamp_to_ns(convert.ns_to_stamp(-1)) == -1  # before 1970: representable
+    with pytest.raises(ValueError, match="int32 seconds"):
+        convert.ns_to_stamp(2**31 * 10**9)
+
+
+def test_camera_info_with_a_wild_distortion_or_size_is_refused():
+    camera = CameraModel.from_fov(1024, 1024, np.radians(15.0), (-0.05, 0.01, 0.0, 0.0, 0.0))
+    assert convert.info_to_camera(convert.camera_to_info(camera, 1, "f")) == camera
+    bad = convert.camera_to_info(camera, 1, "f")
+    bad.d = [-50.0, 0.0, 0.0, 0.0, 0.0]  # folds back on itself inside the image
+    with pytest.raises(ValueError, match="no usable field of view"):
+        convert.info_to_camera(bad)
+    bad = convert.camera_to_info(camera, 1, "f")
+    bad.width = bad.height = 2**20
+    with pytest.raises(ValueError, match="pixel limit"):
+        convert.info_to_camera(bad)
+
+
+def test_spot_clouds_with_multi_count_fields_or_too_many_points_are_refused():
+    msg = convert.spots_to_cloud(Spots.empty(10, 10), 1, "f")
+    msg.fields[0].count = 3
+    with pytest.raises(ValueError, match="unexpected PointCloud2 layout"):
+        convert.cloud_to_spots(msg, 10, 10)
+    msg = convert.spots_to_cloud(Spots.empty(10, 10), 1, "f")
+    msg.width, msg.height = 2**16, 2**16
+    with pytest.raises(ValueError, match="point limit"):
+        convert.cloud_to_spots(msg, 10, 10)
+
+
+def test_invalid_spots_are_dropped_and_counted():
+    nan, inf = np.nan, np.inf
+    x = np.array([10.0, nan, 20.0, 30.0, 40.0, -12.0, 50.0, 60.0])
+    y = np.array([10.0, 10.0, inf, 30.0, 40.0, 10.0, 50.0, 1033.4])
+    flux = np.array([1.0, 1.0, 1.0, nan, 1.0, 1.0, 1.0, 1.0])
+    cov = np.tile(np.eye(2) * 0.04, (8, 1, 1))
+    cov[4] = np.eye(2) * 1e6  # 1000 px 1-sigma: no measurement
+    cov[6, 0, 0] = -1.0
+    spots = Spots(x, y, flux, np.ones(8), cov, np.zeros(8, np.uint32), np.ones(8, np.int32), np.ones(8), 1024, 1024)
+    kept, dropped = convert.drop_invalid_spots(spots)
+    assert dropped == 6
+    assert list(kept.x) == [10.0, 60.0]  # in the image, and 1033.4 is within the 10 px margin of 1023.5
+    assert convert.drop_invalid_spots(kept) == (kept, 0)
+    twice = Spots(np.array([5.0, 7.0, 5.0]), np.array([6.0, 8.0, 6.0]), np.array([3.0, 2.0, 1.0]), np.ones(3),
+                  np.zeros((3, 2, 2)), np.zeros(3, np.uint32), np.ones(3, np.int32), np.ones(3), 1024, 1024)
+    kept, dropped = convert.drop_invalid_spots(twice)  # coincident spots: the first (brightest) kept
+    assert dropped == 1 and list(kept.flux) == [3.0, 2.0]

@@ -2,11 +2,17 @@
 
 Built once per parameter set and cached on disk (validated .npz, no pickle). Angles are
 radians; star vectors are ICRS unit vectors at the configured epoch.
+
+A cache file is trusted only after three checks: the checksum of its arrays (catalog.
+load_validated_npz: truncation, bit rot), its format version and configuration, and the
+structure the compiled kernels rely on without bounds checks (dtypes, shapes, star indices
+in range, sorted angles, unit vectors). A file failing any of them is logged and rebuilt.
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -18,6 +24,7 @@ from ..catalog import StarCatalog, cache_dir, load_hipparcos, load_validated_npz
 from .kvector import KVector
 
 DATABASE_FORMAT_VERSION = 2
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -48,8 +55,11 @@ class DatabaseConfig:
             raise ValueError(f"blend_magnitude_gap={self.blend_magnitude_gap} must be in [0, 10]")
 
     def cache_key(self) -> str:
-        text = json.dumps({**asdict(self), "version": DATABASE_FORMAT_VERSION}, sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        return hashlib.sha256(self.identity().encode()).hexdigest()[:16]
+
+    def identity(self) -> str:
+        """The configuration and format version as canonical JSON (stored in the cache file)."""
+        return json.dumps({**asdict(self), "version": DATABASE_FORMAT_VERSION}, sort_keys=True)
 
 
 @dataclass(frozen=True)
@@ -115,20 +125,72 @@ def build_database(config: DatabaseConfig, catalog: StarCatalog | None = None) -
                         time.perf_counter() - started)
 
 
+_CACHE_DTYPES = {"vectors": np.float64, "hip": np.int32, "magnitude": np.float64, "pair_a": np.int32,
+                 "pair_b": np.int32, "pair_angle": np.float64, "k": np.int64, "slope": np.float64,
+                 "intercept": np.float64, "format_version": np.int64}
+
+
+def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -> StarDatabase:
+    """The database stored in `arrays` (a checksum-valid cache file) for `config`; ValueError
+    naming the first problem when the file is of another version or configuration, or its
+    structure is not what build_database makes (the kernels index without bounds checks)."""
+    for name, dtype in _CACHE_DTYPES.items():
+        if name not in arrays:
+            raise ValueError(f"array {name!r} missing")
+        if arrays[name].dtype != dtype:
+            raise ValueError(f"array {name!r} has dtype {arrays[name].dtype}, expected {np.dtype(dtype)}")
+    if int(arrays["format_version"]) != DATABASE_FORMAT_VERSION:
+        raise ValueError(f"format version {int(arrays['format_version'])}, expected {DATABASE_FORMAT_VERSION}")
+    if "config" not in arrays or str(arrays["config"]) != config.identity():
+        raise ValueError("built for another configuration")
+    vectors, hip, magnitude = arrays["vectors"], arrays["hip"], arrays["magnitude"]
+    pair_a, pair_b, angle, k = arrays["pair_a"], arrays["pair_b"], arrays["pair_angle"], arrays["k"]
+    slope, intercept = float(arrays["slope"]), float(arrays["intercept"])
+    n, m = hip.size, angle.size
+    if vectors.shape != (n, 3) or magnitude.shape != (n,) or hip.ndim != 1 or n < 2:
+        raise ValueError(f"star arrays disagree: vectors {vectors.shape}, hip {hip.shape}, magnitude {magnitude.shape}")
+    if not (np.all(np.isfinite(vectors)) and np.all(np.abs(np.linalg.norm(vectors, axis=1) - 1.0) < 1e-9)):
+        raise ValueError("star vectors are not finite unit vectors")
+    if not (np.all(np.diff(hip) > 0) and hip[0] > 0 and np.all(np.isfinite(magnitude))):
+        raise ValueError("hip ids not strictly increasing, or magnitudes not finite")
+    if pair_a.shape != (m,) or pair_b.shape != (m,) or k.shape != (m,) or angle.ndim != 1 or m < 2:
+        raise ValueError(f"pair arrays disagree: a {pair_a.shape}, b {pair_b.shape}, angle {angle.shape}, k {k.shape}")
+    if not (np.all(pair_a >= 0) and np.all(pair_a < pair_b) and np.all(pair_b < n)):
+        raise ValueError("pair star indices out of range")
+    if not (np.all(np.isfinite(angle)) and angle[0] >= 0.0 and np.all(np.diff(angle) >= 0.0)
+            and angle[-1] <= config.max_pair_angle_rad + 1e-12):
+        raise ValueError("pair angles not sorted within [0, max_pair_angle_rad]")
+    if not (np.all(np.diff(k) >= 0) and k[0] >= 0 and k[-1] <= m and np.isfinite(slope) and slope > 0
+            and np.isfinite(intercept)):
+        raise ValueError("k-vector inconsistent")
+    # The stored angles must be those of the stored stars (a sample: this runs at every start).
+    sample = np.linspace(0, m - 1, min(m, 4096)).astype(np.int64)
+    chord = np.linalg.norm(vectors[pair_a[sample]] - vectors[pair_b[sample]], axis=1)
+    if not np.allclose(2.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0)), angle[sample], rtol=0, atol=1e-12):
+        raise ValueError("pair angles do not match the star vectors")
+    return StarDatabase(config, vectors, hip, magnitude, pair_a, pair_b, KVector(angle, k, slope, intercept))
+
+
 def load_or_build_database(config: DatabaseConfig, directory: Path | None = None) -> StarDatabase:
-    """Load the cached database for `config` (checksum-validated) or build and cache it."""
+    """Load the cached database for `config` (validated: see the module docstring) or build it
+    and cache it. A rejected cache file is logged and rebuilt; an unwritable cache directory
+    costs a rebuild at every start (logged), never the database."""
     path = (directory or cache_dir()) / f"pairs_{config.cache_key()}.npz"
     arrays = load_validated_npz(path)
     if arrays is not None:
         try:
-            kvector = KVector(arrays["pair_angle"], arrays["k"], float(arrays["slope"]), float(arrays["intercept"]))
-            return StarDatabase(config, arrays["vectors"], arrays["hip"], arrays["magnitude"],
-                                arrays["pair_a"], arrays["pair_b"], kvector)
-        except KeyError:
-            pass  # written by another layout: rebuild below
+            return database_from_cache(arrays, config)
+        except ValueError as exc:
+            log.warning("pattern database cache %s rejected (%s); rebuilding it", path, exc)
+    elif path.exists():
+        log.warning("pattern database cache %s is unreadable or fails its checksum; rebuilding it", path)
     db = build_database(config)
-    save_validated_npz(path, {
-        "vectors": db.vectors, "hip": db.hip, "magnitude": db.magnitude, "pair_a": db.pair_a,
-        "pair_b": db.pair_b, "pair_angle": db.kvector.sorted_values, "k": db.kvector.k,
-        "slope": np.array(db.kvector.slope), "intercept": np.array(db.kvector.intercept)})
+    try:
+        save_validated_npz(path, {
+            "vectors": db.vectors, "hip": db.hip, "magnitude": db.magnitude, "pair_a": db.pair_a,
+            "pair_b": db.pair_b, "pair_angle": db.kvector.sorted_values, "k": db.kvector.k,
+            "slope": np.array(db.kvector.slope), "intercept": np.array(db.kvector.intercept),
+            "format_version": np.array(DATABASE_FORMAT_VERSION, np.int64), "config": np.array(config.identity())})
+    except OSError as exc:
+        log.warning("pattern database cache %s not written (%s); it is rebuilt at every start", path, exc)
     return db

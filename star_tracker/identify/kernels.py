@@ -439,7 +439,7 @@ def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px):
         norm = math.sqrt(u * u + v * v + 1.0)
         rays[q, 0], rays[q, 1], rays[q, 2] = u / norm, v / norm, 1.0 / norm
         variance = 0.5 * (cov[i, 0, 0] + cov[i, 1, 1])
-        s = 1.0 if np.isnan(variance) else math.sqrt(max(variance, 0.0))
+        s = math.sqrt(max(variance, 0.0)) if math.isfinite(variance) else 1.0  # unknown: 1 px
         sigma[q] = max(s, sigma_floor_px) * scale
         magnitude[q] = -2.5 * math.log10(flux[i]) if flux[i] > 0 else np.nan
     return order, rays, sigma, magnitude

@@ -39,8 +39,9 @@ class KVector:
     def range(self, lo: float, hi: float) -> tuple[int, int]:
         """Half-open index range [start, stop) of values with lo <= value <= hi."""
         n = self.k.size
-        if hi < lo or hi < self.sorted_values[0] or lo > self.sorted_values[-1]:
+        if not lo <= hi or hi < self.sorted_values[0] or lo > self.sorted_values[-1]:  # NaN too
             return 0, 0
+        lo, hi = max(lo, self.sorted_values[0]), min(hi, self.sorted_values[-1])  # infinite bounds
         j_lo = int(np.floor((lo - self.intercept) / self.slope))
         j_hi = int(np.ceil((hi - self.intercept) / self.slope))
         # z(j_lo - 1) < lo strictly, so every value counted by k[j_lo - 1] is below lo.

@@ -20,7 +20,7 @@ from ..catalog import julian_year_from_unix, load_hipparcos
 from ..motion import SampledMotion, motion_from_parameters
 from ..render import FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
 from . import convert
-from .common import IMAGE_QOS, RESULT_QOS, Diagnostics, ThrottledLog, declare, run_node
+from .common import IMAGE_QOS, RESULT_QOS, Diagnostics, ThrottledLog, declare, guard_parameter_changes, run_node
 
 
 class CameraSimulatorNode(Node):
@@ -120,6 +120,8 @@ class CameraSimulatorNode(Node):
             raise ValueError(f"attitude.profile={self.profile!r}: expected one of {sorted([*self.motion_kwargs, 'external'])}")
         if len(distortion) != 5 or len(quaternion) != 4:
             raise ValueError("optics.distortion needs 5 values, attitude.quaternion 4")
+        if not np.all(np.isfinite(quaternion)):  # NaN would fall through to RA/Dec/roll unnoticed
+            raise ValueError(f"attitude.quaternion={list(quaternion)} must be finite")
         if np.linalg.norm(quaternion) > 0:
             initial = quaternion_to_matrix(np.asarray(quaternion, dtype=float))
         else:
@@ -147,6 +149,8 @@ class CameraSimulatorNode(Node):
         self.pub_truth_objects = self.create_publisher(PointCloud2, "truth/objects", RESULT_QOS)
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
+        # Every parameter is read-only: a runtime change is refused with the reason, logged, counted.
+        guard_parameter_changes(self, lambda changes: None, self.diag, self.log)
         if self.profile == "external":
             # Truth from a dynamics simulator, on this node's clock (use_sim_time for sim time).
             self.motion = None

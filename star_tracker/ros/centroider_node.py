@@ -1,7 +1,10 @@
 """centroider: extracts star spots from any mono8/mono16 Image and publishes `spots`.
 
 The spots message carries the image's header unchanged (stamp = mid-exposure). A malformed
-image is logged, counted in /diagnostics and skipped; the next good one is processed.
+image is logged, counted in /diagnostics and skipped; the next good one is processed. Frames
+with no signal, a saturated background, or a stamp out of order or from the future are still
+measured (the centroider keeps no state between frames) but counted and logged; the
+identifier decides what to do with their stamps (docs/RELIABILITY.md).
 
 Rate aid (optional, never required): with `exposure_time_s` > 0, a camera model from
 `camera_info` and a body rate (the `angular_velocity` topic or the `angular_velocity_rad_s`
@@ -12,6 +15,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import fields, replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -23,15 +27,20 @@ from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
 from ..centroid.kernels import warm_up
 from ..centroid.streak import SmearModel
 from . import convert
-from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, CameraInfoInput, Diagnostics, ThrottledLog, declare, run_node
+from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, Rejections,
+                     StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)
 
 RATE_SOURCES = ("topic", "parameter", "none")
+# Tunable while running (`ros2 param set`), checked together as a CentroidConfig; the rest
+# (rate_source: which subscription exists) is fixed at startup.
+RUNTIME_PARAMETERS = {f.name for f in fields(CentroidConfig)} | {
+    "exposure_time_s", "angular_velocity_rad_s", "max_rate_age_s", "stamp.max_future_s", "stamp.reset_after_s"}
 
 
 class CentroiderNode(Node):
     def __init__(self) -> None:
         super().__init__("centroider")
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        p = lambda name, *a, **k: declare(self, name, *a, read_only=name not in RUNTIME_PARAMETERS, **k)  # noqa: E731
         self.config = CentroidConfig(
             detection_sigma=p("detection_sigma", 4.5, "detection threshold [noise sigmas]", 1.0, 100.0),
             binning=p("binning", 2, "detection grid bin factor: 2 = 4x cheaper; 1 = full resolution", 1, 2),
@@ -40,7 +49,7 @@ class CentroiderNode(Node):
             min_snr=p("min_snr", 5.0, "smallest reported SNR", 0.0, 1e6),
             background_block_px=p("background_block_px", 32, "background mesh size [px]", 4, 1024),
             gain_e_per_adu=p("gain_e_per_adu", 1.0, "sensor gain for the shot-noise term [e-/ADU]", 1e-3, 1e4),
-            saturation_adu=p("saturation_adu", 0.0, "saturation level [ADU]; 0 = dtype maximum", 0.0, 1e9),
+            saturation_adu=p("saturation_adu", 0.0, "saturation level [ADU]; 0 = dtype max (flat tops too)", 0.0, 1e9),
             max_spots=p("max_spots", 500, "most spots reported per frame (brightest)", 1, 100000),
             method=p("method", "auto", "sub-pixel method: " + " | ".join(CENTROID_METHODS)
                      + " (auto = PSF fit for points, streak model for streaks)"),
@@ -60,6 +69,10 @@ class CentroiderNode(Node):
                        "body rate in the sensor frame when rate_source is 'parameter' [rad/s]")
         self.max_rate_age_s = p("max_rate_age_s", 0.5, "ignore a rate message further than this from the image "
                                                         "stamp [s]", 0.0, 1e6)
+        self.stamps = StampOrder(self, p("stamp.max_future_s", 1.0, "count frames stamped further ahead of this "
+                                         "node's clock [s]; 0 = no check", 0.0, 1e9),
+                                 p("stamp.reset_after_s", 2.0, "a frame older than the newest by more than this "
+                                   "restarts time (replay, simulation reset) [s]", 0.0, 1e9))
         problems = []
         if self.rate_source not in RATE_SOURCES:
             problems.append(f"rate_source={self.rate_source!r} must be one of {RATE_SOURCES}")
@@ -74,10 +87,25 @@ class CentroiderNode(Node):
         self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
+        self.reject = Rejections(self.diag, self.log)
+        guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
         if self.rate_source == "topic":
             self.sub_rate = self.create_subscription(Vector3Stamped, "angular_velocity", self.on_rate, RESULT_QOS)
+
+    def apply_parameters(self, changes: dict) -> str | None:
+        """Runtime parameter changes, all or none (see common.guard_parameter_changes)."""
+        config = replace(self.config, **{k: v for k, v in changes.items() if k in self.config.__dataclass_fields__})
+        rate = np.asarray(changes.get("angular_velocity_rad_s", self.rate_param), float)
+        if rate.shape != (3,) or not np.all(np.isfinite(rate)):
+            return f"angular_velocity_rad_s={list(rate)} must be 3 finite values"
+        self.config, self.rate_param = config, rate
+        self.exposure_s = changes.get("exposure_time_s", self.exposure_s)
+        self.max_rate_age_s = changes.get("max_rate_age_s", self.max_rate_age_s)
+        self.stamps.max_future_s = changes.get("stamp.max_future_s", self.stamps.max_future_s)
+        self.stamps.reset_after_s = changes.get("stamp.reset_after_s", self.stamps.reset_after_s)
+        return None
 
     def on_rate(self, msg: Vector3Stamped) -> None:
         vector = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
@@ -106,6 +134,10 @@ class CentroiderNode(Node):
         started = time.perf_counter()
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
+        verdict = self.stamps.classify(stamp_ns)
+        if verdict != STAMP_OK:  # measured all the same: counted for whoever reads /diagnostics
+            self.reject("time_resets" if verdict == STAMP_RESET else f"frames_{verdict}",
+                        self.stamps.describe(verdict, stamp_ns))
         try:
             image = convert.image_to_array(msg)
             smear = self.smear_for(stamp_ns, image.shape[1], image.shape[0])
@@ -115,6 +147,11 @@ class CentroiderNode(Node):
             self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
             self.log.warn("bad_image", f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
             return
+        except Exception as exc:  # a defect, not bad input: reported, and the next frame is processed
+            self.diag.count("frames_failed")
+            self.diag.set(DiagnosticStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}")
+            self.log.error("internal", f"frame {stamp_ns * 1e-9:.6f} failed: {type(exc).__name__}: {exc}")
+            return
         out = convert.spots_to_cloud(spots, stamp_ns, msg.header.frame_id)
         out.header = msg.header  # unchanged stamp and frame
         self.pub.publish(out)
@@ -122,9 +159,23 @@ class CentroiderNode(Node):
         if smear is not None:
             self.diag.count("frames_rate_aided")
         self.diag.count("spots_rejected_shape", spots.rejected_shape)
-        self.diag.set(DiagnosticStatus.OK, "ok", last_spot_count=len(spots),
+        problem = self.content_problem(image, spots)
+        self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok", last_spot_count=len(spots),
                       last_processing_ms=f"{(time.perf_counter() - started) * 1e3:.2f}",
                       last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None))
+
+    def content_problem(self, image: np.ndarray, spots) -> str | None:
+        """Count and log a frame with no signal (every pixel equal: lens cap, dead sensor) or a
+        saturated background (Sun, Earth limb, overexposure); None for a usable frame."""
+        saturation = self.config.saturation_adu or np.iinfo(image.dtype).max
+        if spots.background_adu >= saturation:
+            self.reject("frames_saturated", f"saturated frame: background {spots.background_adu:.0f} ADU "
+                        f">= saturation {saturation:.0f} ADU")
+            return "saturated frame"
+        if len(spots) == 0 and image.min() == image.max():
+            self.reject("frames_no_signal", f"frame without signal: every pixel reads {image.flat[0]} ADU")
+            return "frame without signal"
+        return None
 
 
 def main(argv: list[str] | None = None) -> None:

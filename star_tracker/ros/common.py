@@ -1,7 +1,9 @@
-"""What every node shares: parameter declaration with descriptors, diagnostics, QoS, main()."""
+"""What every node shares: parameter declaration with descriptors, runtime parameter checks,
+diagnostics, input-error reporting, stamp ordering, QoS, main()."""
 from __future__ import annotations
 
 import os
+import re
 import sys
 import time
 from collections import Counter
@@ -10,9 +12,10 @@ from typing import Callable
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 RESULT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
@@ -48,6 +51,67 @@ def declare(node: Node, name: str, default, description: str, low=None, high=Non
     return node.declare_parameter(name, default, descriptor).value
 
 
+def _descriptor_problem(node: Node, param: Parameter) -> str | None:
+    """Why rclpy will refuse `param` (undeclared, read-only, wrong type, out of range), or None."""
+    if not node.has_parameter(param.name):
+        return f"{param.name} is not a parameter of {node.get_name()}"
+    descriptor = node.describe_parameter(param.name)
+    if descriptor.read_only:
+        return f"{param.name} is read-only (set it at startup)"
+    if param.type_.value != descriptor.type:
+        return f"{param.name} must be of type {Parameter.Type(descriptor.type).name}, got {param.type_.name}"
+    ranges = list(descriptor.floating_point_range) + list(descriptor.integer_range)
+    if ranges and not (ranges[0].from_value <= param.value <= ranges[0].to_value):  # NaN fails too
+        return f"{param.name}={param.value} is outside [{ranges[0].from_value}, {ranges[0].to_value}]"
+    return None
+
+
+def guard_parameter_changes(node: Node, apply: Callable[[dict], str | None], diag: "Diagnostics",
+                            log: "ThrottledLog") -> None:
+    """Runtime `set_parameters`: rclpy refuses read-only, mistyped and out-of-range values
+    itself; `apply(changes)` then checks the new values together (building the new
+    configuration) and either applies them, returning None, or returns the reason they are
+    refused (a ValueError's message counts as one). A refused request keeps every old value,
+    answers the caller with the reason, logs it and counts `parameter_changes_rejected`.
+    Call after every parameter is declared."""
+
+    def refused(reason: str) -> None:
+        diag.count("parameter_changes_rejected")
+        diag.set(DiagnosticStatus.WARN, f"parameter change refused: {reason}")
+        log.warn("parameters", f"parameter change refused: {reason}")
+
+    def audit(params: list[Parameter]) -> list[Parameter]:  # sees what rclpy alone will refuse
+        problems = [p for p in (_descriptor_problem(node, param) for param in params) if p]
+        if problems:
+            refused("; ".join(problems))
+        return params
+
+    def validate(params: list[Parameter]) -> SetParametersResult:
+        changes = {param.name: param.value for param in params}
+        try:
+            reason = apply(changes)
+        except ValueError as exc:
+            reason = str(exc)
+        if reason:
+            refused(reason)
+            return SetParametersResult(successful=False, reason=reason)
+        node.get_logger().info(f"parameters changed: {changes}")
+        return SetParametersResult(successful=True)
+
+    node.add_pre_set_parameters_callback(audit)
+    node.add_on_set_parameters_callback(validate)
+
+
+def report_unknown_parameters(node: Node) -> list[str]:
+    """Log the parameter overrides (command line, params file) this node does not declare: a
+    misspelled name would otherwise be ignored without a word. Returns their names."""
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps them only privately
+    unknown = sorted(name for name in overrides if not node.has_parameter(name))
+    if unknown:
+        node.get_logger().warning(f"ignored unknown parameter(s): {', '.join(unknown)}")
+    return unknown
+
+
 class Diagnostics:
     """Counters and the latest state of a node, published on /diagnostics at 1 Hz."""
 
@@ -80,8 +144,66 @@ class Diagnostics:
         self._pub.publish(msg)
 
 
+class Rejections:
+    """One call per rejected input: a counter on /diagnostics, a WARN status with the reason,
+    and a throttled log line (ThrottledLog: one per kind of message and period)."""
+
+    def __init__(self, diag: "Diagnostics", log: "ThrottledLog"):
+        self.diag, self.log = diag, log
+
+    def __call__(self, counter: str, text: str, n: int = 1) -> None:
+        self.diag.count(counter, n)
+        self.diag.set(DiagnosticStatus.WARN, text)
+        self.log.warn(counter, text)
+
+
+STAMP_OK, STAMP_UNSET, STAMP_FUTURE, STAMP_OUT_OF_ORDER, STAMP_RESET = (
+    "ok", "unstamped", "from_future", "out_of_order", "time_reset")
+
+
+class StampOrder:
+    """Where a frame's stamp stands against the newest stamp so far and the node's clock.
+
+    unstamped: zero (a header never filled in). from_future: more than `max_future_s` ahead of
+    the clock (0 disables; skipped while the clock reads zero, as sim time does before the
+    first /clock). out_of_order: not newer than the newest stamp (duplicates included) by at
+    most `reset_after_s`. time_reset: older by more than that (a replay or a simulation
+    restarted). Only ok and time_reset frames become the newest."""
+
+    def __init__(self, node: Node, max_future_s: float, reset_after_s: float):
+        self.node, self.max_future_s, self.reset_after_s = node, max_future_s, reset_after_s
+        self.newest_ns: int | None = None
+        self._previous_ns: int | None = None  # the newest before the last classify()
+
+    def classify(self, stamp_ns: int) -> str:
+        self._previous_ns = self.newest_ns
+        if stamp_ns == 0:
+            return STAMP_UNSET
+        now_ns = self.node.get_clock().now().nanoseconds
+        if self.max_future_s > 0 and now_ns > 0 and stamp_ns > now_ns + self.max_future_s * 1e9:
+            return STAMP_FUTURE
+        verdict = STAMP_OK
+        if self.newest_ns is not None and stamp_ns <= self.newest_ns:
+            if self.newest_ns - stamp_ns <= self.reset_after_s * 1e9:
+                return STAMP_OUT_OF_ORDER
+            verdict = STAMP_RESET
+        self.newest_ns = stamp_ns
+        return verdict
+
+    def describe(self, verdict: str, stamp_ns: int) -> str:
+        now_ns = self.node.get_clock().now().nanoseconds
+        newest = "none" if self._previous_ns is None else f"{self._previous_ns * 1e-9:.6f} s"
+        what = {STAMP_UNSET: "unstamped (zero)", STAMP_RESET: "a jump back in time"}.get(verdict, verdict.replace("_", " "))
+        return f"frame stamp {stamp_ns * 1e-9:.6f} s is {what} (newest {newest}, clock {now_ns * 1e-9:.6f} s)"
+
+
+_NUMBERS = re.compile(r"[-+]?(\d[\d.eE+-]*|nan|inf)")
+
+
 class ThrottledLog:
-    """At most one log line per key per period, with the count of suppressed repeats."""
+    """At most one log line per key and kind of message per period, with the count of
+    suppressed repeats. Messages differing only in their numbers are of one kind: a stream
+    of the same fault logs once per period, while a different fault still gets its line."""
 
     def __init__(self, node: Node, period_s: float = 2.0):
         self.node, self.period = node, period_s
@@ -89,10 +211,21 @@ class ThrottledLog:
         self._suppressed: Counter[str] = Counter()
 
     def warn(self, key: str, text: str) -> None:
+        self._emit(key, text, self.node.get_logger().warning)
+
+    def error(self, key: str, text: str) -> None:
+        self._emit(key, text, self.node.get_logger().error)
+
+    def _emit(self, key: str, text: str, write: Callable[[str], object]) -> None:
+        key = key + ":" + _NUMBERS.sub("#", text)
         now = time.monotonic()
+        if len(self._last) > 256:  # garbage input can make endless kinds: forget the quiet ones
+            for stale in [k for k, t in self._last.items() if now - t >= self.period and not self._suppressed[k]]:
+                del self._last[stale]
+                self._suppressed.pop(stale, None)
         if now - self._last.get(key, -1e9) >= self.period:
             extra = f" ({self._suppressed[key]} similar suppressed)" if self._suppressed[key] else ""
-            self.node.get_logger().warning(text + extra)
+            write(text + extra)
             self._last[key] = now
             self._suppressed[key] = 0
         else:
@@ -110,16 +243,50 @@ def configure_middleware(environ=os.environ) -> None:
         environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(FASTDDS_PROFILE)
 
 
+def check_params_files(args: list[str]) -> None:
+    """Every `--params-file PATH` must name a readable regular file (rcl's own error is a C
+    parser trace)."""
+    for i, arg in enumerate(args):
+        if arg == "--params-file" or arg.startswith("--params-file="):
+            value = arg.partition("=")[2] if "=" in arg else (args[i + 1] if i + 1 < len(args) else "")
+            path = Path(value)
+            if not value:
+                raise ValueError("--params-file needs a path")
+            if not path.exists():
+                raise ValueError(f"--params-file {value}: no such file")
+            if not path.is_file():
+                raise ValueError(f"--params-file {value}: not a regular file")
+            if not os.access(path, os.R_OK):
+                raise ValueError(f"--params-file {value}: not readable")
+
+
+def check_cache_directory(environ=os.environ) -> None:
+    """STAR_TRACKER_CACHE (catalog and pattern-database caches), when set, must be a
+    directory this process can read and write, or a path it can create."""
+    value = environ.get("STAR_TRACKER_CACHE")
+    if not value:
+        return
+    path = Path(value)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"STAR_TRACKER_CACHE={value} is not a directory")
+    if path.is_dir() and not os.access(path, os.R_OK | os.W_OK | os.X_OK):
+        raise ValueError(f"STAR_TRACKER_CACHE={value} is not readable and writable by this process")
+
+
 def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     """Init rclpy (SIGINT/SIGTERM shut it down), build the node, spin, clean up. Returns the
-    process exit code: 0 on a normal shutdown, 2 when the node could not start."""
+    process exit code: 0 on a normal shutdown, 2 when the node could not start (bad
+    arguments or parameters: one `fatal:` line on stderr, no traceback)."""
     args = sys.argv if argv is None else argv
     configure_middleware()
-    rclpy.init(args=args)
     node = None
     code = 0
     try:
+        check_params_files(args)
+        check_cache_directory()
+        rclpy.init(args=args)
         node = factory()
+        report_unknown_parameters(node)
         node.get_logger().info("ready")
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -158,6 +325,7 @@ class CameraInfoInput:
             reason = str(exc)
         if reason:
             self.diag.count("camera_info_rejected")
+            self.diag.set(DiagnosticStatus.WARN, f"rejected camera_info: {reason}")
             self.log.warn("bad_info", f"rejected camera_info: {reason}")
             return
         self.camera, self._key = camera, key

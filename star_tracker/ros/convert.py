@@ -1,11 +1,13 @@
 """Message <-> core-record conversion. Layouts are documented in msg_docs/.
 
-Raises ValueError with a message naming the problem for any malformed message.
+Raises ValueError with a message naming the problem for any malformed message (and never
+another exception type: test/test_fuzz.py checks that on generated garbage).
 """
 from __future__ import annotations
 
 import numpy as np
 from builtin_interfaces.msg import Time
+from scipy.spatial import cKDTree
 from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, TwistWithCovarianceStamped, Vector3Stamped
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
@@ -18,6 +20,10 @@ from ..identify.base import Identification
 ICRS_FRAME = "icrs"
 OPTICAL_FRAME = "star_tracker_optical"
 MAX_IMAGE_PIXELS = 64 * 1024 * 1024
+MAX_CLOUD_POINTS = 100_000  # the centroider's largest max_spots
+MAX_SPOT_SIGMA_PX = 20.0  # a spot 1-sigma beyond this is no measurement (real ones: < 6 px, streaks included)
+SPOT_MARGIN_PX = 10.0  # spots this far outside the image are not from this camera
+MIN_SPOT_SEPARATION_PX = 0.01  # two spots closer than this are one measurement reported twice
 
 _IMAGE_DTYPES = {"mono8": np.uint8, "8UC1": np.uint8, "mono16": np.uint16, "16UC1": np.uint16}
 
@@ -29,6 +35,8 @@ def stamp_to_ns(stamp: Time) -> int:
 
 def ns_to_stamp(ns: int) -> Time:
     sec, nanosec = divmod(int(ns), 1_000_000_000)
+    if not -2**31 <= sec < 2**31:
+        raise ValueError(f"stamp {ns} ns does not fit builtin_interfaces/Time (int32 seconds)")
     return Time(sec=int(sec), nanosec=int(nanosec))
 
 
@@ -56,12 +64,10 @@ def image_to_array(msg: Image) -> np.ndarray:
 
 
 def array_to_image(array: np.ndarray, stamp_ns: int, frame_id: str) -> Image:
-    if array.dtype == np.uint16:
-        encoding = "mono16"
-    elif array.dtype == np.uint8:
-        encoding = "mono8"
-    else:
-        raise ValueError(f"unsupported array dtype {array.dtype}")
+    array = np.asarray(array)
+    if array.ndim != 2 or array.dtype.kind != "u" or array.dtype.itemsize not in (1, 2):
+        raise ValueError(f"expected a 2-D uint8/uint16 array (either byte order), got {array.dtype} {array.shape}")
+    encoding = "mono16" if array.dtype.itemsize == 2 else "mono8"
     array = np.ascontiguousarray(array.astype(array.dtype.newbyteorder("<"), copy=False))
     msg = Image()
     msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
@@ -91,13 +97,28 @@ def info_to_camera(msg: CameraInfo) -> CameraModel:
     k = np.asarray(msg.k, dtype=float)
     if k.size != 9 or not np.all(np.isfinite(k)):
         raise ValueError(f"CameraInfo K must be 9 finite values, got {list(k)}")
+    if int(msg.width) * int(msg.height) > MAX_IMAGE_PIXELS:
+        raise ValueError(f"CameraInfo size {msg.width}x{msg.height} exceeds the {MAX_IMAGE_PIXELS}-pixel limit")
     d = list(msg.d)
     if msg.distortion_model not in ("plumb_bob", "") and d:
         raise ValueError(f"unsupported distortion model {msg.distortion_model!r}; expected plumb_bob")
     if len(d) not in (0, 5):
         raise ValueError(f"plumb_bob needs 5 distortion coefficients, got {len(d)}")
     d = tuple(float(x) for x in (d or [0.0] * 5))
-    return CameraModel(int(msg.width), int(msg.height), k[0], k[4], k[2], k[5], d)
+    camera = CameraModel(int(msg.width), int(msg.height), k[0], k[4], k[2], k[5], d)
+    # The border pixels must see directions in front of the lens that project back onto them:
+    # a wild distortion (not invertible there) would send the identifier stars in wrong places.
+    w, h = camera.width - 1.0, camera.height - 1.0
+    u = np.array([0.0, w, 0.0, w, 0.5 * w, 0.5 * w, 0.0, w])
+    v = np.array([0.0, 0.0, h, h, 0.0, h, 0.5 * h, 0.5 * h])
+    with np.errstate(all="ignore"):
+        rays = camera.pixel_to_ray(u, v)
+        back_u, back_v, _ = camera.project(rays)
+        error = np.hypot(back_u - u, back_v - v)
+    if not (np.all(np.isfinite(rays)) and np.all(rays[:, 2] > 1e-6) and np.all(error < 0.05)):
+        raise ValueError(f"CameraInfo describes no usable field of view (distortion {list(d)} not invertible "
+                         "at the image border)")
+    return camera
 
 
 # ----------------------------------------------------------------------------- point clouds
@@ -134,7 +155,8 @@ def records_to_cloud(records: np.ndarray, fields: list[PointField], stamp_ns: in
     msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
     msg.height = 1
     msg.width = int(records.size)
-    msg.fields = fields
+    # Copies: the message must not share (and let a consumer alter) the module's layout constants.
+    msg.fields = [PointField(name=f.name, offset=f.offset, datatype=f.datatype, count=f.count) for f in fields]
     msg.is_bigendian = False
     msg.point_step = int(records.dtype.itemsize)
     msg.row_step = msg.point_step * msg.width
@@ -145,8 +167,8 @@ def records_to_cloud(records: np.ndarray, fields: list[PointField], stamp_ns: in
 
 def cloud_to_records(msg: PointCloud2, fields: list[PointField], dtype: np.dtype) -> np.ndarray:
     """Decode a PointCloud2 whose layout must equal `fields` (name, offset, datatype)."""
-    got = [(f.name, int(f.offset), int(f.datatype)) for f in msg.fields]
-    want = [(f.name, f.offset, f.datatype) for f in fields]
+    got = [(f.name, int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields]
+    want = [(f.name, f.offset, f.datatype, 1) for f in fields]
     if got != want:
         raise ValueError(f"unexpected PointCloud2 layout {got}; expected {want}")
     if msg.is_bigendian:
@@ -154,6 +176,8 @@ def cloud_to_records(msg: PointCloud2, fields: list[PointField], dtype: np.dtype
     if int(msg.point_step) != dtype.itemsize:
         raise ValueError(f"point_step {msg.point_step} != {dtype.itemsize}")
     count = int(msg.width) * int(msg.height)
+    if count > MAX_CLOUD_POINTS:
+        raise ValueError(f"PointCloud2 with {count} points exceeds the {MAX_CLOUD_POINTS}-point limit")
     data = msg.data
     raw = data.tobytes() if hasattr(data, "tobytes") else bytes(data)
     if len(raw) != count * dtype.itemsize:
@@ -171,16 +195,43 @@ def spots_to_cloud(spots: Spots, stamp_ns: int, frame_id: str) -> PointCloud2:
 
 
 def cloud_to_spots(msg: PointCloud2, width: int, height: int) -> Spots:
+    """Spots from a `spots` cloud, values as received (NaN included: see drop_invalid_spots)."""
     rec = cloud_to_records(msg, SPOT_FIELDS, SPOT_DTYPE)
     n = rec.size
     cov = np.empty((n, 2, 2))
-    cov[:, 0, 0] = rec["cov_xx"]
-    cov[:, 1, 1] = rec["cov_yy"]
-    cov[:, 0, 1] = cov[:, 1, 0] = rec["cov_xy"]
-    return Spots(x=rec["x"].astype(float), y=rec["y"].astype(float), flux=rec["flux"].astype(float),
-                 snr=rec["snr"].astype(float), cov=cov, flags=rec["flags"].astype(np.uint32),
-                 area=np.zeros(n, np.int32), peak=np.zeros(n), width=width, height=height,
-                 streak_length=rec["streak_length"].astype(float), streak_angle=rec["streak_angle"].astype(float))
+    with np.errstate(invalid="ignore"):  # signalling-NaN bit patterns warn when widened
+        cov[:, 0, 0] = rec["cov_xx"]
+        cov[:, 1, 1] = rec["cov_yy"]
+        cov[:, 0, 1] = cov[:, 1, 0] = rec["cov_xy"]
+        return Spots(x=rec["x"].astype(float), y=rec["y"].astype(float), flux=rec["flux"].astype(float),
+                     snr=rec["snr"].astype(float), cov=cov, flags=rec["flags"].astype(np.uint32),
+                     area=np.zeros(n, np.int32), peak=np.zeros(n), width=width, height=height,
+                     streak_length=rec["streak_length"].astype(float), streak_angle=rec["streak_angle"].astype(float))
+
+
+def drop_invalid_spots(spots: Spots) -> tuple[Spots, int]:
+    """The spots a real measurement can produce, and how many others were dropped: position,
+    flux and covariance finite, variances in [0, MAX_SPOT_SIGMA_PX^2] px^2, position within
+    SPOT_MARGIN_PX of the image, and no two closer than MIN_SPOT_SEPARATION_PX (the first,
+    brightest, is kept). NaN/inf from a faulty producer would otherwise reach the identifier,
+    whose tolerances grow with the covariance (and its run time with them); coincident spots
+    make its pattern kernels divide by zero (docs/RELIABILITY.md, known defects)."""
+    with np.errstate(invalid="ignore"):
+        var_x, var_y = spots.cov[:, 0, 0], spots.cov[:, 1, 1]
+        limit = MAX_SPOT_SIGMA_PX ** 2
+        ok = (np.isfinite(spots.x) & np.isfinite(spots.y) & np.isfinite(spots.flux)
+              & np.all(np.isfinite(spots.cov.reshape(-1, 4)), axis=1)
+              & (var_x >= 0) & (var_x <= limit) & (var_y >= 0) & (var_y <= limit)
+              & (spots.x >= -0.5 - SPOT_MARGIN_PX) & (spots.x <= spots.width - 0.5 + SPOT_MARGIN_PX)
+              & (spots.y >= -0.5 - SPOT_MARGIN_PX) & (spots.y <= spots.height - 0.5 + SPOT_MARGIN_PX))
+    valid = np.flatnonzero(ok)
+    if valid.size > 1:  # of two coincident spots, the later (fainter) goes
+        close = cKDTree(np.stack([spots.x[valid], spots.y[valid]], axis=1)).query_pairs(
+            MIN_SPOT_SEPARATION_PX, output_type="ndarray")
+        if close.size:
+            ok[valid[close.max(axis=1)]] = False
+    dropped = int(ok.size - np.count_nonzero(ok))
+    return (spots if dropped == 0 else spots.take(ok)), dropped
 
 
 def identification_to_cloud(result: Identification, spots: Spots, magnitudes: np.ndarray,

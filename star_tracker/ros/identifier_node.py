@@ -9,6 +9,12 @@ A lost-in-space solve runs in a worker thread. When it ends within `inline_wait_
 published as usual; when it takes longer, the frames arriving meanwhile are bridged by
 frame-to-frame rotations (Tracker.bridge, seed 004) and the newest one is published, verified,
 when the solve ends (delay compensation).
+
+Bad input never stops the node: a malformed spots message is skipped, spots with non-finite
+or implausible values are dropped from their frame, and frames that would corrupt the track's
+time line (unstamped, stamped in the future, out of order) are dropped; each is counted on
+/diagnostics and logged (throttled). A backwards jump beyond `stamp.reset_after_s` restarts
+the track instead (a replay or simulation restarted). See docs/RELIABILITY.md.
 """
 from __future__ import annotations
 
@@ -28,13 +34,17 @@ from ..camera import CameraModel
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from ..identify.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
-from .common import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, CameraInfoInput, Diagnostics, ThrottledLog, declare, run_node
+from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, Rejections,
+                     StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)
+
+# Tunable while running (`ros2 param set`); the rest is fixed at startup (database, algorithm).
+RUNTIME_PARAMETERS = {"inline_wait_s", "tracking.enabled", "stamp.max_future_s", "stamp.reset_after_s"}
 
 
 class IdentifierNode(Node):
     def __init__(self) -> None:
         super().__init__("identifier")
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
+        p = lambda name, *a, **k: declare(self, name, *a, read_only=name not in RUNTIME_PARAMETERS, **k)  # noqa: E731
         algorithm = p("algorithm", DEFAULT_ALGORITHM, f"identification algorithm: one of {sorted(ALGORITHMS)}")
         self.frame_id = p("frame_id", convert.ICRS_FRAME, "parent frame of the published attitude")
         db_config = DatabaseConfig(
@@ -67,6 +77,11 @@ class IdentifierNode(Node):
         )
         self.inline_wait_s = p("inline_wait_s", 0.05, "wait this long for a lost-in-space solve before bridging "
                                "newer frames (delay compensation) [s]", 0.0, 10.0)
+        self.stamps = StampOrder(self, p("stamp.max_future_s", 1.0, "drop frames stamped further ahead of this "
+                                         "node's clock [s]; 0 = no check", 0.0, 1e9),
+                                 p("stamp.reset_after_s", 2.0, "a frame older than the newest by more than this "
+                                   "restarts the track (replay, simulation reset); a less old one is dropped [s]",
+                                   0.0, 1e9))
         started = time.perf_counter()
         self.database = load_or_build_database(db_config)
         self.identifier = make_identifier(algorithm, self.database, self.config)
@@ -92,6 +107,8 @@ class IdentifierNode(Node):
         self._acquisition_timer = self.create_timer(0.005, self.poll_acquisition)
         self._acquisition_timer.cancel()
         self.log = ThrottledLog(self)
+        self.reject = Rejections(self.diag, self.log)
+        guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, SPOTS_QOS)
@@ -105,9 +122,21 @@ class IdentifierNode(Node):
                     f"{np.degrees(limit):.2f}")
         return None
 
+    def apply_parameters(self, changes: dict) -> str | None:
+        """Runtime parameter changes (see common.guard_parameter_changes); ranges suffice."""
+        self.inline_wait_s = changes.get("inline_wait_s", self.inline_wait_s)
+        self.tracking_enabled = changes.get("tracking.enabled", self.tracking_enabled)
+        self.stamps.max_future_s = changes.get("stamp.max_future_s", self.stamps.max_future_s)
+        self.stamps.reset_after_s = changes.get("stamp.reset_after_s", self.stamps.reset_after_s)
+        return None
+
     def on_spots(self, msg: PointCloud2) -> None:
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
+        verdict = self.stamps.classify(stamp_ns)
+        if verdict not in (STAMP_OK, STAMP_RESET):  # the tracker's prediction and rate need increasing time
+            self.reject(f"frames_{verdict}", self.stamps.describe(verdict, stamp_ns) + "; frame dropped")
+            return
         camera = self.camera_info.camera
         if camera is None:
             self.diag.count("frames_without_camera_info")
@@ -121,8 +150,23 @@ class IdentifierNode(Node):
             self.diag.set(DiagnosticStatus.WARN, f"rejected spots: {exc}")
             self.log.warn("bad_spots", f"rejected spots message: {exc}")
             return
+        spots, dropped = convert.drop_invalid_spots(spots)
+        if dropped:
+            self.reject("spots_dropped_invalid", f"dropped {dropped} spot(s) with non-finite or implausible values "
+                        f"(frame {stamp_ns * 1e-9:.6f}); {len(spots)} kept", dropped)
         with self._lock:
-            self.process(stamp_ns, spots, camera, msg.header.frame_id)
+            if verdict == STAMP_RESET:
+                self.reject("time_resets", self.stamps.describe(verdict, stamp_ns) + "; track restarted")
+                self.tracker.reset()
+                self._acquisition = None  # a solve still running for the old time line is ignored
+                self._acquisition_timer.cancel()
+            if len(spots) == 0:  # nothing to identify (an occulted or blank frame)
+                self.not_identified(stamp_ns, "too_few_spots", "no spots", spots)
+                return
+            try:
+                self.process(stamp_ns, spots, camera, msg.header.frame_id)
+            except Exception as exc:  # a defect, not bad input: reported, and the next frame is processed
+                self.internal_error(stamp_ns, exc)
 
     def process(self, stamp_ns: int, spots, camera, sensor_frame: str) -> None:
         """Track, or start (or bridge during) a lost-in-space solve. Holds the lock."""
@@ -160,20 +204,26 @@ class IdentifierNode(Node):
     def poll_acquisition(self) -> None:
         with self._lock:
             if self._acquisition is not None and self._acquisition[0].done():
-                self._finish_acquisition()
+                stamp_ns = self._acquisition[1]
+                try:
+                    self._finish_acquisition()
+                except Exception as exc:  # a defect: reported, the node keeps running
+                    self.internal_error(stamp_ns, exc)
 
     def _finish_acquisition(self) -> None:
         future, stamp_ns, spots, camera, sensor_frame, received = self._acquisition
         self._acquisition = None
         self._acquisition_timer.cancel()
-        result = future.result()
+        try:
+            result = future.result()
+        except Exception as exc:  # identify() failed: reported; the next frame starts a new solve
+            self.tracker.reset()
+            self.internal_error(stamp_ns, exc)
+            return
         self.diag.values["last_identify_ms"] = f"{result.elapsed_s * 1e3:.2f}"
         if not result.solved:
             self.tracker.complete_acquisition(result)
-            self.diag.count(f"not_identified_{result.status}")
-            self.diag.values["mode"] = MODE_LOST
-            self.diag.set(DiagnosticStatus.WARN, f"not identified: {result.reason}", last_spot_count=len(spots))
-            self.log.warn("unsolved", f"frame {stamp_ns * 1e-9:.3f} not identified: {result.reason}")
+            self.not_identified(stamp_ns, result.status, result.reason, spots)
             return
         newest_spots = self.tracker.pending_spots()
         tracked = self.tracker.complete_acquisition(result)
@@ -184,6 +234,18 @@ class IdentifierNode(Node):
                           "not verified on the newest frame")
             return
         self.publish(tracked, newest_spots if tracked.bridged_frames else spots, sensor_frame, received)
+
+    def not_identified(self, stamp_ns: int, status: str, reason: str, spots) -> None:
+        self.diag.count(f"not_identified_{status}")
+        self.diag.values["mode"] = MODE_LOST
+        self.diag.set(DiagnosticStatus.WARN, f"not identified: {reason}", last_spot_count=len(spots))
+        self.log.warn("unsolved", f"frame {stamp_ns * 1e-9:.3f} not identified: {reason}")
+
+    def internal_error(self, stamp_ns: int, exc: Exception) -> None:
+        self.diag.count("frames_failed")
+        self.diag.values["mode"] = MODE_LOST
+        self.diag.set(DiagnosticStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}")
+        self.log.error("internal", f"frame {stamp_ns * 1e-9:.6f} failed: {type(exc).__name__}: {exc}")
 
     def publish(self, tracked: TrackedFrame, spots, sensor_frame: str, received: float) -> None:
         result, stamp_ns = tracked.identification, tracked.stamp_ns
