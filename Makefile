@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test clean
+.PHONY: venv demo test clean example-bag
 
 venv: $(STAMP)
 
@@ -23,8 +23,16 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest
 
+# A small example bag (4 s at 5 Hz through the three nodes, ~40 MiB), made by a command and
+# never committed: `star-tracker play example_bag` replays it (README, docs/RECORD_REPLAY.md).
+example-bag: example_bag/metadata.yaml
+
+example_bag/metadata.yaml: $(STAMP)
+	rm -rf example_bag example_output
+	$(VENV)/bin/star-tracker demo --duration 4 --rate 5 --output example_output --record example_bag
+
 clean:
-	rm -rf build install log demo_output .pytest_cache
+	rm -rf build install log demo_output .pytest_cache example_bag example_output
 
 # Benchmarks write their sections of docs/BENCHMARKS.md and the figures in docs/images.
 # Peers (tetra3rs, cedar-solve) are optional bench dependencies, never runtime ones;
@@ -45,3 +53,4 @@ bench: $(BENCH_STAMP)
 	$(PY) -m bench.bench_databases --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_attitude --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_tracking --output docs/BENCHMARKS.md
+	$(PY) -m bench.bench_replay --output docs/BENCHMARKS.md
