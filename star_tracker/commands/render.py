@@ -1,0 +1,162 @@
+"""`star-tracker render`: one simulated frame to a 16-bit PNG/TIFF or FITS, with its truth as JSON."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .common import (CameraFile, CommandError, add_parser, camera_summary, finite_float, guarded, load_camera_file,
+                     non_negative_float, positive_float)
+
+NAME = "render"
+
+
+def register(subparsers) -> None:
+    parser = add_parser(
+        subparsers, NAME, "render one simulated star-field frame to PNG/FITS with a truth JSON",
+        "Render one frame of the Hipparcos sky with the camera simulator's model (radiometry, "
+        "pixel-integrated PSF, motion smear over the exposure, detector noise and defects) and write "
+        "it losslessly as a 16-bit PNG or TIFF, or as FITS (by the output's suffix). Beside it goes "
+        "the truth as JSON: the attitude at mid-exposure (quaternion x, y, z, w sensor->ICRS, and "
+        "RA/Dec/roll), the body rate, the stamp, the camera, and every rendered star's HIP id, Hp "
+        "magnitude and pixel position. Conventions: docs/USER_GUIDE.md and msg_docs/.",
+        "star-tracker render --ra 83.8 --dec -5.4 --roll 30 --rate 0.1 0 0 --output orion.png\n"
+        "star-tracker solve orion.png --fov 15    # should give back RA 83.8, Dec -5.4, roll 30")
+    parser.add_argument("--ra", type=finite_float, default=80.0, metavar="DEG",
+                        help="boresight right ascension, ICRS [deg] (default 80)")
+    parser.add_argument("--dec", type=finite_float, default=20.0, metavar="DEG",
+                        help="boresight declination, ICRS [deg], -90..90 (default 20)")
+    parser.add_argument("--roll", type=finite_float, default=0.0, metavar="DEG",
+                        help="roll about the boresight [deg]; 0 = image up (-y) toward celestial north (default 0)")
+    parser.add_argument("--rate", type=finite_float, nargs=3, default=[0.0, 0.0, 0.0], metavar=("WX", "WY", "WZ"),
+                        help="body rate in the sensor frame (+x image right, +y image down, +z boresight) "
+                             "[deg/s] (default 0 0 0: no smear)")
+    parser.add_argument("--exposure", type=positive_float, default=None, metavar="S",
+                        help="exposure time [s] (default: sensor.exposure_s of --camera, else 0.1)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="noise seed: the frame is reproducible from it (default 0)")
+    parser.add_argument("--stamp", type=finite_float, default=0.0, metavar="S",
+                        help="mid-exposure time written to the truth [s] (default 0)")
+    parser.add_argument("--camera", metavar="YAML",
+                        help="camera file: camera_simulator parameters as in config/star_tracker.yaml "
+                             "(image.width, optics.fov_x_deg, sensor.*, sky.*; unset keys keep the node's "
+                             "defaults). Default: the node's default camera, 1024x1024 px, 15 deg")
+    parser.add_argument("--magnitude-limit", type=finite_float, default=None, metavar="HP",
+                        help="faintest star rendered [Hp mag] (default: sky.magnitude_limit of --camera, else 7.5)")
+    parser.add_argument("--epoch", type=finite_float, default=None, metavar="YEAR",
+                        help="catalog epoch for proper motion [Julian year] (default: sky.epoch_jyear of --camera "
+                             "if set, else 2026.0)")
+    parser.add_argument("--no-noise", action="store_true",
+                        help="render expected values: no shot/read noise, no cosmic rays (default: noise on)")
+    parser.add_argument("-o", "--output", required=True, metavar="FILE",
+                        help="image to write: .png or .tif/.tiff (16-bit grey) or .fits/.fit")
+    parser.add_argument("--truth", metavar="JSON",
+                        help="truth file to write (default: the output's name with .json)")
+    parser.set_defaults(func=run)
+
+
+def truth_path_for(output: Path) -> Path:
+    name = output.name
+    for suffix in (".fits.gz", ".fit.gz"):
+        if name.lower().endswith(suffix):
+            return output.with_name(name[: -len(suffix)] + ".json")
+    return output.with_suffix(".json")
+
+
+@guarded(NAME)
+def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from ..attitude import matrix_to_quaternion, matrix_to_radec_roll, radec_roll_to_matrix
+    from ..camera import CameraModel
+    from ..catalog import load_hipparcos
+    from ..motion import ConstantRateMotion
+    from ..render import KIND_STAR, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+    from .images import write_image
+
+    if not -90.0 <= args.dec <= 90.0:
+        raise CommandError(f"--dec {args.dec} must be in [-90, 90]")
+    output = Path(args.output)
+    truth_path = Path(args.truth) if args.truth else truth_path_for(output)
+    if output.resolve() == truth_path.resolve():
+        raise CommandError("--truth must differ from --output")
+    if args.camera:
+        spec = load_camera_file(args.camera)
+        if spec.sensor is None:
+            raise CommandError(f"{args.camera}: a calibration file has no sensor model; render needs "
+                               "camera_simulator parameters")
+    else:
+        spec = CameraFile(CameraModel.from_fov(1024, 1024, np.radians(15.0)),
+                          SensorModel(vignetting_at_corner=0.1, dsnu_fraction=0.1, prnu_fraction=0.01,
+                                      hot_pixel_fraction=2e-5, cosmic_ray_rate_per_cm2_s=5.0),
+                          FalseObjectModel(), {}, "default camera")
+    sensor = spec.sensor
+    if args.exposure is not None:
+        sensor = replace(sensor, exposure_s=args.exposure)
+    if args.no_noise:
+        sensor = replace(sensor, noise=False, cosmic_ray_rate_per_cm2_s=0.0)
+    magnitude_limit = args.magnitude_limit if args.magnitude_limit is not None else float(
+        spec.render.get("magnitude_limit", 7.5))
+    epoch = args.epoch if args.epoch is not None else float(spec.render.get("epoch_jyear") or 2026.0)
+    if not 1900.0 <= epoch <= 2200.0:
+        raise CommandError(f"epoch {epoch} must be in [1900, 2200]")
+    catalog = load_hipparcos().at_epoch(epoch)
+    renderer = StarFieldRenderer(spec.camera, sensor, catalog, magnitude_limit, spec.false_objects,
+                                 int(spec.render.get("fixed_pattern_seed", 0)),
+                                 spec.render.get("observer_velocity_m_s", (0.0, 0.0, 0.0)))
+    rotation = radec_roll_to_matrix(math.radians(args.ra), math.radians(args.dec), math.radians(args.roll))
+    rate = np.radians(np.asarray(args.rate, dtype=float))
+    motion = ConstantRateMotion(rotation, rate, t0=args.stamp)
+    frame = renderer.render(motion, args.stamp, frame_seed(args.seed, 0))
+    truth = frame.truth
+
+    ra, dec, roll = (math.degrees(a) for a in matrix_to_radec_roll(truth.rotation))
+    quaternion = matrix_to_quaternion(truth.rotation)
+    header = {"EXPTIME": (sensor.exposure_s, "[s] exposure"), "RA": (ra, "[deg] boresight RA, ICRS"),
+              "DEC": (dec, "[deg] boresight Dec, ICRS"), "ROLL": (roll, "[deg] roll about the boresight"),
+              "FOVX": (math.degrees(2 * math.atan(0.5 * spec.camera.width / spec.camera.fx)), "[deg] horizontal FOV"),
+              "SEED": (int(args.seed), "noise seed"), "CREATOR": ("star-tracker render", "")}
+    write_image(output, frame.image, header)
+
+    stars = truth.kind == KIND_STAR
+    by_hip = np.argsort(renderer.catalog.hip)
+    index = by_hip[np.searchsorted(renderer.catalog.hip, truth.hip[stars], sorter=by_hip)]
+    magnitude = renderer.catalog.hp[index]
+    inside = spec.camera.in_image(truth.x, truth.y)
+    star_rows = [{"hip": int(h), "magnitude": round(float(m), 3), "x": round(float(x), 4), "y": round(float(y), 4),
+                  "electrons": round(float(e), 1), "in_image": bool(i)}
+                 for h, m, x, y, e, i in zip(truth.hip[stars], magnitude, truth.x[stars], truth.y[stars],
+                                             truth.electrons[stars], inside[stars])]
+    others = [{"kind": int(k), "x": round(float(x), 4), "y": round(float(y), 4), "electrons": round(float(e), 1)}
+              for k, x, y, e in zip(truth.kind[~stars], truth.x[~stars], truth.y[~stars], truth.electrons[~stars])]
+    cam = spec.camera
+    document = {
+        "image": str(output.name),
+        "stamp_s": truth.stamp_s,
+        "quaternion_xyzw": [float(q) for q in quaternion],
+        "ra_deg": ra, "dec_deg": dec, "roll_deg": roll,
+        "rotation_sensor_to_icrs": truth.rotation.tolist(),
+        "body_rate_deg_s": [float(w) for w in np.degrees(truth.body_rate)],
+        "exposure_s": sensor.exposure_s,
+        "seed": int(args.seed),
+        "epoch_jyear": epoch,
+        "magnitude_limit": magnitude_limit,
+        "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
+                   "distortion": list(cam.distortion),
+                   "fov_x_deg": math.degrees(2 * math.atan(0.5 * cam.width / cam.fx)), "source": spec.source},
+        "stars": star_rows,
+        "other_objects": others,
+        "conventions": "quaternion (x, y, z, w) rotates sensor-frame vectors into ICRS; sensor frame +x image right, "
+                       "+y image down, +z boresight; pixel (0, 0) is the centre of the top-left pixel; positions "
+                       "at mid-exposure; magnitudes Hipparcos Hp",
+    }
+    truth_path.write_text(json.dumps(document, indent=1) + "\n")
+    in_view = sum(1 for s in star_rows if s["in_image"])
+    print(f"wrote {output} ({cam.width}x{cam.height} uint16, {camera_summary(cam)}; exposure {sensor.exposure_s:g} s, "
+          f"{in_view} stars to Hp {magnitude_limit:g} in the image)")
+    print(f"wrote {truth_path} (RA {ra:.4f} deg, Dec {dec:.4f} deg, roll {roll:.4f} deg, "
+          f"rate {' '.join(f'{w:g}' for w in args.rate)} deg/s)")
+    return 0
