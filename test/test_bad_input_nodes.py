@@ -122,6 +122,11 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(graph, tmp_pat
             pub_image.publish(stamped(convert.array_to_image(good_image, 0, FRAME), base - 10**9))
             if driver.spin(1.0, until=lambda: base - 10**9 in spots):
                 break
+        # Copies of that frame answered late (a loaded host) must not count below: wait them out,
+        # then count from here.
+        driver.spin(3.0)
+        baseline = dict(driver.counters)
+        delta = lambda key: driver.count(key) - int(baseline.get(key, 0))  # noqa: E731
 
         def send(msg, stamp_ns, publisher=pub_image):
             publisher.publish(stamped(msg, stamp_ns))
@@ -161,8 +166,8 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(graph, tmp_pat
         send(convert.array_to_image(good_image, 0, FRAME), good_ns)
         expected = {"frames_rejected": 4, "camera_info_rejected": 3, "rates_rejected": 1, "frames_no_signal": 1,
                     "frames_saturated": 1, "frames_from_future": 1, "frames_out_of_order": 1,
-                    "frames_unstamped": 1, "parameter_changes_rejected": 3, "frames_processed": 7}
-        driver.spin(15.0, until=lambda: all(driver.count(k) >= v for k, v in expected.items()) and good_ns in spots)
+                    "frames_unstamped": 1, "parameter_changes_rejected": 3, "frames_processed": 6}
+        driver.spin(15.0, until=lambda: all(delta(k) >= v for k, v in expected.items()) and good_ns in spots)
         detection_sigma = driver.get_parameter("centroider", "detection_sigma")
         max_area = driver.get_parameter("centroider", "max_area")
     finally:
@@ -171,7 +176,7 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(graph, tmp_pat
     log = (tmp_path / "logs" / "centroider.log").read_text()
     assert codes == {"centroider": 0}, log
     assert "Traceback" not in log, log
-    assert {k: driver.count(k) for k in expected} == expected, (driver.counters, log)
+    assert {k: delta(k) for k in expected} == expected, (driver.counters, baseline, log)
     assert spots.get(good_ns, 0) >= 5, (spots, log)  # the good frame after all that
     assert len(spots) == 7  # first, black, saturated, future, out-of-order, unstamped, good: nothing else
     # Refused with a reason, old values kept; the good change applied.
@@ -284,7 +289,7 @@ def test_identifier_survives_bad_spots_stamps_info_and_parameters(graph, tmp_pat
     log = (tmp_path / "logs" / "identifier.log").read_text()
     assert codes == {"identifier": 0}, log
     assert "Traceback" not in log and "frames_failed" not in driver.counters, log
-    assert {k: driver.count(k) for k in expected} == expected, (driver.counters, log)
+    assert {k: delta(k) for k in expected} == expected, (driver.counters, baseline, log)
     assert driver.count("frames_without_camera_info") >= 1
     # Attitudes only for the good frames, in order, each right.
     stamps = [convert.stamp_to_ns(a.header.stamp) for a in attitudes]
