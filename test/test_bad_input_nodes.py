@@ -28,6 +28,8 @@ from star_tracker.render import SensorModel, StarFieldRenderer  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.common import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
+from test_fuzz import spots_at  # noqa: E402  one star-spot builder for the tests
+from test_integration import ros_graph  # noqa: E402,F401  the isolated-domain fixture
 
 ARCSEC = np.radians(1 / 3600)
 FRAME = "star_tracker_optical"
@@ -75,17 +77,6 @@ class Driver:
         return parameter_value_to_python(future.result().values[0])
 
 
-@pytest.fixture
-def graph(monkeypatch):
-    env = isolated_ros_environment()
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        monkeypatch.setenv(key, env[key])
-    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
-    rclpy.init(args=[])
-    yield env
-    rclpy.try_shutdown()
-
-
 def now_ns() -> int:
     return time.time_ns()
 
@@ -98,7 +89,7 @@ def stamped(msg, stamp_ns: int):
 
 # ------------------------------------------------------------------------------ centroider
 @pytest.mark.integration
-def test_centroider_survives_bad_images_info_rates_and_parameters(graph, tmp_path, catalog):
+def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp_path, catalog):
     camera = CameraModel.from_fov(256, 256, np.radians(4.0))
     renderer = StarFieldRenderer(camera, SensorModel(), catalog.at_epoch(2026.0), magnitude_limit=8.5)
     good_image = renderer.render(ConstantRateMotion(radec_roll_to_matrix(1.5, 0.3, 0.0), np.zeros(3)), 1.0, 7).image
@@ -110,7 +101,7 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(graph, tmp_pat
     pub_image = driver.node.create_publisher(Image, "image_raw", SENSOR_QOS)
     pub_info = driver.node.create_publisher(CameraInfo, "camera_info", SENSOR_QOS)
     pub_rate = driver.node.create_publisher(Vector3Stamped, "angular_velocity", RESULT_QOS)
-    nodes = NodeProcesses(graph, tmp_path / "logs", {"centroider": {"detection_sigmaa": 3.0}}, nodes=("centroider",))
+    nodes = NodeProcesses(ros_graph, tmp_path / "logs", {"centroider": {"detection_sigmaa": 3.0}}, nodes=("centroider",))
     try:
         nodes.start()
         nodes.wait_ready()
@@ -193,16 +184,6 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(graph, tmp_pat
 
 
 # ------------------------------------------------------------------------------ identifier
-def star_spots(sky, camera, rotation) -> Spots:
-    u, v, front = camera.project(sky.unit_vectors() @ rotation)
-    keep = front & camera.in_image(u, v, margin=3)
-    order = np.argsort(sky.hp[keep])
-    n = order.size
-    return Spots(u[keep][order], v[keep][order], 1e5 * 10 ** (-0.4 * sky.hp[keep][order]), np.full(n, 50.0),
-                 np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.ones(n, np.int32), np.ones(n),
-                 camera.width, camera.height)
-
-
 def with_garbage(spots: Spots) -> Spots:
     """`spots` plus NaN, infinite, far-away and absurdly uncertain ones, and a second copy of
     the brightest (9 in all; a coincident pair used to crash the hybrid identifier)."""
@@ -222,19 +203,19 @@ def with_garbage(spots: Spots) -> Spots:
 
 
 @pytest.mark.integration
-def test_identifier_survives_bad_spots_stamps_info_and_parameters(graph, tmp_path, catalog, database):
+def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph, tmp_path, catalog, database):
     # A distorted lens: with it, an empty frame used to crash identify() (camera.pixel_to_ray).
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0), (-0.05, 0.0, 0.0, 0.0, 0.0))
     sky = catalog.brighter_than(6.8).at_epoch(2026.0)
     truth = radec_roll_to_matrix(2.0, -0.4, 1.0)
-    good = star_spots(sky, camera, truth)
+    good = spots_at(sky, camera, truth)
 
     driver = Driver("identifier")
     attitudes: list[QuaternionStamped] = []
     driver.node.create_subscription(QuaternionStamped, "attitude", attitudes.append, RESULT_QOS)
     pub_info = driver.node.create_publisher(CameraInfo, "camera_info", SENSOR_QOS)
     pub_spots = driver.node.create_publisher(PointCloud2, "spots", SENSOR_QOS)
-    nodes = NodeProcesses(graph, tmp_path / "logs", nodes=("identifier",))
+    nodes = NodeProcesses(ros_graph, tmp_path / "logs", nodes=("identifier",))
     try:
         nodes.start()
         nodes.wait_ready()
@@ -306,14 +287,14 @@ def test_identifier_survives_bad_spots_stamps_info_and_parameters(graph, tmp_pat
 
 # ------------------------------------------------------------------------------ camera simulator
 @pytest.mark.integration
-def test_camera_refuses_runtime_changes_and_bad_external_truth(graph, tmp_path):
+def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_path):
     driver = Driver("camera_simulator")
     pub_q = driver.node.create_publisher(QuaternionStamped, "truth_in/attitude", RESULT_QOS)
     pub_w = driver.node.create_publisher(Vector3Stamped, "truth_in/angular_velocity", RESULT_QOS)
     images = []
     driver.node.create_subscription(Image, "image_raw", lambda m: images.append(convert.stamp_to_ns(m.header.stamp)),
                                     SENSOR_QOS)
-    nodes = NodeProcesses(graph, tmp_path / "logs", {"camera_simulator": {
+    nodes = NodeProcesses(ros_graph, tmp_path / "logs", {"camera_simulator": {
         "attitude.profile": "external", "rate_hz": 5.0, "image.width": 256, "image.height": 256}},
         nodes=("camera_simulator",))
     try:
