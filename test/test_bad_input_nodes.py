@@ -96,8 +96,14 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp
 
     driver = Driver("centroider")
     spots: dict[int, int] = {}
-    driver.node.create_subscription(PointCloud2, "spots", lambda m: spots.__setitem__(
-        convert.stamp_to_ns(m.header.stamp), m.width * m.height), SENSOR_QOS)
+    last_answer = [time.monotonic()]
+    answers = [0]
+
+    def on_spots(msg):
+        spots[convert.stamp_to_ns(msg.header.stamp)] = msg.width * msg.height
+        last_answer[0] = time.monotonic()
+        answers[0] += 1
+    driver.node.create_subscription(PointCloud2, "spots", on_spots, SENSOR_QOS)
     pub_image = driver.node.create_publisher(Image, "image_raw", SENSOR_QOS)
     pub_info = driver.node.create_publisher(CameraInfo, "camera_info", SENSOR_QOS)
     pub_rate = driver.node.create_publisher(Vector3Stamped, "angular_velocity", RESULT_QOS)
@@ -113,9 +119,10 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp
             pub_image.publish(stamped(convert.array_to_image(good_image, 0, FRAME), base - 10**9))
             if driver.spin(1.0, until=lambda: base - 10**9 in spots):
                 break
-        # Copies of that frame answered late (a loaded host) must not count below: wait them out,
-        # then count from here.
-        driver.spin(3.0)
+        # Copies of that frame answered late (a loaded host: the first frame can take seconds)
+        # must not count below: wait until the centroider has been quiet for 3 s, then count.
+        driver.spin(60.0, until=lambda: time.monotonic() - last_answer[0] > 3.0)
+        driver.spin(10.0, until=lambda: driver.count("frames_processed") >= answers[0])  # diagnostics caught up
         baseline = dict(driver.counters)
         delta = lambda key: driver.count(key) - int(baseline.get(key, 0))  # noqa: E731
 

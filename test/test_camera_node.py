@@ -27,13 +27,14 @@ def driver(monkeypatch):
         monkeypatch.setenv(key, env[key])
     rclpy.init(args=[])
     node = rclpy.create_node("camera_driver")
-    received = {"truth": [], "rate": [], "objects": [], "images": 0}
+    received = {"truth": [], "rate": [], "objects": [], "images": 0, "image_stamps": set()}
     node.create_subscription(QuaternionStamped, "truth/attitude", received["truth"].append, RESULT_QOS)
     node.create_subscription(Vector3Stamped, "truth/angular_velocity", received["rate"].append, RESULT_QOS)
     node.create_subscription(PointCloud2, "truth/objects", received["objects"].append, RESULT_QOS)
 
     def on_image(_msg):
         received["images"] += 1
+        received["image_stamps"].add(convert.stamp_to_ns(_msg.header.stamp))
     node.create_subscription(Image, "image_raw", on_image, SENSOR_QOS)
     node.create_subscription(CameraInfo, "camera_info", lambda _msg: None, SENSOR_QOS)
 
@@ -62,7 +63,7 @@ def test_external_truth_is_followed_exactly(driver, tmp_path):
         # A dynamics simulator's truth at 50 Hz on the shared clock.
         motion = ConstantRateMotion(radec_roll_to_matrix(3.0, -0.5, 0.7), np.radians([0.4, -0.3, 0.2]),
                                     t0=time.time())
-        end = time.monotonic() + 6.0
+        end = time.monotonic() + 20.0  # 15 frames at 10 Hz take ~2 s; generous for a loaded host
         while time.monotonic() < end and len(received["truth"]) < frames:
             t_ns = time.time_ns()
             pub_q.publish(convert.quaternion_msg(matrix_to_quaternion(motion.rotation_at(t_ns * 1e-9)), t_ns))
@@ -82,7 +83,10 @@ def test_external_truth_is_followed_exactly(driver, tmp_path):
     for msg in received["rate"]:
         v = msg.vector
         assert np.allclose([v.x, v.y, v.z], motion.angular_velocity_at(0.0), atol=1e-9)
-    assert received["images"] == len(received["truth"])
+    # Every image has its truth; best-effort images may lose one on a loaded host, truth is reliable.
+    truth_stamps = {convert.stamp_to_ns(msg.header.stamp) for msg in received["truth"]}
+    assert received["image_stamps"] <= truth_stamps
+    assert received["images"] >= len(truth_stamps) - 1
 
 
 @pytest.mark.integration
