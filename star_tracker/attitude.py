@@ -67,13 +67,16 @@ def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
 
 def rotation_vector_to_matrix(rotvec: np.ndarray) -> np.ndarray:
     """Rodrigues: rotation by |rotvec| [rad] about rotvec's direction."""
-    rotvec = np.asarray(rotvec, dtype=float)
-    angle = float(np.linalg.norm(rotvec))
+    x, y, z = (float(v) for v in np.asarray(rotvec, dtype=float).reshape(3))  # scalars: once per frame, fast
+    angle = math.sqrt(x * x + y * y + z * z)
     if angle < 1e-12:
-        return np.eye(3) + skew(rotvec)
-    axis = rotvec / angle
-    k = skew(axis)
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+        return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
+    s, c = math.sin(angle), 1.0 - math.cos(angle)
+    x, y, z = x / angle, y / angle, z / angle
+    # I + sin K + (1 - cos) K^2 with K = [axis]x and K^2 = axis axis^T - I
+    return np.array([[1.0 + c * (x * x - 1.0), c * x * y - s * z, c * x * z + s * y],
+                     [c * x * y + s * z, 1.0 + c * (y * y - 1.0), c * y * z - s * x],
+                     [c * x * z - s * y, c * y * z + s * x, 1.0 + c * (z * z - 1.0)]])
 
 
 def matrix_to_rotation_vector(rot: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ the model exactly.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
@@ -57,12 +58,12 @@ class CameraModel:
 
     @property
     def has_distortion(self) -> bool:
-        return bool(np.any(np.asarray(self.distortion) != 0.0))
+        return any(d != 0.0 for d in self.distortion)  # plain floats: asked on every frame
 
     @property
     def pixel_scale_rad(self) -> float:
         """Angle subtended by one pixel at the principal point [rad/px]."""
-        return 1.0 / np.sqrt(self.fx * self.fy)
+        return 1.0 / math.sqrt(self.fx * self.fy)
 
     @property
     def half_diagonal_fov_rad(self) -> float:

@@ -16,7 +16,7 @@ biased) is shortened from the old end until the fit passes.
 """
 from __future__ import annotations
 
-from collections import deque
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -53,24 +53,40 @@ class AttitudeRateEstimator:
                              f"max_angular_acceleration_rad_s2={max_angular_acceleration_rad_s2}, max_frames={max_frames}")
         self.window_ns = int(window_s * 1e9)
         self.alpha_max = float(max_angular_acceleration_rad_s2)
-        self._history: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=max_frames)  # (ns, R, P^-1, P)
+        # The window, oldest first, in arrays (the fit is compiled): stamps [ns], rotations
+        # (sensor -> ICRS), information P^-1 [1/rad^2] and covariance P [rad^2].
+        self._count = 0
+        self._stamps = np.zeros(max_frames, np.int64)
+        self._rotations = np.zeros((max_frames, 3, 3))
+        self._information = np.zeros((max_frames, 3, 3))
+        self._covariances = np.zeros((max_frames, 3, 3))
+        self._limits = _chi2_limits(3 * max_frames)
 
     def reset(self) -> None:
-        self._history.clear()
+        self._count = 0
 
     def add(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray) -> RateEstimate | None:
         """Add a verified attitude; return the rate at `stamp_ns` once two attitudes are in the
         window, else None. Stamps must increase; an older one restarts the window."""
-        if self._history and stamp_ns <= self._history[-1][0]:
-            self._history.clear()
-        covariance = np.asarray(covariance, float)
-        try:
-            information = np.linalg.inv(covariance)
-        except np.linalg.LinAlgError:
-            raise ValueError("attitude covariance must be invertible") from None
-        self._history.append((int(stamp_ns), np.asarray(rotation, float), information, covariance))
-        while self._history and stamp_ns - self._history[0][0] > self.window_ns:
-            self._history.popleft()
+        stamp_ns = int(stamp_ns)
+        if self._count and stamp_ns <= self._stamps[self._count - 1]:
+            self._count = 0
+        covariance = np.ascontiguousarray(covariance, float).reshape(3, 3)
+        invertible, information = _inverse3(covariance)
+        if not invertible:
+            raise ValueError("attitude covariance must be invertible")
+        # Oldest out: beyond the window, or to make room.
+        drop = int(np.count_nonzero(stamp_ns - self._stamps[:self._count] > self.window_ns))
+        drop = max(drop, self._count + 1 - self._stamps.size)
+        if drop:
+            kept = slice(drop, self._count)
+            for array in (self._stamps, self._rotations, self._information, self._covariances):
+                array[:self._count - drop] = array[kept]
+            self._count -= drop
+        k = self._count
+        self._stamps[k], self._rotations[k], self._information[k], self._covariances[k] = (
+            stamp_ns, rotation, information, covariance)
+        self._count += 1
         return self.estimate()
 
     def estimate(self) -> RateEstimate | None:
@@ -78,64 +94,116 @@ class AttitudeRateEstimator:
         two chi^2 tests at 1 % (all residuals; the newest attitude's own residual, which an
         acceleration change since the previous frame shows first); a failed test drops the
         oldest attitude and refits, down to two."""
-        if len(self._history) < 2:
+        count = self._count
+        if count < 2:
             return None
-        stamps = np.array([h[0] for h in self._history], np.int64)
-        rotations = np.array([h[1] for h in self._history])
-        weights = np.array([h[2] for h in self._history])
-        newest_covariance = self._history[-1][3]
+        stamps = self._stamps[:count]
         # Rotation vectors relative to the newest attitude, in the newest sensor frame.
-        phi = _small_rotation_vectors(np.einsum("ji,kjl->kil", rotations[-1], rotations))
+        phi = _relative_rotation_vectors(self._rotations[:count])
         tau = (stamps - stamps[-1]) * 1e-9
-        first = 0
-        while stamps.size - first >= 2:
-            fit = _fit(tau[first:], phi[first:], weights[first:], newest_covariance, self.alpha_max)
-            if fit is None:
-                return None
-            omega, covariance, chi2, dof, newest_chi2 = fit
-            passed = (dof == 0 or chi2 <= _chi2_limit(dof)) and newest_chi2 <= _chi2_limit(3)
-            if passed or stamps.size - first == 2:
-                return RateEstimate(int(stamps[-1]), omega, covariance, int(stamps.size - first))
-            first += 1
-        return None
+        ok, omega, covariance, frames = _window_fit(tau, phi, self._information[:count], self._covariances[count - 1],
+                                                    self.alpha_max, self._limits)
+        if not ok:
+            return None
+        return RateEstimate(int(stamps[-1]), omega, covariance, int(frames))
 
 
-@lru_cache(maxsize=64)
-def _chi2_limit(dof: int) -> float:
-    return float(chi2_distribution.ppf(0.99, dof))
+@lru_cache(maxsize=8)
+def _chi2_limits(max_dof: int) -> np.ndarray:
+    """1 % upper tail of chi^2 for 0..max_dof degrees of freedom (0: no test)."""
+    limits = np.full(max_dof + 1, np.inf)
+    limits[1:] = chi2_distribution.ppf(0.99, np.arange(1, max_dof + 1))
+    return limits
 
 
-def _small_rotation_vectors(rotations: np.ndarray) -> np.ndarray:
-    """(k, 3) rotation vectors of (k, 3, 3) rotations from their antisymmetric part (exact
-    for angles below pi/2, which a rate window never approaches; larger ones fall back)."""
-    axis_sin = 0.5 * np.stack([rotations[:, 2, 1] - rotations[:, 1, 2], rotations[:, 0, 2] - rotations[:, 2, 0],
-                               rotations[:, 1, 0] - rotations[:, 0, 1]], axis=1)
-    cos = 0.5 * (np.trace(rotations, axis1=1, axis2=2) - 1.0)
-    if np.any(cos < 0.0):
-        return np.array([matrix_to_rotation_vector(r) for r in rotations])
-    sin = np.linalg.norm(axis_sin, axis=1)
-    angle = np.arctan2(sin, cos)
-    scale = np.where(sin > 1e-12, angle / np.where(sin > 1e-12, sin, 1.0), 1.0)
-    return axis_sin * scale[:, None]
+def _relative_rotation_vectors(rotations: np.ndarray) -> np.ndarray:
+    """(k, 3) rotation vectors [rad] of R_newest^T R_k for (k, 3, 3) rotations (newest last),
+    from the antisymmetric part (compiled; exact below pi/2, which a rate window never
+    approaches; larger angles fall back to matrix_to_rotation_vector)."""
+    phi, small = _relative_small_rotation_vectors(np.ascontiguousarray(rotations, dtype=float))
+    if small:
+        return phi
+    return np.array([matrix_to_rotation_vector(rotations[-1].T @ r) for r in rotations])
 
 
-def _fit(tau: np.ndarray, phi: np.ndarray, weight: np.ndarray, newest_covariance: np.ndarray, alpha_max: float):
-    """GLS fit of phi(tau) [rad] at times tau [s] (newest last, tau = 0) with weights P^-1:
-    (omega, covariance, chi^2, dof, chi^2 of the newest attitude's residual) or None."""
-    # With 4+ attitudes the fit includes a constant acceleration, so the rate at the newest
-    # frame is unbiased while the body accelerates; with 2-3 it is the constant-rate fit.
-    terms = 3 if tau.size >= 4 else 2
-    ok, omega, covariance, chi2, newest_chi2 = _gls(np.ascontiguousarray(tau), np.ascontiguousarray(phi),
-                                                    np.ascontiguousarray(weight), np.ascontiguousarray(newest_covariance),
-                                                    terms)
-    if not ok:
-        return None
-    if terms == 2:
-        # Slope bias under acceleration: the rate at the weighted mean time, not the newest.
-        trace = np.trace(weight, axis1=1, axis2=2)
-        lag = -float(np.sum(trace * tau) / np.sum(trace))
-        covariance = covariance + np.eye(3) * (alpha_max * lag) ** 2 / 3.0
-    return omega, covariance, chi2, 3 * tau.size - 3 * terms, newest_chi2
+@njit(cache=True)
+def _relative_small_rotation_vectors(rotations):
+    count = rotations.shape[0]
+    newest = rotations[count - 1]
+    phi = np.empty((count, 3))
+    rel = np.empty((3, 3))
+    for k in range(count):
+        for i in range(3):
+            for j in range(3):
+                rel[i, j] = newest[0, i] * rotations[k, 0, j] + newest[1, i] * rotations[k, 1, j] \
+                    + newest[2, i] * rotations[k, 2, j]
+        sx = 0.5 * (rel[2, 1] - rel[1, 2])
+        sy = 0.5 * (rel[0, 2] - rel[2, 0])
+        sz = 0.5 * (rel[1, 0] - rel[0, 1])
+        cos = 0.5 * (rel[0, 0] + rel[1, 1] + rel[2, 2] - 1.0)
+        if cos < 0.0:
+            return phi, False
+        sin = math.sqrt(sx * sx + sy * sy + sz * sz)
+        scale = math.atan2(sin, cos) / sin if sin > 1e-12 else 1.0
+        phi[k, 0], phi[k, 1], phi[k, 2] = sx * scale, sy * scale, sz * scale
+    return phi, True
+
+
+@njit(cache=True)
+def _inverse3(matrix):
+    """(invertible, inverse) of a 3x3 matrix by cofactors (compiled: once per tracked frame)."""
+    m = matrix
+    inverse = np.empty((3, 3))
+    inverse[0, 0] = m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]
+    inverse[0, 1] = m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2]
+    inverse[0, 2] = m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]
+    inverse[1, 0] = m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2]
+    inverse[1, 1] = m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0]
+    inverse[1, 2] = m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]
+    inverse[2, 0] = m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]
+    inverse[2, 1] = m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1]
+    inverse[2, 2] = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    det = m[0, 0] * inverse[0, 0] + m[0, 1] * inverse[1, 0] + m[0, 2] * inverse[2, 0]
+    if not (det != 0.0 and math.isfinite(det)):
+        return False, inverse
+    inverse /= det
+    for i in range(3):
+        for j in range(3):
+            if not math.isfinite(inverse[i, j]):
+                return False, inverse
+    return True, inverse
+
+
+@njit(cache=True)
+def _window_fit(tau, phi, weight, newest_covariance, alpha_max, limits):
+    """estimate()'s window loop: GLS fits of phi(tau) [rad] at times tau [s] (newest last,
+    tau = 0) with weights P^-1, from the whole window down to the newest two until both chi^2
+    tests pass (limits[dof]). With 4+ attitudes the fit includes a constant acceleration, so
+    the rate at the newest frame is unbiased while the body accelerates; with 2-3 it is the
+    constant-rate fit, whose slope is the rate at the weighted mean time: its lag times
+    alpha_max is added to the covariance. Returns (ok, omega [rad/s], covariance, frames)."""
+    count = tau.size
+    for first in range(count - 1):
+        frames = count - first
+        terms = 3 if frames >= 4 else 2
+        ok, omega, covariance, chi2, newest_chi2 = _gls(tau[first:], phi[first:], weight[first:],
+                                                        newest_covariance, terms)
+        if not ok:
+            return False, omega, covariance, 0
+        if terms == 2:
+            trace_sum = 0.0
+            weighted = 0.0
+            for k in range(first, count):
+                trace = weight[k, 0, 0] + weight[k, 1, 1] + weight[k, 2, 2]
+                trace_sum += trace
+                weighted += trace * tau[k]
+            lag = -weighted / trace_sum
+            for i in range(3):
+                covariance[i, i] += (alpha_max * lag) ** 2 / 3.0
+        dof = 3 * frames - 3 * terms
+        if ((dof == 0 or chi2 <= limits[dof]) and newest_chi2 <= limits[3]) or frames == 2:
+            return True, omega, covariance, frames
+    return False, np.zeros(3), np.zeros((3, 3)), 0
 
 
 @njit(cache=True)

@@ -30,22 +30,9 @@ NO_MATCH = "no_match"
 TIMEOUT = "timeout"
 
 
-def _without_coincident(spots: Spots, separation_px: float = 0.01) -> Spots:
-    """`spots` with the later of any two spots closer than `separation_px` given a NaN position
-    (prepare skips it; indices are kept): coincident spots carry no geometry, and their
-    parallel rays make kernels.triad divide by zero."""
-    from scipy.spatial import cKDTree
-
-    finite = np.flatnonzero(np.isfinite(spots.x) & np.isfinite(spots.y))
-    if finite.size < 2:
-        return spots
-    close = cKDTree(np.stack([spots.x[finite], spots.y[finite]], axis=1)).query_pairs(separation_px,
-                                                                                         output_type="ndarray")
-    if not close.size:
-        return spots
-    x = np.array(spots.x, dtype=float)
-    x[finite[close.max(axis=1)]] = np.nan
-    return replace(spots, x=x)
+# Spots closer than this [px] are one: the later one is dropped (prepare). Coincident spots
+# carry no geometry, and their parallel rays make kernels.triad divide by zero.
+COINCIDENT_SEPARATION_PX = 0.01
 
 
 @dataclass(frozen=True)
@@ -232,18 +219,17 @@ class StarIdentifier(ABC):
         geometry algorithms work on, in that order. Resets the per-call stats. Compiled
         (kernels.prepare_spots) for undistorted cameras, numpy with distortion."""
         self.stats = {}
-        spots = _without_coincident(spots)
         floor_px = self.config.centroid_sigma_floor_px
+        as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
+        x, y = as_float(spots.x), as_float(spots.y)
         if not camera.has_distortion:
-            as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
-            order, rays, sigma, magnitude = kernels.prepare_spots(
-                as_float(spots.x), as_float(spots.y), as_float(spots.flux), as_float(spots.cov),
-                camera.fx, camera.fy, camera.cx, camera.cy, floor_px)
-            x, y = spots.x[order], spots.y[order]
+            order, rays, sigma, magnitude, x, y, pixel_cov, jacobian = kernels.prepare_spots(
+                x, y, as_float(spots.flux), as_float(spots.cov), float(camera.fx), float(camera.fy),
+                float(camera.cx), float(camera.cy), float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX)
             return order, SpotGeometry(rays, sigma, min(order.size, self.config.max_pattern_spots), magnitude,
-                                       x, y, sanitized_covariance(spots.cov[order]), ray_jacobian(camera, x, y, rays))
-        x, y, flux = spots.x, spots.y, spots.flux
-        finite = np.isfinite(x) & np.isfinite(y)
+                                       x, y, pixel_cov, jacobian)
+        flux = spots.flux
+        finite = np.isfinite(x) & np.isfinite(y) & ~kernels.coincident_later(x, y, COINCIDENT_SEPARATION_PX)
         brightness = np.where(np.isnan(flux), -np.inf, flux)
         kept = np.flatnonzero(finite)
         order = kept[np.argsort(-brightness[kept], kind="stable")]

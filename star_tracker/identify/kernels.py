@@ -139,19 +139,19 @@ def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, ou
     # beside a star that pulled the fit toward itself): no spot is matched to it, so no
     # identity can be claimed for the wrong one.
     cos_wide = math.cos(min(2.0 * radius, math.pi))
+    world = np.empty((n, 3))  # the rays in ICRS under `rotation`, once (the rival scan is n^2)
+    for t in range(n):
+        for a in range(3):
+            world[t, a] = rotation[a, 0] * rays[t, 0] + rotation[a, 1] * rays[t, 1] + rotation[a, 2] * rays[t, 2]
     count = 0
     for s in range(n):
         star = best_star[s]
         if star < 0:
             continue
         rivals = 0
+        vx, vy, vz = vectors[star, 0], vectors[star, 1], vectors[star, 2]
         for t in range(n):
-            if t == s:
-                continue
-            dot = 0.0
-            for a in range(3):
-                dot += (rotation[a, 0] * rays[t, 0] + rotation[a, 1] * rays[t, 1] + rotation[a, 2] * rays[t, 2]) * vectors[star, a]
-            if dot >= cos_wide:
+            if t != s and world[t, 0] * vx + world[t, 1] * vy + world[t, 2] * vz >= cos_wide:
                 rivals += 1
                 break
         if rivals == 0:
@@ -412,15 +412,19 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
 
 
 @njit(cache=True)
-def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px):
+def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px, min_fit_sigma_px, separation_px):
     """The compiled form of StarIdentifier.prepare for cameras without distortion: indices of
-    the finite spots sorted by flux (brightest first, NaN flux last, stable), their unit rays
-    (N, 3), 1-sigma direction errors [rad] and instrumental magnitudes (NaN for flux <= 0)."""
+    the usable spots (finite, not coincident: coincident_later) sorted by flux (brightest
+    first, NaN flux last, stable), their unit rays (N, 3), 1-sigma direction errors [rad] for
+    matching (floored at sigma_floor_px), instrumental magnitudes (NaN for flux <= 0), pixel
+    positions x, y [px], pixel covariances for the final fit (N, 2, 2) [px^2] (unknown: 1 px^2,
+    plus min_fit_sigma_px^2 on both axes) and the rays' pixel jacobians (N, 3, 2) [rad/px]."""
     n = x.size
+    dropped = coincident_later(x, y, separation_px)
     keep = np.empty(n, np.int64)
     m = 0
     for i in range(n):
-        if np.isfinite(x[i]) and np.isfinite(y[i]):
+        if np.isfinite(x[i]) and np.isfinite(y[i]) and not dropped[i]:
             keep[m] = i
             m += 1
     key = np.empty(m)
@@ -431,9 +435,15 @@ def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px):
     rays = np.empty((m, 3))
     sigma = np.empty(m)
     magnitude = np.empty(m)
+    xs = np.empty(m)
+    ys = np.empty(m)
+    pixel_cov = np.empty((m, 2, 2))
+    jacobian = np.empty((m, 3, 2))
     scale = 1.0 / math.sqrt(fx * fy)
+    extra = min_fit_sigma_px * min_fit_sigma_px
     for q in range(m):
         i = order[q]
+        xs[q], ys[q] = x[i], y[i]
         u = (x[i] - cx) / fx
         v = (y[i] - cy) / fy
         norm = math.sqrt(u * u + v * v + 1.0)
@@ -442,7 +452,43 @@ def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px):
         s = math.sqrt(max(variance, 0.0)) if math.isfinite(variance) else 1.0  # unknown: 1 px
         sigma[q] = max(s, sigma_floor_px) * scale
         magnitude[q] = -2.5 * math.log10(flux[i]) if flux[i] > 0 else np.nan
-    return order, rays, sigma, magnitude
+        known = (math.isfinite(cov[i, 0, 0]) and math.isfinite(cov[i, 0, 1]) and math.isfinite(cov[i, 1, 0])
+                 and math.isfinite(cov[i, 1, 1]))
+        for r in range(2):
+            for c in range(2):
+                pixel_cov[q, r, c] = (cov[i, r, c] if known else (1.0 if r == c else 0.0)) + (extra if r == c else 0.0)
+        a, b = rays[q, 2] / fx, rays[q, 2] / fy
+        for r in range(3):
+            jacobian[q, r, 0] = a * ((1.0 if r == 0 else 0.0) - rays[q, r] * rays[q, 0])
+            jacobian[q, r, 1] = b * ((1.0 if r == 1 else 0.0) - rays[q, r] * rays[q, 1])
+    return order, rays, sigma, magnitude, xs, ys, pixel_cov, jacobian
+
+
+@njit(cache=True)
+def coincident_later(x, y, separation_px):
+    """(N,) bool: spots within separation_px [px] of an earlier (lower-index) finite spot.
+    Sweep over x-sorted finite spots, O(N log N) for spread-out spots."""
+    n = x.size
+    dropped = np.zeros(n, np.bool_)
+    finite = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        if np.isfinite(x[i]) and np.isfinite(y[i]):
+            finite[m] = i
+            m += 1
+    by_x = finite[:m][np.argsort(x[finite[:m]], kind="mergesort")]
+    limit = separation_px * separation_px
+    for a in range(m):
+        i = by_x[a]
+        for b in range(a + 1, m):
+            j = by_x[b]
+            dx = x[j] - x[i]
+            if dx > separation_px:
+                break
+            dy = y[j] - y[i]
+            if dx * dx + dy * dy <= limit:
+                dropped[max(i, j)] = True
+    return dropped
 
 
 @njit(cache=True)
@@ -524,3 +570,50 @@ def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius):
             out_ref[count] = nearest[i]
             count += 1
     return out_spot[:count], out_ref[:count]
+
+
+@njit(cache=True)
+def stars_in_view(vectors, rotation, cos_reach, fx, fy, cx, cy, width, height, margin):
+    """Catalog stars (ICRS unit vectors) within acos(cos_reach) of the boresight of `rotation`
+    (sensor -> ICRS) that a pinhole camera puts inside its pixel area shrunk by `margin` [px]
+    (negative: grown): (indices, u, v [px]). One pass over the catalog (~8k stars)."""
+    n = vectors.shape[0]
+    near = np.empty(n, np.int64)
+    us = np.empty(n)
+    vs = np.empty(n)
+    count = 0
+    bx, by, bz = rotation[0, 2], rotation[1, 2], rotation[2, 2]
+    for s in range(n):
+        z = vectors[s, 0] * bx + vectors[s, 1] * by + vectors[s, 2] * bz
+        if z <= cos_reach or z <= 1e-9:
+            continue
+        x = vectors[s, 0] * rotation[0, 0] + vectors[s, 1] * rotation[1, 0] + vectors[s, 2] * rotation[2, 0]
+        y = vectors[s, 0] * rotation[0, 1] + vectors[s, 1] * rotation[1, 1] + vectors[s, 2] * rotation[2, 1]
+        u = fx * x / z + cx
+        v = fy * y / z + cy
+        if -0.5 + margin <= u <= width - 0.5 - margin and -0.5 + margin <= v <= height - 0.5 - margin:
+            near[count], us[count], vs[count] = s, u, v
+            count += 1
+    return near[:count].copy(), us[:count].copy(), vs[:count].copy()
+
+
+@njit(cache=True)
+def offset_mahalanobis2(predicted, rotation, covariance):
+    """Squared Mahalanobis distance of `rotation` from `predicted` (both sensor -> ICRS): the
+    rotation vector of predicted^T rotation [rad] (sensor frame) against `covariance` [rad^2]."""
+    rel = predicted.T @ rotation
+    sx = 0.5 * (rel[2, 1] - rel[1, 2])
+    sy = 0.5 * (rel[0, 2] - rel[2, 0])
+    sz = 0.5 * (rel[1, 0] - rel[0, 1])
+    cos = max(-1.0, min(1.0, 0.5 * (rel[0, 0] + rel[1, 1] + rel[2, 2] - 1.0)))
+    sin = math.sqrt(sx * sx + sy * sy + sz * sz)
+    angle = math.atan2(sin, cos)
+    offset = np.empty(3)
+    if sin > 1e-12:
+        scale = angle / sin
+        offset[0], offset[1], offset[2] = sx * scale, sy * scale, sz * scale
+    elif cos > 0.0:
+        offset[0], offset[1], offset[2] = sx, sy, sz
+    else:  # a half turn: far outside any gate
+        return np.inf
+    return offset @ np.linalg.solve(covariance, offset)

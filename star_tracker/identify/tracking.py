@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..attitude import attitude_covariance, matrix_to_rotation_vector, rotation_vector_to_matrix
+from ..attitude import attitude_covariance, rotation_vector_to_matrix
 from ..camera import CameraModel
 from ..centroid import Spots
 from ..rate import AttitudeRateEstimator, RateEstimate
@@ -274,10 +274,16 @@ class Tracker:
         rotation = prediction.rotation
         half_diagonal = self._half_diagonal(camera)
         reach = half_diagonal + gate * camera.pixel_scale_rad
-        near = np.flatnonzero(self._vectors @ rotation[:, 2] > math.cos(min(reach, math.pi / 2)))
-        u, v, front = camera.project(self._vectors[near] @ rotation)
-        keep = front & camera.in_image(u, v, margin=-gate)
-        near, u, v = near[keep], u[keep], v[keep]
+        cos_reach = math.cos(min(reach, math.pi / 2))
+        if camera.has_distortion:
+            near = np.flatnonzero(self._vectors @ rotation[:, 2] > cos_reach)
+            u, v, front = camera.project(self._vectors[near] @ rotation)
+            keep = front & camera.in_image(u, v, margin=-gate)
+            near, u, v = near[keep], u[keep], v[keep]
+        else:
+            near, u, v = kernels.stars_in_view(self._vectors, rotation, cos_reach, float(camera.fx), float(camera.fy),
+                                               float(camera.cx), float(camera.cy), float(camera.width),
+                                               float(camera.height), -float(gate))
         if near.size < self.config.min_stars:
             return fail(f"{near.size} catalog stars near the predicted attitude")
         voters = min(n, self.config.max_pattern_spots)
@@ -297,27 +303,25 @@ class Tracker:
         if spot_i.size < 2:
             return fail(f"{spot_i.size} spots near predicted stars")
         rough = kernels.q_method(geometry.rays[spot_i], self._vectors[near[star_j]], 1.0 / geometry.sigma[spot_i] ** 2)
-        return self._verify_in_region(geometry, order, camera, rough, prediction, gate, started)
+        return self._verify_in_region(geometry, order, camera, rough, prediction, gate, tolerance_px, started)
 
-    def _verify_in_region(self, geometry, order, camera, rotation, prediction, gate, started):
+    def _verify_in_region(self, geometry, order, camera, rotation, prediction, gate, tolerance_px, started):
         lis = self.lost_in_space
         n = order.size
-        chord = 2.0 * math.sin(0.5 * min(lis.verification_radius_px(geometry, camera) * camera.pixel_scale_rad,
-                                         self.grid.max_radius_rad))
+        chord = 2.0 * math.sin(0.5 * min(tolerance_px * camera.pixel_scale_rad, self.grid.max_radius_rad))
         out_spot = np.empty(n, np.int64)
         out_star = np.empty(n, np.int64)
         count, rotation, _, chi2 = kernels.verify_candidate(
             rotation, geometry.rays, geometry.sigma, geometry.magnitude, self._vectors, self._star_magnitude,
             self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell, self.grid.grid,
             self.grid.cell_density, self._mean_density, chord, self.config.min_stars, lis.magnitude_floor,
-            out_spot, out_star, 2)  # the rough rotation is already fitted to the voters' pairs
+            out_spot, out_star, 1)  # the rough rotation is already fitted to the voters' pairs
         elapsed = lambda: time.perf_counter() - started  # noqa: E731
         if count < self.config.min_stars:
             return Identification("no_match", f"{count} stars verified; tracking needs {self.config.min_stars}",
                                   "tracking", elapsed()), gate
         # The bound holds for the searched region only: a solution outside it was not searched for.
-        offset = matrix_to_rotation_vector(prediction.rotation.T @ rotation)
-        mahalanobis2 = float(offset @ np.linalg.solve(prediction.covariance, offset))
+        mahalanobis2 = float(kernels.offset_mahalanobis2(prediction.rotation, rotation, prediction.covariance))
         if mahalanobis2 > self.config.gate_sigma**2:
             return Identification("no_match", f"solution {math.sqrt(mahalanobis2):.1f} sigma from the prediction "
                                   f"(gate {self.config.gate_sigma:g})", "tracking", elapsed()), gate
