@@ -15,7 +15,6 @@ from dataclasses import dataclass, field, replace
 from typing import Iterator
 
 import numpy as np
-from numba import njit
 
 from ..attitude import AttitudeSolution, quest, refine_with_covariances
 from ..camera import CameraModel
@@ -151,18 +150,7 @@ def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.nda
         jy = (camera.pixel_to_ray(x, y + h) - camera.pixel_to_ray(x, y - h)) / (2 * h)
         return np.stack([jx, jy], axis=2)
     rays = camera.pixel_to_ray(x, y) if rays is None else rays
-    return _pinhole_jacobian(np.ascontiguousarray(rays, dtype=float), float(camera.fx), float(camera.fy))
-
-
-@njit(cache=True)
-def _pinhole_jacobian(rays, fx, fy):
-    out = np.empty((rays.shape[0], 3, 2))
-    for i in range(rays.shape[0]):
-        a, b = rays[i, 2] / fx, rays[i, 2] / fy
-        for r in range(3):
-            out[i, r, 0] = a * ((1.0 if r == 0 else 0.0) - rays[i, r] * rays[i, 0])
-            out[i, r, 1] = b * ((1.0 if r == 1 else 0.0) - rays[i, r] * rays[i, 1])
-    return out
+    return kernels.pinhole_jacobian(np.ascontiguousarray(rays, dtype=float), float(camera.fx), float(camera.fy))
 
 
 def sanitized_covariance(cov_px: np.ndarray) -> np.ndarray:

@@ -95,8 +95,6 @@ class HybridIdentifier(StarIdentifier):
         self.identify(Spots(x, y, np.linspace(2e4, 1e3, n), np.full(n, 50.0), np.tile(np.eye(2) * 0.01, (n, 1, 1)),
                             np.zeros(n, np.uint32), np.full(n, 9, np.int32), np.full(n, 1e3),
                             camera.width, camera.height), camera)
-        three = np.arange(3, dtype=np.int64)
-        kernels.solution_arrays(np.eye(3), np.ones(3), np.eye(3), three, three, np.eye(3))
         refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
 
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:

@@ -246,8 +246,8 @@ def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, 
                      cell_start, star_of_cell, grid, cell_density, mean_density, chord, min_stars,
                      magnitude_floor, out_spot, out_star, match_passes=3):
     """Match every spot under `rotation`, refine with the q-method over the matches
-    (match_passes times: a hypothesis from 3-4 stars needs 3, a tracked attitude fitted to
-    dozens of stars 2), drop matches beyond 5 sigma and bound the false-positive probability.
+    (match_passes times: a hypothesis from 3-4 stars needs 3; a tracked attitude, already
+    fitted to a dozen stars, 1), drop matches beyond 5 sigma and bound the false-positive probability.
     Returns (matches written to out_*, refined rotation, false-positive bound, chi^2)."""
     n = rays.shape[0]
     dots = np.empty(n)
@@ -438,7 +438,6 @@ def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px, min_fit_sigma
     xs = np.empty(m)
     ys = np.empty(m)
     pixel_cov = np.empty((m, 2, 2))
-    jacobian = np.empty((m, 3, 2))
     scale = 1.0 / math.sqrt(fx * fy)
     extra = min_fit_sigma_px * min_fit_sigma_px
     for q in range(m):
@@ -457,11 +456,20 @@ def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px, min_fit_sigma
         for r in range(2):
             for c in range(2):
                 pixel_cov[q, r, c] = (cov[i, r, c] if known else (1.0 if r == c else 0.0)) + (extra if r == c else 0.0)
-        a, b = rays[q, 2] / fx, rays[q, 2] / fy
+    return order, rays, sigma, magnitude, xs, ys, pixel_cov, pinhole_jacobian(rays, fx, fy)
+
+
+@njit(cache=True)
+def pinhole_jacobian(rays, fx, fy):
+    """(N, 3, 2) d ray / d pixel [rad/px] of pinhole unit rays (N, 3):
+    r_z (I - r r^T)[:, :2] diag(1/fx, 1/fy)."""
+    out = np.empty((rays.shape[0], 3, 2))
+    for i in range(rays.shape[0]):
+        a, b = rays[i, 2] / fx, rays[i, 2] / fy
         for r in range(3):
-            jacobian[q, r, 0] = a * ((1.0 if r == 0 else 0.0) - rays[q, r] * rays[q, 0])
-            jacobian[q, r, 1] = b * ((1.0 if r == 1 else 0.0) - rays[q, r] * rays[q, 1])
-    return order, rays, sigma, magnitude, xs, ys, pixel_cov, jacobian
+            out[i, r, 0] = a * ((1.0 if r == 0 else 0.0) - rays[i, r] * rays[i, 0])
+            out[i, r, 1] = b * ((1.0 if r == 1 else 0.0) - rays[i, r] * rays[i, 1])
+    return out
 
 
 @njit(cache=True)
@@ -489,32 +497,6 @@ def coincident_later(x, y, separation_px):
             if dx * dx + dy * dy <= limit:
                 dropped[max(i, j)] = True
     return dropped
-
-
-@njit(cache=True)
-def solution_arrays(rays, sigma, vectors, spot_index, star_index, rotation):
-    """For accepted matches: the QUEST covariance [rad^2] (sensor frame), residual angles
-    [rad] and the Wahba loss (half the weighted chi^2)."""
-    m = spot_index.size
-    info = np.zeros((3, 3))
-    residual = np.empty(m)
-    loss = 0.0
-    for q in range(m):
-        b = rays[spot_index[q]]
-        w = 1.0 / sigma[spot_index[q]] ** 2
-        for r in range(3):
-            for c in range(3):
-                info[r, c] += w * ((1.0 if r == c else 0.0) - b[r] * b[c])
-        r2 = 0.0
-        dot = 0.0
-        for a in range(3):
-            pred = (rotation[0, a] * vectors[star_index[q], 0] + rotation[1, a] * vectors[star_index[q], 1]
-                    + rotation[2, a] * vectors[star_index[q], 2])
-            r2 += (b[a] - pred) ** 2
-            dot += b[a] * pred
-        residual[q] = math.acos(min(1.0, max(-1.0, dot)))
-        loss += 0.5 * w * r2
-    return np.linalg.inv(info), residual, loss
 
 
 @njit(cache=True)
