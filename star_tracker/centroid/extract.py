@@ -274,7 +274,10 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     # noise higher (or lower), scale the SNR and covariance by the local/typical variance ratio.
     local = _local_noise_factor(det, x, y, flux, sigma, gain)
     snr, cov = snr / np.sqrt(local), cov * local[:, None, None]
-    final = np.flatnonzero(snr >= config.min_snr)
+    # A centre of gravity of a window summing to ~0 can land anywhere: a position outside the
+    # image measured nothing in it.
+    inside = (x >= -0.5) & (x <= width - 0.5) & (y >= -0.5) & (y <= height - 0.5)
+    final = np.flatnonzero((snr >= config.min_snr) & inside)
     order = final[np.argsort(-flux[final], kind="stable")][: config.max_spots]
     return Spots(x=x[order], y=y[order], flux=flux[order], snr=snr[order], cov=cov[order], flags=flags[order],
                  area=area[order].astype(np.int32), peak=peak[order], width=width, height=height,
@@ -500,7 +503,12 @@ def _moment_covariance(cand, idx) -> np.ndarray:
     moments): for centres of gravity no noise model describes (blends of streaks, clipped
     spots no fit could measure), so that the identifier gives them little weight."""
     major, minor, theta = cand.major[idx], cand.minor[idx], cand.angle[idx]
-    minor = np.where(np.isfinite(minor), minor, major)
+    # No positive signal left to take moments of (a spot at the clip level everywhere): as wide
+    # as a disc of the spot's area (per-axis variance A / 4 pi), at least one pixel's 1/12.
+    disc = np.maximum(np.maximum(cand.area[idx], 1) / (4.0 * np.pi), 1.0 / 12.0)
+    major = np.where(np.isfinite(major) & (major > 0), major, disc)
+    minor = np.where(np.isfinite(minor) & (minor >= 0), np.minimum(minor, major), major)
+    theta = np.where(np.isfinite(theta), theta, 0.0)
     c, s = np.cos(theta), np.sin(theta)
     cov = np.empty((idx.size, 2, 2))
     cov[:, 0, 0] = major * c * c + minor * s * s
