@@ -3,6 +3,7 @@ computations, and the catalog triangle database."""
 import numpy as np
 import pytest
 
+from star_tracker.catalog import load_validated_npz, save_validated_npz
 from star_tracker.identify import DatabaseConfig, load_or_build_database
 from star_tracker.identify import triangles as tri
 
@@ -177,6 +178,19 @@ def test_cache_round_trip_and_rebuild_of_a_damaged_file(small_database, tmp_path
     path.write_bytes(path.read_bytes()[:-100])
     rebuilt = tri.load_or_build_triangles(small_database, config, tmp_path)
     np.testing.assert_array_equal(rebuilt.spherical.stars, built.spherical.stars)
+    # A checksum-valid file that this code did not write for this database (star indices out of
+    # range would make the compiled search read outside its arrays; wrong shapes) is rebuilt too.
+    arrays = load_validated_npz(path)
+    tampered = {"star index out of range": {**arrays, "planar_stars": arrays["planar_stars"] + small_database.star_count},
+                "guide star out of range": {**arrays, "guide_stars": arrays["guide_stars"] - 10**6},
+                "short column": {**arrays, "spherical_area": arrays["spherical_area"][:-1]},
+                "flat stars": {**arrays, "spherical_stars": arrays["spherical_stars"].ravel()}}
+    for name, content in tampered.items():
+        tri._MEMO.clear()
+        save_validated_npz(path, content)
+        rebuilt = tri.load_or_build_triangles(small_database, config, tmp_path)
+        np.testing.assert_array_equal(rebuilt.planar.stars, built.planar.stars, err_msg=name)
+        np.testing.assert_array_equal(rebuilt.spherical.area, built.spherical.area, err_msg=name)
 
 
 def test_thinning_keeps_the_brightest_stars_per_cell_within_the_budget(small_database):

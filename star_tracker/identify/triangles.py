@@ -615,8 +615,18 @@ class FeatureIndex:
                 f"{prefix}_line": np.array([self.kvector.slope, self.kvector.intercept])}
 
     @staticmethod
-    def from_arrays(arrays: dict[str, np.ndarray], prefix: str) -> "FeatureIndex":
-        line = arrays[f"{prefix}_line"]
+    def from_arrays(arrays: dict[str, np.ndarray], prefix: str, star_count: int) -> "FeatureIndex":
+        """The index saved by `arrays`; ValueError when the arrays are not one this code wrote
+        for a database of `star_count` stars (shapes, dtypes, star indices in range)."""
+        stars, line = arrays[f"{prefix}_stars"], arrays[f"{prefix}_line"]
+        rows = stars.shape[0] if stars.ndim == 2 else -1
+        columns = [arrays[f"{prefix}_{name}"] for name in ("area", "moment", "product")]
+        bounds = [arrays[f"{prefix}_{name}"] for name in ("block_min", "block_max", "k")]
+        if (stars.ndim != 2 or stars.shape[1] != 3 or not np.issubdtype(stars.dtype, np.integer)
+                or any(c.shape != (rows,) for c in columns) or line.shape != (2,)
+                or len({b.shape for b in bounds}) != 1 or bounds[0].ndim != 1
+                or (rows and (stars.min() < 0 or stars.max() >= star_count))):
+            raise ValueError(f"cached {prefix} triangle index does not match the database")
         return FeatureIndex(arrays[f"{prefix}_stars"], arrays[f"{prefix}_area"], arrays[f"{prefix}_moment"],
                             arrays[f"{prefix}_product"], int(arrays[f"{prefix}_block"]), arrays[f"{prefix}_block_min"],
                             arrays[f"{prefix}_block_max"],
@@ -815,12 +825,16 @@ def load_or_build_triangles(database: StarDatabase, config: TriangleConfig | Non
     triangles = None
     if arrays is not None:
         try:
+            guide_stars = arrays["guide_stars"]
+            if guide_stars.ndim != 1 or (guide_stars.size and (guide_stars.min() < 0
+                                                                or guide_stars.max() >= database.star_count)):
+                raise ValueError("cached guide stars do not match the database")
             triangles = TriangleDatabase(
-                config=config, spherical=FeatureIndex.from_arrays(arrays, "spherical"),
-                planar=FeatureIndex.from_arrays(arrays, "planar"), guide_stars=arrays["guide_stars"],
+                config=config, spherical=FeatureIndex.from_arrays(arrays, "spherical", database.star_count),
+                planar=FeatureIndex.from_arrays(arrays, "planar", database.star_count), guide_stars=guide_stars,
                 cells_per_face=int(arrays["cells_per_face"]), build_seconds=float(arrays["build_seconds"]))
-        except KeyError:
-            triangles = None  # another layout: rebuild
+        except (KeyError, ValueError, TypeError):
+            triangles = None  # another layout, or not written for this database: rebuild
     if triangles is None:
         triangles = build_triangle_database(database, config)
         save_validated_npz(path, {
