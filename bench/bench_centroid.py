@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import json
 import os
 import platform
 import time
@@ -30,8 +31,10 @@ from star_tracker.camera import CameraModel
 from star_tracker.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.streak import SmearModel
+from star_tracker.commands.bench import report_progress
 from star_tracker.motion import ConstantRateMotion
 from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
+
 from .report import cpu_model, write_section
 
 # Name in the tables -> (CentroidConfig.method, rate aid on).
@@ -219,7 +222,8 @@ def speed(images, smear=None, peers_too=True):
     return {name: {"median_ms": 1e3 * float(np.median(v["times"])), "p95_ms": 1e3 * float(np.percentile(v["times"], 95)),
                    "rms_px": float(np.sqrt(np.mean(v["errors"]))) if v["errors"] else float("nan"),
                    "detected": float(np.mean(v["hits"])),
-                   "stars": int(np.sum((images[0].truth.kind == 0)))} for name, v in stats.items()}
+                   "stars": int(np.sum((images[0].truth.kind == 0))),
+                   "times_ms": [round(1e3 * t, 4) for t in v["times"]]} for name, v in stats.items()}
 
 
 def measure_roll(frames: int, electrons: float):
@@ -252,33 +256,6 @@ def measure_roll(frames: int, electrons: float):
     return {name: float(np.sqrt(np.mean(e))) for name, e in errors.items()}
 
 
-def plot(rows, path: Path):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7.5, 4.5))
-    smears = sorted({r["smear_px"] for r in rows})
-    colours = dict(zip(smears, ("C0", "C1", "C2", "C3", "C4")))
-    for method, style in (("cog", "o:"), ("wcog", "v:"), ("auto", "s-"), ("auto + rate", "D--")):
-        for smear in smears:
-            pts = [r for r in rows if r["smear_px"] == smear and r["method"] == method and np.isfinite(r["ratio"])]
-            if pts:
-                ax.semilogx([r["snr"] for r in pts], [r["ratio"] for r in pts], style, color=colours[smear],
-                            label=f"{method}, smear {smear:g} px", ms=4)
-    ax.axhline(1.2, color="k", ls="--", lw=0.8, label="goal 1.2x (no smear)")
-    ax.axhline(1.5, color="grey", ls=":", lw=0.8, label="goal 1.5x (20 px smear)")
-    ax.set_xlabel("SNR")
-    ax.set_ylabel("RMS position error / sqrt(CRB)")
-    ax.set_title("star_tracker centroider vs the Cramér-Rao bound")
-    ax.set_yscale("log")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-
-
 def speed_table(timing: dict, reference_ms: float) -> list[str]:
     ours_name = next(iter(timing))
     ours = timing[ours_name]
@@ -295,6 +272,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer points and frames (smoke run)")
     parser.add_argument("--output", type=Path, help="write the '## Centroiding' section of this Markdown file")
+    parser.add_argument("--json", type=Path, help="raw numbers (default: bench_centroid.json beside --output)")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(2026)
     # No saturation (the CRB model has none): SNR 1000 is 1e6 e-, so a deep well and 4 e-/ADU.
@@ -303,16 +281,26 @@ def main(argv=None) -> None:
     smears = [0, 20] if args.quick else [0, 10, 20, 40]
     frames = 1 if args.quick else 3
     started = time.perf_counter()
-    rows = [{**measure_accuracy(snr, smear, frames, sensor, np.random.default_rng(snr * 100 + smear),
-                                CentroidConfig(method=method, gain_e_per_adu=4.0), rate_aided), "method": name}
-            for name, (method, rate_aided) in VARIANTS.items() for smear in smears for snr in snrs]
+    points = [(name, method, rate_aided, smear, snr) for name, (method, rate_aided) in VARIANTS.items()
+              for smear in smears for snr in snrs]
+    steps = len(points) + 4  # + purity, speed at rest, speed slewing, roll
+    rows = []
+    for done, (name, method, rate_aided, smear, snr) in enumerate(points):
+        report_progress(done, steps, f"accuracy: {name}, smear {smear} px, SNR {snr}")
+        rows.append({**measure_accuracy(snr, smear, frames, sensor, np.random.default_rng(snr * 100 + smear),
+                                        CentroidConfig(method=method, gain_e_per_adu=4.0), rate_aided), "method": name})
+    report_progress(len(points), steps, "purity: star-free frames")
     fp_mean, fp_max = false_detections(3 if args.quick else 10, rng)
+    report_progress(len(points) + 1, steps, "speed at rest (with peers)")
     reference_ms = reference_kernel_ms()
     timing = speed(speed_frames(5 if args.quick else 30))
+    report_progress(len(points) + 2, steps, "speed slewing (with peers)")
     slew_deg_s = (1.5, 1.0, 0.0)
     slew_smear = SmearModel(CAMERA, np.radians(slew_deg_s), EXPOSURE)
     timing_slew = speed(speed_frames(3 if args.quick else 15, slew_deg_s), slew_smear)
+    report_progress(len(points) + 3, steps, "curved streaks (roll)")
     roll = measure_roll(1 if args.quick else 3, 200000.0)
+    report_progress(steps, steps, "done")
     elapsed = time.perf_counter() - started
 
     lines = ["| method | smear px | SNR | flux e- | RMS error px | sqrt(CRB) px | ratio | detected |",
@@ -395,6 +383,8 @@ def main(argv=None) -> None:
         "`detected`: stars with a spot within 2 px (+ half the smear); RMS over those. Absolute times on this VM "
         "vary by +-40 % from run to run (CPU steal); compare the ratios, measured in the same run.",
         "",
+        "![centroiding time per frame, ours and the peers](images/centroid_times.png)",
+        "",
         "At rest:",
         "",
         *speed_table(timing, reference_ms),
@@ -405,8 +395,26 @@ def main(argv=None) -> None:
         "",
     ])
     print(text)
+    results = {
+        "meta": {"command": "python -m bench.bench_centroid" + (" --quick" if args.quick else "") +
+                 " --output docs/BENCHMARKS.md", "date": f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC",
+                 "elapsed_s": elapsed, "quick": args.quick, "reference_kernel_ms": reference_ms,
+                 "machine": {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
+                             "numpy": np.__version__}},
+        "accuracy": rows,
+        "goals": {"ratio_no_smear": 1.2, "ratio_20px_smear": 1.5},
+        "false_detections": {"mean": fp_mean, "max": fp_max, "frames": 3 if args.quick else 10},
+        "roll_rms_px": roll,
+        "speed": {"at_rest": timing, "slewing": timing_slew, "slew_deg_s": list(slew_deg_s)},
+    }
+    json_path = args.json or (args.output.parent / "bench_centroid.json" if args.output else None)
+    if json_path:
+        json_path.write_text(json.dumps(results, indent=1, default=float) + "\n")
     if args.output:
-        plot(rows, args.output.parent / "images" / "centroid_crb.png")
+        from .plots import plot_centroid_crb, plot_centroid_times
+
+        plot_centroid_crb(results, args.output.parent / "images" / "centroid_crb.png")
+        plot_centroid_times(results, args.output.parent / "images" / "centroid_times.png")
         write_section(args.output, text)
 
 

@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from star_tracker.catalog import StarCatalog, cache_dir, load_hipparcos
+from star_tracker.commands.bench import report_progress
 from star_tracker.identify import (ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, Identification, IdentifyConfig,
                                    load_or_build_database, make_identifier)
 from star_tracker.scenes import SETUPS, Scene, SceneSetup, make_scene
@@ -203,7 +204,8 @@ class Outcomes:
                 self.stats.setdefault(key, []).append(float(value))
 
 
-def run_ours(name: str, database, scenes: list[Scene], config: IdentifyConfig) -> Outcomes:
+def run_ours(name: str, database, scenes: list[Scene], config: IdentifyConfig, on_scene=None) -> Outcomes:
+    """on_scene(): called after each timed call (progress reporting)."""
     identifier = make_identifier(name, database, config)
     out = Outcomes()
     if scenes:  # one untimed call first: compiled kernels load from numba's cache on first use
@@ -215,15 +217,20 @@ def run_ours(name: str, database, scenes: list[Scene], config: IdentifyConfig) -
         except Exception as exc:  # noqa: BLE001 - one failing call must not end a long run; it is reported
             out.add(INCONCLUSIVE, time.perf_counter() - started, 0, "error")
             out.errors.append(f"{type(exc).__name__}: {exc}")
+            if on_scene is not None:
+                on_scene()
             continue
         elapsed = time.perf_counter() - started
         outcome = score_identification(result, scene)
         out.add(outcome, elapsed, int(result.hip.size) if result.solved else 0, result.status, result.stats)
         out.wrong_ids += outcome == INCORRECT
+        if on_scene is not None:
+            on_scene()
     return out
 
 
-def run_peer(solver, scenes: list[Scene]) -> Outcomes:
+def run_peer(solver, scenes: list[Scene], on_scene=None) -> Outcomes:
+    """on_scene(): called after each call (progress reporting)."""
     out = Outcomes()
     if scenes:  # one untimed call first, as for ours
         try:
@@ -236,10 +243,14 @@ def run_peer(solver, scenes: list[Scene]) -> Outcomes:
         except Exception as exc:  # noqa: BLE001 - as in run_ours
             out.add(INCONCLUSIVE, float("nan"), 0, "error")
             out.errors.append(f"{type(exc).__name__}: {exc}")
+            if on_scene is not None:
+                on_scene()
             continue
         out.add(score_attitude(solution, scene), solution.elapsed_s, int(solution.ids.size) if solution.solved else 0,
                 solution.status)
         out.wrong_ids += peer_ids_wrong(solution, scene)
+        if on_scene is not None:
+            on_scene()
     return out
 
 
@@ -264,6 +275,8 @@ def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
         "stats_mean": {k: float(np.mean(v)) for k, v in sorted(out.stats.items())},
         "time_ms": {"median": float(np.median(times)), "p99": float(np.percentile(times, 99)),
                     "max": float(times.max()), "mean": float(times.mean())} if times.size else None,
+        # The distribution for bench/plots.py: percentiles 0, 1, ..., 100 [ms].
+        "time_ms_percentiles": [float(f"{v:.5g}") for v in np.percentile(times, np.arange(101))] if times.size else None,
         "outcomes": "".join(_CODE[o] for o in out.outcome),
     }
     for key in (CORRECT, INCONCLUSIVE, INCORRECT):
@@ -298,14 +311,14 @@ def make_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, candidate
 
 
 def tune_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, catalog: StarCatalog, tuning: list[Scene],
-              max_time_s: float, cache: Path, log) -> tuple[object, PeerCandidate, dict, dict, list[dict]]:
+              max_time_s: float, cache: Path, log, on_scene=None) -> tuple[object, PeerCandidate, dict, dict, list[dict]]:
     """Try every candidate on the tuning scenes; keep the best (correct - 10 incorrect, then
     fewer wrong ids, then the lower median time). Returns (solver, candidate, database kw,
     solve kw, trials)."""
     best, trials = None, []
     for candidate in PEER_CANDIDATES[peer]:
         solver, database, solve = make_peer(peer, setup, db_config, candidate, catalog, max_time_s, cache)
-        s = summarize(run_peer(solver, tuning), tuning) if tuning else None
+        s = summarize(run_peer(solver, tuning, on_scene), tuning) if tuning else None
         score = (s["correct"] - 10 * s["incorrect"], -s["wrong_ids"], -s["time_ms"]["median"]) if s else (0, 0, 0)
         trials.append({"label": candidate.label, "solve": solve, "database": database,
                        **({k: s[k] for k in ("scenes", "correct", "inconclusive", "incorrect", "wrong_ids")}
@@ -321,13 +334,26 @@ def tune_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, catalog: 
 def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, seed: int = DEFAULT_SEED,
                   peers: list[str] = (), tune_scenes: int = 100, hard_scenes: int = 100,
                   catalog: StarCatalog | None = None, cache: Path | None = None,
-                  config: IdentifyConfig | None = None, log=print) -> dict:
-    """Run every solver on every setup; returns the JSON-ready results (see module docstring)."""
+                  config: IdentifyConfig | None = None, log=print, progress=None) -> dict:
+    """Run every solver on every setup; returns the JSON-ready results (see module docstring).
+    progress(done, total, note): called after every solver call (scenes solved so far of all)."""
     run_started = time.perf_counter()
     catalog = catalog if catalog is not None else load_hipparcos().at_epoch(EPOCH_JYEAR)
     cache = cache if cache is not None else cache_dir() / "bench_peers"
     config = config or IdentifyConfig()
     results: dict = {"setups": {}}
+    calls_total = 0
+    for name in setup_names:
+        count = min(scenes, hard_scenes) if name in HARD_SETUPS else scenes
+        tune_count = min(tune_scenes, count, HARD_TUNE_SCENES if name in HARD_SETUPS else count)
+        calls_total += len(algorithms) * count + sum(len(PEER_CANDIDATES[p]) * tune_count + count for p in peers)
+    calls = [0, ""]
+
+    def tick() -> None:
+        calls[0] += 1
+        if progress is not None:
+            progress(calls[0], calls_total, calls[1])
+
     for name in setup_names:
         setup = SETUPS[name]
         count = min(scenes, hard_scenes) if name in HARD_SETUPS else scenes
@@ -339,6 +365,7 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
             "description": setup.description, "scenes": count,
             "true_stars_mean": float(real.mean()) if count else None,
             "scenes_ge4_true_stars": int(np.sum(real >= 4)),
+            "real_stars": setup.real_stars, "false_stars": setup.false_stars,
             "spots_mean": float(np.mean([len(s.spots) for s in scene_list])) if count else None,
             "database": {"magnitude_limit": db_config.magnitude_limit,
                          "max_pair_angle_deg": float(np.degrees(db_config.max_pair_angle_rad)),
@@ -350,7 +377,8 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
         entry["identify_overrides"] = SETUP_IDENTIFY_OVERRIDES.get(name, {})
         for algorithm in algorithms:
             started = time.perf_counter()
-            summary = summarize(run_ours(algorithm, database, scene_list, setup_config), scene_list)
+            calls[1] = f"{name}: {algorithm}"
+            summary = summarize(run_ours(algorithm, database, scene_list, setup_config, tick), scene_list)
             entry["solvers"][algorithm] = {"kind": "ours", **summary}
             log(f"{name} {algorithm}: {summary['correct']}/{summary['inconclusive']}/{summary['incorrect']} "
                 f"(correct/inconclusive/incorrect) in {time.perf_counter() - started:.1f} s")
@@ -358,9 +386,12 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
         tuning = make_scenes(setup, catalog, tune_count, seed, stream=1) if peers else []
         for peer in peers:
             started = time.perf_counter()
+            calls[1] = f"{name}: {peer} (tuning)"
             solver, candidate, database_kw, solve_kw, trials = tune_peer(peer, setup, db_config, catalog, tuning,
-                                                                         config.max_time_s, cache, log)
-            summary = summarize(run_peer(solver, scene_list), scene_list)
+                                                                         config.max_time_s, cache, log, tick)
+            calls[0] += (len(PEER_CANDIDATES[peer]) - len(trials)) * len(tuning)  # candidates not tried
+            calls[1] = f"{name}: {peer}"
+            summary = summarize(run_peer(solver, scene_list, tick), scene_list)
             entry["solvers"][peer] = {
                 "kind": "peer", "version": metadata.version(peer), "settings": candidate.label,
                 "database_settings": database_kw, "solve_settings": solve_kw, "tuning": trials,
@@ -572,7 +603,7 @@ def main(argv=None) -> None:
                 print(f"peer {peer} skipped: {problem} (pip install -r requirements-bench.txt)", file=sys.stderr)
 
     results = run_benchmark(setups, algorithms, args.scenes, args.seed, peers, args.tune_scenes, args.hard_scenes,
-                            log=lambda text: print(text, file=sys.stderr, flush=True))
+                            log=lambda text: print(text, file=sys.stderr, flush=True), progress=report_progress)
     results["meta"]["command"] = "python -m bench.bench_identify" + "".join(
         f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:]))
     text = render_markdown(results)

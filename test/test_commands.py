@@ -356,25 +356,113 @@ def test_database_build_and_list_in_a_private_cache(tmp_path):
 
 # ---------------------------------------------------------------- bench
 
-def test_bench_runs_one_benchmark_quick_and_writes_its_section(tmp_path):
-    code, out, err = cli("bench", "--only", "render", "--quick", "--output", tmp_path / "B.md",
-                         "--log-dir", tmp_path / "logs")
-    assert code == 0, out + err
-    assert re.search(r"\[1/1\] render\s+done in \d+\.\d s", out) and "1/1 benchmark(s) succeeded" in out
-    text = (tmp_path / "B.md").read_text()
-    assert text.count("\n## ") == 1 and "python -m bench.bench_render --quick" in text
-    assert "bench_render" in (tmp_path / "logs" / "render.log").read_text()
-    code, out, _ = cli("bench", "--only", "identify,tracking", "--quick", "--no-peers", "--dry-run")
-    commands = [line for line in out.splitlines() if line.startswith("python -m bench.")]
-    assert [c.split()[2] for c in commands] == ["bench.bench_identify", "bench.bench_tracking"]
-    assert all("--no-peers" in c for c in commands) and "--quick" in commands[1]
+def test_bench_runs_one_benchmark_quick_and_writes_its_section_json_and_plots(tmp_path):
+    out = tmp_path / "B.md"
+    code, out_text, err = cli("bench", "--only", "centroid", "--quick", "--output", out, "--log-dir", tmp_path / "logs")
+    assert code == 0, out_text + err
+    assert re.search(r"\[1/2\] centroid\s+done in \d+\.\d s", out_text) and "2/2 step(s) succeeded" in out_text
+    assert re.search(r"\[2/2\] plots\s+done in", out_text)
+    # The bar on stderr: the benchmark reported every point it measured, and ended full.
+    final = re.search(r"\[1/2\] centroid\s+\[(#+)\] (\d+)/(\d+) 100 %", err)
+    assert final and final.group(2) == final.group(3) and len(final.group(1)) == 24, err
+    log = (tmp_path / "logs" / "centroid.log").read_text()
+    assert "bench_centroid" in log and "@bench-progress" not in log  # progress lines go to the bar only
+    # The table, and the same numbers as JSON: 4 variants x 2 smears x 4 SNRs in quick mode.
+    text = out.read_text()
+    assert text.count("\n## ") == 1 and "python -m bench.bench_centroid --quick" in text
+    results = json.loads((tmp_path / "bench_centroid.json").read_text())
+    assert len(results["accuracy"]) == 32
+    auto = next(r for r in results["accuracy"] if r["method"] == "auto" and r["smear_px"] == 0 and r["snr"] == 100)
+    assert f"| auto | 0 | 100 | {auto['flux_e']:.0f} | {auto['rms_px']:.4f} | {auto['crb_px']:.4f} |" in text
+    assert 0.7 < auto["ratio"] < 1.5 and auto["detected"] > 0.99  # at the bound (the goal is <= 1.2)
+    rest = results["speed"]["at_rest"]["star_tracker (auto)"]
+    assert len(rest["times_ms"]) == 5 and min(rest["times_ms"]) <= rest["median_ms"] <= max(rest["times_ms"])
+    # The plots drawn from that JSON, and reported.
+    for name in ("centroid_crb.png", "centroid_times.png"):
+        picture = cv2.imread(str(tmp_path / "images" / name))
+        assert picture is not None and picture.shape[0] > 300 and picture.shape[1] > 700, name
+        assert f"wrote {tmp_path / 'images' / name}" in out_text
+    code, out_text, _ = cli("bench", "--only", "identify,tracking", "--quick", "--no-peers", "--dry-run")
+    commands = [line for line in out_text.splitlines() if line.startswith("python -m bench.")]
+    assert [c.split()[2] for c in commands] == ["bench.bench_identify", "bench.bench_tracking", "bench.plots"]
+    assert all("--no-peers" in c for c in commands[:2]) and "--quick" in commands[1]
+    code, out_text, _ = cli("bench", "--only", "render", "--no-plots", "--dry-run")
+    assert [line.split()[2] for line in out_text.splitlines() if line.startswith("python")] == ["bench.bench_render"]
     code, _, err = cli("bench", "--only", "nothing")
     assert code == 2 and "unknown benchmark(s) nothing" in err
-    # The same benchmarks, in the same order, as the Makefile's `bench` target.
+    # The same benchmarks, in the same order, as the Makefile's `bench` target (which may end
+    # with the plots, as `star-tracker bench` does).
     from star_tracker.commands.bench import BENCHES
 
     makefile = (REPO / "Makefile").read_text().split("\nbench:", 1)[1].split("\n\n", 1)[0]
-    assert [b.module for b in BENCHES] == re.findall(r"-m (bench\.\w+)", makefile)
+    assert [b.module for b in BENCHES] == [m for m in re.findall(r"-m (bench\.\w+)", makefile) if m != "bench.plots"]
+
+
+def test_bench_progress_protocol_and_bar(tmp_path):
+    from star_tracker.commands import bench
+
+    status = bench.BenchStatus("[1/3] identify", stream=io.StringIO())
+    assert "running" in status.text()  # nothing reported yet: a sweeping marker
+    status.output("setup nominal ...\n")
+    assert status.text().endswith("setup nominal ...")
+    status.progress("30/40 nominal: hybrid\n")
+    text = status.text()
+    assert "[" + "#" * 18 + "." * 6 + "] 30/40  75 %" in text and text.endswith("nominal: hybrid")
+    status.output("a table line")  # once progress is reported its note stays
+    assert status.text().endswith("nominal: hybrid")
+    # Benchmarks that do not report: a bar estimated from the last full run's duration.
+    (tmp_path / "bench_tracking.json").write_text(json.dumps({"meta": {"elapsed_s": 400.0, "quick": False}}))
+    tracking = next(b for b in bench.BENCHES if b.name == "tracking")
+    assert bench.last_duration_s(tracking, tmp_path) == 400.0
+    status = bench.BenchStatus("[7/11] tracking", stream=io.StringIO(), expected_s=400.0)
+    status.started -= 100.0
+    assert "[" + "#" * 6 + "." * 18 + "] ~25 % of the last run's 6 min 40 s" in status.text()
+    (tmp_path / "bench_tracking.json").write_text(json.dumps({"meta": {"elapsed_s": 30.0, "quick": True}}))
+    assert bench.last_duration_s(tracking, tmp_path) is None  # a smoke run says nothing about a full one
+    assert bench.last_duration_s(tracking, tmp_path / "nowhere") is None
+    # report_progress prints only under `star-tracker bench` (PROGRESS_ENV), throttled but
+    # always the last one.
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        bench.report_progress(1, 3)
+        os.environ[bench.PROGRESS_ENV] = "1"
+        try:
+            bench._last_report[0] = 0.0
+            for done in range(1, 4):
+                bench.report_progress(done, 3, "note")
+        finally:
+            del os.environ[bench.PROGRESS_ENV]
+    assert err.getvalue().splitlines() == [f"{bench.PROGRESS_PREFIX}1/3 note", f"{bench.PROGRESS_PREFIX}3/3 note"]
+
+
+def test_bench_plots_redraw_from_json_results(tmp_path, catalog):
+    """bench/plots.py on identification results of a tiny real run (with the percentiles)
+    and on the committed ones; a missing result is skipped, a broken one fails."""
+    sys.path.insert(0, str(REPO))
+    from bench import bench_identify, plots
+
+    results = bench_identify.run_benchmark(["nominal", "cole", "cole_false"], ["hybrid"], scenes=4, seed=3,
+                                           catalog=catalog.at_epoch(bench_identify.EPOCH_JYEAR), log=lambda text: None)
+    hybrid = results["setups"]["nominal"]["solvers"]["hybrid"]
+    assert len(hybrid["time_ms_percentiles"]) == 101 and hybrid["time_ms_percentiles"][50] == pytest.approx(
+        hybrid["time_ms"]["median"], rel=1e-4)
+    assert [results["setups"][n]["false_stars"] for n in ("nominal", "cole", "cole_false")] == [0, 0, 1]
+    (tmp_path / "bench_identify.json").write_text(json.dumps(results, default=float))
+    messages = []
+    written, failed = plots.draw(tmp_path, tmp_path / "images", log=messages.append)
+    assert not failed and [p.name for p in written] == ["identify_false_stars.png", "identify_times.png"]
+    assert any(m.startswith("skipped centroid_crb.png: no ") for m in messages)
+    for path in written:
+        picture = cv2.imread(str(path))
+        assert picture is not None and picture.shape[0] > 300 and picture.shape[1] > 500
+    # The committed results (older ones have no percentiles: medians, p99 and max are drawn).
+    result = subprocess.run([sys.executable, "-m", "bench.plots", "--only", "identify_false_stars,identify_times",
+                             "--images-dir", tmp_path / "docs_images"], capture_output=True, text=True, cwd=REPO,
+                            timeout=120)
+    assert result.returncode == 0 and result.stdout.count("wrote ") == 2, result.stdout + result.stderr
+    (tmp_path / "bench_identify.json").write_text('{"setups": {}}')
+    written, failed = plots.draw(tmp_path, tmp_path / "images", only=["identify_false_stars"], log=messages.append)
+    assert failed == ["identify_false_stars"] and "FAILED identify_false_stars.png: ValueError" in messages[-1]
 
 
 # ---------------------------------------------------------------- monitor

@@ -4,6 +4,9 @@ example), `run(args) -> int` runs it (exit code; bad input is a one-line
 `star-tracker <cmd>: error: ...` on stderr with exit code 2).
 
 `python -m star_tracker.commands <cmd> ...` runs them without the rest of the CLI.
+
+bags.py (record, play, info, reindex) registers its four with `bags.add_commands(sub)` from
+cli.py: their --help predates the example epilogs of COMMANDS and keeps its form.
 """
 from __future__ import annotations
 

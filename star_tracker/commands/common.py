@@ -25,10 +25,11 @@ class CommandError(ValueError):
     """A problem with the user's input: printed as one line, exit code 2."""
 
 
-def guarded(command: str) -> Callable:
+def guarded(command: str, errors: tuple[type[Exception], ...] = ()) -> Callable:
     """Decorator for a subcommand's run(args): bad input (ValueError, FileNotFoundError, other
-    OSError) becomes `star-tracker <command>: error: ...` on stderr and exit code 2; Ctrl-C
-    exit code 130. Anything else is a bug and keeps its traceback."""
+    OSError, and the command's own `errors`, e.g. bags.BagError) becomes
+    `star-tracker <command>: error: ...` on stderr and exit code 2; Ctrl-C exit code 130.
+    Anything else is a bug and keeps its traceback."""
 
     def wrap(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
         @functools.wraps(run)
@@ -42,7 +43,7 @@ def guarded(command: str) -> Callable:
                 name = exc.filename if exc.filename is not None else str(exc)
                 error(command, f"no such file: {name}" if exc.filename is not None else str(exc))
                 return 2
-            except (ValueError, OSError) as exc:
+            except (ValueError, OSError, *errors) as exc:
                 error(command, str(exc) or type(exc).__name__)
                 return 2
             except KeyboardInterrupt:
@@ -117,35 +118,61 @@ def add_parser(subparsers, name: str, summary: str, description: str, example: s
 
 # ---------------------------------------------------------------- progress
 
-class Progress:
-    """A one-line progress bar on stderr: redrawn in place on a terminal, one line per
-    update elsewhere (logs, pipes) at most every `min_interval_s`."""
+def progress_bar(fraction: float, width: int = 28) -> str:
+    """`[#####.......]` for a fraction in [0, 1]."""
+    filled = int(round(min(max(fraction, 0.0), 1.0) * width))
+    return f"[{'#' * filled}{'.' * (width - filled)}]"
 
-    def __init__(self, total: int, label: str, width: int = 28, stream=None, min_interval_s: float = 2.0):
-        self.total, self.label, self.width = max(int(total), 1), label, width
+
+class StatusLine:
+    """One status line on a stream (stderr by default): redrawn in place on a terminal; on
+    anything else (logs, pipes) appended as a new line at most every `min_interval_s`, and
+    always when `final`."""
+
+    def __init__(self, stream=None, min_interval_s: float = 2.0):
         self.stream = stream or sys.stderr
-        self.started = time.perf_counter()
-        self.done = 0
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
         self.min_interval_s = min_interval_s
         self._last_line = -math.inf
+        self._shown = False
+
+    def show(self, line: str, final: bool = False) -> None:
+        if self.tty:
+            self.stream.write("\r\x1b[K" + line + ("\n" if final else ""))
+            self._shown = not final
+        elif final or time.perf_counter() - self._last_line >= self.min_interval_s:
+            self.stream.write(line + "\n")
+            self._last_line = time.perf_counter()
+        else:
+            return
+        self.stream.flush()
+
+    def clear(self) -> None:
+        """Erase a line being redrawn (terminal only), before other output is printed."""
+        if self.tty and self._shown:
+            self.stream.write("\r\x1b[K")
+            self.stream.flush()
+            self._shown = False
+
+
+class Progress:
+    """A one-line progress bar on stderr (StatusLine): label, bar, done/total, elapsed time
+    and a note."""
+
+    def __init__(self, total: int, label: str, width: int = 28, stream=None, min_interval_s: float = 2.0):
+        self.total, self.label, self.width = max(int(total), 1), label, width
+        self.line = StatusLine(stream, min_interval_s)
+        self.started = time.perf_counter()
+        self.done = 0
 
     def update(self, done: int | None = None, note: str = "") -> None:
         self.done = self.done + 1 if done is None else int(done)
         self._draw(note, final=self.done >= self.total)
 
     def _draw(self, note: str, final: bool = False) -> None:
-        fraction = min(self.done / self.total, 1.0)
-        filled = int(round(fraction * self.width))
         elapsed = time.perf_counter() - self.started
-        line = (f"{self.label} [{'#' * filled}{'.' * (self.width - filled)}] {self.done}/{self.total} "
-                f"{elapsed:6.1f} s{'  ' + note if note else ''}")
-        if self.tty:
-            self.stream.write("\r\x1b[K" + line + ("\n" if final else ""))
-        elif final or time.perf_counter() - self._last_line >= self.min_interval_s:
-            self.stream.write(line + "\n")
-            self._last_line = time.perf_counter()
-        self.stream.flush()
+        self.line.show(f"{self.label} {progress_bar(self.done / self.total, self.width)} {self.done}/{self.total} "
+                       f"{elapsed:6.1f} s{'  ' + note if note else ''}", final)
 
 
 # ---------------------------------------------------------------- databases

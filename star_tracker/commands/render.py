@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from .common import (CameraFile, CommandError, add_parser, camera_summary, finite_float, guarded, load_camera_file,
-                     non_negative_float, positive_float)
+                     positive_float)
 
 NAME = "render"
 
