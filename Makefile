@@ -54,3 +54,6 @@ bench: $(BENCH_STAMP)
 	$(PY) -m bench.bench_attitude --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_tracking --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_replay --output docs/BENCHMARKS.md
+	$(PY) -m bench.bench_pipeline --output docs/BENCHMARKS.md
+	$(PY) -m bench.bench_soak --minutes 10 --output docs/BENCHMARKS.md  # 10 min
+	$(PY) -m bench.plots  # the benchmark plots from the JSON results above

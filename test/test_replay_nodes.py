@@ -39,8 +39,9 @@ RATE_HZ = 4.0  # two pipelines, the camera and the recorder share 2 cores: keep 
 # What makes the nodes' outputs a function of their inputs only: no rate aid (its rate comes
 # from the identifier's angular_velocity, so arrival timing decides which aid a frame gets),
 # and lost-in-space solves that always finish inline within their budget (no bridging).
-DETERMINISTIC = {"centroider": {"exposure_time_s": 0.0},
-                 "identifier": {"inline_wait_s": 10.0, "max_time_s": 10.0}}
+# Every frame answered, whatever the host's load: queues deep enough that no frame is dropped.
+DETERMINISTIC = {"centroider": {"exposure_time_s": 0.0, "queue_depth": 20},
+                 "identifier": {"inline_wait_s": 10.0, "max_time_s": 10.0, "queue_depth": 20}}
 # Bound on |replay - live| for the default configuration (rate aid on, inline_wait_s 0.05),
 # cross-boresight and roll [arcsec]: a frame whose rate aid differed is centroided with another
 # model, within the attitude's own noise (docs/RECORD_REPLAY.md).

@@ -6,6 +6,7 @@ truth/objects, all with the frame's mid-exposure stamp. See msg_docs/.
 from __future__ import annotations
 
 import sys
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -242,6 +243,7 @@ class CameraSimulatorNode(Node):
     def render_and_publish(self) -> None:
         k = self.frame_index
         stamp_ns = self.t0_ns + (k + 1) * self.period_ns - int(round(self.sensor.exposure_s * 0.5e9))
+        started = time.perf_counter()
         try:
             if self.motion is None:
                 raise ValueError("no external truth received yet")
@@ -256,7 +258,9 @@ class CameraSimulatorNode(Node):
             frame = self._blank(frame, k)
             self.diag.count("frames_blanked")
         truth = frame.truth
+        rendered = time.perf_counter()
         self.pub_image.publish(convert.array_to_image(frame.image, stamp_ns, self.frame_id))
+        self.diag.time("image_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
         self.pub_info.publish(convert.camera_to_info(self.camera, stamp_ns, self.frame_id))
         self.pub_truth.publish(convert.quaternion_msg(matrix_to_quaternion(truth.rotation), stamp_ns))
         self.pub_truth_rate.publish(convert.vector3_msg(truth.body_rate, stamp_ns, self.frame_id))
@@ -265,6 +269,8 @@ class CameraSimulatorNode(Node):
         objects["electrons"], objects["kind"] = truth.electrons, truth.kind
         self.pub_truth_objects.publish(convert.records_to_cloud(objects, convert.TRUTH_OBJECT_FIELDS, stamp_ns, self.frame_id))
         self.frame_index += 1
+        self.diag.time("render", rendered - started)
+        self.diag.time("publish", time.perf_counter() - rendered)
         self.diag.count("frames_published")
         self.diag.set(DiagnosticStatus.OK, "publishing", objects_in_view=truth.hip.size, smear_substeps=frame.substeps)
 

@@ -6,6 +6,11 @@ with no signal, a saturated background, or a stamp out of order or from the futu
 measured (the centroider keeps no state between frames) but counted and logged; the
 identifier decides what to do with their stamps (docs/RELIABILITY.md).
 
+Overload: the subscription callback only checks and decodes an image; a worker thread measures
+it. At most `queue_depth` images wait (default 1: the worker always takes the newest); the
+oldest waiting one is dropped when one more arrives, counted (`frames_dropped_overload`) and
+logged: newest frame wins, latency stays bounded.
+
 Rate aid (optional, never required): with `exposure_time_s` > 0, a camera model from
 `camera_info` and a body rate (the `angular_velocity` topic or the `angular_velocity_rad_s`
 parameter), each star's smear over the exposure is predicted; detection uses the matched
@@ -27,8 +32,8 @@ from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
 from ..centroid.kernels import warm_up
 from ..centroid.streak import SmearModel
 from . import convert
-from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, Rejections,
-                     StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)
+from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, NewestFrame,
+                     Rejections, StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)
 
 RATE_SOURCES = ("topic", "parameter", "none")
 # Tunable while running (`ros2 param set`), checked together as a CentroidConfig; the rest
@@ -67,6 +72,8 @@ class CentroiderNode(Node):
         self.rate_source = p("rate_source", "topic", "body rate for the rate aid: " + " | ".join(RATE_SOURCES))
         rate_param = p("angular_velocity_rad_s", [0.0, 0.0, 0.0],
                        "body rate in the sensor frame when rate_source is 'parameter' [rad/s]")
+        self.queue_depth = p("queue_depth", 1, "images waiting for the extraction at most; when one more arrives the "
+                             "oldest is dropped and counted (frames_dropped_overload). 1 = newest frame wins", 1, 100)
         self.max_rate_age_s = p("max_rate_age_s", 0.5, "ignore a rate message further than this from the image "
                                                         "stamp [s]", 0.0, 1e6)
         self.stamps = StampOrder(self, p("stamp.max_future_s", 1.0, "count frames stamped further ahead of this "
@@ -84,10 +91,11 @@ class CentroiderNode(Node):
         self.rate: tuple[int, np.ndarray] | None = None  # (stamp ns, rad/s) of the latest rate message
         warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
         self.pub = self.create_publisher(PointCloud2, "spots", SPOTS_QOS)
-        self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
         self.reject = Rejections(self.diag, self.log)
+        self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
+        self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
@@ -131,37 +139,54 @@ class CentroiderNode(Node):
         return SmearModel(camera, omega, self.exposure_s)
 
     def on_image(self, msg: Image) -> None:
-        started = time.perf_counter()
+        """Executor thread: count, check the stamp, decode; the worker measures (measure())."""
+        received = time.perf_counter()
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
+        self.diag.time("input_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
         verdict = self.stamps.classify(stamp_ns)
         if verdict != STAMP_OK:  # measured all the same: counted for whoever reads /diagnostics
             self.reject("time_resets" if verdict == STAMP_RESET else f"frames_{verdict}",
                         self.stamps.describe(verdict, stamp_ns))
         try:
             image = convert.image_to_array(msg)
+        except ValueError as exc:
+            self.diag.count("frames_rejected")
+            self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
+            self.log.warn("bad_image", f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
+            return
+        self.diag.time("decode", time.perf_counter() - received)
+        self.frames.put((image, msg.header, stamp_ns), stamp_ns)
+
+    def measure(self, item) -> None:
+        """Worker thread: extract the spots of one decoded image and publish them."""
+        image, header, stamp_ns = item
+        started = time.perf_counter()
+        try:
             smear = self.smear_for(stamp_ns, image.shape[1], image.shape[0])
             spots = extract_spots(image, self.config, smear)
         except ValueError as exc:
             self.diag.count("frames_rejected")
             self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
-            self.log.warn("bad_image", f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
+            self.log.warn("bad_image", f"rejected image (stamp {header.stamp.sec}.{header.stamp.nanosec:09d}): {exc}")
             return
         except Exception as exc:  # a defect, not bad input: reported, and the next frame is processed
             self.diag.count("frames_failed")
             self.diag.set(DiagnosticStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}")
             self.log.error("internal", f"frame {stamp_ns * 1e-9:.6f} failed: {type(exc).__name__}: {exc}")
             return
-        out = convert.spots_to_cloud(spots, stamp_ns, msg.header.frame_id)
-        out.header = msg.header  # unchanged stamp and frame
+        out = convert.spots_to_cloud(spots, stamp_ns, header.frame_id)
+        out.header = header  # unchanged stamp and frame
         self.pub.publish(out)
+        processing_s = time.perf_counter() - started
+        self.diag.time("processing", processing_s)
         self.diag.count("frames_processed")
         if smear is not None:
             self.diag.count("frames_rate_aided")
         self.diag.count("spots_rejected_shape", spots.rejected_shape)
         problem = self.content_problem(image, spots)
         self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok", last_spot_count=len(spots),
-                      last_processing_ms=f"{(time.perf_counter() - started) * 1e3:.2f}",
+                      last_processing_ms=f"{processing_s * 1e3:.2f}",
                       last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:
@@ -176,6 +201,11 @@ class CentroiderNode(Node):
             self.reject("frames_no_signal", f"frame without signal: every pixel reads {image.flat[0]} ADU")
             return "frame without signal"
         return None
+
+
+    def destroy_node(self) -> None:
+        self.frames.stop()
+        super().destroy_node()
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import sys
+import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -113,7 +116,10 @@ def report_unknown_parameters(node: Node) -> list[str]:
 
 
 class Diagnostics:
-    """Counters and the latest state of a node, published on /diagnostics at 1 Hz."""
+    """Counters, stage timings and the latest state of a node, published on /diagnostics at
+    1 Hz. Thread-safe: a node's worker thread and its executor both report here."""
+
+    TIMING_WINDOW = 100  # frames behind each <stage>_ms_p50 / _max
 
     def __init__(self, node: Node, period_s: float = 1.0):
         self.node = node
@@ -121,27 +127,125 @@ class Diagnostics:
         self.name = "star_tracker" + node.get_fully_qualified_name()
         self.counters: Counter[str] = Counter()
         self.values: dict[str, str] = {}
+        self.timings: dict[str, deque] = {}
         self.level = DiagnosticStatus.OK
         self.message = "starting"
+        self._lock = threading.Lock()
         self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._timer = node.create_timer(period_s, self.publish)
 
     def count(self, key: str, n: int = 1) -> None:
-        self.counters[key] += n
+        with self._lock:
+            self.counters[key] += n
 
     def set(self, level: int, message: str, **values) -> None:
-        self.level, self.message = level, message
-        self.values.update({k: str(v) for k, v in values.items()})
+        with self._lock:
+            self.level, self.message = level, message
+            self.values.update({k: str(v) for k, v in values.items()})
+
+    def value(self, key: str, value) -> None:
+        """Set one latest value (kept until set again)."""
+        with self._lock:
+            self.values[key] = str(value)
+
+    def time(self, stage: str, seconds: float) -> None:
+        """One frame's duration of `stage` [s]; published as <stage>_ms_p50 and <stage>_ms_max
+        over the last TIMING_WINDOW frames."""
+        with self._lock:
+            self.timings.setdefault(stage, deque(maxlen=self.TIMING_WINDOW)).append(seconds)
+
+    def items(self) -> dict[str, str]:
+        """Every key/value as published: counters (sorted), timings, then values."""
+        with self._lock:
+            items = {k: str(v) for k, v in sorted(self.counters.items())}
+            for stage, window in sorted(self.timings.items()):
+                ms = np.asarray(window) * 1e3
+                items[f"{stage}_ms_p50"], items[f"{stage}_ms_max"] = f"{np.median(ms):.2f}", f"{ms.max():.2f}"
+            items.update(self.values)
+            return items
 
     def publish(self) -> None:
-        status = DiagnosticStatus(level=self.level, name=self.name, message=self.message,
-                                  hardware_id="star_tracker")
-        items = {**{k: str(v) for k, v in sorted(self.counters.items())}, **self.values}
+        items = self.items()
+        with self._lock:
+            level, message = self.level, self.message
+        status = DiagnosticStatus(level=level, name=self.name, message=message, hardware_id="star_tracker")
         status.values = [KeyValue(key=k, value=v) for k, v in items.items()]
         msg = DiagnosticArray()
         msg.header.stamp = self.node.get_clock().now().to_msg()
         msg.status = [status]
         self._pub.publish(msg)
+
+
+class NewestFrame:
+    """Newest-frame-wins hand-off from the executor to one worker thread.
+
+    The subscription callback only checks and decodes a message and `put`s it here: it keeps
+    up with any input rate, so the DDS queue never overflows (which would drop frames without
+    a trace). Up to `depth` frames wait, oldest first (default 1: the worker always takes the
+    newest). When a frame arrives and `depth` are waiting, the oldest waiting one is dropped,
+    counted as `frames_dropped_overload` on /diagnostics and logged (throttled). Latency stays
+    bounded: `depth` waiting frames plus the one in progress."""
+
+    def __init__(self, node: Node, process: Callable[[object], None], diag: "Diagnostics", log: "ThrottledLog",
+                 depth: int = 1, merge: Callable[[object, object], object] | None = None):
+        """process(item) runs on the worker thread; merge(dropped, next) -> the item to keep in
+        place of `next`, for state a dropped frame must hand on (a time reset)."""
+        self.node, self.process, self.diag, self.log = node, process, diag, log
+        self.depth = int(depth)
+        self.merge = merge or (lambda dropped, following: following)
+        self._waiting: deque = deque()  # (item, stamp_ns, perf_counter at put)
+        self._stopping = False
+        self._idle = True
+        self._condition = threading.Condition()
+        self._thread = threading.Thread(target=self._run, name=f"{node.get_name()}_worker", daemon=True)
+        self._thread.start()
+
+    def put(self, item, stamp_ns: int) -> None:
+        dropped = None
+        with self._condition:
+            self._waiting.append((item, stamp_ns, time.perf_counter()))
+            if len(self._waiting) > self.depth:
+                dropped = self._waiting.popleft()
+                following = self._waiting[0]
+                self._waiting[0] = (self.merge(dropped[0], following[0]), following[1], following[2])
+            self._condition.notify()
+        if dropped is not None:
+            self.diag.count("frames_dropped_overload")
+            self.log.warn("overload", f"overload: frame {dropped[1] * 1e-9:.6f} s dropped unprocessed for the newer "
+                          f"{stamp_ns * 1e-9:.6f} s (newest frame wins)")
+
+    def _run(self) -> None:
+        while True:
+            with self._condition:
+                self._idle = True
+                self._condition.notify_all()
+                while not self._waiting and not self._stopping:
+                    self._condition.wait()
+                if self._stopping:
+                    return
+                item, stamp_ns, queued = self._waiting.popleft()
+                self._idle = False
+            self.diag.time("wait", time.perf_counter() - queued)
+            try:
+                self.process(item)
+            except Exception as exc:  # process() reports its own errors; this is the last net
+                if not self.node.context.ok():
+                    return  # shutting down: publishers are gone
+                self.diag.count("frames_failed")
+                self.diag.set(DiagnosticStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}")
+                self.log.error("internal", f"frame {stamp_ns * 1e-9:.6f} failed: {type(exc).__name__}: {exc}")
+
+    def wait_idle(self, timeout_s: float) -> bool:
+        """True once nothing waits and the worker is idle."""
+        with self._condition:
+            return self._condition.wait_for(lambda: not self._waiting and self._idle, timeout_s)
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Let the frame in progress finish (at most timeout_s), drop the waiting ones."""
+        with self._condition:
+            self._stopping = True
+            self._condition.notify_all()
+        self._thread.join(timeout_s)
 
 
 class Rejections:
@@ -209,6 +313,7 @@ class ThrottledLog:
         self.node, self.period = node, period_s
         self._last: dict[str, float] = {}
         self._suppressed: Counter[str] = Counter()
+        self._lock = threading.Lock()  # a node's worker thread logs too
 
     def warn(self, key: str, text: str) -> None:
         self._emit(key, text, self.node.get_logger().warning)
@@ -217,6 +322,13 @@ class ThrottledLog:
         self._emit(key, text, self.node.get_logger().error)
 
     def _emit(self, key: str, text: str, write: Callable[[str], object]) -> None:
+        with self._lock:
+            line = self._line(key, text)
+        if line is not None:
+            write(line)
+
+    def _line(self, key: str, text: str) -> str | None:
+        """The line to write now, or None (counted as suppressed)."""
         key = key + ":" + _NUMBERS.sub("#", text)
         now = time.monotonic()
         if len(self._last) > 256:  # garbage input can make endless kinds: forget the quiet ones
@@ -225,11 +337,11 @@ class ThrottledLog:
                 self._suppressed.pop(stale, None)
         if now - self._last.get(key, -1e9) >= self.period:
             extra = f" ({self._suppressed[key]} similar suppressed)" if self._suppressed[key] else ""
-            write(text + extra)
             self._last[key] = now
             self._suppressed[key] = 0
-        else:
-            self._suppressed[key] += 1
+            return text + extra
+        self._suppressed[key] += 1
+        return None
 
 
 FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
@@ -281,23 +393,43 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     configure_middleware()
     node = None
     code = 0
+    initialized = spinning = False
+
+    def on_sigint(signum, frame):
+        # rclpy's own handler has already shut the context down, which ends the spin cleanly.
+        # A KeyboardInterrupt on top would land in whatever Python code the main thread runs,
+        # and inside a __del__ it is only printed ("Exception ignored ... Traceback").
+        if not spinning:
+            raise KeyboardInterrupt  # still starting up: stop now
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, on_sigint) if main_thread else None
     try:
         check_params_files(args)
         check_cache_directory()
         rclpy.init(args=args)
+        initialized = True
         node = factory()
         report_unknown_parameters(node)
         node.get_logger().info("ready")
+        spinning = True
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # startup errors: bad parameters, unreadable catalog, ...
-        print(f"[star_tracker] fatal: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
-        code = 2
+        if initialized and not rclpy.ok():
+            # SIGINT/SIGTERM shut the context down under a running call (e.g. the executor
+            # building its wait set: RCLError "the given context is not valid"): a normal stop.
+            pass
+        else:
+            print(f"[star_tracker] fatal: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+            code = 2
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        if main_thread:
+            signal.signal(signal.SIGINT, previous)
     return code
 
 

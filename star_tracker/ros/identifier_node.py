@@ -5,7 +5,13 @@ matched_stars with the spots' stamp, only for verified solutions, and angular_ve
 solutions are in the rate window; otherwise it publishes nothing, logs why and reports it on
 /diagnostics (mode, counters).
 
-A lost-in-space solve runs in a worker thread. When it ends within `inline_wait_s` its frame is
+The subscription callback only checks and decodes a spots message; a worker thread identifies
+it. At most `queue_depth` frames wait (default 1: the worker always takes the newest); the oldest
+waiting one is dropped when one more arrives, counted (`frames_dropped_overload`) and logged
+(newest frame wins). The tracker works from stamps, so a skipped frame only lengthens its
+prediction step.
+
+A lost-in-space solve runs in a second thread. When it ends within `inline_wait_s` its frame is
 published as usual; when it takes longer, the frames arriving meanwhile are bridged by
 frame-to-frame rotations (Tracker.bridge, seed 004) and the newest one is published, verified,
 when the solve ends (delay compensation).
@@ -22,6 +28,7 @@ import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -34,11 +41,29 @@ from ..camera import CameraModel
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from ..identify.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
-from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, Rejections,
-                     StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)
+from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, NewestFrame,
+                     Rejections, StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)
 
 # Tunable while running (`ros2 param set`); the rest is fixed at startup (database, algorithm).
 RUNTIME_PARAMETERS = {"inline_wait_s", "tracking.enabled", "stamp.max_future_s", "stamp.reset_after_s"}
+
+
+@dataclass
+class SpotsFrame:
+    """A checked, decoded spots message waiting for the worker."""
+
+    stamp_ns: int
+    spots: object  # Spots
+    camera: CameraModel
+    sensor_frame: str
+    received: float  # time.perf_counter() at the subscription callback [s]
+    time_reset: bool  # this frame (or one it replaced) restarted time: reset the track first
+
+
+def keep_time_reset(dropped: SpotsFrame, following: SpotsFrame) -> SpotsFrame:
+    """A dropped frame's time reset still applies to the frame after it."""
+    following.time_reset = following.time_reset or dropped.time_reset
+    return following
 
 
 class IdentifierNode(Node):
@@ -75,6 +100,9 @@ class IdentifierNode(Node):
             rate_window_s=p("tracking.rate_window_s", 0.45, "attitudes used for the rate estimate [s]", 0.01, 10.0),
             false_positive_bound=self.config.false_positive_bound,
         )
+        self.queue_depth = p("queue_depth", 1, "spots frames waiting for identification at most; when one more "
+                             "arrives the oldest is dropped and counted (frames_dropped_overload). 1 = newest frame wins",
+                             1, 100)
         self.inline_wait_s = p("inline_wait_s", 0.05, "wait this long for a lost-in-space solve before bridging "
                                "newer frames (delay compensation) [s]", 0.0, 10.0)
         self.stamps = StampOrder(self, p("stamp.max_future_s", 1.0, "drop frames stamped further ahead of this "
@@ -98,18 +126,18 @@ class IdentifierNode(Node):
         self.pub_rate = self.create_publisher(Vector3Stamped, "angular_velocity", RESULT_QOS)
         self.pub_rate_cov = self.create_publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance", RESULT_QOS)
         self.diag = Diagnostics(self)
-        self.diag.values["algorithm"] = algorithm
-        self.diag.values["mode"] = MODE_LOST
-        self._lock = threading.Lock()  # tracker state: executor thread vs the acquisition timer
+        self.diag.value("algorithm", algorithm)
+        self.diag.value("mode", MODE_LOST)
+        # Tracker state: the frame worker vs the end of a lost-in-space solve (which finishes in
+        # the solve's thread, or inline in the frame worker's: reentrant).
+        self._lock = threading.RLock()
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
-        self._acquisition = None  # (future, stamp_ns, spots, camera, frame_id) of a running solve
-        # Polls a solve that outlived inline_wait_s; runs only while one does.
-        self._acquisition_timer = self.create_timer(0.005, self.poll_acquisition)
-        self._acquisition_timer.cancel()
+        self._acquisition = None  # (future, stamp_ns, spots, camera, frame_id, received) of a running solve
         self.log = ThrottledLog(self)
         self.reject = Rejections(self.diag, self.log)
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
+        self.frames = NewestFrame(self, self.identify_frame, self.diag, self.log, self.queue_depth, merge=keep_time_reset)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, SPOTS_QOS)
 
@@ -131,8 +159,12 @@ class IdentifierNode(Node):
         return None
 
     def on_spots(self, msg: PointCloud2) -> None:
+        """Executor thread: count, check the stamp and the message, decode; the worker
+        identifies (identify_frame())."""
+        received = time.perf_counter()
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
+        self.diag.time("input_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
         verdict = self.stamps.classify(stamp_ns)
         if verdict not in (STAMP_OK, STAMP_RESET):  # the tracker's prediction and rate need increasing time
             self.reject(f"frames_{verdict}", self.stamps.describe(verdict, stamp_ns) + "; frame dropped")
@@ -154,23 +186,28 @@ class IdentifierNode(Node):
         if dropped:
             self.reject("spots_dropped_invalid", f"dropped {dropped} spot(s) with non-finite or implausible values "
                         f"(frame {stamp_ns * 1e-9:.6f}); {len(spots)} kept", dropped)
+        if verdict == STAMP_RESET:
+            self.reject("time_resets", self.stamps.describe(verdict, stamp_ns) + "; track restarted")
+        self.diag.time("decode", time.perf_counter() - received)
+        self.frames.put(SpotsFrame(stamp_ns, spots, camera, msg.header.frame_id, received, verdict == STAMP_RESET),
+                        stamp_ns)
+
+    def identify_frame(self, frame: SpotsFrame) -> None:
+        """Worker thread: track or identify the newest frame and publish its attitude."""
         with self._lock:
-            if verdict == STAMP_RESET:
-                self.reject("time_resets", self.stamps.describe(verdict, stamp_ns) + "; track restarted")
+            if frame.time_reset:
                 self.tracker.reset()
                 self._acquisition = None  # a solve still running for the old time line is ignored
-                self._acquisition_timer.cancel()
-            if len(spots) == 0:  # nothing to identify (an occulted or blank frame)
-                self.not_identified(stamp_ns, "too_few_spots", "no spots", spots)
+            if len(frame.spots) == 0:  # nothing to identify (an occulted or blank frame)
+                self.not_identified(frame.stamp_ns, "too_few_spots", "no spots", frame.spots)
                 return
             try:
-                self.process(stamp_ns, spots, camera, msg.header.frame_id)
+                self.process(frame.stamp_ns, frame.spots, frame.camera, frame.sensor_frame, frame.received)
             except Exception as exc:  # a defect, not bad input: reported, and the next frame is processed
-                self.internal_error(stamp_ns, exc)
+                self.internal_error(frame.stamp_ns, exc)
 
-    def process(self, stamp_ns: int, spots, camera, sensor_frame: str) -> None:
+    def process(self, stamp_ns: int, spots, camera, sensor_frame: str, received: float) -> None:
         """Track, or start (or bridge during) a lost-in-space solve. Holds the lock."""
-        received = time.perf_counter()
         if self._acquisition is not None:
             if not self._acquisition[0].done():
                 if self.tracker.bridge(stamp_ns, spots, camera):
@@ -197,30 +234,33 @@ class IdentifierNode(Node):
         try:
             future.result(timeout=self.inline_wait_s)
         except TimeoutError:
-            self._acquisition_timer.reset()  # still running: the timer or the next frame finishes it
+            # Still running: it finishes in its own thread when done, unless the next frame sees it first.
+            future.add_done_callback(self.on_solve_done)
             return
         self._finish_acquisition()
 
-    def poll_acquisition(self) -> None:
+    def on_solve_done(self, future) -> None:
+        """A solve that outlived inline_wait_s ended (runs in the solve's thread)."""
         with self._lock:
-            if self._acquisition is not None and self._acquisition[0].done():
-                stamp_ns = self._acquisition[1]
-                try:
-                    self._finish_acquisition()
-                except Exception as exc:  # a defect: reported, the node keeps running
+            if self._acquisition is None or self._acquisition[0] is not future:
+                return  # already finished by a frame, or dropped by a time reset
+            stamp_ns = self._acquisition[1]
+            try:
+                self._finish_acquisition()
+            except Exception as exc:  # a defect: reported, the node keeps running
+                if self.context.ok():
                     self.internal_error(stamp_ns, exc)
 
     def _finish_acquisition(self) -> None:
         future, stamp_ns, spots, camera, sensor_frame, received = self._acquisition
         self._acquisition = None
-        self._acquisition_timer.cancel()
         try:
             result = future.result()
         except Exception as exc:  # identify() failed: reported; the next frame starts a new solve
             self.tracker.reset()
             self.internal_error(stamp_ns, exc)
             return
-        self.diag.values["last_identify_ms"] = f"{result.elapsed_s * 1e3:.2f}"
+        self.diag.value("last_identify_ms", f"{result.elapsed_s * 1e3:.2f}")
         if not result.solved:
             self.tracker.complete_acquisition(result)
             self.not_identified(stamp_ns, result.status, result.reason, spots)
@@ -229,7 +269,7 @@ class IdentifierNode(Node):
         tracked = self.tracker.complete_acquisition(result)
         if tracked is None:
             self.diag.count("bridge_not_verified")
-            self.diag.values["mode"] = MODE_LOST
+            self.diag.value("mode", MODE_LOST)
             self.log.warn("bridge_failed", "lost-in-space solved an older frame but the bridged attitude was "
                           "not verified on the newest frame")
             return
@@ -237,13 +277,13 @@ class IdentifierNode(Node):
 
     def not_identified(self, stamp_ns: int, status: str, reason: str, spots) -> None:
         self.diag.count(f"not_identified_{status}")
-        self.diag.values["mode"] = MODE_LOST
+        self.diag.value("mode", MODE_LOST)
         self.diag.set(DiagnosticStatus.WARN, f"not identified: {reason}", last_spot_count=len(spots))
         self.log.warn("unsolved", f"frame {stamp_ns * 1e-9:.3f} not identified: {reason}")
 
     def internal_error(self, stamp_ns: int, exc: Exception) -> None:
         self.diag.count("frames_failed")
-        self.diag.values["mode"] = MODE_LOST
+        self.diag.value("mode", MODE_LOST)
         self.diag.set(DiagnosticStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}")
         self.log.error("internal", f"frame {stamp_ns * 1e-9:.6f} failed: {type(exc).__name__}: {exc}")
 
@@ -259,11 +299,13 @@ class IdentifierNode(Node):
             self.pub_rate.publish(convert.vector3_msg(tracked.rate.angular_velocity, stamp_ns, frame))
             self.pub_rate_cov.publish(convert.rate_with_covariance_msg(tracked.rate, frame))
             sigma_rate = np.degrees(tracked.rate.sigma)
-            self.diag.values["last_rate_sigma_deg_s_xyz"] = f"{sigma_rate[0]:.4f},{sigma_rate[1]:.4f},{sigma_rate[2]:.4f}"
+            self.diag.value("last_rate_sigma_deg_s_xyz", f"{sigma_rate[0]:.4f},{sigma_rate[1]:.4f},{sigma_rate[2]:.4f}")
         self.diag.count("frames_identified")
         self.diag.count(f"frames_{tracked.mode}")
-        self.diag.values["mode"] = tracked.mode
-        latency_ms = (time.perf_counter() - received) * 1e3
+        self.diag.value("mode", tracked.mode)
+        latency_s = time.perf_counter() - received
+        self.diag.time("processing", latency_s)
+        latency_ms = latency_s * 1e3
         sigma = np.sqrt(np.diag(solution.covariance)) / ARCSEC
         self.diag.set(DiagnosticStatus.OK, "identified", last_stars_matched=result.hip.size,
                       last_spot_count=len(spots), last_sigma_arcsec_xyz=f"{sigma[0]:.2f},{sigma[1]:.2f},{sigma[2]:.2f}",
@@ -272,6 +314,7 @@ class IdentifierNode(Node):
                       last_gate_px="" if tracked.gate_px is None else f"{tracked.gate_px:.1f}")
 
     def destroy_node(self) -> None:
+        self.frames.stop()
         self._worker.shutdown(wait=True, cancel_futures=True)
         super().destroy_node()
 

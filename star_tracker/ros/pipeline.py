@@ -77,7 +77,9 @@ class NodeProcesses:
         self.params_files = [params_files] if isinstance(params_files, (str, Path)) else list(params_files or [])
         self.nodes = nodes
         self.processes: dict[str, subprocess.Popen] = {}
+        self.log_paths: dict[str, Path] = {}  # each node's current log (a restart starts a new one)
         self._logs = {}
+        self._launches: dict[str, int] = {}
 
     def start(self, timeout_s: float = 120.0) -> "NodeProcesses":
         """Start the processing nodes, wait until they are ready (compiled kernels loaded,
@@ -101,18 +103,23 @@ class NodeProcesses:
         cmd += parameter_arguments(self.params.get(name, {}))
         for old, new in self.remaps.get(name, {}).items():
             cmd += ["-r", f"{old}:={new}"]
-        log = open(self.log_dir / f"{name}.log", "w")
+        n = self._launches[name] = self._launches.get(name, 0) + 1
+        self.log_paths[name] = self.log_dir / (f"{name}.log" if n == 1 else f"{name}.restart{n - 1}.log")
+        if name in self._logs:
+            self._logs[name].close()
+        log = open(self.log_paths[name], "w")
         self._logs[name] = log
         self.processes[name] = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
                                                 stdin=subprocess.DEVNULL, start_new_session=True)
 
-    def wait_ready(self, timeout_s: float = 120.0) -> None:
-        """Block until every started node logged `ready`; raise with its log if one died or hung."""
+    def wait_ready(self, timeout_s: float = 120.0, names=None) -> None:
+        """Block until every started node (or those in `names`) logged `ready`; raise with its
+        log if one died or hung."""
         deadline = time.monotonic() + timeout_s
-        pending = set(self.processes)
+        pending = set(self.processes if names is None else names)
         while pending:
             for name in list(pending):
-                text = (self.log_dir / f"{name}.log").read_text(errors="replace")
+                text = self.log_paths[name].read_text(errors="replace")
                 if "]: ready" in text:
                     pending.discard(name)
                 elif self.processes[name].poll() is not None:
@@ -121,11 +128,37 @@ class NodeProcesses:
                 raise TimeoutError(f"nodes not ready after {timeout_s} s: {sorted(pending)}")
             time.sleep(0.1)
 
-    def stop(self, timeout_s: float = 15.0) -> dict[str, int]:
-        """SIGINT every node, wait, SIGKILL what is left. Returns exit codes."""
+    def kill(self, name: str, sig: int = signal.SIGKILL, timeout_s: float = 15.0) -> int:
+        """Send `sig` to one node and wait for it to exit (SIGKILL after timeout_s). Returns its
+        exit code (negative: killed by that signal)."""
+        proc = self.processes[name]
+        if proc.poll() is None:
+            proc.send_signal(sig)
+        try:
+            return proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            return proc.wait()
+
+    def launch(self, name: str, timeout_s: float = 120.0) -> None:
+        """Start one node now (any of NODE_MODULES, with this object's parameters) and wait
+        until it is ready; `stop` stops it with the others."""
+        self._launch(name)
+        self.wait_ready(timeout_s, names=[name])
+
+    def restart(self, name: str, timeout_s: float = 120.0) -> None:
+        """Start a node again after it exited (its new log: `<name>.restart<n>.log`) and wait
+        until it is ready."""
+        if self.processes[name].poll() is None:
+            raise RuntimeError(f"{name} is still running")
+        self.launch(name, timeout_s)
+
+    def stop(self, timeout_s: float = 15.0, sig: int = signal.SIGINT) -> dict[str, int]:
+        """Send `sig` (SIGINT or SIGTERM) to every node, wait, SIGKILL what is left. Returns
+        exit codes."""
         for proc in self.processes.values():
             if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
+                proc.send_signal(sig)
         deadline = time.monotonic() + timeout_s
         codes = {}
         for name, proc in self.processes.items():
@@ -246,8 +279,9 @@ class TrackerMonitor(Node):
         for ns in sorted(with_images)[:-8]:
             self.frames[ns].image = None
 
-    def spin_for(self, seconds: float, until=None) -> None:
-        """Process callbacks for `seconds`, or until `until()` is true."""
+    def spin_for(self, seconds: float, until=None) -> bool:
+        """Process callbacks for `seconds`, or until `until()` is true. Returns whether
+        `until()` became true (False without one)."""
         if self._executor is None:
             self._executor = SingleThreadedExecutor(context=self.context)
             self._executor.add_node(self)
@@ -255,7 +289,8 @@ class TrackerMonitor(Node):
         while time.monotonic() < end and self.context.ok():
             self._executor.spin_once(timeout_sec=0.05)
             if until is not None and until():
-                return
+                return True
+        return until is not None and bool(until())
 
     def destroy_node(self) -> None:
         if self._executor is not None:
