@@ -44,8 +44,8 @@ def soak(minutes: float, rate: float, exposure_s: float, sample_s: float) -> dic
     params = {"camera_simulator": {"rate_hz": rate, "sensor.exposure_s": exposure_s,
                                    "attitude.body_rate_deg_s": BODY_RATE_DEG_S, "wait_for_subscribers": True,
                                    "max_backlog_frames": 1},  # as bench_pipeline: newest frame wins at the source
-              "centroider": {"exposure_time_s": exposure_s}}
-    nodes = NodeProcesses(dict(os.environ), log_dir, params, CONFIG)
+              "centroider": {"exposure_time_s": exposure_s, "queue_depth": 1}, "identifier": {"queue_depth": 1}}
+    nodes = NodeProcesses(dict(os.environ), log_dir, params, CONFIG)  # queue_depth 1: as bench_pipeline
     watcher = Watcher(with_truth=True)
     samples = []
     try:

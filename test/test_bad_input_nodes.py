@@ -107,7 +107,9 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp
     pub_image = driver.node.create_publisher(Image, "image_raw", SENSOR_QOS)
     pub_info = driver.node.create_publisher(CameraInfo, "camera_info", SENSOR_QOS)
     pub_rate = driver.node.create_publisher(Vector3Stamped, "angular_velocity", RESULT_QOS)
-    nodes = NodeProcesses(ros_graph, tmp_path / "logs", {"centroider": {"detection_sigmaa": 3.0}}, nodes=("centroider",))
+    # Bad input, not overload: a queue deep enough that a host stall drops none of the frames counted below.
+    nodes = NodeProcesses(ros_graph, tmp_path / "logs", {"centroider": {"detection_sigmaa": 3.0, "queue_depth": 50}},
+                          nodes=("centroider",))
     try:
         nodes.start()
         nodes.wait_ready()
@@ -222,7 +224,7 @@ def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph, tmp
     driver.node.create_subscription(QuaternionStamped, "attitude", attitudes.append, RESULT_QOS)
     pub_info = driver.node.create_publisher(CameraInfo, "camera_info", SENSOR_QOS)
     pub_spots = driver.node.create_publisher(PointCloud2, "spots", SENSOR_QOS)
-    nodes = NodeProcesses(ros_graph, tmp_path / "logs", nodes=("identifier",))
+    nodes = NodeProcesses(ros_graph, tmp_path / "logs", {"identifier": {"queue_depth": 50}}, nodes=("identifier",))
     try:
         nodes.start()
         nodes.wait_ready()

@@ -468,6 +468,12 @@ def test_bench_plots_redraw_from_json_results(tmp_path, catalog):
 # ---------------------------------------------------------------- monitor
 
 @pytest.mark.integration
+def test_monitor_refuses_an_invalid_domain_id():
+    for domain in ("250", "abc"):
+        result = cli_process("monitor", "--once", "1", env={**os.environ, "ROS_DOMAIN_ID": domain}, timeout=60)
+        assert result.returncode == 2 and "must be an integer from 0 to 232" in result.stderr, result
+
+
 def test_monitor_once_shows_the_running_tracker(tmp_path):
     pytest.importorskip("rclpy")
     from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment
@@ -501,7 +507,7 @@ def test_monitor_once_shows_the_running_tracker(tmp_path):
     text = format_snapshot(snapshot)
     assert re.search(r"^attitude\s+RA\s+(79\.99|80\.00)\d*°\s+Dec \+(19\.99|20\.00)\d*°", text, re.M), text
     assert re.search(r"^mode\s+(tracking|lost_in_space) \(hybrid\)", text, re.M), text
-    empty = isolated_ros_environment(domain_id=int(env["ROS_DOMAIN_ID"]) + 50)
+    empty = isolated_ros_environment(domain_id=200 + int(env["ROS_DOMAIN_ID"]) % 30)  # not 100-199; valid ids end at 232
     result = cli_process("monitor", "--once", "1", env=empty, timeout=60)
     assert result.returncode == 1 and "no star tracker seen on ROS_DOMAIN_ID" in result.stderr
     assert "waiting for the identifier" in result.stdout

@@ -29,12 +29,12 @@ def ros_graph(monkeypatch):
     rclpy.try_shutdown()
 
 
-def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None):
+def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, remaps: dict | None = None):
     """Run FRAMES frames through the three nodes; `diagnostics`, when given, receives the latest
-    /diagnostics values per status name."""
+    /diagnostics values per status name; `remaps`: per node, topic -> new name."""
     monitor = TrackerMonitor(name="integration_monitor")
     params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 2.0, "wait_for_subscribers": True, "rate_hz": RATE_HZ, **camera_params}}
-    nodes = NodeProcesses(env, tmp_path / "logs", params, REPO / "config" / "star_tracker.yaml")
+    nodes = NodeProcesses(env, tmp_path / "logs", params, REPO / "config" / "star_tracker.yaml", remaps=remaps)
     try:
         nodes.start()
         nodes.wait_ready(timeout_s=120)

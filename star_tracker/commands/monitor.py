@@ -241,6 +241,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"monitor needs rclpy ({exc}); run it in the project's .venv or a sourced ROS 2 install") from None
     from ..ros.common import configure_middleware
 
+    domain = os.environ.get("ROS_DOMAIN_ID", "0").strip() or "0"
+    if not (domain.isdigit() and int(domain) <= 232):  # Fast DDS's default ports end at domain 232
+        raise ValueError(f"ROS_DOMAIN_ID={domain!r} must be an integer from 0 to 232")
     configure_middleware(os.environ)
     status = TrackerStatus()
     rclpy.init(args=[])

@@ -7,7 +7,7 @@ measured (the centroider keeps no state between frames) but counted and logged; 
 identifier decides what to do with their stamps (docs/RELIABILITY.md).
 
 Overload: the subscription callback only checks and decodes an image; a worker thread measures
-it. At most `queue_depth` images wait (default 1: the worker always takes the newest); the
+it. At most `queue_depth` images wait (default 3; 1: the worker always takes the newest); the
 oldest waiting one is dropped when one more arrives, counted (`frames_dropped_overload`) and
 logged: newest frame wins, latency stays bounded.
 
@@ -72,8 +72,8 @@ class CentroiderNode(Node):
         self.rate_source = p("rate_source", "topic", "body rate for the rate aid: " + " | ".join(RATE_SOURCES))
         rate_param = p("angular_velocity_rad_s", [0.0, 0.0, 0.0],
                        "body rate in the sensor frame when rate_source is 'parameter' [rad/s]")
-        self.queue_depth = p("queue_depth", 1, "images waiting for the extraction at most; when one more arrives the "
-                             "oldest is dropped and counted (frames_dropped_overload). 1 = newest frame wins", 1, 100)
+        self.queue_depth = p("queue_depth", 3, "images waiting for the extraction at most; when one more arrives the "
+                             "oldest is dropped and counted (frames_dropped_overload). 1 = only the newest frame waits; 3 (default) rides out a host stall of ~3 frames", 1, 100)
         self.max_rate_age_s = p("max_rate_age_s", 0.5, "ignore a rate message further than this from the image "
                                                         "stamp [s]", 0.0, 1e6)
         self.stamps = StampOrder(self, p("stamp.max_future_s", 1.0, "count frames stamped further ahead of this "

@@ -6,7 +6,7 @@ solutions are in the rate window; otherwise it publishes nothing, logs why and r
 /diagnostics (mode, counters).
 
 The subscription callback only checks and decodes a spots message; a worker thread identifies
-it. At most `queue_depth` frames wait (default 1: the worker always takes the newest); the oldest
+it. At most `queue_depth` frames wait (default 3; 1: the worker always takes the newest); the oldest
 waiting one is dropped when one more arrives, counted (`frames_dropped_overload`) and logged
 (newest frame wins). The tracker works from stamps, so a skipped frame only lengthens its
 prediction step.
@@ -100,8 +100,8 @@ class IdentifierNode(Node):
             rate_window_s=p("tracking.rate_window_s", 0.45, "attitudes used for the rate estimate [s]", 0.01, 10.0),
             false_positive_bound=self.config.false_positive_bound,
         )
-        self.queue_depth = p("queue_depth", 1, "spots frames waiting for identification at most; when one more "
-                             "arrives the oldest is dropped and counted (frames_dropped_overload). 1 = newest frame wins",
+        self.queue_depth = p("queue_depth", 3, "spots frames waiting for identification at most; when one more "
+                             "arrives the oldest is dropped and counted (frames_dropped_overload). 1 = only the newest frame waits; 3 (default) rides out a host stall of ~3 frames",
                              1, 100)
         self.inline_wait_s = p("inline_wait_s", 0.05, "wait this long for a lost-in-space solve before bridging "
                                "newer frames (delay compensation) [s]", 0.0, 10.0)
