@@ -634,13 +634,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--render", type=Path, help="only rewrite the sections from this raw-numbers JSON")
     args = parser.parse_args(argv)
     if args.render:
-        data = json.loads(args.render.read_text())
-        data["analysis"] = analysis_text(data)
-        print(render_section(data))
-        if args.output:
-            write_section(args.output, render_section(data))
-            (args.output.parent / "bench_pipeline.json").write_text(json.dumps(data, indent=1, default=str) + "\n")
-            write_reliability(args.output.parent / "RELIABILITY.md", reliability_figures(data))
+        publish(json.loads(args.render.read_text()), args.output)
         return
     if args.quick:
         args.rates, args.seconds = "10,20,30", 8.0
@@ -669,9 +663,7 @@ def main(argv: list[str] | None = None) -> None:
     finally:
         rclpy.try_shutdown()
     now = dt.datetime.now(dt.timezone.utc)
-    command = "python -m bench.bench_pipeline" + ("" if argv is None else " " + shlex.join(argv))
-    if argv is None:
-        command = "python -m bench.bench_pipeline " + shlex.join(sys.argv[1:])
+    command = "python -m bench.bench_pipeline " + shlex.join(sys.argv[1:] if argv is None else argv)
     load = os.getloadavg()
     data = {
         "command": command.strip(), "date": now.strftime("%Y-%m-%d %H:%M UTC"),
@@ -683,12 +675,19 @@ def main(argv: list[str] | None = None) -> None:
         "stages_in_process": stages, "stages_frames": 38,
         "exit_codes": {"sweep": sweep_codes, "overload": over_codes}, "log_dir": str(log_dir),
     }
+    publish(data, args.output)
+
+
+def publish(data: dict, output: Path | None) -> None:
+    """Print the section; with `output`, write it there, the raw numbers beside it and the
+    figures in RELIABILITY.md."""
     data["analysis"] = analysis_text(data)
-    print(render_section(data))
-    if args.output:
-        write_section(args.output, render_section(data))
-        (args.output.parent / "bench_pipeline.json").write_text(json.dumps(data, indent=1, default=str) + "\n")
-        write_reliability(args.output.parent / "RELIABILITY.md", reliability_figures(data))
+    section = render_section(data)
+    print(section)
+    if output:
+        write_section(output, section)
+        (output.parent / "bench_pipeline.json").write_text(json.dumps(data, indent=1, default=str) + "\n")
+        write_reliability(output.parent / "RELIABILITY.md", reliability_figures(data))
 
 
 if __name__ == "__main__":

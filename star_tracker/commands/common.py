@@ -59,34 +59,22 @@ def error(command: str, message: str) -> None:
     print(f"star-tracker {command}: error: {message}", file=sys.stderr, flush=True)
 
 
-def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text} must be > 0")
-    return value
+def _float_argument(accept, requirement: str):
+    """An argparse type: a finite float for which accept(value) holds, else '<text> must be <requirement>'."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) and accept(value)):
+            raise argparse.ArgumentTypeError(f"{text} must be {requirement}")
+        return value
+    return parse
 
 
-def non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text} must be >= 0")
-    return value
-
-
-def finite_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"{text} must be finite")
-    return value
+positive_float = _float_argument(lambda v: v > 0, "> 0")
+non_negative_float = _float_argument(lambda v: v >= 0, ">= 0")
+finite_float = _float_argument(lambda v: True, "finite")
 
 
 def positive_int(text: str) -> int:
