@@ -13,7 +13,7 @@ from star_tracker.centroid import (FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_SATURATED
                                    CentroidConfig, extract_spots)
 from star_tracker.centroid import extract as extract_module
 from star_tracker.centroid.streak import SmearModel
-from star_tracker.motion import ConstantRateMotion
+from star_tracker.motion import ConstantRateMotion, SlewMotion
 from star_tracker.render import KIND_HOT_PIXEL, SensorModel, StarFieldRenderer, frame_seed
 
 CAMERA = CameraModel.from_fov(1024, 1024, np.radians(15.0))
@@ -286,3 +286,38 @@ def test_a_strong_stray_light_gradient_neither_hides_stars_nor_makes_false_ones(
     _, distance = nearest(spots, tx, ty)
     assert np.mean(distance < 0.5) >= 0.98
     assert len(spots) <= x.size + 1
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_rate_aid_the_streaks_disagree_with_is_dropped_for_the_frame(catalog, seed, monkeypatch):
+    # An identifier's rate lagging a 1 deg/s^2 ramp by ~30 % (5 Hz frames), used as the aid:
+    # the path fits locked onto one end of the streaks (a common along-track bias of 1-2 px,
+    # 100" in the attitude, with sub-arcsecond covariances) and split streaks into extra spots.
+    motion = SlewMotion(radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.0), [0.6, 0.8, 0.0],
+                        np.radians(8.0), np.radians(2.0), np.radians(1.0))
+    t = 1.55  # 1.55 deg/s, still accelerating
+    frame = StarFieldRenderer(CAMERA, SensorModel(), catalog.at_epoch(2026.0), magnitude_limit=7.5).render(
+        motion, t, frame_seed(seed, 0))
+    rate = motion.angular_velocity_at(t)
+    along = SmearModel(CAMERA, rate, EXPOSURE).smear_vectors([512.0], [512.0])[0]
+    along /= np.linalg.norm(along)
+    stars = frame.truth.kind == 0
+    tx, ty = frame.truth.x[stars], frame.truth.y[stars]
+
+    def along_track_bias(spots):
+        d = np.hypot(spots.x[:, None] - tx[None], spots.y[:, None] - ty[None])
+        j, bright = d.argmin(axis=1), (d.min(axis=1) < 4.0) & (spots.snr > 30)
+        return np.median(np.column_stack([spots.x - tx[j], spots.y - ty[j]])[bright] @ along), bright.sum()
+
+    right = extract_spots(frame.image, CentroidConfig(), SmearModel(CAMERA, rate, EXPOSURE))
+    lagging = extract_spots(frame.image, CentroidConfig(), SmearModel(CAMERA, 0.68 * rate, EXPOSURE))
+    assert not right.rate_aid_rejected and lagging.rate_aid_rejected
+    assert abs(len(lagging) - len(right)) <= 0.05 * len(right)  # no split streaks
+    for spots in (right, lagging):
+        bias, bright = along_track_bias(spots)
+        assert abs(bias) < 0.15 and bright >= 25, (bias, bright)
+    # Without the check, the lagging aid gives the biased, fragmented frame.
+    monkeypatch.setattr(extract_module, "AID_TOLERANCE_FRACTION", np.inf)
+    trusted = extract_spots(frame.image, CentroidConfig(), SmearModel(CAMERA, 0.68 * rate, EXPOSURE))
+    bias, bright = along_track_bias(trusted)
+    assert len(trusted) > 1.2 * len(right) and abs(bias) > 0.5, (len(trusted), len(right), bias)

@@ -23,7 +23,9 @@ class Spots:
     smear over the exposure [px] (0 for point-like spots); streak_angle: its direction [rad]
     from +x toward +y (start -> end when the body rate is known, else in (-pi/2, pi/2]).
     width, height: image size [px]; background_adu, noise_adu: frame background level and
-    1-sigma pixel noise [ADU]; rejected_shape: detections dropped as hot pixels or cosmic rays.
+    1-sigma pixel noise [ADU]; rejected_shape: detections dropped as hot pixels or cosmic rays;
+    rate_aid_rejected: a body rate was given but the streaks in the image disagreed with it, so
+    the frame was measured without it (extract.AID_* rules).
     """
 
     x: np.ndarray
@@ -41,6 +43,7 @@ class Spots:
     rejected_shape: int = 0
     streak_length: np.ndarray | None = None
     streak_angle: np.ndarray | None = None
+    rate_aid_rejected: bool = False
 
     def __post_init__(self) -> None:
         n = np.asarray(self.x).size

@@ -181,13 +181,18 @@ class CentroiderNode(Node):
         processing_s = time.perf_counter() - started
         self.diag.time("processing", processing_s)
         self.diag.count("frames_processed")
-        if smear is not None:
+        if smear is not None and spots.rate_aid_rejected:
+            self.diag.count("frames_rate_aid_rejected")
+            omega = np.degrees(smear.angular_velocity_rad_s)
+            self.log.warn("rate_aid_rejected", f"frame {stamp_ns * 1e-9:.6f}: the streaks disagree with the aiding rate "
+                          f"({omega[0]:.3f}, {omega[1]:.3f}, {omega[2]:.3f}) deg/s; measured without it")
+        elif smear is not None:
             self.diag.count("frames_rate_aided")
         self.diag.count("spots_rejected_shape", spots.rejected_shape)
         problem = self.content_problem(image, spots)
         self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok", last_spot_count=len(spots),
                       last_processing_ms=f"{processing_s * 1e3:.2f}",
-                      last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None))
+                      last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None and not spots.rate_aid_rejected))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:
         """Count and log a frame with no signal (every pixel equal: lens cap, dead sensor) or a
