@@ -82,7 +82,8 @@ class IdentifierNode(Node):
             max_pattern_spots=p("max_pattern_spots", 12, "brightest spots used to form patterns", 3, 100),
             sigma_multiplier=p("sigma_multiplier", 3.0, "pattern tolerance [sigmas]", 0.1, 20.0),
             angle_tolerance_floor_rad=p("angle_tolerance_floor_rad", 2.0e-5, "added angle tolerance [rad]", 0.0, 0.01),
-            centroid_sigma_floor_px=p("centroid_sigma_floor_px", 0.05, "smallest spot 1-sigma [px]", 1e-4, 10.0),
+            centroid_sigma_floor_px=p("centroid_sigma_floor_px", 0.05, "smallest spot 1-sigma for the matching "
+                                      "tolerances; the published fit uses each spot's own covariance [px]", 1e-4, 10.0),
             match_radius_px=p("match_radius_px", 1.5, "verification match radius [px]", 0.01, 50.0),
             false_positive_bound=p("false_positive_bound", 1.0e-6, "largest accepted chance-match probability", 1e-30, 0.5),
             max_time_s=p("max_time_s", 0.5, "time budget per frame [s]", 1e-3, 60.0),
