@@ -36,3 +36,18 @@ def nominal_camera():
     from star_tracker.camera import CameraModel
 
     return CameraModel.from_fov(1024, 1024, np.radians(15.0))
+
+
+def join_isolated_ros_domain(monkeypatch) -> dict:
+    """Put this test process on a private ROS domain (localhost discovery, the project's Fast DDS
+    profile) and initialise rclpy; returns that environment for the node processes."""
+    import rclpy
+
+    from star_tracker.ros.pipeline import isolated_ros_environment
+
+    env = isolated_ros_environment()
+    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
+        monkeypatch.setenv(key, env[key])
+    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
+    rclpy.init(args=[])
+    return env

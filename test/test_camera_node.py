@@ -17,15 +17,13 @@ from star_tracker.ros import convert  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)
 
 from star_tracker.ros.common import RESULT_QOS  # noqa: E402
-from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
+from conftest import join_isolated_ros_domain  # noqa: E402
+from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
 
 
 @pytest.fixture
 def driver(monkeypatch):
-    env = isolated_ros_environment()
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        monkeypatch.setenv(key, env[key])
-    rclpy.init(args=[])
+    env = join_isolated_ros_domain(monkeypatch)
     node = rclpy.create_node("camera_driver")
     received = {"truth": [], "rate": [], "objects": [], "images": 0, "image_stamps": set()}
     node.create_subscription(QuaternionStamped, "truth/attitude", received["truth"].append, RESULT_QOS)

@@ -15,7 +15,8 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from star_tracker.centroid import FLAG_RATE_AIDED, FLAG_STREAK  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.common import RESULT_QOS, SPOTS_QOS  # noqa: E402
-from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
+from conftest import join_isolated_ros_domain  # noqa: E402
+from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
 
 RATE_DEG_S = [1.5, 1.0, 0.0]  # 1.8 deg/s across the boresight: ~12 px streaks in 0.1 s
 FRAMES = 8
@@ -24,10 +25,7 @@ FRAMES = 8
 def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None):
     """camera_simulator + centroider; returns {stamp: (spots records, truth records)} and the
     centroider's last diagnostics values."""
-    env = isolated_ros_environment()
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        monkeypatch.setenv(key, env[key])
-    rclpy.init(args=[])
+    env = join_isolated_ros_domain(monkeypatch)
     node = rclpy.create_node("centroider_probe")
     spots, truth, diag = {}, {}, {}
     node.create_subscription(PointCloud2, "spots", lambda m: spots.__setitem__(

@@ -21,6 +21,7 @@ from star_tracker.ros import convert  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)
 
 from star_tracker.ros.common import RESULT_QOS  # noqa: E402
+from conftest import join_isolated_ros_domain  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
 
 ARCSEC = np.radians(1 / 3600)
@@ -39,10 +40,7 @@ def star_spots(catalog, camera, rotation):
 
 @pytest.mark.integration
 def test_identifier_node_publishes_only_verified_attitudes(monkeypatch, tmp_path, catalog, nominal_camera, database):
-    env = isolated_ros_environment()
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        monkeypatch.setenv(key, env[key])
-    rclpy.init(args=[])
+    env = join_isolated_ros_domain(monkeypatch)
     node = rclpy.create_node("identifier_driver")
     attitudes, diagnostics = [], []
     node.create_subscription(QuaternionStamped, "attitude", attitudes.append, RESULT_QOS)

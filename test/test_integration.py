@@ -2,7 +2,6 @@
 checked against the simulator's truth. No ROS mocks."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +9,8 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor, isolated_ros_environment, summarize  # noqa: E402
+from conftest import join_isolated_ros_domain  # noqa: E402
+from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor, summarize  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 FRAMES = 60
@@ -20,11 +20,7 @@ ARCSEC = np.radians(1 / 3600)
 
 @pytest.fixture
 def ros_graph(monkeypatch):
-    env = isolated_ros_environment()
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        monkeypatch.setenv(key, env[key])
-    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
-    rclpy.init(args=[])
+    env = join_isolated_ros_domain(monkeypatch)
     yield env
     rclpy.try_shutdown()
 

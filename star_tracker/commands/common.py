@@ -248,7 +248,7 @@ GEOMETRY_PARAMETERS = ("image.width", "image.height", "optics.fov_x_deg", "optic
 RENDER_PARAMETERS = ("sky.magnitude_limit", "sky.epoch_jyear", "sky.observer_velocity_m_s", "fixed_pattern_seed", "seed")
 # camera_simulator parameters that describe the run, not the camera: accepted and ignored.
 IGNORED_PREFIXES = ("rate_hz", "max_frames", "start_delay_s", "wait_for_subscribers", "max_backlog_frames",
-                    "frame_id", "attitude.", "faults.")
+                    "frame_id", "attitude.", "faults.", "sensor.readout_s")  # readout: when a frame is published
 
 
 class CameraFile:

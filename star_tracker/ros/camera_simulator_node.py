@@ -2,12 +2,19 @@
 
 Publishes image_raw (mono16), camera_info, truth/attitude, truth/angular_velocity and
 truth/objects, all with the frame's mid-exposure stamp. See msg_docs/.
+
+Timing, like a camera: frame k is delivered when its exposure has ended (the last row's, under
+a rolling shutter), the frame transfer is done and `sensor.readout_s` has passed. Motion known
+in advance (every profile but `external`) lets the node render a frame while the previous one
+is out, so the render costs no latency; external truth arrives over topics, so those frames
+are rendered at their delivery time.
 """
 from __future__ import annotations
 
 import sys
 import time
-from dataclasses import replace
+from collections import deque
+from dataclasses import dataclass, replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -22,6 +29,22 @@ from ..motion import SampledMotion, motion_from_parameters
 from ..render import FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
 from . import convert
 from .common import IMAGE_QOS, RESULT_QOS, Diagnostics, ThrottledLog, declare, guard_parameter_changes, run_node
+
+
+@dataclass
+class PreparedFrame:
+    """A rendered frame's messages, ready to publish at its delivery time (node clock, ns)."""
+
+    index: int
+    stamp_ns: int
+    image: Image
+    info: CameraInfo
+    truth: QuaternionStamped
+    truth_rate: Vector3Stamped
+    truth_objects: PointCloud2
+    objects_in_view: int
+    substeps: int
+    ready_ns: int
 
 
 class CameraSimulatorNode(Node):
@@ -77,6 +100,9 @@ class CameraSimulatorNode(Node):
             noise=p("sensor.noise", True, "shot and read noise on (false renders expected values)"),
         )
         self.sensor = sensor
+        readout_s = p("sensor.readout_s", 0.0,
+                      "readout: a frame is published this long after its exposure (the last row's, under a rolling "
+                      "shutter) and frame transfer ended; 0 = at once [s]", 0.0, 10.0)
         false_objects = FalseObjectModel(
             planets_per_frame=p("false_objects.planets_per_frame", 0, "bright non-catalog points per frame", 0, 100),
             planet_magnitude_range=tuple(p("false_objects.planet_magnitude_range", [-1.0, 2.0], "instrument magnitude range")),
@@ -138,6 +164,14 @@ class CameraSimulatorNode(Node):
         self.period_ns = int(round(1e9 / self.rate_hz))
         if sensor.exposure_s * 1e9 > self.period_ns:
             raise ValueError(f"sensor.exposure_s={sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s")
+        # Frame k's middle row ends its exposure at t0 + (k+1) period; the last row ends
+        # last_row_ns later, and the frame is delivered delivery_offset_ns after the middle row.
+        self.last_row_ns = int(round(abs(sensor.rolling_shutter_row_time_s) * (height - 1) / 2 * 1e9))
+        self.delivery_offset_ns = self.last_row_ns + int(round((sensor.frame_transfer_time_s + readout_s) * 1e9))
+        self.render_ahead = self.profile != "external"  # external truth may not cover an exposure yet
+        self.pending: PreparedFrame | None = None  # the next frame, rendered ahead of its delivery
+        self.render_times = deque(maxlen=20)  # recent render durations [s]: how early to start the next
+        self._frame_timer = None  # one-shot: start the next render, or an early tick's retry
         self.frame_index = 0
         blank = p("faults.blank_frames", [-1], "frame indices rendered with the field occulted (no stars, "
                   "e.g. Earth or a baffle): to exercise loss and re-acquisition; -1 = none")
@@ -165,19 +199,32 @@ class CameraSimulatorNode(Node):
             self.start()
         self.get_logger().info(
             f"{width}x{height} px, FOV {fov_x_deg:.2f} deg, {self.rate_hz:g} Hz, exposure {sensor.exposure_s * 1e3:g} ms, "
+            f"frames delivered {self.delivery_offset_ns * 1e-6:g} ms after the exposure's nominal end "
+            f"({'rendered ahead' if self.render_ahead else 'rendered at delivery'}), "
             f"{len(self.renderer.catalog)} stars to Hp {magnitude_limit}, attitude profile {self.profile}")
 
     def start(self) -> None:
         """Fix the time origin and start the frame timer. Its ticks fall at now + n*period and
-        are never early, so exposures end 1 ms before a tick: the frame is rendered right
-        after its exposure, and a late tick only delays it."""
+        are never early; frame k is delivered on a tick, t0 + (k+1) period + delivery_offset_ns,
+        and t0 is at least start_delay_s after now."""
         now_ns = self.get_clock().now().nanoseconds
-        delay_ticks = int(np.ceil(self.start_delay_s * 1e9 / self.period_ns))
-        self.t0_ns = now_ns + delay_ticks * self.period_ns - 1_000_000
+        delay_ticks = int(np.ceil((self.start_delay_s * 1e9 + self.delivery_offset_ns) / self.period_ns))
+        self.t0_ns = now_ns + delay_ticks * self.period_ns - self.delivery_offset_ns
         if self.profile != "external":
             self.motion = motion_from_parameters(self.profile, self.initial_rotation, t0=self.t0_ns * 1e-9,
                                                  **self.motion_kwargs[self.profile])
         self.timer = self.create_timer(self.period_ns * 1e-9, self.on_timer)
+        self.timer.timer_period_ns = self.period_ns  # exact: seconds -> ns may round down, and ticks drift early
+        if self.render_ahead:  # frame 0 is rendered a period before its delivery, like every frame at first
+            self.call_at(self.delivery_ns(0) - self.period_ns, now_ns)
+
+    def delivery_ns(self, k: int) -> int:
+        """When frame k may be published: its exposure and frame transfer ended, then the readout [ns]."""
+        return self.t0_ns + (k + 1) * self.period_ns + self.delivery_offset_ns
+
+    def exposure_end_ns(self, k: int) -> int:
+        """When frame k's last row ended its exposure [ns]."""
+        return self.t0_ns + (k + 1) * self.period_ns + self.last_row_ns
 
     def on_external_attitude(self, msg: QuaternionStamped) -> None:
         self._external_sample(convert.stamp_to_ns(msg.header.stamp), 0, convert.quaternion_from_msg(msg))
@@ -223,11 +270,10 @@ class CameraSimulatorNode(Node):
                 self.diag.set(DiagnosticStatus.OK, "finished", frames=self.frame_index)
                 self.frame_index += 1
             return
-        # Frame k's exposure ends at t0 + (k+1) period; its stamp is mid-exposure. Like camera
-        # hardware, every exposure is delivered (late if the host was busy); only a backlog
-        # beyond max_backlog_frames is skipped, counted and logged.
+        # Like camera hardware, every frame is delivered (late if the host was busy); only a
+        # backlog beyond max_backlog_frames is skipped, counted and logged.
         now_ns = self.get_clock().now().nanoseconds
-        due = (now_ns - self.t0_ns) // self.period_ns  # frames whose exposure has ended
+        due = (now_ns - self.t0_ns - self.delivery_offset_ns) // self.period_ns  # frames deliverable now
         if self.max_frames:
             due = min(due, self.max_frames)
         backlog = int(due - self.frame_index)
@@ -238,10 +284,62 @@ class CameraSimulatorNode(Node):
                                       f"skipped {skipped} frame(s)")
             self.frame_index += skipped
         while self.frame_index < due:
-            self.render_and_publish()
-
-    def render_and_publish(self) -> None:
+            self.publish_next()
+        if not self.render_ahead or (self.max_frames and self.frame_index >= self.max_frames):
+            return
+        # Render the next frame ahead, just in time for its delivery: late enough to leave the
+        # CPU to the nodes processing the previous frame, early enough to be ready.
         k = self.frame_index
+        now_ns = self.get_clock().now().nanoseconds
+        if self.pending is None or self.pending.index != k:
+            start_ns = self.delivery_ns(k) - self.render_lead_ns()
+            if start_ns > now_ns:
+                self.call_at(start_ns, now_ns)
+                return
+            self.pending = self.prepare(k)
+            if self.pending is None:  # could not be rendered (counted): it will not be published
+                self.frame_index += 1
+                return
+            now_ns = self.get_clock().now().nanoseconds
+        wait_ns = self.delivery_ns(k) - now_ns
+        if wait_ns <= 0:  # rendered late: out at once (the periodic tick it missed comes right back for the next)
+            self.publish_next()
+        elif wait_ns < 1_000_000:  # an early tick (not expected): a tick of its own
+            self.call_at(self.delivery_ns(k), now_ns)
+
+    def render_lead_ns(self) -> int:
+        """How long before its delivery a frame's render starts [ns]: 1.5 x the slowest of the
+        recent renders + 3 ms, at most a period (i.e. as soon as the previous frame is out)."""
+        if not self.render_times:
+            return self.period_ns
+        return min(self.period_ns, int((1.5 * max(self.render_times) + 0.003) * 1e9))
+
+    def call_at(self, at_ns: int, now_ns: int) -> None:
+        """on_timer() once more at at_ns (node clock), in place of any such call pending."""
+        self.cancel_call()
+        self._frame_timer = self.create_timer((at_ns - now_ns + 1000) * 1e-9, self.on_call)
+
+    def cancel_call(self) -> None:
+        if self._frame_timer is not None:
+            self._frame_timer.cancel()
+            self.destroy_timer(self._frame_timer)
+            self._frame_timer = None
+
+    def on_call(self) -> None:
+        self.cancel_call()
+        self.on_timer()
+
+    def publish_next(self) -> None:
+        """Publish frame frame_index (rendered ahead, or now) and move on; the caller knows it is due."""
+        k = self.frame_index
+        frame = self.pending if self.pending is not None and self.pending.index == k else self.prepare(k)
+        self.pending = None
+        self.frame_index += 1
+        if frame is not None:
+            self.publish(frame)
+
+    def prepare(self, k: int) -> "PreparedFrame | None":
+        """Render frame k and build its messages; None when it cannot be rendered (counted)."""
         stamp_ns = self.t0_ns + (k + 1) * self.period_ns - int(round(self.sensor.exposure_s * 0.5e9))
         started = time.perf_counter()
         try:
@@ -249,31 +347,47 @@ class CameraSimulatorNode(Node):
                 raise ValueError("no external truth received yet")
             frame = self.renderer.render(self.motion, stamp_ns * 1e-9, frame_seed(self.seed, k))
         except ValueError as exc:  # external truth does not cover this exposure
-            self.frame_index += 1
             self.diag.count("frames_skipped_no_attitude")
             self.diag.set(DiagnosticStatus.WARN, f"frame skipped: {exc}")
             self.log.warn("no_attitude", f"frame {k} skipped: {exc}")
-            return
+            return None
         if k in self.blank_frames:  # occulted field: background and noise only, no objects
             frame = self._blank(frame, k)
             self.diag.count("frames_blanked")
-        truth = frame.truth
         rendered = time.perf_counter()
-        self.pub_image.publish(convert.array_to_image(frame.image, stamp_ns, self.frame_id))
-        self.diag.time("image_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
-        self.pub_info.publish(convert.camera_to_info(self.camera, stamp_ns, self.frame_id))
-        self.pub_truth.publish(convert.quaternion_msg(matrix_to_quaternion(truth.rotation), stamp_ns))
-        self.pub_truth_rate.publish(convert.vector3_msg(truth.body_rate, stamp_ns, self.frame_id))
+        self.render_times.append(rendered - started)
+        truth = frame.truth
         objects = np.zeros(truth.hip.size, convert.TRUTH_OBJECT_DTYPE)
         objects["hip_id"], objects["pixel_x"], objects["pixel_y"] = truth.hip, truth.x, truth.y
         objects["electrons"], objects["kind"] = truth.electrons, truth.kind
-        self.pub_truth_objects.publish(convert.records_to_cloud(objects, convert.TRUTH_OBJECT_FIELDS, stamp_ns, self.frame_id))
-        self.frame_index += 1
+        prepared = PreparedFrame(
+            index=k, stamp_ns=stamp_ns, objects_in_view=int(truth.hip.size), substeps=frame.substeps,
+            image=convert.array_to_image(frame.image, stamp_ns, self.frame_id),
+            info=convert.camera_to_info(self.camera, stamp_ns, self.frame_id),
+            truth=convert.quaternion_msg(matrix_to_quaternion(truth.rotation), stamp_ns),
+            truth_rate=convert.vector3_msg(truth.body_rate, stamp_ns, self.frame_id),
+            truth_objects=convert.records_to_cloud(objects, convert.TRUTH_OBJECT_FIELDS, stamp_ns, self.frame_id),
+            ready_ns=self.get_clock().now().nanoseconds)
         self.diag.time("render", rendered - started)
-        self.diag.time("publish", time.perf_counter() - rendered)
-        self.diag.count("frames_published")
-        self.diag.set(DiagnosticStatus.OK, "publishing", objects_in_view=truth.hip.size, smear_substeps=frame.substeps)
+        self.diag.time("convert", time.perf_counter() - rendered)
+        return prepared
 
+    def publish(self, frame: "PreparedFrame") -> None:
+        started = time.perf_counter()
+        self.pub_image.publish(frame.image)
+        now_ns = self.get_clock().now().nanoseconds
+        self.diag.time("image_age", (now_ns - frame.stamp_ns) * 1e-9)
+        self.diag.time("delivery_delay", (now_ns - self.exposure_end_ns(frame.index)) * 1e-9)
+        if self.render_ahead and frame.ready_ns > self.delivery_ns(frame.index):
+            self.diag.count("frames_rendered_late")
+        self.pub_info.publish(frame.info)
+        self.pub_truth.publish(frame.truth)
+        self.pub_truth_rate.publish(frame.truth_rate)
+        self.pub_truth_objects.publish(frame.truth_objects)
+        self.diag.time("publish", time.perf_counter() - started)
+        self.diag.count("frames_published")
+        self.diag.set(DiagnosticStatus.OK, "publishing", objects_in_view=frame.objects_in_view,
+                      smear_substeps=frame.substeps)
 
     def _blank(self, frame, k: int):
         """The frame with the field occulted: its median level plus read noise, nothing in view."""
