@@ -8,8 +8,13 @@ for `--minutes`. Every `--sample` seconds: the resident memory (VmRSS, /proc/<pi
 each node process, and the frames of the interval: published (truth), identified, dropped,
 the latency (mid-exposure stamp -> attitude received here) and the overload counters.
 
-Memory growth is measured from the end of the first minute (catalog, database, compiled
-kernels, DDS buffers and the first allocations all settled) to the end; latency drift is the
+Before the measured run, the centroider and identifier are stopped (SIGSTOP) for
+`--rehearse-stall` seconds and resumed: the stall a busy host causes sooner or later, here
+rehearsed at once, so that every bounded buffer it fills (the DDS reader histories, 10 images
+= 20 MiB and 20 spot clouds, and their payload pools, which Fast DDS keeps) is full before the
+baseline is taken. Without it the first stall after the baseline showed up as a one-time step
+of ~20 MiB. Memory growth is measured from the end of the first minute (catalog, database,
+compiled kernels, DDS buffers and the first allocations all settled) to the end; latency drift is the
 change of the per-interval median latency from the first to the last minute, and the slope of a
 straight line through all intervals. Writes the "## Soak" section of --output, the figures in
 docs/RELIABILITY.md (between its `<!-- bench_soak -->` markers) and the time series in
@@ -23,6 +28,7 @@ import json
 import os
 import platform
 import shlex
+import signal
 import sys
 import tempfile
 import time
@@ -36,7 +42,7 @@ from .report import cpu_model, write_section
 BEGIN, END = "<!-- bench_soak -->", "<!-- /bench_soak -->"
 
 
-def soak(minutes: float, rate: float, exposure_s: float, sample_s: float) -> dict:
+def soak(minutes: float, rate: float, exposure_s: float, sample_s: float, stall_s: float = 2.0) -> dict:
     from star_tracker.attitude import attitude_error, quaternion_to_matrix
     from star_tracker.ros.pipeline import NodeProcesses
 
@@ -53,6 +59,13 @@ def soak(minutes: float, rate: float, exposure_s: float, sample_s: float) -> dic
         nodes.wait_ready()
         watcher.wait(60.0, lambda: len(watcher.attitude_at) > 0)
         pids = {name: proc.pid for name, proc in nodes.processes.items()}
+        if stall_s > 0:  # fill the bounded buffers a stall fills (module docstring), then settle
+            for name in ("centroider", "identifier"):
+                os.kill(pids[name], signal.SIGSTOP)
+            time.sleep(stall_s)
+            for name in ("centroider", "identifier"):
+                os.kill(pids[name], signal.SIGCONT)
+            time.sleep(5.0)
         start = time.time_ns()
         end = start + int(minutes * 60e9)
         previous = {name: watcher.counters(name) for name in STATUS}
@@ -150,7 +163,11 @@ def render(data: dict) -> str:
         f"The three nodes as separate processes (`config/star_tracker.yaml`, demo body rate (0.3, 0.4, 0.05) deg/s, "
         f"1024² mono16, {data['exposure_ms']:g} ms exposure, camera `max_backlog_frames: 1`) at **{data['rate_hz']:g} Hz for {data['minutes']:g} "
         f"min**, sampled every {data['sample_s']:g} s. The host was {s['host_busy_percent']:.0f} % busy on average "
-        f"({s['host_steal_percent']:.1f} % stolen by the hypervisor){data['load_note']}.",
+        f"({s['host_steal_percent']:.1f} % stolen by the hypervisor){data['load_note']}. "
+        + (f"Before the run the centroider and identifier were stopped for {data['rehearsed_stall_s']:g} s and resumed "
+           "(a rehearsed host stall: it fills the bounded DDS reader histories and their payload pools before the "
+           "memory baseline; see bench/bench_soak.py)." if data.get("rehearsed_stall_s") else
+           "No stall was rehearsed before the run."),
         "",
         f"- frames: {s['frames']} published, {s['identified']} identified ({100 * s['identified'] / max(s['frames'], 1):.2f} %), "
         f"{s['wrong']} wrong (> 60″); dropped by overload: centroider {s['dropped_overload']['centroider']}, "
@@ -182,6 +199,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rate", type=float, default=20.0, help="camera rate [Hz]")
     parser.add_argument("--exposure", type=float, default=0.02, help="exposure time [s]")
     parser.add_argument("--sample", type=float, default=10.0, help="sampling interval [s]")
+    parser.add_argument("--rehearse-stall", type=float, default=2.0,
+                        help="stop the centroider and identifier this long before the run, to fill the buffers a "
+                             "host stall fills (0: no rehearsal) [s]")
     parser.add_argument("--load-note", default="", help="a remark on other work on the host during the run")
     parser.add_argument("--output", type=Path, help="Markdown file to update (docs/BENCHMARKS.md)")
     parser.add_argument("--render", type=Path, help="only rewrite the sections from this time-series JSON")
@@ -202,7 +222,7 @@ def main(argv: list[str] | None = None) -> None:
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     rclpy.init()
     try:
-        run = soak(args.minutes, args.rate, args.exposure, args.sample)
+        run = soak(args.minutes, args.rate, args.exposure, args.sample, args.rehearse_stall)
     finally:
         rclpy.try_shutdown()
     data = {
@@ -210,6 +230,7 @@ def main(argv: list[str] | None = None) -> None:
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "machine": f"{cpu_model()}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.platform()}",
         "minutes": args.minutes, "rate_hz": args.rate, "exposure_ms": args.exposure * 1e3, "sample_s": args.sample,
+        "rehearsed_stall_s": args.rehearse_stall,
         "load_note": (": " + args.load_note) if args.load_note else "",
         **run, "summary": summarize(run, args.sample),
     }
