@@ -54,3 +54,20 @@ def test_corrupt_cache_is_detected_and_rebuilt(catalog):
     reloaded = load_hipparcos()
     assert np.array_equal(reloaded.hip, catalog.hip)
     assert load_validated_npz(path) is not None
+
+
+def test_a_checksum_valid_cache_that_is_not_a_catalog_is_rebuilt(catalog):
+    # A file with a valid checksum but the wrong columns, dtype or shapes (written by other code,
+    # or tampered and re-checksummed) must not reach StarCatalog: it is rebuilt from hip2.dat.
+    import star_tracker.catalog as module
+
+    path = sorted(cache_dir().glob("hip2_*.npz"))[0]
+    columns = {name: getattr(catalog, name) for name in ("hip", "ra", "dec", "pm_ra", "pm_dec", "hp", "b_v")}
+    for tampered in ({**columns, "extra": columns["ra"]}, {**columns, "hip": columns["hip"].astype(np.int64)},
+                     {**columns, "ra": columns["ra"][:-1]}):
+        module.save_validated_npz(path, tampered)
+        assert load_validated_npz(path) is not None  # the checksum alone passes it
+        module._CATALOG_MEMO.clear()
+        reloaded = load_hipparcos()
+        assert np.array_equal(reloaded.hip, catalog.hip) and np.array_equal(reloaded.ra, catalog.ra)
+        assert sorted(load_validated_npz(path)) == sorted(columns)  # rewritten as a catalog
