@@ -19,6 +19,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -151,6 +152,9 @@ class AckTracker:
 
     def missing(self, stamp_ns: int, topics: list[str]) -> list[str]:
         return [t for t in topics if stamp_ns not in self.stamps[t]]
+
+
+FLUSH_TIMEOUT_S = 5.0  # after the last message: how long reliable subscribers get to acknowledge it
 
 
 class BagPlayer(Node):
@@ -331,6 +335,18 @@ class BagPlayer(Node):
         report.interrupted = not self.ok()
         return report
 
+    def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> list[str]:
+        """Wait until every reliable subscriber has acknowledged all that was published (a
+        player that exits at once can take its last messages with it); returns the topics still
+        unacknowledged after timeout_s [s]."""
+        deadline = time.monotonic() + timeout_s
+        late = []
+        for topic, pub in self.pubs.items():
+            left = max(0.0, deadline - time.monotonic())
+            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                late.append(topic)
+        return late
+
     def destroy_node(self) -> None:
         self.executor_.remove_node(self)
         self.executor_.shutdown()
@@ -382,6 +398,10 @@ def play(path: str, options: PlayOptions) -> int:
         try:
             player = BagPlayer(bag, topics, classes, images, options, log=lambda text: print(text, flush=True))
             report = player.play()
+            late = player.flush()
+            if late:
+                print(f"star-tracker play: warning: not acknowledged within {FLUSH_TIMEOUT_S:g} s by every reliable "
+                      f"subscriber: {', '.join(late)}", flush=True)
         except (KeyboardInterrupt, ExternalShutdownException):
             report = player.report if player is not None else PlayReport()
             report.interrupted = True
