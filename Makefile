@@ -52,6 +52,7 @@ bench: $(BENCH_STAMP)
 	$(PY) -m bench.bench_identify --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_databases --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_attitude --output docs/BENCHMARKS.md
+	$(PY) -m bench.bench_rate_aid --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_tracking --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_replay --output docs/BENCHMARKS.md
 	$(PY) -m bench.bench_pipeline --output docs/BENCHMARKS.md

@@ -467,13 +467,13 @@ def test_bench_plots_redraw_from_json_results(tmp_path, catalog):
 
 # ---------------------------------------------------------------- monitor
 
-@pytest.mark.integration
 def test_monitor_refuses_an_invalid_domain_id():
     for domain in ("250", "abc"):
         result = cli_process("monitor", "--once", "1", env={**os.environ, "ROS_DOMAIN_ID": domain}, timeout=60)
         assert result.returncode == 2 and "must be an integer from 0 to 232" in result.stderr, result
 
 
+@pytest.mark.integration
 def test_monitor_once_shows_the_running_tracker(tmp_path):
     pytest.importorskip("rclpy")
     from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment

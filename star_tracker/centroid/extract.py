@@ -19,6 +19,7 @@ from .measure import (aperture_moments, box_sums, clean_hot_pixels, cog_phase_bi
 from .kernels import measure_small
 from .psf_fit import fit_psf_windows, gather_windows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
+from .streak import segment_length
 
 if TYPE_CHECKING:
     from .streak import SmearModel
@@ -587,7 +588,7 @@ def _streak_width(win, footprint, valid, major, noise, sigma, binning) -> np.nda
     use = (grown.reshape(n, rows, cols) > 0) & valid
     signal = np.where(use, win, 0.0)
     strong = (signal > 5.0 * noise).sum(axis=(1, 2))
-    length = np.sqrt(np.maximum(12.0 * (major - sigma ** 2), 0.0)) + 1.0
+    length = segment_length(major, sigma) + 1.0
     # The ridge level: the median of the spot's brightest `length` pixels (a noise peak or two
     # must not make a faint streak look bright).
     ranked = -np.sort(-signal.reshape(n, -1), axis=1)
@@ -719,7 +720,7 @@ def _fit_streak_spots(image, det, config, sigma, which, x, y, flux, cov, snr, fl
                                   excluded=excluded)
         extra_flag = FLAG_STREAK | FLAG_RATE_AIDED
     else:
-        length0 = np.sqrt(np.maximum(12.0 * (cand.major[sel][which] - sigma ** 2), 0.0))
+        length0 = segment_length(cand.major[sel][which], sigma)
         fit = fit_streaks(residual, x[which], y[which], flux[which], length0, cand.angle[sel][which], sigma, noise,
                           gain, excluded=excluded)
         extra_flag = FLAG_STREAK
@@ -859,7 +860,7 @@ def _rate_aid_disagrees(cand, sel, usable, sigma, smear) -> bool:
     c = sel[candidates[np.argsort(-snr[candidates], kind="stable")[:AID_CHECK_STREAKS]]]
     predicted = smear.smear_vectors(cand.x[c], cand.y[c])
     # A pixel-integrated PSF's second moment is sigma^2 + 1/12 [px^2].
-    length = np.sqrt(np.maximum(12.0 * (cand.major[c] - sigma ** 2 - 1.0 / 12.0), 0.0))
+    length = segment_length(cand.major[c], np.sqrt(sigma ** 2 + 1.0 / 12.0))
     angle = np.nan_to_num(cand.angle[c])
     measured = np.nan_to_num(length)[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
     # A footprint has no sense (start or end): compare with the nearer of +-measured.

@@ -58,6 +58,13 @@ _MAX_WINDOW_ELEMENTS = 3_000_000  # spots x parameters x pixels per batch (memor
 
 # ---------------------------------------------------------------- smear geometry
 
+def segment_length(major, sigma: float) -> np.ndarray:
+    """Length [px] of a straight streak whose image (a segment swept by a Gaussian PSF of
+    1-sigma `sigma` [px]) has the second moment `major` [px^2] along it: a uniform segment of
+    length L adds L^2 / 12. 0 where `major` is below sigma^2 (NaN stays NaN)."""
+    return np.sqrt(np.maximum(12.0 * (np.asarray(major, dtype=float) - sigma * sigma), 0.0))
+
+
 @dataclass(frozen=True, eq=False)
 class SmearModel:
     """Image motion of fixed stars during one exposure under a constant body rate.
@@ -660,7 +667,7 @@ def _fit_free_batch(residual, batch, bounds, x0, y0, flux0, length0, angle0, gue
     length, angle = length0.copy(), angle0.copy()
     if not np.all(guess_ok):
         major, axis = _window_moments(win)
-        length = np.where(guess_ok, length, np.sqrt(np.maximum(12.0 * (major - sigma * sigma), 0.0)))
+        length = np.where(guess_ok, length, segment_length(major, sigma))
         angle = np.where(guess_ok, angle, axis)
     # Longest streak that fits its window (diagonal): beyond it the fit has run away.
     max_length = np.hypot(bounds[:, 1] - bounds[:, 0], bounds[:, 3] - bounds[:, 2]) + 1.0

@@ -69,6 +69,8 @@ BENCHES = (
           "pattern database build/load time and size"),
     Bench("attitude", "bench.bench_attitude", ("--output", "{out}"), ("--frames", "20", "--output", "{out}"),
           "attitude accuracy and covariance consistency"),
+    Bench("rate_aid", "bench.bench_rate_aid", ("--output", "{out}"), ("--frames", "2", "--output", "{out}"),
+          "centroider rate-aid check: false alarms, wrong rates caught"),
     Bench("tracking", "bench.bench_tracking", ("--output", "{out}"), ("--quick", "--output", "{out}"),
           "tracking, re-acquisition, delay compensation, peers", peers=True),
     Bench("replay", "bench.bench_replay", ("--output", "{out}"), ("--quick", "--output", "{out}"),
