@@ -2,6 +2,7 @@
 diagnostics, input-error reporting, stamp ordering, QoS, main()."""
 from __future__ import annotations
 
+import faulthandler
 import os
 import re
 import signal
@@ -385,10 +386,15 @@ def check_cache_directory(environ=os.environ) -> None:
         raise ValueError(f"STAR_TRACKER_CACHE={value} is not readable and writable by this process")
 
 
+SHUTDOWN_WATCHDOG_S = 10.0  # [s] from the end of the spin to the end of the process
+
+
 def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     """Init rclpy (SIGINT/SIGTERM shut it down), build the node, spin, clean up. Returns the
     process exit code: 0 on a normal shutdown, 2 when the node could not start (bad
-    arguments or parameters: one `fatal:` line on stderr, no traceback)."""
+    arguments or parameters: one `fatal:` line on stderr, no traceback). A clean-up that
+    hangs ends the process after SHUTDOWN_WATCHDOG_S with code 1 and every thread's stack on
+    stderr; SIGUSR1 prints those stacks at any time. For a node's own process only (main())."""
     args = sys.argv if argv is None else argv
     configure_middleware()
     node = None
@@ -404,6 +410,10 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
 
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, on_sigint) if main_thread else None
+    if main_thread and hasattr(signal, "SIGUSR1"):
+        # `kill -USR1 <pid>` prints every thread's stack to stderr, even while the main
+        # thread is blocked in C (a node that does not stop, a stuck DDS call).
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         check_params_files(args)
         check_cache_directory()
@@ -425,6 +435,10 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
             print(f"[star_tracker] fatal: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
             code = 2
     finally:
+        if main_thread:
+            # A stop must never hang: past SHUTDOWN_WATCHDOG_S (here or in the interpreter's
+            # exit), every thread's stack goes to stderr and the process exits with code 1.
+            faulthandler.dump_traceback_later(SHUTDOWN_WATCHDOG_S, exit=True)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

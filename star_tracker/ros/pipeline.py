@@ -165,6 +165,9 @@ class NodeProcesses:
             try:
                 codes[name] = proc.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
+                # Where it hangs, in its log (run_node dumps every thread's stack on SIGUSR1).
+                os.kill(proc.pid, signal.SIGUSR1)
+                time.sleep(1.0)
                 os.killpg(proc.pid, signal.SIGKILL)
                 codes[name] = proc.wait()
         for log in self._logs.values():
