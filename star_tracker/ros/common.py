@@ -438,7 +438,8 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
         if main_thread:
             # A stop must never hang: past SHUTDOWN_WATCHDOG_S (here or in the interpreter's
             # exit), every thread's stack goes to stderr and the process exits with code 1.
-            faulthandler.dump_traceback_later(SHUTDOWN_WATCHDOG_S, exit=True)
+            # A node with longer legitimate work in flight declares it (shutdown_extra_s [s]).
+            faulthandler.dump_traceback_later(SHUTDOWN_WATCHDOG_S + getattr(node, "shutdown_extra_s", 0.0), exit=True)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

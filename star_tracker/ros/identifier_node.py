@@ -134,6 +134,9 @@ class IdentifierNode(Node):
         self._lock = threading.RLock()
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
         self._acquisition = None  # (future, stamp_ns, spots, camera, frame_id, received) of a running solve
+        # run_node's shutdown watchdog waits this much longer: a solve running at shutdown ends
+        # within its budget (the frame in progress too, up to twice the budget).
+        self.shutdown_extra_s = 2.0 * self.config.max_time_s
         self.log = ThrottledLog(self)
         self.reject = Rejections(self.diag, self.log)
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
