@@ -103,6 +103,9 @@ def fit_single_psf(data, valid, col0, row0, x0, y0, flux0, sigma, noise, gain, i
     return x, y, flux, cov, flux_var, converged
 
 
+WARM_IMAGE_DTYPES = (np.uint16, np.uint8, np.float32)  # what the nodes and the CLI pass to extract_spots
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel now, not on the first frame."""
     data = np.zeros((1, 7, 7))
@@ -110,10 +113,17 @@ def warm_up() -> None:
     fit_single_psf(data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1), np.full(1, 3.0), np.full(1, 3.0),
                    np.full(1, 100.0), 1.0, 1.0, 1.0, 5)
     component_stats(np.zeros((4, 4), np.int32), 1)
-    for image in (np.zeros((32, 32), np.uint16), np.zeros((32, 32), np.uint8), np.zeros((32, 32), np.float32)):
-        one = np.full(1, 16.0)
-        index = np.full(1, 14, np.int64)
-        measure_small(image, one, one, np.zeros(1), index, index + 4, index, index + 4, 4, 8, 1.0, 1.0, 1.0, 3.0, False)
+    for dtype in WARM_IMAGE_DTYPES:
+        for writeable in (True, False):
+            # Read-only is its own numba type: images decoded from ROS messages (np.frombuffer)
+            # are read-only, and compiling that variant at the first frame took > 8 s here.
+            image = np.zeros((32, 32), dtype)
+            image.flags.writeable = writeable
+            one = np.full(1, 16.0)
+            index = np.full(1, 14, np.int64)
+            measure_small(image, one, one, np.zeros(1), index, index + 4, index, index + 4, 4, 8, 1.0, 1.0, 1.0, 3.0,
+                          False)
+
 
 
 @njit(cache=True)
