@@ -199,7 +199,11 @@ def test_identifier_killed_and_camera_restarted_mid_run(ros_graph, tmp_path):
         assert nodes.kill("camera_simulator", signal.SIGTERM) == 0
         camera_restarted_ns = time.time_ns()
         nodes.restart("camera_simulator")
-        assert monitor.spin_for(60.0, until=lambda: len(identified_after(camera_restarted_ns)) >= 5)
+        assert monitor.spin_for(60.0, until=lambda: len(identified_after(camera_restarted_ns)) >= 10)
+        # Judged: the frames whose spots were out by now, given 2 s for their attitude (CI once
+        # stopped the nodes with the newest frames' identification still in flight).
+        judged_until = max(ns for ns, f in monitor.frames.items() if f.spot_count)
+        monitor.spin_for(2.0)
         assert monitor.spin_for(5.0, until=lambda: all(f.truth is not None for f in identified_after(killed_ns)))
         running = {name: proc.poll() for name, proc in nodes.processes.items()}
         identifier_pid = nodes.processes["identifier"].pid
@@ -225,5 +229,6 @@ def test_identifier_killed_and_camera_restarted_mid_run(ros_graph, tmp_path):
     # lost-in-space solve is not published by itself, docs/RELIABILITY.md: hence not all).
     for since in (killed_ns, camera_restarted_ns):
         resumed = next(f.stamp_ns for f in frames if f.stamp_ns > since and f.attitude is not None)
-        later = [f for f in frames if f.stamp_ns >= resumed and f.spot_count]
-        assert sum(f.attitude is not None for f in later) >= 0.8 * len(later), [f.stamp_ns for f in later]
+        later = [f for f in frames if resumed <= f.stamp_ns <= judged_until and f.spot_count]
+        assert sum(f.attitude is not None for f in later) >= 0.8 * len(later), (
+            [(f.stamp_ns, f.attitude is not None) for f in later], logs["identifier.restart1.log"])
