@@ -125,7 +125,6 @@ def warm_up() -> None:
                           False)
 
 
-
 @njit(cache=True)
 def component_stats(labels: np.ndarray, count: int):
     """Bounding box (left, top, right, bottom; exclusive), pixel count and centroid (x, y) of
