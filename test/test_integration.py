@@ -86,3 +86,23 @@ def test_three_nodes_track_truth(ros_graph, tmp_path, rate_deg_s):
         nearest = truth_stars["hip_id"][d.argmin(axis=1)]
         assert np.mean(nearest == f.matched["hip_id"]) >= 0.95
         assert np.all(f.matched["residual"] < 10 * ARCSEC * 53)
+
+
+def test_the_monitor_keeps_the_newest_identified_frames_image(ros_graph):
+    """The demo's picture needs an identified frame's image: after a host stall the newest 8
+    images (all the monitor keeps) can all belong to frames not identified yet."""
+    from star_tracker.ros import convert
+
+    monitor = TrackerMonitor(name="image_keeping_monitor")
+    try:
+        image = np.zeros((8, 8), np.uint16)
+        stamps = [1_000_000_000 + k * 100_000_000 for k in range(20)]
+        for k, stamp in enumerate(stamps):
+            monitor._on_image(convert.array_to_image(image + k, stamp, "f"))
+            if k == 5:  # identified; the frames after it are not (yet)
+                monitor.frames[stamp].matched = np.zeros(3, convert.MATCH_DTYPE)
+        kept = [ns for ns in stamps if monitor.frames[ns].image is not None]
+        assert kept == [stamps[5]] + stamps[-8:]
+        assert monitor.frames[stamps[5]].image[0, 0] == 5
+    finally:
+        monitor.destroy_node()

@@ -277,10 +277,13 @@ class TrackerMonitor(Node):
     def _on_image(self, msg: Image) -> None:
         record = self.frame(msg.header.stamp)
         record.image = convert.image_to_array(msg)
-        # Keep only the newest few images in memory.
-        with_images = [ns for ns, r in self.frames.items() if r.image is not None]
-        for ns in sorted(with_images)[:-8]:
-            self.frames[ns].image = None
+        # Keep only the newest few images in memory, and the newest identified frame's (the
+        # demo's picture: after a host stall the newest images can all be unidentified).
+        with_images = sorted(ns for ns, r in self.frames.items() if r.image is not None)
+        keep = set(with_images[-8:]) | set([ns for ns in with_images if self.frames[ns].matched is not None][-1:])
+        for ns in with_images:
+            if ns not in keep:
+                self.frames[ns].image = None
 
     def spin_for(self, seconds: float, until=None) -> bool:
         """Process callbacks for `seconds`, or until `until()` is true. Returns whether
