@@ -191,6 +191,11 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
         replay_det.start()
         replay_default.wait_ready()
         replay_det.wait_ready()
+        # The collector must have found the fresh identifiers before the first frame: attitude
+        # is volatile, and on a host with ~40 % CPU steal discovery once took the first 9.
+        collector.spin_for(60, until=lambda: all(collector.count_publishers(t) >= 1
+                                                 for t in ("/attitude", "/det/attitude")))
+        collector.spin_for(1.0)
         player = cli(["play", bag, "--rate", "0", "--start-offset", f"{(images[first][0] - info.start_ns) * 1e-9:.9f}",
                       "--topics", "image_raw", "camera_info", "--clock",
                       "--ack-topics", "spots", "attitude", "/det/spots", "/det/attitude",
