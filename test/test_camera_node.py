@@ -83,7 +83,7 @@ def test_external_truth_is_followed_exactly(driver, tmp_path):
     for msg in received["rate"]:
         v = msg.vector
         assert np.allclose([v.x, v.y, v.z], motion.angular_velocity_at(0.0), atol=1e-9)
-    # Every image has its truth; best-effort images may lose one on a loaded host, truth is reliable.
+    # Every image has its truth; best-effort images may lose a couple on a loaded host, truth is reliable.
     truth_stamps = {convert.stamp_to_ns(msg.header.stamp) for msg in received["truth"]}
     assert received["image_stamps"] <= truth_stamps
     assert received["images"] >= len(truth_stamps) - 2

@@ -113,14 +113,14 @@ def warm_up() -> None:
     fit_single_psf(data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1), np.full(1, 3.0), np.full(1, 3.0),
                    np.full(1, 100.0), 1.0, 1.0, 1.0, 5)
     component_stats(np.zeros((4, 4), np.int32), 1)
+    one = np.full(1, 16.0)
+    index = np.full(1, 14, np.int64)
     for dtype in WARM_IMAGE_DTYPES:
         for writeable in (True, False):
             # Read-only is its own numba type: images decoded from ROS messages (np.frombuffer)
             # are read-only, and compiling that variant at the first frame took > 8 s here.
             image = np.zeros((32, 32), dtype)
             image.flags.writeable = writeable
-            one = np.full(1, 16.0)
-            index = np.full(1, 14, np.int64)
             measure_small(image, one, one, np.zeros(1), index, index + 4, index, index + 4, 4, 8, 1.0, 1.0, 1.0, 3.0,
                           False)
 
