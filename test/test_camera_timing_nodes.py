@@ -1,8 +1,12 @@
 """camera_simulator timing over DDS: a frame rendered ahead is never published before its
 exposure, frame transfer and readout have ended (wall clock and sim time), and it is still
-the frame its stamp says (pixel for pixel the same as a render of that frame here)."""
+the frame its stamp says (pixel for pixel the same as a render of that frame here); after a
+host stall only the backlog beyond `max_backlog_frames` is skipped, counted."""
 from __future__ import annotations
 
+import os
+import re
+import signal
 import time
 
 import numpy as np
@@ -10,6 +14,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import QuaternionStamped  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
@@ -34,6 +39,7 @@ SENSOR = {"vignetting_at_corner": 0.1, "dsnu_fraction": 0.1, "prnu_fraction": 0.
 PARAMS = {
     "image.width": SIZE, "image.height": SIZE, "attitude.profile": "fixed", "attitude.quaternion": QUATERNION,
     "sky.epoch_jyear": 2026.0, "seed": 7, "rate_hz": 10.0, "wait_for_subscribers": True,
+    "max_backlog_frames": 100,  # a host stall makes frames late, never skipped (but in the test of skipping)
     "sensor.exposure_s": EXPOSURE_S, "sensor.rolling_shutter_row_time_s": ROW_TIME_S,
     "sensor.frame_transfer_time_s": TRANSFER_S, "sensor.readout_s": READOUT_S,
     "optics.vignetting_at_corner": SENSOR["vignetting_at_corner"],
@@ -139,3 +145,52 @@ def test_frames_wait_for_sim_time(driver, tmp_path):
     early = [(stamp, seen) for stamp, seen, _ in images if seen < stamp + DELIVERY_AFTER_STAMP_NS]
     assert not early, f"published before its delivery time on /clock: {early}"
     assert_frames_are_the_rendered_ones(images, truth, 100_000_000)
+
+
+@pytest.mark.integration
+def test_a_stalled_camera_skips_only_the_backlog_beyond_its_limit(driver, tmp_path):
+    """A host stall of 1.5 s at 10 Hz leaves ~15 frames due at once: the camera publishes the
+    newest `max_backlog_frames` of them late and skips the older ones, counted and logged;
+    every published frame keeps its own stamp on the frame grid."""
+    env, node = driver
+    images, truth = subscribe(node, time.time_ns)
+    diagnostics = {}
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda msg: diagnostics.update(
+        {kv.key: kv.value for status in msg.status if status.name.endswith("camera_simulator")
+         for kv in status.values}), 10)
+    frames, backlog = 40, 2
+    cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": {**PARAMS, "max_frames": frames,
+                                                                      "max_backlog_frames": backlog}},
+                        nodes=("camera_simulator",)).start()
+    try:
+        cam.wait_ready()
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and len(truth) < 5:
+            rclpy.spin_once(node, timeout_sec=0.02)
+        pid = cam.processes["camera_simulator"].pid
+        os.kill(pid, signal.SIGSTOP)  # the host stall
+        time.sleep(1.5)
+        os.kill(pid, signal.SIGCONT)
+
+        def done() -> bool:
+            counted = int(diagnostics.get("frames_published", "0")) + int(diagnostics.get("frames_skipped_overrun", "0"))
+            return counted >= frames and len(truth) >= int(diagnostics["frames_published"])
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and not done():
+            rclpy.spin_once(node, timeout_sec=0.02)
+    finally:
+        codes = cam.stop()
+    log = (tmp_path / "logs" / "camera_simulator.log").read_text()
+    assert codes == {"camera_simulator": 0}, log
+    skipped = int(diagnostics.get("frames_skipped_overrun", "0"))
+    # 15 frames fell due in the stall: all but `backlog` of them are skipped (the default
+    # backlog, 5, would skip at most 11).
+    assert skipped >= 15 - backlog - 1, (diagnostics, log)
+    assert len(truth) + skipped == frames and int(diagnostics["frames_published"]) == len(truth), diagnostics
+    assert sum(int(n) for n in re.findall(r"skipped (\d+) frame\(s\)", log)) == skipped, log  # each skip logged
+    period_ns = 100_000_000
+    stamps = np.array([convert.stamp_to_ns(m.header.stamp) for m in truth])
+    gaps = np.diff(stamps) // period_ns
+    assert np.all(np.diff(stamps) % period_ns == 0) and np.all(gaps >= 1), "stamps on the frame grid, increasing"
+    assert int(np.sum(gaps - 1)) == skipped, gaps  # the skipped frames are missing from the grid, nothing else
+    assert_frames_are_the_rendered_ones(images, truth, period_ns)
