@@ -43,16 +43,16 @@ from pathlib import Path
 
 import numpy as np
 
-from star_tracker.attitude import ARCSEC, matrix_to_rotation_vector, quaternion_to_matrix, quest, \
+from star_tracker.models.attitude import ARCSEC, matrix_to_rotation_vector, quaternion_to_matrix, quest, \
     refine_with_covariances
-from star_tracker.camera import CameraModel
-from star_tracker.catalog import load_hipparcos
+from star_tracker.models.camera import CameraModel
+from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import FLAG_BLENDED, FLAG_EDGE, FLAG_SATURATED, CentroidConfig, extract_spots
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from star_tracker.identify.base import direction_covariance
-from star_tracker.motion import ConstantRateMotion
-from star_tracker.render import KIND_STAR, SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.motion import ConstantRateMotion
+from star_tracker.sim.render import KIND_STAR, SensorModel, StarFieldRenderer, frame_seed
 from .report import cpu_model, write_section
 
 SECTION = "## Attitude accuracy and covariance"

@@ -26,14 +26,14 @@ from pathlib import Path
 import numpy as np
 from scipy.special import erf
 
-from star_tracker.attitude import radec_roll_to_matrix
-from star_tracker.camera import CameraModel
-from star_tracker.catalog import StarCatalog, unit_to_radec
+from star_tracker.models.attitude import radec_roll_to_matrix
+from star_tracker.models.camera import CameraModel
+from star_tracker.models.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.commands.bench import report_progress
-from star_tracker.motion import ConstantRateMotion
-from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.motion import ConstantRateMotion
+from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
 
 from .report import cpu_model, write_section
 
@@ -147,7 +147,7 @@ def speed_frames(frames: int, rate_deg_s=(0.0, 0.0, 0.0), magnitude_limit: float
     """Real-sky frames (Hipparcos, RA 80 deg Dec 20 deg) with every detector effect on."""
     sensor = SensorModel(dsnu_fraction=0.1, prnu_fraction=0.01, hot_pixel_fraction=2e-5, cosmic_ray_rate_per_cm2_s=5.0,
                          vignetting_at_corner=0.1)
-    from star_tracker.catalog import load_hipparcos
+    from star_tracker.models.catalog import load_hipparcos
 
     renderer = StarFieldRenderer(CAMERA, sensor, load_hipparcos().at_epoch(2026.0), magnitude_limit=magnitude_limit)
     motion = ConstantRateMotion(POINTING, np.radians(rate_deg_s))
@@ -230,7 +230,7 @@ def measure_roll(frames: int, electrons: float):
     """Curved streaks: stars on two rings far from the boresight under a 40 deg/s roll (24-33 px
     arcs). RMS distance [px] to the mid-exposure truth for the rate-aided path fit, the free
     straight-segment fit and the centre of gravity."""
-    from star_tracker.catalog import StarCatalog as Catalog
+    from star_tracker.models.catalog import StarCatalog as Catalog
 
     rate = np.array([0.0, 0.0, np.radians(40.0)])
     smear = SmearModel(CAMERA, rate, EXPOSURE)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from star_tracker.catalog import load_hipparcos
+from star_tracker.models.catalog import load_hipparcos
 from star_tracker.identify import DatabaseConfig, load_or_build_database
 from star_tracker.identify import triangles as triangle_module
 from star_tracker.identify.triangles import TriangleConfig, load_or_build_triangles

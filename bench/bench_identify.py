@@ -3,7 +3,7 @@
     python -m bench.bench_identify [--scenes N] [--setups a,b] [--algorithms a,b] [--no-peers]
                                    [--output docs/BENCHMARKS.md] [--seed S]
 
-Scenes: for every setup of `star_tracker.scenes.SETUPS` (the seed papers' test cases) N scenes
+Scenes: for every setup of `star_tracker.sim.scenes.SETUPS` (the seed papers' test cases) N scenes
 with random attitudes are drawn from a fixed seed (numpy Generator seeded with (seed, setup
 name)); every solver gets the same centroid lists. Setups where every call runs to the time
 limit (HARD_SETUPS) use at most --hard-scenes of them, the first ones of the same list.
@@ -45,11 +45,11 @@ from pathlib import Path
 
 import numpy as np
 
-from star_tracker.catalog import StarCatalog, cache_dir, load_hipparcos
+from star_tracker.models.catalog import StarCatalog, cache_dir, load_hipparcos
 from star_tracker.commands.bench import report_progress
 from star_tracker.identify import (ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, Identification, IdentifyConfig,
                                    load_or_build_database, make_identifier)
-from star_tracker.scenes import SETUPS, Scene, SceneSetup, make_scene
+from star_tracker.sim.scenes import SETUPS, Scene, SceneSetup, make_scene
 
 from . import peers as peer_adapters
 from .report import cpu_model, write_section
@@ -516,7 +516,7 @@ def render_markdown(results: dict) -> str:
         f"tetra3rs {machine['versions']['tetra3rs'] or 'not installed'}, cedar-solve "
         f"{machine['versions']['cedar-solve'] or 'not installed'}.",
         "",
-        f"- Scenes: `star_tracker.scenes.SETUPS`, seed {meta['seed']}, the same centroid lists for every solver; "
+        f"- Scenes: `star_tracker.sim.scenes.SETUPS`, seed {meta['seed']}, the same centroid lists for every solver; "
         f"{meta['scenes']} per setup ({', '.join(HARD_SETUPS)}: at most the first {meta['hard_scenes']}, since most "
         "calls there run to the time limit).",
         f"- Ours: every registered algorithm, database per setup (below), default `IdentifyConfig` (time limit "

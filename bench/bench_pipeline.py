@@ -178,7 +178,7 @@ def latency_stats(latency_ms: np.ndarray) -> dict:
 
 # ----------------------------------------------------------------------------- 1. rate sweep
 def sweep(env: dict, log_dir: Path, rates: list[float], seconds: float, exposure_s: float, warmup_s: float = 3.0):
-    from star_tracker.attitude import attitude_error, quaternion_to_matrix
+    from star_tracker.models.attitude import attitude_error, quaternion_to_matrix
     from star_tracker.ros.pipeline import NodeProcesses
 
     # max_backlog_frames 1: a camera that falls behind renders only the newest due frame (the
@@ -269,11 +269,11 @@ def sweep(env: dict, log_dir: Path, rates: list[float], seconds: float, exposure
 
 # ----------------------------------------------------------------------------- 3. overload
 def render_frames_at_rest(count: int, exposure_s: float):
-    from star_tracker.attitude import radec_roll_to_matrix
-    from star_tracker.camera import CameraModel
-    from star_tracker.catalog import load_hipparcos
-    from star_tracker.motion import ConstantRateMotion
-    from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.models.attitude import radec_roll_to_matrix
+    from star_tracker.models.camera import CameraModel
+    from star_tracker.models.catalog import load_hipparcos
+    from star_tracker.sim.motion import ConstantRateMotion
+    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
 
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(exposure_s=exposure_s), load_hipparcos().at_epoch(2026.0), 7.5)
@@ -286,7 +286,7 @@ def overload(env: dict, log_dir: Path, rates: list[float], seconds: float, expos
     """Centroider + identifier fed at each rate by this process; newest frame wins."""
     from sensor_msgs.msg import CameraInfo, Image
 
-    from star_tracker.attitude import attitude_error, quaternion_to_matrix
+    from star_tracker.models.attitude import attitude_error, quaternion_to_matrix
     from star_tracker.ros import convert
     from star_tracker.ros.common import IMAGE_QOS
     from star_tracker.ros.pipeline import NodeProcesses
@@ -378,16 +378,16 @@ def stages_in_process(exposure_s: float, frames: int = 40) -> dict:
     from rclpy.serialization import deserialize_message, serialize_message
     from sensor_msgs.msg import Image
 
-    from star_tracker.attitude import radec_roll_to_matrix
-    from star_tracker.camera import CameraModel
-    from star_tracker.catalog import load_hipparcos
+    from star_tracker.models.attitude import radec_roll_to_matrix
+    from star_tracker.models.camera import CameraModel
+    from star_tracker.models.catalog import load_hipparcos
     from star_tracker.centroid import CentroidConfig, extract_spots
     from star_tracker.centroid.kernels import warm_up
     from star_tracker.centroid.streak import SmearModel
     from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
-    from star_tracker.identify.tracking import Tracker
-    from star_tracker.motion import ConstantRateMotion
-    from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.track.tracking import Tracker
+    from star_tracker.sim.motion import ConstantRateMotion
+    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
     from star_tracker.ros import convert
 
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
@@ -528,7 +528,7 @@ def render_section(data: dict) -> str:
         "frames at rest (RA 80°, Dec 20°), re-stamped at publish time as if the exposure had just ended (the "
         "simulator cannot render that fast on two cores). Every frame that arrives is counted; a frame that was "
         "still waiting when a newer one arrived (`queue_depth` 1) is dropped and counted as `frames_dropped_overload`; "
-        "the overload test (`test/test_overload_nodes.py`) checks that the newest frame is the one answered.",
+        "the overload test (`test/ros/test_overload_nodes.py`) checks that the newest frame is the one answered.",
         "",
         "| input rate (achieved) | frames in | attitudes (rate) | centroider: received / dropped | identifier: "
         "received / dropped | wrong | newest frame answered | latency median / p95 / max |",

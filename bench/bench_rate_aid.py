@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 
 import star_tracker.centroid.extract as extract_module
-from star_tracker.camera import CameraModel
-from star_tracker.catalog import load_hipparcos
+from star_tracker.models.camera import CameraModel
+from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.streak import SmearModel
-from star_tracker.motion import ConstantRateMotion
-from star_tracker.render import SensorModel, StarFieldRenderer
+from star_tracker.sim.motion import ConstantRateMotion
+from star_tracker.sim.render import SensorModel, StarFieldRenderer
 from .bench_attitude import random_rotation
 from .report import cpu_model, write_section
 

@@ -35,11 +35,11 @@ import cv2
 import numpy as np
 import scipy
 
-from star_tracker.attitude import radec_roll_to_matrix
-from star_tracker.camera import CameraModel
-from star_tracker.catalog import load_hipparcos
-from star_tracker.motion import ConstantRateMotion
-from star_tracker.render import KIND_STAR, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.models.attitude import radec_roll_to_matrix
+from star_tracker.models.camera import CameraModel
+from star_tracker.models.catalog import load_hipparcos
+from star_tracker.sim.motion import ConstantRateMotion
+from star_tracker.sim.render import KIND_STAR, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
 from .report import cpu_model, write_section
 
 SECTION_HEADER = "## Camera simulator render time"
@@ -340,7 +340,7 @@ def scaling_summary(stars: list[Point], smears: list[Point], sizes: list[Point])
 def code_version() -> str:
     """Commit and a hash of render.py as measured (read-only git query)."""
     import hashlib
-    import star_tracker.render as render_module
+    import star_tracker.sim.render as render_module
     digest = hashlib.sha256(Path(render_module.__file__).read_bytes()).hexdigest()[:12]
     try:
         root = Path(render_module.__file__).resolve().parents[1]

@@ -49,12 +49,12 @@ def make_bag(path: Path, frames: int, storage: str) -> None:
     """The default demo scenario rendered by the core, serialized as the camera node does."""
     from rclpy.serialization import serialize_message
 
-    from star_tracker.attitude import matrix_to_quaternion, radec_roll_to_matrix
+    from star_tracker.models.attitude import matrix_to_quaternion, radec_roll_to_matrix
     from star_tracker.bags import BagWriter
-    from star_tracker.camera import CameraModel
-    from star_tracker.catalog import load_hipparcos
-    from star_tracker.motion import ConstantRateMotion
-    from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.models.camera import CameraModel
+    from star_tracker.models.catalog import load_hipparcos
+    from star_tracker.sim.motion import ConstantRateMotion
+    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
     from star_tracker.ros import convert
     from star_tracker.ros.bag_ros import offered_qos
     from star_tracker.ros.common import IMAGE_QOS, RESULT_QOS

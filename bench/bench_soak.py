@@ -43,7 +43,7 @@ BEGIN, END = "<!-- bench_soak -->", "<!-- /bench_soak -->"
 
 
 def soak(minutes: float, rate: float, exposure_s: float, sample_s: float, stall_s: float = 2.0) -> dict:
-    from star_tracker.attitude import attitude_error, quaternion_to_matrix
+    from star_tracker.models.attitude import attitude_error, quaternion_to_matrix
     from star_tracker.ros.pipeline import NodeProcesses
 
     log_dir = Path(tempfile.mkdtemp(prefix="bench_soak_"))

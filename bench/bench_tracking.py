@@ -3,7 +3,7 @@ the rate estimate, delay compensation, and tetra3rs's tracking mode on the same 
 
     python -m bench.bench_tracking [--quick] [--no-peers] [--output docs/BENCHMARKS.md]
 
-Pipeline (as test/test_tracking.py and the live nodes): the simulator renders 1024^2 / 15 deg
+Pipeline (as test/track/test_tracking.py and the live nodes): the simulator renders 1024^2 / 15 deg
 frames (SensorModel defaults, 0.1 s exposure, stars to Hp 7.5) at mid-exposure stamps
 0.05 + 0.1 k s; the centroider is rate-aided by the tracker's own current rate estimate
 (SmearModel(camera, tracker.rate.angular_velocity, 0.1)); the tracker is
@@ -40,17 +40,17 @@ from pathlib import Path
 
 import numpy as np
 
-from star_tracker.attitude import (attitude_error, matrix_to_rotation_vector, radec_roll_to_matrix,
+from star_tracker.models.attitude import (attitude_error, matrix_to_rotation_vector, radec_roll_to_matrix,
                                    rotation_vector_to_matrix)
-from star_tracker.camera import CameraModel
-from star_tracker.catalog import cache_dir, load_hipparcos
+from star_tracker.models.camera import CameraModel
+from star_tracker.models.catalog import cache_dir, load_hipparcos
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
-from star_tracker.identify.tracking import MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Tracker, TrackingConfig
-from star_tracker.motion import ConstantRateMotion, MotionProfile, SlewMotion
-from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
-from star_tracker.streak_rate import rate_from_streaks
+from star_tracker.track.tracking import MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Tracker, TrackingConfig
+from star_tracker.sim.motion import ConstantRateMotion, MotionProfile, SlewMotion
+from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.track.streak_rate import rate_from_streaks
 
 from . import peers as peer_adapters
 from .report import cpu_model, write_section
@@ -1078,7 +1078,7 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
                          f"{_triple(r['error_arcsec_s'])} | {_triple(r['sigma_arcsec_s'])} | {r['nees']:.0f} |")
         if len(rows) > 16:
             lines.append(f"| … {len(rows) - 16} more in bench_tracking.json | | | | | | | |")
-    lines += ["", "Against `star_tracker.streak_rate.rate_from_streaks` on the same frames centroided **without** the "
+    lines += ["", "Against `star_tracker.track.streak_rate.rate_from_streaks` on the same frames centroided **without** the "
               "rate aid (a free streak fit; rate-aided spots would only echo the aid), hint = the tracker's previous "
               "rate (it only fixes the sense of the streaks). First runs at 1, 2 and 3 deg/s:", ""]
     lines += streak_table({k: v for k, v in summaries.items() if "all runs" not in k})

@@ -170,11 +170,11 @@ def plot_centroid_times(results: dict, path: Path) -> Path:
 
 def _false_stars(name: str, entry: dict) -> tuple[int, int | None]:
     """(false stars, real stars kept or None = all) of a setup: from the results, else from
-    star_tracker.scenes.SETUPS (results written before they were recorded)."""
+    star_tracker.sim.scenes.SETUPS (results written before they were recorded)."""
     if "false_stars" in entry:
         return int(entry["false_stars"]), entry.get("real_stars")
     sys.path.insert(0, str(REPO))
-    from star_tracker.scenes import SETUPS
+    from star_tracker.sim.scenes import SETUPS
 
     setup = SETUPS[name]
     return int(setup.false_stars), setup.real_stars

@@ -23,11 +23,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from star_tracker.attitude import radec_roll_to_matrix  # noqa: E402
-from star_tracker.camera import CameraModel  # noqa: E402
-from star_tracker.catalog import load_hipparcos  # noqa: E402
-from star_tracker.motion import ConstantRateMotion  # noqa: E402
-from star_tracker.render import (KIND_DEBRIS, KIND_STAR, FalseObjectModel, SensorModel,  # noqa: E402
+from star_tracker.models.attitude import radec_roll_to_matrix  # noqa: E402
+from star_tracker.models.camera import CameraModel  # noqa: E402
+from star_tracker.models.catalog import load_hipparcos  # noqa: E402
+from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
+from star_tracker.sim.render import (KIND_DEBRIS, KIND_STAR, FalseObjectModel, SensorModel,  # noqa: E402
                                  StarFieldRenderer, frame_seed)
 from star_tracker.visualize import stretch  # noqa: E402
 

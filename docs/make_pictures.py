@@ -24,9 +24,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from star_tracker import visualize  # noqa: E402
-from star_tracker.attitude import attitude_error, quaternion_to_matrix, radec_roll_to_matrix  # noqa: E402
-from star_tracker.camera import CameraModel  # noqa: E402
-from star_tracker.catalog import load_hipparcos  # noqa: E402
+from star_tracker.models.attitude import attitude_error, quaternion_to_matrix, radec_roll_to_matrix  # noqa: E402
+from star_tracker.models.camera import CameraModel  # noqa: E402
+from star_tracker.models.catalog import load_hipparcos  # noqa: E402
 from star_tracker.commands.__main__ import main as commands  # noqa: E402
 
 
@@ -60,9 +60,9 @@ def solve_pictures(out: Path) -> None:
 def run_picture(out: Path, rate_hz: float = 5.0, duration_s: float = 20.0) -> None:
     from star_tracker.centroid import extract_spots
     from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
-    from star_tracker.identify.tracking import Tracker
-    from star_tracker.motion import SlewMotion
-    from star_tracker.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.track.tracking import Tracker
+    from star_tracker.sim.motion import SlewMotion
+    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
 
     camera = CameraModel.from_fov(1024, 1024, math.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(), load_hipparcos().at_epoch(2026.0), magnitude_limit=7.5)

@@ -43,7 +43,7 @@ def default_params_file() -> Path | None:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from .identify import DatabaseConfig, load_or_build_database
-    from .catalog import load_hipparcos
+    from .models.catalog import load_hipparcos
 
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)

@@ -12,10 +12,10 @@ import numpy as np
 
 
 def main() -> None:
-    from .catalog import load_hipparcos
+    from .models.catalog import load_hipparcos
     from .centroid.kernels import warm_up as warm_centroid
     from .identify import ALGORITHMS, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
-    from .scenes import SETUPS, make_scene
+    from .sim.scenes import SETUPS, make_scene
 
     started = time.perf_counter()
     warm_centroid()
@@ -27,7 +27,7 @@ def main() -> None:
         if hasattr(identifier, "warm_up"):
             identifier.warm_up(setup.camera)
         identifier.identify(scene.spots, setup.camera)
-    from .identify.tracking import Tracker  # the tracking path calls some kernels from Python
+    from .track.tracking import Tracker  # the tracking path calls some kernels from Python
 
     Tracker(make_identifier("hybrid", database)).warm_up(setup.camera)
     print(f"numba kernels ready in {time.perf_counter() - started:.1f} s")

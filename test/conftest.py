@@ -19,7 +19,7 @@ def private_cache(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def catalog():
-    from star_tracker.catalog import load_hipparcos
+    from star_tracker.models.catalog import load_hipparcos
 
     return load_hipparcos()
 
@@ -33,7 +33,7 @@ def database():
 
 @pytest.fixture(scope="session")
 def nominal_camera():
-    from star_tracker.camera import CameraModel
+    from star_tracker.models.camera import CameraModel
 
     return CameraModel.from_fov(1024, 1024, np.radians(15.0))
 

@@ -20,7 +20,7 @@ PSF model: the pixel-integrated Gaussian of 1-sigma `sigma` [px] is approximated
 Gaussian of variance sigma^2 + 1/12 px^2 (the pixel's box variance added) evaluated at the
 pixel centres. It matches the pixel integral to second order and differs from it by < 0.2 %
 of the peak for sigma = 1 px (the box's excess kurtosis, an even error that moves no
-centre; the fits reach the Cramer-Rao bound of the exact model, see test/test_streak.py),
+centre; the fits reach the Cramer-Rao bound of the exact model, see test/centroid/test_streak.py),
 and it needs exp only, ~5x cheaper than erf. A streak is a weighted sum of PSF copies along
 its path: Simpson's rule with nodes <= 1 PSF sigma apart for a straight segment (< 1 % of
 the peak from the continuous segment, at its ends; symmetric, so no position error, and
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..camera import CameraModel
+from ..models.camera import CameraModel
 
 __all__ = ["SmearModel", "StreakFit", "fit_star_groups_on_path", "fit_streaks", "fit_streaks_on_path",
            "second_source_on_path"]

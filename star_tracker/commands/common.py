@@ -280,8 +280,8 @@ def load_camera_file(path: str | Path):
     camera_calibration) for `solve` with a calibrated camera. Unknown keys are an error."""
     import yaml
 
-    from ..camera import CameraModel
-    from ..render import FalseObjectModel, SensorModel
+    from ..models.camera import CameraModel
+    from ..sim.render import FalseObjectModel, SensorModel
 
     path = Path(path)
     with open(path) as handle:  # FileNotFoundError names the file
@@ -331,7 +331,7 @@ def load_camera_file(path: str | Path):
 
 
 def _calibration_file(data: dict, path: Path):
-    from ..camera import CameraModel
+    from ..models.camera import CameraModel
 
     try:
         k = np.asarray(data["camera_matrix"]["data"], dtype=float).reshape(3, 3)

@@ -69,7 +69,7 @@ def register(subparsers) -> None:
 
 
 def _use_cache_dir(directory: str | None) -> Path:
-    from ..catalog import cache_dir
+    from ..models.catalog import cache_dir
 
     if directory:
         os.environ["STAR_TRACKER_CACHE"] = str(Path(directory).resolve())
@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def build_databases(args: argparse.Namespace, directory: Path) -> int:
-    from ..catalog import load_hipparcos
+    from ..models.catalog import load_hipparcos
     from ..identify import load_or_build_database
 
     configs = []
@@ -163,7 +163,7 @@ def build_databases(args: argparse.Namespace, directory: Path) -> int:
 def list_databases(directory: Path) -> int:
     import json
 
-    from ..catalog import load_validated_npz
+    from ..models.catalog import load_validated_npz
 
     files = sorted(p for p in directory.glob("*.npz") if not p.name.startswith("hip2_"))
     print(f"cache: {directory}")

@@ -70,7 +70,7 @@ class TrackerStatus:
         return None
 
     def snapshot(self, namespace: str = "") -> dict:
-        from ..attitude import matrix_to_radec_roll
+        from ..models.attitude import matrix_to_radec_roll
 
         identifier = self.node_status("identifier") or {}
         centroider = self.node_status("centroider") or {}
@@ -191,7 +191,7 @@ def make_monitor_node(status: TrackerStatus, namespace: str):
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
 
-    from ..attitude import quaternion_to_matrix
+    from ..models.attitude import quaternion_to_matrix
     from ..ros import convert
 
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)

@@ -70,11 +70,11 @@ def truth_path_for(output: Path) -> Path:
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from ..attitude import matrix_to_quaternion, matrix_to_radec_roll, radec_roll_to_matrix
-    from ..camera import CameraModel
-    from ..catalog import load_hipparcos
-    from ..motion import ConstantRateMotion
-    from ..render import KIND_STAR, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+    from ..models.attitude import matrix_to_quaternion, matrix_to_radec_roll, radec_roll_to_matrix
+    from ..models.camera import CameraModel
+    from ..models.catalog import load_hipparcos
+    from ..sim.motion import ConstantRateMotion
+    from ..sim.render import KIND_STAR, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
     from .images import write_image
 
     if not -90.0 <= args.dec <= 90.0:

@@ -141,7 +141,7 @@ def fov_candidates(fov_deg: float, tolerance_pct: float, step_pct: float) -> lis
 
 
 def camera_for_fov(width: int, height: int, fov_deg: float):
-    from ..camera import CameraModel
+    from ..models.camera import CameraModel
 
     return CameraModel.from_fov(width, height, math.radians(fov_deg))
 
@@ -205,8 +205,8 @@ def refine_focal_length(camera, spots, identification):
     stars, minimising pixel residuals. Returns the camera with it and its 1-sigma [px]."""
     from scipy.optimize import least_squares
 
-    from ..attitude import rotation_vector_to_matrix
-    from ..camera import CameraModel
+    from ..models.attitude import rotation_vector_to_matrix
+    from ..models.camera import CameraModel
 
     x = spots.x[identification.spot_index]
     y = spots.y[identification.spot_index]
@@ -237,7 +237,7 @@ def refine_focal_length(camera, spots, identification):
 
 def solution_record(result: SolveResult, spots, image_path: str, description: str) -> dict:
     """Everything `solve` prints, as plain values (the --json document)."""
-    from ..attitude import matrix_to_radec_roll
+    from ..models.attitude import matrix_to_radec_roll
 
     cam = result.camera
     record = {"image": image_path, "image_description": description, "spots": int(len(spots)),
@@ -312,7 +312,7 @@ def format_text(record: dict) -> str:
 
 
 def camera_summary_from(camera: dict) -> str:
-    from ..camera import CameraModel
+    from ..models.camera import CameraModel
 
     return camera_summary(CameraModel(camera["width"], camera["height"], camera["fx"], camera["fy"], camera["cx"],
                                       camera["cy"], tuple(camera["distortion"])))

@@ -16,8 +16,8 @@ from typing import Iterator
 
 import numpy as np
 
-from ..attitude import AttitudeSolution, quest, refine_with_covariances
-from ..camera import CameraModel
+from ..models.attitude import AttitudeSolution, quest, refine_with_covariances
+from ..models.camera import CameraModel
 from ..centroid import Spots
 from . import kernels
 from .database import StarDatabase

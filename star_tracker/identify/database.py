@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..catalog import StarCatalog, cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
+from ..models.catalog import StarCatalog, cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
 from .kvector import KVector
 
 DATABASE_FORMAT_VERSION = 2

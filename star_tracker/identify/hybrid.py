@@ -21,8 +21,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..attitude import refine_with_covariances
-from ..camera import CameraModel
+from ..models.attitude import refine_with_covariances
+from ..models.camera import CameraModel
 from ..centroid import Spots
 from . import kernels
 from .base import NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier

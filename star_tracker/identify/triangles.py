@@ -45,7 +45,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from ..catalog import cache_dir, load_validated_npz, save_validated_npz
+from ..models.catalog import cache_dir, load_validated_npz, save_validated_npz
 from .database import StarDatabase
 from .kvector import KVector
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..camera import CameraModel
+from ..models.camera import CameraModel
 from . import kernels
 from .database import StarDatabase
 

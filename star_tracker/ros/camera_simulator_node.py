@@ -22,11 +22,11 @@ from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from ..attitude import matrix_to_quaternion, quaternion_to_matrix, radec_roll_to_matrix
-from ..camera import CameraModel
-from ..catalog import julian_year_from_unix, load_hipparcos
-from ..motion import SampledMotion, motion_from_parameters
-from ..render import FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+from ..models.attitude import matrix_to_quaternion, quaternion_to_matrix, radec_roll_to_matrix
+from ..models.camera import CameraModel
+from ..models.catalog import julian_year_from_unix, load_hipparcos
+from ..sim.motion import SampledMotion, motion_from_parameters
+from ..sim.render import FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
 from . import convert
 from .common import IMAGE_QOS, RESULT_QOS, Diagnostics, ThrottledLog, declare, guard_parameter_changes, run_node
 

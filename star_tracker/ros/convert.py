@@ -1,7 +1,7 @@
 """Message <-> core-record conversion. Layouts are documented in msg_docs/.
 
 Raises ValueError with a message naming the problem for any malformed message (and never
-another exception type: test/test_fuzz.py checks that on generated garbage).
+another exception type: test/ros/test_fuzz.py checks that on generated garbage).
 """
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, Twis
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from ..attitude import AttitudeSolution
-from ..camera import CameraModel
+from ..models.attitude import AttitudeSolution
+from ..models.camera import CameraModel
 from ..centroid import Spots
 from ..identify.base import Identification
 

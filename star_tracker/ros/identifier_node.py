@@ -36,10 +36,10 @@ from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, Twis
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
-from ..attitude import ARCSEC
-from ..camera import CameraModel
+from ..models.attitude import ARCSEC
+from ..models.camera import CameraModel
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
-from ..identify.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
+from ..track.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
 from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, NewestFrame,
                      Rejections, StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)

@@ -21,7 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 
-from ..attitude import attitude_error, quaternion_to_matrix
+from ..models.attitude import attitude_error, quaternion_to_matrix
 from . import convert
 from .common import IMAGE_QOS, configure_middleware, sensor_qos
 

@@ -1,0 +1,463 @@
+"""Star-field rendering: radiometry, pixel-integrated Gaussian PSF, motion smear over the
+exposure (global or rolling shutter), frame-transfer smear, detector effects and noise.
+
+Units: electrons [e-] inside, ADU on output; angles in radians; times in seconds. Equations
+are in docs/SIMULATOR.md. A frame is reproducible from (fixed-pattern seed, frame seed).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.special import erf
+
+from ..models.camera import CameraModel
+from ..models.catalog import StarCatalog
+
+SPEED_OF_LIGHT_M_S = 299_792_458.0
+
+KIND_STAR, KIND_PLANET, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL = 0, 1, 2, 3, 4
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """Optics radiometry, detector and shutter parameters (SI units).
+
+    Radiometry: a star of instrument magnitude m = Hp + color_coefficient (B-V) delivers
+    photon_flux_hp0 10^(-0.4 m) [photons/s/m^2] to an aperture of diameter
+    aperture_diameter_m [m]; optical_transmission and quantum_efficiency [-] turn photons into
+    photo-electrons. exposure_s [s]; psf_sigma_px: Gaussian PSF (defocus) 1-sigma [px].
+    Background: sky/zodiacal background_e_per_px_s [e-/px/s] plus a linear stray-light
+    gradient [e-/px/s per px] in x and y about the image centre; vignetting_at_corner: fraction
+    of light lost at the image corner (quadratic in radius).
+    Detector: pixel_pitch_m [m]; dark current dark_e_per_px_s at dark_reference_k [K],
+    doubling every dark_doubling_k [K], at temperature_k [K]; dsnu_fraction: per-pixel dark
+    non-uniformity (lognormal sigma) [-]; prnu_fraction: per-pixel response non-uniformity
+    1-sigma [-]; hot_pixel_fraction of pixels have hot_pixel_dark_factor times the dark
+    current; cosmic rays arrive at cosmic_ray_rate_per_cm2_s [1/cm^2/s] depositing on average
+    cosmic_ray_electrons [e-] along a short track; read_noise_e [e-]; gain_e_per_adu
+    [e-/ADU]; bias_adu [ADU]; full_well_e [e-] (clipped, no blooming); adc_bits.
+    Shutter: rolling_shutter_row_time_s [s] (0 = global shutter; row r's exposure is
+    delayed by (r - (H-1)/2) times it); frame_transfer_time_s [s] (0 = none) smears every
+    column during transfer. noise: False renders expected values (no shot/read noise).
+    """
+
+    aperture_diameter_m: float = 0.03
+    optical_transmission: float = 0.8
+    quantum_efficiency: float = 0.6
+    photon_flux_hp0: float = 2.0e10
+    color_coefficient: float = 0.0
+    exposure_s: float = 0.1
+    psf_sigma_px: float = 1.0
+    background_e_per_px_s: float = 400.0
+    stray_light_gradient_e_per_px2_s: tuple[float, float] = (0.0, 0.0)
+    vignetting_at_corner: float = 0.0
+    pixel_pitch_m: float = 13e-6
+    dark_e_per_px_s: float = 20.0
+    dark_reference_k: float = 293.15
+    dark_doubling_k: float = 6.0
+    temperature_k: float = 293.15
+    dsnu_fraction: float = 0.0
+    prnu_fraction: float = 0.0
+    hot_pixel_fraction: float = 0.0
+    hot_pixel_dark_factor: float = 200.0
+    cosmic_ray_rate_per_cm2_s: float = 0.0
+    cosmic_ray_electrons: float = 3000.0
+    read_noise_e: float = 8.0
+    gain_e_per_adu: float = 1.0
+    bias_adu: float = 100.0
+    full_well_e: float = 60000.0
+    adc_bits: int = 16
+    rolling_shutter_row_time_s: float = 0.0
+    frame_transfer_time_s: float = 0.0
+    noise: bool = True
+
+    def __post_init__(self) -> None:
+        positive = ("aperture_diameter_m", "photon_flux_hp0", "exposure_s", "psf_sigma_px", "pixel_pitch_m",
+                    "dark_reference_k", "dark_doubling_k", "temperature_k", "gain_e_per_adu", "full_well_e")
+        fractions = ("optical_transmission", "quantum_efficiency")
+        non_negative = ("background_e_per_px_s", "dark_e_per_px_s", "dsnu_fraction", "prnu_fraction",
+                        "hot_pixel_dark_factor", "cosmic_ray_rate_per_cm2_s", "cosmic_ray_electrons", "read_noise_e",
+                        "bias_adu", "rolling_shutter_row_time_s", "frame_transfer_time_s")
+        bad = [f"{n}={getattr(self, n)} must be > 0" for n in positive if not (np.isfinite(getattr(self, n)) and getattr(self, n) > 0)]
+        bad += [f"{n}={getattr(self, n)} must be in (0, 1]" for n in fractions if not (0 < getattr(self, n) <= 1)]
+        bad += [f"{n}={getattr(self, n)} must be >= 0" for n in non_negative if not (np.isfinite(getattr(self, n)) and getattr(self, n) >= 0)]
+        if not (0 <= self.vignetting_at_corner < 1):
+            bad.append(f"vignetting_at_corner={self.vignetting_at_corner} must be in [0, 1)")
+        if not (0 <= self.hot_pixel_fraction <= 0.1):
+            bad.append(f"hot_pixel_fraction={self.hot_pixel_fraction} must be in [0, 0.1]")
+        if not (8 <= int(self.adc_bits) <= 16):
+            bad.append(f"adc_bits={self.adc_bits} must be in [8, 16]")
+        if not np.isfinite(self.color_coefficient):
+            bad.append("color_coefficient must be finite")
+        if len(self.stray_light_gradient_e_per_px2_s) != 2 or not np.all(np.isfinite(self.stray_light_gradient_e_per_px2_s)):
+            bad.append("stray_light_gradient_e_per_px2_s must be 2 finite values")
+        if bad:
+            raise ValueError("invalid sensor parameters: " + "; ".join(bad))
+
+    @property
+    def zero_point_e_per_s(self) -> float:
+        """Photo-electrons per second from an instrument-magnitude-0 star."""
+        area = np.pi * (0.5 * self.aperture_diameter_m) ** 2
+        return self.photon_flux_hp0 * area * self.optical_transmission * self.quantum_efficiency
+
+    def star_electrons(self, hp: np.ndarray, b_v: np.ndarray | float = 0.0) -> np.ndarray:
+        """Expected photo-electrons per exposure (before vignetting) of stars of Hp and B-V."""
+        magnitude = np.asarray(hp) + self.color_coefficient * np.asarray(b_v)
+        return self.zero_point_e_per_s * self.exposure_s * 10.0 ** (-0.4 * magnitude)
+
+    @property
+    def dark_e_per_px_s_at_temperature(self) -> float:
+        return self.dark_e_per_px_s * 2.0 ** ((self.temperature_k - self.dark_reference_k) / self.dark_doubling_k)
+
+    @property
+    def max_adu(self) -> int:
+        return (1 << int(self.adc_bits)) - 1
+
+
+@dataclass(frozen=True)
+class FalseObjectModel:
+    """Non-star objects drawn anew each frame. Planets: bright points fixed on the sky
+    (they smear like stars), instrument magnitude uniform in planet_magnitude_range. Debris:
+    objects moving across the image at debris_speed_px_s [px/s] (uniform in the range, random
+    direction), magnitude uniform in debris_magnitude_range."""
+
+    planets_per_frame: int = 0
+    planet_magnitude_range: tuple[float, float] = (-1.0, 2.0)
+    debris_per_frame: int = 0
+    debris_magnitude_range: tuple[float, float] = (3.0, 6.0)
+    debris_speed_px_s: tuple[float, float] = (100.0, 1000.0)
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.planets_per_frame <= 100 and 0 <= self.debris_per_frame <= 100):
+            raise ValueError("planets_per_frame and debris_per_frame must be in [0, 100]")
+        for name in ("planet_magnitude_range", "debris_magnitude_range", "debris_speed_px_s"):
+            if len(getattr(self, name)) != 2:
+                raise ValueError(f"{name} needs 2 values (low, high), got {list(getattr(self, name))}")
+            lo, hi = getattr(self, name)
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+                raise ValueError(f"{name}=({lo}, {hi}) must be finite with low <= high")
+        if self.debris_speed_px_s[0] < 0:
+            raise ValueError("debris_speed_px_s must be >= 0")
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """What the simulator used for one frame.
+
+    stamp_s: mid-exposure time [s]; rotation: sensor -> ICRS at mid-exposure; body_rate:
+    [rad/s] in the sensor frame at mid-exposure. Per object (stars, then planets, debris,
+    cosmic rays, hot pixels) that can put light on the chip: kind (KIND_*), hip (0 for
+    non-stars), x, y: pixel position at its own mid-exposure (the row's, under a rolling
+    shutter; may lie just off the chip) [px]; electrons: expected signal
+    including vignetting [e-] (a hot pixel's dark charge); extent_px: length of its track in
+    the image over the exposure [px].
+    """
+
+    stamp_s: float
+    rotation: np.ndarray
+    body_rate: np.ndarray
+    kind: np.ndarray
+    hip: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    electrons: np.ndarray
+    extent_px: np.ndarray
+
+    def stars(self) -> np.ndarray:
+        return self.kind == KIND_STAR
+
+
+@dataclass(frozen=True)
+class RenderedFrame:
+    image: np.ndarray  # uint16 (height, width) [ADU]
+    truth: FrameTruth
+    substeps: int = field(default=1)
+
+
+def frame_seed(seed: int, frame_index: int) -> int:
+    """32-bit seed of frame `frame_index` from a scenario seed (independent streams)."""
+    return int(np.random.SeedSequence([int(seed), int(frame_index)]).generate_state(1)[0])
+
+
+class StarFieldRenderer:
+    """Renders frames for a camera, sensor, catalog (stars to a magnitude limit) and false
+    objects. The fixed pattern (PRNU, DSNU, hot pixels) is drawn once from `fixed_pattern_seed`.
+    observer_velocity_m_s: ICRS velocity of the spacecraft for stellar aberration [m/s]."""
+
+    def __init__(self, camera: CameraModel, sensor: SensorModel, catalog: StarCatalog,
+                 magnitude_limit: float = 7.5, false_objects: FalseObjectModel = FalseObjectModel(),
+                 fixed_pattern_seed: int = 0, observer_velocity_m_s=(0.0, 0.0, 0.0), max_substep_px: float = 0.5):
+        self.camera, self.sensor, self.false_objects = camera, sensor, false_objects
+        self.catalog = catalog.brighter_than(magnitude_limit)
+        vectors = self.catalog.unit_vectors()
+        beta = np.asarray(observer_velocity_m_s, dtype=float) / SPEED_OF_LIGHT_M_S
+        if beta.shape != (3,) or not np.all(np.isfinite(beta)) or np.linalg.norm(beta) >= 1e-3:
+            raise ValueError(f"observer_velocity_m_s={observer_velocity_m_s} must be 3 finite values below 300 km/s")
+        # First-order stellar aberration: apparent direction tilts toward the velocity.
+        vectors = vectors + beta
+        self.star_vectors = vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
+        self.star_electrons = sensor.star_electrons(self.catalog.hp, self.catalog.b_v)
+        self.max_substep_px = max_substep_px
+        self._half = int(np.ceil(4.0 * sensor.psf_sigma_px)) + 1
+        self._cos_search = np.cos(min(camera.half_diagonal_fov_rad + 0.05, np.pi / 2))
+        self._build_fixed_pattern(fixed_pattern_seed)
+
+    # ------------------------------------------------------------------ static maps
+    def _build_fixed_pattern(self, seed: int) -> None:
+        cam, sensor = self.camera, self.sensor
+        # One stream per pattern: switching one effect off leaves the others unchanged.
+        prnu_rng, dsnu_rng, hot_rng = (np.random.default_rng([int(seed), 0xF1A7, k]) for k in range(3))
+        yy, xx = np.mgrid[0:cam.height, 0:cam.width].astype(np.float32)
+        r2 = ((xx - cam.cx) ** 2 + (yy - cam.cy) ** 2) / max((cam.width / 2) ** 2 + (cam.height / 2) ** 2, 1.0)
+        self.vignetting = (1.0 - sensor.vignetting_at_corner * r2).astype(np.float32)
+        prnu = (1.0 + sensor.prnu_fraction * prnu_rng.standard_normal((cam.height, cam.width))).astype(np.float32)
+        self.response = self.vignetting * np.maximum(prnu, 0.0)
+        dark = np.full((cam.height, cam.width), sensor.dark_e_per_px_s_at_temperature, np.float32)
+        if sensor.dsnu_fraction > 0:
+            s = sensor.dsnu_fraction
+            dark *= dsnu_rng.lognormal(-0.5 * s * s, s, dark.shape).astype(np.float32)  # mean 1
+        hot = hot_rng.random(dark.shape) < sensor.hot_pixel_fraction
+        dark[hot] *= sensor.hot_pixel_dark_factor
+        self.hot_pixels = np.flatnonzero(hot)
+        self._hot_xy = np.stack([self.hot_pixels % cam.width, self.hot_pixels // cam.width]).astype(float)
+        gx, gy = sensor.stray_light_gradient_e_per_px2_s
+        sky = np.maximum(sensor.background_e_per_px_s + gx * (xx - cam.cx) + gy * (yy - cam.cy), 0.0)
+        # Expected electrons per exposure of everything but the objects, and its noise sigma.
+        self.static_e = ((sky * self.response + dark) * sensor.exposure_s).astype(np.float32)
+        self._hot_static_e = self.static_e.reshape(-1)[self.hot_pixels].astype(float)
+        self.static_sigma = np.sqrt(self.static_e + sensor.read_noise_e ** 2).astype(np.float32)
+        self._noise = np.empty((cam.height, cam.width), np.float32)
+
+    # ------------------------------------------------------------------ rendering
+    def render(self, motion, stamp_s: float, seed: int) -> RenderedFrame:
+        """Render the exposure centred on stamp_s [s] (the middle row's mid-exposure).
+
+        motion: provides rotations_at(times) -> (K, 3, 3) sensor->ICRS and
+        angular_velocity_at(t) -> (3,) [rad/s]; seed: frame seed (see frame_seed)."""
+        cam, sensor = self.camera, self.sensor
+        rng = np.random.default_rng(seed)
+        exposure = sensor.exposure_s
+        row_time = sensor.rolling_shutter_row_time_s
+        rot_mid = motion.rotations_at(np.array([stamp_s]))[0]
+        body_rate = np.asarray(motion.angular_velocity_at(stamp_s), dtype=float)
+
+        # Objects fixed on the sky: catalog stars near the boresight, plus planets.
+        near = np.flatnonzero(self.star_vectors @ rot_mid[:, 2] > self._cos_search)
+        sky_vectors = [self.star_vectors[near]]
+        electrons = [self.star_electrons[near]]
+        kinds = [np.full(near.size, KIND_STAR)]
+        hips = [self.catalog.hip[near]]
+        fo = self.false_objects
+        if fo.planets_per_frame:
+            px = rng.uniform(0, cam.width - 1, fo.planets_per_frame)
+            py = rng.uniform(0, cam.height - 1, fo.planets_per_frame)
+            sky_vectors.append(cam.pixel_to_ray(px, py) @ rot_mid.T)
+            electrons.append(sensor.star_electrons(rng.uniform(*fo.planet_magnitude_range, fo.planets_per_frame)))
+            kinds.append(np.full(fo.planets_per_frame, KIND_PLANET))
+            hips.append(np.zeros(fo.planets_per_frame, np.int32))
+        sky_vectors = np.concatenate(sky_vectors)
+        sky_electrons = np.concatenate(electrons)  # `electrons` grows by the debris below
+
+        # Sub-steps: no object moves more than max_substep_px between two of them. The image path
+        # of the corners and centre over the exposure bounds it (roll moves the centre not at all).
+        probe_times = stamp_s + np.linspace(-0.5, 0.5, 9) * (exposure + abs(row_time) * cam.height)
+        probe_px = self._probe_paths(motion.rotations_at(probe_times), rot_mid)
+        smear_px = float(np.max(np.sum(np.linalg.norm(np.diff(probe_px, axis=1), axis=2), axis=1)))
+        substeps = int(min(400, max(1, np.ceil(smear_px / self.max_substep_px))))
+        offsets = ((np.arange(substeps) + 0.5) / substeps - 0.5) * exposure
+        u, v, u_mid, v_mid = self._sky_tracks(motion, rot_mid, sky_vectors, stamp_s, offsets, row_time)
+        extents = [np.nan_to_num(np.hypot(u[:, -1] - u[:, 0], v[:, -1] - v[:, 0]), nan=0.0)
+                   * substeps / max(substeps - 1, 1)]
+
+        # Debris moves in the image on its own (its angular motion dominates the attitude's).
+        debris = None
+        if fo.debris_per_frame:
+            n = fo.debris_per_frame
+            p0 = np.column_stack([rng.uniform(0, cam.width - 1, n), rng.uniform(0, cam.height - 1, n)])
+            speed = rng.uniform(*fo.debris_speed_px_s, n)
+            heading = rng.uniform(0, 2 * np.pi, n)
+            total_e = sensor.star_electrons(rng.uniform(*fo.debris_magnitude_range, n))
+            steps = int(min(2000, max(substeps, np.ceil(speed.max() * exposure / self.max_substep_px))))
+            t = ((np.arange(steps) + 0.5) / steps - 0.5) * exposure
+            debris = (p0[:, 0:1] + (speed * np.cos(heading))[:, None] * t[None],
+                      p0[:, 1:2] + (speed * np.sin(heading))[:, None] * t[None],
+                      np.repeat((total_e / steps)[:, None], steps, axis=1))
+            kinds.append(np.full(n, KIND_DEBRIS))
+            hips.append(np.zeros(n, np.int32))
+            u_mid, v_mid = np.concatenate([u_mid, p0[:, 0]]), np.concatenate([v_mid, p0[:, 1]])
+            electrons.append(total_e)
+            extents.append(speed * exposure)
+
+        signal = np.zeros((cam.height, cam.width), np.float32)
+        per_step = np.broadcast_to((sky_electrons / substeps)[:, None], u.shape)
+        visible = cam.in_image(u, v, margin=-self._half)  # False for NaN (behind the camera)
+        seen = visible.any(axis=1)
+        self._accumulate(signal, np.where(visible, u, np.nan)[seen], v[seen], per_step[seen])
+        if debris is not None:
+            self._accumulate(signal, *debris)
+        signal *= self.response  # vignetting and PRNU act on collected light
+        if sensor.frame_transfer_time_s > 0:
+            # During transfer every pixel of a column sees each row's light for t_ft / H.
+            signal += (signal.sum(axis=0) * (sensor.frame_transfer_time_s / (exposure * cam.height)))[None, :]
+
+        image_e = self._detector(signal, rng, seed)
+        cosmic = self._cosmic_rays(image_e, rng)
+
+        hot_x, hot_y = self._hot_xy
+        n_cosmic, n_hot = cosmic[0].size, hot_x.size
+        u_all = np.concatenate([u_mid, cosmic[0], hot_x])
+        v_all = np.concatenate([v_mid, cosmic[1], hot_y])
+        kind = np.concatenate(kinds + [np.full(n_cosmic, KIND_COSMIC_RAY), np.full(n_hot, KIND_HOT_PIXEL)])
+        hip = np.concatenate(hips + [np.zeros(n_cosmic + n_hot, np.int32)]).astype(np.int32)
+        expected = np.concatenate(electrons + [cosmic[2], self._hot_static_e])
+        extent = np.concatenate(extents + [cosmic[3], np.zeros(n_hot)])
+        # Listed if any of its light can land on the chip: PSF wings and streaks included.
+        on_chip = cam.in_image(u_all, v_all, margin=-(self._half + 0.5 * extent)) & np.isfinite(u_all)
+        vign = np.ones(u_all.size)
+        ui = np.clip(np.rint(u_all[on_chip]).astype(int), 0, cam.width - 1)
+        vi = np.clip(np.rint(v_all[on_chip]).astype(int), 0, cam.height - 1)
+        vign[on_chip] = self.vignetting[vi, ui]
+        vign[kind >= KIND_COSMIC_RAY] = 1.0  # deposited in the silicon, not collected light
+        truth = FrameTruth(stamp_s=stamp_s, rotation=rot_mid, body_rate=body_rate, kind=kind[on_chip], hip=hip[on_chip],
+                           x=u_all[on_chip], y=v_all[on_chip], electrons=(expected * vign)[on_chip],
+                           extent_px=extent[on_chip])
+        return RenderedFrame(image=self._digitize(image_e), truth=truth, substeps=substeps)
+
+    def _probe_paths(self, rotations: np.ndarray, rot_mid: np.ndarray):
+        """Image positions (P, K, 2) over `rotations` of the sky directions that sit at the image
+        corners and centre at mid-exposure."""
+        cam = self.camera
+        px = np.array([0, cam.width - 1, 0, cam.width - 1, cam.cx], dtype=float)
+        py = np.array([0, 0, cam.height - 1, cam.height - 1, cam.cy], dtype=float)
+        directions = cam.pixel_to_ray(px, py) @ rot_mid.T
+        u, v, _ = cam.project(np.einsum("kji,pj->pki", rotations, directions))
+        return np.stack([u, v], axis=-1)
+
+    def _sky_tracks(self, motion, rot_mid, vectors, stamp_s, offsets, row_time):
+        """Pixel tracks (N, K) of sky-fixed objects over the exposure, and their positions at
+        their own mid-exposure. Under a rolling shutter each object's exposure is shifted by
+        its row's delay; tracks are then interpolated on a common time grid."""
+        cam = self.camera
+        u_mid, v_mid, front = cam.project(vectors @ rot_mid)
+        u_mid = np.where(front, u_mid, np.nan)
+        v_mid = np.where(front, v_mid, np.nan)
+        if row_time == 0.0 or vectors.shape[0] == 0:
+            rotations = motion.rotations_at(stamp_s + offsets)
+            rays = np.einsum("kji,nj->nki", rotations, vectors)
+            u, v, front = cam.project(rays)
+            return np.where(front, u, np.nan), np.where(front, v, np.nan), u_mid, v_mid
+        # Row delay of each object, from its row at the frame's mid time (iterated once).
+        delay = (np.nan_to_num(v_mid, nan=cam.cy) - (cam.height - 1) / 2) * row_time
+        half_span = abs(row_time) * cam.height / 2 + offsets.max() + 1e-9
+        step = (offsets[1] - offsets[0]) if offsets.size > 1 else half_span
+        grid = np.arange(-half_span, half_span + step, step)
+        rotations = motion.rotations_at(stamp_s + grid)
+        rays = np.einsum("kji,nj->nki", rotations, vectors)
+        gu, gv, gfront = cam.project(rays)
+        gu, gv = np.where(gfront, gu, np.nan), np.where(gfront, gv, np.nan)
+
+        def sample(times):  # linear interpolation of each object's track at its own times
+            f = np.clip((times - grid[0]) / step, 0, grid.size - 1 - 1e-9)
+            i = np.floor(f).astype(int)
+            w = f - i
+            rows = np.arange(vectors.shape[0])[:, None]
+            return (gu[rows, i] * (1 - w) + gu[rows, i + 1] * w, gv[rows, i] * (1 - w) + gv[rows, i + 1] * w)
+
+        own_mid_u, own_mid_v = sample(delay[:, None])
+        delay = (np.nan_to_num(own_mid_v[:, 0], nan=cam.cy) - (cam.height - 1) / 2) * row_time
+        u, v = sample(delay[:, None] + offsets[None, :])
+        own_mid_u, own_mid_v = sample(delay[:, None])
+        return u, v, own_mid_u[:, 0], own_mid_v[:, 0]
+
+    def _accumulate(self, signal: np.ndarray, u: np.ndarray, v: np.ndarray, electrons: np.ndarray) -> None:
+        """Add objects' smeared, pixel-integrated Gaussian PSFs to `signal` (H, W) in place.
+
+        u, v, electrons: (N, K) track of each object over K sub-steps [px] (NaN = not visible)
+        and the electrons of each sub-step. Each pixel gets the PSF integral over its area
+        (separable: erf differences along x and y), so over an object's bounding box the
+        smeared image is sum_k e_k py_k (x) px_k = PY^T diag(e) PX. All objects are done as
+        one batched matrix product over a common window size, then one scatter-add."""
+        cam, half = self.camera, self._half
+        finite = np.isfinite(u) & np.isfinite(v)
+        keep = finite.any(axis=1)
+        if not keep.any():
+            return
+        u, v, finite = u[keep], v[keep], finite[keep]
+        electrons = np.where(finite, electrons[keep], 0.0)
+        # Invisible sub-steps carry no light; park them on a visible one so erf stays finite.
+        u = np.where(finite, u, np.nanmean(np.where(finite, u, np.nan), axis=1, keepdims=True))
+        v = np.where(finite, v, np.nanmean(np.where(finite, v, np.nan), axis=1, keepdims=True))
+        c0 = np.floor(u.min(axis=1)).astype(np.int64) - half
+        r0 = np.floor(v.min(axis=1)).astype(np.int64) - half
+        n_cols = int(np.max(np.ceil(u.max(axis=1)).astype(np.int64) + half - c0)) + 1
+        n_rows = int(np.max(np.ceil(v.max(axis=1)).astype(np.int64) + half - r0)) + 1
+        scale = 1.0 / (np.sqrt(2.0) * self.sensor.psf_sigma_px)
+        k = u.shape[1]
+        chunk = max(1, int(4_000_000 // max(k * (n_cols + n_rows) + n_rows * n_cols, 1)))
+        flat_signal = signal.reshape(-1)
+        for start in range(0, u.shape[0], chunk):
+            sl = slice(start, start + chunk)
+            cols = c0[sl, None] + np.arange(n_cols)[None, :]
+            rows = r0[sl, None] + np.arange(n_rows)[None, :]
+            # erf at pixel edges, differenced: the PSF integral per pixel (x2 each axis).
+            col_edges = np.concatenate([cols, cols[:, -1:] + 1], axis=1) - 0.5
+            row_edges = np.concatenate([rows, rows[:, -1:] + 1], axis=1) - 0.5
+            px = np.diff(erf((col_edges[:, None, :] - u[sl, :, None]) * scale), axis=2)  # (n, K, C)
+            py = np.diff(erf((row_edges[:, None, :] - v[sl, :, None]) * scale), axis=2)  # (n, K, R)
+            blocks = 0.25 * np.matmul((py * electrons[sl, :, None]).transpose(0, 2, 1), px)  # (n, R, C)
+            valid = ((rows >= 0) & (rows < cam.height))[:, :, None] & ((cols >= 0) & (cols < cam.width))[:, None, :]
+            flat = (rows[:, :, None] * cam.width + cols[:, None, :])[valid]
+            np.add.at(flat_signal, flat, blocks[valid].astype(np.float32))  # no full-frame pass
+
+    def _detector(self, signal: np.ndarray, rng: np.random.Generator, seed: int) -> np.ndarray:
+        """Electrons read out: expected static level + signal with shot and read noise.
+
+        Pixels with object signal get exact Poisson draws of (signal + static level). Elsewhere
+        shot noise of the static level (sky + dark, tens of e- or more) and read noise are one
+        Gaussian of the exact variance, drawn with OpenCV's fast generator seeded per frame.
+        """
+        sensor = self.sensor
+        if not sensor.noise:
+            return self.static_e + signal
+        cv2.setRNGSeed(seed & 0x7FFFFFFF)
+        cv2.randn(self._noise, 0.0, 1.0)
+        electrons = self.static_e + self.static_sigma * self._noise
+        lit = np.flatnonzero(signal > 0.05)
+        flat = electrons.reshape(-1)
+        lam = signal.reshape(-1)[lit] + self.static_e.reshape(-1)[lit]
+        flat[lit] = rng.poisson(lam) + sensor.read_noise_e * self._noise.reshape(-1)[lit]
+        return electrons
+
+    def _cosmic_rays(self, electrons: np.ndarray, rng: np.random.Generator):
+        """Add cosmic-ray tracks (straight, 1-15 px, exponential energy) in place; returns their
+        centres x, y [px], deposited charge [e-] and track length [px]."""
+        cam, sensor = self.camera, self.sensor
+        area_cm2 = cam.width * cam.height * (sensor.pixel_pitch_m * 100.0) ** 2
+        count = rng.poisson(sensor.cosmic_ray_rate_per_cm2_s * area_cm2 * sensor.exposure_s)
+        if count == 0:
+            return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
+        centre = np.column_stack([rng.uniform(0, cam.width - 1, count), rng.uniform(0, cam.height - 1, count)])
+        length = rng.uniform(1.0, 15.0, count)
+        heading = rng.uniform(0, np.pi, count)
+        energy = rng.exponential(sensor.cosmic_ray_electrons, count)
+        for (cx, cy), ell, h, e in zip(centre, length, heading, energy):
+            steps = max(2, int(np.ceil(ell * 2)))
+            s = np.linspace(-ell / 2, ell / 2, steps)
+            cols = np.clip(np.rint(cx + s * np.cos(h)).astype(int), 0, cam.width - 1)
+            rows = np.clip(np.rint(cy + s * np.sin(h)).astype(int), 0, cam.height - 1)
+            np.add.at(electrons, (rows, cols), e / steps)
+        return centre[:, 0], centre[:, 1], energy, length
+
+    def _digitize(self, electrons: np.ndarray) -> np.ndarray:
+        """Full-well clip (no blooming), gain, bias, rounding, ADC range -> uint16 [ADU].
+
+        `electrons` already holds read noise, which comes from the output amplifier and may
+        be negative (that is what the bias is for): only the ADC range clips the low end."""
+        sensor = self.sensor
+        np.minimum(electrons, sensor.full_well_e, out=electrons)
+        electrons *= 1.0 / sensor.gain_e_per_adu
+        electrons += sensor.bias_adu + 0.5  # + 0.5 then truncation = rounding
+        np.clip(electrons, 0.0, sensor.max_adu + 0.5, out=electrons)
+        return electrons.astype(np.uint16)

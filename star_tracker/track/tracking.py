@@ -1,0 +1,466 @@
+"""Tracking: localized recognition from a predicted attitude, lost-in-space fallback, rate,
+and delay compensation (Hu & Huang, seed 004).
+
+After a verified solution the tracker predicts the next frame's attitude from the last one
+and the body rate, R_pred = R_last exp([omega dt]x), with a covariance that grows with dt.
+Local recognition looks for the catalog stars only where the prediction puts them: the
+displacement between spots and predicted stars is voted in a 2-D histogram over the gate
+(gate_sigma x the predicted position sigma, at most `max_gate_fov_radii` field radii, the
+paper's 2R circle), the matches of the winning displacement give an attitude, and that attitude
+is verified against every spot. The false-positive bound is the one of `verify` with the
+searched region in place of all of SO(3): the expected number of chance catalog tuples scales
+with the volume of attitudes searched, here the gate_sigma ellipsoid of the prediction (see
+`log_chance_tuples_in_region`). A small region makes 3-star (even 2-star) frames verifiable,
+which lost-in-space can never do at 1e-6. A frame that tracking cannot verify goes to
+lost-in-space.
+
+Delay compensation: when a lost-in-space solve of frame k is still running as frames k+1..n
+arrive, `bridge` chains their frame-to-frame relative rotations (spots matched between
+consecutive frames, no catalog); when the solve ends, the chain carries R_k to frame n, and
+local recognition on frame n verifies it. The newest frame gets a fresh, verified attitude.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..models.attitude import attitude_covariance, rotation_vector_to_matrix
+from ..models.camera import CameraModel
+from ..centroid import Spots
+from .rate import AttitudeRateEstimator, RateEstimate
+from ..identify import kernels
+from ..identify.base import Identification, StarIdentifier
+from ..identify.skygrid import SkyGrid, cell_of
+
+MODE_TRACKING = "tracking"
+MODE_LOST_IN_SPACE = "lost_in_space"
+MODE_LOST = "lost"
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """gate_sigma: searched region = this many sigma of the predicted attitude; min_stars:
+    fewest matched stars tracking accepts (the bound still decides); max_gate_fov_radii:
+    largest gate in field radii (half diagonals), Hu & Huang's 2R; max_coast_s: longest time
+    a prediction is used without a new solution [s]; max_angular_rate_rad_s: rate prior per
+    axis before a rate estimate exists [rad/s]; max_angular_acceleration_rad_s2: assumed bound
+    on |d omega/dt| for the rate's model error and the prediction [rad/s^2]; rate_window_s:
+    attitudes used for the rate estimate [s]; false_positive_bound: as for lost-in-space;
+    max_pattern_spots: brightest spots used to vote the displacement."""
+
+    gate_sigma: float = 5.0
+    min_stars: int = 3
+    max_gate_fov_radii: float = 2.0
+    max_coast_s: float = 2.0
+    max_angular_rate_rad_s: float = math.radians(5.0)
+    max_angular_acceleration_rad_s2: float = math.radians(2.0)
+    rate_window_s: float = 0.45
+    false_positive_bound: float = 1.0e-6
+    max_pattern_spots: int = 40
+
+    def __post_init__(self) -> None:
+        bad = []
+        if not (1.0 <= self.gate_sigma <= 20.0):
+            bad.append(f"gate_sigma={self.gate_sigma} must be in [1, 20]")
+        if not (2 <= self.min_stars <= 10):
+            bad.append(f"min_stars={self.min_stars} must be in [2, 10]")
+        if not (0.0 < self.max_gate_fov_radii <= 4.0):
+            bad.append(f"max_gate_fov_radii={self.max_gate_fov_radii} must be in (0, 4]")
+        if not (0.0 < self.max_coast_s <= 60.0):
+            bad.append(f"max_coast_s={self.max_coast_s} must be in (0, 60]")
+        if not (0.0 < self.max_angular_rate_rad_s <= 1.0):
+            bad.append(f"max_angular_rate_rad_s={self.max_angular_rate_rad_s} must be in (0, 1]")
+        if not (0.0 <= self.max_angular_acceleration_rad_s2 <= 1.0):
+            bad.append(f"max_angular_acceleration_rad_s2={self.max_angular_acceleration_rad_s2} must be in [0, 1]")
+        if not (0.0 < self.rate_window_s <= 10.0):
+            bad.append(f"rate_window_s={self.rate_window_s} must be in (0, 10]")
+        if not (0.0 < self.false_positive_bound < 1.0):
+            bad.append(f"false_positive_bound={self.false_positive_bound} must be in (0, 1)")
+        if not (3 <= self.max_pattern_spots <= 500):
+            bad.append(f"max_pattern_spots={self.max_pattern_spots} must be in [3, 500]")
+        if bad:
+            raise ValueError("invalid tracking config: " + "; ".join(bad))
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Predicted attitude (sensor -> ICRS) at `stamp_ns` and its small-angle error covariance
+    in the sensor frame [rad^2]."""
+
+    stamp_ns: int
+    rotation: np.ndarray
+    covariance: np.ndarray
+
+
+@dataclass(frozen=True)
+class TrackedFrame:
+    """What the tracker made of one frame.
+
+    mode: "tracking" (local recognition), "lost_in_space" or "lost" (no verified attitude);
+    identification: the result (its attitude when solved); rate: body rate at this frame when
+    estimated; gate_px: searched radius when a prediction was used [px]; bridged_frames: frames
+    chained by delay compensation to reach this one; elapsed_s: processing time [s]."""
+
+    stamp_ns: int
+    mode: str
+    identification: Identification
+    rate: RateEstimate | None = None
+    gate_px: float | None = None
+    bridged_frames: int = 0
+    elapsed_s: float = 0.0
+
+    @property
+    def solved(self) -> bool:
+        return self.identification.solved
+
+
+def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float, density_per_sr: float,
+                                region_covariance: np.ndarray, region_sigma: float) -> float:
+    """ln of the expected number of catalog m-tuples (uniform density [1/sr]) fitting the m
+    sensor-frame unit vectors `body` with weighted chi^2 <= `chi2` under some attitude inside
+    the region_sigma ellipsoid of `region_covariance` [rad^2] (sensor frame).
+
+    verify.log_chance_tuples with the volume of SO(3) (8 pi^2 sqrt(det G) in coordinates scaled
+    by G^(1/2), G = sum (I - b b^T)/s^2) replaced by the searched region: there the ellipsoid
+    has semi-axes region_sigma sqrt(mu_i), mu_i the eigenvalues of G P, and the tube of radius
+    sqrt(c) around it a 3-D cross-section of at most (4/3) pi prod(region_sigma sqrt(mu_i) +
+    sqrt(c)); never more than the whole group. The subset bound is kernels.false_positive_bound
+    with min_stars = TrackingConfig.min_stars."""
+    return float(kernels.log_chance_tuples_in_region(
+        np.ascontiguousarray(body, dtype=float), np.ascontiguousarray(sigma, dtype=float), float(chi2),
+        float(density_per_sr), np.ascontiguousarray(region_covariance, dtype=float), float(region_sigma)))
+
+
+def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray, ref_y: np.ndarray,
+                      gate_px: float, bin_px: float) -> tuple[float, float, int]:
+    """The displacement (dx, dy) [px] shared by most spot - reference pairs within `gate_px`,
+    voted in a histogram of `bin_px` cells (2x2 neighbourhoods, so a cluster on a cell edge
+    still wins), refined as the mean of the pairs within one bin of the winner. Returns
+    (dx, dy, votes)."""
+    dx = spot_x[:, None] - ref_x[None, :]
+    dy = spot_y[:, None] - ref_y[None, :]
+    near = dx * dx + dy * dy <= gate_px * gate_px
+    dx, dy = dx[near], dy[near]
+    if dx.size == 0:
+        return 0.0, 0.0, 0
+    bins = max(1, int(math.ceil(2.0 * gate_px / bin_px)))
+    edges = np.linspace(-gate_px, gate_px, bins + 1)
+    hist, _, _ = np.histogram2d(dx, dy, bins=[edges, edges])
+    padded = np.pad(hist, 1)
+    block = padded[:-1, :-1] + padded[1:, :-1] + padded[:-1, 1:] + padded[1:, 1:]  # (bins + 1)^2 corners
+    i, j = np.unravel_index(int(np.argmax(block)), block.shape)
+    cx, cy = edges[0] + i * (edges[1] - edges[0]), edges[0] + j * (edges[1] - edges[0])
+    close = (np.abs(dx - cx) <= bin_px) & (np.abs(dy - cy) <= bin_px)
+    if not np.any(close):
+        return 0.0, 0.0, 0
+    return float(np.mean(dx[close])), float(np.mean(dy[close])), int(np.count_nonzero(close))
+
+
+def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one nearest pairs within `radius_px` (a reference claimed by two spots, or a
+    spot with two references within the radius, is dropped): (spot idx, ref idx)."""
+    as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
+    return kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y), float(radius_px))
+
+
+class Tracker:
+    """Per-sensor tracking state around a lost-in-space identifier (any StarIdentifier)."""
+
+    def __init__(self, lost_in_space: StarIdentifier, config: TrackingConfig = TrackingConfig()):
+        self.lost_in_space = lost_in_space
+        self.config = config
+        self.database = lost_in_space.database
+        self.grid = getattr(lost_in_space, "grid", None) or SkyGrid.build(self.database.vectors)
+        self._vectors = np.ascontiguousarray(self.database.vectors, dtype=float)
+        self._star_magnitude = np.asarray(self.database.magnitude, dtype=float)
+        self._sorted_magnitudes = np.sort(self._star_magnitude)
+        self._mean_density = self.database.star_count / (4.0 * np.pi)
+        self.rates = AttitudeRateEstimator(config.rate_window_s, config.max_angular_acceleration_rad_s2)
+        self._last: tuple[int, np.ndarray, np.ndarray] | None = None  # (stamp_ns, rotation, covariance)
+        self.rate: RateEstimate | None = None
+        self._pending: list[tuple[int, Spots, CameraModel]] = []  # delay compensation: frames since acquisition
+        self._chain: list[tuple[np.ndarray, np.ndarray]] = []  # relative rotations between pending frames
+        self._half_diagonal_key, self._half_diagonal_value = None, 0.0
+
+    # --- state -----------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the track (e.g. after a jump in time)."""
+        self._last, self.rate = None, None
+        self.rates.reset()
+        self._pending, self._chain = [], []
+
+    def predict(self, stamp_ns: int) -> Prediction | None:
+        """Predicted attitude at `stamp_ns` from the last solution and the rate, or None when
+        there is no solution within max_coast_s (or the stamp is older than it)."""
+        if self._last is None:
+            return None
+        last_ns, rotation, covariance = self._last
+        dt = (stamp_ns - last_ns) * 1e-9
+        if dt < 0.0 or dt > self.config.max_coast_s:
+            return None
+        return self._propagate(stamp_ns, rotation, covariance, dt)
+
+    def _propagate(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray, dt: float) -> Prediction:
+        if self.rate is not None:
+            omega, rate_cov = self.rate.angular_velocity, self.rate.covariance
+        else:
+            omega, rate_cov = np.zeros(3), np.eye(3) * self.config.max_angular_rate_rad_s**2
+        accel = 0.5 * self.config.max_angular_acceleration_rad_s2 * dt * dt
+        predicted_cov = covariance + dt * dt * rate_cov + np.eye(3) * accel * accel / 3.0
+        return Prediction(stamp_ns, rotation @ rotation_vector_to_matrix(omega * dt), predicted_cov)
+
+    # --- per frame -------------------------------------------------------------------
+    def process(self, stamp_ns: int, spots: Spots, camera: CameraModel) -> TrackedFrame:
+        """Track when a prediction exists, else (or when tracking fails) lost-in-space; update
+        the state with a verified result. Synchronous; see begin_acquisition for the node's
+        asynchronous path."""
+        started = time.perf_counter()
+        prediction = self.predict(stamp_ns)
+        gate_px = None
+        if prediction is not None:
+            tracked = self.accept_tracked(stamp_ns, spots, camera, prediction)
+            if tracked.solved:
+                return tracked
+            gate_px = tracked.gate_px
+        result = self.lost_in_space.identify(spots, camera)
+        if result.solved:
+            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, gate_px, 0, started)
+        return TrackedFrame(stamp_ns, MODE_LOST, result, None, gate_px, 0, time.perf_counter() - started)
+
+    def accept_tracked(self, stamp_ns: int, spots: Spots, camera: CameraModel, prediction: Prediction) -> TrackedFrame:
+        """Local recognition around `prediction`; the state is updated when it is verified."""
+        started = time.perf_counter()
+        result, gate_px = self.track(spots, camera, prediction)
+        if result.solved:
+            return self._accept(stamp_ns, result, MODE_TRACKING, gate_px, 0, started)
+        return TrackedFrame(stamp_ns, MODE_LOST, result, None, gate_px, 0, time.perf_counter() - started)
+
+    def _accept(self, stamp_ns: int, result: Identification, mode: str, gate_px, bridged: int,
+                started: float) -> TrackedFrame:
+        solution = result.attitude
+        if self._last is not None and stamp_ns <= self._last[0]:
+            self.rates.reset()  # time went backwards (replay restarted): a new window
+        self.rate = self.rates.add(stamp_ns, solution.rotation, solution.covariance)
+        self._last = (stamp_ns, solution.rotation, solution.covariance)
+        return TrackedFrame(stamp_ns, mode, result, self.rate, gate_px, bridged, time.perf_counter() - started)
+
+    def gate_px(self, camera: CameraModel, prediction: Prediction, tolerance_px: float) -> float:
+        """Search radius [px]: gate_sigma x the predicted position sigma of a star at the field
+        corner (cross-boresight and roll), plus the match tolerance, capped at
+        max_gate_fov_radii field radii."""
+        cov = prediction.covariance
+        cross = math.sqrt(max(cov[0, 0], cov[1, 1], 0.0))
+        half_diagonal = self._half_diagonal(camera)
+        roll = math.sqrt(max(cov[2, 2], 0.0)) * half_diagonal
+        sigma_px = math.hypot(cross, roll) / camera.pixel_scale_rad
+        cap = self.config.max_gate_fov_radii * half_diagonal / camera.pixel_scale_rad
+        return min(self.config.gate_sigma * sigma_px + tolerance_px, cap)
+
+    def track(self, spots: Spots, camera: CameraModel, prediction: Prediction) -> tuple[Identification, float]:
+        """Local recognition of `spots` around `prediction`: (result, gate [px])."""
+        started = time.perf_counter()
+        lis = self.lost_in_space
+        order, geometry = self.lost_in_space.prepare(spots, camera)
+        n = order.size
+        tolerance_px = lis.verification_radius_px(geometry, camera) if n else lis.config.match_radius_px
+        gate = self.gate_px(camera, prediction, tolerance_px)
+        fail = lambda reason: (Identification("no_match", reason, "tracking", time.perf_counter() - started), gate)  # noqa: E731
+        if n < self.config.min_stars:
+            return fail(f"{n} spots; tracking needs {self.config.min_stars}")
+        # Catalog stars the predicted attitude puts in (or within the gate of) the image.
+        rotation = prediction.rotation
+        half_diagonal = self._half_diagonal(camera)
+        reach = half_diagonal + gate * camera.pixel_scale_rad
+        cos_reach = math.cos(min(reach, math.pi / 2))
+        if camera.has_distortion:
+            near = np.flatnonzero(self._vectors @ rotation[:, 2] > cos_reach)
+            u, v, front = camera.project(self._vectors[near] @ rotation)
+            keep = front & camera.in_image(u, v, margin=-gate)
+            near, u, v = near[keep], u[keep], v[keep]
+        else:
+            near, u, v = kernels.stars_in_view(self._vectors, rotation, cos_reach, float(camera.fx), float(camera.fy),
+                                               float(camera.cx), float(camera.cy), float(camera.width),
+                                               float(camera.height), -float(gate))
+        if near.size < self.config.min_stars:
+            return fail(f"{near.size} catalog stars near the predicted attitude")
+        voters = min(n, self.config.max_pattern_spots)
+        sx, sy = geometry.x[:voters], geometry.y[:voters]
+        # Roll error spreads the displacement over the field; the bins must hold that spread.
+        roll_spread = (self.config.gate_sigma * math.sqrt(max(prediction.covariance[2, 2], 0.0))
+                       * half_diagonal / camera.pixel_scale_rad)
+        if gate <= 3.0 * tolerance_px:  # small gate: nearest stars directly
+            dx = dy = 0.0
+            radius = gate
+        else:
+            dx, dy, votes = vote_displacement(sx, sy, u, v, gate, max(2.0 * tolerance_px, roll_spread))
+            if votes < 2:
+                return fail(f"no displacement shared by two stars within the {gate:.0f} px gate")
+            radius = max(tolerance_px, min(roll_spread, gate))
+        spot_i, star_j = unique_nearest(sx, sy, u + dx, v + dy, radius)
+        if spot_i.size < 2:
+            return fail(f"{spot_i.size} spots near predicted stars")
+        rough = kernels.q_method(geometry.rays[spot_i], self._vectors[near[star_j]], 1.0 / geometry.sigma[spot_i] ** 2)
+        return self._verify_in_region(geometry, order, camera, rough, prediction, gate, tolerance_px, started)
+
+    def _verify_in_region(self, geometry, order, camera, rotation, prediction, gate, tolerance_px, started):
+        lis = self.lost_in_space
+        n = order.size
+        chord = 2.0 * math.sin(0.5 * min(tolerance_px * camera.pixel_scale_rad, self.grid.max_radius_rad))
+        out_spot = np.empty(n, np.int64)
+        out_star = np.empty(n, np.int64)
+        count, rotation, _, chi2 = kernels.verify_candidate(
+            rotation, geometry.rays, geometry.sigma, geometry.magnitude, self._vectors, self._star_magnitude,
+            self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell, self.grid.grid,
+            self.grid.cell_density, self._mean_density, chord, self.config.min_stars, lis.magnitude_floor,
+            out_spot, out_star, 1)  # the rough rotation is already fitted to the voters' pairs
+        elapsed = lambda: time.perf_counter() - started  # noqa: E731
+        if count < self.config.min_stars:
+            return Identification("no_match", f"{count} stars verified; tracking needs {self.config.min_stars}",
+                                  "tracking", elapsed()), gate
+        # The bound holds for the searched region only: a solution outside it was not searched for.
+        mahalanobis2 = float(kernels.offset_mahalanobis2(prediction.rotation, rotation, prediction.covariance))
+        if mahalanobis2 > self.config.gate_sigma**2:
+            return Identification("no_match", f"solution {math.sqrt(mahalanobis2):.1f} sigma from the prediction "
+                                  f"(gate {self.config.gate_sigma:g})", "tracking", elapsed()), gate
+        spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
+        body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
+        density = max(self._mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
+        log_t = float(kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
+                                                          self.config.gate_sigma))
+        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self._star_magnitude[star_index],
+                                                       self._sorted_magnitudes, lis.magnitude_floor))
+        fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))
+        if fp > self.config.false_positive_bound:
+            return Identification("no_match", f"{count} stars matched but false-positive bound {fp:.1e} > "
+                                  f"{self.config.false_positive_bound:.0e}", "tracking", elapsed()), gate
+        return lis.solved_at_rotation(geometry, order, spot_index, star_index, rotation, fp, 1, started,
+                                      algorithm="tracking"), gate
+
+    def _half_diagonal(self, camera: CameraModel) -> float:
+        key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.distortion))
+        if self._half_diagonal_key != key:
+            self._half_diagonal_key, self._half_diagonal_value = key, camera.half_diagonal_fov_rad
+        return self._half_diagonal_value
+
+    def warm_up(self, camera: CameraModel) -> None:
+        """Compile (or load from numba's cache) the kernels tracking adds to lost-in-space."""
+        if hasattr(self.lost_in_space, "warm_up"):
+            self.lost_in_space.warm_up(camera)
+        rng = np.random.default_rng(1)
+        rotation = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        rotation *= np.linalg.det(rotation)
+        stars = np.flatnonzero(self._vectors @ rotation[:, 2] > math.cos(0.1))[:12]
+        u, v, _ = camera.project(self._vectors[stars] @ rotation)
+        n = stars.size
+        spots = Spots(u, v, np.linspace(2e4, 1e3, n), np.full(n, 50.0), np.tile(np.eye(2) * 0.01, (n, 1, 1)),
+                      np.zeros(n, np.uint32), np.full(n, 9, np.int32), np.full(n, 1e3), camera.width, camera.height)
+        saved = (self._last, self.rate)
+        self._last, self.rate = (0, rotation, np.eye(3) * 1e-8), None
+        self.track(spots, camera, self.predict(100_000_000))
+        self._last, self.rate = saved
+        # The bound and the rate fit, whether or not the synthetic frame verified.
+        log_chance_tuples_in_region(np.eye(3), np.full(3, 1e-5), 3.0, 1.0, np.eye(3) * 1e-8, 5.0)
+        rates = AttitudeRateEstimator(1.0, 0.01)
+        for k in range(4):
+            rates.add(k * 100_000_000, rotation @ rotation_vector_to_matrix(np.array([0.0, 0.0, 1e-3 * k])),
+                      np.eye(3) * 1e-10)
+
+    def _cell(self, direction: np.ndarray) -> int:
+        return int(cell_of(float(direction[0]), float(direction[1]), float(direction[2]), self.grid.grid))
+
+    # --- delay compensation ------------------------------------------------------------
+    def begin_acquisition(self, stamp_ns: int, spots: Spots, camera: CameraModel) -> None:
+        """A lost-in-space solve of this frame starts (elsewhere, e.g. in a worker thread)."""
+        self._pending = [(stamp_ns, spots, camera)]
+        self._chain = []
+
+    def pending_spots(self) -> Spots | None:
+        """Spots of the newest frame waiting for the running solve (what complete_acquisition
+        will publish), or None."""
+        return self._pending[-1][1] if self._pending else None
+
+    def bridge(self, stamp_ns: int, spots: Spots, camera: CameraModel) -> bool:
+        """A newer frame arrived during the solve: chain its rotation relative to the previous
+        pending frame. False when the two frames share too few stars (the chain restarts from
+        this frame on the next acquisition)."""
+        if not self._pending:
+            return False
+        prev_ns, prev_spots, prev_camera = self._pending[-1]
+        relative = self.relative_rotation(prev_spots, prev_camera, spots, camera, (stamp_ns - prev_ns) * 1e-9)
+        if relative is None:
+            return False
+        self._pending.append((stamp_ns, spots, camera))
+        self._chain.append(relative)
+        return True
+
+    def complete_acquisition(self, result: Identification) -> TrackedFrame | None:
+        """The solve of the first pending frame ended with `result`. Returns the newest
+        pending frame's TrackedFrame (attitude chained and verified by local recognition), or
+        the solved frame's own when nothing was bridged; None when unsolved."""
+        started = time.perf_counter()
+        pending, chain = self._pending, self._chain
+        self._pending, self._chain = [], []
+        if not pending or not result.solved:
+            return None
+        stamp_ns = pending[0][0]
+        if not chain:
+            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, None, 0, started)
+        rotation, covariance = result.attitude.rotation, result.attitude.covariance
+        for relative, relative_cov in chain:  # R_{j+1} = R_j dR_j; errors expressed in frame j+1
+            rotation = rotation @ relative
+            covariance = relative.T @ covariance @ relative + relative_cov
+        newest_ns, spots, camera = pending[-1]
+        # Verified on the newest frame; the prior covers the chain with gate_sigma to spare.
+        prediction = Prediction(newest_ns, rotation, covariance + np.eye(3) * (1e-2 * camera.pixel_scale_rad) ** 2)
+        tracked, gate = self.track(spots, camera, prediction)
+        if not tracked.solved:
+            return None
+        # The rate window restarts: the bridged frames' attitudes were not verified one by one.
+        self.rates.reset()
+        self.rates.add(stamp_ns, result.attitude.rotation, result.attitude.covariance)
+        return self._accept(newest_ns, tracked, MODE_TRACKING, gate, len(chain), started)
+
+    def relative_rotation(self, spots_a: Spots, camera_a: CameraModel, spots_b: Spots, camera_b: CameraModel,
+                          dt: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """Rotation dR of the sensor between frames a and b (R_b = R_a dR) from their spots
+        alone, with its covariance [rad^2, frame b]: the rate (or its prior) predicts where
+        frame a's spots land in frame b, the displacement is voted, spots are paired, and
+        dR is the q-method fit of the pairs. None with fewer than 3 pairs."""
+        lis = self.lost_in_space
+        _, ga = self.lost_in_space.prepare(spots_a, camera_a)
+        _, gb = self.lost_in_space.prepare(spots_b, camera_b)
+        if ga.x.size < 3 or gb.x.size < 3:
+            return None
+        predicted = self._propagate(0, np.eye(3), np.zeros((3, 3)), max(dt, 0.0))
+        # Frame a's rays seen from frame b: b = dR^T a.
+        u, v, front = camera_b.project(ga.rays @ predicted.rotation)
+        keep = np.flatnonzero(front)
+        tolerance_px = max(lis.verification_radius_px(gb, camera_b), 3.0 * float(np.median(ga.sigma))
+                           / camera_b.pixel_scale_rad)
+        gate = self.gate_px(camera_b, predicted, tolerance_px)
+        roll_spread = (self.config.gate_sigma * math.sqrt(predicted.covariance[2, 2])
+                       * self._half_diagonal(camera_b) / camera_b.pixel_scale_rad)
+        voters = self.config.max_pattern_spots
+        ax, ay = u[keep][:voters], v[keep][:voters]
+        bx, by = gb.x[:voters], gb.y[:voters]
+        dx, dy, votes = vote_displacement(bx, by, ax, ay, gate, max(2.0 * tolerance_px, roll_spread))
+        if votes < 3:
+            return None
+        spot_i, ref_j = unique_nearest(bx, by, ax + dx, ay + dy, max(tolerance_px, min(roll_spread, gate)))
+        if spot_i.size < 3:
+            return None
+        body_b, body_a = gb.rays[spot_i], ga.rays[keep[ref_j]]
+        sigma = np.hypot(gb.sigma[spot_i], ga.sigma[keep[ref_j]])
+        rough = kernels.q_method(body_b, body_a, 1.0 / sigma**2)  # b -> a: body_a = dR body_b
+        # Second pass with the fitted rotation: all spots, tight radius.
+        u, v, front = camera_b.project(ga.rays @ rough)
+        keep = np.flatnonzero(front)
+        spot_i, ref_j = unique_nearest(gb.x, gb.y, u[keep], v[keep], tolerance_px)
+        if spot_i.size < 3:
+            return None
+        body_b, body_a = gb.rays[spot_i], ga.rays[keep[ref_j]]
+        sigma = np.hypot(gb.sigma[spot_i], ga.sigma[keep[ref_j]])
+        return kernels.q_method(body_b, body_a, 1.0 / sigma**2), attitude_covariance(body_b, sigma)

@@ -1,0 +1,109 @@
+"""The identifier node over DDS, driven by this test's own publisher: it publishes only
+verified attitudes, explains failures on /diagnostics, and survives bad input."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import QuaternionStamped  # noqa: E402
+from sensor_msgs.msg import CameraInfo, PointCloud2  # noqa: E402
+
+from star_tracker.models.attitude import attitude_error, quaternion_to_matrix, radec_roll_to_matrix  # noqa: E402
+from star_tracker.centroid import Spots  # noqa: E402
+from star_tracker.ros import convert  # noqa: E402
+from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)
+
+from star_tracker.ros.common import RESULT_QOS  # noqa: E402
+from conftest import join_isolated_ros_domain  # noqa: E402
+from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
+
+ARCSEC = np.radians(1 / 3600)
+
+
+def star_spots(catalog, camera, rotation):
+    stars = catalog.brighter_than(6.8).at_epoch(2026.0)
+    u, v, front = camera.project(stars.unit_vectors() @ rotation)
+    keep = front & camera.in_image(u, v, margin=3)
+    order = np.argsort(stars.hp[keep])
+    n = order.size
+    return Spots(u[keep][order], v[keep][order], 1e5 * 10 ** (-0.4 * stars.hp[keep][order]), np.full(n, 50.0),
+                 np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.ones(n, np.int32), np.ones(n),
+                 camera.width, camera.height)
+
+
+@pytest.mark.integration
+def test_identifier_node_publishes_only_verified_attitudes(monkeypatch, tmp_path, catalog, nominal_camera, database):
+    env = join_isolated_ros_domain(monkeypatch)
+    node = rclpy.create_node("identifier_driver")
+    attitudes, diagnostics = [], []
+    node.create_subscription(QuaternionStamped, "attitude", attitudes.append, RESULT_QOS)
+    node.create_subscription(DiagnosticArray, "/diagnostics",
+                             lambda m: diagnostics.extend(s for s in m.status if s.name.endswith("/identifier")), 10)
+    pub_info = node.create_publisher(CameraInfo, "camera_info", SENSOR_QOS)
+    pub_spots = node.create_publisher(PointCloud2, "spots", SENSOR_QOS)
+    processes = NodeProcesses(env, tmp_path / "logs", nodes=("identifier",)).start()
+
+    def spin(seconds, until=lambda: False):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            rclpy.spin_once(node, timeout_sec=0.05)
+
+    try:
+        processes.wait_ready()
+        spin(30.0, until=lambda: pub_spots.get_subscription_count() > 0 and pub_info.get_subscription_count() > 0)
+        rng = np.random.default_rng(21)
+        truth = radec_roll_to_matrix(2.0, -0.4, 1.0)
+        good = star_spots(catalog, nominal_camera, truth)
+        n = 30
+        random_spots = Spots(rng.uniform(0, 1023, n), rng.uniform(0, 1023, n), rng.uniform(1, 1e3, n), np.full(n, 30.0),
+                             np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.ones(n, np.int32),
+                             np.ones(n), 1024, 1024)
+        malformed = PointCloud2(height=1, width=2, point_step=12, data=b"\x00" * 24)
+        for _ in range(3):  # best effort: repeat camera_info until the node has it
+            pub_info.publish(convert.camera_to_info(nominal_camera, 1, "star_tracker_optical"))
+            spin(0.3)
+        stamps = {"random": 1_000_000_000, "malformed": 1_100_000_000, "good": 1_200_000_000}
+        pub_spots.publish(convert.spots_to_cloud(random_spots, stamps["random"], "star_tracker_optical"))
+        spin(0.5)
+        malformed.header.stamp = convert.ns_to_stamp(stamps["malformed"])
+        pub_spots.publish(malformed)
+        spin(0.5)
+        pub_spots.publish(convert.spots_to_cloud(good, stamps["good"], "star_tracker_optical"))
+        spin(10.0, until=lambda: attitudes and any("frames_identified" in [kv.key for kv in s.values] for s in diagnostics))
+        spin(1.5)
+    finally:
+        codes = processes.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    log = (tmp_path / "logs" / "identifier.log").read_text()
+    assert codes == {"identifier": 0}, log
+    # Only the good frame produced an attitude, with its stamp unchanged, and it is right.
+    assert [convert.stamp_to_ns(a.header.stamp) for a in attitudes] == [stamps["good"]], log
+    estimate = quaternion_to_matrix(convert.quaternion_from_msg(attitudes[0]))
+    assert attitude_error(estimate, truth)[0] < 2 * ARCSEC
+    # The failures were explained: in the log and counted on /diagnostics.
+    assert "not identified" in log and "rejected spots message" in log
+    counters = {kv.key: kv.value for kv in diagnostics[-1].values}
+    assert counters.get("frames_rejected") == "1" and counters.get("frames_identified") == "1"
+    assert counters.get("not_identified_no_match", "0") == "1" or counters.get("not_identified_timeout", "0") == "1"
+
+
+@pytest.mark.parametrize("module, args, message", [
+    ("camera_simulator_node", ["-p", "rate_hz:=-5.0"], "rate_hz"),
+    ("camera_simulator_node", ["-p", "sensor.exposure_s:=0.5"], "longer than the frame period"),
+    ("identifier_node", ["-p", "algorithm:=guesswork"], "unknown identification algorithm"),
+    ("centroider_node", ["-p", "min_area:=9", "-p", "max_area:=3"], "min_area"),
+])
+def test_bad_parameters_stop_startup_with_a_clear_error(module, args, message):
+    env = isolated_ros_environment()
+    result = subprocess.run([sys.executable, "-m", f"star_tracker.ros.{module}", "--ros-args", *args],
+                            env=env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert message in result.stderr and "Traceback" not in result.stderr
