@@ -21,7 +21,7 @@ mean 2), by SNR, Hp, distance to the nearest other rendered star and flag. The p
 by frame category (a matched spot flagged saturated / blended; a matched star with another
 rendered star within NEIGHBOUR_PX; none of these). And the NEES of the same matches refitted
 (as the identifier: QUEST with each ray's isotropic sigma, then the maximum-likelihood
-refinement with its full 2-D covariance, attitude.refine_with_covariances) under changes that
+refinement with its full 2-D covariance, attitude_estimation.refine_with_covariances) under changes that
 isolate one cause each: "with the floor" = QUEST with every spot's sigma floored at
 IdentifyConfig.centroid_sigma_floor_px (what the identifier published before); "isotropic" =
 QUEST with the isotropic sigmas only (no 2-D refinement); "no rejection" = every matched star
@@ -43,8 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from star_tracker.models.attitude import ARCSEC, matrix_to_rotation_vector, quaternion_to_matrix, quest, \
-    refine_with_covariances
+from star_tracker.models.attitude import ARCSEC, matrix_to_rotation_vector, quaternion_to_matrix
+from star_tracker.models.attitude_estimation import quest, refine_with_covariances
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import FLAG_BLENDED, FLAG_EDGE, FLAG_SATURATED, CentroidConfig, extract_spots

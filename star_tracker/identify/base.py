@@ -16,7 +16,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..models.attitude import AttitudeSolution, quest, refine_with_covariances
+from ..models.attitude_estimation import AttitudeSolution, quest, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from . import kernels
@@ -337,7 +337,7 @@ class StarIdentifier(ABC):
         """The published attitude of accepted matches, weighted by each spot's own covariance
         (the centroider's, without the matching floor): from `rotation` (the matching fit,
         sensor -> ICRS, weighted with the floored sigma), a maximum-likelihood refinement with
-        each ray's full 2-D covariance (attitude.refine_with_covariances; a streak's error is
+        each ray's full 2-D covariance (attitude_estimation.refine_with_covariances; a streak's error is
         far larger along its smear than across it). Stars whose residual exceeds
         FIT_OUTLIER_SIGMA of their own covariance (chi^2 > FIT_OUTLIER_SIGMA^2) are left out of
         the fit (once; never below MIN_STARS). Returns the solution (sensor -> ICRS; covariance

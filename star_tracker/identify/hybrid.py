@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..models.attitude import refine_with_covariances
+from ..models.attitude_estimation import refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from . import kernels

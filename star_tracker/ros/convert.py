@@ -12,7 +12,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, Twis
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from ..models.attitude import AttitudeSolution
+from ..models.attitude_estimation import AttitudeSolution
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from ..identify.base import Identification

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..models.attitude import attitude_covariance, rotation_vector_to_matrix
+from ..models.attitude import rotation_vector_to_matrix
+from ..models.attitude_estimation import attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from .rate import AttitudeRateEstimator, RateEstimate

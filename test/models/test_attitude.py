@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 
-from star_tracker.models.attitude import (attitude_error, davenport_q_method, matrix_to_quaternion, matrix_to_radec_roll,
-                                   matrix_to_rotation_vector, quaternion_to_matrix, quest, radec_roll_to_matrix,
-                                   refine_with_covariances, rotation_vector_to_matrix)
+from star_tracker.models.attitude import (attitude_error, matrix_to_quaternion, matrix_to_radec_roll,
+                                          matrix_to_rotation_vector, quaternion_to_matrix, radec_roll_to_matrix,
+                                          rotation_vector_to_matrix)
+from star_tracker.models.attitude_estimation import davenport_q_method, quest, refine_with_covariances
 from star_tracker.models.camera import CameraModel
 
 

@@ -10,8 +10,8 @@ per axis in its tangent plane.
 import numpy as np
 import pytest
 
-from star_tracker.models.attitude import (attitude_covariance, davenport_q_method, matrix_to_rotation_vector, quest,
-                                   rotation_vector_to_matrix, svd_attitude)
+from star_tracker.models.attitude import matrix_to_rotation_vector, rotation_vector_to_matrix
+from star_tracker.models.attitude_estimation import attitude_covariance, davenport_q_method, quest, svd_attitude
 from star_tracker.models.camera import CameraModel
 
 SOLVERS = (quest, svd_attitude, davenport_q_method)

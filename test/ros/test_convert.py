@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from star_tracker.models.attitude import AttitudeSolution, matrix_to_quaternion, radec_roll_to_matrix
+from star_tracker.models.attitude import matrix_to_quaternion, radec_roll_to_matrix
+from star_tracker.models.attitude_estimation import AttitudeSolution
 from star_tracker.models.camera import CameraModel
 from star_tracker.centroid import Spots
 from star_tracker.ros import convert

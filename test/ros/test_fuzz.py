@@ -24,9 +24,10 @@ from hypothesis import strategies as st  # noqa: E402
 from hypothesis.extra import numpy as hnp  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField  # noqa: E402
 
-from star_tracker.models.attitude import (AttitudeSolution, attitude_error, davenport_q_method, matrix_to_quaternion,  # noqa: E402
-                                   quaternion_to_matrix, quest, radec_roll_to_matrix, rotation_vector_to_matrix,
-                                   svd_attitude)
+from star_tracker.models.attitude import (attitude_error, matrix_to_quaternion, quaternion_to_matrix,  # noqa: E402
+                                          radec_roll_to_matrix, rotation_vector_to_matrix)
+from star_tracker.models.attitude_estimation import (AttitudeSolution, davenport_q_method, quest,  # noqa: E402
+                                                     svd_attitude)
 from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.models.catalog import load_validated_npz, save_validated_npz  # noqa: E402
 from star_tracker.centroid import CENTROID_METHODS, CentroidConfig, Spots, extract_spots  # noqa: E402
