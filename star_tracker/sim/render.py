@@ -7,6 +7,7 @@ are in docs/SIMULATOR.md. A frame is reproducible from (fixed-pattern seed, fram
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -176,6 +177,44 @@ class RenderedFrame:
     substeps: int = field(default=1)
 
 
+class _Listed(NamedTuple):
+    """FrameTruth's per-object columns for one group of objects (stars and planets, debris,
+    cosmic rays, hot pixels): kind, hip, x, y [px], electrons [e-] before vignetting,
+    extent_px [px]."""
+
+    kind: np.ndarray
+    hip: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    electrons: np.ndarray
+    extent_px: np.ndarray
+
+    @classmethod
+    def cosmic_rays(cls, x: np.ndarray, y: np.ndarray, electrons: np.ndarray, length_px: np.ndarray) -> "_Listed":
+        return cls(np.full(x.size, KIND_COSMIC_RAY), np.zeros(x.size, np.int32), x, y, electrons, length_px)
+
+
+class _SkyObjects(NamedTuple):
+    """Objects fixed on the sky in one frame: vectors (N, 3) apparent ICRS unit vectors,
+    electrons (N,) expected per exposure [e-], kind (KIND_STAR / KIND_PLANET), hip (0 for
+    planets)."""
+
+    vectors: np.ndarray
+    electrons: np.ndarray
+    kind: np.ndarray
+    hip: np.ndarray
+
+
+class _Debris(NamedTuple):
+    """One frame's debris: tracks u, v (n, steps) [px] over the exposure, step_electrons
+    (n, steps) [e-] per step, and their truth listing (at mid-exposure, track length)."""
+
+    u: np.ndarray
+    v: np.ndarray
+    step_electrons: np.ndarray
+    listed: _Listed
+
+
 def frame_seed(seed: int, frame_index: int) -> int:
     """32-bit seed of frame `frame_index` from a scenario seed (independent streams)."""
     return int(np.random.SeedSequence([int(seed), int(frame_index)]).generate_state(1)[0])
@@ -221,12 +260,14 @@ class StarFieldRenderer:
         hot = hot_rng.random(dark.shape) < sensor.hot_pixel_fraction
         dark[hot] *= sensor.hot_pixel_dark_factor
         self.hot_pixels = np.flatnonzero(hot)
-        self._hot_xy = np.stack([self.hot_pixels % cam.width, self.hot_pixels // cam.width]).astype(float)
+        hot_x, hot_y = np.stack([self.hot_pixels % cam.width, self.hot_pixels // cam.width]).astype(float)
         gx, gy = sensor.stray_light_gradient_e_per_px2_s
         sky = np.maximum(sensor.background_e_per_px_s + gx * (xx - cam.cx) + gy * (yy - cam.cy), 0.0)
         # Expected electrons per exposure of everything but the objects, and its noise sigma.
         self.static_e = ((sky * self.response + dark) * sensor.exposure_s).astype(np.float32)
-        self._hot_static_e = self.static_e.reshape(-1)[self.hot_pixels].astype(float)
+        n_hot = self.hot_pixels.size  # listed in every frame's truth with their dark charge
+        self._hot_pixels_listed = _Listed(np.full(n_hot, KIND_HOT_PIXEL), np.zeros(n_hot, np.int32), hot_x, hot_y,
+                                          self.static_e.reshape(-1)[self.hot_pixels].astype(float), np.zeros(n_hot))
         self.static_sigma = np.sqrt(self.static_e + sensor.read_noise_e ** 2).astype(np.float32)
         self._noise = np.empty((cam.height, cam.width), np.float32)
 
@@ -235,95 +276,120 @@ class StarFieldRenderer:
         """Render the exposure centred on stamp_s [s] (the middle row's mid-exposure).
 
         motion: provides rotations_at(times) -> (K, 3, 3) sensor->ICRS and
-        angular_velocity_at(t) -> (3,) [rad/s]; seed: frame seed (see frame_seed)."""
-        cam, sensor = self.camera, self.sensor
+        angular_velocity_at(t) -> (3,) [rad/s]; seed: frame seed (see frame_seed). The random
+        draws come in a fixed order (planets, debris, detector noise, cosmic rays), so a frame
+        is reproducible from its seed."""
         rng = np.random.default_rng(seed)
-        exposure = sensor.exposure_s
-        row_time = sensor.rolling_shutter_row_time_s
         rot_mid = motion.rotations_at(np.array([stamp_s]))[0]
         body_rate = np.asarray(motion.angular_velocity_at(stamp_s), dtype=float)
 
-        # Objects fixed on the sky: catalog stars near the boresight, plus planets.
+        sky = self._sky_objects(rot_mid, rng)
+        offsets = self._substep_offsets(motion, stamp_s, rot_mid)
+        substeps = offsets.size
+        u, v, u_mid, v_mid = self._sky_tracks(motion, rot_mid, sky.vectors, stamp_s, offsets,
+                                              self.sensor.rolling_shutter_row_time_s)
+        sky_extent = (np.nan_to_num(np.hypot(u[:, -1] - u[:, 0], v[:, -1] - v[:, 0]), nan=0.0)
+                      * substeps / max(substeps - 1, 1))
+        listed = [_Listed(sky.kind, sky.hip, u_mid, v_mid, sky.electrons, sky_extent)]
+        debris = self._debris(rng, substeps) if self.false_objects.debris_per_frame else None
+        if debris is not None:
+            listed.append(debris.listed)
+
+        signal = self._collected_light(u, v, sky.electrons / substeps, debris)
+        image_e = self._detector(signal, rng, seed)
+        listed.append(self._cosmic_rays(image_e, rng))
+        listed.append(self._hot_pixels_listed)
+        truth = self._frame_truth(stamp_s, rot_mid, body_rate, listed)
+        return RenderedFrame(image=self._digitize(image_e), truth=truth, substeps=substeps)
+
+    def _sky_objects(self, rot_mid: np.ndarray, rng: np.random.Generator) -> _SkyObjects:
+        """Objects fixed on the sky: catalog stars near the boresight, then this frame's planets
+        (drawn uniformly over the image at mid-exposure)."""
+        cam, sensor, fo = self.camera, self.sensor, self.false_objects
         near = np.flatnonzero(self.star_vectors @ rot_mid[:, 2] > self._cos_search)
-        sky_vectors = [self.star_vectors[near]]
+        vectors = [self.star_vectors[near]]
         electrons = [self.star_electrons[near]]
         kinds = [np.full(near.size, KIND_STAR)]
         hips = [self.catalog.hip[near]]
-        fo = self.false_objects
         if fo.planets_per_frame:
             px = rng.uniform(0, cam.width - 1, fo.planets_per_frame)
             py = rng.uniform(0, cam.height - 1, fo.planets_per_frame)
-            sky_vectors.append(cam.pixel_to_ray(px, py) @ rot_mid.T)
+            vectors.append(cam.pixel_to_ray(px, py) @ rot_mid.T)
             electrons.append(sensor.star_electrons(rng.uniform(*fo.planet_magnitude_range, fo.planets_per_frame)))
             kinds.append(np.full(fo.planets_per_frame, KIND_PLANET))
             hips.append(np.zeros(fo.planets_per_frame, np.int32))
-        sky_vectors = np.concatenate(sky_vectors)
-        sky_electrons = np.concatenate(electrons)  # `electrons` grows by the debris below
+        return _SkyObjects(np.concatenate(vectors), np.concatenate(electrons), np.concatenate(kinds),
+                           np.concatenate(hips))
 
-        # Sub-steps: no object moves more than max_substep_px between two of them. The image path
-        # of the corners and centre over the exposure bounds it (roll moves the centre not at all).
+    def _substep_offsets(self, motion, stamp_s: float, rot_mid: np.ndarray) -> np.ndarray:
+        """Sub-step times relative to mid-exposure (K,) [s]: no object moves more than
+        max_substep_px between two of them. The image path of the corners and centre over the
+        exposure bounds it (roll moves the centre not at all)."""
+        cam, exposure = self.camera, self.sensor.exposure_s
+        row_time = self.sensor.rolling_shutter_row_time_s
         probe_times = stamp_s + np.linspace(-0.5, 0.5, 9) * (exposure + abs(row_time) * cam.height)
         probe_px = self._probe_paths(motion.rotations_at(probe_times), rot_mid)
         smear_px = float(np.max(np.sum(np.linalg.norm(np.diff(probe_px, axis=1), axis=2), axis=1)))
         substeps = int(min(400, max(1, np.ceil(smear_px / self.max_substep_px))))
-        offsets = ((np.arange(substeps) + 0.5) / substeps - 0.5) * exposure
-        u, v, u_mid, v_mid = self._sky_tracks(motion, rot_mid, sky_vectors, stamp_s, offsets, row_time)
-        extents = [np.nan_to_num(np.hypot(u[:, -1] - u[:, 0], v[:, -1] - v[:, 0]), nan=0.0)
-                   * substeps / max(substeps - 1, 1)]
+        return ((np.arange(substeps) + 0.5) / substeps - 0.5) * exposure
 
-        # Debris moves in the image on its own (its angular motion dominates the attitude's).
-        debris = None
-        if fo.debris_per_frame:
-            n = fo.debris_per_frame
-            p0 = np.column_stack([rng.uniform(0, cam.width - 1, n), rng.uniform(0, cam.height - 1, n)])
-            speed = rng.uniform(*fo.debris_speed_px_s, n)
-            heading = rng.uniform(0, 2 * np.pi, n)
-            total_e = sensor.star_electrons(rng.uniform(*fo.debris_magnitude_range, n))
-            steps = int(min(2000, max(substeps, np.ceil(speed.max() * exposure / self.max_substep_px))))
-            t = ((np.arange(steps) + 0.5) / steps - 0.5) * exposure
-            debris = (p0[:, 0:1] + (speed * np.cos(heading))[:, None] * t[None],
-                      p0[:, 1:2] + (speed * np.sin(heading))[:, None] * t[None],
-                      np.repeat((total_e / steps)[:, None], steps, axis=1))
-            kinds.append(np.full(n, KIND_DEBRIS))
-            hips.append(np.zeros(n, np.int32))
-            u_mid, v_mid = np.concatenate([u_mid, p0[:, 0]]), np.concatenate([v_mid, p0[:, 1]])
-            electrons.append(total_e)
-            extents.append(speed * exposure)
+    def _debris(self, rng: np.random.Generator, substeps: int) -> _Debris:
+        """This frame's debris: straight tracks in the image (their angular motion dominates
+        the attitude's), sampled finely enough that a step moves at most max_substep_px."""
+        cam, sensor, fo = self.camera, self.sensor, self.false_objects
+        exposure = sensor.exposure_s
+        n = fo.debris_per_frame
+        p0 = np.column_stack([rng.uniform(0, cam.width - 1, n), rng.uniform(0, cam.height - 1, n)])
+        speed = rng.uniform(*fo.debris_speed_px_s, n)
+        heading = rng.uniform(0, 2 * np.pi, n)
+        total_e = sensor.star_electrons(rng.uniform(*fo.debris_magnitude_range, n))
+        steps = int(min(2000, max(substeps, np.ceil(speed.max() * exposure / self.max_substep_px))))
+        t = ((np.arange(steps) + 0.5) / steps - 0.5) * exposure
+        return _Debris(u=p0[:, 0:1] + (speed * np.cos(heading))[:, None] * t[None],
+                       v=p0[:, 1:2] + (speed * np.sin(heading))[:, None] * t[None],
+                       step_electrons=np.repeat((total_e / steps)[:, None], steps, axis=1),
+                       listed=_Listed(np.full(n, KIND_DEBRIS), np.zeros(n, np.int32), p0[:, 0], p0[:, 1], total_e,
+                                      speed * exposure))
 
+    def _collected_light(self, u: np.ndarray, v: np.ndarray, sky_step_electrons: np.ndarray,
+                         debris: _Debris | None) -> np.ndarray:
+        """Expected signal electrons (H, W) [e-] collected over the exposure: the sky tracks u, v
+        (N, K) [px] with sky_step_electrons (N,) per sub-step, the debris tracks, then
+        vignetting, PRNU and frame-transfer smear."""
+        cam, sensor = self.camera, self.sensor
         signal = np.zeros((cam.height, cam.width), np.float32)
-        per_step = np.broadcast_to((sky_electrons / substeps)[:, None], u.shape)
+        per_step = np.broadcast_to(sky_step_electrons[:, None], u.shape)
         visible = cam.in_image(u, v, margin=-self._half)  # False for NaN (behind the camera)
         seen = visible.any(axis=1)
         self._accumulate(signal, np.where(visible, u, np.nan)[seen], v[seen], per_step[seen])
         if debris is not None:
-            self._accumulate(signal, *debris)
+            self._accumulate(signal, debris.u, debris.v, debris.step_electrons)
         signal *= self.response  # vignetting and PRNU act on collected light
         if sensor.frame_transfer_time_s > 0:
             # During transfer every pixel of a column sees each row's light for t_ft / H.
-            signal += (signal.sum(axis=0) * (sensor.frame_transfer_time_s / (exposure * cam.height)))[None, :]
+            signal += (signal.sum(axis=0) * (sensor.frame_transfer_time_s / (sensor.exposure_s * cam.height)))[None, :]
+        return signal
 
-        image_e = self._detector(signal, rng, seed)
-        cosmic = self._cosmic_rays(image_e, rng)
-
-        hot_x, hot_y = self._hot_xy
-        n_cosmic, n_hot = cosmic[0].size, hot_x.size
-        u_all = np.concatenate([u_mid, cosmic[0], hot_x])
-        v_all = np.concatenate([v_mid, cosmic[1], hot_y])
-        kind = np.concatenate(kinds + [np.full(n_cosmic, KIND_COSMIC_RAY), np.full(n_hot, KIND_HOT_PIXEL)])
-        hip = np.concatenate(hips + [np.zeros(n_cosmic + n_hot, np.int32)]).astype(np.int32)
-        expected = np.concatenate(electrons + [cosmic[2], self._hot_static_e])
-        extent = np.concatenate(extents + [cosmic[3], np.zeros(n_hot)])
-        # Listed if any of its light can land on the chip: PSF wings and streaks included.
+    def _frame_truth(self, stamp_s: float, rot_mid: np.ndarray, body_rate: np.ndarray,
+                     listed: list[_Listed]) -> FrameTruth:
+        """FrameTruth of the objects that can put light on the chip (PSF wings and streaks
+        included), their expected electrons scaled by the vignetting where they land."""
+        cam = self.camera
+        u_all = np.concatenate([group.x for group in listed])
+        v_all = np.concatenate([group.y for group in listed])
+        kind = np.concatenate([group.kind for group in listed])
+        hip = np.concatenate([group.hip for group in listed]).astype(np.int32)
+        expected = np.concatenate([group.electrons for group in listed])
+        extent = np.concatenate([group.extent_px for group in listed])
         on_chip = cam.in_image(u_all, v_all, margin=-(self._half + 0.5 * extent)) & np.isfinite(u_all)
         vign = np.ones(u_all.size)
         ui = np.clip(np.rint(u_all[on_chip]).astype(int), 0, cam.width - 1)
         vi = np.clip(np.rint(v_all[on_chip]).astype(int), 0, cam.height - 1)
         vign[on_chip] = self.vignetting[vi, ui]
         vign[kind >= KIND_COSMIC_RAY] = 1.0  # deposited in the silicon, not collected light
-        truth = FrameTruth(stamp_s=stamp_s, rotation=rot_mid, body_rate=body_rate, kind=kind[on_chip], hip=hip[on_chip],
-                           x=u_all[on_chip], y=v_all[on_chip], electrons=(expected * vign)[on_chip],
-                           extent_px=extent[on_chip])
-        return RenderedFrame(image=self._digitize(image_e), truth=truth, substeps=substeps)
+        return FrameTruth(stamp_s=stamp_s, rotation=rot_mid, body_rate=body_rate, kind=kind[on_chip], hip=hip[on_chip],
+                          x=u_all[on_chip], y=v_all[on_chip], electrons=(expected * vign)[on_chip],
+                          extent_px=extent[on_chip])
 
     def _probe_paths(self, rotations: np.ndarray, rot_mid: np.ndarray):
         """Image positions (P, K, 2) over `rotations` of the sky directions that sit at the image
@@ -430,14 +496,14 @@ class StarFieldRenderer:
         flat[lit] = rng.poisson(lam) + sensor.read_noise_e * self._noise.reshape(-1)[lit]
         return electrons
 
-    def _cosmic_rays(self, electrons: np.ndarray, rng: np.random.Generator):
+    def _cosmic_rays(self, electrons: np.ndarray, rng: np.random.Generator) -> _Listed:
         """Add cosmic-ray tracks (straight, 1-15 px, exponential energy) in place; returns their
-        centres x, y [px], deposited charge [e-] and track length [px]."""
+        listing: centres x, y [px], deposited charge [e-] and track length [px]."""
         cam, sensor = self.camera, self.sensor
         area_cm2 = cam.width * cam.height * (sensor.pixel_pitch_m * 100.0) ** 2
         count = rng.poisson(sensor.cosmic_ray_rate_per_cm2_s * area_cm2 * sensor.exposure_s)
         if count == 0:
-            return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
+            return _Listed.cosmic_rays(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
         centre = np.column_stack([rng.uniform(0, cam.width - 1, count), rng.uniform(0, cam.height - 1, count)])
         length = rng.uniform(1.0, 15.0, count)
         heading = rng.uniform(0, np.pi, count)
@@ -448,7 +514,7 @@ class StarFieldRenderer:
             cols = np.clip(np.rint(cx + s * np.cos(h)).astype(int), 0, cam.width - 1)
             rows = np.clip(np.rint(cy + s * np.sin(h)).astype(int), 0, cam.height - 1)
             np.add.at(electrons, (rows, cols), e / steps)
-        return centre[:, 0], centre[:, 1], energy, length
+        return _Listed.cosmic_rays(centre[:, 0], centre[:, 1], energy, length)
 
     def _digitize(self, electrons: np.ndarray) -> np.ndarray:
         """Full-well clip (no blooming), gain, bias, rounding, ADC range -> uint16 [ADU].
