@@ -52,7 +52,8 @@ from star_tracker.centroid.streak import SmearModel
 from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from star_tracker.identify.base import direction_covariance
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import KIND_STAR, SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import KIND_STAR, StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 from .report import cpu_model, write_section
 
 SECTION = "## Attitude accuracy and covariance"

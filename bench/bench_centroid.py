@@ -33,7 +33,8 @@ from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.commands.bench import report_progress
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 
 from .report import cpu_model, write_section
 

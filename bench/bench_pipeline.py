@@ -273,7 +273,8 @@ def render_frames_at_rest(count: int, exposure_s: float):
     from star_tracker.models.camera import CameraModel
     from star_tracker.models.catalog import load_hipparcos
     from star_tracker.sim.motion import ConstantRateMotion
-    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.sim.render import StarFieldRenderer, frame_seed
+    from star_tracker.sim.sensor import SensorModel
 
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(exposure_s=exposure_s), load_hipparcos().at_epoch(2026.0), 7.5)
@@ -387,7 +388,8 @@ def stages_in_process(exposure_s: float, frames: int = 40) -> dict:
     from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
     from star_tracker.track.tracking import Tracker
     from star_tracker.sim.motion import ConstantRateMotion
-    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.sim.render import StarFieldRenderer, frame_seed
+    from star_tracker.sim.sensor import SensorModel
     from star_tracker.ros import convert
 
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))

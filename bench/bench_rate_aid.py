@@ -26,7 +26,8 @@ from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import SensorModel, StarFieldRenderer
+from star_tracker.sim.render import StarFieldRenderer
+from star_tracker.sim.sensor import SensorModel
 from .bench_attitude import random_rotation
 from .report import cpu_model, write_section
 

@@ -39,7 +39,8 @@ from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import KIND_STAR, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import KIND_STAR, FalseObjectModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 from .report import cpu_model, write_section
 
 SECTION_HEADER = "## Camera simulator render time"

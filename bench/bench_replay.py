@@ -54,7 +54,8 @@ def make_bag(path: Path, frames: int, storage: str) -> None:
     from star_tracker.models.camera import CameraModel
     from star_tracker.models.catalog import load_hipparcos
     from star_tracker.sim.motion import ConstantRateMotion
-    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.sim.render import StarFieldRenderer, frame_seed
+    from star_tracker.sim.sensor import SensorModel
     from star_tracker.ros import convert
     from star_tracker.ros.bag_ros import offered_qos
     from star_tracker.ros.common import IMAGE_QOS, RESULT_QOS

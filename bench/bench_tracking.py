@@ -49,7 +49,8 @@ from star_tracker.centroid.streak import SmearModel
 from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
 from star_tracker.track.tracking import MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Tracker, TrackingConfig
 from star_tracker.sim.motion import ConstantRateMotion, MotionProfile, SlewMotion
-from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 from star_tracker.track.streak_rate import rate_from_streaks
 
 from . import peers as peer_adapters

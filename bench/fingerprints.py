@@ -32,7 +32,8 @@ from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import FalseObjectModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 from star_tracker.sim.scenes import SETUPS, make_scene
 
 SCENES_PER_SETUP = {"toloei_4_136": 2, "toloei_6_50": 4}

@@ -27,8 +27,8 @@ from star_tracker.models.attitude import radec_roll_to_matrix  # noqa: E402
 from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.models.catalog import load_hipparcos  # noqa: E402
 from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
-from star_tracker.sim.render import (KIND_DEBRIS, KIND_STAR, FalseObjectModel, SensorModel,  # noqa: E402
-                                 StarFieldRenderer, frame_seed)
+from star_tracker.sim.render import KIND_DEBRIS, KIND_STAR, FalseObjectModel, StarFieldRenderer, frame_seed  # noqa: E402
+from star_tracker.sim.sensor import SensorModel  # noqa: E402
 from star_tracker.visualize import stretch  # noqa: E402
 
 EPOCH_JYEAR = 2026.0

@@ -62,7 +62,8 @@ def run_picture(out: Path, rate_hz: float = 5.0, duration_s: float = 20.0) -> No
     from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
     from star_tracker.track.tracking import Tracker
     from star_tracker.sim.motion import SlewMotion
-    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.sim.render import StarFieldRenderer, frame_seed
+    from star_tracker.sim.sensor import SensorModel
 
     camera = CameraModel.from_fov(1024, 1024, math.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(), load_hipparcos().at_epoch(2026.0), magnitude_limit=7.5)

@@ -281,7 +281,8 @@ def load_camera_file(path: str | Path):
     import yaml
 
     from ..models.camera import CameraModel
-    from ..sim.render import FalseObjectModel, SensorModel
+    from ..sim.render import FalseObjectModel
+    from ..sim.sensor import SensorModel
 
     path = Path(path)
     with open(path) as handle:  # FileNotFoundError names the file

@@ -74,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     from ..models.camera import CameraModel
     from ..models.catalog import load_hipparcos
     from ..sim.motion import ConstantRateMotion
-    from ..sim.render import KIND_STAR, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+    from ..sim.render import KIND_STAR, FalseObjectModel, StarFieldRenderer, frame_seed
+    from ..sim.sensor import SensorModel
     from .images import write_image
 
     if not -90.0 <= args.dec <= 90.0:

@@ -26,7 +26,8 @@ from ..models.attitude import matrix_to_quaternion, quaternion_to_matrix, radec_
 from ..models.camera import CameraModel
 from ..models.catalog import julian_year_from_unix, load_hipparcos
 from ..sim.motion import SampledMotion, motion_from_parameters
-from ..sim.render import FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
+from ..sim.render import FalseObjectModel, StarFieldRenderer, frame_seed
+from ..sim.sensor import SensorModel
 from . import convert
 from .common import IMAGE_QOS, RESULT_QOS, Diagnostics, ThrottledLog, declare, guard_parameter_changes, run_node
 

@@ -14,7 +14,8 @@ from star_tracker.centroid import (FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_SATURATED
 from star_tracker.centroid import extract as extract_module
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion, SlewMotion
-from star_tracker.sim.render import KIND_HOT_PIXEL, SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import KIND_HOT_PIXEL, StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 
 CAMERA = CameraModel.from_fov(1024, 1024, np.radians(15.0))
 POINTING = radec_roll_to_matrix(1.0, 0.3, 0.0)

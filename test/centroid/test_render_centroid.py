@@ -5,7 +5,8 @@ import pytest
 from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 
 
 def render(catalog, camera, rate_deg_s=(0.0, 0.0, 0.0), seed=0, sensor=SensorModel(), pointing=(1.4, 0.35, 0.2)):

@@ -16,7 +16,8 @@ from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid.streak import SmearModel, StreakFit, fit_streaks, fit_streaks_on_path
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 
 CAMERA = CameraModel.from_fov(1024, 1024, np.radians(15.0))
 POINTING = radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.3)

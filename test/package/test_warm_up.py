@@ -28,7 +28,8 @@ SCRIPT = textwrap.dedent("""
     from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
     from star_tracker.track.tracking import Tracker
     from star_tracker.sim.motion import ConstantRateMotion
-    from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+    from star_tracker.sim.render import StarFieldRenderer, frame_seed
+    from star_tracker.sim.sensor import SensorModel
     from star_tracker.ros import convert
     from star_tracker.sim.scenes import NOMINAL_CAMERA as camera
 

@@ -24,7 +24,8 @@ from star_tracker.models.attitude import attitude_error, quaternion_to_matrix, r
 from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.centroid import Spots  # noqa: E402
 from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
-from star_tracker.sim.render import SensorModel, StarFieldRenderer  # noqa: E402
+from star_tracker.sim.render import StarFieldRenderer  # noqa: E402
+from star_tracker.sim.sensor import SensorModel  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.common import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402

@@ -26,7 +26,8 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 from star_tracker.models.attitude import attitude_error, quaternion_to_matrix, radec_roll_to_matrix  # noqa: E402
 from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
-from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed  # noqa: E402
+from star_tracker.sim.render import StarFieldRenderer, frame_seed  # noqa: E402
+from star_tracker.sim.sensor import SensorModel  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.common import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor  # noqa: E402

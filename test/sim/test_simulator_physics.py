@@ -11,7 +11,8 @@ from star_tracker.models.camera import CameraModel
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import (KIND_COSMIC_RAY, KIND_DEBRIS, KIND_HOT_PIXEL, KIND_PLANET, KIND_STAR,
-                                 SPEED_OF_LIGHT_M_S, FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed)
+                                     SPEED_OF_LIGHT_M_S, FalseObjectModel, StarFieldRenderer, frame_seed)
+from star_tracker.sim.sensor import SensorModel
 from star_tracker.ros import convert
 
 POINTING = radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.3)

@@ -11,7 +11,8 @@ from star_tracker.models.attitude import matrix_to_rotation_vector, quaternion_t
 from star_tracker.centroid import FLAG_SATURATED, CentroidConfig, extract_spots
 from star_tracker.identify import IdentifyConfig, make_identifier
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 
 CHI2_3_999 = 16.27  # P(chi^2_3 > 16.27) = 0.001
 

@@ -17,7 +17,8 @@ from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.spots import FLAG_STREAK
 from star_tracker.centroid.streak import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion
-from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 from star_tracker.track.streak_rate import StreakRate, rate_from_streaks, streak_design_matrix
 
 CAMERA = CameraModel.from_fov(1024, 1024, np.radians(15.0))

@@ -14,7 +14,8 @@ from star_tracker.track.tracking import (MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRA
 from star_tracker.identify.verify import log_chance_tuples
 from star_tracker.sim.motion import ConstantRateMotion, SlewMotion
 from star_tracker.track.rate import AttitudeRateEstimator
-from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
 
 ARCSEC = math.pi / 180 / 3600
 PERIOD_S = 0.1
