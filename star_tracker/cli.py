@@ -42,19 +42,44 @@ def default_params_file() -> Path | None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from .identify import DatabaseConfig, load_or_build_database
-    from .models.catalog import load_hipparcos
-
+    """`star-tracker demo`: the three nodes on a scenario, one status line per frame, then a
+    summary and the output files. Exit code 0 when every node exited cleanly, frames arrived
+    and a picture was written."""
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     print(f"star_tracker demo: scenario '{args.scenario}', {args.duration:g} s at {args.rate:g} Hz"
           + (", centroider rate-aided by the true body rate (--gyro)" if args.gyro else ""), flush=True)
+    _prepare_catalog_and_database()
+    frames, codes = _run_demo_nodes(args, out)
+    summary = _summarize_demo(frames, args.scenario, codes)
+    picture = write_picture(frames, out / "frame.png")
+    history = write_run_figure(frames, out / "run.png")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_frames_csv(frames, out / "frames.csv")
+    print_demo_summary(summary, codes)
+    print(f"wrote {picture or '(no identified frame with an image: no picture)'}, {history or '(no run plot)'}, "
+          f"{out / 'summary.json'}, {out / 'frames.csv'}")
+    healthy = all(code == 0 for code in codes.values()) and summary["frames"] > 0 and picture is not None
+    return 0 if healthy else 1
+
+
+def _prepare_catalog_and_database() -> None:
+    """Parse the catalog and build (or load) the pattern database before the nodes start, so
+    that the nodes find both cached."""
+    from .identify import DatabaseConfig, load_or_build_database
+    from .models.catalog import load_hipparcos
+
     started = time.perf_counter()
     load_hipparcos()
     load_or_build_database(DatabaseConfig())
     print(f"catalog and pattern database ready ({time.perf_counter() - started:.1f} s)", flush=True)
 
-    from .ros.pipeline import NodeProcesses, TrackerMonitor, isolated_ros_environment, summarize
+
+def _run_demo_nodes(args: argparse.Namespace, out: Path):
+    """Run the nodes (and the recorder with --record) on a private DDS domain until every frame
+    was reported or the time is up. Returns the monitor's frames in stamp order and the
+    processes' exit codes."""
+    from .ros.pipeline import NodeProcesses, TrackerMonitor, isolated_ros_environment
 
     env = isolated_ros_environment()
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE") if k in env})
@@ -70,37 +95,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     remaps = {"centroider": {"angular_velocity": "truth/angular_velocity"}} if args.gyro else None
     nodes = NodeProcesses(env, out / "logs", params, default_params_file(), remaps=remaps)
     recorder = start_recorder(args.record, env) if args.record else None
-    printed: set[int] = set()
-    index = 0
     try:
         nodes.start()
         nodes.wait_ready()
         print(f"nodes running (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, logs in {out / 'logs'})", flush=True)
-        print(f"{'frame':>5}  {'stamp [s]':>16}  {'spots':>5}  {'ident':>5}  {'cross-bore':>10}  {'roll':>8}  {'latency':>8}")
-        started_frames = time.monotonic()
-        end = started_frames + args.duration + 8.0
-        while time.monotonic() < end:
-            monitor.spin_for(0.2)
-            if time.monotonic() > started_frames + args.duration - 2.0:
-                monitor.enable_images()  # for the picture: only the last frames are needed
-            now = time.monotonic()
-            ready = sorted(ns for ns, f in monitor.frames.items() if ns not in printed and f.truth is not None
-                           and (f.attitude is not None and f.matched is not None or now - f.first_seen > 1.5))
-            for ns in ready:
-                f = monitor.frames[ns]
-                printed.add(ns)
-                index += 1
-                error = f.error()
-                spots = "-" if f.spot_count is None else str(f.spot_count)
-                if error is None:
-                    print(f"{index:5d}  {ns * 1e-9:16.3f}  {spots:>5}  {'-':>5}  {'not identified':>19}", flush=True)
-                else:
-                    arcsec = np.degrees(error) * 3600
-                    n_matched = 0 if f.matched is None else f.matched.size
-                    print(f"{index:5d}  {ns * 1e-9:16.3f}  {spots:>5}  {n_matched:5d}  {arcsec[0]:9.2f}\"  {arcsec[1]:7.2f}\"  "
-                          f"{f.attitude_latency_s * 1e3:6.0f}ms", flush=True)
-            if index >= frames_wanted:
-                break
+        _print_frame_status(monitor, args.duration, frames_wanted)
     finally:
         codes = nodes.stop()
         if recorder is not None:
@@ -108,14 +107,58 @@ def cmd_demo(args: argparse.Namespace) -> int:
         frames = [monitor.frames[ns] for ns in sorted(monitor.frames)]
         monitor.destroy_node()
         rclpy.try_shutdown()
+    return frames, codes
+
+
+def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
+    """Spin the monitor and print one line per frame as soon as its attitude and matches
+    arrived (or 1.5 s after it was first seen), until frames_wanted lines or duration_s + 8 s."""
+    printed: set[int] = set()
+    index = 0
+    print(f"{'frame':>5}  {'stamp [s]':>16}  {'spots':>5}  {'ident':>5}  {'cross-bore':>10}  {'roll':>8}  {'latency':>8}")
+    started_frames = time.monotonic()
+    end = started_frames + duration_s + 8.0
+    while time.monotonic() < end:
+        monitor.spin_for(0.2)
+        if time.monotonic() > started_frames + duration_s - 2.0:
+            monitor.enable_images()  # for the picture: only the last frames are needed
+        now = time.monotonic()
+        ready = sorted(ns for ns, f in monitor.frames.items() if ns not in printed and f.truth is not None
+                       and (f.attitude is not None and f.matched is not None or now - f.first_seen > 1.5))
+        for ns in ready:
+            printed.add(ns)
+            index += 1
+            print(_frame_status_line(index, ns, monitor.frames[ns]), flush=True)
+        if index >= frames_wanted:
+            break
+
+
+def _frame_status_line(index: int, ns: int, f) -> str:
+    """One status line: frame number, stamp [s], spots, identified stars, attitude error vs
+    truth [arcsec] and latency [ms]."""
+    error = f.error()
+    spots = "-" if f.spot_count is None else str(f.spot_count)
+    if error is None:
+        return f"{index:5d}  {ns * 1e-9:16.3f}  {spots:>5}  {'-':>5}  {'not identified':>19}"
+    arcsec = np.degrees(error) * 3600
+    n_matched = 0 if f.matched is None else f.matched.size
+    return (f"{index:5d}  {ns * 1e-9:16.3f}  {spots:>5}  {n_matched:5d}  {arcsec[0]:9.2f}\"  {arcsec[1]:7.2f}\"  "
+            f"{f.attitude_latency_s * 1e3:6.0f}ms")
+
+
+def _summarize_demo(frames, scenario: str, codes: dict[str, int]) -> dict:
+    from .ros.pipeline import summarize
 
     summary = summarize(frames)
-    summary["scenario"] = args.scenario
+    summary["scenario"] = scenario
     summary["node_exit_codes"] = codes
-    picture = write_picture(frames, out / "frame.png")
-    history = write_run_figure(frames, out / "run.png")
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    with open(out / "frames.csv", "w", newline="") as handle:
+    return summary
+
+
+def write_frames_csv(frames, path: Path) -> None:
+    """Per frame with truth: stamp [ns], spots, matched stars, cross-boresight and roll error
+    [arcsec], latency [ms] (empty where not identified)."""
+    with open(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(["stamp_ns", "spots", "matched", "cross_boresight_arcsec", "roll_arcsec", "latency_ms"])
         for f in frames:
@@ -126,6 +169,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
                              None if err is None else round(np.degrees(err[0]) * 3600, 3),
                              None if err is None else round(np.degrees(err[1]) * 3600, 3),
                              None if f.attitude_latency_s is None else round(f.attitude_latency_s * 1e3, 2)])
+
+
+def print_demo_summary(summary: dict, codes: dict[str, int]) -> None:
+    """Identification rate, attitude error, latency and the node exit codes of a demo run."""
     print()
     print(f"summary: {summary['frames']} frames, {summary['identified']} identified "
           f"({100 * summary['identification_rate']:.1f} %), {summary['wrong_over_60_arcsec']} wrong (> 60\")")
@@ -135,10 +182,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f"latency (mid-exposure stamp -> attitude received): median {summary['latency_ms_median']:.0f} ms, "
           f"max {summary['latency_ms_max']:.0f} ms")
     print(f"node exit codes: {codes}")
-    print(f"wrote {picture or '(no identified frame with an image: no picture)'}, {history or '(no run plot)'}, "
-          f"{out / 'summary.json'}, {out / 'frames.csv'}")
-    healthy = all(code == 0 for code in codes.values()) and summary["frames"] > 0 and picture is not None
-    return 0 if healthy else 1
 
 
 def start_recorder(output: str, env: dict[str, str]):

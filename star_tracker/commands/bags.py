@@ -1,5 +1,5 @@
 """`star-tracker record | play | info | reindex`: rosbag2 bags (sqlite3, MCAP) without a ROS 2
-install, through `rosbags` (star_tracker/bags.py) and the recorder/player nodes in
+install, through `rosbags` (the package star_tracker/bags/) and the recorder/player nodes in
 star_tracker/ros/ (docs/RECORD_REPLAY.md). `add_commands(sub)` registers all four; their
 --help keeps the form it had in cli.py (no example epilog)."""
 from __future__ import annotations
@@ -75,6 +75,13 @@ def cmd_reindex(args: argparse.Namespace) -> int:
 
 def add_commands(sub) -> None:
     """Register record, play, info and reindex on an argparse sub-parser action."""
+    add_record_parser(sub)
+    add_play_parser(sub)
+    add_info_parser(sub)
+    add_reindex_parser(sub)
+
+
+def add_record_parser(sub) -> None:
     record = sub.add_parser(
         "record", help="record topics to a rosbag2 bag (sqlite3 or mcap)",
         description="Subscribe to topics as serialized messages and write a standard rosbag2 bag (metadata "
@@ -104,6 +111,8 @@ def add_commands(sub) -> None:
                         help="stamp messages with the /clock time instead of the reception time")
     record.set_defaults(func=cmd_record)
 
+
+def add_play_parser(sub) -> None:
     play = sub.add_parser(
         "play", help="publish a bag's messages (original timing, a rate factor, or lockstep batch)",
         description="Publish the serialized messages of a rosbag2 bag with their original timing (bag "
@@ -145,6 +154,8 @@ def add_commands(sub) -> None:
                            "the bag / skipping them")
     play.set_defaults(func=cmd_play)
 
+
+def add_info_parser(sub) -> None:
     info = sub.add_parser("info", help="describe a bag (topics, types, counts, QoS); --check reads every message",
                           description="Print a bag's storage, duration, topics with types, message counts and "
                                       "recorded QoS. With --check, read and deserialize every message and check "
@@ -154,6 +165,8 @@ def add_commands(sub) -> None:
     info.add_argument("--check", action="store_true", help="read every message and report bad ones")
     info.set_defaults(func=cmd_info)
 
+
+def add_reindex_parser(sub) -> None:
     reindex = sub.add_parser("reindex", help="recover a bag whose recording was killed (rebuild metadata.yaml)",
                              description="Rebuild metadata.yaml from a bag directory's storage, like `ros2 bag "
                                          "reindex`: sqlite3 keeps every committed message; an unfinished MCAP "

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -66,16 +67,20 @@ def truth_path_for(output: Path) -> Path:
     return output.with_suffix(".json")
 
 
+@dataclass(frozen=True)
+class RenderSetup:
+    """What a render draws with: `spec` (camera, false objects, render keys and source of the
+    camera file or the default camera), `sensor` with --exposure and --no-noise applied,
+    magnitude_limit [Hp mag] and the catalog epoch [Julian year]."""
+
+    spec: CameraFile
+    sensor: object  # sim.sensor.SensorModel
+    magnitude_limit: float
+    epoch: float
+
+
 @guarded(NAME)
 def run(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
-    from ..models.attitude import matrix_to_quaternion, matrix_to_radec_roll, radec_roll_to_matrix
-    from ..models.camera import CameraModel
-    from ..models.catalog import load_hipparcos
-    from ..sim.motion import ConstantRateMotion
-    from ..sim.render import KIND_STAR, FalseObjectModel, StarFieldRenderer, frame_seed
-    from ..sim.sensor import SensorModel
     from .images import write_image
 
     if not -90.0 <= args.dec <= 90.0:
@@ -84,6 +89,30 @@ def run(args: argparse.Namespace) -> int:
     truth_path = Path(args.truth) if args.truth else truth_path_for(output)
     if output.resolve() == truth_path.resolve():
         raise CommandError("--truth must differ from --output")
+    setup = render_setup(args)
+    renderer, frame = render_frame(args, setup)
+    document = truth_document(args, setup, renderer.catalog, frame.truth, output)
+    write_image(output, frame.image, fits_header(document))
+    truth_path.write_text(json.dumps(document, indent=1) + "\n")
+    cam = setup.spec.camera
+    in_view = sum(1 for s in document["stars"] if s["in_image"])
+    print(f"wrote {output} ({cam.width}x{cam.height} uint16, {camera_summary(cam)}; exposure {setup.sensor.exposure_s:g} s, "
+          f"{in_view} stars to Hp {setup.magnitude_limit:g} in the image)")
+    print(f"wrote {truth_path} (RA {document['ra_deg']:.4f} deg, Dec {document['dec_deg']:.4f} deg, "
+          f"roll {document['roll_deg']:.4f} deg, rate {' '.join(f'{w:g}' for w in args.rate)} deg/s)")
+    return 0
+
+
+def render_setup(args: argparse.Namespace) -> RenderSetup:
+    """The camera file (or the default camera with the node's default detector effects) with
+    the command line's exposure, noise, magnitude limit and epoch applied; CommandError for a
+    calibration-only file or an epoch outside [1900, 2200]."""
+    from dataclasses import replace
+
+    from ..models.camera import CameraModel
+    from ..sim.render import FalseObjectModel
+    from ..sim.sensor import SensorModel
+
     if args.camera:
         spec = load_camera_file(args.camera)
         if spec.sensor is None:
@@ -104,60 +133,87 @@ def run(args: argparse.Namespace) -> int:
     epoch = args.epoch if args.epoch is not None else float(spec.render.get("epoch_jyear") or 2026.0)
     if not 1900.0 <= epoch <= 2200.0:
         raise CommandError(f"epoch {epoch} must be in [1900, 2200]")
-    catalog = load_hipparcos().at_epoch(epoch)
-    renderer = StarFieldRenderer(spec.camera, sensor, catalog, magnitude_limit, spec.false_objects,
+    return RenderSetup(spec, sensor, magnitude_limit, epoch)
+
+
+def render_frame(args: argparse.Namespace, setup: RenderSetup):
+    """The renderer and its frame at --stamp for the pointing (--ra, --dec, --roll [deg]) and
+    the constant body rate --rate [deg/s]."""
+    from ..models.attitude import radec_roll_to_matrix
+    from ..models.catalog import load_hipparcos
+    from ..sim.motion import ConstantRateMotion
+    from ..sim.render import StarFieldRenderer, frame_seed
+
+    spec = setup.spec
+    catalog = load_hipparcos().at_epoch(setup.epoch)
+    renderer = StarFieldRenderer(spec.camera, setup.sensor, catalog, setup.magnitude_limit, spec.false_objects,
                                  int(spec.render.get("fixed_pattern_seed", 0)),
                                  spec.render.get("observer_velocity_m_s", (0.0, 0.0, 0.0)))
     rotation = radec_roll_to_matrix(math.radians(args.ra), math.radians(args.dec), math.radians(args.roll))
     rate = np.radians(np.asarray(args.rate, dtype=float))
     motion = ConstantRateMotion(rotation, rate, t0=args.stamp)
-    frame = renderer.render(motion, args.stamp, frame_seed(args.seed, 0))
-    truth = frame.truth
+    return renderer, renderer.render(motion, args.stamp, frame_seed(args.seed, 0))
+
+
+def truth_document(args: argparse.Namespace, setup: RenderSetup, catalog, truth, output: Path) -> dict:
+    """The truth JSON: attitude at mid-exposure (quaternion, RA/Dec/roll [deg], matrix), body
+    rate [deg/s], stamp, exposure, seed, epoch, magnitude limit, camera, and every rendered
+    star (HIP, Hp, pixel position, electrons) and other object. catalog: the renderer's."""
+    from ..models.attitude import matrix_to_quaternion, matrix_to_radec_roll
 
     ra, dec, roll = (math.degrees(a) for a in matrix_to_radec_roll(truth.rotation))
     quaternion = matrix_to_quaternion(truth.rotation)
-    header = {"EXPTIME": (sensor.exposure_s, "[s] exposure"), "RA": (ra, "[deg] boresight RA, ICRS"),
-              "DEC": (dec, "[deg] boresight Dec, ICRS"), "ROLL": (roll, "[deg] roll about the boresight"),
-              "FOVX": (math.degrees(2 * math.atan(0.5 * spec.camera.width / spec.camera.fx)), "[deg] horizontal FOV"),
-              "SEED": (int(args.seed), "noise seed"), "CREATOR": ("star-tracker render", "")}
-    write_image(output, frame.image, header)
-
-    stars = truth.kind == KIND_STAR
-    by_hip = np.argsort(renderer.catalog.hip)
-    index = by_hip[np.searchsorted(renderer.catalog.hip, truth.hip[stars], sorter=by_hip)]
-    magnitude = renderer.catalog.hp[index]
-    inside = spec.camera.in_image(truth.x, truth.y)
-    star_rows = [{"hip": int(h), "magnitude": round(float(m), 3), "x": round(float(x), 4), "y": round(float(y), 4),
-                  "electrons": round(float(e), 1), "in_image": bool(i)}
-                 for h, m, x, y, e, i in zip(truth.hip[stars], magnitude, truth.x[stars], truth.y[stars],
-                                             truth.electrons[stars], inside[stars])]
-    others = [{"kind": int(k), "x": round(float(x), 4), "y": round(float(y), 4), "electrons": round(float(e), 1)}
-              for k, x, y, e in zip(truth.kind[~stars], truth.x[~stars], truth.y[~stars], truth.electrons[~stars])]
-    cam = spec.camera
-    document = {
+    cam = setup.spec.camera
+    return {
         "image": str(output.name),
         "stamp_s": truth.stamp_s,
         "quaternion_xyzw": [float(q) for q in quaternion],
         "ra_deg": ra, "dec_deg": dec, "roll_deg": roll,
         "rotation_sensor_to_icrs": truth.rotation.tolist(),
         "body_rate_deg_s": [float(w) for w in np.degrees(truth.body_rate)],
-        "exposure_s": sensor.exposure_s,
+        "exposure_s": setup.sensor.exposure_s,
         "seed": int(args.seed),
-        "epoch_jyear": epoch,
-        "magnitude_limit": magnitude_limit,
+        "epoch_jyear": setup.epoch,
+        "magnitude_limit": setup.magnitude_limit,
         "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
                    "distortion": list(cam.distortion),
-                   "fov_x_deg": math.degrees(2 * math.atan(0.5 * cam.width / cam.fx)), "source": spec.source},
-        "stars": star_rows,
-        "other_objects": others,
+                   "fov_x_deg": math.degrees(2 * math.atan(0.5 * cam.width / cam.fx)), "source": setup.spec.source},
+        "stars": star_rows(catalog, truth, cam),
+        "other_objects": other_object_rows(truth),
         "conventions": "quaternion (x, y, z, w) rotates sensor-frame vectors into ICRS; sensor frame +x image right, "
                        "+y image down, +z boresight; pixel (0, 0) is the centre of the top-left pixel; positions "
                        "at mid-exposure; magnitudes Hipparcos Hp",
     }
-    truth_path.write_text(json.dumps(document, indent=1) + "\n")
-    in_view = sum(1 for s in star_rows if s["in_image"])
-    print(f"wrote {output} ({cam.width}x{cam.height} uint16, {camera_summary(cam)}; exposure {sensor.exposure_s:g} s, "
-          f"{in_view} stars to Hp {magnitude_limit:g} in the image)")
-    print(f"wrote {truth_path} (RA {ra:.4f} deg, Dec {dec:.4f} deg, roll {roll:.4f} deg, "
-          f"rate {' '.join(f'{w:g}' for w in args.rate)} deg/s)")
-    return 0
+
+
+def star_rows(catalog, truth, camera) -> list[dict]:
+    """Per rendered star: HIP, Hp magnitude, pixel position [px], electrons [e-], in the image."""
+    from ..sim.render import KIND_STAR
+
+    stars = truth.kind == KIND_STAR
+    by_hip = np.argsort(catalog.hip)
+    index = by_hip[np.searchsorted(catalog.hip, truth.hip[stars], sorter=by_hip)]
+    magnitude = catalog.hp[index]
+    inside = camera.in_image(truth.x, truth.y)
+    return [{"hip": int(h), "magnitude": round(float(m), 3), "x": round(float(x), 4), "y": round(float(y), 4),
+             "electrons": round(float(e), 1), "in_image": bool(i)}
+            for h, m, x, y, e, i in zip(truth.hip[stars], magnitude, truth.x[stars], truth.y[stars],
+                                        truth.electrons[stars], inside[stars])]
+
+
+def other_object_rows(truth) -> list[dict]:
+    """Per non-star object (planet, debris, cosmic ray, hot pixel): kind, position [px], electrons."""
+    from ..sim.render import KIND_STAR
+
+    others = truth.kind != KIND_STAR
+    return [{"kind": int(k), "x": round(float(x), 4), "y": round(float(y), 4), "electrons": round(float(e), 1)}
+            for k, x, y, e in zip(truth.kind[others], truth.x[others], truth.y[others], truth.electrons[others])]
+
+
+def fits_header(document: dict) -> dict:
+    """FITS header cards (value, comment) of a render, from its truth document."""
+    return {"EXPTIME": (document["exposure_s"], "[s] exposure"), "RA": (document["ra_deg"], "[deg] boresight RA, ICRS"),
+            "DEC": (document["dec_deg"], "[deg] boresight Dec, ICRS"),
+            "ROLL": (document["roll_deg"], "[deg] roll about the boresight"),
+            "FOVX": (document["camera"]["fov_x_deg"], "[deg] horizontal FOV"),
+            "SEED": (document["seed"], "noise seed"), "CREATOR": ("star-tracker render", "")}
