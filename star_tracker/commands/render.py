@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import (CameraFile, CommandError, add_parser, camera_summary, finite_float, guarded, load_camera_file,
-                     positive_float)
+from .camera_files import CameraFile, camera_summary, default_camera_file, load_camera_file
+from .common import CommandError, add_parser, finite_float, guarded, positive_float
 
 NAME = "render"
 
@@ -109,20 +109,13 @@ def render_setup(args: argparse.Namespace) -> RenderSetup:
     calibration-only file or an epoch outside [1900, 2200]."""
     from dataclasses import replace
 
-    from ..models.camera import CameraModel
-    from ..sim.render import FalseObjectModel
-    from ..sim.sensor import SensorModel
-
     if args.camera:
         spec = load_camera_file(args.camera)
         if spec.sensor is None:
             raise CommandError(f"{args.camera}: a calibration file has no sensor model; render needs "
                                "camera_simulator parameters")
     else:
-        spec = CameraFile(CameraModel.from_fov(1024, 1024, np.radians(15.0)),
-                          SensorModel(vignetting_at_corner=0.1, dsnu_fraction=0.1, prnu_fraction=0.01,
-                                      hot_pixel_fraction=2e-5, cosmic_ray_rate_per_cm2_s=5.0),
-                          FalseObjectModel(), {}, "default camera")
+        spec = default_camera_file()
     sensor = spec.sensor
     if args.exposure is not None:
         sensor = replace(sensor, exposure_s=args.exposure)

@@ -16,8 +16,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .common import (CommandError, add_parser, camera_summary, database_config_for, guarded, load_camera_file,
-                     non_negative_float, positive_float, positive_int)
+from .camera_files import camera_summary, load_camera_file
+from .common import (CommandError, add_parser, database_config_for, guarded, non_negative_float, positive_float,
+                     positive_int)
 
 NAME = "solve"
 MAX_REFINE_ROUNDS = 5
