@@ -51,3 +51,18 @@ def join_isolated_ros_domain(monkeypatch) -> dict:
     monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
     rclpy.init(args=[])
     return env
+
+
+def spots_at(sky, camera, rotation):
+    """The spots a perfect centroider measures of the catalog stars `sky` (a Catalog) seen by
+    `camera` at `rotation` (sensor -> ICRS): true positions [px], brightest first, flux from the
+    magnitude, SNR 50, 0.01 px^2 variances; stars within 3 px of the border left out."""
+    from star_tracker.centroid import Spots
+
+    u, v, front = camera.project(sky.unit_vectors() @ rotation)
+    keep = front & camera.in_image(u, v, margin=3)
+    order = np.argsort(sky.hp[keep])
+    n = order.size
+    return Spots(u[keep][order], v[keep][order], 1e5 * 10 ** (-0.4 * sky.hp[keep][order]), np.full(n, 50.0),
+                 np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.ones(n, np.int32), np.ones(n),
+                 camera.width, camera.height)
