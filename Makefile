@@ -1,10 +1,11 @@
-# Two commands do everything on a fresh clone: `make demo` and `make test`.
+# Two commands do everything on a fresh clone: `make demo` and `make test` (every test, the slow
+# ones too); `make test-fast` leaves out the tests marked slow (pytest.ini) while developing.
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test clean example-bag
+.PHONY: venv demo test test-fast clean example-bag
 
 venv: $(STAMP)
 
@@ -22,6 +23,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -m "not slow"
 
 # A small example bag (4 s at 5 Hz through the three nodes, ~40 MiB), made by a command and
 # never committed: `star-tracker play example_bag` replays it (README, docs/RECORD_REPLAY.md).

@@ -17,6 +17,16 @@ def private_cache(tmp_path_factory):
     yield
 
 
+@pytest.fixture(autouse=True)
+def same_cache_after_each_test(private_cache):
+    """Restore STAR_TRACKER_CACHE after every test: a command run in-process with --cache-dir
+    sets it, and the tests after it (whichever subset runs, e.g. -m "not slow") must still
+    find the session's cache."""
+    before = os.environ["STAR_TRACKER_CACHE"]
+    yield
+    os.environ["STAR_TRACKER_CACHE"] = before
+
+
 @pytest.fixture(scope="session")
 def catalog():
     from star_tracker.models.catalog import load_hipparcos

@@ -67,6 +67,7 @@ def frames(draw):
 
 @examples(400)
 @given(frames())
+@pytest.mark.slow  # ~5 s warm, ~30 s compiling
 def test_extract_spots_on_any_frame(frame):
     """Spots with finite positions, fluxes and SNRs, or ValueError. Covariances and positions
     outside the image are pinned below as known defects; the identifier node drops such

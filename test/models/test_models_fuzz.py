@@ -47,6 +47,7 @@ sigma_values = st.one_of(st.floats(1e-6, 1.0), st.sampled_from([0.0, -1.0, np.na
 
 @examples(800)
 @given(st.lists(direction, max_size=6), st.data(), st.sampled_from([quest, davenport_q_method, svd_attitude]))
+@pytest.mark.slow  # ~5 s
 def test_attitude_solvers_on_degenerate_inputs(body, data, solver):
     """A proper rotation or ValueError. Two or more finite vectors with positive sigmas
     (parallel, antiparallel or duplicated included): always a rotation. NaN, infinities,

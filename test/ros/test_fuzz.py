@@ -54,6 +54,7 @@ def image_messages(draw):
 
 @examples(1200)
 @given(image_messages())
+@pytest.mark.slow  # 1200 examples, ~5-8 s
 def test_image_decoding_returns_the_image_or_a_value_error(msg):
     array = valid_or_value_error(convert.image_to_array, msg)
     if array is not None:
@@ -95,6 +96,7 @@ def camera_infos(draw):
 
 @examples(1200)
 @given(camera_infos())
+@pytest.mark.slow  # 1200 examples, ~5-8 s
 def test_camera_info_gives_a_usable_camera_or_a_value_error(msg):
     camera = valid_or_value_error(convert.info_to_camera, msg)
     if camera is not None:
@@ -133,6 +135,7 @@ def spot_clouds(draw):
 
 @examples(1200)
 @given(spot_clouds())
+@pytest.mark.slow  # 1200 examples, ~5-8 s
 def test_spot_clouds_decode_or_raise_and_invalid_spots_are_dropped(msg):
     spots = valid_or_value_error(convert.cloud_to_spots, msg, 1024, 1024)
     if spots is None:
@@ -152,6 +155,7 @@ finite32 = st.floats(-1e6, 1e6, width=32)
 @given(st.lists(st.tuples(finite32, finite32, finite32, finite32, finite32, finite32, finite32,
                           st.integers(0, 2**32 - 1), finite32, finite32), max_size=20),
        st.integers(-2**62, 2**62))
+@pytest.mark.slow  # ~5 s
 def test_spots_survive_the_round_trip_bit_for_bit(rows, stamp_ns):
     n = len(rows)
     r = np.array(rows, dtype=object).reshape(n, 10)
