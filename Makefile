@@ -1,10 +1,11 @@
-# Two commands do everything on a fresh clone: `make demo` and `make test`.
+# Two commands do everything on a fresh clone: `make demo` and `make test` (every test, the slow
+# ones too); `make test-fast` leaves out the tests marked slow (pytest.ini) while developing.
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test clean example-bag
+.PHONY: venv demo test test-fast clean example-bag
 
 venv: $(STAMP)
 
@@ -22,6 +23,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -m "not slow"
 
 # A small example bag (4 s at 5 Hz through the three nodes, ~40 MiB), made by a command and
 # never committed: `star-tracker play example_bag` replays it (README, docs/RECORD_REPLAY.md).
@@ -45,16 +49,8 @@ $(BENCH_STAMP): requirements-bench.txt $(STAMP)
 	touch $(BENCH_STAMP)
 
 .PHONY: bench
+# The list of benchmarks, their order and options is star_tracker/commands/bench.py's BENCHES
+# (`star-tracker bench --dry-run` prints the commands); BENCH_ARGS passes options, e.g.
+# `make bench BENCH_ARGS="--only identify --no-peers"`.
 bench: $(BENCH_STAMP)
-	$(PY) -m bench.bench_render --output docs/BENCHMARKS.md
-	$(PY) -m bench.simulator_figures
-	$(PY) -m bench.bench_centroid --output docs/BENCHMARKS.md
-	$(PY) -m bench.bench_identify --output docs/BENCHMARKS.md
-	$(PY) -m bench.bench_databases --output docs/BENCHMARKS.md
-	$(PY) -m bench.bench_attitude --output docs/BENCHMARKS.md
-	$(PY) -m bench.bench_rate_aid --output docs/BENCHMARKS.md
-	$(PY) -m bench.bench_tracking --output docs/BENCHMARKS.md
-	$(PY) -m bench.bench_replay --output docs/BENCHMARKS.md
-	$(PY) -m bench.bench_pipeline --output docs/BENCHMARKS.md
-	$(PY) -m bench.bench_soak --minutes 10 --output docs/BENCHMARKS.md  # 10 min
-	$(PY) -m bench.plots  # the benchmark plots from the JSON results above
+	$(VENV)/bin/star-tracker bench $(BENCH_ARGS)

@@ -17,6 +17,16 @@ def private_cache(tmp_path_factory):
     yield
 
 
+@pytest.fixture(autouse=True)
+def same_cache_after_each_test(private_cache):
+    """Restore STAR_TRACKER_CACHE after every test: a command run in-process with --cache-dir
+    sets it, and the tests after it (whichever subset runs, e.g. -m "not slow") must still
+    find the session's cache."""
+    before = os.environ["STAR_TRACKER_CACHE"]
+    yield
+    os.environ["STAR_TRACKER_CACHE"] = before
+
+
 @pytest.fixture(scope="session")
 def catalog():
     from star_tracker.models.catalog import load_hipparcos
@@ -51,3 +61,18 @@ def join_isolated_ros_domain(monkeypatch) -> dict:
     monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
     rclpy.init(args=[])
     return env
+
+
+def spots_at(sky, camera, rotation):
+    """The spots a perfect centroider measures of the catalog stars `sky` (a Catalog) seen by
+    `camera` at `rotation` (sensor -> ICRS): true positions [px], brightest first, flux from the
+    magnitude, SNR 50, 0.01 px^2 variances; stars within 3 px of the border left out."""
+    from star_tracker.centroid import Spots
+
+    u, v, front = camera.project(sky.unit_vectors() @ rotation)
+    keep = front & camera.in_image(u, v, margin=3)
+    order = np.argsort(sky.hp[keep])
+    n = order.size
+    return Spots(u[keep][order], v[keep][order], 1e5 * 10 ** (-0.4 * sky.hp[keep][order]), np.full(n, 50.0),
+                 np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.ones(n, np.int32), np.ones(n),
+                 camera.width, camera.height)

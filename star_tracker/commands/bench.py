@@ -1,6 +1,6 @@
-"""`star-tracker bench`: the benchmark scripts of `make bench` (bench/*.py in the source tree),
-one after the other, with a progress bar, then the benchmark plots (bench/plots.py) from
-their JSON results.
+"""`star-tracker bench` (what `make bench` runs): the benchmark scripts (bench/*.py in the source
+tree) of BENCHES, the one list of them, one after the other, with a progress bar, then the
+benchmark plots (bench/plots.py) from their JSON results.
 
 Progress protocol: the command sets PROGRESS_ENV in each benchmark's environment; a benchmark
 that knows how far it is calls `report_progress(done, total, note)`, which prints a
@@ -54,7 +54,7 @@ class Bench:
     peers: bool = False
 
 
-# The Makefile's `bench` target, in its order.
+# The benchmarks, in run order: the one list (`make bench` runs `star-tracker bench`).
 BENCHES = (
     Bench("render", "bench.bench_render", ("--output", "{out}"), ("--quick", "--output", "{out}"),
           "frame render time vs stars, smear, image size"),
@@ -90,7 +90,7 @@ NAME = "bench"
 def register(subparsers) -> None:
     parser = add_parser(
         subparsers, NAME, "run the benchmarks (make bench) with a progress bar; write docs/BENCHMARKS.md and plots",
-        "Run the benchmark scripts of `make bench` one after the other in the source tree: "
+        "Run the benchmark scripts one after the other in the source tree (`make bench` runs this command): "
         + "; ".join(f"{b.name} ({b.what})" for b in BENCHES)
         + ". Each replaces its own section of the Markdown file (--output) and writes its figures under "
         "images/ beside it; then bench/plots.py draws the benchmark plots (centroid error / Cramer-Rao "
@@ -147,7 +147,12 @@ def find_repo(repo: str | None) -> Path:
     return root.resolve()
 
 
-def command_for(bench: Bench, quick: bool, out: Path, no_peers: bool) -> list[str]:
+def command_for(bench: Bench, quick: bool, out: Path, no_peers: bool, repo: Path) -> list[str]:
+    """The command running `bench` in the source tree `repo` (its working directory). A path
+    inside `repo` is given relative to it (`--output docs/BENCHMARKS.md`): the benchmarks write
+    their own command line into the Markdown."""
+    if out.is_relative_to(repo):
+        out = out.relative_to(repo)
     options = [a.format(out=out, images=out.parent / "images", results=out.parent)
                for a in (bench.quick if quick else bench.full)]
     if no_peers and bench.peers:
@@ -169,9 +174,9 @@ def run(args: argparse.Namespace) -> int:
         out = repo / "docs" / "BENCHMARKS.md"
     if not out.parent.is_dir() and not args.dry_run:
         raise FileNotFoundError(2, "No such directory", str(out.parent))
-    commands = [(b, command_for(b, args.quick, out, args.no_peers)) for b in benches]
+    commands = [(b, command_for(b, args.quick, out, args.no_peers, repo)) for b in benches]
     if not args.no_plots:
-        commands.append((PLOTS, command_for(PLOTS, args.quick, out, args.no_peers)))
+        commands.append((PLOTS, command_for(PLOTS, args.quick, out, args.no_peers, repo)))
     if args.dry_run:
         print(f"cd {shlex.quote(str(repo))}")
         for _, cmd in commands:

@@ -115,6 +115,7 @@ def test_image_checks_name_the_problem():
 
 
 # ----------------------------------------------------------------------------- bad bags
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_missing_topics_are_named(tmp_path):
     path = make_bag(tmp_path / "bag")
     with bags.BagReader(path) as bag, pytest.raises(bags.BagError, match="no topic /spots in the bag; its topics are"):
@@ -123,6 +124,7 @@ def test_missing_topics_are_named(tmp_path):
     assert_clear_error(cli("play", path, "--remap", "/nothing:=/x"), 2, "--remap /nothing: no such topic")
 
 
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_unknown_message_types_are_named(tmp_path):
     from rosbags.rosbag2 import Writer
 
@@ -140,6 +142,7 @@ def test_unknown_message_types_are_named(tmp_path):
 
 
 @pytest.mark.parametrize("storage", bags.STORAGES)
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_truncated_storage_files_are_named(tmp_path, storage):
     path = make_bag(tmp_path / "bag", storage, frames=60)
     file = next(p for p in path.iterdir() if p.suffix in (".db3", ".mcap"))
@@ -152,6 +155,7 @@ def test_truncated_storage_files_are_named(tmp_path, storage):
     assert_clear_error(cli("play", path, "--rate", "0"), 2, kind)
 
 
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_a_truncated_mcap_is_recovered_up_to_the_cut(tmp_path):
     path = make_bag(tmp_path / "bag", "mcap", frames=60, size=256)  # 128 KiB images: ~8 per 1 MiB chunk
     file = path / "bag.mcap"
@@ -168,6 +172,7 @@ def test_a_truncated_mcap_is_recovered_up_to_the_cut(tmp_path):
     assert stamps == [T0 + k * PERIOD for k in range(len(stamps))] and 24 <= len(stamps) < 60
 
 
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_wrong_image_encodings_are_named(tmp_path):
     path = make_bag(tmp_path / "bag", encoding="rgb8")
     assert_clear_error(cli("play", path, "--rate", "0"), 2, "/image_raw: first image",
@@ -175,6 +180,7 @@ def test_wrong_image_encodings_are_named(tmp_path):
     assert_clear_error(cli("info", path, "--check"), 1, "/image_raw: 20 bad message(s)", "'rgb8'")
 
 
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_what_is_not_a_finished_bag_is_named(tmp_path):
     assert_clear_error(cli("info", tmp_path / "nowhere"), 2, "no bag at")
     (tmp_path / "empty").mkdir()
@@ -188,6 +194,7 @@ def test_what_is_not_a_finished_bag_is_named(tmp_path):
     assert cli("reindex", path).returncode == 0 and bags.check_bag(path)[1] == []
 
 
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_a_storage_file_that_disagrees_with_metadata_is_named(tmp_path):
     path = make_bag(tmp_path / "bag")
     with sqlite3.connect(path / "bag.db3") as db:
@@ -213,6 +220,7 @@ os._exit(9)  # killed: no close(), no metadata.yaml
 
 
 @pytest.mark.parametrize("storage", bags.STORAGES)
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_a_killed_writer_leaves_a_bag_that_reindex_recovers(tmp_path, storage):
     path = tmp_path / "bag"
     code = _KILLED_WRITER.format(test_dir=str(Path(__file__).parent), path=str(path), storage=storage)
@@ -228,6 +236,7 @@ def test_a_killed_writer_leaves_a_bag_that_reindex_recovers(tmp_path, storage):
     shutil.rmtree(path)
 
 
+@pytest.mark.slow  # runs the CLI in a subprocess
 def test_every_bag_command_documents_its_options():
     expected = {"record": ("--all", "--output", "--storage", "--duration", "--queue-depth", "--flush-period",
                            "--use-sim-time", "mcap"),

@@ -7,6 +7,7 @@ import sys
 
 import cv2
 import pytest
+pytestmark = pytest.mark.slow  # every test here runs the CLI in a subprocess
 
 CLI = [sys.executable, "-m", "star_tracker.cli"]
 

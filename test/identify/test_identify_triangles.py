@@ -63,6 +63,7 @@ def test_area_jacobian_matches_finite_differences():
         np.testing.assert_allclose(jac[:, k], numeric, rtol=1e-5, atol=1e-9)
 
 
+@pytest.mark.slow  # ~7 s
 def test_polar_moment_matches_the_literal_recursion_and_converges_with_depth():
     rng = np.random.default_rng(3)
     v1, v2, v3 = random_triangles(rng, 5, 0.04)

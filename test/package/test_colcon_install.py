@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 REPO = Path(os.environ.get("STAR_TRACKER_REPO") or Path(__file__).resolve().parents[2]).resolve()
 PACKAGE = "star_tracker"

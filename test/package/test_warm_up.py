@@ -65,6 +65,7 @@ SCRIPT = textwrap.dedent("""
 
 
 @pytest.mark.timeout(900)
+@pytest.mark.slow  # compiles the kernels in a fresh process
 def test_the_first_frames_compile_nothing_after_the_node_warm_ups():
     result = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stdout + result.stderr

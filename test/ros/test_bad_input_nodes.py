@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+pytestmark = pytest.mark.slow  # every test here starts processes (nodes or node executables)
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -29,7 +30,7 @@ from star_tracker.sim.sensor import SensorModel  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.common import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
-from test_fuzz import spots_at  # noqa: E402  one star-spot builder for the tests
+from conftest import spots_at  # noqa: E402  one star-spot builder for the tests
 from test_integration import ros_graph  # noqa: E402,F401  the isolated-domain fixture
 
 ARCSEC = np.radians(1 / 3600)

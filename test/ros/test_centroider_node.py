@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 import pytest
+pytestmark = pytest.mark.slow  # every test here starts processes (nodes or node executables)
 
 rclpy = pytest.importorskip("rclpy")
 

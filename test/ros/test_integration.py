@@ -85,6 +85,7 @@ def counters(diagnostics: dict) -> str:
 
 @pytest.mark.integration
 @pytest.mark.parametrize("rate_deg_s", [[0.0, 0.0, 0.0], [0.3, 0.4, 0.0]], ids=["at_rest", "0.5_deg_per_s"])
+@pytest.mark.slow  # starts the three nodes
 def test_three_nodes_track_truth(ros_graph, tmp_path, rate_deg_s):
     diagnostics: dict = {}
     frames, codes, logs, camera = run_pipeline(ros_graph, tmp_path, {"attitude.body_rate_deg_s": rate_deg_s},

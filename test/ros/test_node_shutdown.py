@@ -10,6 +10,7 @@ import textwrap
 import time
 
 import pytest
+pytestmark = pytest.mark.slow  # every test here starts processes (nodes or node executables)
 
 pytest.importorskip("rclpy")
 

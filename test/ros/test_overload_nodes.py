@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 import pytest
+pytestmark = pytest.mark.slow  # every test here starts processes (nodes or node executables)
 
 rclpy = pytest.importorskip("rclpy")
 
@@ -32,7 +33,7 @@ from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.common import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor  # noqa: E402
 from test_bad_input_nodes import Driver  # noqa: E402  the diagnostics-reading test node
-from test_fuzz import spots_at  # noqa: E402
+from conftest import spots_at  # noqa: E402
 from test_integration import REPO, ros_graph  # noqa: E402,F401  the isolated-domain fixture
 
 ARCSEC = np.radians(1 / 3600)

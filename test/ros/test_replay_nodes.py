@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+pytestmark = pytest.mark.slow  # every test here starts processes (nodes or node executables)
 
 rclpy = pytest.importorskip("rclpy")
 

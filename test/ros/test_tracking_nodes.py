@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+pytestmark = pytest.mark.slow  # every test here starts processes (nodes or node executables)
 
 rclpy = pytest.importorskip("rclpy")
 

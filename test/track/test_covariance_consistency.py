@@ -40,6 +40,7 @@ def attitude_nees(chain, rotation, seed):
             float(d[2] ** 2 / p[2, 2]), spots, result)
 
 
+@pytest.mark.slow  # ~8 s
 def test_published_covariance_is_consistent_at_rest(chain):
     # 150 random attitudes: the mean NEES of an honest covariance is 3 (x/y 2, roll 1) with a
     # standard error of sqrt(6 / 150) = 0.2; the bands are 3 standard errors. The identifier's
