@@ -29,10 +29,13 @@ from numba import njit
 
 from .base import IdentifyConfig, SpotGeometry, StarIdentifier
 from .database import StarDatabase
+from .geometry import angle_between, triple_product
 from .pyramid import pyramid_order
 from .spherical_triangle import fitting_triples
-from .triangles import (TriangleConfig, _arc, _det, _heron_area, _planar_jacobians, _side_covariance, _tolerance,
-                        load_or_build_triangles, match_triangles, measured_features, warm_up)
+from .triangle_database import TriangleConfig, load_or_build_triangles
+from .triangle_features import measured_features
+from .triangle_invariants import feature_tolerance, heron_area, planar_jacobians, side_covariance
+from .triangle_matching import match_triangles, warm_up
 
 
 @dataclass(frozen=True)
@@ -69,21 +72,23 @@ def _planar_match(rays, sigma, dist, x, y, r, vectors, sx, sy, s, beta, floor, c
     """Do spot triangle (x, y, r) and catalog triangle (sx, sy, s) agree on planar area and
     polar moment (eqs. 1-2) within tolerance, with the same handedness?"""
     a, b, c = dist[x, y], dist[y, r], dist[r, x]
-    ca, cb, cc = _arc(vectors[sx], vectors[sy]), _arc(vectors[sy], vectors[s]), _arc(vectors[s], vectors[sx])
-    _side_covariance(rays[x], rays[y], rays[r], sigma[x], sigma[y], sigma[r], cov)
-    _planar_jacobians(a, b, c, jac_a, jac_m)
-    area = _heron_area(a, b, c)
-    cat_area = _heron_area(ca, cb, cc)
-    if abs(area - cat_area) > _tolerance(jac_a, cov, beta, floor):
+    ca = angle_between(vectors[sx], vectors[sy])
+    cb = angle_between(vectors[sy], vectors[s])
+    cc = angle_between(vectors[s], vectors[sx])
+    side_covariance(rays[x], rays[y], rays[r], sigma[x], sigma[y], sigma[r], cov)
+    planar_jacobians(a, b, c, jac_a, jac_m)
+    area = heron_area(a, b, c)
+    cat_area = heron_area(ca, cb, cc)
+    if abs(area - cat_area) > feature_tolerance(jac_a, cov, beta, floor):
         return False
     moment = area * (a * a + b * b + c * c) / 36.0
     cat_moment = cat_area * (ca * ca + cb * cb + cc * cc) / 36.0
-    if abs(moment - cat_moment) > _tolerance(jac_m, cov, beta, floor):
+    if abs(moment - cat_moment) > feature_tolerance(jac_m, cov, beta, floor):
         return False
-    det = _det(rays[x], rays[y], rays[r])
+    det = triple_product(rays[x], rays[y], rays[r])
     if abs(det) <= beta * max(sigma[x], sigma[y], sigma[r]) * (a + b + c):
         return True  # too flat for a handedness test
-    return (det > 0.0) == (_det(vectors[sx], vectors[sy], vectors[s]) > 0.0)
+    return (det > 0.0) == (triple_product(vectors[sx], vectors[sy], vectors[s]) > 0.0)
 
 
 @njit(cache=True)
@@ -105,13 +110,13 @@ def _confirm_kernel(i, j, k, base_stars, rays, sigma, dist, dist_order, dist_sor
             s = nb_idx[p]
             if s == sj or s == sk:
                 continue
-            d_si = _arc(vectors[s], vectors[si])
+            d_si = angle_between(vectors[s], vectors[si])
             lo = np.searchsorted(row_i, d_si - loose)
             hi = np.searchsorted(row_i, d_si + loose, side="right")
             if lo >= hi:
                 continue
-            d_sj = _arc(vectors[s], vectors[sj])
-            d_sk = _arc(vectors[s], vectors[sk])
+            d_sj = angle_between(vectors[s], vectors[sj])
+            d_sk = angle_between(vectors[s], vectors[sk])
             for m in range(lo, hi):
                 r = dist_order[i, m]
                 if r == i or r == j or r == k:

@@ -31,8 +31,9 @@ import numpy as np
 
 from .base import IdentifyConfig, SpotGeometry, StarIdentifier
 from .database import StarDatabase
-from .triangles import (TriangleConfig, load_or_build_triangles, match_triangles, measured_features, spherical_area,
-                        triangle_sides, warm_up)
+from .triangle_database import TriangleConfig, load_or_build_triangles
+from .triangle_features import measured_features, spherical_area, triangle_sides
+from .triangle_matching import match_triangles, warm_up
 
 
 @dataclass(frozen=True)
