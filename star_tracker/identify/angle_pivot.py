@@ -39,6 +39,7 @@ import numpy as np
 
 from .base import SpotGeometry, StarIdentifier
 from .database import StarDatabase
+from .geometry import chord_angle, triple_products
 
 
 def pair_angle_sigma(sigma_i: np.ndarray, sigma_j: np.ndarray) -> np.ndarray:
@@ -46,11 +47,6 @@ def pair_angle_sigma(sigma_i: np.ndarray, sigma_j: np.ndarray) -> np.ndarray:
     sigma_i, sigma_j [rad] (Cole & Crassidis eq. 12; sqrt(2) sigma for equal errors, eq. 14)."""
     var_i, var_j = np.square(sigma_i), np.square(sigma_j)
     return np.sqrt(var_i + var_j + 3.0 * var_i * var_j)
-
-
-def chord_angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Angle between unit vectors (..., 3) [rad]; the chord form stays exact for small angles."""
-    return 2.0 * np.arcsin(np.clip(0.5 * np.linalg.norm(u - v, axis=-1), 0.0, 1.0))
 
 
 def handedness_agrees(rays: np.ndarray, stars: np.ndarray, sigma: np.ndarray, beta: float) -> bool:
@@ -61,8 +57,8 @@ def handedness_agrees(rays: np.ndarray, stars: np.ndarray, sigma: np.ndarray, be
     m = rays.shape[0]
     idx = np.array([(i, j, k) for i in range(m) for j in range(i + 1, m) for k in range(j + 1, m)])
     r, s = rays[idx], stars[idx]
-    det_spots = np.einsum("ni,ni->n", r[:, 0], np.cross(r[:, 1], r[:, 2]))
-    det_stars = np.einsum("ni,ni->n", s[:, 0], np.cross(s[:, 1], s[:, 2]))
+    det_spots = triple_products(r[:, 0], r[:, 1], r[:, 2])
+    det_stars = triple_products(s[:, 0], s[:, 1], s[:, 2])
     perimeter = (np.linalg.norm(r[:, 0] - r[:, 1], axis=1) + np.linalg.norm(r[:, 1] - r[:, 2], axis=1)
                  + np.linalg.norm(r[:, 2] - r[:, 0], axis=1))
     decisive = np.abs(det_spots) > beta * np.max(sigma) * perimeter

@@ -29,8 +29,7 @@ from numba import njit
 
 from .base import IdentifyConfig, SpotGeometry, StarIdentifier
 from .database import StarDatabase
-from .geometry import angle_between, triple_product
-from .pyramid import pyramid_order
+from .geometry import angle_between, chord_angle, pyramid_triangles, triple_product
 from .spherical_triangle import fitting_triples
 from .triangle_database import TriangleConfig, load_or_build_triangles
 from .triangle_features import measured_features
@@ -144,7 +143,7 @@ def _confirm_kernel(i, j, k, base_stars, rays, sigma, dist, dist_order, dist_sor
 def base_triangle_batches(pattern_count: int, spot_count: int, size: int) -> Iterator[np.ndarray]:
     """Base triangles in batches of at most `size`: Mortari's pyramid order over the pattern
     spots, then for each further spot k every triple (i, j, k) with i < j < k."""
-    first = np.array(list(pyramid_order(pattern_count)), np.int64).reshape(-1, 3)
+    first = pyramid_triangles(pattern_count)
     for start in range(0, first.shape[0], size):
         yield first[start:start + size]
     for k in range(pattern_count, spot_count):
@@ -188,7 +187,7 @@ class CompositeIdentifier(StarIdentifier):
         rays = np.ascontiguousarray(geometry.rays[:n])
         sigma = np.ascontiguousarray(geometry.sigma[:n])
         beta, floor = self.config.sigma_multiplier, self.config.angle_tolerance_floor_rad
-        dist = 2.0 * np.arcsin(np.clip(0.5 * np.linalg.norm(rays[:, None] - rays[None], axis=-1), 0.0, 1.0))
+        dist = chord_angle(rays[:, None], rays[None])
         dist_order = np.argsort(dist, axis=1, kind="stable")
         dist_sorted = np.ascontiguousarray(np.take_along_axis(dist, dist_order, axis=1))
         # Prefilter on the fourth star's three distances: twice the widest side tolerance.

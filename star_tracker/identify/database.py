@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..models.catalog import StarCatalog, cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
+from .geometry import chord_angle
 from .kvector import KVector
 
 DATABASE_FORMAT_VERSION = 2
@@ -114,8 +115,7 @@ def build_database(config: DatabaseConfig, catalog: StarCatalog | None = None) -
     tree = cKDTree(vectors)
     chord = 2.0 * np.sin(0.5 * config.max_pair_angle_rad)
     pairs = tree.query_pairs(r=chord, output_type="ndarray").astype(np.int32)
-    diff = np.linalg.norm(vectors[pairs[:, 0]] - vectors[pairs[:, 1]], axis=1)
-    angles = 2.0 * np.arcsin(np.clip(0.5 * diff, 0.0, 1.0))  # exact for small angles, unlike arccos
+    angles = chord_angle(vectors[pairs[:, 0]], vectors[pairs[:, 1]])  # exact for small angles, unlike arccos
     order = np.argsort(angles, kind="stable")
     pairs = pairs[order]
     a = np.minimum(pairs[:, 0], pairs[:, 1])
@@ -165,8 +165,8 @@ def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -
         raise ValueError("k-vector inconsistent")
     # The stored angles must be those of the stored stars (a sample: this runs at every start).
     sample = np.linspace(0, m - 1, min(m, 4096)).astype(np.int64)
-    chord = np.linalg.norm(vectors[pair_a[sample]] - vectors[pair_b[sample]], axis=1)
-    if not np.allclose(2.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0)), angle[sample], rtol=0, atol=1e-12):
+    stored = chord_angle(vectors[pair_a[sample]], vectors[pair_b[sample]])
+    if not np.allclose(stored, angle[sample], rtol=0, atol=1e-12):
         raise ValueError("pair angles do not match the star vectors")
     return StarDatabase(config, vectors, hip, magnitude, pair_a, pair_b, KVector(angle, k, slope, intercept))
 

@@ -3,13 +3,44 @@
 Directions are unit 3-vectors (sensor frame or ICRS, the same frame on both sides); angles
 are radians. The angle between two unit vectors is taken from their chord, 2 asin(|u - v| / 2),
 which stays exact at the small angles of a star field (acos(u . v) loses half the digits there).
-The scalar forms compile with numba (kernels inline them).
+The handedness of a triple is the sign of its triple product u . (v x w) (van Bezooijen's
+mirror test compares it between spots and stars). The scalar forms compile with numba (kernels
+inline them); the vectorised ones are numpy. Also Mortari's pyramid order of spot triples.
 """
 from __future__ import annotations
 
 import math
+from typing import Iterator
 
+import numpy as np
 from numba import njit
+
+
+def chord_angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Angle between unit vectors (..., 3) [rad]; the chord form stays exact for small angles."""
+    return 2.0 * np.arcsin(np.clip(0.5 * np.linalg.norm(u - v, axis=-1), 0.0, 1.0))
+
+
+def triple_products(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Triple products u . (v x w) of rows of (T, 3) arrays: positive for right-handed triples."""
+    return np.einsum("ni,ni->n", u, np.cross(v, w))
+
+
+def pyramid_triangles(n: int) -> np.ndarray:
+    """(T, 3) Mortari's pyramid order of the index triples i < j < k < n: the index gaps
+    (j - i, k - j) grow slowest, so the search leaves a false spot behind as fast as it can."""
+    blocks = [np.zeros((0, 3), np.int64)]
+    for dj in range(1, n - 1):
+        for dk in range(1, n - dj):
+            i = np.arange(0, n - dj - dk, dtype=np.int64)
+            blocks.append(np.stack([i, i + dj, i + dj + dk], axis=1))
+    return np.concatenate(blocks)
+
+
+def pyramid_order(n: int) -> Iterator[tuple[int, int, int]]:
+    """The triples of `pyramid_triangles` one by one, as ints."""
+    for i, j, k in pyramid_triangles(n).tolist():
+        yield i, j, k
 
 
 @njit(cache=True, inline="always")

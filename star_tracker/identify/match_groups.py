@@ -40,9 +40,10 @@ from typing import Iterator
 import numpy as np
 from numba import njit
 
-from .angle_pivot import chord_angle, pair_angle_sigma
+from .angle_pivot import pair_angle_sigma
 from .base import SpotGeometry, StarIdentifier
 from .database import StarDatabase
+from .geometry import angle_between, chord2_rows, chord_angle, triple_product
 
 MAX_ASSOCIATES = 64  # bitmask width of the clique search
 VALIDATION_CHUNK = 4096  # kernels validated between two deadline checks
@@ -153,18 +154,6 @@ def _rank_associates(offsets, spots, stars, conf, keep):
 
 
 @njit(cache=True)
-def _angle(u, v):
-    d0, d1, d2 = u[0] - v[0], u[1] - v[1], u[2] - v[2]
-    return 2.0 * np.arcsin(min(0.5 * np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1.0))
-
-
-@njit(cache=True)
-def _det(u, v, w):
-    return (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
-            + u[2] * (v[0] * w[1] - v[1] * w[0]))
-
-
-@njit(cache=True)
 def _popcount(x):
     n = 0
     while x:
@@ -205,26 +194,24 @@ def _validate(selected, offsets, kernel_spot, kernel_star, assoc_spot, assoc_sta
         base = np.zeros(n)
         for p in range(n):
             jp, bp = assoc_spot[lo + p], assoc_star[lo + p]
-            base[p] = abs(_angle(vectors[a], vectors[bp]) - spot_angle[i, jp]) / tolerance[i, jp]
+            base[p] = abs(angle_between(vectors[a], vectors[bp]) - spot_angle[i, jp]) / tolerance[i, jp]
         for p in range(n):
             jp, bp = assoc_spot[lo + p], assoc_star[lo + p]
             for q in range(p + 1, n):
                 jq, bq = assoc_spot[lo + q], assoc_star[lo + q]
                 if jp == jq or bp == bq:
                     continue
-                d0 = vectors[bp, 0] - vectors[bq, 0]
-                d1 = vectors[bp, 1] - vectors[bq, 1]
-                d2 = vectors[bp, 2] - vectors[bq, 2]
-                chord2 = d0 * d0 + d1 * d1 + d2 * d2
+                chord2 = chord2_rows(vectors, bp, bq)
                 if chord2 < chord2_lo[jp, jq] or chord2 > chord2_hi[jp, jq]:
                     continue
-                miss = abs(_angle(vectors[bp], vectors[bq]) - spot_angle[jp, jq])
+                miss = abs(angle_between(vectors[bp], vectors[bq]) - spot_angle[jp, jq])
                 if miss > relaxed[jp, jq]:
                     continue
-                det_spots = _det(rays[i], rays[jp], rays[jq])
+                det_spots = triple_product(rays[i], rays[jp], rays[jq])
                 perimeter = spot_angle[i, jp] + spot_angle[i, jq] + spot_angle[jp, jq]
                 margin = beta * max(sigma[i], max(sigma[jp], sigma[jq])) * perimeter
-                if abs(det_spots) > margin and det_spots * _det(vectors[a], vectors[bp], vectors[bq]) < 0.0:
+                det_stars = triple_product(vectors[a], vectors[bp], vectors[bq])
+                if abs(det_spots) > margin and det_spots * det_stars < 0.0:
                     continue  # mirror image
                 adj[p] |= one << np.uint64(q)
                 adj[q] |= one << np.uint64(p)
