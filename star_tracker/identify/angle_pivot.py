@@ -136,6 +136,17 @@ class _SpotPairs:
         return self.stop - self.start
 
 
+@dataclass(frozen=True)
+class _Ranking:
+    """Order of the measured angles for starting chains and choosing pivots: rank (A,) angle
+    indices best first; position (A,) each angle's place in it; usable (A,) angles with
+    between 1 and max_solutions_per_angle catalog solutions."""
+
+    rank: np.ndarray
+    position: np.ndarray
+    usable: np.ndarray
+
+
 def measured_pairs(geometry: SpotGeometry, database: StarDatabase, beta: float, floor: float) -> _SpotPairs:
     """All pairs of pattern spots with their angle, beta sigma_p + floor window and catalog slice."""
     n = geometry.pattern_count
@@ -288,6 +299,7 @@ class AnglePivotIdentifier(StarIdentifier):
             rank = np.argsort(-pairs.angle, kind="stable")
         position = np.empty_like(rank)
         position[rank] = np.arange(rank.size)
+        ranking = _Ranking(rank, position, usable)
         # Round 0 starts a chain from every angle in rank order (the paper's restarts). A spot
         # that is no catalog star (false star) kills the true finalist whenever a chain pivots
         # through it, so later rounds leave out one spot (then two, ...), the most suspect
@@ -302,27 +314,27 @@ class AnglePivotIdentifier(StarIdentifier):
             suspects = np.lexsort((-np.arange(suspicion.size), -suspicion))
             starts = (None if cfg.restart else 1) if size == 0 else cfg.starts_per_round
             for left_out in itertools.combinations(suspects.tolist(), size):
-                yield from self._round(geometry, pairs, rank, position, usable, set(left_out), starts, suspicion,
-                                       yielded, deadline)
+                yield from self._round(geometry, pairs, ranking, set(left_out), starts, suspicion, yielded, deadline)
                 if time.perf_counter() > deadline:
                     return
 
-    def _round(self, geometry: SpotGeometry, pairs: _SpotPairs, rank: np.ndarray, position: np.ndarray,
-               usable: np.ndarray, left_out: set[int], starts: int | None, suspicion: np.ndarray,
-               yielded: set, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    def _round(self, geometry: SpotGeometry, pairs: _SpotPairs, ranking: _Ranking, left_out: set[int],
+               starts: int | None, suspicion: np.ndarray, yielded: set,
+               deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Chains from the first `starts` (None: all) usable angles in rank order that avoid the
         spots in `left_out`; yields each new solved core. `suspicion` counts, per spot, the
         pivots it emptied, its drops from a consistent core and its rejected hypotheses."""
         chains = 0
-        for start in rank:
+        for start in ranking.rank:
             if time.perf_counter() > deadline or (starts is not None and chains >= starts):
                 return
-            if not usable[start] or int(pairs.first[start]) in left_out or int(pairs.second[start]) in left_out:
+            if (not ranking.usable[start] or int(pairs.first[start]) in left_out
+                    or int(pairs.second[start]) in left_out):
                 continue
             chains += 1
             self.stats["chains"] += 1
             excluded = set(left_out)
-            result = self._chain(pairs, int(start), position, excluded, deadline)
+            result = self._chain(pairs, int(start), ranking.position, excluded, deadline)
             if result is None:
                 continue
             spots, finalists = result

@@ -8,15 +8,15 @@ which contains at most a few extra values at each end; those are trimmed exactly
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 
-@dataclass(frozen=True)
-class KVector:
-    """sorted_values: ascending (n,); k: (n,) counts; slope m and intercept q of z(i)."""
+class KVector(NamedTuple):
+    """sorted_values: ascending (n,); k: (n,) counts; slope m and intercept q of z(i). A record
+    of arrays and floats, so compiled code can take it whole."""
 
     sorted_values: np.ndarray
     k: np.ndarray

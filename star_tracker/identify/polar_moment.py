@@ -8,6 +8,7 @@ worst case); the derivative here follows each triangle's shape. Vertices are uni
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -66,10 +67,12 @@ def polar_moment(v1, v2, v3, depth: int, work) -> float:
             mbcx, mbcy, mbcz = _normalize_sum(bx, by, bz, cx, cy, cz, 0.0, 0.0, 0.0)
             mcax, mcay, mcaz = _normalize_sum(cx, cy, cz, ax, ay, az, 0.0, 0.0, 0.0)
             o = 4 * t
-            _put(work, nxt, o, ax, ay, az, mabx, maby, mabz, mcax, mcay, mcaz)
-            _put(work, nxt, o + 1, bx, by, bz, mbcx, mbcy, mbcz, mabx, maby, mabz)
-            _put(work, nxt, o + 2, cx, cy, cz, mcax, mcay, mcaz, mbcx, mbcy, mbcz)
-            _put(work, nxt, o + 3, mabx, maby, mabz, mbcx, mbcy, mbcz, mcax, mcay, mcaz)
+            a, b, c = (ax, ay, az), (bx, by, bz), (cx, cy, cz)
+            mab, mbc, mca = (mabx, maby, mabz), (mbcx, mbcy, mbcz), (mcax, mcay, mcaz)
+            _put(work, nxt, o, a, mab, mca)
+            _put(work, nxt, o + 1, b, mbc, mab)
+            _put(work, nxt, o + 2, c, mca, mbc)
+            _put(work, nxt, o + 3, mab, mbc, mca)
         count *= 4
         cur = nxt
     total = 0.0
@@ -88,13 +91,33 @@ def polar_moment(v1, v2, v3, depth: int, work) -> float:
 
 
 @njit(cache=True, inline="always")
-def _put(work, level, row, ax, ay, az, bx, by, bz, cx, cy, cz) -> None:
-    work[level, row, 0], work[level, row, 1], work[level, row, 2] = ax, ay, az
-    work[level, row, 3], work[level, row, 4], work[level, row, 5] = bx, by, bz
-    work[level, row, 6], work[level, row, 7], work[level, row, 8] = cx, cy, cz
+def _put(work, level, row, a, b, c) -> None:
+    """Store the sub-triangle with vertices a, b, c ((x, y, z) tuples) at work[level, row]."""
+    work[level, row, 0], work[level, row, 1], work[level, row, 2] = a[0], a[1], a[2]
+    work[level, row, 3], work[level, row, 4], work[level, row, 5] = b[0], b[1], b[2]
+    work[level, row, 6], work[level, row, 7], work[level, row, 8] = c[0], c[1], c[2]
 
 
-def subdivision_tables(depth: int) -> tuple[np.ndarray, np.ndarray]:
+class SubdivisionTables(NamedTuple):
+    """The subdivision of `polar_moment` over a shared vertex list (corners 0, 1, 2): ops
+    (V, 2), vertex 3 + o is the normalized sum of vertices ops[o]; leaves (4^depth, 3), the
+    vertex indices of the final sub-triangles."""
+
+    ops: np.ndarray
+    leaves: np.ndarray
+
+
+class LaneScratch(NamedTuple):
+    """Work arrays of `polar_moment_lanes`: vert (3 + V, 3, LANES) subdivision vertices,
+    centroid (3, LANES), acc and worst (LANES,) per-lane sums and series-range checks."""
+
+    vert: np.ndarray
+    centroid: np.ndarray
+    acc: np.ndarray
+    worst: np.ndarray
+
+
+def subdivision_tables(depth: int) -> SubdivisionTables:
     """The subdivision of `polar_moment` as index tables over a shared vertex list (corners
     0, 1, 2): ops (V, 2), vertex 3 + o is the normalized sum of vertices ops[o] (each edge
     midpoint once); leaves (4^depth, 3), the vertex indices of the final sub-triangles."""
@@ -114,18 +137,28 @@ def subdivision_tables(depth: int) -> tuple[np.ndarray, np.ndarray]:
             mab, mbc, mca = m
             children += [(a, mab, mca), (b, mbc, mab), (c, mca, mbc), (mab, mbc, mca)]
         triangles = children
-    return np.array(ops, np.int64).reshape(-1, 2), np.array(triangles, np.int64)
+    return SubdivisionTables(np.array(ops, np.int64).reshape(-1, 2), np.array(triangles, np.int64))
 
 
 LANES = 16  # triangles processed side by side (SIMD across triangles)
 
 
+@njit(cache=True)
+def lane_scratch(tables) -> LaneScratch:
+    """Fresh work arrays of `polar_moment_lanes` for SubdivisionTables `tables`."""
+    return LaneScratch(np.empty((3 + tables.ops.shape[0], 3, LANES)), np.empty((3, LANES)), np.empty(LANES),
+                       np.empty(LANES))
+
+
 @njit(cache=True, fastmath=True)
-def polar_moment_lanes(vectors, stars, start, stop, ops, leaves, vert, centroid, acc, worst, out) -> None:
+def polar_moment_lanes(vectors, stars, start, stop, tables, scratch, out) -> None:
     """`polar_moment` for catalog triangles stars[start:stop] (rows of indices into
     `vectors`), LANES at a time so the arithmetic vectorizes: atan and asin become their
     series, good to ~1e-9 while leaves have tan(dA/2) < 0.01 and lie within 0.2 rad of the
-    centroid; out = -1 marks triangles beyond that (sides > ~20 deg) for an exact redo."""
+    centroid; out = -1 marks triangles beyond that (sides > ~20 deg) for an exact redo.
+    `tables`: SubdivisionTables; `scratch`: lane_scratch(tables)."""
+    ops, leaves = tables.ops, tables.leaves
+    vert, centroid, acc, worst = scratch.vert, scratch.centroid, scratch.acc, scratch.worst
     for first in range(start, stop, LANES):
         m = min(LANES, stop - first)
         for lane in range(LANES):

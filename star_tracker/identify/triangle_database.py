@@ -16,6 +16,7 @@ import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -73,8 +74,7 @@ class TriangleConfig:
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-@dataclass(frozen=True)
-class FeatureIndex:
+class FeatureIndex(NamedTuple):
     """Catalog triangles ordered for one feature pair (area, polar moment).
 
     Rows are sorted by area and cut into blocks of `block` rows; within a block, rows are
@@ -82,7 +82,8 @@ class FeatureIndex:
     the blocks' smallest areas), and in each block a binary search on the moment yields the
     finalists without scanning the window row by row. stars (T, 3): database star indices,
     ascending within a row; area, moment (T,) [sr or rad^2; sr rad^2 or rad^4]; product
-    (T,): side product a b c [rad^3]; block_min, block_max (B,) area range of each block."""
+    (T,): side product a b c [rad^3]; block_min, block_max (B,) area range of each block.
+    A record of arrays, so the compiled matching takes it whole."""
 
     stars: np.ndarray
     area: np.ndarray

@@ -6,7 +6,6 @@ catalog triangles in bulk (the database build).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numba
@@ -14,8 +13,8 @@ import numpy as np
 from numba import njit
 
 from .geometry import angle_between, triple_product
-from .polar_moment import (LANES, moment_workspace, polar_moment, polar_moment_jacobian, polar_moment_lanes,
-                           subdivision_tables)
+from .polar_moment import (LANES, lane_scratch, moment_workspace, polar_moment, polar_moment_jacobian,
+                           polar_moment_lanes, subdivision_tables)
 from .triangle_invariants import (feature_tolerance, heron_area, lhuilier_area, lhuilier_jacobian, planar_jacobians,
                                   side_covariance)
 
@@ -99,8 +98,7 @@ def planar_polar_moment(sides: np.ndarray) -> np.ndarray:
     return planar_area(sides) * np.sum(sides**2, axis=1) / 36.0
 
 
-@dataclass(frozen=True)
-class FeatureSet:
+class FeatureSet(NamedTuple):
     """Features of measured triangles with their match tolerances (beta sigma + floor):
     sides (T, 3) [rad], handedness (T,) sign of det[v1, v2, v3] (0: too flat to tell),
     side_tol (T, 3) [rad], area, area_tol, moment, moment_tol (T,); product, product_tol
@@ -118,20 +116,22 @@ class FeatureSet:
     product: np.ndarray
     product_tol: np.ndarray
 
-    def __len__(self) -> int:
+    @property
+    def triangle_count(self) -> int:
         return int(self.area.size)
 
     def take(self, index) -> "FeatureSet":
         """The features of the triangles `index` (an int or an index array)."""
         index = np.atleast_1d(index)
-        return FeatureSet(*(np.ascontiguousarray(getattr(self, f)[index]) for f in
-                            ("sides", "handedness", "side_tol", "area", "area_tol", "moment", "moment_tol",
-                             "product", "product_tol")))
+        return FeatureSet(*(np.ascontiguousarray(column[index]) for column in self))
 
 
 @njit(cache=True)
-def _measured_kernel(rays, sigma, triples, spherical, depth, beta, floor,
-                     sides, hand, side_tol, area, area_tol, moment, moment_tol, product, product_tol):
+def _measured_kernel(rays, sigma, triples, spherical, depth, beta, floor, out):
+    """Fill `out` (a FeatureSet of T rows) for the spot triangles `triples` (T, 3)."""
+    sides, hand, side_tol = out.sides, out.handedness, out.side_tol
+    area, area_tol, moment, moment_tol, product, product_tol = (out.area, out.area_tol, out.moment, out.moment_tol,
+                                                                out.product, out.product_tol)
     work = moment_workspace(depth)
     cov = np.empty((3, 3))
     jac_a, jac_m = np.empty(3), np.empty(3)
@@ -173,21 +173,22 @@ def measured_features(rays: np.ndarray, sigma: np.ndarray, triples: np.ndarray, 
     t = triples.shape[0]
     out = FeatureSet(np.empty((t, 3)), np.empty(t, np.int8), np.empty((t, 3)), *(np.empty(t) for _ in range(6)))
     _measured_kernel(np.ascontiguousarray(rays, dtype=float), np.ascontiguousarray(sigma, dtype=float), triples,
-                     spherical, depth, float(beta), float(floor), out.sides, out.handedness, out.side_tol,
-                     out.area, out.area_tol, out.moment, out.moment_tol, out.product, out.product_tol)
+                     spherical, depth, float(beta), float(floor), out)
     return out
 
 
-
 @njit(cache=True, parallel=True)
-def catalog_features_kernel(vectors, stars, depth, ops, leaves, sph_area, sph_moment, pl_area, pl_moment, product):
+def _catalog_features_kernel(vectors, stars, depth, tables, out):
+    """Fill `out` (CatalogFeatures of T rows) for the triangles `stars` (T, 3); `tables`
+    are the SubdivisionTables of `depth`."""
+    sph_area, sph_moment, pl_area, pl_moment, product = (out.spherical_area, out.spherical_moment, out.planar_area,
+                                                         out.planar_moment, out.product)
     n = stars.shape[0]
     chunk = 64 * LANES
     for c in numba.prange((n + chunk - 1) // chunk):
         start, stop = c * chunk, min(n, (c + 1) * chunk)
-        vert = np.empty((3 + ops.shape[0], 3, LANES))
-        polar_moment_lanes(vectors, stars, start, stop, ops, leaves, vert, np.empty((3, LANES)),
-                            np.empty(LANES), np.empty(LANES), sph_moment)
+        scratch = lane_scratch(tables)
+        polar_moment_lanes(vectors, stars, start, stop, tables, scratch, sph_moment)
         work = moment_workspace(depth)
         for t in range(start, stop):
             v1, v2, v3 = vectors[stars[t, 0]], vectors[stars[t, 1]], vectors[stars[t, 2]]
@@ -216,6 +217,5 @@ def catalog_features(vectors: np.ndarray, stars: np.ndarray, depth: int) -> Cata
     vectors), many side by side (series for atan and asin where exact enough)."""
     count = stars.shape[0]
     out = CatalogFeatures(*(np.empty(count) for _ in range(5)))
-    catalog_features_kernel(np.ascontiguousarray(vectors, dtype=float), stars, depth, *subdivision_tables(depth),
-                            *out)
+    _catalog_features_kernel(np.ascontiguousarray(vectors, dtype=float), stars, depth, subdivision_tables(depth), out)
     return out

@@ -5,7 +5,7 @@ assignments whose sides agree and whose handedness is the spots' (mirror test).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -27,15 +27,22 @@ def _fits_any(d2, lo2, hi2) -> bool:
 
 
 @njit(cache=True)
-def _match_kernel(area, area_tol, moment, moment_tol, product, product_tol, sides, side_tol, hand, cap, check_sides,
-                  cat_area, cat_moment, cat_product, tri_stars, block, block_min, block_max, k, slope, intercept,
-                  vectors, perms, out_query, out_stars, n_area, n_final):
+def _match_kernel(features, index, vectors, cap, check_sides, out):
     """For every measured triangle q: catalog rows with area within area_tol and moment within
     moment_tol (blocks by k-vector, rows by binary search on the moment within each block);
     each vertex assignment whose three sides agree within side_tol (if check_sides) and
     whose handedness agrees is emitted as (q, star of vertex 1, 2, 3). More than `cap`
     assignments: the triangle is ambiguous and emits nothing (n_final = -1). Sides are
-    compared as squared chords (monotonic in the angle)."""
+    compared as squared chords (monotonic in the angle). features: FeatureSet; index:
+    FeatureIndex; out: TriangleMatches with room for the rows; returns how many were emitted."""
+    area, area_tol, moment, moment_tol = features.area, features.area_tol, features.moment, features.moment_tol
+    product, product_tol, sides, side_tol = features.product, features.product_tol, features.sides, features.side_tol
+    hand = features.handedness
+    cat_area, cat_moment, cat_product, tri_stars = index.area, index.moment, index.product, index.stars
+    block, block_min, block_max = index.block, index.block_min, index.block_max
+    k, slope, intercept = index.kvector.k, index.kvector.slope, index.kvector.intercept
+    out_query, out_stars, n_area, n_final = out.query, out.stars, out.area_candidates, out.finalists
+    perms = _PERMUTATIONS
     rows = 0
     n_rows = cat_area.size
     n_blocks = block_min.size
@@ -104,11 +111,11 @@ def _match_kernel(area, area_tol, moment, moment_tol, product, product_tol, side
     return rows
 
 
-@dataclass(frozen=True)
-class TriangleMatches:
+class TriangleMatches(NamedTuple):
     """query (M,): index of the measured triangle; stars (M, 3): database stars assigned to its
     vertices 1, 2, 3. area_candidates, finalists (Q,): catalog triangles within the area
-    window, and also within the moment window (-1: more than the cap of assignments)."""
+    window, and also within the moment window (-1: more than the cap of assignments). The
+    kernel fills one with room for M rows, of which match_triangles keeps those emitted."""
 
     query: np.ndarray
     stars: np.ndarray
@@ -121,18 +128,13 @@ def match_triangles(triangles: TriangleDatabase, database: StarDatabase, feature
     """Catalog matches of measured triangles: area window (k-vector), then polar moment, then
     the vertex assignments whose sides agree (all that keep the handedness if not
     check_sides), with the handedness (mirror) test."""
-    q = len(features)
+    q = features.triangle_count
     index = triangles.spherical if spherical else triangles.planar
     capacity = max(min(q * (cap + 6), 1 << 20), 16)
-    out_query, out_stars = np.empty(capacity, np.int64), np.empty((capacity, 3), np.int64)
-    n_area, n_final = np.zeros(q, np.int64), np.zeros(q, np.int64)
-    kv = index.kvector
-    rows = _match_kernel(features.area, features.area_tol, features.moment, features.moment_tol, features.product,
-                         features.product_tol, features.sides, features.side_tol, features.handedness, cap,
-                         check_sides, index.area, index.moment, index.product, index.stars, index.block,
-                         index.block_min, index.block_max, kv.k, kv.slope, kv.intercept, database.vectors,
-                         _PERMUTATIONS, out_query, out_stars, n_area, n_final)
-    return TriangleMatches(out_query[:rows], out_stars[:rows], n_area, n_final)
+    out = TriangleMatches(np.empty(capacity, np.int64), np.empty((capacity, 3), np.int64), np.zeros(q, np.int64),
+                          np.zeros(q, np.int64))
+    rows = _match_kernel(features, index, database.vectors, cap, check_sides, out)
+    return out._replace(query=out.query[:rows], stars=out.stars[:rows])
 
 
 def warm_up(triangles: TriangleDatabase, database: StarDatabase) -> None:
