@@ -14,7 +14,7 @@ import hashlib
 import json
 import logging
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +67,9 @@ class DatabaseConfig:
 class StarDatabase:
     """vectors: (N, 3) ICRS unit vectors; hip: (N,) Hipparcos ids; magnitude: (N,) Hp;
     pair_a, pair_b: star indices of each pair, sorted by pair_angle [rad] (a < b);
-    kvector: search structure over pair_angle."""
+    kvector: search structure over pair_angle; cache_directory: where its cache file lives
+    (None: the default, catalog.cache_dir()); the databases derived from it (triangles) are
+    cached there too."""
 
     config: DatabaseConfig
     vectors: np.ndarray
@@ -77,6 +79,7 @@ class StarDatabase:
     pair_b: np.ndarray
     kvector: KVector
     build_seconds: float = 0.0
+    cache_directory: Path | None = None
 
     @property
     def pair_angle(self) -> np.ndarray:
@@ -172,20 +175,24 @@ def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -
 
 
 def load_or_build_database(config: DatabaseConfig, directory: Path | None = None) -> StarDatabase:
-    """Load the cached database for `config` (validated: see the module docstring) or build it
-    and cache it. A rejected cache file is logged and rebuilt; an unwritable cache directory
-    costs a rebuild at every start (logged), never the database."""
+    """Load the cached database for `config` from `directory` (None: catalog.cache_dir();
+    validated: see the module docstring) or build it and cache it there. The database
+    remembers the directory (cache_directory), so the triangle databases built from it are
+    cached beside it. A rejected cache file is logged and rebuilt; an unwritable cache
+    directory costs a rebuild at every start (logged), never the database."""
+    directory = Path(directory) if directory is not None else None
     path = (directory or cache_dir()) / f"pairs_{config.cache_key()}.npz"
     arrays = load_validated_npz(path)
     if arrays is not None:
         try:
-            return database_from_cache(arrays, config)
+            return replace(database_from_cache(arrays, config), cache_directory=directory)
         except ValueError as exc:
             log.warning("pattern database cache %s rejected (%s); rebuilding it", path, exc)
     elif path.exists():
         log.warning("pattern database cache %s is unreadable or fails its checksum; rebuilding it", path)
-    db = build_database(config)
+    db = replace(build_database(config), cache_directory=directory)
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)  # a directory of the caller's choosing may be new
         save_validated_npz(path, {
             "vectors": db.vectors, "hip": db.hip, "magnitude": db.magnitude, "pair_a": db.pair_a,
             "pair_b": db.pair_b, "pair_angle": db.kvector.sorted_values, "k": db.kvector.k,

@@ -221,13 +221,16 @@ _MEMO: dict[Path, TriangleDatabase] = {}
 
 
 def triangle_cache_path(database: StarDatabase, config: TriangleConfig, directory: Path | None = None) -> Path:
-    return (directory or cache_dir()) / f"triangles_{config.cache_key(database)}.npz"
+    """The cache file of the triangles of `database` and `config`: in `directory`, else where
+    the pair database lives (database.cache_directory), else in catalog.cache_dir()."""
+    return (directory or database.cache_directory or cache_dir()) / f"triangles_{config.cache_key(database)}.npz"
 
 
 def load_or_build_triangles(database: StarDatabase, config: TriangleConfig | None = None,
                             directory: Path | None = None) -> TriangleDatabase:
     """The triangle database of `database` and `config` (default: for_database), loaded from
-    the checksum-validated cache or built and cached; kept in memory per cache file."""
+    the checksum-validated cache (triangle_cache_path: by default beside the pair database)
+    or built and cached; kept in memory per cache file."""
     config = config or TriangleConfig.for_database(database)
     path = triangle_cache_path(database, config, directory)
     if path in _MEMO and path.is_file():
@@ -248,6 +251,7 @@ def load_or_build_triangles(database: StarDatabase, config: TriangleConfig | Non
             triangles = None  # another layout, or not written for this database: rebuild
     if triangles is None:
         triangles = build_triangle_database(database, config)
+        path.parent.mkdir(parents=True, exist_ok=True)
         save_validated_npz(path, {
             **triangles.spherical.arrays("spherical"), **triangles.planar.arrays("planar"),
             "guide_stars": triangles.guide_stars, "cells_per_face": np.array(triangles.cells_per_face),
