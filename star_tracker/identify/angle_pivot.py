@@ -283,6 +283,38 @@ class AnglePivotIdentifier(StarIdentifier):
             return None
         return spots[core], stars[core]
 
+    def _completed(self, geometry: SpotGeometry, pairs: _SpotPairs, spots: np.ndarray, stars: np.ndarray,
+                   excluded: set[int]) -> tuple[np.ndarray, np.ndarray]:
+        """A solved core with every further pattern spot (not in `excluded`) whose angles to at
+        least two spots already in it are solved by exactly one catalog star, checked again for
+        consistency and handedness (else the core as it was). A chain stops pivoting once one
+        finalist remains, so it may leave spots out, and an attitude fitted to a few clustered
+        spots can put the others' stars beyond the verification radius, where the shared
+        re-match cannot find them (Cole scenes: 5 of 9 stars, a poor roll). Like the pivots,
+        this is attitude-independent."""
+        column = {int(s): c for c, s in enumerate(spots)}
+        finalists = stars[None, :]
+        for spot in range(geometry.pattern_count):
+            if spot in column or spot in excluded:
+                continue
+            known = np.array(list(column))
+            edges = np.flatnonzero(((pairs.first == spot) & np.isin(pairs.second, known))
+                                   | ((pairs.second == spot) & np.isin(pairs.first, known)))
+            if edges.size < 2:
+                continue  # one angle alone does not confirm a star
+            trial = {**column, spot: len(column)}
+            narrowed = self._pivot(finalists, column, pairs, int(edges[0]))
+            for e in edges[1:]:
+                if narrowed.shape[0] == 0:
+                    break
+                narrowed = self._pivot(narrowed, trial, pairs, int(e))
+            if narrowed.shape[0] == 1:
+                finalists, column = narrowed, trial
+        if len(column) == spots.size:
+            return spots, stars
+        core = self._solved_core(geometry, np.array(sorted(column, key=column.get)), finalists[0])
+        return core if core is not None and core[0].size > spots.size else (spots, stars)
+
     def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         cfg = self.pivot_config
         pairs = measured_pairs(geometry, self.database, self.config.sigma_multiplier,
@@ -345,7 +377,7 @@ class AnglePivotIdentifier(StarIdentifier):
             if core is None:
                 continue
             suspicion[np.setdiff1d(spots, core[0])] += 1
-            spots, stars = core
+            spots, stars = self._completed(geometry, pairs, *core, excluded)
             key = tuple(sorted(zip(spots.tolist(), stars.tolist())))
             if key in yielded:
                 continue
