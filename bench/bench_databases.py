@@ -18,8 +18,8 @@ import numpy as np
 
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.identify import DatabaseConfig, load_or_build_database
-from star_tracker.identify import triangles as triangle_module
-from star_tracker.identify.triangles import TriangleConfig, load_or_build_triangles
+from star_tracker.identify import triangle_database as triangle_module
+from star_tracker.identify.triangle_database import TriangleConfig, load_or_build_triangles
 from .report import write_section
 
 CASES = [

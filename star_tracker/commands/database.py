@@ -136,8 +136,8 @@ def build_databases(args: argparse.Namespace, directory: Path) -> int:
         rows.append((f"{fov:g} deg", path, database.star_count, int(database.pair_a.size), elapsed,
                      "loaded from cache" if database.build_seconds == 0.0 else "built"))
         if args.triangles:
-            from ..identify import triangles as triangle_module
-            from ..identify.triangles import TriangleConfig, load_or_build_triangles, triangle_cache_path
+            from ..identify import triangle_database as triangle_module
+            from ..identify.triangle_database import TriangleConfig, load_or_build_triangles, triangle_cache_path
 
             triangle_config = TriangleConfig.for_database(database)
             triangle_path = triangle_cache_path(database, triangle_config, directory)

@@ -39,6 +39,7 @@ import numpy as np
 
 from .base import SpotGeometry, StarIdentifier
 from .database import StarDatabase
+from .geometry import chord_angle, triple_products
 
 
 def pair_angle_sigma(sigma_i: np.ndarray, sigma_j: np.ndarray) -> np.ndarray:
@@ -46,11 +47,6 @@ def pair_angle_sigma(sigma_i: np.ndarray, sigma_j: np.ndarray) -> np.ndarray:
     sigma_i, sigma_j [rad] (Cole & Crassidis eq. 12; sqrt(2) sigma for equal errors, eq. 14)."""
     var_i, var_j = np.square(sigma_i), np.square(sigma_j)
     return np.sqrt(var_i + var_j + 3.0 * var_i * var_j)
-
-
-def chord_angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Angle between unit vectors (..., 3) [rad]; the chord form stays exact for small angles."""
-    return 2.0 * np.arcsin(np.clip(0.5 * np.linalg.norm(u - v, axis=-1), 0.0, 1.0))
 
 
 def handedness_agrees(rays: np.ndarray, stars: np.ndarray, sigma: np.ndarray, beta: float) -> bool:
@@ -61,8 +57,8 @@ def handedness_agrees(rays: np.ndarray, stars: np.ndarray, sigma: np.ndarray, be
     m = rays.shape[0]
     idx = np.array([(i, j, k) for i in range(m) for j in range(i + 1, m) for k in range(j + 1, m)])
     r, s = rays[idx], stars[idx]
-    det_spots = np.einsum("ni,ni->n", r[:, 0], np.cross(r[:, 1], r[:, 2]))
-    det_stars = np.einsum("ni,ni->n", s[:, 0], np.cross(s[:, 1], s[:, 2]))
+    det_spots = triple_products(r[:, 0], r[:, 1], r[:, 2])
+    det_stars = triple_products(s[:, 0], s[:, 1], s[:, 2])
     perimeter = (np.linalg.norm(r[:, 0] - r[:, 1], axis=1) + np.linalg.norm(r[:, 1] - r[:, 2], axis=1)
                  + np.linalg.norm(r[:, 2] - r[:, 0], axis=1))
     decisive = np.abs(det_spots) > beta * np.max(sigma) * perimeter
@@ -138,6 +134,17 @@ class _SpotPairs:
     @property
     def solutions(self) -> np.ndarray:
         return self.stop - self.start
+
+
+@dataclass(frozen=True)
+class _Ranking:
+    """Order of the measured angles for starting chains and choosing pivots: rank (A,) angle
+    indices best first; position (A,) each angle's place in it; usable (A,) angles with
+    between 1 and max_solutions_per_angle catalog solutions."""
+
+    rank: np.ndarray
+    position: np.ndarray
+    usable: np.ndarray
 
 
 def measured_pairs(geometry: SpotGeometry, database: StarDatabase, beta: float, floor: float) -> _SpotPairs:
@@ -276,6 +283,38 @@ class AnglePivotIdentifier(StarIdentifier):
             return None
         return spots[core], stars[core]
 
+    def _completed(self, geometry: SpotGeometry, pairs: _SpotPairs, spots: np.ndarray, stars: np.ndarray,
+                   excluded: set[int]) -> tuple[np.ndarray, np.ndarray]:
+        """A solved core with every further pattern spot (not in `excluded`) whose angles to at
+        least two spots already in it are solved by exactly one catalog star, checked again for
+        consistency and handedness (else the core as it was). A chain stops pivoting once one
+        finalist remains, so it may leave spots out, and an attitude fitted to a few clustered
+        spots can put the others' stars beyond the verification radius, where the shared
+        re-match cannot find them (Cole scenes: 5 of 9 stars, a poor roll). Like the pivots,
+        this is attitude-independent."""
+        column = {int(s): c for c, s in enumerate(spots)}
+        finalists = stars[None, :]
+        for spot in range(geometry.pattern_count):
+            if spot in column or spot in excluded:
+                continue
+            known = np.array(list(column))
+            edges = np.flatnonzero(((pairs.first == spot) & np.isin(pairs.second, known))
+                                   | ((pairs.second == spot) & np.isin(pairs.first, known)))
+            if edges.size < 2:
+                continue  # one angle alone does not confirm a star
+            trial = {**column, spot: len(column)}
+            narrowed = self._pivot(finalists, column, pairs, int(edges[0]))
+            for e in edges[1:]:
+                if narrowed.shape[0] == 0:
+                    break
+                narrowed = self._pivot(narrowed, trial, pairs, int(e))
+            if narrowed.shape[0] == 1:
+                finalists, column = narrowed, trial
+        if len(column) == spots.size:
+            return spots, stars
+        core = self._solved_core(geometry, np.array(sorted(column, key=column.get)), finalists[0])
+        return core if core is not None and core[0].size > spots.size else (spots, stars)
+
     def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         cfg = self.pivot_config
         pairs = measured_pairs(geometry, self.database, self.config.sigma_multiplier,
@@ -292,6 +331,7 @@ class AnglePivotIdentifier(StarIdentifier):
             rank = np.argsort(-pairs.angle, kind="stable")
         position = np.empty_like(rank)
         position[rank] = np.arange(rank.size)
+        ranking = _Ranking(rank, position, usable)
         # Round 0 starts a chain from every angle in rank order (the paper's restarts). A spot
         # that is no catalog star (false star) kills the true finalist whenever a chain pivots
         # through it, so later rounds leave out one spot (then two, ...), the most suspect
@@ -306,27 +346,27 @@ class AnglePivotIdentifier(StarIdentifier):
             suspects = np.lexsort((-np.arange(suspicion.size), -suspicion))
             starts = (None if cfg.restart else 1) if size == 0 else cfg.starts_per_round
             for left_out in itertools.combinations(suspects.tolist(), size):
-                yield from self._round(geometry, pairs, rank, position, usable, set(left_out), starts, suspicion,
-                                       yielded, deadline)
+                yield from self._round(geometry, pairs, ranking, set(left_out), starts, suspicion, yielded, deadline)
                 if time.perf_counter() > deadline:
                     return
 
-    def _round(self, geometry: SpotGeometry, pairs: _SpotPairs, rank: np.ndarray, position: np.ndarray,
-               usable: np.ndarray, left_out: set[int], starts: int | None, suspicion: np.ndarray,
-               yielded: set, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    def _round(self, geometry: SpotGeometry, pairs: _SpotPairs, ranking: _Ranking, left_out: set[int],
+               starts: int | None, suspicion: np.ndarray, yielded: set,
+               deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Chains from the first `starts` (None: all) usable angles in rank order that avoid the
         spots in `left_out`; yields each new solved core. `suspicion` counts, per spot, the
         pivots it emptied, its drops from a consistent core and its rejected hypotheses."""
         chains = 0
-        for start in rank:
+        for start in ranking.rank:
             if time.perf_counter() > deadline or (starts is not None and chains >= starts):
                 return
-            if not usable[start] or int(pairs.first[start]) in left_out or int(pairs.second[start]) in left_out:
+            if (not ranking.usable[start] or int(pairs.first[start]) in left_out
+                    or int(pairs.second[start]) in left_out):
                 continue
             chains += 1
             self.stats["chains"] += 1
             excluded = set(left_out)
-            result = self._chain(pairs, int(start), position, excluded, deadline)
+            result = self._chain(pairs, int(start), ranking.position, excluded, deadline)
             if result is None:
                 continue
             spots, finalists = result
@@ -337,7 +377,7 @@ class AnglePivotIdentifier(StarIdentifier):
             if core is None:
                 continue
             suspicion[np.setdiff1d(spots, core[0])] += 1
-            spots, stars = core
+            spots, stars = self._completed(geometry, pairs, *core, excluded)
             key = tuple(sorted(zip(spots.tolist(), stars.tolist())))
             if key in yielded:
                 continue

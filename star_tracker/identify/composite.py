@@ -22,17 +22,19 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Iterator, NamedTuple
 
 import numpy as np
 from numba import njit
 
 from .base import IdentifyConfig, SpotGeometry, StarIdentifier
 from .database import StarDatabase
-from .pyramid import pyramid_order
+from .geometry import angle_between, chord_angle, pyramid_triangles, triple_product
 from .spherical_triangle import fitting_triples
-from .triangles import (TriangleConfig, _arc, _det, _heron_area, _planar_jacobians, _side_covariance, _tolerance,
-                        load_or_build_triangles, match_triangles, measured_features, warm_up)
+from .triangle_database import TriangleConfig, load_or_build_triangles
+from .triangle_features import measured_features
+from .triangle_invariants import feature_tolerance, heron_area, planar_jacobians, side_covariance
+from .triangle_matching import match_triangles, warm_up
 
 
 @dataclass(frozen=True)
@@ -51,52 +53,101 @@ class CompositeSettings:
             raise ValueError(f"batch_size={self.batch_size} must be in [1, 1e5]")
 
 
-def neighbour_lists(database: StarDatabase) -> tuple[np.ndarray, np.ndarray]:
-    """Symmetric CSR (indptr, indices) of every database pair (all angles stored)."""
+class Neighbours(NamedTuple):
+    """Symmetric CSR of the database pairs: the neighbours of star s are
+    indices[indptr[s]:indptr[s + 1]]."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+
+
+class SpotDistances(NamedTuple):
+    """The spots of one frame: rays (N, 3) sensor frame, sigma (N,) [rad], dist (N, N)
+    inter-spot angles [rad]; dist_order (N, N) each row's spots by distance, dist_sorted
+    (N, N) the distances in that order."""
+
+    rays: np.ndarray
+    sigma: np.ndarray
+    dist: np.ndarray
+    dist_order: np.ndarray
+    dist_sorted: np.ndarray
+
+
+class MatchTolerance(NamedTuple):
+    """beta: sigma multiplier; floor: model error per side [rad]; loose: the fourth star's
+    distance prefilter [rad]."""
+
+    beta: float
+    floor: float
+    loose: float
+
+
+class FourthStars(NamedTuple):
+    """Per base candidate (C,): count of fourth spots with a unique response; the brightest
+    such spot and its star (-1 if none)."""
+
+    count: np.ndarray
+    spot: np.ndarray
+    star: np.ndarray
+
+
+def neighbour_lists(database: StarDatabase) -> Neighbours:
+    """Symmetric CSR of every database pair (all angles stored)."""
     a = np.concatenate([database.pair_a, database.pair_b]).astype(np.int64)
     b = np.concatenate([database.pair_b, database.pair_a]).astype(np.int32)
     order = np.argsort(a, kind="stable")
     indptr = np.zeros(database.star_count + 1, np.int64)
     np.cumsum(np.bincount(a, minlength=database.star_count), out=indptr[1:])
-    return indptr, b[order]
+    return Neighbours(indptr, b[order])
 
 
-_NEIGHBOURS: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+_NEIGHBOURS: dict[str, Neighbours] = {}
 
 
 @njit(cache=True)
-def _planar_match(rays, sigma, dist, x, y, r, vectors, sx, sy, s, beta, floor, cov, jac_a, jac_m) -> bool:
-    """Do spot triangle (x, y, r) and catalog triangle (sx, sy, s) agree on planar area and
-    polar moment (eqs. 1-2) within tolerance, with the same handedness?"""
+def _planar_match(frame, spots, vectors, stars, tol, scratch) -> bool:
+    """Do spot triangle `spots` (x, y, r) of SpotDistances `frame` and catalog triangle
+    `stars` (sx, sy, s) agree on planar area and polar moment (eqs. 1-2) within MatchTolerance
+    `tol`, with the same handedness? scratch: (cov (3, 3), jac_a (3,), jac_m (3,))."""
+    rays, sigma, dist = frame.rays, frame.sigma, frame.dist
+    x, y, r = spots
+    sx, sy, s = stars
+    beta, floor = tol.beta, tol.floor
+    cov, jac_a, jac_m = scratch
     a, b, c = dist[x, y], dist[y, r], dist[r, x]
-    ca, cb, cc = _arc(vectors[sx], vectors[sy]), _arc(vectors[sy], vectors[s]), _arc(vectors[s], vectors[sx])
-    _side_covariance(rays[x], rays[y], rays[r], sigma[x], sigma[y], sigma[r], cov)
-    _planar_jacobians(a, b, c, jac_a, jac_m)
-    area = _heron_area(a, b, c)
-    cat_area = _heron_area(ca, cb, cc)
-    if abs(area - cat_area) > _tolerance(jac_a, cov, beta, floor):
+    ca = angle_between(vectors[sx], vectors[sy])
+    cb = angle_between(vectors[sy], vectors[s])
+    cc = angle_between(vectors[s], vectors[sx])
+    side_covariance(rays[x], rays[y], rays[r], sigma[x], sigma[y], sigma[r], cov)
+    planar_jacobians(a, b, c, jac_a, jac_m)
+    area = heron_area(a, b, c)
+    cat_area = heron_area(ca, cb, cc)
+    if abs(area - cat_area) > feature_tolerance(jac_a, cov, beta, floor):
         return False
     moment = area * (a * a + b * b + c * c) / 36.0
     cat_moment = cat_area * (ca * ca + cb * cb + cc * cc) / 36.0
-    if abs(moment - cat_moment) > _tolerance(jac_m, cov, beta, floor):
+    if abs(moment - cat_moment) > feature_tolerance(jac_m, cov, beta, floor):
         return False
-    det = _det(rays[x], rays[y], rays[r])
+    det = triple_product(rays[x], rays[y], rays[r])
     if abs(det) <= beta * max(sigma[x], sigma[y], sigma[r]) * (a + b + c):
         return True  # too flat for a handedness test
-    return (det > 0.0) == (_det(vectors[sx], vectors[sy], vectors[s]) > 0.0)
+    return (det > 0.0) == (triple_product(vectors[sx], vectors[sy], vectors[s]) > 0.0)
 
 
 @njit(cache=True)
-def _confirm_kernel(i, j, k, base_stars, rays, sigma, dist, dist_order, dist_sorted, nb_ptr, nb_idx, vectors,
-                    beta, floor, loose, out_count, out_r, out_s):
-    """For each base candidate (stars of spots i, j, k): the fourth spots r for which exactly
-    one neighbour star s of s_i makes all three side triangles match. out_count: how many
-    such r; out_r, out_s: the brightest one (-1 if none)."""
+def _confirm_kernel(base_spots, base_stars, frame, neighbours, vectors, tol, out):
+    """For each base candidate (stars (C, 3) of the spots base_spots = (i, j, k)): the fourth
+    spots r for which exactly one neighbour star s of s_i makes all three side triangles
+    match. Writes FourthStars `out`: how many such r; the brightest one and its star."""
+    i, j, k = base_spots
+    dist, dist_order, dist_sorted = frame.dist, frame.dist_order, frame.dist_sorted
+    nb_ptr, nb_idx = neighbours.indptr, neighbours.indices
+    loose = tol.loose
+    out_count, out_r, out_s = out.count, out.spot, out.star
     n = dist.shape[0]
     hits = np.zeros(n, np.int64)
     star_of = np.full(n, -1, np.int64)
-    cov = np.empty((3, 3))
-    jac_a, jac_m = np.empty(3), np.empty(3)
+    scratch = (np.empty((3, 3)), np.empty(3), np.empty(3))
     row_i = dist_sorted[i]
     for c in range(base_stars.shape[0]):
         si, sj, sk = base_stars[c, 0], base_stars[c, 1], base_stars[c, 2]
@@ -105,24 +156,24 @@ def _confirm_kernel(i, j, k, base_stars, rays, sigma, dist, dist_order, dist_sor
             s = nb_idx[p]
             if s == sj or s == sk:
                 continue
-            d_si = _arc(vectors[s], vectors[si])
+            d_si = angle_between(vectors[s], vectors[si])
             lo = np.searchsorted(row_i, d_si - loose)
             hi = np.searchsorted(row_i, d_si + loose, side="right")
             if lo >= hi:
                 continue
-            d_sj = _arc(vectors[s], vectors[sj])
-            d_sk = _arc(vectors[s], vectors[sk])
+            d_sj = angle_between(vectors[s], vectors[sj])
+            d_sk = angle_between(vectors[s], vectors[sk])
             for m in range(lo, hi):
                 r = dist_order[i, m]
                 if r == i or r == j or r == k:
                     continue
                 if abs(dist[j, r] - d_sj) > loose or abs(dist[k, r] - d_sk) > loose:
                     continue
-                if not _planar_match(rays, sigma, dist, i, j, r, vectors, si, sj, s, beta, floor, cov, jac_a, jac_m):
+                if not _planar_match(frame, (i, j, r), vectors, (si, sj, s), tol, scratch):
                     continue
-                if not _planar_match(rays, sigma, dist, i, k, r, vectors, si, sk, s, beta, floor, cov, jac_a, jac_m):
+                if not _planar_match(frame, (i, k, r), vectors, (si, sk, s), tol, scratch):
                     continue
-                if not _planar_match(rays, sigma, dist, j, k, r, vectors, sj, sk, s, beta, floor, cov, jac_a, jac_m):
+                if not _planar_match(frame, (j, k, r), vectors, (sj, sk, s), tol, scratch):
                     continue
                 hits[r] += 1
                 star_of[r] = s
@@ -139,7 +190,7 @@ def _confirm_kernel(i, j, k, base_stars, rays, sigma, dist, dist_order, dist_sor
 def base_triangle_batches(pattern_count: int, spot_count: int, size: int) -> Iterator[np.ndarray]:
     """Base triangles in batches of at most `size`: Mortari's pyramid order over the pattern
     spots, then for each further spot k every triple (i, j, k) with i < j < k."""
-    first = np.array(list(pyramid_order(pattern_count)), np.int64).reshape(-1, 3)
+    first = pyramid_triangles(pattern_count)
     for start in range(0, first.shape[0], size):
         yield first[start:start + size]
     for k in range(pattern_count, spot_count):
@@ -171,10 +222,10 @@ class CompositeIdentifier(StarIdentifier):
         rays = np.array([[0.0, 0.0, 1.0], [0.01, 0.0, 1.0], [0.0, 0.01, 1.0], [0.01, 0.01, 1.0]])
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
         dist = np.zeros((4, 4))
-        order = np.zeros((4, 4), np.int64)
-        out = np.zeros(1, np.int64)
-        _confirm_kernel(0, 1, 2, np.zeros((1, 3), np.int64), rays, np.full(4, 1e-5), dist, order, dist,
-                        *self.neighbours, self.database.vectors, 3.0, 0.0, 1e-4, out, out.copy(), out.copy())
+        frame = SpotDistances(rays, np.full(4, 1e-5), dist, np.zeros((4, 4), np.int64), dist)
+        out = FourthStars(*(np.zeros(1, np.int64) for _ in range(3)))
+        _confirm_kernel((0, 1, 2), np.zeros((1, 3), np.int64), frame, self.neighbours, self.database.vectors,
+                        MatchTolerance(3.0, 0.0, 1e-4), out)
 
     def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         n = min(geometry.rays.shape[0], self.settings.max_spots)
@@ -183,13 +234,14 @@ class CompositeIdentifier(StarIdentifier):
         rays = np.ascontiguousarray(geometry.rays[:n])
         sigma = np.ascontiguousarray(geometry.sigma[:n])
         beta, floor = self.config.sigma_multiplier, self.config.angle_tolerance_floor_rad
-        dist = 2.0 * np.arcsin(np.clip(0.5 * np.linalg.norm(rays[:, None] - rays[None], axis=-1), 0.0, 1.0))
+        dist = chord_angle(rays[:, None], rays[None])
         dist_order = np.argsort(dist, axis=1, kind="stable")
         dist_sorted = np.ascontiguousarray(np.take_along_axis(dist, dist_order, axis=1))
         # Prefilter on the fourth star's three distances: twice the widest side tolerance.
         loose = 2.0 * float(self.angle_tolerance(np.max(sigma), np.max(sigma)))
         slack = 0.5 * loose
-        nb_ptr, nb_idx = self.neighbours
+        frame = SpotDistances(rays, sigma, dist, dist_order, dist_sorted)
+        tol = MatchTolerance(float(beta), float(floor), loose)
         vectors = self.database.vectors
         self.stats.update(base_triangles=0, base_candidates=0, confirmed=0, spots_used=0)
         yielded: set[tuple] = set()
@@ -211,10 +263,9 @@ class CompositeIdentifier(StarIdentifier):
                 i, j, k = (int(v) for v in triples[t])
                 base = np.ascontiguousarray(matches.stars[bounds[t]:bounds[t + 1]])
                 self.stats["base_candidates"] += int(base.shape[0])
-                count = np.empty(base.shape[0], np.int64)
-                fourth_spot, fourth_star = np.empty_like(count), np.empty_like(count)
-                _confirm_kernel(i, j, k, base, rays, sigma, dist, dist_order, dist_sorted, nb_ptr, nb_idx, vectors,
-                                beta, floor, loose, count, fourth_spot, fourth_star)
+                fourth = FourthStars(*(np.empty(base.shape[0], np.int64) for _ in range(3)))
+                _confirm_kernel((i, j, k), base, frame, self.neighbours, vectors, tol, fourth)
+                count, fourth_spot, fourth_star = fourth
                 for c in np.argsort(-count, kind="stable"):
                     if count[c] == 0:
                         break

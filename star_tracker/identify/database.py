@@ -14,13 +14,14 @@ import hashlib
 import json
 import logging
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from ..models.catalog import StarCatalog, cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
+from .geometry import chord_angle
 from .kvector import KVector
 
 DATABASE_FORMAT_VERSION = 2
@@ -66,7 +67,9 @@ class DatabaseConfig:
 class StarDatabase:
     """vectors: (N, 3) ICRS unit vectors; hip: (N,) Hipparcos ids; magnitude: (N,) Hp;
     pair_a, pair_b: star indices of each pair, sorted by pair_angle [rad] (a < b);
-    kvector: search structure over pair_angle."""
+    kvector: search structure over pair_angle; cache_directory: where its cache file lives
+    (None: the default, catalog.cache_dir()); the databases derived from it (triangles) are
+    cached there too."""
 
     config: DatabaseConfig
     vectors: np.ndarray
@@ -76,6 +79,7 @@ class StarDatabase:
     pair_b: np.ndarray
     kvector: KVector
     build_seconds: float = 0.0
+    cache_directory: Path | None = None
 
     @property
     def pair_angle(self) -> np.ndarray:
@@ -114,8 +118,7 @@ def build_database(config: DatabaseConfig, catalog: StarCatalog | None = None) -
     tree = cKDTree(vectors)
     chord = 2.0 * np.sin(0.5 * config.max_pair_angle_rad)
     pairs = tree.query_pairs(r=chord, output_type="ndarray").astype(np.int32)
-    diff = np.linalg.norm(vectors[pairs[:, 0]] - vectors[pairs[:, 1]], axis=1)
-    angles = 2.0 * np.arcsin(np.clip(0.5 * diff, 0.0, 1.0))  # exact for small angles, unlike arccos
+    angles = chord_angle(vectors[pairs[:, 0]], vectors[pairs[:, 1]])  # exact for small angles, unlike arccos
     order = np.argsort(angles, kind="stable")
     pairs = pairs[order]
     a = np.minimum(pairs[:, 0], pairs[:, 1])
@@ -165,27 +168,31 @@ def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -
         raise ValueError("k-vector inconsistent")
     # The stored angles must be those of the stored stars (a sample: this runs at every start).
     sample = np.linspace(0, m - 1, min(m, 4096)).astype(np.int64)
-    chord = np.linalg.norm(vectors[pair_a[sample]] - vectors[pair_b[sample]], axis=1)
-    if not np.allclose(2.0 * np.arcsin(np.clip(0.5 * chord, 0.0, 1.0)), angle[sample], rtol=0, atol=1e-12):
+    stored = chord_angle(vectors[pair_a[sample]], vectors[pair_b[sample]])
+    if not np.allclose(stored, angle[sample], rtol=0, atol=1e-12):
         raise ValueError("pair angles do not match the star vectors")
     return StarDatabase(config, vectors, hip, magnitude, pair_a, pair_b, KVector(angle, k, slope, intercept))
 
 
 def load_or_build_database(config: DatabaseConfig, directory: Path | None = None) -> StarDatabase:
-    """Load the cached database for `config` (validated: see the module docstring) or build it
-    and cache it. A rejected cache file is logged and rebuilt; an unwritable cache directory
-    costs a rebuild at every start (logged), never the database."""
+    """Load the cached database for `config` from `directory` (None: catalog.cache_dir();
+    validated: see the module docstring) or build it and cache it there. The database
+    remembers the directory (cache_directory), so the triangle databases built from it are
+    cached beside it. A rejected cache file is logged and rebuilt; an unwritable cache
+    directory costs a rebuild at every start (logged), never the database."""
+    directory = Path(directory) if directory is not None else None
     path = (directory or cache_dir()) / f"pairs_{config.cache_key()}.npz"
     arrays = load_validated_npz(path)
     if arrays is not None:
         try:
-            return database_from_cache(arrays, config)
+            return replace(database_from_cache(arrays, config), cache_directory=directory)
         except ValueError as exc:
             log.warning("pattern database cache %s rejected (%s); rebuilding it", path, exc)
     elif path.exists():
         log.warning("pattern database cache %s is unreadable or fails its checksum; rebuilding it", path)
-    db = build_database(config)
+    db = replace(build_database(config), cache_directory=directory)
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)  # a directory of the caller's choosing may be new
         save_validated_npz(path, {
             "vectors": db.vectors, "hip": db.hip, "magnitude": db.magnitude, "pair_a": db.pair_a,
             "pair_b": db.pair_b, "pair_angle": db.kvector.sorted_values, "k": db.kvector.k,

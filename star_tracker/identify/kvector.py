@@ -7,14 +7,16 @@ which contains at most a few extra values at each end; those are trimmed exactly
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 
-@dataclass(frozen=True)
-class KVector:
-    """sorted_values: ascending (n,); k: (n,) counts; slope m and intercept q of z(i)."""
+class KVector(NamedTuple):
+    """sorted_values: ascending (n,); k: (n,) counts; slope m and intercept q of z(i). A record
+    of arrays and floats, so compiled code can take it whole."""
 
     sorted_values: np.ndarray
     k: np.ndarray
@@ -50,3 +52,18 @@ class KVector:
         window = self.sorted_values[start:stop]
         # Trim the few values of the window that fall outside [lo, hi].
         return start + int(np.searchsorted(window, lo, "left")), start + int(np.searchsorted(window, hi, "right"))
+
+
+@njit(cache=True)
+def kvector_window(k, slope, intercept, first, last, lo, hi):
+    """Compiled `KVector.range` without the final trim: [start, stop) of the k-vector (k,
+    slope, intercept) over sorted values from `first` to `last` that holds every value in
+    [lo, hi] (and a few beyond; (0, 0) when the window misses the values)."""
+    n = k.size
+    if hi < lo or hi < first or lo > last:
+        return 0, 0
+    j_lo = int(math.floor((lo - intercept) / slope))
+    j_hi = int(math.ceil((hi - intercept) / slope))
+    start = k[min(j_lo - 1, n - 1)] if j_lo >= 1 else 0
+    stop = k[j_hi] if 0 <= j_hi < n else n
+    return start, stop

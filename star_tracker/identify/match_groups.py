@@ -35,14 +35,15 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Iterator, NamedTuple
 
 import numpy as np
 from numba import njit
 
-from .angle_pivot import chord_angle, pair_angle_sigma
+from .angle_pivot import pair_angle_sigma
 from .base import SpotGeometry, StarIdentifier
 from .database import StarDatabase
+from .geometry import angle_between, chord2_rows, chord_angle, triple_product
 
 MAX_ASSOCIATES = 64  # bitmask width of the clique search
 VALIDATION_CHUNK = 4096  # kernels validated between two deadline checks
@@ -73,6 +74,33 @@ class MatchGroupConfig:
             raise ValueError("invalid match-group config: " + "; ".join(bad))
 
 
+class PairSweep(NamedTuple):
+    """What the compiled sweeps over pair matches read: spot pairs (pair_i, pair_j) (P,) with
+    their guide-pair windows [start, stop) (P,) into (guide_a, guide_b); spot_mag (n,) and
+    star_mag (N,) magnitudes [mag] (NaN: unknown); mag_limit: largest accepted difference of
+    magnitude differences [mag]."""
+
+    pair_i: np.ndarray
+    pair_j: np.ndarray
+    start: np.ndarray
+    stop: np.ndarray
+    guide_a: np.ndarray
+    guide_b: np.ndarray
+    spot_mag: np.ndarray
+    star_mag: np.ndarray
+    mag_limit: float
+
+
+class Associates(NamedTuple):
+    """Associated matches of the kernels: counts (K + 1,) (filled at k + 1 while counting),
+    fill (K,) next write position of each kernel, spots and stars (A,) the matches."""
+
+    counts: np.ndarray
+    fill: np.ndarray
+    spots: np.ndarray
+    stars: np.ndarray
+
+
 # -- compiled inner loops -------------------------------------------------------------------
 
 @njit(cache=True)
@@ -83,11 +111,12 @@ def _magnitudes_agree(m_i, m_j, mag_a, mag_b, limit):
 
 
 @njit(cache=True)
-def _confirm(p0, p1, pair_i, pair_j, start, stop, guide_a, guide_b, spot_mag, star_mag, mag_limit, conf, last):
-    """Add to conf (n_spots, n_stars) the confirmations by spot pairs p0..p1-1: a match (spot,
-    star) is confirmed once per other spot whose pair with it matches a guide pair containing
-    the star. last[spot, star] holds the last confirming spot pair. Returns the number of
-    oriented pair matches that passed the magnitude test."""
+def _confirm(p0, p1, sweep, conf, last):
+    """Add to conf (n_spots, n_stars) the confirmations by spot pairs p0..p1-1 of PairSweep
+    `sweep`: a match (spot, star) is confirmed once per other spot whose pair with it matches a
+    guide pair containing the star. last[spot, star] holds the last confirming spot pair.
+    Returns the number of oriented pair matches that passed the magnitude test."""
+    pair_i, pair_j, start, stop, guide_a, guide_b, spot_mag, star_mag, mag_limit = sweep
     passed = 0
     for p in range(p0, p1):
         i, j = pair_i[p], pair_j[p]
@@ -108,12 +137,14 @@ def _confirm(p0, p1, pair_i, pair_j, start, stop, guide_a, guide_b, spot_mag, st
 
 
 @njit(cache=True)
-def _collect(p0, p1, pair_i, pair_j, start, stop, guide_a, guide_b, spot_mag, star_mag, mag_limit,
-             conf, kernel_id, min_conf, counting, counts, fill, spots, stars):
+def _collect(p0, p1, sweep, conf, kernel_id, min_conf, counting, out):
     """Associated matches (spot, star) of the kernels numbered in kernel_id (-1: not a kernel)
-    from spot pairs p0..p1-1: counted into counts[k + 1] (counting) or written at fill[k].
-    Associates whose own confirmation is below min_conf cannot be in a group of min_conf + 1
-    and are left out (the paper's adjustment for eliminated kernels)."""
+    from spot pairs p0..p1-1 of PairSweep `sweep`: counted into out.counts[k + 1] (counting) or
+    written at out.fill[k] (Associates). Associates whose own confirmation is below min_conf
+    cannot be in a group of min_conf + 1 and are left out (the paper's adjustment for
+    eliminated kernels)."""
+    pair_i, pair_j, start, stop, guide_a, guide_b, spot_mag, star_mag, mag_limit = sweep
+    counts, fill, spots, stars = out
     for p in range(p0, p1):
         i, j = pair_i[p], pair_j[p]
         for g in range(start[p], stop[p]):
@@ -153,18 +184,6 @@ def _rank_associates(offsets, spots, stars, conf, keep):
 
 
 @njit(cache=True)
-def _angle(u, v):
-    d0, d1, d2 = u[0] - v[0], u[1] - v[1], u[2] - v[2]
-    return 2.0 * np.arcsin(min(0.5 * np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), 1.0))
-
-
-@njit(cache=True)
-def _det(u, v, w):
-    return (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
-            + u[2] * (v[0] * w[1] - v[1] * w[0]))
-
-
-@njit(cache=True)
 def _popcount(x):
     n = 0
     while x:
@@ -174,15 +193,9 @@ def _popcount(x):
 
 
 @njit(cache=True)
-def _validate(selected, offsets, kernel_spot, kernel_star, assoc_spot, assoc_star, rays, sigma, vectors,
-              spot_angle, tolerance, relaxed, beta, best_mask, best_size, best_quality):
-    """Largest mutually consistent subset of each kernel's associates (at most 64, the first
-    ones): pairwise angles within the relaxed tolerance, distinct spots and stars, and the
-    kernel's handedness wherever noise cannot flip it. Writes the member bitmask, the group
-    size (kernel included) and the quality index (sum over the group's pairs of
-    |angle difference| / tolerance; lower is better; ties in size go to the lower index) of
-    the kernels listed in `selected`, into best_mask, best_size, best_quality."""
-    # Squared chord bounds of each relaxed angle window: a cheap first test.
+def _relaxed_chord_bounds(spot_angle, relaxed):
+    """Squared chord bounds (n, n) each of the relaxed angle windows spot_angle +- relaxed [rad]:
+    a cheap first test on a star pair."""
     n_spots = spot_angle.shape[0]
     chord2_lo = np.empty((n_spots, n_spots))
     chord2_hi = np.empty((n_spots, n_spots))
@@ -192,81 +205,115 @@ def _validate(selected, offsets, kernel_spot, kernel_star, assoc_spot, assoc_sta
             hi_angle = min(spot_angle[x, y] + relaxed[x, y], np.pi)
             chord2_lo[x, y] = (2.0 * np.sin(0.5 * lo_angle)) ** 2
             chord2_hi[x, y] = (2.0 * np.sin(0.5 * hi_angle)) ** 2
+    return chord2_lo, chord2_hi
+
+
+@njit(cache=True)
+def _consistency_graph(k, n, kernels, frame, vectors, beta, chord2_lo, chord2_hi):
+    """For kernel k and its first n associates: adj (n,) bitmasks of the associate pairs that
+    agree (relaxed angle, distinct spots and stars, the kernel's handedness wherever noise
+    cannot flip it), cost (n, n) their |angle difference| / tolerance, and base (n,) each
+    associate's own with the kernel."""
     one = np.uint64(1)
+    rays, sigma, spot_angle = frame.rays, frame.sigma, frame.spot_angle
+    tolerance, relaxed = frame.tolerance, frame.relaxed
+    lo = kernels.offsets[k]
+    i, a = kernels.spot[k], kernels.star[k]
+    assoc_spot, assoc_star = kernels.assoc_spot, kernels.assoc_star
+    adj = np.zeros(n, np.uint64)
+    cost = np.zeros((n, n))
+    base = np.zeros(n)
+    for p in range(n):
+        jp, bp = assoc_spot[lo + p], assoc_star[lo + p]
+        base[p] = abs(angle_between(vectors[a], vectors[bp]) - spot_angle[i, jp]) / tolerance[i, jp]
+    for p in range(n):
+        jp, bp = assoc_spot[lo + p], assoc_star[lo + p]
+        for q in range(p + 1, n):
+            jq, bq = assoc_spot[lo + q], assoc_star[lo + q]
+            if jp == jq or bp == bq:
+                continue
+            chord2 = chord2_rows(vectors, bp, bq)
+            if chord2 < chord2_lo[jp, jq] or chord2 > chord2_hi[jp, jq]:
+                continue
+            miss = abs(angle_between(vectors[bp], vectors[bq]) - spot_angle[jp, jq])
+            if miss > relaxed[jp, jq]:
+                continue
+            det_spots = triple_product(rays[i], rays[jp], rays[jq])
+            perimeter = spot_angle[i, jp] + spot_angle[i, jq] + spot_angle[jp, jq]
+            margin = beta * max(sigma[i], max(sigma[jp], sigma[jq])) * perimeter
+            det_stars = triple_product(vectors[a], vectors[bp], vectors[bq])
+            if abs(det_spots) > margin and det_spots * det_stars < 0.0:
+                continue  # mirror image
+            adj[p] |= one << np.uint64(q)
+            adj[q] |= one << np.uint64(p)
+            cost[p, q] = cost[q, p] = miss / tolerance[jp, jq]
+    return adj, cost, base
+
+
+@njit(cache=True)
+def _largest_clique(n, adj, cost, base):
+    """Largest set of mutually agreeing associates (adjacency bitmasks adj (n,), n <= 64) by
+    branch and bound over (chosen, allowed) bitmasks, depth first; among equal sizes (of real
+    groups, >= 2 associates) the lowest quality index, the sum of base over the members and
+    cost over their pairs. Returns (member bitmask, size, quality)."""
+    one = np.uint64(1)
+    stack_chosen = np.zeros(n + 2, np.uint64)
+    stack_allowed = np.zeros(n + 2, np.uint64)
+    all_bits = np.uint64(0xFFFFFFFFFFFFFFFF) if n == 64 else (one << np.uint64(n)) - one
+    top = 0
+    stack_chosen[0], stack_allowed[0] = np.uint64(0), all_bits
+    found, found_size, found_quality = np.uint64(0), 0, np.inf
+    while top >= 0:
+        chosen, allowed = stack_chosen[top], stack_allowed[top]
+        top -= 1
+        size = _popcount(chosen)
+        if allowed == 0:
+            # Equal sizes are ranked by quality only for real groups (>= 2 associates).
+            if size > found_size or (size == found_size and size >= 2):
+                quality = 0.0
+                for p in range(n):
+                    if chosen >> np.uint64(p) & one:
+                        quality += base[p]
+                        for q in range(p + 1, n):
+                            if chosen >> np.uint64(q) & one:
+                                quality += cost[p, q]
+                if size > found_size or quality < found_quality:
+                    found, found_size, found_quality = chosen, size, quality
+            continue
+        reach = size + _popcount(allowed)
+        if reach < found_size or (reach == found_size and found_size < 2):
+            continue
+        v = np.uint64(0)
+        while not (allowed >> v & one):
+            v += one
+        bit = one << v
+        top += 1  # exclude v
+        stack_chosen[top], stack_allowed[top] = chosen, allowed & ~bit
+        top += 1  # include v (explored first)
+        stack_chosen[top], stack_allowed[top] = chosen | bit, allowed & adj[v]
+    return found, found_size, found_quality
+
+
+@njit(cache=True)
+def _validate(selected, kernels, frame, vectors, beta):
+    """Largest mutually consistent subset of each kernel's associates (at most 64, the first
+    ones): pairwise angles within the relaxed tolerance, distinct spots and stars, and the
+    kernel's handedness wherever noise cannot flip it. Writes the member bitmask, the group
+    size (kernel included) and the quality index (sum over the group's pairs of
+    |angle difference| / tolerance; lower is better; ties in size go to the lower index) of
+    the kernels listed in `selected` into kernels.mask, size, quality (_Kernels; frame: _Frame)."""
+    chord2_lo, chord2_hi = _relaxed_chord_bounds(frame.spot_angle, frame.relaxed)
+    offsets = kernels.offsets
     for k in selected:
-        best_size[k] = 1
-        lo = offsets[k]
-        n = min(offsets[k + 1] - lo, 64)
+        kernels.size[k] = 1
+        n = min(offsets[k + 1] - offsets[k], 64)
         if n < 2:
             continue
-        i, a = kernel_spot[k], kernel_star[k]
-        adj = np.zeros(n, np.uint64)
-        cost = np.zeros((n, n))
-        base = np.zeros(n)
-        for p in range(n):
-            jp, bp = assoc_spot[lo + p], assoc_star[lo + p]
-            base[p] = abs(_angle(vectors[a], vectors[bp]) - spot_angle[i, jp]) / tolerance[i, jp]
-        for p in range(n):
-            jp, bp = assoc_spot[lo + p], assoc_star[lo + p]
-            for q in range(p + 1, n):
-                jq, bq = assoc_spot[lo + q], assoc_star[lo + q]
-                if jp == jq or bp == bq:
-                    continue
-                d0 = vectors[bp, 0] - vectors[bq, 0]
-                d1 = vectors[bp, 1] - vectors[bq, 1]
-                d2 = vectors[bp, 2] - vectors[bq, 2]
-                chord2 = d0 * d0 + d1 * d1 + d2 * d2
-                if chord2 < chord2_lo[jp, jq] or chord2 > chord2_hi[jp, jq]:
-                    continue
-                miss = abs(_angle(vectors[bp], vectors[bq]) - spot_angle[jp, jq])
-                if miss > relaxed[jp, jq]:
-                    continue
-                det_spots = _det(rays[i], rays[jp], rays[jq])
-                perimeter = spot_angle[i, jp] + spot_angle[i, jq] + spot_angle[jp, jq]
-                margin = beta * max(sigma[i], max(sigma[jp], sigma[jq])) * perimeter
-                if abs(det_spots) > margin and det_spots * _det(vectors[a], vectors[bp], vectors[bq]) < 0.0:
-                    continue  # mirror image
-                adj[p] |= one << np.uint64(q)
-                adj[q] |= one << np.uint64(p)
-                cost[p, q] = cost[q, p] = miss / tolerance[jp, jq]
-        # Branch and bound over (chosen, allowed) bitmasks, depth first.
-        stack_chosen = np.zeros(n + 2, np.uint64)
-        stack_allowed = np.zeros(n + 2, np.uint64)
-        all_bits = np.uint64(0xFFFFFFFFFFFFFFFF) if n == 64 else (one << np.uint64(n)) - one
-        top = 0
-        stack_chosen[0], stack_allowed[0] = np.uint64(0), all_bits
-        found, found_size, found_quality = np.uint64(0), 0, np.inf
-        while top >= 0:
-            chosen, allowed = stack_chosen[top], stack_allowed[top]
-            top -= 1
-            size = _popcount(chosen)
-            if allowed == 0:
-                # Equal sizes are ranked by quality only for real groups (>= 2 associates).
-                if size > found_size or (size == found_size and size >= 2):
-                    quality = 0.0
-                    for p in range(n):
-                        if chosen >> np.uint64(p) & one:
-                            quality += base[p]
-                            for q in range(p + 1, n):
-                                if chosen >> np.uint64(q) & one:
-                                    quality += cost[p, q]
-                    if size > found_size or quality < found_quality:
-                        found, found_size, found_quality = chosen, size, quality
-                continue
-            reach = size + _popcount(allowed)
-            if reach < found_size or (reach == found_size and found_size < 2):
-                continue
-            v = np.uint64(0)
-            while not (allowed >> v & one):
-                v += one
-            bit = one << v
-            top += 1  # exclude v
-            stack_chosen[top], stack_allowed[top] = chosen, allowed & ~bit
-            top += 1  # include v (explored first)
-            stack_chosen[top], stack_allowed[top] = chosen | bit, allowed & adj[v]
-        best_mask[k] = found
-        best_size[k] = 1 + found_size
-        best_quality[k] = found_quality
+        adj, cost, base = _consistency_graph(k, n, kernels, frame, vectors, beta, chord2_lo, chord2_hi)
+        found, found_size, found_quality = _largest_clique(n, adj, cost, base)
+        kernels.mask[k] = found
+        kernels.size[k] = 1 + found_size
+        kernels.quality[k] = found_quality
 
 
 _WARM = False
@@ -280,21 +327,22 @@ def _warm_up() -> None:
         return
     rays = np.array([[0.0, 0.0, 1.0], [0.01, 0.0, 1.0], [0.0, 0.01, 1.0]])
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-    pairs = (np.array([0, 0, 1]), np.array([1, 2, 2]), np.zeros(3, np.int64), np.ones(3, np.int64),
-             np.array([0], np.int32), np.array([1], np.int32), np.zeros(3), np.zeros(3), 1.0)
+    sweep = PairSweep(np.array([0, 0, 1]), np.array([1, 2, 2]), np.zeros(3, np.int64), np.ones(3, np.int64),
+                      np.array([0], np.int32), np.array([1], np.int32), np.zeros(3), np.zeros(3), 1.0)
     conf, last = np.zeros((3, 3), np.int32), np.full((3, 3), -1, np.int32)
-    _confirm(0, 3, *pairs, conf, last)
+    _confirm(0, 3, sweep, conf, last)
     kernel_id = np.full((3, 3), -1, np.int64)
     kernel_id[0, 0] = 0
-    counts, fill = np.zeros(2, np.int64), np.zeros(1, np.int64)
-    spots, stars = np.zeros(4, np.int32), np.zeros(4, np.int32)
+    associates = Associates(np.zeros(2, np.int64), np.zeros(1, np.int64), np.zeros(4, np.int32), np.zeros(4, np.int32))
     for counting in (True, False):
-        _collect(0, 3, *pairs, conf, kernel_id, 0, counting, counts, fill, spots, stars)
+        _collect(0, 3, sweep, conf, kernel_id, 0, counting, associates)
+    counts, _, spots, stars = associates
     _rank_associates(counts, spots, stars, conf, 0)
     angle = np.full((3, 3), 0.01)
-    _validate(np.zeros(1, np.int64), counts, np.zeros(1, np.int64), np.zeros(1, np.int64), spots, stars, rays,
-              np.full(3, 1e-5), rays, angle, angle, angle, 3.0, np.zeros(1, np.uint64), np.zeros(1, np.int64),
-              np.zeros(1))
+    kernels = _Kernels(np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int32), counts, spots, stars,
+                       np.zeros(1, np.uint64), np.zeros(1, np.int64), np.zeros(1))
+    frame = _Frame(rays, np.full(3, 1e-5), np.zeros(3), angle, angle, angle)
+    _validate(np.zeros(1, np.int64), kernels, frame, rays, 3.0)
     _WARM = True
 
 
@@ -315,10 +363,10 @@ class _Group:
         return tuple(zip(self.spots.tolist(), self.stars.tolist()))
 
 
-@dataclass
-class _Frame:
-    """Per-frame geometry of the pattern spots: rays (n, 3), sigma (n,) [rad], magnitude (n,)
-    (NaN: unknown), spot_angle (n, n) [rad], tolerance t_dis and relaxed t_dis1 (n, n) [rad]."""
+class _Frame(NamedTuple):
+    """Per-frame geometry of the pattern spots: rays (n, 3) sensor frame, sigma (n,) [rad],
+    magnitude (n,) (NaN: unknown), spot_angle (n, n) [rad], tolerance t_dis and relaxed t_dis1
+    (n, n) [rad]. A record of arrays: the compiled validation takes it whole."""
 
     rays: np.ndarray
     sigma: np.ndarray
@@ -328,12 +376,11 @@ class _Frame:
     relaxed: np.ndarray
 
 
-@dataclass
-class _Kernels:
+class _Kernels(NamedTuple):
     """Every match (spot, star) with confirmation >= 2 (a possible kernel of a group of three):
     spot, star, conf (K,); its associated matches assoc_spot/assoc_star[offsets[k]:offsets[k+1]];
     and, once validated, its group as a bitmask over the first 64 associates, the group size
-    (0: not validated) and quality index."""
+    (0: not validated) and quality index (written in place by the compiled validation)."""
 
     spot: np.ndarray
     star: np.ndarray
@@ -450,8 +497,8 @@ class MatchGroupIdentifier(StarIdentifier):
         window = np.array([db.kvector.range(a - t, a + t) for a, t in zip(angle, tol)],
                           dtype=np.int64).reshape(-1, 2)
         magnitude_limit = 2.0 * self.group_config.magnitude_tolerance  # on magnitude differences
-        pairs = (pair_i.astype(np.int64), pair_j.astype(np.int64), window[:, 0].copy(), window[:, 1].copy(),
-                 db.pair_a, db.pair_b, frame.magnitude, self._star_magnitude, magnitude_limit)
+        sweep = PairSweep(pair_i.astype(np.int64), pair_j.astype(np.int64), window[:, 0].copy(), window[:, 1].copy(),
+                          db.pair_a, db.pair_b, frame.magnitude, self._star_magnitude, magnitude_limit)
         self.stats["pair_matches"] = int((window[:, 1] - window[:, 0]).sum())
         # The compiled sweeps run in chunks of spot pairs, the deadline checked between.
         matches = np.concatenate([[0], np.cumsum(window[:, 1] - window[:, 0])])
@@ -464,7 +511,7 @@ class MatchGroupIdentifier(StarIdentifier):
         for p0, p1 in chunks:
             if time.perf_counter() > deadline:
                 return None
-            self.stats["oriented_matches"] += int(_confirm(p0, p1, *pairs, conf, last))
+            self.stats["oriented_matches"] += int(_confirm(p0, p1, sweep, conf, last))
 
         spot, star = np.nonzero(conf >= 2)
         kernel_id = np.full(conf.shape, -1, np.int64)
@@ -477,10 +524,11 @@ class MatchGroupIdentifier(StarIdentifier):
                 offsets = np.cumsum(offsets)
                 fill = offsets[:-1].copy()
                 assoc_spot, assoc_star = np.empty(offsets[-1], np.int32), np.empty(offsets[-1], np.int32)
+            associates = Associates(offsets, fill, assoc_spot, assoc_star)
             for p0, p1 in chunks:
                 if time.perf_counter() > deadline:
                     return None
-                _collect(p0, p1, *pairs, conf, kernel_id, 2, counting, offsets, fill, assoc_spot, assoc_star)
+                _collect(p0, p1, sweep, conf, kernel_id, 2, counting, associates)
         _rank_associates(offsets, assoc_spot, assoc_star, conf, MAX_ASSOCIATES)
         k = spot.size
         return _Kernels(spot.astype(np.int64), star.astype(np.int64), conf[spot, star], offsets, assoc_spot,
@@ -494,9 +542,7 @@ class MatchGroupIdentifier(StarIdentifier):
             if time.perf_counter() > deadline:
                 return False
             part = fresh[chunk:chunk + VALIDATION_CHUNK]
-            _validate(part, kernels.offsets, kernels.spot, kernels.star, kernels.assoc_spot, kernels.assoc_star,
-                      frame.rays, frame.sigma, self._vectors, frame.spot_angle, frame.tolerance, frame.relaxed,
-                      self.config.sigma_multiplier, kernels.mask, kernels.size, kernels.quality)
+            _validate(part, kernels, frame, self._vectors, self.config.sigma_multiplier)
             self.stats["kernels"] += int(part.size)
         return True
 

@@ -8,19 +8,10 @@ is done by the shared verification, which checks every other spot at once.
 """
 from __future__ import annotations
 
-from typing import Iterator
-
 import numpy as np
 
 from .base import SpotGeometry, StarIdentifier
-
-
-def pyramid_order(n: int) -> Iterator[tuple[int, int, int]]:
-    """Mortari's enumeration of index triples i < j < k over n stars."""
-    for dj in range(1, n - 1):
-        for dk in range(1, n - dj):
-            for i in range(0, n - dj - dk):
-                yield i, i + dj, i + dj + dk
+from .geometry import chord_angle, pyramid_order, triple_products
 
 
 class PyramidIdentifier(StarIdentifier):
@@ -33,7 +24,7 @@ class PyramidIdentifier(StarIdentifier):
         for i, j, k in pyramid_order(geometry.pattern_count):
             edges = []
             for a, b in ((i, j), (i, k), (j, k)):
-                angle = float(np.arccos(np.clip(rays[a] @ rays[b], -1.0, 1.0)))
+                angle = float(chord_angle(rays[a], rays[b]))
                 tol = float(self.angle_tolerance(sigma[a], sigma[b]))
                 edges.append(self.database.pairs_in_range(angle - tol, angle + tol))
             (ij_a, ij_b), (ik_a, ik_b), (jk_a, jk_b) = edges
@@ -67,9 +58,8 @@ class PyramidIdentifier(StarIdentifier):
             if star_i.size == 0:
                 continue
             # Mirror test: a reflected sky has the opposite handedness.
-            spot_sign = np.sign(np.linalg.det(rays[[i, j, k]]))
-            star_sign = np.sign(np.einsum("ni,ni->n", vectors[star_i],
-                                          np.cross(vectors[star_j], vectors[star_k])))
+            spot_sign = np.sign(triple_products(rays[[i]], rays[[j]], rays[[k]]))
+            star_sign = np.sign(triple_products(vectors[star_i], vectors[star_j], vectors[star_k]))
             same = star_sign == spot_sign
             star_i, star_j, star_k = star_i[same], star_j[same], star_k[same]
             if star_i.size > self.config.max_candidates_per_pattern:

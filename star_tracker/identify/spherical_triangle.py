@@ -3,10 +3,11 @@ thesis 003, sec. 2.4-2.6 and 5.3).
 
 Every triple of pattern spots whose sides fit the catalog forms a spherical triangle with an
 area (eq. 15) and a polar moment (eq. 25), each with a 1-sigma (eqs. 17-24; see
-`triangles`). Catalog triangles within beta sigma of the area are found with the k-vector;
-those whose polar moment is also within beta sigma are the "finalists". Beyond the paper,
-which only names the stars, each finalist's vertices are assigned to the spots by the sides
-(all three within the angle tolerance) and its handedness must be the spots' (mirror test).
+`triangle_invariants`, `polar_moment`). Catalog triangles within beta sigma of the area are
+found with the k-vector; those whose polar moment is also within beta sigma are the
+"finalists". Beyond the paper, which only names the stars, each finalist's vertices are
+assigned to the spots by the sides (all three within the angle tolerance) and its handedness
+must be the spots' (mirror test).
 
 Pivoting (thesis 5.3.3-5.3.5): the first triangle is the one with the largest area (the
 fewest solutions); each pivot is the largest unused triangle sharing two spots with the
@@ -31,8 +32,9 @@ import numpy as np
 
 from .base import IdentifyConfig, SpotGeometry, StarIdentifier
 from .database import StarDatabase
-from .triangles import (TriangleConfig, load_or_build_triangles, match_triangles, measured_features, spherical_area,
-                        triangle_sides, warm_up)
+from .triangle_database import TriangleConfig, load_or_build_triangles
+from .triangle_features import measured_features, spherical_area, triangle_sides
+from .triangle_matching import match_triangles, warm_up
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ import pytest
 from star_tracker.centroid import Spots
 from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database
 from star_tracker.identify.angle_pivot import AnglePivotConfig, AnglePivotIdentifier, pair_angle_sigma
+from star_tracker.identify.hybrid import HybridIdentifier
 from star_tracker.identify.match_groups import MatchGroupConfig, MatchGroupIdentifier
 from star_tracker.sim.scenes import SETUPS, make_scene
 
@@ -55,7 +56,8 @@ def mirrored(spots: Spots) -> Spots:
 @pytest.mark.parametrize("setup_name", ["nominal", "cole", "fast"])
 def test_identifies_exact_hip_ids(algorithm, setup_name, sky, databases):
     database = databases[setup_name]
-    identifier = ALGORITHMS[algorithm](database, IdentifyConfig())
+    # Judged by the identities, not host speed: the first call also loads compiled kernels.
+    identifier = ALGORITHMS[algorithm](database, IdentifyConfig(max_time_s=5.0))
     for scene in scenes(setup_name, sky, database, 5, seed=21):
         assert_exact(identifier.identify(scene.spots, scene.setup.camera), scene)
 
@@ -119,6 +121,38 @@ def test_angle_pivot_records_pivots_and_runs_the_paper_variant(sky, databases):
                 assert 1 <= result.stats["pivots"] <= config.pivot_limit
                 assert result.stats["chains"] >= 1
         assert solved >= 4
+
+
+def rotation_error_rad(result, scene) -> float:
+    """Angle of the rotation between the solved and the true attitude [rad]."""
+    delta = result.attitude.rotation.T @ scene.rotation
+    return float(np.arccos(np.clip(0.5 * (np.trace(delta) - 1.0), -1.0, 1.0)))
+
+
+# Cole scenes (seed 1) on which angle_pivot's solved chain once left the brightest spot out, so
+# the attitude fitted to the rest put its star beyond the verification radius: 5 of 6 stars at
+# 89" (scene 152), 4 of 5 at 50" (scene 271), where every other algorithm matched all.
+COLE_SCENES = list(range(12)) + [152, 271]
+
+
+def test_angle_pivot_matches_as_many_stars_as_hybrid_on_cole_scenes(sky, databases):
+    database = databases["cole"]
+    config = IdentifyConfig(max_time_s=5.0)  # judged by outcome, not by host speed
+    pivot, hybrid = AnglePivotIdentifier(database, config), HybridIdentifier(database, config)
+    rng = np.random.default_rng(1)
+    scenes = [make_scene(SETUPS["cole"], sky, rng) for _ in range(max(COLE_SCENES) + 1)]
+    compared = 0
+    for index in COLE_SCENES:
+        scene = scenes[index]
+        ours, theirs = pivot.identify(scene.spots, scene.setup.camera), hybrid.identify(scene.spots, scene.setup.camera)
+        if not theirs.solved:
+            continue  # too few stars for anyone
+        assert_exact(ours, scene)
+        assert ours.hip.size >= theirs.hip.size, (index, ours.hip.size, theirs.hip.size)
+        arcsec = np.radians(1.0 / 3600.0)
+        assert rotation_error_rad(ours, scene) <= 1.5 * rotation_error_rad(theirs, scene) + 5.0 * arcsec, index
+        compared += 1
+    assert compared >= 6
 
 
 def test_match_groups_report_threshold_and_groups(sky, databases):

@@ -9,6 +9,7 @@ from star_tracker.identify.base import NO_MATCH, TIMEOUT
 from star_tracker.identify.composite import CompositeIdentifier
 from star_tracker.identify.spherical_triangle import (SphericalTriangleIdentifier, SphericalTriangleSettings,
                                                       join_assignments)
+from star_tracker.identify.triangle_database import TriangleConfig, triangle_cache_path
 from star_tracker.sim.scenes import SETUPS, make_scene
 
 ALGORITHMS = [SphericalTriangleIdentifier, CompositeIdentifier]
@@ -140,3 +141,22 @@ def test_pivot_join_keeps_only_assignments_that_agree_on_the_shared_spots():
     spots, joined = join_assignments([0, 1, 2], table, np.array([1, 2, 3]), pivot, star_count=100)
     assert spots == [0, 1, 2, 3]
     np.testing.assert_array_equal(joined, [[10, 11, 12, 13]])  # star 10 twice is not one-to-one
+
+
+def test_a_database_directory_holds_the_triangle_databases_too(catalog, tmp_path, monkeypatch):
+    """Whoever passes a directory to load_or_build_database gets every database there: the
+    triangle databases that spherical_triangle and composite build from it land beside the
+    pair database, and nothing goes to the default cache."""
+    default, chosen = tmp_path / "default", tmp_path / "chosen"
+    monkeypatch.setenv("STAR_TRACKER_CACHE", str(default))
+    config = DatabaseConfig(magnitude_limit=4.5, max_pair_angle_rad=float(np.radians(8.0)))
+    database = load_or_build_database(config, chosen)
+    for algorithm in ALGORITHMS:
+        identifier = algorithm(database, IdentifyConfig())
+        assert identifier.triangles.triangle_count > 0
+    triangle_file = triangle_cache_path(database, TriangleConfig.for_database(database))
+    assert triangle_file.parent == chosen and triangle_file.is_file()
+    assert sorted(f.name for f in chosen.iterdir()) == sorted([f"pairs_{config.cache_key()}.npz", triangle_file.name])
+    assert not default.exists() or not any(default.iterdir())
+    # The same database loaded again from that directory still knows where it lives.
+    assert load_or_build_database(config, chosen).cache_directory == chosen
