@@ -25,7 +25,8 @@ from ..models.attitude import refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from . import kernels
-from .base import NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier
+from .base import (NO_MATCH, TIMEOUT, AcceptedMatch, IdentifyConfig, SearchOutcome, SpotGeometry,
+                   StarIdentifier)
 from .database import StarDatabase
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
@@ -84,9 +85,6 @@ class HybridIdentifier(StarIdentifier):
         self._vectors = np.ascontiguousarray(database.vectors, dtype=float)
         self._star_magnitude = np.asarray(database.magnitude, dtype=float)
 
-    def hypotheses(self, geometry, deadline):
-        raise NotImplementedError("hybrid verifies inside its compiled search; call identify()")
-
     def warm_up(self, camera: CameraModel) -> None:
         """Compile the kernels (or load them from numba's cache) on a small random scene."""
         rng = np.random.default_rng(0)
@@ -97,13 +95,10 @@ class HybridIdentifier(StarIdentifier):
                             camera.width, camera.height), camera)
         refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
 
-    def identify(self, spots: Spots, camera: CameraModel) -> Identification:
-        started = time.perf_counter()
-        deadline = started + self.config.max_time_s
-        order, geometry = self.prepare(spots, camera)
-        n = order.size
-        if n < MIN_STARS:
-            return self._fail(TOO_FEW_SPOTS, f"{n} spots; at least {MIN_STARS} are needed", started, 0)
+    def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: float) -> SearchOutcome:
+        """Compiled triangle search (kernels.search_triangles) in batches, the deadline
+        checked between them; each candidate triangle is verified inside the kernel."""
+        n = geometry.x.size
         radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad, self.grid.max_radius_rad)
         chord = 2.0 * math.sin(0.5 * radius_rad)
         magnitude = geometry.magnitude
@@ -115,8 +110,8 @@ class HybridIdentifier(StarIdentifier):
         for triangles, screen_limit in triangle_batches(geometry.pattern_count, n):
             if time.perf_counter() > deadline:
                 self.stats["triangles"] = tried
-                return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after {tried} "
-                                  f"of {math.comb(n, 3)} triangles", started, tested)
+                return SearchOutcome(None, tested, TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent "
+                                     f"after {tried} of {math.comb(n, 3)} triangles")
             status, count, rotation, fp, hypotheses, stopped = kernels.search_triangles(
                 triangles, 0, triangles.shape[0], geometry.rays, geometry.sigma, magnitude,
                 self.config.sigma_multiplier, self.config.angle_tolerance_floor_rad,
@@ -128,7 +123,7 @@ class HybridIdentifier(StarIdentifier):
             tried += stopped
             if status == 1:
                 self.stats["triangles"] = tried
-                return self.solved_at_rotation(geometry, order, out_spot[:count].copy(), out_star[:count].copy(),
-                                               rotation, fp, tested, started)
+                return SearchOutcome(AcceptedMatch(out_spot[:count].copy(), out_star[:count].copy(), rotation, fp),
+                                     tested)
         self.stats["triangles"] = tried
-        return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, {n} spots)", started, tested)
+        return SearchOutcome(None, tested, NO_MATCH, f"no hypothesis passed verification ({tested} tested, {n} spots)")

@@ -32,7 +32,7 @@ from ..models.camera import CameraModel
 from ..centroid import Spots
 from .rate import AttitudeRateEstimator, RateEstimate
 from ..identify import kernels
-from ..identify.base import Identification, StarIdentifier
+from ..identify.base import AcceptedMatch, Identification, StarIdentifier
 from ..identify.skygrid import SkyGrid, cell_of
 
 MODE_TRACKING = "tracking"
@@ -336,8 +336,8 @@ class Tracker:
         if fp > self.config.false_positive_bound:
             return Identification("no_match", f"{count} stars matched but false-positive bound {fp:.1e} > "
                                   f"{self.config.false_positive_bound:.0e}", "tracking", elapsed()), gate
-        return lis.solved_at_rotation(geometry, order, spot_index, star_index, rotation, fp, 1, started,
-                                      algorithm="tracking"), gate
+        return lis.solved(geometry, order, AcceptedMatch(spot_index, star_index, rotation, fp), 1, started,
+                          algorithm="tracking"), gate
 
     def _half_diagonal(self, camera: CameraModel) -> float:
         key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.distortion))

@@ -135,3 +135,50 @@ def test_false_stars_among_real_ones(algorithm, database, nominal_camera, catalo
     # The angle method is the one the papers show to suffer from false stars (Cole & Crassidis
     # Table 2: 25 % with one false star); it still never answers wrongly.
     assert solved >= (7 if algorithm == "angle_pivot" else 9)
+
+
+def test_an_identifier_must_override_a_search_step(database):
+    from star_tracker.identify.base import StarIdentifier
+
+    with pytest.raises(TypeError, match="hypotheses or StarIdentifier.search"):
+        type("NoSearch", (StarIdentifier,), {"name": "none"})
+    # hybrid overrides the whole search; it proposes no separate hypotheses (and does not raise).
+    hybrid = make_identifier("hybrid", database)
+    assert type(hybrid).search is not StarIdentifier.search
+    assert list(hybrid.hypotheses(None, 0.0)) == []
+
+
+def test_a_search_step_ends_in_the_shared_final_fit(database, nominal_camera, catalog):
+    """An identifier that overrides only `search`, answering with the true matches under an
+    attitude 20 arcsec off, gets the shared ending: the matches mapped back to the input spots
+    (given in reverse flux order here), HIP ids, and the final fit's attitude near the truth."""
+    from star_tracker.identify.base import AcceptedMatch, SearchOutcome, StarIdentifier
+    from star_tracker.models.attitude import rotation_vector_to_matrix
+
+    rng = np.random.default_rng(21)
+    truth = random_rotation(rng)
+    spots, hip = synthetic_scene(catalog, nominal_camera, truth, rng, noise_px=0.05)
+    reverse = np.arange(len(spots))[::-1]
+    spots = Spots(spots.x[reverse], spots.y[reverse], spots.flux[reverse], spots.snr[reverse], spots.cov[reverse],
+                  spots.flags[reverse], spots.area[reverse], spots.peak[reverse], spots.width, spots.height)
+    hip = hip[reverse]
+    off = truth @ rotation_vector_to_matrix(np.array([20.0, -15.0, 40.0]) * ARCSEC)
+
+    class Oracle(StarIdentifier):
+        name = "oracle"
+
+        def search(self, geometry, camera, deadline):
+            # The flux-sorted spot k is the input spot whose position it has.
+            source = [int(np.flatnonzero((spots.x == x) & (spots.y == y))[0]) for x, y in zip(geometry.x, geometry.y)]
+            known = [(k, int(np.searchsorted(database.hip, hip[s]))) for k, s in enumerate(source)
+                     if hip[s] in database.hip]
+            spot_index, star_index = (np.array(v, np.int64) for v in zip(*known))
+            return SearchOutcome(AcceptedMatch(spot_index, star_index, off, 1e-9), tested=7)
+
+    result = Oracle(database, IdentifyConfig()).identify(spots, nominal_camera)
+    assert result.solved and result.algorithm == "oracle" and result.hypotheses == 7
+    assert np.array_equal(result.hip, hip[result.spot_index])
+    assert result.hip.size == np.isin(hip, database.hip).sum() >= 8
+    cross, roll, _ = attitude_error(result.attitude.rotation, truth)
+    assert cross < 2 * ARCSEC and roll < 20 * ARCSEC
+    assert np.allclose(result.body_vectors, nominal_camera.pixel_to_ray(spots.x, spots.y)[result.spot_index])
