@@ -245,11 +245,11 @@ class StarIdentifier:
         as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
         x, y = as_float(spots.x), as_float(spots.y)
         if not camera.has_distortion:
-            order, rays, sigma, magnitude, x, y, pixel_cov, jacobian = kernels.prepare_spots(
-                x, y, as_float(spots.flux), as_float(spots.cov), float(camera.fx), float(camera.fy),
-                float(camera.cx), float(camera.cy), float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX)
-            return order, SpotGeometry(rays, sigma, min(order.size, self.config.max_pattern_spots), magnitude,
-                                       x, y, pixel_cov, jacobian)
+            p = kernels.prepare_spots(kernels.RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)),
+                                      kernels.Pinhole.of(camera),
+                                      kernels.PrepareSettings(float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX))
+            return p.order, SpotGeometry(p.rays, p.sigma, min(p.order.size, self.config.max_pattern_spots),
+                                         p.magnitude, p.x, p.y, p.pixel_cov, p.jacobian)
         flux = spots.flux
         finite = np.isfinite(x) & np.isfinite(y) & ~kernels.coincident_later(x, y, COINCIDENT_SEPARATION_PX)
         brightness = np.where(np.isnan(flux), -np.inf, flux)

@@ -3,18 +3,178 @@ q-method, spot-to-star matching on the sky grid and the false-positive bound of 
 in one call per batch of spot triangles so a frame costs microseconds, not Python overhead.
 
 The mathematics is the one documented in base.py and verify.py; these are its loops.
+Kernels take their inputs as small records (NamedTuples of arrays and scalars, which numba
+passes as they are): the catalog, the spots, the pair index, the tolerances.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from .skygrid import cell_of, cells_near
+from .skygrid import SkyGrid, cell_of, cells_near
 
 LN_8PI2 = math.log(8.0 * math.pi**2)
 LN_PI = math.log(math.pi)
+
+
+class CatalogArrays(NamedTuple):
+    """The database stars as the kernels read them: vectors (N, 3) ICRS unit vectors;
+    magnitude (N,) [Hp mag]; sorted_magnitudes (N,) the same, ascending; the sky grid
+    (skygrid.SkyGrid: cell_start, star_of_cell, grid, cell_density [1/sr]); mean_density:
+    the whole catalog's stars per steradian [1/sr]."""
+
+    vectors: np.ndarray
+    magnitude: np.ndarray
+    sorted_magnitudes: np.ndarray
+    cell_start: np.ndarray
+    star_of_cell: np.ndarray
+    grid: int
+    cell_density: np.ndarray
+    mean_density: float
+
+    @staticmethod
+    def build(database, grid: SkyGrid) -> "CatalogArrays":
+        """The arrays of `database` (identify.database.StarDatabase) on `grid` (built over its
+        vectors)."""
+        magnitude = np.asarray(database.magnitude, dtype=float)
+        return CatalogArrays(np.ascontiguousarray(database.vectors, dtype=float), magnitude, np.sort(magnitude),
+                             grid.cell_start, grid.star_of_cell, grid.grid, grid.cell_density,
+                             database.star_count / (4.0 * np.pi))
+
+
+class PairIndex(NamedTuple):
+    """The star pairs sorted by angle and their k-vector (kvector.KVector): pair_angle (P,)
+    [rad]; k (P,); slope, intercept of the k-vector line; pair_a, pair_b (P,) star indices."""
+
+    pair_angle: np.ndarray
+    k: np.ndarray
+    slope: float
+    intercept: float
+    pair_a: np.ndarray
+    pair_b: np.ndarray
+
+    @staticmethod
+    def build(database) -> "PairIndex":
+        kv = database.kvector
+        return PairIndex(kv.sorted_values, kv.k.astype(np.int64), float(kv.slope), float(kv.intercept),
+                         database.pair_a.astype(np.int64), database.pair_b.astype(np.int64))
+
+
+class SpotArrays(NamedTuple):
+    """Flux-sorted spots (base.SpotGeometry): rays (N, 3) sensor-frame unit vectors; sigma
+    (N,) 1-sigma direction errors [rad]; magnitude (N,) instrumental [mag] (NaN: unknown)."""
+
+    rays: np.ndarray
+    sigma: np.ndarray
+    magnitude: np.ndarray
+
+
+class Verification(NamedTuple):
+    """How a candidate attitude is verified (verify_candidate): chord of the match radius,
+    2 sin(radius / 2); min_stars: fewest matches accepted; magnitude_floor: smallest
+    magnitude residual credited [mag] (verify.log_magnitude_agreement)."""
+
+    chord: float
+    min_stars: int
+    magnitude_floor: float
+
+
+class TriangleTolerances(NamedTuple):
+    """search_triangles' pattern tolerances: a side matches within sigma_multiplier x its
+    angle sigma plus tolerance_floor [rad]; a triangle with more than max_candidates catalog
+    matches is ambiguous; a candidate is accepted at a false-positive bound <= fp_limit."""
+
+    sigma_multiplier: float
+    tolerance_floor: float
+    max_candidates: int
+    fp_limit: float
+
+
+class SearchScratch(NamedTuple):
+    """Work arrays of search_triangles: head_ik, head_jk (N stars,) all -1 (restored on
+    return); out_spot, out_star (spots,) the accepted matches."""
+
+    head_ik: np.ndarray
+    head_jk: np.ndarray
+    out_spot: np.ndarray
+    out_star: np.ndarray
+
+
+class TriangleSearchResult(NamedTuple):
+    """status 1 = a candidate accepted (its `count` matches in the scratch's out_*), 0 = none
+    in the batch; rotation sensor -> ICRS; fp its false-positive bound; hypotheses tested;
+    stopped: index after the last triangle tried."""
+
+    status: int
+    count: int
+    rotation: np.ndarray
+    fp: float
+    hypotheses: int
+    stopped: int
+
+
+class CandidateCheck(NamedTuple):
+    """verify_candidate's verdict: count matches (in out_*), the refined rotation (sensor ->
+    ICRS), its false-positive bound fp and chi^2 (0 when rejected early)."""
+
+    count: int
+    rotation: np.ndarray
+    fp: float
+    chi2: float
+
+
+class Pinhole(NamedTuple):
+    """A camera without distortion: fx, fy, cx, cy [px]; width, height [px]."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: float
+    height: float
+
+    @staticmethod
+    def of(camera) -> "Pinhole":
+        """The pinhole part of a models.camera.CameraModel."""
+        return Pinhole(float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
+                       float(camera.width), float(camera.height))
+
+
+class RawSpots(NamedTuple):
+    """Spots as the centroider gives them: x, y (N,) [px]; flux (N,); cov (N, 2, 2) [px^2]."""
+
+    x: np.ndarray
+    y: np.ndarray
+    flux: np.ndarray
+    cov: np.ndarray
+
+
+class PrepareSettings(NamedTuple):
+    """prepare_spots' floors: sigma_floor_px, the matching sigma's lower bound [px];
+    min_fit_sigma_px added to the final fit's sigma [px]; separation_px: closer spots are
+    one [px]."""
+
+    sigma_floor_px: float
+    min_fit_sigma_px: float
+    separation_px: float
+
+
+class PreparedSpots(NamedTuple):
+    """prepare_spots' output (base.SpotGeometry's arrays): order (M,) indices into the input;
+    rays (M, 3); sigma (M,) [rad]; magnitude (M,); x, y (M,) [px]; pixel_cov (M, 2, 2)
+    [px^2]; jacobian (M, 3, 2) [rad/px]."""
+
+    order: np.ndarray
+    rays: np.ndarray
+    sigma: np.ndarray
+    magnitude: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    pixel_cov: np.ndarray
+    jacobian: np.ndarray
 
 
 @njit(cache=True)
@@ -92,9 +252,10 @@ def triad(b1, b2, r1, r2):
 
 
 @njit(cache=True)
-def nearest_star(rotation, ray, chord, vectors, cell_start, star_of_cell, grid, cells):
-    """The catalog star nearest to the sensor-frame `ray` rotated to ICRS, if within `chord`
-    (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of 4."""
+def nearest_star(rotation, ray, chord, catalog, cells):
+    """The catalog star (CatalogArrays) nearest to the sensor-frame `ray` rotated to ICRS, if
+    within `chord` (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of 4."""
+    vectors, cell_start, star_of_cell, grid = catalog.vectors, catalog.cell_start, catalog.star_of_cell, catalog.grid
     radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
     cos_limit = 1.0 - 0.5 * chord * chord
     px = rotation[0, 0] * ray[0] + rotation[0, 1] * ray[1] + rotation[0, 2] * ray[2]
@@ -112,29 +273,30 @@ def nearest_star(rotation, ray, chord, vectors, cell_start, star_of_cell, grid, 
 
 
 @njit(cache=True)
-def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, vectors, cell_start, star_of_cell, grid, chord):
+def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, catalog, chord):
     """True when any spot in [0, limit) other than the three given lands within `chord` of a
     catalog star under `rotation`: the pyramid's 4th-star confirmation, used as a screen."""
     cells = np.empty(4, np.int64)
     for s in range(min(limit, rays.shape[0])):
         if s != skip_a and s != skip_b and s != skip_c:
-            if nearest_star(rotation, rays[s], chord, vectors, cell_start, star_of_cell, grid, cells)[0] >= 0:
+            if nearest_star(rotation, rays[s], chord, catalog, cells)[0] >= 0:
                 return True
     return False
 
 
 @njit(cache=True)
-def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, out_dot):
+def match_all(rays, rotation, catalog, chord, out_spot, out_star, out_dot):
     """One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star
-    within `chord` (2 sin(radius/2)); a star with another spot within twice the radius
-    matches no spot (ambiguous). Returns the number of matches written to out_*."""
+    (CatalogArrays) within `chord` (2 sin(radius/2)); a star with another spot within twice
+    the radius matches no spot (ambiguous). Returns the number of matches written to out_*."""
     n = rays.shape[0]
+    vectors = catalog.vectors
     radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
     cells = np.empty(4, np.int64)
     best_star = np.full(n, -1, np.int64)
     best_dot = np.full(n, -2.0)
     for s in range(n):
-        best_star[s], best_dot[s] = nearest_star(rotation, rays[s], chord, vectors, cell_start, star_of_cell, grid, cells)
+        best_star[s], best_dot[s] = nearest_star(rotation, rays[s], chord, catalog, cells)
     # A star with a second spot within twice the radius is ambiguous (e.g. a false object
     # beside a star that pulled the fit toward itself): no spot is matched to it, so no
     # identity can be claimed for the wrong one.
@@ -242,20 +404,22 @@ def refit(rays, sigma, vectors, spot_index, star_index, count):
 
 
 @njit(cache=True)
-def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes,
-                     cell_start, star_of_cell, grid, cell_density, mean_density, chord, min_stars,
-                     magnitude_floor, out_spot, out_star, match_passes=3):
-    """Match every spot under `rotation`, refine with the q-method over the matches
-    (match_passes times: a hypothesis from 3-4 stars needs 3; a tracked attitude, already
-    fitted to a dozen stars, 1), drop matches beyond 5 sigma and bound the false-positive probability.
-    Returns (matches written to out_*, refined rotation, false-positive bound, chi^2)."""
+def verify_candidate(rotation, spots, catalog, verification, out_spot, out_star, match_passes=3):
+    """Match every spot (SpotArrays) to the catalog (CatalogArrays) under `rotation`, refine
+    with the q-method over the matches (match_passes times: a hypothesis from 3-4 stars needs
+    3; a tracked attitude, already fitted to a dozen stars, 1), drop matches beyond 5 sigma
+    and bound the false-positive probability (Verification: radius, fewest stars).
+    Returns a CandidateCheck (the matches are written to out_*)."""
+    rays, sigma, magnitude = spots.rays, spots.sigma, spots.magnitude
+    vectors = catalog.vectors
+    chord, min_stars = verification.chord, verification.min_stars
     n = rays.shape[0]
     dots = np.empty(n)
     count = 0
     for _ in range(match_passes):  # match, refit; each match uses the previous refit
-        count = match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, dots)
+        count = match_all(rays, rotation, catalog, chord, out_spot, out_star, dots)
         if count < min_stars:
-            return count, rotation, 1.0, 0.0
+            return CandidateCheck(count, rotation, 1.0, 0.0)
         rotation = refit(rays, sigma, vectors, out_spot, out_star, count)
     kept = count
     chi2 = 0.0
@@ -275,7 +439,7 @@ def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, 
                 chi2 += r2
                 kept += 1
         if kept < min_stars:
-            return kept, rotation, 1.0, 0.0
+            return CandidateCheck(kept, rotation, 1.0, 0.0)
         if kept == count:
             break
         count = kept
@@ -289,25 +453,29 @@ def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, 
         body[i] = rays[out_spot[i]]
         sig[i] = sigma[out_spot[i]]
         smag[i] = magnitude[out_spot[i]]
-        cmag[i] = star_magnitude[out_star[i]]
-    density = max(mean_density, cell_density[cell_of(rotation[0, 2], rotation[1, 2], rotation[2, 2], grid)])
+        cmag[i] = catalog.magnitude[out_star[i]]
+    density = max(catalog.mean_density,
+                  catalog.cell_density[cell_of(rotation[0, 2], rotation[1, 2], rotation[2, 2], catalog.grid)])
     log_t = log_chance_tuples(body, sig, chi2, density)
-    log_t += log_magnitude_agreement(smag, cmag, sorted_magnitudes, magnitude_floor)
-    return count, rotation, false_positive_bound(log_t, n, count, min_stars), chi2
+    log_t += log_magnitude_agreement(smag, cmag, catalog.sorted_magnitudes, verification.magnitude_floor)
+    return CandidateCheck(count, rotation, false_positive_bound(log_t, n, count, min_stars), chi2)
 
 
 @njit(cache=True)
-def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multiplier, tolerance_floor,
-                     max_candidates, pair_angle, k, slope, intercept, pair_a, pair_b, vectors,
-                     star_magnitude, sorted_magnitudes, cell_start, star_of_cell, grid, cell_density,
-                     mean_density, chord, min_stars, magnitude_floor, fp_limit, head_ik, head_jk,
-                     out_spot, out_star, screen_limit):
+def search_triangles(triangles, first, last, spots, pairs, catalog, tolerances, verification, scratch,
+                     screen_limit):
     """Try spot triangles triangles[first:last] in order: catalog triangles whose three sides
-    match within the angle tolerance and whose handedness agrees (mirror test) are verified
-    against all spots at once. Returns (status, matches, rotation, fp, hypotheses, last tried
-    + 1): status 1 = accepted (matches in out_*), 0 = none in this batch.
-    head_ik, head_jk: scratch arrays of -1, one per catalog star (restored on return);
+    match within the angle tolerance (TriangleTolerances) in the pair index (PairIndex) and
+    whose handedness agrees (mirror test) are verified against all spots (SpotArrays) at once
+    (verify_candidate). Returns a TriangleSearchResult (accepted matches in scratch.out_*).
     screen_limit: spots [0, screen_limit) are tried for the 4th-star screen."""
+    rays, sigma = spots.rays, spots.sigma
+    sigma_multiplier, tolerance_floor = tolerances.sigma_multiplier, tolerances.tolerance_floor
+    max_candidates = tolerances.max_candidates
+    pair_angle, k, slope, intercept = pairs.pair_angle, pairs.k, pairs.slope, pairs.intercept
+    pair_a, pair_b = pairs.pair_a, pairs.pair_b
+    vectors, chord = catalog.vectors, verification.chord
+    head_ik, head_jk = scratch.head_ik, scratch.head_jk
     hypotheses = 0
     best_rotation = np.eye(3)
     for t in range(first, last):
@@ -392,8 +560,7 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
             # Screen with a TRIAD attitude: the full verification (q-method refits) only runs
             # when a spot beyond the triangle (among the first `screen_limit`) lands on a star.
             rotation = triad(rays[i], rays[j], vectors[cand[c, 0]], vectors[cand[c, 1]])
-            if not lands_on_star(rays, i, j, kk, screen_limit, rotation, vectors, cell_start, star_of_cell,
-                                 grid, chord):
+            if not lands_on_star(rays, i, j, kk, screen_limit, rotation, catalog, chord):
                 continue
             body = np.empty((3, 3))
             ref = np.empty((3, 3))
@@ -403,24 +570,26 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
                 ref[q] = vectors[cand[c, q]]
                 w[q] = 1.0 / sigma[spot[q]] ** 2
             rotation = q_method(body, ref, w)  # all three stars, weighted: better than TRIAD
-            count, rotation, fp, _ = verify_candidate(
-                rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes, cell_start,
-                star_of_cell, grid, cell_density, mean_density, chord, min_stars, magnitude_floor, out_spot, out_star)
-            if fp <= fp_limit:
-                return 1, count, rotation, fp, hypotheses, t + 1
-    return 0, 0, best_rotation, 1.0, hypotheses, last
+            check = verify_candidate(rotation, spots, catalog, verification, scratch.out_spot, scratch.out_star)
+            if check.fp <= tolerances.fp_limit:
+                return TriangleSearchResult(1, check.count, check.rotation, check.fp, hypotheses, t + 1)
+    return TriangleSearchResult(0, 0, best_rotation, 1.0, hypotheses, last)
 
 
 @njit(cache=True)
-def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px, min_fit_sigma_px, separation_px):
-    """The compiled form of StarIdentifier.prepare for cameras without distortion: indices of
-    the usable spots (finite, not coincident: coincident_later) sorted by flux (brightest
-    first, NaN flux last, stable), their unit rays (N, 3), 1-sigma direction errors [rad] for
-    matching (floored at sigma_floor_px), instrumental magnitudes (NaN for flux <= 0), pixel
-    positions x, y [px], pixel covariances for the final fit (N, 2, 2) [px^2] (unknown: 1 px^2,
-    plus min_fit_sigma_px^2 on both axes) and the rays' pixel jacobians (N, 3, 2) [rad/px]."""
+def prepare_spots(raw, camera, settings):
+    """The compiled form of StarIdentifier.prepare for cameras without distortion (Pinhole),
+    as PreparedSpots: indices of the usable spots (RawSpots: finite, not coincident:
+    coincident_later) sorted by flux (brightest first, NaN flux last, stable), their unit rays
+    (N, 3), 1-sigma direction errors [rad] for matching (floored at sigma_floor_px),
+    instrumental magnitudes (NaN for flux <= 0), pixel positions x, y [px], pixel covariances
+    for the final fit (N, 2, 2) [px^2] (unknown: 1 px^2, plus min_fit_sigma_px^2 on both axes)
+    and the rays' pixel jacobians (N, 3, 2) [rad/px] (PrepareSettings: the floors)."""
+    x, y, flux, cov = raw.x, raw.y, raw.flux, raw.cov
+    fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
+    sigma_floor_px, min_fit_sigma_px = settings.sigma_floor_px, settings.min_fit_sigma_px
     n = x.size
-    dropped = coincident_later(x, y, separation_px)
+    dropped = coincident_later(x, y, settings.separation_px)
     keep = np.empty(n, np.int64)
     m = 0
     for i in range(n):
@@ -456,7 +625,7 @@ def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px, min_fit_sigma
         for r in range(2):
             for c in range(2):
                 pixel_cov[q, r, c] = (cov[i, r, c] if known else (1.0 if r == c else 0.0)) + (extra if r == c else 0.0)
-    return order, rays, sigma, magnitude, xs, ys, pixel_cov, pinhole_jacobian(rays, fx, fy)
+    return PreparedSpots(order, rays, sigma, magnitude, xs, ys, pixel_cov, pinhole_jacobian(rays, fx, fy))
 
 
 @njit(cache=True)
@@ -555,10 +724,12 @@ def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius):
 
 
 @njit(cache=True)
-def stars_in_view(vectors, rotation, cos_reach, fx, fy, cx, cy, width, height, margin):
+def stars_in_view(vectors, rotation, cos_reach, camera, margin):
     """Catalog stars (ICRS unit vectors) within acos(cos_reach) of the boresight of `rotation`
-    (sensor -> ICRS) that a pinhole camera puts inside its pixel area shrunk by `margin` [px]
-    (negative: grown): (indices, u, v [px]). One pass over the catalog (~8k stars)."""
+    (sensor -> ICRS) that a pinhole camera (Pinhole) puts inside its pixel area shrunk by
+    `margin` [px] (negative: grown): (indices, u, v [px]). One pass over the catalog (~8k
+    stars)."""
+    fx, fy, cx, cy, width, height = camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height
     n = vectors.shape[0]
     near = np.empty(n, np.int64)
     us = np.empty(n)

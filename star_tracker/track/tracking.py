@@ -174,10 +174,8 @@ class Tracker:
         self.config = config
         self.database = lost_in_space.database
         self.grid = getattr(lost_in_space, "grid", None) or SkyGrid.build(self.database.vectors)
-        self._vectors = np.ascontiguousarray(self.database.vectors, dtype=float)
-        self._star_magnitude = np.asarray(self.database.magnitude, dtype=float)
-        self._sorted_magnitudes = np.sort(self._star_magnitude)
-        self._mean_density = self.database.star_count / (4.0 * np.pi)
+        self.catalog = getattr(lost_in_space, "catalog", None) or kernels.CatalogArrays.build(self.database, self.grid)
+        self._vectors = self.catalog.vectors
         self.rates = AttitudeRateEstimator(config.rate_window_s, config.max_angular_acceleration_rad_s2)
         self._last: tuple[int, np.ndarray, np.ndarray] | None = None  # (stamp_ns, rotation, covariance)
         self.rate: RateEstimate | None = None
@@ -281,9 +279,8 @@ class Tracker:
             keep = front & camera.in_image(u, v, margin=-gate)
             near, u, v = near[keep], u[keep], v[keep]
         else:
-            near, u, v = kernels.stars_in_view(self._vectors, rotation, cos_reach, float(camera.fx), float(camera.fy),
-                                               float(camera.cx), float(camera.cy), float(camera.width),
-                                               float(camera.height), -float(gate))
+            near, u, v = kernels.stars_in_view(self._vectors, rotation, cos_reach, kernels.Pinhole.of(camera),
+                                               -float(gate))
         if near.size < self.config.min_stars:
             return fail(f"{near.size} catalog stars near the predicted attitude")
         voters = min(n, self.config.max_pattern_spots)
@@ -311,11 +308,11 @@ class Tracker:
         chord = 2.0 * math.sin(0.5 * min(tolerance_px * camera.pixel_scale_rad, self.grid.max_radius_rad))
         out_spot = np.empty(n, np.int64)
         out_star = np.empty(n, np.int64)
-        count, rotation, _, chi2 = kernels.verify_candidate(
-            rotation, geometry.rays, geometry.sigma, geometry.magnitude, self._vectors, self._star_magnitude,
-            self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell, self.grid.grid,
-            self.grid.cell_density, self._mean_density, chord, self.config.min_stars, lis.magnitude_floor,
+        check = kernels.verify_candidate(
+            rotation, kernels.SpotArrays(geometry.rays, geometry.sigma, geometry.magnitude), self.catalog,
+            kernels.Verification(chord, self.config.min_stars, lis.magnitude_floor),
             out_spot, out_star, 1)  # the rough rotation is already fitted to the voters' pairs
+        count, rotation, chi2 = check.count, check.rotation, check.chi2
         elapsed = lambda: time.perf_counter() - started  # noqa: E731
         if count < self.config.min_stars:
             return Identification("no_match", f"{count} stars verified; tracking needs {self.config.min_stars}",
@@ -327,11 +324,11 @@ class Tracker:
                                   f"(gate {self.config.gate_sigma:g})", "tracking", elapsed()), gate
         spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
         body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
-        density = max(self._mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
+        density = max(self.catalog.mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
         log_t = float(kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
                                                           self.config.gate_sigma))
-        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self._star_magnitude[star_index],
-                                                       self._sorted_magnitudes, lis.magnitude_floor))
+        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self.catalog.magnitude[star_index],
+                                                       self.catalog.sorted_magnitudes, lis.magnitude_floor))
         fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))
         if fp > self.config.false_positive_bound:
             return Identification("no_match", f"{count} stars matched but false-positive bound {fp:.1e} > "
