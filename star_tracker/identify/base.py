@@ -11,7 +11,7 @@ budget.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Iterator
 
 import numpy as np
@@ -162,6 +162,27 @@ MIN_FIT_SIGMA_PX = 1e-4
 FIT_OUTLIER_SIGMA = 5.0
 
 
+def check_spots(spots: Spots) -> None:
+    """Refuse (ValueError naming the field) a Spots record the compiled kernels would read as
+    garbage: x, y, flux not 1-D of one length N, cov not (N, 2, 2), or another per-spot array
+    (snr, flags, ...) not of length N. Values (NaN, unknown covariances) are prepare's."""
+    n = np.shape(spots.x)[0] if np.ndim(spots.x) == 1 else None
+    if n is None:
+        raise ValueError(f"Spots.x must be 1-D, got shape {np.shape(spots.x)}")
+    for f in fields(spots):
+        value = getattr(spots, f.name)
+        if not isinstance(value, np.ndarray):
+            continue
+        shape = value.shape
+        expected = (n, 2, 2) if f.name == "cov" else (n,)
+        if f.name in ("x", "y", "flux", "cov"):  # what the kernels read
+            malformed = shape != expected
+        else:
+            malformed = value.ndim == 0 or shape[0] != n
+        if malformed:
+            raise ValueError(f"Spots.{f.name} has shape {shape}, expected {expected} for {n} spots")
+
+
 def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
     """(N, 3, 2) derivative of the sensor-frame unit ray with respect to the pixel position
     (x, y) [rad/px]: for the pinhole, ray = p / |p| with p = ((x - cx) / fx, (y - cy) / fy, 1),
@@ -239,7 +260,9 @@ class StarIdentifier:
     def prepare(self, spots: Spots, camera: CameraModel) -> tuple[np.ndarray, SpotGeometry]:
         """Indices (into `spots`) of the finite spots sorted by flux, brightest first, and the
         geometry algorithms work on, in that order. Resets the per-call stats. Compiled
-        (kernels.prepare_spots) for undistorted cameras, numpy with distortion."""
+        (kernels.prepare_spots) for undistorted cameras, numpy with distortion. A malformed
+        record is refused first (check_spots: ValueError)."""
+        check_spots(spots)
         self.stats = {}
         floor_px = self.config.centroid_sigma_floor_px
         as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
@@ -272,7 +295,7 @@ class StarIdentifier:
         """Identify the stars behind `spots` (pixel positions in `camera`); see Identification.
         Every algorithm runs the same steps: prepare the spots, `search` (the algorithm's
         step: propose and verify hypotheses), then the accepted match's final fit
-        (`solved`)."""
+        (`solved`). ValueError for a malformed Spots record (check_spots)."""
         started = time.perf_counter()
         deadline = started + self.config.max_time_s
         order, geometry = self.prepare(spots, camera)

@@ -4,6 +4,7 @@ import pytest
 
 from star_tracker.models.attitude import attitude_error, radec_roll_to_matrix
 from star_tracker.centroid import Spots
+from star_tracker.models.camera import CameraModel
 from star_tracker.identify import ALGORITHMS, IdentifyConfig, make_identifier
 from star_tracker.identify.base import NO_MATCH, TOO_FEW_SPOTS
 from star_tracker.sim.scenes import SETUPS, make_scene
@@ -182,3 +183,49 @@ def test_a_search_step_ends_in_the_shared_final_fit(database, nominal_camera, ca
     cross, roll, _ = attitude_error(result.attitude.rotation, truth)
     assert cross < 2 * ARCSEC and roll < 20 * ARCSEC
     assert np.allclose(result.body_vectors, nominal_camera.pixel_to_ray(spots.x, spots.y)[result.spot_index])
+
+
+def malformed(spots, **arrays):
+    """`spots` with some arrays replaced, bypassing any check the record itself makes."""
+    bad = object.__new__(Spots)
+    for f in Spots.__dataclass_fields__:
+        object.__setattr__(bad, f, arrays.get(f, getattr(spots, f)))
+    return bad
+
+
+@pytest.mark.parametrize("algorithm", ["hybrid", "pyramid"])
+def test_identify_refuses_spots_whose_arrays_disagree(algorithm, database, nominal_camera, catalog):
+    identifier = make_identifier(algorithm, database)
+    spots, _ = synthetic_scene(catalog, nominal_camera, random_rotation(np.random.default_rng(5)),
+                               np.random.default_rng(5))
+    assert identifier.identify(spots, nominal_camera).solved  # the well-formed record solves
+    n = len(spots)
+    cases = {
+        "flux": dict(flux=spots.flux[:-1]),  # one short: the compiled prepare would read past its end
+        "cov": dict(cov=spots.cov[:, :, 0]),  # (N, 2): a numba typing error before
+        "y": dict(y=np.append(spots.y, 5.0)),
+        "snr": dict(snr=spots.snr[:-2]),
+    }
+    for field, arrays in cases.items():
+        with pytest.raises(ValueError, match=rf"Spots\.{field} has shape"):
+            identifier.identify(malformed(spots, **arrays), nominal_camera)
+    with pytest.raises(ValueError, match=r"Spots\.cov has shape \(%d, 2, 3\)" % n):
+        identifier.identify(malformed(spots, cov=np.zeros((n, 2, 3))), nominal_camera)
+    with pytest.raises(ValueError, match=r"Spots\.x must be 1-D"):
+        identifier.identify(malformed(spots, x=spots.x[:, None]), nominal_camera)
+    # Distorted cameras take the numpy path: refused the same way.
+    distorted = CameraModel.from_fov(1024, 1024, np.radians(15.0), (-0.01, 0.0, 0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"Spots\.flux has shape"):
+        identifier.identify(malformed(spots, flux=spots.flux[:-1]), distorted)
+
+
+def test_tracking_refuses_malformed_spots_too(database, nominal_camera, catalog):
+    from star_tracker.track.tracking import Prediction, Tracker
+
+    truth = random_rotation(np.random.default_rng(6))
+    spots, _ = synthetic_scene(catalog, nominal_camera, truth, np.random.default_rng(6))
+    tracker = Tracker(make_identifier("hybrid", database))
+    prediction = Prediction(0, truth, np.eye(3) * 1e-8)
+    assert tracker.track(spots, nominal_camera, prediction)[0].solved
+    with pytest.raises(ValueError, match=r"Spots\.cov has shape"):
+        tracker.track(malformed(spots, cov=spots.cov[:, 0]), nominal_camera, prediction)
