@@ -19,7 +19,8 @@ import numpy as np
 from ..models.attitude import AttitudeSolution, quest, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
-from . import kernels
+from . import spot_kernels
+from .kernel_records import Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 
@@ -195,7 +196,7 @@ def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.nda
         jy = (camera.pixel_to_ray(x, y + h) - camera.pixel_to_ray(x, y - h)) / (2 * h)
         return np.stack([jx, jy], axis=2)
     rays = camera.pixel_to_ray(x, y) if rays is None else rays
-    return kernels.pinhole_jacobian(np.ascontiguousarray(rays, dtype=float), float(camera.fx), float(camera.fy))
+    return spot_kernels.pinhole_jacobian(np.ascontiguousarray(rays, dtype=float), float(camera.fx), float(camera.fy))
 
 
 def sanitized_covariance(cov_px: np.ndarray) -> np.ndarray:
@@ -260,7 +261,7 @@ class StarIdentifier:
     def prepare(self, spots: Spots, camera: CameraModel) -> tuple[np.ndarray, SpotGeometry]:
         """Indices (into `spots`) of the finite spots sorted by flux, brightest first, and the
         geometry algorithms work on, in that order. Resets the per-call stats. Compiled
-        (kernels.prepare_spots) for undistorted cameras, numpy with distortion. A malformed
+        (spot_kernels.prepare_spots) for undistorted cameras, numpy with distortion. A malformed
         record is refused first (check_spots: ValueError)."""
         check_spots(spots)
         self.stats = {}
@@ -268,13 +269,12 @@ class StarIdentifier:
         as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
         x, y = as_float(spots.x), as_float(spots.y)
         if not camera.has_distortion:
-            p = kernels.prepare_spots(kernels.RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)),
-                                      kernels.Pinhole.of(camera),
-                                      kernels.PrepareSettings(float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX))
+            p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)), Pinhole.of(camera),
+                                           PrepareSettings(float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX))
             return p.order, SpotGeometry(p.rays, p.sigma, min(p.order.size, self.config.max_pattern_spots),
                                          p.magnitude, p.x, p.y, p.pixel_cov, p.jacobian)
         flux = spots.flux
-        finite = np.isfinite(x) & np.isfinite(y) & ~kernels.coincident_later(x, y, COINCIDENT_SEPARATION_PX)
+        finite = np.isfinite(x) & np.isfinite(y) & ~spot_kernels.coincident_later(x, y, COINCIDENT_SEPARATION_PX)
         brightness = np.where(np.isnan(flux), -np.inf, flux)
         kept = np.flatnonzero(finite)
         order = kept[np.argsort(-brightness[kept], kind="stable")]

@@ -25,6 +25,7 @@ from ..models.attitude import refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from . import kernels
+from .kernel_records import CatalogArrays, PairIndex, SearchScratch, SpotArrays, TriangleTolerances, VerifySettings
 from .base import (NO_MATCH, TIMEOUT, AcceptedMatch, IdentifyConfig, SearchOutcome, SpotGeometry,
                    StarIdentifier)
 from .database import StarDatabase
@@ -77,8 +78,8 @@ class HybridIdentifier(StarIdentifier):
     def __init__(self, database: StarDatabase, config: IdentifyConfig):
         super().__init__(database, config)
         self.grid = SkyGrid.build(database.vectors)
-        self.catalog = kernels.CatalogArrays.build(database, self.grid)
-        self._pairs = kernels.PairIndex.build(database)
+        self.catalog = CatalogArrays.build(database, self.grid)
+        self._pairs = PairIndex.build(database)
         # Search scratch: heads of the adjacency lists, all -1 between calls (search_triangles).
         self._head_ik = np.full(database.star_count, -1, np.int64)
         self._head_jk = np.full(database.star_count, -1, np.int64)
@@ -99,12 +100,11 @@ class HybridIdentifier(StarIdentifier):
         n = geometry.x.size
         radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad, self.grid.max_radius_rad)
         config = self.config  # read per call: a caller may replace it (commands/solve.py)
-        tolerances = kernels.TriangleTolerances(float(config.sigma_multiplier), float(config.angle_tolerance_floor_rad),
-                                                int(config.max_candidates_per_pattern),
-                                                float(config.false_positive_bound))
-        verification = kernels.Verification(2.0 * math.sin(0.5 * radius_rad), MIN_STARS, self.magnitude_floor)
-        spots = kernels.SpotArrays(geometry.rays, geometry.sigma, geometry.magnitude)
-        scratch = kernels.SearchScratch(self._head_ik, self._head_jk, np.empty(n, np.int64), np.empty(n, np.int64))
+        tolerances = TriangleTolerances(float(config.sigma_multiplier), float(config.angle_tolerance_floor_rad),
+                                        int(config.max_candidates_per_pattern), float(config.false_positive_bound))
+        verification = VerifySettings(2.0 * math.sin(0.5 * radius_rad), MIN_STARS, self.magnitude_floor)
+        spots = SpotArrays(geometry.rays, geometry.sigma, geometry.magnitude)
+        scratch = SearchScratch(self._head_ik, self._head_jk, np.empty(n, np.int64), np.empty(n, np.int64))
         tested = tried = 0
         for triangles, screen_limit in triangle_batches(geometry.pattern_count, n):
             if time.perf_counter() > deadline:

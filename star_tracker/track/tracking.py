@@ -31,7 +31,9 @@ from ..models.attitude import attitude_covariance, rotation_vector_to_matrix
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from .rate import AttitudeRateEstimator, RateEstimate
+from . import kernels as track_kernels
 from ..identify import kernels
+from ..identify.kernel_records import CatalogArrays, Pinhole, SpotArrays, VerifySettings
 from ..identify.base import AcceptedMatch, Identification, StarIdentifier
 from ..identify.skygrid import SkyGrid, cell_of
 
@@ -129,7 +131,7 @@ def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float
     sqrt(c) around it a 3-D cross-section of at most (4/3) pi prod(region_sigma sqrt(mu_i) +
     sqrt(c)); never more than the whole group. The subset bound is kernels.false_positive_bound
     with min_stars = TrackingConfig.min_stars."""
-    return float(kernels.log_chance_tuples_in_region(
+    return float(track_kernels.log_chance_tuples_in_region(
         np.ascontiguousarray(body, dtype=float), np.ascontiguousarray(sigma, dtype=float), float(chi2),
         float(density_per_sr), np.ascontiguousarray(region_covariance, dtype=float), float(region_sigma)))
 
@@ -163,7 +165,8 @@ def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius_px: float) -> tuple[np.n
     """One-to-one nearest pairs within `radius_px` (a reference claimed by two spots, or a
     spot with two references within the radius, is dropped): (spot idx, ref idx)."""
     as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
-    return kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y), float(radius_px))
+    return track_kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y),
+                                        float(radius_px))
 
 
 class Tracker:
@@ -174,7 +177,7 @@ class Tracker:
         self.config = config
         self.database = lost_in_space.database
         self.grid = getattr(lost_in_space, "grid", None) or SkyGrid.build(self.database.vectors)
-        self.catalog = getattr(lost_in_space, "catalog", None) or kernels.CatalogArrays.build(self.database, self.grid)
+        self.catalog = getattr(lost_in_space, "catalog", None) or CatalogArrays.build(self.database, self.grid)
         self._vectors = self.catalog.vectors
         self.rates = AttitudeRateEstimator(config.rate_window_s, config.max_angular_acceleration_rad_s2)
         self._last: tuple[int, np.ndarray, np.ndarray] | None = None  # (stamp_ns, rotation, covariance)
@@ -279,7 +282,7 @@ class Tracker:
             keep = front & camera.in_image(u, v, margin=-gate)
             near, u, v = near[keep], u[keep], v[keep]
         else:
-            near, u, v = kernels.stars_in_view(self._vectors, rotation, cos_reach, kernels.Pinhole.of(camera),
+            near, u, v = track_kernels.stars_in_view(self._vectors, rotation, cos_reach, Pinhole.of(camera),
                                                -float(gate))
         if near.size < self.config.min_stars:
             return fail(f"{near.size} catalog stars near the predicted attitude")
@@ -309,8 +312,8 @@ class Tracker:
         out_spot = np.empty(n, np.int64)
         out_star = np.empty(n, np.int64)
         check = kernels.verify_candidate(
-            rotation, kernels.SpotArrays(geometry.rays, geometry.sigma, geometry.magnitude), self.catalog,
-            kernels.Verification(chord, self.config.min_stars, lis.magnitude_floor),
+            rotation, SpotArrays(geometry.rays, geometry.sigma, geometry.magnitude), self.catalog,
+            VerifySettings(chord, self.config.min_stars, lis.magnitude_floor),
             out_spot, out_star, 1)  # the rough rotation is already fitted to the voters' pairs
         count, rotation, chi2 = check.count, check.rotation, check.chi2
         elapsed = lambda: time.perf_counter() - started  # noqa: E731
@@ -318,14 +321,14 @@ class Tracker:
             return Identification("no_match", f"{count} stars verified; tracking needs {self.config.min_stars}",
                                   "tracking", elapsed()), gate
         # The bound holds for the searched region only: a solution outside it was not searched for.
-        mahalanobis2 = float(kernels.offset_mahalanobis2(prediction.rotation, rotation, prediction.covariance))
+        mahalanobis2 = float(track_kernels.offset_mahalanobis2(prediction.rotation, rotation, prediction.covariance))
         if mahalanobis2 > self.config.gate_sigma**2:
             return Identification("no_match", f"solution {math.sqrt(mahalanobis2):.1f} sigma from the prediction "
                                   f"(gate {self.config.gate_sigma:g})", "tracking", elapsed()), gate
         spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
         body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
         density = max(self.catalog.mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
-        log_t = float(kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
+        log_t = float(track_kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
                                                           self.config.gate_sigma))
         log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self.catalog.magnitude[star_index],
                                                        self.catalog.sorted_magnitudes, lis.magnitude_floor))
