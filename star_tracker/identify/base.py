@@ -167,21 +167,17 @@ def check_spots(spots: Spots) -> None:
     """Refuse (ValueError naming the field) a Spots record the compiled kernels would read as
     garbage: x, y, flux not 1-D of one length N, cov not (N, 2, 2), or another per-spot array
     (snr, flags, ...) not of length N. Values (NaN, unknown covariances) are prepare's."""
-    n = np.shape(spots.x)[0] if np.ndim(spots.x) == 1 else None
-    if n is None:
+    if np.ndim(spots.x) != 1:
         raise ValueError(f"Spots.x must be 1-D, got shape {np.shape(spots.x)}")
+    n = len(spots.x)
+    read_by_kernels = {"x": (n,), "y": (n,), "flux": (n,), "cov": (n, 2, 2)}
+    for name, expected in read_by_kernels.items():
+        if np.shape(getattr(spots, name)) != expected:
+            raise ValueError(f"Spots.{name} has shape {np.shape(getattr(spots, name))}, expected {expected}")
     for f in fields(spots):
         value = getattr(spots, f.name)
-        if not isinstance(value, np.ndarray):
-            continue
-        shape = value.shape
-        expected = (n, 2, 2) if f.name == "cov" else (n,)
-        if f.name in ("x", "y", "flux", "cov"):  # what the kernels read
-            malformed = shape != expected
-        else:
-            malformed = value.ndim == 0 or shape[0] != n
-        if malformed:
-            raise ValueError(f"Spots.{f.name} has shape {shape}, expected {expected} for {n} spots")
+        if f.name not in read_by_kernels and isinstance(value, np.ndarray) and (value.ndim == 0 or len(value) != n):
+            raise ValueError(f"Spots.{f.name} has shape {value.shape}, expected {n} entries (one per spot)")
 
 
 def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
