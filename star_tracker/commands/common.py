@@ -9,11 +9,9 @@ import sys
 import time
 from typing import Callable
 
-import numpy as np
 
 # The identifier's default database (config/star_tracker.yaml): 15 deg cameras use exactly it.
 DEFAULT_DB_MAGNITUDE = 6.5
-DEFAULT_DB_PAIR_ANGLE_DEG = 22.0
 DEFAULT_EPOCH_JYEAR = 2026.0
 # Guide stars wanted in a field of view when the magnitude limit is chosen automatically.
 STARS_WANTED_IN_VIEW = 10.0
@@ -186,17 +184,11 @@ def auto_magnitude_limit(fov_x_rad: float, width: int, height: int) -> float:
 
 def database_config_for(fov_x_rad: float, width: int, height: int, magnitude_limit: float | None = None,
                         epoch_jyear: float = DEFAULT_EPOCH_JYEAR):
-    """The pattern-database configuration for a camera: pairs up to the identifier's default
-    22 deg when the field's diagonal fits in it (every camera up to ~15.5 deg shares the
-    default database and its cache file), else up to the diagonal plus 1 deg; guide stars to
-    `magnitude_limit` (None: auto_magnitude_limit)."""
+    """The pattern-database configuration for a pinhole camera of horizontal FOV fov_x_rad
+    [rad] on width x height px: pairs as DatabaseConfig.for_camera derives them; guide stars
+    to `magnitude_limit` (None: auto_magnitude_limit)."""
     from ..identify import DatabaseConfig
+    from ..models.camera import CameraModel
 
-    diagonal_deg = math.degrees(field_diagonal_rad(fov_x_rad, width, height))
-    if diagonal_deg > 89.0:
-        raise CommandError(f"a {math.degrees(fov_x_rad):.1f} deg field on {width}x{height} px has a "
-                           f"{diagonal_deg:.0f} deg diagonal: at most ~89 deg is supported")
-    pair_deg = DEFAULT_DB_PAIR_ANGLE_DEG if diagonal_deg <= DEFAULT_DB_PAIR_ANGLE_DEG else math.ceil(diagonal_deg + 1.0)
     limit = auto_magnitude_limit(fov_x_rad, width, height) if magnitude_limit is None else float(magnitude_limit)
-    return DatabaseConfig(magnitude_limit=limit, max_pair_angle_rad=float(np.radians(pair_deg)),
-                          epoch_jyear=float(epoch_jyear))
+    return DatabaseConfig.for_camera(CameraModel.from_fov(width, height, fov_x_rad), limit, epoch_jyear)

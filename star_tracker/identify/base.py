@@ -1,7 +1,8 @@
 """The common identification interface and the machinery every algorithm shares.
 
-An algorithm only proposes hypotheses: (pattern spot indices, database star indices). The
-base class turns each into an attitude, verifies it against all spots with the
+An algorithm only searches: it proposes hypotheses (pattern spot indices, database star
+indices), or overrides the whole search step (hybrid, compiled). The base class turns each
+hypothesis into an attitude, verifies it against all spots with the
 false-positive bound of `verify`, refines the accepted one over every matched star (QUEST
 for matching, with spot sigmas floored at centroid_sigma_floor_px; then the published fit,
 `final_fit`, weighted by each spot's own 2-D covariance), and enforces the per-frame time
@@ -10,8 +11,7 @@ budget.
 from __future__ import annotations
 
 import time
-from abc import ABC, abstractmethod
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields
 from typing import Iterator
 
 import numpy as np
@@ -19,7 +19,8 @@ import numpy as np
 from ..models.attitude_estimation import AttitudeSolution, quest, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
-from . import kernels
+from . import spot_kernels
+from .kernel_records import Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 
@@ -130,12 +131,53 @@ class SpotGeometry:
     jacobian: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class AcceptedMatch:
+    """A verified match: spot_index (M,) into the flux-sorted spots (prepare); star_index (M,)
+    database star indices; rotation (3, 3) the matching fit, sensor -> ICRS;
+    false_positive_probability: its bound over all hypotheses of the frame (verify)."""
+
+    spot_index: np.ndarray
+    star_index: np.ndarray
+    rotation: np.ndarray
+    false_positive_probability: float
+
+
+@dataclass(frozen=True)
+class SearchOutcome:
+    """What an algorithm's search step found: `match` when a hypothesis was accepted, else
+    None with the failing `status` (NO_MATCH or TIMEOUT) and its `reason`; `tested`:
+    hypotheses tested."""
+
+    match: AcceptedMatch | None
+    tested: int
+    status: str = SOLVED
+    reason: str = ""
+
+
 # Added to every spot's variance in the final fit [px, 1-sigma]: a guard against a zero or
 # singular covariance (an infinite weight), far below any real centroid's error.
 MIN_FIT_SIGMA_PX = 1e-4
 # Final fit: a matched star whose residual exceeds this many of its own sigmas is left out of
 # the attitude (a neighbour's light or a clipped core the centroider did not see).
 FIT_OUTLIER_SIGMA = 5.0
+
+
+def check_spots(spots: Spots) -> None:
+    """Refuse (ValueError naming the field) a Spots record the compiled kernels would read as
+    garbage: x, y, flux not 1-D of one length N, cov not (N, 2, 2), or another per-spot array
+    (snr, flags, ...) not of length N. Values (NaN, unknown covariances) are prepare's."""
+    if np.ndim(spots.x) != 1:
+        raise ValueError(f"Spots.x must be 1-D, got shape {np.shape(spots.x)}")
+    n = len(spots.x)
+    read_by_kernels = {"x": (n,), "y": (n,), "flux": (n,), "cov": (n, 2, 2)}
+    for name, expected in read_by_kernels.items():
+        if np.shape(getattr(spots, name)) != expected:
+            raise ValueError(f"Spots.{name} has shape {np.shape(getattr(spots, name))}, expected {expected}")
+    for f in fields(spots):
+        value = getattr(spots, f.name)
+        if f.name not in read_by_kernels and isinstance(value, np.ndarray) and (value.ndim == 0 or len(value) != n):
+            raise ValueError(f"Spots.{f.name} has shape {value.shape}, expected {n} entries (one per spot)")
 
 
 def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
@@ -150,7 +192,7 @@ def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.nda
         jy = (camera.pixel_to_ray(x, y + h) - camera.pixel_to_ray(x, y - h)) / (2 * h)
         return np.stack([jx, jy], axis=2)
     rays = camera.pixel_to_ray(x, y) if rays is None else rays
-    return kernels.pinhole_jacobian(np.ascontiguousarray(rays, dtype=float), float(camera.fx), float(camera.fy))
+    return spot_kernels.pinhole_jacobian(np.ascontiguousarray(rays, dtype=float), float(camera.fx), float(camera.fy))
 
 
 def sanitized_covariance(cov_px: np.ndarray) -> np.ndarray:
@@ -175,10 +217,19 @@ def direction_sigma(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_px: n
     return np.sqrt(0.5 * np.trace(direction_covariance(camera, x, y, cov_px), axis1=1, axis2=2))
 
 
-class StarIdentifier(ABC):
-    """Lost-in-space identification. Subclasses implement `hypotheses`."""
+class StarIdentifier:
+    """Lost-in-space identification: identify() = prepare -> search -> solved (final fit).
+    A subclass overrides one step: `hypotheses` (correspondences the default `search`
+    verifies one by one) or, with a search of its own, `search` itself (e.g. hybrid's
+    compiled triangle search, which verifies inside it). Checked when the subclass is
+    defined."""
 
     name = "base"
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.hypotheses is StarIdentifier.hypotheses and cls.search is StarIdentifier.search:
+            raise TypeError(f"{cls.__name__} must override StarIdentifier.hypotheses or StarIdentifier.search")
 
     def __init__(self, database: StarDatabase, config: IdentifyConfig):
         self.database = database
@@ -193,10 +244,11 @@ class StarIdentifier(ABC):
     # the noise, not information (see verify.log_magnitude_agreement).
     magnitude_floor = 0.05
 
-    @abstractmethod
     def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Yield (pattern spot indices, database star indices) correspondences, most
-        promising first. Spot indices refer to the flux-sorted spot list."""
+        promising first, for the default `search`. Spot indices refer to the flux-sorted spot
+        list. None here: an algorithm that overrides `search` proposes none outside it."""
+        return iter(())
 
     def angle_tolerance(self, sigma_a: np.ndarray, sigma_b: np.ndarray) -> np.ndarray:
         """Half-width of the accepted interval for an inter-star angle [rad]."""
@@ -205,19 +257,20 @@ class StarIdentifier(ABC):
     def prepare(self, spots: Spots, camera: CameraModel) -> tuple[np.ndarray, SpotGeometry]:
         """Indices (into `spots`) of the finite spots sorted by flux, brightest first, and the
         geometry algorithms work on, in that order. Resets the per-call stats. Compiled
-        (kernels.prepare_spots) for undistorted cameras, numpy with distortion."""
+        (spot_kernels.prepare_spots) for undistorted cameras, numpy with distortion. A malformed
+        record is refused first (check_spots: ValueError)."""
+        check_spots(spots)
         self.stats = {}
         floor_px = self.config.centroid_sigma_floor_px
         as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
         x, y = as_float(spots.x), as_float(spots.y)
         if not camera.has_distortion:
-            order, rays, sigma, magnitude, x, y, pixel_cov, jacobian = kernels.prepare_spots(
-                x, y, as_float(spots.flux), as_float(spots.cov), float(camera.fx), float(camera.fy),
-                float(camera.cx), float(camera.cy), float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX)
-            return order, SpotGeometry(rays, sigma, min(order.size, self.config.max_pattern_spots), magnitude,
-                                       x, y, pixel_cov, jacobian)
+            p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)), Pinhole.of(camera),
+                                           PrepareSettings(float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX))
+            return p.order, SpotGeometry(p.rays, p.sigma, min(p.order.size, self.config.max_pattern_spots),
+                                         p.magnitude, p.x, p.y, p.pixel_cov, p.jacobian)
         flux = spots.flux
-        finite = np.isfinite(x) & np.isfinite(y) & ~kernels.coincident_later(x, y, COINCIDENT_SEPARATION_PX)
+        finite = np.isfinite(x) & np.isfinite(y) & ~spot_kernels.coincident_later(x, y, COINCIDENT_SEPARATION_PX)
         brightness = np.where(np.isnan(flux), -np.inf, flux)
         kept = np.flatnonzero(finite)
         order = kept[np.argsort(-brightness[kept], kind="stable")]
@@ -235,41 +288,58 @@ class StarIdentifier(ABC):
                                    jacobian=ray_jacobian(camera, x, y))
 
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
-        """Identify the stars behind `spots` (pixel positions in `camera`); see Identification."""
+        """Identify the stars behind `spots` (pixel positions in `camera`); see Identification.
+        Every algorithm runs the same steps: prepare the spots, `search` (the algorithm's
+        step: propose and verify hypotheses), then the accepted match's final fit
+        (`solved`). ValueError for a malformed Spots record (check_spots)."""
         started = time.perf_counter()
         deadline = started + self.config.max_time_s
         order, geometry = self.prepare(spots, camera)
         n = order.size
         if n < MIN_STARS:
             return self._fail(TOO_FEW_SPOTS, f"{n} spots; at least {MIN_STARS} are needed", started, 0)
+        outcome = self.search(geometry, camera, deadline)
+        if outcome.match is None:
+            return self._fail(outcome.status, outcome.reason, started, outcome.tested)
+        return self.solved(geometry, order, outcome.match, outcome.tested, started)
+
+    def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: float) -> SearchOutcome:
+        """The algorithm's step between `prepare` and the final fit: find a verified match of
+        the flux-sorted spots in `geometry` before `deadline` (time.perf_counter() [s]). This
+        default draws correspondences from `hypotheses`, turns each into a QUEST attitude and
+        accepts the first that `verify_hypothesis` passes; an algorithm with its own (e.g.
+        compiled) search overrides this instead of `hypotheses`."""
         tested = 0
         for pattern_spots, stars in self.hypotheses(geometry, deadline):
             if time.perf_counter() > deadline:
-                return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after "
-                                  f"{tested} hypotheses", started, tested)
+                return self._timed_out(tested)
             tested += 1
             try:
                 candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars], geometry.sigma[pattern_spots])
             except (ValueError, np.linalg.LinAlgError):
                 continue
-            result = self._refine(geometry, camera, candidate.rotation, tested, started)
-            if result is not None:
-                return replace(result, spot_index=order[result.spot_index])
+            match = self.verify_hypothesis(geometry, camera, candidate.rotation)
+            if match is not None:
+                return SearchOutcome(match, tested)
         if time.perf_counter() > deadline:
-            return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after "
-                              f"{tested} hypotheses", started, tested)
-        return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, "
-                          f"{n} spots)", started, tested)
+            return self._timed_out(tested)
+        return SearchOutcome(None, tested, NO_MATCH, f"no hypothesis passed verification ({tested} tested, "
+                             f"{geometry.x.size} spots)")
+
+    def _timed_out(self, tested: int) -> SearchOutcome:
+        return SearchOutcome(None, tested, TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after "
+                             f"{tested} hypotheses")
 
     def verification_radius_px(self, geometry: SpotGeometry, camera: CameraModel) -> float:
         """Verification radius: the configured one, widened to 4 sigma of the typical spot."""
         typical_px = float(np.partition(geometry.sigma, geometry.sigma.size // 2)[geometry.sigma.size // 2]) / camera.pixel_scale_rad
         return max(self.config.match_radius_px, 4.0 * typical_px)
 
-    def _refine(self, geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray,
-                tested: int, started: float) -> Identification | None:
-        """Match all spots under `rotation`, refine with QUEST over the matches (twice), drop
-        matches beyond 5 sigma, and accept only under the false-positive bound of `verify`."""
+    def verify_hypothesis(self, geometry: SpotGeometry, camera: CameraModel,
+                          rotation: np.ndarray) -> AcceptedMatch | None:
+        """Match all spots under `rotation` (sensor -> ICRS), refine with QUEST over the
+        matches (twice), drop matches beyond 5 sigma, and accept only under the false-positive
+        bound of `verify`; None when rejected."""
         radius = self.verification_radius_px(geometry, camera)
         vectors = self.database.vectors
         spot_index = star_index = None
@@ -298,39 +368,25 @@ class StarIdentifier(ABC):
         fp = false_positive_bound(log_t, geometry.x.size, spot_index.size)
         if fp > self.config.false_positive_bound:
             return None
-        return self.solved(geometry, spot_index, star_index, solution, fp, tested, started)
+        return AcceptedMatch(spot_index, star_index, solution.rotation, fp)
 
-    def solved(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
-               solution: AttitudeSolution, fp: float, tested: int, started: float) -> Identification:
-        """The Identification of an accepted solution (spot_index into the flux-sorted spots);
-        the attitude is refitted with the final weights (final_fit)."""
-        solution, residual = self.final_fit(geometry, spot_index, star_index, solution.rotation)
-        body = geometry.rays[spot_index]
-        star = self.database.vectors[star_index]
-        order = np.argsort(spot_index)
-        return Identification(
-            status=SOLVED, reason=f"{spot_index.size} stars matched, false-positive bound {fp:.1e}",
-            algorithm=self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
-            spot_index=spot_index[order], hip=self.database.hip[star_index][order],
-            star_vectors=star[order], body_vectors=body[order], residual_rad=residual[order],
-            attitude=solution, false_positive_probability=fp, stats=dict(self.stats))
-
-    def solved_at_rotation(self, geometry: SpotGeometry, order: np.ndarray, spot_index: np.ndarray,
-                           star_index: np.ndarray, rotation: np.ndarray, fp: float, tested: int, started: float,
-                           algorithm: str | None = None) -> Identification:
-        """The Identification of matches accepted under an already refined `rotation`
-        (sensor -> ICRS), refitted with the final weights (final_fit); spot_index refers to the
-        flux-sorted spots and is mapped back to the input through `order`."""
-        vectors = np.ascontiguousarray(self.database.vectors, dtype=float)
-        solution, residual = self.final_fit(geometry, spot_index, star_index, rotation)
-        by_spot = np.argsort(spot_index)
-        spot_index, star_index = spot_index[by_spot], star_index[by_spot]
+    def solved(self, geometry: SpotGeometry, order: np.ndarray, match: AcceptedMatch, tested: int,
+               started: float, algorithm: str | None = None) -> Identification:
+        """The Identification of an accepted match, refitted with the final weights
+        (final_fit); match.spot_index refers to the flux-sorted spots of `geometry` and is
+        mapped back to the input spots through `order` (prepare). `started`: the call's
+        time.perf_counter() [s]; `algorithm`: the name reported (default: this one's)."""
+        solution, residual = self.final_fit(geometry, match.spot_index, match.star_index, match.rotation)
+        by_spot = np.argsort(match.spot_index)
+        spot_index, star_index = match.spot_index[by_spot], match.star_index[by_spot]
+        fp = match.false_positive_probability
         return Identification(
             status=SOLVED, reason=f"{spot_index.size} stars matched, false-positive bound {fp:.1e}",
             algorithm=algorithm or self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
-            spot_index=order[spot_index], hip=self.database.hip[star_index], star_vectors=vectors[star_index],
-            body_vectors=geometry.rays[spot_index], residual_rad=residual[by_spot], attitude=solution,
-            false_positive_probability=fp, stats=dict(self.stats))
+            spot_index=order[spot_index], hip=self.database.hip[star_index],
+            star_vectors=self.database.vectors[star_index], body_vectors=geometry.rays[spot_index],
+            residual_rad=residual[by_spot], attitude=solution, false_positive_probability=fp,
+            stats=dict(self.stats))
 
     def final_fit(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
                   rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray]:

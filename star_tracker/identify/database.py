@@ -13,9 +13,11 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -24,9 +26,11 @@ from ..models.catalog import StarCatalog, cache_dir, load_hipparcos, load_valida
 from .geometry import chord_angle
 from .kvector import KVector
 
+if TYPE_CHECKING:
+    from ..models.camera import CameraModel
+
 DATABASE_FORMAT_VERSION = 2
 log = logging.getLogger(__name__)
-
 
 @dataclass(frozen=True)
 class DatabaseConfig:
@@ -37,8 +41,14 @@ class DatabaseConfig:
     because the camera sees the two as one blended spot of ambiguous identity and position
     [rad]."""
 
+    # The default largest pair angle [deg]: every camera whose field diagonal fits in it (up to
+    # ~15.5 deg square fields) shares the default database and its cache file (for_camera).
+    DEFAULT_PAIR_ANGLE_DEG: ClassVar[float] = 22.0
+    # Widest field diagonal for_camera accepts [deg]: its pairs (diagonal + 1 deg) stay within 90 deg.
+    MAX_FIELD_DIAGONAL_DEG: ClassVar[float] = 89.0
+
     magnitude_limit: float = 6.5
-    max_pair_angle_rad: float = float(np.radians(22.0))
+    max_pair_angle_rad: float = float(np.radians(DEFAULT_PAIR_ANGLE_DEG))
     epoch_jyear: float = 2026.0
     min_separation_rad: float = float(np.radians(180.0 / 3600.0))
     blend_magnitude_gap: float = 2.5
@@ -54,6 +64,38 @@ class DatabaseConfig:
             raise ValueError(f"min_separation_rad={self.min_separation_rad} must be in [0, max_pair_angle_rad)")
         if not (0.0 <= self.blend_magnitude_gap <= 10.0):
             raise ValueError(f"blend_magnitude_gap={self.blend_magnitude_gap} must be in [0, 10]")
+
+    @classmethod
+    def for_camera(cls, camera: CameraModel, magnitude_limit: float | None = None,
+                   epoch_jyear: float | None = None) -> "DatabaseConfig":
+        """The configuration whose pairs cover `camera`'s field (models.camera.CameraModel):
+        star pairs up to DEFAULT_PAIR_ANGLE_DEG (the default) when the field diagonal
+        (field_diagonal_rad) fits in it, else up to the diagonal plus 1 deg rounded up to a
+        whole degree (any two stars in view are a stored pair). magnitude_limit [Hp mag] and
+        epoch_jyear [Julian year]: None keeps the defaults. ValueError for a field diagonal
+        over MAX_FIELD_DIAGONAL_DEG."""
+        diagonal_deg = math.degrees(cls.field_diagonal_rad(camera))
+        if diagonal_deg > cls.MAX_FIELD_DIAGONAL_DEG:
+            raise ValueError(f"a {camera.width}x{camera.height} px camera of fx={camera.fx:.1f} px has a "
+                             f"{diagonal_deg:.0f} deg field diagonal: at most ~{cls.MAX_FIELD_DIAGONAL_DEG:.0f} deg is "
+                             f"supported")
+        default_deg = cls.DEFAULT_PAIR_ANGLE_DEG
+        pair_deg = default_deg if diagonal_deg <= default_deg else math.ceil(diagonal_deg + 1.0)
+        optional = dict(magnitude_limit=magnitude_limit, epoch_jyear=epoch_jyear)
+        return cls(max_pair_angle_rad=float(np.radians(pair_deg)),
+                   **{name: float(value) for name, value in optional.items() if value is not None})
+
+    @staticmethod
+    def field_diagonal_rad(camera: CameraModel) -> float:
+        """The largest angle between two points of `camera`'s image [rad]: the widest
+        separation of any two of its four outer corners (pixel edges, (-0.5, -0.5) to
+        (width - 0.5, height - 0.5)), distortion included; for a pinhole with a centred
+        principal point, 2 atan(half diagonal / f)."""
+        u = np.array([-0.5, camera.width - 0.5, -0.5, camera.width - 0.5])
+        v = np.array([-0.5, -0.5, camera.height - 0.5, camera.height - 0.5])
+        corners = camera.pixel_to_ray(u, v)
+        chord = np.linalg.norm(corners[:, None, :] - corners[None, :, :], axis=-1)
+        return float(2.0 * np.arcsin(min(1.0, 0.5 * float(chord.max()))))
 
     def cache_key(self) -> str:
         return hashlib.sha256(self.identity().encode()).hexdigest()[:16]

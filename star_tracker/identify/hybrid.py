@@ -25,7 +25,9 @@ from ..models.attitude_estimation import refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from . import kernels
-from .base import NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, Identification, IdentifyConfig, StarIdentifier
+from .kernel_records import CatalogArrays, PairIndex, SearchScratch, SpotArrays, TriangleTolerances, VerifySettings
+from .base import (NO_MATCH, TIMEOUT, AcceptedMatch, IdentifyConfig, SearchOutcome, SpotGeometry,
+                   StarIdentifier)
 from .database import StarDatabase
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
@@ -76,16 +78,11 @@ class HybridIdentifier(StarIdentifier):
     def __init__(self, database: StarDatabase, config: IdentifyConfig):
         super().__init__(database, config)
         self.grid = SkyGrid.build(database.vectors)
+        self.catalog = CatalogArrays.build(database, self.grid)
+        self._pairs = PairIndex.build(database)
+        # Search scratch: heads of the adjacency lists, all -1 between calls (search_triangles).
         self._head_ik = np.full(database.star_count, -1, np.int64)
         self._head_jk = np.full(database.star_count, -1, np.int64)
-        kv = database.kvector
-        self._kvector = (kv.sorted_values, kv.k.astype(np.int64), float(kv.slope), float(kv.intercept))
-        self._pairs = (database.pair_a.astype(np.int64), database.pair_b.astype(np.int64))
-        self._vectors = np.ascontiguousarray(database.vectors, dtype=float)
-        self._star_magnitude = np.asarray(database.magnitude, dtype=float)
-
-    def hypotheses(self, geometry, deadline):
-        raise NotImplementedError("hybrid verifies inside its compiled search; call identify()")
 
     def warm_up(self, camera: CameraModel) -> None:
         """Compile the kernels (or load them from numba's cache) on a small random scene."""
@@ -97,38 +94,31 @@ class HybridIdentifier(StarIdentifier):
                             camera.width, camera.height), camera)
         refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
 
-    def identify(self, spots: Spots, camera: CameraModel) -> Identification:
-        started = time.perf_counter()
-        deadline = started + self.config.max_time_s
-        order, geometry = self.prepare(spots, camera)
-        n = order.size
-        if n < MIN_STARS:
-            return self._fail(TOO_FEW_SPOTS, f"{n} spots; at least {MIN_STARS} are needed", started, 0)
+    def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: float) -> SearchOutcome:
+        """Compiled triangle search (kernels.search_triangles) in batches, the deadline
+        checked between them; each candidate triangle is verified inside the kernel."""
+        n = geometry.x.size
         radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad, self.grid.max_radius_rad)
-        chord = 2.0 * math.sin(0.5 * radius_rad)
-        magnitude = geometry.magnitude
-        out_spot = np.empty(n, np.int64)
-        out_star = np.empty(n, np.int64)
-        values, k, slope, intercept = self._kvector
-        pair_a, pair_b = self._pairs
+        config = self.config  # read per call: a caller may replace it (commands/solve.py)
+        tolerances = TriangleTolerances(float(config.sigma_multiplier), float(config.angle_tolerance_floor_rad),
+                                        int(config.max_candidates_per_pattern), float(config.false_positive_bound))
+        verification = VerifySettings(2.0 * math.sin(0.5 * radius_rad), MIN_STARS, self.magnitude_floor)
+        spots = SpotArrays(geometry.rays, geometry.sigma, geometry.magnitude)
+        scratch = SearchScratch(self._head_ik, self._head_jk, np.empty(n, np.int64), np.empty(n, np.int64))
         tested = tried = 0
         for triangles, screen_limit in triangle_batches(geometry.pattern_count, n):
             if time.perf_counter() > deadline:
                 self.stats["triangles"] = tried
-                return self._fail(TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent after {tried} "
-                                  f"of {math.comb(n, 3)} triangles", started, tested)
-            status, count, rotation, fp, hypotheses, stopped = kernels.search_triangles(
-                triangles, 0, triangles.shape[0], geometry.rays, geometry.sigma, magnitude,
-                self.config.sigma_multiplier, self.config.angle_tolerance_floor_rad,
-                self.config.max_candidates_per_pattern, values, k, slope, intercept, pair_a, pair_b, self._vectors,
-                self._star_magnitude, self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell,
-                self.grid.grid, self.grid.cell_density, self._mean_density, chord, MIN_STARS, self.magnitude_floor,
-                self.config.false_positive_bound, self._head_ik, self._head_jk, out_spot, out_star, screen_limit)
-            tested += hypotheses
-            tried += stopped
-            if status == 1:
+                return SearchOutcome(None, tested, TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent "
+                                     f"after {tried} of {math.comb(n, 3)} triangles")
+            found = kernels.search_triangles(triangles, 0, triangles.shape[0], spots, self._pairs, self.catalog,
+                                             tolerances, verification, scratch, screen_limit)
+            tested += found.hypotheses
+            tried += found.stopped
+            if found.status == 1:
                 self.stats["triangles"] = tried
-                return self.solved_at_rotation(geometry, order, out_spot[:count].copy(), out_star[:count].copy(),
-                                               rotation, fp, tested, started)
+                match = AcceptedMatch(scratch.out_spot[:found.count].copy(), scratch.out_star[:found.count].copy(),
+                                      found.rotation, found.fp)
+                return SearchOutcome(match, tested)
         self.stats["triangles"] = tried
-        return self._fail(NO_MATCH, f"no hypothesis passed verification ({tested} tested, {n} spots)", started, tested)
+        return SearchOutcome(None, tested, NO_MATCH, f"no hypothesis passed verification ({tested} tested, {n} spots)")

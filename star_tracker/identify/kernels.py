@@ -1,8 +1,11 @@
 """Compiled identification kernels (numba): triangle search over the pair k-vector, the
 q-method, spot-to-star matching on the sky grid and the false-positive bound of `verify`,
 in one call per batch of spot triangles so a frame costs microseconds, not Python overhead.
+Spot preparation is in spot_kernels.py, tracking's kernels in track/kernels.py.
 
 The mathematics is the one documented in base.py and verify.py; these are its loops.
+Kernels take their inputs as small records (kernel_records.py): the catalog, the spots, the
+pair index, the tolerances.
 """
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .kernel_records import CandidateCheck, TriangleSearchResult
 from .skygrid import cell_of, cells_near
 
 LN_8PI2 = math.log(8.0 * math.pi**2)
@@ -92,9 +96,10 @@ def triad(b1, b2, r1, r2):
 
 
 @njit(cache=True)
-def nearest_star(rotation, ray, chord, vectors, cell_start, star_of_cell, grid, cells):
-    """The catalog star nearest to the sensor-frame `ray` rotated to ICRS, if within `chord`
-    (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of 4."""
+def nearest_star(rotation, ray, chord, catalog, cells):
+    """The catalog star (CatalogArrays) nearest to the sensor-frame `ray` rotated to ICRS, if
+    within `chord` (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of 4."""
+    vectors, cell_start, star_of_cell, grid = catalog.vectors, catalog.cell_start, catalog.star_of_cell, catalog.grid
     radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
     cos_limit = 1.0 - 0.5 * chord * chord
     px = rotation[0, 0] * ray[0] + rotation[0, 1] * ray[1] + rotation[0, 2] * ray[2]
@@ -112,29 +117,30 @@ def nearest_star(rotation, ray, chord, vectors, cell_start, star_of_cell, grid, 
 
 
 @njit(cache=True)
-def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, vectors, cell_start, star_of_cell, grid, chord):
+def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, catalog, chord):
     """True when any spot in [0, limit) other than the three given lands within `chord` of a
     catalog star under `rotation`: the pyramid's 4th-star confirmation, used as a screen."""
     cells = np.empty(4, np.int64)
     for s in range(min(limit, rays.shape[0])):
         if s != skip_a and s != skip_b and s != skip_c:
-            if nearest_star(rotation, rays[s], chord, vectors, cell_start, star_of_cell, grid, cells)[0] >= 0:
+            if nearest_star(rotation, rays[s], chord, catalog, cells)[0] >= 0:
                 return True
     return False
 
 
 @njit(cache=True)
-def match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, out_dot):
+def match_all(rays, rotation, catalog, chord, out_spot, out_star, out_dot):
     """One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star
-    within `chord` (2 sin(radius/2)); a star with another spot within twice the radius
-    matches no spot (ambiguous). Returns the number of matches written to out_*."""
+    (CatalogArrays) within `chord` (2 sin(radius/2)); a star with another spot within twice
+    the radius matches no spot (ambiguous). Returns the number of matches written to out_*."""
     n = rays.shape[0]
+    vectors = catalog.vectors
     radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
     cells = np.empty(4, np.int64)
     best_star = np.full(n, -1, np.int64)
     best_dot = np.full(n, -2.0)
     for s in range(n):
-        best_star[s], best_dot[s] = nearest_star(rotation, rays[s], chord, vectors, cell_start, star_of_cell, grid, cells)
+        best_star[s], best_dot[s] = nearest_star(rotation, rays[s], chord, catalog, cells)
     # A star with a second spot within twice the radius is ambiguous (e.g. a false object
     # beside a star that pulled the fit toward itself): no spot is matched to it, so no
     # identity can be claimed for the wrong one.
@@ -242,20 +248,22 @@ def refit(rays, sigma, vectors, spot_index, star_index, count):
 
 
 @njit(cache=True)
-def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes,
-                     cell_start, star_of_cell, grid, cell_density, mean_density, chord, min_stars,
-                     magnitude_floor, out_spot, out_star, match_passes=3):
-    """Match every spot under `rotation`, refine with the q-method over the matches
-    (match_passes times: a hypothesis from 3-4 stars needs 3; a tracked attitude, already
-    fitted to a dozen stars, 1), drop matches beyond 5 sigma and bound the false-positive probability.
-    Returns (matches written to out_*, refined rotation, false-positive bound, chi^2)."""
+def verify_candidate(rotation, spots, catalog, verification, out_spot, out_star, match_passes=3):
+    """Match every spot (SpotArrays) to the catalog (CatalogArrays) under `rotation`, refine
+    with the q-method over the matches (match_passes times: a hypothesis from 3-4 stars needs
+    3; a tracked attitude, already fitted to a dozen stars, 1), drop matches beyond 5 sigma
+    and bound the false-positive probability (VerifySettings: radius, fewest stars).
+    Returns a CandidateCheck (the matches are written to out_*)."""
+    rays, sigma, magnitude = spots.rays, spots.sigma, spots.magnitude
+    vectors = catalog.vectors
+    chord, min_stars = verification.chord, verification.min_stars
     n = rays.shape[0]
     dots = np.empty(n)
     count = 0
     for _ in range(match_passes):  # match, refit; each match uses the previous refit
-        count = match_all(rays, rotation, vectors, cell_start, star_of_cell, grid, chord, out_spot, out_star, dots)
+        count = match_all(rays, rotation, catalog, chord, out_spot, out_star, dots)
         if count < min_stars:
-            return count, rotation, 1.0, 0.0
+            return CandidateCheck(count, rotation, 1.0, 0.0)
         rotation = refit(rays, sigma, vectors, out_spot, out_star, count)
     kept = count
     chi2 = 0.0
@@ -275,7 +283,7 @@ def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, 
                 chi2 += r2
                 kept += 1
         if kept < min_stars:
-            return kept, rotation, 1.0, 0.0
+            return CandidateCheck(kept, rotation, 1.0, 0.0)
         if kept == count:
             break
         count = kept
@@ -289,25 +297,29 @@ def verify_candidate(rotation, rays, sigma, magnitude, vectors, star_magnitude, 
         body[i] = rays[out_spot[i]]
         sig[i] = sigma[out_spot[i]]
         smag[i] = magnitude[out_spot[i]]
-        cmag[i] = star_magnitude[out_star[i]]
-    density = max(mean_density, cell_density[cell_of(rotation[0, 2], rotation[1, 2], rotation[2, 2], grid)])
+        cmag[i] = catalog.magnitude[out_star[i]]
+    density = max(catalog.mean_density,
+                  catalog.cell_density[cell_of(rotation[0, 2], rotation[1, 2], rotation[2, 2], catalog.grid)])
     log_t = log_chance_tuples(body, sig, chi2, density)
-    log_t += log_magnitude_agreement(smag, cmag, sorted_magnitudes, magnitude_floor)
-    return count, rotation, false_positive_bound(log_t, n, count, min_stars), chi2
+    log_t += log_magnitude_agreement(smag, cmag, catalog.sorted_magnitudes, verification.magnitude_floor)
+    return CandidateCheck(count, rotation, false_positive_bound(log_t, n, count, min_stars), chi2)
 
 
 @njit(cache=True)
-def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multiplier, tolerance_floor,
-                     max_candidates, pair_angle, k, slope, intercept, pair_a, pair_b, vectors,
-                     star_magnitude, sorted_magnitudes, cell_start, star_of_cell, grid, cell_density,
-                     mean_density, chord, min_stars, magnitude_floor, fp_limit, head_ik, head_jk,
-                     out_spot, out_star, screen_limit):
+def search_triangles(triangles, first, last, spots, pairs, catalog, tolerances, verification, scratch,
+                     screen_limit):
     """Try spot triangles triangles[first:last] in order: catalog triangles whose three sides
-    match within the angle tolerance and whose handedness agrees (mirror test) are verified
-    against all spots at once. Returns (status, matches, rotation, fp, hypotheses, last tried
-    + 1): status 1 = accepted (matches in out_*), 0 = none in this batch.
-    head_ik, head_jk: scratch arrays of -1, one per catalog star (restored on return);
+    match within the angle tolerance (TriangleTolerances) in the pair index (PairIndex) and
+    whose handedness agrees (mirror test) are verified against all spots (SpotArrays) at once
+    (verify_candidate). Returns a TriangleSearchResult (accepted matches in scratch.out_*).
     screen_limit: spots [0, screen_limit) are tried for the 4th-star screen."""
+    rays, sigma = spots.rays, spots.sigma
+    sigma_multiplier, tolerance_floor = tolerances.sigma_multiplier, tolerances.tolerance_floor
+    max_candidates = tolerances.max_candidates
+    pair_angle, k, slope, intercept = pairs.pair_angle, pairs.k, pairs.slope, pairs.intercept
+    pair_a, pair_b = pairs.pair_a, pairs.pair_b
+    vectors, chord = catalog.vectors, verification.chord
+    head_ik, head_jk = scratch.head_ik, scratch.head_jk
     hypotheses = 0
     best_rotation = np.eye(3)
     for t in range(first, last):
@@ -392,8 +404,7 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
             # Screen with a TRIAD attitude: the full verification (q-method refits) only runs
             # when a spot beyond the triangle (among the first `screen_limit`) lands on a star.
             rotation = triad(rays[i], rays[j], vectors[cand[c, 0]], vectors[cand[c, 1]])
-            if not lands_on_star(rays, i, j, kk, screen_limit, rotation, vectors, cell_start, star_of_cell,
-                                 grid, chord):
+            if not lands_on_star(rays, i, j, kk, screen_limit, rotation, catalog, chord):
                 continue
             body = np.empty((3, 3))
             ref = np.empty((3, 3))
@@ -403,199 +414,7 @@ def search_triangles(triangles, first, last, rays, sigma, magnitude, sigma_multi
                 ref[q] = vectors[cand[c, q]]
                 w[q] = 1.0 / sigma[spot[q]] ** 2
             rotation = q_method(body, ref, w)  # all three stars, weighted: better than TRIAD
-            count, rotation, fp, _ = verify_candidate(
-                rotation, rays, sigma, magnitude, vectors, star_magnitude, sorted_magnitudes, cell_start,
-                star_of_cell, grid, cell_density, mean_density, chord, min_stars, magnitude_floor, out_spot, out_star)
-            if fp <= fp_limit:
-                return 1, count, rotation, fp, hypotheses, t + 1
-    return 0, 0, best_rotation, 1.0, hypotheses, last
-
-
-@njit(cache=True)
-def prepare_spots(x, y, flux, cov, fx, fy, cx, cy, sigma_floor_px, min_fit_sigma_px, separation_px):
-    """The compiled form of StarIdentifier.prepare for cameras without distortion: indices of
-    the usable spots (finite, not coincident: coincident_later) sorted by flux (brightest
-    first, NaN flux last, stable), their unit rays (N, 3), 1-sigma direction errors [rad] for
-    matching (floored at sigma_floor_px), instrumental magnitudes (NaN for flux <= 0), pixel
-    positions x, y [px], pixel covariances for the final fit (N, 2, 2) [px^2] (unknown: 1 px^2,
-    plus min_fit_sigma_px^2 on both axes) and the rays' pixel jacobians (N, 3, 2) [rad/px]."""
-    n = x.size
-    dropped = coincident_later(x, y, separation_px)
-    keep = np.empty(n, np.int64)
-    m = 0
-    for i in range(n):
-        if np.isfinite(x[i]) and np.isfinite(y[i]) and not dropped[i]:
-            keep[m] = i
-            m += 1
-    key = np.empty(m)
-    for q in range(m):
-        f = flux[keep[q]]
-        key[q] = -f if not np.isnan(f) else np.inf
-    order = keep[:m][np.argsort(key, kind="mergesort")]
-    rays = np.empty((m, 3))
-    sigma = np.empty(m)
-    magnitude = np.empty(m)
-    xs = np.empty(m)
-    ys = np.empty(m)
-    pixel_cov = np.empty((m, 2, 2))
-    scale = 1.0 / math.sqrt(fx * fy)
-    extra = min_fit_sigma_px * min_fit_sigma_px
-    for q in range(m):
-        i = order[q]
-        xs[q], ys[q] = x[i], y[i]
-        u = (x[i] - cx) / fx
-        v = (y[i] - cy) / fy
-        norm = math.sqrt(u * u + v * v + 1.0)
-        rays[q, 0], rays[q, 1], rays[q, 2] = u / norm, v / norm, 1.0 / norm
-        variance = 0.5 * (cov[i, 0, 0] + cov[i, 1, 1])
-        s = math.sqrt(max(variance, 0.0)) if math.isfinite(variance) else 1.0  # unknown: 1 px
-        sigma[q] = max(s, sigma_floor_px) * scale
-        magnitude[q] = -2.5 * math.log10(flux[i]) if flux[i] > 0 else np.nan
-        known = (math.isfinite(cov[i, 0, 0]) and math.isfinite(cov[i, 0, 1]) and math.isfinite(cov[i, 1, 0])
-                 and math.isfinite(cov[i, 1, 1]))
-        for r in range(2):
-            for c in range(2):
-                pixel_cov[q, r, c] = (cov[i, r, c] if known else (1.0 if r == c else 0.0)) + (extra if r == c else 0.0)
-    return order, rays, sigma, magnitude, xs, ys, pixel_cov, pinhole_jacobian(rays, fx, fy)
-
-
-@njit(cache=True)
-def pinhole_jacobian(rays, fx, fy):
-    """(N, 3, 2) d ray / d pixel [rad/px] of pinhole unit rays (N, 3):
-    r_z (I - r r^T)[:, :2] diag(1/fx, 1/fy)."""
-    out = np.empty((rays.shape[0], 3, 2))
-    for i in range(rays.shape[0]):
-        a, b = rays[i, 2] / fx, rays[i, 2] / fy
-        for r in range(3):
-            out[i, r, 0] = a * ((1.0 if r == 0 else 0.0) - rays[i, r] * rays[i, 0])
-            out[i, r, 1] = b * ((1.0 if r == 1 else 0.0) - rays[i, r] * rays[i, 1])
-    return out
-
-
-@njit(cache=True)
-def coincident_later(x, y, separation_px):
-    """(N,) bool: spots within separation_px [px] of an earlier (lower-index) finite spot.
-    Sweep over x-sorted finite spots, O(N log N) for spread-out spots."""
-    n = x.size
-    dropped = np.zeros(n, np.bool_)
-    finite = np.empty(n, np.int64)
-    m = 0
-    for i in range(n):
-        if np.isfinite(x[i]) and np.isfinite(y[i]):
-            finite[m] = i
-            m += 1
-    by_x = finite[:m][np.argsort(x[finite[:m]], kind="mergesort")]
-    limit = separation_px * separation_px
-    for a in range(m):
-        i = by_x[a]
-        for b in range(a + 1, m):
-            j = by_x[b]
-            dx = x[j] - x[i]
-            if dx > separation_px:
-                break
-            dy = y[j] - y[i]
-            if dx * dx + dy * dy <= limit:
-                dropped[max(i, j)] = True
-    return dropped
-
-
-@njit(cache=True)
-def log_chance_tuples_in_region(body, sigma, chi2, density, region_covariance, region_sigma):
-    """ln of the expected chance m-tuples fitting `body` with chi^2 <= `chi2` under an attitude
-    inside the region_sigma ellipsoid of `region_covariance` [rad^2]: log_chance_tuples with
-    the volume of SO(3) replaced by the searched region when that is smaller (see
-    tracking.log_chance_tuples_in_region for the math)."""
-    whole = log_chance_tuples(body, sigma, chi2, density)
-    m = body.shape[0]
-    info = np.zeros((3, 3))
-    for i in range(m):
-        w = 1.0 / (sigma[i] * sigma[i])
-        for r in range(3):
-            for c in range(3):
-                info[r, c] += w * ((1.0 if r == c else 0.0) - body[i, r] * body[i, c])
-    det = np.linalg.det(info)
-    if det <= 0.0:
-        return whole
-    # Eigenvalues of G P through the symmetric L^T G L (P = L L^T).
-    lower = np.linalg.cholesky(region_covariance)
-    mu = np.linalg.eigvalsh(lower.T @ info @ lower)
-    radius = math.sqrt(max(chi2, 1e-12))
-    log_region = math.log(4.0 / 3.0 * math.pi)
-    for i in range(3):
-        log_region += math.log(region_sigma * math.sqrt(max(mu[i], 0.0)) + radius)
-    return whole + min(0.0, log_region - (LN_8PI2 + 0.5 * math.log(det)))
-
-
-@njit(cache=True)
-def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius):
-    """One-to-one pairs within `radius` [px]: a spot with exactly one reference within the
-    radius, whose reference has no other spot within it. Returns (spot idx, ref idx)."""
-    n, m = spot_x.size, ref_x.size
-    r2 = radius * radius
-    refs_near_spot = np.zeros(n, np.int64)
-    spots_near_ref = np.zeros(m, np.int64)
-    nearest = np.full(n, -1, np.int64)
-    for i in range(n):
-        for j in range(m):
-            dx = spot_x[i] - ref_x[j]
-            dy = spot_y[i] - ref_y[j]
-            if dx * dx + dy * dy <= r2:
-                refs_near_spot[i] += 1
-                spots_near_ref[j] += 1
-                nearest[i] = j
-    count = 0
-    out_spot = np.empty(n, np.int64)
-    out_ref = np.empty(n, np.int64)
-    for i in range(n):
-        if refs_near_spot[i] == 1 and spots_near_ref[nearest[i]] == 1:
-            out_spot[count] = i
-            out_ref[count] = nearest[i]
-            count += 1
-    return out_spot[:count], out_ref[:count]
-
-
-@njit(cache=True)
-def stars_in_view(vectors, rotation, cos_reach, fx, fy, cx, cy, width, height, margin):
-    """Catalog stars (ICRS unit vectors) within acos(cos_reach) of the boresight of `rotation`
-    (sensor -> ICRS) that a pinhole camera puts inside its pixel area shrunk by `margin` [px]
-    (negative: grown): (indices, u, v [px]). One pass over the catalog (~8k stars)."""
-    n = vectors.shape[0]
-    near = np.empty(n, np.int64)
-    us = np.empty(n)
-    vs = np.empty(n)
-    count = 0
-    bx, by, bz = rotation[0, 2], rotation[1, 2], rotation[2, 2]
-    for s in range(n):
-        z = vectors[s, 0] * bx + vectors[s, 1] * by + vectors[s, 2] * bz
-        if z <= cos_reach or z <= 1e-9:
-            continue
-        x = vectors[s, 0] * rotation[0, 0] + vectors[s, 1] * rotation[1, 0] + vectors[s, 2] * rotation[2, 0]
-        y = vectors[s, 0] * rotation[0, 1] + vectors[s, 1] * rotation[1, 1] + vectors[s, 2] * rotation[2, 1]
-        u = fx * x / z + cx
-        v = fy * y / z + cy
-        if -0.5 + margin <= u <= width - 0.5 - margin and -0.5 + margin <= v <= height - 0.5 - margin:
-            near[count], us[count], vs[count] = s, u, v
-            count += 1
-    return near[:count].copy(), us[:count].copy(), vs[:count].copy()
-
-
-@njit(cache=True)
-def offset_mahalanobis2(predicted, rotation, covariance):
-    """Squared Mahalanobis distance of `rotation` from `predicted` (both sensor -> ICRS): the
-    rotation vector of predicted^T rotation [rad] (sensor frame) against `covariance` [rad^2]."""
-    rel = predicted.T @ rotation
-    sx = 0.5 * (rel[2, 1] - rel[1, 2])
-    sy = 0.5 * (rel[0, 2] - rel[2, 0])
-    sz = 0.5 * (rel[1, 0] - rel[0, 1])
-    cos = max(-1.0, min(1.0, 0.5 * (rel[0, 0] + rel[1, 1] + rel[2, 2] - 1.0)))
-    sin = math.sqrt(sx * sx + sy * sy + sz * sz)
-    angle = math.atan2(sin, cos)
-    offset = np.empty(3)
-    if sin > 1e-12:
-        scale = angle / sin
-        offset[0], offset[1], offset[2] = sx * scale, sy * scale, sz * scale
-    elif cos > 0.0:
-        offset[0], offset[1], offset[2] = sx, sy, sz
-    else:  # a half turn: far outside any gate
-        return np.inf
-    return offset @ np.linalg.solve(covariance, offset)
+            check = verify_candidate(rotation, spots, catalog, verification, scratch.out_spot, scratch.out_star)
+            if check.fp <= tolerances.fp_limit:
+                return TriangleSearchResult(1, check.count, check.rotation, check.fp, hypotheses, t + 1)
+    return TriangleSearchResult(0, 0, best_rotation, 1.0, hypotheses, last)

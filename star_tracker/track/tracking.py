@@ -32,8 +32,10 @@ from ..models.attitude_estimation import attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from .rate import AttitudeRateEstimator, RateEstimate
+from . import kernels as track_kernels
 from ..identify import kernels
-from ..identify.base import Identification, StarIdentifier
+from ..identify.kernel_records import CatalogArrays, Pinhole, SpotArrays, VerifySettings
+from ..identify.base import AcceptedMatch, Identification, StarIdentifier
 from ..identify.skygrid import SkyGrid, cell_of
 
 MODE_TRACKING = "tracking"
@@ -130,7 +132,7 @@ def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float
     sqrt(c) around it a 3-D cross-section of at most (4/3) pi prod(region_sigma sqrt(mu_i) +
     sqrt(c)); never more than the whole group. The subset bound is kernels.false_positive_bound
     with min_stars = TrackingConfig.min_stars."""
-    return float(kernels.log_chance_tuples_in_region(
+    return float(track_kernels.log_chance_tuples_in_region(
         np.ascontiguousarray(body, dtype=float), np.ascontiguousarray(sigma, dtype=float), float(chi2),
         float(density_per_sr), np.ascontiguousarray(region_covariance, dtype=float), float(region_sigma)))
 
@@ -164,7 +166,8 @@ def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius_px: float) -> tuple[np.n
     """One-to-one nearest pairs within `radius_px` (a reference claimed by two spots, or a
     spot with two references within the radius, is dropped): (spot idx, ref idx)."""
     as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
-    return kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y), float(radius_px))
+    return track_kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y),
+                                        float(radius_px))
 
 
 class Tracker:
@@ -175,10 +178,8 @@ class Tracker:
         self.config = config
         self.database = lost_in_space.database
         self.grid = getattr(lost_in_space, "grid", None) or SkyGrid.build(self.database.vectors)
-        self._vectors = np.ascontiguousarray(self.database.vectors, dtype=float)
-        self._star_magnitude = np.asarray(self.database.magnitude, dtype=float)
-        self._sorted_magnitudes = np.sort(self._star_magnitude)
-        self._mean_density = self.database.star_count / (4.0 * np.pi)
+        self.catalog = getattr(lost_in_space, "catalog", None) or CatalogArrays.build(self.database, self.grid)
+        self._vectors = self.catalog.vectors
         self.rates = AttitudeRateEstimator(config.rate_window_s, config.max_angular_acceleration_rad_s2)
         self._last: tuple[int, np.ndarray, np.ndarray] | None = None  # (stamp_ns, rotation, covariance)
         self.rate: RateEstimate | None = None
@@ -282,9 +283,8 @@ class Tracker:
             keep = front & camera.in_image(u, v, margin=-gate)
             near, u, v = near[keep], u[keep], v[keep]
         else:
-            near, u, v = kernels.stars_in_view(self._vectors, rotation, cos_reach, float(camera.fx), float(camera.fy),
-                                               float(camera.cx), float(camera.cy), float(camera.width),
-                                               float(camera.height), -float(gate))
+            near, u, v = track_kernels.stars_in_view(self._vectors, rotation, cos_reach, Pinhole.of(camera),
+                                               -float(gate))
         if near.size < self.config.min_stars:
             return fail(f"{near.size} catalog stars near the predicted attitude")
         voters = min(n, self.config.max_pattern_spots)
@@ -312,33 +312,33 @@ class Tracker:
         chord = 2.0 * math.sin(0.5 * min(tolerance_px * camera.pixel_scale_rad, self.grid.max_radius_rad))
         out_spot = np.empty(n, np.int64)
         out_star = np.empty(n, np.int64)
-        count, rotation, _, chi2 = kernels.verify_candidate(
-            rotation, geometry.rays, geometry.sigma, geometry.magnitude, self._vectors, self._star_magnitude,
-            self._sorted_magnitudes, self.grid.cell_start, self.grid.star_of_cell, self.grid.grid,
-            self.grid.cell_density, self._mean_density, chord, self.config.min_stars, lis.magnitude_floor,
+        check = kernels.verify_candidate(
+            rotation, SpotArrays(geometry.rays, geometry.sigma, geometry.magnitude), self.catalog,
+            VerifySettings(chord, self.config.min_stars, lis.magnitude_floor),
             out_spot, out_star, 1)  # the rough rotation is already fitted to the voters' pairs
+        count, rotation, chi2 = check.count, check.rotation, check.chi2
         elapsed = lambda: time.perf_counter() - started  # noqa: E731
         if count < self.config.min_stars:
             return Identification("no_match", f"{count} stars verified; tracking needs {self.config.min_stars}",
                                   "tracking", elapsed()), gate
         # The bound holds for the searched region only: a solution outside it was not searched for.
-        mahalanobis2 = float(kernels.offset_mahalanobis2(prediction.rotation, rotation, prediction.covariance))
+        mahalanobis2 = float(track_kernels.offset_mahalanobis2(prediction.rotation, rotation, prediction.covariance))
         if mahalanobis2 > self.config.gate_sigma**2:
             return Identification("no_match", f"solution {math.sqrt(mahalanobis2):.1f} sigma from the prediction "
                                   f"(gate {self.config.gate_sigma:g})", "tracking", elapsed()), gate
         spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
         body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
-        density = max(self._mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
-        log_t = float(kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
+        density = max(self.catalog.mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
+        log_t = float(track_kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
                                                           self.config.gate_sigma))
-        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self._star_magnitude[star_index],
-                                                       self._sorted_magnitudes, lis.magnitude_floor))
+        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self.catalog.magnitude[star_index],
+                                                       self.catalog.sorted_magnitudes, lis.magnitude_floor))
         fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))
         if fp > self.config.false_positive_bound:
             return Identification("no_match", f"{count} stars matched but false-positive bound {fp:.1e} > "
                                   f"{self.config.false_positive_bound:.0e}", "tracking", elapsed()), gate
-        return lis.solved_at_rotation(geometry, order, spot_index, star_index, rotation, fp, 1, started,
-                                      algorithm="tracking"), gate
+        return lis.solved(geometry, order, AcceptedMatch(spot_index, star_index, rotation, fp), 1, started,
+                          algorithm="tracking"), gate
 
     def _half_diagonal(self, camera: CameraModel) -> float:
         key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.distortion))

@@ -4,6 +4,7 @@ import pytest
 
 from star_tracker.models.attitude import attitude_error, radec_roll_to_matrix
 from star_tracker.centroid import Spots
+from star_tracker.models.camera import CameraModel
 from star_tracker.identify import ALGORITHMS, IdentifyConfig, make_identifier
 from star_tracker.identify.base import NO_MATCH, TOO_FEW_SPOTS
 from star_tracker.sim.scenes import SETUPS, make_scene
@@ -135,3 +136,96 @@ def test_false_stars_among_real_ones(algorithm, database, nominal_camera, catalo
     # The angle method is the one the papers show to suffer from false stars (Cole & Crassidis
     # Table 2: 25 % with one false star); it still never answers wrongly.
     assert solved >= (7 if algorithm == "angle_pivot" else 9)
+
+
+def test_an_identifier_must_override_a_search_step(database):
+    from star_tracker.identify.base import StarIdentifier
+
+    with pytest.raises(TypeError, match="hypotheses or StarIdentifier.search"):
+        type("NoSearch", (StarIdentifier,), {"name": "none"})
+    # hybrid overrides the whole search; it proposes no separate hypotheses (and does not raise).
+    hybrid = make_identifier("hybrid", database)
+    assert type(hybrid).search is not StarIdentifier.search
+    assert list(hybrid.hypotheses(None, 0.0)) == []
+
+
+def test_a_search_step_ends_in_the_shared_final_fit(database, nominal_camera, catalog):
+    """An identifier that overrides only `search`, answering with the true matches under an
+    attitude 20 arcsec off, gets the shared ending: the matches mapped back to the input spots
+    (given in reverse flux order here), HIP ids, and the final fit's attitude near the truth."""
+    from star_tracker.identify.base import AcceptedMatch, SearchOutcome, StarIdentifier
+    from star_tracker.models.attitude import rotation_vector_to_matrix
+
+    rng = np.random.default_rng(21)
+    truth = random_rotation(rng)
+    spots, hip = synthetic_scene(catalog, nominal_camera, truth, rng, noise_px=0.05)
+    reverse = np.arange(len(spots))[::-1]
+    spots = Spots(spots.x[reverse], spots.y[reverse], spots.flux[reverse], spots.snr[reverse], spots.cov[reverse],
+                  spots.flags[reverse], spots.area[reverse], spots.peak[reverse], spots.width, spots.height)
+    hip = hip[reverse]
+    off = truth @ rotation_vector_to_matrix(np.array([20.0, -15.0, 40.0]) * ARCSEC)
+
+    class Oracle(StarIdentifier):
+        name = "oracle"
+
+        def search(self, geometry, camera, deadline):
+            # The flux-sorted spot k is the input spot whose position it has.
+            source = [int(np.flatnonzero((spots.x == x) & (spots.y == y))[0]) for x, y in zip(geometry.x, geometry.y)]
+            known = [(k, int(np.searchsorted(database.hip, hip[s]))) for k, s in enumerate(source)
+                     if hip[s] in database.hip]
+            spot_index, star_index = (np.array(v, np.int64) for v in zip(*known))
+            return SearchOutcome(AcceptedMatch(spot_index, star_index, off, 1e-9), tested=7)
+
+    result = Oracle(database, IdentifyConfig()).identify(spots, nominal_camera)
+    assert result.solved and result.algorithm == "oracle" and result.hypotheses == 7
+    assert np.array_equal(result.hip, hip[result.spot_index])
+    assert result.hip.size == np.isin(hip, database.hip).sum() >= 8
+    cross, roll, _ = attitude_error(result.attitude.rotation, truth)
+    assert cross < 2 * ARCSEC and roll < 20 * ARCSEC
+    assert np.allclose(result.body_vectors, nominal_camera.pixel_to_ray(spots.x, spots.y)[result.spot_index])
+
+
+def malformed(spots, **arrays):
+    """`spots` with some arrays replaced, bypassing any check the record itself makes."""
+    bad = object.__new__(Spots)
+    for f in Spots.__dataclass_fields__:
+        object.__setattr__(bad, f, arrays.get(f, getattr(spots, f)))
+    return bad
+
+
+@pytest.mark.parametrize("algorithm", ["hybrid", "pyramid"])
+def test_identify_refuses_spots_whose_arrays_disagree(algorithm, database, nominal_camera, catalog):
+    identifier = make_identifier(algorithm, database)
+    spots, _ = synthetic_scene(catalog, nominal_camera, random_rotation(np.random.default_rng(5)),
+                               np.random.default_rng(5))
+    assert identifier.identify(spots, nominal_camera).solved  # the well-formed record solves
+    n = len(spots)
+    cases = {
+        "flux": dict(flux=spots.flux[:-1]),  # one short: the compiled prepare would read past its end
+        "cov": dict(cov=spots.cov[:, :, 0]),  # (N, 2): a numba typing error before
+        "y": dict(y=np.append(spots.y, 5.0)),
+        "snr": dict(snr=spots.snr[:-2]),
+    }
+    for field, arrays in cases.items():
+        with pytest.raises(ValueError, match=rf"Spots\.{field} has shape"):
+            identifier.identify(malformed(spots, **arrays), nominal_camera)
+    with pytest.raises(ValueError, match=r"Spots\.cov has shape \(%d, 2, 3\)" % n):
+        identifier.identify(malformed(spots, cov=np.zeros((n, 2, 3))), nominal_camera)
+    with pytest.raises(ValueError, match=r"Spots\.x must be 1-D"):
+        identifier.identify(malformed(spots, x=spots.x[:, None]), nominal_camera)
+    # Distorted cameras take the numpy path: refused the same way.
+    distorted = CameraModel.from_fov(1024, 1024, np.radians(15.0), (-0.01, 0.0, 0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"Spots\.flux has shape"):
+        identifier.identify(malformed(spots, flux=spots.flux[:-1]), distorted)
+
+
+def test_tracking_refuses_malformed_spots_too(database, nominal_camera, catalog):
+    from star_tracker.track.tracking import Prediction, Tracker
+
+    truth = random_rotation(np.random.default_rng(6))
+    spots, _ = synthetic_scene(catalog, nominal_camera, truth, np.random.default_rng(6))
+    tracker = Tracker(make_identifier("hybrid", database))
+    prediction = Prediction(0, truth, np.eye(3) * 1e-8)
+    assert tracker.track(spots, nominal_camera, prediction)[0].solved
+    with pytest.raises(ValueError, match=r"Spots\.cov has shape"):
+        tracker.track(malformed(spots, cov=spots.cov[:, 0]), nominal_camera, prediction)

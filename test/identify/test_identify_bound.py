@@ -8,6 +8,7 @@ from scipy.special import gammaln
 
 from star_tracker.identify import DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from star_tracker.identify import kernels, verify
+from star_tracker.identify.kernel_records import CatalogArrays
 from star_tracker.identify.base import TIMEOUT
 from star_tracker.identify.skygrid import SkyGrid
 from star_tracker.sim.scenes import SETUPS, make_scene
@@ -29,8 +30,8 @@ def test_sky_grid_finds_every_star_within_the_radius(database):
     rays[:200] = database.vectors[rng.choice(database.star_count, 200, replace=False)] + rng.normal(scale=0.3 * radius, size=(200, 3))
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     out_spot, out_star, out_dot = np.empty(400, np.int64), np.empty(400, np.int64), np.empty(400)
-    count = kernels.match_all(rays, np.eye(3), database.vectors, grid.cell_start, grid.star_of_cell, grid.grid,
-                              chord, out_spot, out_star, out_dot)
+    count = kernels.match_all(rays, np.eye(3), CatalogArrays.build(database, grid), chord,
+                              out_spot, out_star, out_dot)
     dots = rays @ database.vectors.T
     nearest = np.argmax(dots, axis=1)
     within = dots[np.arange(400), nearest] >= 1 - chord**2 / 2
