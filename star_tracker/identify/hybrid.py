@@ -29,6 +29,7 @@ from .kernel_records import CatalogArrays, PairIndex, SearchScratch, SpotArrays,
 from .base import (NO_MATCH, TIMEOUT, AcceptedMatch, IdentifyConfig, SearchOutcome, SpotGeometry,
                    StarIdentifier)
 from .database import StarDatabase
+from .geometry import pyramid_triangles
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
 
@@ -39,18 +40,6 @@ BATCH_TRIANGLES = 64
 
 
 @lru_cache(maxsize=128)
-def pyramid_triangles(pattern_count: int) -> np.ndarray:
-    """(T, 3) spot triangles in pyramid order (pyramid.pyramid_order) over the first
-    `pattern_count` spots, built with numpy."""
-    n = pattern_count
-    blocks = [np.zeros((0, 3), np.int64)]
-    for dj in range(1, n - 1):
-        for dk in range(1, n - dj):
-            i = np.arange(0, n - dj - dk, dtype=np.int64)
-            blocks.append(np.stack([i, i + dj, i + dj + dk], axis=1))
-    return np.concatenate(blocks)
-
-
 @lru_cache(maxsize=256)
 def triangles_closing_at(k: int) -> np.ndarray:
     """(C(k, 2), 3) triangles (i, j, k), i < j < k: the ones spot k adds."""

@@ -14,6 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .geometry import angle_between, triple_product_rows
 from .kernel_records import CandidateCheck, TriangleSearchResult
 from .skygrid import cell_of, cells_near
 
@@ -330,10 +331,7 @@ def search_triangles(triangles, first, last, spots, pairs, catalog, tolerances, 
         empty = False
         for e in range(3):
             a, b = (i, j) if e == 0 else ((i, kk) if e == 1 else (j, kk))
-            dx = rays[a, 0] - rays[b, 0]
-            dy = rays[a, 1] - rays[b, 1]
-            dz = rays[a, 2] - rays[b, 2]
-            angle = 2.0 * math.asin(min(1.0, 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz)))
+            angle = angle_between(rays[a], rays[b])
             tol = sigma_multiplier * math.sqrt(sigma[a] ** 2 + sigma[b] ** 2) + tolerance_floor
             lo[e], hi[e] = kvector_range(pair_angle, k, slope, intercept, angle - tol, angle + tol)
             if hi[e] <= lo[e]:
@@ -361,9 +359,7 @@ def search_triangles(triangles, first, last, spots, pairs, catalog, tolerances, 
                 to_jk[e] = b
                 head_jk[a] = e
                 e += 1
-        spot_sign = (rays[i, 0] * (rays[j, 1] * rays[kk, 2] - rays[j, 2] * rays[kk, 1])
-                     - rays[i, 1] * (rays[j, 0] * rays[kk, 2] - rays[j, 2] * rays[kk, 0])
-                     + rays[i, 2] * (rays[j, 0] * rays[kk, 1] - rays[j, 1] * rays[kk, 0]))
+        spot_sign = triple_product_rows(rays, i, j, kk)
         cand = np.empty((max_candidates + 1, 3), np.int64)
         n_cand = 0
         for p in range(lo[0], hi[0]):
@@ -383,9 +379,7 @@ def search_triangles(triangles, first, last, spots, pairs, catalog, tolerances, 
                         r = nxt_jk[r]
                     if not found:
                         continue
-                    va, vb, vc = vectors[sa], vectors[sb], vectors[sc]
-                    star_sign = (va[0] * (vb[1] * vc[2] - vb[2] * vc[1]) - va[1] * (vb[0] * vc[2] - vb[2] * vc[0])
-                                 + va[2] * (vb[0] * vc[1] - vb[1] * vc[0]))
+                    star_sign = triple_product_rows(vectors, sa, sb, sc)
                     if (star_sign > 0) != (spot_sign > 0):
                         continue  # mirror image
                     cand[n_cand, 0], cand[n_cand, 1], cand[n_cand, 2] = sa, sb, sc
