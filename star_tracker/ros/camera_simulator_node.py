@@ -28,7 +28,11 @@ from ..models.catalog import julian_year_from_unix, load_hipparcos
 from ..sim.motion import SampledMotion, motion_from_parameters
 from ..sim.render import FalseObjectModel, SensorModel, StarFieldRenderer, frame_seed
 from . import convert
-from .common import IMAGE_QOS, RESULT_QOS, Diagnostics, ThrottledLog, declare, guard_parameter_changes, run_node
+from .diagnostics import Diagnostics
+from .node_process import run_node
+from .parameters import declare, guard_parameter_changes
+from .qos import IMAGE_QOS, RESULT_QOS
+from .throttled_log import ThrottledLog
 
 
 @dataclass

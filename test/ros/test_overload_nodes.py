@@ -28,7 +28,7 @@ from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
 from star_tracker.sim.render import SensorModel, StarFieldRenderer, frame_seed  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
-from star_tracker.ros.common import RESULT_QOS  # noqa: E402
+from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor  # noqa: E402
 from test_bad_input_nodes import Driver  # noqa: E402  the diagnostics-reading test node
 from test_fuzz import spots_at  # noqa: E402
