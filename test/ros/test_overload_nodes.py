@@ -75,7 +75,7 @@ class FloodRig:
         self.last_output = time.monotonic()
         node.create_subscription(PointCloud2, "spots", self._on_spots, SENSOR_QOS)
         node.create_subscription(QuaternionStamped, "attitude", self._on_attitude, RESULT_QOS)
-        # The camera's and the centroider's own queue depths: a burst is not cut short here.
+        # The nodes' own QoS (queue depths 10 and 20): a burst is not cut short on this side.
         self.pub_image = node.create_publisher(Image, "image_raw", IMAGE_QOS)
         self.pub_info = node.create_publisher(CameraInfo, "camera_info", IMAGE_QOS)
         self.pub_spots = node.create_publisher(PointCloud2, "spots", SPOTS_QOS)
@@ -135,8 +135,8 @@ def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp
         # the nodes have been quiet for 3 s (the 1 Hz diagnostics have caught up), then count.
         rig.spin(60.0, lambda: time.monotonic() - rig.last_output > 3.0)
         baseline_c, baseline_i = dict(rig.centroider.counters), dict(rig.identifier.counters)
-        centroider_counters, stamps = flood_centroider(rig, nodes, images, info, base + 10**9, baseline_c)
-        identifier_counters, spot_stamps = flood_identifier(rig, nodes, star_spots, stamps[-1] + 10**9, baseline_i, base)
+        centroider_counters, stamps = flood_centroider(rig, images, info, base + 10**9, baseline_c)
+        identifier_counters, spot_stamps = flood_identifier(rig, star_spots, stamps[-1] + 10**9, baseline_i, base)
     finally:
         codes = nodes.stop(sig=signal.SIGINT)
         rig.destroy()
@@ -165,7 +165,7 @@ def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp
     assert "newest frame wins" in logs["identifier"]
 
 
-def flood_centroider(rig: FloodRig, nodes: NodeProcesses, images, info, first_ns: int, baseline: dict):
+def flood_centroider(rig: FloodRig, images, info, first_ns: int, baseline: dict):
     """A burst of 10 images (the depth of the DDS queues on both sides: none is lost there),
     10 ms apart in stamps, published faster than the centroider measures one 1024^2 frame:
     more than its 3 waiting places and the frame in progress. Returns its counters once every
@@ -185,7 +185,7 @@ def flood_centroider(rig: FloodRig, nodes: NodeProcesses, images, info, first_ns
     return {**counters.counters, "burst_s": f"{burst_s:.3f}"}, stamps
 
 
-def flood_identifier(rig: FloodRig, nodes: NodeProcesses, star_spots, first_ns: int, baseline: dict, base: int):
+def flood_identifier(rig: FloodRig, star_spots, first_ns: int, baseline: dict, base: int):
     """A burst of 20 spots messages (the depth of the DDS queues on both sides), at rest, 1 ms
     apart in stamps, published faster than the identifier tracks one frame. Returns its
     counters once every received frame is accounted (identified, dropped or not identified),
