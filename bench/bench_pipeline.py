@@ -289,7 +289,7 @@ def overload(env: dict, log_dir: Path, rates: list[float], seconds: float, expos
 
     from star_tracker.models.attitude import attitude_error, quaternion_to_matrix
     from star_tracker.ros import convert
-    from star_tracker.ros.common import IMAGE_QOS
+    from star_tracker.ros.qos import IMAGE_QOS
     from star_tracker.ros.pipeline import NodeProcesses
 
     camera, rotation, images = render_frames_at_rest(20, exposure_s)

@@ -58,7 +58,7 @@ def make_bag(path: Path, frames: int, storage: str) -> None:
     from star_tracker.sim.sensor import SensorModel
     from star_tracker.ros import convert
     from star_tracker.ros.bag_ros import offered_qos
-    from star_tracker.ros.common import IMAGE_QOS, RESULT_QOS
+    from star_tracker.ros.qos import IMAGE_QOS, RESULT_QOS
 
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(), load_hipparcos().at_epoch(2026.0), 7.5)

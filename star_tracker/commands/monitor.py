@@ -239,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
         from rclpy.executors import SingleThreadedExecutor
     except ImportError as exc:
         raise ValueError(f"monitor needs rclpy ({exc}); run it in the project's .venv or a sourced ROS 2 install") from None
-    from ..ros.common import configure_middleware
+    from ..ros.middleware import configure_middleware
 
     domain = os.environ.get("ROS_DOMAIN_ID", "0").strip() or "0"
     if not (domain.isdigit() and int(domain) <= 232):  # Fast DDS's default ports end at domain 232

@@ -32,8 +32,14 @@ from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
 from ..centroid.kernels import warm_up
 from ..centroid.streak import SmearModel
 from . import convert
-from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, NewestFrame,
-                     Rejections, StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)
+from .camera_info_input import CameraInfoInput
+from .diagnostics import Diagnostics, Rejections
+from .frame_queue import NewestFrame
+from .node_process import run_node
+from .parameters import declare, guard_parameter_changes
+from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS
+from .stamps import STAMP_OK, STAMP_RESET, StampOrder
+from .throttled_log import ThrottledLog
 
 RATE_SOURCES = ("topic", "parameter", "none")
 # Tunable while running (`ros2 param set`), checked together as a CentroidConfig; the rest
@@ -103,7 +109,7 @@ class CentroiderNode(Node):
             self.sub_rate = self.create_subscription(Vector3Stamped, "angular_velocity", self.on_rate, RESULT_QOS)
 
     def apply_parameters(self, changes: dict) -> str | None:
-        """Runtime parameter changes, all or none (see common.guard_parameter_changes)."""
+        """Runtime parameter changes, all or none (see parameters.guard_parameter_changes)."""
         config = replace(self.config, **{k: v for k, v in changes.items() if k in self.config.__dataclass_fields__})
         rate = np.asarray(changes.get("angular_velocity_rad_s", self.rate_param), float)
         if rate.shape != (3,) or not np.all(np.isfinite(rate)):

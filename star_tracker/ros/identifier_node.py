@@ -41,8 +41,14 @@ from ..models.camera import CameraModel
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from ..track.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
-from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, NewestFrame,
-                     Rejections, StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)
+from .camera_info_input import CameraInfoInput
+from .diagnostics import Diagnostics, Rejections
+from .frame_queue import NewestFrame
+from .node_process import run_node
+from .parameters import declare, guard_parameter_changes
+from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS
+from .stamps import STAMP_OK, STAMP_RESET, StampOrder
+from .throttled_log import ThrottledLog
 
 # Tunable while running (`ros2 param set`); the rest is fixed at startup (database, algorithm).
 RUNTIME_PARAMETERS = {"inline_wait_s", "tracking.enabled", "stamp.max_future_s", "stamp.reset_after_s"}
@@ -155,7 +161,7 @@ class IdentifierNode(Node):
         return None
 
     def apply_parameters(self, changes: dict) -> str | None:
-        """Runtime parameter changes (see common.guard_parameter_changes); ranges suffice."""
+        """Runtime parameter changes (see parameters.guard_parameter_changes); ranges suffice."""
         self.inline_wait_s = changes.get("inline_wait_s", self.inline_wait_s)
         self.tracking_enabled = changes.get("tracking.enabled", self.tracking_enabled)
         self.stamps.max_future_s = changes.get("stamp.max_future_s", self.stamps.max_future_s)

@@ -23,7 +23,8 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from ..models.attitude import attitude_error, quaternion_to_matrix
 from . import convert
-from .common import IMAGE_QOS, configure_middleware, sensor_qos
+from .middleware import configure_middleware
+from .qos import IMAGE_QOS, sensor_qos
 
 # The monitor must see every message: deep queues (it can stall like any process here).
 MONITOR_RESULT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)

@@ -26,7 +26,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from ..bags import IMAGE_TYPE, BagError, BagReader, absolute_topic, header_stamp_ns, image_problem
 from .bag_ros import message_class, playback_qos, qos_text
-from .common import configure_middleware
+from .middleware import configure_middleware
 
 DEFAULT_ACK_TOPICS = ("spots", "attitude")
 ACK_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)  # matches any publisher

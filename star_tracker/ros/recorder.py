@@ -30,7 +30,7 @@ from rclpy.parameter import Parameter
 
 from ..bags import BagError, BagInfo, BagWriter, absolute_topic, message_definition
 from .bag_ros import RECORD_QUEUE_DEPTH, message_class, offered_qos, qos_text, subscription_qos
-from .common import configure_middleware
+from .middleware import configure_middleware
 
 _STOP = object()
 _INTERNAL_TOPICS = ("/rosout", "/parameter_events")

@@ -28,7 +28,7 @@ from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
 from star_tracker.sim.render import StarFieldRenderer  # noqa: E402
 from star_tracker.sim.sensor import SensorModel  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
-from star_tracker.ros.common import RESULT_QOS  # noqa: E402
+from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
 from conftest import spots_at  # noqa: E402  one star-spot builder for the tests
 from test_integration import ros_graph  # noqa: E402,F401  the isolated-domain fixture

@@ -17,7 +17,7 @@ from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)
 
-from star_tracker.ros.common import RESULT_QOS, sensor_qos  # noqa: E402
+from star_tracker.ros.qos import RESULT_QOS, sensor_qos  # noqa: E402
 from conftest import join_isolated_ros_domain  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
 

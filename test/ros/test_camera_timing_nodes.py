@@ -28,7 +28,7 @@ from star_tracker.sim.motion import motion_from_parameters  # noqa: E402
 from star_tracker.sim.render import FalseObjectModel, StarFieldRenderer, frame_seed  # noqa: E402
 from star_tracker.sim.sensor import SensorModel  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
-from star_tracker.ros.common import RESULT_QOS  # noqa: E402
+from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 from conftest import join_isolated_ros_domain  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
 

@@ -15,7 +15,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 
 from star_tracker.centroid import FLAG_RATE_AIDED, FLAG_STREAK  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
-from star_tracker.ros.common import RESULT_QOS, SPOTS_QOS  # noqa: E402
+from star_tracker.ros.qos import RESULT_QOS, SPOTS_QOS  # noqa: E402
 from conftest import join_isolated_ros_domain  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
 

@@ -21,7 +21,7 @@ from star_tracker.centroid import Spots  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)
 
-from star_tracker.ros.common import RESULT_QOS  # noqa: E402
+from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 from conftest import join_isolated_ros_domain  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
 

@@ -20,9 +20,9 @@ from star_tracker.ros.pipeline import isolated_ros_environment  # noqa: E402
 STUCK_NODE = textwrap.dedent("""
     import sys, threading
     from rclpy.node import Node
-    from star_tracker.ros import common
+    from star_tracker.ros import node_process
 
-    common.SHUTDOWN_WATCHDOG_S = 2.0
+    node_process.SHUTDOWN_WATCHDOG_S = 2.0
 
     class StuckOnDestroy(Node):
         def __init__(self):
@@ -31,7 +31,7 @@ STUCK_NODE = textwrap.dedent("""
         def destroy_node(self):
             threading.Event().wait()  # never set
 
-    sys.exit(common.run_node(StuckOnDestroy, sys.argv))
+    sys.exit(node_process.run_node(StuckOnDestroy, sys.argv))
 """)
 
 

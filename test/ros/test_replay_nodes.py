@@ -29,7 +29,7 @@ from star_tracker import bags  # noqa: E402
 from star_tracker.models.attitude import attitude_error, quaternion_to_matrix  # noqa: E402
 from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
-from star_tracker.ros.common import IMAGE_QOS, RESULT_QOS  # noqa: E402
+from star_tracker.ros.qos import IMAGE_QOS, RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import MONITOR_RESULT_QOS, MONITOR_SENSOR_QOS, NodeProcesses  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,0 +1,109 @@
+"""A node's own process: argv and environment checks, rclpy start-up, spin, and a shutdown
+that never hangs (watchdog), with exit codes 0 (normal stop), 1 (hung clean-up), 2 (could not start)."""
+from __future__ import annotations
+
+import faulthandler
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+from .middleware import configure_middleware
+from .parameters import report_unknown_parameters
+
+def check_params_files(args: list[str]) -> None:
+    """Every `--params-file PATH` must name a readable regular file (rcl's own error is a C
+    parser trace)."""
+    for i, arg in enumerate(args):
+        if arg == "--params-file" or arg.startswith("--params-file="):
+            value = arg.partition("=")[2] if "=" in arg else (args[i + 1] if i + 1 < len(args) else "")
+            path = Path(value)
+            if not value:
+                raise ValueError("--params-file needs a path")
+            if not path.exists():
+                raise ValueError(f"--params-file {value}: no such file")
+            if not path.is_file():
+                raise ValueError(f"--params-file {value}: not a regular file")
+            if not os.access(path, os.R_OK):
+                raise ValueError(f"--params-file {value}: not readable")
+
+
+def check_cache_directory(environ=os.environ) -> None:
+    """STAR_TRACKER_CACHE (catalog and pattern-database caches), when set, must be a
+    directory this process can read and write, or a path it can create."""
+    value = environ.get("STAR_TRACKER_CACHE")
+    if not value:
+        return
+    path = Path(value)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"STAR_TRACKER_CACHE={value} is not a directory")
+    if path.is_dir() and not os.access(path, os.R_OK | os.W_OK | os.X_OK):
+        raise ValueError(f"STAR_TRACKER_CACHE={value} is not readable and writable by this process")
+
+
+SHUTDOWN_WATCHDOG_S = 10.0  # [s] from the end of the spin to the end of the process
+
+
+def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
+    """Init rclpy (SIGINT/SIGTERM shut it down), build the node, spin, clean up. Returns the
+    process exit code: 0 on a normal shutdown, 2 when the node could not start (bad
+    arguments or parameters: one `fatal:` line on stderr, no traceback). A clean-up that
+    hangs ends the process after SHUTDOWN_WATCHDOG_S with code 1 and every thread's stack on
+    stderr; SIGUSR1 prints those stacks at any time. For a node's own process only (main())."""
+    args = sys.argv if argv is None else argv
+    configure_middleware()
+    node = None
+    code = 0
+    initialized = spinning = False
+
+    def on_sigint(signum, frame):
+        # rclpy's own handler has already shut the context down, which ends the spin cleanly.
+        # A KeyboardInterrupt on top would land in whatever Python code the main thread runs,
+        # and inside a __del__ it is only printed ("Exception ignored ... Traceback").
+        if not spinning:
+            raise KeyboardInterrupt  # still starting up: stop now
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, on_sigint) if main_thread else None
+    if main_thread and hasattr(signal, "SIGUSR1"):
+        # `kill -USR1 <pid>` prints every thread's stack to stderr, even while the main
+        # thread is blocked in C (a node that does not stop, a stuck DDS call).
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+    try:
+        check_params_files(args)
+        check_cache_directory()
+        rclpy.init(args=args)
+        initialized = True
+        node = factory()
+        report_unknown_parameters(node)
+        node.get_logger().info("ready")
+        spinning = True
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as exc:  # startup errors: bad parameters, unreadable catalog, ...
+        if initialized and not rclpy.ok():
+            # SIGINT/SIGTERM shut the context down under a running call (e.g. the executor
+            # building its wait set: RCLError "the given context is not valid"): a normal stop.
+            pass
+        else:
+            print(f"[star_tracker] fatal: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+            code = 2
+    finally:
+        if main_thread:
+            # A stop must never hang: past SHUTDOWN_WATCHDOG_S (here or in the interpreter's
+            # exit), every thread's stack goes to stderr and the process exits with code 1.
+            # A node with longer legitimate work in flight declares it (shutdown_extra_s [s]).
+            faulthandler.dump_traceback_later(SHUTDOWN_WATCHDOG_S + getattr(node, "shutdown_extra_s", 0.0), exit=True)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        if main_thread:
+            signal.signal(signal.SIGINT, previous)
+    return code
