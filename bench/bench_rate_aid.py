@@ -39,7 +39,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(), load_hipparcos().at_epoch(2026.0), magnitude_limit=7.5)
     rng = np.random.default_rng(11)
-    check = extract_module._rate_aid_disagrees
+    check = extract_module.rate_aid_disagrees
     spent: list[float] = []
 
     def timed(*args):
@@ -48,7 +48,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
         spent.append(time.perf_counter() - t0)
         return verdict
 
-    extract_module._rate_aid_disagrees = timed
+    extract_module.rate_aid_disagrees = timed
     rejected = {}
     try:
         for kind in ("cross-boresight", "roll", "random axis"):
@@ -65,7 +65,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
                 rejected[(kind, rate)] = counts
                 print(kind, rate, counts, flush=True)
     finally:
-        extract_module._rate_aid_disagrees = check
+        extract_module.rate_aid_disagrees = check
     return rejected, spent
 
 

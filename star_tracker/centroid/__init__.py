@@ -4,7 +4,8 @@ detect (background, noise, threshold, components) -> measure (hot-pixel cleaning
 gravity, shape) -> psf_fit (Gaussian PSF, blends) / streak (smeared stars) -> `Spots`.
 """
 from .detect import estimate_background, robust_sigma
-from .extract import CENTROID_METHODS, CentroidConfig, extract_spots
+from .config import CENTROID_METHODS, CentroidConfig
+from .extract import extract_spots
 from .psf_fit import fit_gaussian_psf
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, FLUX_AT_MAGNITUDE_0, Spots
 
