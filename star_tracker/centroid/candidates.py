@@ -14,7 +14,7 @@ from .detect import Detections
 from .kernels import measure_small
 from .measure import aperture_moments, box_sums, clean_hot_pixels, two_peaks
 from .psf_fit import gather_windows
-from .streak import segment_length
+from .smear import segment_length
 
 SEARCH_MARGIN = 8  # search window = spot window + this [px]: footprints up to 15 px take the point path
 

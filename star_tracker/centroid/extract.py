@@ -24,7 +24,7 @@ from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLA
 from .streak_spots import fit_streak_spots
 
 if TYPE_CHECKING:
-    from .streak import SmearModel
+    from .smear import SmearModel
 
 
 @dataclass(frozen=True)

@@ -2,15 +2,10 @@
 length, the detection kernel), and the check that the image's streaks agree with it."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from .candidates import Candidates
-from .streak import segment_length
-
-if TYPE_CHECKING:
-    from .streak import SmearModel
+from .smear import SmearModel, segment_length
 
 # Rate-aid check. An aiding rate that disagrees with the image (an estimate lagging an
 # acceleration, a mis-scaled or misaligned gyro) makes every path fit lock onto the same end of

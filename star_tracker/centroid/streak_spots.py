@@ -12,10 +12,14 @@ from .config import elongation_limit
 from .measure import clean_hot_pixels, star_peak_to_neighbour_ratio
 from .records import FitContext, FitOutcome, SpotRows, no_spots
 from .spots import FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_STREAK
-from .streak import fit_star_groups_on_path, fit_streaks, fit_streaks_on_path, second_source_on_path, segment_length
+from .smear import segment_length
+from .streak_fit import StreakFit
+from .streak_free_fit import fit_streaks
+from .streak_groups import fit_star_groups_on_path, second_source_on_path
+from .streak_path_fit import fit_streaks_on_path
 
 if TYPE_CHECKING:
-    from .streak import SmearModel, StreakFit
+    from .smear import SmearModel
 
 # Merged streaks: when the residual of a fit on the predicted path holds a further star at a
 # matched-filter SNR of MERGED_MIN_SNR or more, whose path comes within MERGED_OVERLAP_SIGMA

@@ -30,7 +30,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
 from ..centroid.kernels import warm_up
-from ..centroid.streak import SmearModel
+from ..centroid.smear import SmearModel
 from . import convert
 from .common import (IMAGE_QOS, RESULT_QOS, SPOTS_QOS, STAMP_OK, STAMP_RESET, CameraInfoInput, Diagnostics, NewestFrame,
                      Rejections, StampOrder, ThrottledLog, declare, guard_parameter_changes, run_node)

@@ -12,7 +12,7 @@ from star_tracker.models.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid import (FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, CENTROID_METHODS,
                                    CentroidConfig, extract_spots)
 from star_tracker.centroid import rate_aid, saturation, streak_spots
-from star_tracker.centroid.streak import SmearModel
+from star_tracker.centroid.smear import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion, SlewMotion
 from star_tracker.sim.render import KIND_HOT_PIXEL, SensorModel, StarFieldRenderer, frame_seed
 

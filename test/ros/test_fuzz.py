@@ -30,7 +30,7 @@ from star_tracker.models.attitude import (AttitudeSolution, attitude_error, dave
 from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.models.catalog import load_validated_npz, save_validated_npz  # noqa: E402
 from star_tracker.centroid import CENTROID_METHODS, CentroidConfig, Spots, extract_spots  # noqa: E402
-from star_tracker.centroid.streak import SmearModel  # noqa: E402
+from star_tracker.centroid.smear import SmearModel  # noqa: E402
 from star_tracker.identify import ALGORITHMS, DatabaseConfig, IdentifyConfig, make_identifier  # noqa: E402
 from star_tracker.identify import database as database_module  # noqa: E402
 from star_tracker.track.tracking import Tracker  # noqa: E402
