@@ -11,7 +11,7 @@ import numpy as np
 
 from .config import CentroidConfig, elongation_limit, hot_pixel_ratio
 from .detect import Detections
-from .kernels import measure_small
+from .kernels import PointWindowSettings, SmallSpots, measure_small
 from .measure import aperture_moments, box_sums, clean_hot_pixels, two_peaks
 from .psf_fit import gather_windows
 from .smear import segment_length
@@ -129,14 +129,15 @@ def _measure_small(image, det, config, sigma, idx, out, find_blends: bool) -> No
     half = config.window_half + 1
     big = 2 * half + 1 + SEARCH_MARGIN
     bg = det.background_at(det.x[idx], det.y[idx])
-    res = measure_small(image, det.x[idx], det.y[idx], bg, det.top[idx], det.bottom[idx], det.left[idx],
-                        det.right[idx], half, SEARCH_MARGIN, float(sigma), float(det.noise_adu),
-                        float(config.gain_e_per_adu), float(hot_pixel_ratio(config, sigma)), config.method == "wcog")
-    for key, value in zip(("x", "y", "flux", "snr", "minor", "major", "angle", "peak", "peak_raw", "cov", "wx",
-                           "wy", "wcov", "edge", "cleaned", "window", "window_valid", "window_col0",
-                           "window_row0"), res[:19]):
-        out[key][idx] = value
-    win, valid, c0, r0 = res[19:]
+    spots = SmallSpots(det.x[idx], det.y[idx], bg, det.top[idx], det.bottom[idx], det.left[idx], det.right[idx])
+    settings = PointWindowSettings(half, SEARCH_MARGIN, float(sigma), float(det.noise_adu),
+                                   float(config.gain_e_per_adu), float(hot_pixel_ratio(config, sigma)),
+                                   config.method == "wcog")
+    res = measure_small(image, spots, settings)
+    for key in ("x", "y", "flux", "snr", "minor", "major", "angle", "peak", "peak_raw", "cov", "wx", "wy", "wcov",
+                "edge", "cleaned", "window", "window_valid", "window_col0", "window_row0"):
+        out[key][idx] = getattr(res, key)
+    win, valid, c0, r0 = res.search, res.search_valid, res.search_col0, res.search_row0
     # The aperture truncates a short faint streak: footprints wider than it get their
     # elongation (and blend peaks) from the detection footprint too.
     extent = np.maximum(det.right[idx] - det.left[idx], det.bottom[idx] - det.top[idx])

@@ -6,7 +6,7 @@ import numpy as np
 
 from .candidates import Candidates
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
-from .psf_fit import fit_psf_windows, gather_windows
+from .psf_fit import PsfStart, PsfWindows, fit_psf_windows, gather_windows
 from .records import FitContext, FitOutcome, SpotRows, no_spots
 from .spots import FLAG_BLENDED
 
@@ -62,8 +62,8 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
             bx0 = np.column_stack([x[which[b]], px[b].astype(float)])
             by0 = np.column_stack([y[which[b]], py[b].astype(float)])
             bf0 = np.column_stack([flux[which[b]], np.maximum(win[b, pr[b], pc[b]] * 2 * np.pi * sigma ** 2, 1.0)])
-            fx, fy, ff, fc, ok, fv = fit_psf_windows(win[b], valid[b], col0[b], row0[b], bx0, by0, bf0, sigma, noise,
-                                                     gain)
+            fx, fy, ff, fc, ok, fv = fit_psf_windows(PsfWindows(win[b], valid[b], col0[b], row0[b]),
+                                                     PsfStart(bx0, by0, bf0), sigma, noise, gain)
             both = ok.all(axis=1)
             blended[b[~both]] = False
             j, k = np.flatnonzero(both), b[both]
@@ -77,9 +77,10 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
                                        FLAG_BLENDED)
     single = np.flatnonzero(~blended)
     if single.size:
-        fx, fy, ff, fc, ok, fv = fit_psf_windows(win[single], valid[single], col0[single], row0[single],
-                                                 spots.x[which[single]][:, None], spots.y[which[single]][:, None],
-                                                 spots.flux[which[single]][:, None], sigma, noise, gain)
+        start = PsfStart(spots.x[which[single]][:, None], spots.y[which[single]][:, None],
+                         spots.flux[which[single]][:, None])
+        fx, fy, ff, fc, ok, fv = fit_psf_windows(PsfWindows(win[single], valid[single], col0[single], row0[single]),
+                                                 start, sigma, noise, gain)
         good = ok[:, 0]
         spots = spots.with_values(which[single[good]], x=fx[good, 0], y=fy[good, 0], flux=ff[good, 0],
                                   cov=fc[good, 0], snr=ff[good, 0] / np.sqrt(fv[good, 0]))
@@ -102,8 +103,9 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         win, valid = cleaned_windows(context, np.array([left]), np.array([top]), size, bg)
         amplitude = win[0, (peaks[:, 1] - top).astype(int), (peaks[:, 0] - left).astype(int)]
         flux0 = np.maximum(amplitude * 2.0 * np.pi * sigma ** 2, 1.0)
-        fx, fy, ff, fc, ok, fv = fit_psf_windows(win, valid, np.array([left]), np.array([top]), peaks[None, :, 0],
-                                                 peaks[None, :, 1], flux0[None], sigma, noise, gain)
+        fx, fy, ff, fc, ok, fv = fit_psf_windows(PsfWindows(win, valid, np.array([left]), np.array([top])),
+                                                 PsfStart(peaks[None, :, 0], peaks[None, :, 1], flux0[None]), sigma,
+                                                 noise, gain)
         if not ok[0].all():
             continue  # keep the centre of gravity, flagged as a blend
         order = np.argsort(-ff[0])
@@ -146,8 +148,9 @@ def fit_clipped_points(context: FitContext, spots: SpotRows, which: np.ndarray, 
         valid &= clipped == 0
         # The flux is linear in the model: start from the window's sum (the clipped core short).
         flux0 = np.maximum(np.where(valid, win, 0.0).sum(axis=(1, 2)), flux[which[k]])
-        fx, fy, ff, fc, good, fv = fit_psf_windows(win, valid, col0, row0, x[which[k]][:, None],
-                                                   y[which[k]][:, None], flux0[:, None], sigma, noise, gain)
+        fx, fy, ff, fc, good, fv = fit_psf_windows(PsfWindows(win, valid, col0, row0),
+                                                   PsfStart(x[which[k]][:, None], y[which[k]][:, None], flux0[:, None]),
+                                                   sigma, noise, gain)
         good = good[:, 0] & (valid.sum(axis=(1, 2)) > 6)
         fitted = fitted.with_values(which[k[good]], x=fx[good, 0], y=fy[good, 0], flux=ff[good, 0], cov=fc[good, 0],
                                     snr=ff[good, 0] / np.sqrt(fv[good, 0]))
