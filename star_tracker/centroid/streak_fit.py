@@ -11,6 +11,7 @@ of all fitted parameters at the solution.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,6 +22,19 @@ PSF_RADIUS_SIGMA = 4.0  # window margin beyond the streak ends [sigma] (plus 1 p
 # noise, with flux > 2 sigma in ~20 % of empty windows and > 3 sigma in ~3 %.
 SIGNIFICANT_FLUX = 3.0
 _MAX_WINDOW_ELEMENTS = 3_000_000  # spots x parameters x pixels per batch (memory bound)
+
+
+class StreakFitSetup(NamedTuple):
+    """What every batch of a streak fit reads: residual (H, W) image minus background [ADU];
+    excluded (H, W) bool pixels no fit may use, or None; sigma the PSF 1-sigma [px]; noise the
+    1-sigma pixel noise [ADU]; gain [e-/ADU]; iterations, the most Levenberg-Marquardt steps."""
+
+    residual: np.ndarray
+    excluded: np.ndarray | None
+    sigma: float
+    noise: float
+    gain: float
+    iterations: int
 
 
 @dataclass(frozen=True)
@@ -180,3 +194,24 @@ def set_path_extent(result: StreakFit, path: np.ndarray) -> None:
     result.length_sigma[:] = np.where(fitted, 0.0, np.nan)
     result.angle[:] = np.where(fitted & (length > 0), np.arctan2(chord[:, 1], chord[:, 0]), np.nan)
     result.angle_sigma[:] = np.where(fitted & (length > 0), 0.0, np.nan)
+
+
+def flux_scaled_units(p: np.ndarray, noise: float) -> np.ndarray:
+    """Typical units (n, P) of parameters laid out as (x, y, F) per star [px, px, ADU]: 1 px
+    for positions (and any further parameters), max(|F|, noise) for fluxes."""
+    units = np.ones_like(p)
+    units[:, 2::3] = np.maximum(np.abs(p[:, 2::3]), noise)
+    return units
+
+
+def position_flux_max_step(p: np.ndarray) -> np.ndarray:
+    """Trust region (n, P) of (x, y, F) per star: 1 px per iteration for positions, none for
+    fluxes (the model is linear in them)."""
+    limit = np.full_like(p, 1.0)  # px per iteration
+    limit[:, 2::3] = np.inf
+    return limit
+
+
+def unconstrained(index: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """No feasible set: the parameters as they are."""
+    return p

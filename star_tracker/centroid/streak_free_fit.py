@@ -2,12 +2,15 @@
 flux, length and direction, seeded from the spots' moments (no body rate needed)."""
 from __future__ import annotations
 
+from functools import partial
+from typing import NamedTuple
+
 import numpy as np
 
-from .levenberg_marquardt import inverse_fisher, levenberg_marquardt
+from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, levenberg_marquardt
 from .smear import segment_length
-from .streak_fit import (PSF_RADIUS_SIGMA, StreakFit, batches, check_common_inputs, check_excluded, flux_start,
-                         store_batch, window_bounds)
+from .streak_fit import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, batches, check_common_inputs, check_excluded,
+                         flux_scaled_units, flux_start, store_batch, window_bounds)
 from .streak_model import StreakWindows, cut_windows, sample_sums, simpson_nodes
 
 NODE_SPACING_SIGMA = 1.0  # Simpson nodes along the segment this far apart [PSF sigma]
@@ -43,7 +46,7 @@ def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: f
     data is returned unconverged (NaN where nothing could be fitted); others are unaffected.
     """
     residual, (x0, y0, flux0, length0, angle0) = check_common_inputs(residual, sigma, noise, gain, iterations,
-                                                               x0, y0, flux0, length0, angle0)
+                                                                     x0, y0, flux0, length0, angle0)
     excluded = check_excluded(excluded, residual)
     n = x0.size
     result = StreakFit.failed(n)
@@ -57,10 +60,11 @@ def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: f
     half_y = 0.5 * length_w * np.abs(np.sin(angle_w)) + reach
     cx, cy = np.round(np.where(valid, x0, 0.0)), np.round(np.where(valid, y0, 0.0))
     valid, bounds = window_bounds(residual, valid, cx - half_x, cx + half_x, cy - half_y, cy + half_y)
+    setup = StreakFitSetup(residual, excluded, sigma, noise, gain, iterations)
+    start = _FreeStart(x0, y0, flux0, length0, angle0, guess_ok)
     with np.errstate(all="ignore"):  # degenerate spots end up non-finite or unconverged, not as warnings
         for batch in batches(valid, bounds, 5):
-            _fit_free_batch(residual, batch, bounds[batch], x0[batch], y0[batch], flux0[batch], length0[batch],
-                            angle0[batch], guess_ok[batch], sigma, noise, gain, iterations, result, excluded)
+            _fit_free_batch(setup, batch, bounds[batch], start.take(batch), result)
     return result
 
 
@@ -85,18 +89,58 @@ def _even_intervals(count: np.ndarray) -> np.ndarray:
     return n + n % 2
 
 
-def _fit_free_batch(residual, batch, bounds, x0, y0, flux0, length0, angle0, guess_ok, sigma, noise, gain,
-                    iterations, result: StreakFit, excluded=None) -> None:
-    win = cut_windows(residual, *bounds.T, excluded)
-    length, angle = length0.copy(), angle0.copy()
-    if not np.all(guess_ok):
+class _FreeStart(NamedTuple):
+    """Starting values per spot (n,): x0, y0 [px], flux0 [ADU], length0 [px], angle0 [rad],
+    guess_ok (length0 and angle0 usable; else the window's moments are the start)."""
+
+    x0: np.ndarray
+    y0: np.ndarray
+    flux0: np.ndarray
+    length0: np.ndarray
+    angle0: np.ndarray
+    guess_ok: np.ndarray
+
+    def take(self, index) -> "_FreeStart":
+        return _FreeStart(*(a[index] for a in self))
+
+
+def _fit_free_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray, start: _FreeStart,
+                    result: StreakFit) -> None:
+    """Fit the spots `batch` (window bounds (n, 4), starting values `start`) into `result`."""
+    sigma, noise = setup.sigma, setup.noise
+    win = cut_windows(setup.residual, *bounds.T, setup.excluded)
+    length, angle = start.length0.copy(), start.angle0.copy()
+    if not np.all(start.guess_ok):
         major, axis = _window_moments(win)
-        length = np.where(guess_ok, length, segment_length(major, sigma))
-        angle = np.where(guess_ok, angle, axis)
+        length = np.where(start.guess_ok, length, segment_length(major, sigma))
+        angle = np.where(start.guess_ok, angle, axis)
     # Longest streak that fits its window (diagonal): beyond it the fit has run away.
     max_length = np.hypot(bounds[:, 1] - bounds[:, 0], bounds[:, 3] - bounds[:, 2]) + 1.0
     # Start off L = 0: there the model is flat in L and theta (a saddle the fit cannot leave).
     length = np.clip(length, 0.5 * sigma, 2.0 * max_length)
+    model = _segment_model(win, sigma, noise, length, max_length)
+    params = np.column_stack([start.x0, start.y0, flux_start(start.flux0, win, noise), length, angle])
+    valid = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > 6)
+    params, normal, done, chi2 = levenberg_marquardt(model, params, win, valid, PixelNoise(noise, setup.gain),
+                                                     setup.iterations)
+    sigmas = store_batch(result, batch, win, params, inverse_fisher(normal, model.scale_of(params)), done, valid,
+                         chi2)
+    fitted_length, fitted_angle = params[:, 3], params[:, 4]
+    result.converged[batch] &= fitted_length <= max_length
+    # Direction of an undirected segment in (-pi/2, pi/2]; undefined for an unresolved one.
+    direction = np.pi / 2 - np.mod(np.pi / 2 - fitted_angle, np.pi)
+    resolved = valid & (fitted_length >= 2.0 * sigmas[:, 3])
+    result.length[batch] = np.where(valid, fitted_length, np.nan)
+    result.length_sigma[batch] = np.where(valid, sigmas[:, 3], np.nan)
+    result.angle[batch] = np.where(resolved, direction, np.nan)
+    result.angle_sigma[batch] = np.where(resolved, sigmas[:, 4], np.nan)
+
+
+def _segment_model(win: StreakWindows, sigma: float, noise: float, length: np.ndarray,
+                   max_length: np.ndarray) -> LeastSquaresModel:
+    """The straight-segment model (x, y, F, L, theta) on the windows `win`: Simpson nodes
+    along the segment, their count set from the starting lengths `length` [px]; L capped at
+    twice `max_length` [px]."""
     var_eff = sigma * sigma + 1.0 / 12.0
     scale = 1.0 / np.sqrt(2.0 * var_eff)
     amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)  # peak of the unit-flux Gaussian
@@ -131,48 +175,34 @@ def _fit_free_batch(residual, batch, bounds, x0, y0, flux0, length0, angle0, gue
         mix[:, 5, 0] = a
         return np.matmul(mix, sums)
 
-    def max_step(p):
-        limit = np.empty_like(p)
-        limit[:, 0:2] = 1.0  # px per iteration
-        limit[:, 2] = np.inf  # the model is linear in flux
-        limit[:, 3] = np.maximum(2.0, 0.5 * p[:, 3])  # px
-        limit[:, 4] = 0.3  # rad
-        return limit
-
     def constrain(index, p):
         p = p.copy()
         # The model is even in L; the cap (flagged below) bounds the nodes of a runaway fit.
         p[:, 3] = np.minimum(np.abs(p[:, 3]), 2.0 * max_length[index])
         return p
 
-    def scale_of(p):
-        units = np.ones_like(p)
-        units[:, 2] = np.maximum(np.abs(p[:, 2]), noise)
-        return units
+    return LeastSquaresModel(evaluate, _segment_max_step, constrain, partial(flux_scaled_units, noise=noise),
+                             _unresolved)
 
-    def undetermined(p, covariance):
-        # An unresolved streak (L < 2 sigma_L): the model is even in L, so near L = 0 the chi^2
-        # still to gain in L and theta stays at the noise level, ~1, however small L gets;
-        # (x, y, F) decouple from them: judge convergence on (x, y, F). Theta is held (it
-        # would wander by the trust region and shrink every step with it); L stays free to
-        # grow if the spot is a streak after all.
-        unresolved = p[:, 3] < 2.0 * np.sqrt(np.maximum(covariance[:, 3, 3], 0.0))
-        skip, hold = np.zeros(p.shape, bool), np.zeros(p.shape, bool)
-        skip[:, 3:] = unresolved[:, None]
-        hold[:, 4] = unresolved
-        return skip, hold
 
-    params = np.column_stack([x0, y0, flux_start(flux0, win, noise), length, angle])
-    valid = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > 6)
-    params, normal, done, chi2 = levenberg_marquardt(evaluate, params, win, valid, noise, gain, iterations,
-                                                      max_step, constrain, scale_of, undetermined)
-    sigmas = store_batch(result, batch, win, params, inverse_fisher(normal, scale_of(params)), done, valid, chi2)
-    fitted_length, fitted_angle = params[:, 3], params[:, 4]
-    result.converged[batch] &= fitted_length <= max_length
-    # Direction of an undirected segment in (-pi/2, pi/2]; undefined for an unresolved one.
-    direction = np.pi / 2 - np.mod(np.pi / 2 - fitted_angle, np.pi)
-    resolved = valid & (fitted_length >= 2.0 * sigmas[:, 3])
-    result.length[batch] = np.where(valid, fitted_length, np.nan)
-    result.length_sigma[batch] = np.where(valid, sigmas[:, 3], np.nan)
-    result.angle[batch] = np.where(resolved, direction, np.nan)
-    result.angle_sigma[batch] = np.where(resolved, sigmas[:, 4], np.nan)
+def _segment_max_step(p: np.ndarray) -> np.ndarray:
+    """Trust region of (x, y, F, L, theta): 1 px, none (linear), max(2 px, L / 2), 0.3 rad."""
+    limit = np.empty_like(p)
+    limit[:, 0:2] = 1.0  # px per iteration
+    limit[:, 2] = np.inf  # the model is linear in flux
+    limit[:, 3] = np.maximum(2.0, 0.5 * p[:, 3])  # px
+    limit[:, 4] = 0.3  # rad
+    return limit
+
+
+def _unresolved(p: np.ndarray, covariance: np.ndarray):
+    """An unresolved streak (L < 2 sigma_L): the model is even in L, so near L = 0 the chi^2
+    still to gain in L and theta stays at the noise level, ~1, however small L gets; (x, y,
+    F) decouple from them: judge convergence on (x, y, F). Theta is held (it would wander by
+    the trust region and shrink every step with it); L stays free to grow if the spot is a
+    streak after all. Returns the skipped and the held parameters (n, 5) bool."""
+    unresolved = p[:, 3] < 2.0 * np.sqrt(np.maximum(covariance[:, 3, 3], 0.0))
+    skip, hold = np.zeros(p.shape, bool), np.zeros(p.shape, bool)
+    skip[:, 3:] = unresolved[:, None]
+    hold[:, 4] = unresolved
+    return skip, hold

@@ -3,11 +3,13 @@ neighbour's streak in a spot's window): the matched-filter search for one more s
 a fit leaves, and the joint fit of a group of stars."""
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
-from .levenberg_marquardt import inverse_fisher, levenberg_marquardt
-from .streak_fit import (PSF_RADIUS_SIGMA, StreakFit, batches, check_excluded, set_path_extent, store_batch,
-                         window_bounds)
+from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, levenberg_marquardt
+from .streak_fit import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, batches, check_excluded, flux_scaled_units,
+                         position_flux_max_step, set_path_extent, store_batch, unconstrained, window_bounds)
 from .streak_model import StreakWindows, cut_windows, sample_sums
 
 
@@ -119,55 +121,62 @@ def fit_star_groups_on_path(residual, x0, y0, flux0, path, sigma: float, noise: 
              & np.isfinite(path).all(axis=(1, 2)))
     path = np.where(valid[:, None, None], path, 0.0)
     valid, bounds = _path_windows(residual, x0[:, :1], y0[:, :1], path, PSF_RADIUS_SIGMA * sigma + 2.0, valid)
-    var_eff = sigma * sigma + 1.0 / 12.0
-    scale = 1.0 / np.sqrt(2.0 * var_eff)
-    amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)
-    n_par = 3 * m_stars
-
-    def max_step(p):
-        limit = np.full_like(p, 1.0)  # px per iteration
-        limit[:, 2::3] = np.inf  # the model is linear in the fluxes
-        return limit
-
-    def scale_of(p):
-        units = np.ones_like(p)
-        units[:, 2::3] = np.maximum(np.abs(p[:, 2::3]), noise)
-        return units
-
+    setup = StreakFitSetup(residual, excluded, sigma, noise, gain, iterations)
     with np.errstate(all="ignore"):  # degenerate groups end up non-finite or unconverged
-        for batch in batches(valid, bounds, n_par):
-            win = cut_windows(residual, *bounds[batch].T, excluded)
-            offsets = path[batch]
-            weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
-
-            def evaluate(index, p, win=win, offsets=offsets, weights=weights):
-                aug = np.zeros((index.size, n_par + 1, win.data.shape[1]), np.float32)  # jacobian rows, model
-                for m in range(m_stars):
-                    sx = (p[:, 3 * m] - win.origin[index, 0])[:, None] + offsets[index, :, 0]
-                    sy = (p[:, 3 * m + 1] - win.origin[index, 1])[:, None] + offsets[index, :, 1]
-                    sums = sample_sums(win, sx, sy, weights[index], None, scale)  # shape, gx', gy'
-                    a = (p[:, 3 * m + 2] * amplitude_unit).astype(np.float32)[:, None]
-                    aug[:, 3 * m] = a * np.float32(2.0 * scale) * sums[:, 1]
-                    aug[:, 3 * m + 1] = a * np.float32(2.0 * scale) * sums[:, 2]
-                    aug[:, 3 * m + 2] = np.float32(amplitude_unit) * sums[:, 0]
-                    aug[:, n_par] += a * sums[:, 0]
-                return aug
-
-            params = np.stack([x0[batch], y0[batch], flux0[batch]], axis=2).reshape(batch.size, n_par)
-            ok = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > n_par + 1)
-            params, normal, done, chi2 = levenberg_marquardt(evaluate, params, win, ok, noise, gain, iterations,
-                                                              max_step, lambda index, p: p, scale_of)
-            inverse = inverse_fisher(normal, scale_of(params))
-            for m, result in enumerate(fits):
-                block = slice(3 * m, 3 * m + 3)
-                store_batch(result, batch, win, params[:, block], inverse[:, block, block], done, ok, chi2)
-                result.dof[batch] -= n_par - 3  # the group's parameters
-                if m > 0:  # a neighbour: only its light in the window matters
-                    result.converged[batch] = (done & ok & ~win.bad & np.all(np.isfinite(params), axis=1)
-                                               & np.isfinite(result.cov[batch]).all(axis=(1, 2))
-                                               & (result.cov[batch, 0, 0] > 0) & (result.cov[batch, 1, 1] > 0))
+        for batch in batches(valid, bounds, 3 * m_stars):
+            _fit_group_batch(setup, batch, bounds[batch], (x0[batch], y0[batch], flux0[batch], path[batch]), fits)
     every = np.all([f.converged for f in fits], axis=0)
     for result in fits:
         result.converged[:] = every
         set_path_extent(result, path)
     return fits
+
+
+def _fit_group_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray, start,
+                     fits: list[StreakFit]) -> None:
+    """Fit the groups `batch` (window bounds (n, 4); start: x0, y0, flux0 (n, M) and the
+    paths (n, K, 2)) into `fits` (one StreakFit per star of the groups)."""
+    x0, y0, flux0, offsets = start
+    m_stars = x0.shape[1]
+    n_par = 3 * m_stars
+    win = cut_windows(setup.residual, *bounds.T, setup.excluded)
+    model = _group_model(win, offsets, setup.sigma, setup.noise, m_stars)
+    params = np.stack([x0, y0, flux0], axis=2).reshape(batch.size, n_par)
+    ok = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > n_par + 1)
+    params, normal, done, chi2 = levenberg_marquardt(model, params, win, ok, PixelNoise(setup.noise, setup.gain),
+                                                     setup.iterations)
+    inverse = inverse_fisher(normal, model.scale_of(params))
+    for m, result in enumerate(fits):
+        block = slice(3 * m, 3 * m + 3)
+        store_batch(result, batch, win, params[:, block], inverse[:, block, block], done, ok, chi2)
+        result.dof[batch] -= n_par - 3  # the group's parameters
+        if m > 0:  # a neighbour: only its light in the window matters
+            result.converged[batch] = (done & ok & ~win.bad & np.all(np.isfinite(params), axis=1)
+                                       & np.isfinite(result.cov[batch]).all(axis=(1, 2))
+                                       & (result.cov[batch, 0, 0] > 0) & (result.cov[batch, 1, 1] > 0))
+
+
+def _group_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: float,
+                 m_stars: int) -> LeastSquaresModel:
+    """The model (x_m, y_m, F_m) of M stars per window, each moving along the window's
+    `offsets` (n, K, 2) [px]."""
+    var_eff = sigma * sigma + 1.0 / 12.0
+    scale = 1.0 / np.sqrt(2.0 * var_eff)
+    amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)
+    n_par = 3 * m_stars
+    weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
+
+    def evaluate(index, p):
+        aug = np.zeros((index.size, n_par + 1, win.data.shape[1]), np.float32)  # jacobian rows, model
+        for m in range(m_stars):
+            sx = (p[:, 3 * m] - win.origin[index, 0])[:, None] + offsets[index, :, 0]
+            sy = (p[:, 3 * m + 1] - win.origin[index, 1])[:, None] + offsets[index, :, 1]
+            sums = sample_sums(win, sx, sy, weights[index], None, scale)  # shape, gx', gy'
+            a = (p[:, 3 * m + 2] * amplitude_unit).astype(np.float32)[:, None]
+            aug[:, 3 * m] = a * np.float32(2.0 * scale) * sums[:, 1]
+            aug[:, 3 * m + 1] = a * np.float32(2.0 * scale) * sums[:, 2]
+            aug[:, 3 * m + 2] = np.float32(amplitude_unit) * sums[:, 0]
+            aug[:, n_par] += a * sums[:, 0]
+        return aug
+
+    return LeastSquaresModel(evaluate, position_flux_max_step, unconstrained, partial(flux_scaled_units, noise=noise))

@@ -2,12 +2,16 @@
 mid-exposure position and the flux are fitted, so curved arcs and uneven speed are exact."""
 from __future__ import annotations
 
+from functools import partial
+from typing import NamedTuple
+
 import numpy as np
 
-from .levenberg_marquardt import inverse_fisher, levenberg_marquardt
-from .streak_fit import (PSF_RADIUS_SIGMA, StreakFit, batches, check_common_inputs, check_excluded, flux_start,
-                         set_path_extent, store_batch, window_bounds)
-from .streak_model import cut_windows, sample_sums
+from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, levenberg_marquardt
+from .streak_fit import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, batches, check_common_inputs, check_excluded,
+                         flux_scaled_units, flux_start, position_flux_max_step, set_path_extent, store_batch,
+                         unconstrained, window_bounds)
+from .streak_model import StreakWindows, cut_windows, sample_sums
 
 
 def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: float, gain: float,
@@ -51,17 +55,44 @@ def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: floa
     valid, bounds = window_bounds(residual, valid, cx + path[:, :, 0].min(axis=1) - reach,
                                   cx + path[:, :, 0].max(axis=1) + reach, cy + path[:, :, 1].min(axis=1) - reach,
                                   cy + path[:, :, 1].max(axis=1) + reach)
+    setup = StreakFitSetup(residual, excluded, sigma, noise, gain, iterations)
+    start = _PathStart(x0, y0, flux0, path)
     with np.errstate(all="ignore"):  # degenerate spots end up non-finite or unconverged, not as warnings
         for batch in batches(valid, bounds, 3):
-            _fit_path_batch(residual, batch, bounds[batch], x0[batch], y0[batch], flux0[batch], path[batch], sigma,
-                            noise, gain, iterations, result, excluded)
+            _fit_path_batch(setup, batch, bounds[batch], start.take(batch), result)
     set_path_extent(result, path)
     return result
 
 
-def _fit_path_batch(residual, batch, bounds, x0, y0, flux0, offsets, sigma, noise, gain, iterations,
-                    result: StreakFit, excluded=None) -> None:
-    win = cut_windows(residual, *bounds.T, excluded)
+class _PathStart(NamedTuple):
+    """Starting values per spot: x0, y0 (n,) [px], flux0 (n,) [ADU]; offsets (n, K, 2) its
+    path [px] relative to the mid-exposure position."""
+
+    x0: np.ndarray
+    y0: np.ndarray
+    flux0: np.ndarray
+    offsets: np.ndarray
+
+    def take(self, index) -> "_PathStart":
+        return _PathStart(*(a[index] for a in self))
+
+
+def _fit_path_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray, start: _PathStart,
+                    result: StreakFit) -> None:
+    """Fit the spots `batch` (window bounds (n, 4), starting values `start`) into `result`."""
+    noise = setup.noise
+    win = cut_windows(setup.residual, *bounds.T, setup.excluded)
+    model = _path_model(win, start.offsets, setup.sigma, noise)
+    params = np.column_stack([start.x0, start.y0, flux_start(start.flux0, win, noise)])
+    valid = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > 4)
+    params, normal, done, chi2 = levenberg_marquardt(model, params, win, valid, PixelNoise(noise, setup.gain),
+                                                     setup.iterations)
+    store_batch(result, batch, win, params, inverse_fisher(normal, model.scale_of(params)), done, valid, chi2)
+
+
+def _path_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: float) -> LeastSquaresModel:
+    """The model (x, y, F) of one star per window moving along `offsets` (n, K, 2) [px]: the
+    mean of K PSF copies."""
     weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
     var_eff = sigma * sigma + 1.0 / 12.0
     scale = 1.0 / np.sqrt(2.0 * var_eff)
@@ -79,18 +110,4 @@ def _fit_path_batch(residual, batch, bounds, x0, y0, flux0, offsets, sigma, nois
         mix[:, 3, 0] = a
         return np.matmul(mix, sums)
 
-    def max_step(p):
-        limit = np.full_like(p, 1.0)  # px per iteration
-        limit[:, 2] = np.inf  # the model is linear in flux
-        return limit
-
-    def scale_of(p):
-        units = np.ones_like(p)
-        units[:, 2] = np.maximum(np.abs(p[:, 2]), noise)
-        return units
-
-    params = np.column_stack([x0, y0, flux_start(flux0, win, noise)])
-    valid = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > 4)
-    params, normal, done, chi2 = levenberg_marquardt(evaluate, params, win, valid, noise, gain, iterations,
-                                                      max_step, lambda index, p: p, scale_of)
-    store_batch(result, batch, win, params, inverse_fisher(normal, scale_of(params)), done, valid, chi2)
+    return LeastSquaresModel(evaluate, position_flux_max_step, unconstrained, partial(flux_scaled_units, noise=noise))
