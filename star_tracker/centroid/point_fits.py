@@ -6,8 +6,8 @@ import numpy as np
 
 from .candidates import Candidates
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
-from .psf_fit import PsfStart, PsfWindows, fit_psf_windows, gather_windows
-from .records import FitContext, FitOutcome, SpotRows, no_spots
+from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows
+from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
 from .spots import FLAG_BLENDED
 
 
@@ -62,28 +62,25 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
             bx0 = np.column_stack([x[which[b]], px[b].astype(float)])
             by0 = np.column_stack([y[which[b]], py[b].astype(float)])
             bf0 = np.column_stack([flux[which[b]], np.maximum(win[b, pr[b], pc[b]] * 2 * np.pi * sigma ** 2, 1.0)])
-            fx, fy, ff, fc, ok, fv = fit_psf_windows(PsfWindows(win[b], valid[b], col0[b], row0[b]),
-                                                     PsfStart(bx0, by0, bf0), sigma, noise, gain)
-            both = ok.all(axis=1)
+            fit = fit_psf_windows(PsfWindows(win[b], valid[b], col0[b], row0[b]), PsfStart(bx0, by0, bf0), sigma,
+                                  noise, gain)
+            both = fit.converged.all(axis=1)
             blended[b[~both]] = False
             j, k = np.flatnonzero(both), b[both]
             t = which[k]
-            spots = spots.with_values(t, x=fx[j, 0], y=fy[j, 0], flux=ff[j, 0], cov=fc[j, 0],
-                                      snr=ff[j, 0] / np.sqrt(fv[j, 0]), flags=spots.flags[t] | FLAG_BLENDED)
-            second_snr = ff[j, 1] / np.sqrt(fv[j, 1])
-            new = ~duplicate[k] & (second_snr >= config.min_snr)
-            j, k = j[new], k[new]
-            added = SpotRows.split_off(fx[j, 1], fy[j, 1], ff[j, 1], fc[j, 1], second_snr[new], win[k, pr[k], pc[k]],
-                                       FLAG_BLENDED)
+            spots = spots.with_stars(t, psf_stars(fit, j, 0), flags=spots.flags[t] | FLAG_BLENDED)
+            second = psf_stars(fit, j, 1)
+            new = ~duplicate[k] & (second.snr >= config.min_snr)
+            k = k[new]
+            added = SpotRows.split_off(second.take(new), win[k, pr[k], pc[k]], FLAG_BLENDED)
     single = np.flatnonzero(~blended)
     if single.size:
         start = PsfStart(spots.x[which[single]][:, None], spots.y[which[single]][:, None],
                          spots.flux[which[single]][:, None])
-        fx, fy, ff, fc, ok, fv = fit_psf_windows(PsfWindows(win[single], valid[single], col0[single], row0[single]),
-                                                 start, sigma, noise, gain)
-        good = ok[:, 0]
-        spots = spots.with_values(which[single[good]], x=fx[good, 0], y=fy[good, 0], flux=ff[good, 0],
-                                  cov=fc[good, 0], snr=ff[good, 0] / np.sqrt(fv[good, 0]))
+        fit = fit_psf_windows(PsfWindows(win[single], valid[single], col0[single], row0[single]), start, sigma, noise,
+                              gain)
+        good = np.flatnonzero(fit.converged[:, 0])
+        spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
     return FitOutcome(spots, added)
 
 
@@ -93,7 +90,7 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     whose fit fails keeps its centre of gravity."""
     sigma, noise, gain = context.sigma, context.noise, context.gain
     margin = int(np.ceil(3.0 * sigma)) + 2
-    fitted, first_stars, others = [], [], []
+    fitted, first_stars, others, other_peaks = [], [], [], []
     for t in which:
         peaks = kept.peaks[t]
         left = int(np.floor(peaks[:, 0].min())) - margin
@@ -103,26 +100,30 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         win, valid = cleaned_windows(context, np.array([left]), np.array([top]), size, bg)
         amplitude = win[0, (peaks[:, 1] - top).astype(int), (peaks[:, 0] - left).astype(int)]
         flux0 = np.maximum(amplitude * 2.0 * np.pi * sigma ** 2, 1.0)
-        fx, fy, ff, fc, ok, fv = fit_psf_windows(PsfWindows(win, valid, np.array([left]), np.array([top])),
-                                                 PsfStart(peaks[None, :, 0], peaks[None, :, 1], flux0[None]), sigma,
-                                                 noise, gain)
-        if not ok[0].all():
+        fit = fit_psf_windows(PsfWindows(win, valid, np.array([left]), np.array([top])),
+                              PsfStart(peaks[None, :, 0], peaks[None, :, 1], flux0[None]), sigma, noise, gain)
+        if not fit.converged[0].all():
             continue  # keep the centre of gravity, flagged as a blend
-        order = np.argsort(-ff[0])
-        first = order[0]
+        order = np.argsort(-fit.flux[0])  # brightest first
+        stars = FittedStars(fit.x[0, order], fit.y[0, order], fit.flux[0, order], fit.cov[0, order],
+                            fit.flux[0, order] / np.sqrt(fit.flux_var[0, order]))
         fitted.append(t)
-        first_stars.append((fx[0, first], fy[0, first], ff[0, first], fc[0, first],
-                            ff[0, first] / np.sqrt(fv[0, first])))
-        for k in order[1:]:
-            snr_k = ff[0, k] / np.sqrt(fv[0, k])
-            if snr_k >= context.config.min_snr:
-                others.append((fx[0, k], fy[0, k], ff[0, k], fc[0, k], snr_k, float(amplitude[k])))
+        first_stars.append(stars.take(slice(0, 1)))
+        bright = 1 + np.flatnonzero(stars.snr[1:] >= context.config.min_snr)
+        others.append(stars.take(bright))
+        other_peaks.append(amplitude[order[bright]])
     if fitted:
-        bx, by, bf, bc, bs = (np.array(v) for v in zip(*first_stars))
-        spots = spots.with_values(np.array(fitted), x=bx, y=by, flux=bf, cov=bc, snr=bs)
+        spots = spots.with_stars(np.array(fitted), FittedStars.concatenate(first_stars))
     if not others:
         return FitOutcome(spots, no_spots())
-    return FitOutcome(spots, SpotRows.split_off(*(np.array(v) for v in zip(*others)), flags=FLAG_BLENDED))
+    return FitOutcome(spots, SpotRows.split_off(FittedStars.concatenate(others), np.concatenate(other_peaks),
+                                                FLAG_BLENDED))
+
+
+def psf_stars(fit: PsfFit, rows: np.ndarray, source: int) -> FittedStars:
+    """Source `source` of the PSF fits `rows` as FittedStars (SNR = flux / its 1-sigma)."""
+    return FittedStars(fit.x[rows, source], fit.y[rows, source], fit.flux[rows, source], fit.cov[rows, source],
+                       fit.flux[rows, source] / np.sqrt(fit.flux_var[rows, source]))
 
 
 def fit_clipped_points(context: FitContext, spots: SpotRows, which: np.ndarray, excluded: np.ndarray) -> FitOutcome:
@@ -148,11 +149,9 @@ def fit_clipped_points(context: FitContext, spots: SpotRows, which: np.ndarray, 
         valid &= clipped == 0
         # The flux is linear in the model: start from the window's sum (the clipped core short).
         flux0 = np.maximum(np.where(valid, win, 0.0).sum(axis=(1, 2)), flux[which[k]])
-        fx, fy, ff, fc, good, fv = fit_psf_windows(PsfWindows(win, valid, col0, row0),
-                                                   PsfStart(x[which[k]][:, None], y[which[k]][:, None], flux0[:, None]),
-                                                   sigma, noise, gain)
-        good = good[:, 0] & (valid.sum(axis=(1, 2)) > 6)
-        fitted = fitted.with_values(which[k[good]], x=fx[good, 0], y=fy[good, 0], flux=ff[good, 0], cov=fc[good, 0],
-                                    snr=ff[good, 0] / np.sqrt(fv[good, 0]))
+        fit = fit_psf_windows(PsfWindows(win, valid, col0, row0),
+                              PsfStart(x[which[k]][:, None], y[which[k]][:, None], flux0[:, None]), sigma, noise, gain)
+        good = fit.converged[:, 0] & (valid.sum(axis=(1, 2)) > 6)
+        fitted = fitted.with_stars(which[k[good]], psf_stars(fit, np.flatnonzero(good), 0))
         ok[k] = good
     return FitOutcome(fitted, no_spots(), ok)

@@ -33,6 +33,24 @@ class FitContext:
         return self.config.gain_e_per_adu
 
 
+class FittedStars(NamedTuple):
+    """Stars as a fit measured them, (n,) each: x, y [px], flux [ADU], cov (n, 2, 2) [px^2],
+    snr [-]."""
+
+    x: np.ndarray
+    y: np.ndarray
+    flux: np.ndarray
+    cov: np.ndarray
+    snr: np.ndarray
+
+    def take(self, index) -> "FittedStars":
+        return FittedStars(*(np.asarray(a)[index] for a in self))
+
+    @staticmethod
+    def concatenate(parts: list["FittedStars"]) -> "FittedStars":
+        return FittedStars(*(np.concatenate(column) for column in zip(*parts)))
+
+
 @dataclass(frozen=True)
 class SpotRows:
     """Measured spots as parallel arrays (n entries): x, y [px] (mid-exposure); flux [ADU];
@@ -67,16 +85,20 @@ class SpotRows:
             changed[name] = column
         return replace(self, **changed)
 
+    def with_stars(self, index: np.ndarray, stars: FittedStars, **values) -> "SpotRows":
+        """A copy with the spots at `index` replaced by the fitted `stars` (and `values`)."""
+        return self.with_values(index, **stars._asdict(), **values)
+
     @staticmethod
-    def split_off(x, y, flux, cov, snr, peak, flags, length=None, angle=None) -> "SpotRows":
-        """Stars split off a blend (not detections of their own: area 0): per-star arrays (n,)
-        as in SpotRows, cov (n, 2, 2); flags one FLAG_* set for all; length, angle None: point-like."""
-        x = np.asarray(x, dtype=float)
+    def split_off(stars: FittedStars, peak, flags: int, length=None, angle=None) -> "SpotRows":
+        """Stars split off a blend (not detections of their own: area 0): peak (n,) [ADU];
+        flags one FLAG_* set for all; length [px], angle [rad] (n,) for streaks, None: point-like."""
+        x = np.asarray(stars.x, dtype=float)
         n = x.size
         zero = np.zeros(n)
-        return SpotRows(x, np.asarray(y, dtype=float), np.asarray(flux, dtype=float), np.asarray(snr, dtype=float),
-                        np.asarray(cov, dtype=float).reshape(n, 2, 2), np.full(n, flags, np.uint32),
-                        zero if length is None else np.asarray(length, dtype=float),
+        return SpotRows(x, np.asarray(stars.y, dtype=float), np.asarray(stars.flux, dtype=float),
+                        np.asarray(stars.snr, dtype=float), np.asarray(stars.cov, dtype=float).reshape(n, 2, 2),
+                        np.full(n, flags, np.uint32), zero if length is None else np.asarray(length, dtype=float),
                         zero.copy() if angle is None else np.asarray(angle, dtype=float),
                         np.asarray(peak, dtype=float), np.zeros(n, np.int64))
 
@@ -98,4 +120,4 @@ class FitOutcome(NamedTuple):
 
 def no_spots() -> SpotRows:
     """An empty SpotRows."""
-    return SpotRows.split_off([], [], [], np.zeros((0, 2, 2)), [], [], 0)
+    return SpotRows.split_off(FittedStars([], [], [], np.zeros((0, 2, 2)), []), [], 0)

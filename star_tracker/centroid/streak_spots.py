@@ -10,7 +10,7 @@ import numpy as np
 from .candidates import Candidates
 from .config import elongation_limit
 from .measure import clean_hot_pixels, star_peak_to_neighbour_ratio
-from .records import FitContext, FitOutcome, SpotRows, no_spots
+from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
 from .spots import FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_STREAK
 from .smear import segment_length
 from .streak_fit import StreakFit
@@ -111,7 +111,7 @@ def split_merged_streaks(context: FitContext, residual: np.ndarray, fit: "Streak
     if not added:
         return FitOutcome(spots, no_spots())
     flux, cov, snr, peak, length, angle = (np.array(v) for v in zip(*added))
-    return FitOutcome(spots, SpotRows.split_off(added_x, added_y, flux, cov, snr, peak,
+    return FitOutcome(spots, SpotRows.split_off(FittedStars(added_x, added_y, flux, cov, snr), peak,
                                                 FLAG_STREAK | FLAG_RATE_AIDED | FLAG_BLENDED, length, angle))
 
 
