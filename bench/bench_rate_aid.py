@@ -7,7 +7,7 @@ Hp 7.5, random attitudes (fixed seed). For each motion (cross-boresight, roll ab
 boresight, a random axis) and rate, `--frames` frames are rendered under that constant rate and
 measured by extract_spots with the rate aid set to the true rate times 1.0, 0.85, 0.8 and 0.7:
 the share of frames whose aid the check rejected (Spots.rate_aid_rejected; rules in
-star_tracker/centroid/extract.py, AID_*), and the time of the check itself.
+star_tracker/centroid/rate_aid.py, AID_*), and the time of the check itself.
 """
 from __future__ import annotations
 

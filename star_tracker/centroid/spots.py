@@ -33,7 +33,7 @@ class Spots:
     width, height: image size [px]; background_adu, noise_adu: frame background level and
     1-sigma pixel noise [ADU]; rejected_shape: detections dropped as hot pixels or cosmic rays;
     rate_aid_rejected: a body rate was given but the streaks in the image disagreed with it, so
-    the frame was measured without it (extract.AID_* rules).
+    the frame was measured without it (rate_aid.AID_* rules).
 
     The record checks its arrays when built (every frame, so only cheap checks): numpy arrays,
     x of shape (N,) and every other per-spot array of the same length, cov (N, 2, 2), float
