@@ -2,7 +2,7 @@
 a known body rate, and on that path the split of streaks merged into one detection."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import cv2
 import numpy as np
@@ -86,11 +86,11 @@ def split_merged_streaks(context: FitContext, residual: np.ndarray, fit: "Streak
     min_snr."""
     k = np.flatnonzero(fit.converged)
     group = _grow_star_groups(context, residual, fit, path[k], excluded)
-    gx, gy, gf, gs, gcov = group
+    gx, gy, gf, gs, gcov = group.x, group.y, group.flux, group.flux_sigma, group.cov
     split = np.flatnonzero(np.isfinite(gx[:, 1:]).any(axis=1)) if gx.shape[1] > 1 else np.zeros(0, np.int64)
     t = which[k[split]]
     x, y = spots.x.copy(), spots.y.copy()  # positions so far: the spots' and the split-off stars'
-    added_x, added_y, added = [], [], []
+    added_x, added_y, added_at, added_peak = [], [], [], []  # split-off stars: (group, star) and peak [ADU]
     for j, spot in zip(split, t):
         # Star 0 is the spot's own (its window, started from its fit); the others are neighbours.
         x[spot], y[spot] = gx[j, 0], gy[j, 0]
@@ -104,22 +104,33 @@ def split_merged_streaks(context: FitContext, residual: np.ndarray, fit: "Streak
                 col = int(np.clip(np.rint(gx[j, m]), 0, residual.shape[1] - 1))
                 added_x.append(gx[j, m])
                 added_y.append(gy[j, m])
-                added.append((gf[j, m], gcov[j, m], star_snr, float(residual[row, col]), fit.length[k[j]],
-                              np.nan_to_num(fit.angle[k[j]])))
+                added_at.append((j, m))
+                added_peak.append(float(residual[row, col]))
     spots = spots.with_values(t, x=gx[split, 0], y=gy[split, 0], flux=gf[split, 0], cov=gcov[split, 0],
                               snr=gf[split, 0] / gs[split, 0], flags=spots.flags[t] | FLAG_BLENDED)
-    if not added:
+    if not added_at:
         return FitOutcome(spots, no_spots())
-    flux, cov, snr, peak, length, angle = (np.array(v) for v in zip(*added))
-    return FitOutcome(spots, SpotRows.split_off(FittedStars(added_x, added_y, flux, cov, snr), peak,
-                                                FLAG_STREAK | FLAG_RATE_AIDED | FLAG_BLENDED, length, angle))
+    j, m = np.array(added_at).T
+    stars = FittedStars(added_x, added_y, gf[j, m], gcov[j, m], gf[j, m] / gs[j, m])
+    return FitOutcome(spots, SpotRows.split_off(stars, added_peak, FLAG_STREAK | FLAG_RATE_AIDED | FLAG_BLENDED,
+                                                fit.length[k[j]], np.nan_to_num(fit.angle[k[j]])))
 
 
-def _grow_star_groups(context: FitContext, residual, fit: "StreakFit", path, excluded):
+class _StarGroups(NamedTuple):
+    """Stars fitted jointly on one path, one row per spot, one column per star of its group
+    (NaN: no such star; column 0 the spot's own): x, y [px], flux, flux_sigma [ADU] (n, M),
+    cov (n, M, 2, 2) [px^2]."""
+
+    x: np.ndarray
+    y: np.ndarray
+    flux: np.ndarray
+    flux_sigma: np.ndarray
+    cov: np.ndarray
+
+
+def _grow_star_groups(context: FitContext, residual, fit: "StreakFit", path, excluded) -> _StarGroups:
     """Star groups of the converged one-star fits `fit` (paths `path` (n, K, 2)): one star
-    more while the residual holds one (MERGED_*) and the joint fit lowers chi^2 enough.
-    Returns x, y [px], flux, flux 1-sigma [ADU] (n, M) and cov (n, M, 2, 2): one row per spot,
-    one column per star of its group (NaN: no such star; column 0 the spot's own)."""
+    more while the residual holds one (MERGED_*) and the joint fit lowers chi^2 enough."""
     sigma, noise, gain = context.sigma, context.noise, context.gain
     k = np.flatnonzero(fit.converged)
     gx, gy, gf, gs = fit.x[k][:, None], fit.y[k][:, None], fit.flux[k][:, None], fit.flux_sigma[k][:, None]
@@ -157,7 +168,7 @@ def _grow_star_groups(context: FitContext, residual, fit: "StreakFit", path, exc
             gx[won, m], gy[won, m], gf[won, m] = f.x[better], f.y[better], f.flux[better]
             gs[won, m], gcov[won, m] = f.flux_sigma[better], f.cov[better]
         chi2[won] = fits[0].chi2[better]
-    return gx, gy, gf, gs, gcov
+    return _StarGroups(gx, gy, gf, gs, gcov)
 
 
 def streak_reach(kept: Candidates, spots: SpotRows, which: np.ndarray, smear: "SmearModel | None",
