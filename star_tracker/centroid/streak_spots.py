@@ -11,8 +11,8 @@ from .candidates import Candidates
 from .config import elongation_limit
 from .measure import clean_hot_pixels, star_peak_to_neighbour_ratio
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
-from .spots import FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_STREAK
 from .smear import segment_length
+from .spots import FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_STREAK
 from .streak_fit import StreakFit
 from .streak_free_fit import fit_streaks
 from .streak_groups import fit_star_groups_on_path, second_source_on_path
