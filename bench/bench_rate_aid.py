@@ -7,7 +7,7 @@ Hp 7.5, random attitudes (fixed seed). For each motion (cross-boresight, roll ab
 boresight, a random axis) and rate, `--frames` frames are rendered under that constant rate and
 measured by extract_spots with the rate aid set to the true rate times 1.0, 0.85, 0.8 and 0.7:
 the share of frames whose aid the check rejected (Spots.rate_aid_rejected; rules in
-star_tracker/centroid/extract.py, AID_*), and the time of the check itself.
+star_tracker/centroid/rate_aid.py, AID_*), and the time of the check itself.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ import star_tracker.centroid.extract as extract_module
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.streak import SmearModel
+from star_tracker.centroid.smear import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer
 from star_tracker.sim.sensor import SensorModel
@@ -40,7 +40,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(), load_hipparcos().at_epoch(2026.0), magnitude_limit=7.5)
     rng = np.random.default_rng(11)
-    check = extract_module._rate_aid_disagrees
+    check = extract_module.rate_aid_disagrees
     spent: list[float] = []
 
     def timed(*args):
@@ -49,7 +49,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
         spent.append(time.perf_counter() - t0)
         return verdict
 
-    extract_module._rate_aid_disagrees = timed
+    extract_module.rate_aid_disagrees = timed
     rejected = {}
     try:
         for kind in ("cross-boresight", "roll", "random axis"):
@@ -66,7 +66,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
                 rejected[(kind, rate)] = counts
                 print(kind, rate, counts, flush=True)
     finally:
-        extract_module._rate_aid_disagrees = check
+        extract_module.rate_aid_disagrees = check
     return rejected, spent
 
 

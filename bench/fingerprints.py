@@ -25,7 +25,7 @@ import sys
 import numpy as np
 
 from star_tracker.centroid import extract_spots
-from star_tracker.centroid.streak import SmearModel
+from star_tracker.centroid.smear import SmearModel
 from star_tracker.identify import ALGORITHMS, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from star_tracker.track.tracking import Tracker
 from star_tracker.models.attitude import radec_roll_to_matrix

@@ -4,6 +4,7 @@ module (or in NUMBA_CACHE_DIR)."""
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -24,12 +25,16 @@ def _profile(lo: float, centre: float, sigma: float, size: int, prob: np.ndarray
 
 
 @njit(cache=True, fastmath=False)
-def fit_single_psf(data, valid, col0, row0, x0, y0, flux0, sigma, noise, gain, iterations):
+def fit_single_psf(windows, start, settings):
     """One pixel-integrated Gaussian PSF per window: the same weighted Gauss-Newton as
     psf_fit.fit_psf_windows with M = 1 (1 px trust region, 1e-9 relative damping, stop when
     the position step is below 1 % of its sigma, covariance from the last step's inverse).
-    data, valid: (n, S, S); col0, row0, x0, y0, flux0: (n,). Returns x, y, flux (n,),
-    cov (n, 2, 2), flux_var (n,), converged (n,)."""
+    windows: psf_fit.PsfWindows, data float64 and valid bool (n, S, S), col0, row0 float64
+    (n,); start: psf_fit.PsfStart of (n,) arrays; settings: psf_fit.PsfSettings. Returns x, y,
+    flux (n,), cov (n, 2, 2), flux_var (n,), converged (n,)."""
+    data, valid, col0, row0 = windows.data, windows.valid, windows.col0, windows.row0
+    x0, y0, flux0 = start.x, start.y, start.flux
+    sigma, noise, gain, iterations = settings.sigma, settings.noise, settings.gain, settings.iterations
     n, size, _ = data.shape
     x, y, flux = x0.copy(), y0.copy(), np.maximum(flux0.copy(), 1e-9)
     cov = np.full((n, 2, 2), np.nan)
@@ -108,10 +113,12 @@ WARM_IMAGE_DTYPES = (np.uint16, np.uint8, np.float32)  # what the nodes and the 
 
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel now, not on the first frame."""
+    from .psf_fit import PsfSettings, PsfStart, PsfWindows
+
     data = np.zeros((1, 7, 7))
     data[0, 3, 3] = 100.0
-    fit_single_psf(data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1), np.full(1, 3.0), np.full(1, 3.0),
-                   np.full(1, 100.0), 1.0, 1.0, 1.0, 5)
+    fit_single_psf(PsfWindows(data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1)),
+                   PsfStart(np.full(1, 3.0), np.full(1, 3.0), np.full(1, 100.0)), PsfSettings(1.0, 1.0, 1.0, 5))
     component_stats(np.zeros((4, 4), np.int32), 1)
     one = np.full(1, 16.0)
     index = np.full(1, 14, np.int64)
@@ -121,8 +128,8 @@ def warm_up() -> None:
             # are read-only, and compiling that variant at the first frame took > 8 s here.
             image = np.zeros((32, 32), dtype)
             image.flags.writeable = writeable
-            measure_small(image, one, one, np.zeros(1), index, index + 4, index, index + 4, 4, 8, 1.0, 1.0, 1.0, 3.0,
-                          False)
+            measure_small(image, SmallSpots(one, one, np.zeros(1), index, index + 4, index, index + 4),
+                          PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
 
 
 @njit(cache=True)
@@ -173,17 +180,87 @@ def _centre_and_covariance(weighted_sums, variance_sums, col0, row0, out_x, out_
     out_cov[s, 0, 1] = out_cov[s, 1, 0] = (v[5] - x * v[2] - y * v[1] + x * y * v[0]) / t2
 
 
+class SmallSpots(NamedTuple):
+    """Detections to measure in a point window, per spot (n,): cx, cy the footprint centroid
+    [px]; bg the background there [ADU]; top, bottom, left, right its bounding box
+    (full-resolution px, bottom/right exclusive; int64)."""
+
+    cx: np.ndarray
+    cy: np.ndarray
+    bg: np.ndarray
+    top: np.ndarray
+    bottom: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+
+
+class PointWindowSettings(NamedTuple):
+    """How measure_small measures: half (int) the half size of the measuring window [px];
+    search_margin (int) the search window's extra size [px]; sigma the PSF 1-sigma [px];
+    noise the pixel noise [ADU]; gain [e-/ADU]; ratio_limit the hot-pixel peak-to-neighbour
+    ratio (inf: no cleaning); weighted: also the intensity-weighted centre of gravity."""
+
+    half: int
+    search_margin: int
+    sigma: float
+    noise: float
+    gain: float
+    ratio_limit: float
+    weighted: bool
+
+
+class SmallSpotMeasurements(NamedTuple):
+    """measure_small's results per spot (n,): x, y [px], flux [ADU], snr, minor, major [px^2],
+    angle [rad], peak, peak_raw [ADU], cov (n, 2, 2) [px^2], wx, wy, wcov (intensity-weighted
+    centre), edge, cleaned; window, window_valid (n, S, S) and their top-left pixel
+    window_col0, window_row0; search, search_valid (n, B, B): the cleaned search windows and
+    their top-left pixel search_col0, search_row0."""
+
+    x: np.ndarray
+    y: np.ndarray
+    flux: np.ndarray
+    snr: np.ndarray
+    minor: np.ndarray
+    major: np.ndarray
+    angle: np.ndarray
+    peak: np.ndarray
+    peak_raw: np.ndarray
+    cov: np.ndarray
+    wx: np.ndarray
+    wy: np.ndarray
+    wcov: np.ndarray
+    edge: np.ndarray
+    cleaned: np.ndarray
+    window: np.ndarray
+    window_valid: np.ndarray
+    window_col0: np.ndarray
+    window_row0: np.ndarray
+    search: np.ndarray
+    search_valid: np.ndarray
+    search_col0: np.ndarray
+    search_row0: np.ndarray
+
+
+def measure_small(image: np.ndarray, spots: SmallSpots, settings: PointWindowSettings) -> SmallSpotMeasurements:
+    """Point-window measurements of the detections `spots` (_measure_small, compiled)."""
+    return SmallSpotMeasurements(*_measure_small(image, spots, settings))
+
+
 @njit(cache=True)
-def measure_small(image, cx, cy, bg, top, bottom, left, right, half, search_margin, sigma, noise, gain, ratio_limit,
-                  weighted):
-    """The point-window measurements of extract._measure, compiled. Per spot n: a search window of (2 half + 5)^2 around (cx, cy) [px] minus
-    bg [ADU], hot pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels), re-centred
-    on the brightest 3x3 sum inside the footprint box (top/bottom/left/right, full-resolution
-    px), then a (2 half + 1)^2 window measured in a circular aperture (measure.aperture_moments:
+def _measure_small(image, spots, settings):
+    """The point-window measurements of candidates.measure_candidates, compiled. Per spot n:
+    a search window of (2 half + 1 + search_margin)^2 around (cx, cy) [px] minus bg [ADU], hot
+    pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels), re-centred on the
+    brightest 3x3 sum inside the footprint box (top/bottom/left/right, full-resolution px),
+    then a (2 half + 1)^2 window measured in a circular aperture (measure.aperture_moments:
     centre of gravity, covariance, second moments; with `weighted` also the intensity-weighted
     centre), SNR in the near-optimal aperture, brightest raw value, edge flag.
-    ratio_limit = inf switches the cleaning off. Returns a tuple of arrays, in the order
-    unpacked by extract._measure."""
+    ratio_limit = inf switches the cleaning off. spots: SmallSpots; settings:
+    PointWindowSettings. Returns a tuple of arrays in SmallSpotMeasurements' order."""
+    cx, cy, bg, top, bottom, left, right = (spots.cx, spots.cy, spots.bg, spots.top, spots.bottom, spots.left,
+                                            spots.right)
+    half, search_margin, sigma = settings.half, settings.search_margin, settings.sigma
+    noise, gain, ratio_limit, weighted = settings.noise, settings.gain, settings.ratio_limit, settings.weighted
     height, width = image.shape
     n = cx.size
     size = 2 * half + 1

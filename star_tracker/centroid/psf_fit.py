@@ -4,6 +4,8 @@ One or several sources per window (several = a blend fitted jointly), all window
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.special import erf
 
@@ -53,35 +55,83 @@ def gather_windows(image: np.ndarray, col0: np.ndarray, row0: np.ndarray, size: 
     return np.where(inside, data.astype(np.float64), 0.0), inside
 
 
-def fit_psf_windows(data: np.ndarray, valid: np.ndarray, col0: np.ndarray, row0: np.ndarray, x0: np.ndarray,
-                    y0: np.ndarray, flux0: np.ndarray, sigma: float, noise: float, gain: float, iterations: int = 10):
-    """Fit M Gaussian PSFs (fixed sigma [px]) per window to n windows of background-subtracted
-    data (n, S, S) [ADU] whose top-left pixel is (col0, row0); `valid` masks usable pixels.
+class PsfWindows(NamedTuple):
+    """n windows of background-subtracted data (n, S, S) [ADU]; valid (n, S, S) bool, the
+    usable pixels; col0, row0 (n,) the top-left pixel [px]."""
+
+    data: np.ndarray
+    valid: np.ndarray
+    col0: np.ndarray
+    row0: np.ndarray
+
+
+class PsfStart(NamedTuple):
+    """Starting values of M sources per window, (n, M) each (or (n,) for M = 1): x, y [px],
+    flux [ADU]."""
+
+    x: np.ndarray
+    y: np.ndarray
+    flux: np.ndarray
+
+
+class PsfSettings(NamedTuple):
+    """The fit's fixed values: sigma, the PSF 1-sigma [px]; noise, the 1-sigma pixel noise
+    [ADU]; gain [e-/ADU]; iterations, the most Gauss-Newton steps."""
+
+    sigma: float
+    noise: float
+    gain: float
+    iterations: int
+
+
+class PsfFit(NamedTuple):
+    """Fitted sources (n, M): x, y [px], flux [ADU], cov (n, M, 2, 2) [px^2], converged
+    (bool), flux_var [ADU^2] (the flux's variance: its SNR is flux / sqrt(flux_var))."""
+
+    x: np.ndarray
+    y: np.ndarray
+    flux: np.ndarray
+    cov: np.ndarray
+    converged: np.ndarray
+    flux_var: np.ndarray
+
+
+def fit_psf_windows(windows: PsfWindows, start: PsfStart, sigma: float, noise: float, gain: float,
+                    iterations: int = 10) -> PsfFit:
+    """Fit M Gaussian PSFs (fixed sigma [px]) per window to the n `windows` of
+    background-subtracted data [ADU] (their `valid` pixels), starting at `start`.
 
     Model: mu_ij = sum_m F_m P(col_j; x_m) P(row_i; y_m), P = PSF integral over the pixel;
     weights 1 / (mu / gain + noise^2) (gain e-/ADU, noise 1-sigma ADU). Gauss-Newton on
-    (x_m, y_m, F_m) from x0, y0, flux0 (n, M) with a 1 px trust region and a whisper of
-    Levenberg-Marquardt damping, so one degenerate window cannot fail the batch. The covariance
-    of (x_m, y_m) is the inverse Fisher information at the solution (the Cramer-Rao bound).
-    Returns x, y [px], flux [ADU] (n, M), cov (n, M, 2, 2) [px^2], converged (n, M) bool,
-    flux_var (n, M) [ADU^2] (the flux's variance: its SNR is flux / sqrt(flux_var)).
+    (x_m, y_m, F_m) with a 1 px trust region and a whisper of Levenberg-Marquardt damping, so
+    one degenerate window cannot fail the batch. The covariance of (x_m, y_m) is the inverse
+    Fisher information at the solution (the Cramer-Rao bound).
     """
-    x0, y0, flux0 = (np.atleast_2d(np.asarray(v, float)) for v in (x0, y0, flux0))
-    if x0.shape[0] != data.shape[0]:
+    x0, y0, flux0 = (np.atleast_2d(np.asarray(v, float)) for v in start)
+    if x0.shape[0] != windows.data.shape[0]:
         x0, y0, flux0 = x0.T, y0.T, flux0.T
     n, m = x0.shape
-    size = data.shape[1]
     if n == 0:
-        return x0, y0, flux0, np.zeros((0, m, 2, 2)), np.zeros((0, m), bool), np.zeros((0, m))
+        return PsfFit(x0, y0, flux0, np.zeros((0, m, 2, 2)), np.zeros((0, m), bool), np.zeros((0, m)))
+    settings = PsfSettings(float(sigma), float(noise), float(gain), int(iterations))
     if m == 1 and USE_COMPILED:  # the common case, compiled: numpy's per-call overhead dominates it
         from .kernels import fit_single_psf
 
-        out = fit_single_psf(np.ascontiguousarray(data, np.float64), np.ascontiguousarray(valid, np.bool_),
-                             np.asarray(col0, np.float64), np.asarray(row0, np.float64), x0[:, 0].copy(),
-                             y0[:, 0].copy(), flux0[:, 0].copy(), float(sigma), float(noise), float(gain),
-                             int(iterations))
-        x, y, flux, cov, flux_var, ok = out
-        return x[:, None], y[:, None], flux[:, None], cov[:, None], ok[:, None], flux_var[:, None]
+        compiled = PsfWindows(np.ascontiguousarray(windows.data, np.float64),
+                              np.ascontiguousarray(windows.valid, np.bool_),
+                              np.asarray(windows.col0, np.float64), np.asarray(windows.row0, np.float64))
+        x, y, flux, cov, flux_var, ok = fit_single_psf(compiled, PsfStart(x0[:, 0].copy(), y0[:, 0].copy(),
+                                                                          flux0[:, 0].copy()), settings)
+        return PsfFit(x[:, None], y[:, None], flux[:, None], cov[:, None], ok[:, None], flux_var[:, None])
+    return _fit_psf_numpy(windows, PsfStart(x0, y0, flux0), sigma, noise, gain, iterations)
+
+
+def _fit_psf_numpy(windows: PsfWindows, start: PsfStart, sigma, noise, gain, iterations) -> PsfFit:
+    """fit_psf_windows in numpy, any M; start (n, M)."""
+    data, valid, col0, row0 = windows
+    x0, y0, flux0 = start
+    n, m = x0.shape
+    size = data.shape[1]
     edges_c = (np.asarray(col0, float)[:, None] + np.arange(size) - 0.5)[:, None, :]  # (n, 1, S)
     edges_r = (np.asarray(row0, float)[:, None] + np.arange(size) - 0.5)[:, None, :]
     x, y, flux = x0.copy(), y0.copy(), np.maximum(flux0.copy(), 1e-9)
@@ -140,7 +190,7 @@ def fit_psf_windows(data: np.ndarray, valid: np.ndarray, col0: np.ndarray, row0:
     converged = (np.all(np.isfinite(cov.reshape(n, m, -1)), axis=2) & (cov[:, :, 0, 0] > 0) & (cov[:, :, 1, 1] > 0)
                  & np.isfinite(x) & np.isfinite(y) & (x > lo_c + 0.5) & (x < lo_c + size - 1.5)
                  & (y > lo_r + 0.5) & (y < lo_r + size - 1.5))
-    return x, y, flux, cov, converged, flux_var
+    return PsfFit(x, y, flux, cov, converged, flux_var)
 
 
 def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0: np.ndarray, sigma: float,
@@ -150,6 +200,7 @@ def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0
     x0, y0 = np.asarray(x0, float), np.asarray(y0, float)
     col0, row0 = np.rint(x0).astype(np.int64) - half, np.rint(y0).astype(np.int64) - half
     data, valid = gather_windows(residual, col0, row0, 2 * half + 1)
-    x, y, flux, cov, ok, _ = fit_psf_windows(data, valid, col0, row0, x0[:, None], y0[:, None],
-                                             np.asarray(flux0, float)[:, None], sigma, noise, gain, iterations)
-    return x[:, 0], y[:, 0], flux[:, 0], cov[:, 0], ok[:, 0]
+    fit = fit_psf_windows(PsfWindows(data, valid, col0, row0),
+                          PsfStart(x0[:, None], y0[:, None], np.asarray(flux0, float)[:, None]), sigma, noise, gain,
+                          iterations)
+    return fit.x[:, 0], fit.y[:, 0], fit.flux[:, 0], fit.cov[:, 0], fit.converged[:, 0]

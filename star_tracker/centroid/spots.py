@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from numbers import Integral
 
 import numpy as np
 
@@ -10,6 +11,13 @@ FLAG_EDGE = 1 << 1  # the spot's window touches the image border: position biase
 FLAG_STREAK = 1 << 2  # measured with the streak model: streak_length / streak_angle are valid
 FLAG_BLENDED = 1 << 3  # split from a blend with a neighbour (fitted jointly with it)
 FLAG_RATE_AIDED = 1 << 4  # fitted on the smear path predicted from a known body rate
+
+# Spots.from_xy: flux [ADU] of a magnitude-0 spot (flux = FLUX_AT_MAGNITUDE_0 10^(-0.4 m)).
+FLUX_AT_MAGNITUDE_0 = 1.0e6
+
+# Per-spot fields and the dtype kinds they accept ("f" float, "u"/"i" integer).
+_FLOAT_FIELDS = ("x", "y", "flux", "snr", "peak", "streak_length", "streak_angle")
+_INTEGER_FIELDS = ("flags", "area")
 
 
 @dataclass(frozen=True)
@@ -25,7 +33,12 @@ class Spots:
     width, height: image size [px]; background_adu, noise_adu: frame background level and
     1-sigma pixel noise [ADU]; rejected_shape: detections dropped as hot pixels or cosmic rays;
     rate_aid_rejected: a body rate was given but the streaks in the image disagreed with it, so
-    the frame was measured without it (extract.AID_* rules).
+    the frame was measured without it (rate_aid.AID_* rules).
+
+    The record checks its arrays when built (every frame, so only cheap checks): numpy arrays,
+    x of shape (N,) and every other per-spot array of the same length, cov (N, 2, 2), float
+    dtypes for the measured values and integer ones for flags and area, width and height
+    positive integers. Values are not checked: NaN and inf pass (see ros.convert.drop_invalid_spots).
     """
 
     x: np.ndarray
@@ -50,6 +63,31 @@ class Spots:
         for name in ("streak_length", "streak_angle"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.zeros(n))
+        self._check_arrays()
+
+    def _check_arrays(self) -> None:
+        """Raise ValueError naming the first field whose type, shape or dtype is wrong."""
+        for name in _FLOAT_FIELDS + _INTEGER_FIELDS + ("cov",):
+            if not isinstance(getattr(self, name), np.ndarray):
+                raise ValueError(f"Spots.{name} must be a numpy array, got {type(getattr(self, name)).__name__}")
+        if self.x.ndim != 1:
+            raise ValueError(f"Spots.x must have shape (N,), got {self.x.shape}")
+        n = self.x.size
+        for name in _FLOAT_FIELDS + _INTEGER_FIELDS:
+            if getattr(self, name).shape != (n,):
+                raise ValueError(f"Spots.{name} must have shape ({n},) like x, got {getattr(self, name).shape}")
+        if self.cov.shape != (n, 2, 2):
+            raise ValueError(f"Spots.cov must have shape ({n}, 2, 2), got {self.cov.shape}")
+        for name in _FLOAT_FIELDS + ("cov",):
+            if getattr(self, name).dtype.kind != "f":
+                raise ValueError(f"Spots.{name} must have a float dtype, got {getattr(self, name).dtype}")
+        for name in _INTEGER_FIELDS:
+            if getattr(self, name).dtype.kind not in "ui":
+                raise ValueError(f"Spots.{name} must have an integer dtype, got {getattr(self, name).dtype}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if not (isinstance(value, Integral) and not isinstance(value, bool) and value > 0):
+                raise ValueError(f"Spots.{name} must be a positive integer [px], got {value!r}")
 
     def __len__(self) -> int:
         return int(self.x.size)
@@ -59,6 +97,28 @@ class Spots:
         z = np.zeros(0)
         return Spots(z, z, z, z, np.zeros((0, 2, 2)), np.zeros(0, np.uint32), np.zeros(0, np.int32),
                      z, width, height, **frame_values)
+
+    @staticmethod
+    def from_xy(x, y, magnitude=None, *, sigma_px: float, width: int, height: int, snr: float = 100.0,
+                flux_at_magnitude_0: float = FLUX_AT_MAGNITUDE_0) -> "Spots":
+        """Point-like spots at pixel positions x, y [px] ((N,) each, (0, 0) = centre of the
+        top-left pixel), in the order given (by convention brightest first).
+
+        magnitude: (N,) stellar magnitudes, flux = flux_at_magnitude_0 10^(-0.4 magnitude)
+        [ADU] (default zero point FLUX_AT_MAGNITUDE_0); None: every spot at magnitude 0.
+        sigma_px: 1-sigma position error [px], the same on both axes, uncorrelated: cov =
+        sigma_px^2 I. width, height: image size [px]. snr: every spot's SNR [-]. The rest is
+        what a 3x3 footprint of a PSF of ~1.3 px sigma gives: area 9 px, peak flux / 10,
+        no flags, no streak.
+        """
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        if magnitude is None:
+            magnitude = np.zeros(x.shape)
+        flux = flux_at_magnitude_0 * 10.0 ** (-0.4 * np.asarray(magnitude, dtype=float))
+        n = x.size
+        cov = np.tile(np.eye(2) * sigma_px ** 2, (n, 1, 1))
+        return Spots(x, y, flux, np.full(n, float(snr)), cov, np.zeros(n, np.uint32), np.full(n, 9, np.int32),
+                     flux / 10.0, width, height)
 
     def take(self, index: np.ndarray) -> "Spots":
         """The spots at `index` (integer or boolean), frame values kept."""

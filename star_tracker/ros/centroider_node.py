@@ -30,7 +30,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
 from ..centroid.kernels import warm_up
-from ..centroid.streak import SmearModel
+from ..centroid.smear import SmearModel
 from . import convert
 from .camera_info_input import CameraInfoInput
 from .diagnostics import Diagnostics, Rejections

@@ -154,11 +154,9 @@ def make_scene(setup: SceneSetup, catalog: StarCatalog, rng: np.random.Generator
     order = np.argsort(-flux, kind="stable")
     if setup.brightest is not None:
         order = order[: setup.brightest]
-    x, y, flux, hip = x[order], y[order], flux[order], hip[order]
-    n = x.size
-    cov = np.tile(np.eye(2) * max(noise_px, 1e-6) ** 2, (n, 1, 1))
-    spots = Spots(x, y, flux, np.full(n, 100.0), cov, np.zeros(n, np.uint32), np.full(n, 9, np.int32),
-                  flux / 10.0, camera.width, camera.height)
+    spots = Spots.from_xy(x[order], y[order], measured_mag[order], sigma_px=max(noise_px, 1e-6), width=camera.width,
+                          height=camera.height, flux_at_magnitude_0=FLUX_AT_MAG0)
+    hip = hip[order]
     return Scene(spots, truth, hip, setup)
 
 

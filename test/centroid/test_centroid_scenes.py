@@ -11,8 +11,8 @@ from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid import (FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, CENTROID_METHODS,
                                    CentroidConfig, extract_spots)
-from star_tracker.centroid import extract as extract_module
-from star_tracker.centroid.streak import SmearModel
+from star_tracker.centroid import rate_aid, saturation, streak_spots
+from star_tracker.centroid.smear import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion, SlewMotion
 from star_tracker.sim.render import KIND_HOT_PIXEL, StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
@@ -242,7 +242,7 @@ def test_stars_clipped_in_one_or_two_pixels_are_found_by_their_fits(rate_deg_s, 
     assert np.mean((spots.flags[index] & FLAG_SATURATED) != 0) >= 0.75
     chi2 = chi2_of(spots, index, tx, ty)
     assert chi2.mean() < 3.0 and chi2.max() < 25.0
-    monkeypatch.setattr(extract_module, "UNDERSHOOT_SIGMA", np.inf)
+    monkeypatch.setattr(saturation, "UNDERSHOOT_SIGMA", np.inf)
     unchecked = extract_spots(frame.image, CentroidConfig(), smear)
     index, _ = nearest(unchecked, tx, ty)
     assert chi2_of(unchecked, index, tx, ty).mean() > 4.0
@@ -269,7 +269,7 @@ def test_merged_streaks_on_the_predicted_path_are_fitted_as_two_stars(monkeypatc
     chi2 = chi2_of(spots, index[found], tx[found], ty[found])
     assert chi2.mean() < 3.0 and np.mean(chi2 > 16.0) < 0.03
     # Without the split, each pair is one spot between its stars.
-    monkeypatch.setattr(extract_module, "MERGED_MIN_SNR", np.inf)
+    monkeypatch.setattr(streak_spots, "MERGED_MIN_SNR", np.inf)
     single = extract_spots(frame.image, CentroidConfig(), smear)
     index, distance = nearest(single, tx, ty)
     assert np.median(chi2_of(single, index, tx, ty)) > 25.0
@@ -318,7 +318,7 @@ def test_a_rate_aid_the_streaks_disagree_with_is_dropped_for_the_frame(catalog, 
         bias, bright = along_track_bias(spots)
         assert abs(bias) < 0.15 and bright >= 25, (bias, bright)
     # Without the check, the lagging aid gives the biased, fragmented frame.
-    monkeypatch.setattr(extract_module, "AID_TOLERANCE_FRACTION", np.inf)
+    monkeypatch.setattr(rate_aid, "AID_TOLERANCE_FRACTION", np.inf)
     trusted = extract_spots(frame.image, CentroidConfig(), SmearModel(CAMERA, 0.68 * rate, EXPOSURE))
     bias, bright = along_track_bias(trusted)
     assert len(trusted) > 1.2 * len(right) and abs(bias) > 0.5, (len(trusted), len(right), bias)

@@ -1,4 +1,4 @@
-"""Streak centroiding (star_tracker.centroid.streak) against the simulator's truth.
+"""Streak centroiding (star_tracker.centroid: smear, streak_free_fit, streak_path_fit) against the simulator's truth.
 
 Frames come from StarFieldRenderer with a constant body rate, so every star is smeared into a
 streak whose mid-exposure position is in frame.truth. The accuracy bound is a Cramer-Rao
@@ -14,7 +14,10 @@ from scipy.special import erf
 from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import StarCatalog, unit_to_radec
-from star_tracker.centroid.streak import SmearModel, StreakFit, fit_streaks, fit_streaks_on_path
+from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.streak_fit import StreakFit
+from star_tracker.centroid.streak_free_fit import fit_streaks
+from star_tracker.centroid.streak_path_fit import fit_streaks_on_path
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel

@@ -1,0 +1,157 @@
+"""PSF fits of point-like spots: single stars, two stars in one point window, blends of
+several peaks in one footprint, and saturated stars fitted on their unclipped wings."""
+from __future__ import annotations
+
+import numpy as np
+
+from .candidates import Candidates
+from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
+from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows
+from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
+from .spots import FLAG_BLENDED
+
+
+def cleaned_windows(context: FitContext, col0, row0, size: int, background):
+    """Background-subtracted (n, size, size) windows with hot pixels cleaned, top-left pixel
+    (col0, row0) [px], background (n,) [ADU]; cleaned on windows one pixel larger, so that a
+    hot pixel on the border is judged against its true neighbours. Returns data and mask."""
+    raw, valid = gather_windows(context.image, np.asarray(col0) - 1, np.asarray(row0) - 1, size + 2)
+    win, _ = clean_hot_pixels(np.where(valid, raw - np.asarray(background)[:, None, None], 0.0), valid,
+                              context.noise, 2.0 * star_peak_to_neighbour_ratio(context.sigma))
+    return win[:, 1:-1, 1:-1], valid[:, 1:-1, 1:-1]
+
+
+def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray,
+               excluded: np.ndarray | None = None) -> FitOutcome:
+    """Gaussian PSF fit of point-like spots `which`; those whose window shows a second peak
+    get a joint 2-PSF fit (flag BLENDED), the second star returned as an added spot unless it
+    is a spot already or below min_snr. Pixels `excluded` (a neighbour's clipped core; None =
+    none) are left out of the fits."""
+    config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
+    half = config.window_half
+    size = 2 * half + 1
+    x, y, flux = spots.x, spots.y, spots.flux
+    # Windows measured already (small spots, centred on their peak) are reused, cropped to the
+    # fit window around the same centre pixel.
+    crop = (kept.window.shape[1] - size) // 2
+    win = kept.window[which][:, crop:crop + size, crop:crop + size].copy()
+    valid = kept.window_valid[which][:, crop:crop + size, crop:crop + size].copy()
+    col0, row0 = kept.window_col0[which] + crop, kept.window_row0[which] + crop
+    fresh = np.flatnonzero(~kept.has_window[which])
+    if fresh.size:
+        col0[fresh] = np.rint(x[which[fresh]]).astype(np.int64) - half
+        row0[fresh] = np.rint(y[which[fresh]]).astype(np.int64) - half
+        bg = context.det.background_at(x[which[fresh]], y[which[fresh]])
+        win[fresh], valid[fresh] = cleaned_windows(context, col0[fresh], row0[fresh], size, bg)
+    if excluded is not None:
+        clipped, _ = gather_windows(excluded, col0, row0, size)
+        valid &= clipped == 0
+    blended = np.zeros(which.size, bool)
+    added = no_spots()
+    if config.split_blends:
+        found, pr, pc = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
+                                        min_separation=max(2.0, 2.0 * sigma), radius=half - 1.5, gain=gain, noise=noise)
+        # A second peak that is another detected spot is fitted jointly but not reported twice.
+        px, py = col0 + pc, row0 + pr
+        others = np.hypot(px[:, None] - x[None, :], py[:, None] - y[None, :])
+        others[np.arange(which.size), which] = np.inf
+        duplicate = others.min(axis=1) < 2.0 if x.size > 1 else np.zeros(which.size, bool)
+        blended = found
+        if blended.any():
+            b = np.flatnonzero(blended)
+            bx0 = np.column_stack([x[which[b]], px[b].astype(float)])
+            by0 = np.column_stack([y[which[b]], py[b].astype(float)])
+            bf0 = np.column_stack([flux[which[b]], np.maximum(win[b, pr[b], pc[b]] * 2 * np.pi * sigma ** 2, 1.0)])
+            fit = fit_psf_windows(PsfWindows(win[b], valid[b], col0[b], row0[b]), PsfStart(bx0, by0, bf0), sigma,
+                                  noise, gain)
+            both = fit.converged.all(axis=1)
+            blended[b[~both]] = False
+            j, k = np.flatnonzero(both), b[both]
+            t = which[k]
+            spots = spots.with_stars(t, psf_stars(fit, j, 0), flags=spots.flags[t] | FLAG_BLENDED)
+            second = psf_stars(fit, j, 1)
+            new = ~duplicate[k] & (second.snr >= config.min_snr)
+            k = k[new]
+            added = SpotRows.split_off(second.take(new), win[k, pr[k], pc[k]], FLAG_BLENDED)
+    single = np.flatnonzero(~blended)
+    if single.size:
+        start = PsfStart(spots.x[which[single]][:, None], spots.y[which[single]][:, None],
+                         spots.flux[which[single]][:, None])
+        fit = fit_psf_windows(PsfWindows(win[single], valid[single], col0[single], row0[single]), start, sigma, noise,
+                              gain)
+        good = np.flatnonzero(fit.converged[:, 0])
+        spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
+    return FitOutcome(spots, added)
+
+
+def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray) -> FitOutcome:
+    """Joint fit of one PSF per peak over the footprint window of each blended spot `which`:
+    the brightest star replaces the spot, the others above min_snr are added spots. A blend
+    whose fit fails keeps its centre of gravity."""
+    sigma, noise, gain = context.sigma, context.noise, context.gain
+    margin = int(np.ceil(3.0 * sigma)) + 2
+    fitted, first_stars, others, other_peaks = [], [], [], []
+    for t in which:
+        peaks = kept.peaks[t]
+        left = int(np.floor(peaks[:, 0].min())) - margin
+        top = int(np.floor(peaks[:, 1].min())) - margin
+        size = int(max(np.ptp(peaks[:, 0]), np.ptp(peaks[:, 1]))) + 2 * margin + 1
+        bg = context.det.background_at(np.array([peaks[0, 0]]), np.array([peaks[0, 1]]))
+        win, valid = cleaned_windows(context, np.array([left]), np.array([top]), size, bg)
+        amplitude = win[0, (peaks[:, 1] - top).astype(int), (peaks[:, 0] - left).astype(int)]
+        flux0 = np.maximum(amplitude * 2.0 * np.pi * sigma ** 2, 1.0)
+        fit = fit_psf_windows(PsfWindows(win, valid, np.array([left]), np.array([top])),
+                              PsfStart(peaks[None, :, 0], peaks[None, :, 1], flux0[None]), sigma, noise, gain)
+        if not fit.converged[0].all():
+            continue  # keep the centre of gravity, flagged as a blend
+        order = np.argsort(-fit.flux[0])  # brightest first
+        stars = FittedStars(fit.x[0, order], fit.y[0, order], fit.flux[0, order], fit.cov[0, order],
+                            fit.flux[0, order] / np.sqrt(fit.flux_var[0, order]))
+        fitted.append(t)
+        first_stars.append(stars.take(slice(0, 1)))
+        bright = 1 + np.flatnonzero(stars.snr[1:] >= context.config.min_snr)
+        others.append(stars.take(bright))
+        other_peaks.append(amplitude[order[bright]])
+    if fitted:
+        spots = spots.with_stars(np.array(fitted), FittedStars.concatenate(first_stars))
+    if not others:
+        return FitOutcome(spots, no_spots())
+    return FitOutcome(spots, SpotRows.split_off(FittedStars.concatenate(others), np.concatenate(other_peaks),
+                                                FLAG_BLENDED))
+
+
+def psf_stars(fit: PsfFit, rows: np.ndarray, source: int) -> FittedStars:
+    """Source `source` of the PSF fits `rows` as FittedStars (SNR = flux / its 1-sigma)."""
+    return FittedStars(fit.x[rows, source], fit.y[rows, source], fit.flux[rows, source], fit.cov[rows, source],
+                       fit.flux[rows, source] / np.sqrt(fit.flux_var[rows, source]))
+
+
+def fit_clipped_points(context: FitContext, spots: SpotRows, which: np.ndarray, excluded: np.ndarray) -> FitOutcome:
+    """PSF fit of saturated point-like spots `which` without their clipped pixels (`excluded`):
+    the wings alone fix the centre, and the inverse Fisher information of those pixels is its
+    covariance. The window is the point window grown by the clipped core's radius.
+    converged: which of them the fit describes (the others keep their centre of gravity)."""
+    config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
+    x, y, flux = spots.x, spots.y, spots.flux
+    cx, cy = np.rint(x[which]).astype(np.int64), np.rint(y[which]).astype(np.int64)
+    ok = np.zeros(which.size, bool)
+    probe = config.window_half
+    core, _ = gather_windows(excluded, cx - probe, cy - probe, 2 * probe + 1)
+    radius = np.ceil(np.sqrt(core.sum(axis=(1, 2)) / np.pi)).astype(np.int64)
+    half_all = config.window_half + radius
+    fitted = spots
+    for half in np.unique(half_all):
+        k = np.flatnonzero(half_all == half)
+        size = 2 * int(half) + 1
+        col0, row0 = cx[k] - half, cy[k] - half
+        win, valid = cleaned_windows(context, col0, row0, size, context.det.background_at(x[which[k]], y[which[k]]))
+        clipped, _ = gather_windows(excluded, col0, row0, size)
+        valid &= clipped == 0
+        # The flux is linear in the model: start from the window's sum (the clipped core short).
+        flux0 = np.maximum(np.where(valid, win, 0.0).sum(axis=(1, 2)), flux[which[k]])
+        fit = fit_psf_windows(PsfWindows(win, valid, col0, row0),
+                              PsfStart(x[which[k]][:, None], y[which[k]][:, None], flux0[:, None]), sigma, noise, gain)
+        good = fit.converged[:, 0] & (valid.sum(axis=(1, 2)) > 6)
+        fitted = fitted.with_stars(which[k[good]], psf_stars(fit, np.flatnonzero(good), 0))
+        ok[k] = good
+    return FitOutcome(fitted, no_spots(), ok)
