@@ -22,21 +22,10 @@ from star_tracker.ros import convert  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)
 
 from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
-from conftest import join_isolated_ros_domain  # noqa: E402
+from conftest import join_isolated_ros_domain, spots_at  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
 
 ARCSEC = np.radians(1 / 3600)
-
-
-def star_spots(catalog, camera, rotation):
-    stars = catalog.brighter_than(6.8).at_epoch(2026.0)
-    u, v, front = camera.project(stars.unit_vectors() @ rotation)
-    keep = front & camera.in_image(u, v, margin=3)
-    order = np.argsort(stars.hp[keep])
-    n = order.size
-    return Spots(u[keep][order], v[keep][order], 1e5 * 10 ** (-0.4 * stars.hp[keep][order]), np.full(n, 50.0),
-                 np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.ones(n, np.int32), np.ones(n),
-                 camera.width, camera.height)
 
 
 @pytest.mark.integration
@@ -61,7 +50,7 @@ def test_identifier_node_publishes_only_verified_attitudes(monkeypatch, tmp_path
         spin(30.0, until=lambda: pub_spots.get_subscription_count() > 0 and pub_info.get_subscription_count() > 0)
         rng = np.random.default_rng(21)
         truth = radec_roll_to_matrix(2.0, -0.4, 1.0)
-        good = star_spots(catalog, nominal_camera, truth)
+        good = spots_at(catalog.brighter_than(6.8).at_epoch(2026.0), nominal_camera, truth)
         n = 30
         random_spots = Spots(rng.uniform(0, 1023, n), rng.uniform(0, 1023, n), rng.uniform(1, 1e3, n), np.full(n, 30.0),
                              np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.ones(n, np.int32),
