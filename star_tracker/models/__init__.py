@@ -1,0 +1,2 @@
+"""Shared models every stage uses: the camera (pixel <-> ray), the star catalog (and its
+validated on-disk cache), rotations, and attitude estimation from vector pairs."""
