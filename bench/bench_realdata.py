@@ -207,7 +207,9 @@ def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
     code, record, elapsed, err = run_solve_command(argv)
     solved = code == 0 and bool(record and record.get("solved"))
     rotation = quaternion_to_matrix(np.asarray(record["quaternion_xyzw"], float)) if solved else None
-    result = {"solved": solved, "status": (record or {}).get("status", f"exit code {code}"),
+    attempts = (record or {}).get("attempts") or [{}]
+    status = (record or {}).get("status") or attempts[-1].get("status") or f"exit code {code}"
+    result = {"solved": solved, "status": status,
               "matched": len(record["matched"]) if solved else 0, "time_s": elapsed,
               "spots": (record or {}).get("spots"),
               "fov_x_deg": (record or {}).get("camera", {}).get("fov_x_deg") if solved else None,
@@ -423,7 +425,7 @@ def _cell(s: dict | None) -> str:
     if s is None:
         return "| | | | | "
     if not s["solved"]:
-        verdict = "no" if s["status"] in ("no_match", "failed", "timeout", "too_few") else f"no ({s['status']})"
+        verdict = "no (parity flip)" if s["status"] == "parity_flip" else "no"  # the reason is in the JSON
     elif s["within_1arcmin"] is None:
         verdict = "yes / ?"
     else:
