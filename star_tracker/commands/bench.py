@@ -79,6 +79,9 @@ BENCHES = (
           "pipeline throughput and overload through the nodes"),
     Bench("soak", "bench.bench_soak", ("--minutes", "10", "--output", "{out}"), ("--minutes", "2", "--output", "{out}"),
           "memory growth and latency drift of the nodes over 10 min, 2 with --quick"),
+    Bench("realdata", "bench.bench_realdata", ("--output", "{out}"),
+          ("--only", "gran_vega_05sec,openstartracker_img0", "--output", "{out}"),
+          "real sky images (../shared/realdata) against their references, peers", peers=True),
 )
 # Not a benchmark: the figures drawn from the benchmarks' JSON results (bench/plots.py),
 # run after them; `python -m bench.plots` alone redraws them without rerunning anything.

@@ -1,0 +1,568 @@
+"""Real-image benchmark (issue 17, item 4): our solver and two peers on the real-sky corpus.
+
+    python -m bench.bench_realdata [--output docs/BENCHMARKS.md] [--only ID,...] [--corpus DIR] [--no-peers]
+
+Corpus: every image of MANIFEST.json in ../shared/realdata (the folder beside the repository;
+from a git worktree, the one beside the main worktree), used in place, never copied. Each
+reference attitude (`reference.quat_xyzw_sensor_to_icrs`) is an astrometry.net TAN-SIP solve
+in our sensor frame (+x image right, +y image down, +z boresight; quaternion sensor -> ICRS).
+
+- Ours: exactly `star-tracker solve IMG --fov <fov_h_deg> --json` with every other option at
+  its default, run in-process through the CLI's own parser and run() (image reading,
+  centroiding, the field search and focal refinement are the command's). Time = wall time of
+  that call. A warm-up call (untimed) precedes it when its pattern database was not cached yet
+  and before the first image (numba kernels load on first use).
+- tetra3rs 0.14 has no image-level solve call; its documented image path is
+  `extract_centroids(image)` -> `SolverDatabase.solve_from_centroids(centroids, fov_estimate_deg,
+  image_width, image_height, fov_max_error_deg)`, both at their defaults. Time = both calls.
+- cedar-solve 0.5.1: `Tetra3.solve_from_image(PIL image, fov_estimate, fov_max_error)` at its
+  defaults (its own centroider, match radius, threshold, 5 s timeout, distortion 0). Time =
+  that call.
+- Both peers get the same field hint as ours (the manifest's fov_h_deg, +-5 %: our
+  --fov-tolerance default) and the same grey pixels our command solves (colour averaged to
+  float32 grey, 16-bit kept as uint16). Their databases hold the same guide stars as ours
+  (Hipparcos at epoch 2026.0, Hp, our automatic magnitude limit for the field), one
+  multiscale database per group of similar fields in the corpus (bench/peers.py builds and
+  caches them under <cache>/bench_peers).
+
+Scoring (radians inside, arcseconds only in the output): boresight error = angle between the
+solved and reference +z axes; roll error = rotation angle about +z of the error rotation
+R_ref^T R_solved; "within 1'" = solved with boresight error <= 1 arcmin. Images without a
+reference count as unscored.
+
+Writes the `## Real images` section of --output with bench/report.py's write_section and the
+raw results to bench_realdata.json beside it.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime as dt
+import io
+import json
+import math
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from star_tracker.commands.bench import report_progress
+
+from . import peers as peer_adapters
+from .report import cpu_model, write_section
+
+REPO = Path(__file__).resolve().parents[1]
+CORPUS_RELATIVE = Path("shared") / "realdata"  # beside the repository
+ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
+WITHIN_RAD = math.radians(1.0 / 60.0)  # "solved within 1'": boresight error bound
+FOV_HINT_TOLERANCE = 0.05  # our `solve --fov-tolerance` default (5 %), given to the peers too
+EPOCH_JYEAR = 2026.0  # our `solve --epoch` default
+FIELD_GROUP_GAP = 1.10  # fields more than 10 % apart get separate peer databases
+PEERS = ("tetra3rs", "cedar-solve")
+
+
+# ----------------------------------------------------------------------------------------
+# Corpus
+
+
+class CorpusMissing(RuntimeError):
+    """The real-image corpus (MANIFEST.json) is not where it should be."""
+
+
+def corpus_candidates(repo: Path = REPO) -> list[Path]:
+    """Where the corpus may be: beside the repository, and, when `repo` is a git worktree,
+    beside its main worktree (the folder holding the shared .git directory)."""
+    candidates = [repo.parent / CORPUS_RELATIVE]
+    try:
+        common = subprocess.run(["git", "-C", str(repo), "rev-parse", "--path-format=absolute", "--git-common-dir"],
+                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+        main_worktree = Path(common).parent
+        if main_worktree.resolve() != repo.resolve():
+            candidates.append(main_worktree.parent / CORPUS_RELATIVE)
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return candidates
+
+
+def find_corpus(explicit: Path | None = None, repo: Path = REPO) -> Path:
+    """The corpus folder (holding MANIFEST.json): `explicit`, else the first candidate of
+    corpus_candidates. Raises CorpusMissing naming the places looked at."""
+    candidates = [Path(explicit)] if explicit is not None else corpus_candidates(repo)
+    for folder in candidates:
+        if (folder / "MANIFEST.json").is_file():
+            return folder.resolve()
+    raise CorpusMissing("real-image corpus not found: no MANIFEST.json in " + ", ".join(str(c) for c in candidates)
+                        + " (the corpus lives in shared/realdata beside the repository; give --corpus DIR)")
+
+
+@dataclass(frozen=True)
+class CorpusImage:
+    """One manifest entry: id, path (absolute), source (the public repository it came from),
+    width, height [px], fov_h_deg: the horizontal field hint [deg]; reference: the reference
+    rotation sensor -> ICRS (3x3) or None when the corpus has none."""
+
+    id: str
+    path: Path
+    source: str
+    width: int
+    height: int
+    fov_h_deg: float
+    reference: np.ndarray | None
+    confidence: str | None
+
+
+def load_corpus(corpus: Path, only: list[str] | None = None) -> list[CorpusImage]:
+    """The manifest's images, in manifest order (only those named in `only` when given)."""
+    from star_tracker.models.attitude import quaternion_to_matrix
+
+    manifest = json.loads((corpus / "MANIFEST.json").read_text())
+    images = []
+    for entry in manifest["images"]:
+        if only and entry["id"] not in only:
+            continue
+        reference = entry.get("reference") or None
+        rotation = quaternion_to_matrix(np.asarray(reference["quat_xyzw_sensor_to_icrs"], float)) if reference else None
+        images.append(CorpusImage(entry["id"], corpus / entry["file"], entry["source_repo"], int(entry["width"]),
+                                  int(entry["height"]), float(entry["fov_h_deg"]), rotation,
+                                  reference.get("confidence") if reference else None))
+    if only:
+        unknown = sorted(set(only) - {image.id for image in images})
+        if unknown:
+            raise ValueError(f"unknown image id(s) {', '.join(unknown)}; see {corpus / 'MANIFEST.json'}")
+    return images
+
+
+# ----------------------------------------------------------------------------------------
+# Scoring
+
+
+def attitude_errors(solved: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
+    """(boresight, roll) errors [rad] of a solved sensor -> ICRS rotation against the
+    reference one: boresight = angle between the two +z axes (in ICRS); roll = |angle about +z|
+    of the error rotation R_ref^T R_solved (expressed in the reference sensor frame)."""
+    solved, reference = np.asarray(solved, float), np.asarray(reference, float)
+    z, z_ref = solved[:, 2], reference[:, 2]
+    boresight = math.atan2(float(np.linalg.norm(np.cross(z, z_ref))), float(z @ z_ref))
+    error = reference.T @ solved
+    roll = math.atan2(error[1, 0] - error[0, 1], error[0, 0] + error[1, 1])
+    return boresight, abs(roll)
+
+
+def score(rotation: np.ndarray | None, image: CorpusImage) -> dict:
+    """Errors [rad] of a solution against the image's reference (None when either is absent)
+    and whether it is within 1' (boresight)."""
+    if rotation is None or image.reference is None:
+        return {"boresight_error_rad": None, "roll_error_rad": None, "within_1arcmin": None}
+    boresight, roll = attitude_errors(rotation, image.reference)
+    return {"boresight_error_rad": boresight, "roll_error_rad": roll, "within_1arcmin": bool(boresight <= WITHIN_RAD)}
+
+
+# ----------------------------------------------------------------------------------------
+# Ours: the `solve` command itself
+
+
+def solve_argv(image: CorpusImage) -> list[str]:
+    """The command line of our solve, every option but the field at its default."""
+    return ["solve", str(image.path), "--fov", f"{image.fov_h_deg:g}", "--json", "--quiet"]
+
+
+def run_solve_command(argv: list[str]) -> tuple[int, dict | None, float, str]:
+    """Run `star-tracker <argv>` in-process through the CLI's parser and the command's run();
+    returns (exit code, its --json document or None, wall time [s], its stderr)."""
+    from star_tracker.cli import build_parser
+
+    args = build_parser().parse_args(argv)
+    out, err = io.StringIO(), io.StringIO()
+    started = time.perf_counter()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = args.func(args)
+    elapsed = time.perf_counter() - started
+    text = out.getvalue().strip()
+    return code, (json.loads(text) if text else None), elapsed, err.getvalue()
+
+
+def pairs_database_cached(image: CorpusImage) -> bool:
+    """Whether the pattern database our solve uses for this image's nominal field is cached."""
+    from star_tracker.commands.common import database_config_for
+    from star_tracker.models.catalog import cache_dir
+
+    config = database_config_for(math.radians(image.fov_h_deg), image.width, image.height, None, EPOCH_JYEAR)
+    return (cache_dir() / f"pairs_{config.cache_key()}.npz").is_file()
+
+
+def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
+    """Our result for one image (the solve command; see the module docstring)."""
+    from star_tracker.models.attitude import quaternion_to_matrix
+
+    argv = solve_argv(image)
+    if warm_up or not pairs_database_cached(image):
+        run_solve_command(argv)  # builds/loads the database, loads the kernels: not timed
+    code, record, elapsed, err = run_solve_command(argv)
+    solved = code == 0 and bool(record and record.get("solved"))
+    rotation = quaternion_to_matrix(np.asarray(record["quaternion_xyzw"], float)) if solved else None
+    attempts = (record or {}).get("attempts") or [{}]
+    status = (record or {}).get("status") or attempts[-1].get("status") or f"exit code {code}"
+    result = {"solved": solved, "status": status,
+              "matched": len(record["matched"]) if solved else 0, "time_s": elapsed,
+              "spots": (record or {}).get("spots"),
+              "fov_x_deg": (record or {}).get("camera", {}).get("fov_x_deg") if solved else None,
+              "attempts": len((record or {}).get("attempts", [])),
+              "quat_xyzw_sensor_to_icrs": record["quaternion_xyzw"] if solved else None,
+              "error": err.strip()[-300:] if code == 2 else None}
+    result.update(score(rotation, image))
+    return result
+
+
+# ----------------------------------------------------------------------------------------
+# Peers
+
+
+def field_groups(images: list[CorpusImage]) -> list[tuple[float, float]]:
+    """(narrowest, widest) horizontal field [deg] of each group of similar fields: sorted
+    fields split where one is more than FIELD_GROUP_GAP times the previous."""
+    fields = sorted({image.fov_h_deg for image in images})
+    groups: list[list[float]] = []
+    for fov in fields:
+        if groups and fov <= groups[-1][-1] * FIELD_GROUP_GAP:
+            groups[-1].append(fov)
+        else:
+            groups.append([fov])
+    return [(g[0], g[-1]) for g in groups]
+
+
+def group_of(image: CorpusImage, groups: list[tuple[float, float]]) -> tuple[float, float]:
+    return next(g for g in groups if g[0] <= image.fov_h_deg <= g[1])
+
+
+class PeerDatabases:
+    """The peers' solvers, one per (peer, field group), built on first use and cached on disk
+    by bench/peers.py. Database range: the group's fields widened by the hint tolerance;
+    guide stars: ours for the group's narrowest field (the faintest magnitude limit)."""
+
+    def __init__(self, images: list[CorpusImage], cache: Path):
+        from star_tracker.models.catalog import load_hipparcos
+
+        self.groups = field_groups(images)
+        self.images = images
+        self.cache = cache
+        self.catalog = load_hipparcos().at_epoch(EPOCH_JYEAR)
+        self._solvers: dict[tuple[str, tuple[float, float]], object] = {}
+        self.settings: dict[str, dict] = {}
+
+    def magnitude_limit(self, group: tuple[float, float]) -> float:
+        from star_tracker.commands.common import auto_magnitude_limit
+
+        narrowest = min((i for i in self.images if group[0] <= i.fov_h_deg <= group[1]), key=lambda i: i.fov_h_deg)
+        return auto_magnitude_limit(math.radians(narrowest.fov_h_deg), narrowest.width, narrowest.height)
+
+    def solver(self, peer: str, image: CorpusImage):
+        group = group_of(image, self.groups)
+        key = (peer, group)
+        if key not in self._solvers:
+            limit = self.magnitude_limit(group)
+            stars = self.catalog.brighter_than(limit)
+            catalog = peer_adapters.PeerCatalog(stars.hip.astype(np.int64), stars.ra, stars.dec, stars.hp)
+            camera = peer_adapters.PeerCamera(image.width, image.height, image.fov_h_deg)
+            min_fov = round(group[0] * (1.0 - FOV_HINT_TOLERANCE), 3)
+            max_fov = round(group[1] * (1.0 + FOV_HINT_TOLERANCE), 3)
+            if peer == "tetra3rs":
+                database = dict(max_fov_deg=max_fov, min_fov_deg=min_fov, star_max_magnitude=limit,
+                                epoch_proper_motion_year=EPOCH_JYEAR)
+                solver = peer_adapters.Tetra3rsSolver(catalog, camera, database, {}, self.cache)
+            else:
+                database = dict(max_fov=max_fov, min_fov=min_fov, star_max_magnitude=limit)
+                solver = peer_adapters.CedarSolver(catalog, camera, database, {}, self.cache)
+            self._solvers[key] = solver
+            self.settings[f"{peer} {group[0]:g}-{group[1]:g} deg"] = {
+                "database": database, "build_seconds": solver.build_seconds, "from_cache": solver.from_cache,
+                "patterns": solver.pattern_count, "bytes": solver.database_bytes}
+        return self._solvers[key]
+
+
+def peer_pixels(pixels: np.ndarray) -> np.ndarray:
+    """The grey image our solve reads, as the peers take it: uint8/uint16 kept, anything else
+    float32 (both peers accept these; cedar-solve converts to float32 itself)."""
+    if pixels.dtype in (np.uint8, np.uint16):
+        return np.ascontiguousarray(pixels)
+    return np.ascontiguousarray(pixels, dtype=np.float32)
+
+
+def solve_tetra3rs(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
+    """tetra3rs's image path at its defaults (see the module docstring)."""
+    import tetra3rs
+
+    height, width = pixels.shape
+    started = time.perf_counter()
+    extraction = tetra3rs.extract_centroids(pixels)
+    result = solver._db.solve_from_centroids(extraction.centroids, fov_estimate_deg=image.fov_h_deg,
+                                             image_width=width, image_height=height,
+                                             fov_max_error_deg=FOV_HINT_TOLERANCE * image.fov_h_deg)
+    elapsed = time.perf_counter() - started
+    out = {"solved": False, "status": str(getattr(result, "status", "failed")), "matched": 0, "time_s": elapsed,
+           "spots": len(extraction.centroids)}
+    rotation = None
+    if result:
+        if bool(result.parity_flip):
+            out["status"] = "parity_flip"
+        else:
+            u, _, vt = np.linalg.svd(np.asarray(result.rotation_matrix_icrs_to_camera, float).T)
+            rotation = u @ vt  # nearest rotation to the single-precision matrix
+            out.update(solved=True, status="solved", matched=int(result.num_matches), fov_x_deg=float(result.fov_deg))
+    out.update(score(rotation, image))
+    return out
+
+
+def solve_cedar(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
+    """cedar-solve's solve_from_image at its defaults (see the module docstring); the full
+    attitude from its target_pixel output (centre and a point right of it)."""
+    from PIL import Image
+
+    height, width = pixels.shape
+    picture = Image.fromarray(pixels)
+    centre = (height / 2.0, width / 2.0)  # (y, x) from the top-left pixel corner
+    targets = np.array([centre, (centre[0], centre[1] + width / 4.0)])
+    started = time.perf_counter()
+    result = solver._t3.solve_from_image(picture, fov_estimate=image.fov_h_deg,
+                                         fov_max_error=FOV_HINT_TOLERANCE * image.fov_h_deg, target_pixel=targets)
+    elapsed = time.perf_counter() - started
+    out = {"solved": False, "status": peer_adapters._cedar_status(result.get("status")), "matched": 0,
+           "time_s": elapsed, "spots": None}
+    rotation = None
+    if result.get("RA") is not None:
+        ra, dec = np.radians(result["RA_target"]), np.radians(result["Dec_target"])
+        directions = np.stack([np.cos(dec) * np.cos(ra), np.cos(dec) * np.sin(ra), np.sin(dec)], axis=1)
+        z = directions[0]
+        x_axis = directions[1] - z * (directions[1] @ z)
+        x_axis /= np.linalg.norm(x_axis)
+        rotation = np.stack([x_axis, np.cross(z, x_axis), z], axis=1)
+        out.update(solved=True, status="solved", matched=int(result["Matches"]), fov_x_deg=float(result["FOV"]))
+    out.update(score(rotation, image))
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# The run
+
+
+def run_benchmark(images: list[CorpusImage], peers: list[str], cache: Path,
+                  corpus_images: list[CorpusImage] | None = None, log=print, progress=None) -> dict:
+    """Solve `images` with ours and `peers`; the peers' databases are grouped over the fields
+    of `corpus_images` (default: `images`), so that a subset run uses the full run's databases."""
+    from star_tracker.commands.images import read_image
+
+    databases = PeerDatabases(corpus_images or images, cache) if peers else None
+    rows = []
+    started = time.perf_counter()
+    for index, image in enumerate(images):
+        row = {"id": image.id, "source": image.source, "file": str(image.path.relative_to(image.path.parents[1])),
+               "width": image.width, "height": image.height, "fov_h_deg": image.fov_h_deg,
+               "has_reference": image.reference is not None, "reference_confidence": image.confidence,
+               "solvers": {}}
+        row["solvers"]["ours"] = solve_ours(image, warm_up=index == 0)
+        pixels = peer_pixels(read_image(image.path).pixels)
+        for peer in peers:
+            solver = databases.solver(peer, image)
+            solve = solve_tetra3rs if peer == "tetra3rs" else solve_cedar
+            row["solvers"][peer] = solve(solver, pixels, image)
+        rows.append(row)
+        log(f"{image.id}: " + "; ".join(f"{name} {_brief(s)}" for name, s in row["solvers"].items()))
+        if progress is not None:
+            progress(index + 1, len(images), image.id)
+    return {"images": rows, "summary": summarize(rows, ["ours", *peers]),
+            "peer_databases": databases.settings if databases else {},
+            "meta": {"elapsed_s": time.perf_counter() - started, "peers": list(peers)}}
+
+
+def _brief(s: dict) -> str:
+    if not s["solved"]:
+        return f"not solved ({s['status']}, {s['time_s']:.2f} s)"
+    error = "" if s["boresight_error_rad"] is None else f", {s['boresight_error_rad'] * ARCSEC_PER_RAD:.1f}\""
+    return f"{s['matched']} stars{error}, {s['time_s']:.2f} s"
+
+
+def summarize(rows: list[dict], solvers: list[str]) -> dict:
+    """Per solver: images, scored (with a reference), solved, within 1', median boresight and
+    roll error over the scored solves [rad], median solve time [s] over all images."""
+    summary = {}
+    for name in solvers:
+        results = [row["solvers"][name] for row in rows if name in row["solvers"]]
+        scored = [r for r in results if r["boresight_error_rad"] is not None]
+        summary[name] = {
+            "images": len(results),
+            "with_reference": sum(row["has_reference"] for row in rows if name in row["solvers"]),
+            "solved": sum(r["solved"] for r in results),
+            "within_1arcmin": sum(bool(r["within_1arcmin"]) for r in results),
+            "median_boresight_error_rad": _median([r["boresight_error_rad"] for r in scored]),
+            "median_roll_error_rad": _median([r["roll_error_rad"] for r in scored]),
+            "median_matched_within_1arcmin": _median([r["matched"] for r in results if r["within_1arcmin"]]),
+            "median_time_s": _median([r["time_s"] for r in results]),
+            "total_time_s": float(sum(r["time_s"] for r in results)),
+        }
+    return summary
+
+
+def _median(values: list) -> float | None:
+    return float(np.median(values)) if values else None
+
+
+# ----------------------------------------------------------------------------------------
+# Report
+
+
+def _arcsec(value: float | None) -> str:
+    return "–" if value is None else f"{value * ARCSEC_PER_RAD:.1f}"
+
+
+def _cell(s: dict | None) -> str:
+    """One solver's cells: solved/within 1', matched stars, boresight ″, roll ″, time s."""
+    if s is None:
+        return "| | | | | "
+    if not s["solved"]:
+        verdict = "no (parity flip)" if s["status"] == "parity_flip" else "no"  # the reason is in the JSON
+    elif s["within_1arcmin"] is None:
+        verdict = "yes / ?"
+    else:
+        verdict = "yes / **yes**" if s["within_1arcmin"] else "yes / no"
+    return (f"| {verdict} | {s['matched'] if s['solved'] else ''} | {_arcsec(s['boresight_error_rad'])} | "
+            f"{_arcsec(s['roll_error_rad'])} | {s['time_s']:.2f} ")
+
+
+def _ratio(a: float | None, b: float | None, digits: int = 2) -> str:
+    if a is None or b is None or b == 0:
+        return "–"
+    return f"{a / b:.{digits}f}"
+
+
+def render_markdown(results: dict) -> str:
+    meta = results["meta"]
+    solvers = ["ours", *meta["peers"]]
+    summary = results["summary"]
+    versions = meta.get("versions", {})
+    lines = [
+        "## Real images",
+        "",
+        f"Command: `{meta.get('command', 'python -m bench.bench_realdata')}`. Measured {meta.get('date', '?')} in "
+        f"{meta['elapsed_s']:.0f} s. Machine: {meta.get('cpu', '?')}, `nproc` = {meta.get('cores', '?')}; "
+        f"Python {meta.get('python', '?')}; tetra3rs {versions.get('tetra3rs') or 'not installed'}, cedar-solve "
+        f"{versions.get('cedar-solve') or 'not installed'}. Raw results: `docs/bench_realdata.json`.",
+        "",
+        "Corpus: `../shared/realdata/MANIFEST.json` (real sky images from public repositories, used in place; "
+        "references from astrometry.net TAN-SIP solves, sensor frame +x right, +y down, +z boresight). "
+        "**Ours** = `star-tracker solve IMG --fov <fov_h_deg>` with every other option at its default (run "
+        "in-process through the CLI; time = the whole command: image read, centroiding, field search, focal "
+        "refinement; database already cached). **tetra3rs**: `extract_centroids` + `solve_from_centroids` "
+        "(it has no image-level solve), **cedar-solve**: `solve_from_image`; both at their defaults with the same "
+        "field hint (fov_h_deg, max error 5 % as our `--fov-tolerance`) and the same grey pixels, databases of "
+        "the same Hipparcos guide stars as ours for each group of fields (table at the end). Boresight error = "
+        "angle between solved and reference boresights; roll = angle of the error rotation about the boresight; "
+        "**within 1′** = boresight error ≤ 1′. \"?\" = no reference for that image.",
+        "",
+        "| image | source | field ° | " + " | ".join(
+            f"{name}: solved / ≤1′ | {name}: stars | {name}: boresight ″ | {name}: roll ″ | {name}: time s"
+            for name in solvers) + " |",
+        "|---|---|---:|" + "|".join([":-:|---:|---:|---:|---:"] * len(solvers)) + "|",
+    ]
+    for row in results["images"]:
+        cells = "".join(_cell(row["solvers"].get(name)) for name in solvers)
+        lines.append(f"| {row['id']} | {row['source']} | {row['fov_h_deg']:.2f} {cells}|")
+    lines += [
+        "",
+        "Summary:",
+        "",
+        "| solver | solved | within 1′ (of scored) | median boresight error ″ | median roll error ″ | "
+        "median stars (≤1′ solves) | median time s | total time s |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for name in solvers:
+        s = summary[name]
+        stars = "–" if s["median_matched_within_1arcmin"] is None else f"{s['median_matched_within_1arcmin']:g}"
+        median_time = "–" if s["median_time_s"] is None else f"{s['median_time_s']:.2f}"
+        lines.append(f"| {name} | {s['solved']}/{s['images']} | {s['within_1arcmin']}/{s['with_reference']} | "
+                     f"{_arcsec(s['median_boresight_error_rad'])} | {_arcsec(s['median_roll_error_rad'])} | "
+                     f"{stars} | {median_time} | {s['total_time_s']:.1f} |")
+    ours = summary["ours"]
+    for peer in meta["peers"]:
+        theirs = summary[peer]
+        both = [row for row in results["images"] if row["solvers"]["ours"]["within_1arcmin"]
+                and row["solvers"][peer]["within_1arcmin"]]
+        star_ratio = _median([row["solvers"]["ours"]["matched"] / row["solvers"][peer]["matched"] for row in both])
+        lines.append(
+            f"- Ours / {peer}: within 1′ {ours['within_1arcmin']} vs {theirs['within_1arcmin']} "
+            f"(ratio {_ratio(ours['within_1arcmin'], theirs['within_1arcmin'])}); median boresight error "
+            f"{_ratio(ours['median_boresight_error_rad'], theirs['median_boresight_error_rad'])}×; median time "
+            f"{_ratio(ours['median_time_s'], theirs['median_time_s'])}×; total time "
+            f"{_ratio(ours['total_time_s'], theirs['total_time_s'])}×; matched stars on the {len(both)} images both "
+            f"solve within 1′: median ratio {'–' if star_ratio is None else f'{star_ratio:.2f}'}.")
+    if results.get("peer_databases"):
+        lines += ["", "Peer databases (built once, cached in `~/.cache/star_tracker/bench_peers`):", "",
+                  "| peer, fields | database settings | patterns | MB | build s |", "|---|---|---:|---:|---:|"]
+        for label, d in results["peer_databases"].items():
+            settings = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in d["database"].items())
+            lines.append(f"| {label} | {settings} | {d['patterns']} | {d['bytes'] / 1e6:.1f} | "
+                         f"{d['build_seconds']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def machine_info() -> dict:
+    versions = {}
+    for package in PEERS:
+        try:
+            versions[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            versions[package] = None
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version(),
+            "platform": platform.platform(), "versions": versions}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--output", type=Path, help="write the '## Real images' section of this Markdown file")
+    parser.add_argument("--json", type=Path, help="raw results (default: bench_realdata.json beside --output)")
+    parser.add_argument("--only", help="comma-separated image ids of the manifest (default: all)")
+    parser.add_argument("--corpus", type=Path, help="corpus folder holding MANIFEST.json (default: ../shared/realdata "
+                                                    "beside the repository)")
+    parser.add_argument("--no-peers", action="store_true", help="our solver only")
+    args = parser.parse_args(argv)
+    try:
+        corpus = find_corpus(args.corpus)
+    except CorpusMissing as exc:
+        print(f"bench_realdata: {exc}", file=sys.stderr)
+        return 2
+    only = [name.strip() for name in args.only.split(",") if name.strip()] if args.only else None
+    images = load_corpus(corpus, only)
+    peers: list[str] = []
+    if not args.no_peers:
+        for peer, problem in peer_adapters.available().items():
+            if problem is None:
+                peers.append(peer)
+            else:
+                print(f"peer {peer} skipped: {problem} (pip install -r requirements-bench.txt)", file=sys.stderr)
+    from star_tracker.models.catalog import cache_dir
+
+    date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    results = run_benchmark(images, peers, cache_dir() / "bench_peers", load_corpus(corpus),
+                            log=lambda text: print(text, file=sys.stderr, flush=True), progress=report_progress)
+    info = machine_info()
+    results["meta"].update(command="python -m bench.bench_realdata" + "".join(
+        f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:])), date=date, corpus=str(corpus),
+        cpu=info["cpu"], cores=info["cores"], python=info["python"], platform=info["platform"],
+        versions=info["versions"])
+    text = render_markdown(results)
+    print(text)
+    json_path = args.json or (args.output.parent / "bench_realdata.json" if args.output else None)
+    if args.output:
+        write_section(args.output, text)
+    if json_path:
+        json_path.write_text(json.dumps(results, indent=1, default=float) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
