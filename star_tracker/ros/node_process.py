@@ -48,6 +48,7 @@ def check_cache_directory(environ=os.environ) -> None:
 
 
 SHUTDOWN_WATCHDOG_S = 10.0  # [s] from the end of the spin to the end of the process
+STOP_POLL_S = 0.5  # [s] longest wait of the spin between checks of a requested stop
 
 
 def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
@@ -62,15 +63,21 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     code = 0
     initialized = spinning = False
 
-    def on_sigint(signum, frame):
-        # rclpy's own handler has already shut the context down, which ends the spin cleanly.
-        # A KeyboardInterrupt on top would land in whatever Python code the main thread runs,
-        # and inside a __del__ it is only printed ("Exception ignored ... Traceback").
+    stop_requested = threading.Event()
+
+    def on_stop_signal(signum, frame):
+        # rclpy's own handler (which chains to this one) normally shuts the context down and
+        # wakes the spin. Once a replayed node in CI went on waiting after SIGINT (its stacks:
+        # the main thread in the executor's wait), so the spin also polls this flag. A
+        # KeyboardInterrupt would land in whatever Python code the main thread runs, and
+        # inside a __del__ it is only printed ("Exception ignored ... Traceback").
         if not spinning:
             raise KeyboardInterrupt  # still starting up: stop now
+        stop_requested.set()
 
     main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, on_sigint) if main_thread else None
+    stop_signals = (signal.SIGINT, signal.SIGTERM)
+    previous = {sig: signal.signal(sig, on_stop_signal) for sig in stop_signals} if main_thread else {}
     if main_thread and hasattr(signal, "SIGUSR1"):
         # `kill -USR1 <pid>` prints every thread's stack to stderr, even while the main
         # thread is blocked in C (a node that does not stop, a stuck DDS call).
@@ -84,7 +91,7 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
         report_unknown_parameters(node)
         node.get_logger().info("ready")
         spinning = True
-        rclpy.spin(node)
+        spin_until_stopped(node, stop_requested)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as exc:  # startup errors: bad parameters, unreadable catalog, ...
@@ -104,6 +111,18 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-        if main_thread:
-            signal.signal(signal.SIGINT, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return code
+
+
+def spin_until_stopped(node: Node, stop_requested: threading.Event) -> None:
+    """rclpy.spin on the global executor, but waiting at most STOP_POLL_S at a time, so a stop
+    signal ends the spin even if its wake-up of the executor is lost."""
+    executor = rclpy.get_global_executor()
+    executor.add_node(node)
+    try:
+        while executor.context.ok() and not stop_requested.is_set():
+            executor.spin_once(timeout_sec=STOP_POLL_S)
+    finally:
+        executor.remove_node(node)

@@ -73,3 +73,38 @@ def test_sigusr1_prints_every_thread_stack_and_the_node_runs_on():
         if process.poll() is None:
             process.kill()
     assert "Current thread" in output and "in run_node" in output and "in spin" in output, output
+
+
+# A node whose process has lost rclpy's own signal handling (its wake-up of the executor):
+# only run_node's handlers see the signal, as when that wake-up is lost in a race.
+DEAF_NODE = textwrap.dedent("""
+    import sys
+    from rclpy.node import Node
+    from rclpy.signals import uninstall_signal_handlers
+    from star_tracker.ros import node_process
+
+    class Deaf(Node):
+        def __init__(self):
+            super().__init__("deaf_to_rclpy_signals")
+            uninstall_signal_handlers()
+
+    sys.exit(node_process.run_node(Deaf, sys.argv))
+""")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["sigint", "sigterm"])
+def test_a_stop_signal_ends_the_spin_even_without_rclpys_wake_up(sig):
+    process = subprocess.Popen([sys.executable, "-c", DEAF_NODE], env=isolated_ros_environment(),
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        line = process.stdout.readline()
+        assert "ready" in line, line + process.stdout.read()
+        time.sleep(0.3)
+        process.send_signal(sig)
+        code = process.wait(timeout=30)  # the poll ends the spin within STOP_POLL_S of the signal
+        output = process.stdout.read()
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert code == 0, output
