@@ -594,13 +594,7 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     setups = _names(args.setups, SETUPS, "setups")
     algorithms = _names(args.algorithms, ALGORITHMS, "algorithms")
-    peers: list[str] = []
-    if not args.no_peers:
-        for peer, problem in peer_adapters.available().items():
-            if problem is None:
-                peers.append(peer)
-            else:
-                print(f"peer {peer} skipped: {problem} (pip install -r requirements-bench.txt)", file=sys.stderr)
+    peers = [] if args.no_peers else peer_adapters.usable_peers()
 
     results = run_benchmark(setups, algorithms, args.scenes, args.seed, peers, args.tune_scenes, args.hard_scenes,
                             log=lambda text: print(text, file=sys.stderr, flush=True), progress=report_progress)

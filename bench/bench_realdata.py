@@ -537,13 +537,7 @@ def main(argv=None) -> int:
         return 2
     only = [name.strip() for name in args.only.split(",") if name.strip()] if args.only else None
     images = load_corpus(corpus, only)
-    peers: list[str] = []
-    if not args.no_peers:
-        for peer, problem in peer_adapters.available().items():
-            if problem is None:
-                peers.append(peer)
-            else:
-                print(f"peer {peer} skipped: {problem} (pip install -r requirements-bench.txt)", file=sys.stderr)
+    peers = [] if args.no_peers else peer_adapters.usable_peers()
     from star_tracker.models.catalog import cache_dir
 
     date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

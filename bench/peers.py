@@ -18,6 +18,7 @@ The conversions were checked against simulator truth (mean offset < 0.02 px in x
 from __future__ import annotations
 
 import importlib
+import sys
 import threading
 import warnings
 from importlib import metadata
@@ -39,6 +40,17 @@ def available() -> dict[str, str | None]:
         except Exception as exc:  # noqa: BLE001 - any failure means "not usable", report it
             out[name] = f"{type(exc).__name__}: {exc}"
     return out
+
+
+def usable_peers() -> list[str]:
+    """The peers that import, in a fixed order; each missing one is named on stderr."""
+    usable = []
+    for peer, problem in available().items():
+        if problem is None:
+            usable.append(peer)
+        else:
+            print(f"peer {peer} skipped: {problem} (pip install -r requirements-bench.txt)", file=sys.stderr)
+    return usable
 
 
 def tetra3rs_centroids(image: np.ndarray) -> np.ndarray:
