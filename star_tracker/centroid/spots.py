@@ -63,10 +63,12 @@ class Spots:
         for name in ("streak_length", "streak_angle"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.zeros(n))
-        self._check_arrays()
+        self.validate()
 
-    def _check_arrays(self) -> None:
-        """Raise ValueError naming the first field whose type, shape or dtype is wrong."""
+    def validate(self) -> None:
+        """Raise ValueError naming the first field whose type, shape or dtype is wrong (run at
+        construction; consumers of a record that may have bypassed it, such as the identifier's
+        compiled kernels, run it again)."""
         for name in _FLOAT_FIELDS + _INTEGER_FIELDS + ("cov",):
             if not isinstance(getattr(self, name), np.ndarray):
                 raise ValueError(f"Spots.{name} must be a numpy array, got {type(getattr(self, name)).__name__}")

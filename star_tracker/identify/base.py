@@ -11,7 +11,7 @@ budget.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Iterator
 
 import numpy as np
@@ -163,23 +163,6 @@ MIN_FIT_SIGMA_PX = 1e-4
 FIT_OUTLIER_SIGMA = 5.0
 
 
-def check_spots(spots: Spots) -> None:
-    """Refuse (ValueError naming the field) a Spots record the compiled kernels would read as
-    garbage: x, y, flux not 1-D of one length N, cov not (N, 2, 2), or another per-spot array
-    (snr, flags, ...) not of length N. Values (NaN, unknown covariances) are prepare's."""
-    if np.ndim(spots.x) != 1:
-        raise ValueError(f"Spots.x must be 1-D, got shape {np.shape(spots.x)}")
-    n = len(spots.x)
-    read_by_kernels = {"x": (n,), "y": (n,), "flux": (n,), "cov": (n, 2, 2)}
-    for name, expected in read_by_kernels.items():
-        if np.shape(getattr(spots, name)) != expected:
-            raise ValueError(f"Spots.{name} has shape {np.shape(getattr(spots, name))}, expected {expected}")
-    for f in fields(spots):
-        value = getattr(spots, f.name)
-        if f.name not in read_by_kernels and isinstance(value, np.ndarray) and (value.ndim == 0 or len(value) != n):
-            raise ValueError(f"Spots.{f.name} has shape {value.shape}, expected {n} entries (one per spot)")
-
-
 def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
     """(N, 3, 2) derivative of the sensor-frame unit ray with respect to the pixel position
     (x, y) [rad/px]: for the pinhole, ray = p / |p| with p = ((x - cx) / fx, (y - cy) / fy, 1),
@@ -258,8 +241,8 @@ class StarIdentifier:
         """Indices (into `spots`) of the finite spots sorted by flux, brightest first, and the
         geometry algorithms work on, in that order. Resets the per-call stats. Compiled
         (spot_kernels.prepare_spots) for undistorted cameras, numpy with distortion. A malformed
-        record is refused first (check_spots: ValueError)."""
-        check_spots(spots)
+        record is refused first (Spots.validate: ValueError)."""
+        spots.validate()
         self.stats = {}
         floor_px = self.config.centroid_sigma_floor_px
         as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
@@ -291,7 +274,7 @@ class StarIdentifier:
         """Identify the stars behind `spots` (pixel positions in `camera`); see Identification.
         Every algorithm runs the same steps: prepare the spots, `search` (the algorithm's
         step: propose and verify hypotheses), then the accepted match's final fit
-        (`solved`). ValueError for a malformed Spots record (check_spots)."""
+        (`solved`). ValueError for a malformed Spots record (Spots.validate)."""
         started = time.perf_counter()
         deadline = started + self.config.max_time_s
         order, geometry = self.prepare(spots, camera)

@@ -207,15 +207,15 @@ def test_identify_refuses_spots_whose_arrays_disagree(algorithm, database, nomin
         "snr": dict(snr=spots.snr[:-2]),
     }
     for field, arrays in cases.items():
-        with pytest.raises(ValueError, match=rf"Spots\.{field} has shape"):
+        with pytest.raises(ValueError, match=rf"Spots\.{field} must have shape"):
             identifier.identify(malformed(spots, **arrays), nominal_camera)
-    with pytest.raises(ValueError, match=r"Spots\.cov has shape \(%d, 2, 3\)" % n):
+    with pytest.raises(ValueError, match=r"Spots\.cov must have shape \(%d, 2, 2\), got \(%d, 2, 3\)" % (n, n)):
         identifier.identify(malformed(spots, cov=np.zeros((n, 2, 3))), nominal_camera)
-    with pytest.raises(ValueError, match=r"Spots\.x must be 1-D"):
+    with pytest.raises(ValueError, match=r"Spots\.x must have shape \(N,\)"):
         identifier.identify(malformed(spots, x=spots.x[:, None]), nominal_camera)
     # Distorted cameras take the numpy path: refused the same way.
     distorted = CameraModel.from_fov(1024, 1024, np.radians(15.0), (-0.01, 0.0, 0.0, 0.0, 0.0))
-    with pytest.raises(ValueError, match=r"Spots\.flux has shape"):
+    with pytest.raises(ValueError, match=r"Spots\.flux must have shape"):
         identifier.identify(malformed(spots, flux=spots.flux[:-1]), distorted)
 
 
@@ -227,5 +227,5 @@ def test_tracking_refuses_malformed_spots_too(database, nominal_camera, catalog)
     tracker = Tracker(make_identifier("hybrid", database))
     prediction = Prediction(0, truth, np.eye(3) * 1e-8)
     assert tracker.track(spots, nominal_camera, prediction)[0].solved
-    with pytest.raises(ValueError, match=r"Spots\.cov has shape"):
+    with pytest.raises(ValueError, match=r"Spots\.cov must have shape"):
         tracker.track(malformed(spots, cov=spots.cov[:, 0]), nominal_camera, prediction)
