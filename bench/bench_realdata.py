@@ -44,7 +44,6 @@ import math
 import os
 import platform
 import shlex
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -76,25 +75,10 @@ class CorpusMissing(RuntimeError):
     """The real-image corpus (MANIFEST.json) is not where it should be."""
 
 
-def corpus_candidates(repo: Path = REPO) -> list[Path]:
-    """Where the corpus may be: beside the repository, and, when `repo` is a git worktree,
-    beside its main worktree (the folder holding the shared .git directory)."""
-    candidates = [repo.parent / CORPUS_RELATIVE]
-    try:
-        common = subprocess.run(["git", "-C", str(repo), "rev-parse", "--path-format=absolute", "--git-common-dir"],
-                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()
-        main_worktree = Path(common).parent
-        if main_worktree.resolve() != repo.resolve():
-            candidates.append(main_worktree.parent / CORPUS_RELATIVE)
-    except (OSError, subprocess.SubprocessError):
-        pass
-    return candidates
-
-
 def find_corpus(explicit: Path | None = None, repo: Path = REPO) -> Path:
-    """The corpus folder (holding MANIFEST.json): `explicit`, else the first candidate of
-    corpus_candidates. Raises CorpusMissing naming the places looked at."""
-    candidates = [Path(explicit)] if explicit is not None else corpus_candidates(repo)
+    """The corpus folder (holding MANIFEST.json): `explicit`, else shared/realdata beside the
+    repository. Raises CorpusMissing naming the place looked at."""
+    candidates = [Path(explicit) if explicit is not None else repo.parent / CORPUS_RELATIVE]
     for folder in candidates:
         if (folder / "MANIFEST.json").is_file():
             return folder.resolve()
