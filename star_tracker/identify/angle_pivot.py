@@ -31,7 +31,6 @@ paper's method alone.
 from __future__ import annotations
 
 import itertools
-import time
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -40,6 +39,7 @@ import numpy as np
 from .base import SpotGeometry, StarIdentifier
 from .database import StarDatabase
 from .geometry import chord_angle, triple_products
+from .deadline import Deadline
 
 
 def pair_angle_sigma(sigma_i: np.ndarray, sigma_j: np.ndarray) -> np.ndarray:
@@ -228,7 +228,7 @@ class AnglePivotIdentifier(StarIdentifier):
         return int(candidates[np.argmin(rank[candidates])])
 
     # -- chains ---------------------------------------------------------------------------
-    def _chain(self, pairs: _SpotPairs, start: int, rank: np.ndarray, excluded: set[int], deadline: float):
+    def _chain(self, pairs: _SpotPairs, start: int, rank: np.ndarray, excluded: set[int], deadline: Deadline):
         """Pivot from angle `start`, never using the spots in `excluded` (extended in place by
         spots found inconsistent); returns (spots, finalists (F, k)) or None (timeout, or
         too many finalists)."""
@@ -244,7 +244,7 @@ class AnglePivotIdentifier(StarIdentifier):
         while pivots < cfg.pivot_limit:
             if finalists.shape[0] == 1 and len(column) >= 3:
                 break
-            if time.perf_counter() > deadline:
+            if deadline.passed():
                 return None
             e = self._next_angle(pairs, previous, used, excluded, rank)
             if e is None:
@@ -315,7 +315,7 @@ class AnglePivotIdentifier(StarIdentifier):
         core = self._solved_core(geometry, np.array(sorted(column, key=column.get)), finalists[0])
         return core if core is not None and core[0].size > spots.size else (spots, stars)
 
-    def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    def hypotheses(self, geometry: SpotGeometry, deadline: Deadline) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         cfg = self.pivot_config
         pairs = measured_pairs(geometry, self.database, self.config.sigma_multiplier,
                                self.config.angle_tolerance_floor_rad)
@@ -347,18 +347,18 @@ class AnglePivotIdentifier(StarIdentifier):
             starts = (None if cfg.restart else 1) if size == 0 else cfg.starts_per_round
             for left_out in itertools.combinations(suspects.tolist(), size):
                 yield from self._round(geometry, pairs, ranking, set(left_out), starts, suspicion, yielded, deadline)
-                if time.perf_counter() > deadline:
+                if deadline.passed():
                     return
 
     def _round(self, geometry: SpotGeometry, pairs: _SpotPairs, ranking: _Ranking, left_out: set[int],
                starts: int | None, suspicion: np.ndarray, yielded: set,
-               deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+               deadline: Deadline) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Chains from the first `starts` (None: all) usable angles in rank order that avoid the
         spots in `left_out`; yields each new solved core. `suspicion` counts, per spot, the
         pivots it emptied, its drops from a consistent core and its rejected hypotheses."""
         chains = 0
         for start in ranking.rank:
-            if time.perf_counter() > deadline or (starts is not None and chains >= starts):
+            if deadline.passed() or (starts is not None and chains >= starts):
                 return
             if (not ranking.usable[start] or int(pairs.first[start]) in left_out
                     or int(pairs.second[start]) in left_out):

@@ -23,6 +23,7 @@ from . import spot_kernels
 from .kernel_records import Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
+from .deadline import BUDGET_CLOCKS, Deadline
 
 SOLVED = "solved"
 TOO_FEW_SPOTS = "too_few_spots"
@@ -45,8 +46,10 @@ class IdentifyConfig:
     covariance (final_fit); match_radius_px: spot to projected-star radius for verification
     [px]; false_positive_bound: largest accepted
     probability that a published solution is a chance match (all hypotheses of the frame);
-    max_time_s: time budget of one identify() call [s]; max_candidates_per_pattern: cap on
-    hypotheses taken from one pattern (a pattern with more is ambiguous)."""
+    max_time_s: time budget of one identify() call [s], counted on budget_clock: "wall"
+    (elapsed time, a node's real-time budget) or "cpu" (this process's CPU time: the same
+    search on an idle and on a loaded host; identify/deadline.py); max_candidates_per_pattern:
+    cap on hypotheses taken from one pattern (a pattern with more is ambiguous)."""
 
     max_pattern_spots: int = 12
     sigma_multiplier: float = 3.0
@@ -56,6 +59,7 @@ class IdentifyConfig:
     false_positive_bound: float = 1.0e-6
     max_time_s: float = 0.5
     max_candidates_per_pattern: int = 50
+    budget_clock: str = "wall"
 
     def __post_init__(self) -> None:
         bad = []
@@ -73,6 +77,8 @@ class IdentifyConfig:
             bad.append(f"false_positive_bound={self.false_positive_bound} must be in (0, 1)")
         if not (0 < self.max_time_s <= 60):
             bad.append(f"max_time_s={self.max_time_s} must be in (0, 60]")
+        if self.budget_clock not in BUDGET_CLOCKS:
+            bad.append(f"budget_clock={self.budget_clock!r} must be one of {tuple(BUDGET_CLOCKS)}")
         if not (1 <= self.max_candidates_per_pattern <= 100000):
             bad.append(f"max_candidates_per_pattern={self.max_candidates_per_pattern} must be >= 1")
         if bad:
@@ -227,7 +233,7 @@ class StarIdentifier:
     # the noise, not information (see verify.log_magnitude_agreement).
     magnitude_floor = 0.05
 
-    def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    def hypotheses(self, geometry: SpotGeometry, deadline: Deadline) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Yield (pattern spot indices, database star indices) correspondences, most
         promising first, for the default `search`. Spot indices refer to the flux-sorted spot
         list. None here: an algorithm that overrides `search` proposes none outside it."""
@@ -276,7 +282,7 @@ class StarIdentifier:
         step: propose and verify hypotheses), then the accepted match's final fit
         (`solved`). ValueError for a malformed Spots record (Spots.validate)."""
         started = time.perf_counter()
-        deadline = started + self.config.max_time_s
+        deadline = Deadline(self.config.max_time_s, self.config.budget_clock)
         order, geometry = self.prepare(spots, camera)
         n = order.size
         if n < MIN_STARS:
@@ -286,15 +292,15 @@ class StarIdentifier:
             return self._fail(outcome.status, outcome.reason, started, outcome.tested)
         return self.solved(geometry, order, outcome.match, outcome.tested, started)
 
-    def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: float) -> SearchOutcome:
+    def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
         """The algorithm's step between `prepare` and the final fit: find a verified match of
-        the flux-sorted spots in `geometry` before `deadline` (time.perf_counter() [s]). This
+        the flux-sorted spots in `geometry` before `deadline` is passed. This
         default draws correspondences from `hypotheses`, turns each into a QUEST attitude and
         accepts the first that `verify_hypothesis` passes; an algorithm with its own (e.g.
         compiled) search overrides this instead of `hypotheses`."""
         tested = 0
         for pattern_spots, stars in self.hypotheses(geometry, deadline):
-            if time.perf_counter() > deadline:
+            if deadline.passed():
                 return self._timed_out(tested)
             tested += 1
             try:
@@ -304,7 +310,7 @@ class StarIdentifier:
             match = self.verify_hypothesis(geometry, camera, candidate.rotation)
             if match is not None:
                 return SearchOutcome(match, tested)
-        if time.perf_counter() > deadline:
+        if deadline.passed():
             return self._timed_out(tested)
         return SearchOutcome(None, tested, NO_MATCH, f"no hypothesis passed verification ({tested} tested, "
                              f"{geometry.x.size} spots)")

@@ -20,7 +20,6 @@ time budget.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Iterator, NamedTuple
 
@@ -35,6 +34,7 @@ from .triangle_database import TriangleConfig, load_or_build_triangles
 from .triangle_features import measured_features
 from .triangle_invariants import feature_tolerance, heron_area, planar_jacobians, side_covariance
 from .triangle_matching import match_triangles, warm_up
+from .deadline import Deadline
 
 
 @dataclass(frozen=True)
@@ -227,7 +227,7 @@ class CompositeIdentifier(StarIdentifier):
         _confirm_kernel((0, 1, 2), np.zeros((1, 3), np.int64), frame, self.neighbours, self.database.vectors,
                         MatchTolerance(3.0, 0.0, 1e-4), out)
 
-    def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    def hypotheses(self, geometry: SpotGeometry, deadline: Deadline) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         n = min(geometry.rays.shape[0], self.settings.max_spots)
         if n < 4:
             return
@@ -246,7 +246,7 @@ class CompositeIdentifier(StarIdentifier):
         self.stats.update(base_triangles=0, base_candidates=0, confirmed=0, spots_used=0)
         yielded: set[tuple] = set()
         for batch in base_triangle_batches(min(geometry.pattern_count, n), n, self.settings.batch_size):
-            if time.perf_counter() > deadline:
+            if deadline.passed():
                 return
             self.stats["spots_used"] = int(batch.max()) + 1 if batch.size else 0
             triples = fitting_triples(rays, batch, self.triangles.config.max_side_rad, slack)
@@ -258,7 +258,7 @@ class CompositeIdentifier(StarIdentifier):
                                       cap=self.config.max_candidates_per_pattern)
             bounds = np.searchsorted(matches.query, np.arange(triples.shape[0] + 1))
             for t in np.flatnonzero(np.diff(bounds)):
-                if time.perf_counter() > deadline:
+                if deadline.passed():
                     return
                 i, j, k = (int(v) for v in triples[t])
                 base = np.ascontiguousarray(matches.stars[bounds[t]:bounds[t + 1]])

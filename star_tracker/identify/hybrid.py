@@ -16,7 +16,6 @@ triangles, so the time budget is checked between batches.
 from __future__ import annotations
 
 import math
-import time
 from functools import lru_cache
 
 import numpy as np
@@ -32,6 +31,7 @@ from .database import StarDatabase
 from .geometry import pyramid_triangles
 from .skygrid import SkyGrid
 from .verify import MIN_STARS
+from .deadline import Deadline
 
 # Triangles per compiled call; the deadline is checked between calls. The first pyramid
 # batch holds all 220 triangles of the default 12 pattern spots (one call on easy frames).
@@ -83,7 +83,7 @@ class HybridIdentifier(StarIdentifier):
                             camera.width, camera.height), camera)
         refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
 
-    def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: float) -> SearchOutcome:
+    def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
         """Compiled triangle search (kernels.search_triangles) in batches, the deadline
         checked between them; each candidate triangle is verified inside the kernel."""
         n = geometry.x.size
@@ -96,7 +96,7 @@ class HybridIdentifier(StarIdentifier):
         scratch = SearchScratch(self._head_ik, self._head_jk, np.empty(n, np.int64), np.empty(n, np.int64))
         tested = tried = 0
         for triangles, screen_limit in triangle_batches(geometry.pattern_count, n):
-            if time.perf_counter() > deadline:
+            if deadline.passed():
                 self.stats["triangles"] = tried
                 return SearchOutcome(None, tested, TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent "
                                      f"after {tried} of {math.comb(n, 3)} triangles")

@@ -33,7 +33,6 @@ Groups are yielded as hypotheses; the shared verification decides.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Iterator, NamedTuple
 
@@ -44,6 +43,7 @@ from .angle_pivot import pair_angle_sigma
 from .base import SpotGeometry, StarIdentifier
 from .database import StarDatabase
 from .geometry import angle_between, chord2_rows, chord_angle, triple_product
+from .deadline import Deadline
 
 MAX_ASSOCIATES = 64  # bitmask width of the clique search
 VALIDATION_CHUNK = 4096  # kernels validated between two deadline checks
@@ -418,7 +418,7 @@ class MatchGroupIdentifier(StarIdentifier):
         self._vectors = np.ascontiguousarray(database.vectors, dtype=np.float64)
         _warm_up()
 
-    def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    def hypotheses(self, geometry: SpotGeometry, deadline: Deadline) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         self.stats.update(pair_matches=0, oriented_matches=0, threshold=0, levels=0, kernels=0, groups=0,
                           largest_group=0)
         frame = self._frame(geometry)
@@ -440,7 +440,7 @@ class MatchGroupIdentifier(StarIdentifier):
             return made[k]
 
         for level in range(threshold, 0, -1):
-            if time.perf_counter() > deadline:
+            if deadline.passed():
                 return
             self.stats["levels"] += 1
             if not self._validate_above(level, frame, kernels, deadline):
@@ -463,13 +463,13 @@ class MatchGroupIdentifier(StarIdentifier):
             for group in best:
                 yielded.add(group.key)
                 yield group.spots, group.stars
-                if time.perf_counter() > deadline:
+                if deadline.passed():
                     return
         if self.group_config.select_best:
             # No threshold gave an accepted answer: every group, largest and best first.
             valid = np.flatnonzero(kernels.size >= 3)
             for k in valid[np.lexsort((kernels.quality[valid], -kernels.size[valid]))]:
-                if time.perf_counter() > deadline:
+                if deadline.passed():
                     return
                 group = group_of(int(k))
                 if group.key not in yielded:
@@ -487,7 +487,7 @@ class MatchGroupIdentifier(StarIdentifier):
         return _Frame(rays, sigma, magnitude, chord_angle(rays[:, None], rays[None]), tolerance,
                       self.group_config.relaxed_factor * tolerance)
 
-    def _match_groups(self, frame: _Frame, deadline: float) -> _Kernels | None:
+    def _match_groups(self, frame: _Frame, deadline: Deadline) -> _Kernels | None:
         """Steps 1-2: star-pair matching, confirmation values, and the associated matches of
         every possible kernel. None when the deadline passed."""
         db = self.database
@@ -509,7 +509,7 @@ class MatchGroupIdentifier(StarIdentifier):
         conf = np.zeros((n, db.star_count), np.int32)
         last = np.full((n, db.star_count), -1, np.int32)
         for p0, p1 in chunks:
-            if time.perf_counter() > deadline:
+            if deadline.passed():
                 return None
             self.stats["oriented_matches"] += int(_confirm(p0, p1, sweep, conf, last))
 
@@ -526,7 +526,7 @@ class MatchGroupIdentifier(StarIdentifier):
                 assoc_spot, assoc_star = np.empty(offsets[-1], np.int32), np.empty(offsets[-1], np.int32)
             associates = Associates(offsets, fill, assoc_spot, assoc_star)
             for p0, p1 in chunks:
-                if time.perf_counter() > deadline:
+                if deadline.passed():
                     return None
                 _collect(p0, p1, sweep, conf, kernel_id, 2, counting, associates)
         _rank_associates(offsets, assoc_spot, assoc_star, conf, MAX_ASSOCIATES)
@@ -534,12 +534,12 @@ class MatchGroupIdentifier(StarIdentifier):
         return _Kernels(spot.astype(np.int64), star.astype(np.int64), conf[spot, star], offsets, assoc_spot,
                         assoc_star, np.zeros(k, np.uint64), np.zeros(k, np.int64), np.zeros(k))
 
-    def _validate_above(self, level: int, frame: _Frame, kernels: _Kernels, deadline: float) -> bool:
+    def _validate_above(self, level: int, frame: _Frame, kernels: _Kernels, deadline: Deadline) -> bool:
         """Steps 3-4: validate the kernels with confirmation > level not validated yet. False
         when the deadline passed."""
         fresh = np.flatnonzero((kernels.conf > level) & (kernels.size == 0))
         for chunk in range(0, fresh.size, VALIDATION_CHUNK):
-            if time.perf_counter() > deadline:
+            if deadline.passed():
                 return False
             part = fresh[chunk:chunk + VALIDATION_CHUNK]
             _validate(part, kernels, frame, self._vectors, self.config.sigma_multiplier)
@@ -547,13 +547,13 @@ class MatchGroupIdentifier(StarIdentifier):
         return True
 
     @staticmethod
-    def _distinct(kernels: np.ndarray, group_of, yielded: set, deadline: float) -> tuple[list[_Group], bool]:
+    def _distinct(kernels: np.ndarray, group_of, yielded: set, deadline: Deadline) -> tuple[list[_Group], bool]:
         """Step 5: the distinct groups of these kernels not yet yielded, in order, and whether
         they are unambiguous (all share >= 2 matches); stops at the first group that makes
         them ambiguous."""
         found: dict[tuple, _Group] = {}
         for count, k in enumerate(kernels):
-            if count % 256 == 255 and time.perf_counter() > deadline:
+            if count % 256 == 255 and deadline.passed():
                 break
             group = group_of(int(k))
             if group.key in yielded or group.key in found:

@@ -12,12 +12,13 @@ import numpy as np
 
 from .base import SpotGeometry, StarIdentifier
 from .geometry import chord_angle, pyramid_order, triple_products
+from .deadline import Deadline
 
 
 class PyramidIdentifier(StarIdentifier):
     name = "pyramid"
 
-    def hypotheses(self, geometry: SpotGeometry, deadline: float):
+    def hypotheses(self, geometry: SpotGeometry, deadline: Deadline):
         rays, sigma = geometry.rays, geometry.sigma
         n_stars = self.database.star_count
         vectors = self.database.vectors

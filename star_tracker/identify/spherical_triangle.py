@@ -24,7 +24,6 @@ time budget is spent.
 from __future__ import annotations
 
 import itertools
-import time
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -35,6 +34,7 @@ from .database import StarDatabase
 from .triangle_database import TriangleConfig, load_or_build_triangles
 from .triangle_features import measured_features, spherical_area, triangle_sides
 from .triangle_matching import match_triangles, warm_up
+from .deadline import Deadline
 
 
 @dataclass(frozen=True)
@@ -125,7 +125,7 @@ class SphericalTriangleIdentifier(StarIdentifier):
         self.settings = settings or SphericalTriangleSettings()
         warm_up(self.triangles, database)
 
-    def hypotheses(self, geometry: SpotGeometry, deadline: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    def hypotheses(self, geometry: SpotGeometry, deadline: Deadline) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         tconf = self.triangles.config
         rays, sigma = geometry.rays, geometry.sigma
         worst = np.max(sigma[: geometry.pattern_count])
@@ -157,7 +157,7 @@ class SphericalTriangleIdentifier(StarIdentifier):
         spot_sets = [set(map(int, tri)) for tri in triples]
         yielded: set[tuple] = set()
         for start in order:
-            if time.perf_counter() > deadline:
+            if deadline.passed():
                 return
             if candidates(start).shape[0] == 0:
                 continue  # no finalist: a false star or one missing from the catalog
@@ -168,7 +168,7 @@ class SphericalTriangleIdentifier(StarIdentifier):
                 if table.shape[0] <= self.settings.max_final:
                     break
                 chosen = None
-                if pivots < self.settings.pivot_limit and time.perf_counter() <= deadline:
+                if pivots < self.settings.pivot_limit and not deadline.passed():
                     chosen = self._next_pivot(order, used, spot_sets, current, set(spots), excluded, candidates,
                                               deadline)
                 if chosen is None:  # inconclusive
@@ -197,12 +197,12 @@ class SphericalTriangleIdentifier(StarIdentifier):
 
     @staticmethod
     def _next_pivot(order: list[int], used: set[int], spot_sets: list[set], current: int, chain_spots: set[int],
-                    excluded: set[int], candidates, deadline: float) -> int | None:
+                    excluded: set[int], candidates, deadline: Deadline) -> int | None:
         """Largest unused triangle with finalists sharing two spots with the current one
         (thesis 5.3.3), else with any two of the chain's spots; none with excluded spots."""
         for pool in (spot_sets[current], chain_spots):
             for t in order:  # descending area
-                if time.perf_counter() > deadline:
+                if deadline.passed():
                     return None
                 if (t not in used and len(spot_sets[t] & pool) >= 2 and not spot_sets[t] & excluded
                         and candidates(t).shape[0] > 0):
