@@ -12,6 +12,7 @@ import json
 import math
 import sys
 import time
+from collections import Counter
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -77,7 +78,7 @@ def register(subparsers) -> None:
                              "fainter than the catalog)")
     parser.add_argument("--magnitude-limit", type=positive_float, default=None, metavar="HP",
                         help="faintest guide star of the pattern database [Hp mag] (default: 6.5, fainter for "
-                             "fields narrower than ~7 deg, at most 8)")
+                             "fields narrower than ~12 deg so that a sparse sky still holds ~8 in view, at most 8)")
     parser.add_argument("--epoch", type=positive_float, default=2026.0, metavar="YEAR",
                         help="catalog epoch for proper motion [Julian year] (default 2026.0)")
     parser.add_argument("--centroid-sigma-floor", type=positive_float, default=0.3, metavar="PX",
@@ -85,8 +86,9 @@ def register(subparsers) -> None:
                              "and JPEG/8-bit quantisation; the attitude fit weights use the centroider's own "
                              "covariance)")
     parser.add_argument("--max-time", type=positive_float, default=0.5, metavar="S",
-                        help="time budget of one identification attempt [s] (default 0.5; the final attempt with "
-                             "the refined focal length gets 4x)")
+                        help="time budget of one identification attempt [s of CPU time, so that a loaded host "
+                             "gives the same result] (default 0.5; the final attempt with the refined focal "
+                             "length gets 4x)")
     parser.add_argument("--json", action="store_true", help="print the solution as JSON instead of text")
     parser.add_argument("--plot", metavar="PNG",
                         help="write the image annotated with the identified stars (HIP ids, residual vectors "
@@ -160,7 +162,9 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     fov_x = 2.0 * math.atan(0.5 * nominal.width / nominal.fx)
     db_config = database_config_for(fov_x, nominal.width, nominal.height, options.magnitude_limit, options.epoch_jyear)
     database = load_or_build_database(db_config)
-    config = IdentifyConfig(centroid_sigma_floor_px=options.centroid_sigma_floor_px, max_time_s=options.max_time_s)
+    # An offline solve counts its budget in CPU time: the same attempts succeed on a busy host.
+    config = IdentifyConfig(centroid_sigma_floor_px=options.centroid_sigma_floor_px, max_time_s=options.max_time_s,
+                            budget_clock="cpu")
     identifier = make_identifier(options.algorithm, database, config)
     if hasattr(identifier, "warm_up"):
         identifier.warm_up(nominal)  # compile/load the kernels outside the time budget
@@ -252,6 +256,7 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
                            "epoch_jyear": result.database.config.epoch_jyear, "stars": result.database.star_count}}
     ident = result.identification
     if ident is None:
+        record.update(unsolved_summary(result.attempts))
         return record
     record.update({"status": ident.status, "reason": ident.reason, "algorithm": ident.algorithm})
     if not ident.solved:
@@ -285,16 +290,25 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
     return record
 
 
+def unsolved_summary(attempts: list[dict]) -> dict:
+    """status "not_solved" and a reason naming what was tried and how each attempt ended."""
+    if not attempts:
+        return {"status": "not_solved", "reason": "no identification attempted"}
+    fields = [a["fov_x_deg"] for a in attempts]
+    outcomes = Counter(a["status"] for a in attempts)
+    ended = ", ".join(f"{count} {status}" for status, count in outcomes.most_common())
+    return {"status": "not_solved",
+            "reason": f"no field of {len(attempts)} tried ({min(fields):.3f}-{max(fields):.3f} deg) identified "
+                      f"the stars: {ended}"}
+
+
 def format_text(record: dict) -> str:
     lines = [f"image: {record['image']} ({record['image_description']}), {record['spots']} spots",
              f"camera: {camera_summary_from(record['camera'])}"
              + (f", focal length +-{record['camera']['focal_sigma_px']:.2f} px (refined)"
                 if record['camera'].get('focal_sigma_px') is not None else "")]
     if not record["solved"]:
-        lines.append(f"NOT SOLVED: {record.get('reason', 'no attempt')} "
-                     f"({len(record['attempts'])} attempt(s), fields "
-                     f"{min(a['fov_x_deg'] for a in record['attempts']):.3f}-"
-                     f"{max(a['fov_x_deg'] for a in record['attempts']):.3f} deg)")
+        lines.append(f"NOT SOLVED: {record['reason']}")
         return "\n".join(lines)
     s = record["sigma_arcsec"]
     q = record["quaternion_xyzw"]

@@ -225,7 +225,11 @@ def test_solve_reports_failure_and_bad_input(tmp_path):
     rng = np.random.default_rng(0)
     cv2.imwrite(str(tmp_path / "noise.png"), rng.normal(1000, 10, (256, 256)).astype(np.uint16))
     code, out, err = cli("solve", tmp_path / "noise.png", "--fov", "10", "--fov-tolerance", "0")
-    assert code == 1 and "NOT SOLVED" in out
+    assert code == 1 and "NOT SOLVED" in out and "no field of 1 tried (10.000-10.000 deg)" in out
+    code, out, _ = cli("solve", tmp_path / "noise.png", "--fov", "10", "--fov-tolerance", "1", "--json")
+    unsolved = json.loads(out)
+    assert code == 1 and unsolved["solved"] is False and unsolved["status"] == "not_solved"
+    assert unsolved["reason"].startswith(f"no field of {len(unsolved['attempts'])} tried")
     code, _, err = cli("solve", tmp_path / "absent.png", "--fov", "10")
     assert code == 2 and err.startswith("star-tracker solve: error: no such file") and "absent.png" in err
     (tmp_path / "text.png").write_text("not an image")
