@@ -101,7 +101,7 @@ class EllipticalGaussianPsf(_SupersampledPsf):
         return np.exp(-0.5 * ((u / a) ** 2 + (v / b) ** 2)) / (2.0 * np.pi * a * b)
 
     def label(self) -> str:
-        return (f"elliptical σ {self.sigma_major_px:g}/{self.sigma_minor_px:g} "
+        return (f"elliptical σ {self.sigma_major_px:.2f}/{self.sigma_minor_px:.2f} "
                 f"at {np.degrees(self.angle_rad):.0f}°")
 
 
