@@ -62,6 +62,8 @@ BENCHES = (
           "simulator figures (smeared frame, photon transfer)"),
     Bench("centroid", "bench.bench_centroid", ("--output", "{out}"), ("--quick", "--output", "{out}"),
           "centroid accuracy vs the Cramer-Rao bound, peers"),
+    Bench("psf_range", "bench.bench_psf_range", ("--output", "{out}"), ("--quick", "--output", "{out}"),
+          "centroiding at defaults across PSF widths and shapes, simulator and a second renderer"),
     Bench("identify", "bench.bench_identify", ("--output", "{out}"),
           ("--scenes", "20", "--hard-scenes", "5", "--tune-scenes", "0", "--output", "{out}"),
           "identification on the seed papers' setups, peers", peers=True),
