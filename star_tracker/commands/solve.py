@@ -155,6 +155,7 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     horizontal field fov_deg [deg], searched within the tolerance (see the module docstring).
     `report(text)` receives one progress line per attempt after the first."""
     from ..identify import IdentifyConfig, load_or_build_database, make_identifier
+    from ..identify.base import TOO_FEW_SPOTS
 
     if (fov_deg is None) == (camera is None):
         raise ValueError("give exactly one of fov_deg and camera")
@@ -185,6 +186,8 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
         if identification.solved:
             result.identification, result.camera = identification, trial
             break
+        if identification.status == TOO_FEW_SPOTS:
+            break  # no field can help: the spots are too few whatever the scale
     if not result.solved or camera is not None or not options.refine_focal:
         return result
     # A first solve may hold only a few stars near the centre (the rest fell outside the match
@@ -336,6 +339,8 @@ def camera_summary_from(camera: dict) -> str:
 @guarded(NAME)
 def run(args: argparse.Namespace) -> int:
     from ..centroid import CentroidConfig, extract_spots
+    from ..centroid.frame_check import frame_problem
+    from ..identify.verify import MIN_STARS
     from .images import read_image
 
     image = read_image(args.image)
@@ -365,6 +370,9 @@ def run(args: argparse.Namespace) -> int:
                            magnitude_limit=args.magnitude_limit, epoch_jyear=args.epoch)
     result = solve_spots(spots, width, height, fov_deg=args.fov, camera=camera, options=options, report=report)
     record = solution_record(result, spots, str(args.image), image.description)
+    problem = frame_problem(pixels, spots, MIN_STARS, saturation) if not result.solved else None
+    if problem:
+        record["reason"] = problem
     if args.plot:
         from ..visualize import save_solution_plot
 

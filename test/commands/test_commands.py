@@ -225,11 +225,22 @@ def test_solve_reports_failure_and_bad_input(tmp_path):
     rng = np.random.default_rng(0)
     cv2.imwrite(str(tmp_path / "noise.png"), rng.normal(1000, 10, (256, 256)).astype(np.uint16))
     code, out, err = cli("solve", tmp_path / "noise.png", "--fov", "10", "--fov-tolerance", "0")
-    assert code == 1 and "NOT SOLVED" in out and "no field of 1 tried (10.000-10.000 deg)" in out
-    code, out, _ = cli("solve", tmp_path / "noise.png", "--fov", "10", "--fov-tolerance", "1", "--json")
+    assert code == 1 and "NOT SOLVED: too few stars: 0 star spot(s) found, at least 4 needed" in out
+    cv2.imwrite(str(tmp_path / "blank.png"), np.zeros((256, 256), np.uint16))
+    code, out, _ = cli("solve", tmp_path / "blank.png", "--fov", "10", "--json")
+    blank = json.loads(out)
+    assert code == 1 and blank["reason"] == "blank frame: every pixel is 0 ADU (no signal, no noise)"
+    assert len(blank["attempts"]) == 1  # no field can help: not searched through the tolerance
+    # Stars in no sky pattern: every field is tried and each attempt's end is named.
+    yy, xx = np.mgrid[:256, :256]
+    fake = rng.normal(1000, 10, (256, 256))
+    for x, y in rng.uniform(10, 246, (25, 2)):
+        fake += 5000.0 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 2.0)
+    cv2.imwrite(str(tmp_path / "fake.png"), fake.astype(np.uint16))
+    code, out, _ = cli("solve", tmp_path / "fake.png", "--fov", "10", "--fov-tolerance", "1", "--json")
     unsolved = json.loads(out)
     assert code == 1 and unsolved["solved"] is False and unsolved["status"] == "not_solved"
-    assert unsolved["reason"].startswith(f"no field of {len(unsolved['attempts'])} tried")
+    assert unsolved["reason"].startswith(f"no field of {len(unsolved['attempts'])} tried (9.900-10.100 deg)")
     code, _, err = cli("solve", tmp_path / "absent.png", "--fov", "10")
     assert code == 2 and err.startswith("star-tracker solve: error: no such file") and "absent.png" in err
     (tmp_path / "text.png").write_text("not an image")
