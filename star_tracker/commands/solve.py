@@ -28,6 +28,10 @@ ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
 
 # identify.ALGORITHMS without importing it (its numba kernels would slow every `star-tracker --help`);
 # test_commands checks that the two agree.
+FIELD_SEARCHES = ("patterns", "steps", "both")
+DEFAULT_FIELD_SEARCH = "both"
+PATTERN_SEARCH_BUDGET_S = 1.5  # CPU time for the scale-free pattern search
+
 ALGORITHM_NAMES = ("angle_pivot", "composite", "hybrid", "match_groups", "pyramid", "spherical_triangle")
 DEFAULT_ALGORITHM = "hybrid"
 
@@ -63,6 +67,11 @@ def register(subparsers) -> None:
     parser.add_argument("--fov-step", type=positive_float, default=0.5, metavar="PCT",
                         help="step of that search [percent] (default 0.5; a solve needs the field within "
                              "~0.3 %% on real photographs)")
+    parser.add_argument("--field-search", choices=FIELD_SEARCHES, default=DEFAULT_FIELD_SEARCH,
+                        help="how the field is found within the tolerance: 'patterns' = four-star patterns "
+                             "matched by shape alone give the focal length (fast, and a frame that cannot be "
+                             "solved says so quickly); 'steps' = identify at fields stepped by --fov-step; "
+                             f"'both' = patterns first, then steps (default {DEFAULT_FIELD_SEARCH})")
     parser.add_argument("--no-refine", action="store_true",
                         help="keep the given/searched focal length (default: refine it by least squares over "
                              "the matched stars when --fov is used)")
@@ -106,6 +115,7 @@ class SolveOptions:
 
     algorithm: str = "hybrid"
     fov_tolerance_pct: float = 5.0
+    field_search: str = DEFAULT_FIELD_SEARCH
     fov_step_pct: float = 0.5
     refine_focal: bool = True
     centroid_sigma_floor_px: float = 0.3
@@ -169,9 +179,9 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     identifier = make_identifier(options.algorithm, database, config)
     if hasattr(identifier, "warm_up"):
         identifier.warm_up(nominal)  # compile/load the kernels outside the time budget
-    candidates = [nominal] if camera is not None else [
-        camera_for_fov(width, height, f) for f in fov_candidates(fov_deg, options.fov_tolerance_pct, options.fov_step_pct)]
     result = SolveResult(None, nominal, database)
+    candidates = [nominal] if camera is not None else field_candidates(spots, nominal, database, fov_deg, options,
+                                                                       result.attempts)
     for index, trial in enumerate(candidates):
         budget = options.max_time_s if hasattr(identifier, "warm_up") or index else max(options.max_time_s, 20.0)
         identifier.config = replace(config, max_time_s=budget)
@@ -206,6 +216,32 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
         if not grew:
             break
     return result
+
+
+def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOptions, attempts: list) -> list:
+    """Cameras to identify at, in order: the focal lengths of scale-free pattern matches
+    (identify/scale_free.py; the search is appended to `attempts`), then (field_search
+    steps/both) the stepped fields."""
+    from ..identify.deadline import Deadline
+    from ..identify.scale_free import estimate_fields, load_or_build_patterns
+
+    cameras = []
+    if options.field_search in ("patterns", "both"):
+        tolerance = options.fov_tolerance_pct / 100.0
+        short_side_rad = 2.0 * math.atan(0.5 * min(nominal.width / nominal.fx, nominal.height / nominal.fy))
+        patterns = load_or_build_patterns(database, 0.5 * short_side_rad * (1.0 - tolerance))
+        started = time.perf_counter()
+        estimates = estimate_fields(spots, nominal, database, patterns, tolerance,
+                                    Deadline(PATTERN_SEARCH_BUDGET_S, "cpu"))
+        attempts.append({"fov_x_deg": fov_deg, "search": "patterns", "elapsed_s": round(time.perf_counter() - started, 3),
+                         "status": f"{len(estimates)} field(s) found" if estimates else "no pattern matched",
+                         "fields_deg": [round(math.degrees(2.0 * math.atan(0.5 * e.camera.width / e.camera.fx)), 4)
+                                        for e in estimates]})
+        cameras += [estimate.camera for estimate in estimates]
+    if options.field_search in ("steps", "both"):
+        cameras += [camera_for_fov(nominal.width, nominal.height, f)
+                    for f in fov_candidates(fov_deg, options.fov_tolerance_pct, options.fov_step_pct)]
+    return cameras
 
 
 def refine_focal_length(camera, spots, identification):
@@ -365,7 +401,7 @@ def run(args: argparse.Namespace) -> int:
     spots = extract_spots(pixels, config)
     report = None if args.quiet else (lambda text: print(f"solve: {text}", file=sys.stderr, flush=True))
     options = SolveOptions(algorithm=args.algorithm, fov_tolerance_pct=args.fov_tolerance,
-                           fov_step_pct=args.fov_step, refine_focal=not args.no_refine,
+                           fov_step_pct=args.fov_step, field_search=args.field_search, refine_focal=not args.no_refine,
                            centroid_sigma_floor_px=args.centroid_sigma_floor, max_time_s=args.max_time,
                            magnitude_limit=args.magnitude_limit, epoch_jyear=args.epoch)
     result = solve_spots(spots, width, height, fov_deg=args.fov, camera=camera, options=options, report=report)

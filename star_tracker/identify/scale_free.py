@@ -1,0 +1,207 @@
+"""Scale-free patterns: the field of view of a lost-in-space frame from the stars themselves.
+
+`solve --fov` knows the field only roughly (+-5 %), and the pattern search (hybrid and the
+others) needs it within ~0.3 %. Instead of stepping through the fields, four-star patterns are
+matched by shape alone: the six angles between four stars, sorted, divided by the largest, do
+not depend on the focal length (to first order: the spots' rays are computed with the nominal
+one). Each match of an image pattern to a catalog pattern gives the focal length (image angle /
+catalog angle) and an attitude; a quick count of the spots that land on projected guide stars
+ranks them. The caller then identifies the frame with the algorithm's full verification at
+that focal length.
+
+Catalog patterns: for circles spread evenly over the sky (radius = half the field's shorter
+side), all four-star subsets of the circle's CIRCLE_STARS brightest guide stars. Image
+patterns: all four-spot subsets of the IMAGE_SPOTS brightest spots. Patterns are looked up by
+a hash of their five ratios in bins of RATIO_BIN.
+"""
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..models.attitude_estimation import svd_attitude
+from ..models.camera import CameraModel
+from ..models.catalog import cache_dir, load_validated_npz, save_validated_npz
+from .database import StarDatabase
+from .deadline import Deadline
+from .verify import verify
+
+PATTERN_FORMAT_VERSION = 1
+CIRCLE_STARS = 10  # brightest guide stars per sky circle whose 4-subsets are stored
+IMAGE_SPOTS = 10  # brightest spots whose 4-subsets are looked up
+CIRCLE_SPACING = 0.75  # circle centres this fraction of the circle radius apart
+RATIO_BIN = 0.01  # hash bin of each angle ratio
+RATIO_BASE = int(round(1.0 / RATIO_BIN)) + 2
+_PAIRS = np.array(list(itertools.combinations(range(4), 2)))  # the six pairs of a pattern
+
+
+def _pair_angles(vectors: np.ndarray) -> np.ndarray:
+    """(P, 6) angles [rad] between the four unit vectors of each of P patterns (P, 4, 3)."""
+    a, b = vectors[:, _PAIRS[:, 0]], vectors[:, _PAIRS[:, 1]]
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.einsum("pkj,pkj->pk", a, b))
+
+
+def pattern_shape(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Shape of patterns (P, 4, 3): (ratios (P, 5): the five smaller sorted pair angles over
+    the largest; largest (P,) [rad]; order (P, 4): the four stars by their angle from the
+    pattern's centroid, the correspondence that matching preserves)."""
+    angles = np.sort(_pair_angles(vectors), axis=1)
+    largest = angles[:, 5]
+    centroid = vectors.sum(axis=1)
+    centroid /= np.linalg.norm(centroid, axis=1, keepdims=True)
+    order = np.argsort(-np.einsum("pkj,pj->pk", vectors, centroid), axis=1, kind="stable")
+    return angles[:, :5] / largest[:, None], largest, order
+
+
+def ratio_keys(ratios: np.ndarray) -> np.ndarray:
+    """Hash (int64) of each pattern's five ratios binned by RATIO_BIN."""
+    bins = np.floor(ratios / RATIO_BIN).astype(np.int64)
+    return bins @ (RATIO_BASE ** np.arange(5, dtype=np.int64))
+
+
+@dataclass(frozen=True)
+class PatternDatabase:
+    """Catalog four-star patterns sorted by ratio key: stars (P, 4) guide-star indices in
+    centroid-distance order; ratios (P, 5); largest (P,) largest pair angle [rad]; keys (P,)."""
+
+    stars: np.ndarray
+    ratios: np.ndarray
+    largest: np.ndarray
+    keys: np.ndarray
+    circle_radius_rad: float
+
+    def candidates(self, keys: np.ndarray) -> np.ndarray:
+        """Indices of the patterns whose key is one of `keys`."""
+        lo = np.searchsorted(self.keys, keys, side="left")
+        hi = np.searchsorted(self.keys, keys, side="right")
+        hits = hi > lo
+        if not hits.any():
+            return np.empty(0, np.int64)
+        return np.concatenate([np.arange(a, b) for a, b in zip(lo[hits], hi[hits])])
+
+
+def circle_centres(spacing_rad: float) -> np.ndarray:
+    """Unit vectors spread evenly over the sphere (a Fibonacci lattice), ~spacing_rad apart."""
+    count = max(12, int(math.ceil(4.0 * math.pi / spacing_rad ** 2)))
+    k = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * k / count
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    r = np.sqrt(1.0 - z ** 2)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternDatabase:
+    """Every four-subset of the CIRCLE_STARS brightest guide stars of each sky circle of
+    radius circle_radius_rad [rad], without repeats."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(database.vectors)
+    centres = circle_centres(CIRCLE_SPACING * circle_radius_rad)
+    chord = 2.0 * math.sin(0.5 * circle_radius_rad)
+    members = tree.query_ball_point(centres, chord)
+    subsets = {k: np.array(list(itertools.combinations(range(k), 4))) for k in range(4, CIRCLE_STARS + 1)}
+    rows = []
+    for stars in members:
+        if len(stars) < 4:
+            continue
+        stars = np.asarray(stars)
+        brightest = np.sort(stars[np.argsort(database.magnitude[stars], kind="stable")[:CIRCLE_STARS]])
+        rows.append(brightest[subsets[brightest.size]])
+    if not rows:
+        raise ValueError(f"no sky circle of radius {math.degrees(circle_radius_rad):.2f} deg holds four guide stars")
+    stars = np.unique(np.concatenate(rows), axis=0)
+    ratios, largest, order = pattern_shape(database.vectors[stars])
+    stars = np.take_along_axis(stars, order, axis=1)
+    keys = ratio_keys(ratios)
+    by_key = np.argsort(keys, kind="stable")
+    return PatternDatabase(stars[by_key].astype(np.int32), ratios[by_key].astype(np.float32),
+                           largest[by_key].astype(np.float32), keys[by_key], float(circle_radius_rad))
+
+
+def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternDatabase:
+    """The pattern database for these guide stars and circle, cached beside the pair database."""
+    identity = json.dumps({"pairs": database.config.identity(), "radius": round(circle_radius_rad, 6),
+                           "circle_stars": CIRCLE_STARS, "spacing": CIRCLE_SPACING, "bin": RATIO_BIN,
+                           "version": PATTERN_FORMAT_VERSION}, sort_keys=True)
+    path = (database.cache_directory or cache_dir()) / f"patterns4_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
+    arrays = load_validated_npz(path)
+    if arrays is not None and set(arrays) >= {"stars", "ratios", "largest", "keys"}:
+        return PatternDatabase(arrays["stars"], arrays["ratios"], arrays["largest"], arrays["keys"], circle_radius_rad)
+    patterns = build_patterns(database, circle_radius_rad)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_validated_npz(path, {"stars": patterns.stars, "ratios": patterns.ratios, "largest": patterns.largest,
+                                  "keys": patterns.keys})
+    except OSError:
+        pass  # an unwritable cache costs a rebuild next time, never the patterns
+    return patterns
+
+
+@dataclass(frozen=True)
+class FieldEstimate:
+    """A focal length found by a pattern match: camera (nominal with fx, fy scaled), the
+    attitude (sensor -> ICRS) of the match, and the spots that landed on guide stars."""
+
+    camera: CameraModel
+    rotation: np.ndarray
+    matched: int
+
+
+def scaled_camera(camera: CameraModel, scale: float) -> CameraModel:
+    return CameraModel(camera.width, camera.height, camera.fx * scale, camera.fy * scale, camera.cx, camera.cy,
+                       tuple(camera.distortion))
+
+
+def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns: PatternDatabase,
+                    tolerance: float, deadline: Deadline, ratio_tolerance: float = 0.01,
+                    radius_px: float = 3.0, max_estimates: int = 3) -> list[FieldEstimate]:
+    """Focal lengths within +-tolerance (fraction) of `camera`'s at which patterns of the
+    brightest spots match catalog patterns, best first (most spots on guide stars), distinct
+    to 0.2 %, at most max_estimates. Empty when nothing matched before `deadline`."""
+    n = min(len(spots), IMAGE_SPOTS)
+    if n < 4:
+        return []
+    brightest = np.argsort(-spots.flux, kind="stable")[:n]
+    rays = camera.pixel_to_ray(spots.x[brightest], spots.y[brightest])
+    subsets = np.array(list(itertools.combinations(range(n), 4)))
+    ratios, largest, order = pattern_shape(rays[subsets])
+    subsets = np.take_along_axis(subsets, order, axis=1)
+    check = brightest if len(spots) <= 40 else np.argsort(-spots.flux, kind="stable")[:40]
+    need = min(7, len(spots))  # the pattern's four and at least three more
+    found: list[FieldEstimate] = []
+    lo_scale, hi_scale = 1.0 / (1.0 + tolerance), 1.0 / (1.0 - tolerance)
+    offsets = np.array(list(itertools.product((-1, 0, 1), repeat=5)), np.int64)
+    weights = RATIO_BASE ** np.arange(5, dtype=np.int64)
+    for p in range(subsets.shape[0]):
+        if deadline.passed():
+            break
+        base = np.floor(ratios[p] / RATIO_BIN).astype(np.int64)
+        near = (offsets == 0) | ((offsets < 0) & (ratios[p] - ratio_tolerance < base * RATIO_BIN)) | (
+            (offsets > 0) & (ratios[p] + ratio_tolerance >= (base + 1) * RATIO_BIN))
+        keys = np.unique(((base + offsets)[near.all(axis=1)]) @ weights)
+        cand = patterns.candidates(keys)
+        if cand.size == 0:
+            continue
+        # f_true / f_nominal = image angle (rays of the nominal focal length) / catalog angle.
+        scale = largest[p] / patterns.largest[cand]
+        close = np.all(np.abs(patterns.ratios[cand] - ratios[p]) <= ratio_tolerance, axis=1)
+        cand, scale = cand[close & (scale >= lo_scale) & (scale <= hi_scale)], scale[close & (scale >= lo_scale)
+                                                                                      & (scale <= hi_scale)]
+        for c, s in zip(cand, scale):
+            if any(abs(s * camera.fx / e.camera.fx - 1.0) < 2e-3 for e in found):
+                continue
+            trial = scaled_camera(camera, float(s))
+            spot_idx = brightest[subsets[p]]
+            body = trial.pixel_to_ray(spots.x[spot_idx], spots.y[spot_idx])
+            rotation = svd_attitude(body, database.vectors[patterns.stars[c]], np.ones(4)).rotation
+            matched = verify(rotation, spots.x[check], spots.y[check], database, trial, radius_px).spot_index.size
+            if matched >= need:
+                found.append(FieldEstimate(trial, rotation, int(matched)))
+        if len(found) >= max_estimates:
+            break
+    return sorted(found, key=lambda e: -e.matched)

@@ -1,0 +1,63 @@
+"""Scale-free four-star patterns (identify/scale_free.py): the focal length of a frame whose
+field is known only to +-5 %, judged against the true camera and attitude; a frame of stars in
+no sky pattern finds none. Real photographs at a field 4 % off: test_realdata_corpus and the
+solve test below."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from star_tracker.centroid import Spots
+from star_tracker.identify.deadline import Deadline
+from star_tracker.identify.scale_free import estimate_fields, load_or_build_patterns, pattern_shape, scaled_camera
+from star_tracker.models.attitude import rotation_vector_to_matrix
+
+from conftest import spots_at
+
+TOLERANCE = 0.05
+
+
+@pytest.fixture(scope="module")
+def patterns(database, nominal_camera):
+    short_side = 2.0 * math.atan(0.5 * nominal_camera.height / nominal_camera.fy)
+    return load_or_build_patterns(database, 0.5 * short_side * (1.0 - TOLERANCE))
+
+
+def test_pattern_shape_ignores_scale_and_order():
+    rng = np.random.default_rng(0)
+    vectors = rng.normal([0, 0, 1], 0.05, (1, 4, 3))
+    vectors /= np.linalg.norm(vectors, axis=-1, keepdims=True)
+    ratios, largest, order = pattern_shape(vectors)
+    # The same four stars on a sky 3 % larger (small-angle scaling about their mean) and shuffled.
+    centre = vectors[0].mean(axis=0)
+    wider = centre + 1.03 * (vectors[0] - centre)
+    wider /= np.linalg.norm(wider, axis=-1, keepdims=True)
+    shuffle = [2, 0, 3, 1]
+    ratios2, largest2, order2 = pattern_shape(wider[shuffle][None])
+    assert np.allclose(ratios2, ratios, atol=2e-4) and largest2[0] == pytest.approx(1.03 * largest[0], rel=1e-3)
+    assert [shuffle[k] for k in order2[0]] == list(order[0])
+
+
+@pytest.mark.parametrize("seed, field_error", [(1, 0.04), (2, -0.045), (3, 0.02), (4, -0.01)])
+def test_focal_length_found_from_a_field_known_to_five_percent(catalog, database, nominal_camera, patterns,
+                                                              seed, field_error):
+    rng = np.random.default_rng(seed)
+    truth = rotation_vector_to_matrix(rng.normal(size=3) * 2.0)
+    spots = spots_at(catalog.brighter_than(7.5).at_epoch(2026.0), nominal_camera, truth)
+    guess = scaled_camera(nominal_camera, 1.0 / (1.0 + field_error))  # the user's field, field_error off
+    estimates = estimate_fields(spots, guess, database, patterns, TOLERANCE, Deadline(30.0, "cpu"))
+    assert estimates, "no pattern matched"
+    best = estimates[0]
+    assert best.camera.fx == pytest.approx(nominal_camera.fx, rel=3e-3)
+    boresight_error = math.acos(min(1.0, float(best.rotation[:, 2] @ truth[:, 2])))
+    assert boresight_error < math.radians(0.1)
+    assert best.matched >= 7
+
+
+def test_stars_in_no_sky_pattern_match_nothing(database, nominal_camera, patterns):
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(20, 1000, (2, 30))
+    spots = Spots.from_xy(x, y, np.linspace(3.0, 6.5, 30), sigma_px=0.1, width=1024, height=1024)
+    assert estimate_fields(spots, nominal_camera, database, patterns, TOLERANCE, Deadline(30.0, "cpu")) == []
