@@ -123,8 +123,14 @@ def build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternD
                            largest[by_key].astype(np.float32), keys[by_key], float(circle_radius_rad))
 
 
+RADIUS_STEP = 1.02  # circle radii are rounded down to a power of this: nearby fields share one file
+
+
 def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternDatabase:
-    """The pattern database for these guide stars and circle, cached beside the pair database."""
+    """The pattern database for these guide stars and circles of at most circle_radius_rad
+    [rad] (rounded down to a power of RADIUS_STEP, so that fields a few percent apart share
+    it), cached beside the pair database."""
+    circle_radius_rad = RADIUS_STEP ** math.floor(math.log(circle_radius_rad) / math.log(RADIUS_STEP))
     identity = json.dumps({"pairs": database.config.identity(), "radius": round(circle_radius_rad, 6),
                            "circle_stars": CIRCLE_STARS, "spacing": CIRCLE_SPACING, "bin": RATIO_BIN,
                            "version": PATTERN_FORMAT_VERSION}, sort_keys=True)
