@@ -344,7 +344,7 @@ def run_benchmark(images: list[CorpusImage], peers: list[str], cache: Path,
     databases = PeerDatabases(corpus_images or images, cache) if peers else None
     rows = []
     started = time.perf_counter()
-    for image in images:
+    for index, image in enumerate(images):
         row = {"id": image.id, "source": image.source, "file": str(image.path.relative_to(image.path.parents[1])),
                "width": image.width, "height": image.height, "fov_h_deg": image.fov_h_deg,
                "has_reference": image.reference is not None, "reference_confidence": image.confidence,
