@@ -10,16 +10,16 @@ in our sensor frame (+x image right, +y image down, +z boresight; quaternion sen
 - Ours: exactly `star-tracker solve IMG --fov <fov_h_deg> --json` with every other option at
   its default, run in-process through the CLI's own parser and run() (image reading,
   centroiding, the field search and focal refinement are the command's). Time = wall time of
-  that call. A warm-up call (untimed) precedes it when its pattern database was not cached yet
-  and before the first image (numba kernels load on first use).
+  that call. A warm-up call (untimed) of the same image precedes it (its field's pair and
+  pattern databases built and cached; numba kernels load on first use).
 - tetra3rs 0.14 has no image-level solve call; its documented image path is
   `extract_centroids(image)` -> `SolverDatabase.solve_from_centroids(centroids, fov_estimate_deg,
   image_width, image_height, fov_max_error_deg)`, both at their defaults. Time = both calls.
 - cedar-solve 0.5.1: `Tetra3.solve_from_image(PIL image, fov_estimate, fov_max_error)` at its
   defaults (its own centroider, match radius, threshold, 5 s timeout, distortion 0). Time =
   that call.
-- Both peers get the same field hint as ours (the manifest's fov_h_deg, +-5 %: our
-  --fov-tolerance default) and the same grey pixels our command solves (colour averaged to
+- Both peers get the same field hint as ours (the manifest's fov_h_deg, or --field-error PCT
+  off it, +-5 %: our --fov-tolerance default) and the same grey pixels our command solves (colour averaged to
   float32 grey, 16-bit kept as uint16). Their databases hold the same guide stars as ours
   (Hipparcos at epoch 2026.0, Hp, our automatic magnitude limit for the field), one
   multiscale database per group of similar fields in the corpus (bench/peers.py builds and
@@ -30,8 +30,9 @@ solved and reference +z axes; roll error = rotation angle about +z of the error 
 R_ref^T R_solved; "within 1'" = solved with boresight error <= 1 arcmin. Images without a
 reference count as unscored.
 
-Writes the `## Real images` section of --output with bench/report.py's write_section and the
-raw results to bench_realdata.json beside it.
+Writes the `## Real images` section of --output (`## Real images, field hint PCT % off` with
+--field-error) with bench/report.py's write_section and the raw results to bench_realdata.json
+(bench_realdata_field<PCT>pct.json) beside it.
 """
 from __future__ import annotations
 
@@ -46,7 +47,7 @@ import platform
 import shlex
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import metadata
 from pathlib import Path
 
@@ -100,6 +101,12 @@ class CorpusImage:
     fov_h_deg: float
     reference: np.ndarray | None
     confidence: str | None
+    field_error: float = 0.0  # the hint given to every solver is fov_h_deg x (1 + field_error)
+
+    @property
+    def hint_deg(self) -> float:
+        """The field of view every solver is told [deg]: the manifest's, made field_error off."""
+        return self.fov_h_deg * (1.0 + self.field_error)
 
 
 def load_corpus(corpus: Path, only: list[str] | None = None) -> list[CorpusImage]:
@@ -154,7 +161,7 @@ def score(rotation: np.ndarray | None, image: CorpusImage) -> dict:
 
 def solve_argv(image: CorpusImage) -> list[str]:
     """The command line of our solve, every option but the field at its default."""
-    return ["solve", str(image.path), "--fov", f"{image.fov_h_deg:g}", "--json", "--quiet"]
+    return ["solve", str(image.path), "--fov", f"{image.hint_deg:g}", "--json", "--quiet"]
 
 
 def run_solve_command(argv: list[str]) -> tuple[int, dict | None, float, str]:
@@ -285,9 +292,9 @@ def solve_tetra3rs(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
     height, width = pixels.shape
     started = time.perf_counter()
     extraction = tetra3rs.extract_centroids(pixels)
-    result = solver._db.solve_from_centroids(extraction.centroids, fov_estimate_deg=image.fov_h_deg,
+    result = solver._db.solve_from_centroids(extraction.centroids, fov_estimate_deg=image.hint_deg,
                                              image_width=width, image_height=height,
-                                             fov_max_error_deg=FOV_HINT_TOLERANCE * image.fov_h_deg)
+                                             fov_max_error_deg=FOV_HINT_TOLERANCE * image.hint_deg)
     elapsed = time.perf_counter() - started
     out = {"solved": False, "status": str(getattr(result, "status", "failed")), "matched": 0, "time_s": elapsed,
            "spots": len(extraction.centroids)}
@@ -313,8 +320,8 @@ def solve_cedar(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
     centre = (height / 2.0, width / 2.0)  # (y, x) from the top-left pixel corner
     targets = np.array([centre, (centre[0], centre[1] + width / 4.0)])
     started = time.perf_counter()
-    result = solver._t3.solve_from_image(picture, fov_estimate=image.fov_h_deg,
-                                         fov_max_error=FOV_HINT_TOLERANCE * image.fov_h_deg, target_pixel=targets)
+    result = solver._t3.solve_from_image(picture, fov_estimate=image.hint_deg,
+                                         fov_max_error=FOV_HINT_TOLERANCE * image.hint_deg, target_pixel=targets)
     elapsed = time.perf_counter() - started
     out = {"solved": False, "status": peer_adapters._cedar_status(result.get("status")), "matched": 0,
            "time_s": elapsed, "spots": None}
@@ -430,13 +437,16 @@ def render_markdown(results: dict) -> str:
     solvers = ["ours", *meta["peers"]]
     summary = results["summary"]
     versions = meta.get("versions", {})
+    error_pct = meta.get("field_error_pct", 0.0)
     lines = [
-        "## Real images",
+        "## Real images" + (f", field hint {error_pct:+g} % off" if error_pct else ""),
         "",
         f"Command: `{meta.get('command', 'python -m bench.bench_realdata')}`. Measured {meta.get('date', '?')} in "
         f"{meta['elapsed_s']:.0f} s. Machine: {meta.get('cpu', '?')}, `nproc` = {meta.get('cores', '?')}; "
         f"Python {meta.get('python', '?')}; tetra3rs {versions.get('tetra3rs') or 'not installed'}, cedar-solve "
-        f"{versions.get('cedar-solve') or 'not installed'}. Raw results: `docs/bench_realdata.json`.",
+        f"{versions.get('cedar-solve') or 'not installed'}. Raw results: `docs/{meta.get('json_name', 'bench_realdata.json')}`."
+        + (f" Every solver is told a field {error_pct:+g} % off the manifest's (the approximate field a user "
+           "knows), with the same 5 % tolerance." if error_pct else ""),
         "",
         "Corpus: `../shared/realdata/MANIFEST.json` (real sky images from public repositories, used in place; "
         "references from astrometry.net TAN-SIP solves, sensor frame +x right, +y down, +z boresight). "
@@ -514,14 +524,18 @@ def main(argv=None) -> int:
     parser.add_argument("--corpus", type=Path, help="corpus folder holding MANIFEST.json (default: ../shared/realdata "
                                                     "beside the repository)")
     parser.add_argument("--no-peers", action="store_true", help="our solver only")
+    parser.add_argument("--field-error", type=float, default=0.0, metavar="PCT",
+                        help="tell every solver a field PCT percent off the manifest's (default 0; within +-5)")
     args = parser.parse_args(argv)
+    if not -5.0 <= args.field_error <= 5.0:
+        parser.error(f"--field-error {args.field_error} must be within the solvers' 5 % tolerance")
     try:
         corpus = find_corpus(args.corpus)
     except CorpusMissing as exc:
         print(f"bench_realdata: {exc}", file=sys.stderr)
         return 2
     only = [name.strip() for name in args.only.split(",") if name.strip()] if args.only else None
-    images = load_corpus(corpus, only)
+    images = [replace(image, field_error=args.field_error / 100.0) for image in load_corpus(corpus, only)]
     peers = [] if args.no_peers else peer_adapters.usable_peers()
     from star_tracker.models.catalog import cache_dir
 
@@ -532,10 +546,12 @@ def main(argv=None) -> int:
     results["meta"].update(command="python -m bench.bench_realdata" + "".join(
         f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:])), date=date, corpus=str(corpus),
         cpu=info["cpu"], cores=info["cores"], python=info["python"], platform=info["platform"],
-        versions=info["versions"])
-    text = render_markdown(results)
+        versions=info["versions"], field_error_pct=args.field_error,
+        json_name="bench_realdata.json" if not args.field_error else f"bench_realdata_field{args.field_error:+g}pct.json")
+    json_name = results["meta"]["json_name"]
+    text = render_markdown(results)  # meta names the JSON file (json_name) and the field error
     print(text)
-    json_path = args.json or (args.output.parent / "bench_realdata.json" if args.output else None)
+    json_path = args.json or (args.output.parent / json_name if args.output else None)
     if args.output:
         write_section(args.output, text)
     if json_path:
