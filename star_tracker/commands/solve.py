@@ -331,14 +331,18 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
 
 def unsolved_summary(attempts: list[dict]) -> dict:
     """status "not_solved" and a reason naming what was tried and how each attempt ended."""
-    if not attempts:
-        return {"status": "not_solved", "reason": "no identification attempted"}
-    fields = [a["fov_x_deg"] for a in attempts]
-    outcomes = Counter(a["status"] for a in attempts)
-    ended = ", ".join(f"{count} {status}" for status, count in outcomes.most_common())
-    return {"status": "not_solved",
-            "reason": f"no field of {len(attempts)} tried ({min(fields):.3f}-{max(fields):.3f} deg) identified "
-                      f"the stars: {ended}"}
+    searches = [a for a in attempts if a.get("search") == "patterns"]
+    identifications = [a for a in attempts if a.get("search") != "patterns"]
+    parts = []
+    if searches and not searches[-1]["fields_deg"]:
+        parts.append("no four-star pattern of the brightest spots matched the sky at a field within the tolerance")
+    if identifications:
+        fields = [a["fov_x_deg"] for a in identifications]
+        outcomes = Counter(a["status"] for a in identifications)
+        ended = ", ".join(f"{count} {status}" for status, count in outcomes.most_common())
+        parts.append(f"no field of {len(identifications)} tried ({min(fields):.3f}-{max(fields):.3f} deg) identified "
+                     f"the stars: {ended}")
+    return {"status": "not_solved", "reason": "; ".join(parts) or "no identification attempted"}
 
 
 def format_text(record: dict) -> str:

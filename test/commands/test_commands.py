@@ -186,10 +186,18 @@ def test_solve_an_8bit_colour_png_with_a_4_percent_wrong_fov(tmp_path):
     assert code == 0, err
     solution = json.loads(out)
     assert "8-bit colour" in solution["image_description"]
-    assert len(solution["attempts"]) > 2 and solution["attempts"][0]["status"] != "solved"  # 15.6 alone fails
+    # The scale-free patterns find the field from the stars; the first identification at it solves.
+    patterns, first = solution["attempts"][:2]
+    assert patterns["search"] == "patterns" and patterns["fields_deg"][0] == pytest.approx(15.0, rel=3e-3)
+    assert first["status"] == "solved" and first["fov_x_deg"] == pytest.approx(patterns["fields_deg"][0], rel=1e-4)
     assert solution["camera"]["fov_x_deg"] == pytest.approx(15.0, rel=1e-3)  # refined from the stars
     assert len(solution["matched"]) >= 20
     _check_solution(solution, truth, max_cross_arcsec=5.0, max_roll_arcsec=30.0)
+    # The stepped search gets there too: 15.6 alone fails, then fields stepped outward.
+    code, out, err = cli("solve", tmp_path / "frame8.png", "--fov", "15.6", "--json", "--field-search", "steps")
+    stepped = json.loads(out)
+    assert code == 0 and len(stepped["attempts"]) > 2 and stepped["attempts"][0]["status"] != "solved"
+    assert stepped["camera"]["fov_x_deg"] == pytest.approx(15.0, rel=1e-3)
     assert "FOV 15.6000 deg: timeout" in err or "FOV 15.6000 deg: no_match" in err  # progress lines
     plot = cv2.imread(str(tmp_path / "plot.png"))
     assert plot is not None and plot.shape[1] >= 800 and plot.std() > 10
@@ -230,7 +238,8 @@ def test_solve_reports_failure_and_bad_input(tmp_path):
     code, out, _ = cli("solve", tmp_path / "blank.png", "--fov", "10", "--json")
     blank = json.loads(out)
     assert code == 1 and blank["reason"] == "blank frame: every pixel is 0 ADU (no signal, no noise)"
-    assert len(blank["attempts"]) == 1  # no field can help: not searched through the tolerance
+    identified = [a for a in blank["attempts"] if a.get("search") != "patterns"]
+    assert len(identified) == 1  # no field can help: not searched through the tolerance
     # Stars in no sky pattern: every field is tried and each attempt's end is named.
     yy, xx = np.mgrid[:256, :256]
     fake = rng.normal(1000, 10, (256, 256))
@@ -240,7 +249,14 @@ def test_solve_reports_failure_and_bad_input(tmp_path):
     code, out, _ = cli("solve", tmp_path / "fake.png", "--fov", "10", "--fov-tolerance", "1", "--json")
     unsolved = json.loads(out)
     assert code == 1 and unsolved["solved"] is False and unsolved["status"] == "not_solved"
-    assert unsolved["reason"].startswith(f"no field of {len(unsolved['attempts'])} tried (9.900-10.100 deg)")
+    stepped = [a for a in unsolved["attempts"] if a.get("search") != "patterns"]
+    assert unsolved["reason"].startswith("no four-star pattern of the brightest spots matched the sky at a field "
+                                         f"within the tolerance; no field of {len(stepped)} tried (9.900-10.100 deg) "
+                                         "identified the stars: ")
+    code, out, _ = cli("solve", tmp_path / "fake.png", "--fov", "10", "--field-search", "patterns", "--json")
+    quick = json.loads(out)
+    assert code == 1 and [a.get("search") for a in quick["attempts"]] == ["patterns"]
+    assert quick["reason"].startswith("no four-star pattern of the brightest spots matched the sky")
     code, _, err = cli("solve", tmp_path / "absent.png", "--fov", "10")
     assert code == 2 and err.startswith("star-tracker solve: error: no such file") and "absent.png" in err
     (tmp_path / "text.png").write_text("not an image")
