@@ -111,3 +111,23 @@ def _rotation(record: dict):
     from star_tracker.models.attitude import quaternion_to_matrix
 
     return quaternion_to_matrix(np.asarray(record["quaternion_xyzw"], float))
+
+
+# Real photographs with only an approximate field given (3-4 % off): the scale-free patterns
+# find it (identify/scale_free.py).
+APPROXIMATE_FIELD_CASES = [("gran_vega_05sec", 0.96), ("oresat_capture_2022_09_25", 1.03), ("lost_img_7660", 0.97)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("image_id, hint_factor", APPROXIMATE_FIELD_CASES if CORPUS_IDS else
+                         [pytest.param("absent", 1.0, marks=pytest.mark.skip(reason="real-image corpus absent"))])
+def test_real_image_with_an_approximate_field(image_id, hint_factor):
+    image = _image(image_id)
+    argv = ["solve", str(image.path), "--fov", f"{image.fov_h_deg * hint_factor:g}", "--json", "--quiet"]
+    code, record, _, err = bench.run_solve_command(argv)
+    assert code == 0, f"{image_id}: {(record or {}).get('reason')} {err[-200:]}"
+    patterns = record["attempts"][0]
+    assert patterns["search"] == "patterns" and patterns["fields_deg"]
+    assert patterns["fields_deg"][0] == pytest.approx(record["camera"]["fov_x_deg"], rel=5e-3)
+    boresight, _ = bench.attitude_errors(_rotation(record), image.reference)
+    assert boresight <= 2.5 * ARCMIN  # lost_img_7660's wide lens: 1.4' without a distortion model
