@@ -13,12 +13,14 @@ ignore.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from ..bags.format import BagError
 from .camera_files import load_camera_file
 from .common import CommandError, add_parser, guarded, non_negative_float, positive_float, positive_int
 
@@ -38,7 +40,14 @@ def register(subparsers) -> None:
         "share one size. Exit code 0: calibrated; 1: fewer than one image solved; 2: bad input.",
         "star-tracker calibrate night/*.jpg --fov 27 --output camera.yaml\n"
         "star-tracker solve night/frame_0007.jpg --camera camera.yaml")
-    parser.add_argument("images", nargs="+", help="image files (PNG/TIFF/JPEG/FITS as `solve` reads), one camera")
+    parser.add_argument("images", nargs="*", help="image files (PNG/TIFF/JPEG/FITS as `solve` reads), one camera")
+    parser.add_argument("--bag", metavar="BAG", help="also take the sensor_msgs/Image messages of a rosbag2 bag "
+                                                     "(directory or .db3/.mcap; mono8/mono16)")
+    parser.add_argument("--topic", default="/image_raw", help="image topic of --bag (default /image_raw)")
+    parser.add_argument("--every", type=positive_int, default=1, metavar="N",
+                        help="with --bag: every N-th image (default 1: all)")
+    parser.add_argument("--max-images", type=positive_int, default=50, metavar="N",
+                        help="with --bag: at most N images from it (default 50)")
     camera = parser.add_mutually_exclusive_group(required=True)
     camera.add_argument("--fov", type=positive_float, metavar="DEG",
                         help="approximate horizontal field of view [deg] (searched within --fov-tolerance)")
@@ -65,15 +74,49 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
-def image_spots(path: str, args: argparse.Namespace):
-    """(spots, width, height) of one image, centroided as `solve` does with these options."""
-    from ..centroid import CentroidConfig, extract_spots
+def file_images(paths: list[str]):
+    """(label, grey pixels, description) of each image file, read as `solve` reads it."""
     from .images import read_image
 
-    image = read_image(path)
-    pixels = image.pixels
+    for path in paths:
+        image = read_image(path)
+        yield str(path), image.pixels, image.description
+
+
+def bag_images(path: str, topic: str, every: int, max_images: int):
+    """(label 'BAG@STAMP_NS', pixels, description) of every `every`-th sensor_msgs/Image on
+    `topic` of a bag, at most max_images; a message the centroider could not take is a
+    BagError naming it (bags/validate.py)."""
+    from ..bags.format import IMAGE_ENCODINGS, IMAGE_TYPE, typestore
+    from ..bags.reader import BagReader
+    from ..bags.validate import image_problem
+
+    with BagReader(path) as reader:
+        name = reader.select([topic])[0]
+        if reader.info.topics[name].type != IMAGE_TYPE:
+            raise BagError(f"{path}: topic {name} holds {reader.info.topics[name].type}, not {IMAGE_TYPE}")
+        taken = 0
+        for index, (_, stamp_ns, data) in enumerate(reader.messages([name])):
+            if index % every or taken >= max_images:
+                continue
+            problem = image_problem(data)
+            if problem:
+                raise BagError(f"{path}: image {index} on {name}: {problem}")
+            msg = typestore().deserialize_cdr(data, IMAGE_TYPE)
+            size = IMAGE_ENCODINGS[msg.encoding]
+            dtype = np.dtype(np.uint8 if size == 1 else np.uint16).newbyteorder(">" if msg.is_bigendian else "<")
+            rows = np.frombuffer(bytes(msg.data), np.uint8).reshape(int(msg.height), int(msg.step))
+            pixels = np.ascontiguousarray(rows[:, :int(msg.width) * size]).view(dtype).astype(dtype.newbyteorder("="))
+            taken += 1
+            yield f"{path}@{stamp_ns}", pixels, f"{msg.encoding} {msg.width}x{msg.height}"
+
+
+def image_spots(pixels: np.ndarray, description: str, args: argparse.Namespace):
+    """(spots, width, height) of one image, centroided as `solve` does with these options."""
+    from ..centroid import CentroidConfig, extract_spots
+
     saturation = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(pixels.dtype, 0.0)
-    if "8-bit" in image.description and pixels.dtype.kind == "f":
+    if "8-bit" in description and pixels.dtype.kind == "f":
         saturation = 255.0  # colour 8-bit averaged to float grey
     config = CentroidConfig(detection_sigma=args.detection_sigma, psf_sigma_px=args.psf_sigma,
                             method="auto" if args.psf_sigma > 0 else "cog", max_spots=args.max_spots,
@@ -107,13 +150,15 @@ def calibration_yaml(calibration, camera_name: str, images: list[dict]) -> str:
     return "\n".join(header) + "\n" + yaml.safe_dump(document, sort_keys=False, default_flow_style=None)
 
 
-@guarded(NAME)
+@guarded(NAME, errors=(BagError,))
 def run(args: argparse.Namespace) -> int:
     from ..models.camera_calibration import CalibrationConfig, CalibrationFrame, calibrate_camera
     from .solve import SolveOptions, solve_spots
 
     if args.fov is not None and not 0.5 <= args.fov <= 80.0:
         raise CommandError(f"--fov {args.fov} must be in [0.5, 80] deg")
+    if not args.images and not args.bag:
+        raise CommandError("give image files and/or --bag")
     start = load_camera_file(args.camera).camera if args.camera else None
     report = (lambda text: None) if args.quiet else (lambda text: print(f"calibrate: {text}", file=sys.stderr,
                                                                          flush=True))
@@ -122,15 +167,19 @@ def run(args: argparse.Namespace) -> int:
     size = None
     solved = []  # (path, spots, SolveResult)
     summary = []
-    for path in args.images:
-        spots, width, height = image_spots(path, args)
+    sources = itertools.chain(file_images(args.images),
+                              bag_images(args.bag, args.topic, args.every, args.max_images) if args.bag else ())
+    names = []
+    for path, pixels, description in sources:
+        names.append(path)
+        spots, width, height = image_spots(pixels, description, args)
         if size is None:
             size = (width, height)
             if start is not None and (start.width, start.height) != size:
                 raise CommandError(f"{args.camera} describes a {start.width}x{start.height} px camera; {path} is "
                                    f"{width}x{height} px")
         elif (width, height) != size:
-            raise CommandError(f"{path} is {width}x{height} px, {args.images[0]} {size[0]}x{size[1]} px: one camera, "
+            raise CommandError(f"{path} is {width}x{height} px, {names[0]} {size[0]}x{size[1]} px: one camera, "
                                "one image size")
         result = solve_spots(spots, width, height, fov_deg=args.fov, camera=start, options=options)
         stars = int(result.identification.hip.size) if result.solved else 0
@@ -168,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     from .solve import calibration_summary
 
-    lines = [f"{len(solved)} of {len(args.images)} image(s) solved; one camera fitted over {fit['stars']} stars",
+    lines = [f"{len(solved)} of {len(names)} image(s) solved; one camera fitted over {fit['stars']} stars",
              f"fit: {calibration_summary(fit)}", "", f"{'stars':>6} {'RMS [px]':>9}  image"]
     lines += [f"{i['stars']:6d} {i['residual_rms_px']:9.3f}  {i['image']}" for i in images]
     lines += [f"{'-':>6} {'-':>9}  {s['image']} (not solved)" for s in summary if not s["solved"]]

@@ -59,13 +59,39 @@ def test_calibrate_rendered_frames_recovers_the_distortion_and_solve_reads_the_f
     document = yaml.safe_load(out_yaml.read_text())
     assert document["distortion_model"] == "plumb_bob" and document["camera_matrix"]["rows"] == 3
     assert len(document["projection_matrix"]["data"]) == 12 and out_yaml.read_text().startswith("# star-tracker")
+    # The same frames as sensor_msgs/Image (mono16) in a bag give the same camera.
+    bag = _image_bag(tmp_path / "frames_bag", [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in frames])
+    code, bag_out, err = cli("calibrate", "--bag", bag, "--fov", "20.3", "--output", tmp_path / "bag.yaml", "--json", "-q")
+    assert code == 0, err
+    from_bag = json.loads(bag_out)["camera"]
+    assert (from_bag["fx"], from_bag["cx"], from_bag["cy"]) == pytest.approx(
+        (summary["camera"]["fx"], summary["camera"]["cx"], summary["camera"]["cy"]))
+    assert from_bag["distortion"] == pytest.approx(summary["camera"]["distortion"])
     code, out, err = cli("solve", frames[1], "--camera", out_yaml, "--json")
     assert code == 0, err
     solution = json.loads(out)
     rendered_truth = json.loads((tmp_path / "frame1.json").read_text())
-    cross, _ = attitude_error(quaternion_to_matrix(np.asarray(solution["quaternion_xyzw"])),
-                              quaternion_to_matrix(np.asarray(rendered_truth["attitude"]["quaternion_xyzw"])))
+    cross = attitude_error(quaternion_to_matrix(np.asarray(solution["quaternion_xyzw"])),
+                           np.asarray(rendered_truth["rotation_sensor_to_icrs"]))[0]
     assert cross < 5 * ARCSEC
+
+
+def _image_bag(path: Path, images: list[np.ndarray], topic: str = "/image_raw") -> Path:
+    from star_tracker import bags
+
+    store = bags.typestore()
+    writer = bags.BagWriter(path)
+    writer.add_topic(topic, bags.IMAGE_TYPE)
+    for k, pixels in enumerate(images):
+        stamp = store.types["builtin_interfaces/msg/Time"](sec=100 + k, nanosec=0)
+        header = store.types["std_msgs/msg/Header"](stamp=stamp, frame_id="star_tracker_optical")
+        height, width = pixels.shape
+        msg = store.types["sensor_msgs/msg/Image"](header=header, height=height, width=width, encoding="mono16",
+                                                    is_bigendian=0, step=2 * width,
+                                                    data=np.ascontiguousarray(pixels, "<u2").view(np.uint8).ravel())
+        writer.write(topic, (100 + k) * 1_000_000_000, bytes(store.serialize_cdr(msg, bags.IMAGE_TYPE)))
+    writer.close({})
+    return path
 
 
 def test_calibrate_refuses_bad_input(tmp_path):
@@ -80,6 +106,15 @@ def test_calibrate_refuses_bad_input(tmp_path):
     assert code == 2 and "--output" in err
     code, _, err = cli("calibrate", tmp_path / "a.png", "--fov", "200", "-o", tmp_path / "c.yaml")
     assert code == 2 and "--fov" in err
+    code, _, err = cli("calibrate", "--fov", "10", "-o", tmp_path / "c.yaml")
+    assert code == 2 and "--bag" in err
+    code, _, err = cli("calibrate", "--bag", tmp_path / "nobag", "--fov", "10", "-o", tmp_path / "c.yaml")
+    assert code == 2 and "no bag at" in err
+    bag = _image_bag(tmp_path / "bag", [np.full((60, 80), 100, np.uint16)] * 2)
+    code, _, err = cli("calibrate", "--bag", bag, "--topic", "/camera/image", "--fov", "10", "-o", tmp_path / "c.yaml")
+    assert code == 2 and "no topic /camera/image" in err
+    code, out, err = cli("calibrate", "--bag", bag, "--fov", "10", "-o", tmp_path / "c.yaml")
+    assert code == 1 and "NOT CALIBRATED" in out  # blank frames: nothing solved
     assert not (tmp_path / "c.yaml").exists()
 
 
