@@ -348,9 +348,9 @@ class IdentifierNode(Node):
             return
         self.diag.count("calibration_fits")
         self.diag.value("calibration_focal_px", f"{estimate.value['f']:.3f}")
-        self.diag.value("calibration_focal_sigma_px", f"{estimate.sigma['f']:.3f}")
-        self.diag.value("calibration_k1", f"{estimate.value['k1']:.6f}" if "k1" in estimate.fitted else "")
-        self.diag.value("calibration_k1_sigma", f"{estimate.sigma['k1']:.6f}" if "k1" in estimate.fitted else "")
+        self.diag.value("calibration_focal_sigma_px", f"{estimate.sigma['f']:.3g}")
+        self.diag.value("calibration_k1", f"{estimate.value['k1']:.6g}" if "k1" in estimate.fitted else "")
+        self.diag.value("calibration_k1_sigma", f"{estimate.sigma['k1']:.3g}" if "k1" in estimate.fitted else "")
         self.diag.value("calibration_residual_rms_px", f"{estimate.residual_rms_px:.3f}")
         self.diag.value("calibration_stars", estimate.stars)
         self.diag.value("calibration_applied", ",".join(self.online_calibration.applied) or "none")

@@ -3,6 +3,7 @@
 the written ROS calibration file read back by `solve --camera`, and bad input."""
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import sys
@@ -154,3 +155,37 @@ def test_calibrate_real_granasat_images_and_solve_a_held_out_one_closer_to_astro
     # now fits this one image's distortion too (43"); the camera of five other images does as well.
     assert errors["calibrated"] < math.radians(1.0 / 60.0), errors
     assert errors["calibrated"] < errors["fov"] + 5 * ARCSEC, errors
+    # Independent stars: astrometry.net's own matches (Tycho-2 index stars <-> its detections,
+    # .anet.corr) predicted by the held-out solve with the calibrated camera, against the
+    # reference TAN-SIP's own fit of them.
+    ours, reference = corr_residuals_px(held_out, corpus, load_camera_file(out_yaml).camera)
+    assert np.median(ours) < 0.3 and np.median(ours) < 0.5 * np.median(reference), (np.median(ours),
+                                                                                      np.median(reference))
+
+
+def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel distances between astrometry.net's detected positions of its matched stars and
+    (ours) where the image's solve with `camera` puts those catalog stars, (reference) where its
+    TAN-SIP WCS puts them."""
+    from astropy.io import fits
+    from astropy.table import Table
+    from astropy.wcs import WCS
+
+    from star_tracker.commands.calibrate import file_images, image_spots
+    from star_tracker.commands.solve import solve_spots
+
+    entry = next(e for e in json.loads((corpus / "MANIFEST.json").read_text())["images"] if e["id"] == image.id)
+    wcs = WCS(fits.Header.fromstring((corpus / entry["reference"]["wcs_file"]).read_bytes()))
+    table = Table.read(corpus / entry["reference"]["corr_file"])
+    x, y = np.asarray(table["field_x"]) - 1.0, np.asarray(table["field_y"]) - 1.0  # FITS pixels are 1-based
+    ra, dec = np.asarray(table["index_ra"]), np.asarray(table["index_dec"])
+    wcs_x, wcs_y = wcs.all_world2pix(ra, dec, 0)
+    ra, dec = np.radians(ra), np.radians(dec)
+    stars = np.stack([np.cos(dec) * np.cos(ra), np.cos(dec) * np.sin(ra), np.sin(dec)], axis=1)
+    _, pixels, description = next(file_images([str(image.path)]))
+    options = argparse.Namespace(detection_sigma=4.5, psf_sigma=1.0, max_spots=150)  # the solve defaults
+    spots, width, height = image_spots(pixels, description, options)
+    result = solve_spots(spots, width, height, camera=camera)
+    assert result.solved
+    u, v, _ = camera.project(stars @ result.identification.attitude.rotation)
+    return np.hypot(u - x, v - y), np.hypot(wcs_x - x, wcs_y - y)
