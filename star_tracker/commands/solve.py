@@ -2,8 +2,10 @@
 
 centroid (extract_spots) -> identify (make_identifier, pattern database for the field) with
 the nominal field of view, then, when that fails, with fields stepped outward through
-+-tolerance; the focal length is then refined by least squares over the matched stars and
-the image identified once more with it (more matches, the final attitude and covariance).
++-tolerance; the camera is then refined by least squares over the matched stars (focal
+length; k1, k2 and the principal point where the stars constrain them:
+models/camera_calibration.py) and the image identified once more with it (more matches, the
+final attitude and covariance). The reported attitude is that of the image centre pixel.
 """
 from __future__ import annotations
 

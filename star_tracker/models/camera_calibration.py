@@ -111,7 +111,8 @@ class CameraCalibration:
     corner_sigma_px: each fitted parameter's 1-sigma effect at the image corner [px];
     rotations: each frame's fitted attitude sensor -> ICRS; inliers: each frame's mask of the
     stars kept; frame_rms_px: each frame's inlier residual RMS [px] (per axis); residual_rms_px:
-    the same over all frames; stars: inliers over all frames."""
+    the same over all frames; stars: inliers over all frames; limits: the rule's limits it was
+    decided by (max_corner_sigma_px, max_principal_point_sigma_px [px])."""
 
     camera: CameraModel
     fitted: tuple[str, ...]
@@ -125,7 +126,7 @@ class CameraCalibration:
     frame_rms_px: tuple
     residual_rms_px: float
     stars: int
-    extra: dict = field(default_factory=dict)
+    limits: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         """Plain values (JSON): fitted/not fitted names, values and 1-sigma, residuals."""
@@ -136,7 +137,7 @@ class CameraCalibration:
                 "residual_rms_px": float(self.residual_rms_px), "stars": int(self.stars),
                 "frame_rms_px": [float(r) for r in self.frame_rms_px],
                 "frame_stars": [int(np.count_nonzero(m)) for m in self.inliers],
-                **{k: float(v) for k, v in self.extra.items()}}
+                **{k: float(v) for k, v in self.limits.items()}}
 
 
 def corner_radius(camera: CameraModel) -> float:
@@ -164,8 +165,8 @@ def calibrate_camera(frames, camera: CameraModel, config: CalibrationConfig = Ca
         if constrained(best, config):
             break
     not_fitted = tuple(GROUP_NAMES[g] for g in groups if not set(PARAMETER_GROUPS[g]) <= set(best.fitted))
-    return replace(best, not_fitted=not_fitted, extra={"max_corner_sigma_px": config.max_corner_sigma_px,
-                                                       "max_principal_point_sigma_px": config.max_principal_point_sigma_px})
+    return replace(best, not_fitted=not_fitted, limits={"max_corner_sigma_px": config.max_corner_sigma_px,
+                                                        "max_principal_point_sigma_px": config.max_principal_point_sigma_px})
 
 
 def constrained(calibration: CameraCalibration, config: CalibrationConfig) -> bool:
@@ -192,7 +193,11 @@ def _whitening(frames, sigma_floor_px: float) -> np.ndarray:
     return np.transpose(lower, (0, 2, 1))
 
 
-def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: CalibrationConfig, radius: float):
+def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: CalibrationConfig,
+         radius: float) -> CameraCalibration:
+    """One model: the camera parameters `names` and every frame's rotation (a rotation vector
+    applied to its starting attitude) by soft-L1 least squares, then plain least squares over the
+    inliers; covariance = (JᵀJ)⁻¹ scaled by the inliers' reduced χ². radius: corner_radius [-]."""
     from scipy.optimize import least_squares
 
     count = len(frames)
@@ -223,8 +228,9 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
     robust = least_squares(whitened, x0, loss="soft_l1", f_scale=config.robust_scale, x_scale="jac", method="trf",
                            jac_sparsity=sparsity)
     norms = np.linalg.norm(robust.fun.reshape(-1, 2), axis=1)
-    # Robust spread of the whitened residuals: the median norm of a 2-D unit normal is sqrt(2 ln 2).
-    spread = float(np.median(norms)) / math.sqrt(2.0 * math.log(2.0))
+    # Robust spread of the whitened residuals (the median norm of a 2-D unit normal is sqrt(2 ln 2)),
+    # at least the stated one: noise-free or overestimated covariances must not make the cut tighter.
+    spread = max(float(np.median(norms)) / math.sqrt(2.0 * math.log(2.0)), 1.0)
     keep = (norms <= config.outlier_sigma * spread).astype(float)
     final = least_squares(lambda p: whitened(p, keep), robust.x, x_scale="jac", method="trf", jac_sparsity=sparsity)
     inlier_count = int(keep.sum())
