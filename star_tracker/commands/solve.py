@@ -203,7 +203,8 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
                                 "status": final.status, "elapsed_s": round(time.perf_counter() - started, 3),
                                 "refined": True, "stars": int(final.hip.size), "fitted": list(calibration.fitted)})
         grew = final.solved and final.hip.size > result.identification.hip.size
-        if final.solved and (grew or round_index == 0 and final.hip.size == result.identification.hip.size):
+        # As many stars: keep the camera fitted to the most stars (the one reported with them).
+        if final.solved and final.hip.size >= result.identification.hip.size:
             result.identification, result.camera, result.calibration = final, refined, calibration
             result.focal_sigma_px = calibration.sigma["f"]
         if not grew:
