@@ -15,7 +15,7 @@ NOMINAL = CameraModel.from_fov(1024, 1024, math.radians(15.0))
 TRUE = CameraModel(1024, 1024, NOMINAL.fx * 1.003, NOMINAL.fy * 1.003, NOMINAL.cx, NOMINAL.cy, (0.05, 0, 0, 0, 0))
 
 
-def solved_frame(catalog, k: int, rng, sigma_px: float = 0.1):
+def solved_frame(catalog, rng, sigma_px: float = 0.1):
     """Spots of the true camera at a random pointing and their 'identification' (truth matches)."""
     rotation = radec_roll_to_matrix(rng.uniform(0, 2 * math.pi), rng.uniform(-1.2, 1.2), rng.uniform(-3, 3))
     vectors = catalog.brighter_than(6.5).unit_vectors()
@@ -28,7 +28,7 @@ def solved_frame(catalog, k: int, rng, sigma_px: float = 0.1):
     return spots, ident
 
 
-class _Attitude:
+class _Attitude:  # the one field of AttitudeSolution that from_identification reads
     def __init__(self, rotation):
         self.rotation = rotation
 
@@ -36,7 +36,7 @@ class _Attitude:
 def test_accumulates_refits_and_applies_only_a_constrained_estimate(catalog):
     rng = np.random.default_rng(3)
     online = OnlineCalibration(OnlineCalibrationConfig(frames_per_fit=5, max_frames=10))
-    estimates = [online.add(*solved_frame(catalog, k, rng), NOMINAL) for k in range(10)]
+    estimates = [online.add(*solved_frame(catalog, rng), NOMINAL) for k in range(10)]
     assert [e is not None for e in estimates] == [False] * 4 + [True] + [False] * 4 + [True]
     assert online.fits == 2 and len(online.frames) == 10
     estimate = online.estimate
@@ -51,9 +51,9 @@ def test_accumulates_refits_and_applies_only_a_constrained_estimate(catalog):
 def test_a_loose_estimate_is_not_applied_and_a_new_camera_resets(catalog):
     rng = np.random.default_rng(5)
     online = OnlineCalibration(OnlineCalibrationConfig(frames_per_fit=1, apply_corner_sigma_px=1e-4))
-    online.add(*solved_frame(catalog, 0, rng, sigma_px=0.5), NOMINAL)
+    online.add(*solved_frame(catalog, rng, sigma_px=0.5), NOMINAL)
     assert online.estimate is not None and online.applied == ()
     assert online.camera_for(NOMINAL) is NOMINAL
     other = CameraModel.from_fov(1024, 1024, math.radians(15.5))
-    online.add(*solved_frame(catalog, 1, rng), other)
+    online.add(*solved_frame(catalog, rng), other)
     assert online.nominal == other and len(online.frames) == 1
