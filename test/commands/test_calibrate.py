@@ -189,3 +189,29 @@ def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarr
     assert result.solved
     u, v, _ = camera.project(stars @ result.identification.attitude.rotation)
     return np.hypot(u - x, v - y), np.hypot(wcs_x - x, wcs_y - y)
+
+
+def test_the_calibration_file_round_trips_through_solve_camera_and_camera_info(tmp_path, catalog):
+    """calibration_yaml of a fit (projected stars of an off-centre, distorted camera) read back
+    by `solve --camera`'s reader and, as the nodes get it, through a CameraInfo message."""
+    convert = pytest.importorskip("star_tracker.ros.convert")  # ROS messages (sensor_msgs)
+    from star_tracker.commands.calibrate import calibration_yaml
+    from star_tracker.models.attitude import radec_roll_to_matrix
+    from star_tracker.models.camera_calibration import CalibrationFrame, calibrate_camera
+
+    truth = CameraModel(1280, 960, 2650.0, 2650.0, 664.0, 436.0, (-0.03, 0.5, 0.0, 0.0, 0.0))
+    vectors = catalog.brighter_than(6.5).unit_vectors()
+    frames = []
+    for pointing in [(1.0, 0.3, 0.1), (2.5, -0.5, 1.2), (4.0, 0.8, -2.0), (5.5, 0.0, 0.7)]:
+        rotation = radec_roll_to_matrix(*pointing)
+        u, v, front = truth.project(vectors @ rotation)
+        seen = front & truth.in_image(u, v, margin=2.0)
+        frames.append(CalibrationFrame(u[seen], v[seen], np.tile(0.01 * np.eye(2), (int(seen.sum()), 1, 1)),
+                                       vectors[seen], rotation))
+    calibration = calibrate_camera(frames, CameraModel.from_fov(1280, 960, 2 * math.atan(640 / 2660.0)))
+    path = tmp_path / "camera.yaml"
+    path.write_text(calibration_yaml(calibration, "granasat_like", [{"image": "x", "stars": 1}]))
+    read = load_camera_file(path).camera
+    assert read == calibration.camera
+    assert (read.fx, read.cx, read.cy, read.distortion[1]) == pytest.approx((2650.0, 664.0, 436.0, 0.5), abs=1e-3)
+    assert convert.info_to_camera(convert.camera_to_info(read, 0, "star_tracker_optical")) == read
