@@ -1,6 +1,6 @@
 """`star-tracker` command line. `star-tracker demo` (here) is what `make demo` runs; the other
 subcommands are in star_tracker/commands/: `record`, `play`, `info` and `reindex` handle rosbag2
-bags (commands/bags.py, docs/RECORD_REPLAY.md), then render, solve, database, monitor, bench."""
+bags (commands/bags.py, docs/RECORD_REPLAY.md), then render, solve, calibrate, database, monitor, bench."""
 from __future__ import annotations
 
 import argparse
@@ -272,7 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .commands import add_commands, bags  # star_tracker/commands/
 
     bags.add_commands(sub)  # record, play, info, reindex
-    add_commands(sub)  # render, solve, database, monitor, bench
+    add_commands(sub)  # render, solve, calibrate, database, monitor, bench
     return parser
 
 

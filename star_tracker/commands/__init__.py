@@ -10,9 +10,9 @@ cli.py: their --help predates the example epilogs of COMMANDS and keeps its form
 """
 from __future__ import annotations
 
-from . import bench, database, monitor, render, solve
+from . import bench, calibrate, database, monitor, render, solve
 
-COMMANDS = [render, solve, database, monitor, bench]
+COMMANDS = [render, solve, calibrate, database, monitor, bench]
 
 
 def add_commands(subparsers) -> None:

@@ -2,8 +2,10 @@
 
 centroid (extract_spots) -> identify (make_identifier, pattern database for the field) with
 the nominal field of view, then, when that fails, with fields stepped outward through
-+-tolerance; the focal length is then refined by least squares over the matched stars and
-the image identified once more with it (more matches, the final attitude and covariance).
++-tolerance; the camera is then refined by least squares over the matched stars (focal
+length; k1, k2 and the principal point where the stars constrain them:
+models/camera_calibration.py) and the image identified once more with it (more matches, the
+final attitude and covariance). The reported attitude is that of the image centre pixel.
 """
 from __future__ import annotations
 
@@ -127,14 +129,17 @@ class SolveOptions:
 @dataclass
 class SolveResult:
     """identification: the final Identification (None when nothing solved); camera: the camera
-    it refers to (refined focal length); focal_sigma_px: 1-sigma of the refined focal length
-    [px] (None when not refined); attempts: one dict per identification attempt."""
+    it refers to (refined focal length and distortion); focal_sigma_px: 1-sigma of the refined
+    focal length [px] (None when not refined); calibration: the CameraCalibration of that
+    refinement (models/camera_calibration.py; None when not refined); attempts: one dict per
+    identification attempt."""
 
     identification: object | None
     camera: object
     database: object
     attempts: list = field(default_factory=list)
     focal_sigma_px: float | None = None
+    calibration: object | None = None
 
     @property
     def solved(self) -> bool:
@@ -204,15 +209,21 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     # radius at the wrong scale): refine, identify again with more stars, until none are added.
     identifier.config = replace(config, max_time_s=4.0 * options.max_time_s)
     for round_index in range(MAX_REFINE_ROUNDS):
-        refined, sigma_f = refine_focal_length(result.camera, spots, result.identification)
+        try:
+            calibration = refine_camera(result.camera, spots, result.identification, options.centroid_sigma_floor_px)
+        except ValueError:  # too few stars to fit even the focal length: keep the searched camera
+            break
+        refined = calibration.camera
         started = time.perf_counter()
         final = identifier.identify(spots, refined)
         result.attempts.append({"fov_x_deg": math.degrees(2.0 * math.atan(0.5 * refined.width / refined.fx)),
                                 "status": final.status, "elapsed_s": round(time.perf_counter() - started, 3),
-                                "refined": True, "stars": int(final.hip.size)})
+                                "refined": True, "stars": int(final.hip.size), "fitted": list(calibration.fitted)})
         grew = final.solved and final.hip.size > result.identification.hip.size
-        if final.solved and (grew or round_index == 0 and final.hip.size == result.identification.hip.size):
-            result.identification, result.camera, result.focal_sigma_px = final, refined, sigma_f
+        # As many stars: keep the camera fitted to the most stars (the one reported with them).
+        if final.solved and final.hip.size >= result.identification.hip.size:
+            result.identification, result.camera, result.calibration = final, refined, calibration
+            result.focal_sigma_px = calibration.sigma["f"]
         if not grew:
             break
     return result
@@ -244,44 +255,35 @@ def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOpt
     return cameras
 
 
-def refine_focal_length(camera, spots, identification):
-    """Least-squares focal length (fx = fy, principal point kept) and attitude over the matched
-    stars, minimising pixel residuals. Returns the camera with it and its 1-sigma [px]."""
-    from scipy.optimize import least_squares
+def refine_camera(camera, spots, identification, sigma_floor_px: float):
+    """Least-squares camera and attitude over the matched stars (pixel residuals weighted by the
+    spots' covariances, sigma_floor_px [px] added in quadrature): the focal length (fx, fy
+    scaled together), and k1, k2 and the principal point where the stars constrain them
+    (models/camera_calibration.py). Returns the CameraCalibration; ValueError with < 3 stars."""
+    from ..models.camera_calibration import CalibrationConfig, CalibrationFrame, calibrate_camera
 
+    frame = CalibrationFrame.from_identification(spots, identification)
+    return calibrate_camera([frame], camera, CalibrationConfig(sigma_floor_px=sigma_floor_px))
+
+
+def image_centre_rotation(rotation: np.ndarray, camera) -> np.ndarray:
+    """The sensor -> ICRS rotation of the frame whose +z passes through the image centre pixel
+    ((W-1)/2, (H-1)/2): `rotation` (the camera frame, +z through the principal point) turned by
+    the smallest rotation that takes +z to that pixel's ray. The identity turn when the
+    principal point is the image centre."""
     from ..models.attitude import rotation_vector_to_matrix
-    from ..models.camera import CameraModel
 
-    x = spots.x[identification.spot_index]
-    y = spots.y[identification.spot_index]
-    stars = identification.star_vectors
-    rotation0 = identification.attitude.rotation
-
-    def residuals(params):
-        rotation = rotation0 @ rotation_vector_to_matrix(params[:3])
-        scale = math.exp(params[3])
-        trial = replace_focal(camera, camera.fx * scale, camera.fy * scale)
-        u, v, _ = trial.project(stars @ rotation)
-        return np.concatenate([u - x, v - y])
-
-    def replace_focal(cam, fx, fy):
-        return CameraModel(cam.width, cam.height, fx, fy, cam.cx, cam.cy, tuple(cam.distortion))
-
-    fit = least_squares(residuals, np.zeros(4), method="lm")
-    scale = math.exp(fit.x[3])
-    dof = max(fit.fun.size - 4, 1)
-    variance = float(np.sum(fit.fun ** 2)) / dof
-    try:
-        covariance = np.linalg.inv(fit.jac.T @ fit.jac) * variance
-        sigma_f = math.sqrt(max(covariance[3, 3], 0.0)) * camera.fx * scale
-    except np.linalg.LinAlgError:
-        sigma_f = float("nan")
-    return replace_focal(camera, camera.fx * scale, camera.fy * scale), sigma_f
+    centre = camera.pixel_to_ray(np.array([(camera.width - 1) / 2.0]), np.array([(camera.height - 1) / 2.0]))[0]
+    axis = np.cross([0.0, 0.0, 1.0], centre)
+    sine = float(np.linalg.norm(axis))
+    if sine < 1e-15:
+        return rotation
+    return rotation @ rotation_vector_to_matrix(axis / sine * math.atan2(sine, float(centre[2])))
 
 
 def solution_record(result: SolveResult, spots, image_path: str, description: str) -> dict:
     """Everything `solve` prints, as plain values (the --json document)."""
-    from ..models.attitude import matrix_to_radec_roll
+    from ..models.attitude import matrix_to_quaternion, matrix_to_radec_roll
 
     cam = result.camera
     record = {"image": image_path, "image_description": description, "spots": int(len(spots)),
@@ -289,7 +291,8 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
               "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy, "cx": cam.cx,
                          "cy": cam.cy, "distortion": list(cam.distortion),
                          "fov_x_deg": math.degrees(2.0 * math.atan(0.5 * cam.width / cam.fx)),
-                         "focal_sigma_px": result.focal_sigma_px},
+                         "focal_sigma_px": result.focal_sigma_px,
+                         "calibration": None if result.calibration is None else result.calibration.as_dict()},
               "database": {"magnitude_limit": result.database.config.magnitude_limit,
                            "max_pair_angle_deg": math.degrees(result.database.config.max_pair_angle_rad),
                            "epoch_jyear": result.database.config.epoch_jyear, "stars": result.database.star_count}}
@@ -301,8 +304,12 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
     if not ident.solved:
         return record
     rotation = ident.attitude.rotation
-    ra, dec, roll = (math.degrees(a) for a in matrix_to_radec_roll(rotation))
-    sigma = np.sqrt(np.maximum(np.diag(ident.attitude.covariance), 0.0)) * ARCSEC_PER_RAD
+    # The reported boresight is the image centre pixel's (a fitted principal point may lie elsewhere).
+    centred = image_centre_rotation(rotation, cam)
+    turn = rotation.T @ centred
+    covariance = turn.T @ ident.attitude.covariance @ turn
+    ra, dec, roll = (math.degrees(a) for a in matrix_to_radec_roll(centred))
+    sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0)) * ARCSEC_PER_RAD
     by_hip = np.argsort(result.database.hip)
     where = by_hip[np.searchsorted(result.database.hip, ident.hip, sorter=by_hip)]
     magnitude = result.database.magnitude[where]
@@ -318,10 +325,11 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
     matched.sort(key=lambda m: m["magnitude"])
     record.update({
         "ra_deg": ra, "dec_deg": dec, "roll_deg": roll,
-        "quaternion_xyzw": [float(q) for q in ident.attitude.quaternion],
+        "quaternion_xyzw": [float(q) for q in (ident.attitude.quaternion if centred is rotation
+                                               else matrix_to_quaternion(centred))],
         "sigma_arcsec": {"x": float(sigma[0]), "y": float(sigma[1]), "roll": float(sigma[2]),
                          "cross_boresight": float(math.hypot(sigma[0], sigma[1]))},
-        "covariance_rad2": ident.attitude.covariance.tolist(),
+        "covariance_rad2": covariance.tolist(),
         "false_positive_bound": float(ident.false_positive_probability),
         "matched": matched,
         "residual_rms_arcsec": float(np.sqrt(np.mean((ident.residual_rad * ARCSEC_PER_RAD) ** 2))),
@@ -350,6 +358,8 @@ def format_text(record: dict) -> str:
              f"camera: {camera_summary_from(record['camera'])}"
              + (f", focal length +-{record['camera']['focal_sigma_px']:.2f} px (refined)"
                 if record['camera'].get('focal_sigma_px') is not None else "")]
+    if record["camera"].get("calibration"):
+        lines.append(f"fitted camera: {calibration_summary(record['camera']['calibration'])}")
     if not record["solved"]:
         lines.append(f"NOT SOLVED: {record['reason']}")
         return "\n".join(lines)
@@ -367,6 +377,17 @@ def format_text(record: dict) -> str:
     for m in record["matched"]:
         lines.append(f"{m['hip']:7d} {m['magnitude']:6.2f} {m['x']:9.2f} {m['y']:9.2f} {m['residual_arcsec']:8.2f}\"")
     return "\n".join(lines)
+
+
+def calibration_summary(calibration: dict) -> str:
+    """One line of a CameraCalibration.as_dict(): each fitted parameter +-1 sigma, what the
+    stars left unfitted, the residual RMS."""
+    units = {"f": " px", "cx": " px", "cy": " px", "k1": "", "k2": ""}
+    fitted = ", ".join(f"{name} {calibration['value'][name]:.6g} +-{calibration['sigma'][name]:.2g}{units[name]}"
+                       for name in calibration["fitted"])
+    kept = f"; not constrained, kept: {', '.join(calibration['not_fitted'])}" if calibration["not_fitted"] else ""
+    return (f"{fitted}{kept}; residual RMS {calibration['residual_rms_px']:.3f} px over {calibration['stars']} "
+            "stars")
 
 
 def camera_summary_from(camera: dict) -> str:

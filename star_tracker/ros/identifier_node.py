@@ -38,6 +38,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ..models.attitude import ARCSEC
 from ..models.camera import CameraModel
+from ..models.online_calibration import OnlineCalibration, OnlineCalibrationConfig
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from ..track.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
@@ -107,6 +108,15 @@ class IdentifierNode(Node):
             rate_window_s=p("tracking.rate_window_s", 0.45, "attitudes used for the rate estimate [s]", 0.01, 10.0),
             false_positive_bound=self.config.false_positive_bound,
         )
+        calibration_enabled = p("calibration.enabled", False, "refine the focal length and k1 online from the "
+                                "identified stars (thermo-elastic drift); applied to identification only when "
+                                "constrained (calibration.apply_corner_sigma_px)")
+        online_config = OnlineCalibrationConfig(
+            frames_per_fit=p("calibration.frames_per_fit", 10, "solved frames between two fits", 1, 100000),
+            max_frames=p("calibration.max_frames", 20, "newest solved frames (>= 5 stars) a fit uses", 1, 1000),
+            apply_corner_sigma_px=p("calibration.apply_corner_sigma_px", 0.3, "a fitted f or k1 is applied when its "
+                                    "1-sigma moves the image corner by at most this [px]", 1e-3, 10.0))
+        self.online_calibration = OnlineCalibration(online_config) if calibration_enabled else None
         self.queue_depth = p("queue_depth", 3, "spots frames waiting for identification at most; when one more "
                              "arrives the oldest is dropped and counted (frames_dropped_overload). 1 = only the newest frame waits; 3 (default) rides out a host stall of ~3 frames",
                              1, 100)
@@ -185,6 +195,8 @@ class IdentifierNode(Node):
             self.diag.set(DiagnosticStatus.WARN, "waiting for camera_info")
             self.log.warn("no_info", "spots received before any valid camera_info; frame skipped")
             return
+        if self.online_calibration is not None:
+            camera = self.online_calibration.camera_for(camera)  # the nominal one until an estimate applies
         try:
             spots = convert.cloud_to_spots(msg, camera.width, camera.height)
         except ValueError as exc:
@@ -310,6 +322,8 @@ class IdentifierNode(Node):
             self.pub_rate_cov.publish(convert.rate_with_covariance_msg(tracked.rate, frame))
             sigma_rate = np.degrees(tracked.rate.sigma)
             self.diag.value("last_rate_sigma_deg_s_xyz", f"{sigma_rate[0]:.4f},{sigma_rate[1]:.4f},{sigma_rate[2]:.4f}")
+        if self.online_calibration is not None:
+            self.refine_camera(spots, result)
         self.diag.count("frames_identified")
         self.diag.count(f"frames_{tracked.mode}")
         self.diag.value("mode", tracked.mode)
@@ -322,6 +336,24 @@ class IdentifierNode(Node):
                       last_false_positive_bound=f"{result.false_positive_probability:.1e}",
                       last_processing_ms=f"{latency_ms:.2f}", last_bridged_frames=tracked.bridged_frames,
                       last_gate_px="" if tracked.gate_px is None else f"{tracked.gate_px:.1f}")
+
+    def refine_camera(self, spots, result) -> None:
+        """Online calibration: add a published frame's matches; after a fit report the estimate
+        (and what is applied) on /diagnostics."""
+        nominal = self.camera_info.camera
+        if nominal is None:
+            return
+        estimate = self.online_calibration.add(spots, result, nominal)
+        if estimate is None:
+            return
+        self.diag.count("calibration_fits")
+        self.diag.value("calibration_focal_px", f"{estimate.value['f']:.3f}")
+        self.diag.value("calibration_focal_sigma_px", f"{estimate.sigma['f']:.3g}")
+        self.diag.value("calibration_k1", f"{estimate.value['k1']:.6g}" if "k1" in estimate.fitted else "")
+        self.diag.value("calibration_k1_sigma", f"{estimate.sigma['k1']:.3g}" if "k1" in estimate.fitted else "")
+        self.diag.value("calibration_residual_rms_px", f"{estimate.residual_rms_px:.3f}")
+        self.diag.value("calibration_stars", estimate.stars)
+        self.diag.value("calibration_applied", ",".join(self.online_calibration.applied) or "none")
 
     def destroy_node(self) -> None:
         self.frames.stop()

@@ -97,3 +97,57 @@ def test_bad_parameters_stop_startup_with_a_clear_error(module, args, message):
                             env=env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2, result.stdout + result.stderr
     assert message in result.stderr and "Traceback" not in result.stderr
+
+
+@pytest.mark.integration
+def test_online_calibration_reports_the_drifted_focal_length_on_diagnostics(monkeypatch, tmp_path, catalog,
+                                                                            nominal_camera, database):
+    """calibration.enabled: spots of a camera whose focal length drifted 0.1 % (and k1 = 0.01)
+    from the camera_info; after frames_per_fit published frames /diagnostics carries the fit."""
+    from star_tracker.models.camera import CameraModel
+
+    env = join_isolated_ros_domain(monkeypatch)
+    node = rclpy.create_node("calibration_driver")
+    diagnostics = []
+    node.create_subscription(DiagnosticArray, "/diagnostics",
+                             lambda m: diagnostics.extend(s for s in m.status if s.name.endswith("/identifier")), 10)
+    pub_info = node.create_publisher(CameraInfo, "camera_info", SENSOR_QOS)
+    pub_spots = node.create_publisher(PointCloud2, "spots", SENSOR_QOS)
+    params = {"identifier": {"calibration.enabled": True, "calibration.frames_per_fit": 3}}
+    processes = NodeProcesses(env, tmp_path / "logs", params=params, nodes=("identifier",)).start()
+    drifted = CameraModel(1024, 1024, nominal_camera.fx * 1.001, nominal_camera.fy * 1.001, nominal_camera.cx,
+                          nominal_camera.cy, (0.01, 0.0, 0.0, 0.0, 0.0))
+    good = spots_at(catalog.brighter_than(6.8).at_epoch(2026.0), drifted, radec_roll_to_matrix(2.0, -0.4, 1.0))
+
+    def spin(seconds, until=lambda: False):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            rclpy.spin_once(node, timeout_sec=0.05)
+
+    def fitted():
+        return any(kv.key == "calibration_fits" for s in diagnostics for kv in s.values)
+
+    try:
+        processes.wait_ready()
+        spin(30.0, until=lambda: pub_spots.get_subscription_count() > 0 and pub_info.get_subscription_count() > 0)
+        for _ in range(3):
+            pub_info.publish(convert.camera_to_info(nominal_camera, 1, "star_tracker_optical"))
+            spin(0.3)
+        for k in range(4):
+            pub_spots.publish(convert.spots_to_cloud(good, 1_000_000_000 + k * 100_000_000, "star_tracker_optical"))
+            spin(3.0, until=fitted)
+        spin(10.0, until=fitted)
+        spin(1.5)
+    finally:
+        codes = processes.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    log = (tmp_path / "logs" / "identifier.log").read_text()
+    assert codes == {"identifier": 0}, log
+    values = {kv.key: kv.value for kv in diagnostics[-1].values}
+    assert values.get("calibration_fits") == "1", values
+    focal, sigma = float(values["calibration_focal_px"]), float(values["calibration_focal_sigma_px"])
+    assert abs(focal - drifted.fx) <= 3 * sigma + 1e-3 and abs(focal - nominal_camera.fx) > 3 * sigma, values
+    # Noise-free spots: the solver's convergence tolerance (~1e-5 in k1), not noise, bounds the error.
+    assert abs(float(values["calibration_k1"]) - 0.01) <= 3 * float(values["calibration_k1_sigma"]) + 1e-5, values
+    assert values["calibration_applied"] in ("f", "k1", "f,k1"), values

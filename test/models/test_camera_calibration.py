@@ -1,0 +1,144 @@
+"""Camera self-calibration (models/camera_calibration.py) against the simulator's truth: frames
+rendered through a distorted camera with an off-centre principal point, centroided, each spot
+matched to the star that made it; the fit must recover the true camera within its own stated
+uncertainty (3 sigma). Real images: test/commands/test_calibrate.py."""
+import math
+
+import numpy as np
+import pytest
+
+from star_tracker.centroid import CentroidConfig, extract_spots
+from star_tracker.models.attitude import radec_roll_to_matrix, rotation_vector_to_matrix
+from star_tracker.models.camera import CameraModel
+from star_tracker.models.camera_calibration import (CalibrationConfig, CalibrationFrame, calibrate_camera,
+                                                    constrained)
+from star_tracker.sim.motion import ConstantRateMotion
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
+
+WIDTH, HEIGHT = 1024, 768
+FOV_RAD = math.radians(25.0)
+TRUE_DISTORTION = (0.18, 0.0, 0.0, 0.0, 0.0)
+TRUE_OFFSET_PX = (9.0, -7.0)  # principal point minus image centre
+POINTINGS = [(1.4, 0.35, 0.2), (3.1, -0.4, 1.0), (5.0, 0.9, -0.6)]  # RA, Dec, roll [rad]
+
+
+def true_camera() -> CameraModel:
+    nominal = CameraModel.from_fov(WIDTH, HEIGHT, FOV_RAD)
+    return CameraModel(WIDTH, HEIGHT, nominal.fx, nominal.fy, nominal.cx + TRUE_OFFSET_PX[0],
+                       nominal.cy + TRUE_OFFSET_PX[1], TRUE_DISTORTION)
+
+
+def starting_camera() -> CameraModel:
+    """What a --fov user knows: a pinhole 0.4 % off in focal length, centred, undistorted."""
+    return CameraModel.from_fov(WIDTH, HEIGHT, FOV_RAD * 1.004)
+
+
+@pytest.fixture(scope="module")
+def frames(catalog):
+    """(Rendering: the tests using it are slow.) One CalibrationFrame per pointing: measured spots matched (within 2 px) to the true stars,
+    starting attitude the truth turned by ~0.1 deg."""
+    camera = true_camera()
+    renderer = StarFieldRenderer(camera, SensorModel(), catalog, magnitude_limit=6.5)
+    by_hip = dict(zip(renderer.catalog.hip.tolist(), renderer.star_vectors))
+    out = []
+    for k, pointing in enumerate(POINTINGS):
+        frame = renderer.render(ConstantRateMotion(radec_roll_to_matrix(*pointing), np.zeros(3)), 10.0, frame_seed(0, k))
+        spots = extract_spots(frame.image, CentroidConfig(max_spots=120))
+        truth = frame.truth
+        stars = np.flatnonzero(truth.stars())
+        distance = np.hypot(spots.x[:, None] - truth.x[stars][None], spots.y[:, None] - truth.y[stars][None])
+        nearest = distance.argmin(axis=1)
+        matched = distance[np.arange(len(spots)), nearest] < 2.0
+        hip = truth.hip[stars][nearest[matched]]
+        out.append(CalibrationFrame(spots.x[matched], spots.y[matched], spots.cov[matched],
+                                    np.array([by_hip[h] for h in hip]),
+                                    truth.rotation @ rotation_vector_to_matrix([1e-3, -2e-3, 1e-3])))
+    return out
+
+
+def assert_within_3_sigma(calibration, names):
+    truth = true_camera()
+    values = {"f": truth.fx, "cx": truth.cx, "cy": truth.cy, "k1": truth.distortion[0], "k2": truth.distortion[1]}
+    for name in names:
+        assert name in calibration.fitted
+        error = calibration.value[name] - values[name]
+        assert abs(error) <= 3.0 * calibration.sigma[name], (name, calibration.value[name], values[name],
+                                                             calibration.sigma[name])
+
+
+def test_projected_stars_with_noise_recover_the_camera(catalog):
+    """Fast lane: catalog stars projected through the true camera plus 0.2 px Gaussian noise."""
+    rng = np.random.default_rng(4)
+    camera, vectors = true_camera(), catalog.brighter_than(6.0).unit_vectors()
+    frames = []
+    for pointing in POINTINGS:
+        rotation = radec_roll_to_matrix(*pointing)
+        u, v, front = camera.project(vectors @ rotation)
+        seen = front & camera.in_image(u, v, margin=5.0)
+        n = int(seen.sum())
+        frames.append(CalibrationFrame(u[seen] + rng.normal(0, 0.2, n), v[seen] + rng.normal(0, 0.2, n),
+                                       np.tile(0.04 * np.eye(2), (n, 1, 1)), vectors[seen],
+                                       rotation @ rotation_vector_to_matrix([2e-3, 1e-3, -1e-3])))
+    calibration = calibrate_camera(frames, starting_camera(), CalibrationConfig(sigma_floor_px=0.0))
+    assert set(calibration.fitted) == {"f", "k1", "k2", "cx", "cy"}
+    assert_within_3_sigma(calibration, ["f", "k1", "k2", "cx", "cy"])
+    assert 0.15 < calibration.residual_rms_px < 0.25  # the noise put in
+
+
+@pytest.mark.slow
+def test_joint_fit_recovers_focal_length_distortion_and_principal_point(frames):
+    calibration = calibrate_camera(frames, starting_camera())
+    assert set(calibration.fitted) == {"f", "k1", "k2", "cx", "cy"}, calibration.as_dict()
+    assert_within_3_sigma(calibration, ["f", "k1", "k2", "cx", "cy"])
+    assert calibration.sigma["k1"] < 0.02 and calibration.sigma["cx"] < 3.0  # constrained, not just wide
+    assert calibration.residual_rms_px < 0.3
+    assert constrained(calibration, CalibrationConfig())
+    for rotation, frame in zip(calibration.rotations, frames):  # attitudes back to the truth (start was 0.13 deg off)
+        truth = frame.rotation @ rotation_vector_to_matrix([1e-3, -2e-3, 1e-3]).T
+        angle = math.acos(np.clip((np.trace(truth.T @ rotation) - 1.0) / 2.0, -1.0, 1.0))
+        assert angle < math.radians(0.01)
+
+
+@pytest.mark.slow
+def test_one_frame_fits_focal_length_and_k1(frames):
+    calibration = calibrate_camera(frames[:1], starting_camera(), CalibrationConfig(fit=("f", "k1")))
+    assert calibration.fitted == ("f", "k1")
+    assert_within_3_sigma(calibration, ["f", "k1"])
+
+
+@pytest.mark.slow
+def test_a_wrong_match_is_left_out(frames):
+    frame = frames[0]
+    stars = frame.stars.copy()
+    stars[[2, 5]] = stars[[5, 2]]  # two stars swapped: two wrong matches, tens of pixels off
+    wrong = CalibrationFrame(frame.x, frame.y, frame.cov, stars, frame.rotation)
+    calibration = calibrate_camera([wrong, *frames[1:]], starting_camera())
+    assert not calibration.inliers[0][2] and not calibration.inliers[0][5]
+    assert calibration.inliers[0].sum() >= frame.size - 3
+    assert_within_3_sigma(calibration, ["f", "k1"])
+
+
+@pytest.mark.slow
+def test_stars_near_the_centre_fit_the_focal_length_only(frames):
+    frame = frames[0]
+    near = np.hypot(frame.x - WIDTH / 2, frame.y - HEIGHT / 2) < 150.0
+    assert 3 <= near.sum() < 30
+    central = CalibrationFrame(frame.x[near], frame.y[near], frame.cov[near], frame.stars[near], frame.rotation)
+    calibration = calibrate_camera([central], starting_camera())
+    assert "k2" in calibration.not_fitted and "principal_point" in calibration.not_fitted
+    assert calibration.camera.cx == starting_camera().cx and calibration.camera.distortion[1] == 0.0
+
+
+@pytest.mark.slow
+def test_bad_input_is_refused(frames):
+    frame = frames[0]
+    with pytest.raises(ValueError, match="cov must be finite"):
+        CalibrationFrame(frame.x, frame.y, frame.cov[:-1], frame.stars, frame.rotation)
+    with pytest.raises(ValueError, match=">= 3 matched stars"):
+        calibrate_camera([CalibrationFrame(frame.x[:2], frame.y[:2], frame.cov[:2], frame.stars[:2], frame.rotation)],
+                         starting_camera())
+    with pytest.raises(ValueError, match="at least one frame"):
+        calibrate_camera([], starting_camera())
+    with pytest.raises(ValueError, match="unknown calibration parameter"):
+        CalibrationConfig(fit=("f", "k7"))
