@@ -37,6 +37,7 @@ from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
 
+from .bench_realdata import find_corpus, run_solve_command
 from .report import cpu_model, write_section
 
 REPO = Path(__file__).resolve().parents[1]
@@ -52,13 +53,6 @@ SECTION = "## 15. The simulator against a real camera"
 class RealFrame:
     id: str
     frame: ProfileFrame
-
-
-def find_corpus(explicit: Path | None = None) -> Path:
-    folder = Path(explicit) if explicit else REPO.parent / "shared" / "realdata"
-    if not (folder / "MANIFEST.json").is_file():
-        raise FileNotFoundError(f"real-image corpus not found: no MANIFEST.json in {folder} (give --corpus DIR)")
-    return folder
 
 
 def load_real_frames(corpus: Path) -> list[RealFrame]:
@@ -165,8 +159,6 @@ def solve_counts(real: list[RealFrame], simulated: list[ProfileFrame], corpus: P
     import tempfile
 
     import cv2
-
-    from .bench_realdata import run_solve_command
 
     manifest = {e["id"]: e for e in json.loads((corpus / "MANIFEST.json").read_text())["images"]}
     counts = {"stored": [], "green": [], "simulated": []}

@@ -13,11 +13,14 @@ Methods and their assumptions (docs/SIMULATOR.md, "The simulator against a real 
   b + c r^2/r_c^2 + g_x dx + g_y dy (level at the centre, a radial term, the renderer's
   stray-light gradient; r_c = half the image diagonal); the frames' pointings differ, so the
   sky's own structure averages out.
-- Gain (photon transfer on stars): on every identified star a pixel-integrated Gaussian
-  (the renderer's PSF) is fitted; the residual variance of the star pixels grows with the
-  model signal S [ADU] as var = s_bg^2 + S/g + (k S)^2 (shot noise of the star plus a
-  relative model/response error k); the linear term is 1/g. Only frames of one exposure and
-  gain setting may be mixed.
+- Stars: on every identified, isolated, unsaturated star a pixel-integrated Gaussian (the
+  renderer's PSF) seen through the clip at 0 is fitted (flux, width, position, background).
+- Gain (photon transfer on stars): the residual variance of the star pixels, each squared
+  residual divided by (1 - its leverage) since the fit absorbs part of the noise of its
+  brightest pixels, grows with the model signal S [ADU] as var = s_bg^2 + S/g + (k S)^2
+  (shot noise of the star plus a relative model/response error k); the linear term is 1/g.
+  When it is below 2 sigma the gain is reported as the 2-sigma lower limit. Only frames of
+  one exposure and gain setting may be mixed.
 - Read noise: s_bg^2 = (sigma_r/g)^2 + mu/g + 1/12, i.e. the background above the clip level is
   signal that carries shot noise and the output's zero is the true zero (bias 0).
 - Zero point and vignetting: the Gaussian flux per second [ADU/s] against Hp and the radius:
@@ -78,7 +81,8 @@ class ProfileFrame:
 class StarFits:
     """Per identified star (parallel arrays): frame index, hip, hp, b_v [mag]; x, y [px];
     flux [ADU] and psf_sigma_px [px] of the Gaussian fit; local background [ADU];
-    aperture_flux [ADU] in a radius of 5 sigma (to compare with the Gaussian's flux)."""
+    aperture_flux [ADU]: the fit's flux plus the data-minus-fit residual within 5 sigma (equal
+    to flux for a Gaussian PSF, larger when the PSF has wings)."""
 
     frame: np.ndarray
     hip: np.ndarray
@@ -251,12 +255,8 @@ def fit_background(tiles: np.ndarray, width: int, height: int) -> tuple[Measured
 
 def radius_squared(x, y, width: int, height: int) -> np.ndarray:
     """r^2/r_c^2 of the renderer's vignetting: 0 at the centre, 1 at the corner [-]."""
-    return ((np.asarray(x) - (width - 1) / 2) ** 2 + (np.asarray(y) - (height - 1) / 2) ** 2) / ((width / 2) ** 2 + (height / 2) ** 2)
-
-
-def vignetting_at(x, y, a: float, width: int, height: int) -> np.ndarray:
-    """The renderer's vignetting 1 - a r^2/r_c^2 at pixel (x, y) [-]."""
-    return 1.0 - a * radius_squared(x, y, width, height)
+    dx, dy = np.asarray(x) - (width - 1) / 2, np.asarray(y) - (height - 1) / 2
+    return (dx ** 2 + dy ** 2) / ((width / 2) ** 2 + (height / 2) ** 2)
 
 
 # ------------------------------------------------------------------ stars
@@ -319,8 +319,9 @@ def fit_star(image: np.ndarray, x: float, y: float, sigma_guess: float = 1.0, no
 def identified_stars(frame: ProfileFrame, catalog: StarCatalog, config: CentroidConfig,
                      match_radius_px: float = 3.0, isolation_px: float = 8.0):
     """Catalog stars of the frame matched to detected spots: (catalog indices, spots, spot
-    indices). A star counts when one spot lies within match_radius_px of its projection and no
-    other catalog star within isolation_px (blends) and it is not saturated."""
+    indices). A star counts when one spot lies within match_radius_px of its projection, no
+    other catalog star lies within isolation_px (blends) and the spot's peak is below the
+    saturation level (fit_stars also drops stamps with a pixel at it)."""
     spots = extract_spots(frame.image, config)
     camera = frame.camera
     u, v, front = camera.project(catalog.unit_vectors() @ frame.rotation)
@@ -342,7 +343,7 @@ def identified_stars(frame: ProfileFrame, catalog: StarCatalog, config: Centroid
 
 
 def fit_stars(frames: list[ProfileFrame], catalog: StarCatalog, config: CentroidConfig, noise_adu: float = 0.0):
-    """Fits (fit_star, background noise noise_adu [ADU]) of every identified, isolated,
+    """fit_star (with the background noise noise_adu [ADU]) on every identified, isolated,
     unsaturated star of every frame: (StarFits, rows (model signal above background [ADU],
     squared residual / (1 - leverage) [ADU^2]) of all star pixels: an unbiased estimate of each
     pixel's noise variance, since the fit itself absorbs part of the noise of its brightest
@@ -372,7 +373,8 @@ def fit_stars(frames: list[ProfileFrame], catalog: StarCatalog, config: Centroid
             signal = gaussian_stamp(np.array([x - round(x) + half, y - round(y) + half, flux, sigma, 0.0]),
                                     np.arange(stamp.shape[1], dtype=float), np.arange(stamp.shape[0], dtype=float))
             usable = leverage < 0.9
-            residuals.append(np.column_stack([signal[usable], ((stamp - recorded) ** 2)[usable] / (1.0 - leverage[usable])]))
+            unbiased = ((stamp - recorded) ** 2)[usable] / (1.0 - leverage[usable])
+            residuals.append(np.column_stack([signal[usable], unbiased]))
     stars = StarFits(**{name: np.asarray(values) for name, values in columns.items()})
     return stars, (np.concatenate(residuals) if residuals else np.zeros((0, 2)))
 
@@ -519,7 +521,8 @@ def fit_camera_profile(frames: list[ProfileFrame], catalog: StarCatalog, psf_sig
     s_draw = rng.normal(noise.value, noise.sigma / np.sqrt(len(tiles)), 4000)
     mu_draw = np.maximum(rng.normal(background.value, background.sigma, 4000), 0.0)
     read_draw = np.sqrt(np.maximum(s_draw ** 2 - ROUNDING_VAR - mu_draw * inv_draw, 0.0)) / inv_draw
-    read_value = float(gain.value * np.sqrt(max(noise.value ** 2 - ROUNDING_VAR - max(background.value, 0.0) / gain.value, 0.0)))
+    read_adu2 = noise.value ** 2 - ROUNDING_VAR - max(background.value, 0.0) / gain.value
+    read_value = float(gain.value * np.sqrt(max(read_adu2, 0.0)))
     read_noise = Measured(read_value, np.nan if gain_is_lower_limit else float(np.std(read_draw)))
     # Zero point and vignetting: log10 of each star's ADU/s + 0.4 Hp = log10(zp) + log10(1 - a r^2/r_c^2)
     # (the renderer's vignetting); then the free slope and colour on the vignetting-corrected fluxes.
@@ -531,10 +534,16 @@ def fit_camera_profile(frames: list[ProfileFrame], catalog: StarCatalog, psf_sig
     free_slope = Measured(float(coef[1]), float(np.sqrt(cov[1, 1])))
     coef, cov = _robust_linear_fit(np.column_stack([np.ones_like(r2), -0.4 * stars.b_v]), flat + 0.4 * stars.hp)
     color = Measured(float(coef[1]), float(np.sqrt(cov[1, 1])))
-    hot = np.mean(above, axis=0) >= HOT_PIXEL_FRACTION_OF_FRAMES if len(frames) >= 3 else np.zeros((height, width), bool)
-    hot_level = float(np.median(np.mean([f.image[hot] for f in frames], axis=0))) - background.value if hot.any() else 0.0
+    hot = np.zeros((height, width), bool)
+    if len(frames) >= 3:
+        hot = np.mean(above, axis=0) >= HOT_PIXEL_FRACTION_OF_FRAMES
+    hot_level = 0.0
+    if hot.any():
+        hot_level = float(np.median(np.mean([f.image[hot] for f in frames], axis=0))) - background.value
     bright = stars.flux > 20 * noise.value  # wing excess only where the aperture sum is precise
-    wings = robust_mean(stars.aperture_flux[bright] / stars.flux[bright] - 1.0) if bright.sum() >= 3 else Measured(np.nan, np.nan)
+    wings = Measured(np.nan, np.nan)
+    if bright.sum() >= 3:
+        wings = robust_mean(stars.aperture_flux[bright] / stars.flux[bright] - 1.0)
     return CameraProfile(
         gain_e_per_adu=gain, inverse_gain_adu_per_e=inverse_gain, gain_is_lower_limit=gain_is_lower_limit,
         read_noise_e=read_noise, psf_sigma_px=psf, background_adu=background,

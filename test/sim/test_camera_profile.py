@@ -118,12 +118,13 @@ def test_shipped_profile_loads_through_the_camera_simulator_parameters():
 
 @pytest.mark.slow
 def test_real_set_fit_is_consistent_with_the_shipped_profile():
-    from bench.simulator_vs_real import catalog, find_corpus, load_real_frames
+    from bench.bench_realdata import CorpusMissing, find_corpus
+    from bench.simulator_vs_real import catalog, load_real_frames
     from star_tracker.commands.camera_files import load_camera_file
 
     try:
         corpus = find_corpus()
-    except FileNotFoundError:
+    except CorpusMissing:
         pytest.skip("the real-image corpus (shared/realdata) is not beside the repository")
     real = load_real_frames(corpus)
     profile = fit_camera_profile([r.frame for r in real], catalog())
