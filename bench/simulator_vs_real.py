@@ -245,8 +245,8 @@ def profile_yaml(profile: CameraProfile, camera: CameraModel, image_ids: list[st
 """
 
 
-def crop_around(frames: list[RealFrame], fits, size: int = 200) -> tuple[int, int, int]:
-    """(frame index, row, column) of the size x size crop holding the most star flux."""
+def crop_around(frames: list[RealFrame], fits, size: int) -> tuple[int, int, int]:
+    """(frame index, row, column) of the size x size crop holding the most fitted star flux."""
     best = (-1.0, 0, 0, 0)
     for k, r in enumerate(frames):
         height, width = r.frame.image.shape
@@ -254,8 +254,8 @@ def crop_around(frames: list[RealFrame], fits, size: int = 200) -> tuple[int, in
         for x, y in zip(fits.x[mine], fits.y[mine]):
             c0 = int(np.clip(x - size / 2, 0, width - size))
             r0 = int(np.clip(y - size / 2, 0, height - size))
-            inside = mine & (fits.x >= c0) & (fits.x < c0 + size) & (fits.y >= r0) & (fits.y < r0 + size)
-            score = float(np.sum(np.sqrt(fits.flux[inside])))
+            inside = mine & (fits.x >= c0 + 8) & (fits.x < c0 + size - 8) & (fits.y >= r0 + 8) & (fits.y < r0 + size - 8)
+            score = float(np.sum(fits.flux[inside]))
             if score > best[0]:
                 best = (score, k, r0, c0)
     return best[1], best[2], best[3]
@@ -270,11 +270,11 @@ def pictures(profile: CameraProfile, real: list[RealFrame], result: dict, images
     from .simulator_figures import save_png
 
     images_dir.mkdir(parents=True, exist_ok=True)
-    k, r0, c0 = crop_around(real, result["real_fits"])
-    size = 200
+    size = 256
+    k, r0, c0 = crop_around(real, result["real_fits"], size)
     real_crop = real[k].frame.image[r0:r0 + size, c0:c0 + size].astype(float)
     sim_crop = result["simulated"][k].image[r0:r0 + size, c0:c0 + size].astype(float)
-    top = float(np.percentile(real_crop, 99.9))
+    top = float(real_crop.max())
     fig, axes = plt.subplots(1, 2, figsize=(8.4, 4.4))
     for ax, crop, title in ((axes[0], real_crop, f"real: {real[k].id} (green channel)"),
                             (axes[1], sim_crop, "simulated: same sky, attitude, profile")):
@@ -283,7 +283,8 @@ def pictures(profile: CameraProfile, real: list[RealFrame], result: dict, images
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("column [px]")
     axes[0].set_ylabel("row [px]")
-    fig.suptitle(f"{size}×{size} px crop, same stretch (asinh(ADU/4), 0 to the real crop's 99.9th percentile)", fontsize=9)
+    fig.suptitle(f"{size}×{size} px crop, same stretch (asinh(ADU/4), 0 to the real crop's maximum, {top:.0f} ADU)",
+                 fontsize=9)
     fig.tight_layout()
     side = images_dir / "simulator_vs_real.png"
     save_png(fig, side, dpi=100)
@@ -409,7 +410,7 @@ this one is the least processed (lossless, one camera, one exposure and gain).
 
 ![real | simulated](images/simulator_vs_real.png)
 
-*Real (left) and simulated (right): the same 200 × 200 px crop, attitude and stretch. The
+*Real (left) and simulated (right): the same 256 × 256 px crop, attitude and stretch. The
 simulated frame is rendered by `StarFieldRenderer` with the fitted profile at the frame's
 reference attitude; its catalog is Hipparcos to Hp {MAGNITUDE_LIMIT}.*
 
