@@ -451,8 +451,10 @@ class StarIdentifier:
         cov = spot_pixel_covariance(geometry, camera, solution.covariance, floor_px)
         scale = error_scale(geometry, camera, solution.rotation, guide.spot_index, guide.star_vectors, cov)
         matches, fitted, residual, found = guide, solution, None, None
-        for _ in range(DEEP_PASSES):
-            cov = scale * spot_pixel_covariance(geometry, camera, fitted.covariance, floor_px)
+        for round_index in range(DEEP_PASSES):
+            if round_index:
+                cov = spot_pixel_covariance(geometry, camera, fitted.covariance, floor_px)
+            cov = scale * cov
             latest = match_deep(catalog, geometry, camera, fitted.rotation, cov, guide.spot_index, guide.hip,
                                 guide.magnitude)
             if found is not None and np.array_equal(latest.spot_index, found.spot_index) \

@@ -107,6 +107,14 @@ def deep_catalog_from_cache(arrays: dict[str, np.ndarray], magnitude_limit: floa
     return DeepCatalog.of(magnitude_limit, epoch_jyear, vectors, hip, magnitude)
 
 
+def deep_catalog_path(magnitude_limit: float, epoch_jyear: float, directory: Path | None = None) -> Path:
+    """The cache file of the deep catalog for these parameters in `directory` (None:
+    catalog.cache_dir())."""
+    identity = deep_catalog_identity(magnitude_limit, epoch_jyear)
+    return (Path(directory) if directory is not None else cache_dir()) / \
+        f"deep_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
+
+
 _MEMO: dict[tuple, DeepCatalog] = {}
 
 
@@ -119,7 +127,7 @@ def load_or_build_deep_catalog(magnitude_limit: float, epoch_jyear: float, direc
     key = (identity, str(directory))
     if key in _MEMO:
         return _MEMO[key]
-    path = directory / f"deep_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
+    path = deep_catalog_path(magnitude_limit, epoch_jyear, directory)
     arrays = load_validated_npz(path)
     catalog = None
     if arrays is not None:

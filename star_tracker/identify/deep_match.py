@@ -105,14 +105,17 @@ def spot_pixel_covariance(geometry: "SpotGeometry", camera: CameraModel, attitud
     skew = np.zeros((n, 3, 3))
     skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -rays[:, 2], rays[:, 1], -rays[:, 0]
     skew -= np.transpose(skew, (0, 2, 1))
-    ray_cov = skew @ np.asarray(attitude_covariance, float)[None] @ np.transpose(skew, (0, 2, 1))
     if geometry.jacobian is None:
         pinv = np.broadcast_to(np.eye(2, 3) / camera.pixel_scale_rad, (n, 2, 3))
     else:
         jac = geometry.jacobian
         jt = np.transpose(jac, (0, 2, 1))
-        pinv = np.linalg.solve(jt @ jac, jt)
-    attitude = pinv @ ray_cov @ np.transpose(pinv, (0, 2, 1))
+        g = jt @ jac  # 2x2 normal matrices, inverted in closed form
+        det = g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] * g[:, 1, 0]
+        g_inv = np.stack([np.stack([g[:, 1, 1], -g[:, 0, 1]], 1), np.stack([-g[:, 1, 0], g[:, 0, 0]], 1)], 1) / det[:, None, None]
+        pinv = g_inv @ jt
+    carry = pinv @ skew  # d pixel / d attitude error (2 x 3)
+    attitude = carry @ np.asarray(attitude_covariance, float)[None] @ np.transpose(carry, (0, 2, 1))
     return own + attitude
 
 
