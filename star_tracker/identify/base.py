@@ -5,8 +5,9 @@ indices), or overrides the whole search step (hybrid, compiled). The base class 
 hypothesis into an attitude, verifies it against all spots with the
 false-positive bound of `verify`, refines the accepted one over every matched star (QUEST
 for matching, with spot sigmas floored at centroid_sigma_floor_px; then the published fit,
-`final_fit`, weighted by each spot's own 2-D covariance), and enforces the per-frame time
-budget.
+`final_fit`, weighted by each spot's own 2-D covariance), adds the remaining spots'
+unambiguous matches to the deep catalog (`deep_rematch`: deep_match.py) with a new fit and
+bound, and enforces the per-frame time budget.
 """
 from __future__ import annotations
 
@@ -96,7 +97,7 @@ class Identification:
     When solved: spot_index (M,) into the input spots; hip (M,); star_vectors (M, 3) ICRS;
     body_vectors (M, 3) sensor frame; residual_rad (M,) angle between each measured and
     predicted direction [rad]; magnitude (M,) the stars' catalog Hp [mag]; deep (M,) True
-    where the star came from the deep catalog (deep_match.py), not the guide stars;
+    where the match was added by the deep re-match (deep_match.py), not the guide search;
     attitude: the final fit (sensor -> ICRS, covariance [rad^2]); false_positive_probability:
     bound over all hypotheses of the frame, over every match (guide and deep).
     """
@@ -123,7 +124,8 @@ class Identification:
 
     @property
     def deep_count(self) -> int:
-        """Matches from the deep catalog (stars fainter than the guide stars or not in them)."""
+        """Matches the deep re-match added (stars fainter than the guide stars, or left out of
+        them, or left unmatched by the guide verification)."""
         return int(np.count_nonzero(self.deep))
 
 

@@ -159,6 +159,7 @@ def real_frame(image_id):
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:The WCS transformation has more axes")  # a WCS file has no image
 @pytest.mark.skipif(not (REALDATA / "MANIFEST.json").is_file(), reason="real-image corpus absent")
 @pytest.mark.parametrize("image_id", ["gran_vega_05sec", "unh_DSC_0058"])
 def test_deep_rematch_on_real_images(image_id):
