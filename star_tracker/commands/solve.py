@@ -310,9 +310,7 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
     covariance = turn.T @ ident.attitude.covariance @ turn
     ra, dec, roll = (math.degrees(a) for a in matrix_to_radec_roll(centred))
     sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0)) * ARCSEC_PER_RAD
-    by_hip = np.argsort(result.database.hip)
-    where = by_hip[np.searchsorted(result.database.hip, ident.hip, sorter=by_hip)]
-    magnitude = result.database.magnitude[where]
+    magnitude = ident.magnitude  # guide or deep catalog Hp
     predicted_x, predicted_y, _ = cam.project(ident.star_vectors @ rotation)
     matched = []
     for k in range(ident.hip.size):
@@ -321,7 +319,7 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
                         "x": round(float(spots.x[spot]), 3), "y": round(float(spots.y[spot]), 3),
                         "predicted_x": round(float(predicted_x[k]), 3), "predicted_y": round(float(predicted_y[k]), 3),
                         "residual_arcsec": round(float(ident.residual_rad[k]) * ARCSEC_PER_RAD, 3),
-                        "flux": round(float(spots.flux[spot]), 2)})
+                        "flux": round(float(spots.flux[spot]), 2), "deep": bool(ident.deep[k])})
     matched.sort(key=lambda m: m["magnitude"])
     record.update({
         "ra_deg": ra, "dec_deg": dec, "roll_deg": roll,
@@ -332,6 +330,7 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
         "covariance_rad2": covariance.tolist(),
         "false_positive_bound": float(ident.false_positive_probability),
         "matched": matched,
+        "deep_matched": ident.deep_count,  # of `matched`, stars from the deep catalog (not guide stars)
         "residual_rms_arcsec": float(np.sqrt(np.mean((ident.residual_rad * ARCSEC_PER_RAD) ** 2))),
     })
     return record

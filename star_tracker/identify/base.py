@@ -5,8 +5,9 @@ indices), or overrides the whole search step (hybrid, compiled). The base class 
 hypothesis into an attitude, verifies it against all spots with the
 false-positive bound of `verify`, refines the accepted one over every matched star (QUEST
 for matching, with spot sigmas floored at centroid_sigma_floor_px; then the published fit,
-`final_fit`, weighted by each spot's own 2-D covariance), and enforces the per-frame time
-budget.
+`final_fit`, weighted by each spot's own 2-D covariance), adds the remaining spots'
+unambiguous matches to the deep catalog (`deep_rematch`: deep_match.py) with a new fit and
+bound, and enforces the per-frame time budget.
 """
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ from ..centroid import Spots
 from . import spot_kernels
 from .kernel_records import Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
+from .deep_catalog import DeepCatalog, load_or_build_deep_catalog
+from .deep_match import error_scale, deep_bound, match_deep, spot_pixel_covariance
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 from .deadline import BUDGET_CLOCKS, Deadline
 
@@ -49,7 +52,10 @@ class IdentifyConfig:
     max_time_s: time budget of one identify() call [s], counted on budget_clock: "wall"
     (elapsed time, a node's real-time budget) or "cpu" (this process's CPU time: the same
     search on an idle and on a loaded host; identify/deadline.py); max_candidates_per_pattern:
-    cap on hypotheses taken from one pattern (a pattern with more is ambiguous)."""
+    cap on hypotheses taken from one pattern (a pattern with more is ambiguous); deep_match: after
+    a match is accepted, add the unambiguous matches of the remaining spots to the deep
+    catalog's stars (every Hipparcos star to the guide limit + deep_magnitude_margin [mag];
+    deep_match.py) before the final fit and bound."""
 
     max_pattern_spots: int = 12
     sigma_multiplier: float = 3.0
@@ -60,6 +66,8 @@ class IdentifyConfig:
     max_time_s: float = 0.5
     max_candidates_per_pattern: int = 50
     budget_clock: str = "wall"
+    deep_match: bool = True
+    deep_magnitude_margin: float = 2.0
 
     def __post_init__(self) -> None:
         bad = []
@@ -81,6 +89,8 @@ class IdentifyConfig:
             bad.append(f"budget_clock={self.budget_clock!r} must be one of {tuple(BUDGET_CLOCKS)}")
         if not (1 <= self.max_candidates_per_pattern <= 100000):
             bad.append(f"max_candidates_per_pattern={self.max_candidates_per_pattern} must be >= 1")
+        if not (0 <= self.deep_magnitude_margin <= 6):
+            bad.append(f"deep_magnitude_margin={self.deep_magnitude_margin} must be in [0, 6]")
         if bad:
             raise ValueError("invalid identify config: " + "; ".join(bad))
 
@@ -92,8 +102,10 @@ class Identification:
     status: "solved", "too_few_spots", "no_match" or "timeout"; reason: human-readable.
     When solved: spot_index (M,) into the input spots; hip (M,); star_vectors (M, 3) ICRS;
     body_vectors (M, 3) sensor frame; residual_rad (M,) angle between each measured and
-    predicted direction [rad]; attitude: QUEST solution (sensor -> ICRS, covariance [rad^2]);
-    false_positive_probability: bound over all hypotheses of the frame.
+    predicted direction [rad]; magnitude (M,) the stars' catalog Hp [mag]; deep (M,) True
+    where the match was added by the deep re-match (deep_match.py), not the guide search;
+    attitude: the final fit (sensor -> ICRS, covariance [rad^2]); false_positive_probability:
+    bound over all hypotheses of the frame, over every match (guide and deep).
     """
 
     status: str
@@ -106,6 +118,8 @@ class Identification:
     star_vectors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     body_vectors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     residual_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    magnitude: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    deep: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     attitude: AttitudeSolution | None = None
     false_positive_probability: float = 1.0
     stats: dict = field(default_factory=dict)
@@ -113,6 +127,12 @@ class Identification:
     @property
     def solved(self) -> bool:
         return self.status == SOLVED
+
+    @property
+    def deep_count(self) -> int:
+        """Matches the deep re-match added (stars fainter than the guide stars, or left out of
+        them, or left unmatched by the guide verification)."""
+        return int(np.count_nonzero(self.deep))
 
 
 @dataclass
@@ -125,7 +145,8 @@ class SpotGeometry:
     flux <= 0); x, y (N,) pixel positions [px]; pixel_cov (N, 2, 2) each spot's own
     covariance [px^2] (the centroider's, not floored; unknown counts as 1 px^2) and jacobian
     (N, 3, 2) d ray / d pixel [rad/px] (ray_jacobian): the weights of the final attitude fit
-    and its published covariance (None: isotropic, sigma)."""
+    and its published covariance (None: isotropic, sigma); camera: the camera the rays are of
+    (the deep re-match projects stars with it; None: no deep re-match)."""
 
     rays: np.ndarray
     sigma: np.ndarray
@@ -135,6 +156,7 @@ class SpotGeometry:
     y: np.ndarray
     pixel_cov: np.ndarray | None = None
     jacobian: np.ndarray | None = None
+    camera: CameraModel | None = None
 
 
 @dataclass(frozen=True)
@@ -167,6 +189,30 @@ MIN_FIT_SIGMA_PX = 1e-4
 # Final fit: a matched star whose residual exceeds this many of its own sigmas is left out of
 # the attitude (a neighbour's light or a clipped core the centroider did not see).
 FIT_OUTLIER_SIGMA = 5.0
+
+
+# Deep re-match rounds: match at the guide fit, refit, match again at the refined attitude.
+DEEP_PASSES = 2
+
+
+@dataclass(frozen=True)
+class _Matches:
+    """Matches being published: spot_index (M,) into the flux-sorted spots; star_vectors
+    (M, 3) ICRS; hip (M,); magnitude (M,) catalog Hp [mag]; deep (M,) from the deep catalog."""
+
+    spot_index: np.ndarray
+    star_vectors: np.ndarray
+    hip: np.ndarray
+    magnitude: np.ndarray
+    deep: np.ndarray
+
+    def extended(self, spot_index: np.ndarray, star_vectors: np.ndarray, hip: np.ndarray,
+                 magnitude: np.ndarray) -> "_Matches":
+        """These matches followed by deep ones."""
+        return _Matches(np.concatenate([self.spot_index, spot_index]), np.concatenate([self.star_vectors, star_vectors]),
+                        np.concatenate([self.hip, hip.astype(self.hip.dtype)]),
+                        np.concatenate([self.magnitude, magnitude]),
+                        np.concatenate([self.deep, np.ones(spot_index.size, bool)]))
 
 
 def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
@@ -228,6 +274,9 @@ class StarIdentifier:
         self.stats: dict[str, float] = {}
         self._mean_density = database.star_count / (4.0 * np.pi)  # [1/sr]
         self._sorted_magnitudes = np.sort(database.magnitude)
+        self._deep: DeepCatalog | None = None
+        if config.deep_match:
+            self.deep_catalog()  # load (or build and cache) it now, not in the first frame's time
 
     # Smallest magnitude residual credited as evidence [mag]: below it, agreement is luck of
     # the noise, not information (see verify.log_magnitude_agreement).
@@ -257,7 +306,7 @@ class StarIdentifier:
             p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)), Pinhole.of(camera),
                                            PrepareSettings(float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX))
             return p.order, SpotGeometry(p.rays, p.sigma, min(p.order.size, self.config.max_pattern_spots),
-                                         p.magnitude, p.x, p.y, p.pixel_cov, p.jacobian)
+                                         p.magnitude, p.x, p.y, p.pixel_cov, p.jacobian, camera)
         flux = spots.flux
         finite = np.isfinite(x) & np.isfinite(y) & ~spot_kernels.coincident_later(x, y, COINCIDENT_SEPARATION_PX)
         brightness = np.where(np.isnan(flux), -np.inf, flux)
@@ -274,7 +323,7 @@ class StarIdentifier:
         return order, SpotGeometry(rays=camera.pixel_to_ray(x, y), sigma=sigma_px * camera.pixel_scale_rad,
                                    pattern_count=min(x.size, self.config.max_pattern_spots),
                                    magnitude=magnitude, x=x, y=y, pixel_cov=sanitized_covariance(cov),
-                                   jacobian=ray_jacobian(camera, x, y))
+                                   jacobian=ray_jacobian(camera, x, y), camera=camera)
 
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
         """Identify the stars behind `spots` (pixel positions in `camera`); see Identification.
@@ -361,34 +410,104 @@ class StarIdentifier:
 
     def solved(self, geometry: SpotGeometry, order: np.ndarray, match: AcceptedMatch, tested: int,
                started: float, algorithm: str | None = None) -> Identification:
-        """The Identification of an accepted match, refitted with the final weights
-        (final_fit); match.spot_index refers to the flux-sorted spots of `geometry` and is
-        mapped back to the input spots through `order` (prepare). `started`: the call's
+        """The Identification of an accepted match: refitted with the final weights
+        (final_fit), then, with config.deep_match, extended by the deep re-match (deep_rematch)
+        when its bound holds; match.spot_index refers to the flux-sorted spots of `geometry`
+        and is mapped back to the input spots through `order` (prepare). `started`: the call's
         time.perf_counter() [s]; `algorithm`: the name reported (default: this one's)."""
-        solution, residual = self.final_fit(geometry, match.spot_index, match.star_index, match.rotation)
-        by_spot = np.argsort(match.spot_index)
-        spot_index, star_index = match.spot_index[by_spot], match.star_index[by_spot]
-        fp = match.false_positive_probability
+        guide = _Matches(match.spot_index, self.database.vectors[match.star_index], self.database.hip[match.star_index],
+                         self.database.magnitude[match.star_index], np.zeros(match.spot_index.size, bool))
+        solution, _, residual = self._fit(geometry, guide.spot_index, guide.star_vectors, match.rotation)
+        matches, fp = guide, match.false_positive_probability
+        if self.config.deep_match and geometry.camera is not None:
+            extended = self.deep_rematch(geometry, guide, solution)
+            if extended is not None:
+                matches, solution, residual, fp = extended
+        by_spot = np.argsort(matches.spot_index)
+        spot_index = matches.spot_index[by_spot]
+        deep = matches.deep[by_spot]
+        reason = f"{spot_index.size} stars matched"
+        if deep.any():
+            reason += f" ({np.count_nonzero(deep)} from the deep catalog)"
         return Identification(
-            status=SOLVED, reason=f"{spot_index.size} stars matched, false-positive bound {fp:.1e}",
+            status=SOLVED, reason=f"{reason}, false-positive bound {fp:.1e}",
             algorithm=algorithm or self.name, elapsed_s=time.perf_counter() - started, hypotheses=tested,
-            spot_index=order[spot_index], hip=self.database.hip[star_index],
-            star_vectors=self.database.vectors[star_index], body_vectors=geometry.rays[spot_index],
-            residual_rad=residual[by_spot], attitude=solution, false_positive_probability=fp,
+            spot_index=order[spot_index], hip=matches.hip[by_spot], star_vectors=matches.star_vectors[by_spot],
+            body_vectors=geometry.rays[spot_index], residual_rad=residual[by_spot],
+            magnitude=matches.magnitude[by_spot], deep=deep, attitude=solution, false_positive_probability=fp,
             stats=dict(self.stats))
+
+    def deep_catalog(self) -> DeepCatalog:
+        """The deep catalog of this identifier's database: every Hipparcos star to its guide
+        limit + config.deep_magnitude_margin at its epoch, cached beside it (deep_catalog.py)."""
+        limit = self.database.config.magnitude_limit + self.config.deep_magnitude_margin
+        if self._deep is None or self._deep.magnitude_limit != limit:  # config may be replaced (commands/solve.py)
+            self._deep = load_or_build_deep_catalog(limit, self.database.config.epoch_jyear, self.database.cache_directory)
+        return self._deep
+
+    def deep_rematch(self, geometry: SpotGeometry, guide: "_Matches",
+                     solution: AttitudeSolution) -> tuple["_Matches", AttitudeSolution, np.ndarray, float] | None:
+        """The guide matches extended by the deep catalog (deep_match.match_deep) at their
+        fitted `solution` (their offsets scale the match gate: deep_match.error_scale), refitted,
+        matched again at the refined attitude and refitted (DEEP_PASSES); returns the matches,
+        solution, residuals [rad] and their false-positive bound (deep_match.deep_bound), or None
+        when no deep star was added or the bound exceeds config.false_positive_bound (the
+        guide solution stands). Counters in stats: deep_matches, deep_ambiguous,
+        deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view (deep_match.DeepMatches)."""
+        camera, catalog = geometry.camera, self.deep_catalog()
+        floor_px = self.config.centroid_sigma_floor_px
+        cov = spot_pixel_covariance(geometry, camera, solution.covariance, floor_px)
+        scale = error_scale(geometry, camera, solution.rotation, guide.spot_index, guide.star_vectors, cov)
+        matches, fitted, residual, found = guide, solution, None, None
+        for round_index in range(DEEP_PASSES):
+            if round_index:
+                cov = spot_pixel_covariance(geometry, camera, fitted.covariance, floor_px)
+            cov = scale * cov
+            latest = match_deep(catalog, geometry, camera, fitted.rotation, cov, guide.spot_index, guide.hip,
+                                guide.magnitude)
+            if found is not None and np.array_equal(latest.spot_index, found.spot_index) \
+                    and np.array_equal(latest.star_index, found.star_index):
+                break
+            found = latest
+            if found.spot_index.size == 0:
+                break
+            matches = guide.extended(found.spot_index, catalog.vectors[found.star_index], catalog.hip[found.star_index],
+                                     catalog.magnitude[found.star_index])
+            fitted, _, residual = self._fit(geometry, matches.spot_index, matches.star_vectors, fitted.rotation)
+        self.stats.update(deep_matches=int(found.spot_index.size), deep_ambiguous=found.ambiguous,
+                          deep_magnitude_rejected=found.magnitude_rejected, deep_too_uncertain=found.too_uncertain,
+                          deep_stars_in_view=found.stars_in_view)
+        if found.spot_index.size == 0:
+            return None
+        fp = deep_bound(geometry, matches.spot_index, matches.star_vectors, matches.magnitude, fitted.rotation, catalog,
+                        found.stars_in_view, camera, self.magnitude_floor)
+        if fp > self.config.false_positive_bound:
+            self.stats["deep_matches"] = 0
+            self.stats["deep_bound_rejected"] = 1
+            return None
+        return matches, fitted, residual, fp
 
     def final_fit(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
                   rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray]:
-        """The published attitude of accepted matches, weighted by each spot's own covariance
-        (the centroider's, without the matching floor): from `rotation` (the matching fit,
-        sensor -> ICRS, weighted with the floored sigma), a maximum-likelihood refinement with
-        each ray's full 2-D covariance (attitude_estimation.refine_with_covariances; a streak's error is
-        far larger along its smear than across it). Stars whose residual exceeds
+        """The published attitude of accepted matches (database star indices), weighted by
+        each spot's own covariance; see _fit. Returns the solution and every match's residual
+        angle [rad]."""
+        solution, _, residual = self._fit(geometry, spot_index, self.database.vectors[star_index], rotation)
+        return solution, residual
+
+    def _fit(self, geometry: SpotGeometry, spot_index: np.ndarray, stars: np.ndarray,
+             rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray, np.ndarray]:
+        """The published attitude of matches (spot_index into the flux-sorted spots, `stars`
+        their ICRS unit vectors), weighted by each spot's own covariance (the centroider's,
+        without the matching floor): from `rotation` (the matching fit, sensor -> ICRS,
+        weighted with the floored sigma), a maximum-likelihood refinement with each ray's full
+        2-D covariance (attitude_estimation.refine_with_covariances; a streak's error is far
+        larger along its smear than across it). Stars whose residual exceeds
         FIT_OUTLIER_SIGMA of their own covariance (chi^2 > FIT_OUTLIER_SIGMA^2) are left out of
         the fit (once; never below MIN_STARS). Returns the solution (sensor -> ICRS; covariance
         [rad^2] in the sensor frame, the inverse information of the fit: Shuster & Oh's for
-        isotropic covariances) and every match's residual angle [rad] under it."""
-        body, stars = geometry.rays[spot_index], self.database.vectors[star_index]
+        isotropic covariances), every match's chi^2 (2 DOF) and residual angle [rad] under it."""
+        body = geometry.rays[spot_index]
         if geometry.pixel_cov is None:  # isotropic
             weights = dict(ray_cov=geometry.sigma[spot_index, None, None] ** 2
                            * (np.eye(3)[None] - body[:, :, None] * body[:, None, :]))
@@ -397,8 +516,8 @@ class StarIdentifier:
         solution, chi2, residual = refine_with_covariances(rotation, body, stars, **weights)
         inlier = chi2 <= FIT_OUTLIER_SIGMA ** 2
         if not inlier.all() and inlier.sum() >= MIN_STARS:
-            solution, _, residual = refine_with_covariances(solution.rotation, body, stars, used=inlier, **weights)
-        return solution, residual
+            solution, chi2, residual = refine_with_covariances(solution.rotation, body, stars, used=inlier, **weights)
+        return solution, chi2, residual
 
     def _fail(self, status: str, reason: str, started: float, tested: int) -> Identification:
         return Identification(status=status, reason=reason, algorithm=self.name,

@@ -94,6 +94,10 @@ class IdentifierNode(Node):
             match_radius_px=p("match_radius_px", 1.5, "verification match radius [px]", 0.01, 50.0),
             false_positive_bound=p("false_positive_bound", 1.0e-6, "largest accepted chance-match probability", 1e-30, 0.5),
             max_time_s=p("max_time_s", 0.5, "time budget per frame [s]", 1e-3, 60.0),
+            deep_match=p("deep_match.enabled", True, "after identification, match the remaining spots to every "
+                         "Hipparcos star to database.magnitude_limit + deep_match.magnitude_margin"),
+            deep_magnitude_margin=p("deep_match.magnitude_margin", 2.0, "deep catalog's limit beyond the guide "
+                                    "stars' [mag]", 0.0, 6.0),
         )
         self.tracking_enabled = p("tracking.enabled", True, "track from the previous attitude; false = lost-in-space on every frame")
         tracking_config = TrackingConfig(
@@ -314,8 +318,7 @@ class IdentifierNode(Node):
         solution = result.attitude
         self.pub_attitude.publish(convert.quaternion_msg(solution.quaternion, stamp_ns, self.frame_id))
         self.pub_pose.publish(convert.pose_with_covariance_msg(solution, stamp_ns, self.frame_id))
-        magnitudes = self.database.magnitude[np.searchsorted(self.database.hip, result.hip)]  # hip is sorted
-        self.pub_matches.publish(convert.identification_to_cloud(result, spots, magnitudes, stamp_ns, self.frame_id))
+        self.pub_matches.publish(convert.identification_to_cloud(result, spots, result.magnitude, stamp_ns, self.frame_id))
         if tracked.rate is not None:
             frame = sensor_frame or convert.OPTICAL_FRAME
             self.pub_rate.publish(convert.vector3_msg(tracked.rate.angular_velocity, stamp_ns, frame))
@@ -332,6 +335,7 @@ class IdentifierNode(Node):
         latency_ms = latency_s * 1e3
         sigma = np.sqrt(np.diag(solution.covariance)) / ARCSEC
         self.diag.set(DiagnosticStatus.OK, "identified", last_stars_matched=result.hip.size,
+                      last_deep_stars_matched=result.deep_count,
                       last_spot_count=len(spots), last_sigma_arcsec_xyz=f"{sigma[0]:.2f},{sigma[1]:.2f},{sigma[2]:.2f}",
                       last_false_positive_bound=f"{result.false_positive_probability:.1e}",
                       last_processing_ms=f"{latency_ms:.2f}", last_bridged_frames=tracked.bridged_frames,

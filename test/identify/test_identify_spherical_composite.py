@@ -6,6 +6,7 @@ import pytest
 from star_tracker.centroid import Spots
 from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database
 from star_tracker.identify.base import NO_MATCH, TIMEOUT
+from star_tracker.identify.deep_catalog import deep_catalog_path
 from star_tracker.identify.composite import CompositeIdentifier
 from star_tracker.identify.spherical_triangle import (SphericalTriangleIdentifier, SphericalTriangleSettings,
                                                       join_assignments)
@@ -156,7 +157,10 @@ def test_a_database_directory_holds_the_triangle_databases_too(catalog, tmp_path
         assert identifier.triangles.triangle_count > 0
     triangle_file = triangle_cache_path(database, TriangleConfig.for_database(database))
     assert triangle_file.parent == chosen and triangle_file.is_file()
-    assert sorted(f.name for f in chosen.iterdir()) == sorted([f"pairs_{config.cache_key()}.npz", triangle_file.name])
+    deep_file = deep_catalog_path(config.magnitude_limit + IdentifyConfig().deep_magnitude_margin, config.epoch_jyear,
+                                  chosen)  # the deep re-match's catalog
+    assert sorted(f.name for f in chosen.iterdir()) == sorted([f"pairs_{config.cache_key()}.npz", triangle_file.name,
+                                                               deep_file.name])
     assert not default.exists() or not any(default.iterdir())
     # The same database loaded again from that directory still knows where it lives.
     assert load_or_build_database(config, chosen).cache_directory == chosen

@@ -55,7 +55,8 @@ def true_hip(frame, spots, radius=2.0):
 def assert_correct(result, frame, spots, cross_arcsec=5.0, roll_arcsec=20.0):
     ident = result.identification
     assert ident.solved, ident.reason
-    assert np.array_equal(ident.hip, true_hip(frame, spots)[ident.spot_index])
+    # 3 px: the deep re-match also names faint streaks, whose centroids can sit ~2 px from their star.
+    assert np.array_equal(ident.hip, true_hip(frame, spots, radius=3.0)[ident.spot_index])
     cross, roll, _ = attitude_error(ident.attitude.rotation, frame.truth.rotation)
     assert cross < cross_arcsec * ARCSEC and roll < roll_arcsec * ARCSEC, (cross / ARCSEC, roll / ARCSEC)
 

@@ -1,0 +1,149 @@
+"""The deep verification catalog: every Hipparcos star to a fainter limit than the guide stars.
+
+Identification searches the pattern database (guide stars, database.py); once an attitude is
+accepted, the spots left unmatched are matched against this catalog (deep_match.py), so a
+real frame's faint stars count in the attitude and the false-positive bound. It holds ICRS
+unit vectors at the epoch, HIP ids and Hp magnitudes of every star to `magnitude_limit`
+(blended pairs included: the matcher refuses an ambiguous spot), and a KD-tree on the unit
+vectors that returns the stars of one field of view.
+
+Cached like the databases: a checksum-validated .npz (catalog.save_validated_npz) in the
+pattern database's cache directory, keyed by limit, epoch and format version; a file that
+fails its checks is rebuilt. Loaded catalogs are shared in memory.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..models.camera import CameraModel
+from ..models.catalog import cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
+
+DEEP_CATALOG_FORMAT_VERSION = 1
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DeepCatalog:
+    """magnitude_limit: faintest star [Hp mag]; epoch_jyear: epoch of the positions [Julian
+    year]; vectors (N, 3) ICRS unit vectors; hip (N,) Hipparcos ids (increasing); magnitude (N,)
+    Hp [mag]; sorted_magnitudes: `magnitude` sorted (the magnitude CDF of the false-positive
+    bound); tree: KD-tree on `vectors` (chord distances). Made by `of`."""
+
+    magnitude_limit: float
+    epoch_jyear: float
+    vectors: np.ndarray
+    hip: np.ndarray
+    magnitude: np.ndarray
+    sorted_magnitudes: np.ndarray = field(repr=False, compare=False)
+    tree: cKDTree = field(repr=False, compare=False)
+
+    @staticmethod
+    def of(magnitude_limit: float, epoch_jyear: float, vectors: np.ndarray, hip: np.ndarray,
+           magnitude: np.ndarray) -> "DeepCatalog":
+        return DeepCatalog(float(magnitude_limit), float(epoch_jyear), vectors, hip, magnitude, np.sort(magnitude),
+                           cKDTree(vectors))
+
+    @property
+    def star_count(self) -> int:
+        return int(self.hip.size)
+
+    @property
+    def mean_density(self) -> float:
+        """Stars per steradian over the whole sky [1/sr]."""
+        return self.star_count / (4.0 * math.pi)
+
+    def stars_in_view(self, rotation: np.ndarray, camera: CameraModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Indices of the stars inside `camera`'s image for the sensor -> ICRS `rotation`, and
+        their projected pixel positions (u, v) [px]: a KD-tree cone around the boresight of the
+        field's half diagonal (+1 mrad), then the camera model."""
+        half = min(camera.half_diagonal_fov_rad + 1e-3, math.pi / 2)
+        near = np.asarray(self.tree.query_ball_point(rotation[:, 2], 2.0 * math.sin(0.5 * half)), np.int64)
+        if near.size == 0:
+            return near, np.zeros(0), np.zeros(0)
+        u, v, front = camera.project(self.vectors[near] @ rotation)
+        inside = front & camera.in_image(u, v)
+        return near[inside], u[inside], v[inside]
+
+
+def deep_catalog_identity(magnitude_limit: float, epoch_jyear: float) -> str:
+    """The catalog's parameters and format version as canonical JSON (stored in its cache file)."""
+    return json.dumps({"magnitude_limit": round(float(magnitude_limit), 6), "epoch_jyear": round(float(epoch_jyear), 6),
+                       "version": DEEP_CATALOG_FORMAT_VERSION}, sort_keys=True)
+
+
+def build_deep_catalog(magnitude_limit: float, epoch_jyear: float) -> DeepCatalog:
+    """Every Hipparcos star to `magnitude_limit` [Hp mag] at `epoch_jyear` [Julian year]."""
+    stars = load_hipparcos().at_epoch(epoch_jyear).brighter_than(magnitude_limit)
+    order = np.argsort(stars.hip, kind="stable")
+    vectors = np.ascontiguousarray(stars.unit_vectors()[order])
+    return DeepCatalog.of(magnitude_limit, epoch_jyear, vectors, stars.hip[order].astype(np.int32),
+                          stars.hp[order].astype(float))
+
+
+def deep_catalog_from_cache(arrays: dict[str, np.ndarray], magnitude_limit: float, epoch_jyear: float) -> DeepCatalog:
+    """The catalog stored in `arrays` (a checksum-valid cache file); ValueError naming the
+    first problem when it is of another version or configuration or malformed."""
+    for name, dtype in (("vectors", np.float64), ("hip", np.int32), ("magnitude", np.float64)):
+        if name not in arrays or arrays[name].dtype != dtype:
+            raise ValueError(f"array {name!r} missing or not {np.dtype(dtype)}")
+    if "identity" not in arrays or str(arrays["identity"]) != deep_catalog_identity(magnitude_limit, epoch_jyear):
+        raise ValueError("built for another configuration")
+    vectors, hip, magnitude = arrays["vectors"], arrays["hip"], arrays["magnitude"]
+    n = hip.size
+    if vectors.shape != (n, 3) or magnitude.shape != (n,) or hip.ndim != 1 or n < 4:
+        raise ValueError(f"arrays disagree: vectors {vectors.shape}, hip {hip.shape}, magnitude {magnitude.shape}")
+    if not (np.all(np.isfinite(vectors)) and np.all(np.abs(np.linalg.norm(vectors, axis=1) - 1.0) < 1e-9)):
+        raise ValueError("star vectors are not finite unit vectors")
+    if not (np.all(np.diff(hip) > 0) and hip[0] > 0 and np.all(magnitude <= magnitude_limit)):
+        raise ValueError("hip ids not strictly increasing, or magnitudes beyond the limit")
+    return DeepCatalog.of(magnitude_limit, epoch_jyear, vectors, hip, magnitude)
+
+
+def deep_catalog_path(magnitude_limit: float, epoch_jyear: float, directory: Path | None = None) -> Path:
+    """The cache file of the deep catalog for these parameters in `directory` (None:
+    catalog.cache_dir())."""
+    identity = deep_catalog_identity(magnitude_limit, epoch_jyear)
+    return (Path(directory) if directory is not None else cache_dir()) / \
+        f"deep_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
+
+
+_MEMO: dict[tuple, DeepCatalog] = {}
+
+
+def load_or_build_deep_catalog(magnitude_limit: float, epoch_jyear: float, directory: Path | None = None) -> DeepCatalog:
+    """The deep catalog for (magnitude_limit [Hp mag], epoch_jyear [Julian year]) from
+    `directory` (None: catalog.cache_dir()), built and cached there when missing or rejected
+    (logged). Shared in memory by every identifier of the process."""
+    directory = Path(directory) if directory is not None else cache_dir()
+    identity = deep_catalog_identity(magnitude_limit, epoch_jyear)
+    key = (identity, str(directory))
+    if key in _MEMO:
+        return _MEMO[key]
+    path = deep_catalog_path(magnitude_limit, epoch_jyear, directory)
+    arrays = load_validated_npz(path)
+    catalog = None
+    if arrays is not None:
+        try:
+            catalog = deep_catalog_from_cache(arrays, magnitude_limit, epoch_jyear)
+        except ValueError as exc:
+            log.warning("deep catalog cache %s rejected (%s); rebuilding it", path, exc)
+    elif path.exists():
+        log.warning("deep catalog cache %s is unreadable or fails its checksum; rebuilding it", path)
+    if catalog is None:
+        catalog = build_deep_catalog(magnitude_limit, epoch_jyear)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            save_validated_npz(path, {"vectors": catalog.vectors, "hip": catalog.hip, "magnitude": catalog.magnitude,
+                                      "identity": np.array(identity)})
+        except OSError as exc:
+            log.warning("deep catalog cache %s not written (%s); it is rebuilt at every start", path, exc)
+    _MEMO[key] = catalog
+    return catalog

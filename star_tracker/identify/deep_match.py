@@ -1,0 +1,206 @@
+"""The deep re-match: once an attitude is accepted, match the spots left over to the deep catalog.
+
+Identification (the search and its false-positive logic) uses only the pattern database's
+guide stars. At the accepted attitude, every spot without a guide star is compared with the
+deep catalog's stars projected into the image (deep_catalog.py; fainter than the guide
+limit), and a pair is added only when it is unambiguous:
+
+- geometry: the Mahalanobis distance of star to spot, under the spot's own pixel covariance
+  (floored as for matching) plus the attitude's covariance carried to that pixel, is at most
+  GATE_SIGMA; that covariance is scaled up when the guide matches' offsets under it are
+  larger than it says (median chi^2 over its expectation: unmodelled errors, e.g. lens
+  distortion, show there first);
+- the gate is narrow enough: its ellipse holds at most MAX_CHANCE_STARS_IN_GATE deep stars of
+  this view's density on average (a chance star in the gate of an uncatalogued spot is the
+  way a deep match goes wrong);
+- one spot <-> one star: no second star within AMBIGUITY_FACTOR x the gate of the spot, and
+  no second spot (matched or not) within that of the star; a spot whose only star is already
+  matched to another spot (a ghost, a split blend) gets none;
+- brightness: with the zero point of the guide matches (median of instrumental minus catalog
+  magnitude) the spot's magnitude is within MAGNITUDE_SIGMA robust sigmas of the guide
+  matches' scatter of the star's (at least MAGNITUDE_TOLERANCE_FLOOR); skipped when
+  magnitudes are unknown.
+Base.solved refits the attitude over guide and deep matches, matches once more at the
+refined attitude, and computes the false-positive bound of verify.py over all matches with
+the deep catalog's density (`deep_bound`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..models.camera import CameraModel
+from .deep_catalog import DeepCatalog
+from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement
+
+if TYPE_CHECKING:
+    from .base import SpotGeometry
+
+# A spot and a star pair up within this many sigmas (2-D Mahalanobis; chi^2_2 > 16 has
+# probability e^-8 ~ 3e-4 for a true pair).
+GATE_SIGMA = 4.0
+# A second candidate (star for a spot, spot for a star) within this multiple of the gate
+# makes the pair ambiguous: neither is claimed.
+AMBIGUITY_FACTOR = 2.0
+# Magnitude agreement: robust sigmas of the guide matches' magnitude scatter, and the least
+# tolerance [mag] (instrumental magnitudes of faint spots are noisy; colour terms).
+MAGNITUDE_SIGMA = 3.0
+MAGNITUDE_TOLERANCE_FLOOR = 1.0
+# A spot whose gate ellipse would hold more than this many unrelated deep stars on average (the
+# view's density x the ellipse's area) is too uncertain to name (e.g. a saturated spot): a
+# spot of an uncatalogued source would take a chance star with about this probability.
+MAX_CHANCE_STARS_IN_GATE = 0.01
+# Fewest guide magnitudes for a zero point; below it the brightness test is skipped.
+MIN_ZERO_POINT_STARS = 3
+# Median chi^2 of a 2-D Gaussian residual (2 ln 2): the reduced-chi^2 scale is
+# median(chi^2) / this, robust to a few outliers.
+MEDIAN_CHI2_2DOF = 2.0 * np.log(2.0)
+
+
+@dataclass(frozen=True)
+class DeepMatches:
+    """spot_index (K,) into the flux-sorted spots (base.prepare); star_index (K,) deep catalog
+    indices; stars_in_view: deep stars projected inside the image; ambiguous: spots with a
+    star inside the gate left unmatched as ambiguous; magnitude_rejected: spots left
+    unmatched because their brightness disagreed; too_uncertain: spots not tried because
+    their gate was too wide (MAX_CHANCE_STARS_IN_GATE)."""
+
+    spot_index: np.ndarray
+    star_index: np.ndarray
+    stars_in_view: int
+    ambiguous: int = 0
+    magnitude_rejected: int = 0
+    too_uncertain: int = 0
+
+
+def error_scale(geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndarray, spot_index: np.ndarray,
+                star_vectors: np.ndarray, cov_px: np.ndarray) -> float:
+    """Variance scale (>= 1) of the match gate: the median squared Mahalanobis offset of the
+    guide matches (spot_index, their ICRS star_vectors) from their stars projected with
+    `rotation`, under their gate covariances cov_px (N, 2, 2) [px^2] of all spots, over its
+    expectation for a 2-D Gaussian (robust to a few outliers)."""
+    u, v, _ = camera.project(np.asarray(star_vectors, float) @ rotation)
+    dx, dy = geometry.x[spot_index] - u, geometry.y[spot_index] - v
+    cov = cov_px[spot_index]
+    a, b, c = cov[:, 0, 0], 0.5 * (cov[:, 0, 1] + cov[:, 1, 0]), cov[:, 1, 1]
+    d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / (a * c - b * b)
+    d2 = d2[np.isfinite(d2)]
+    return 1.0 if d2.size < MIN_STARS else max(1.0, float(np.median(d2)) / MEDIAN_CHI2_2DOF)
+
+
+def spot_pixel_covariance(geometry: "SpotGeometry", camera: CameraModel, attitude_covariance: np.ndarray,
+                          floor_px: float) -> np.ndarray:
+    """(N, 2, 2) covariance [px^2] of each spot's offset from its star's predicted pixel: the
+    spot's own covariance + floor_px^2 I + the attitude's, J+ [b]x P [b]x^T J+^T with
+    J = d ray / d pixel and P the sensor-frame attitude covariance [rad^2]."""
+    rays = geometry.rays
+    n = rays.shape[0]
+    if geometry.pixel_cov is None:
+        own = (geometry.sigma / camera.pixel_scale_rad)[:, None, None] ** 2 * np.eye(2)[None]
+    else:
+        own = geometry.pixel_cov + floor_px ** 2 * np.eye(2)[None]
+    skew = np.zeros((n, 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -rays[:, 2], rays[:, 1], -rays[:, 0]
+    skew -= np.transpose(skew, (0, 2, 1))
+    if geometry.jacobian is None:
+        pinv = np.broadcast_to(np.eye(2, 3) / camera.pixel_scale_rad, (n, 2, 3))
+    else:
+        jac = geometry.jacobian
+        jt = np.transpose(jac, (0, 2, 1))
+        g = jt @ jac  # 2x2 normal matrices, inverted in closed form
+        det = g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] * g[:, 1, 0]
+        g_inv = np.stack([np.stack([g[:, 1, 1], -g[:, 0, 1]], 1), np.stack([-g[:, 1, 0], g[:, 0, 0]], 1)], 1) / det[:, None, None]
+        pinv = g_inv @ jt
+    carry = pinv @ skew  # d pixel / d attitude error (2 x 3)
+    attitude = carry @ np.asarray(attitude_covariance, float)[None] @ np.transpose(carry, (0, 2, 1))
+    return own + attitude
+
+
+def _candidate_pairs(spot_xy: np.ndarray, star_xy: np.ndarray, cov: np.ndarray, reach_sigma: float):
+    """Every (spot, star) pair with Mahalanobis distance <= reach_sigma, and its squared distance."""
+    if spot_xy.shape[0] == 0 or star_xy.shape[0] == 0:
+        empty = np.zeros(0, np.int64)
+        return empty, empty, np.zeros(0)
+    a, b, c = cov[:, 0, 0], 0.5 * (cov[:, 0, 1] + cov[:, 1, 0]), cov[:, 1, 1]
+    largest = np.sqrt(0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b ** 2))  # the 2x2's larger eigenvalue
+    near = cKDTree(star_xy).query_ball_point(spot_xy, reach_sigma * largest)
+    counts = np.fromiter((len(s) for s in near), np.int64, len(near))
+    spot = np.repeat(np.arange(len(near)), counts)
+    star = np.fromiter((j for s in near for j in s), np.int64, int(counts.sum()))
+    dx, dy = (spot_xy[spot] - star_xy[star]).T
+    a, b, c = a[spot], b[spot], c[spot]
+    d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / (a * c - b * b)  # offset^T cov^-1 offset
+    keep = d2 <= reach_sigma ** 2
+    return spot[keep], star[keep], d2[keep]
+
+
+def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tuple[float, float] | None:
+    """(zero point, tolerance) [mag] from the guide matches' instrumental and catalog
+    magnitudes, or None when fewer than MIN_ZERO_POINT_STARS are known."""
+    difference = np.asarray(spot_magnitude, float) - np.asarray(star_magnitude, float)
+    difference = difference[np.isfinite(difference)]
+    if difference.size < MIN_ZERO_POINT_STARS:
+        return None
+    zero = float(np.median(difference))
+    robust_sigma = 1.4826 * float(np.median(np.abs(difference - zero)))
+    return zero, max(MAGNITUDE_SIGMA * robust_sigma, MAGNITUDE_TOLERANCE_FLOOR)
+
+
+def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndarray,
+               spot_cov_px: np.ndarray, guide_spots: np.ndarray, guide_hip: np.ndarray,
+               guide_magnitude: np.ndarray) -> DeepMatches:
+    """The unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices)
+    under `rotation` (sensor -> ICRS), with each spot's offset covariance spot_cov_px (N, 2, 2)
+    [px^2] (spot_pixel_covariance); guide_hip and guide_magnitude (catalog Hp) of the guide
+    matches, in guide_spots' order (the zero point). See the module docstring."""
+    star, u, v = catalog.stars_in_view(rotation, camera)
+    spot_xy = np.stack([geometry.x, geometry.y], axis=1)
+    spot, star_j, d2 = _candidate_pairs(spot_xy, np.stack([u, v], axis=1), spot_cov_px, AMBIGUITY_FACTOR * GATE_SIGMA)
+    n, m = spot_xy.shape[0], star.size
+    stars_near_spot = np.bincount(spot, minlength=n)
+    spots_near_star = np.bincount(star_j, minlength=m)
+    taken = np.isin(catalog.hip[star], guide_hip)
+    free = np.ones(n, bool)
+    free[guide_spots] = False
+    density_px = m / float(camera.width * camera.height)  # deep stars per pixel in this view
+    det = spot_cov_px[:, 0, 0] * spot_cov_px[:, 1, 1] - spot_cov_px[:, 0, 1] * spot_cov_px[:, 1, 0]
+    narrow = density_px * np.pi * GATE_SIGMA ** 2 * np.sqrt(np.maximum(det, 0.0)) <= MAX_CHANCE_STARS_IN_GATE
+    too_uncertain = int(np.count_nonzero(free & ~narrow))
+    free &= narrow
+    inside = (d2 <= GATE_SIGMA ** 2) & free[spot]
+    unique = (stars_near_spot[spot] == 1) & (spots_near_star[star_j] == 1) & ~taken[star_j]
+    ambiguous = inside & ~unique
+    spot_i, star_k = spot[inside & unique], star[star_j[inside & unique]]
+    rejected = 0
+    gate = magnitude_gate(geometry.magnitude[guide_spots], guide_magnitude)
+    if gate is not None and spot_i.size:
+        residual = geometry.magnitude[spot_i] - gate[0] - catalog.magnitude[star_k]
+        agree = ~(np.abs(residual) > gate[1])  # an unknown (NaN) spot magnitude passes on geometry
+        rejected = int(np.count_nonzero(~agree))
+        spot_i, star_k = spot_i[agree], star_k[agree]
+    order = np.argsort(spot_i, kind="stable")
+    return DeepMatches(spot_i[order], star_k[order], int(m), int(np.unique(spot[ambiguous]).size), rejected,
+                       too_uncertain)
+
+
+def deep_bound(geometry: "SpotGeometry", spot_index: np.ndarray, star_vectors: np.ndarray, star_magnitude: np.ndarray,
+               rotation: np.ndarray, catalog: DeepCatalog, stars_in_view: int, camera: CameraModel,
+               magnitude_floor: float) -> float:
+    """The false-positive bound of verify.py over the matches (spot_index into the flux-sorted
+    spots, their ICRS star_vectors and catalog magnitudes) at `rotation`, with the deep
+    catalog's density (the larger of its mean and its density in this view) and magnitude
+    distribution; the matching sigmas as in verification. Matches beyond 5 sigma count
+    for nothing (left out, as verification leaves them out)."""
+    body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
+    normalized = np.linalg.norm(body - star_vectors @ rotation, axis=1) / sigma
+    keep = normalized <= 5.0
+    if np.count_nonzero(keep) < MIN_STARS:
+        return 1.0
+    density = max(catalog.mean_density, stars_in_view / (camera.width * camera.height * camera.pixel_scale_rad ** 2))
+    log_t = log_chance_tuples(body[keep], sigma[keep], float(np.sum(normalized[keep] ** 2)), density)
+    log_t += log_magnitude_agreement(geometry.magnitude[spot_index][keep], star_magnitude[keep],
+                                     catalog.sorted_magnitudes, magnitude_floor)
+    return false_positive_bound(log_t, geometry.x.size, int(np.count_nonzero(keep)))

@@ -1,0 +1,200 @@
+"""The deep re-match (identify/deep_match.py): faint stars beyond the guide stars, judged by truth.
+
+Simulated frames know which star made each spot; the real images are judged by
+astrometry.net's independent TAN-SIP solutions (reference attitude, .anet.wcs), never by
+our own solve.
+"""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from star_tracker.centroid import CentroidConfig, Spots, extract_spots
+from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+from star_tracker.identify.deep_catalog import load_or_build_deep_catalog
+from star_tracker.models.attitude import matrix_to_rotation_vector, quaternion_to_matrix
+from star_tracker.models.camera import CameraModel
+from star_tracker.models.catalog import unit_to_radec
+from star_tracker.sim.motion import ConstantRateMotion
+from star_tracker.sim.render import KIND_STAR, StarFieldRenderer
+from star_tracker.sim.sensor import SensorModel
+
+from test_identify import random_rotation, synthetic_scene
+
+ARCSEC = math.radians(1.0 / 3600.0)
+REALDATA = Path(__file__).resolve().parents[2].parent / "shared" / "realdata"
+
+
+def error_rad(rotation, truth):
+    return float(np.linalg.norm(matrix_to_rotation_vector(truth.T @ rotation)))
+
+
+def solve_both(database, spots, camera, **config):
+    """The guide-only and the deep identification of the same spots."""
+    results = []
+    for deep in (False, True):
+        identifier = make_identifier("hybrid", database, IdentifyConfig(deep_match=deep, max_time_s=5.0, **config))
+        results.append(identifier.identify(spots, camera))
+    return results
+
+
+def test_deep_rematch_adds_the_faint_stars_without_a_wrong_id(database, nominal_camera, catalog):
+    """Spots of every star to Hp 8.5 (guide stars to 6.5): the deep catalog names the faint
+    ones, every id is the truth's, and the attitude error against truth shrinks."""
+    rng = np.random.default_rng(31)
+    errors = {False: [], True: []}
+    for _ in range(12):
+        truth = random_rotation(rng)
+        spots, hip = synthetic_scene(catalog, nominal_camera, truth, rng, noise_px=0.1, magnitude_limit=8.5)
+        guide, deep = solve_both(database, spots, nominal_camera)
+        assert guide.solved and deep.solved, (guide.reason, deep.reason)
+        assert not guide.deep.any()
+        np.testing.assert_array_equal(deep.hip, hip[deep.spot_index])  # every id, guide and deep, is right
+        faint = ~np.isin(hip, database.hip)
+        assert deep.deep_count >= 0.8 * np.count_nonzero(faint), (deep.deep_count, np.count_nonzero(faint), deep.stats)
+        # Mostly stars fainter than the guide stars; the others are guide-database outcasts (blends).
+        assert np.mean(deep.magnitude[deep.deep] > database.config.magnitude_limit) > 0.9
+        assert set(guide.hip) <= set(deep.hip)
+        assert deep.false_positive_probability <= guide.false_positive_probability
+        for key, result in ((False, guide), (True, deep)):
+            errors[key].append(error_rad(result.attitude.rotation, truth))
+    assert np.median(errors[True]) < 0.7 * np.median(errors[False]), (np.median(errors[True]) / ARCSEC,
+                                                                      np.median(errors[False]) / ARCSEC)
+
+
+def test_uncatalogued_spots_get_no_deep_identity(database, nominal_camera, catalog):
+    """False objects of every brightness among the stars (the way a deep match could go wrong:
+    a chance catalog star in an uncatalogued spot's gate) are never named."""
+    rng = np.random.default_rng(32)
+    for _ in range(8):
+        truth = random_rotation(rng)
+        spots, hip = synthetic_scene(catalog, nominal_camera, truth, rng, noise_px=0.1, magnitude_limit=8.5)
+        n_false = 60
+        fx, fy = rng.uniform(0, nominal_camera.width - 1, n_false), rng.uniform(0, nominal_camera.height - 1, n_false)
+        flux = 10 ** (-0.4 * rng.uniform(4.0, 10.0, n_false)) * 1e5
+        x, y = np.concatenate([spots.x, fx]), np.concatenate([spots.y, fy])
+        n = x.size
+        mixed = Spots(x, y, np.concatenate([spots.flux, flux]), np.full(n, 50.0), np.tile(np.eye(2) * 0.01, (n, 1, 1)),
+                      np.zeros(n, np.uint32), np.full(n, 9, np.int32), np.concatenate([spots.flux, flux]) / 10,
+                      nominal_camera.width, nominal_camera.height)
+        truth_hip = np.concatenate([hip, np.zeros(n_false, hip.dtype)])
+        result = make_identifier("hybrid", database, IdentifyConfig(max_time_s=5.0)).identify(mixed, nominal_camera)
+        assert result.solved, result.reason
+        np.testing.assert_array_equal(result.hip, truth_hip[result.spot_index])
+        assert result.deep_count > 0
+
+
+def test_deep_rematch_on_rendered_frames(database, nominal_camera, catalog):
+    """Rendered, centroided frames (stars to Hp 8.5, noise, PSF): every match, guide or deep,
+    is the star the renderer drew at that spot; the cross-boresight error against truth does
+    not grow (the faint stars' centroids are ~5x noisier, so they add less than their number
+    suggests) and the published covariance stays honest (chi^2 of the error, 3 DOF)."""
+    renderer = StarFieldRenderer(nominal_camera, SensorModel(), catalog.at_epoch(database.config.epoch_jyear),
+                                 magnitude_limit=8.5)
+    rng = np.random.default_rng(33)
+    cross = {False: [], True: []}
+    for seed in range(6):
+        truth = random_rotation(rng)
+        frame = renderer.render(ConstantRateMotion(truth, np.zeros(3)), 0.0, seed)
+        spots = extract_spots(frame.image, CentroidConfig())
+        guide, deep = solve_both(database, spots, nominal_camera)
+        assert guide.solved and deep.solved
+        assert deep.deep_count > guide.hip.size
+        star = frame.truth.kind == KIND_STAR
+        tx, ty, thip = frame.truth.x[star], frame.truth.y[star], frame.truth.hip[star]
+        for key, result in ((False, guide), (True, deep)):
+            i = result.spot_index
+            gap = np.hypot(spots.x[i][:, None] - tx[None], spots.y[i][:, None] - ty[None])
+            nearest = np.argmin(gap, axis=1)  # the star behind each spot: the one drawn there (within 1 px)
+            assert np.all(gap[np.arange(i.size), nearest] < 1.0)
+            np.testing.assert_array_equal(result.hip, thip[nearest])
+            error = matrix_to_rotation_vector(truth.T @ result.attitude.rotation)
+            assert error @ np.linalg.solve(result.attitude.covariance, error) < 16.27  # chi^2_3, 99.9 %
+            cross[key].append(math.hypot(error[0], error[1]))
+    rms = {key: float(np.sqrt(np.mean(np.square(values)))) for key, values in cross.items()}
+    assert rms[True] <= 1.1 * rms[False], {key: value / ARCSEC for key, value in rms.items()}
+
+
+def test_deep_match_off_changes_nothing(database, nominal_camera, catalog):
+    rng = np.random.default_rng(34)
+    spots, _ = synthetic_scene(catalog, nominal_camera, random_rotation(rng), rng, magnitude_limit=8.5)
+    off = make_identifier("hybrid", database, IdentifyConfig(deep_match=False)).identify(spots, nominal_camera)
+    assert off.solved and off.deep_count == 0 and "deep_matches" not in off.stats
+    np.testing.assert_array_equal(off.magnitude, database.magnitude[np.searchsorted(database.hip, off.hip)])
+
+
+def test_deep_catalog_cache_is_validated(tmp_path):
+    first = load_or_build_deep_catalog(7.0, 2026.0, tmp_path)
+    (cached,) = tmp_path.glob("deep_*.npz")
+    assert np.all(first.magnitude <= 7.0) and np.all(np.diff(first.hip) > 0)
+    cached.write_bytes(cached.read_bytes()[:-100])  # truncated
+    from star_tracker.identify import deep_catalog
+    deep_catalog._MEMO.clear()
+    again = load_or_build_deep_catalog(7.0, 2026.0, tmp_path)
+    np.testing.assert_array_equal(again.hip, first.hip)
+    np.testing.assert_allclose(again.vectors, first.vectors, rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="deep_magnitude_margin"):
+        IdentifyConfig(deep_magnitude_margin=-1.0)
+
+
+# ------------------------------------------------------------------------------ real images
+
+def real_frame(image_id):
+    """(manifest entry, spots, camera of `star-tracker solve`'s default solve) of a corpus image."""
+    from star_tracker.commands.images import read_image
+    from star_tracker.commands.solve import SolveOptions, solve_spots
+
+    entry = {e["id"]: e for e in json.loads((REALDATA / "MANIFEST.json").read_text())["images"]}[image_id]
+    image = read_image(REALDATA / entry["file"])
+    pixels = image.pixels
+    saturation = 255.0 if "8-bit" in image.description else 0.0
+    spots = extract_spots(pixels, CentroidConfig(detection_sigma=4.5, psf_sigma_px=1.0, method="auto", max_spots=150,
+                                                 saturation_adu=saturation))
+    height, width = pixels.shape
+    solved = solve_spots(spots, width, height, fov_deg=entry["fov_h_deg"], options=SolveOptions(max_time_s=5.0))
+    assert solved.solved
+    return entry, spots, solved
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:The WCS transformation has more axes")  # a WCS file has no image
+@pytest.mark.skipif(not (REALDATA / "MANIFEST.json").is_file(), reason="real-image corpus absent")
+@pytest.mark.parametrize("image_id", ["gran_vega_05sec", "unh_DSC_0058"])
+def test_deep_rematch_on_real_images(image_id):
+    """More stars on a real photograph, the error against astrometry.net's reference does not
+    grow, and astrometry.net's own TAN-SIP solution puts every deep-matched star on its spot
+    (and no other deep-catalog star nearer)."""
+    from astropy.io import fits
+    from astropy.wcs import WCS
+
+    entry, spots, solved = real_frame(image_id)
+    camera, database = solved.camera, solved.database
+    guide, deep = solve_both(database, spots, camera, centroid_sigma_floor_px=0.3)
+    assert guide.solved and deep.solved
+    assert deep.hip.size >= guide.hip.size + 10 and deep.deep_count >= 10
+    reference = quaternion_to_matrix(np.array(entry["reference"]["quat_xyzw_sensor_to_icrs"]))
+    assert error_rad(deep.attitude.rotation, reference) <= 1.05 * error_rad(guide.attitude.rotation, reference)
+
+    wcs = WCS(fits.getheader(REALDATA / entry["reference"]["wcs_file"]))
+    catalog = load_or_build_deep_catalog(database.config.magnitude_limit + IdentifyConfig().deep_magnitude_margin,
+                                         database.config.epoch_jyear, database.cache_directory)
+    near = catalog.vectors @ reference[:, 2] > math.cos(camera.half_diagonal_fov_rad + 0.02)
+    ra, dec = np.degrees(unit_to_radec(catalog.vectors[near]))
+    px, py = wcs.all_world2pix(ra, dec, 0, quiet=True)  # 0-based: our pixel convention
+    visible = np.isfinite(px) & (px > -5) & (px < camera.width + 5) & (py > -5) & (py < camera.height + 5)
+    px, py, hip = px[visible], py[visible], catalog.hip[near][visible]
+    for k in np.flatnonzero(deep.deep):
+        s = deep.spot_index[k]
+        gap = np.hypot(px - spots.x[s], py - spots.y[s])
+        nearest = np.argmin(gap)
+        assert hip[nearest] == deep.hip[k] and gap[nearest] < 2.0, (deep.hip[k], hip[nearest], gap[nearest])
+    # astrometry.net's matched stars (.anet.corr, Tycho-2) agree wherever it matched the same spot.
+    corr = fits.getdata(REALDATA / entry["reference"]["corr_file"], 1)
+    ours_ra, ours_dec = np.degrees(unit_to_radec(deep.star_vectors))
+    for fx, fy, ira, idec in zip(corr["field_x"] - 1, corr["field_y"] - 1, corr["index_ra"], corr["index_dec"]):
+        at = np.hypot(spots.x[deep.spot_index] - fx, spots.y[deep.spot_index] - fy) < 1.0
+        for k in np.flatnonzero(at):
+            separation = math.hypot((ours_ra[k] - ira) * math.cos(math.radians(idec)), ours_dec[k] - idec) * 3600
+            assert separation < 30.0, (deep.hip[k], separation)
