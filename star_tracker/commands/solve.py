@@ -69,9 +69,10 @@ def register(subparsers) -> None:
                         help=f"identification algorithm (default {DEFAULT_ALGORITHM}; docs/IDENTIFICATION.md)")
     parser.add_argument("--detection-sigma", type=positive_float, default=4.5, metavar="K",
                         help="detection threshold in noise sigmas of the PSF-matched image (default 4.5)")
-    parser.add_argument("--psf-sigma", type=non_negative_float, default=1.0, metavar="PX",
-                        help="the optics' PSF 1-sigma [px] for the centroid fit and the hot-pixel/cosmic-ray "
-                             "shape test (default 1.0; 0 = no shape test, centre of gravity)")
+    parser.add_argument("--psf-sigma", type=non_negative_float, default=None, metavar="PX",
+                        help="fix the optics' PSF 1-sigma [px] for the centroid fit and the hot-pixel/cosmic-ray "
+                             "shape test (default: estimated from the image's stars, prior 1.0; 0 = no shape "
+                             "test, centre of gravity)")
     parser.add_argument("--max-spots", type=positive_int, default=150, metavar="N",
                         help="keep the N brightest spots (default 150: a deep photograph has thousands of stars "
                              "fainter than the catalog)")
@@ -250,6 +251,13 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
               "database": {"magnitude_limit": result.database.config.magnitude_limit,
                            "max_pair_angle_deg": math.degrees(result.database.config.max_pair_angle_rad),
                            "epoch_jyear": result.database.config.epoch_jyear, "stars": result.database.star_count}}
+    psf = getattr(spots, "psf", None)
+    if psf is not None:
+        record["psf"] = {"sigma_px": psf.sigma_px, "sigma_major_px": psf.sigma_major_px,
+                         "sigma_minor_px": psf.sigma_minor_px, "angle_deg": math.degrees(psf.angle_rad),
+                         "sigma_uncertainty_px": None if math.isnan(psf.sigma_uncertainty_px)
+                         else psf.sigma_uncertainty_px, "stars": psf.stars, "source": psf.source,
+                         "reason": psf.reason, "applied_sigma_px": psf.applied_sigma_px}
     ident = result.identification
     if ident is None:
         return record
@@ -290,6 +298,8 @@ def format_text(record: dict) -> str:
              f"camera: {camera_summary_from(record['camera'])}"
              + (f", focal length +-{record['camera']['focal_sigma_px']:.2f} px (refined)"
                 if record['camera'].get('focal_sigma_px') is not None else "")]
+    if record.get("psf"):
+        lines.append(f"psf: {psf_summary(record['psf'])}")
     if not record["solved"]:
         lines.append(f"NOT SOLVED: {record.get('reason', 'no attempt')} "
                      f"({len(record['attempts'])} attempt(s), fields "
@@ -310,6 +320,19 @@ def format_text(record: dict) -> str:
     for m in record["matched"]:
         lines.append(f"{m['hip']:7d} {m['magnitude']:6.2f} {m['x']:9.2f} {m['y']:9.2f} {m['residual_arcsec']:8.2f}\"")
     return "\n".join(lines)
+
+
+def psf_summary(psf: dict) -> str:
+    """One line on the PSF the centroider used (solution_record's "psf")."""
+    if psf["source"] == "estimated":
+        text = (f"sigma {psf['sigma_px']:.2f} +-{psf['sigma_uncertainty_px']:.2f} px estimated from {psf['stars']} "
+                f"stars (major {psf['sigma_major_px']:.2f}, minor {psf['sigma_minor_px']:.2f} px at "
+                f"{psf['angle_deg']:+.0f} deg)")
+        return text + (f", measured with the prior {psf['applied_sigma_px']:.2f} px"
+                       if psf["applied_sigma_px"] != psf["sigma_px"] else "")
+    if psf["source"] == "prior":
+        return f"sigma {psf['sigma_px']:.2f} px (the prior: {psf['reason']})"
+    return f"sigma {psf['sigma_px']:.2f} px (fixed)" if psf["sigma_px"] > 0 else "none (centre of gravity)"
 
 
 def camera_summary_from(camera: dict) -> str:
@@ -340,8 +363,10 @@ def run(args: argparse.Namespace) -> int:
     saturation = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(pixels.dtype, 0.0)
     if "8-bit" in image.description and pixels.dtype.kind == "f":
         saturation = 255.0  # colour 8-bit averaged to float grey
-    config = CentroidConfig(detection_sigma=args.detection_sigma, psf_sigma_px=args.psf_sigma,
-                            method="auto" if args.psf_sigma > 0 else "cog", max_spots=args.max_spots,
+    config = CentroidConfig(detection_sigma=args.detection_sigma,
+                            psf_sigma_px=1.0 if args.psf_sigma is None else args.psf_sigma,
+                            psf_mode="auto" if args.psf_sigma is None else "fixed",
+                            method="cog" if args.psf_sigma == 0 else "auto", max_spots=args.max_spots,
                             saturation_adu=saturation)
     spots = extract_spots(pixels, config)
     report = None if args.quiet else (lambda text: print(f"solve: {text}", file=sys.stderr, flush=True))
