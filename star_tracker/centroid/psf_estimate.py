@@ -30,7 +30,7 @@ MIN_STARS = 5  # fewer usable stars: no estimate (a few cosmic-ray hits must not
 MAX_STARS = 12  # the brightest usable stars fitted: the median of 12 is good to ~1-3 % (and cheap)
 MIN_PEAK_SNR = 7.0  # brightest pixel above the background [noise sigmas]: enough to fit a width
 ISOLATION_SIGMAS = 8.0  # no other candidate closer than this many (rough) PSF widths
-MAX_AXIS_RATIO = 2.0  # a star more elongated than this is smeared or blended, not the optics' PSF
+MAX_AXIS_RATIO = 3.0  # a star more elongated than this (noise included) is smeared or blended, not the optics' PSF
 RERUN_TOLERANCE = 0.1  # relative difference from the prior beyond which a frame is measured again
 
 
