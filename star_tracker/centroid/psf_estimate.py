@@ -85,8 +85,9 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     measured, off the image border, peak >= MIN_PEAK_SNR noise sigmas and 2 % below the clip
     level (`saturation` [ADU]) and the frame's brightest candidate's peak, not
     most of their light in one pixel once cleaned (hot pixels), not a long track (second
-    moments within 8x of each other), and no other candidate within ISOLATION_SIGMAS PSF widths. Candidates the shape test rejected with the
-    prior are included: with a prior too wide, that is where sharp stars end up."""
+    moments within 8x of each other), and no other candidate within ISOLATION_SIGMAS PSF
+    widths. Candidates the shape test rejected with the prior are included: with a prior too
+    wide, that is where sharp stars end up."""
     finite = np.isfinite(cand.x) & np.isfinite(cand.y) & np.isfinite(cand.peak_raw)
     amplitude = cand.peak_raw - det.background_at(np.where(finite, cand.x, 0.0), np.where(finite, cand.y, 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -112,9 +113,10 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
 
 def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturation: float, prior_sigma: float,
                  gain: float) -> PsfEstimate:
-    """The frame's PSF from its usable stars (usable_stars), or the prior (source "prior", with
-    the reason) when fewer than MIN_STARS are usable or the width is outside [MIN_SIGMA_PX,
-    MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
+    """The frame's PSF from its usable stars (usable_stars) whose fit converged to a width of
+    at least SHARPEST_STAR_PX and whose axis ratio is below MAX_AXIS_RATIO, or the prior
+    (source "prior", with the reason) when fewer than MIN_STARS remain or the width is outside
+    [MIN_SIGMA_PX, MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
     saturation [ADU]; prior_sigma: the width the candidates were measured with [px]; gain
     [e-/ADU]."""
     chosen = usable_stars(cand, det, saturation, prior_sigma)
@@ -160,8 +162,7 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     ratio, angle = _axes(total[None], weight_sigma)
     ratio = float(ratio[0]) if np.isfinite(ratio[0]) else 1.0
     return PsfEstimate(sigma, float(sigma * np.sqrt(ratio)), float(sigma / np.sqrt(ratio)), float(angle[0]),
-                       float(uncertainty),
-                       int(width.size), "estimated")
+                       float(uncertainty), int(width.size), "estimated")
 
 
 def _median(values: np.ndarray) -> float:
