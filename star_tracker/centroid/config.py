@@ -4,10 +4,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import erf
 
 from .measure import star_peak_to_neighbour_ratio
 
 CENTROID_METHODS = ("auto", "cog", "wcog", "gaussian", "streak")
+PSF_MODES = ("auto", "fixed")
 
 
 @dataclass(frozen=True)
@@ -21,9 +23,14 @@ class CentroidConfig:
     shot-noise term of the covariance; saturation_adu: a spot with a pixel at or above it is
     flagged (0 = the image dtype's maximum); max_spots: keep at most this many (brightest).
     psf_sigma_px: the optics' PSF 1-sigma [px]; sets the fit model, windows, hot-pixel test.
+    With psf_mode "auto" (default) it is the prior: each frame's PSF is estimated from its
+    bright isolated stars (psf_estimate.py) and the frame measured with that width when it
+    differs from the prior by more than 10 %; "fixed" uses psf_sigma_px as given. 0 means no
+    PSF (no shape test, no estimate: centre of gravity methods only).
     Shape test (hot pixels, cosmic rays; psf_sigma_px > 0): isolated pixels brighter than a
     PSF allows are replaced by their neighbours' mean first; then a spot is rejected when its
-    brightest pixel holds more than max_peak_fraction of its flux, or, at SNR >= shape_min_snr,
+    brightest pixel holds more than max_peak_fraction of its flux (raised for an undersampled
+    PSF to what a star centred on a pixel gives, see peak_fraction_limit), or, at SNR >= shape_min_snr,
     when its narrowest second moment is below min_width_fraction * psf_sigma_px^2 (a star is
     never thinner than the PSF; a cosmic-ray track is).
     method: "auto" (default) = PSF fit for point-like spots, streak model for elongated ones;
@@ -45,6 +52,7 @@ class CentroidConfig:
     max_spots: int = 500
     method: str = "auto"
     psf_sigma_px: float = 1.0
+    psf_mode: str = "auto"
     max_peak_fraction: float = 0.5
     min_width_fraction: float = 0.6
     shape_min_snr: float = 10.0
@@ -69,6 +77,8 @@ class CentroidConfig:
             bad.append(f"max_spots={self.max_spots} must be >= 1")
         if not (0 <= self.psf_sigma_px <= 50):
             bad.append(f"psf_sigma_px={self.psf_sigma_px} must be in [0, 50] (0 disables the shape test)")
+        if self.psf_mode not in PSF_MODES:
+            bad.append(f"psf_mode={self.psf_mode!r} must be one of {PSF_MODES}")
         if self.method not in CENTROID_METHODS:
             bad.append(f"method={self.method!r} must be one of {CENTROID_METHODS}")
         if self.method in ("auto", "gaussian", "streak") and self.psf_sigma_px <= 0:
@@ -89,11 +99,21 @@ class CentroidConfig:
 
 def elongation_limit(sigma: float) -> float:
     """Largest second moment [px^2] of a point-like spot: 2.5x a pixelated PSF's (a segment of
-    length L adds L^2 / 12)."""
-    return 2.5 * (sigma ** 2 + 1.0 / 12.0)
+    length L adds L^2 / 12), the PSF taken at least 0.6 px wide: the noise in a faint spot's
+    aperture adds ~0.2-0.4 px^2 to its moments, which a sharper PSF's limit would call a
+    streak."""
+    return 2.5 * (max(sigma, 0.6) ** 2 + 1.0 / 12.0)
 
 
 def hot_pixel_ratio(config: CentroidConfig, sigma: float) -> float:
     """Peak-to-brightest-neighbour ratio above which a pixel is a defect, not starlight
     (twice what the PSF allows); inf (no cleaning) without a PSF."""
     return 2.0 * star_peak_to_neighbour_ratio(sigma) if config.psf_sigma_px > 0 else np.inf
+
+
+def peak_fraction_limit(config: CentroidConfig, sigma: float) -> float:
+    """Largest share of a spot's flux its brightest pixel may hold [-]: max_peak_fraction, or
+    for a PSF so narrow that a star centred on a pixel puts more than that in it, 1.3x that
+    share (at most 0.95: a hot pixel holds all of it)."""
+    centred = float(erf(0.5 / (np.sqrt(2.0) * max(sigma, 1e-3))) ** 2)
+    return max(config.max_peak_fraction, min(0.95, 1.3 * centred))

@@ -13,10 +13,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .candidates import Candidates, measure_candidates
-from .config import CentroidConfig, elongation_limit
-from .detect import detect
+from .config import CentroidConfig, elongation_limit, peak_fraction_limit
+from .detect import Detections, detect
 from .measure import cog_phase_bias_rms
 from .point_fits import fit_blends, fit_clipped_points, fit_points
+from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, PsfEstimate, estimate_psf
 from .rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
 from .records import FitContext, SpotRows, no_spots
 from .saturation import clip_levels, clipped_pixels, undershot_peaks
@@ -43,18 +44,59 @@ class _Clipping:
 
 
 def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
-                  smear: "SmearModel | None" = None) -> Spots:
+                  smear: "SmearModel | None" = None, psf_prior: float | None = None) -> Spots:
     """Detect spots and measure them (see CentroidConfig). `smear`, when given, predicts each
     star's streak from the body rate and exposure: detection uses the matched streak kernel
-    and positions come from a fit on the predicted path (mid-exposure, curved arcs included)."""
+    and positions come from a fit on the predicted path (mid-exposure, curved arcs included).
+
+    PSF (config.psf_mode "auto"): the frame is measured with the prior width (`psf_prior` [px]
+    when given, e.g. the last frames' estimate, else config.psf_sigma_px), its PSF estimated
+    from the stars found (psf_estimate.estimate_psf), and, when the estimate differs from the
+    prior by more than RERUN_TOLERANCE (relative), measured again with the estimate. The
+    returned Spots carry the estimate (`Spots.psf`, applied_sigma_px = the width used)."""
     if image.ndim != 2 or image.size == 0:
         raise ValueError(f"expected a non-empty 2-D image, got shape {image.shape}")
     if image.dtype.kind not in "uif":
         raise ValueError(f"expected a numeric image, got dtype {image.dtype}")
+    if config.psf_mode == "fixed" or config.psf_sigma_px <= 0:
+        spots, _ = _measure_frame(image, config, smear)
+        return replace(spots, psf=PsfEstimate.assumed(config.psf_sigma_px, "configured"))
+    prior = config.psf_sigma_px
+    if psf_prior is not None and np.isfinite(psf_prior) and MIN_SIGMA_PX <= psf_prior <= MAX_SIGMA_PX:
+        prior = float(psf_prior)
+    first = config if prior == config.psf_sigma_px else replace(config, psf_sigma_px=prior)
+    spots, frame = _measure_frame(image, first, smear)
+    if frame is None:
+        return replace(spots, psf=PsfEstimate.assumed(prior, "prior", "no detections"))
+    if frame.smeared:
+        return replace(spots, psf=PsfEstimate.assumed(prior, "prior", "rate-aided frame: the stars are smeared"))
+    estimate = estimate_psf(image, frame.det, frame.cand, frame.saturation, prior, config.gain_e_per_adu)
+    if not estimate.estimated or abs(estimate.sigma_px - prior) <= RERUN_TOLERANCE * prior:
+        return replace(spots, psf=estimate if not estimate.estimated else replace(estimate, applied_sigma_px=prior))
+    spots, _ = _measure_frame(image, replace(config, psf_sigma_px=estimate.sigma_px), smear)
+    return replace(spots, psf=estimate)
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """What a measurement of a frame leaves for the PSF estimate: its detections, every
+    measured candidate (shape-test rejects included), the saturation level [ADU] and whether
+    a body rate predicted smears (then no star shows the optics' PSF)."""
+
+    det: Detections
+    cand: Candidates
+    saturation: float
+    smeared: bool = False
+
+
+def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None"
+                   ) -> tuple[Spots, _Frame | None]:
+    """One measurement of the frame with config's PSF width: the spots and the _Frame (None
+    when nothing was detected)."""
     height, width = image.shape
     binning = config.binning if min(height, width) >= 16 * config.binning else 1
     saturation = config.saturation_adu or (np.iinfo(image.dtype).max if image.dtype.kind in "ui" else np.inf)
-    sigma = max(config.psf_sigma_px, 0.5)
+    sigma = max(config.psf_sigma_px, MIN_SIGMA_PX) if config.psf_sigma_px > 0 else 0.5
     aid = smear if smear is not None and typical_smear_px(smear, width, height) >= config.min_smear_px else None
     det = detect(image, binning=binning, background_block_px=config.background_block_px,
                  detection_sigma=config.detection_sigma, psf_sigma_px=config.psf_sigma_px,
@@ -62,17 +104,23 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
                  smear_kernel=smear_kernel(aid, width, height, sigma, binning) if aid is not None else None)
     frame_values = dict(background_adu=float(np.median(det.background[::8, ::8])), noise_adu=det.noise_adu)
     if det.x.size == 0:
-        return Spots.empty(width, height, **frame_values)
+        return Spots.empty(width, height, **frame_values), None
     context = FitContext(image, det, config, sigma)
     cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None)
     rejected = _shape_defects(cand, config, sigma)
-    kept = cand.take(_first_cut(context, cand, rejected, aid is not None))
+    first = _first_cut(context, cand, rejected, aid is not None)
+    kept = cand.take(first)
     clip = clip_levels(context, kept, saturation)
     saturated = np.isfinite(clip)
+    # The sensor's clip level, where a flat top showed it below the configured one: every
+    # candidate that reaches it is clipped too, for the PSF estimate.
+    frame = _Frame(det, cand, float(min(saturation, clip[saturated].min() if saturated.any() else np.inf)),
+                   aid is not None)
     # Several separate peaks with dips between them: stars blended into one footprint, not a streak.
     multi = np.array([len(p) >= 2 for p in kept.peaks], bool) & ~saturated
     if aid is not None and rate_aid_disagrees(kept, ~saturated & ~kept.edge & ~multi, sigma, aid):
-        return replace(extract_spots(image, config, None), rate_aid_rejected=True)
+        spots, frame = _measure_frame(image, config, None)
+        return replace(spots, rate_aid_rejected=True), frame
     spots = _centres_of_gravity(kept, config, sigma, saturated, multi)
     # Clipped spots: their pixels at the clip level carry no shape information, so every fit
     # leaves them out (`excluded`); a saturated spot no fit describes gets a covariance as wide
@@ -85,7 +133,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     wide = np.flatnonzero(clipping.saturated & ~clipping.fitted)
     if wide.size:
         spots = spots.with_values(wide, cov=kept.moment_covariance(wide))
-    return _assemble(context, SpotRows.concatenate([spots, *added]), int(rejected.sum()), frame_values)
+    return _assemble(context, SpotRows.concatenate([spots, *added]), int(rejected.sum()), frame_values), frame
 
 
 def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float) -> np.ndarray:
@@ -95,7 +143,7 @@ def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float) -> np
     if config.psf_sigma_px > 0:
         with np.errstate(divide="ignore", invalid="ignore"):
             sharp = cand.peak / cand.flux
-        rejected = ((cand.cleaned & (cand.snr < config.min_snr)) | (sharp > config.max_peak_fraction)
+        rejected = ((cand.cleaned & (cand.snr < config.min_snr)) | (sharp > peak_fraction_limit(config, sigma))
                     | ((cand.snr >= config.shape_min_snr) & (cand.minor < config.min_width_fraction * sigma ** 2)))
         rejected &= np.isfinite(cand.x)
     return rejected

@@ -6,7 +6,7 @@ import numpy as np
 
 from .candidates import Candidates
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
-from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows
+from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows, pixel_integrated_profile
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
 from .spots import FLAG_BLENDED
 
@@ -64,7 +64,10 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
             bf0 = np.column_stack([flux[which[b]], np.maximum(win[b, pr[b], pc[b]] * 2 * np.pi * sigma ** 2, 1.0)])
             fit = fit_psf_windows(PsfWindows(win[b], valid[b], col0[b], row0[b]), PsfStart(bx0, by0, bf0), sigma,
                                   noise, gain)
-            both = fit.converged.all(axis=1)
+            # Two stars only if the brighter one stands out on its own: a split that leaves both
+            # below min_snr is one non-Gaussian star (a defocused ring's two sides), not a pair.
+            brighter = np.max(fit.flux / np.sqrt(np.abs(fit.flux_var)), axis=1)
+            both = fit.converged.all(axis=1) & (brighter >= config.min_snr)
             blended[b[~both]] = False
             j, k = np.flatnonzero(both), b[both]
             t = which[k]
@@ -79,9 +82,41 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
                          spots.flux[which[single]][:, None])
         fit = fit_psf_windows(PsfWindows(win[single], valid[single], col0[single], row0[single]), start, sigma, noise,
                               gain)
-        good = np.flatnonzero(fit.converged[:, 0])
+        converged = fit.converged[:, 0] & ~_not_gaussian(win[single], valid[single], col0[single], row0[single], fit,
+                                                         context)
+        good = np.flatnonzero(converged)
         spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
     return FitOutcome(spots, added)
+
+
+MISFIT_MIN_SNR = 30.0  # fainter spots' residuals are noise whatever the PSF
+MISFIT_CHI2 = 4.0  # reduced chi^2 of a fit the model does not describe ...
+MISFIT_RESIDUAL = 0.1  # ... with a residual this large a fraction of the model (norm): not PRNU's 1 %
+
+
+def _not_gaussian(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> np.ndarray:
+    """Single-PSF fits (bool per window) that the Gaussian does not describe (a non-Gaussian
+    PSF: a defocused ring, strong coma): bright (flux SNR >= MISFIT_MIN_SNR), reduced chi^2
+    above MISFIT_CHI2 and a residual norm above MISFIT_RESIDUAL of the model's. Such a spot keeps
+    its model-free centre of gravity (and its phase-bias covariance) instead."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bright = fit.converged[:, 0] & (fit.flux[:, 0] / np.sqrt(np.abs(fit.flux_var[:, 0])) >= MISFIT_MIN_SNR)
+    out = np.zeros(bright.size, bool)
+    k = np.flatnonzero(bright)
+    if k.size == 0:
+        return out
+    size = win.shape[1]
+    steps = np.arange(size) - 0.5
+    px, _ = pixel_integrated_profile(col0[k, None] + steps, fit.x[k, 0][:, None], context.sigma)
+    py, _ = pixel_integrated_profile(row0[k, None] + steps, fit.y[k, 0][:, None], context.sigma)
+    model = fit.flux[k, 0][:, None, None] * py[:, :, None] * px[:, None, :]
+    use = valid[k]
+    residual = np.where(use, win[k] - model, 0.0)
+    chi2 = np.sum(residual ** 2 / (np.maximum(model, 0.0) / context.gain + context.noise ** 2), axis=(1, 2))
+    chi2 /= np.maximum(use.sum(axis=(1, 2)) - 3, 1)
+    relative = np.sqrt(np.sum(residual ** 2, axis=(1, 2)) / np.sum(np.where(use, model, 0.0) ** 2, axis=(1, 2)))
+    out[k] = (chi2 > MISFIT_CHI2) & (relative > MISFIT_RESIDUAL)
+    return out
 
 
 def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray) -> FitOutcome:

@@ -15,7 +15,7 @@ from .detect import Detections
 class FitContext:
     """One frame as the fits see it: image [ADU] (2-D), its detections (background [ADU] on
     the detection grid, pixel noise [ADU]), the stage's config and the PSF 1-sigma the fits
-    use [px] (config.psf_sigma_px, at least 0.5)."""
+    use [px] (config.psf_sigma_px, at least psf_estimate.MIN_SIGMA_PX; 0.5 without a PSF)."""
 
     image: np.ndarray
     det: Detections

@@ -3,8 +3,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 from numbers import Integral
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .psf_estimate import PsfEstimate
 
 FLAG_SATURATED = 1 << 0  # a pixel of the spot reached the saturation level
 FLAG_EDGE = 1 << 1  # the spot's window touches the image border: position biased inward
@@ -33,7 +37,9 @@ class Spots:
     width, height: image size [px]; background_adu, noise_adu: frame background level and
     1-sigma pixel noise [ADU]; rejected_shape: detections dropped as hot pixels or cosmic rays;
     rate_aid_rejected: a body rate was given but the streaks in the image disagreed with it, so
-    the frame was measured without it (rate_aid.AID_* rules).
+    the frame was measured without it (rate_aid.AID_* rules); psf: the frame's PSF as the
+    centroider estimated or assumed it (psf_estimate.PsfEstimate; None for spots that did not
+    come from an image, e.g. Spots.from_xy or a decoded message).
 
     The record checks its arrays when built (every frame, so only cheap checks): numpy arrays,
     x of shape (N,) and every other per-spot array of the same length, cov (N, 2, 2), float
@@ -57,6 +63,7 @@ class Spots:
     streak_length: np.ndarray | None = None
     streak_angle: np.ndarray | None = None
     rate_aid_rejected: bool = False
+    psf: "PsfEstimate | None" = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.x).size

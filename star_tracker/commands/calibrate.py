@@ -60,8 +60,9 @@ def register(subparsers) -> None:
                         help="step of that search [percent] (default 0.5)")
     parser.add_argument("--detection-sigma", type=positive_float, default=4.5, metavar="K",
                         help="detection threshold [noise sigmas] (default 4.5)")
-    parser.add_argument("--psf-sigma", type=non_negative_float, default=1.0, metavar="PX",
-                        help="the optics' PSF 1-sigma [px] (default 1.0; 0 = centre of gravity)")
+    parser.add_argument("--psf-sigma", type=non_negative_float, default=None, metavar="PX",
+                        help="fix the optics' PSF 1-sigma [px] (default: estimated from each image's stars; "
+                             "0 = centre of gravity)")
     parser.add_argument("--max-spots", type=positive_int, default=150, metavar="N",
                         help="keep the N brightest spots per image (default 150)")
     parser.add_argument("--centroid-sigma-floor", type=positive_float, default=0.3, metavar="PX",
@@ -113,16 +114,11 @@ def bag_images(path: str, topic: str, every: int, max_images: int):
 
 def image_spots(pixels: np.ndarray, description: str, args: argparse.Namespace):
     """(spots, width, height) of one image, centroided as `solve` does with these options."""
-    from ..centroid import CentroidConfig, extract_spots
+    from ..centroid import extract_spots
+    from .solve import centroid_config
 
-    saturation = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(pixels.dtype, 0.0)
-    if "8-bit" in description and pixels.dtype.kind == "f":
-        saturation = 255.0  # colour 8-bit averaged to float grey
-    config = CentroidConfig(detection_sigma=args.detection_sigma, psf_sigma_px=args.psf_sigma,
-                            method="auto" if args.psf_sigma > 0 else "cog", max_spots=args.max_spots,
-                            saturation_adu=saturation)
     height, width = pixels.shape
-    return extract_spots(pixels, config), width, height
+    return extract_spots(pixels, centroid_config(pixels, description, args)), width, height
 
 
 def calibration_yaml(calibration, camera_name: str, images: list[dict]) -> str:

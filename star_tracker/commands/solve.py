@@ -75,15 +75,17 @@ def register(subparsers) -> None:
                              "solved says so quickly); 'steps' = identify at fields stepped by --fov-step; "
                              f"'both' = patterns first, then steps (default {DEFAULT_FIELD_SEARCH})")
     parser.add_argument("--no-refine", action="store_true",
-                        help="keep the given/searched focal length (default: refine it by least squares over "
-                             "the matched stars when --fov is used)")
+                        help="keep the given/searched camera (default with --fov: refine its focal length and, "
+                             "where the stars constrain them, k1, k2 and the principal point by least squares over "
+                             "the matched stars)")
     parser.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=DEFAULT_ALGORITHM,
                         help=f"identification algorithm (default {DEFAULT_ALGORITHM}; docs/IDENTIFICATION.md)")
     parser.add_argument("--detection-sigma", type=positive_float, default=4.5, metavar="K",
                         help="detection threshold in noise sigmas of the PSF-matched image (default 4.5)")
-    parser.add_argument("--psf-sigma", type=non_negative_float, default=1.0, metavar="PX",
-                        help="the optics' PSF 1-sigma [px] for the centroid fit and the hot-pixel/cosmic-ray "
-                             "shape test (default 1.0; 0 = no shape test, centre of gravity)")
+    parser.add_argument("--psf-sigma", type=non_negative_float, default=None, metavar="PX",
+                        help="fix the optics' PSF 1-sigma [px] for the centroid fit and the hot-pixel/cosmic-ray "
+                             "shape test (default: estimated from the image's stars, prior 1.0; 0 = no shape "
+                             "test, centre of gravity)")
     parser.add_argument("--max-spots", type=positive_int, default=150, metavar="N",
                         help="keep the N brightest spots (default 150: a deep photograph has thousands of stars "
                              "fainter than the catalog)")
@@ -296,6 +298,13 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
               "database": {"magnitude_limit": result.database.config.magnitude_limit,
                            "max_pair_angle_deg": math.degrees(result.database.config.max_pair_angle_rad),
                            "epoch_jyear": result.database.config.epoch_jyear, "stars": result.database.star_count}}
+    psf = getattr(spots, "psf", None)
+    if psf is not None:
+        record["psf"] = {"sigma_px": psf.sigma_px, "sigma_major_px": psf.sigma_major_px,
+                         "sigma_minor_px": psf.sigma_minor_px, "angle_deg": math.degrees(psf.angle_rad),
+                         "sigma_uncertainty_px": None if math.isnan(psf.sigma_uncertainty_px)
+                         else psf.sigma_uncertainty_px, "stars": psf.stars, "source": psf.source,
+                         "reason": psf.reason, "applied_sigma_px": psf.applied_sigma_px}
     ident = result.identification
     if ident is None:
         record.update(unsolved_summary(result.attempts))
@@ -359,6 +368,8 @@ def format_text(record: dict) -> str:
                 if record['camera'].get('focal_sigma_px') is not None else "")]
     if record["camera"].get("calibration"):
         lines.append(f"fitted camera: {calibration_summary(record['camera']['calibration'])}")
+    if record.get("psf"):
+        lines.append(f"psf: {psf_summary(record['psf'])}")
     if not record["solved"]:
         lines.append(f"NOT SOLVED: {record['reason']}")
         return "\n".join(lines)
@@ -389,6 +400,19 @@ def calibration_summary(calibration: dict) -> str:
             "stars")
 
 
+def psf_summary(psf: dict) -> str:
+    """One line on the PSF the centroider used (solution_record's "psf")."""
+    if psf["source"] == "estimated":
+        text = (f"sigma {psf['sigma_px']:.2f} +-{psf['sigma_uncertainty_px']:.2f} px estimated from {psf['stars']} "
+                f"stars (major {psf['sigma_major_px']:.2f}, minor {psf['sigma_minor_px']:.2f} px at "
+                f"{psf['angle_deg']:+.0f} deg)")
+        return text + (f", measured with the prior {psf['applied_sigma_px']:.2f} px"
+                       if psf["applied_sigma_px"] != psf["sigma_px"] else "")
+    if psf["source"] == "prior":
+        return f"sigma {psf['sigma_px']:.2f} px (the prior: {psf['reason']})"
+    return f"sigma {psf['sigma_px']:.2f} px (fixed)" if psf["sigma_px"] > 0 else "none (centre of gravity)"
+
+
 def camera_summary_from(camera: dict) -> str:
     from ..models.camera import CameraModel
 
@@ -396,9 +420,25 @@ def camera_summary_from(camera: dict) -> str:
                                       camera["cy"], tuple(camera["distortion"])))
 
 
+def centroid_config(pixels: np.ndarray, description: str, args: argparse.Namespace):
+    """The CentroidConfig of an image file read by commands/images.py (`description` names its
+    bit depth) under the --detection-sigma, --psf-sigma (None: estimated) and --max-spots
+    options; solve and calibrate centroid alike."""
+    from ..centroid import CentroidConfig
+
+    saturation = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(pixels.dtype, 0.0)
+    if "8-bit" in description and pixels.dtype.kind == "f":
+        saturation = 255.0  # colour 8-bit averaged to float grey
+    return CentroidConfig(detection_sigma=args.detection_sigma,
+                          psf_sigma_px=1.0 if args.psf_sigma is None else args.psf_sigma,
+                          psf_mode="auto" if args.psf_sigma is None else "fixed",
+                          method="cog" if args.psf_sigma == 0 else "auto", max_spots=args.max_spots,
+                          saturation_adu=saturation)
+
+
 @guarded(NAME)
 def run(args: argparse.Namespace) -> int:
-    from ..centroid import CentroidConfig, extract_spots
+    from ..centroid import extract_spots
     from ..centroid.frame_check import frame_problem
     from ..identify.verify import MIN_STARS
     from .images import read_image
@@ -416,12 +456,8 @@ def run(args: argparse.Namespace) -> int:
     if args.fov is not None and args.fov_tolerance >= 50.0:
         raise CommandError(f"--fov-tolerance {args.fov_tolerance} must be < 50 percent")
     pixels = image.pixels
-    saturation = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(pixels.dtype, 0.0)
-    if "8-bit" in image.description and pixels.dtype.kind == "f":
-        saturation = 255.0  # colour 8-bit averaged to float grey
-    config = CentroidConfig(detection_sigma=args.detection_sigma, psf_sigma_px=args.psf_sigma,
-                            method="auto" if args.psf_sigma > 0 else "cog", max_spots=args.max_spots,
-                            saturation_adu=saturation)
+    config = centroid_config(pixels, image.description, args)
+    saturation = config.saturation_adu
     spots = extract_spots(pixels, config)
     report = None if args.quiet else (lambda text: print(f"solve: {text}", file=sys.stderr, flush=True))
     options = SolveOptions(algorithm=args.algorithm, fov_tolerance_pct=args.fov_tolerance,

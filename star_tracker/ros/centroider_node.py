@@ -29,6 +29,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
+from ..centroid.config import PSF_MODES
+from ..centroid.psf_prior import RunningPsf
 from ..centroid.kernels import warm_up
 from ..centroid.smear import SmearModel
 from . import convert
@@ -64,7 +66,10 @@ class CentroiderNode(Node):
             max_spots=p("max_spots", 500, "most spots reported per frame (brightest)", 1, 100000),
             method=p("method", "auto", "sub-pixel method: " + " | ".join(CENTROID_METHODS)
                      + " (auto = PSF fit for points, streak model for streaks)"),
-            psf_sigma_px=p("psf_sigma_px", 1.0, "PSF 1-sigma of the optics; 0 = no shape test [px]", 0.0, 50.0),
+            psf_sigma_px=p("psf_sigma_px", 1.0, "PSF 1-sigma of the optics: the prior of the estimate (psf_mode auto) "
+                           "or the width used (fixed); 0 = no PSF, no shape test [px]", 0.0, 50.0),
+            psf_mode=p("psf_mode", "auto", "PSF width: " + " | ".join(PSF_MODES) + " (auto = estimated on every "
+                       "frame from its stars, carried to the next; fixed = psf_sigma_px)"),
             max_peak_fraction=p("max_peak_fraction", 0.5, "reject a spot whose brightest pixel holds more of its flux "
                                                            "(hot pixels) [-]", 0.01, 1.0),
             min_width_fraction=p("min_width_fraction", 0.6, "reject a spot narrower than this x psf_sigma_px^2 "
@@ -95,6 +100,7 @@ class CentroiderNode(Node):
             raise ValueError("; ".join(problems))
         self.rate_param = np.asarray(rate_param, float)
         self.rate: tuple[int, np.ndarray] | None = None  # (stamp ns, rad/s) of the latest rate message
+        self.psf = RunningPsf()  # the last frames' PSF estimate: the next frame's prior
         warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
         self.pub = self.create_publisher(PointCloud2, "spots", SPOTS_QOS)
         self.diag = Diagnostics(self)
@@ -114,6 +120,8 @@ class CentroiderNode(Node):
         rate = np.asarray(changes.get("angular_velocity_rad_s", self.rate_param), float)
         if rate.shape != (3,) or not np.all(np.isfinite(rate)):
             return f"angular_velocity_rad_s={list(rate)} must be 3 finite values"
+        if (config.psf_mode, config.psf_sigma_px) != (self.config.psf_mode, self.config.psf_sigma_px):
+            self.psf.reset()  # a new prior or mode: start from it
         self.config, self.rate_param = config, rate
         self.exposure_s = changes.get("exposure_time_s", self.exposure_s)
         self.max_rate_age_s = changes.get("max_rate_age_s", self.max_rate_age_s)
@@ -170,7 +178,8 @@ class CentroiderNode(Node):
         started = time.perf_counter()
         try:
             smear = self.smear_for(stamp_ns, image.shape[1], image.shape[0])
-            spots = extract_spots(image, self.config, smear)
+            spots = extract_spots(image, self.config, smear, psf_prior=self.psf.prior)
+            self.psf.update(spots.psf)
         except ValueError as exc:
             self.diag.count("frames_rejected")
             self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
@@ -198,7 +207,8 @@ class CentroiderNode(Node):
         problem = self.content_problem(image, spots)
         self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok", last_spot_count=len(spots),
                       last_processing_ms=f"{processing_s * 1e3:.2f}",
-                      last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None and not spots.rate_aid_rejected))
+                      last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None and not spots.rate_aid_rejected),
+                      **psf_values(spots.psf))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:
         """Count and log a frame with no signal (every pixel equal: lens cap, dead sensor) or a
@@ -217,6 +227,15 @@ class CentroiderNode(Node):
     def destroy_node(self) -> None:
         self.frames.stop()
         super().destroy_node()
+
+
+def psf_values(psf) -> dict:
+    """The /diagnostics values of a frame's PsfEstimate (msg_docs/diagnostics.md)."""
+    if psf is None:
+        return {}
+    return {"psf_sigma_px": f"{psf.sigma_px:.3f}", "psf_sigma_uncertainty_px": f"{psf.sigma_uncertainty_px:.3f}",
+            "psf_elongation": f"{psf.elongation:.3f}", "psf_stars": psf.stars, "psf_source": psf.source,
+            "psf_applied_sigma_px": f"{psf.applied_sigma_px:.3f}", "psf_reason": psf.reason or "-"}
 
 
 def main(argv: list[str] | None = None) -> None:

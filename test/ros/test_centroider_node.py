@@ -23,9 +23,9 @@ RATE_DEG_S = [1.5, 1.0, 0.0]  # 1.8 deg/s across the boresight: ~12 px streaks i
 FRAMES = 8
 
 
-def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None):
+def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None, camera_params=None):
     """camera_simulator + centroider; returns {stamp: (spots records, truth records)} and the
-    centroider's last diagnostics values."""
+    centroider's last diagnostics values. camera_params override the camera's (streaks by default)."""
     env = join_isolated_ros_domain(monkeypatch)
     node = rclpy.create_node("centroider_probe")
     spots, truth, diag = {}, {}, {}
@@ -45,7 +45,7 @@ def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None):
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
     params = {"camera_simulator": {"attitude.profile": "constant_rate", "attitude.body_rate_deg_s": RATE_DEG_S,
                                    "max_frames": FRAMES, "rate_hz": 5.0, "wait_for_subscribers": True,
-                                   "start_delay_s": 2.0},
+                                   "start_delay_s": 2.0, **(camera_params or {})},
               "centroider": {"saturation_adu": 60000.0, **centroider_params}}
     procs = NodeProcesses(env, tmp_path / "logs", params, nodes=("camera_simulator", "centroider"),
                           remaps=remaps).start()
@@ -113,3 +113,19 @@ def test_centroider_measures_streaks_at_mid_exposure_with_and_without_the_rate(t
     assert streak.mean() > 0.8
     assert np.sqrt(np.mean(errors[streak] ** 2)) < 0.15
     assert abs(np.median(lengths[streak]) / expected_length - 1) < 0.05
+
+
+@pytest.mark.integration
+def test_centroider_estimates_the_psf_and_reports_it(tmp_path, monkeypatch):
+    """A camera with a 0.6 px PSF at rest and the centroider at its defaults (prior 1 px): the
+    running estimate on /diagnostics is the camera's width, from many stars; streaked frames
+    (no round stars) report the prior and why."""
+    frames, diag = run_pipeline(tmp_path / "sharp", monkeypatch, {"rate_source": "none"},
+                                camera_params={"attitude.body_rate_deg_s": [0.0, 0.0, 0.0],
+                                               "optics.psf_sigma_px": 0.6})
+    assert diag["psf_source"] == "estimated" and diag["psf_reason"] == "-"
+    assert float(diag["psf_sigma_px"]) == pytest.approx(0.6, rel=0.05)
+    assert int(diag["psf_stars"]) >= 5 and float(diag["psf_sigma_uncertainty_px"]) < 0.03
+    assert float(diag["psf_elongation"]) < 1.2
+    frames, diag = run_pipeline(tmp_path / "streaks", monkeypatch, {"rate_source": "none"})
+    assert diag["psf_source"] == "prior" and float(diag["psf_sigma_px"]) == 1.0 and diag["psf_reason"] != "-"

@@ -1,0 +1,34 @@
+"""RunningPsf: the PSF width carried from frame to frame (the centroider node's prior), so that
+the next frame usually needs one measurement pass (extract_spots(..., psf_prior=...))."""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from .psf_estimate import PsfEstimate
+
+
+class RunningPsf:
+    """The median [px] of the last `frames` frames' estimated PSF widths; a frame whose
+    estimate failed (source not "estimated": too few stars, out of range) empties it, so the
+    next frame starts again from the configured prior instead of a stale width."""
+
+    def __init__(self, frames: int = 5) -> None:
+        if frames < 1:
+            raise ValueError(f"frames={frames} must be >= 1")
+        self._recent: deque[float] = deque(maxlen=frames)
+
+    def update(self, estimate: PsfEstimate | None) -> None:
+        if estimate is None or not estimate.estimated:
+            self._recent.clear()
+        else:
+            self._recent.append(float(estimate.sigma_px))
+
+    def reset(self) -> None:
+        self._recent.clear()
+
+    @property
+    def prior(self) -> float | None:
+        """The width to start the next frame from [px], None: the configured prior."""
+        return float(np.median(self._recent)) if self._recent else None
