@@ -343,7 +343,8 @@ def test_solve_a_real_wide_field_photograph(sky_photo, tmp_path, catalog):
         p = (1 - u) * (1 - v) * corners[0] + u * (1 - v) * corners[1] + u * v * corners[2] + (1 - u) * v * corners[3]
         star = sky.unit_vectors()[sky.index_of(hip)]
         offset_px = np.degrees(np.arccos(np.clip(star @ (p / np.linalg.norm(p)), -1, 1))) / pixel_deg
-        assert offset_px < 2.0, (hip, offset_px)
+        # Faint (deep-catalog) stars reach the corners, where the corner mapping is roughest.
+        assert offset_px < (3.0 if m.get("deep") else 2.0), (hip, offset_px)
     # The boresight is the centre of the corners, the field ~8.1 deg.
     centre = corners.sum(axis=0) / np.linalg.norm(corners.sum(axis=0))
     boresight = quaternion_to_matrix(np.array(solution["quaternion_xyzw"]))[:, 2]

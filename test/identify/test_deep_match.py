@@ -16,7 +16,7 @@ from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_
 from star_tracker.identify.deep_catalog import load_or_build_deep_catalog
 from star_tracker.models.attitude import matrix_to_rotation_vector, quaternion_to_matrix
 from star_tracker.models.camera import CameraModel
-from star_tracker.models.catalog import unit_to_radec
+from star_tracker.models.catalog import radec_to_unit, unit_to_radec
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import KIND_STAR, StarFieldRenderer
 from star_tracker.sim.sensor import SensorModel
@@ -189,12 +189,19 @@ def test_deep_rematch_on_real_images(image_id):
         s = deep.spot_index[k]
         gap = np.hypot(px - spots.x[s], py - spots.y[s])
         nearest = np.argmin(gap)
-        assert hip[nearest] == deep.hip[k] and gap[nearest] < 2.0, (deep.hip[k], hip[nearest], gap[nearest])
+        # The reference WCS itself misplaces its own matched stars by ~1 px toward the edges: the
+        # identity is judged by the nearest star, the distance only against gross errors.
+        assert hip[nearest] == deep.hip[k] and gap[nearest] < 3.0, (deep.hip[k], hip[nearest], gap[nearest])
     # astrometry.net's matched stars (.anet.corr, Tycho-2) agree wherever it matched the same spot.
     corr = fits.getdata(REALDATA / entry["reference"]["corr_file"], 1)
+    pixel_arcsec = math.degrees(1.0 / camera.fx) * 3600.0
     ours_ra, ours_dec = np.degrees(unit_to_radec(deep.star_vectors))
     for fx, fy, ira, idec in zip(corr["field_x"] - 1, corr["field_y"] - 1, corr["index_ra"], corr["index_dec"]):
         at = np.hypot(spots.x[deep.spot_index] - fx, spots.y[deep.spot_index] - fy) < 1.0
         for k in np.flatnonzero(at):
             separation = math.hypot((ours_ra[k] - ira) * math.cos(math.radians(idec)), ours_dec[k] - idec) * 3600
-            assert separation < 30.0, (deep.hip[k], separation)
+            # A close double in one spot (e.g. epsilon-1/epsilon-2 Lyr, 208" apart on a 77"/px frame):
+            # astrometry.net may have named the other component, which the catalog holds beside ours.
+            other = catalog.vectors[near] @ radec_to_unit(np.radians(ira), np.radians(idec))
+            component = float(np.max(other)) > math.cos(math.radians(30.0 / 3600)) and separation < 3.0 * pixel_arcsec
+            assert separation < 30.0 or component, (deep.hip[k], separation)
