@@ -17,7 +17,7 @@ from .config import CentroidConfig, elongation_limit, peak_fraction_limit
 from .detect import Detections, detect
 from .measure import cog_phase_bias_rms
 from .point_fits import fit_blends, fit_clipped_points, fit_points
-from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, PsfEstimate, estimate_psf
+from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
 from .rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
 from .records import FitContext, SpotRows, no_spots
 from .saturation import clip_levels, clipped_pixels, undershot_peaks
@@ -71,10 +71,15 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     if frame.smeared:
         return replace(spots, psf=PsfEstimate.assumed(prior, "prior", "rate-aided frame: the stars are smeared"))
     estimate = estimate_psf(image, frame.det, frame.cand, frame.saturation, prior, config.gain_e_per_adu)
-    if not estimate.estimated or abs(estimate.sigma_px - prior) <= RERUN_TOLERANCE * prior:
-        return replace(spots, psf=estimate if not estimate.estimated else replace(estimate, applied_sigma_px=prior))
-    spots, _ = _measure_frame(image, replace(config, psf_sigma_px=estimate.sigma_px), smear)
-    return replace(spots, psf=estimate)
+    if not estimate.estimated:
+        return replace(spots, psf=estimate)
+    # Stars elongated alike are smeared (an unknown body rate) or astigmatic: their minor axis is
+    # the PSF, and a round width would hide the smear from the streak fits.
+    width = estimate.sigma_minor_px if estimate.elongation > SMEARED_ELONGATION else estimate.sigma_px
+    if abs(width - prior) <= RERUN_TOLERANCE * prior:
+        return replace(spots, psf=replace(estimate, applied_sigma_px=prior))
+    spots, _ = _measure_frame(image, replace(config, psf_sigma_px=width), smear)
+    return replace(spots, psf=replace(estimate, applied_sigma_px=width))
 
 
 @dataclass(frozen=True)

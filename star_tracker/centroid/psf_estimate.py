@@ -32,6 +32,7 @@ MIN_PEAK_SNR = 7.0  # brightest pixel above the background [noise sigmas]: enoug
 ISOLATION_SIGMAS = 8.0  # no other candidate closer than this many (rough) PSF widths
 MAX_AXIS_RATIO = 3.0  # a star more elongated than this (noise included) is smeared or blended, not the optics' PSF
 RERUN_TOLERANCE = 0.1  # relative difference from the prior beyond which a frame is measured again
+SMEARED_ELONGATION = 1.2  # stars more elongated than this are measured with the minor-axis width
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from .base import (NO_MATCH, TIMEOUT, AcceptedMatch, IdentifyConfig, SearchOutco
 from .database import StarDatabase
 from .geometry import pyramid_triangles
 from .skygrid import SkyGrid
-from .verify import MIN_STARS
+from .verify import MIN_STARS, log_chance_tuples
 from .deadline import Deadline
 
 # Triangles per compiled call; the deadline is checked between calls. The first pyramid
@@ -82,6 +82,7 @@ class HybridIdentifier(StarIdentifier):
                             np.zeros(n, np.uint32), np.full(n, 9, np.int32), np.full(n, 1e3),
                             camera.width, camera.height), camera)
         refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
+        log_chance_tuples(np.eye(3), np.full(3, 1e-5), 3.0, 1e3)  # the bound after the deep re-match
 
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
         """Compiled triangle search (kernels.search_triangles) in batches, the deadline

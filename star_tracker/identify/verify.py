@@ -86,7 +86,8 @@ MIN_STARS = 4
 def log_chance_tuples(body: np.ndarray, sigma: np.ndarray, chi2: float, density_per_sr: float) -> float:
     """ln lambda_m(c): expected number of catalog m-tuples (uniform density [1/sr]) fitting the
     m sensor-frame unit vectors `body` (sigma [rad] each) with weighted chi^2 <= `chi2`."""
-    return float(kernels.log_chance_tuples(np.ascontiguousarray(body, float), np.asarray(sigma, float),
+    # Contiguous float64 always: one compiled specialisation, the one the warm-ups compile.
+    return float(kernels.log_chance_tuples(np.ascontiguousarray(body, float), np.ascontiguousarray(sigma, float),
                                            float(chi2), float(density_per_sr)))
 
 
