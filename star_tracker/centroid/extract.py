@@ -75,8 +75,11 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         return replace(spots, psf=estimate)
     # Stars elongated alike are smeared (an unknown body rate) or astigmatic: their minor axis is
     # the PSF, and a round width would hide the smear from the streak fits.
-    width = estimate.sigma_minor_px if estimate.elongation > SMEARED_ELONGATION else estimate.sigma_px
-    if abs(width - prior) <= RERUN_TOLERANCE * prior:
+    # Their minor width is only approximate (the round fit over the axis ratio): it overrides the
+    # prior only when clearly different.
+    elongated = estimate.elongation > SMEARED_ELONGATION
+    width = estimate.sigma_minor_px if elongated else estimate.sigma_px
+    if abs(width - prior) <= (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior:
         return replace(spots, psf=replace(estimate, applied_sigma_px=prior))
     spots, _ = _measure_frame(image, replace(config, psf_sigma_px=width), smear)
     return replace(spots, psf=replace(estimate, applied_sigma_px=width))

@@ -82,8 +82,11 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
                          spots.flux[which[single]][:, None])
         fit = fit_psf_windows(PsfWindows(win[single], valid[single], col0[single], row0[single]), start, sigma, noise,
                               gain)
-        converged = fit.converged[:, 0] & ~_not_gaussian(win[single], valid[single], col0[single], row0[single], fit,
-                                                         context)
+        # Only round spots: an elongated one is smeared (no body rate known) or a blend, which the
+        # symmetric Gaussian centres better than a centre of gravity.
+        round_ = kept.major[which[single]] <= MISFIT_MAX_ELONGATION ** 2 * kept.minor[which[single]]
+        converged = fit.converged[:, 0] & ~(_not_gaussian(win[single], valid[single], col0[single], row0[single], fit,
+                                                          context) & round_)
         good = np.flatnonzero(converged)
         spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
     return FitOutcome(spots, added)
@@ -92,6 +95,7 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
 MISFIT_MIN_SNR = 30.0  # fainter spots' residuals are noise whatever the PSF
 MISFIT_CHI2 = 4.0  # reduced chi^2 of a fit the model does not describe ...
 MISFIT_RESIDUAL = 0.1  # ... with a residual this large a fraction of the model (norm): not PRNU's 1 %
+MISFIT_MAX_ELONGATION = 1.2  # ... and a spot no more elongated than this (axis ratio of its moments)
 
 
 def _not_gaussian(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> np.ndarray:
