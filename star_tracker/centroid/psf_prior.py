@@ -10,7 +10,7 @@ from .psf_estimate import PsfEstimate
 
 
 class RunningPsf:
-    """The median [px] of the last `frames` frames' estimated PSF widths; a frame whose
+    """The median [px] of the last `frames` frames' applied PSF widths; a frame whose
     estimate failed (source not "estimated": too few stars, out of range) empties it, so the
     next frame starts again from the configured prior instead of a stale width."""
 
@@ -23,7 +23,9 @@ class RunningPsf:
         if estimate is None or not estimate.estimated:
             self._recent.clear()
         else:
-            self._recent.append(float(estimate.sigma_px))
+            # The width the frame was measured with, not the raw estimate: for smeared stars the
+            # round estimate is wider than the PSF (extract_spots measured them with the minor axis).
+            self._recent.append(float(estimate.applied_sigma_px))
 
     def reset(self) -> None:
         self._recent.clear()
