@@ -409,17 +409,17 @@ class StarIdentifier:
         return AcceptedMatch(spot_index, star_index, solution.rotation, fp)
 
     def solved(self, geometry: SpotGeometry, order: np.ndarray, match: AcceptedMatch, tested: int,
-               started: float, algorithm: str | None = None) -> Identification:
+               started: float, algorithm: str | None = None, deep_match: bool = True) -> Identification:
         """The Identification of an accepted match: refitted with the final weights
-        (final_fit), then, with config.deep_match, extended by the deep re-match (deep_rematch)
-        when its bound holds; match.spot_index refers to the flux-sorted spots of `geometry`
+        (final_fit), then, with config.deep_match and `deep_match` (False: a tracked frame),
+        extended by the deep re-match (deep_rematch) when its bound holds; match.spot_index refers to the flux-sorted spots of `geometry`
         and is mapped back to the input spots through `order` (prepare). `started`: the call's
         time.perf_counter() [s]; `algorithm`: the name reported (default: this one's)."""
         guide = _Matches(match.spot_index, self.database.vectors[match.star_index], self.database.hip[match.star_index],
                          self.database.magnitude[match.star_index], np.zeros(match.spot_index.size, bool))
         solution, _, residual = self._fit(geometry, guide.spot_index, guide.star_vectors, match.rotation)
         matches, fp = guide, match.false_positive_probability
-        if self.config.deep_match and geometry.camera is not None:
+        if deep_match and self.config.deep_match and geometry.camera is not None:
             extended = self.deep_rematch(geometry, guide, solution)
             if extended is not None:
                 matches, solution, residual, fp = extended

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -337,11 +337,11 @@ class Tracker:
         if fp > self.config.false_positive_bound:
             return Identification("no_match", f"{count} stars matched but false-positive bound {fp:.1e} > "
                                   f"{self.config.false_positive_bound:.0e}", "tracking", elapsed()), gate
-        # No deep re-match on tracked frames (geometry without its camera): under a slew the faint
-        # spots' covariances are optimistic and the rate's NEES leaves its bound (test_tracking's
-        # slew: 4.4 on one axis with it); lost-in-space solves keep it.
-        return lis.solved(replace(geometry, camera=None), order, AcceptedMatch(spot_index, star_index, rotation, fp), 1,
-                          started, algorithm="tracking"), gate
+        # No deep re-match on tracked frames: under a slew the faint spots' covariances are
+        # optimistic and the rate's NEES leaves its bound (test_tracking's slew: 4.4 on one axis
+        # with it); lost-in-space solves keep it.
+        return lis.solved(geometry, order, AcceptedMatch(spot_index, star_index, rotation, fp), 1, started,
+                          algorithm="tracking", deep_match=False), gate
 
     def _half_diagonal(self, camera: CameraModel) -> float:
         key = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, tuple(camera.distortion))
