@@ -34,6 +34,7 @@ from .verify import verify
 PATTERN_FORMAT_VERSION = 1
 CIRCLE_STARS = 10  # brightest guide stars per sky circle whose 4-subsets are stored
 IMAGE_SPOTS = 10  # brightest spots whose 4-subsets are looked up
+VERIFY_SPOTS = 40  # brightest spots counted on projected guide stars to rank a match
 CIRCLE_SPACING = 0.75  # circle centres this fraction of the circle radius apart
 RATIO_BIN = 0.01  # hash bin of each angle ratio
 RATIO_BASE = int(round(1.0 / RATIO_BIN)) + 2
@@ -177,7 +178,7 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
     subsets = np.array(list(itertools.combinations(range(n), 4)))
     ratios, largest, order = pattern_shape(rays[subsets])
     subsets = np.take_along_axis(subsets, order, axis=1)
-    check = brightest if len(spots) <= 40 else np.argsort(-spots.flux, kind="stable")[:40]
+    check = np.argsort(-spots.flux, kind="stable")[:VERIFY_SPOTS]
     need = min(7, len(spots))  # the pattern's four and at least three more
     found: list[FieldEstimate] = []
     lo_scale, hi_scale = 1.0 / (1.0 + tolerance), 1.0 / (1.0 - tolerance)
@@ -196,8 +197,8 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
         # f_true / f_nominal = image angle (rays of the nominal focal length) / catalog angle.
         scale = largest[p] / patterns.largest[cand]
         close = np.all(np.abs(patterns.ratios[cand] - ratios[p]) <= ratio_tolerance, axis=1)
-        cand, scale = cand[close & (scale >= lo_scale) & (scale <= hi_scale)], scale[close & (scale >= lo_scale)
-                                                                                      & (scale <= hi_scale)]
+        keep = close & (scale >= lo_scale) & (scale <= hi_scale)
+        cand, scale = cand[keep], scale[keep]
         for c, s in zip(cand, scale):
             if any(abs(s * camera.fx / e.camera.fx - 1.0) < 2e-3 for e in found):
                 continue
