@@ -51,14 +51,17 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     if config.split_blends:
         found, pr, pc = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
                                         min_separation=max(2.0, 2.0 * sigma), radius=half - 1.5, gain=gain, noise=noise)
-        # A second peak that is another detected spot is fitted jointly but not reported twice.
         px, py = col0 + pc, row0 + pr
-        others = np.hypot(px[:, None] - x[None, :], py[:, None] - y[None, :])
-        others[np.arange(which.size), which] = np.inf
-        duplicate = others.min(axis=1) < 2.0 if x.size > 1 else np.zeros(which.size, bool)
         blended = found
         if blended.any():
             b = np.flatnonzero(blended)
+            # A second peak that is another detected spot is fitted jointly but not reported
+            # twice (distances from the second peaks only: all pairs cost seconds on big frames).
+            duplicate = np.zeros(which.size, bool)
+            if x.size > 1:
+                others = np.hypot(px[b, None] - x[None, :], py[b, None] - y[None, :])
+                others[np.arange(b.size), which[b]] = np.inf
+                duplicate[b] = others.min(axis=1) < 2.0
             bx0 = np.column_stack([x[which[b]], px[b].astype(float)])
             by0 = np.column_stack([y[which[b]], py[b].astype(float)])
             bf0 = np.column_stack([flux[which[b]], np.maximum(win[b, pr[b], pc[b]] * 2 * np.pi * sigma ** 2, 1.0)])

@@ -45,7 +45,12 @@ def read_image(path: str | Path) -> LoadedImage:
     if pixels.ndim == 3:
         channels = pixels.shape[2]
         colour = pixels[:, :, :3] if channels >= 3 else pixels[:, :, :1]
-        grey = colour.astype(np.float32).mean(axis=2)
+        # The mean of the channels, summed plane by plane (exact: integers), as np.mean(axis=2)
+        # gives it but without its strided reduction (seconds on a 10-Mpx photograph).
+        grey = colour[:, :, 0].astype(np.float32)
+        for plane in range(1, colour.shape[2]):
+            grey += colour[:, :, plane]
+        grey /= np.float32(colour.shape[2])
         description = f"{kind} {bits} {'colour' if channels >= 3 else 'grey+alpha'} {grey.shape[1]}x{grey.shape[0]} (converted to grey)"
         pixels = grey
     else:

@@ -155,7 +155,7 @@ def _payload_checksum(arrays: dict[str, np.ndarray]) -> str:
     for key in sorted(arrays):
         array = np.ascontiguousarray(arrays[key])
         digest.update(f"{key}|{array.dtype.str}|{array.shape}|".encode())  # bytes alone admit a retyped array
-        digest.update(array.tobytes())
+        digest.update(array.reshape(-1).view(np.uint8) if array.size else b"")  # no copy (tobytes copied)
     return digest.hexdigest()
 
 
