@@ -27,6 +27,7 @@ from ..models.attitude import quaternion_to_matrix
 IDENTITY_MOUNTING = (0.0, 0.0, 0.0, 1.0)
 UNIT_NORM_TOLERANCE = 1e-3  # a quaternion typed with 4 decimals is accepted (and normalised)
 SAMPLES_KEPT = 2000  # per input: 2 s of a 1 kHz gyro
+TIME_RESET_S = 1.0  # a sample this much older than the newest: time restarted (replay, simulation reset)
 
 
 def stamp_ns(stamp) -> int:
@@ -56,6 +57,8 @@ class RateSamples:
 
     def add(self, stamp: int, omega: np.ndarray) -> None:
         with self._lock:
+            if self._samples and stamp < self._samples[-1][0] - TIME_RESET_S * 1e9:
+                self._samples.clear()  # the old timeline's samples must not serve the new one's frames
             self._samples.append((stamp, omega))
 
     def __len__(self) -> int:

@@ -104,11 +104,15 @@ def test_the_frame_gets_the_mean_rate_of_its_exposure_else_the_nearest_sample():
     assert samples.for_frame(T0 + 300 * MS, 0.02, 0.1)[1] == "too_old"
 
 
-def test_samples_kept_are_bounded():
+def test_samples_kept_are_bounded_and_forgotten_when_time_restarts():
     samples = RateSamples(kept=10)
     for k in range(100):
         samples.add(T0 + k * MS, np.zeros(3))
     assert len(samples) == 10
+    samples.add(T0 + 50 * MS, np.ones(3))  # out of order by 49 ms: kept with the others
+    assert len(samples) == 10
+    samples.add(T0 - 5 * 10**9, np.ones(3))  # 5 s back: a replay restarted
+    assert len(samples) == 1 and samples.for_frame(T0 + 99 * MS, 0.1, 0.5)[1] == "too_old"
 
 
 @pytest.mark.parametrize("quaternion, problem", [
