@@ -208,8 +208,8 @@ def test_qos_override_parameter_changes_a_subscriptions_reliability(tmp_path, mo
         best_effort_matches = best_effort_imu.get_subscription_count()
         client = AsyncParameterClient(probe, "centroider")
         assert client.wait_for_services(timeout_sec=20.0)
-        names = ["qos_overrides./imu.subscription.reliability", "qos_overrides./angular_velocity.subscription.reliability",
-                 "qos_overrides./spots.publisher.depth"]
+        names = ["qos_overrides./imu.subscription.reliability",
+                 "qos_overrides./angular_velocity.subscription.reliability", "qos_overrides./spots.publisher.depth"]
         values = client.get_parameters(names)
         described = client.describe_parameters(names[:1])
         refused = client.set_parameters([Parameter(names[0], value="best_effort")])
