@@ -218,6 +218,7 @@ class CentroiderNode(Node):
         self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok", last_spot_count=len(spots),
                       last_processing_ms=f"{processing_s * 1e3:.2f}",
                       last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None and not spots.rate_aid_rejected),
+                      rate_source=self.rate_source,
                       **psf_values(spots.psf))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:

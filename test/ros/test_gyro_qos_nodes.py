@@ -150,7 +150,7 @@ def test_best_effort_imu_then_vector3_aid_the_centroider(tmp_path, monkeypatch):
         rclpy.try_shutdown()
     logs = {p.name: p.read_text() for p in (tmp_path / "logs").glob("*.log")}
     assert codes == {"camera_simulator": 0, "centroider": 0}, logs
-    assert switched == [(True, "")], logs["centroider.log"]
+    assert switched == [(True, "")] and probe.diag["rate_source"] == "topic", logs["centroider.log"]
     diag = probe.diag
     assert probe.count("rates_wrong_frame") == 1 and probe.count("rates_no_data") == 1, diag
     assert probe.count("frames_rate_aid_rejected") == 0, diag  # the rotated rate agrees with the streaks
