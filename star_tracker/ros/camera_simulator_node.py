@@ -32,7 +32,7 @@ from .camera_simulator_parameters import (Declare, declare_attitude, declare_cam
 from .diagnostics import Diagnostics
 from .node_process import run_node
 from .parameters import declare, guard_parameter_changes
-from .qos import IMAGE_QOS, RESULT_QOS
+from .qos import IMAGE_QOS, RESULT_QOS, TRUTH_INPUT_QOS, overridable
 from .throttled_log import ThrottledLog
 
 
@@ -118,11 +118,11 @@ class CameraSimulatorNode(Node):
 
     def _create_interfaces(self) -> None:
         """Publishers, diagnostics, the parameter guard and (external profile) the truth input."""
-        self.pub_image = self.create_publisher(Image, "image_raw", IMAGE_QOS)
-        self.pub_info = self.create_publisher(CameraInfo, "camera_info", IMAGE_QOS)
-        self.pub_truth = self.create_publisher(QuaternionStamped, "truth/attitude", RESULT_QOS)
-        self.pub_truth_rate = self.create_publisher(Vector3Stamped, "truth/angular_velocity", RESULT_QOS)
-        self.pub_truth_objects = self.create_publisher(PointCloud2, "truth/objects", RESULT_QOS)
+        self.pub_image = self.create_publisher(Image, "image_raw", **overridable(IMAGE_QOS))
+        self.pub_info = self.create_publisher(CameraInfo, "camera_info", **overridable(IMAGE_QOS))
+        self.pub_truth = self.create_publisher(QuaternionStamped, "truth/attitude", **overridable(RESULT_QOS))
+        self.pub_truth_rate = self.create_publisher(Vector3Stamped, "truth/angular_velocity", **overridable(RESULT_QOS))
+        self.pub_truth_objects = self.create_publisher(PointCloud2, "truth/objects", **overridable(RESULT_QOS))
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
         # Every parameter is read-only: a runtime change is refused with the reason, logged, counted.
@@ -131,8 +131,10 @@ class CameraSimulatorNode(Node):
             # Truth from a dynamics simulator, on this node's clock (use_sim_time for sim time).
             self.motion = None
             self._external_pending: dict[int, list] = {}
-            self.create_subscription(QuaternionStamped, "truth_in/attitude", self.on_external_attitude, RESULT_QOS)
-            self.create_subscription(Vector3Stamped, "truth_in/angular_velocity", self.on_external_rate, RESULT_QOS)
+            self.create_subscription(QuaternionStamped, "truth_in/attitude", self.on_external_attitude,
+                                     **overridable(TRUTH_INPUT_QOS))
+            self.create_subscription(Vector3Stamped, "truth_in/angular_velocity", self.on_external_rate,
+                                     **overridable(TRUTH_INPUT_QOS))
 
     def start(self) -> None:
         """Fix the time origin and start the frame timer. Its ticks fall at now + n*period and

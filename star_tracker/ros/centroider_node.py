@@ -12,9 +12,11 @@ oldest waiting one is dropped when one more arrives, counted (`frames_dropped_ov
 logged: newest frame wins, latency stays bounded.
 
 Rate aid (optional, never required): with `exposure_time_s` > 0, a camera model from
-`camera_info` and a body rate (the `angular_velocity` topic or the `angular_velocity_rad_s`
-parameter), each star's smear over the exposure is predicted; detection uses the matched
-streak filter and positions come from a fit on the predicted (possibly curved) path.
+`camera_info` and a body rate (`rate_source`, settable at runtime: the `angular_velocity`
+topic (Vector3Stamped), the `imu` topic (sensor_msgs/Imu from a gyro, rotated by
+`gyro.mounting_quaternion`), or the `angular_velocity_rad_s` parameter; see rate_input.py),
+each star's smear over the exposure is predicted; detection uses the matched streak filter
+and positions come from a fit on the predicted (possibly curved) path.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.node import Node
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
 from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
 from ..centroid.config import PSF_MODES
@@ -39,15 +41,18 @@ from .diagnostics import Diagnostics, Rejections
 from .frame_queue import NewestFrame
 from .node_process import run_node
 from .parameters import declare, guard_parameter_changes
-from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS
+from .qos import IMAGE_QOS, RATE_INPUT_QOS, SPOTS_QOS, overridable
+from .rate_input import IDENTITY_MOUNTING, RateInput
 from .stamps import STAMP_OK, STAMP_RESET, StampOrder
 from .throttled_log import ThrottledLog
 
-RATE_SOURCES = ("topic", "parameter", "none")
-# Tunable while running (`ros2 param set`), checked together as a CentroidConfig; the rest
-# (rate_source: which subscription exists) is fixed at startup.
+RATE_SOURCES = ("topic", "imu", "parameter", "none")
+RATE_TOPICS = {"topic": "angular_velocity", "imu": "imu"}  # rate_source -> the input it reads
+# Tunable while running (`ros2 param set`), checked together as a CentroidConfig; the rest is
+# fixed at startup.
 RUNTIME_PARAMETERS = {f.name for f in fields(CentroidConfig)} | {
-    "exposure_time_s", "angular_velocity_rad_s", "max_rate_age_s", "stamp.max_future_s", "stamp.reset_after_s"}
+    "exposure_time_s", "rate_source", "angular_velocity_rad_s", "max_rate_age_s", "stamp.max_future_s",
+    "stamp.reset_after_s"}
 
 
 class CentroiderNode(Node):
@@ -91,6 +96,13 @@ class CentroiderNode(Node):
                                          "node's clock [s]; 0 = no check", 0.0, 1e9),
                                  p("stamp.reset_after_s", 2.0, "a frame older than the newest by more than this "
                                    "restarts time (replay, simulation reset) [s]", 0.0, 1e9))
+        # The gyro's mounting (read-only): its vectors are rotated into the sensor frame.
+        self.rate_input = RateInput(lambda counter, text: self.reject(counter, text),
+                                    p("gyro.mounting_quaternion", list(IDENTITY_MOUNTING), "orientation (x, y, z, w) "
+                                      "of the gyro frame in the sensor frame: v_sensor = R(q) v_gyro (imu, and "
+                                      "angular_velocity in gyro.frame_id); unit norm"),
+                                    p("gyro.frame_id", "", "frame_id of the gyro's messages; an imu message in "
+                                      "another frame is ignored, counted (rates_wrong_frame); '' = not checked"))
         problems = []
         if self.rate_source not in RATE_SOURCES:
             problems.append(f"rate_source={self.rate_source!r} must be one of {RATE_SOURCES}")
@@ -99,20 +111,22 @@ class CentroiderNode(Node):
         if problems:
             raise ValueError("; ".join(problems))
         self.rate_param = np.asarray(rate_param, float)
-        self.rate: tuple[int, np.ndarray] | None = None  # (stamp ns, rad/s) of the latest rate message
         self.psf = RunningPsf()  # the last frames' PSF estimate: the next frame's prior
         warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
-        self.pub = self.create_publisher(PointCloud2, "spots", SPOTS_QOS)
+        self.pub = self.create_publisher(PointCloud2, "spots", **overridable(SPOTS_QOS))
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
         self.reject = Rejections(self.diag, self.log)
         self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
-        self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
+        self.sub = self.create_subscription(Image, "image_raw", self.on_image, **overridable(IMAGE_QOS))
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log)
-        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
-        if self.rate_source == "topic":
-            self.sub_rate = self.create_subscription(Vector3Stamped, "angular_velocity", self.on_rate, RESULT_QOS)
+        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
+                                                 **overridable(IMAGE_QOS))
+        # Both rate inputs always exist: rate_source (runtime) picks one per frame.
+        self.sub_rate = self.create_subscription(Vector3Stamped, "angular_velocity", self.rate_input.on_vector3,
+                                                 **overridable(RATE_INPUT_QOS))
+        self.sub_imu = self.create_subscription(Imu, "imu", self.rate_input.on_imu, **overridable(RATE_INPUT_QOS))
 
     def apply_parameters(self, changes: dict) -> str | None:
         """Runtime parameter changes, all or none (see parameters.guard_parameter_changes)."""
@@ -120,36 +134,32 @@ class CentroiderNode(Node):
         rate = np.asarray(changes.get("angular_velocity_rad_s", self.rate_param), float)
         if rate.shape != (3,) or not np.all(np.isfinite(rate)):
             return f"angular_velocity_rad_s={list(rate)} must be 3 finite values"
+        rate_source = changes.get("rate_source", self.rate_source)
+        if rate_source not in RATE_SOURCES:
+            return f"rate_source={rate_source!r} must be one of {RATE_SOURCES}"
         if (config.psf_mode, config.psf_sigma_px) != (self.config.psf_mode, self.config.psf_sigma_px):
             self.psf.reset()  # a new prior or mode: start from it
-        self.config, self.rate_param = config, rate
+        self.config, self.rate_param, self.rate_source = config, rate, rate_source
         self.exposure_s = changes.get("exposure_time_s", self.exposure_s)
         self.max_rate_age_s = changes.get("max_rate_age_s", self.max_rate_age_s)
         self.stamps.max_future_s = changes.get("stamp.max_future_s", self.stamps.max_future_s)
         self.stamps.reset_after_s = changes.get("stamp.reset_after_s", self.stamps.reset_after_s)
         return None
 
-    def on_rate(self, msg: Vector3Stamped) -> None:
-        vector = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
-        if not np.all(np.isfinite(vector)):
-            self.diag.count("rates_rejected")
-            self.log.warn("bad_rate", f"rejected angular_velocity with non-finite values {vector}")
-            return
-        self.rate = (convert.stamp_to_ns(msg.header.stamp), vector)
-
     def smear_for(self, stamp_ns: int, width: int, height: int) -> SmearModel | None:
         """The smear prediction for an image, or None when exposure, camera or rate is unknown."""
         camera = self.camera_info.camera
-        if self.exposure_s <= 0 or self.rate_source == "none" or camera is None:
+        source = self.rate_source  # read once: it may change meanwhile
+        if self.exposure_s <= 0 or source == "none" or camera is None:
             return None
         if (camera.width, camera.height) != (width, height):
             return None
-        if self.rate_source == "parameter":
+        if source == "parameter":
             omega = self.rate_param
-        elif self.rate is None or abs(self.rate[0] - stamp_ns) > self.max_rate_age_s * 1e9:
-            return None
         else:
-            omega = self.rate[1]
+            omega = self.rate_input.for_frame(RATE_TOPICS[source], stamp_ns, self.exposure_s, self.max_rate_age_s)
+            if omega is None:
+                return None
         return SmearModel(camera, omega, self.exposure_s)
 
     def on_image(self, msg: Image) -> None:
@@ -208,6 +218,7 @@ class CentroiderNode(Node):
         self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok", last_spot_count=len(spots),
                       last_processing_ms=f"{processing_s * 1e3:.2f}",
                       last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None and not spots.rate_aid_rejected),
+                      rate_source=self.rate_source,
                       **psf_values(spots.psf))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:

@@ -10,6 +10,8 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 
+from .qos import DIAGNOSTICS_QOS, overridable
+
 if TYPE_CHECKING:  # annotations only
     from .throttled_log import ThrottledLog
 
@@ -30,7 +32,7 @@ class Diagnostics:
         self.level = DiagnosticStatus.OK
         self.message = "starting"
         self._lock = threading.Lock()
-        self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", **overridable(DIAGNOSTICS_QOS))
         self._timer = node.create_timer(period_s, self.publish)
 
     def count(self, key: str, n: int = 1) -> None:

@@ -47,7 +47,7 @@ from .diagnostics import Diagnostics, Rejections
 from .frame_queue import NewestFrame
 from .node_process import run_node
 from .parameters import declare, guard_parameter_changes
-from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS
+from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, overridable
 from .stamps import STAMP_OK, STAMP_RESET, StampOrder
 from .throttled_log import ThrottledLog
 
@@ -141,11 +141,13 @@ class IdentifierNode(Node):
             f"algorithm {algorithm}: {self.database.star_count} guide stars to Hp {db_config.magnitude_limit}, "
             f"{self.database.pair_a.size} pairs, loaded in {time.perf_counter() - started:.2f} s")
 
-        self.pub_attitude = self.create_publisher(QuaternionStamped, "attitude", RESULT_QOS)
-        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "attitude_with_covariance", RESULT_QOS)
-        self.pub_matches = self.create_publisher(PointCloud2, "matched_stars", RESULT_QOS)
-        self.pub_rate = self.create_publisher(Vector3Stamped, "angular_velocity", RESULT_QOS)
-        self.pub_rate_cov = self.create_publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance", RESULT_QOS)
+        self.pub_attitude = self.create_publisher(QuaternionStamped, "attitude", **overridable(RESULT_QOS))
+        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "attitude_with_covariance",
+                                              **overridable(RESULT_QOS))
+        self.pub_matches = self.create_publisher(PointCloud2, "matched_stars", **overridable(RESULT_QOS))
+        self.pub_rate = self.create_publisher(Vector3Stamped, "angular_velocity", **overridable(RESULT_QOS))
+        self.pub_rate_cov = self.create_publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance",
+                                                  **overridable(RESULT_QOS))
         self.diag = Diagnostics(self)
         self.diag.value("algorithm", algorithm)
         self.diag.value("mode", MODE_LOST)
@@ -162,8 +164,9 @@ class IdentifierNode(Node):
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
         self.frames = NewestFrame(self, self.identify_frame, self.diag, self.log, self.queue_depth, merge=keep_time_reset)
-        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
-        self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, SPOTS_QOS)
+        self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
+                                                 **overridable(IMAGE_QOS))
+        self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, **overridable(SPOTS_QOS))
 
     def fov_problem(self, camera) -> str | None:
         """Why the pattern database cannot serve this camera, or None."""

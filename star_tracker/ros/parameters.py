@@ -9,6 +9,8 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from .qos import is_qos_override
+
 if TYPE_CHECKING:  # annotations only
     from .diagnostics import Diagnostics
     from .throttled_log import ThrottledLog
@@ -67,7 +69,10 @@ def guard_parameter_changes(node: Node, apply: Callable[[dict], str | None], dia
         return params
 
     def validate(params: list[Parameter]) -> SetParametersResult:
-        changes = {param.name: param.value for param in params}
+        # QoS overrides are read-only: seen here only when rclpy declares them (qos.overridable).
+        changes = {param.name: param.value for param in params if not is_qos_override(param.name)}
+        if not changes:
+            return SetParametersResult(successful=True)
         try:
             reason = apply(changes)
         except ValueError as exc:

@@ -160,7 +160,8 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp
         # Runtime parameters: out of range, inconsistent together, read-only; then a good one.
         refused = driver.set_parameters("centroider", detection_sigma=0.5)
         refused += driver.set_parameters("centroider", max_area=1)  # < min_area (2)
-        refused += driver.set_parameters("centroider", rate_source="none")
+        refused += driver.set_parameters("centroider", queue_depth=5)
+        refused += driver.set_parameters("centroider", rate_source="gyro")  # runtime, but not a source
         accepted = driver.set_parameters("centroider", detection_sigma=5.0)
         # The good frame, with a good camera_info.
         send(convert.camera_to_info(camera, 0, FRAME), base, pub_info)
@@ -168,7 +169,7 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp
         send(convert.array_to_image(good_image, 0, FRAME), good_ns)
         expected = {"frames_rejected": 4, "camera_info_rejected": 3, "rates_rejected": 1, "frames_no_signal": 1,
                     "frames_saturated": 1, "frames_from_future": 1, "frames_out_of_order": 1,
-                    "frames_unstamped": 1, "parameter_changes_rejected": 3, "frames_processed": 6}
+                    "frames_unstamped": 1, "parameter_changes_rejected": 4, "frames_processed": 6}
         driver.spin(15.0, until=lambda: all(delta(k) >= v for k, v in expected.items()) and good_ns in spots)
         detection_sigma = driver.get_parameter("centroider", "detection_sigma")
         max_area = driver.get_parameter("centroider", "max_area")
@@ -182,9 +183,9 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp
     assert spots.get(good_ns, 0) >= 5, (spots, log)  # the good frame after all that
     assert len(spots) == 7  # first, black, saturated, future, out-of-order, unstamped, good: nothing else
     # Refused with a reason, old values kept; the good change applied.
-    assert [ok for ok, _ in refused] == [False, False, False]
+    assert [ok for ok, _ in refused] == [False, False, False, False]
     assert "outside" in refused[0][1] or "out of range" in refused[0][1]
-    assert "min_area" in refused[1][1] and "read-only" in refused[2][1]
+    assert "min_area" in refused[1][1] and "read-only" in refused[2][1] and "rate_source" in refused[3][1]
     assert accepted == [(True, "")] and detection_sigma == 5.0 and max_area == 20000
     # One clear log line per kind of problem.
     for text in ("unsupported image encoding", "data size", "empty image", "pixel limit", "rejected camera_info",
@@ -358,6 +359,9 @@ def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_pa
     ("centroider_node", ["-p", "detection_sigma:=abc"], {}, "expecting type 'DOUBLE'"),
     ("centroider_node", ["-p", "detection_sigma:=.nan"], {}, "out of range"),
     ("centroider_node", ["-p", "rate_source:=gyro"], {}, "rate_source"),
+    ("centroider_node", ["-p", "gyro.mounting_quaternion:=[0.0, 0.0, 0.0, 2.0]"], {}, "gyro.mounting_quaternion"),
+    ("centroider_node", ["-p", "qos_overrides./imu.subscription.depth:=0"], {}, "depth 0"),
+    ("centroider_node", ["-p", "qos_overrides./imu.subscription.reliability:=sometimes"], {}, "reliability"),
     ("centroider_node", ["--params-file", "/nonexistent/star_tracker.yaml"], {}, "no such file"),
     ("centroider_node", ["--params-file", "/tmp"], {}, "not a regular file"),
     ("identifier_node", [], {"STAR_TRACKER_CACHE": "A_FILE"}, "is not a directory"),

@@ -1,0 +1,136 @@
+"""The centroider's body-rate inputs for the rate aid: `angular_velocity`
+(geometry_msgs/Vector3Stamped) and `imu` (sensor_msgs/Imu, its angular_velocity), checked,
+rotated into the sensor frame and kept for the frames that need them.
+
+A gyro measures in its own frame: `mounting` rotates its vectors into the sensor frame
+(v_sensor = R(q) v_gyro, q = (x, y, z, w): the gyro frame's orientation in the sensor frame).
+An Imu message must come from the gyro frame when one is configured (`gyro_frame_id`); a
+Vector3Stamped in the gyro frame is rotated likewise, in any other frame it is taken as the
+sensor frame (the identifier's own estimate, or a driver remapped onto the topic).
+
+Bad messages are counted and ignored, through `reject(counter, text)`:
+`rates_rejected` (non-finite or unstamped), `rates_wrong_frame`, `rates_no_data` (an Imu
+with angular_velocity_covariance[0] == -1: no angular velocity, REP 145). Per frame, a source
+with samples none of which is within `max_age_s` of the frame's stamp counts
+`frames_rate_too_old`; one with no sample yet `frames_without_rate`. Messages are only read
+here (duck-typed), so this module needs no running ROS."""
+from __future__ import annotations
+
+import threading
+from collections import deque
+from typing import Callable
+
+import numpy as np
+
+from ..models.attitude import quaternion_to_matrix
+
+IDENTITY_MOUNTING = (0.0, 0.0, 0.0, 1.0)
+UNIT_NORM_TOLERANCE = 1e-3  # a quaternion typed with 4 decimals is accepted (and normalised)
+SAMPLES_KEPT = 2000  # per input: 2 s of a 1 kHz gyro
+TIME_RESET_S = 1.0  # a sample this much older than the newest: time restarted (replay, simulation reset)
+
+
+def stamp_ns(stamp) -> int:
+    """builtin_interfaces/Time -> ns."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def mounting_matrix(quaternion) -> np.ndarray:
+    """Rotation gyro -> sensor frame (3x3) of a mounting quaternion (x, y, z, w); ValueError
+    unless 4 finite values of unit norm (within UNIT_NORM_TOLERANCE)."""
+    q = np.asarray(quaternion, float)
+    if q.shape != (4,) or not np.all(np.isfinite(q)):
+        raise ValueError(f"gyro.mounting_quaternion={list(np.ravel(q))} must be 4 finite values (x, y, z, w)")
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > UNIT_NORM_TOLERANCE:
+        raise ValueError(f"gyro.mounting_quaternion={list(q)} must have unit norm (has {norm:.6f})")
+    return quaternion_to_matrix(q / norm)
+
+
+class RateSamples:
+    """Recent body-rate samples of one input: (stamp [ns], rate [rad/s] in the sensor frame).
+    Thread-safe: the executor adds, the centroider's worker reads."""
+
+    def __init__(self, kept: int = SAMPLES_KEPT):
+        self._samples: deque[tuple[int, np.ndarray]] = deque(maxlen=kept)
+        self._lock = threading.Lock()
+
+    def add(self, stamp: int, omega: np.ndarray) -> None:
+        with self._lock:
+            if self._samples and stamp < self._samples[-1][0] - TIME_RESET_S * 1e9:
+                self._samples.clear()  # the old timeline's samples must not serve the new one's frames
+            self._samples.append((stamp, omega))
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._samples)
+
+    def for_frame(self, frame_stamp: int, exposure_s: float, max_age_s: float) -> tuple[np.ndarray | None, str]:
+        """The rate for a frame stamped `frame_stamp` (mid-exposure) [ns]: the mean of the samples
+        inside its exposure when there are any (the smear is the mean rate's), else the sample
+        nearest its stamp if within max_age_s. Returns (rate or None, "ok" | "none" | "too_old")."""
+        with self._lock:
+            if not self._samples:
+                return None, "none"
+            stamps = np.fromiter((s for s, _ in self._samples), np.int64, len(self._samples))
+            rates = np.array([r for _, r in self._samples])
+        offsets = np.abs(stamps - frame_stamp)
+        inside = offsets <= exposure_s * 0.5e9
+        if inside.any():
+            return rates[inside].mean(axis=0), "ok"
+        nearest = int(np.argmin(offsets))
+        if offsets[nearest] > max_age_s * 1e9:
+            return None, "too_old"
+        return rates[nearest], "ok"
+
+
+class RateInput:
+    """Both rate topics' messages -> RateSamples in the sensor frame, with the checks above."""
+
+    def __init__(self, reject: Callable[[str, str], None], mounting_quaternion=IDENTITY_MOUNTING,
+                 gyro_frame_id: str = ""):
+        """reject(counter, text): count and report a refused message or an unaided frame."""
+        self.reject = reject
+        self.mounting = mounting_matrix(mounting_quaternion)
+        self.gyro_frame_id = gyro_frame_id
+        self.samples = {"angular_velocity": RateSamples(), "imu": RateSamples()}
+
+    def on_vector3(self, msg) -> None:
+        """geometry_msgs/Vector3Stamped: in the gyro frame (when configured) or the sensor frame."""
+        v = msg.vector
+        in_gyro_frame = bool(self.gyro_frame_id) and msg.header.frame_id == self.gyro_frame_id
+        self._add("angular_velocity", msg.header, np.array([v.x, v.y, v.z], float), rotate=in_gyro_frame)
+
+    def on_imu(self, msg) -> None:
+        """sensor_msgs/Imu: its angular_velocity, in the gyro frame (REP 145)."""
+        frame_id = msg.header.frame_id
+        if self.gyro_frame_id and frame_id != self.gyro_frame_id:
+            self.reject("rates_wrong_frame", f"ignored imu in frame {frame_id!r}: the gyro frame is "
+                        f"{self.gyro_frame_id!r} (parameter gyro.frame_id)")
+            return
+        if msg.angular_velocity_covariance[0] == -1.0:
+            self.reject("rates_no_data", "ignored imu without angular velocity (angular_velocity_covariance[0] == -1)")
+            return
+        w = msg.angular_velocity
+        self._add("imu", msg.header, np.array([w.x, w.y, w.z], float), rotate=True)
+
+    def _add(self, topic: str, header, vector: np.ndarray, rotate: bool) -> None:
+        if not np.all(np.isfinite(vector)):
+            self.reject("rates_rejected", f"rejected {topic} with non-finite values {vector}")
+            return
+        stamp = stamp_ns(header.stamp)
+        if stamp == 0:
+            self.reject("rates_rejected", f"rejected {topic}: unstamped (stamp 0)")
+            return
+        self.samples[topic].add(stamp, self.mounting @ vector if rotate else vector)
+
+    def for_frame(self, topic: str, frame_stamp: int, exposure_s: float, max_age_s: float) -> np.ndarray | None:
+        """The body rate [rad/s, sensor frame] from `topic` for a frame, or None (counted)."""
+        omega, verdict = self.samples[topic].for_frame(frame_stamp, exposure_s, max_age_s)
+        if verdict == "too_old":
+            self.reject("frames_rate_too_old", f"frame {frame_stamp * 1e-9:.6f}: no {topic} message within "
+                        f"max_rate_age_s={max_age_s:g} s of its stamp; measured without the rate aid")
+        elif verdict == "none":
+            self.reject("frames_without_rate", f"frame {frame_stamp * 1e-9:.6f}: no {topic} message received yet; "
+                        "measured without the rate aid")
+        return omega

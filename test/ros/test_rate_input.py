@@ -1,0 +1,139 @@
+"""The centroider's rate inputs (rate_input.py) and the QoS helper (qos.py), with real message
+classes and no ROS graph: rotation into the sensor frame, the frame/stamp/REP 145 checks and
+their counters, the choice of the sample for a frame."""
+import numpy as np
+import pytest
+
+from geometry_msgs.msg import Vector3Stamped
+from sensor_msgs.msg import Imu
+
+from star_tracker.models.attitude import matrix_to_quaternion, quaternion_to_matrix
+from star_tracker.ros import convert
+from star_tracker.ros.qos import RATE_INPUT_QOS, SPOTS_QOS, is_qos_override, overridable
+from star_tracker.ros.rate_input import RateInput, RateSamples, mounting_matrix
+
+T0 = 1_700_000_000 * 10**9
+MS = 10**6
+# Gyro mounted rotated 90 deg about the sensor's +Z: its +X is the sensor's +Y.
+MOUNT_Z90 = [0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5)]
+
+
+class Counted:
+    def __init__(self):
+        self.counts, self.texts = {}, []
+
+    def __call__(self, counter, text):
+        self.counts[counter] = self.counts.get(counter, 0) + 1
+        self.texts.append(text)
+
+
+def imu(omega, stamp_ns, frame="imu_link", covariance0=0.0):
+    msg = Imu()
+    msg.header.stamp = convert.ns_to_stamp(stamp_ns)
+    msg.header.frame_id = frame
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in omega)
+    msg.angular_velocity_covariance[0] = covariance0
+    return msg
+
+
+def vector3(omega, stamp_ns, frame="star_tracker_optical") -> Vector3Stamped:
+    return convert.vector3_msg(np.asarray(omega, float), stamp_ns, frame)
+
+
+def test_imu_rate_is_rotated_into_the_sensor_frame():
+    reject = Counted()
+    rates = RateInput(reject, MOUNT_Z90, "imu_link")
+    rates.on_imu(imu([0.01, 0.0, 0.0], T0))
+    omega = rates.for_frame("imu", T0, 0.1, 0.5)
+    assert np.allclose(omega, [0.0, 0.01, 0.0], atol=1e-15)
+    assert reject.counts == {}
+    # Any mounting: v_sensor = R(q) v_gyro, the convention of every quaternion in this package.
+    q = np.array([0.3, -0.2, 0.5, 0.78])
+    q /= np.linalg.norm(q)
+    rates = RateInput(reject, q)
+    rates.on_imu(imu([0.01, -0.02, 0.03], T0))
+    assert np.allclose(rates.for_frame("imu", T0, 0.1, 0.5), quaternion_to_matrix(q) @ [0.01, -0.02, 0.03])
+
+
+def test_vector3_is_sensor_frame_unless_in_the_gyro_frame():
+    reject = Counted()
+    rates = RateInput(reject, MOUNT_Z90, "imu_link")
+    rates.on_vector3(vector3([0.01, 0.0, 0.0], T0))  # the identifier's own estimate: as is
+    assert np.allclose(rates.for_frame("angular_velocity", T0, 0.1, 0.5), [0.01, 0.0, 0.0])
+    rates.on_vector3(vector3([0.01, 0.0, 0.0], T0 + 200 * MS, "imu_link"))  # a gyro remapped: rotated
+    assert np.allclose(rates.for_frame("angular_velocity", T0 + 200 * MS, 0.1, 0.5), [0.0, 0.01, 0.0])
+    assert reject.counts == {}
+
+
+def test_bad_rate_messages_are_counted_and_ignored():
+    reject = Counted()
+    rates = RateInput(reject, gyro_frame_id="imu_link")
+    rates.on_imu(imu([0.01, 0, 0], T0, frame="base_link"))
+    rates.on_imu(imu([0.01, 0, 0], T0, covariance0=-1.0))  # REP 145: no angular velocity
+    rates.on_imu(imu([np.nan, 0, 0], T0))
+    rates.on_imu(imu([0.01, 0, 0], 0))  # unstamped
+    rates.on_vector3(vector3([np.inf, 0, 0], T0))
+    assert reject.counts == {"rates_wrong_frame": 1, "rates_no_data": 1, "rates_rejected": 3}
+    assert "base_link" in reject.texts[0] and "non-finite values" in reject.texts[2]
+    assert len(rates.samples["imu"]) == 0 and len(rates.samples["angular_velocity"]) == 0
+    # An all-zero covariance means "unknown" (REP 145): used.
+    rates.on_imu(imu([0.01, 0, 0], T0))
+    assert rates.for_frame("imu", T0, 0.1, 0.5) is not None
+
+
+def test_frames_without_a_recent_rate_are_counted():
+    reject = Counted()
+    rates = RateInput(reject)
+    assert rates.for_frame("imu", T0, 0.1, 0.5) is None
+    rates.on_imu(imu([0.01, 0, 0], T0))
+    assert rates.for_frame("imu", T0 + 600 * MS, 0.1, 0.5) is None  # 0.6 s > max_rate_age_s
+    assert rates.for_frame("imu", T0 - 600 * MS, 0.1, 0.5) is None  # from the future as well
+    assert rates.for_frame("imu", T0 + 400 * MS, 0.1, 0.5) is not None
+    assert rates.for_frame("angular_velocity", T0, 0.1, 0.5) is None  # the other input has nothing
+    assert reject.counts == {"frames_without_rate": 2, "frames_rate_too_old": 2}
+
+
+def test_the_frame_gets_the_mean_rate_of_its_exposure_else_the_nearest_sample():
+    samples = RateSamples()
+    for k in range(-100, 101):  # a 1 kHz gyro, rate ramping in x by 0.001 rad/s per ms
+        samples.add(T0 + k * MS, np.array([0.001 * k, 0.0, 0.0]))
+    omega, verdict = samples.for_frame(T0 + 10 * MS, 0.02, 0.5)  # exposure: the 21 samples 0..20 ms
+    assert verdict == "ok" and omega[0] == pytest.approx(0.010)
+    omega, verdict = samples.for_frame(T0 + 300 * MS, 0.02, 0.5)  # none inside: the nearest, at 100 ms
+    assert verdict == "ok" and omega[0] == pytest.approx(0.100)
+    assert samples.for_frame(T0 + 300 * MS, 0.02, 0.1)[1] == "too_old"
+
+
+def test_samples_kept_are_bounded_and_forgotten_when_time_restarts():
+    samples = RateSamples(kept=10)
+    for k in range(100):
+        samples.add(T0 + k * MS, np.zeros(3))
+    assert len(samples) == 10
+    samples.add(T0 + 50 * MS, np.ones(3))  # out of order by 49 ms: kept with the others
+    assert len(samples) == 10
+    samples.add(T0 - 5 * 10**9, np.ones(3))  # 5 s back: a replay restarted
+    assert len(samples) == 1 and samples.for_frame(T0 + 99 * MS, 0.1, 0.5)[1] == "too_old"
+
+
+@pytest.mark.parametrize("quaternion, problem", [
+    ([0.0, 0.0, 0.0], "4 finite values"), ([0.0, 0.0, np.nan, 1.0], "4 finite values"),
+    ([0.0, 0.0, 0.0, 2.0], "unit norm"), ([0.0, 0.0, 0.0, 0.0], "unit norm")])
+def test_bad_mounting_is_refused(quaternion, problem):
+    with pytest.raises(ValueError, match=problem):
+        mounting_matrix(quaternion)
+    with pytest.raises(ValueError, match="gyro.mounting_quaternion"):
+        RateInput(Counted(), quaternion)
+
+
+def test_mounting_typed_to_four_decimals_is_accepted():
+    matrix = mounting_matrix([0.0, 0.0, 0.7071, 0.7071])
+    assert np.allclose(matrix @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
+    assert np.allclose(matrix_to_quaternion(matrix), MOUNT_Z90)
+
+
+def test_overridable_copies_the_profile():
+    kwargs = overridable(SPOTS_QOS)
+    assert kwargs["qos_profile"] == SPOTS_QOS and kwargs["qos_profile"] is not SPOTS_QOS
+    kwargs["qos_profile"].depth = 1  # rclpy writes the overrides into it: the shared profile is untouched
+    assert SPOTS_QOS.depth == 20 and RATE_INPUT_QOS.reliability.name == "BEST_EFFORT"
+    assert is_qos_override("qos_overrides./imu.subscription.reliability") and not is_qos_override("rate_source")
