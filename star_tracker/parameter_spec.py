@@ -59,7 +59,9 @@ class ParameterSpec:
         """The range in interval notation, e.g. "(0, 20]"; "" without one."""
         if not self.has_range:
             return ""
-        return f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+        def text(v) -> str:
+            return str(v) if isinstance(v, int) else f"{v:g}"
+        return f"{'(' if self.low_open else '['}{text(self.low)}, {text(self.high)}{')' if self.high_open else ']'}"
 
     def full_description(self) -> str:
         """Description with the unit and the choices, as `ros2 param describe` shows it."""

@@ -46,7 +46,7 @@ class SensorModel:
     psf_sigma_px: float = parameter(1.0, "Gaussian PSF (defocus) 1-sigma", "px", 0.1, 20.0)
     background_e_per_px_s: float = parameter(400.0, "sky + zodiacal background", "e-/px/s", 0.0, 1e9)
     stray_light_gradient_e_per_px2_s: tuple[float, float] = parameter(
-        (0.0, 0.0), "linear stray-light gradient in x, y about the image centre", "e-/px/s per px", -1e9, 1e9)
+        (0.0, 0.0), "linear stray-light gradient in x, y about the image centre", "e-/px/s per px")
     vignetting_at_corner: float = parameter(0.0, "light lost at the image corner (quadratic in radius)", "-", 0.0,
                                             0.99)
     pixel_pitch_m: float = parameter(13e-6, "pixel pitch", "m", 1e-7, 1e-3)
@@ -72,7 +72,8 @@ class SensorModel:
 
     def __post_init__(self) -> None:
         bad = range_problems(self)
-        if len(self.stray_light_gradient_e_per_px2_s) != 2:
+        gradient = self.stray_light_gradient_e_per_px2_s
+        if len(gradient) != 2 or not np.all(np.isfinite(gradient)):
             bad.append("stray_light_gradient_e_per_px2_s must be 2 finite values")
         if bad:
             raise ValueError("invalid sensor parameters: " + "; ".join(bad))
