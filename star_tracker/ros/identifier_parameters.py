@@ -4,8 +4,8 @@ metadata) under the node's names, and the node's own, in the order the node decl
 config/star_tracker.yaml lists them.
 
 Dynamic (`ros2 param set` while running): the identification tolerances and time budget (read
-by every identify() call: applied from the next solve) and the tracking gate and coast limits;
-read-only: what is built at startup (database, algorithm, deep catalog, rate estimator window).
+by every identify() call: applied from the next solve), inline_wait_s, tracking.enabled, the
+stamp checks; read-only: what is built at startup (database, algorithm, deep catalog, tracking).
 """
 from __future__ import annotations
 

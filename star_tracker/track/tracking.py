@@ -55,14 +55,13 @@ class TrackingConfig:
     attitudes used for the rate estimate [s]; false_positive_bound: as for lost-in-space;
     max_pattern_spots: brightest spots used to vote the displacement."""
 
-    gate_sigma: float = parameter(5.0, "searched region around the predicted attitude", "sigmas", 1.0, 20.0,
-                                  dynamic=True)
-    min_stars: int = parameter(3, "fewest verified stars a tracked frame needs", "", 2, 10, dynamic=True)
+    gate_sigma: float = parameter(5.0, "searched region around the predicted attitude", "sigmas", 1.0, 20.0)
+    min_stars: int = parameter(3, "fewest verified stars a tracked frame needs", "", 2, 10)
     max_gate_fov_radii: float = parameter(2.0, "largest search radius (Hu & Huang's 2R circle)", "field radii", 0.1,
-                                          4.0, dynamic=True)
-    max_coast_s: float = parameter(2.0, "longest prediction without a new solution", "s", 0.01, 60.0, dynamic=True)
+                                          4.0)
+    max_coast_s: float = parameter(2.0, "longest prediction without a new solution", "s", 0.01, 60.0)
     max_angular_rate_rad_s: float = parameter(math.radians(5.0), "rate prior per axis before a rate "
-                                              "estimate exists (5 deg/s)", "rad/s", 1e-4, 1.0, dynamic=True)
+                                              "estimate exists (5 deg/s)", "rad/s", 1e-4, 1.0)
     max_angular_acceleration_rad_s2: float = parameter(math.radians(2.0), "assumed bound on the angular "
                                                        "acceleration (rate model error, prediction; 2 deg/s^2)",
                                                        "rad/s^2", 0.0, 1.0)

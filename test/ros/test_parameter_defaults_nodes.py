@@ -159,8 +159,8 @@ def test_identifier_parameters(started):
     check_range(probe.describe("max_time_s"), 1e-3, 60.0, read_only=False)
     probe.spin_until(lambda: probe.diagnostics, 5.0)
     applied = int(probe.diagnostics.get("parameter_changes_applied", 0))
-    assert probe.set(max_time_s=0.25, sigma_multiplier=3.5, tracking__gate_sigma=6.0) == (True, "")
-    assert probe.get("max_time_s", "sigma_multiplier", "tracking.gate_sigma") == [0.25, 3.5, 6.0]
+    assert probe.set(max_time_s=0.25, sigma_multiplier=3.5, match_radius_px=2.0) == (True, "")
+    assert probe.get("max_time_s", "sigma_multiplier", "match_radius_px") == [0.25, 3.5, 2.0]
     check_reported(probe, applied, "max_time_s=0.25")
     # angle_tolerance_floor_rad's range is [0, 0.01) (the descriptor can only say [0, 0.01]).
     ok, reason = probe.set(max_time_s=0.3, angle_tolerance_floor_rad=0.01)
