@@ -59,6 +59,7 @@ class ParameterSpec:
         """The range in interval notation, e.g. "(0, 20]"; "" without one."""
         if not self.has_range:
             return ""
+
         def text(v) -> str:
             return str(v) if isinstance(v, int) else f"{v:g}"
         return f"{'(' if self.low_open else '['}{text(self.low)}, {text(self.high)}{')' if self.high_open else ']'}"

@@ -190,7 +190,8 @@ def motion_kwargs_from(values: dict) -> dict:
         "tumble": {"initial_rate_rad_s": deg(v["attitude.tumble.initial_rate_deg_s"]),
                    "inertia_kg_m2": v["attitude.tumble.inertia_kg_m2"]},
         "jitter": {"body_rate_rad_s": body_rate, "amplitudes_rad": v["attitude.jitter.amplitudes_rad"],
-                   "frequencies_hz": v["attitude.jitter.frequencies_hz"], "phases_rad": v["attitude.jitter.phases_rad"]},
+                   "frequencies_hz": v["attitude.jitter.frequencies_hz"],
+                   "phases_rad": v["attitude.jitter.phases_rad"]},
     }
 
 

@@ -35,7 +35,8 @@ def shipped_values(node: str) -> dict:
             else:
                 flat[f"{prefix}{key}"] = value
         return flat
-    return flatten(yaml.safe_load((REPO / "config" / "star_tracker.yaml").read_text())[f"/**/{node}"]["ros__parameters"])
+    shipped = yaml.safe_load((REPO / "config" / "star_tracker.yaml").read_text())
+    return flatten(shipped[f"/**/{node}"]["ros__parameters"])
 
 
 class Probe:
