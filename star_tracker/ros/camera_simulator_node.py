@@ -96,8 +96,9 @@ class CameraSimulatorNode(Node):
     def apply_parameters(self, changes: dict) -> str | None:
         """Runtime sensor changes (see parameters.guard_parameter_changes): the new SensorModel
         is built (checked) first; the renderer is rebuilt with it (the fixed pattern is drawn
-        from the same seed: unchanged) and a frame rendered ahead is dropped, so the next frame
-        delivered is exposed with the new settings."""
+        from the same seed: unchanged; ~0.2 s for 1024 x 1024 px, so a frame due meanwhile is
+        delivered late, counted as frames_rendered_late) and a frame rendered ahead is dropped,
+        so the next frame delivered is exposed with the new settings."""
         sensor = replace(self.sensor, **field_values(SENSOR_PARAMETERS, changes))
         if sensor.exposure_s * 1e9 > self.period_ns:
             return f"sensor.exposure_s={sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s"
