@@ -100,12 +100,13 @@ class CameraSimulatorNode(Node):
         delivered late, counted as frames_rendered_late) and a frame rendered ahead is dropped,
         so the next frame delivered is exposed with the new settings."""
         sensor = replace(self.sensor, **field_values(SENSOR_PARAMETERS, changes))
-        if sensor.exposure_s * 1e9 > self.period_ns:
+        if sensor.exposure_s * self.rate_hz > 1.0:
             return f"sensor.exposure_s={sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s"
-        renderer = self.renderer
-        self.renderer = StarFieldRenderer(self.camera, sensor, renderer.catalog, self.sky.magnitude_limit,
-                                          renderer.false_objects, self.sky.fixed_pattern_seed,
-                                          self.sky.observer_velocity_m_s, renderer.max_substep_px)
+        renderer = getattr(self, "renderer", None)
+        if renderer is not None:  # (not yet built: it will be with self.sensor)
+            self.renderer = StarFieldRenderer(self.camera, sensor, renderer.catalog, self.sky.magnitude_limit,
+                                              renderer.false_objects, self.sky.fixed_pattern_seed,
+                                              self.sky.observer_velocity_m_s, renderer.max_substep_px)
         self.sensor = sensor
         self.pending = None
         return None
