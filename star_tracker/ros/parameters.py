@@ -26,14 +26,18 @@ def ros_value(value):
 
 def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
     """The ParameterDescriptor `ros2 param describe` shows: description with the unit (and the
-    choices, and the open end of a range), the range, read-only unless the spec is dynamic."""
+    choices), the range, read-only unless the spec is dynamic; additional_constraints: the
+    choices, an open end of the range, an array's range per value."""
     description = spec.full_description()
-    if spec.has_range and (spec.low_open or spec.high_open):
-        description += f"; accepted range {spec.range_text()}"
-    descriptor = ParameterDescriptor(description=description, read_only=not spec.dynamic)
-    default = spec.default[0] if isinstance(spec.default, (list, tuple)) and spec.default else spec.default
-    if spec.has_range and not isinstance(default, (bool, str)) and not isinstance(spec.default, (list, tuple)):
-        if isinstance(default, int):
+    is_list = isinstance(spec.default, (list, tuple))
+    constraints = [f"one of: {', '.join(spec.choices)}"] if spec.choices else []
+    if spec.has_range and (spec.low_open or spec.high_open or is_list):  # what a range descriptor cannot say
+        constraints.append(f"{'each value ' if is_list else ''}in {spec.range_text()}")
+        description += f"; {constraints[-1]}"
+    descriptor = ParameterDescriptor(description=description, read_only=not spec.dynamic,
+                                     additional_constraints="; ".join(constraints))
+    if spec.has_range and not is_list and not isinstance(spec.default, (bool, str)):
+        if isinstance(spec.default, int):
             descriptor.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=0)]
         else:
             descriptor.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
@@ -44,12 +48,13 @@ def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
 def declare_parameters(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
     """Declare every spec's parameter (in order: the first bad value is the one reported) and
     return name -> value. Values outside a range are refused by rclpy at startup with a message
-    naming the parameter; a value among the spec's choices or a list's elements outside the
-    range are refused here (ValueError naming it)."""
+    naming the parameter, a list's elements outside the range here (ValueError naming it); a
+    string not among the choices by the configuration or node code it goes to (its message
+    says what the value selects, e.g. "unknown identification algorithm")."""
     values = {}
     for spec in specs:
         value = node.declare_parameter(spec.name, ros_value(spec.default), descriptor_for(spec)).value
-        problem = spec.problem(value) if (spec.choices or isinstance(value, (list, tuple))) else None
+        problem = spec.problem(value) if isinstance(value, (list, tuple)) else None
         if problem:
             raise ValueError(problem)
         values[spec.name] = value

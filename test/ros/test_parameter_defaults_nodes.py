@@ -158,6 +158,8 @@ def test_identifier_parameters(started):
     check_defaults(probe)
     check_range(probe.describe("database.magnitude_limit"), -2.0, 12.0, read_only=True)
     check_range(probe.describe("max_time_s"), 1e-3, 60.0, read_only=False)
+    assert probe.describe("algorithm").additional_constraints.startswith("one of: angle_pivot, composite, hybrid")
+    assert probe.describe("angle_tolerance_floor_rad").additional_constraints == "in [0, 0.01)"  # open end
     probe.spin_until(lambda: probe.diagnostics, 5.0)
     applied = int(probe.diagnostics.get("parameter_changes_applied", 0))
     assert probe.set(max_time_s=0.25, sigma_multiplier=3.5, match_radius_px=2.0) == (True, "")
