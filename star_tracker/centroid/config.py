@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import erf
 
+from ..parameter_spec import parameter, range_problems
 from .measure import star_peak_to_neighbour_ratio
 
 CENTROID_METHODS = ("auto", "cog", "wcog", "gaussian", "streak")
@@ -14,7 +15,8 @@ PSF_MODES = ("auto", "fixed")
 
 @dataclass(frozen=True)
 class CentroidConfig:
-    """Parameters of `extract_spots` (the centroider node's parameters, same names).
+    """Parameters of `extract_spots` (the centroider node's parameters, same names; default, unit,
+    range and description of each in its field's `parameter(...)`, parameter_spec.py).
 
     detection_sigma: threshold in units of the noise of the PSF-matched detection image;
     binning: detection grid bin factor (1 or 2; 2 is 4x cheaper and splits pairs >= ~4 px);
@@ -41,52 +43,40 @@ class CentroidConfig:
     min_smear_px: with a known body rate, predicted smears shorter than this are point-like.
     """
 
-    detection_sigma: float = 4.5
-    binning: int = 2
-    min_area: int = 2
-    max_area: int = 20000
-    min_snr: float = 5.0
-    background_block_px: int = 32
-    gain_e_per_adu: float = 1.0
-    saturation_adu: float = 0.0
-    max_spots: int = 500
-    method: str = "auto"
-    psf_sigma_px: float = 1.0
-    psf_mode: str = "auto"
-    max_peak_fraction: float = 0.5
-    min_width_fraction: float = 0.6
-    shape_min_snr: float = 10.0
-    split_blends: bool = True
-    min_smear_px: float = 1.5
+    detection_sigma: float = parameter(4.5, "detection threshold on the PSF-matched, binned image", "noise sigmas",
+                                       1.0, 100.0, dynamic=True)
+    binning: int = parameter(2, "detection grid bin factor: 2 = 4x cheaper, splits pairs >= ~4 px; 1 = full "
+                             "resolution", "", 1, 2, dynamic=True)
+    min_area: int = parameter(2, "smallest accepted footprint", "px", 1, 10000, dynamic=True)
+    max_area: int = parameter(20000, "largest accepted footprint", "px", 1, 1000000, dynamic=True)
+    min_snr: float = parameter(5.0, "smallest reported SNR", "-", 0.0, 1e6, dynamic=True)
+    background_block_px: int = parameter(32, "background mesh size", "px", 4, 1024, dynamic=True)
+    gain_e_per_adu: float = parameter(1.0, "sensor gain for the shot-noise term", "e-/ADU", 1e-3, 1e4, dynamic=True)
+    saturation_adu: float = parameter(0.0, "saturation level: a spot with a pixel at or above it is flagged; 0 = the "
+                                      "image dtype's maximum (flat tops are found either way)", "ADU", 0.0, 1e9,
+                                      dynamic=True)
+    max_spots: int = parameter(500, "most spots reported per frame (the brightest)", "", 1, 100000, dynamic=True)
+    method: str = parameter("auto", "sub-pixel method (auto = PSF fit for points, streak model for streaks)",
+                            choices=CENTROID_METHODS, dynamic=True)
+    psf_sigma_px: float = parameter(1.0, "PSF 1-sigma of the optics: the prior of the estimate (psf_mode auto) or the "
+                                    "width used (fixed); 0 = no PSF, no shape test", "px", 0.0, 50.0, dynamic=True)
+    psf_mode: str = parameter("auto", "PSF width: auto = estimated on every frame from its stars, carried to the "
+                              "next; fixed = psf_sigma_px", choices=PSF_MODES, dynamic=True)
+    max_peak_fraction: float = parameter(0.5, "reject a spot whose brightest pixel holds more of its flux (hot "
+                                         "pixels)", "-", 0.01, 1.0, dynamic=True)
+    min_width_fraction: float = parameter(0.6, "reject a spot narrower than this x psf_sigma_px^2 (cosmic rays)", "-",
+                                          0.0, 1.0, dynamic=True)
+    shape_min_snr: float = parameter(10.0, "smallest SNR for the width test", "-", 0.0, 1e6, dynamic=True)
+    split_blends: bool = parameter(True, "fit two PSFs when a point-like spot has a second peak", dynamic=True)
+    min_smear_px: float = parameter(1.5, "predicted smears shorter than this are point-like", "px", 0.0, 1e4,
+                                    dynamic=True)
 
     def __post_init__(self) -> None:
-        bad = []
-        if not (np.isfinite(self.detection_sigma) and self.detection_sigma > 0):
-            bad.append(f"detection_sigma={self.detection_sigma} must be > 0")
-        if self.binning not in (1, 2):
-            bad.append(f"binning={self.binning} must be 1 or 2")
-        if not (1 <= self.min_area <= self.max_area):
-            bad.append(f"need 1 <= min_area ({self.min_area}) <= max_area ({self.max_area})")
-        if not (np.isfinite(self.min_snr) and self.min_snr >= 0):
-            bad.append(f"min_snr={self.min_snr} must be >= 0")
-        if not (4 <= self.background_block_px <= 1024):
-            bad.append(f"background_block_px={self.background_block_px} must be in [4, 1024]")
-        if not (np.isfinite(self.gain_e_per_adu) and self.gain_e_per_adu > 0):
-            bad.append(f"gain_e_per_adu={self.gain_e_per_adu} must be > 0")
-        if not (self.max_spots >= 1):
-            bad.append(f"max_spots={self.max_spots} must be >= 1")
-        if not (0 <= self.psf_sigma_px <= 50):
-            bad.append(f"psf_sigma_px={self.psf_sigma_px} must be in [0, 50] (0 disables the shape test)")
-        if self.psf_mode not in PSF_MODES:
-            bad.append(f"psf_mode={self.psf_mode!r} must be one of {PSF_MODES}")
-        if self.method not in CENTROID_METHODS:
-            bad.append(f"method={self.method!r} must be one of {CENTROID_METHODS}")
+        bad = range_problems(self)
+        if self.min_area > self.max_area:
+            bad.append(f"need min_area ({self.min_area}) <= max_area ({self.max_area})")
         if self.method in ("auto", "gaussian", "streak") and self.psf_sigma_px <= 0:
             bad.append(f"method {self.method!r} needs psf_sigma_px > 0")
-        if not (0 < self.max_peak_fraction <= 1 and 0 <= self.min_width_fraction <= 1 and self.shape_min_snr >= 0):
-            bad.append("need 0 < max_peak_fraction <= 1, 0 <= min_width_fraction <= 1, shape_min_snr >= 0")
-        if not (np.isfinite(self.min_smear_px) and self.min_smear_px >= 0):
-            bad.append(f"min_smear_px={self.min_smear_px} must be >= 0")
         if bad:
             raise ValueError("invalid centroid config: " + "; ".join(bad))
 

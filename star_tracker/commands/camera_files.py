@@ -9,55 +9,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..ros import camera_simulator_parameters as _node  # ROS-free: the parameter specs
 from .common import CommandError
 
-# camera_simulator parameter -> SensorModel field (config/star_tracker.yaml names).
-SENSOR_PARAMETERS = {
-    "optics.aperture_diameter_m": "aperture_diameter_m",
-    "optics.transmission": "optical_transmission",
-    "optics.psf_sigma_px": "psf_sigma_px",
-    "optics.vignetting_at_corner": "vignetting_at_corner",
-    "sky.photon_flux_hp0": "photon_flux_hp0",
-    "sky.color_coefficient": "color_coefficient",
-    "sky.background_e_per_px_s": "background_e_per_px_s",
-    "sky.stray_light_gradient_e_per_px2_s": "stray_light_gradient_e_per_px2_s",
-    "sensor.exposure_s": "exposure_s",
-    "sensor.pixel_pitch_m": "pixel_pitch_m",
-    "sensor.quantum_efficiency": "quantum_efficiency",
-    "sensor.dark_e_per_px_s": "dark_e_per_px_s",
-    "sensor.dark_reference_k": "dark_reference_k",
-    "sensor.dark_doubling_k": "dark_doubling_k",
-    "sensor.temperature_k": "temperature_k",
-    "sensor.dsnu_fraction": "dsnu_fraction",
-    "sensor.prnu_fraction": "prnu_fraction",
-    "sensor.hot_pixel_fraction": "hot_pixel_fraction",
-    "sensor.hot_pixel_dark_factor": "hot_pixel_dark_factor",
-    "sensor.cosmic_ray_rate_per_cm2_s": "cosmic_ray_rate_per_cm2_s",
-    "sensor.cosmic_ray_electrons": "cosmic_ray_electrons",
-    "sensor.read_noise_e": "read_noise_e",
-    "sensor.gain_e_per_adu": "gain_e_per_adu",
-    "sensor.bias_adu": "bias_adu",
-    "sensor.full_well_e": "full_well_e",
-    "sensor.adc_bits": "adc_bits",
-    "sensor.rolling_shutter_row_time_s": "rolling_shutter_row_time_s",
-    "sensor.frame_transfer_time_s": "frame_transfer_time_s",
-    "sensor.noise": "noise",
-}
-FALSE_OBJECT_PARAMETERS = {
-    "false_objects.planets_per_frame": "planets_per_frame",
-    "false_objects.planet_magnitude_range": "planet_magnitude_range",
-    "false_objects.debris_per_frame": "debris_per_frame",
-    "false_objects.debris_magnitude_range": "debris_magnitude_range",
-    "false_objects.debris_speed_px_s": "debris_speed_px_s",
-}
+# camera_simulator parameter -> SensorModel / FalseObjectModel field: from the node's parameter specs.
+SENSOR_PARAMETERS = {spec.name: spec.field for spec in _node.SENSOR_PARAMETERS}
+FALSE_OBJECT_PARAMETERS = {spec.name: spec.field for spec in _node.FALSE_OBJECT_PARAMETERS}
 GEOMETRY_PARAMETERS = ("image.width", "image.height", "optics.fov_x_deg", "optics.distortion")
 RENDER_PARAMETERS = ("sky.magnitude_limit", "sky.epoch_jyear", "sky.observer_velocity_m_s", "fixed_pattern_seed", "seed")
 # camera_simulator parameters that describe the run, not the camera: accepted and ignored.
 IGNORED_PREFIXES = ("rate_hz", "max_frames", "start_delay_s", "wait_for_subscribers", "max_backlog_frames",
                     "frame_id", "attitude.", "faults.", "sensor.readout_s")  # readout: when a frame is published
 # The camera_simulator node's defaults where they differ from SensorModel's (config/star_tracker.yaml).
-NODE_SENSOR_DEFAULTS = {"vignetting_at_corner": 0.1, "dsnu_fraction": 0.1, "prnu_fraction": 0.01,
-                        "hot_pixel_fraction": 2e-5, "cosmic_ray_rate_per_cm2_s": 5.0}
+NODE_SENSOR_DEFAULTS = {name: value for name, value in vars(_node.SIMULATED_SENSOR).items()
+                        if value != getattr(_node.SensorModel(), name)}
 
 
 class CameraFile:

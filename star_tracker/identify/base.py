@@ -20,6 +20,7 @@ import numpy as np
 from ..models.attitude_estimation import AttitudeSolution, quest, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
+from ..parameter_spec import parameter, range_problems
 from . import spot_kernels
 from .kernel_records import Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
@@ -55,42 +56,32 @@ class IdentifyConfig:
     cap on hypotheses taken from one pattern (a pattern with more is ambiguous); deep_match: after
     a match is accepted, add the unambiguous matches of the remaining spots to the deep
     catalog's stars (every Hipparcos star to the guide limit + deep_magnitude_margin [mag];
-    deep_match.py) before the final fit and bound."""
+    deep_match.py) before the final fit and bound. Each node parameter's default, unit and range
+    is its field's `parameter(...)` (parameter_spec.py)."""
 
-    max_pattern_spots: int = 12
-    sigma_multiplier: float = 3.0
-    angle_tolerance_floor_rad: float = 2.0e-5
-    centroid_sigma_floor_px: float = 0.05
-    match_radius_px: float = 1.5
-    false_positive_bound: float = 1.0e-6
-    max_time_s: float = 0.5
+    max_pattern_spots: int = parameter(12, "brightest spots used to form patterns", "", 3, 100)
+    sigma_multiplier: float = parameter(3.0, "pattern tolerance", "sigmas", 0.1, 20.0, dynamic=True)
+    angle_tolerance_floor_rad: float = parameter(2.0e-5, "added to every angle tolerance (aberration, distortion "
+                                                 "calibration)", "rad", 0.0, 0.01, high_open=True, dynamic=True)
+    centroid_sigma_floor_px: float = parameter(0.05, "smallest spot 1-sigma for the matching tolerances; the "
+                                               "published fit uses each spot's own covariance", "px", 1e-4, 10.0,
+                                               dynamic=True)
+    match_radius_px: float = parameter(1.5, "verification match radius", "px", 0.01, 50.0, dynamic=True)
+    false_positive_bound: float = parameter(1.0e-6, "largest accepted chance-match probability", "-", 1e-30, 0.5,
+                                            dynamic=True)
+    max_time_s: float = parameter(0.5, "time budget of one identification", "s", 1e-3, 60.0, dynamic=True)
     max_candidates_per_pattern: int = 50
     budget_clock: str = "wall"
-    deep_match: bool = True
-    deep_magnitude_margin: float = 2.0
+    deep_match: bool = parameter(True, "after identification, match the remaining spots to every Hipparcos star "
+                                 "to database.magnitude_limit + deep_match.magnitude_margin")
+    deep_magnitude_margin: float = parameter(2.0, "deep catalog's limit beyond the guide stars'", "mag", 0.0, 6.0)
 
     def __post_init__(self) -> None:
-        bad = []
-        if not (3 <= self.max_pattern_spots <= 100):
-            bad.append(f"max_pattern_spots={self.max_pattern_spots} must be in [3, 100]")
-        if not (0 < self.sigma_multiplier <= 20):
-            bad.append(f"sigma_multiplier={self.sigma_multiplier} must be in (0, 20]")
-        if not (0 <= self.angle_tolerance_floor_rad < 0.01):
-            bad.append(f"angle_tolerance_floor_rad={self.angle_tolerance_floor_rad} must be in [0, 0.01)")
-        if not (0 < self.centroid_sigma_floor_px <= 10):
-            bad.append(f"centroid_sigma_floor_px={self.centroid_sigma_floor_px} must be in (0, 10]")
-        if not (0 < self.match_radius_px <= 50):
-            bad.append(f"match_radius_px={self.match_radius_px} must be in (0, 50]")
-        if not (0 < self.false_positive_bound < 1):
-            bad.append(f"false_positive_bound={self.false_positive_bound} must be in (0, 1)")
-        if not (0 < self.max_time_s <= 60):
-            bad.append(f"max_time_s={self.max_time_s} must be in (0, 60]")
+        bad = range_problems(self)
         if self.budget_clock not in BUDGET_CLOCKS:
             bad.append(f"budget_clock={self.budget_clock!r} must be one of {tuple(BUDGET_CLOCKS)}")
         if not (1 <= self.max_candidates_per_pattern <= 100000):
             bad.append(f"max_candidates_per_pattern={self.max_candidates_per_pattern} must be >= 1")
-        if not (0 <= self.deep_magnitude_margin <= 6):
-            bad.append(f"deep_magnitude_margin={self.deep_magnitude_margin} must be in [0, 6]")
         if bad:
             raise ValueError("invalid identify config: " + "; ".join(bad))
 

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..models.catalog import StarCatalog, cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
+from ..parameter_spec import parameter, range_problems
 from .geometry import chord_angle
 from .kvector import KVector
 
@@ -47,19 +48,18 @@ class DatabaseConfig:
     # Widest field diagonal for_camera accepts [deg]: its pairs (diagonal + 1 deg) stay within 90 deg.
     MAX_FIELD_DIAGONAL_DEG: ClassVar[float] = 89.0
 
-    magnitude_limit: float = 6.5
-    max_pair_angle_rad: float = float(np.radians(DEFAULT_PAIR_ANGLE_DEG))
-    epoch_jyear: float = 2026.0
+    magnitude_limit: float = parameter(6.5, "faintest guide star", "Hp mag", -2.0, 12.0)
+    max_pair_angle_rad: float = float(np.radians(DEFAULT_PAIR_ANGLE_DEG))  # the node's parameter is in degrees
+    epoch_jyear: float = parameter(2026.0, "epoch of the guide-star positions", "Julian year", 1900.0, 2200.0)
     min_separation_rad: float = float(np.radians(180.0 / 3600.0))
     blend_magnitude_gap: float = 2.5
 
     def __post_init__(self) -> None:
-        if not (-2.0 <= self.magnitude_limit <= 12.0):
-            raise ValueError(f"magnitude_limit={self.magnitude_limit} must be in [-2, 12]")
+        problems = range_problems(self)
+        if problems:
+            raise ValueError("; ".join(problems))
         if not (0.0 < self.max_pair_angle_rad <= np.radians(90.0)):
             raise ValueError(f"max_pair_angle_rad={self.max_pair_angle_rad} must be in (0, pi/2]")
-        if not (1900.0 <= self.epoch_jyear <= 2200.0):
-            raise ValueError(f"epoch_jyear={self.epoch_jyear} must be in [1900, 2200]")
         if not (0.0 <= self.min_separation_rad < self.max_pair_angle_rad):
             raise ValueError(f"min_separation_rad={self.min_separation_rad} must be in [0, max_pair_angle_rad)")
         if not (0.0 <= self.blend_magnitude_gap <= 10.0):

@@ -13,6 +13,9 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+import numpy as np
+
+from ..parameter_spec import parameter, range_problems
 from .camera import CameraModel
 from .camera_calibration import CalibrationConfig, CalibrationFrame, CameraCalibration, calibrate_camera
 
@@ -23,17 +26,21 @@ class OnlineCalibrationConfig:
     min_stars: fewest matched stars a frame needs to be kept; apply_corner_sigma_px: the
     rule above [px]; sigma_floor_px: added in quadrature to each spot's 1-sigma [px]."""
 
-    frames_per_fit: int = 10
-    max_frames: int = 20
+    frames_per_fit: int = parameter(10, "solved frames between two fits", "", 1, 100000)
+    max_frames: int = parameter(20, "newest solved frames (>= min_stars stars) a fit uses", "", 1, 1000)
     min_stars: int = 5
-    apply_corner_sigma_px: float = 0.3
+    apply_corner_sigma_px: float = parameter(0.3, "a fitted f or k1 is applied when its 1-sigma moves the image "
+                                             "corner by at most this", "px", 0.0, 10.0, low_open=True)
     sigma_floor_px: float = 0.05
 
     def __post_init__(self) -> None:
-        if not (self.frames_per_fit >= 1 and self.max_frames >= 1 and self.min_stars >= 3):
-            raise ValueError("frames_per_fit and max_frames must be >= 1, min_stars >= 3")
-        if not (self.apply_corner_sigma_px > 0 and self.sigma_floor_px >= 0):
-            raise ValueError("apply_corner_sigma_px must be > 0 and sigma_floor_px >= 0")
+        problems = range_problems(self)
+        if self.min_stars < 3:
+            problems.append(f"min_stars={self.min_stars} must be >= 3")
+        if not (np.isfinite(self.sigma_floor_px) and self.sigma_floor_px >= 0):
+            problems.append(f"sigma_floor_px={self.sigma_floor_px} must be >= 0")
+        if problems:
+            raise ValueError("invalid online calibration config: " + "; ".join(problems))
 
 
 class OnlineCalibration:

@@ -27,11 +27,12 @@ from ..models.catalog import julian_year_from_unix, load_hipparcos
 from ..sim.motion import SampledMotion, motion_from_parameters
 from ..sim.render import StarFieldRenderer, frame_seed
 from . import convert
-from .camera_simulator_parameters import (Declare, declare_attitude, declare_camera, declare_false_objects, declare_sensor,
-                                          declare_sky)
+from ..parameter_spec import field_values
+from .camera_simulator_parameters import (CAMERA_SIMULATOR_PARAMETERS, SENSOR_PARAMETERS, attitude_from, camera_from,
+                                          false_objects_from, sensor_from, sky_from)
 from .diagnostics import Diagnostics
 from .node_process import run_node
-from .parameters import declare, guard_parameter_changes
+from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, TRUTH_INPUT_QOS, overridable
 from .throttled_log import ThrottledLog
 
@@ -55,16 +56,14 @@ class PreparedFrame:
 class CameraSimulatorNode(Node):
     def __init__(self) -> None:
         super().__init__("camera_simulator")
-        p = lambda *a, **k: declare(self, *a, **k)  # noqa: E731
-        self._declare_output(p)
-        self.camera, fov_x_deg = declare_camera(p)
-        self.sensor = sensor = declare_sensor(p)
-        readout_s = p("sensor.readout_s", 0.0,
-                      "readout: a frame is published this long after its exposure (the last row's, under a rolling "
-                      "shutter) and frame transfer ended; 0 = at once [s]", 0.0, 10.0)
-        false_objects = declare_false_objects(p)
-        sky = declare_sky(p)
-        attitude = declare_attitude(p)
+        values = declare_parameters(self, CAMERA_SIMULATOR_PARAMETERS)  # camera_simulator_parameters.py
+        self._read_output(values)
+        self.camera, fov_x_deg = camera_from(values)
+        self.sensor = sensor = sensor_from(values)
+        readout_s = values["sensor.readout_s"]
+        false_objects = false_objects_from(values)
+        self.sky = sky = sky_from(values)
+        attitude = attitude_from(values)
         self.profile, self.initial_rotation, self.motion_kwargs = attitude.profile, attitude.initial_rotation, \
             attitude.motion_kwargs
         self.t0_ns: int | None = None  # exposures start at t0 + period; set in start()
@@ -73,8 +72,7 @@ class CameraSimulatorNode(Node):
         self.renderer = StarFieldRenderer(self.camera, sensor, catalog, sky.magnitude_limit, false_objects,
                                           sky.fixed_pattern_seed, sky.observer_velocity_m_s)
         self._set_up_schedule(readout_s)
-        blank = p("faults.blank_frames", [-1], "frame indices rendered with the field occulted (no stars, "
-                  "e.g. Earth or a baffle): to exercise loss and re-acquisition; -1 = none")
+        blank = values["faults.blank_frames"]
         self.blank_frames = {int(k) for k in blank if int(k) >= 0}
         self._create_interfaces()
         self.timer = None
@@ -89,17 +87,29 @@ class CameraSimulatorNode(Node):
             f"({'rendered ahead' if self.render_ahead else 'rendered at delivery'}), "
             f"{len(self.renderer.catalog)} stars to Hp {sky.magnitude_limit}, attitude profile {self.profile}")
 
-    def _declare_output(self, p: Declare) -> None:
+    def _read_output(self, values: dict) -> None:
         """What is published and when: rate, frame count, frame_id, start, backlog, noise seed."""
-        self.rate_hz = p("rate_hz", 10.0, "frame rate [Hz]", 0.01, 1000.0)
-        self.max_frames = p("max_frames", 0, "stop publishing after this many frames (0 = never)", 0, 10**9)
-        self.frame_id = p("frame_id", convert.OPTICAL_FRAME, "frame_id of image_raw, camera_info, truth/objects and truth/angular_velocity")
-        self.start_delay_s = p("start_delay_s", 0.0, "wait before the first exposure [s]", 0.0, 3600.0)
-        self.max_backlog_frames = p("max_backlog_frames", 5, "frames rendered late before older ones are skipped", 0, 1000)
-        self.wait_for_subscribers = p("wait_for_subscribers", False,
-                                      "begin exposures only once image_raw, camera_info and truth/attitude each "
-                                      "have a subscriber (then start_delay_s more): no frame lost to DDS discovery")
-        self.seed = p("seed", 0, "noise seed: frame k uses the stream (seed, k)", 0, 2**31 - 1)
+        self.rate_hz, self.max_frames, self.frame_id = values["rate_hz"], values["max_frames"], values["frame_id"]
+        self.start_delay_s, self.max_backlog_frames = values["start_delay_s"], values["max_backlog_frames"]
+        self.wait_for_subscribers, self.seed = values["wait_for_subscribers"], values["seed"]
+
+    def apply_parameters(self, changes: dict) -> str | None:
+        """Runtime sensor changes (see parameters.guard_parameter_changes): the new SensorModel
+        is built (checked) first; the renderer is rebuilt with it (the fixed pattern is drawn
+        from the same seed: unchanged; ~0.2 s for 1024 x 1024 px, so a frame due meanwhile is
+        delivered late, counted as frames_rendered_late) and a frame rendered ahead is dropped,
+        so the next frame delivered is exposed with the new settings."""
+        sensor = replace(self.sensor, **field_values(SENSOR_PARAMETERS, changes))
+        if sensor.exposure_s * self.rate_hz > 1.0:
+            return f"sensor.exposure_s={sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s"
+        renderer = getattr(self, "renderer", None)
+        if renderer is not None:  # (not yet built: it will be with self.sensor)
+            self.renderer = StarFieldRenderer(self.camera, sensor, renderer.catalog, self.sky.magnitude_limit,
+                                              renderer.false_objects, self.sky.fixed_pattern_seed,
+                                              self.sky.observer_velocity_m_s, renderer.max_substep_px)
+        self.sensor = sensor
+        self.pending = None
+        return None
 
     def _set_up_schedule(self, readout_s: float) -> None:
         """The frame period, when frames are delivered, and the render-ahead state."""
@@ -125,8 +135,8 @@ class CameraSimulatorNode(Node):
         self.pub_truth_objects = self.create_publisher(PointCloud2, "truth/objects", **overridable(RESULT_QOS))
         self.diag = Diagnostics(self)
         self.log = ThrottledLog(self)
-        # Every parameter is read-only: a runtime change is refused with the reason, logged, counted.
-        guard_parameter_changes(self, lambda changes: None, self.diag, self.log)
+        # Only the sensor settings are dynamic (apply_parameters); a change to a read-only one is refused.
+        guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         if self.profile == "external":
             # Truth from a dynamics simulator, on this node's clock (use_sim_time for sim time).
             self.motion = None

@@ -1,6 +1,12 @@
-"""camera_simulator's start-up parameters, declared with descriptors and ranges and gathered
-into the models they configure: camera, sensor, false objects, sky and attitude motion.
-Declared in a fixed order (the first bad value is the one reported)."""
+"""camera_simulator's parameters, each declared once (ROS-free): the SensorModel and
+FalseObjectModel fields (their spec is the dataclass field metadata, sim/sensor.py, sim/render.py)
+under the node's names with the simulated camera's defaults, and the node's own; in the order the
+node declares them (the first bad value is the one reported) and config/star_tracker.yaml lists
+them. The models the node runs are built from the declared values here.
+
+Dynamic (`ros2 param set` while running): the sensor settings a camera driver changes between
+frames (exposure, gain, read noise, bias, detector temperature); the renderer is rebuilt with
+them for the next frame. The rest (image size, optics, sky, motion) is read-only."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,70 +16,140 @@ import numpy as np
 
 from ..models.attitude import quaternion_to_matrix, radec_roll_to_matrix
 from ..models.camera import CameraModel
+from ..parameter_spec import ParameterSpec, field_specs, field_values
 from ..sim.motion import motion_from_parameters
 from ..sim.render import FalseObjectModel
 from ..sim.sensor import SensorModel
 
-Declare = Callable[..., Any]  # declare(node, ...) bound to the node: (name, default, description, low, high) -> value
+Declare = Callable[..., Any]  # (name, default, description, low, high) -> value: a parameter source
+
+# The simulated camera: SensorModel's defaults with a realistic detector's defects.
+SIMULATED_SENSOR = SensorModel(vignetting_at_corner=0.1, dsnu_fraction=0.1, prnu_fraction=0.01,
+                               hot_pixel_fraction=2e-5, cosmic_ray_rate_per_cm2_s=5.0)
+# Node parameter -> SensorModel field, where the name is not "sensor." + the field.
+SENSOR_NAMES = {"aperture_diameter_m": "optics.aperture_diameter_m", "optical_transmission": "optics.transmission",
+                "psf_sigma_px": "optics.psf_sigma_px", "vignetting_at_corner": "optics.vignetting_at_corner",
+                "photon_flux_hp0": "sky.photon_flux_hp0", "color_coefficient": "sky.color_coefficient",
+                "background_e_per_px_s": "sky.background_e_per_px_s",
+                "stray_light_gradient_e_per_px2_s": "sky.stray_light_gradient_e_per_px2_s"}
+# What a camera driver changes between frames: rebuilt into the renderer for the next frame.
+SENSOR_RUNTIME = ("exposure_s", "gain_e_per_adu", "read_noise_e", "bias_adu", "temperature_k")
+SENSOR_PARAMETERS = field_specs(SensorModel, prefix="sensor.", names=SENSOR_NAMES, defaults=SIMULATED_SENSOR,
+                                dynamic=SENSOR_RUNTIME)
+FALSE_OBJECT_PARAMETERS = field_specs(FalseObjectModel, prefix="false_objects.")
+_SENSOR = {spec.name: spec for spec in SENSOR_PARAMETERS}
+
+
+def _sensor(name: str) -> ParameterSpec:
+    return _SENSOR[name]
+
+
+OUTPUT_PARAMETERS = [
+    ParameterSpec("rate_hz", 10.0, "frame rate", "Hz", 0.01, 1000.0),
+    ParameterSpec("max_frames", 0, "stop publishing after this many frames; 0 = never", "", 0, 10**9),
+    ParameterSpec("start_delay_s", 0.0, "wait before the first exposure", "s", 0.0, 3600.0),
+    ParameterSpec("wait_for_subscribers", False, "begin exposures only once image_raw, camera_info and "
+                  "truth/attitude each have a subscriber (then start_delay_s more): no frame lost to DDS discovery"),
+    ParameterSpec("max_backlog_frames", 5, "frames delivered late before older ones are skipped (counted)", "", 0,
+                  1000),
+    ParameterSpec("frame_id", "star_tracker_optical", "frame_id of image_raw, camera_info, truth/objects and "
+                  "truth/angular_velocity"),
+    ParameterSpec("seed", 0, "noise seed: frame k's noise comes from the stream (seed, k)", "", 0, 2**31 - 1),
+    ParameterSpec("fixed_pattern_seed", 0, "seed of PRNU, DSNU and hot pixels", "", 0, 2**31 - 1),
+]
+CAMERA_PARAMETERS = [
+    ParameterSpec("image.width", 1024, "image width", "px", 16, 8192),
+    ParameterSpec("image.height", 1024, "image height", "px", 16, 8192),
+    ParameterSpec("optics.fov_x_deg", 15.0, "horizontal field of view", "deg", 0.5, 120.0),
+    _sensor("optics.psf_sigma_px"),
+    ParameterSpec("optics.distortion", (0.0, 0.0, 0.0, 0.0, 0.0), "Brown-Conrady plumb_bob k1, k2, p1, p2, k3 "
+                  "(published in camera_info)"),
+    _sensor("optics.aperture_diameter_m"),
+    _sensor("optics.transmission"),
+    _sensor("optics.vignetting_at_corner"),
+]
+READOUT_PARAMETER = ParameterSpec("sensor.readout_s", 0.0, "readout: a frame is published this long after its "
+                                  "exposure (the last row's, under a rolling shutter) and frame transfer ended; "
+                                  "0 = at once", "s", 0.0, 10.0)
+SKY_PARAMETERS = [
+    ParameterSpec("sky.magnitude_limit", 7.5, "faintest star rendered", "Hp mag", -2.0, 12.0),
+    ParameterSpec("sky.epoch_jyear", 0.0, "catalog epoch; 0 = the clock's date", "Julian year", 0.0, 2200.0),
+    _sensor("sky.photon_flux_hp0"),
+    _sensor("sky.color_coefficient"),
+    _sensor("sky.background_e_per_px_s"),
+    _sensor("sky.stray_light_gradient_e_per_px2_s"),
+    ParameterSpec("sky.observer_velocity_m_s", (0.0, 0.0, 0.0), "spacecraft velocity in ICRS, for stellar "
+                  "aberration (Earth orbit ~ 30 km/s)", "m/s"),
+]
+PROFILES = ("fixed", "constant_rate", "slew", "tumble", "jitter", "external")
+ATTITUDE_PARAMETERS = [
+    ParameterSpec("attitude.ra_deg", 80.0, "initial boresight right ascension", "deg", -360.0, 360.0),
+    ParameterSpec("attitude.dec_deg", 20.0, "initial boresight declination", "deg", -90.0, 90.0),
+    ParameterSpec("attitude.roll_deg", 0.0, "initial roll about the boresight", "deg", -360.0, 360.0),
+    ParameterSpec("attitude.quaternion", (0.0, 0.0, 0.0, 0.0), "initial sensor->ICRS quaternion x, y, z, w; all "
+                  "zero = use ra_deg, dec_deg, roll_deg"),
+    ParameterSpec("attitude.profile", "constant_rate", "motion (external: follow truth_in/attitude + "
+                  "truth_in/angular_velocity, same stamps, this clock)", choices=PROFILES),
+    ParameterSpec("attitude.body_rate_deg_s", (0.0, 0.0, 0.0), "constant body rate in the sensor frame x, y, z "
+                  "(constant_rate, and the jitter base)", "deg/s"),
+    ParameterSpec("attitude.slew.axis", (1.0, 0.0, 0.0), "slew axis in the sensor frame"),
+    ParameterSpec("attitude.slew.angle_deg", 10.0, "slew angle", "deg", -3600.0, 3600.0),
+    ParameterSpec("attitude.slew.max_rate_deg_s", 2.0, "coast rate", "deg/s", 1e-6, 90.0),
+    ParameterSpec("attitude.slew.accel_deg_s2", 0.5, "acceleration", "deg/s^2", 1e-6, 1000.0),
+    ParameterSpec("attitude.slew.start_s", 2.0, "slew start after the first exposure", "s", 0.0, 1e6),
+    ParameterSpec("attitude.tumble.initial_rate_deg_s", (0.5, 0.2, 1.0), "initial body rate", "deg/s"),
+    ParameterSpec("attitude.tumble.inertia_kg_m2", (10.0, 12.0, 8.0), "principal moments about the sensor x, y, z "
+                  "axes", "kg m^2"),
+    ParameterSpec("attitude.jitter.amplitudes_rad", (2e-5, 2e-5, 1e-5), "sinusoid amplitudes x, y, z per term, "
+                  "flat (3N values)", "rad"),
+    ParameterSpec("attitude.jitter.frequencies_hz", (7.0,), "sinusoid frequencies (N values)", "Hz"),
+    ParameterSpec("attitude.jitter.phases_rad", (0.0,), "phases: 1, N or 3N values", "rad"),
+]
+FAULT_PARAMETERS = [
+    ParameterSpec("faults.blank_frames", (-1,), "frame indices rendered with the field occulted (no stars, e.g. "
+                  "Earth or a baffle): to exercise loss and re-acquisition; -1 = none"),
+]
+_PLACED = {spec.name for spec in CAMERA_PARAMETERS + SKY_PARAMETERS}
+CAMERA_SIMULATOR_PARAMETERS = [
+    *OUTPUT_PARAMETERS, *CAMERA_PARAMETERS,
+    *(spec for spec in SENSOR_PARAMETERS if spec.name not in _PLACED), READOUT_PARAMETER,
+    *SKY_PARAMETERS, *FALSE_OBJECT_PARAMETERS, *ATTITUDE_PARAMETERS, *FAULT_PARAMETERS,
+]
+
+
+def read(p: Declare, specs) -> dict[str, Any]:
+    """name -> value of `specs` from a parameter source p(name, default, description, low, high)."""
+    return {spec.name: p(spec.name, list(spec.default) if isinstance(spec.default, tuple) else spec.default,
+                         spec.full_description(), spec.low, spec.high) for spec in specs}
+
+
+def camera_from(values: dict) -> tuple[CameraModel, float]:
+    """The image size and optics: (the camera model, the horizontal field of view [deg])."""
+    fov_x_deg = values["optics.fov_x_deg"]
+    # A distortion of other than 5 values is refused here, by the camera model.
+    camera = CameraModel.from_fov(values["image.width"], values["image.height"], np.radians(fov_x_deg),
+                                  tuple(values["optics.distortion"]))
+    return camera, fov_x_deg
+
+
+def sensor_from(values: dict) -> SensorModel:
+    """Radiometry, detector and shutter parameters (SIMULATED_SENSOR for those not given)."""
+    return SensorModel(**{**SIMULATED_SENSOR.__dict__, **field_values(SENSOR_PARAMETERS, values)})
+
+
+def false_objects_from(values: dict) -> FalseObjectModel:
+    """Non-catalog objects in view: planets (points) and debris (streaks)."""
+    return FalseObjectModel(**field_values(FALSE_OBJECT_PARAMETERS, values))
 
 
 def declare_camera(p: Declare) -> tuple[CameraModel, float]:
-    """The image size and optics: (the camera model, the horizontal field of view [deg])."""
-    width = p("image.width", 1024, "image width [px]", 16, 8192)
-    height = p("image.height", 1024, "image height [px]", 16, 8192)
-    fov_x_deg = p("optics.fov_x_deg", 15.0, "horizontal field of view [deg]", 0.5, 120.0)
-    distortion = p("optics.distortion", [0.0, 0.0, 0.0, 0.0, 0.0],
-                   "Brown-Conrady plumb_bob k1, k2, p1, p2, k3 (published in camera_info)")
-    # A distortion of other than 5 values is refused here, by the camera model.
-    return CameraModel.from_fov(width, height, np.radians(fov_x_deg), tuple(distortion)), fov_x_deg
+    """camera_from the parameter source p (see read)."""
+    return camera_from(read(p, [s for s in CAMERA_PARAMETERS if s.field is None]))
 
 
 def declare_sensor(p: Declare) -> SensorModel:
-    """Radiometry, detector and shutter parameters."""
-    return SensorModel(
-        aperture_diameter_m=p("optics.aperture_diameter_m", 0.03, "entrance pupil diameter [m]", 1e-4, 10.0),
-        optical_transmission=p("optics.transmission", 0.8, "optical transmission [-]", 1e-3, 1.0),
-        psf_sigma_px=p("optics.psf_sigma_px", 1.0, "Gaussian PSF (defocus) 1-sigma [px]", 0.1, 20.0),
-        vignetting_at_corner=p("optics.vignetting_at_corner", 0.1, "light lost at the image corner [-]", 0.0, 0.99),
-        photon_flux_hp0=p("sky.photon_flux_hp0", 2.0e10, "photons/s/m^2 in the sensor band from an Hp=0 star", 1e-6, 1e14),
-        color_coefficient=p("sky.color_coefficient", 0.0, "instrument magnitude = Hp + c (B-V) [-]", -5.0, 5.0),
-        background_e_per_px_s=p("sky.background_e_per_px_s", 400.0, "sky + zodiacal background [e-/px/s]", 0.0, 1e9),
-        stray_light_gradient_e_per_px2_s=tuple(p("sky.stray_light_gradient_e_per_px2_s", [0.0, 0.0],
-                                                 "linear stray-light gradient in x, y [e-/px/s per px]")),
-        exposure_s=p("sensor.exposure_s", 0.1, "exposure time [s]", 1e-6, 10.0),
-        pixel_pitch_m=p("sensor.pixel_pitch_m", 13e-6, "pixel pitch [m]", 1e-7, 1e-3),
-        quantum_efficiency=p("sensor.quantum_efficiency", 0.6, "quantum efficiency [-]", 1e-3, 1.0),
-        dark_e_per_px_s=p("sensor.dark_e_per_px_s", 20.0, "dark current at dark_reference_k [e-/px/s]", 0.0, 1e9),
-        dark_reference_k=p("sensor.dark_reference_k", 293.15, "reference temperature of dark_e_per_px_s [K]", 1.0, 500.0),
-        dark_doubling_k=p("sensor.dark_doubling_k", 6.0, "dark current doubles every this many kelvin [K]", 0.1, 100.0),
-        temperature_k=p("sensor.temperature_k", 293.15, "detector temperature [K]", 1.0, 500.0),
-        dsnu_fraction=p("sensor.dsnu_fraction", 0.1, "dark signal non-uniformity, lognormal sigma [-]", 0.0, 5.0),
-        prnu_fraction=p("sensor.prnu_fraction", 0.01, "photo-response non-uniformity 1-sigma [-]", 0.0, 0.5),
-        hot_pixel_fraction=p("sensor.hot_pixel_fraction", 2e-5, "fraction of hot pixels [-]", 0.0, 0.1),
-        hot_pixel_dark_factor=p("sensor.hot_pixel_dark_factor", 200.0, "hot pixel dark current multiple [-]", 0.0, 1e6),
-        cosmic_ray_rate_per_cm2_s=p("sensor.cosmic_ray_rate_per_cm2_s", 5.0, "cosmic-ray hit rate [1/cm^2/s]", 0.0, 1e6),
-        cosmic_ray_electrons=p("sensor.cosmic_ray_electrons", 3000.0, "mean charge of a hit [e-]", 0.0, 1e9),
-        read_noise_e=p("sensor.read_noise_e", 8.0, "read noise 1-sigma [e-]", 0.0, 1e4),
-        gain_e_per_adu=p("sensor.gain_e_per_adu", 1.0, "conversion gain [e-/ADU]", 1e-3, 1e4),
-        bias_adu=p("sensor.bias_adu", 100.0, "bias offset [ADU]", 0.0, 65535.0),
-        full_well_e=p("sensor.full_well_e", 60000.0, "full-well capacity [e-]", 1.0, 1e9),
-        adc_bits=p("sensor.adc_bits", 16, "ADC bit depth", 8, 16),
-        rolling_shutter_row_time_s=p("sensor.rolling_shutter_row_time_s", 0.0,
-                                     "row readout delay of a rolling shutter; 0 = global shutter [s]", 0.0, 1e-2),
-        frame_transfer_time_s=p("sensor.frame_transfer_time_s", 0.0, "frame-transfer time; 0 = none [s]", 0.0, 1.0),
-        noise=p("sensor.noise", True, "shot and read noise on (false renders expected values)"),
-    )
-
-
-def declare_false_objects(p: Declare) -> FalseObjectModel:
-    """Non-catalog objects in view: planets (points) and debris (streaks)."""
-    return FalseObjectModel(
-        planets_per_frame=p("false_objects.planets_per_frame", 0, "bright non-catalog points per frame", 0, 100),
-        planet_magnitude_range=tuple(p("false_objects.planet_magnitude_range", [-1.0, 2.0], "instrument magnitude range")),
-        debris_per_frame=p("false_objects.debris_per_frame", 0, "moving debris streaks per frame", 0, 100),
-        debris_magnitude_range=tuple(p("false_objects.debris_magnitude_range", [3.0, 6.0], "instrument magnitude range")),
-        debris_speed_px_s=tuple(p("false_objects.debris_speed_px_s", [100.0, 1000.0], "image speed range [px/s]")),
-    )
+    """sensor_from the parameter source p (see read)."""
+    return sensor_from(read(p, SENSOR_PARAMETERS))
 
 
 @dataclass(frozen=True)
@@ -86,13 +162,10 @@ class SkySetup:
     fixed_pattern_seed: int  # seed of PRNU, DSNU and hot pixels
 
 
-def declare_sky(p: Declare) -> SkySetup:
-    return SkySetup(
-        magnitude_limit=p("sky.magnitude_limit", 7.5, "faintest star rendered [Hp mag]", -2.0, 12.0),
-        epoch_jyear=p("sky.epoch_jyear", 0.0, "catalog epoch [Julian year]; 0 = the clock's date", 0.0, 2200.0),
-        observer_velocity_m_s=p("sky.observer_velocity_m_s", [0.0, 0.0, 0.0],
-                                "spacecraft velocity in ICRS for stellar aberration [m/s] (Earth orbit ~ 30 km/s)"),
-        fixed_pattern_seed=p("fixed_pattern_seed", 0, "seed of PRNU, DSNU and hot pixels", 0, 2**31 - 1))
+def sky_from(values: dict) -> SkySetup:
+    return SkySetup(magnitude_limit=values["sky.magnitude_limit"], epoch_jyear=values["sky.epoch_jyear"],
+                    observer_velocity_m_s=values["sky.observer_velocity_m_s"],
+                    fixed_pattern_seed=values["fixed_pattern_seed"])
 
 
 @dataclass(frozen=True)
@@ -104,42 +177,31 @@ class AttitudeSetup:
     motion_kwargs: dict  # profile -> keyword arguments of motion_from_parameters (SI units, radians)
 
 
-def declare_motion_kwargs(p: Declare) -> dict:
+def motion_kwargs_from(values: dict) -> dict:
     """Every profile's motion parameters (all declared, whichever profile runs), in radians."""
-    deg = np.radians
-    body_rate = deg(p("attitude.body_rate_deg_s", [0.0, 0.0, 0.0],
-                      "constant body rate in the sensor frame x, y, z (constant_rate, jitter base) [deg/s]"))
+    deg, v = np.radians, values
+    body_rate = deg(v["attitude.body_rate_deg_s"])
     return {
         "fixed": {},
         "constant_rate": {"body_rate_rad_s": body_rate},
-        "slew": {"axis": p("attitude.slew.axis", [1.0, 0.0, 0.0], "slew axis in the sensor frame"),
-                 "angle_rad": deg(p("attitude.slew.angle_deg", 10.0, "slew angle [deg]", -3600.0, 3600.0)),
-                 "max_rate_rad_s": deg(p("attitude.slew.max_rate_deg_s", 2.0, "coast rate [deg/s]", 1e-6, 90.0)),
-                 "accel_rad_s2": deg(p("attitude.slew.accel_deg_s2", 0.5, "acceleration [deg/s^2]", 1e-6, 1000.0)),
-                 "t_start": p("attitude.slew.start_s", 2.0, "slew start after the first exposure [s]", 0.0, 1e6)},
-        "tumble": {"initial_rate_rad_s": deg(p("attitude.tumble.initial_rate_deg_s", [0.5, 0.2, 1.0],
-                                               "initial body rate [deg/s]")),
-                   "inertia_kg_m2": p("attitude.tumble.inertia_kg_m2", [10.0, 12.0, 8.0],
-                                      "principal moments about the sensor x, y, z axes [kg m^2]")},
-        "jitter": {"body_rate_rad_s": body_rate,
-                   "amplitudes_rad": p("attitude.jitter.amplitudes_rad", [2e-5, 2e-5, 1e-5],
-                                       "sinusoid amplitudes x, y, z per term, flat (3N) [rad]"),
-                   "frequencies_hz": p("attitude.jitter.frequencies_hz", [7.0], "sinusoid frequencies (N) [Hz]"),
-                   "phases_rad": p("attitude.jitter.phases_rad", [0.0], "phases: 1, N or 3N values [rad]")},
+        "slew": {"axis": v["attitude.slew.axis"], "angle_rad": deg(v["attitude.slew.angle_deg"]),
+                 "max_rate_rad_s": deg(v["attitude.slew.max_rate_deg_s"]),
+                 "accel_rad_s2": deg(v["attitude.slew.accel_deg_s2"]), "t_start": v["attitude.slew.start_s"]},
+        "tumble": {"initial_rate_rad_s": deg(v["attitude.tumble.initial_rate_deg_s"]),
+                   "inertia_kg_m2": v["attitude.tumble.inertia_kg_m2"]},
+        "jitter": {"body_rate_rad_s": body_rate, "amplitudes_rad": v["attitude.jitter.amplitudes_rad"],
+                   "frequencies_hz": v["attitude.jitter.frequencies_hz"],
+                   "phases_rad": v["attitude.jitter.phases_rad"]},
     }
 
 
-def declare_attitude(p: Declare) -> AttitudeSetup:
+def attitude_from(values: dict) -> AttitudeSetup:
     """The initial attitude (a quaternion, else RA/Dec/roll) and the motion profile, checked:
     a bad profile fails at startup, not at the first frame."""
-    quaternion = p("attitude.quaternion", [0.0, 0.0, 0.0, 0.0],
-                   "initial sensor->ICRS quaternion x, y, z, w; all zero = use RA/Dec/roll")
-    ra = np.radians(p("attitude.ra_deg", 80.0, "initial boresight right ascension [deg]", -360.0, 360.0))
-    dec = np.radians(p("attitude.dec_deg", 20.0, "initial boresight declination [deg]", -90.0, 90.0))
-    roll = np.radians(p("attitude.roll_deg", 0.0, "initial roll about the boresight [deg]", -360.0, 360.0))
-    profile = p("attitude.profile", "constant_rate",
-                "motion: fixed, constant_rate, slew, tumble, jitter, or external (follow truth_in/ topics)")
-    motion_kwargs = declare_motion_kwargs(p)
+    quaternion = values["attitude.quaternion"]
+    ra, dec, roll = (np.radians(values[f"attitude.{k}"]) for k in ("ra_deg", "dec_deg", "roll_deg"))
+    profile = values["attitude.profile"]
+    motion_kwargs = motion_kwargs_from(values)
     if profile not in (*motion_kwargs, "external"):
         raise ValueError(f"attitude.profile={profile!r}: expected one of {sorted([*motion_kwargs, 'external'])}")
     if len(quaternion) != 4:  # (the camera model has refused a distortion of other than 5 values)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import fields, replace
+from dataclasses import replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -30,8 +30,7 @@ from geometry_msgs.msg import Vector3Stamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
-from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
-from ..centroid.config import PSF_MODES
+from ..centroid import CentroidConfig, extract_spots
 from ..centroid.psf_prior import RunningPsf
 from ..centroid.kernels import warm_up
 from ..centroid.smear import SmearModel
@@ -40,69 +39,34 @@ from .camera_info_input import CameraInfoInput
 from .diagnostics import Diagnostics, Rejections
 from .frame_queue import NewestFrame
 from .node_process import run_node
-from .parameters import declare, guard_parameter_changes
+from ..parameter_spec import field_values
+from .centroider_parameters import CENTROIDER_PARAMETERS, RATE_SOURCES
+from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RATE_INPUT_QOS, SPOTS_QOS, overridable
-from .rate_input import IDENTITY_MOUNTING, RateInput
+from .rate_input import RateInput
 from .stamps import STAMP_OK, STAMP_RESET, StampOrder
 from .throttled_log import ThrottledLog
 
-RATE_SOURCES = ("topic", "imu", "parameter", "none")
 RATE_TOPICS = {"topic": "angular_velocity", "imu": "imu"}  # rate_source -> the input it reads
-# Tunable while running (`ros2 param set`), checked together as a CentroidConfig; the rest is
-# fixed at startup.
-RUNTIME_PARAMETERS = {f.name for f in fields(CentroidConfig)} | {
-    "exposure_time_s", "rate_source", "angular_velocity_rad_s", "max_rate_age_s", "stamp.max_future_s",
-    "stamp.reset_after_s"}
+# Tunable while running (`ros2 param set`, the specs marked dynamic), checked together as a
+# CentroidConfig; the rest is fixed at startup.
+RUNTIME_PARAMETERS = {spec.name for spec in CENTROIDER_PARAMETERS if spec.dynamic}
 
 
 class CentroiderNode(Node):
     def __init__(self) -> None:
         super().__init__("centroider")
-        p = lambda name, *a, **k: declare(self, name, *a, read_only=name not in RUNTIME_PARAMETERS, **k)  # noqa: E731
-        self.config = CentroidConfig(
-            detection_sigma=p("detection_sigma", 4.5, "detection threshold [noise sigmas]", 1.0, 100.0),
-            binning=p("binning", 2, "detection grid bin factor: 2 = 4x cheaper; 1 = full resolution", 1, 2),
-            min_area=p("min_area", 2, "smallest accepted footprint [px]", 1, 10000),
-            max_area=p("max_area", 20000, "largest accepted footprint [px]", 1, 1000000),
-            min_snr=p("min_snr", 5.0, "smallest reported SNR", 0.0, 1e6),
-            background_block_px=p("background_block_px", 32, "background mesh size [px]", 4, 1024),
-            gain_e_per_adu=p("gain_e_per_adu", 1.0, "sensor gain for the shot-noise term [e-/ADU]", 1e-3, 1e4),
-            saturation_adu=p("saturation_adu", 0.0, "saturation level [ADU]; 0 = dtype max (flat tops too)", 0.0, 1e9),
-            max_spots=p("max_spots", 500, "most spots reported per frame (brightest)", 1, 100000),
-            method=p("method", "auto", "sub-pixel method: " + " | ".join(CENTROID_METHODS)
-                     + " (auto = PSF fit for points, streak model for streaks)"),
-            psf_sigma_px=p("psf_sigma_px", 1.0, "PSF 1-sigma of the optics: the prior of the estimate (psf_mode auto) "
-                           "or the width used (fixed); 0 = no PSF, no shape test [px]", 0.0, 50.0),
-            psf_mode=p("psf_mode", "auto", "PSF width: " + " | ".join(PSF_MODES) + " (auto = estimated on every "
-                       "frame from its stars, carried to the next; fixed = psf_sigma_px)"),
-            max_peak_fraction=p("max_peak_fraction", 0.5, "reject a spot whose brightest pixel holds more of its flux "
-                                                           "(hot pixels) [-]", 0.01, 1.0),
-            min_width_fraction=p("min_width_fraction", 0.6, "reject a spot narrower than this x psf_sigma_px^2 "
-                                                             "(cosmic rays) [-]", 0.0, 1.0),
-            shape_min_snr=p("shape_min_snr", 10.0, "smallest SNR for the width test", 0.0, 1e6),
-            split_blends=p("split_blends", True, "fit two PSFs when a point-like spot has a second peak"),
-            min_smear_px=p("min_smear_px", 1.5, "predicted smears shorter than this are point-like [px]", 0.0, 1e4),
-        )
-        self.exposure_s = p("exposure_time_s", 0.0, "exposure time for the rate aid; 0 = unknown (no rate aid) [s]",
-                            0.0, 100.0)
-        self.rate_source = p("rate_source", "topic", "body rate for the rate aid: " + " | ".join(RATE_SOURCES))
-        rate_param = p("angular_velocity_rad_s", [0.0, 0.0, 0.0],
-                       "body rate in the sensor frame when rate_source is 'parameter' [rad/s]")
-        self.queue_depth = p("queue_depth", 3, "images waiting for the extraction at most; when one more arrives the "
-                             "oldest is dropped and counted (frames_dropped_overload). 1 = only the newest frame waits; 3 (default) rides out a host stall of ~3 frames", 1, 100)
-        self.max_rate_age_s = p("max_rate_age_s", 0.5, "ignore a rate message further than this from the image "
-                                                        "stamp [s]", 0.0, 1e6)
-        self.stamps = StampOrder(self, p("stamp.max_future_s", 1.0, "count frames stamped further ahead of this "
-                                         "node's clock [s]; 0 = no check", 0.0, 1e9),
-                                 p("stamp.reset_after_s", 2.0, "a frame older than the newest by more than this "
-                                   "restarts time (replay, simulation reset) [s]", 0.0, 1e9))
+        values = declare_parameters(self, CENTROIDER_PARAMETERS)  # centroider_parameters.py
+        self.config = CentroidConfig(**field_values(CENTROIDER_PARAMETERS, values))
+        self.exposure_s = values["exposure_time_s"]
+        self.rate_source = values["rate_source"]
+        rate_param = values["angular_velocity_rad_s"]
+        self.queue_depth = values["queue_depth"]
+        self.max_rate_age_s = values["max_rate_age_s"]
+        self.stamps = StampOrder(self, values["stamp.max_future_s"], values["stamp.reset_after_s"])
         # The gyro's mounting (read-only): its vectors are rotated into the sensor frame.
         self.rate_input = RateInput(lambda counter, text: self.reject(counter, text),
-                                    p("gyro.mounting_quaternion", list(IDENTITY_MOUNTING), "orientation (x, y, z, w) "
-                                      "of the gyro frame in the sensor frame: v_sensor = R(q) v_gyro (imu, and "
-                                      "angular_velocity in gyro.frame_id); unit norm"),
-                                    p("gyro.frame_id", "", "frame_id of the gyro's messages; an imu message in "
-                                      "another frame is ignored, counted (rates_wrong_frame); '' = not checked"))
+                                    list(values["gyro.mounting_quaternion"]), values["gyro.frame_id"])
         problems = []
         if self.rate_source not in RATE_SOURCES:
             problems.append(f"rate_source={self.rate_source!r} must be one of {RATE_SOURCES}")

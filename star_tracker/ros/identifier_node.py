@@ -28,7 +28,7 @@ import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -39,20 +39,24 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 from ..models.attitude import ARCSEC
 from ..models.camera import CameraModel
 from ..models.online_calibration import OnlineCalibration, OnlineCalibrationConfig
-from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+from ..identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from ..track.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
 from .camera_info_input import CameraInfoInput
 from .diagnostics import Diagnostics, Rejections
 from .frame_queue import NewestFrame
 from .node_process import run_node
-from .parameters import declare, guard_parameter_changes
+from ..parameter_spec import field_values
+from .identifier_parameters import (CALIBRATION_PARAMETERS, DATABASE_PARAMETERS, IDENTIFIER_PARAMETERS,
+                                    IDENTIFY_PARAMETERS, TRACKING_PARAMETERS)
+from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, overridable
 from .stamps import STAMP_OK, STAMP_RESET, StampOrder
 from .throttled_log import ThrottledLog
 
-# Tunable while running (`ros2 param set`); the rest is fixed at startup (database, algorithm).
-RUNTIME_PARAMETERS = {"inline_wait_s", "tracking.enabled", "stamp.max_future_s", "stamp.reset_after_s"}
+# Tunable while running (`ros2 param set`, the specs marked dynamic); the rest is fixed at
+# startup (database, algorithm).
+RUNTIME_PARAMETERS = {spec.name for spec in IDENTIFIER_PARAMETERS if spec.dynamic}
 
 
 @dataclass
@@ -76,61 +80,21 @@ def keep_time_reset(dropped: SpotsFrame, following: SpotsFrame) -> SpotsFrame:
 class IdentifierNode(Node):
     def __init__(self) -> None:
         super().__init__("identifier")
-        p = lambda name, *a, **k: declare(self, name, *a, read_only=name not in RUNTIME_PARAMETERS, **k)  # noqa: E731
-        algorithm = p("algorithm", DEFAULT_ALGORITHM, f"identification algorithm: one of {sorted(ALGORITHMS)}")
-        self.frame_id = p("frame_id", convert.ICRS_FRAME, "parent frame of the published attitude")
-        db_config = DatabaseConfig(
-            magnitude_limit=p("database.magnitude_limit", 6.5, "faintest guide star [Hp mag]", -2.0, 12.0),
-            max_pair_angle_rad=np.radians(p("database.max_pair_angle_deg", 22.0,
-                                            "largest stored star separation; >= the camera's diagonal FOV [deg]", 0.1, 90.0)),
-            epoch_jyear=p("database.epoch_jyear", 2026.0, "epoch of guide-star positions [Julian year]", 1900.0, 2200.0),
-        )
-        self.config = IdentifyConfig(
-            max_pattern_spots=p("max_pattern_spots", 12, "brightest spots used to form patterns", 3, 100),
-            sigma_multiplier=p("sigma_multiplier", 3.0, "pattern tolerance [sigmas]", 0.1, 20.0),
-            angle_tolerance_floor_rad=p("angle_tolerance_floor_rad", 2.0e-5, "added angle tolerance [rad]", 0.0, 0.01),
-            centroid_sigma_floor_px=p("centroid_sigma_floor_px", 0.05, "smallest spot 1-sigma for the matching "
-                                      "tolerances; the published fit uses each spot's own covariance [px]", 1e-4, 10.0),
-            match_radius_px=p("match_radius_px", 1.5, "verification match radius [px]", 0.01, 50.0),
-            false_positive_bound=p("false_positive_bound", 1.0e-6, "largest accepted chance-match probability", 1e-30, 0.5),
-            max_time_s=p("max_time_s", 0.5, "time budget per frame [s]", 1e-3, 60.0),
-            deep_match=p("deep_match.enabled", True, "after identification, match the remaining spots to every "
-                         "Hipparcos star to database.magnitude_limit + deep_match.magnitude_margin"),
-            deep_magnitude_margin=p("deep_match.magnitude_margin", 2.0, "deep catalog's limit beyond the guide "
-                                    "stars' [mag]", 0.0, 6.0),
-        )
-        self.tracking_enabled = p("tracking.enabled", True, "track from the previous attitude; false = lost-in-space on every frame")
-        tracking_config = TrackingConfig(
-            gate_sigma=p("tracking.gate_sigma", 5.0, "searched region around the predicted attitude [sigmas]", 1.0, 20.0),
-            min_stars=p("tracking.min_stars", 3, "fewest verified stars a tracked frame needs", 2, 10),
-            max_gate_fov_radii=p("tracking.max_gate_fov_radii", 2.0, "largest search radius [field radii]", 0.1, 4.0),
-            max_coast_s=p("tracking.max_coast_s", 2.0, "longest prediction without a new solution [s]", 0.01, 60.0),
-            max_angular_rate_rad_s=p("tracking.max_angular_rate_rad_s", 0.0873,
-                                     "rate prior per axis before a rate estimate exists [rad/s]", 1e-4, 1.0),
-            max_angular_acceleration_rad_s2=p("tracking.max_angular_acceleration_rad_s2", 0.0349,
-                                              "assumed bound on angular acceleration [rad/s^2]", 0.0, 1.0),
-            rate_window_s=p("tracking.rate_window_s", 0.45, "attitudes used for the rate estimate [s]", 0.01, 10.0),
-            false_positive_bound=self.config.false_positive_bound,
-        )
-        calibration_enabled = p("calibration.enabled", False, "refine the focal length and k1 online from the "
-                                "identified stars (thermo-elastic drift); applied to identification only when "
-                                "constrained (calibration.apply_corner_sigma_px)")
-        online_config = OnlineCalibrationConfig(
-            frames_per_fit=p("calibration.frames_per_fit", 10, "solved frames between two fits", 1, 100000),
-            max_frames=p("calibration.max_frames", 20, "newest solved frames (>= 5 stars) a fit uses", 1, 1000),
-            apply_corner_sigma_px=p("calibration.apply_corner_sigma_px", 0.3, "a fitted f or k1 is applied when its "
-                                    "1-sigma moves the image corner by at most this [px]", 1e-3, 10.0))
+        values = declare_parameters(self, IDENTIFIER_PARAMETERS)  # identifier_parameters.py
+        algorithm = values["algorithm"]
+        self.frame_id = values["frame_id"]
+        db_config = DatabaseConfig(**field_values(DATABASE_PARAMETERS, values),
+                                   max_pair_angle_rad=np.radians(values["database.max_pair_angle_deg"]))
+        self.config = IdentifyConfig(**field_values(IDENTIFY_PARAMETERS, values))
+        self.tracking_enabled = values["tracking.enabled"]
+        self.tracking_config = tracking_config = TrackingConfig(**field_values(TRACKING_PARAMETERS, values),
+                                                                false_positive_bound=self.config.false_positive_bound)
+        calibration_enabled = values["calibration.enabled"]
+        online_config = OnlineCalibrationConfig(**field_values(CALIBRATION_PARAMETERS, values))
         self.online_calibration = OnlineCalibration(online_config) if calibration_enabled else None
-        self.queue_depth = p("queue_depth", 3, "spots frames waiting for identification at most; when one more "
-                             "arrives the oldest is dropped and counted (frames_dropped_overload). 1 = only the newest frame waits; 3 (default) rides out a host stall of ~3 frames",
-                             1, 100)
-        self.inline_wait_s = p("inline_wait_s", 0.05, "wait this long for a lost-in-space solve before bridging "
-                               "newer frames (delay compensation) [s]", 0.0, 10.0)
-        self.stamps = StampOrder(self, p("stamp.max_future_s", 1.0, "drop frames stamped further ahead of this "
-                                         "node's clock [s]; 0 = no check", 0.0, 1e9),
-                                 p("stamp.reset_after_s", 2.0, "a frame older than the newest by more than this "
-                                   "restarts the track (replay, simulation reset); a less old one is dropped [s]",
-                                   0.0, 1e9))
+        self.queue_depth = values["queue_depth"]
+        self.inline_wait_s = values["inline_wait_s"]
+        self.stamps = StampOrder(self, values["stamp.max_future_s"], values["stamp.reset_after_s"])
         started = time.perf_counter()
         self.database = load_or_build_database(db_config)
         self.identifier = make_identifier(algorithm, self.database, self.config)
@@ -178,11 +142,24 @@ class IdentifierNode(Node):
         return None
 
     def apply_parameters(self, changes: dict) -> str | None:
-        """Runtime parameter changes (see parameters.guard_parameter_changes); ranges suffice."""
-        self.inline_wait_s = changes.get("inline_wait_s", self.inline_wait_s)
-        self.tracking_enabled = changes.get("tracking.enabled", self.tracking_enabled)
-        self.stamps.max_future_s = changes.get("stamp.max_future_s", self.stamps.max_future_s)
-        self.stamps.reset_after_s = changes.get("stamp.reset_after_s", self.stamps.reset_after_s)
+        """Runtime parameter changes (see parameters.guard_parameter_changes): the new
+        identification and tracking configurations are built (checked) first, then applied
+        together between two frames; a lost-in-space solve running reads them from its next
+        step on."""
+        identify = {spec.field: changes[spec.name] for spec in IDENTIFY_PARAMETERS if spec.name in changes}
+        tracking = {spec.field: changes[spec.name] for spec in TRACKING_PARAMETERS if spec.name in changes}
+        config = replace(self.config, **identify)
+        tracking_config = replace(self.tracking_config, **tracking, false_positive_bound=config.false_positive_bound)
+        with self._lock:
+            self.config, self.tracking_config = config, tracking_config
+            if getattr(self, "identifier", None) is not None:  # built with the database
+                self.identifier.config = config
+                self.tracker.config = tracking_config
+            self.inline_wait_s = changes.get("inline_wait_s", self.inline_wait_s)
+            self.tracking_enabled = changes.get("tracking.enabled", self.tracking_enabled)
+            self.stamps.max_future_s = changes.get("stamp.max_future_s", self.stamps.max_future_s)
+            self.stamps.reset_after_s = changes.get("stamp.reset_after_s", self.stamps.reset_after_s)
+            self.shutdown_extra_s = 2.0 * config.max_time_s
         return None
 
     def on_spots(self, msg: PointCloud2) -> None:

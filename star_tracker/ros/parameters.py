@@ -1,14 +1,18 @@
-"""Node parameters: declaration with descriptors and ranges, runtime `set_parameters` checks
-(all or none, refused with the reason), and the report of parameter overrides no node declares."""
+"""Node parameters: declaration from their ParameterSpecs (star_tracker/parameter_spec.py: the
+one place a parameter's default, unit, range, description and dynamic/read-only are written)
+with descriptors and ranges, runtime `set_parameters` checks (all or none, refused with the
+reason, reported in the log and on /diagnostics), and the report of parameter overrides no
+node declares."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from ..parameter_spec import ParameterSpec
 from .qos import is_qos_override
 
 if TYPE_CHECKING:  # annotations only
@@ -16,21 +20,54 @@ if TYPE_CHECKING:  # annotations only
     from .throttled_log import ThrottledLog
 
 
+def ros_value(value):
+    """A spec value as a ROS parameter value: tuples become lists."""
+    return list(value) if isinstance(value, tuple) else value
+
+
+def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
+    """The ParameterDescriptor `ros2 param describe` shows: description with the unit (and the
+    choices), the range, read-only unless the spec is dynamic; additional_constraints: the
+    choices, an open end of the range, an array's range per value."""
+    description = spec.full_description()
+    is_list = isinstance(spec.default, (list, tuple))
+    constraints = [f"one of: {', '.join(spec.choices)}"] if spec.choices else []
+    if spec.has_range and (spec.low_open or spec.high_open or is_list):  # what a range descriptor cannot say
+        constraints.append(f"{'each value ' if is_list else ''}in {spec.range_text()}")
+        description += f"; {constraints[-1]}"
+    descriptor = ParameterDescriptor(description=description, read_only=not spec.dynamic,
+                                     additional_constraints="; ".join(constraints))
+    if spec.has_range and not is_list and not isinstance(spec.default, (bool, str)):
+        if isinstance(spec.default, int):
+            descriptor.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=0)]
+        else:
+            descriptor.floating_point_range = [FloatingPointRange(from_value=float(spec.low),
+                                                                  to_value=float(spec.high), step=0.0)]
+    return descriptor
+
+
+def declare_parameters(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
+    """Declare every spec's parameter (in order: the first bad value is the one reported) and
+    return name -> value. Values outside a range are refused by rclpy at startup with a message
+    naming the parameter, a list's elements outside the range here (ValueError naming it); a
+    string not among the choices by the configuration or node code it goes to (its message
+    says what the value selects, e.g. "unknown identification algorithm")."""
+    values = {}
+    for spec in specs:
+        value = node.declare_parameter(spec.name, ros_value(spec.default), descriptor_for(spec)).value
+        problem = spec.problem(value) if isinstance(value, (list, tuple)) else None
+        if problem:
+            raise ValueError(problem)
+        values[spec.name] = value
+    return values
+
+
 def declare(node: Node, name: str, default, description: str, low=None, high=None,
             read_only: bool = True):
-    """Declare a parameter with a descriptor (and range) and return its value.
-
-    Values outside the range are rejected by rclpy at startup with a message naming the
-    parameter; read-only parameters cannot be changed while the node runs."""
-    descriptor = ParameterDescriptor(description=description, read_only=read_only)
-    if low is not None and high is not None:
-        if isinstance(default, bool):
-            pass
-        elif isinstance(default, int):
-            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=0)]
-        elif isinstance(default, float):
-            descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)]
-    return node.declare_parameter(name, default, descriptor).value
+    """Declare one parameter that has no ParameterSpec (prefer a spec: it reaches the YAML and
+    the docs) with a descriptor (and range) and return its value."""
+    return declare_parameters(node, [ParameterSpec(name, default, description, low=low, high=high,
+                                                   dynamic=not read_only)])[name]
 
 
 def _descriptor_problem(node: Node, param: Parameter) -> str | None:
@@ -54,7 +91,9 @@ def guard_parameter_changes(node: Node, apply: Callable[[dict], str | None], dia
     itself; `apply(changes)` then checks the new values together (building the new
     configuration) and either applies them, returning None, or returns the reason they are
     refused (a ValueError's message counts as one). A refused request keeps every old value,
-    answers the caller with the reason, logs it and counts `parameter_changes_rejected`.
+    answers the caller with the reason, logs it and counts `parameter_changes_rejected`; an
+    applied one is logged, counted (`parameter_changes_applied`) and shown on /diagnostics
+    (`last_parameter_change`).
     Call after every parameter is declared."""
 
     def refused(reason: str) -> None:
@@ -80,6 +119,8 @@ def guard_parameter_changes(node: Node, apply: Callable[[dict], str | None], dia
         if reason:
             refused(reason)
             return SetParametersResult(successful=False, reason=reason)
+        diag.count("parameter_changes_applied")
+        diag.value("last_parameter_change", ", ".join(f"{k}={v}" for k, v in changes.items()))
         node.get_logger().info(f"parameters changed: {changes}")
         return SetParametersResult(successful=True)
 

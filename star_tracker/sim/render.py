@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 from scipy.special import erf
 
+from ..parameter_spec import parameter, range_problems
 from ..models.camera import CameraModel
 from ..models.catalog import StarCatalog
 from .sensor import SensorModel
@@ -30,15 +31,19 @@ class FalseObjectModel:
     objects moving across the image at debris_speed_px_s [px/s] (uniform in the range, random
     direction), magnitude uniform in debris_magnitude_range."""
 
-    planets_per_frame: int = 0
-    planet_magnitude_range: tuple[float, float] = (-1.0, 2.0)
-    debris_per_frame: int = 0
-    debris_magnitude_range: tuple[float, float] = (3.0, 6.0)
-    debris_speed_px_s: tuple[float, float] = (100.0, 1000.0)
+    planets_per_frame: int = parameter(0, "bright non-catalog points per frame", "", 0, 100)
+    planet_magnitude_range: tuple[float, float] = parameter((-1.0, 2.0), "planets' instrument magnitude range "
+                                                            "(low, high)", "mag")
+    debris_per_frame: int = parameter(0, "moving debris streaks per frame", "", 0, 100)
+    debris_magnitude_range: tuple[float, float] = parameter((3.0, 6.0), "debris' instrument magnitude range "
+                                                            "(low, high)", "mag")
+    debris_speed_px_s: tuple[float, float] = parameter((100.0, 1000.0), "debris' image speed range (low, high)",
+                                                       "px/s")
 
     def __post_init__(self) -> None:
-        if not (0 <= self.planets_per_frame <= 100 and 0 <= self.debris_per_frame <= 100):
-            raise ValueError("planets_per_frame and debris_per_frame must be in [0, 100]")
+        problems = range_problems(self)
+        if problems:
+            raise ValueError("; ".join(problems))
         for name in ("planet_magnitude_range", "debris_magnitude_range", "debris_speed_px_s"):
             if len(getattr(self, name)) != 2:
                 raise ValueError(f"{name} needs 2 values (low, high), got {list(getattr(self, name))}")

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..parameter_spec import parameter, range_problems
+
 
 @dataclass(frozen=True)
 class SensorModel:
@@ -31,57 +33,47 @@ class SensorModel:
     Shutter: rolling_shutter_row_time_s [s] (0 = global shutter; row r's exposure is
     delayed by (r - (H-1)/2) times it); frame_transfer_time_s [s] (0 = none) smears every
     column during transfer. noise: False renders expected values (no shot/read noise).
+    Each field's default, unit and accepted range: its `parameter(...)` (parameter_spec.py).
     """
 
-    aperture_diameter_m: float = 0.03
-    optical_transmission: float = 0.8
-    quantum_efficiency: float = 0.6
-    photon_flux_hp0: float = 2.0e10
-    color_coefficient: float = 0.0
-    exposure_s: float = 0.1
-    psf_sigma_px: float = 1.0
-    background_e_per_px_s: float = 400.0
-    stray_light_gradient_e_per_px2_s: tuple[float, float] = (0.0, 0.0)
-    vignetting_at_corner: float = 0.0
-    pixel_pitch_m: float = 13e-6
-    dark_e_per_px_s: float = 20.0
-    dark_reference_k: float = 293.15
-    dark_doubling_k: float = 6.0
-    temperature_k: float = 293.15
-    dsnu_fraction: float = 0.0
-    prnu_fraction: float = 0.0
-    hot_pixel_fraction: float = 0.0
-    hot_pixel_dark_factor: float = 200.0
-    cosmic_ray_rate_per_cm2_s: float = 0.0
-    cosmic_ray_electrons: float = 3000.0
-    read_noise_e: float = 8.0
-    gain_e_per_adu: float = 1.0
-    bias_adu: float = 100.0
-    full_well_e: float = 60000.0
-    adc_bits: int = 16
-    rolling_shutter_row_time_s: float = 0.0
-    frame_transfer_time_s: float = 0.0
-    noise: bool = True
+    aperture_diameter_m: float = parameter(0.03, "entrance pupil diameter", "m", 1e-4, 10.0)
+    optical_transmission: float = parameter(0.8, "optical transmission", "-", 1e-3, 1.0)
+    quantum_efficiency: float = parameter(0.6, "quantum efficiency", "-", 1e-3, 1.0)
+    photon_flux_hp0: float = parameter(2.0e10, "photons in the sensor band from an Hp = 0 star", "photons/s/m^2",
+                                       1e-6, 1e14)
+    color_coefficient: float = parameter(0.0, "instrument magnitude = Hp + c (B-V)", "-", -5.0, 5.0)
+    exposure_s: float = parameter(0.1, "exposure time", "s", 1e-6, 10.0)
+    psf_sigma_px: float = parameter(1.0, "Gaussian PSF (defocus) 1-sigma", "px", 0.1, 20.0)
+    background_e_per_px_s: float = parameter(400.0, "sky + zodiacal background", "e-/px/s", 0.0, 1e9)
+    stray_light_gradient_e_per_px2_s: tuple[float, float] = parameter(
+        (0.0, 0.0), "linear stray-light gradient in x, y about the image centre", "e-/px/s per px")
+    vignetting_at_corner: float = parameter(0.0, "light lost at the image corner (quadratic in radius)", "-", 0.0,
+                                            0.99)
+    pixel_pitch_m: float = parameter(13e-6, "pixel pitch", "m", 1e-7, 1e-3)
+    dark_e_per_px_s: float = parameter(20.0, "dark current at dark_reference_k", "e-/px/s", 0.0, 1e9)
+    dark_reference_k: float = parameter(293.15, "reference temperature of dark_e_per_px_s", "K", 1.0, 500.0)
+    dark_doubling_k: float = parameter(6.0, "dark current doubles every this many kelvin", "K", 0.1, 100.0)
+    temperature_k: float = parameter(293.15, "detector temperature", "K", 1.0, 500.0)
+    dsnu_fraction: float = parameter(0.0, "dark signal non-uniformity, lognormal sigma", "-", 0.0, 5.0)
+    prnu_fraction: float = parameter(0.0, "photo-response non-uniformity 1-sigma", "-", 0.0, 0.5)
+    hot_pixel_fraction: float = parameter(0.0, "fraction of hot pixels", "-", 0.0, 0.1)
+    hot_pixel_dark_factor: float = parameter(200.0, "hot pixel dark current multiple", "-", 0.0, 1e12)
+    cosmic_ray_rate_per_cm2_s: float = parameter(0.0, "cosmic-ray hit rate", "1/cm^2/s", 0.0, 1e6)
+    cosmic_ray_electrons: float = parameter(3000.0, "mean charge of a hit", "e-", 0.0, 1e9)
+    read_noise_e: float = parameter(8.0, "read noise 1-sigma", "e-", 0.0, 1e4)
+    gain_e_per_adu: float = parameter(1.0, "conversion gain", "e-/ADU", 1e-3, 1e4)
+    bias_adu: float = parameter(100.0, "bias offset", "ADU", 0.0, 65535.0)
+    full_well_e: float = parameter(60000.0, "full-well capacity (clipped, no blooming)", "e-", 1.0, 1e9)
+    adc_bits: int = parameter(16, "ADC bit depth", "", 8, 16)
+    rolling_shutter_row_time_s: float = parameter(0.0, "row readout delay of a rolling shutter; 0 = global shutter",
+                                                  "s", 0.0, 1e-2)
+    frame_transfer_time_s: float = parameter(0.0, "frame-transfer time; 0 = no frame-transfer smear", "s", 0.0, 1.0)
+    noise: bool = parameter(True, "shot and read noise on (false renders expected values)")
 
     def __post_init__(self) -> None:
-        positive = ("aperture_diameter_m", "photon_flux_hp0", "exposure_s", "psf_sigma_px", "pixel_pitch_m",
-                    "dark_reference_k", "dark_doubling_k", "temperature_k", "gain_e_per_adu", "full_well_e")
-        fractions = ("optical_transmission", "quantum_efficiency")
-        non_negative = ("background_e_per_px_s", "dark_e_per_px_s", "dsnu_fraction", "prnu_fraction",
-                        "hot_pixel_dark_factor", "cosmic_ray_rate_per_cm2_s", "cosmic_ray_electrons", "read_noise_e",
-                        "bias_adu", "rolling_shutter_row_time_s", "frame_transfer_time_s")
-        bad = [f"{n}={getattr(self, n)} must be > 0" for n in positive if not (np.isfinite(getattr(self, n)) and getattr(self, n) > 0)]
-        bad += [f"{n}={getattr(self, n)} must be in (0, 1]" for n in fractions if not (0 < getattr(self, n) <= 1)]
-        bad += [f"{n}={getattr(self, n)} must be >= 0" for n in non_negative if not (np.isfinite(getattr(self, n)) and getattr(self, n) >= 0)]
-        if not (0 <= self.vignetting_at_corner < 1):
-            bad.append(f"vignetting_at_corner={self.vignetting_at_corner} must be in [0, 1)")
-        if not (0 <= self.hot_pixel_fraction <= 0.1):
-            bad.append(f"hot_pixel_fraction={self.hot_pixel_fraction} must be in [0, 0.1]")
-        if not (8 <= int(self.adc_bits) <= 16):
-            bad.append(f"adc_bits={self.adc_bits} must be in [8, 16]")
-        if not np.isfinite(self.color_coefficient):
-            bad.append("color_coefficient must be finite")
-        if len(self.stray_light_gradient_e_per_px2_s) != 2 or not np.all(np.isfinite(self.stray_light_gradient_e_per_px2_s)):
+        bad = range_problems(self)
+        gradient = self.stray_light_gradient_e_per_px2_s
+        if len(gradient) != 2 or not np.all(np.isfinite(gradient)):
             bad.append("stray_light_gradient_e_per_px2_s must be 2 finite values")
         if bad:
             raise ValueError("invalid sensor parameters: " + "; ".join(bad))

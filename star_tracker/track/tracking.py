@@ -31,6 +31,7 @@ from ..models.attitude import rotation_vector_to_matrix
 from ..models.attitude_estimation import attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
+from ..parameter_spec import parameter, range_problems
 from .rate import AttitudeRateEstimator, RateEstimate
 from . import kernels as track_kernels
 from ..identify import kernels
@@ -54,32 +55,22 @@ class TrackingConfig:
     attitudes used for the rate estimate [s]; false_positive_bound: as for lost-in-space;
     max_pattern_spots: brightest spots used to vote the displacement."""
 
-    gate_sigma: float = 5.0
-    min_stars: int = 3
-    max_gate_fov_radii: float = 2.0
-    max_coast_s: float = 2.0
-    max_angular_rate_rad_s: float = math.radians(5.0)
-    max_angular_acceleration_rad_s2: float = math.radians(2.0)
-    rate_window_s: float = 0.45
+    gate_sigma: float = parameter(5.0, "searched region around the predicted attitude", "sigmas", 1.0, 20.0)
+    min_stars: int = parameter(3, "fewest verified stars a tracked frame needs", "", 2, 10)
+    max_gate_fov_radii: float = parameter(2.0, "largest search radius (Hu & Huang's 2R circle)", "field radii", 0.1,
+                                          4.0)
+    max_coast_s: float = parameter(2.0, "longest prediction without a new solution", "s", 0.01, 60.0)
+    max_angular_rate_rad_s: float = parameter(math.radians(5.0), "rate prior per axis before a rate "
+                                              "estimate exists (5 deg/s)", "rad/s", 1e-4, 1.0)
+    max_angular_acceleration_rad_s2: float = parameter(math.radians(2.0), "assumed bound on the angular "
+                                                       "acceleration (rate model error, prediction; 2 deg/s^2)",
+                                                       "rad/s^2", 0.0, 1.0)
+    rate_window_s: float = parameter(0.45, "attitudes used for the rate estimate", "s", 0.01, 10.0)
     false_positive_bound: float = 1.0e-6
     max_pattern_spots: int = 40
 
     def __post_init__(self) -> None:
-        bad = []
-        if not (1.0 <= self.gate_sigma <= 20.0):
-            bad.append(f"gate_sigma={self.gate_sigma} must be in [1, 20]")
-        if not (2 <= self.min_stars <= 10):
-            bad.append(f"min_stars={self.min_stars} must be in [2, 10]")
-        if not (0.0 < self.max_gate_fov_radii <= 4.0):
-            bad.append(f"max_gate_fov_radii={self.max_gate_fov_radii} must be in (0, 4]")
-        if not (0.0 < self.max_coast_s <= 60.0):
-            bad.append(f"max_coast_s={self.max_coast_s} must be in (0, 60]")
-        if not (0.0 < self.max_angular_rate_rad_s <= 1.0):
-            bad.append(f"max_angular_rate_rad_s={self.max_angular_rate_rad_s} must be in (0, 1]")
-        if not (0.0 <= self.max_angular_acceleration_rad_s2 <= 1.0):
-            bad.append(f"max_angular_acceleration_rad_s2={self.max_angular_acceleration_rad_s2} must be in [0, 1]")
-        if not (0.0 < self.rate_window_s <= 10.0):
-            bad.append(f"rate_window_s={self.rate_window_s} must be in (0, 10]")
+        bad = range_problems(self)
         if not (0.0 < self.false_positive_bound < 1.0):
             bad.append(f"false_positive_bound={self.false_positive_bound} must be in (0, 1)")
         if not (3 <= self.max_pattern_spots <= 500):

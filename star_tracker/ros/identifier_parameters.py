@@ -1,0 +1,53 @@
+"""The identifier's parameters, each declared once (ROS-free): the fields of DatabaseConfig,
+IdentifyConfig, TrackingConfig and OnlineCalibrationConfig (their spec is the dataclass field
+metadata) under the node's names, and the node's own, in the order the node declares them and
+config/star_tracker.yaml lists them.
+
+Dynamic (`ros2 param set` while running): the identification tolerances and time budget (read
+by every identify() call: applied from the next solve), inline_wait_s, tracking.enabled, the
+stamp checks; read-only: what is built at startup (database, algorithm, deep catalog, tracking).
+"""
+from __future__ import annotations
+
+from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig
+from ..models.online_calibration import OnlineCalibrationConfig
+from ..parameter_spec import ParameterSpec, field_specs
+from ..track.tracking import TrackingConfig
+
+DATABASE_PARAMETERS = [
+    *field_specs(DatabaseConfig, prefix="database.", only=("magnitude_limit",)),
+    ParameterSpec("database.max_pair_angle_deg", DatabaseConfig.DEFAULT_PAIR_ANGLE_DEG, "largest stored star "
+                  "separation; >= the camera's diagonal field of view", "deg", 0.1, 90.0),
+    *field_specs(DatabaseConfig, prefix="database.", only=("epoch_jyear",)),
+]
+
+IDENTIFY_PARAMETERS = field_specs(IdentifyConfig, names={"deep_match": "deep_match.enabled",
+                                                         "deep_magnitude_margin": "deep_match.magnitude_margin"})
+
+IDENTIFIER_PARAMETERS = [
+    ParameterSpec("algorithm", DEFAULT_ALGORITHM, "identification algorithm", choices=tuple(sorted(ALGORITHMS))),
+    ParameterSpec("frame_id", "icrs", "parent frame of the published attitude"),
+    *DATABASE_PARAMETERS,
+    *IDENTIFY_PARAMETERS,
+    ParameterSpec("inline_wait_s", 0.05, "wait this long for a lost-in-space solve before bridging newer frames "
+                  "(delay compensation)", "s", 0.0, 10.0, dynamic=True),
+    ParameterSpec("calibration.enabled", False, "refine the focal length and k1 online from the identified stars "
+                  "(thermo-elastic drift); applied to identification only when constrained "
+                  "(calibration.apply_corner_sigma_px)"),
+    *field_specs(OnlineCalibrationConfig, prefix="calibration."),
+    ParameterSpec("queue_depth", 3, "spots frames waiting for identification at most; when one more arrives the "
+                  "oldest is dropped and counted (frames_dropped_overload). 1 = only the newest frame waits; 3 rides "
+                  "out a host stall of ~3 frames", "", 1, 100),
+    ParameterSpec("stamp.max_future_s", 1.0, "drop frames stamped further ahead of this node's clock "
+                  "(frames_from_future); 0 = no check", "s", 0.0, 1e9, dynamic=True),
+    ParameterSpec("stamp.reset_after_s", 2.0, "a frame older than the newest by more than this restarts the track "
+                  "(replay, simulation reset; time_resets); a less old one is dropped", "s", 0.0, 1e9, dynamic=True),
+    ParameterSpec("tracking.enabled", True, "track from the previous attitude; false = lost-in-space on every frame",
+                  dynamic=True),
+    *field_specs(TrackingConfig, prefix="tracking."),
+]
+
+# Spec lists by the record they fill (field_values picks each record's fields by name).
+TRACKING_PARAMETERS = [spec for spec in IDENTIFIER_PARAMETERS if spec.name.startswith("tracking.") and spec.field]
+CALIBRATION_PARAMETERS = [spec for spec in IDENTIFIER_PARAMETERS if spec.name.startswith("calibration.")
+                          and spec.field]
