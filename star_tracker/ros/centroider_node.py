@@ -25,7 +25,6 @@ from dataclasses import fields, replace
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Vector3Stamped
-from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..centroid import CENTROID_METHODS, CentroidConfig, extract_spots
@@ -35,8 +34,9 @@ from ..centroid.kernels import warm_up
 from ..centroid.smear import SmearModel
 from . import convert
 from .camera_info_input import CameraInfoInput
-from .diagnostics import Diagnostics, Rejections
+from .diagnostics import Rejections
 from .frame_queue import NewestFrame
+from .managed_node import AUTOSTART_DESCRIPTION, ManagedNode
 from .node_process import run_node
 from .parameters import declare, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS
@@ -50,7 +50,7 @@ RUNTIME_PARAMETERS = {f.name for f in fields(CentroidConfig)} | {
     "exposure_time_s", "angular_velocity_rad_s", "max_rate_age_s", "stamp.max_future_s", "stamp.reset_after_s"}
 
 
-class CentroiderNode(Node):
+class CentroiderNode(ManagedNode):
     def __init__(self) -> None:
         super().__init__("centroider")
         p = lambda name, *a, **k: declare(self, name, *a, read_only=name not in RUNTIME_PARAMETERS, **k)  # noqa: E731
@@ -101,18 +101,41 @@ class CentroiderNode(Node):
         self.rate_param = np.asarray(rate_param, float)
         self.rate: tuple[int, np.ndarray] | None = None  # (stamp ns, rad/s) of the latest rate message
         self.psf = RunningPsf()  # the last frames' PSF estimate: the next frame's prior
-        warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
-        self.pub = self.create_publisher(PointCloud2, "spots", SPOTS_QOS)
-        self.diag = Diagnostics(self)
+        self.autostart = declare(self, "autostart", True, AUTOSTART_DESCRIPTION)
+
+        self.frames = None  # the worker: made by configure, released by cleanup
+        self.diag = self.start_diagnostics()
         self.log = ThrottledLog(self)
         self.reject = Rejections(self.diag, self.log)
-        self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
-        self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log)
+
+    def configure(self) -> None:
+        """Compile the kernels, then create the topics and the worker thread."""
+        warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
+        self.pub = self.create_lifecycle_publisher(PointCloud2, "spots", SPOTS_QOS)
+        self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
+        self.sub = self.create_subscription(Image, "image_raw", self.on_image, IMAGE_QOS)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
         if self.rate_source == "topic":
             self.sub_rate = self.create_subscription(Vector3Stamped, "angular_velocity", self.on_rate, RESULT_QOS)
+
+    def release(self) -> None:
+        """Undo configure: stop the worker, remove the topics, forget the camera model, the
+        latest rate and the PSF estimate."""
+        if self.frames is not None:
+            self.frames.stop()
+            self.frames = None
+        for name in ("sub", "sub_info", "sub_rate"):
+            if getattr(self, name, None) is not None:
+                self.destroy_subscription(getattr(self, name))
+                setattr(self, name, None)
+        if getattr(self, "pub", None) is not None:
+            self.destroy_lifecycle_publisher(self.pub)
+            self.pub = None
+        self.camera_info = CameraInfoInput(self, self.diag, self.log)
+        self.rate = None
+        self.psf.reset()
 
     def apply_parameters(self, changes: dict) -> str | None:
         """Runtime parameter changes, all or none (see parameters.guard_parameter_changes)."""
@@ -155,6 +178,9 @@ class CentroiderNode(Node):
     def on_image(self, msg: Image) -> None:
         """Executor thread: count, check the stamp, decode; the worker measures (measure())."""
         received = time.perf_counter()
+        if not self.active:  # inactive: configured, not processing
+            self.diag.count("frames_ignored_inactive")
+            return
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
         self.diag.time("input_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
@@ -225,7 +251,7 @@ class CentroiderNode(Node):
 
 
     def destroy_node(self) -> None:
-        self.frames.stop()
+        self.release()
         super().destroy_node()
 
 

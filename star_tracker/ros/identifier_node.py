@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, TwistWithCovarianceStamped, Vector3Stamped
-from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2
+from std_srvs.srv import Trigger
 
 from ..models.attitude import ARCSEC
 from ..models.camera import CameraModel
@@ -43,8 +43,9 @@ from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyCo
 from ..track.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
 from .camera_info_input import CameraInfoInput
-from .diagnostics import Diagnostics, Rejections
+from .diagnostics import Rejections
 from .frame_queue import NewestFrame
+from .managed_node import AUTOSTART_DESCRIPTION, ManagedNode
 from .node_process import run_node
 from .parameters import declare, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS
@@ -73,7 +74,7 @@ def keep_time_reset(dropped: SpotsFrame, following: SpotsFrame) -> SpotsFrame:
     return following
 
 
-class IdentifierNode(Node):
+class IdentifierNode(ManagedNode):
     def __init__(self) -> None:
         super().__init__("identifier")
         p = lambda name, *a, **k: declare(self, name, *a, read_only=name not in RUNTIME_PARAMETERS, **k)  # noqa: E731
@@ -131,28 +132,17 @@ class IdentifierNode(Node):
                                  p("stamp.reset_after_s", 2.0, "a frame older than the newest by more than this "
                                    "restarts the track (replay, simulation reset); a less old one is dropped [s]",
                                    0.0, 1e9))
-        started = time.perf_counter()
-        self.database = load_or_build_database(db_config)
-        self.identifier = make_identifier(algorithm, self.database, self.config)
-        self.tracker = Tracker(self.identifier, tracking_config)
-        # Compiled kernels: ~50 s the first time, then loaded from numba's cache.
-        self.tracker.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
-        self.get_logger().info(
-            f"algorithm {algorithm}: {self.database.star_count} guide stars to Hp {db_config.magnitude_limit}, "
-            f"{self.database.pair_a.size} pairs, loaded in {time.perf_counter() - started:.2f} s")
+        self.autostart = declare(self, "autostart", True, AUTOSTART_DESCRIPTION)
 
-        self.pub_attitude = self.create_publisher(QuaternionStamped, "attitude", RESULT_QOS)
-        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "attitude_with_covariance", RESULT_QOS)
-        self.pub_matches = self.create_publisher(PointCloud2, "matched_stars", RESULT_QOS)
-        self.pub_rate = self.create_publisher(Vector3Stamped, "angular_velocity", RESULT_QOS)
-        self.pub_rate_cov = self.create_publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance", RESULT_QOS)
-        self.diag = Diagnostics(self)
+        self.algorithm, self.db_config, self.tracking_config = algorithm, db_config, tracking_config
+        self.database = self.identifier = self.tracker = None  # made by configure, released by cleanup
+        self.frames = self._worker = None
+        self.diag = self.start_diagnostics()
         self.diag.value("algorithm", algorithm)
         self.diag.value("mode", MODE_LOST)
         # Tracker state: the frame worker vs the end of a lost-in-space solve (which finishes in
-        # the solve's thread, or inline in the frame worker's: reentrant).
+        # the solve's thread, or inline in the frame worker's: reentrant) vs ~/reset.
         self._lock = threading.RLock()
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
         self._acquisition = None  # (future, stamp_ns, spots, camera, frame_id, received) of a running solve
         # run_node's shutdown watchdog waits this much longer: a solve running at shutdown ends
         # within its budget (the frame in progress too, up to twice the budget).
@@ -161,9 +151,74 @@ class IdentifierNode(Node):
         self.reject = Rejections(self.diag, self.log)
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
+        self.srv_reset = self.create_service(Trigger, "~/reset", self.on_reset)
+
+    def configure(self) -> None:
+        """Load (or build) the pattern database, make the identifier and the tracker, compile
+        their kernels, then create the topics and the worker threads."""
+        started = time.perf_counter()
+        self.database = load_or_build_database(self.db_config)
+        self.identifier = make_identifier(self.algorithm, self.database, self.config)
+        self.tracker = Tracker(self.identifier, self.tracking_config)
+        # Compiled kernels: ~50 s the first time, then loaded from numba's cache.
+        self.tracker.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
+        self.diag.count("database_loads")
+        self.get_logger().info(
+            f"algorithm {self.algorithm}: {self.database.star_count} guide stars to Hp "
+            f"{self.db_config.magnitude_limit}, {self.database.pair_a.size} pairs, loaded in "
+            f"{time.perf_counter() - started:.2f} s")
+
+        self.pub_attitude = self.create_lifecycle_publisher(QuaternionStamped, "attitude", RESULT_QOS)
+        self.pub_pose = self.create_lifecycle_publisher(PoseWithCovarianceStamped, "attitude_with_covariance", RESULT_QOS)
+        self.pub_matches = self.create_lifecycle_publisher(PointCloud2, "matched_stars", RESULT_QOS)
+        self.pub_rate = self.create_lifecycle_publisher(Vector3Stamped, "angular_velocity", RESULT_QOS)
+        self.pub_rate_cov = self.create_lifecycle_publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance", RESULT_QOS)
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
         self.frames = NewestFrame(self, self.identify_frame, self.diag, self.log, self.queue_depth, merge=keep_time_reset)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update, IMAGE_QOS)
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, SPOTS_QOS)
+
+    def release(self) -> None:
+        """Undo configure: stop the workers, remove the topics, drop the track, the camera model
+        and the database (the next configure loads it again)."""
+        if self.frames is not None:
+            self.frames.stop()
+            self.frames = None
+        with self._lock:
+            self._acquisition = None  # a solve still running is ignored
+        if self._worker is not None:
+            self._worker.shutdown(wait=True, cancel_futures=True)
+            self._worker = None
+        for name in ("sub_info", "sub_spots"):
+            if getattr(self, name, None) is not None:
+                self.destroy_subscription(getattr(self, name))
+                setattr(self, name, None)
+        for name in ("pub_attitude", "pub_pose", "pub_matches", "pub_rate", "pub_rate_cov"):
+            if getattr(self, name, None) is not None:
+                self.destroy_lifecycle_publisher(getattr(self, name))
+                setattr(self, name, None)
+        self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
+        with self._lock:
+            self.database = self.identifier = self.tracker = None
+        self.diag.value("mode", MODE_LOST)
+
+    def on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """~/reset: drop the track (and any lost-in-space solve in progress); the next frame is
+        identified lost-in-space."""
+        with self._lock:
+            if self.tracker is None:
+                response.success = False
+                response.message = f"nothing to reset: the identifier is {self.lifecycle_state} (not configured)"
+                self.diag.count("resets_refused")
+                return response
+            self.tracker.reset()
+            self._acquisition = None  # a solve still running is ignored
+        self.diag.count("resets")
+        self.diag.value("mode", MODE_LOST)
+        response.success = True
+        response.message = "tracking dropped: the next frame is identified lost-in-space"
+        self.get_logger().info(f"~/reset: {response.message}")
+        return response
 
     def fov_problem(self, camera) -> str | None:
         """Why the pattern database cannot serve this camera, or None."""
@@ -186,6 +241,9 @@ class IdentifierNode(Node):
         """Executor thread: count, check the stamp and the message, decode; the worker
         identifies (identify_frame())."""
         received = time.perf_counter()
+        if not self.active:  # inactive: configured, not processing
+            self.diag.count("frames_ignored_inactive")
+            return
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
         self.diag.time("input_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
@@ -360,8 +418,7 @@ class IdentifierNode(Node):
         self.diag.value("calibration_applied", ",".join(self.online_calibration.applied) or "none")
 
     def destroy_node(self) -> None:
-        self.frames.stop()
-        self._worker.shutdown(wait=True, cancel_futures=True)
+        self.release()
         super().destroy_node()
 
 
