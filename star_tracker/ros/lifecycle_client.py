@@ -66,9 +66,9 @@ class LifecycleClient:
         return future.result()
 
     def get_state(self, node_name: str, timeout_s: float = 5.0) -> str | None:
-        """The node's state label (unconfigured, inactive, active, finalized, ...), or None if it
-        does not answer."""
-        response = self._call(node_name, GetState, "get_state", GetState.Request(), timeout_s)
+        """The node's state label (unconfigured, inactive, active, finalized, ...), or None if its
+        service is not found or does not answer within timeout_s (each)."""
+        response = self._call(node_name, GetState, "get_state", GetState.Request(), timeout_s, discovery_s=timeout_s)
         return None if response is None else response.current_state.label
 
     def change_state(self, node_name: str, transition: str, timeout_s: float = 120.0) -> bool:

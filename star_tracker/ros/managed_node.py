@@ -47,8 +47,10 @@ def transition_callback(method: Callable) -> Callable:
             result = method(self, state)
         except Exception as exc:
             self.transition_error = f"{type(exc).__name__}: {exc}"
-            self.get_logger().error(f"{method.__name__} failed: {self.transition_error}\n"
-                                    + "".join(traceback.format_exception(exc)[-3:]).rstrip())
+            # Bad configuration (ValueError, a missing file) is stated in one line; a defect with its place.
+            where = "" if isinstance(exc, (ValueError, OSError)) else "\n" + "".join(
+                traceback.format_exception(exc)[-3:-1]).rstrip()
+            self.get_logger().error(f"{method.__name__} failed: {self.transition_error}{where}")
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS if result is None else result
 
