@@ -8,6 +8,10 @@ a rolling shutter), the frame transfer is done and `sensor.readout_s` has passed
 in advance (every profile but `external`) lets the node render a frame while the previous one
 is out, so the render costs no latency; external truth arrives over topics, so those frames
 are rendered at their delivery time.
+
+A managed node (managed_node.py): `configure` loads the catalog and creates the topics,
+`activate` starts the exposures; `deactivate` stops them and a later `activate` resumes the
+same time line (the frames of the inactive time are skipped and counted).
 """
 from __future__ import annotations
 

@@ -15,6 +15,10 @@ Rate aid (optional, never required): with `exposure_time_s` > 0, a camera model 
 `camera_info` and a body rate (the `angular_velocity` topic or the `angular_velocity_rad_s`
 parameter), each star's smear over the exposure is predicted; detection uses the matched
 streak filter and positions come from a fit on the predicted (possibly curved) path.
+
+A managed node (managed_node.py): `configure` compiles the kernels and creates the topics,
+`activate` starts measuring; images arriving while inactive are counted
+(`frames_ignored_inactive`) and dropped.
 """
 from __future__ import annotations
 

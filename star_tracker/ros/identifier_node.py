@@ -21,6 +21,12 @@ or implausible values are dropped from their frame, and frames that would corrup
 time line (unstamped, stamped in the future, out of order) are dropped; each is counted on
 /diagnostics and logged (throttled). A backwards jump beyond `stamp.reset_after_s` restarts
 the track instead (a replay or simulation restarted). See docs/RELIABILITY.md.
+
+A managed node (managed_node.py, msg_docs/services.md): `configure` loads the pattern
+database and compiles the kernels, `activate` starts identifying, `deactivate` keeps database
+and track (spots arriving meanwhile are counted, `frames_ignored_inactive`), `cleanup`
+releases them. `~/reset` (std_srvs/Trigger) drops the track: the next frame is identified
+lost-in-space.
 """
 from __future__ import annotations
 

@@ -104,7 +104,7 @@ class ManagedNode(LifecycleNode):
         self.activate()
         super().on_activate(state)  # enables the lifecycle publishers
         self.active = True
-        self._report("active", "active")
+        self._report("active", "activated")
         return None
 
     @transition_callback
