@@ -50,7 +50,8 @@ def transition_callback(method: Callable) -> Callable:
             # Bad configuration (ValueError, a missing file) is stated in one line; a defect with its place.
             where = "" if isinstance(exc, (ValueError, OSError)) else "\n" + "".join(
                 traceback.format_exception(exc)[-3:-1]).rstrip()
-            self.get_logger().error(f"{method.__name__} failed: {self.transition_error}{where}")
+            if not self._autostarting:  # autostart: run_node's one `fatal:` line says it
+                self.get_logger().error(f"{method.__name__} failed: {self.transition_error}{where}")
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS if result is None else result
 
@@ -68,6 +69,7 @@ class ManagedNode(LifecycleNode):
         self.active = False  # processing input and publishing; read by the subscription callbacks
         self.transition_error: str | None = None  # why the last transition failed
         self.finished = threading.Event()  # set on shutdown: run_node ends the process
+        self._autostarting = False
         self._service_change_state.callback = self._on_change_state
 
     @property
@@ -182,7 +184,11 @@ class ManagedNode(LifecycleNode):
 
     def autostart_now(self) -> None:
         """configure, then activate; raise RuntimeError with the reason if either fails."""
-        for transition, name in ((Transition.TRANSITION_CONFIGURE, "configure"),
-                                 (Transition.TRANSITION_ACTIVATE, "activate")):
-            if not self.transition(transition):
-                raise RuntimeError(f"autostart: {name} failed: {self.transition_error or 'see the log'}")
+        self._autostarting = True
+        try:
+            for transition, name in ((Transition.TRANSITION_CONFIGURE, "configure"),
+                                     (Transition.TRANSITION_ACTIVATE, "activate")):
+                if not self.transition(transition):
+                    raise RuntimeError(f"autostart: {name} failed: {self.transition_error or 'see the log'}")
+        finally:
+            self._autostarting = False
