@@ -103,7 +103,7 @@ class IdentifierDriver:
         return future.result()
 
 
-DOMAIN = 206  # 206-208: this file's private ROS domains
+DOMAIN = 206  # 206-209: this file's private ROS domains
 
 
 def counter(values: dict[str, str], key: str) -> int:
@@ -243,3 +243,29 @@ def test_pipeline_driven_through_the_lifecycle_services(monkeypatch, tmp_path):
         monitor.destroy_node()
         rclpy.try_shutdown()
     assert codes == dict.fromkeys(params, 0), {name: nodes.log_paths[name].read_text() for name in params}
+
+
+@pytest.mark.integration
+def test_a_failed_configure_leaves_the_node_unconfigured_and_running(monkeypatch, tmp_path, catalog, nominal_camera):
+    """autostart false and an unknown algorithm: configure fails with the reason in the log and
+    `transitions_failed` counted; the node stays unconfigured and still answers; shutdown ends it."""
+    env = join_domain(monkeypatch, DOMAIN + 3)
+    driver = IdentifierDriver(spots=None)
+    params = {"identifier": {"autostart": False, "algorithm": "guesswork"}}
+    nodes = NodeProcesses(env, tmp_path / "logs", params=params, nodes=("identifier",))
+    try:
+        nodes.start().wait_ready()
+        assert nodes.change_state("identifier", "configure") is False
+        assert nodes.get_state("identifier") == "unconfigured"
+        values = driver.fresh_diagnostics()
+        assert counter(values, "transitions_failed") == 1 and values["lifecycle_state"] == "unconfigured", values
+        assert nodes.change_state("identifier", "shutdown") is True
+        code = nodes.processes["identifier"].wait(timeout=30)
+    finally:
+        nodes.stop()
+        driver.node.destroy_node()
+        rclpy.try_shutdown()
+    log = nodes.log_paths["identifier"].read_text()
+    assert code == 0, log
+    assert "on_configure failed: ValueError: unknown identification algorithm 'guesswork'" in log, log
+    assert "Traceback" not in log, log
