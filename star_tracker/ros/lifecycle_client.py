@@ -3,6 +3,7 @@ transitions (lifecycle_msgs services ~/get_state and ~/change_state), from a pri
 context on their ROS domain: what `ros2 lifecycle get/set` does."""
 from __future__ import annotations
 
+import itertools
 import os
 import time
 from typing import Callable
@@ -25,7 +26,9 @@ class LifecycleClient:
     """Lifecycle service calls to nodes on the domain of `env` (ROS_DOMAIN_ID and discovery
     settings as the node processes get them). Close it (or use `with`) when done."""
 
-    def __init__(self, env: dict[str, str], name: str = "star_tracker_lifecycle_client"):
+    _instances = itertools.count()
+
+    def __init__(self, env: dict[str, str], name: str | None = None):
         saved = {key: os.environ.get(key) for key in _DDS_VARIABLES}
         try:
             for key in _DDS_VARIABLES:  # rmw reads them from this process's environment at init
@@ -41,6 +44,8 @@ class LifecycleClient:
                     os.environ.pop(key, None)
                 else:
                     os.environ[key] = value
+        # A name of its own: several clients in one process (or host) stay distinct.
+        name = name or f"star_tracker_lifecycle_client_{os.getpid()}_{next(self._instances)}"
         self.node = rclpy.create_node(name, context=self.context, start_parameter_services=False)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
