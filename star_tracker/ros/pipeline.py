@@ -127,6 +127,13 @@ class NodeProcesses:
         among this object's `params`."""
         return "unconfigured" if self.params.get(name, {}).get("autostart") is False else "active"
 
+    def node_path(self, name: str) -> str:
+        """A node's fully qualified name, with its `__ns` / `__node` remaps (e.g. /det/identifier)."""
+        remaps = self.remaps.get(name, {})
+        namespace = remaps.get("__ns", "").strip("/")
+        node = remaps.get("__node", name)
+        return f"/{namespace}/{node}" if namespace else f"/{node}"
+
     def check_alive(self, name: str) -> None:
         """Raise RuntimeError with the node's log if its process has exited."""
         if self.processes[name].poll() is not None:
@@ -139,18 +146,18 @@ class NodeProcesses:
         raise with its log if one died, TimeoutError if one hung."""
         names = list(self.processes if names is None else names)
         for state in sorted({self.expected_state(name) for name in names}):
-            self.lifecycle.wait_for_state([n for n in names if self.expected_state(n) == state], state, timeout_s,
-                                          check=self.check_alive)
+            paths = {self.node_path(n): n for n in names if self.expected_state(n) == state}
+            self.lifecycle.wait_for_state(list(paths), state, timeout_s, check=lambda path: self.check_alive(paths[path]))
 
     def get_state(self, name: str) -> str | None:
         """A node's lifecycle state label (None: no answer)."""
-        return self.lifecycle.get_state(name)
+        return self.lifecycle.get_state(self.node_path(name))
 
     def change_state(self, name: str, transition: str, timeout_s: float = 120.0) -> bool:
         """Request a lifecycle transition of a node (configure, activate, deactivate, cleanup,
         shutdown); True if it succeeded."""
         self.check_alive(name)
-        return self.lifecycle.change_state(name, transition, timeout_s)
+        return self.lifecycle.change_state(self.node_path(name), transition, timeout_s)
 
     def kill(self, name: str, sig: int = signal.SIGKILL, timeout_s: float = 15.0) -> int:
         """Send `sig` to one node and wait for it to exit (SIGKILL after timeout_s). Returns its
