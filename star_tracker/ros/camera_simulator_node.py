@@ -8,6 +8,10 @@ a rolling shutter), the frame transfer is done and `sensor.readout_s` has passed
 in advance (every profile but `external`) lets the node render a frame while the previous one
 is out, so the render costs no latency; external truth arrives over topics, so those frames
 are rendered at their delivery time.
+
+A managed node (managed_node.py): `configure` loads the catalog and creates the topics,
+`activate` starts the exposures; `deactivate` stops them and a later `activate` resumes the
+same time line (the frames of the inactive time are skipped and counted).
 """
 from __future__ import annotations
 
@@ -19,7 +23,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
-from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..models.attitude import matrix_to_quaternion
@@ -30,7 +33,7 @@ from . import convert
 from ..parameter_spec import field_values
 from .camera_simulator_parameters import (CAMERA_SIMULATOR_PARAMETERS, SENSOR_PARAMETERS, attitude_from, camera_from,
                                           false_objects_from, sensor_from, sky_from)
-from .diagnostics import Diagnostics
+from .managed_node import ManagedNode
 from .node_process import run_node
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, TRUTH_INPUT_QOS, overridable
@@ -53,7 +56,7 @@ class PreparedFrame:
     ready_ns: int
 
 
-class CameraSimulatorNode(Node):
+class CameraSimulatorNode(ManagedNode):
     def __init__(self) -> None:
         super().__init__("camera_simulator")
         values = declare_parameters(self, CAMERA_SIMULATOR_PARAMETERS)  # camera_simulator_parameters.py
@@ -67,25 +70,69 @@ class CameraSimulatorNode(Node):
         self.profile, self.initial_rotation, self.motion_kwargs = attitude.profile, attitude.initial_rotation, \
             attitude.motion_kwargs
         self.t0_ns: int | None = None  # exposures start at t0 + period; set in start()
-        epoch = sky.epoch_jyear or julian_year_from_unix(self.get_clock().now().nanoseconds * 1e-9)
-        catalog = load_hipparcos().at_epoch(epoch)
-        self.renderer = StarFieldRenderer(self.camera, sensor, catalog, sky.magnitude_limit, false_objects,
-                                          sky.fixed_pattern_seed, sky.observer_velocity_m_s)
+        self.sky, self.false_objects = sky, false_objects
         self._set_up_schedule(readout_s)
         blank = values["faults.blank_frames"]
         self.blank_frames = {int(k) for k in blank if int(k) >= 0}
+        self.autostart = values["autostart"]
+
+        self.fov_x_deg = fov_x_deg
+        self.renderer = None  # made by configure, released by cleanup
+        self.timer = self.waiting_timer = None
+        self.diag = self.start_diagnostics()
+        self.log = ThrottledLog(self)
+        # Only the sensor settings are dynamic (apply_parameters); a change to a read-only one is refused.
+        guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
+
+    def configure(self) -> None:
+        """Load the catalog and build the renderer, then create the topics."""
+        sky, sensor = self.sky, self.sensor
+        epoch = sky.epoch_jyear or julian_year_from_unix(self.get_clock().now().nanoseconds * 1e-9)
+        catalog = load_hipparcos().at_epoch(epoch)
+        self.renderer = StarFieldRenderer(self.camera, sensor, catalog, sky.magnitude_limit, self.false_objects,
+                                          sky.fixed_pattern_seed, sky.observer_velocity_m_s)
         self._create_interfaces()
-        self.timer = None
-        if self.wait_for_subscribers:
-            self.waiting_timer = self.create_timer(0.05, self.start_when_subscribed)
-        else:
-            self.start()
         self.get_logger().info(
-            f"{self.camera.width}x{self.camera.height} px, FOV {fov_x_deg:.2f} deg, {self.rate_hz:g} Hz, "
+            f"{self.camera.width}x{self.camera.height} px, FOV {self.fov_x_deg:.2f} deg, {self.rate_hz:g} Hz, "
             f"exposure {sensor.exposure_s * 1e3:g} ms, "
             f"frames delivered {self.delivery_offset_ns * 1e-6:g} ms after the exposure's nominal end "
             f"({'rendered ahead' if self.render_ahead else 'rendered at delivery'}), "
             f"{len(self.renderer.catalog)} stars to Hp {sky.magnitude_limit}, attitude profile {self.profile}")
+
+    def activate(self) -> None:
+        """First activation: start the exposures (once subscribed, with wait_for_subscribers).
+        Later ones resume the same time line: frames that fell in the inactive time are skipped."""
+        if self.t0_ns is not None:
+            self.resume()
+        elif self.wait_for_subscribers:
+            self.waiting_timer = self.create_timer(0.05, self.start_when_subscribed)
+        else:
+            self.start()
+
+    def deactivate(self) -> None:
+        """Stop the frame timers; nothing is rendered or published until activate."""
+        for name in ("timer", "waiting_timer"):
+            if getattr(self, name) is not None:
+                self.destroy_timer(getattr(self, name))
+                setattr(self, name, None)
+        self.cancel_call()
+        self.pending = None
+
+    def release(self) -> None:
+        """Undo configure: timers, topics, renderer and catalog; the next activation starts a new
+        time line from frame 0."""
+        self.deactivate()
+        for name in ("pub_image", "pub_info", "pub_truth", "pub_truth_rate", "pub_truth_objects"):
+            if getattr(self, name, None) is not None:
+                self.destroy_lifecycle_publisher(getattr(self, name))
+                setattr(self, name, None)
+        for name in ("sub_truth_attitude", "sub_truth_rate"):
+            if getattr(self, name, None) is not None:
+                self.destroy_subscription(getattr(self, name))
+                setattr(self, name, None)
+        self.renderer = None
+        self.t0_ns, self.frame_index = None, 0
+        self.render_times.clear()
 
     def _read_output(self, values: dict) -> None:
         """What is published and when: rate, frame count, frame_id, start, backlog, noise seed."""
@@ -127,24 +174,22 @@ class CameraSimulatorNode(Node):
         self.frame_index = 0
 
     def _create_interfaces(self) -> None:
-        """Publishers, diagnostics, the parameter guard and (external profile) the truth input."""
-        self.pub_image = self.create_publisher(Image, "image_raw", **overridable(IMAGE_QOS))
-        self.pub_info = self.create_publisher(CameraInfo, "camera_info", **overridable(IMAGE_QOS))
-        self.pub_truth = self.create_publisher(QuaternionStamped, "truth/attitude", **overridable(RESULT_QOS))
-        self.pub_truth_rate = self.create_publisher(Vector3Stamped, "truth/angular_velocity", **overridable(RESULT_QOS))
-        self.pub_truth_objects = self.create_publisher(PointCloud2, "truth/objects", **overridable(RESULT_QOS))
-        self.diag = Diagnostics(self)
-        self.log = ThrottledLog(self)
-        # Only the sensor settings are dynamic (apply_parameters); a change to a read-only one is refused.
-        guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
+        """Publishers (lifecycle: silent unless active) and (external profile) the truth input."""
+        publisher = self.create_lifecycle_publisher
+        self.pub_image = publisher(Image, "image_raw", **overridable(IMAGE_QOS))
+        self.pub_info = publisher(CameraInfo, "camera_info", **overridable(IMAGE_QOS))
+        self.pub_truth = publisher(QuaternionStamped, "truth/attitude", **overridable(RESULT_QOS))
+        self.pub_truth_rate = publisher(Vector3Stamped, "truth/angular_velocity", **overridable(RESULT_QOS))
+        self.pub_truth_objects = publisher(PointCloud2, "truth/objects", **overridable(RESULT_QOS))
         if self.profile == "external":
             # Truth from a dynamics simulator, on this node's clock (use_sim_time for sim time).
+            # Taken in every configured state: it is the world's motion, needed when frames resume.
             self.motion = None
             self._external_pending: dict[int, list] = {}
-            self.create_subscription(QuaternionStamped, "truth_in/attitude", self.on_external_attitude,
-                                     **overridable(TRUTH_INPUT_QOS))
-            self.create_subscription(Vector3Stamped, "truth_in/angular_velocity", self.on_external_rate,
-                                     **overridable(TRUTH_INPUT_QOS))
+            self.sub_truth_attitude = self.create_subscription(QuaternionStamped, "truth_in/attitude",
+                                                               self.on_external_attitude, **overridable(TRUTH_INPUT_QOS))
+            self.sub_truth_rate = self.create_subscription(Vector3Stamped, "truth_in/angular_velocity",
+                                                           self.on_external_rate, **overridable(TRUTH_INPUT_QOS))
 
     def start(self) -> None:
         """Fix the time origin and start the frame timer. Its ticks fall at now + n*period and
@@ -156,10 +201,24 @@ class CameraSimulatorNode(Node):
         if self.profile != "external":
             self.motion = motion_from_parameters(self.profile, self.initial_rotation, t0=self.t0_ns * 1e-9,
                                                  **self.motion_kwargs[self.profile])
+        self._start_timer(now_ns)
+
+    def resume(self) -> None:
+        """Activated again: the same t0 and motion (the attitude went on meanwhile); the frames
+        due while inactive, or too soon to expose fully, are skipped (frames_skipped_inactive)."""
+        now_ns = self.get_clock().now().nanoseconds
+        delivered = (now_ns - self.t0_ns - self.delivery_offset_ns) // self.period_ns  # frames due by now
+        following = max(self.frame_index, int(delivered) + 1)
+        self.diag.count("frames_skipped_inactive", following - self.frame_index)
+        self.frame_index = following
+        self._start_timer(now_ns)
+
+    def _start_timer(self, now_ns: int) -> None:
+        """The periodic frame timer, and the render-ahead of frame frame_index."""
         self.timer = self.create_timer(self.period_ns * 1e-9, self.on_timer)
         self.timer.timer_period_ns = self.period_ns  # exact: seconds -> ns may round down, and ticks drift early
-        if self.render_ahead:  # frame 0 is rendered a period before its delivery, like every frame at first
-            self.call_at(self.delivery_ns(0) - self.period_ns, now_ns)
+        if self.render_ahead:  # the first frame is rendered a period before its delivery, like every frame at first
+            self.call_at(self.delivery_ns(self.frame_index) - self.period_ns, now_ns)
 
     def delivery_ns(self, k: int) -> int:
         """When frame k may be published: its exposure and frame transfer ended, then the readout [ns]."""
@@ -201,6 +260,7 @@ class CameraSimulatorNode(Node):
         publishers = (self.pub_image, self.pub_info, self.pub_truth)
         if all(pub.get_subscription_count() > 0 for pub in publishers):
             self.destroy_timer(self.waiting_timer)
+            self.waiting_timer = None
             self.get_logger().info("subscribers connected; starting exposures")
             self.start()
         else:

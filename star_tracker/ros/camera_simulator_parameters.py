@@ -17,6 +17,7 @@ import numpy as np
 from ..models.attitude import quaternion_to_matrix, radec_roll_to_matrix
 from ..models.camera import CameraModel
 from ..parameter_spec import ParameterSpec, field_specs, field_values
+from .autostart_parameter import AUTOSTART
 from ..sim.motion import motion_from_parameters
 from ..sim.render import FalseObjectModel
 from ..sim.sensor import SensorModel
@@ -113,7 +114,7 @@ _PLACED = {spec.name for spec in CAMERA_PARAMETERS + SKY_PARAMETERS}
 CAMERA_SIMULATOR_PARAMETERS = [
     *OUTPUT_PARAMETERS, *CAMERA_PARAMETERS,
     *(spec for spec in SENSOR_PARAMETERS if spec.name not in _PLACED), READOUT_PARAMETER,
-    *SKY_PARAMETERS, *FALSE_OBJECT_PARAMETERS, *ATTITUDE_PARAMETERS, *FAULT_PARAMETERS,
+    *SKY_PARAMETERS, *FALSE_OBJECT_PARAMETERS, *ATTITUDE_PARAMETERS, *FAULT_PARAMETERS, AUTOSTART,
 ]
 
 

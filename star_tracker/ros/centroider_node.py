@@ -17,6 +17,10 @@ topic (Vector3Stamped), the `imu` topic (sensor_msgs/Imu from a gyro, rotated by
 `gyro.mounting_quaternion`), or the `angular_velocity_rad_s` parameter; see rate_input.py),
 each star's smear over the exposure is predicted; detection uses the matched streak filter
 and positions come from a fit on the predicted (possibly curved) path.
+
+A managed node (managed_node.py): `configure` compiles the kernels and creates the topics,
+`activate` starts measuring; images arriving while inactive are counted
+(`frames_ignored_inactive`) and dropped.
 """
 from __future__ import annotations
 
@@ -27,7 +31,6 @@ from dataclasses import replace
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Vector3Stamped
-from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
 from ..centroid import CentroidConfig, extract_spots
@@ -36,8 +39,9 @@ from ..centroid.kernels import warm_up
 from ..centroid.smear import SmearModel
 from . import convert
 from .camera_info_input import CameraInfoInput
-from .diagnostics import Diagnostics, Rejections
+from .diagnostics import Rejections
 from .frame_queue import NewestFrame
+from .managed_node import ManagedNode
 from .node_process import run_node
 from ..parameter_spec import field_values
 from .centroider_parameters import CENTROIDER_PARAMETERS, RATE_SOURCES
@@ -53,7 +57,7 @@ RATE_TOPICS = {"topic": "angular_velocity", "imu": "imu"}  # rate_source -> the 
 RUNTIME_PARAMETERS = {spec.name for spec in CENTROIDER_PARAMETERS if spec.dynamic}
 
 
-class CentroiderNode(Node):
+class CentroiderNode(ManagedNode):
     def __init__(self) -> None:
         super().__init__("centroider")
         values = declare_parameters(self, CENTROIDER_PARAMETERS)  # centroider_parameters.py
@@ -76,21 +80,45 @@ class CentroiderNode(Node):
             raise ValueError("; ".join(problems))
         self.rate_param = np.asarray(rate_param, float)
         self.psf = RunningPsf()  # the last frames' PSF estimate: the next frame's prior
-        warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
-        self.pub = self.create_publisher(PointCloud2, "spots", **overridable(SPOTS_QOS))
-        self.diag = Diagnostics(self)
+        self.autostart = values["autostart"]
+
+        self.frames = None  # the worker: made by configure, released by cleanup
+        self.diag = self.start_diagnostics()
         self.log = ThrottledLog(self)
         self.reject = Rejections(self.diag, self.log)
-        self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
-        self.sub = self.create_subscription(Image, "image_raw", self.on_image, **overridable(IMAGE_QOS))
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log)
+
+    def configure(self) -> None:
+        """Compile the kernels, then create the topics and the worker thread."""
+        warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
+        self.pub = self.create_lifecycle_publisher(PointCloud2, "spots", **overridable(SPOTS_QOS))
+        self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
+        self.sub = self.create_subscription(Image, "image_raw", self.on_image, **overridable(IMAGE_QOS))
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
                                                  **overridable(IMAGE_QOS))
         # Both rate inputs always exist: rate_source (runtime) picks one per frame.
         self.sub_rate = self.create_subscription(Vector3Stamped, "angular_velocity", self.rate_input.on_vector3,
                                                  **overridable(RATE_INPUT_QOS))
         self.sub_imu = self.create_subscription(Imu, "imu", self.rate_input.on_imu, **overridable(RATE_INPUT_QOS))
+
+    def release(self) -> None:
+        """Undo configure: stop the worker, remove the topics, forget the camera model, the
+        latest rate and the PSF estimate."""
+        if self.frames is not None:
+            self.frames.stop()
+            self.frames = None
+        for name in ("sub", "sub_info", "sub_rate", "sub_imu"):
+            if getattr(self, name, None) is not None:
+                self.destroy_subscription(getattr(self, name))
+                setattr(self, name, None)
+        if getattr(self, "pub", None) is not None:
+            self.destroy_lifecycle_publisher(self.pub)
+            self.pub = None
+        self.camera_info = CameraInfoInput(self, self.diag, self.log)
+        self.rate_input = RateInput(self.rate_input.reject, self.rate_input.mounting_quaternion,
+                                    self.rate_input.gyro_frame_id)  # no samples carried over
+        self.psf.reset()
 
     def apply_parameters(self, changes: dict) -> str | None:
         """Runtime parameter changes, all or none (see parameters.guard_parameter_changes)."""
@@ -129,6 +157,9 @@ class CentroiderNode(Node):
     def on_image(self, msg: Image) -> None:
         """Executor thread: count, check the stamp, decode; the worker measures (measure())."""
         received = time.perf_counter()
+        if not self.active:  # inactive: configured, not processing
+            self.diag.count("frames_ignored_inactive")
+            return
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
         self.diag.time("input_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
@@ -200,7 +231,7 @@ class CentroiderNode(Node):
 
 
     def destroy_node(self) -> None:
-        self.frames.stop()
+        self.release()
         super().destroy_node()
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from ..centroid import CentroidConfig
 from ..parameter_spec import ParameterSpec, field_specs
+from .autostart_parameter import AUTOSTART
 
 RATE_SOURCES = ("topic", "imu", "parameter", "none")
 
@@ -31,6 +32,7 @@ NODE_PARAMETERS = [
                   "the sensor frame: v_sensor = R(q) v_gyro (imu, and angular_velocity in gyro.frame_id); unit norm"),
     ParameterSpec("gyro.frame_id", "", "frame_id of the gyro's messages; an imu message in another frame is "
                   "ignored, counted (rates_wrong_frame); '' = not checked"),
+    AUTOSTART,
 ]
 
 CENTROIDER_PARAMETERS = field_specs(CentroidConfig) + NODE_PARAMETERS

@@ -21,6 +21,12 @@ or implausible values are dropped from their frame, and frames that would corrup
 time line (unstamped, stamped in the future, out of order) are dropped; each is counted on
 /diagnostics and logged (throttled). A backwards jump beyond `stamp.reset_after_s` restarts
 the track instead (a replay or simulation restarted). See docs/RELIABILITY.md.
+
+A managed node (managed_node.py, msg_docs/services.md): `configure` loads the pattern
+database and compiles the kernels, `activate` starts identifying, `deactivate` keeps database
+and track (spots arriving meanwhile are counted, `frames_ignored_inactive`), `cleanup`
+releases them. `~/reset` (std_srvs/Trigger) drops the track: the next frame is identified
+lost-in-space.
 """
 from __future__ import annotations
 
@@ -33,8 +39,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, TwistWithCovarianceStamped, Vector3Stamped
-from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2
+from std_srvs.srv import Trigger
 
 from ..models.attitude import ARCSEC
 from ..models.camera import CameraModel
@@ -43,8 +49,9 @@ from ..identify import DatabaseConfig, IdentifyConfig, load_or_build_database, m
 from ..track.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
 from . import convert
 from .camera_info_input import CameraInfoInput
-from .diagnostics import Diagnostics, Rejections
+from .diagnostics import Rejections
 from .frame_queue import NewestFrame
+from .managed_node import ManagedNode
 from .node_process import run_node
 from ..parameter_spec import field_values
 from .identifier_parameters import (CALIBRATION_PARAMETERS, DATABASE_PARAMETERS, IDENTIFIER_PARAMETERS,
@@ -77,7 +84,7 @@ def keep_time_reset(dropped: SpotsFrame, following: SpotsFrame) -> SpotsFrame:
     return following
 
 
-class IdentifierNode(Node):
+class IdentifierNode(ManagedNode):
     def __init__(self) -> None:
         super().__init__("identifier")
         values = declare_parameters(self, IDENTIFIER_PARAMETERS)  # identifier_parameters.py
@@ -95,30 +102,17 @@ class IdentifierNode(Node):
         self.queue_depth = values["queue_depth"]
         self.inline_wait_s = values["inline_wait_s"]
         self.stamps = StampOrder(self, values["stamp.max_future_s"], values["stamp.reset_after_s"])
-        started = time.perf_counter()
-        self.database = load_or_build_database(db_config)
-        self.identifier = make_identifier(algorithm, self.database, self.config)
-        self.tracker = Tracker(self.identifier, tracking_config)
-        # Compiled kernels: ~50 s the first time, then loaded from numba's cache.
-        self.tracker.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
-        self.get_logger().info(
-            f"algorithm {algorithm}: {self.database.star_count} guide stars to Hp {db_config.magnitude_limit}, "
-            f"{self.database.pair_a.size} pairs, loaded in {time.perf_counter() - started:.2f} s")
+        self.autostart = values["autostart"]
 
-        self.pub_attitude = self.create_publisher(QuaternionStamped, "attitude", **overridable(RESULT_QOS))
-        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "attitude_with_covariance",
-                                              **overridable(RESULT_QOS))
-        self.pub_matches = self.create_publisher(PointCloud2, "matched_stars", **overridable(RESULT_QOS))
-        self.pub_rate = self.create_publisher(Vector3Stamped, "angular_velocity", **overridable(RESULT_QOS))
-        self.pub_rate_cov = self.create_publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance",
-                                                  **overridable(RESULT_QOS))
-        self.diag = Diagnostics(self)
+        self.algorithm, self.db_config, self.tracking_config = algorithm, db_config, tracking_config
+        self.database = self.identifier = self.tracker = None  # made by configure, released by cleanup
+        self.frames = self._worker = None
+        self.diag = self.start_diagnostics()
         self.diag.value("algorithm", algorithm)
         self.diag.value("mode", MODE_LOST)
         # Tracker state: the frame worker vs the end of a lost-in-space solve (which finishes in
-        # the solve's thread, or inline in the frame worker's: reentrant).
+        # the solve's thread, or inline in the frame worker's: reentrant) vs ~/reset.
         self._lock = threading.RLock()
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
         self._acquisition = None  # (future, stamp_ns, spots, camera, frame_id, received) of a running solve
         # run_node's shutdown watchdog waits this much longer: a solve running at shutdown ends
         # within its budget (the frame in progress too, up to twice the budget).
@@ -127,10 +121,77 @@ class IdentifierNode(Node):
         self.reject = Rejections(self.diag, self.log)
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
+        self.srv_reset = self.create_service(Trigger, "~/reset", self.on_reset)
+
+    def configure(self) -> None:
+        """Load (or build) the pattern database, make the identifier and the tracker, compile
+        their kernels, then create the topics and the worker threads."""
+        started = time.perf_counter()
+        self.database = load_or_build_database(self.db_config)
+        self.identifier = make_identifier(self.algorithm, self.database, self.config)
+        self.tracker = Tracker(self.identifier, self.tracking_config)
+        # Compiled kernels: ~50 s the first time, then loaded from numba's cache.
+        self.tracker.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
+        self.diag.count("database_loads")
+        self.get_logger().info(
+            f"algorithm {self.algorithm}: {self.database.star_count} guide stars to Hp "
+            f"{self.db_config.magnitude_limit}, {self.database.pair_a.size} pairs, loaded in "
+            f"{time.perf_counter() - started:.2f} s")
+
+        publisher = self.create_lifecycle_publisher
+        self.pub_attitude = publisher(QuaternionStamped, "attitude", **overridable(RESULT_QOS))
+        self.pub_pose = publisher(PoseWithCovarianceStamped, "attitude_with_covariance", **overridable(RESULT_QOS))
+        self.pub_matches = publisher(PointCloud2, "matched_stars", **overridable(RESULT_QOS))
+        self.pub_rate = publisher(Vector3Stamped, "angular_velocity", **overridable(RESULT_QOS))
+        self.pub_rate_cov = publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance",
+                                      **overridable(RESULT_QOS))
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
         self.frames = NewestFrame(self, self.identify_frame, self.diag, self.log, self.queue_depth, merge=keep_time_reset)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
                                                  **overridable(IMAGE_QOS))
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, **overridable(SPOTS_QOS))
+
+    def release(self) -> None:
+        """Undo configure: stop the workers, remove the topics, drop the track, the camera model
+        and the database (the next configure loads it again)."""
+        if self.frames is not None:
+            self.frames.stop()
+            self.frames = None
+        with self._lock:
+            self._acquisition = None  # a solve still running is ignored
+        if self._worker is not None:
+            self._worker.shutdown(wait=True, cancel_futures=True)
+            self._worker = None
+        for name in ("sub_info", "sub_spots"):
+            if getattr(self, name, None) is not None:
+                self.destroy_subscription(getattr(self, name))
+                setattr(self, name, None)
+        for name in ("pub_attitude", "pub_pose", "pub_matches", "pub_rate", "pub_rate_cov"):
+            if getattr(self, name, None) is not None:
+                self.destroy_lifecycle_publisher(getattr(self, name))
+                setattr(self, name, None)
+        self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
+        with self._lock:
+            self.database = self.identifier = self.tracker = None
+        self.diag.value("mode", MODE_LOST)
+
+    def on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """~/reset: drop the track (and any lost-in-space solve in progress); the next frame is
+        identified lost-in-space."""
+        with self._lock:
+            if self.tracker is None:
+                response.success = False
+                response.message = f"nothing to reset: the identifier is {self.lifecycle_state} (not configured)"
+                self.diag.count("resets_refused")
+                return response
+            self.tracker.reset()
+            self._acquisition = None  # a solve still running is ignored
+        self.diag.count("resets")
+        self.diag.value("mode", MODE_LOST)
+        response.success = True
+        response.message = "tracking dropped: the next frame is identified lost-in-space"
+        self.get_logger().info(f"~/reset: {response.message}")
+        return response
 
     def fov_problem(self, camera) -> str | None:
         """Why the pattern database cannot serve this camera, or None."""
@@ -166,6 +227,9 @@ class IdentifierNode(Node):
         """Executor thread: count, check the stamp and the message, decode; the worker
         identifies (identify_frame())."""
         received = time.perf_counter()
+        if not self.active:  # inactive: configured, not processing
+            self.diag.count("frames_ignored_inactive")
+            return
         self.diag.count("frames_received")
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
         self.diag.time("input_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
@@ -340,8 +404,7 @@ class IdentifierNode(Node):
         self.diag.value("calibration_applied", ",".join(self.online_calibration.applied) or "none")
 
     def destroy_node(self) -> None:
-        self.frames.stop()
-        self._worker.shutdown(wait=True, cancel_futures=True)
+        self.release()
         super().destroy_node()
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig
 from ..models.online_calibration import OnlineCalibrationConfig
 from ..parameter_spec import ParameterSpec, field_specs
+from .autostart_parameter import AUTOSTART
 from ..track.tracking import TrackingConfig
 
 DATABASE_PARAMETERS = [
@@ -45,6 +46,7 @@ IDENTIFIER_PARAMETERS = [
     ParameterSpec("tracking.enabled", True, "track from the previous attitude; false = lost-in-space on every frame",
                   dynamic=True),
     *field_specs(TrackingConfig, prefix="tracking."),
+    AUTOSTART,
 ]
 
 # Spec lists by the record they fill (field_values picks each record's fields by name).

@@ -14,8 +14,10 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
+from .managed_node import ManagedNode
 from .middleware import configure_middleware
 from .parameters import report_unknown_parameters
+
 
 def check_params_files(args: list[str]) -> None:
     """Every `--params-file PATH` must name a readable regular file (rcl's own error is a C
@@ -89,7 +91,14 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
         initialized = True
         node = factory()
         report_unknown_parameters(node)
-        node.get_logger().info("ready")
+        if not isinstance(node, ManagedNode):
+            node.get_logger().info("ready")
+        elif node.autostart:
+            node.autostart_now()  # a failed configure/activate is a failed start (code 2)
+            node.get_logger().info("ready (active)")  # for people: readiness is ~/get_state
+        else:
+            node.get_logger().info(f"unconfigured (autostart false): waiting for "
+                                   f"`ros2 lifecycle set {node.get_fully_qualified_name()} configure`")
         spinning = True
         spin_until_stopped(node, stop_requested)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -118,11 +127,13 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
 
 def spin_until_stopped(node: Node, stop_requested: threading.Event) -> None:
     """rclpy.spin on the global executor, but waiting at most STOP_POLL_S at a time, so a stop
-    signal ends the spin even if its wake-up of the executor is lost."""
+    signal ends the spin even if its wake-up of the executor is lost. A managed node's
+    shutdown transition ends it too (after the transition's answer went out)."""
     executor = rclpy.get_global_executor()
     executor.add_node(node)
+    finished = getattr(node, "finished", threading.Event())
     try:
-        while executor.context.ok() and not stop_requested.is_set():
+        while executor.context.ok() and not stop_requested.is_set() and not finished.is_set():
             executor.spin_once(timeout_sec=STOP_POLL_S)
     finally:
         executor.remove_node(node)

@@ -23,6 +23,7 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from ..models.attitude import attitude_error, quaternion_to_matrix
 from . import convert
+from .lifecycle_client import LifecycleClient
 from .middleware import configure_middleware
 from .qos import IMAGE_QOS, sensor_qos
 
@@ -81,11 +82,12 @@ class NodeProcesses:
         self.log_paths: dict[str, Path] = {}  # each node's current log (a restart starts a new one)
         self._logs = {}
         self._launches: dict[str, int] = {}
+        self._lifecycle: LifecycleClient | None = None
 
     def start(self, timeout_s: float = 120.0) -> "NodeProcesses":
-        """Start the processing nodes, wait until they are ready (compiled kernels loaded,
-        database built), then the camera: no frame is published into a pipeline still
-        starting."""
+        """Start the processing nodes, wait until they are active (configured: compiled kernels
+        loaded, database built; asked over ~/get_state), then the camera: no frame is published
+        into a pipeline still starting."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
         sources = [name for name in self.nodes if name == "camera_simulator"]
         processors = [name for name in self.nodes if name not in sources]
@@ -113,21 +115,49 @@ class NodeProcesses:
         self.processes[name] = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
                                                 stdin=subprocess.DEVNULL, start_new_session=True)
 
+    @property
+    def lifecycle(self) -> LifecycleClient:
+        """Lifecycle service calls to the nodes (made on first use, closed by stop())."""
+        if self._lifecycle is None:
+            self._lifecycle = LifecycleClient(self.env)
+        return self._lifecycle
+
+    def expected_state(self, name: str) -> str:
+        """The state a node reaches by itself: active, or unconfigured with `autostart: false`
+        among this object's `params`."""
+        return "unconfigured" if self.params.get(name, {}).get("autostart") is False else "active"
+
+    def node_path(self, name: str) -> str:
+        """A node's fully qualified name, with its `__ns` / `__node` remaps (e.g. /det/identifier)."""
+        remaps = self.remaps.get(name, {})
+        namespace = remaps.get("__ns", "").strip("/")
+        node = remaps.get("__node", name)
+        return f"/{namespace}/{node}" if namespace else f"/{node}"
+
+    def check_alive(self, name: str) -> None:
+        """Raise RuntimeError with the node's log if its process has exited."""
+        if self.processes[name].poll() is not None:
+            text = self.log_paths[name].read_text(errors="replace")
+            raise RuntimeError(f"{name} exited with {self.processes[name].returncode}:\n{text}")
+
     def wait_ready(self, timeout_s: float = 120.0, names=None) -> None:
-        """Block until every started node (or those in `names`) logged `ready`; raise with its
-        log if one died or hung."""
-        deadline = time.monotonic() + timeout_s
-        pending = set(self.processes if names is None else names)
-        while pending:
-            for name in list(pending):
-                text = self.log_paths[name].read_text(errors="replace")
-                if "]: ready" in text:
-                    pending.discard(name)
-                elif self.processes[name].poll() is not None:
-                    raise RuntimeError(f"{name} exited with {self.processes[name].returncode}:\n{text}")
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"nodes not ready after {timeout_s} s: {sorted(pending)}")
-            time.sleep(0.1)
+        """Block until every started node (or those in `names`) answers ~/get_state with the
+        state it reaches by itself (active with autostart, the default; else unconfigured);
+        raise with its log if one died, TimeoutError if one hung."""
+        names = list(self.processes if names is None else names)
+        for state in sorted({self.expected_state(name) for name in names}):
+            paths = {self.node_path(n): n for n in names if self.expected_state(n) == state}
+            self.lifecycle.wait_for_state(list(paths), state, timeout_s, check=lambda path: self.check_alive(paths[path]))
+
+    def get_state(self, name: str) -> str | None:
+        """A node's lifecycle state label (None: no answer)."""
+        return self.lifecycle.get_state(self.node_path(name))
+
+    def change_state(self, name: str, transition: str, timeout_s: float = 120.0) -> bool:
+        """Request a lifecycle transition of a node (configure, activate, deactivate, cleanup,
+        shutdown); True if it succeeded."""
+        self.check_alive(name)
+        return self.lifecycle.change_state(self.node_path(name), transition, timeout_s)
 
     def kill(self, name: str, sig: int = signal.SIGKILL, timeout_s: float = 15.0) -> int:
         """Send `sig` to one node and wait for it to exit (SIGKILL after timeout_s). Returns its
@@ -173,6 +203,9 @@ class NodeProcesses:
                 codes[name] = proc.wait()
         for log in self._logs.values():
             log.close()
+        if self._lifecycle is not None:
+            self._lifecycle.close()
+            self._lifecycle = None
         return codes
 
     def __enter__(self) -> "NodeProcesses":

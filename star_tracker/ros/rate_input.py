@@ -91,6 +91,7 @@ class RateInput:
                  gyro_frame_id: str = ""):
         """reject(counter, text): count and report a refused message or an unaided frame."""
         self.reject = reject
+        self.mounting_quaternion = mounting_quaternion
         self.mounting = mounting_matrix(mounting_quaternion)
         self.gyro_frame_id = gyro_frame_id
         self.samples = {"angular_velocity": RateSamples(), "imu": RateSamples()}

@@ -8,8 +8,9 @@ Real build, real processes, no mocks:
   ``lib/star_tracker``, the ament index marker, ``share/star_tracker/package.xml``) and that
   the ament index and ``install/setup.sh`` resolve it;
 * starts each installed node executable with the environment ``install/setup.sh`` would give
-  (PYTHONPATH + AMENT_PREFIX_PATH), on a random ROS domain restricted to localhost, waits for
-  its ``ready`` log line, sends SIGINT and expects exit code 0 within 15 s.
+  (PYTHONPATH + AMENT_PREFIX_PATH), on a random ROS domain restricted to localhost, waits
+  until its lifecycle ``~/get_state`` answers ``active`` (autostart), sends SIGINT and expects
+  exit code 0 within 15 s.
 
 Set STAR_TRACKER_REPO to build another checkout (default: the repo containing this file).
 """
@@ -18,7 +19,6 @@ from __future__ import annotations
 import json
 import os
 import random
-import re
 import signal
 import subprocess
 import sys
@@ -42,7 +42,6 @@ REPO_ARTIFACTS = ("build", "install", "log", f"{PACKAGE}.egg-info")
 BUILD_TIMEOUT_S = 180
 READY_TIMEOUT_S = 120
 SHUTDOWN_TIMEOUT_S = 15
-READY_RE = re.compile(r"\bready\b", re.IGNORECASE)
 
 
 def _tail(path: Path, chars: int = 6000) -> str:
@@ -218,20 +217,19 @@ def test_installed_node_runs_from_install_tree_and_stops_on_sigint(
             stderr=subprocess.STDOUT, start_new_session=True, preexec_fn=_default_signals,
         )
     try:
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        while True:
-            exited = proc.poll() is not None
-            text = log_path.read_text(errors="replace")
-            if any(READY_RE.search(line) for line in text.splitlines()):
-                break
-            if exited:
-                pytest.fail(f"{executable} exited with {proc.returncode} before logging 'ready'"
+        from star_tracker.ros.lifecycle_client import LifecycleClient
+
+        def alive(_name):
+            if proc.poll() is not None:
+                pytest.fail(f"{executable} exited with {proc.returncode} before it was active"
                             f":\n{_tail(log_path)}")
-            if time.monotonic() > deadline:
-                pytest.fail(f"{executable} did not log 'ready' within {READY_TIMEOUT_S} s:\n"
-                            f"{_tail(log_path)}")
-            time.sleep(0.2)
-        assert proc.poll() is None, f"{executable} exited right after 'ready':\n{_tail(log_path)}"
+
+        with LifecycleClient(node_env) as lifecycle:  # readiness is the lifecycle state, not a log line
+            try:
+                lifecycle.wait_for_state([executable], "active", READY_TIMEOUT_S, check=alive)
+            except TimeoutError as exc:
+                pytest.fail(f"{executable}: {exc}:\n{_tail(log_path)}")
+        assert proc.poll() is None, f"{executable} exited right after activating:\n{_tail(log_path)}"
 
         proc.send_signal(signal.SIGINT)
         try:

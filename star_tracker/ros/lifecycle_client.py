@@ -1,0 +1,120 @@
+"""Asking managed nodes in other processes for their lifecycle state and driving their
+transitions (lifecycle_msgs services ~/get_state and ~/change_state), from a private rclpy
+context on their ROS domain: what `ros2 lifecycle get/set` does."""
+from __future__ import annotations
+
+import itertools
+import os
+import time
+from typing import Callable
+
+import rclpy
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+
+# The environment a process reads at rclpy.init: these must match the nodes' (discovery, profile).
+_DDS_VARIABLES = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "FASTRTPS_DEFAULT_PROFILES_FILE",
+                  "FASTDDS_DEFAULT_PROFILES_FILE", "RMW_IMPLEMENTATION")
+
+TRANSITIONS = {"configure": Transition.TRANSITION_CONFIGURE, "cleanup": Transition.TRANSITION_CLEANUP,
+               "activate": Transition.TRANSITION_ACTIVATE, "deactivate": Transition.TRANSITION_DEACTIVATE}
+
+
+class LifecycleClient:
+    """Lifecycle service calls to nodes on the domain of `env` (ROS_DOMAIN_ID and discovery
+    settings as the node processes get them). Close it (or use `with`) when done."""
+
+    _instances = itertools.count()
+
+    def __init__(self, env: dict[str, str], name: str | None = None):
+        saved = {key: os.environ.get(key) for key in _DDS_VARIABLES}
+        try:
+            for key in _DDS_VARIABLES:  # rmw reads them from this process's environment at init
+                if env.get(key):
+                    os.environ[key] = env[key]
+                else:
+                    os.environ.pop(key, None)
+            self.context = Context()
+            rclpy.init(args=[], context=self.context, domain_id=int(env.get("ROS_DOMAIN_ID", "0")))
+        finally:
+            for key, value in saved.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+        # A name of its own: several clients in one process (or host) stay distinct.
+        name = name or f"star_tracker_lifecycle_client_{os.getpid()}_{next(self._instances)}"
+        self.node = rclpy.create_node(name, context=self.context, start_parameter_services=False)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._clients: dict[tuple[str, type], object] = {}
+
+    def _call(self, node_name: str, srv_type, suffix: str, request, timeout_s: float, discovery_s: float = 0.1):
+        """One service call: wait up to discovery_s for the service, send once, wait up to
+        timeout_s for the answer; None if the service is not there or did not answer."""
+        key = (node_name, srv_type)
+        if key not in self._clients:
+            self._clients[key] = self.node.create_client(srv_type, f"/{node_name.lstrip('/')}/{suffix}")
+        client = self._clients[key]
+        found_by = time.monotonic() + discovery_s
+        while not client.service_is_ready():
+            if time.monotonic() > found_by:
+                return None
+            self.executor.spin_once(timeout_sec=0.05)  # discovery
+        future = client.call_async(request)
+        self.executor.spin_until_future_complete(future, timeout_sec=timeout_s)
+        if not future.done():
+            client.remove_pending_request(future)
+            return None
+        return future.result()
+
+    def get_state(self, node_name: str, timeout_s: float = 5.0) -> str | None:
+        """The node's state label (unconfigured, inactive, active, finalized, ...), or None if its
+        service is not found or does not answer within timeout_s (each)."""
+        response = self._call(node_name, GetState, "get_state", GetState.Request(), timeout_s, discovery_s=timeout_s)
+        return None if response is None else response.current_state.label
+
+    def change_state(self, node_name: str, transition: str, timeout_s: float = 120.0) -> bool:
+        """Request a transition by label (configure, activate, deactivate, cleanup, shutdown) and
+        wait for its answer; True if it succeeded, False if refused or failed. Raises
+        TimeoutError if the service is absent or did not answer within timeout_s."""
+        request = ChangeState.Request()
+        request.transition.label = transition
+        if transition in TRANSITIONS:
+            request.transition.id = TRANSITIONS[transition]
+        response = self._call(node_name, ChangeState, "change_state", request, timeout_s, discovery_s=timeout_s)
+        if response is None:
+            raise TimeoutError(f"{node_name}: no answer to {transition!r} within {timeout_s} s")
+        return bool(response.success)
+
+    def wait_for_state(self, node_names, state: str = "active", timeout_s: float = 120.0,
+                       check: Callable[[str], None] | None = None) -> None:
+        """Block until every node answers ~/get_state with `state`; `check(name)` runs between
+        attempts (to raise if the node's process died). TimeoutError names the nodes still
+        elsewhere and their last answer."""
+        deadline = time.monotonic() + timeout_s
+        last: dict[str, str | None] = {name: None for name in node_names}
+        while True:
+            for name in [n for n, s in last.items() if s != state]:
+                if check is not None:
+                    check(name)
+                last[name] = self.get_state(name, timeout_s=2.0)
+            if all(s == state for s in last.values()):
+                return
+            if time.monotonic() > deadline:
+                pending = {n: s for n, s in last.items() if s != state}
+                raise TimeoutError(f"not {state} after {timeout_s} s: {pending}")
+            time.sleep(0.1)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def __enter__(self) -> "LifecycleClient":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
