@@ -16,6 +16,8 @@ class BuildPyAndCompile(build_py):
 
     def run(self):
         super().run()
+        if getattr(self, "editable_mode", False):
+            return  # `pip install -e .` runs the sources in place: `make venv` compiles them there
         path = Path(__file__).resolve().parent / PACKAGE / "install_compile.py"
         spec = importlib.util.spec_from_file_location("star_tracker_install_compile", path)
         module = importlib.util.module_from_spec(spec)
