@@ -91,6 +91,15 @@ def install_pip(clone: Path, tmp: Path, env: dict[str, str]) -> tuple[float, dic
     return seconds, dict(env), venv / "bin", venv / "share" / "star_tracker" / "config" / "star_tracker.yaml"
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time of a running process [s] (/proc/PID/stat), None when gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def first_identified(bin_dir: Path, config: Path, env: dict[str, str], domain_id: int, logs: Path,
                      timeout_s: float) -> dict:
     """Start the three node executables at once; return the seconds from their start to the
@@ -130,13 +139,14 @@ def first_identified(bin_dir: Path, config: Path, env: dict[str, str], domain_id
             processes[name] = subprocess.Popen([str(bin_dir / name), "--ros-args", "--params-file", str(config)],
                                                env=env, stdout=log, stderr=subprocess.STDOUT,
                                                stdin=subprocess.DEVNULL, start_new_session=True)
-    first = None
+    first, cpu = None, {}
     try:
         while time.time() - started < timeout_s and first is None:
             rclpy.spin_once(monitor, timeout_sec=0.05)
             for ns in sorted(attitude):
                 if ns in truth and attitude_error(attitude[ns], truth[ns])[2] < CORRECT_RAD:
                     first = arrival[ns] - started
+                    cpu = {name: cpu_seconds(p.pid) for name, p in processes.items()}
                     break
             if any(p.poll() is not None for p in processes.values()):
                 break
@@ -156,7 +166,8 @@ def first_identified(bin_dir: Path, config: Path, env: dict[str, str], domain_id
     for name in NODES:
         found = READY_RE.search((logs / f"{name}.log").read_text(errors="replace"))
         ready[name] = float(found.group(1)) - started if found else None
-    return {"first_identified_s": first, "ready_s": ready, "attitudes": len(attitude), "frames": len(truth),
+    return {"first_identified_s": first, "ready_s": ready, "cpu_s_at_first_identified": cpu,
+            "attitudes": len(attitude), "frames": len(truth),
             "exit_codes": {name: p.returncode for name, p in processes.items()}}
 
 
@@ -184,6 +195,10 @@ def seconds(value: float | None) -> str:
     return "–" if value is None else f"{value:.1f}"
 
 
+def cpu_text(cpu: dict) -> str:
+    return ", ".join(seconds(cpu.get(name)) for name in NODES) if cpu else "–"
+
+
 def report(results: list[dict], elapsed_s: float, command: str) -> str:
     labels = {"colcon": "`colcon build`", "colcon-no-install-compile":
               "`colcon build`, STAR_TRACKER_SKIP_INSTALL_COMPILE=1 (kernels compile at the first start)",
@@ -197,14 +212,16 @@ def report(results: list[dict], elapsed_s: float, command: str) -> str:
              "NUMBA_CACHE_DIR), the install timed, then the three installed node executables started at once with "
              "the installed `config/star_tracker.yaml` on a private localhost DDS domain: seconds from their start "
              "to each node's `ready` line and to the first attitude within 60\" of truth (the first identified "
-             f"frame; goal ≤ {GOAL_S:g} s). Then the same start again (second start, warm). The install compiles "
+             f"frame; goal ≤ {GOAL_S:g} s), and each node's CPU time by then (user + system: what the start "
+             "costs without the other processes on this shared host). Then the same start again (second start, "
+             "warm). The install compiles "
              "the nodes' numba kernels into the built copy (star_tracker/install_compile.py, two processes) and "
              "builds the pattern database into the user's cache; numba keys its cache on source content, CPU and "
              "version, so the installed copy loads it. The machine is a shared 2-core VM: figures vary between "
              "runs.", "",
              "| install | install [s] | cache files | start | centroider ready [s] | identifier ready [s] | "
-             "first identified frame [s] | attitudes / frames seen |",
-             "|---|---:|---:|---|---:|---:|---:|---:|"]
+             "first identified frame [s] | CPU by then: camera, centroider, identifier [s] | frames seen |",
+             "|---|---:|---:|---|---:|---:|---:|---:|---:|"]
     for result in results:
         for key, label in (("first_start", "first"), ("second_start", "second")):
             start = result[key]
@@ -215,7 +232,7 @@ def report(results: list[dict], elapsed_s: float, command: str) -> str:
                          f"{seconds(result['install_s']) if key == 'first_start' else ''} | "
                          f"{result['cache_index_files_installed'] if key == 'first_start' else ''} | {label} | "
                          f"{seconds(start['ready_s']['centroider'])} | {seconds(start['ready_s']['identifier'])} | "
-                         f"{value} | {start['attitudes']} / {start['frames']} |")
+                         f"{value} | {cpu_text(start.get('cpu_s_at_first_identified', {}))} | {start['frames']} |")
     return "\n".join(lines) + "\n"
 
 
