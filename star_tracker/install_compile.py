@@ -54,10 +54,10 @@ def compile_into(build_lib: str | Path, environ: dict[str, str] | None = None) -
             break
     if probe.returncode != 0:
         print("star_tracker: dependencies not importable yet, numba kernels not compiled at install; the first "
-              "node start compiles them (~1-2 min), or run `python -m star_tracker.warm_up --only nodes` "
+              "node start compiles them (1-4 min), or run `python -m star_tracker.warm_up --only nodes` "
               f"after the install ({probe.stderr.strip().splitlines()[-1:]})", file=sys.stderr)
         return False
-    print(f"star_tracker: compiling the nodes' numba kernels into {build_lib} (cold start, ~1-2 min)",
+    print(f"star_tracker: compiling the nodes' numba kernels into {build_lib} (cold start, 1-4 min)",
           file=sys.stderr, flush=True)
     children = [subprocess.Popen([sys.executable, "-m", "star_tracker.warm_up", "--only", part], env=env,
                                  cwd=build_lib, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
