@@ -260,7 +260,8 @@ def main(argv=None) -> None:
     if args.output:
         write_section(args.output, text)
         (args.output.parent / "bench_cold_start.json").write_text(json.dumps(
-            {"meta": {"elapsed_s": time.perf_counter() - started, "cpu": cpu_model(), "cores": os.cpu_count()},
+            {"meta": {"elapsed_s": time.perf_counter() - started, "quick": cases != list(CASES), "cpu": cpu_model(),
+                      "cores": os.cpu_count()},
              "results": results}, indent=2))
 
 
