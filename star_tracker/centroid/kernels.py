@@ -124,14 +124,9 @@ def warm_up() -> None:
                   np.full(1, 100.0), np.full(1, 1.0), 1.0, 1.0, 5)
     one = np.full(1, 16.0)
     index = np.full(1, 14, np.int64)
-    for dtype in WARM_IMAGE_DTYPES:
-        for writeable in (True, False):
-            # Read-only is its own numba type: images decoded from ROS messages (np.frombuffer)
-            # are read-only, and compiling that variant at the first frame took > 8 s here.
-            image = np.zeros((32, 32), dtype)
-            image.flags.writeable = writeable
-            measure_small(image, SmallSpots(one, one, np.zeros(1), index, index + 4, index, index + 4),
-                          PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
+    for dtype in WARM_IMAGE_DTYPES:  # measure_small passes every image read-only: one variant per dtype
+        measure_small(np.zeros((32, 32), dtype), SmallSpots(one, one, np.zeros(1), index, index + 4, index, index + 4),
+                      PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
 
 
 @njit(cache=True)
@@ -245,7 +240,18 @@ class SmallSpotMeasurements(NamedTuple):
 
 def measure_small(image: np.ndarray, spots: SmallSpots, settings: PointWindowSettings) -> SmallSpotMeasurements:
     """Point-window measurements of the detections `spots` (_measure_small, compiled)."""
-    return SmallSpotMeasurements(*_measure_small(image, spots, settings))
+    return SmallSpotMeasurements(*_measure_small(read_only(image), spots, settings))
+
+
+def read_only(image: np.ndarray) -> np.ndarray:
+    """`image` as a read-only array (a view when it is writeable, no copy). Read-only and
+    writeable arrays are distinct numba types: passing one kind halves the variants compiled
+    (each took ~10 s at a cold start)."""
+    if not image.flags.writeable:
+        return image
+    view = image.view()
+    view.flags.writeable = False
+    return view
 
 
 @njit(cache=True)

@@ -84,6 +84,8 @@ BENCHES = (
     Bench("realdata", "bench.bench_realdata", ("--output", "{out}"),
           ("--only", "gran_vega_05sec,openstartracker_img0", "--output", "{out}"),
           "real sky images (../shared/realdata) against their references, peers", peers=True),
+    Bench("cold_start", "bench.bench_cold_start", ("--output", "{out}"), ("--only", "colcon", "--output", "{out}"),
+          "process start -> first identified frame on a fresh clone and install (colcon, pip)"),
 )
 # Not a benchmark: the figures drawn from the benchmarks' JSON results (bench/plots.py),
 # run after them; `python -m bench.plots` alone redraws them without rerunning anything.

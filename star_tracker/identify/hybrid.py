@@ -16,6 +16,7 @@ triangles, so the time budget is checked between batches.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
@@ -74,13 +75,19 @@ class HybridIdentifier(StarIdentifier):
         self._head_jk = np.full(database.star_count, -1, np.int64)
 
     def warm_up(self, camera: CameraModel) -> None:
-        """Compile the kernels (or load them from numba's cache) on a small random scene."""
+        """Compile the kernels (or load them from numba's cache) on a small random scene, with
+        the longest time budget: compiling the first kernels must not spend the budget before
+        the search runs (on a loaded host it did, and the search compiled at the first frame)."""
         rng = np.random.default_rng(0)
         n = 8
         x, y = rng.uniform(0, camera.width - 1, n), rng.uniform(0, camera.height - 1, n)
-        self.identify(Spots(x, y, np.linspace(2e4, 1e3, n), np.full(n, 50.0), np.tile(np.eye(2) * 0.01, (n, 1, 1)),
-                            np.zeros(n, np.uint32), np.full(n, 9, np.int32), np.full(n, 1e3),
-                            camera.width, camera.height), camera)
+        saved, self.config = self.config, replace(self.config, max_time_s=60.0)
+        try:
+            self.identify(Spots(x, y, np.linspace(2e4, 1e3, n), np.full(n, 50.0),
+                                np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.full(n, 9, np.int32),
+                                np.full(n, 1e3), camera.width, camera.height), camera)
+        finally:
+            self.config = saved
         refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
         log_chance_tuples(np.eye(3), np.full(3, 1e-5), 3.0, 1e3)  # the bound after the deep re-match
 

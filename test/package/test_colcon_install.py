@@ -39,7 +39,7 @@ SITE_PACKAGES = f"lib/python{sys.version_info.major}.{sys.version_info.minor}/si
 # Things a build must never create inside the source repository.
 REPO_ARTIFACTS = ("build", "install", "log", f"{PACKAGE}.egg-info")
 
-BUILD_TIMEOUT_S = 180
+BUILD_TIMEOUT_S = 900  # the build compiles the nodes' numba kernels (install_compile.py): 1-4 min
 READY_TIMEOUT_S = 120
 SHUTDOWN_TIMEOUT_S = 15
 
