@@ -16,6 +16,7 @@ the way, as the identifier needs it.
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -38,6 +39,25 @@ def child_environments(build_lib: Path, environ: dict[str, str] | None = None) -
     return [dict(env, PYTHONPATH=str(build_lib)), isolated]
 
 
+def seed_cache(source_package: Path, built_package: Path) -> int:
+    """Copy the numba cache files (`__pycache__/*.nbi, *.nbc`) the source tree already holds
+    (`make venv` compiles there) into the built copy, so that the compile below only loads
+    what is current. Safe because numba keys each entry on its source file's content: an entry
+    of a changed source is not used. Returns the number of files copied."""
+    copied = 0
+    if source_package.resolve() == built_package.resolve():
+        return 0
+    for cache in source_package.rglob("__pycache__"):
+        target = built_package / cache.relative_to(source_package)
+        if not target.parent.is_dir():
+            continue  # a folder the build does not ship
+        for entry in (*cache.glob("*.nbi"), *cache.glob("*.nbc")):
+            target.mkdir(exist_ok=True)
+            shutil.copy2(entry, target / entry.name)
+            copied += 1
+    return copied
+
+
 def compile_into(build_lib: str | Path, environ: dict[str, str] | None = None) -> bool:
     """Compile the nodes' kernels into `build_lib`/star_tracker. Returns True when every part
     compiled; False (after a note on stderr) when skipped or failed: the install goes on and
@@ -57,8 +77,9 @@ def compile_into(build_lib: str | Path, environ: dict[str, str] | None = None) -
               "node start compiles them (1-4 min), or run `python -m star_tracker.warm_up --only nodes` "
               f"after the install ({probe.stderr.strip().splitlines()[-1:]})", file=sys.stderr)
         return False
-    print(f"star_tracker: compiling the nodes' numba kernels into {build_lib} (cold start, 1-4 min)",
-          file=sys.stderr, flush=True)
+    seeded = seed_cache(Path(__file__).resolve().parent, build_lib / "star_tracker")
+    print(f"star_tracker: compiling the nodes' numba kernels into {build_lib} (cold start, 1-4 min"
+          f"{f'; {seeded} cache files of the source tree reused' if seeded else ''})", file=sys.stderr, flush=True)
     children = [subprocess.Popen([sys.executable, "-m", "star_tracker.warm_up", "--only", part], env=env,
                                  cwd=build_lib, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
                 for part in PARTS]
