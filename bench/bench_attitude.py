@@ -1,4 +1,5 @@
-"""Attitude accuracy and covariance consistency of the in-process chain render -> extract_spots
+"""
+Attitude accuracy and covariance consistency of the in-process chain render -> extract_spots
 -> hybrid identify, at rest and under body rates.
 
     python -m bench.bench_attitude [--frames N] [--jobs J] [--output docs/BENCHMARKS.md]
@@ -184,8 +185,10 @@ class Chain:
         return record
 
     def clipped(self, image: np.ndarray, x: np.ndarray, y: np.ndarray, streak_length: np.ndarray) -> np.ndarray:
-        """Spots with a pixel at the sensor's full-well clip level (full_well / gain + bias, rounded)
-        within 3 px plus half the streak of their centre."""
+        """
+        Spots with a pixel at the sensor's full-well clip level (full_well / gain + bias, rounded)
+        within 3 px plus half the streak of their centre.
+        """
         level = np.floor(self.sensor.full_well_e / self.sensor.gain_e_per_adu + self.sensor.bias_adu + 0.5)
         height, width = image.shape
         out = np.zeros(x.size, bool)
@@ -530,8 +533,11 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
 
 
 def findings(cases: list[dict], floor_px: float, clip_level: float) -> list[str]:
-    """What this run's numbers show about the covariance, cause by cause. Each statement is
-    made only when the numbers show it."""
+    """
+    Return what this run's numbers show about the covariance, cause by cause.
+
+    Each statement is made only when the numbers show it.
+    """
     solved = [c for c in cases if "stars" in c]
     rest = next((c for c in solved if c["kind"] == "rest"), None)
     if rest is None:
@@ -589,7 +595,7 @@ def findings(cases: list[dict], floor_px: float, clip_level: float) -> list[str]
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000,
                         help="frames at rest (default 1000); each rate case gets half of it (at least 1)")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1,

@@ -1,5 +1,8 @@
-"""Centroiding benchmark: accuracy against the Cramér-Rao bound, completeness and purity,
-and speed (with peers when installed: requirements-bench.txt).
+"""
+Centroiding benchmark.
+
+Accuracy against the Cramér-Rao bound, completeness and purity, and speed (with peers when
+installed: requirements-bench.txt).
 
     python -m bench.bench_centroid [--quick] [--output docs/BENCHMARKS.md]
 
@@ -47,7 +50,7 @@ EXPOSURE = 0.1
 
 
 def grid_scene(sensor: SensorModel, flux_e: float, rng: np.random.Generator, spacing: int = 110):
-    """A catalog of stars on a pixel grid (random sub-pixel phase) of flux `flux_e` [e-]."""
+    """Return a catalog of stars on a pixel grid (random sub-pixel phase) of flux `flux_e` [e-]."""
     cols, rows = np.meshgrid(np.arange(80, 1024 - 80, spacing), np.arange(80, 1024 - 80, spacing))
     x = cols.ravel() + rng.uniform(-0.5, 0.5, cols.size)
     y = rows.ravel() + rng.uniform(-0.5, 0.5, rows.size)
@@ -98,8 +101,11 @@ def static_level(sensor: SensorModel) -> float:
 
 
 def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig(), rate_aided=False):
-    """RMS 2-D error [px] of our centroids vs truth, detection rate, and sqrt(CRB_x + CRB_y).
-    rate_aided: give the centroider the true body rate and exposure (SmearModel)."""
+    """
+    RMS 2-D error [px] of our centroids vs truth, detection rate, and sqrt(CRB_x + CRB_y).
+
+    rate_aided: give the centroider the true body rate and exposure (SmearModel).
+    """
     flux = flux_for_snr(snr, sensor)
     rate = smear_px / (EXPOSURE * CAMERA.fy)
     smear = SmearModel(CAMERA, np.array([rate, 0.0, 0.0]), EXPOSURE) if rate_aided else None
@@ -132,7 +138,7 @@ def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig()
 
 
 def false_detections(frames, rng):
-    """Detections per star-free frame with every detector effect of the node defaults on."""
+    """Return detections per star-free frame with every detector effect of the node defaults on."""
     sensor = SensorModel(dsnu_fraction=0.1, prnu_fraction=0.01, hot_pixel_fraction=2e-5, cosmic_ray_rate_per_cm2_s=5.0,
                          vignetting_at_corner=0.1)
     empty = StarCatalog(*(np.zeros(0) for _ in range(7)))
@@ -156,8 +162,12 @@ def speed_frames(frames: int, rate_deg_s=(0.0, 0.0, 0.0), magnitude_limit: float
 
 
 def reference_kernel_ms(repeats: int = 15) -> float:
-    """Median time [ms] of a fixed OpenCV kernel (1024^2 float32 Gaussian blur): the host's speed
-    at this moment, so that times measured on a VM with CPU steal can be compared."""
+    """
+    Median time [ms] of a fixed OpenCV kernel (1024^2 float32 Gaussian blur).
+
+    The host's speed at this moment, so that times measured on a VM with CPU steal can be
+    compared.
+    """
     import cv2
 
     image = np.random.default_rng(0).random((1024, 1024), dtype=np.float32)
@@ -170,8 +180,12 @@ def reference_kernel_ms(repeats: int = 15) -> float:
 
 
 def speed(images, smear=None, peers_too=True):
-    """Median/p95 time [ms], detection rate (< 2 px + half the smear) and RMS error [px] of each
-    extractor on identical frames."""
+    """
+    Median/p95 time [ms].
+
+    Detection rate (< 2 px + half the smear) and RMS error [px] of each extractor on identical
+    frames.
+    """
     config = CentroidConfig(saturation_adu=60000.0)
     methods = {"star_tracker (auto)": lambda im: extract_spots(im, config, smear),
                "star_tracker cog": lambda im: extract_spots(im, CentroidConfig(saturation_adu=60000.0, method="cog"))}
@@ -228,9 +242,12 @@ def speed(images, smear=None, peers_too=True):
 
 
 def measure_roll(frames: int, electrons: float):
-    """Curved streaks: stars on two rings far from the boresight under a 40 deg/s roll (24-33 px
-    arcs). RMS distance [px] to the mid-exposure truth for the rate-aided path fit, the free
-    straight-segment fit and the centre of gravity."""
+    """
+    Curved streaks: stars on two rings far from the boresight under a 40 deg/s roll (24-33 px arcs).
+
+    RMS distance [px] to the mid-exposure truth for the rate-aided path fit, the free
+    straight-segment fit and the centre of gravity.
+    """
     from star_tracker.models.catalog import StarCatalog as Catalog
 
     rate = np.array([0.0, 0.0, np.radians(40.0)])
@@ -270,7 +287,7 @@ def speed_table(timing: dict, reference_ms: float) -> list[str]:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer points and frames (smoke run)")
     parser.add_argument("--output", type=Path, help="write the '## Centroiding' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_centroid.json beside --output)")

@@ -1,4 +1,5 @@
-"""Star-identification benchmark: our algorithms and two peer solvers on identical centroid lists.
+"""
+Star-identification benchmark: our algorithms and two peer solvers on identical centroid lists.
 
     python -m bench.bench_identify [--scenes N] [--setups a,b] [--algorithms a,b] [--no-peers]
                                    [--output docs/BENCHMARKS.md] [--seed S]
@@ -101,8 +102,12 @@ PAPER_ROWS: dict[str, list[tuple[str, str]]] = {
 
 @dataclass(frozen=True)
 class PeerCandidate:
-    """One peer configuration: label, database generator keywords beyond FOV and magnitude
-    limit, solve keywords beyond FOV, FOV tolerance and time limit."""
+    """
+    One peer configuration.
+
+    Label, database generator keywords beyond FOV and magnitude limit, solve keywords beyond
+    FOV, FOV tolerance and time limit.
+    """
 
     label: str
     database: dict = field(default_factory=dict)
@@ -132,8 +137,11 @@ def database_config(setup_name: str) -> DatabaseConfig:
 
 
 def make_scenes(setup: SceneSetup, catalog: StarCatalog, count: int, seed: int, stream: int = 0) -> list[Scene]:
-    """`count` scenes of `setup` from a generator seeded by (seed, setup name, stream);
-    stream 0 is the benchmark set, 1 the peers' tuning set."""
+    """
+    `count` scenes of `setup` from a generator seeded by (seed, setup name, stream).
+
+    Stream 0 is the benchmark set, 1 the peers' tuning set.
+    """
     rng = np.random.default_rng([seed, zlib.crc32(setup.name.encode()), stream])
     return [make_scene(setup, catalog, rng) for _ in range(count)]
 
@@ -173,7 +181,7 @@ def score_attitude(solution: peer_adapters.PeerSolution, scene: Scene) -> str:
 
 
 def peer_ids_wrong(solution: peer_adapters.PeerSolution, scene: Scene) -> bool:
-    """A solved peer result that named any spot with a star other than the truth."""
+    """Return a solved peer result that named any spot with a star other than the truth."""
     if not solution.solved or solution.ids.size == 0:
         return False
     return not np.array_equal(solution.ids, scene.hip[solution.spot_index])
@@ -255,7 +263,7 @@ def run_peer(solver, scenes: list[Scene], on_scene=None) -> Outcomes:
 
 
 def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
-    """Counts, percentages, means and time quantiles [ms] of one solver on one setup."""
+    """Return counts, percentages, means and time quantiles [ms] of one solver on one setup."""
     n = len(out.outcome)
     codes = np.array(out.outcome)
     times = np.array(out.time_s, float) * 1e3
@@ -290,8 +298,12 @@ def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
 
 def make_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, candidate: PeerCandidate,
               catalog: StarCatalog, max_time_s: float, cache: Path):
-    """The peer adapter for a setup: database for the camera's horizontal FOV and our guide
-    stars' magnitude limit, FOV known to 0.1 deg, the same time limit as ours."""
+    """
+    Return the peer adapter for a setup.
+
+    Database for the camera's horizontal FOV and our guide stars' magnitude limit, FOV known
+    to 0.1 deg, the same time limit as ours.
+    """
     camera = setup.camera
     fov_deg = float(np.degrees(2.0 * np.arctan(0.5 * camera.width / camera.fx)))
     stars = catalog.brighter_than(db_config.magnitude_limit)
@@ -312,9 +324,12 @@ def make_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, candidate
 
 def tune_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, catalog: StarCatalog, tuning: list[Scene],
               max_time_s: float, cache: Path, log, on_scene=None) -> tuple[object, PeerCandidate, dict, dict, list[dict]]:
-    """Try every candidate on the tuning scenes; keep the best (correct - 10 incorrect, then
-    fewer wrong ids, then the lower median time). Returns (solver, candidate, database kw,
-    solve kw, trials)."""
+    """
+    Try every candidate on the tuning scenes.
+
+    Keep the best (correct - 10 incorrect, then fewer wrong ids, then the lower median
+    time). Returns (solver, candidate, database kw, solve kw, trials).
+    """
     best, trials = None, []
     for candidate in PEER_CANDIDATES[peer]:
         solver, database, solve = make_peer(peer, setup, db_config, candidate, catalog, max_time_s, cache)
@@ -335,8 +350,11 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
                   peers: list[str] = (), tune_scenes: int = 100, hard_scenes: int = 100,
                   catalog: StarCatalog | None = None, cache: Path | None = None,
                   config: IdentifyConfig | None = None, log=print, progress=None) -> dict:
-    """Run every solver on every setup; returns the JSON-ready results (see module docstring).
-    progress(done, total, note): called after every solver call (scenes solved so far of all)."""
+    """
+    Run every solver on every setup; returns the JSON-ready results (see module docstring).
+
+    progress(done, total, note): called after every solver call (scenes solved so far of all).
+    """
     run_started = time.perf_counter()
     catalog = catalog if catalog is not None else load_hipparcos().at_epoch(EPOCH_JYEAR)
     cache = cache if cache is not None else cache_dir() / "bench_peers"
@@ -579,7 +597,7 @@ def _names(text: str | None, known, what: str) -> list[str]:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=1000, help="scenes per setup (default 1000)")
     parser.add_argument("--hard-scenes", type=int, default=100,
                         help=f"at most this many scenes for {', '.join(HARD_SETUPS)} (default 100)")

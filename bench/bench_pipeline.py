@@ -1,4 +1,5 @@
-"""Pipeline throughput, latency and overload: the three nodes as separate processes over DDS.
+"""
+Pipeline throughput, latency and overload: the three nodes as separate processes over DDS.
 
     python -m bench.bench_pipeline [--rates 10,20,30,40] [--seconds 20] [--exposure 0.02]
                                    [--quick] [--output docs/BENCHMARKS.md]
@@ -83,8 +84,11 @@ def host_usage(before: np.ndarray, after: np.ndarray) -> dict:
 
 # ----------------------------------------------------------------------------- the watcher
 class Watcher:
-    """This benchmark's own node: attitude (and spots, truth) receive times, diagnostics. Spins
-    in a background thread so the main thread can publish on time."""
+    """
+    This benchmark's own node: attitude (and spots, truth) receive times, diagnostics.
+
+    Spins in a background thread so the main thread can publish on time.
+    """
 
     def __init__(self, with_truth: bool):
         import rclpy
@@ -595,8 +599,7 @@ def write_reliability(path: Path, text: str) -> None:
 
 
 def analysis_text(data: dict) -> str:
-    """The latency budget at the goal's 20 Hz (else the sustainable rate) and what limits the
-    rate, from the figures."""
+    """Return the latency budget at the goal's 20 Hz (else the sustainable rate) and what limits the rate, from the figures."""
     m = data["stages_in_process"]["ms_median"]
     per_frame = sum(m.values())
     row = next((r for r in data["sweep"] if r["rate_hz"] == 20.0), None) or next(
@@ -643,7 +646,7 @@ def analysis_text(data: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__.strip(), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rates", default="10,15,20,25,30,40", help="swept camera rates [Hz]")
     parser.add_argument("--seconds", type=float, default=20.0, help="measured window per rate [s]")
     parser.add_argument("--exposure", type=float, default=0.02, help="exposure time [s]")
@@ -699,8 +702,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def publish(data: dict, output: Path | None) -> None:
-    """Print the section; with `output`, write it there, the raw numbers beside it and the
-    figures in RELIABILITY.md."""
+    """Print the section; with `output`, write it there, the raw numbers beside it and the figures in RELIABILITY.md."""
     data["analysis"] = analysis_text(data)
     section = render_section(data)
     print(section)

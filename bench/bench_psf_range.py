@@ -1,6 +1,8 @@
-"""Centroiding across PSFs (issue 17): the centroider at its defaults (`CentroidConfig()`, PSF
-width unknown to it) on stars of PSF sigma 0.4-3 px, from our simulator and from a second,
-independently written renderer (bench/alt_renderer.py: Gaussian, Moffat, defocused annulus,
+"""
+Centroiding across PSFs (issue 17).
+
+The centroider at its defaults (`CentroidConfig()`, PSF width unknown to it) on stars of PSF sigma 0.4-3 px, from our
+simulator and from a second, independently written renderer (bench/alt_renderer.py: Gaussian, Moffat, defocused annulus,
 elliptical Gaussian; its own noise, hot pixels and cosmic rays).
 
     python -m bench.bench_psf_range [--quick] [--output docs/BENCHMARKS.md]
@@ -51,8 +53,12 @@ KINDS = {"GaussianPsf": "Gaussian", "MoffatPsf": "Moffat β 3", "AnnulusPsf": "a
 
 @dataclass(frozen=True)
 class Case:
-    """One PSF on one renderer: renderer "alt" (psf an alt_renderer PSF, detector) or
-    "simulator" (psf an alt_renderer.GaussianPsf giving the simulator's psf_sigma_px)."""
+    """
+    One PSF on one renderer.
+
+    Renderer "alt" (psf an alt_renderer PSF, detector) or "simulator" (psf an
+    alt_renderer.GaussianPsf giving the simulator's psf_sigma_px).
+    """
 
     renderer: str
     psf: object
@@ -136,8 +142,12 @@ class Scored:
 
 
 def measure_alt(case: Case, fluxes, fields: int, seed: int) -> list[dict]:
-    """Rows (one per flux) of an alt-renderer case: `fields` star fields of ALT_STARS stars,
-    each rendered once at every flux (independent noise)."""
+    """
+    Rows (one per flux) of an alt-renderer case.
+
+    `fields` star fields of ALT_STARS stars, each rendered once at every flux (independent
+    noise).
+    """
     sigma = case.sigma_px
     scores = {flux: Scored() for flux in fluxes}
     for k in range(fields):
@@ -165,10 +175,14 @@ def simulator_sensor(sigma: float, **defects):
 
 
 def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
-    """Rows of a simulator case: grids of 64 stars (bench_centroid.grid_scene, random sub-pixel
-    phase) rendered by StarFieldRenderer with SensorModel(psf_sigma_px=sigma) and hot pixels
-    and cosmic rays on. SNR and CRB from alt_renderer's Gaussian at the simulator's noise
-    levels (sky + dark, read noise, gain)."""
+    """
+    Rows of a simulator case.
+
+    Grids of 64 stars (bench_centroid.grid_scene, random sub-pixel phase) rendered by
+    StarFieldRenderer with SensorModel(psf_sigma_px=sigma) and hot pixels and cosmic rays on.
+    SNR and CRB from alt_renderer's Gaussian at the simulator's noise levels (sky + dark, read
+    noise, gain).
+    """
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_STAR, StarFieldRenderer, frame_seed
 
@@ -200,8 +214,11 @@ def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
 
 
 def false_detections(frames: int) -> dict:
-    """Spots per star-free frame at the defaults, for each renderer with hot pixels and cosmic
-    rays (simulator: also DSNU and PRNU)."""
+    """
+    Spots per star-free frame at the defaults.
+
+    For each renderer with hot pixels and cosmic rays (simulator: also DSNU and PRNU).
+    """
     from star_tracker.models.catalog import StarCatalog
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import StarFieldRenderer, frame_seed
@@ -280,7 +297,7 @@ def summary(rows: list[dict], false: dict) -> list[str]:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="3 sigmas, 3 PSF kinds, 2 fluxes, 1 frame each (smoke run)")
     parser.add_argument("--output", type=Path, help="write the '## Centroiding across PSFs (issue 17)' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_psf_range.json beside --output)")

@@ -1,4 +1,5 @@
-"""Real-image benchmark (issue 17, item 4): our solver and two peers on the real-sky corpus.
+"""
+Real-image benchmark (issue 17, item 4): our solver and two peers on the real-sky corpus.
 
     python -m bench.bench_realdata [--output docs/BENCHMARKS.md] [--only ID,...] [--corpus DIR] [--no-peers]
 
@@ -77,8 +78,11 @@ class CorpusMissing(RuntimeError):
 
 
 def find_corpus(explicit: Path | None = None, repo: Path = REPO) -> Path:
-    """The corpus folder (holding MANIFEST.json): `explicit`, else shared/realdata beside the
-    repository. Raises CorpusMissing naming the place looked at."""
+    """
+    Return the corpus folder (holding MANIFEST.json): `explicit`, else shared/realdata beside the repository.
+
+    Raises CorpusMissing naming the place looked at.
+    """
     candidates = [Path(explicit) if explicit is not None else repo.parent / CORPUS_RELATIVE]
     for folder in candidates:
         if (folder / "MANIFEST.json").is_file():
@@ -89,9 +93,13 @@ def find_corpus(explicit: Path | None = None, repo: Path = REPO) -> Path:
 
 @dataclass(frozen=True)
 class CorpusImage:
-    """One manifest entry: id, path (absolute), source (the public repository it came from),
-    width, height [px], fov_h_deg: the horizontal field hint [deg]; reference: the reference
-    rotation sensor -> ICRS (3x3) or None when the corpus has none."""
+    """
+    One manifest entry.
+
+    Id, path (absolute), source (the public repository it came from), width, height [px],
+    fov_h_deg: the horizontal field hint [deg]; reference: the reference rotation sensor ->
+    ICRS (3x3) or None when the corpus has none.
+    """
 
     id: str
     path: Path
@@ -110,7 +118,7 @@ class CorpusImage:
 
 
 def load_corpus(corpus: Path, only: list[str] | None = None) -> list[CorpusImage]:
-    """The manifest's images, in manifest order (only those named in `only` when given)."""
+    """Return the manifest's images, in manifest order (only those named in `only` when given)."""
     from star_tracker.models.attitude import quaternion_to_matrix
 
     manifest = json.loads((corpus / "MANIFEST.json").read_text())
@@ -135,9 +143,12 @@ def load_corpus(corpus: Path, only: list[str] | None = None) -> list[CorpusImage
 
 
 def attitude_errors(solved: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
-    """(boresight, roll) errors [rad] of a solved sensor -> ICRS rotation against the
-    reference one: boresight = angle between the two +z axes (in ICRS); roll = |angle about +z|
-    of the error rotation R_ref^T R_solved (expressed in the reference sensor frame)."""
+    """
+    (boresight, roll) errors [rad] of a solved sensor -> ICRS rotation against the reference one.
+
+    Boresight = angle between the two +z axes (in ICRS); roll = |angle about +z| of the error
+    rotation R_ref^T R_solved (expressed in the reference sensor frame).
+    """
     solved, reference = np.asarray(solved, float), np.asarray(reference, float)
     z, z_ref = solved[:, 2], reference[:, 2]
     boresight = math.atan2(float(np.linalg.norm(np.cross(z, z_ref))), float(z @ z_ref))
@@ -147,8 +158,10 @@ def attitude_errors(solved: np.ndarray, reference: np.ndarray) -> tuple[float, f
 
 
 def score(rotation: np.ndarray | None, image: CorpusImage) -> dict:
-    """Errors [rad] of a solution against the image's reference (None when either is absent)
-    and whether it is within 1' (boresight)."""
+    """
+    Errors [rad] of a solution against the image's reference (None when either is absent)
+    and whether it is within 1' (boresight).
+    """
     if rotation is None or image.reference is None:
         return {"boresight_error_rad": None, "roll_error_rad": None, "within_1arcmin": None}
     boresight, roll = attitude_errors(rotation, image.reference)
@@ -160,13 +173,16 @@ def score(rotation: np.ndarray | None, image: CorpusImage) -> dict:
 
 
 def solve_argv(image: CorpusImage) -> list[str]:
-    """The command line of our solve, every option but the field at its default."""
+    """Return the command line of our solve, every option but the field at its default."""
     return ["solve", str(image.path), "--fov", f"{image.hint_deg:g}", "--json", "--quiet"]
 
 
 def run_solve_command(argv: list[str]) -> tuple[int, dict | None, float, str]:
-    """Run `star-tracker <argv>` in-process through the CLI's parser and the command's run();
-    returns (exit code, its --json document or None, wall time [s], its stderr)."""
+    """
+    Run `star-tracker <argv>` in-process through the CLI's parser and the command's run().
+
+    Returns (exit code, its --json document or None, wall time [s], its stderr).
+    """
     from star_tracker.cli import build_parser
 
     args = build_parser().parse_args(argv)
@@ -216,8 +232,11 @@ def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
 
 
 def field_groups(images: list[CorpusImage]) -> list[tuple[float, float]]:
-    """(narrowest, widest) horizontal field [deg] of each group of similar fields: sorted
-    fields split where one is more than FIELD_GROUP_GAP times the previous."""
+    """
+    (narrowest, widest) horizontal field [deg] of each group of similar fields.
+
+    Sorted fields split where one is more than FIELD_GROUP_GAP times the previous.
+    """
     fields = sorted({image.fov_h_deg for image in images})
     groups: list[list[float]] = []
     for fov in fields:
@@ -233,9 +252,12 @@ def group_of(image: CorpusImage, groups: list[tuple[float, float]]) -> tuple[flo
 
 
 class PeerDatabases:
-    """The peers' solvers, one per (peer, field group), built on first use and cached on disk
-    by bench/peers.py. Database range: the group's fields widened by the hint tolerance;
-    guide stars: ours for the group's narrowest field (the faintest magnitude limit)."""
+    """
+    The peers' solvers, one per (peer, field group), built on first use and cached on disk by bench/peers.py.
+
+    Database range: the group's fields widened by the hint tolerance; guide stars: ours for
+    the group's narrowest field (the faintest magnitude limit).
+    """
 
     def __init__(self, images: list[CorpusImage], cache: Path):
         from star_tracker.models.catalog import load_hipparcos
@@ -278,8 +300,12 @@ class PeerDatabases:
 
 
 def peer_pixels(pixels: np.ndarray) -> np.ndarray:
-    """The grey image our solve reads, as the peers take it: uint8/uint16 kept, anything else
-    float32 (both peers accept these; cedar-solve converts to float32 itself)."""
+    """
+    Return the grey image our solve reads, as the peers take it.
+
+    uint8/uint16 kept, anything else float32 (both peers accept these; cedar-solve converts
+    to float32 itself).
+    """
     if pixels.dtype in (np.uint8, np.uint16):
         return np.ascontiguousarray(pixels)
     return np.ascontiguousarray(pixels, dtype=np.float32)
@@ -311,8 +337,11 @@ def solve_tetra3rs(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
 
 
 def solve_cedar(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
-    """cedar-solve's solve_from_image at its defaults (see the module docstring); the full
-    attitude from its target_pixel output (centre and a point right of it)."""
+    """
+    cedar-solve's solve_from_image at its defaults (see the module docstring).
+
+    The full attitude from its target_pixel output (centre and a point right of it).
+    """
     from PIL import Image
 
     height, width = pixels.shape
@@ -344,8 +373,12 @@ def solve_cedar(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
 
 def run_benchmark(images: list[CorpusImage], peers: list[str], cache: Path,
                   corpus_images: list[CorpusImage] | None = None, log=print, progress=None) -> dict:
-    """Solve `images` with ours and `peers`; the peers' databases are grouped over the fields
-    of `corpus_images` (default: `images`), so that a subset run uses the full run's databases."""
+    """
+    Solve `images` with ours and `peers`.
+
+    The peers' databases are grouped over the fields of `corpus_images` (default: `images`), so
+    that a subset run uses the full run's databases.
+    """
     from star_tracker.commands.images import read_image
 
     databases = PeerDatabases(corpus_images or images, cache) if peers else None
@@ -380,8 +413,12 @@ def _brief(s: dict) -> str:
 
 
 def summarize(rows: list[dict], solvers: list[str]) -> dict:
-    """Per solver: images, scored (with a reference), solved, within 1', median boresight and
-    roll error over the scored solves [rad], median solve time [s] over all images."""
+    """
+    Per solver: images, scored (with a reference), solved, within 1'.
+
+    Median boresight and roll error over the scored solves [rad], median solve time [s] over
+    all images.
+    """
     summary = {}
     for name in solvers:
         results = [row["solvers"][name] for row in rows if name in row["solvers"]]
@@ -517,7 +554,7 @@ def machine_info() -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().split("\n\n")[0])
     parser.add_argument("--output", type=Path, help="write the '## Real images' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw results (default: bench_realdata.json beside --output)")
     parser.add_argument("--only", help="comma-separated image ids of the manifest (default: all)")

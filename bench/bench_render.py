@@ -1,4 +1,5 @@
-"""Camera-simulator render time: one StarFieldRenderer.render() call per frame, wall clock.
+"""
+Camera-simulator render time: one StarFieldRenderer.render() call per frame, wall clock.
 
 Goal (issue): a 1024 x 1024 frame with ~40 stars, 20 px smear and all noise on renders in
 <= 20 ms on the project's 2-core machine. This script measures that headline point and how
@@ -113,8 +114,11 @@ def make_renderer(camera: CameraModel, catalog, limit: float) -> StarFieldRender
 
 
 class Case:
-    """One benchmark point: a renderer and motion, and the frame times collected so far.
-    staged=True wraps the renderer's stage methods (on this instance only) to time them."""
+    """
+    One benchmark point: a renderer and motion, and the frame times collected so far.
+
+    staged=True wraps the renderer's stage methods (on this instance only) to time them.
+    """
 
     def __init__(self, catalog, size: int, limit: float, smear_px: float, staged: bool = False):
         self.size, self.limit, self.smear_px = size, limit, smear_px
@@ -141,8 +145,11 @@ class Case:
         return wrapper
 
     def run(self, frames: int, warmup: int, reference: list[float]) -> None:
-        """Render warm-up (untimed) then timed frames; same pointing, fresh noise seed each.
-        After each timed frame, time the reference kernel (host-speed monitor)."""
+        """
+        Render warm-up (untimed) then timed frames; same pointing, fresh noise seed each.
+
+        After each timed frame, time the reference kernel (host-speed monitor).
+        """
         for k in range(warmup + frames):
             seed = frame_seed(1, self.frame_index)
             self.frame_index += 1
@@ -193,16 +200,22 @@ _REFERENCE_BUFFER = np.empty((1024, 1024), np.float32)
 
 
 def reference_kernel() -> float:
-    """Wall time [s] of a fixed workload (cv2.randn into a 1024 x 1024 float32 buffer, the
-    renderer's largest single step): its spread is the machine's own timing noise."""
+    """
+    Wall time [s] of a fixed workload (cv2.randn into a 1024 x 1024 float32 buffer, the renderer's largest single step).
+
+    Its spread is the machine's own timing noise.
+    """
     start = time.perf_counter()
     cv2.randn(_REFERENCE_BUFFER, 0.0, 1.0)
     return time.perf_counter() - start
 
 
 class CpuMonitor:
-    """CPU used by other processes during the run, in cores: machine busy time from /proc/stat
-    minus this process's own CPU time."""
+    """
+    CPU used by other processes during the run, in cores.
+
+    Machine busy time from /proc/stat minus this process's own CPU time.
+    """
 
     def __init__(self):
         self.busy0, self.own0, self.wall0 = self._busy(), time.process_time(), time.perf_counter()
@@ -355,7 +368,7 @@ def code_version() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke run: few frames per point")
     parser.add_argument("--frames", type=int, default=None,
                         help="timed frames per point (default 60, headline 150; quick 4)")

@@ -1,5 +1,8 @@
-"""Replay throughput: how fast a bag of camera frames goes through `star-tracker play` and the
-nodes, in lockstep (the batch mode) and flat out; and how fast bags are read without ROS.
+"""
+Replay throughput.
+
+How fast a bag of camera frames goes through `star-tracker play` and the nodes, in lockstep
+(the batch mode) and flat out; and how fast bags are read without ROS.
 
     python -m bench.bench_replay [--frames N] [--quick] [--output docs/BENCHMARKS.md]
 
@@ -46,7 +49,7 @@ T0_NS = (time.time_ns() - 3600 * 10**9) // 10**9 * 10**9
 
 
 def make_bag(path: Path, frames: int, storage: str) -> None:
-    """The default demo scenario rendered by the core, serialized as the camera node does."""
+    """Return the default demo scenario rendered by the core, serialized as the camera node does."""
     from rclpy.serialization import serialize_message
 
     from star_tracker.models.attitude import matrix_to_quaternion, radec_roll_to_matrix
@@ -145,7 +148,7 @@ def machine() -> dict:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--frames", type=int, default=100, help="frames in the bag (default 100)")
     parser.add_argument("--quick", action="store_true", help="20 frames: a smoke run")
     parser.add_argument("--output", type=Path, help="Markdown file whose '## Replay throughput' section is replaced")

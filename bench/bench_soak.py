@@ -1,4 +1,5 @@
-"""Soak: the three nodes at full rate for a long run; memory growth and latency drift.
+"""
+Soak: the three nodes at full rate for a long run; memory growth and latency drift.
 
     python -m bench.bench_soak [--minutes 10] [--rate 20] [--exposure 0.02] [--output docs/BENCHMARKS.md]
 
@@ -194,7 +195,7 @@ def render(data: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__.strip(), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--rate", type=float, default=20.0, help="camera rate [Hz]")
     parser.add_argument("--exposure", type=float, default=0.02, help="exposure time [s]")

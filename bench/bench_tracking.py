@@ -1,5 +1,8 @@
-"""Tracking benchmark: tracking success and time against body rate, re-acquisition after a loss,
-the rate estimate, delay compensation, and tetra3rs's tracking mode on the same centroids.
+"""
+Tracking benchmark.
+
+Tracking success and time against body rate, re-acquisition after a loss, the rate estimate, delay
+compensation, and tetra3rs's tracking mode on the same centroids.
 
     python -m bench.bench_tracking [--quick] [--no-peers] [--output docs/BENCHMARKS.md]
 
@@ -106,9 +109,11 @@ QUICK = Plan(constant_rates_deg_s=(0.0, 1.0, 2.0, 5.0), runs_per_rate=1, runs_be
 # ----------------------------------------------------------------------------- truth
 
 def truth_near(frame, spots: Spots) -> tuple[np.ndarray, list[set]]:
-    """(HIP id of the truth star nearest each spot, 0 when none within TRUTH_RADIUS_PX; per spot
+    """
+    (HIP id of the truth star nearest each spot, 0 when none within TRUTH_RADIUS_PX; per spot
     the set of HIP ids of all truth stars within BLEND_RADIUS_PX: with more than one the spot
-    is an unresolved blend, whose other members are "blend partners")."""
+    is an unresolved blend, whose other members are "blend partners").
+    """
     truth = frame.truth
     stars = np.flatnonzero(truth.stars())
     if len(spots) == 0 or stars.size == 0:
@@ -136,7 +141,7 @@ def random_pointing(rng: np.random.Generator) -> np.ndarray:
 
 
 def random_direction(rng: np.random.Generator) -> np.ndarray:
-    """Unit rate axis in the sensor frame: cross-boresight with a roll part up to MAX_ROLL_FRACTION."""
+    """Return unit rate axis in the sensor frame: cross-boresight with a roll part up to MAX_ROLL_FRACTION."""
     phi = rng.uniform(0, 2 * math.pi)
     axis = np.array([math.cos(phi), math.sin(phi), rng.uniform(-MAX_ROLL_FRACTION, MAX_ROLL_FRACTION)])
     return axis / np.linalg.norm(axis)
@@ -162,8 +167,11 @@ class Sequence:
 
 
 class TrackingBench:
-    """Shared parts (database, hybrid identifier, renderer, tetra3rs when usable) and the
-    per-frame pipeline: render -> rate-aided centroids -> tracker (and the peer)."""
+    """
+    Shared parts (database, hybrid identifier, renderer, tetra3rs when usable) and the per-frame pipeline.
+
+    Render -> rate-aided centroids -> tracker (and the peer).
+    """
 
     def __init__(self, use_peer: bool, log):
         self.log = log
@@ -201,8 +209,9 @@ class TrackingBench:
 
     # --- one frame ----------------------------------------------------------------------
     def step(self, tracker: Tracker, stamp_ns: int, spots: Spots):
-        """Ours on one frame: (TrackedFrame, accept_tracked time [s] or None, failed tracking
-        (reason, gate_px) or None)."""
+        """
+        Ours on one frame: (TrackedFrame, accept_tracked time [s] or None, failed tracking (reason, gate_px) or None).
+        """
         prediction = tracker.predict(stamp_ns)
         track_s, failed = None, None
         if prediction is not None:
@@ -237,10 +246,12 @@ class TrackingBench:
 
     def peer_step(self, spots: Spots, truth, hint: np.ndarray | None, truth_rotation: np.ndarray,
                   propagated: np.ndarray | None = None):
-        """tetra3rs on our centroids: tracking mode with `hint` (strict), lost-in-space when it
-        fails or without a hint. Returns (record, its attitude or None). `propagated`: the
-        same hint carried to this frame by our rate estimate, tried on the side (strict, not
-        used for the next hint)."""
+        """
+        tetra3rs on our centroids: tracking mode with `hint` (strict), lost-in-space when it fails or without a hint.
+
+        Returns (record, its attitude or None). `propagated`: the same hint carried to this
+        frame by our rate estimate, tried on the side (strict, not used for the next hint).
+        """
         order = np.argsort(-spots.flux, kind="stable")
         x, y = spots.x[order], spots.y[order]
         rec = {"mode": MODE_LOST}
@@ -278,8 +289,12 @@ class TrackingBench:
     def run(self, case: str, run: int, motion: MotionProfile, frames: int, seed: int,
             config: TrackingConfig = TrackingConfig(), gaps: dict | None = None, peer: bool = True,
             streaks: bool = False) -> Sequence:
-        """Track `frames` frames of `motion`. gaps: {k: "blank" | "two_spots"} replaces frame k's
-        spots; streaks: also centroid every frame without the rate aid and fit the streaks."""
+        """
+        Track `frames` frames of `motion`.
+
+        gaps: {k: "blank" | "two_spots"} replaces frame k's spots; streaks: also centroid every
+        frame without the rate aid and fit the streaks.
+        """
         tracker = Tracker(self.lis, config)
         seq = Sequence(case, run)
         peer_hint = None
@@ -326,9 +341,13 @@ class TrackingBench:
         return seq
 
     def delay_trial(self, motion: MotionProfile, solve_s: float, seed: int) -> dict:
-        """Lost-in-space on frame 0 taking `solve_s`: the frames arriving meanwhile (10 Hz,
-        ceil(solve_s / period)) are bridged; the newest frame's published attitude against
-        its truth, and frame 0's attitude published stale under the newest stamp."""
+        """
+        Lost-in-space on frame 0 taking `solve_s`.
+
+        The frames arriving meanwhile (10 Hz, ceil(solve_s / period)) are bridged; the
+        newest frame's published attitude against its truth, and frame 0's attitude
+        published stale under the newest stamp.
+        """
         newest = math.ceil(solve_s / PERIOD_S - 1e-9)
         tracker = Tracker(self.lis)
         frames, spots = [], []
@@ -470,8 +489,12 @@ def _counts(values) -> dict:
 
 
 def rate_outliers(sequences: list[Sequence], threshold: float = 25.0) -> dict:
-    """Rate estimates with NEES > threshold, and how many come within 0.3 s after a jump of the
-    body's acceleration (slew start, end of ramp-up, start of ramp-down, end)."""
+    """
+    Rate estimates with NEES > threshold.
+
+    And how many come within 0.3 s after a jump of the body's acceleration (slew start, end of
+    ramp-up, start of ramp-down, end).
+    """
     rows = []
     for seq in sequences:
         for r in seq.records:
@@ -491,11 +514,14 @@ PHASES = ("rest", "ramp-up, rate < 1 deg/s", "ramp-up, rate ≥ 1 deg/s", "coast
 
 
 def slew_bias(sequences: list[Sequence]) -> list[dict]:
-    """Cross-boresight attitude error along the slew axis's cross-boresight part, per phase of
-    the slew (frames whose exposure holds an acceleration jump left out), against the offset
-    of a streak's centroid under a constant acceleration: the mean of w t + alpha t^2 / 2 over
-    the exposure T is alpha T^2 / 24, so the measured attitude leads (ramp-up) or lags
-    (ramp-down) the mid-exposure one by that angle (times |axis_xy|)."""
+    """
+    Cross-boresight attitude error along the slew axis's cross-boresight part.
+
+    Per phase of the slew (frames whose exposure holds an acceleration jump left out), against
+    the offset of a streak's centroid under a constant acceleration: the mean of w t + alpha
+    t^2 / 2 over the exposure T is alpha T^2 / 24, so the measured attitude leads (ramp-up) or
+    lags (ramp-down) the mid-exposure one by that angle (times |axis_xy|).
+    """
     rows = []
     by_case: dict[str, list[Sequence]] = {}
     for seq in sequences:
@@ -549,8 +575,11 @@ def peer_failures(sequences: list[Sequence]) -> list[dict]:
 
 
 def failures(sequences: list[Sequence]) -> list[dict]:
-    """Frames not solved correctly (ours), and tracking attempts that fell back, with the
-    evidence: spot counts, reasons, gate."""
+    """
+    Frames not solved correctly (ours), and tracking attempts that fell back, with the evidence.
+
+    Spot counts, reasons, gate.
+    """
     out = []
     for seq in sequences:
         for r in seq.records:
@@ -587,7 +616,7 @@ def constant_rate_runs(bench: TrackingBench, plan: Plan, log) -> dict[str, list[
 
 
 def slew_motion(rng: np.random.Generator, accel_deg_s2: float) -> tuple[SlewMotion, int]:
-    """A slew up to 2 deg/s with a 2 s coast at the top, 0.5 s of rest before and after."""
+    """Return a slew up to 2 deg/s with a 2 s coast at the top, 0.5 s of rest before and after."""
     peak = GOAL_RATE_DEG_S
     angle = peak**2 / accel_deg_s2 + peak * 2.0
     motion = SlewMotion(random_pointing(rng), axis=random_direction(rng), angle_rad=angle * DEG,
@@ -922,7 +951,7 @@ def met(ok: bool) -> str:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="few short runs (smoke run)")
     parser.add_argument("--no-peers", action="store_true", help="skip tetra3rs")
     parser.add_argument("--output", type=Path, help="write the '## Tracking' section of this Markdown file")

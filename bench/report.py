@@ -5,9 +5,11 @@ from pathlib import Path
 
 
 def write_section(path: Path, text: str, header: str | None = None) -> None:
-    """Replace the `## ...` section of the Markdown file at `path` whose header line equals
+    """
+    Replace the `## ...` section of the Markdown file at `path` whose header line equals
     `header` (default: the first line of `text`), up to the next `## ` line; append it when
-    absent. The rest of the file is kept."""
+    absent. The rest of the file is kept.
+    """
     header = (header or text.lstrip().splitlines()[0]).rstrip()
     path = Path(path)
     lines = path.read_text().splitlines(keepends=True) if path.exists() else ["# Benchmarks\n"]
@@ -24,7 +26,7 @@ def write_section(path: Path, text: str, header: str | None = None) -> None:
 
 
 def cpu_model() -> str:
-    """The CPU's model name from /proc/cpuinfo ("?" when unknown)."""
+    """Return the CPU's model name from /proc/cpuinfo ("?" when unknown)."""
     try:
         with open("/proc/cpuinfo") as info:
             return next((line.split(":", 1)[1].strip() for line in info if line.startswith("model name")), "?")

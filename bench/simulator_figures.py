@@ -1,4 +1,5 @@
-"""Figures for docs/SIMULATOR.md, rendered by the simulator itself.
+"""
+Figures for docs/SIMULATOR.md, rendered by the simulator itself.
 
     python -m bench.simulator_figures [--output-dir docs/images]
 

@@ -1,4 +1,5 @@
-"""The simulator checked against a real camera (issue 17, part 5).
+"""
+The simulator checked against a real camera (issue 17, part 5).
 
     python -m bench.simulator_vs_real [--output docs/SIMULATOR.md] [--images-dir docs/images]
                                       [--write-profile config/camera_openstartracker.yaml] [--corpus DIR]
@@ -56,9 +57,13 @@ class RealFrame:
 
 
 def load_real_frames(corpus: Path) -> list[RealFrame]:
-    """The image set's frames that have a reference attitude: green channel [ADU], the camera
-    from the reference's pixel scale at the centre (pinhole, centred; the SIP terms of the
-    astrometry.net solution are below a pixel over this 6 deg field), the reference rotation."""
+    """
+    Return the image set's frames that have a reference attitude.
+
+    Green channel [ADU], the camera from the reference's pixel scale at the centre (pinhole,
+    centred; the SIP terms of the astrometry.net solution are below a pixel over this 6 deg
+    field), the reference rotation.
+    """
     import cv2
 
     manifest = json.loads((corpus / "MANIFEST.json").read_text())
@@ -102,8 +107,10 @@ def background_pixels(frame: ProfileFrame, stars, psf_sigma_px: float) -> np.nda
 
 
 def neighbour_correlation(image: np.ndarray) -> float:
-    """Correlation of horizontally adjacent pixels after removing a 15 px box mean [-]
-    (0 for white noise; demosaicing or smoothing makes it positive)."""
+    """
+    Correlation of horizontally adjacent pixels after removing a 15 px box mean [-]
+    (0 for white noise; demosaicing or smoothing makes it positive).
+    """
     import cv2
 
     data = image.astype(np.float32)
@@ -153,9 +160,11 @@ def compare(profile: CameraProfile, real: list[RealFrame], stars) -> dict:
 
 
 def solve_counts(real: list[RealFrame], simulated: list[ProfileFrame], corpus: Path) -> dict:
-    """`star-tracker solve FILE --fov <the set's field> --json` (every other option at its
+    """
+    `star-tracker solve FILE --fov <the set's field> --json` (every other option at its
     default) on each real frame as stored (the CLI averages the colour channels), on its green
-    channel alone, and on the simulated frame: how many solve, and the identified stars."""
+    channel alone, and on the simulated frame: how many solve, and the identified stars.
+    """
     import tempfile
 
     import cv2
@@ -177,7 +186,7 @@ def solve_counts(real: list[RealFrame], simulated: list[ProfileFrame], corpus: P
 
 # ------------------------------------------------------------------ outputs
 def profile_yaml(profile: CameraProfile, camera: CameraModel, image_ids: list[str]) -> str:
-    """The profile as a camera_simulator parameter file (layer it over config/star_tracker.yaml)."""
+    """Return the profile as a camera_simulator parameter file (layer it over config/star_tracker.yaml)."""
     s = profile.sensor_model()
     fov_x_deg = math.degrees(2.0 * math.atan(0.5 * camera.width / camera.fx))
     p = profile

@@ -1,4 +1,5 @@
-"""Regenerate the pictures of README.md's "Pictures" section (docs/images/):
+"""
+Regenerate the pictures of README.md's "Pictures" section (docs/images/).
 
     python docs/make_pictures.py [--output-dir docs/images]
 
@@ -97,7 +98,7 @@ def run_picture(out: Path, rate_hz: float = 5.0, duration_s: float = 20.0) -> No
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--output-dir", type=Path, default=REPO / "docs" / "images")
     args = parser.parse_args(argv)
     args.output_dir.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,5 @@
-"""star_tracker: a simulated spacecraft star tracker.
+"""
+star_tracker: a simulated spacecraft star tracker.
 
 The core (catalog, camera, motion, render, centroid, identify, attitude) is pure
 numpy/OpenCV and never imports rclpy; `star_tracker.ros` holds the thin node adapters.

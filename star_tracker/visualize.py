@@ -1,6 +1,10 @@
-"""Pictures for people: a frame with its identified stars circled and labelled (OpenCV), and
-matplotlib figures (imported lazily): a solved frame with residual arrows, a sky chart of the
-field, and attitude error and body rate against time for a run."""
+"""
+Pictures for people.
+
+A frame with its identified stars circled and labelled (OpenCV), and matplotlib figures
+(imported lazily): a solved frame with residual arrows, a sky chart of the field, and
+attitude error and body rate against time for a run.
+"""
 from __future__ import annotations
 
 import cv2
@@ -8,8 +12,12 @@ import numpy as np
 
 
 def stretch(image: np.ndarray) -> np.ndarray:
-    """Display stretch of a raw frame to 8-bit: background at ~10 % grey, asinh compression
-    so faint stars and bright stars are both visible."""
+    """
+    Display stretch of a raw frame to 8-bit.
+
+    Background at ~10 % grey, asinh compression so faint stars and bright stars are both
+    visible.
+    """
     data = image.astype(np.float32)
     background = float(np.median(data))
     noise = float(1.4826 * np.median(np.abs(data - background))) or 1.0
@@ -20,8 +28,11 @@ def stretch(image: np.ndarray) -> np.ndarray:
 
 def annotate_frame(image: np.ndarray, pixel_x: np.ndarray, pixel_y: np.ndarray, hip: np.ndarray,
                    title: str = "", spots_xy: np.ndarray | None = None) -> np.ndarray:
-    """BGR picture: detected spots as small grey squares, identified stars as green circles
-    labelled with their HIP number, and a title band above the frame."""
+    """
+    BGR picture: detected spots as small grey squares, identified stars as green circles labelled with their HIP number.
+
+    And a title band above the frame.
+    """
     canvas = cv2.cvtColor(stretch(image), cv2.COLOR_GRAY2BGR)
     if spots_xy is not None:
         for x, y in np.asarray(spots_xy).reshape(-1, 2):
@@ -65,11 +76,15 @@ def _save(fig, path) -> str:
 
 def solution_figure(image: np.ndarray, matched: list[dict], unmatched_xy: np.ndarray, title: str = "",
                     residual_scale: float | None = None, max_labels: int = 40):
-    """Figure of an identified frame: the stretched image; identified stars circled and labelled
-    with their HIP number; each star's residual (catalog position predicted by the solved
-    attitude minus the measured spot) drawn as an arrow magnified `residual_scale` times
-    (default: the median residual drawn as ~15 px); unmatched spots as small grey squares.
-    matched: dicts with x, y, predicted_x, predicted_y [px], hip, magnitude (solve's records)."""
+    """
+    Figure of an identified frame.
+
+    The stretched image; identified stars circled and labelled with their HIP number; each
+    star's residual (catalog position predicted by the solved attitude minus the measured spot)
+    drawn as an arrow magnified `residual_scale` times (default: the median residual drawn as
+    ~15 px); unmatched spots as small grey squares. matched: dicts with x, y, predicted_x,
+    predicted_y [px], hip, magnitude (solve's records).
+    """
     plt = _pyplot()
     height, width = image.shape
     size_in = 9.0
@@ -108,8 +123,12 @@ def solution_figure(image: np.ndarray, matched: list[dict], unmatched_xy: np.nda
 
 
 def save_solution_plot(path, image: np.ndarray, record: dict, spots, residual_scale: float | None = None) -> str:
-    """`star-tracker solve --plot`: solution_figure of a solve record (solve.solution_record)
-    with the spots of the frame, written as PNG."""
+    """
+    `star-tracker solve --plot`.
+
+    solution_figure of a solve record (solve.solution_record) with the spots of the frame,
+    written as PNG.
+    """
     matched = record.get("matched", [])
     used = {(round(m["x"], 3), round(m["y"], 3)) for m in matched}
     unmatched = np.array([(x, y) for x, y in zip(spots.x, spots.y) if (round(float(x), 3), round(float(y), 3)) not in used])
@@ -125,11 +144,15 @@ def save_solution_plot(path, image: np.ndarray, record: dict, spots, residual_sc
 
 def sky_chart(catalog, rotation: np.ndarray, camera, identified_hip=(), magnitude_limit: float = 7.0,
               title: str = ""):
-    """Chart of the sky around a field of view, in the camera's own gnomonic projection about
-    its boresight (so the image rectangle is drawn as it is seen): an RA/Dec grid, catalog
-    stars (`catalog`: StarCatalog) to `magnitude_limit` as dots sized by magnitude, the
-    identified ones (`identified_hip`) circled, and the image outline. rotation: sensor ->
-    ICRS. Axes in degrees from the boresight (x right, y up = -image y)."""
+    """
+    Chart of the sky around a field of view.
+
+    In the camera's own gnomonic projection about its boresight (so the image rectangle is
+    drawn as it is seen): an RA/Dec grid, catalog stars (`catalog`: StarCatalog) to
+    `magnitude_limit` as dots sized by magnitude, the identified ones (`identified_hip`)
+    circled, and the image outline. rotation: sensor -> ICRS. Axes in degrees from the
+    boresight (x right, y up = -image y).
+    """
     plt = _pyplot()
     rotation = np.asarray(rotation, dtype=float)
     half = np.degrees(camera.half_diagonal_fov_rad) * 1.25
@@ -209,11 +232,14 @@ def run_figure(time_s: np.ndarray, cross_boresight_arcsec: np.ndarray, roll_arcs
                rate_deg_s: np.ndarray | None = None, true_rate_deg_s: np.ndarray | None = None,
                sigma_cross_arcsec: np.ndarray | None = None, sigma_roll_arcsec: np.ndarray | None = None,
                title: str = ""):
-    """Attitude error and body rate against time for a run, from plain arrays (one entry per
-    frame; NaN where the frame was not identified): time_s [s]; cross-boresight and roll error
-    against truth [arcsec]; optionally the estimated and true body rate (N, 3) [deg/s, sensor
-    frame] and the published 1-sigma [arcsec] (drawn as 3-sigma bands). Unidentified frames are
-    marked along the bottom of the error panel."""
+    """
+    Attitude error and body rate against time for a run.
+
+    From plain arrays (one entry per frame; NaN where the frame was not identified): time_s
+    [s]; cross-boresight and roll error against truth [arcsec]; optionally the estimated and
+    true body rate (N, 3) [deg/s, sensor frame] and the published 1-sigma [arcsec] (drawn as
+    3-sigma bands). Unidentified frames are marked along the bottom of the error panel.
+    """
     plt = _pyplot()
     t = np.asarray(time_s, dtype=float)
     cross = np.asarray(cross_boresight_arcsec, dtype=float)
@@ -260,9 +286,13 @@ def save_figure(fig, path) -> str:
 
 
 def run_arrays(frames) -> dict[str, np.ndarray]:
-    """The arrays run_figure takes, from per-frame records with the fields of
-    ros.pipeline.FrameRecord (stamp_ns, truth, error(), covariance, rate, truth_rate; duck-typed,
-    so this module stays free of ROS): frames with truth only, time from the first one [s]."""
+    """
+    Return the arrays run_figure takes.
+
+    From per-frame records with the fields of ros.pipeline.FrameRecord (stamp_ns, truth, error(),
+    covariance, rate, truth_rate; duck-typed, so this module stays free of ROS): frames with
+    truth only, time from the first one [s].
+    """
     frames = [f for f in frames if f.truth is not None]
     n = len(frames)
     out = {"time_s": np.zeros(n), "cross_boresight_arcsec": np.full(n, np.nan), "roll_arcsec": np.full(n, np.nan),

@@ -1,4 +1,5 @@
-"""Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions at mid-exposure with covariance).
+"""
+Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions at mid-exposure with covariance).
 
 extract.extract_spots runs the stage: detect (background, noise, threshold, components) ->
 candidates (hot-pixel cleaning, centre of gravity, shape; measure's primitives) -> saturation

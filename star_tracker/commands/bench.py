@@ -1,12 +1,16 @@
-"""`star-tracker bench` (what `make bench` runs): the benchmark scripts (bench/*.py in the source
-tree) of BENCHES, the one list of them, one after the other, with a progress bar, then the
-benchmark plots (bench/plots.py) from their JSON results.
+"""
+`star-tracker bench` (what `make bench` runs).
+
+The benchmark scripts (bench/*.py in the source tree) of BENCHES, the one list of them, one after
+the other, with a progress bar, then the benchmark plots (bench/plots.py) from their JSON
+results.
 
 Progress protocol: the command sets PROGRESS_ENV in each benchmark's environment; a benchmark
 that knows how far it is calls `report_progress(done, total, note)`, which prints a
 `PROGRESS_PREFIX done/total note` line on stderr (throttled; nothing when run on its own).
 Benchmarks that do not report show their latest output line, and a bar estimated from their
-last run's duration (meta.elapsed_s of their JSON results) or else a moving marker."""
+last run's duration (meta.elapsed_s of their JSON results) or else a moving marker.
+"""
 from __future__ import annotations
 
 import argparse
@@ -29,9 +33,12 @@ _last_report = [0.0]
 
 
 def report_progress(done: int, total: int, note: str = "", min_interval_s: float = 0.5) -> None:
-    """For benchmarks: tell a `star-tracker bench` run how far this one is (`done` of `total`
-    units, e.g. scenes solved). No-op unless PROGRESS_ENV is set; at most one line every
-    `min_interval_s` (and always the last), so it can be called per unit of work."""
+    """
+    For benchmarks: tell a `star-tracker bench` run how far this one is (`done` of `total` units, e.g. scenes solved).
+
+    No-op unless PROGRESS_ENV is set; at most one line every `min_interval_s` (and always the
+    last), so it can be called per unit of work.
+    """
     if not os.environ.get(PROGRESS_ENV):
         return
     now = time.monotonic()
@@ -43,8 +50,12 @@ def report_progress(done: int, total: int, note: str = "", min_interval_s: float
 
 @dataclass(frozen=True)
 class Bench:
-    """name: what --only selects; module: python -m target; full/quick: its options
-    ({out} = the Markdown file, {images} = the figure directory); peers: takes --no-peers."""
+    """
+    name: what --only selects.
+
+    Module: python -m target; full/quick: its options ({out} = the Markdown file, {images} =
+    the figure directory); peers: takes --no-peers.
+    """
 
     name: str
     module: str
@@ -153,9 +164,12 @@ def find_repo(repo: str | None) -> Path:
 
 
 def command_for(bench: Bench, quick: bool, out: Path, no_peers: bool, repo: Path) -> list[str]:
-    """The command running `bench` in the source tree `repo` (its working directory). A path
-    inside `repo` is given relative to it (`--output docs/BENCHMARKS.md`): the benchmarks write
-    their own command line into the Markdown."""
+    """
+    Return the command running `bench` in the source tree `repo` (its working directory).
+
+    A path inside `repo` is given relative to it (`--output docs/BENCHMARKS.md`): the
+    benchmarks write their own command line into the Markdown.
+    """
     if out.is_relative_to(repo):
         out = out.relative_to(repo)
     options = [a.format(out=out, images=out.parent / "images", results=out.parent)
@@ -219,10 +233,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 class BenchStatus:
-    """The progress bar of one running benchmark: its fraction when it reports progress
-    (PROGRESS_PREFIX lines), else the elapsed share of `expected_s` (its last run's duration),
-    else a moving marker; elapsed time; the latest note or output line. Drawn on stderr by a
-    thread (twice a second on a terminal, every 10 s in a log)."""
+    """
+    The progress bar of one running benchmark.
+
+    Its fraction when it reports progress (PROGRESS_PREFIX lines), else the elapsed share of
+    `expected_s` (its last run's duration), else a moving marker; elapsed time; the latest
+    note or output line. Drawn on stderr by a thread (twice a second on a terminal, every 10 s
+    in a log).
+    """
 
     WIDTH = 24
 
@@ -248,7 +266,7 @@ class BenchStatus:
         self.note = note or self.note
 
     def output(self, line: str) -> None:
-        """The latest output line is the note of benchmarks that do not report progress."""
+        """Keep the latest output line: the note of benchmarks that do not report progress."""
         if line.strip() and self.total == 0:
             self.note = line.strip()
 
@@ -303,8 +321,12 @@ class BenchStatus:
 
 
 def last_duration_s(bench: Bench, results_dir: Path) -> float | None:
-    """How long the benchmark's last full run took [s], from meta.elapsed_s of its JSON
-    results (bench_NAME.json beside the Markdown file), or None."""
+    """
+    How long the benchmark's last full run took [s].
+
+    From meta.elapsed_s of its JSON results (bench_NAME.json beside the Markdown file), or
+    None.
+    """
     path = results_dir / f"{bench.module.rsplit('.', 1)[-1]}.json"
     try:
         meta = json.loads(path.read_text()).get("meta", {})
@@ -316,8 +338,12 @@ def last_duration_s(bench: Bench, results_dir: Path) -> float | None:
 
 def run_one(cmd: list[str], cwd: Path, env: dict, log_path: Path, label: str, verbose: bool,
             expected_s: float | None = None) -> tuple[int, float]:
-    """Run one benchmark with its progress bar on stderr; its output goes to log_path (and
-    the terminal with verbose), its progress lines only to the bar."""
+    """
+    Run one benchmark with its progress bar on stderr.
+
+    Its output goes to log_path (and the terminal with verbose), its progress lines only to
+    the bar.
+    """
     started = time.perf_counter()
     with open(log_path, "w") as log, BenchStatus(label, expected_s=expected_s) as status:
         log.write("$ " + " ".join(shlex.quote(c) for c in cmd) + "\n")

@@ -1,4 +1,7 @@
-"""`star-tracker calibrate IMAGE...`: one camera fitted over several star images, written as a ROS camera calibration file.
+"""
+`star-tracker calibrate IMAGE...`.
+
+One camera fitted over several star images, written as a ROS camera calibration file.
 
 Each image is solved as `solve` does (centroid, field search, per-image refinement); the
 matched stars of all solved images then fit ONE camera jointly with every image's attitude
@@ -85,9 +88,12 @@ def file_images(paths: list[str]):
 
 
 def bag_images(path: str, topic: str, every: int, max_images: int):
-    """(label 'BAG@STAMP_NS', pixels, description) of every `every`-th sensor_msgs/Image on
-    `topic` of a bag, at most max_images; a message the centroider could not take is a
-    BagError naming it (bags/validate.py)."""
+    """
+    (label 'BAG@STAMP_NS', pixels, description) of every `every`-th sensor_msgs/Image on `topic` of a bag.
+
+    At most max_images; a message the centroider could not take is a BagError naming it
+    (bags/validate.py).
+    """
     from ..bags.format import IMAGE_ENCODINGS, IMAGE_TYPE, typestore
     from ..bags.reader import BagReader
     from ..bags.validate import image_problem
@@ -122,8 +128,11 @@ def image_spots(pixels: np.ndarray, description: str, args: argparse.Namespace):
 
 
 def calibration_yaml(calibration, camera_name: str, images: list[dict]) -> str:
-    """The ROS camera calibration file of a CameraCalibration (plumb_bob), with its fit as
-    comments and under `star_tracker_calibration` (ignored by ROS readers)."""
+    """
+    Return the ROS camera calibration file of a CameraCalibration (plumb_bob).
+
+    With its fit as comments and under `star_tracker_calibration` (ignored by ROS readers).
+    """
     import yaml
 
     cam = calibration.camera

@@ -1,7 +1,11 @@
-"""Camera files of the `star-tracker` subcommands: camera_simulator parameters (a ros2 param
-file like config/star_tracker.yaml, or the same keys as a mapping) read into a CameraModel,
-SensorModel and FalseObjectModel for `render`, or a ROS camera calibration file for `solve`;
-and the one-line camera summary the commands print."""
+"""
+Camera files of the `star-tracker` subcommands.
+
+camera_simulator parameters (a ros2 param file like config/star_tracker.yaml, or the same
+keys as a mapping) read into a CameraModel, SensorModel and FalseObjectModel for `render`,
+or a ROS camera calibration file for `solve`; and the one-line camera summary the commands
+print.
+"""
 from __future__ import annotations
 
 import math
@@ -61,17 +65,25 @@ NODE_SENSOR_DEFAULTS = {"vignetting_at_corner": 0.1, "dsnu_fraction": 0.1, "prnu
 
 
 class CameraFile:
-    """A camera read from YAML: `camera` (CameraModel), and for rendering `sensor`
-    (SensorModel), `false_objects` (FalseObjectModel) and `render` (magnitude_limit,
-    epoch_jyear, observer_velocity_m_s, fixed_pattern_seed, seed: those given)."""
+    """
+    A camera read from YAML.
+
+    `camera` (CameraModel), and for rendering `sensor` (SensorModel), `false_objects`
+    (FalseObjectModel) and `render` (magnitude_limit, epoch_jyear, observer_velocity_m_s,
+    fixed_pattern_seed, seed: those given).
+    """
 
     def __init__(self, camera, sensor, false_objects, render: dict, source: str):
         self.camera, self.sensor, self.false_objects, self.render, self.source = camera, sensor, false_objects, render, source
 
 
 def default_camera_file() -> CameraFile:
-    """The camera_simulator node's default camera: 1024 x 1024 px, 15 deg, the node's sensor
-    defaults (NODE_SENSOR_DEFAULTS), no false objects."""
+    """
+    Return the camera_simulator node's default camera.
+
+    1024 x 1024 px, 15 deg, the node's sensor defaults (NODE_SENSOR_DEFAULTS), no false
+    objects.
+    """
     from ..models.camera import CameraModel
     from ..sim.render import FalseObjectModel
     from ..sim.sensor import SensorModel
@@ -92,12 +104,16 @@ def _flatten(mapping: dict, prefix: str = "") -> dict:
 
 
 def load_camera_file(path: str | Path):
-    """Read a camera YAML: either camera_simulator parameters (a ros2 param file like
-    config/star_tracker.yaml, its `/**/camera_simulator: ros__parameters:` block, or the same
-    keys as a plain mapping, nested or dotted: image.width, optics.fov_x_deg, sensor.*, ...;
-    unset keys keep the node's defaults), or a ROS camera calibration file (image_width,
-    image_height, camera_matrix.data, distortion_coefficients.data, as written by
-    camera_calibration) for `solve` with a calibrated camera. Unknown keys are an error."""
+    """
+    Read a camera YAML.
+
+    Either camera_simulator parameters (a ros2 param file like config/star_tracker.yaml, its
+    `/**/camera_simulator: ros__parameters:` block, or the same keys as a plain mapping,
+    nested or dotted: image.width, optics.fov_x_deg, sensor.*, ...; unset keys keep the
+    node's defaults), or a ROS camera calibration file (image_width, image_height,
+    camera_matrix.data, distortion_coefficients.data, as written by camera_calibration) for
+    `solve` with a calibrated camera. Unknown keys are an error.
+    """
     import yaml
 
     from ..models.camera import CameraModel

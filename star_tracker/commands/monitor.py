@@ -1,5 +1,9 @@
-"""`star-tracker monitor`: live terminal view of a running tracker (any ROS 2 graph on this
-domain: `star-tracker demo`, `ros2 launch`, or nodes fed from a real camera)."""
+"""
+`star-tracker monitor`.
+
+Live terminal view of a running tracker (any ROS 2 graph on this domain: `star-tracker
+demo`, `ros2 launch`, or nodes fed from a real camera).
+"""
 from __future__ import annotations
 
 import argparse

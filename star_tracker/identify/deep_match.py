@@ -1,4 +1,5 @@
-"""The deep re-match: once an attitude is accepted, match the spots left over to the deep catalog.
+"""
+The deep re-match: once an attitude is accepted, match the spots left over to the deep catalog.
 
 Identification (the search and its false-positive logic) uses only the pattern database's
 guide stars. At the accepted attitude, every spot without a guide star is compared with the
@@ -62,11 +63,14 @@ MEDIAN_CHI2_2DOF = 2.0 * np.log(2.0)
 
 @dataclass(frozen=True)
 class DeepMatches:
-    """spot_index (K,) into the flux-sorted spots (base.prepare); star_index (K,) deep catalog
-    indices; stars_in_view: deep stars projected inside the image; ambiguous: spots with a
-    star inside the gate left unmatched as ambiguous; magnitude_rejected: spots left
-    unmatched because their brightness disagreed; too_uncertain: spots not tried because
-    their gate was too wide (MAX_CHANCE_STARS_IN_GATE)."""
+    """
+    spot_index (K,) into the flux-sorted spots (base.prepare).
+
+    star_index (K,) deep catalog indices; stars_in_view: deep stars projected inside the
+    image; ambiguous: spots with a star inside the gate left unmatched as ambiguous;
+    magnitude_rejected: spots left unmatched because their brightness disagreed;
+    too_uncertain: spots not tried because their gate was too wide (MAX_CHANCE_STARS_IN_GATE).
+    """
 
     spot_index: np.ndarray
     star_index: np.ndarray
@@ -78,10 +82,14 @@ class DeepMatches:
 
 def error_scale(geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndarray, spot_index: np.ndarray,
                 star_vectors: np.ndarray, cov_px: np.ndarray) -> float:
-    """Variance scale (>= 1) of the match gate: the median squared Mahalanobis offset of the
-    guide matches (spot_index, their ICRS star_vectors) from their stars projected with
-    `rotation`, under their gate covariances cov_px (N, 2, 2) [px^2] of all spots, over its
-    expectation for a 2-D Gaussian (robust to a few outliers)."""
+    """
+    Variance scale (>= 1) of the match gate.
+
+    The median squared Mahalanobis offset of the guide matches (spot_index, their ICRS
+    star_vectors) from their stars projected with `rotation`, under their gate covariances
+    cov_px (N, 2, 2) [px^2] of all spots, over its expectation for a 2-D Gaussian (robust to
+    a few outliers).
+    """
     u, v, _ = camera.project(np.asarray(star_vectors, float) @ rotation)
     dx, dy = geometry.x[spot_index] - u, geometry.y[spot_index] - v
     cov = cov_px[spot_index]
@@ -93,9 +101,12 @@ def error_scale(geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndar
 
 def spot_pixel_covariance(geometry: "SpotGeometry", camera: CameraModel, attitude_covariance: np.ndarray,
                           floor_px: float) -> np.ndarray:
-    """(N, 2, 2) covariance [px^2] of each spot's offset from its star's predicted pixel: the
-    spot's own covariance + floor_px^2 I + the attitude's, J+ [b]x P [b]x^T J+^T with
-    J = d ray / d pixel and P the sensor-frame attitude covariance [rad^2]."""
+    """
+    (N, 2, 2) covariance [px^2] of each spot's offset from its star's predicted pixel.
+
+    The spot's own covariance + floor_px^2 I + the attitude's, J+ [b]x P [b]x^T J+^T with J =
+    d ray / d pixel and P the sensor-frame attitude covariance [rad^2].
+    """
     rays = geometry.rays
     n = rays.shape[0]
     if geometry.pixel_cov is None:
@@ -138,8 +149,11 @@ def _candidate_pairs(spot_xy: np.ndarray, star_xy: np.ndarray, cov: np.ndarray, 
 
 
 def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tuple[float, float] | None:
-    """(zero point, tolerance) [mag] from the guide matches' instrumental and catalog
-    magnitudes, or None when fewer than MIN_ZERO_POINT_STARS are known."""
+    """
+    (zero point, tolerance) [mag] from the guide matches' instrumental and catalog magnitudes.
+
+    Or None when fewer than MIN_ZERO_POINT_STARS are known.
+    """
     difference = np.asarray(spot_magnitude, float) - np.asarray(star_magnitude, float)
     difference = difference[np.isfinite(difference)]
     if difference.size < MIN_ZERO_POINT_STARS:
@@ -152,10 +166,12 @@ def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tu
 def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndarray,
                spot_cov_px: np.ndarray, guide_spots: np.ndarray, guide_hip: np.ndarray,
                guide_magnitude: np.ndarray) -> DeepMatches:
-    """The unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices)
+    """
+    Return the unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices)
     under `rotation` (sensor -> ICRS), with each spot's offset covariance spot_cov_px (N, 2, 2)
     [px^2] (spot_pixel_covariance); guide_hip and guide_magnitude (catalog Hp) of the guide
-    matches, in guide_spots' order (the zero point). See the module docstring."""
+    matches, in guide_spots' order (the zero point). See the module docstring.
+    """
     star, u, v = catalog.stars_in_view(rotation, camera)
     spot_xy = np.stack([geometry.x, geometry.y], axis=1)
     spot, star_j, d2 = _candidate_pairs(spot_xy, np.stack([u, v], axis=1), spot_cov_px, AMBIGUITY_FACTOR * GATE_SIGMA)
@@ -189,11 +205,13 @@ def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraMod
 def deep_bound(geometry: "SpotGeometry", spot_index: np.ndarray, star_vectors: np.ndarray, star_magnitude: np.ndarray,
                rotation: np.ndarray, catalog: DeepCatalog, stars_in_view: int, camera: CameraModel,
                magnitude_floor: float) -> float:
-    """The false-positive bound of verify.py over the matches (spot_index into the flux-sorted
+    """
+    Return the false-positive bound of verify.py over the matches (spot_index into the flux-sorted
     spots, their ICRS star_vectors and catalog magnitudes) at `rotation`, with the deep
     catalog's density (the larger of its mean and its density in this view) and magnitude
     distribution; the matching sigmas as in verification. Matches beyond 5 sigma count
-    for nothing (left out, as verification leaves them out)."""
+    for nothing (left out, as verification leaves them out).
+    """
     body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
     normalized = np.linalg.norm(body - star_vectors @ rotation, axis=1) / sigma
     keep = normalized <= 5.0

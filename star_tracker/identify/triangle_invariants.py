@@ -1,4 +1,5 @@
-"""Attitude-independent shape invariants of a star triangle and their 1-sigma tolerances.
+"""
+Attitude-independent shape invariants of a star triangle and their 1-sigma tolerances.
 
 Side lengths are the inter-star angles a = d12, b = d23, c = d31 [rad].
 
@@ -34,8 +35,10 @@ def lhuilier_area(a: float, b: float, c: float) -> float:
 
 @njit(cache=True)
 def lhuilier_jacobian(a: float, b: float, c: float, out) -> None:
-    """dA/d(a, b, c) of the spherical area (eqs. 20-23; the sign follows from
-    differentiating z^2, Cole's leading minus does not affect H H^T)."""
+    """
+    dA/d(a, b, c) of the spherical area (eqs. 20-23; the sign follows from
+    differentiating z^2, Cole's leading minus does not affect H H^T).
+    """
     q0, q1, q2, q3 = 0.25 * (a + b + c), 0.25 * (b + c - a), 0.25 * (a + c - b), 0.25 * (a + b - c)
     t0, t1, t2, t3 = math.tan(q0), math.tan(q1), math.tan(q2), math.tan(q3)
     z2 = t0 * t1 * t2 * t3
@@ -91,8 +94,11 @@ def _vertex_cosine(p, q, r) -> float:
 
 @njit(cache=True)
 def side_covariance(v1, v2, v3, s1: float, s2: float, s3: float, out) -> None:
-    """Covariance of the sides (d12, d23, d31) from per-axis direction sigmas s_i [rad]:
-    a star's error moves both sides meeting there, correlated by the vertex angle's cosine."""
+    """
+    Covariance of the sides (d12, d23, d31) from per-axis direction sigmas s_i [rad].
+
+    A star's error moves both sides meeting there, correlated by the vertex angle's cosine.
+    """
     out[0, 0] = s1 * s1 + s2 * s2
     out[1, 1] = s2 * s2 + s3 * s3
     out[2, 2] = s3 * s3 + s1 * s1

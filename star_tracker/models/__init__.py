@@ -1,2 +1,6 @@
-"""Shared models every stage uses: the camera (pixel <-> ray), the star catalog (and its
-validated on-disk cache), rotations, and attitude estimation from vector pairs."""
+"""
+Shared models every stage uses.
+
+The camera (pixel <-> ray), the star catalog (and its validated on-disk cache), rotations,
+and attitude estimation from vector pairs.
+"""

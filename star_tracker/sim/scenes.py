@@ -1,4 +1,5 @@
-"""Synthetic centroid-list scenes with known truth, for identification tests and benchmarks.
+"""
+Synthetic centroid-list scenes with known truth, for identification tests and benchmarks.
 
 A scene is what a centroider would report for a random attitude: the projected positions of
 the catalog stars in the field of view plus Gaussian noise, fluxes from the stars' Hp
@@ -26,7 +27,8 @@ FLUX_AT_MAG0 = 1.0e6  # flux of an Hp = 0 star in the scenes [arbitrary units]
 
 @dataclass(frozen=True)
 class SceneSetup:
-    """One test setup.
+    """
+    One test setup.
 
     camera: the pixel grid and optics; fov_radius_rad: circular field stop around the
     boresight (None: the whole rectangular image) [rad]; magnitude_limit: faintest star that
@@ -56,8 +58,12 @@ class SceneSetup:
 
 @dataclass(frozen=True)
 class Scene:
-    """spots: the centroid list, brightest first; rotation: true sensor->ICRS matrix;
-    hip: (N,) HIP id behind each spot, 0 for false stars; setup: how it was made."""
+    """
+    spots: the centroid list, brightest first.
+
+    Rotation: true sensor->ICRS matrix; hip: (N,) HIP id behind each spot, 0 for false
+    stars; setup: how it was made.
+    """
 
     spots: Spots
     rotation: np.ndarray
@@ -86,8 +92,11 @@ def _inside_field(setup: SceneSetup, u: np.ndarray, v: np.ndarray, rays: np.ndar
 
 def _random_field_points(setup: SceneSetup, count: int, rng: np.random.Generator,
                          avoid: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel positions uniform over the field (by rejection), at least min_separation_px from
-    every position in `avoid` (u, v) [px]."""
+    """
+    Pixel positions uniform over the field (by rejection).
+
+    At least min_separation_px from every position in `avoid` (u, v) [px].
+    """
     xs, ys = [], []
     camera, have = setup.camera, 0
     while have < count:
@@ -105,8 +114,12 @@ def _random_field_points(setup: SceneSetup, count: int, rng: np.random.Generator
 
 def make_scene(setup: SceneSetup, catalog: StarCatalog, rng: np.random.Generator,
                rotation: np.ndarray | None = None, max_redraws: int = 1000) -> Scene:
-    """One scene for a random (or the given) attitude. `catalog` is at the scene epoch.
-    When `real_stars` is set and the field holds fewer stars, a new attitude is drawn."""
+    """
+    One scene for a random (or the given) attitude.
+
+    `catalog` is at the scene epoch. When `real_stars` is set and the field holds fewer
+    stars, a new attitude is drawn.
+    """
     stars = catalog.brighter_than(setup.magnitude_limit)
     vectors = stars.unit_vectors()
     camera = setup.camera

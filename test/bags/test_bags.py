@@ -1,5 +1,8 @@
-"""Bag I/O without ROS (star_tracker.bags) and the bag commands on bad bags: every problem
-is an error naming it (exit code != 0, no traceback)."""
+"""
+Bag I/O without ROS (star_tracker.bags) and the bag commands on bad bags.
+
+Every problem is an error naming it (exit code != 0, no traceback).
+"""
 from __future__ import annotations
 
 import os

@@ -1,6 +1,10 @@
-"""The second renderer (bench/alt_renderer.py) knows its own truth: each PSF holds the star's
-flux, a noiseless star's centre of light is its truth position, its noise has the stated
-variance, and its Cramér–Rao bound scales as 1/sqrt(flux) for bright stars."""
+"""
+The second renderer (bench/alt_renderer.py) knows its own truth.
+
+Each PSF holds the star's flux, a noiseless star's centre of light is its truth position, its
+noise has the stated variance, and its Cramér–Rao bound scales as 1/sqrt(flux) for bright
+stars.
+"""
 from __future__ import annotations
 
 import sys

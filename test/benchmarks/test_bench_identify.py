@@ -1,5 +1,9 @@
-"""Smoke test of the identification benchmark (bench/bench_identify.py): a tiny run adds up,
-and the scoring calls a true identification correct and a wrong one incorrect."""
+"""
+Smoke test of the identification benchmark (bench/bench_identify.py).
+
+A tiny run adds up, and the scoring calls a true identification correct and a wrong one
+incorrect.
+"""
 from __future__ import annotations
 
 import sys

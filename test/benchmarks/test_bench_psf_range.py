@@ -1,6 +1,9 @@
-"""The PSF-range centroiding benchmark (bench/bench_psf_range.py): its scoring against known
-positions, a few of its cases at the centroider's defaults (today's centroider meets the goals at
-the sigma it assumes, 1 px), and the quick run's report."""
+"""
+The PSF-range centroiding benchmark (bench/bench_psf_range.py).
+
+Its scoring against known positions, a few of its cases at the centroider's defaults (today's
+centroider meets the goals at the sigma it assumes, 1 px), and the quick run's report.
+"""
 from __future__ import annotations
 
 import json

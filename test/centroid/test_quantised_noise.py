@@ -1,7 +1,9 @@
-"""Noise of coarsely quantised frames (a 12-bit camera at 16 e-/ADU: pixel noise below one
+"""
+Noise of coarsely quantised frames (a 12-bit camera at 16 e-/ADU: pixel noise below one
 ADU, most pixels equal to the median): the robust noise estimate must not collapse to zero
 (then an unclipped standard deviation, inflated by hot pixels, set the threshold 8x too high
-and no star was detected). Frames made here, not by our simulator."""
+and no star was detected). Frames made here, not by our simulator.
+"""
 import numpy as np
 
 from star_tracker.centroid import CentroidConfig, extract_spots

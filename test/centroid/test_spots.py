@@ -1,5 +1,9 @@
-"""The Spots record: building it from pixel positions (Spots.from_xy) and the checks that refuse
-malformed arrays before they reach a compiled kernel."""
+"""
+The Spots record.
+
+Building it from pixel positions (Spots.from_xy) and the checks that refuse malformed arrays
+before they reach a compiled kernel.
+"""
 from __future__ import annotations
 
 import numpy as np

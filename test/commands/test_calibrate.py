@@ -1,6 +1,10 @@
-"""`star-tracker calibrate` (commands/calibrate.py): frames rendered through a distorted camera
-(truth known), the real granasat 27 deg images (astrometry.net references, a held-out image),
-the written ROS calibration file read back by `solve --camera`, and bad input."""
+"""
+`star-tracker calibrate` (commands/calibrate.py).
+
+Frames rendered through a distorted camera (truth known), the real granasat 27 deg images
+(astrometry.net references, a held-out image), the written ROS calibration file read back by
+`solve --camera`, and bad input.
+"""
 from __future__ import annotations
 
 import argparse
@@ -131,8 +135,12 @@ def _corpus_or_skip() -> Path:
 
 @pytest.mark.slow
 def test_calibrate_real_granasat_images_and_solve_a_held_out_one_closer_to_astrometry_net(tmp_path):
-    """Five granasat 27 deg images calibrate one camera; andromeda_05seg (not among them),
-    1.06' off the astrometry.net reference with a focal-length-only solve, lands within 1' with it."""
+    """
+    Five granasat 27 deg images calibrate one camera.
+
+    andromeda_05seg (not among them), 1.06' off the astrometry.net reference with a
+    focal-length-only solve, lands within 1' with it.
+    """
     corpus = _corpus_or_skip()
     from bench import bench_realdata
 
@@ -164,9 +172,11 @@ def test_calibrate_real_granasat_images_and_solve_a_held_out_one_closer_to_astro
 
 
 def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel distances between astrometry.net's detected positions of its matched stars and
+    """
+    Pixel distances between astrometry.net's detected positions of its matched stars and
     (ours) where the image's solve with `camera` puts those catalog stars, (reference) where its
-    TAN-SIP WCS puts them."""
+    TAN-SIP WCS puts them.
+    """
     from astropy.io import fits
     from astropy.table import Table
     from astropy.wcs import WCS
@@ -192,8 +202,10 @@ def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarr
 
 
 def test_the_calibration_file_round_trips_through_solve_camera_and_camera_info(tmp_path, catalog):
-    """calibration_yaml of a fit (projected stars of an off-centre, distorted camera) read back
-    by `solve --camera`'s reader and, as the nodes get it, through a CameraInfo message."""
+    """
+    calibration_yaml of a fit (projected stars of an off-centre, distorted camera) read back
+    by `solve --camera`'s reader and, as the nodes get it, through a CameraInfo message.
+    """
     convert = pytest.importorskip("star_tracker.ros.convert")  # ROS messages (sensor_msgs)
     from star_tracker.commands.calibrate import calibration_yaml
     from star_tracker.models.attitude import radec_roll_to_matrix

@@ -1,5 +1,8 @@
-"""The star-tracker subcommands of star_tracker/commands (render, solve, database, monitor,
-bench), run for real on small inputs and checked against truth."""
+"""
+The star-tracker subcommands of star_tracker/commands (render, solve, database, monitor, bench).
+
+Run for real on small inputs and checked against truth.
+"""
 from __future__ import annotations
 
 import argparse
@@ -27,7 +30,7 @@ ARCSEC = math.radians(1.0 / 3600.0)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """What cli.py builds: every subcommand registered on one parser."""
+    """Return what cli.py builds: every subcommand registered on one parser."""
     parser = argparse.ArgumentParser(prog="star-tracker")
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMANDS:
@@ -153,7 +156,7 @@ def test_render_rejects_bad_input_in_one_line(tmp_path):
 # ---------------------------------------------------------------- solve
 
 def _to_8bit_colour(image: np.ndarray) -> np.ndarray:
-    """What a user does to share a frame: a linear stretch to 8 bits, saved as colour."""
+    """Return what a user does to share a frame: a linear stretch to 8 bits, saved as colour."""
     low, high = np.percentile(image, 1.0), np.percentile(image, 99.95)
     grey = np.clip((image.astype(float) - low) * 255.0 / (high - low), 0, 255).astype(np.uint8)
     return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
@@ -286,9 +289,13 @@ def _photo_cache() -> Path:
 
 @pytest.fixture(scope="module")
 def sky_photo() -> Path:
-    """Directory with sh2-264.png and textures.json: an installed stellarium-data, the test
-    data cache, or fetched into that cache with `apt-get download stellarium-data` (246 MB,
-    once per machine; only the two files are kept)."""
+    """
+    Directory with sh2-264.png and textures.json.
+
+    An installed stellarium-data, the test data cache, or fetched into that cache with
+    `apt-get download stellarium-data` (246 MB, once per machine; only the two files are
+    kept).
+    """
     for directory in (Path("/") / STELLARIUM_DIR, _photo_cache()):
         if (directory / PHOTO).is_file() and (directory / "textures.json").is_file():
             return directory
@@ -473,8 +480,11 @@ def test_bench_progress_protocol_and_bar(tmp_path):
 
 @pytest.mark.slow  # runs bench.plots in a subprocess
 def test_bench_plots_redraw_from_json_results(tmp_path, catalog):
-    """bench/plots.py on identification results of a tiny real run (with the percentiles)
-    and on the committed ones; a missing result is skipped, a broken one fails."""
+    """
+    bench/plots.py on identification results of a tiny real run (with the percentiles) and on the committed ones.
+
+    A missing result is skipped, a broken one fails.
+    """
     sys.path.insert(0, str(REPO))
     from bench import bench_identify, plots
 

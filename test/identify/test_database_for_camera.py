@@ -1,5 +1,9 @@
-"""DatabaseConfig.for_camera: the pair-angle limit derived from a camera model covers its
-field, and the database it gives solves that camera's scenes (against simulator truth)."""
+"""
+DatabaseConfig.for_camera.
+
+The pair-angle limit derived from a camera model covers its field, and the database it gives
+solves that camera's scenes (against simulator truth).
+"""
 import math
 
 import numpy as np
@@ -13,7 +17,7 @@ WIDE = CameraModel.from_fov(1024, 1024, math.radians(20.0))  # 28.1 deg diagonal
 
 
 def widest_angle_on_the_border(camera: CameraModel, samples: int = 200) -> float:
-    """The largest angle between two points of the image border (pixel edges), brute force [rad]."""
+    """Return the largest angle between two points of the image border (pixel edges), brute force [rad]."""
     t = np.linspace(0.0, 1.0, samples)
     w, h = camera.width - 0.5, camera.height - 0.5
     u = np.concatenate([-0.5 + t * camera.width, np.full(samples, w), -0.5 + t * camera.width, np.full(samples, -0.5)])

@@ -1,5 +1,9 @@
-"""The identification budget's clocks (identify/deadline.py): "cpu" counts only this process's
-work, so a solve does the same search however busy the host is; "wall" counts elapsed time."""
+"""
+The identification budget's clocks (identify/deadline.py).
+
+"cpu" counts only this process's work, so a solve does the same search however busy the host
+is; "wall" counts elapsed time.
+"""
 import time
 
 import pytest

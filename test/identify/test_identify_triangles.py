@@ -1,5 +1,8 @@
-"""Triangle features (Cole & Crassidis spherical, Toloei planar) against independent
-computations, and the catalog triangle database."""
+"""
+Triangle features (Cole & Crassidis spherical, Toloei planar) against independent computations.
+
+And the catalog triangle database.
+"""
 import numpy as np
 import pytest
 
@@ -104,8 +107,12 @@ def test_planar_features_against_heron_and_monte_carlo_integration():
 
 @pytest.mark.parametrize("spherical", [True, False])
 def test_feature_sigmas_match_monte_carlo(spherical):
-    """Linearized 1-sigma of area, moment and side product (beta = 1, no floor) against
-    the scatter of noisy measurements of the same triangle."""
+    """
+    Linearized 1-sigma of area.
+
+    Moment and side product (beta = 1, no floor) against the scatter of noisy measurements
+    of the same triangle.
+    """
     rng = np.random.default_rng(5 if spherical else 6)
     v1, v2, v3 = (v[0] for v in random_triangles(rng, 1, 0.04))
     sigma = 2e-5

@@ -1,7 +1,10 @@
-"""Scale-free four-star patterns (identify/scale_free.py): the focal length of a frame whose
-field is known only to +-5 %, judged against the true camera and attitude; a frame of stars in
-no sky pattern finds none. Real photographs at a field 4 % off: test_realdata_corpus and the
-solve test below."""
+"""
+Scale-free four-star patterns (identify/scale_free.py).
+
+The focal length of a frame whose field is known only to +-5 %, judged against the true camera
+and attitude; a frame of stars in no sky pattern finds none. Real photographs at a field 4 %
+off: test_realdata_corpus and the solve test below.
+"""
 from __future__ import annotations
 
 import math

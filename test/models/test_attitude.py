@@ -1,5 +1,8 @@
-"""Attitude representations (models/attitude.py): RA/Dec/roll and quaternion round trips,
-and the image orientation convention of roll = 0."""
+"""
+Attitude representations (models/attitude.py).
+
+RA/Dec/roll and quaternion round trips, and the image orientation convention of roll = 0.
+"""
 import numpy as np
 import pytest
 

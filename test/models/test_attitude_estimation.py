@@ -1,6 +1,10 @@
-"""Attitude estimation from vector pairs (models/attitude_estimation.py): QUEST against a
-known rotation and the q-method, its covariance against Monte-Carlo scatter, and the
-covariance-weighted refinement. Cross-checks against SVD: test_attitude_crosscheck.py."""
+"""
+Attitude estimation from vector pairs (models/attitude_estimation.py).
+
+QUEST against a known rotation and the q-method, its covariance against Monte-Carlo scatter,
+and the covariance-weighted refinement. Cross-checks against SVD:
+test_attitude_crosscheck.py.
+"""
 import numpy as np
 import pytest
 
@@ -66,8 +70,7 @@ def test_quest_covariance_is_consistent_with_monte_carlo_errors():
 
 
 def tangential_axes(body):
-    """Unit vectors perpendicular to each direction `body`: tangential (the roll direction
-    about +Z) and radial."""
+    """Return unit vectors perpendicular to each direction `body`: tangential (the roll direction about +Z) and radial."""
     tangential = np.cross([0.0, 0.0, 1.0], body)
     tangential /= np.linalg.norm(tangential, axis=1, keepdims=True)
     return tangential, np.cross(body, tangential)

@@ -1,5 +1,8 @@
-"""Online f, k1 refinement (models/online_calibration.py) on identifications of projected stars:
-a camera whose focal length drifted 0.3 % and with k1 = 0.05 that the nominal model lacks."""
+"""
+Online f, k1 refinement (models/online_calibration.py) on identifications of projected stars.
+
+A camera whose focal length drifted 0.3 % and with k1 = 0.05 that the nominal model lacks.
+"""
 import math
 
 import numpy as np

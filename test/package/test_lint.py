@@ -3,8 +3,8 @@
 Linters as tests: flake8, pep257 (pydocstyle) and the licence header of every Python file.
 
 flake8 and pydocstyle read their settings from setup.cfg ([flake8]: line length 120;
-[pydocstyle]: ament_pep257's default convention). `python -m test.package.test_lint` prints
-the files linted, one a line, e.g. `flake8 $(python -m test.package.test_lint)`.
+[pydocstyle]: ament_pep257's default convention). `python test/package/test_lint.py` prints
+the files linted, one a line, e.g. `flake8 $(python test/package/test_lint.py)`.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ LICENCE_HEADER = "# SPDX-License-Identifier: Apache-2.0"
 
 # TEMPORARY: files other branches of issue 18 were editing while the rest was linted. The lead
 # fixes them after merging those branches and then deletes this list (and its use below).
-# List what is left in them: `flake8 $(python -m test.package.test_lint --not-yet-linted)`
+# List what is left in them: `flake8 $(python test/package/test_lint.py --not-yet-linted)`
 # and the same with `pydocstyle`.
 NOT_YET_LINTED = (
     "star_tracker/ros/*.py",
@@ -58,7 +58,7 @@ def _not_yet_linted(name: str) -> bool:
 
 
 def linted_files() -> list[str]:
-    """The Python files the linters and the licence check cover (relative to ROOT)."""
+    """Return the Python files the linters and the licence check cover (relative to ROOT)."""
     return [name for name in _all_python_files() if not _not_yet_linted(name)]
 
 

@@ -1,7 +1,10 @@
-"""The nodes' warm-ups compile every numba variant their first frames use. A variant missed
-there is compiled on the first frame instead: on a fresh install that took > 8 s in the
-centroider (a read-only image from a ROS message is its own numba type), so the first
-frames of `star-tracker demo --gyro` were dropped for overload."""
+"""
+The nodes' warm-ups compile every numba variant their first frames use.
+
+A variant missed there is compiled on the first frame instead: on a fresh install that took
+> 8 s in the centroider (a read-only image from a ROS message is its own numba type), so the
+first frames of `star-tracker demo --gyro` were dropped for overload.
+"""
 from __future__ import annotations
 
 import subprocess

@@ -1,7 +1,11 @@
-"""The camera-profile fit (star_tracker.sim.camera_profile): it recovers a known camera from
-frames our simulator rendered with known values, it reproduces the shipped profile of the
-real openstartracker frames, and the shipped profile loads through the camera_simulator's
-parameter path (the CLI's --camera loader and the node's declarations)."""
+"""
+The camera-profile fit (star_tracker.sim.camera_profile).
+
+It recovers a known camera from frames our simulator rendered with known values, it
+reproduces the shipped profile of the real openstartracker frames, and the shipped profile
+loads through the camera_simulator's parameter path (the CLI's --camera loader and the
+node's declarations).
+"""
 from __future__ import annotations
 
 import math

@@ -1,5 +1,9 @@
-"""Attitude motion profiles against independent truth: closed forms, finite differences of the
-attitude, conservation laws and a separately formulated high-accuracy integration."""
+"""
+Attitude motion profiles against independent truth.
+
+Closed forms, finite differences of the attitude, conservation laws and a separately
+formulated high-accuracy integration.
+"""
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp

@@ -1,6 +1,10 @@
-"""The renderer's truth listing (FrameTruth) against what it was asked to draw: objects grouped
-in the documented order, each group's count, positions and signal within the false-object and
-sensor parameters, hot pixels at the fixed pattern's positions with their dark charge."""
+"""
+The renderer's truth listing (FrameTruth) against what it was asked to draw.
+
+Objects grouped in the documented order, each group's count, positions and signal within the
+false-object and sensor parameters, hot pixels at the fixed pattern's positions with their dark
+charge.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,5 +1,9 @@
-"""The camera simulator against physics: photometry, geometry, smear, noise, distortion,
-shutter effects, aberration and truth. Each test compares with an independent model."""
+"""
+The camera simulator against physics.
+
+Photometry, geometry, smear, noise, distortion, shutter effects, aberration and truth. Each
+test compares with an independent model.
+"""
 from __future__ import annotations
 
 import cv2

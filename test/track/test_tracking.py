@@ -1,5 +1,8 @@
-"""Tracking (localized recognition), rate estimate, forced loss and delay compensation, against
-the simulator's truth: real renderer, real centroider, real database."""
+"""
+Tracking (localized recognition), rate estimate, forced loss and delay compensation, against the simulator's truth.
+
+Real renderer, real centroider, real database.
+"""
 import math
 
 import numpy as np
@@ -38,7 +41,7 @@ def frames_of(renderer, motion, count, first=0, seed=0):
 
 
 def centroid(frame, camera, rate=None):
-    """The centroider, rate-aided by the tracker's own estimate as in the node pipeline."""
+    """Return the centroider, rate-aided by the tracker's own estimate as in the node pipeline."""
     smear = None if rate is None else SmearModel(camera, rate.angular_velocity, 0.1)
     return extract_spots(frame.image, CentroidConfig(), smear)
 
@@ -205,8 +208,12 @@ def test_rate_estimator_gls_matches_its_covariance():
 
 
 def test_rate_window_restarts_after_a_rate_step():
-    """A rate step before the newest attitude breaks the window's model: the fit falls back to
-    the newest two attitudes, whose constant-rate slope (with the lag term) covers the truth."""
+    """
+    A rate step before the newest attitude breaks the window's model.
+
+    The fit falls back to the newest two attitudes, whose constant-rate slope (with the lag
+    term) covers the truth.
+    """
     rng = np.random.default_rng(5)
     start = radec_roll_to_matrix(0.4, -0.3, 1.0)
     cov = np.diag([(1 * ARCSEC) ** 2, (1 * ARCSEC) ** 2, (6 * ARCSEC) ** 2])
