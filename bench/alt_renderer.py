@@ -49,8 +49,9 @@ class _SupersampledPsf:
 
     def pixel_fractions(self, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
         """
-        Fraction of the star's light in pixels whose centres are at (dx, dy) [px] from the
-        star (broadcast arrays of one shape).
+        Return the fraction of the star's light in pixels whose centres are at (dx, dy) [px].
+
+        dx, dy: offsets from the star, broadcast arrays of one shape.
         """
         t, w = _gauss_legendre_unit(self.nodes)
         px = dx[..., None, None] + t[None, :]
@@ -359,8 +360,9 @@ class Frame(NamedTuple):
 
 def star_signal(field_: StarField, flux_e: float, width: int, height: int) -> np.ndarray:
     """
-    Return the expected star electrons per pixel (float64, (height, width)) for every star at the
-    nominal flux `flux_e` [e-] (the light outside the chip or stamp is lost).
+    Return the expected star electrons per pixel (float64, (height, width)) for every star.
+
+    At the nominal flux `flux_e` [e-]; the light outside the chip or stamp is lost.
     """
     signal = np.zeros((height, width))
     for stamp in field_.stamps:
@@ -436,8 +438,9 @@ def render(field_: StarField, flux_e: float, detector: Detector, width: int, hei
 
 def cramer_rao(field_: StarField, flux_e: float, detector: Detector) -> np.ndarray:
     """
-    (N, 2, 2) Cramér–Rao bound of each star's (x, y) [px^2] at flux `flux_e` [e-] (module
-    docstring; the star's own light only: the fields are isolated stars).
+    Return the (N, 2, 2) Cramér–Rao bound of each star's (x, y) [px^2] at flux `flux_e` [e-].
+
+    See the module docstring; the star's own light only: the fields are isolated stars.
     """
     bounds = np.empty((len(field_.x), 2, 2))
     for k, (stamp, (dx, dy)) in enumerate(zip(field_.stamps, field_.gradients)):

@@ -1,6 +1,7 @@
 """
-Attitude accuracy and covariance consistency of the in-process chain render -> extract_spots
--> hybrid identify, at rest and under body rates.
+Attitude accuracy and covariance consistency of render -> extract_spots -> hybrid identify.
+
+The in-process chain, at rest and under body rates.
 
     python -m bench.bench_attitude [--frames N] [--jobs J] [--output docs/BENCHMARKS.md]
 
@@ -22,13 +23,13 @@ mean 2), by SNR, Hp, distance to the nearest other rendered star and flag. The p
 by frame category (a matched spot flagged saturated / blended; a matched star with another
 rendered star within NEIGHBOUR_PX; none of these). And the NEES of the same matches refitted
 (as the identifier: QUEST with each ray's isotropic sigma, then the maximum-likelihood
-refinement with its full 2-D covariance, attitude_estimation.refine_with_covariances) under changes that
-isolate one cause each: "with the floor" = QUEST with every spot's sigma floored at
-IdentifyConfig.centroid_sigma_floor_px (what the identifier published before); "isotropic" =
-QUEST with the isotropic sigmas only (no 2-D refinement); "no rejection" = every matched star
-kept (the identifier leaves out stars beyond 5 sigma); "- clipped" = without spots that have a
-pixel at the sensor's full-well clip level (found in the image); "- crowded" = without stars
-that have another rendered star within NEIGHBOUR_PX.
+refinement with its full 2-D covariance, attitude_estimation.refine_with_covariances) under
+changes that isolate one cause each: "with the floor" = QUEST with every spot's sigma floored
+at IdentifyConfig.centroid_sigma_floor_px (what the identifier published before);
+"isotropic" = QUEST with the isotropic sigmas only (no 2-D refinement); "no rejection" = every
+matched star kept (the identifier leaves out stars beyond 5 sigma); "- clipped" = without
+spots that have a pixel at the sensor's full-well clip level (found in the image);
+"- crowded" = without stars that have another rendered star within NEIGHBOUR_PX.
 """
 from __future__ import annotations
 
@@ -186,8 +187,9 @@ class Chain:
 
     def clipped(self, image: np.ndarray, x: np.ndarray, y: np.ndarray, streak_length: np.ndarray) -> np.ndarray:
         """
-        Spots with a pixel at the sensor's full-well clip level (full_well / gain + bias, rounded)
-        within 3 px plus half the streak of their centre.
+        Return the spots with a pixel at the sensor's full-well clip level near their centre.
+
+        The clip level is full_well / gain + bias, rounded; near: within 3 px plus half the streak.
         """
         level = np.floor(self.sensor.full_well_e / self.sensor.gain_e_per_adu + self.sensor.bias_adu + 0.5)
         height, width = image.shape

@@ -58,7 +58,7 @@ STATUS = {"camera_simulator": "star_tracker/camera_simulator", "centroider": "st
 
 # ----------------------------------------------------------------------------- host figures
 def cpu_seconds(pid: int) -> float:
-    """utime + stime of a process [s]."""
+    """Return utime + stime of a process [s]."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 

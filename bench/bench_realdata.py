@@ -159,8 +159,9 @@ def attitude_errors(solved: np.ndarray, reference: np.ndarray) -> tuple[float, f
 
 def score(rotation: np.ndarray | None, image: CorpusImage) -> dict:
     """
-    Errors [rad] of a solution against the image's reference (None when either is absent)
-    and whether it is within 1' (boresight).
+    Return the errors [rad] of a solution against the image's reference, and whether within 1'.
+
+    None when either is absent; the 1' is on the boresight.
     """
     if rotation is None or image.reference is None:
         return {"boresight_error_rad": None, "roll_error_rad": None, "within_1arcmin": None}

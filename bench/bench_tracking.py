@@ -110,6 +110,8 @@ QUICK = Plan(constant_rates_deg_s=(0.0, 1.0, 2.0, 5.0), runs_per_rate=1, runs_be
 
 def truth_near(frame, spots: Spots) -> tuple[np.ndarray, list[set]]:
     """
+    Return the truth star nearest each spot and the truth stars blended into it.
+
     (HIP id of the truth star nearest each spot, 0 when none within TRUTH_RADIUS_PX; per spot
     the set of HIP ids of all truth stars within BLEND_RADIUS_PX: with more than one the spot
     is an unresolved blend, whose other members are "blend partners").
@@ -210,7 +212,9 @@ class TrackingBench:
     # --- one frame ----------------------------------------------------------------------
     def step(self, tracker: Tracker, stamp_ns: int, spots: Spots):
         """
-        Ours on one frame: (TrackedFrame, accept_tracked time [s] or None, failed tracking (reason, gate_px) or None).
+        Run ours on one frame.
+
+        Returns (TrackedFrame, accept_tracked time [s] or None, failed tracking (reason, gate_px) or None).
         """
         prediction = tracker.predict(stamp_ns)
         track_s, failed = None, None

@@ -6,9 +6,10 @@ from pathlib import Path
 
 def write_section(path: Path, text: str, header: str | None = None) -> None:
     """
-    Replace the `## ...` section of the Markdown file at `path` whose header line equals
-    `header` (default: the first line of `text`), up to the next `## ` line; append it when
-    absent. The rest of the file is kept.
+    Replace the `## ...` section of the Markdown file at `path` whose header line equals `header`.
+
+    `header` defaults to the first line of `text`; the section runs up to the next `## ` line; it
+    is appended when absent. The rest of the file is kept.
     """
     header = (header or text.lstrip().splitlines()[0]).rstrip()
     path = Path(path)

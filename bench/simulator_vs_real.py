@@ -108,8 +108,9 @@ def background_pixels(frame: ProfileFrame, stars, psf_sigma_px: float) -> np.nda
 
 def neighbour_correlation(image: np.ndarray) -> float:
     """
-    Correlation of horizontally adjacent pixels after removing a 15 px box mean [-]
-    (0 for white noise; demosaicing or smoothing makes it positive).
+    Return the correlation of horizontally adjacent pixels after removing a 15 px box mean [-].
+
+    0 for white noise; demosaicing or smoothing makes it positive.
     """
     import cv2
 
@@ -161,9 +162,11 @@ def compare(profile: CameraProfile, real: list[RealFrame], stars) -> dict:
 
 def solve_counts(real: list[RealFrame], simulated: list[ProfileFrame], corpus: Path) -> dict:
     """
-    `star-tracker solve FILE --fov <the set's field> --json` (every other option at its
-    default) on each real frame as stored (the CLI averages the colour channels), on its green
-    channel alone, and on the simulated frame: how many solve, and the identified stars.
+    Solve each real frame and the simulated one with `star-tracker solve FILE --fov <field> --json`.
+
+    The field is the set's; every other option at its default. Each real frame is solved as
+    stored (the CLI averages the colour channels) and on its green channel alone; returns how
+    many solve, and the identified stars.
     """
     import tempfile
 

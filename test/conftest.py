@@ -57,8 +57,10 @@ def nominal_camera():
 
 def join_isolated_ros_domain(monkeypatch) -> dict:
     """
-    Put this test process on a private ROS domain (localhost discovery, the project's Fast DDS
-    profile) and initialise rclpy; returns that environment for the node processes.
+    Put this test process on a private ROS domain and initialise rclpy.
+
+    Localhost discovery, the project's Fast DDS profile; returns that environment for the node
+    processes.
     """
     import rclpy
 
@@ -74,9 +76,10 @@ def join_isolated_ros_domain(monkeypatch) -> dict:
 
 def spots_at(sky, camera, rotation):
     """
-    Return the spots a perfect centroider measures of the catalog stars `sky` (a Catalog) seen by
-    `camera` at `rotation` (sensor -> ICRS): true positions [px], brightest first, flux from the
-    magnitude, SNR 50, 0.01 px^2 variances; stars within 3 px of the border left out.
+    Return the spots a perfect centroider measures of the catalog stars `sky` (a Catalog).
+
+    Seen by `camera` at `rotation` (sensor -> ICRS): true positions [px], brightest first, flux
+    from the magnitude, SNR 50, 0.01 px^2 variances; stars within 3 px of the border left out.
     """
     from star_tracker.centroid import Spots
 

@@ -34,8 +34,9 @@ def _string(buffer: bytes, offset: int) -> tuple[str, int]:
 
 def salvage_mcap_records(file: Path, writer: BagWriter) -> None:
     """
-    Copy schemas, channels and messages of every complete record of `file` to `writer`
-    (stops at the first incomplete record: the point where the recorder was killed).
+    Copy schemas, channels and messages of every complete record of `file` to `writer`.
+
+    Stops at the first incomplete record: the point where the recorder was killed.
     """
     from rosbags.rosbag2.metadata import parse_qos
 

@@ -111,7 +111,9 @@ class _FootprintWindows(NamedTuple):
 def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float,
                        find_blends: bool = True) -> Candidates:
     """
-    Aperture (small components) or footprint (large ones) measurements of every detection, after hot-pixel cleaning.
+    Measure every detection after hot-pixel cleaning.
+
+    Aperture measurements for small components, footprint measurements for large ones.
     """
     half = config.window_half + 1  # measuring window: the fit window plus a pixel of room
     size = 2 * half + 1

@@ -114,7 +114,9 @@ class _Frame:
 def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None"
                    ) -> tuple[Spots, _Frame | None]:
     """
-    One measurement of the frame with config's PSF width: the spots and the _Frame (None when nothing was detected).
+    Measure the frame once with config's PSF width.
+
+    Returns the spots and the _Frame (None when nothing was detected).
     """
     height, width = image.shape
     binning = config.binning if min(height, width) >= 16 * config.binning else 1

@@ -130,8 +130,9 @@ class _BatchState:
 
     def linearize(self, index, aug, residual) -> None:
         """
-        N, gradient and chi^2 of the spots `index` from aug (jacobian rows, then the model,
-        replaced by the residual here).
+        Return N, gradient and chi^2 of the spots `index`.
+
+        From aug: the jacobian rows, then the model, replaced by the residual here.
         """
         n_par = self.n_par
         w = self.weights[index]
@@ -191,8 +192,9 @@ class _BatchState:
 
     def _decrement(self, model: LeastSquaresModel, active, p, g, floor):
         """
-        Gauss-Newton decrement g^T N^-1 g of the spots `active` (the chi^2 still to gain)
-        over their determined parameters, and the (n, P) mask of parameters the step holds.
+        Return the Gauss-Newton decrement g^T N^-1 g of the spots `active` (the chi^2 still to gain).
+
+        Over their determined parameters; also the (n, P) mask of parameters the step holds.
         """
         floored = self.normal[active] + floor[:, :, None] * self.eye
         if model.undetermined is None:

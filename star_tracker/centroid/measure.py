@@ -59,9 +59,11 @@ _CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
 
 def clean_hot_pixels(windows: np.ndarray, valid: np.ndarray, noise: float, ratio_limit: float):
     """
-    Replace isolated hot pixels / cosmic-ray hits in background-subtracted windows (n, S, S)
-    [ADU] by the mean of their 4 neighbours: a pixel brighter than ratio_limit x its brightest
-    neighbour + 5 noise sigmas cannot come from a PSF that wide. Returns (cleaned, hit mask).
+    Replace isolated hot pixels / cosmic-ray hits in background-subtracted windows (n, S, S) [ADU].
+
+    Each is replaced by the mean of its 4 neighbours: a pixel brighter than ratio_limit x its
+    brightest neighbour + 5 noise sigmas cannot come from a PSF that wide. Returns (cleaned,
+    hit mask).
     """
     n, rows, cols = windows.shape
     if not np.isfinite(ratio_limit):
@@ -108,8 +110,9 @@ def _moment_features(size_r: int, size_c: int) -> np.ndarray:
 def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row0: np.ndarray, noise: float,
                      gain: float, power: int = 1, signed_shape: bool = False) -> Moments:
     """
-    Centre of gravity of the pixels in `use` (n, R, C) of background-subtracted windows
-    whose top-left pixel is (col0, row0) [px].
+    Return the centre of gravity of the pixels in `use` (n, R, C) of background-subtracted windows.
+
+    The windows' top-left pixel is (col0, row0) [px].
 
     power 1: plain centre of gravity, weights r_i; power 2: intensity-weighted, weights
     max(r_i, 0)^2 (less noise from the faint wings, more pixel-phase bias). The covariance
@@ -154,8 +157,9 @@ def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row
 def secondary_peaks(windows: np.ndarray, valid: np.ndarray, centre: int, threshold: float, min_separation: float,
                     radius: float, gain: float, noise: float):
     """
-    Return the brightest local maximum of the 3x3 box sum (box_sums) of each window (n, S, S) that
-    is at least `min_separation` px from the window centre, within `radius` px of it, above
+    Return the brightest separate local maximum of the 3x3 box sum (box_sums) of each window (n, S, S).
+
+    It is at least `min_separation` px from the window centre, within `radius` px of it, above
     `threshold` [ADU, box sum] and separated from the central peak by a dip (the box sum
     half-way between them is below 0.9x the fainter peak). Returns (found (n,), row, col).
     """

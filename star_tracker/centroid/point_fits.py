@@ -110,10 +110,11 @@ MISFIT_MAX_ELONGATION = 1.2  # ... and a spot no more elongated than this (axis 
 
 def _not_gaussian(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> np.ndarray:
     """
-    Single-PSF fits (bool per window) that the Gaussian does not describe (a non-Gaussian
-    PSF: a defocused ring, strong coma): bright (flux SNR >= MISFIT_MIN_SNR), reduced chi^2
-    above MISFIT_CHI2 and a residual norm above MISFIT_RESIDUAL of the model's. Such a spot keeps
-    its model-free centre of gravity (and its phase-bias covariance) instead.
+    Return the single-PSF fits (bool per window) that the Gaussian does not describe.
+
+    A non-Gaussian PSF (a defocused ring, strong coma): bright (flux SNR >= MISFIT_MIN_SNR),
+    reduced chi^2 above MISFIT_CHI2 and a residual norm above MISFIT_RESIDUAL of the model's.
+    Such a spot keeps its model-free centre of gravity (and its phase-bias covariance) instead.
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         bright = fit.converged[:, 0] & (fit.flux[:, 0] / np.sqrt(np.abs(fit.flux_var[:, 0])) >= MISFIT_MIN_SNR)

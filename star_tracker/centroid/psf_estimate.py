@@ -122,10 +122,12 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
 def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturation: float, prior_sigma: float,
                  gain: float) -> PsfEstimate:
     """
-    Return the frame's PSF from its usable stars (usable_stars) whose fit converged to a width of
-    at least SHARPEST_STAR_PX and whose axis ratio is below MAX_AXIS_RATIO, or the prior
-    (source "prior", with the reason) when fewer than MIN_STARS remain or the width is outside
-    [MIN_SIGMA_PX, MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
+    Return the frame's PSF from its usable stars (usable_stars), or the prior.
+
+    The stars used are those whose fit converged to a width of at least SHARPEST_STAR_PX and
+    whose axis ratio is below MAX_AXIS_RATIO; the prior (source "prior", with the reason) is
+    returned when fewer than MIN_STARS remain or the width is outside [MIN_SIGMA_PX,
+    MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
     saturation [ADU]; prior_sigma: the width the candidates were measured with [px]; gain
     [e-/ADU].
     """
@@ -210,9 +212,11 @@ def _fit_widths(image, x, y, background, half: int, start: float, noise: float, 
 
 def _weighted_moments(windows, x, y, weight_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """
-    Each star's Gaussian-weighted second moments M (k, 2, 2) [px^2] about its fitted centre
-    (x, y) [px] (weight 1-sigma weight_sigma [px], wider than the PSF so that the product is
-    well sampled by the pixels) and the weighted signal each sums (k,) [ADU].
+    Return each star's Gaussian-weighted second moments M (k, 2, 2) [px^2] and weighted signal.
+
+    The moments are about its fitted centre (x, y) [px] (weight 1-sigma weight_sigma [px], wider
+    than the PSF so that the product is well sampled by the pixels); the weighted signal each
+    sums is (k,) [ADU].
     """
     data, valid, col0, row0 = windows
     size = data.shape[1]
@@ -234,10 +238,11 @@ def _weighted_moments(windows, x, y, weight_sigma: float) -> tuple[np.ndarray, n
 
 def _axes(moments: np.ndarray, weight_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """
-    Axis ratio sigma_major / sigma_minor [-] (inf when not measurable) and major axis angle
-    [rad] in (-pi/2, pi/2] of the PSF under Gaussian-weighted moments (k, 2, 2): for a Gaussian
-    of covariance C, pixelated (C + I/12), such moments are M = ((C + I/12)^-1 + I/w^2)^-1, so
-    C = (M^-1 - I/w^2)^-1 - I/12 (w = weight_sigma [px]).
+    Return the axis ratio sigma_major / sigma_minor [-] and major axis angle [rad] of the PSF.
+
+    The ratio is inf when not measurable, the angle in (-pi/2, pi/2], from Gaussian-weighted
+    moments (k, 2, 2): for a Gaussian of covariance C, pixelated (C + I/12), such moments are
+    M = ((C + I/12)^-1 + I/w^2)^-1, so C = (M^-1 - I/w^2)^-1 - I/12 (w = weight_sigma [px]).
     """
     def inverse(a, b, c):  # of the symmetric [[a, c], [c, b]], and whether it is positive definite
         det = a * b - c * c

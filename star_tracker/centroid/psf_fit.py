@@ -48,9 +48,10 @@ def _inverse_3x3(a: np.ndarray) -> np.ndarray:
 
 def gather_windows(image: np.ndarray, col0: np.ndarray, row0: np.ndarray, size: int | tuple[int, int]):
     """
-    (n, rows, cols) float windows with top-left pixel (col0, row0) [px] (size: an int for
-    square windows or (rows, cols)), and a mask of the pixels inside the image (outside ones
-    read as 0).
+    Return (n, rows, cols) float windows with top-left pixel (col0, row0) [px], and a mask.
+
+    size: an int for square windows or (rows, cols); the mask holds the pixels inside the
+    image (outside ones read as 0).
     """
     height, width = image.shape
     size_r, size_c = (size, size) if np.isscalar(size) else size
@@ -115,8 +116,9 @@ class PsfFit(NamedTuple):
 def fit_psf_windows(windows: PsfWindows, start: PsfStart, sigma: float, noise: float, gain: float,
                     iterations: int = 10) -> PsfFit:
     """
-    Fit M Gaussian PSFs (fixed sigma [px]) per window to the n `windows` of
-    background-subtracted data [ADU] (their `valid` pixels), starting at `start`.
+    Fit M Gaussian PSFs (fixed sigma [px]) per window to the n `windows`, starting at `start`.
+
+    The windows hold background-subtracted data [ADU] (their `valid` pixels).
 
     Model: mu_ij = sum_m F_m P(col_j; x_m) P(row_i; y_m), P = PSF integral over the pixel;
     weights 1 / (mu / gain + noise^2) (gain e-/ADU, noise 1-sigma ADU). Gauss-Newton on
@@ -157,7 +159,7 @@ def _fit_psf_numpy(windows: PsfWindows, start: PsfStart, sigma, noise, gain, ite
     eye = np.eye(3 * m)[None]
 
     def normal_equations(a):
-        """Normal matrix and gradient of windows `a` at the current parameters."""
+        """Return the normal matrix and gradient of windows `a` at the current parameters."""
         k = a.size
         px, dpx = pixel_integrated_profile(edges_c[a], x[a][:, :, None], sigma)  # (k, M, S)
         py, dpy = pixel_integrated_profile(edges_r[a], y[a][:, :, None], sigma)
@@ -213,8 +215,10 @@ def _fit_psf_numpy(windows: PsfWindows, start: PsfStart, sigma, noise, gain, ite
 def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0: np.ndarray, sigma: float,
                      noise: float, gain: float, half: int = 4, iterations: int = 10):
     """
-    One PSF per spot on (2 half + 1)^2 windows of a background-subtracted image [ADU]
-    centred on the rounded initial positions. Returns x, y, flux (N,), cov (N, 2, 2), converged.
+    Fit one PSF per spot on (2 half + 1)^2 windows of a background-subtracted image [ADU].
+
+    The windows are centred on the rounded initial positions. Returns x, y, flux (N,), cov (N, 2,
+    2), converged.
     """
     x0, y0 = np.asarray(x0, float), np.asarray(y0, float)
     col0, row0 = np.rint(x0).astype(np.int64) - half, np.rint(y0).astype(np.int64) - half

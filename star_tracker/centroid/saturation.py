@@ -65,12 +65,13 @@ def clip_levels(context: FitContext, spots: Candidates, configured: float) -> np
 
 def undershot_peaks(context: FitContext, detection: np.ndarray, fits: SpotRows, path) -> np.ndarray:
     """
-    Clip level [ADU] of fitted spots whose brightest raw pixel (in their detection box grown
-    by 2 px) reads UNDERSHOOT_SIGMA below the fitted model there (inf: none): clipped in too
-    few pixels for a flat top. Only spots FLAT_TOP_MIN_SIGMA above the background are
-    examined. detection: (N,) the spots' indices in the Detections; fits: their fitted x, y,
-    flux; path: (N, K, 2) offsets of fits on a predicted path (the model is their mean PSF,
-    the fits' approximation), None for point fits (the pixel-integrated Gaussian).
+    Return the clip level [ADU] of fitted spots clipped in too few pixels for a flat top (inf: none).
+
+    Those are the spots whose brightest raw pixel (in their detection box grown by 2 px) reads
+    UNDERSHOOT_SIGMA below the fitted model there. Only spots FLAT_TOP_MIN_SIGMA above the
+    background are examined. detection: (N,) the spots' indices in the Detections; fits: their
+    fitted x, y, flux; path: (N, K, 2) offsets of fits on a predicted path (the model is their
+    mean PSF, the fits' approximation), None for point fits (the pixel-integrated Gaussian).
     """
     image, det, sigma = context.image, context.det, context.sigma
     x, y, flux = fits.x, fits.y, fits.flux
@@ -113,9 +114,10 @@ def undershot_peaks(context: FitContext, detection: np.ndarray, fits: SpotRows, 
 
 def clipped_pixels(context: FitContext, detection: np.ndarray, level: np.ndarray) -> np.ndarray:
     """
-    (H, W) bool: the pixels at or above their spot's clip level `level` [ADU] in the
-    detection boxes `detection` (indices in the Detections), grown by the PSF's reach (any
-    fit reading them leaves them out).
+    Return an (H, W) bool mask of the pixels at or above their spot's clip level `level` [ADU].
+
+    Within the detection boxes `detection` (indices in the Detections), grown by the PSF's reach
+    (any fit reading them leaves them out).
     """
     image, det = context.image, context.det
     height, width = image.shape

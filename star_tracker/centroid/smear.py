@@ -1,6 +1,8 @@
 """
-Smear geometry: where a fixed star's image moves on the detector during one exposure under
-a constant body rate (SmearModel), and the length of a straight streak from its second moment.
+Smear geometry: where a fixed star's image moves on the detector during one exposure.
+
+Under a constant body rate (SmearModel); and the length of a straight streak from its second
+moment.
 
 Image convention: pixel (0, 0) is the centre of the top-left pixel; x = column, y = row [px].
 Angles are measured from +x toward +y (clockwise on the displayed image, y down) [rad].
@@ -19,9 +21,10 @@ PATH_SPACING_PX = 0.5  # SmearModel.path's default: samples at most this far apa
 
 def segment_length(major, sigma: float) -> np.ndarray:
     """
-    Length [px] of a straight streak whose image (a segment swept by a Gaussian PSF of
-    1-sigma `sigma` [px]) has the second moment `major` [px^2] along it: a uniform segment of
-    length L adds L^2 / 12. 0 where `major` is below sigma^2 (NaN stays NaN).
+    Return the length [px] of a straight streak from its second moment `major` [px^2] along it.
+
+    The streak's image is a segment swept by a Gaussian PSF of 1-sigma `sigma` [px]: a uniform
+    segment of length L adds L^2 / 12. 0 where `major` is below sigma^2 (NaN stays NaN).
     """
     return np.sqrt(np.maximum(12.0 * (np.asarray(major, dtype=float) - sigma * sigma), 0.0))
 
@@ -91,8 +94,9 @@ class SmearModel:
 
     def smear_vectors(self, x, y) -> np.ndarray:
         """
-        End minus start image position (N, 2) [px] over the exposure (t = +T/2 and -T/2) of
-        the stars at mid-exposure pixels (x, y) [px].
+        Return the end minus start image position (N, 2) [px] over the exposure (t = +T/2 and -T/2).
+
+        Of the stars at mid-exposure pixels (x, y) [px].
         """
         ends = self._positions(x, y, np.array([-0.5, 0.5]) * self.exposure_s)
         return ends[:, 1] - ends[:, 0]

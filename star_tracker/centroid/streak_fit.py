@@ -88,7 +88,7 @@ class StreakFit:
 
     @staticmethod
     def failed(n: int) -> "StreakFit":
-        """n unconverged fits, every value NaN."""
+        """Return n unconverged fits, every value NaN."""
         nan = np.full(n, np.nan)
         return StreakFit(nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(), np.full((n, 2, 2), np.nan),
                          nan.copy(), np.zeros(n, bool), nan.copy(), nan.copy())

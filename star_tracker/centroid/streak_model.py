@@ -114,8 +114,9 @@ def simpson_nodes(intervals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def sample_sums(win: StreakWindows, sx: np.ndarray, sy: np.ndarray, weights: np.ndarray, lever, scale: float):
     """
-    Weighted sums over the K samples of a streak of separable PSF copies, for every window
-    pixel, unnormalized (see _profiles): (n, Q, R*C) float32 holding shape = sum w gy gx,
+    Return weighted sums over the K samples of a streak of separable PSF copies, for every window pixel.
+
+    Unnormalized (see _profiles): (n, Q, R*C) float32 holding shape = sum w gy gx,
     gx' = sum w gy (v g)_x, gy' = sum w (v g)_y gx (the x and y derivatives / 2 scale), and
     with a lever s (n, K) also s gy' and s gx' (the same weighted by s: derivatives along
     the streak). sx, sy: (n, K) sample positions [px] in the window frame; weights: (n, K)

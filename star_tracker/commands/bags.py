@@ -1,6 +1,7 @@
 """
-`star-tracker record | play | info | reindex`: rosbag2 bags (sqlite3, MCAP) without a ROS 2
-install, through `rosbags` (the package star_tracker/bags/) and the recorder/player nodes in
+`star-tracker record | play | info | reindex`: rosbag2 bags (sqlite3, MCAP) without a ROS 2 install.
+
+Through `rosbags` (the package star_tracker/bags/) and the recorder/player nodes in
 star_tracker/ros/ (docs/RECORD_REPLAY.md). `add_commands(sub)` registers all four; their
 --help keeps the form it had in cli.py (no example epilog).
 """

@@ -138,8 +138,9 @@ def render_setup(args: argparse.Namespace) -> RenderSetup:
 
 def render_frame(args: argparse.Namespace, setup: RenderSetup):
     """
-    Return the renderer and its frame at --stamp for the pointing (--ra, --dec, --roll [deg]) and
-    the constant body rate --rate [deg/s].
+    Return the renderer and its frame at --stamp.
+
+    For the pointing (--ra, --dec, --roll [deg]) and the constant body rate --rate [deg/s].
     """
     from ..models.attitude import radec_roll_to_matrix
     from ..models.catalog import load_hipparcos

@@ -273,10 +273,12 @@ def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOpt
 
 def refine_camera(camera, spots, identification, sigma_floor_px: float):
     """
-    Least-squares camera and attitude over the matched stars (pixel residuals weighted by the
-    spots' covariances, sigma_floor_px [px] added in quadrature): the focal length (fx, fy
-    scaled together), and k1, k2 and the principal point where the stars constrain them
-    (models/camera_calibration.py). Returns the CameraCalibration; ValueError with < 3 stars.
+    Fit the camera and attitude by least squares over the matched stars.
+
+    Pixel residuals weighted by the spots' covariances, sigma_floor_px [px] added in
+    quadrature: the focal length (fx, fy scaled together), and k1, k2 and the principal point
+    where the stars constrain them (models/camera_calibration.py). Returns the
+    CameraCalibration; ValueError with < 3 stars.
     """
     from ..models.camera_calibration import CalibrationConfig, CalibrationFrame, calibrate_camera
 
@@ -365,7 +367,7 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
 
 
 def unsolved_summary(attempts: list[dict]) -> dict:
-    """status "not_solved" and a reason naming what was tried and how each attempt ended."""
+    """Return status "not_solved" and a reason naming what was tried and how each attempt ended."""
     searches = [a for a in attempts if a.get("search") == "patterns"]
     identifications = [a for a in attempts if a.get("search") != "patterns"]
     parts = []
@@ -444,9 +446,10 @@ def camera_summary_from(camera: dict) -> str:
 
 def centroid_config(pixels: np.ndarray, description: str, args: argparse.Namespace):
     """
-    Return the CentroidConfig of an image file read by commands/images.py (`description` names its
-    bit depth) under the --detection-sigma, --psf-sigma (None: estimated) and --max-spots
-    options; solve and calibrate centroid alike.
+    Return the CentroidConfig of an image file read by commands/images.py.
+
+    `description` names its bit depth; under the --detection-sigma, --psf-sigma (None:
+    estimated) and --max-spots options; solve and calibrate centroid alike.
     """
     from ..centroid import CentroidConfig
 

@@ -318,8 +318,10 @@ class AnglePivotIdentifier(StarIdentifier):
     def _completed(self, geometry: SpotGeometry, pairs: _SpotPairs, spots: np.ndarray, stars: np.ndarray,
                    excluded: set[int]) -> tuple[np.ndarray, np.ndarray]:
         """
-        Return a solved core with every further pattern spot (not in `excluded`) whose angles to at
-        least two spots already in it are solved by exactly one catalog star, checked again for
+        Return a solved core grown by every further pattern spot solved by exactly one catalog star.
+
+        A further spot (not in `excluded`) joins when its angles to at least two spots already in
+        the core are solved by exactly one catalog star; the result is checked again for
         consistency and handedness (else the core as it was). A chain stops pivoting once one
         finalist remains, so it may leave spots out, and an attitude fitted to a few clustered
         spots can put the others' stars beyond the verification radius, where the shared

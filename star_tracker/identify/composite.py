@@ -40,6 +40,8 @@ from .deadline import Deadline
 @dataclass(frozen=True)
 class CompositeSettings:
     """
+    Configure the composite method.
+
     max_spots: spots (brightest first) the base triangles and fourth stars are drawn from
     once the brightest `pattern_count` are exhausted; batch_size: base triangles matched per
     catalog search (small: the first good triangle is reached sooner).
@@ -115,9 +117,11 @@ _NEIGHBOURS: dict[str, Neighbours] = {}
 @njit(cache=True)
 def _planar_match(frame, spots, vectors, stars, tol, scratch) -> bool:
     """
-    Do spot triangle `spots` (x, y, r) of SpotDistances `frame` and catalog triangle
-    `stars` (sx, sy, s) agree on planar area and polar moment (eqs. 1-2) within MatchTolerance
-    `tol`, with the same handedness? scratch: (cov (3, 3), jac_a (3,), jac_m (3,)).
+    Tell whether a spot triangle and a catalog triangle agree on planar area and polar moment.
+
+    Spot triangle `spots` (x, y, r) of SpotDistances `frame`, catalog triangle `stars` (sx, sy,
+    s): within MatchTolerance `tol` (eqs. 1-2), with the same handedness. scratch: (cov (3, 3),
+    jac_a (3,), jac_m (3,)).
     """
     rays, sigma, dist = frame.rays, frame.sigma, frame.dist
     x, y, r = spots

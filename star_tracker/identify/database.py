@@ -152,8 +152,9 @@ class StarDatabase:
 
 def unblended(catalog: StarCatalog, config: DatabaseConfig) -> np.ndarray:
     """
-    Mask of stars (Hp <= magnitude_limit) with no companion within min_separation_rad
-    that is brighter than the star's Hp + blend_magnitude_gap.
+    Return the mask of stars (Hp <= magnitude_limit) with no brighter companion nearby.
+
+    A companion is within min_separation_rad and brighter than the star's Hp + blend_magnitude_gap.
     """
     field = catalog.brighter_than(config.magnitude_limit + config.blend_magnitude_gap)
     vectors = field.unit_vectors()
@@ -237,8 +238,9 @@ def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -
 
 def load_or_build_database(config: DatabaseConfig, directory: Path | None = None) -> StarDatabase:
     """
-    Load the cached database for `config` from `directory` (None: catalog.cache_dir();
-    validated: see the module docstring) or build it and cache it there. The database
+    Load the cached database for `config` from `directory`, or build it and cache it there.
+
+    directory None: catalog.cache_dir(); validated: see the module docstring. The database
     remembers the directory (cache_directory), so the triangle databases built from it are
     cached beside it. A rejected cache file is logged and rebuilt; an unwritable cache
     directory costs a rebuild at every start (logged), never the database.

@@ -131,9 +131,10 @@ _MEMO: dict[tuple, DeepCatalog] = {}
 
 def load_or_build_deep_catalog(magnitude_limit: float, epoch_jyear: float, directory: Path | None = None) -> DeepCatalog:
     """
-    Return the deep catalog for (magnitude_limit [Hp mag], epoch_jyear [Julian year]) from
-    `directory` (None: catalog.cache_dir()), built and cached there when missing or rejected
-    (logged). Shared in memory by every identifier of the process.
+    Return the deep catalog for (magnitude_limit [Hp mag], epoch_jyear [Julian year]).
+
+    From `directory` (None: catalog.cache_dir()), built and cached there when missing or
+    rejected (logged). Shared in memory by every identifier of the process.
     """
     directory = Path(directory) if directory is not None else cache_dir()
     identity = deep_catalog_identity(magnitude_limit, epoch_jyear)

@@ -167,8 +167,9 @@ def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraMod
                spot_cov_px: np.ndarray, guide_spots: np.ndarray, guide_hip: np.ndarray,
                guide_magnitude: np.ndarray) -> DeepMatches:
     """
-    Return the unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices)
-    under `rotation` (sensor -> ICRS), with each spot's offset covariance spot_cov_px (N, 2, 2)
+    Return the unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices).
+
+    Under `rotation` (sensor -> ICRS), with each spot's offset covariance spot_cov_px (N, 2, 2)
     [px^2] (spot_pixel_covariance); guide_hip and guide_magnitude (catalog Hp) of the guide
     matches, in guide_spots' order (the zero point). See the module docstring.
     """
@@ -206,11 +207,12 @@ def deep_bound(geometry: "SpotGeometry", spot_index: np.ndarray, star_vectors: n
                rotation: np.ndarray, catalog: DeepCatalog, stars_in_view: int, camera: CameraModel,
                magnitude_floor: float) -> float:
     """
-    Return the false-positive bound of verify.py over the matches (spot_index into the flux-sorted
-    spots, their ICRS star_vectors and catalog magnitudes) at `rotation`, with the deep
-    catalog's density (the larger of its mean and its density in this view) and magnitude
-    distribution; the matching sigmas as in verification. Matches beyond 5 sigma count
-    for nothing (left out, as verification leaves them out).
+    Return the false-positive bound of verify.py over the matches at `rotation`.
+
+    The matches: spot_index into the flux-sorted spots, their ICRS star_vectors and catalog
+    magnitudes; with the deep catalog's density (the larger of its mean and its density in this
+    view) and magnitude distribution; the matching sigmas as in verification. Matches beyond 5
+    sigma count for nothing (left out, as verification leaves them out).
     """
     body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
     normalized = np.linalg.norm(body - star_vectors @ rotation, axis=1) / sigma

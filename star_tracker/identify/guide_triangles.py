@@ -19,7 +19,8 @@ from .database import StarDatabase
 
 def sky_cells(vectors: np.ndarray, cells_per_face: int) -> np.ndarray:
     """
-    Cell id of each unit vector on an equal-angle cube-sphere grid with
+    Return the cell id of each unit vector on an equal-angle cube-sphere grid.
+
     cells_per_face^2 cells on each of the six faces (cell areas within a factor ~1.4).
     """
     vectors = np.asarray(vectors, dtype=float)

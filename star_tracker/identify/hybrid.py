@@ -91,9 +91,9 @@ class HybridIdentifier(StarIdentifier):
 
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
         """
-        Compiled triangle search (kernels.search_triangles) in batches, the deadline checked between them.
+        Run kernels.search_triangles, the compiled triangle search, in batches.
 
-        Each candidate triangle is verified inside the kernel.
+        The deadline is checked between batches; each candidate triangle is verified inside the kernel.
         """
         n = geometry.x.size
         radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad, self.grid.max_radius_rad)

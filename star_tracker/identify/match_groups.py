@@ -154,8 +154,9 @@ def _confirm(p0, p1, sweep, conf, last):
 @njit(cache=True)
 def _collect(p0, p1, sweep, conf, kernel_id, min_conf, counting, out):
     """
-    Associated matches (spot, star) of the kernels numbered in kernel_id (-1: not a kernel)
-    from spot pairs p0..p1-1 of PairSweep `sweep`: counted into out.counts[k + 1] (counting) or
+    Collect the associated matches (spot, star) of the kernels numbered in kernel_id (-1: not a kernel).
+
+    From spot pairs p0..p1-1 of PairSweep `sweep`: counted into out.counts[k + 1] (counting) or
     written at out.fill[k] (Associates). Associates whose own confirmation is below min_conf
     cannot be in a group of min_conf + 1 and are left out (the paper's adjustment for
     eliminated kernels).
@@ -279,8 +280,9 @@ def _consistency_graph(k, n, kernels, frame, vectors, beta, chord2_lo, chord2_hi
 @njit(cache=True)
 def _largest_clique(n, adj, cost, base):
     """
-    Largest set of mutually agreeing associates (adjacency bitmasks adj (n,), n <= 64) by
-    branch and bound over (chosen, allowed) bitmasks, depth first; among equal sizes (of real
+    Return the largest set of mutually agreeing associates (adjacency bitmasks adj (n,), n <= 64).
+
+    By branch and bound over (chosen, allowed) bitmasks, depth first; among equal sizes (of real
     groups, >= 2 associates) the lowest quality index, the sum of base over the members and
     cost over their pairs. Returns (member bitmask, size, quality).
     """
@@ -325,8 +327,9 @@ def _largest_clique(n, adj, cost, base):
 @njit(cache=True)
 def _validate(selected, kernels, frame, vectors, beta):
     """
-    Largest mutually consistent subset of each kernel's associates (at most 64, the first
-    ones): pairwise angles within the relaxed tolerance, distinct spots and stars, and the
+    Find the largest mutually consistent subset of each kernel's associates (at most 64, the first ones).
+
+    Consistent: pairwise angles within the relaxed tolerance, distinct spots and stars, and the
     kernel's handedness wherever noise cannot flip it. Writes the member bitmask, the group
     size (kernel included) and the quality index (sum over the group's pairs of
     |angle difference| / tolerance; lower is better; ties in size go to the lower index) of

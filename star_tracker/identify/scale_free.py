@@ -141,9 +141,10 @@ RADIUS_STEP = 1.02  # circle radii are rounded down to a power of this: nearby f
 
 def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternDatabase:
     """
-    Return the pattern database for these guide stars and circles of at most circle_radius_rad
-    [rad] (rounded down to a power of RADIUS_STEP, so that fields a few percent apart share
-    it), cached beside the pair database.
+    Return the pattern database for these guide stars and circles of at most circle_radius_rad [rad].
+
+    The radius is rounded down to a power of RADIUS_STEP, so that fields a few percent apart
+    share it; cached beside the pair database.
     """
     circle_radius_rad = RADIUS_STEP ** math.floor(math.log(circle_radius_rad) / math.log(RADIUS_STEP))
     identity = json.dumps({"pairs": database.config.identity(), "radius": round(circle_radius_rad, 6),
@@ -186,9 +187,10 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
                     tolerance: float, deadline: Deadline, ratio_tolerance: float = 0.01,
                     radius_px: float = 3.0, max_estimates: int = 3) -> list[FieldEstimate]:
     """
-    Focal lengths within +-tolerance (fraction) of `camera`'s at which patterns of the
-    brightest spots match catalog patterns, best first (most spots on guide stars), distinct
-    to 0.2 %, at most max_estimates. Empty when nothing matched before `deadline`.
+    Return focal lengths within +-tolerance (fraction) of `camera`'s at which brightest-spot patterns match.
+
+    Matching catalog patterns, best first (most spots on guide stars), distinct to 0.2 %, at
+    most max_estimates. Empty when nothing matched before `deadline`.
     """
     n = min(len(spots), IMAGE_SPOTS)
     if n < 4:

@@ -92,8 +92,9 @@ def fitting_triples(rays: np.ndarray, triples: np.ndarray, max_side: float, slac
 def join_assignments(spots: list[int], table: np.ndarray, triangle: np.ndarray, candidates: np.ndarray,
                      star_count: int) -> tuple[list[int], np.ndarray]:
     """
-    Join the chain's joint assignments `table` (M, len(spots)) with a triangle's
-    candidates (C, 3) (stars of its vertex spots `triangle`), which shares >= 2 spots with
+    Join the chain's joint assignments `table` (M, len(spots)) with a triangle's candidates.
+
+    The candidates (C, 3) are stars of its vertex spots `triangle`, which shares >= 2 spots with
     the chain: rows must agree on the shared spots' stars and stay one-to-one.
     """
     shared = [m for m in range(3) if triangle[m] in spots]

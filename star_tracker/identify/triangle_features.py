@@ -175,10 +175,11 @@ def _measured_kernel(rays, sigma, triples, spherical, depth, beta, floor, out):
 def measured_features(rays: np.ndarray, sigma: np.ndarray, triples: np.ndarray, spherical: bool,
                       depth: int = 3, beta: float = 3.0, floor: float = 0.0) -> FeatureSet:
     """
-    Features of spot triangles `triples` (T, 3) of indices into `rays` (N, 3) (sensor
-    frame) with per-axis direction 1-sigma `sigma` (N,) [rad]; tolerances are beta sigma
-    plus `floor` [rad] of model error on each side, propagated. spherical=True: Cole's area
-    and polar moment (depth levels); False: Toloei's planar ones.
+    Return the features of spot triangles `triples` (T, 3) of indices into `rays` (N, 3).
+
+    rays in the sensor frame, with per-axis direction 1-sigma `sigma` (N,) [rad]; tolerances are
+    beta sigma plus `floor` [rad] of model error on each side, propagated. spherical=True:
+    Cole's area and polar moment (depth levels); False: Toloei's planar ones.
     """
     triples = np.ascontiguousarray(triples, dtype=np.int64).reshape(-1, 3)
     t = triples.shape[0]

@@ -36,8 +36,9 @@ def lhuilier_area(a: float, b: float, c: float) -> float:
 @njit(cache=True)
 def lhuilier_jacobian(a: float, b: float, c: float, out) -> None:
     """
-    dA/d(a, b, c) of the spherical area (eqs. 20-23; the sign follows from
-    differentiating z^2, Cole's leading minus does not affect H H^T).
+    Return dA/d(a, b, c) of the spherical area (eqs. 20-23).
+
+    The sign follows from differentiating z^2; Cole's leading minus does not affect H H^T.
     """
     q0, q1, q2, q3 = 0.25 * (a + b + c), 0.25 * (b + c - a), 0.25 * (a + c - b), 0.25 * (a + b - c)
     t0, t1, t2, t3 = math.tan(q0), math.tan(q1), math.tan(q2), math.tan(q3)
@@ -109,7 +110,7 @@ def side_covariance(v1, v2, v3, s1: float, s2: float, s3: float, out) -> None:
 
 @njit(cache=True)
 def feature_tolerance(jac, cov, beta: float, floor: float) -> float:
-    """beta * sqrt(H R H^T) plus the worst case of a `floor` error on every side."""
+    """Return beta * sqrt(H R H^T) plus the worst case of a `floor` error on every side."""
     var = 0.0
     worst = 0.0
     for i in range(3):

@@ -93,8 +93,10 @@ MIN_STARS = 4
 
 def log_chance_tuples(body: np.ndarray, sigma: np.ndarray, chi2: float, density_per_sr: float) -> float:
     """
-    ln lambda_m(c): expected number of catalog m-tuples (uniform density [1/sr]) fitting the
-    m sensor-frame unit vectors `body` (sigma [rad] each) with weighted chi^2 <= `chi2`.
+    Return ln lambda_m(c): expected number of catalog m-tuples fitting the m unit vectors `body`.
+
+    Uniform density [1/sr]; `body` in the sensor frame (sigma [rad] each), fitting with weighted
+    chi^2 <= `chi2`.
     """
     # Contiguous float64 always: one compiled specialisation, the one the warm-ups compile.
     return float(kernels.log_chance_tuples(np.ascontiguousarray(body, float), np.ascontiguousarray(sigma, float),
@@ -104,8 +106,9 @@ def log_chance_tuples(body: np.ndarray, sigma: np.ndarray, chi2: float, density_
 def log_magnitude_agreement(spot_magnitude: np.ndarray, star_magnitude: np.ndarray,
                             sorted_catalog_magnitudes: np.ndarray, floor: float) -> float:
     """
-    ln M: chance that random catalog stars agree with the spots' instrumental magnitudes
-    (zero point fitted) as well as the matched stars do; 0 when magnitudes are unknown.
+    Return ln M: chance that random catalog stars agree with the spots' instrumental magnitudes.
+
+    As well as the matched stars do (zero point fitted); 0 when magnitudes are unknown.
     """
     return float(kernels.log_magnitude_agreement(np.asarray(spot_magnitude, float), np.asarray(star_magnitude, float),
                                                  np.asarray(sorted_catalog_magnitudes, float), float(floor)))

@@ -66,8 +66,9 @@ def refine_with_covariances(rotation: np.ndarray, body: np.ndarray, ref: np.ndar
                             used: np.ndarray | None = None,
                             iterations: int = 2) -> tuple[AttitudeSolution, np.ndarray, np.ndarray]:
     """
-    Maximum-likelihood refinement of an attitude when each measured direction has its own
-    2-D error covariance (an anisotropic centroid, e.g. a streak: far larger along the smear).
+    Refine an attitude by maximum likelihood when each measured direction has its own error covariance.
+
+    A 2-D covariance: an anisotropic centroid, e.g. a streak, is far larger along the smear.
 
     rotation: sensor -> ICRS start (e.g. QUEST, or any fit within a few arcmin); body (N, 3)
     measured sensor-frame unit vectors; ref (N, 3) their ICRS catalog vectors; the error of

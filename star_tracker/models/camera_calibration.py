@@ -157,10 +157,11 @@ def corner_radius(camera: CameraModel) -> float:
 
 def calibrate_camera(frames, camera: CameraModel, config: CalibrationConfig = CalibrationConfig()) -> CameraCalibration:
     """
-    Fit `camera` (the starting values: f, cx, cy, k1, k2; p1, p2, k3 kept) and each frame's
-    attitude to the matched stars of `frames` (CalibrationFrame, one or several). Keeps the
-    largest nested model the stars constrain (module docstring). Raises ValueError with too
-    few stars for even the focal length.
+    Fit `camera` and each frame's attitude to the matched stars of `frames` (CalibrationFrame).
+
+    `camera` gives the starting values (f, cx, cy, k1, k2; p1, p2, k3 kept); one frame or
+    several. Keeps the largest nested model the stars constrain (module docstring). Raises
+    ValueError with too few stars for even the focal length.
     """
     frames = list(frames)
     if not frames:
@@ -189,7 +190,7 @@ def constrained(calibration: CameraCalibration, config: CalibrationConfig) -> bo
 
 
 def _camera_with(camera: CameraModel, names: tuple[str, ...], params: np.ndarray) -> CameraModel:
-    """camera with the fitted parameters: f as a log scale of fx (fy alike), cx, cy offsets [px], k1, k2."""
+    """Return the camera with the fitted parameters: f as a log scale of fx (fy alike), cx, cy offsets [px], k1, k2."""
     values = dict(zip(names, params))
     scale = math.exp(values.get("f", 0.0))
     k1, k2, p1, p2, k3 = camera.distortion
@@ -208,9 +209,11 @@ def _whitening(frames, sigma_floor_px: float) -> np.ndarray:
 def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: CalibrationConfig,
          radius: float) -> CameraCalibration:
     """
-    One model: the camera parameters `names` and every frame's rotation (a rotation vector
-    applied to its starting attitude) by soft-L1 least squares, then plain least squares over the
-    inliers; covariance = (JᵀJ)⁻¹ scaled by the inliers' reduced χ². radius: corner_radius [-].
+    Fit one model: the camera parameters `names` and every frame's rotation.
+
+    The rotation is a rotation vector applied to the frame's starting attitude; soft-L1 least
+    squares, then plain least squares over the inliers; covariance = (JᵀJ)⁻¹ scaled by the
+    inliers' reduced χ². radius: corner_radius [-].
     """
     from scipy.optimize import least_squares
 

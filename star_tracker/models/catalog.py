@@ -67,8 +67,9 @@ class StarCatalog:
 
     def at_epoch(self, epoch_jyear: float) -> "StarCatalog":
         """
-        Propagate positions linearly by proper motion (tangent-plane step; < 1 mas error
-        over decades for all but the fastest stars).
+        Propagate positions linearly by proper motion.
+
+        A tangent-plane step: < 1 mas error over decades for all but the fastest stars.
         """
         dt = epoch_jyear - self.epoch_jyear
         cos_dec = np.cos(self.dec)

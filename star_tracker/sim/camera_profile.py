@@ -182,10 +182,12 @@ class CameraProfile:
 # ------------------------------------------------------------------ background statistics
 def censored_gaussian_fit(values: np.ndarray, upper: float | None = None) -> tuple[float, float, float, float]:
     """
-    (mu, s, sigma_mu, sigma_s) [ADU] of integer pixel values that are a Gaussian N(mu, s^2)
-    rounded to the nearest integer and clipped at 0: maximum likelihood over the histogram,
-    0 counted as "at or below 0.5", values above `upper` (default mu + 5 s of a first robust
-    pass) as censored above (faint stars, hot pixels). Uncertainties from the Hessian.
+    Return (mu, s, sigma_mu, sigma_s) [ADU] of integer pixel values from a rounded, clipped Gaussian.
+
+    The values are a Gaussian N(mu, s^2) rounded to the nearest integer and clipped at 0:
+    maximum likelihood over the histogram, 0 counted as "at or below 0.5", values above
+    `upper` (default mu + 5 s of a first robust pass) as censored above (faint stars, hot
+    pixels). Uncertainties from the Hessian.
     """
     values = np.asarray(values).ravel()
     if values.size < 20:
@@ -314,11 +316,12 @@ def clipped_mean(model: np.ndarray, noise_adu: float) -> np.ndarray:
 def fit_star(image: np.ndarray, x: float, y: float, sigma_guess: float = 1.0, noise_adu: float = 0.0,
              half: int = STAMP_HALF_PX):
     """
-    Least-squares fit of the stamp around (x, y) [px] with gaussian_stamp seen through the
-    camera's clip at 0 (clipped_mean with the background noise noise_adu [ADU]; without it
-    a background near 0 reads high and the wings, the width and the flux come out low).
-    Returns (params as gaussian_stamp, the stamp [ADU], the expected recorded stamp [ADU],
-    the leverage of each pixel in the fit [-]) or None at the image edge or when the fit fails.
+    Fit the stamp around (x, y) [px] by least squares with gaussian_stamp seen through the clip at 0.
+
+    The camera's clip: clipped_mean with the background noise noise_adu [ADU]; without it a
+    background near 0 reads high and the wings, the width and the flux come out low. Returns
+    (params as gaussian_stamp, the stamp [ADU], the expected recorded stamp [ADU], the leverage
+    of each pixel in the fit [-]) or None at the image edge or when the fit fails.
     """
     height, width = image.shape
     c0, r0 = int(round(x)), int(round(y))
@@ -473,9 +476,10 @@ def _robust_linear_fit(design: np.ndarray, values: np.ndarray, clip: float = 3.0
 
 def fit_zero_point(r2: np.ndarray, values: np.ndarray) -> tuple[Measured, Measured]:
     """
-    Fit values = z0 + log10(1 - a r2) (r2 = r^2/r_c^2 of each star, values = log10 of its
-    flux per second + 0.4 Hp) with a robust (soft L1) loss at the data's MAD scatter:
-    (z0 [log10 flux/s at Hp 0 at the centre], a [-]); 1-sigma from the Jacobian and the scatter.
+    Fit values = z0 + log10(1 - a r2) with a robust (soft L1) loss at the data's MAD scatter.
+
+    r2 = r^2/r_c^2 of each star, values = log10 of its flux per second + 0.4 Hp. Returns (z0
+    [log10 flux/s at Hp 0 at the centre], a [-]); 1-sigma from the Jacobian and the scatter.
     """
     def residual(p):
         return p[0] + np.log10(1.0 - p[1] * r2) - values

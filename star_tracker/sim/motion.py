@@ -228,7 +228,7 @@ class JitterMotion(MotionProfile):
         _set(self, amplitudes_rad=amp, frequencies_hz=freq, phases_rad=phase)
 
     def _theta(self, times) -> tuple[np.ndarray, np.ndarray]:
-        """theta (K, 3) [rad] and dtheta/dt (K, 3) [rad/s]."""
+        """Return theta (K, 3) [rad] and dtheta/dt (K, 3) [rad/s]."""
         omega = 2 * np.pi * self.frequencies_hz[:, None]  # (N, 1)
         arg = omega * (_times(times) - getattr(self.base, "t0", 0.0))[:, None, None] + self.phases_rad
         return (np.sum(self.amplitudes_rad * np.sin(arg), axis=1),
@@ -422,8 +422,9 @@ class SampledMotion(MotionProfile):
 
     def _interval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """
-        Index of the sample starting each time's interval (the last one when past it) and the
-        time elapsed since that sample [s].
+        Return the index of the sample starting each time's interval and the time since that sample [s].
+
+        The index is the last sample's when past it.
         """
         i = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, self.times.size - 1)
         return i, t - self.times[i]

@@ -315,7 +315,7 @@ class StarFieldRenderer:
     def _frame_truth(self, stamp_s: float, rot_mid: np.ndarray, body_rate: np.ndarray,
                      listed: list[_Listed]) -> FrameTruth:
         """
-        FrameTruth of the objects that can put light on the chip (PSF wings and streaks included).
+        Return the FrameTruth of the objects that can put light on the chip (PSF wings and streaks included).
 
         Their expected electrons scaled by the vignetting where they land.
         """
@@ -338,8 +338,9 @@ class StarFieldRenderer:
 
     def _probe_paths(self, rotations: np.ndarray, rot_mid: np.ndarray):
         """
-        Image positions (P, K, 2) over `rotations` of the sky directions that sit at the image
-        corners and centre at mid-exposure.
+        Return image positions (P, K, 2) over `rotations` of the sky directions at the image corners and centre.
+
+        The directions are those at the corners and the centre at mid-exposure.
         """
         cam = self.camera
         px = np.array([0, cam.width - 1, 0, cam.width - 1, cam.cx], dtype=float)

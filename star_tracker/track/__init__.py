@@ -1,4 +1,6 @@
 """
-Frame to frame: tracking around a predicted attitude (with a lost-in-space fallback and
-delay compensation) and the body rate from successive attitudes or from one frame's streaks.
+Frame to frame: tracking around a predicted attitude, and the body rate.
+
+Tracking has a lost-in-space fallback and delay compensation; the body rate comes from
+successive attitudes or from one frame's streaks.
 """

@@ -291,8 +291,9 @@ def _robust_fit(measured, design, shape, aided, senses) -> _Fit | None:
 
 def _robust_scales(normalized: np.ndarray) -> np.ndarray:
     """
-    Scale (along, cross) of residuals / shape from the median absolute value (1.4826 x MAD
-    about zero, the model's mean); pooled when too few streaks for two.
+    Return the scale (along, cross) of residuals / shape from the median absolute value.
+
+    1.4826 x MAD about zero, the model's mean; pooled when too few streaks for two.
     """
     if normalized.shape[0] >= SEPARATE_SCALES_MIN:
         scales = 1.4826 * np.median(np.abs(normalized), axis=0)

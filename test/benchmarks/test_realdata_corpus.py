@@ -1,7 +1,8 @@
 """
-Every image of the real-image corpus (../shared/realdata, MANIFEST.json) solved by the
-`solve` command at its defaults (only the manifest's approximate field given), judged against
-the image's astrometry.net reference pointing.
+Every image of the real-image corpus solved by the `solve` command at its defaults.
+
+The corpus is ../shared/realdata (MANIFEST.json); only the manifest's approximate field is
+given; each solve is judged against the image's astrometry.net reference pointing.
 
 Two claims per image: a solve is never a wrong one (within 5' of the reference: a false match
 lands degrees away), and issue 17's goal, solved within 1'. Images that miss the goal today are

@@ -1,8 +1,9 @@
 """
-Noise of coarsely quantised frames (a 12-bit camera at 16 e-/ADU: pixel noise below one
-ADU, most pixels equal to the median): the robust noise estimate must not collapse to zero
-(then an unclipped standard deviation, inflated by hot pixels, set the threshold 8x too high
-and no star was detected). Frames made here, not by our simulator.
+Noise of coarsely quantised frames: the robust noise estimate must not collapse to zero.
+
+A 12-bit camera at 16 e-/ADU: pixel noise below one ADU, most pixels equal to the median.
+Then an unclipped standard deviation, inflated by hot pixels, set the threshold 8x too high
+and no star was detected. Frames made here, not by our simulator.
 """
 import numpy as np
 

@@ -96,8 +96,9 @@ def render(x, y, flux_e, body_rate, seed, camera=CAMERA):
 
 def cross_rate(smear_px, direction_rad):
     """
-    Body rate [rad/s] about an axis in the image plane that smears stars by ~smear_px at
-    angle direction_rad in the image (a rotation about +X moves the stars toward +Y).
+    Return the body rate [rad/s] about an axis in the image plane that smears stars by ~smear_px.
+
+    At angle direction_rad in the image (a rotation about +X moves the stars toward +Y).
     """
     rate = smear_px / (EXPOSURE * CAMERA.fy)
     return rate * np.array([np.sin(direction_rad), -np.cos(direction_rad), 0.0])

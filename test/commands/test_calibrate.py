@@ -173,7 +173,8 @@ def test_calibrate_real_granasat_images_and_solve_a_held_out_one_closer_to_astro
 
 def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarray]:
     """
-    Pixel distances between astrometry.net's detected positions of its matched stars and
+    Return pixel distances between astrometry.net's detected positions of its matched stars and ours.
+
     (ours) where the image's solve with `camera` puts those catalog stars, (reference) where its
     TAN-SIP WCS puts them.
     """
@@ -203,8 +204,10 @@ def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarr
 
 def test_the_calibration_file_round_trips_through_solve_camera_and_camera_info(tmp_path, catalog):
     """
-    calibration_yaml of a fit (projected stars of an off-centre, distorted camera) read back
-    by `solve --camera`'s reader and, as the nodes get it, through a CameraInfo message.
+    Check that calibration_yaml of a fit reads back through `solve --camera` and a CameraInfo.
+
+    The fit: projected stars of an off-centre, distorted camera; read back by `solve --camera`'s
+    reader and, as the nodes get it, through a CameraInfo message.
     """
     convert = pytest.importorskip("star_tracker.ros.convert")  # ROS messages (sensor_msgs)
     from star_tracker.commands.calibrate import calibration_yaml

@@ -71,8 +71,9 @@ def test_deep_rematch_adds_the_faint_stars_without_a_wrong_id(database, nominal_
 
 def test_uncatalogued_spots_get_no_deep_identity(database, nominal_camera, catalog):
     """
-    False objects of every brightness among the stars (the way a deep match could go wrong:
-    a chance catalog star in an uncatalogued spot's gate) are never named.
+    Check that false objects of every brightness among the stars are never named.
+
+    The way a deep match could go wrong: a chance catalog star in an uncatalogued spot's gate.
     """
     rng = np.random.default_rng(32)
     for _ in range(8):

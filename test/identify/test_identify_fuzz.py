@@ -1,6 +1,7 @@
 """
-Property-based tests (hypothesis) of identification (star_tracker.identify) on spots as a
-faulty centroider could send them, through the identifier node's own input path
+Property-based tests (hypothesis) of identification (star_tracker.identify) on faulty spots.
+
+Spots as a faulty centroider could send them, through the identifier node's own input path
 (convert.drop_invalid_spots, then identify): a proper rotation or no solution, never an
 exception. Defects found by fuzzing are pinned at the end, each with its failing input
 (docs/RELIABILITY.md, "Defects found by fuzzing in the core").

@@ -1,6 +1,7 @@
 """
-Cole & Crassidis' spherical triangle method and Toloei's composite pyramid / planar
-triangle method on seed-paper scenes with known truth.
+Cole & Crassidis' spherical triangle and Toloei's composite pyramid / planar triangle methods.
+
+On seed-paper scenes with known truth.
 """
 import numpy as np
 import pytest
@@ -76,8 +77,9 @@ def test_exact_hip_ids_on_cole_scenes(cls, cole_database, sky):
 
 def test_paper_mode_pivots_on_area_and_moment_alone(cole_database, sky):
     """
-    Without the side check (Cole's finalists: area, polar moment, handedness) the pivots
-    must narrow the candidates down; results stay correct.
+    Check that without the side check the pivots narrow the candidates down; results stay correct.
+
+    The side check is Cole's finalists: area, polar moment, handedness.
     """
     identifier = SphericalTriangleIdentifier(cole_database, IdentifyConfig(),
                                              settings=SphericalTriangleSettings(side_check=False, max_leftover=0))

@@ -24,7 +24,7 @@ def unit(v):
 
 
 def random_triangles(rng, n, spread):
-    """n random small triangles around random centres, vertex scatter `spread` [rad]."""
+    """Return n random small triangles around random centres, vertex scatter `spread` [rad]."""
     centre = unit(rng.normal(size=(n, 3)))
     return [unit(centre + rng.normal(scale=spread, size=(n, 3))) for _ in range(3)]
 

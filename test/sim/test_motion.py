@@ -22,7 +22,7 @@ def angle_between(ra, rb):
 
 
 def rate_by_finite_difference(motion, t, h=1e-6):
-    """omega from R^T dR/dt = [omega x], dR/dt by central differences."""
+    """Return omega from R^T dR/dt = [omega x], dR/dt by central differences."""
     r_minus, r, r_plus = motion.rotations_at(np.array([t - h, t, t + h]))
     a = r.T @ (r_plus - r_minus) / (2 * h)
     return 0.5 * np.array([a[2, 1] - a[1, 2], a[0, 2] - a[2, 0], a[1, 0] - a[0, 1]])

@@ -103,8 +103,10 @@ def test_sigma_is_useful_and_roll_is_the_weak_axis():
 
 def test_covariance_is_honest_over_frames():
     """
-    Over 8 frames at 2 deg/s (random directions and pointings) the NEES averages near 3 (its
-    chi-square mean) and no axis is off by 4 sigma: the sigma is neither optimistic nor padded.
+    Check that the NEES over 8 frames at 2 deg/s averages near 3 and no axis is off by 4 sigma.
+
+    Random directions and pointings; 3 is its chi-square mean: the sigma is neither optimistic
+    nor padded.
     """
     rng = np.random.default_rng(5)
     renderer = _renderer()

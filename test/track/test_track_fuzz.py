@@ -1,7 +1,8 @@
 """
-Property-based tests (hypothesis) of tracking and rate estimation (star_tracker.track) with
-stamps as a faulty or replayed stream delivers them: duplicated, backward, far apart. Never a
-wrong attitude, never a non-finite rate, never an exception other than the documented
+Property-based tests (hypothesis) of tracking and rate estimation (star_tracker.track).
+
+With stamps as a faulty or replayed stream delivers them: duplicated, backward, far apart.
+Never a wrong attitude, never a non-finite rate, never an exception other than the documented
 refusal (pinned at the end, docs/RELIABILITY.md, "Defects found by fuzzing in the core").
 """
 from __future__ import annotations
