@@ -1,7 +1,7 @@
 """
 A second star-field renderer, written independently of star_tracker.sim (it imports nothing from it).
 
-So that a centroiding benchmark does not share the simulator's assumptions.
+A centroiding benchmark run on it does not share the simulator's assumptions.
 
 PSFs (each a normalised 2-D density integrated over every pixel's square):
 - `GaussianPsf`: analytic pixel integral (erf at the pixel edges);

@@ -494,9 +494,9 @@ def _counts(values) -> dict:
 
 def rate_outliers(sequences: list[Sequence], threshold: float = 25.0) -> dict:
     """
-    Rate estimates with NEES > threshold.
+    Return the rate estimates with NEES > threshold, and how many follow an acceleration jump.
 
-    And how many come within 0.3 s after a jump of the body's acceleration (slew start, end of
+    Following: within 0.3 s after a jump of the body's acceleration (slew start, end of
     ramp-up, start of ramp-down, end).
     """
     rows = []

@@ -384,10 +384,10 @@ def _cedar_status(code) -> str:
 def tetra3rs_solve_with_hint(solver: Tetra3rsSolver, x: np.ndarray, y: np.ndarray, hint_rotation: np.ndarray,
                              hint_uncertainty_rad: float | None = None, strict_hint: bool = True) -> PeerSolution:
     """
-    tetra3rs tracking-mode solve of centroids x.
+    Solve centroids x, y [px, our convention, brightest first] with tetra3rs in tracking mode.
 
-    Y [px, our convention, brightest first] with the attitude hint `hint_rotation` (sensor ->
-    ICRS, ours; transposed to tetra3rs's ICRS -> camera) of angular uncertainty
+    With the attitude hint `hint_rotation` (sensor -> ICRS, ours; transposed to tetra3rs's
+    ICRS -> camera) of angular uncertainty
     `hint_uncertainty_rad` [rad] (None: tetra3rs's default, 1 deg). Same database and solve
     settings as `solver` (its lost-in-space-only keywords are ignored by the peer in tracking
     mode). strict_hint=True: no lost-in-space fallback.

@@ -29,9 +29,9 @@ def stretch(image: np.ndarray) -> np.ndarray:
 def annotate_frame(image: np.ndarray, pixel_x: np.ndarray, pixel_y: np.ndarray, hip: np.ndarray,
                    title: str = "", spots_xy: np.ndarray | None = None) -> np.ndarray:
     """
-    BGR picture: detected spots as small grey squares, identified stars as green circles labelled with their HIP number.
+    Draw a BGR picture: detected spots as grey squares, identified stars as labelled green circles.
 
-    And a title band above the frame.
+    Identified stars are labelled with their HIP number; a title band above the frame.
     """
     canvas = cv2.cvtColor(stretch(image), cv2.COLOR_GRAY2BGR)
     if spots_xy is not None:
@@ -145,7 +145,7 @@ def save_solution_plot(path, image: np.ndarray, record: dict, spots, residual_sc
 def sky_chart(catalog, rotation: np.ndarray, camera, identified_hip=(), magnitude_limit: float = 7.0,
               title: str = ""):
     """
-    Chart of the sky around a field of view.
+    Draw a chart of the sky around a field of view.
 
     In the camera's own gnomonic projection about its boresight (so the image rectangle is
     drawn as it is seen): an RA/Dec grid, catalog stars (`catalog`: StarCatalog) to
@@ -233,7 +233,7 @@ def run_figure(time_s: np.ndarray, cross_boresight_arcsec: np.ndarray, roll_arcs
                sigma_cross_arcsec: np.ndarray | None = None, sigma_roll_arcsec: np.ndarray | None = None,
                title: str = ""):
     """
-    Attitude error and body rate against time for a run.
+    Plot the attitude error and body rate against time for a run.
 
     From plain arrays (one entry per frame; NaN where the frame was not identified): time_s
     [s]; cross-boresight and roll error against truth [arcsec]; optionally the estimated and

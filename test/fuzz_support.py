@@ -67,9 +67,9 @@ def valid_or_value_error(function, *args, **kwargs):
 
 def refused(function, *args, match: str, **kwargs) -> None:
     """
-    Assert that function(*args) refuses with a ValueError matching `match` (a regex), not a LinAlgError.
+    Assert that function(*args) refuses with a ValueError matching `match` (a regex).
 
-    And does not silently return.
+    Not a LinAlgError, and it does not silently return.
     """
     with pytest.raises(ValueError, match=match) as refusal:
         function(*args, **kwargs)

@@ -1,7 +1,7 @@
 """
 Writing a new rosbag2 bag (metadata version 9, sqlite3 or MCAP storage) that `ros2 bag info/play` read.
 
-With message definitions and type hashes from the ROS 2 Jazzy type store.
+Message definitions and type hashes come from the ROS 2 Jazzy type store.
 """
 from __future__ import annotations
 

@@ -262,9 +262,9 @@ def _weighted_sum(a, b):
 
 def _secant_update(correction, index, step, model_matrix, gradient_change) -> None:
     """
-    S += (c - b) / b^2 (B step)(B step)^T with b = step^T B step.
+    Update S += (c - b) / b^2 (B step)(B step)^T with b = step^T B step.
 
-    C = step^T (g_old - g_new) the measured curvature along the step, clipped to [b / 4, 4
+    c = step^T (g_old - g_new) is the measured curvature along the step, clipped to [b / 4, 4
     b] (keeps B positive definite and a noisy measurement from flattening it).
     """
     if index.size == 0:

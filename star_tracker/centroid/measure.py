@@ -29,9 +29,9 @@ def star_peak_to_neighbour_ratio(psf_sigma_px: float) -> float:
 @functools.lru_cache(maxsize=32)
 def cog_phase_bias_rms(psf_sigma_px: float, radius_px: float, power: int = 1) -> float:
     """
-    RMS [px per axis] of the centre-of-gravity bias of a noiseless.
+    Return the RMS [px per axis] of the centre-of-gravity bias of a noiseless Gaussian PSF.
 
-    Pixel-integrated Gaussian PSF (1-sigma psf_sigma_px [px]) measured in a circular
+    A pixel-integrated Gaussian PSF (1-sigma psf_sigma_px [px]) measured in a circular
     aperture of radius radius_px [px] centred on the pixel nearest to the star, over the
     star's sub-pixel phase (uniform). power 1: plain centre of gravity; 2:
     intensity-weighted (weights r^2). The aperture cuts the PSF's wings unevenly unless the

@@ -17,9 +17,9 @@ _INV_ROOT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 
 def pixel_integrated_profile(edges_lo: np.ndarray, centre: np.ndarray, sigma: float):
     """
-    Fraction of a 1-D Gaussian (centre [px], sigma [px]) falling in pixels [lo, lo + 1).
+    Return the fraction of a 1-D Gaussian (centre [px], sigma [px]) in pixels [lo, lo + 1), and its derivative.
 
-    And its derivative with respect to the centre [1/px]. Broadcasts edges_lo against centre.
+    The derivative is with respect to the centre [1/px]. Broadcasts edges_lo against centre.
     """
     a = (edges_lo - centre) / sigma
     b = a + 1.0 / sigma

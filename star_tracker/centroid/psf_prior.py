@@ -1,7 +1,7 @@
 """
 RunningPsf: the PSF width carried from frame to frame (the centroider node's prior).
 
-So that the next frame usually needs one measurement pass (extract_spots(..., psf_prior=...)).
+With it the next frame usually needs one measurement pass (extract_spots(..., psf_prior=...)).
 """
 from __future__ import annotations
 

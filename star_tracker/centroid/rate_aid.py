@@ -1,7 +1,8 @@
 """
-The rate aid: a body rate turned into the smear each star's image shows (its typical length, the detection kernel).
+The rate aid: a body rate turned into the smear each star's image shows, and its check.
 
-And the check that the image's streaks agree with it.
+The smear's typical length and the detection kernel; the check that the image's streaks agree
+with it.
 """
 from __future__ import annotations
 

@@ -75,10 +75,10 @@ class Spots:
 
     def validate(self) -> None:
         """
-        Raise ValueError naming the first field whose type.
+        Raise ValueError naming the first field whose type, shape or dtype is wrong.
 
-        Shape or dtype is wrong (run at construction; consumers of a record that may have
-        bypassed it, such as the identifier's compiled kernels, run it again).
+        Run at construction; consumers of a record that may have bypassed it, such as the
+        identifier's compiled kernels, run it again.
         """
         for name in _FLOAT_FIELDS + _INTEGER_FIELDS + ("cov",):
             if not isinstance(getattr(self, name), np.ndarray):
@@ -115,9 +115,9 @@ class Spots:
     def from_xy(x, y, magnitude=None, *, sigma_px: float, width: int, height: int, snr: float = 100.0,
                 flux_at_magnitude_0: float = FLUX_AT_MAGNITUDE_0) -> "Spots":
         """
-        Point-like spots at pixel positions x, y [px] ((N,) each, (0, 0) = centre of the top-left pixel).
+        Return point-like spots at pixel positions x, y [px], in the order given (brightest first).
 
-        In the order given (by convention brightest first).
+        x, y: (N,) each, (0, 0) = centre of the top-left pixel; by convention brightest first.
 
         magnitude: (N,) stellar magnitudes, flux = flux_at_magnitude_0 10^(-0.4 magnitude)
         [ADU] (default zero point FLUX_AT_MAGNITUDE_0); None: every spot at magnitude 0.

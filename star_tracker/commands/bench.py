@@ -322,10 +322,9 @@ class BenchStatus:
 
 def last_duration_s(bench: Bench, results_dir: Path) -> float | None:
     """
-    How long the benchmark's last full run took [s].
+    Return how long the benchmark's last full run took [s], or None.
 
-    From meta.elapsed_s of its JSON results (bench_NAME.json beside the Markdown file), or
-    None.
+    From meta.elapsed_s of its JSON results (bench_NAME.json beside the Markdown file).
     """
     path = results_dir / f"{bench.module.rsplit('.', 1)[-1]}.json"
     try:

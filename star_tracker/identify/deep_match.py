@@ -150,9 +150,9 @@ def _candidate_pairs(spot_xy: np.ndarray, star_xy: np.ndarray, cov: np.ndarray, 
 
 def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tuple[float, float] | None:
     """
-    (zero point, tolerance) [mag] from the guide matches' instrumental and catalog magnitudes.
+    Return (zero point, tolerance) [mag] from the guide matches' instrumental and catalog magnitudes.
 
-    Or None when fewer than MIN_ZERO_POINT_STARS are known.
+    None when fewer than MIN_ZERO_POINT_STARS are known.
     """
     difference = np.asarray(spot_magnitude, float) - np.asarray(star_magnitude, float)
     difference = difference[np.isfinite(difference)]

@@ -356,7 +356,7 @@ def _warm_up() -> None:
     """
     Compile (or load from the on-disk cache) the compiled loops once per process.
 
-    So the first identify() call does not spend its time budget on it.
+    Then the first identify() call does not spend its time budget on it.
     """
     global _WARM
     if _WARM:
@@ -602,9 +602,9 @@ class MatchGroupIdentifier(StarIdentifier):
     @staticmethod
     def _distinct(kernels: np.ndarray, group_of, yielded: set, deadline: Deadline) -> tuple[list[_Group], bool]:
         """
-        Step 5: the distinct groups of these kernels not yet yielded, in order.
+        Run step 5: the distinct groups of these kernels not yet yielded, in order.
 
-        And whether they are unambiguous (all share >= 2 matches); stops at the first group
+        Also whether they are unambiguous (all share >= 2 matches); stops at the first group
         that makes them ambiguous.
         """
         found: dict[tuple, _Group] = {}

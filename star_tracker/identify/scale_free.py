@@ -107,9 +107,9 @@ def circle_centres(spacing_rad: float) -> np.ndarray:
 
 def build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternDatabase:
     """
-    Every four-subset of the CIRCLE_STARS brightest guide stars of each sky circle of radius circle_radius_rad [rad].
+    Return every four-subset, without repeats, of the brightest guide stars of each sky circle.
 
-    Without repeats.
+    The CIRCLE_STARS brightest of each circle of radius circle_radius_rad [rad].
     """
     from scipy.spatial import cKDTree
 

@@ -206,9 +206,9 @@ class SphericalTriangleIdentifier(StarIdentifier):
     def _next_pivot(order: list[int], used: set[int], spot_sets: list[set], current: int, chain_spots: set[int],
                     excluded: set[int], candidates, deadline: Deadline) -> int | None:
         """
-        Largest unused triangle with finalists sharing two spots with the current one (thesis 5.3.3).
+        Return the largest unused triangle with finalists sharing two spots with the current one.
 
-        Else with any two of the chain's spots; none with excluded spots.
+        Thesis 5.3.3; else one sharing any two of the chain's spots; none with excluded spots.
         """
         for pool in (spot_sets[current], chain_spots):
             for t in order:  # descending area

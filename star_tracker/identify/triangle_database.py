@@ -188,7 +188,7 @@ class TriangleDatabase:
 
 def select_guide_stars(database: StarDatabase, config: TriangleConfig) -> tuple[np.ndarray, int]:
     """
-    All database stars if their triangles fit the budget.
+    Return all database stars if their triangles fit the budget.
 
     Else the brightest `stars_per_cell` per cell of the finest grid that fits: (star indices,
     cells_per_face). The grid is first guessed from triangles ~ stars^3, then stepped to the

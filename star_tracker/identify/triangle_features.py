@@ -233,7 +233,7 @@ class CatalogFeatures(NamedTuple):
 
 def catalog_features(vectors: np.ndarray, stars: np.ndarray, depth: int) -> CatalogFeatures:
     """
-    Features of the triangles `stars` (T, 3) of row indices into `vectors` (N, 3) (unit vectors).
+    Return the features of the triangles `stars` (T, 3) of row indices into `vectors` (N, 3) (unit vectors).
 
     Many side by side (series for atan and asin where exact enough).
     """

@@ -121,7 +121,7 @@ class CameraModel:
 
     def pixel_covariance_to_ray_sigma(self, cov_px: np.ndarray) -> np.ndarray:
         """
-        1-sigma angular error [rad] of a ray from a 2x2 pixel covariance (N, 2, 2).
+        Return the 1-sigma angular error [rad] of a ray from a 2x2 pixel covariance (N, 2, 2).
 
         Using the mean variance per axis and the local pixel scale (distortion neglected).
         """

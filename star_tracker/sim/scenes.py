@@ -93,9 +93,9 @@ def _inside_field(setup: SceneSetup, u: np.ndarray, v: np.ndarray, rays: np.ndar
 def _random_field_points(setup: SceneSetup, count: int, rng: np.random.Generator,
                          avoid: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """
-    Pixel positions uniform over the field (by rejection).
+    Return pixel positions uniform over the field (by rejection).
 
-    At least min_separation_px from every position in `avoid` (u, v) [px].
+    Each at least min_separation_px from every position in `avoid` (u, v) [px].
     """
     xs, ys = [], []
     camera, have = setup.camera, 0

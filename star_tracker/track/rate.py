@@ -130,7 +130,7 @@ def _chi2_limits(max_dof: int) -> np.ndarray:
 
 def _relative_rotation_vectors(rotations: np.ndarray) -> np.ndarray:
     """
-    (k, 3) rotation vectors [rad] of R_newest^T R_k for (k, 3, 3) rotations (newest last).
+    Return the (k, 3) rotation vectors [rad] of R_newest^T R_k for (k, 3, 3) rotations (newest last).
 
     From the antisymmetric part (compiled; exact below pi/2, which a rate window never
     approaches; larger angles fall back to matrix_to_rotation_vector).

@@ -1,8 +1,8 @@
 """
-Property-based tests (hypothesis) of spot extraction (star_tracker.centroid) on frames as a sensor.
+Property-based tests (hypothesis) of spot extraction (star_tracker.centroid) on hostile frames.
 
-A fault or an attacker makes them: spots with finite values, or ValueError with a message;
-never another exception. What the identifier node keeps of them (convert.drop_invalid_spots)
+Frames as a sensor, a fault or an attacker makes them: spots with finite values, or ValueError
+with a message; never another exception. What the identifier node keeps of them (convert.drop_invalid_spots)
 is checked too. Defects found by fuzzing are pinned at the end, each with its failing input
 (docs/RELIABILITY.md, "Defects found by fuzzing in the core").
 """

@@ -1,7 +1,7 @@
 """
 The centroider's PSF estimate (centroid/psf_estimate.py) and the automatic PSF mode.
 
-On our simulator AND on frames from a renderer written here, independently of it
+Tested on our simulator AND on frames from a renderer written here, independently of it
 (pixel-integrated Gaussian by erf, a Moffat, a defocused annulus; Poisson + read noise; own
 hot pixels and cosmic-ray tracks), and on a real image when the corpus is present.
 """
@@ -292,9 +292,9 @@ def test_running_psf_carries_the_median_and_resets_on_a_failed_estimate():
 
 def test_the_running_prior_saves_the_second_pass():
     """
-    A frame measured from the last frame's estimate needs one pass.
+    Check that a frame measured from the last frame's estimate needs one pass.
 
-    And gives the same spots as the two-pass measurement from a wrong prior.
+    It gives the same spots as the two-pass measurement from a wrong prior.
     """
     image, xy, _, _ = render(0.5, seed=9)
     cold = extract_spots(image, CONFIG)

@@ -1,7 +1,7 @@
 """
 The star-tracker subcommands of star_tracker/commands (render, solve, database, monitor, bench).
 
-Run for real on small inputs and checked against truth.
+Each is run for real on small inputs and checked against truth.
 """
 from __future__ import annotations
 

@@ -176,9 +176,9 @@ def real_frame(image_id):
 @pytest.mark.parametrize("image_id", ["gran_vega_05sec", "unh_DSC_0058"])
 def test_deep_rematch_on_real_images(image_id):
     """
-    More stars on a real photograph, the error against astrometry.net's reference does not grow.
+    Check: more stars on a real photograph, the error against astrometry.net's reference does not grow.
 
-    And astrometry.net's own TAN-SIP solution puts every deep-matched star on its spot (and
+    Also astrometry.net's own TAN-SIP solution puts every deep-matched star on its spot (and
     no other deep-catalog star nearer).
     """
     from astropy.io import fits

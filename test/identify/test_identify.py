@@ -14,9 +14,9 @@ ARCSEC = np.radians(1 / 3600)
 
 def synthetic_scene(catalog, camera, rotation, rng, noise_px=0.1, magnitude_limit=7.0):
     """
-    Spots at the projected positions of catalog stars (+ Gaussian noise), brightest first.
+    Return spots at the projected positions of catalog stars (+ Gaussian noise), brightest first.
 
-    With the HIP id of the star behind each spot.
+    Also the HIP id of the star behind each spot.
     """
     stars = catalog.brighter_than(magnitude_limit).at_epoch(2026.0)
     u, v, front = camera.project(stars.unit_vectors() @ rotation)
@@ -162,9 +162,9 @@ def test_an_identifier_must_override_a_search_step(database):
 
 def test_a_search_step_ends_in_the_shared_final_fit(database, nominal_camera, catalog):
     """
-    An identifier that overrides only `search`, answering with the true matches under an attitude 20 arcsec off.
+    Check an identifier that overrides only `search`, answering with true matches 20 arcsec off.
 
-    Gets the shared ending: the matches mapped back to the input spots (given in reverse flux
+    Its search answers with the true matches under an attitude 20 arcsec off; it gets the shared ending: the matches mapped back to the input spots (given in reverse flux
     order here), HIP ids, and the final fit's attitude near the truth.
     """
     from star_tracker.identify.base import AcceptedMatch, SearchOutcome, StarIdentifier

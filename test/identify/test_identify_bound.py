@@ -1,7 +1,7 @@
 """
-The false-positive bound, its compiled twin, the sky grid.
+The false-positive bound, its compiled twin, the sky grid and the default identifier.
 
-And the default identifier's behaviour on the seed setups (against simulator truth).
+The identifier's behaviour on the seed setups, against simulator truth.
 """
 from dataclasses import replace
 
@@ -77,10 +77,10 @@ def test_bound_follows_the_documented_formula(database):
 
 def test_bound_is_conservative_on_random_spots(database, sky):
     """
-    With the acceptance threshold opened to 0.5.
+    Check that random-spot scenes almost never yield a small bound, the threshold opened to 0.5.
 
-    Random-spot scenes must still almost never yield a solution with a small bound: P(bound <=
-    t) <= t is what the math promises.
+    With the acceptance threshold opened to 0.5, random-spot scenes must still almost never
+    yield a solution with a small bound: P(bound <= t) <= t is what the math promises.
     """
     identifier = make_identifier(DEFAULT_ALGORITHM, database, IdentifyConfig(false_positive_bound=0.5, max_time_s=0.2))
     setup = replace(SETUPS["nominal"], real_stars=0, false_stars=15)

@@ -1,7 +1,7 @@
 """
-Triangle features (Cole & Crassidis spherical, Toloei planar) against independent computations.
+Triangle features (Cole & Crassidis spherical, Toloei planar) and the catalog triangle database.
 
-And the catalog triangle database.
+The features are checked against independent computations.
 """
 import numpy as np
 import pytest
@@ -108,10 +108,9 @@ def test_planar_features_against_heron_and_monte_carlo_integration():
 @pytest.mark.parametrize("spherical", [True, False])
 def test_feature_sigmas_match_monte_carlo(spherical):
     """
-    Linearized 1-sigma of area.
+    Check the linearized 1-sigma of area, moment and side product against a Monte-Carlo scatter.
 
-    Moment and side product (beta = 1, no floor) against the scatter of noisy measurements
-    of the same triangle.
+    beta = 1, no floor; the scatter of noisy measurements of the same triangle.
     """
     rng = np.random.default_rng(5 if spherical else 6)
     v1, v2, v3 = (v[0] for v in random_triangles(rng, 1, 0.04))

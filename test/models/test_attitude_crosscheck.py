@@ -1,7 +1,7 @@
 """
-QUEST cross-checked against Markley's SVD and Davenport's q-method.
+QUEST cross-checked against Markley's SVD and Davenport's q-method, and its covariance.
 
-And the QUEST measurement-model covariance against the Monte-Carlo scatter of QUEST
+The QUEST measurement-model covariance against the Monte-Carlo scatter of QUEST
 estimates.
 
 Geometries: "sphere" = directions anywhere on the sky (generic Wahba problem); "fov" =
@@ -77,9 +77,9 @@ def sigmas_with_ratio(rng: np.random.Generator, n: int, ratio: float, smallest: 
 def worst_clean_disagreement(seed: int, counts, geometry: str, ratio: float, kinds=("any", "pi", "near_pi"),
                              trials_per_count: int = 12) -> float:
     """
-    Largest angle [rad] between any solver and the truth (hence between solvers) on noise-free data.
+    Return the largest angle [rad] between any solver and the truth on noise-free data.
 
-    Over star counts `counts` and rotation kinds.
+    Hence also between solvers; over star counts `counts` and rotation kinds.
     """
     rng = np.random.default_rng(seed)
     worst = 0.0
@@ -116,7 +116,7 @@ def mahalanobis(rot_a: np.ndarray, rot_b: np.ndarray, covariance: np.ndarray) ->
 
 def worst_noisy_quest_vs_svd(seed: int, n: int, ratio: float, trials: int = 400) -> float:
     """
-    Largest QUEST-SVD difference over noisy trials in the camera field.
+    Return the largest QUEST-SVD difference over noisy trials in the camera field.
 
     In units of the attitude's own 1-sigma (QUEST covariance).
     """
