@@ -330,7 +330,8 @@ def _clipped(stamp: Stamp, width: int, height: int):
     r0, c0 = max(stamp.row0, 0), max(stamp.col0, 0)
     h, w = stamp.fractions.shape
     r1, c1 = min(stamp.row0 + h, height), min(stamp.col0 + w, width)
-    return slice(r0, r1), slice(c0, c1), stamp.fractions[r0 - stamp.row0:r1 - stamp.row0, c0 - stamp.col0:c1 - stamp.col0]
+    return slice(r0, r1), slice(c0, c1), stamp.fractions[r0 - stamp.row0:r1 - stamp.row0,
+                                                         c0 - stamp.col0:c1 - stamp.col0]
 
 
 class Truth(NamedTuple):
@@ -446,6 +447,7 @@ def cramer_rao(field_: StarField, flux_e: float, detector: Detector) -> np.ndarr
     for k, (stamp, (dx, dy)) in enumerate(zip(field_.stamps, field_.gradients)):
         var = flux_e * stamp.fractions + detector.pixel_variance_e2
         gx, gy = flux_e * dx, flux_e * dy
-        info = np.array([[np.sum(gx * gx / var), np.sum(gx * gy / var)], [np.sum(gx * gy / var), np.sum(gy * gy / var)]])
+        info = np.array([[np.sum(gx * gx / var), np.sum(gx * gy / var)],
+                         [np.sum(gx * gy / var), np.sum(gy * gy / var)]])
         bounds[k] = np.linalg.inv(info)
     return bounds

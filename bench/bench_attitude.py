@@ -254,7 +254,8 @@ def summarize(records: list[dict], floor_px: float) -> dict:
     stars = np.array([r["stars"] for r in solved])
     out.update(
         wrong_id_frames=int(sum(r["wrong_ids"] > 0 for r in solved)), stars_median=float(np.median(stars)),
-        cross_rms_arcsec=float(np.sqrt(np.mean(cross**2))), cross_per_axis_rms_arcsec=float(np.sqrt(np.mean(cross**2) / 2)),
+        cross_rms_arcsec=float(np.sqrt(np.mean(cross**2))),
+        cross_per_axis_rms_arcsec=float(np.sqrt(np.mean(cross**2) / 2)),
         cross_median_arcsec=float(np.median(cross)), cross_p95_arcsec=float(np.percentile(cross, 95)),
         roll_rms_arcsec=float(np.sqrt(np.mean(roll**2))), roll_median_arcsec=float(np.median(roll)),
         roll_p95_arcsec=float(np.percentile(roll, 95)),
@@ -364,7 +365,8 @@ def figures(results: dict, image_dir: Path) -> list[Path]:
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-    for panel, key, title in ((0, "chi2_by_snr", "spot SNR"), (1, "chi2_by_neighbour_px", "nearest other rendered star [px]")):
+    for panel, key, title in ((0, "chi2_by_snr", "spot SNR"),
+                              (1, "chi2_by_neighbour_px", "nearest other rendered star [px]")):
         edges = SNR_BINS if key == "chi2_by_snr" else NEIGHBOUR_BINS
         labels = [f"{lo:g}-{hi:g}".replace("-1e+09", "+") for lo, hi in zip(edges[:-1], edges[1:])]
         for c in cases:
@@ -380,7 +382,8 @@ def figures(results: dict, image_dir: Path) -> list[Path]:
     labels = [f"{r['lo']:g}-{r['hi']:g}".replace("-1000", "+") for r in rest["nees_by_star_count"]]
     for key, label in (("nees", "published"), ("nees_floored", "with the floor"), ("nees_unclipped", "- clipped")):
         by = {r["lo"]: r["mean"] / 3 for r in rest[f"{key}_by_star_count"]}
-        axes[2].plot(range(len(labels)), [by.get(r["lo"], np.nan) for r in rest["nees_by_star_count"]], "o-", label=label)
+        axes[2].plot(range(len(labels)), [by.get(r["lo"], np.nan) for r in rest["nees_by_star_count"]], "o-",
+                     label=label)
     axes[2].set_xticks(range(len(labels)), labels)
     axes[2].set_xlabel("matched stars per frame")
     axes[2].set_ylabel("mean NEES / 3")
@@ -424,8 +427,8 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
         f"exposure {meta['exposure_s']} s, full well clipped at {meta['clip_level_adu']:.0f} ADU; Hipparcos to Hp "
         f"{MAGNITUDE_LIMIT} at epoch {meta['epoch']}; no aberration, no false objects) -> `extract_spots` (default "
         "`CentroidConfig`, i.e. `saturation_adu` = 0, the uint16 maximum: clipped stars must be found by their flat "
-        "tops or their fits; smear model with the TRUE body rate, as the live centroider once the tracker publishes its rate) -> "
-        "`hybrid` identifier (default database and `IdentifyConfig`). Attitudes uniform over SO(3) "
+        "tops or their fits; smear model with the TRUE body rate, as the live centroider once the tracker publishes "
+        "its rate) -> `hybrid` identifier (default database and `IdentifyConfig`). Attitudes uniform over SO(3) "
         f"(seed {SEED}); cross-boresight rates in a random direction in the x/y plane; the roll case turns about the "
         "boresight.",
         "- Error d: rotation vector of R_true^T R_est (sensor frame). cross-boresight = |(d_x, d_y)| (a 2-D norm; "
@@ -434,8 +437,8 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
         f"roll: d_z^2 / P_zz (expected 1); tail: share of frames with NEES > chi2_3(0.997) = {CHI2_3_997} "
         f"(expected 0.3 %). wrong-id frames: a matched spot more than {WRONG_ID_PX:g} px from its star's true "
         "position.", "",
-        "| case | frames | identified | wrong-id frames | stars (median) | cross-boresight RMS [\"] | median / p95 [\"] "
-        "| roll RMS [\"] | median / p95 [\"] | NEES (3) | NEES x/y (2) | NEES roll (1) | NEES tail (0.3 %) |",
+        "| case | frames | identified | wrong-id frames | stars (median) | cross-boresight RMS [\"] | median / p95 "
+        "[\"] | roll RMS [\"] | median / p95 [\"] | NEES (3) | NEES x/y (2) | NEES roll (1) | NEES tail (0.3 %) |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for c in cases:
@@ -457,7 +460,8 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
     lines += [
         "", "Goals (issue 6):", "",
         f"- At rest, cross-boresight <= {GOAL_CROSS_ARCSEC:g}\" (1-sigma): {rest['cross_rms_arcsec']:.2f}\" (2-D RMS; "
-        f"{rest['cross_per_axis_rms_arcsec']:.2f}\" per axis) {verdict(rest['cross_rms_arcsec'] <= GOAL_CROSS_ARCSEC)}.",
+        f"{rest['cross_per_axis_rms_arcsec']:.2f}\" per axis) "
+        f"{verdict(rest['cross_rms_arcsec'] <= GOAL_CROSS_ARCSEC)}.",
         f"- At rest, roll <= {GOAL_ROLL_ARCSEC:g}\" (1-sigma): {rest['roll_rms_arcsec']:.1f}\" "
         f"{verdict(rest['roll_rms_arcsec'] <= GOAL_ROLL_ARCSEC)}.",
         f"- Mean NEES {GOAL_NEES:g} +- {GOAL_NEES_TOLERANCE:g} over >= 1000 frames: "

@@ -80,10 +80,13 @@ def cramer_rao(flux, sigma, smear_px, static_e, read_e, gain, rng, phases=24):
     for _ in range(phases):
         x0, y0 = 100.0 + rng.uniform(-0.5, 0.5), 100.0 + rng.uniform(-0.5, 0.5)
         mu = expected_counts(x0, y0, flux, sigma, smear_px)
-        dx = (expected_counts(x0 + h, y0, flux, sigma, smear_px) - expected_counts(x0 - h, y0, flux, sigma, smear_px)) / (2 * h)
-        dy = (expected_counts(x0, y0 + h, flux, sigma, smear_px) - expected_counts(x0, y0 - h, flux, sigma, smear_px)) / (2 * h)
+        dx = (expected_counts(x0 + h, y0, flux, sigma, smear_px)
+              - expected_counts(x0 - h, y0, flux, sigma, smear_px)) / (2 * h)
+        dy = (expected_counts(x0, y0 + h, flux, sigma, smear_px)
+              - expected_counts(x0, y0 - h, flux, sigma, smear_px)) / (2 * h)
         var = mu + static_e + read_e ** 2 + gain ** 2 / 12.0
-        info = np.array([[np.sum(dx * dx / var), np.sum(dx * dy / var)], [np.sum(dx * dy / var), np.sum(dy * dy / var)]])
+        info = np.array([[np.sum(dx * dx / var), np.sum(dx * dy / var)],
+                         [np.sum(dx * dy / var), np.sum(dy * dy / var)]])
         crb = np.linalg.inv(info)
         var_x.append(crb[0, 0])
         var_y.append(crb[1, 1])
@@ -113,7 +116,8 @@ def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig()
     for k in range(frames):
         catalog = grid_scene(sensor, flux, rng)
         renderer = StarFieldRenderer(CAMERA, sensor, catalog, magnitude_limit=30.0)
-        frame = renderer.render(ConstantRateMotion(POINTING, np.array([rate, 0.0, 0.0])), 1.0, frame_seed(int(snr * 10 + smear_px), k))
+        frame = renderer.render(ConstantRateMotion(POINTING, np.array([rate, 0.0, 0.0])), 1.0,
+                                frame_seed(int(snr * 10 + smear_px), k))
         spots = extract_spots(frame.image, config, smear)
         t = frame.truth
         # Score stars whose whole streak lies inside the image (truth also lists off-chip stars
@@ -233,7 +237,8 @@ def speed(images, smear=None, peers_too=True):
                 d = np.full(int(stars.sum()), np.inf)
             stats[name]["hits"].append(float(np.mean(d < reach)))
             stats[name]["errors"].extend(d[d < reach] ** 2)
-    return {name: {"median_ms": 1e3 * float(np.median(v["times"])), "p95_ms": 1e3 * float(np.percentile(v["times"], 95)),
+    return {name: {"median_ms": 1e3 * float(np.median(v["times"])),
+                   "p95_ms": 1e3 * float(np.percentile(v["times"], 95)),
                    "rms_px": float(np.sqrt(np.mean(v["errors"]))) if v["errors"] else float("nan"),
                    "detected": float(np.mean(v["hits"])),
                    "stars": int(np.sum((images[0].truth.kind == 0))),
@@ -268,7 +273,8 @@ def measure_roll(frames: int, electrons: float):
         for name, spots in (("auto + rate (arc)", extract_spots(frame.image, CentroidConfig(), smear)),
                             ("auto (straight segment)", extract_spots(frame.image, CentroidConfig())),
                             ("cog", extract_spots(frame.image, CentroidConfig(method="cog")))):
-            d = np.hypot(t.x[t.kind == 0][:, None] - spots.x[None], t.y[t.kind == 0][:, None] - spots.y[None]).min(axis=1)
+            d = np.hypot(t.x[t.kind == 0][:, None] - spots.x[None],
+                         t.y[t.kind == 0][:, None] - spots.y[None]).min(axis=1)
             errors[name].extend(d[d < 3.0] ** 2)
     return {name: float(np.sqrt(np.mean(e))) for name, e in errors.items()}
 
@@ -395,10 +401,11 @@ def main(argv=None) -> None:
         "### Speed, side by side with the peers",
         "",
         "Real sky (Hipparcos to Hp 6.3 around RA 80 deg, Dec 20 deg; ~50 stars), 1024x1024 mono16, every detector "
-        "effect on, identical frames for every extractor, each run over all frames in one block; best of 3 rounds (the VM's CPU steal comes in bursts). Peers with their default "
-        "settings via bench/peers.py (tetra3rs's `extract_centroids`, cedar-solve's `get_centroids_from_image`). "
-        "`detected`: stars with a spot within 2 px (+ half the smear); RMS over those. Absolute times on this VM "
-        "vary by +-40 % from run to run (CPU steal); compare the ratios, measured in the same run.",
+        "effect on, identical frames for every extractor, each run over all frames in one block; best of 3 rounds (the "
+        "VM's CPU steal comes in bursts). Peers with their default settings via bench/peers.py (tetra3rs's "
+        "`extract_centroids`, cedar-solve's `get_centroids_from_image`). `detected`: stars with a spot within 2 px (+ "
+        "half the smear); RMS over those. Absolute times on this VM vary by +-40 % from run to run (CPU steal); "
+        "compare the ratios, measured in the same run.",
         "",
         "![centroiding time per frame, ours and the peers](images/centroid_times.png)",
         "",

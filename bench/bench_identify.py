@@ -122,12 +122,14 @@ PEER_CANDIDATES: dict[str, list[PeerCandidate]] = {
     "tetra3rs": [
         PeerCandidate("defaults"),
         PeerCandidate("r0.003 t1e-3", solve=dict(match_radius=0.003, match_threshold=1e-3)),
-        PeerCandidate("r0.003 t1e-3 e0.003", solve=dict(match_radius=0.003, match_threshold=1e-3, match_max_error=0.003)),
+        PeerCandidate("r0.003 t1e-3 e0.003",
+                      solve=dict(match_radius=0.003, match_threshold=1e-3, match_max_error=0.003)),
     ],
     "cedar-solve": [
         PeerCandidate("defaults"),
         PeerCandidate("r0.003 t1e-2", solve=dict(match_radius=0.003, match_threshold=1e-2)),
-        PeerCandidate("r0.003 t1e-2 e0.005", solve=dict(match_radius=0.003, match_threshold=1e-2, match_max_error=0.005)),
+        PeerCandidate("r0.003 t1e-2 e0.005",
+                      solve=dict(match_radius=0.003, match_threshold=1e-2, match_max_error=0.005)),
     ],
 }
 
@@ -284,7 +286,8 @@ def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
         "time_ms": {"median": float(np.median(times)), "p99": float(np.percentile(times, 99)),
                     "max": float(times.max()), "mean": float(times.mean())} if times.size else None,
         # The distribution for bench/plots.py: percentiles 0, 1, ..., 100 [ms].
-        "time_ms_percentiles": [float(f"{v:.5g}") for v in np.percentile(times, np.arange(101))] if times.size else None,
+        "time_ms_percentiles": [float(f"{v:.5g}") for v in np.percentile(times, np.arange(101))] if times.size
+        else None,
         "outcomes": "".join(_CODE[o] for o in out.outcome),
     }
     for key in (CORRECT, INCONCLUSIVE, INCORRECT):
@@ -323,7 +326,8 @@ def make_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, candidate
 
 
 def tune_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, catalog: StarCatalog, tuning: list[Scene],
-              max_time_s: float, cache: Path, log, on_scene=None) -> tuple[object, PeerCandidate, dict, dict, list[dict]]:
+              max_time_s: float, cache: Path, log, on_scene=None) -> tuple[object, PeerCandidate, dict, dict,
+                                                                           list[dict]]:
     """
     Try every candidate on the tuning scenes.
 
@@ -529,9 +533,9 @@ def render_markdown(results: dict) -> str:
     lines = [
         "## Identification",
         "",
-        f"Command: `{meta['command']}`. Measured {meta['date']} in {meta['elapsed_s']:.0f} s. Machine: {machine['cpu']}, "
-        f"`nproc` = {machine['cores']}; `python -VV`: Python {machine['python']}; numpy {machine['versions']['numpy']}; "
-        f"tetra3rs {machine['versions']['tetra3rs'] or 'not installed'}, cedar-solve "
+        f"Command: `{meta['command']}`. Measured {meta['date']} in {meta['elapsed_s']:.0f} s. Machine: "
+        f"{machine['cpu']}, `nproc` = {machine['cores']}; `python -VV`: Python {machine['python']}; numpy "
+        f"{machine['versions']['numpy']}; tetra3rs {machine['versions']['tetra3rs'] or 'not installed'}, cedar-solve "
         f"{machine['versions']['cedar-solve'] or 'not installed'}.",
         "",
         f"- Scenes: `star_tracker.sim.scenes.SETUPS`, seed {meta['seed']}, the same centroid lists for every solver; "
@@ -539,9 +543,9 @@ def render_markdown(results: dict) -> str:
         "calls there run to the time limit).",
         f"- Ours: every registered algorithm, database per setup (below), default `IdentifyConfig` (time limit "
         f"{meta['max_time_s']:g} s per call; on {', '.join(HARD_SETUPS)} `max_pattern_spots` = 100, so every "
-        f"spot may form patterns as in Toloei's method). **correct** = solved and every returned HIP id is the truth behind its "
-        "spot; **incorrect** = solved with any wrong id; **inconclusive** = no solution (no match, time limit, too "
-        "few spots).",
+        "spot may form patterns as in Toloei's method). **correct** = solved and every returned HIP id is the truth "
+        "behind its spot; **incorrect** = solved with any wrong id; **inconclusive** = no solution (no match, time "
+        "limit, too few spots).",
         "- Peers: the same guide stars (Hipparcos at the scene epoch, Hp, the setup's magnitude limit) in their own "
         "pattern databases built for the camera's FOV; FOV given to 0.1 deg; the same time limit. correct = "
         "boresight within 1 arcmin and roll within 1 deg of the truth. `wrong id` counts solved results that name "
@@ -551,9 +555,10 @@ def render_markdown(results: dict) -> str:
         "the faster (table at the end). Both peers solve single-threaded (tetra3rs: compiled Rust; cedar-solve: "
         "numpy/Python). A peer's wrong ids with a correct attitude are mostly close doubles (e.g. the 5.6 mag "
         "companion 19\" from a 2.9 mag star, which the scenes merge into the brighter star's spot).",
-        "- Times: wall clock around the call (`time.perf_counter`), one process, one call at a time, after one untimed warm-up call per solver and setup. Per-call stats: "
-        "the algorithms' own counters (e.g. pivots) averaged over the calls that report them. The machine is a "
-        "shared 2-core VM: absolute times vary between runs; compare within one run.",
+        "- Times: wall clock around the call (`time.perf_counter`), one process, one call at a time, after one untimed "
+        "warm-up call per solver and setup. Per-call stats: the algorithms' own counters (e.g. pivots) averaged over "
+        "the calls that report them. The machine is a shared 2-core VM: absolute times vary between runs; compare "
+        "within one run.",
         "",
         f"**Incorrect over all scenes: {totals['ours']['incorrect']} in {totals['ours']['calls']}** (our algorithms, "
         f"all setups); peers: {totals['peers']['incorrect']} in {totals['peers']['calls']}.",
@@ -569,9 +574,10 @@ def render_markdown(results: dict) -> str:
             f"### {name}",
             "",
             f"{entry['description'][:1].upper()}{entry['description'][1:]}. {entry['scenes']} scenes, "
-            f"{entry['true_stars_mean']:.2f} true stars and {entry['spots_mean']:.1f} spots on average, {entry['scenes_ge4_true_stars']} scenes with >= 4 true "
-            f"stars. Our database: Hp <= {db['magnitude_limit']:g}, pairs up to {db['max_pair_angle_deg']:.2f} deg, "
-            f"{db['stars']} stars, {db['pairs']} pairs.",
+            f"{entry['true_stars_mean']:.2f} true stars and {entry['spots_mean']:.1f} spots on average, "
+            f"{entry['scenes_ge4_true_stars']} scenes with >= 4 true stars. Our database: Hp <= "
+            f"{db['magnitude_limit']:g}, pairs up to {db['max_pair_angle_deg']:.2f} deg, {db['stars']} stars, "
+            f"{db['pairs']} pairs.",
             "",
             *setup_table(name, entry, reference),
             "",

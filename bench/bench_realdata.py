@@ -482,7 +482,8 @@ def render_markdown(results: dict) -> str:
         f"Command: `{meta.get('command', 'python -m bench.bench_realdata')}`. Measured {meta.get('date', '?')} in "
         f"{meta['elapsed_s']:.0f} s. Machine: {meta.get('cpu', '?')}, `nproc` = {meta.get('cores', '?')}; "
         f"Python {meta.get('python', '?')}; tetra3rs {versions.get('tetra3rs') or 'not installed'}, cedar-solve "
-        f"{versions.get('cedar-solve') or 'not installed'}. Raw results: `docs/{meta.get('json_name', 'bench_realdata.json')}`."
+        f"{versions.get('cedar-solve') or 'not installed'}. Raw results: "
+        f"`docs/{meta.get('json_name', 'bench_realdata.json')}`."
         + (f" Every solver is told a field {error_pct:+g} % off the manifest's (the approximate field a user "
            "knows), with the same 5 % tolerance." if error_pct else ""),
         "",
@@ -490,12 +491,12 @@ def render_markdown(results: dict) -> str:
         "references from astrometry.net TAN-SIP solves, sensor frame +x right, +y down, +z boresight). "
         "**Ours** = `star-tracker solve IMG --fov <fov_h_deg>` with every other option at its default (run "
         "in-process through the CLI; time = the whole command: image read, centroiding, field search, focal "
-        "refinement; databases already built and cached by an untimed first run). **tetra3rs**: `extract_centroids` + `solve_from_centroids` "
-        "(it has no image-level solve), **cedar-solve**: `solve_from_image`; both at their defaults with the same "
-        "field hint (fov_h_deg, max error 5 % as our `--fov-tolerance`) and the same grey pixels, databases of "
-        "the same Hipparcos guide stars as ours for each group of fields (table at the end). Boresight error = "
-        "angle between solved and reference boresights; roll = angle of the error rotation about the boresight; "
-        "**within 1′** = boresight error ≤ 1′. \"?\" = no reference for that image.",
+        "refinement; databases already built and cached by an untimed first run). **tetra3rs**: `extract_centroids` + "
+        "`solve_from_centroids` (it has no image-level solve), **cedar-solve**: `solve_from_image`; both at their "
+        "defaults with the same field hint (fov_h_deg, max error 5 % as our `--fov-tolerance`) and the same grey "
+        "pixels, databases of the same Hipparcos guide stars as ours for each group of fields (table at the end). "
+        "Boresight error = angle between solved and reference boresights; roll = angle of the error rotation about the "
+        "boresight; **within 1′** = boresight error ≤ 1′. \"?\" = no reference for that image.",
         "",
         "| image | source | field ° | " + " | ".join(
             f"{name}: solved / ≤1′ | {name}: stars | {name}: boresight ″ | {name}: roll ″ | {name}: time s"
@@ -585,7 +586,8 @@ def main(argv=None) -> int:
         f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:])), date=date, corpus=str(corpus),
         cpu=info["cpu"], cores=info["cores"], python=info["python"], platform=info["platform"],
         versions=info["versions"], field_error_pct=args.field_error,
-        json_name="bench_realdata.json" if not args.field_error else f"bench_realdata_field{args.field_error:+g}pct.json")
+        json_name="bench_realdata.json" if not args.field_error
+        else f"bench_realdata_field{args.field_error:+g}pct.json")
     json_name = results["meta"]["json_name"]
     text = render_markdown(results)  # meta names the JSON file (json_name) and the field error
     print(text)

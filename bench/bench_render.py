@@ -322,8 +322,10 @@ def build_report(headline: Point, stars: list[Point], smears: list[Point], sizes
     rows = []
     for p in stars:
         slope = "" if p.stars == base.stars else f"{(p.median_ms - base.median_ms) / (p.stars - base.stars) * 1e3:.0f}"
-        rows.append([f"{p.limit:.2f}", str(p.stars), f"{p.median_ms:.1f}", f"{p.p95_ms:.1f}", f"{p.cpu_median_ms:.1f}", slope])
-    out += [fmt_table(["Hp limit", "stars", "median ms", "p95 ms", "CPU ms", f"µs per star above {base.stars}"], rows), ""]
+        rows.append([f"{p.limit:.2f}", str(p.stars), f"{p.median_ms:.1f}", f"{p.p95_ms:.1f}", f"{p.cpu_median_ms:.1f}",
+                     slope])
+    out += [fmt_table(["Hp limit", "stars", "median ms", "p95 ms", "CPU ms", f"µs per star above {base.stars}"], rows),
+            ""]
     out += [f"### Smear length ({HEADLINE_SIZE}², {headline.stars} stars)", ""]
     rows = [[f"{p.smear_px:g}", f"{p.rate_deg_s:.2f}", str(p.substeps), f"{p.median_ms:.1f}", f"{p.p95_ms:.1f}",
              f"{p.cpu_median_ms:.1f}"] for p in smears]
@@ -375,7 +377,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=None,
                         help="the points are measured in this many interleaved rounds, so that load from "
                              "other processes spreads over all of them (default 4; quick 1)")
-    parser.add_argument("--warmup", type=int, default=None, help="untimed warm-up frames per point and round (default 2; quick 1)")
+    parser.add_argument("--warmup", type=int, default=None,
+                        help="untimed warm-up frames per point and round (default 2; quick 1)")
     parser.add_argument("--output", type=Path, default=None,
                         help=f"markdown file in which to write/replace the section '{SECTION_HEADER}'")
     args = parser.parse_args(argv)
@@ -425,8 +428,9 @@ def main(argv: list[str] | None = None) -> int:
     loaded = cases.pop("loaded").point() if can_load else None
     points = {key: case.point() for key, case in cases.items()}
     for p in points.values():
-        print(f"  {p.size:4d}² Hp<={p.limit:.2f} smear {p.smear_px:5.1f} px: {p.stars:4d} stars, {p.substeps:3d} sub-steps, "
-              f"median {p.median_ms:6.1f} ms (CPU {p.cpu_median_ms:6.1f}), p95 {p.p95_ms:6.1f} ms, {p.frames} frames")
+        print(f"  {p.size:4d}² Hp<={p.limit:.2f} smear {p.smear_px:5.1f} px: {p.stars:4d} stars, {p.substeps:3d} "
+              f"sub-steps, median {p.median_ms:6.1f} ms (CPU {p.cpu_median_ms:6.1f}), p95 {p.p95_ms:6.1f} ms, "
+              f"{p.frames} frames")
     headline = points[head_key]
     print(f"headline: {headline.stars} stars in view at Hp <= {head_limit:.2f}; "
           f"{HEADLINE_SMEAR_PX:g} px smear = {headline.rate_deg_s:.3f} deg/s")
@@ -442,7 +446,8 @@ def main(argv: list[str] | None = None) -> int:
     load_after = os.getloadavg()
 
     report = build_report(headline, stars, smears, sizes, stages, stages_total, machine_info(), command, date,
-                          (load_before, load_after), elapsed, args.quick, frames, rounds, other, code_version(), ref_stats, loaded)
+                          (load_before, load_after), elapsed, args.quick, frames, rounds, other, code_version(),
+                          ref_stats, loaded)
     print()
     print(report)
     if args.output is not None:

@@ -75,8 +75,10 @@ def make_bag(path: Path, frames: int, storage: str) -> None:
         stamp = T0_NS + (k + 1) * PERIOD_NS - 50_000_000  # mid-exposure, as camera_simulator
         frame = renderer.render(motion, stamp * 1e-9, frame_seed(0, k))
         received = stamp + 80_000_000  # bag time = receive time, as a recorder would see it
-        writer.write("/image_raw", received, serialize_message(convert.array_to_image(frame.image, stamp, convert.OPTICAL_FRAME)))
-        writer.write("/camera_info", received + 100_000, serialize_message(convert.camera_to_info(camera, stamp, convert.OPTICAL_FRAME)))
+        writer.write("/image_raw", received,
+                     serialize_message(convert.array_to_image(frame.image, stamp, convert.OPTICAL_FRAME)))
+        writer.write("/camera_info", received + 100_000,
+                     serialize_message(convert.camera_to_info(camera, stamp, convert.OPTICAL_FRAME)))
         writer.write("/truth/attitude", received + 200_000, serialize_message(
             convert.quaternion_msg(matrix_to_quaternion(frame.truth.rotation), stamp)))
     writer.close()
@@ -154,7 +156,8 @@ def main(argv=None) -> None:
     parser.add_argument("--output", type=Path, help="Markdown file whose '## Replay throughput' section is replaced")
     args = parser.parse_args(argv)
     frames = 20 if args.quick else args.frames
-    command = "python -m bench.bench_replay " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    command = "python -m bench.bench_replay " + " ".join(shlex.quote(a)
+                                                         for a in (argv if argv is not None else sys.argv[1:]))
     started = time.perf_counter()
 
     from star_tracker.ros.pipeline import isolated_ros_environment
@@ -220,8 +223,10 @@ def report(r: dict) -> str:
         f"({r['read_sqlite3']['mib_per_s']:.0f} MiB/s) | – | – |",
         f"| read the bag, no ROS (MCAP) | {r['read_mcap']['frames_per_s']:.0f} "
         f"({r['read_mcap']['mib_per_s']:.0f} MiB/s) | – | – |",
-        f"| `play --rate 0 --no-lockstep`, no subscriber (sqlite3) | {r['player_alone_sqlite3']['frames_per_s']:.0f} | – | – |",
-        f"| `play --rate 0 --no-lockstep`, no subscriber (MCAP) | {r['player_alone_mcap']['frames_per_s']:.0f} | – | – |",
+        f"| `play --rate 0 --no-lockstep`, no subscriber (sqlite3) | {r['player_alone_sqlite3']['frames_per_s']:.0f} | "
+        "– | – |",
+        f"| `play --rate 0 --no-lockstep`, no subscriber (MCAP) | {r['player_alone_mcap']['frames_per_s']:.0f} | – | – "
+        "|",
         f"| **`play --rate 0` (lockstep) → centroider + identifier** | **{lock['frames_per_s']:.1f}** | "
         f"{lock['spots_received']} / {lock['images']} | {lock['attitudes_received']} / {lock['images']} |",
         f"| `play --rate 0 --no-lockstep` → centroider + identifier | {flat['frames_per_s']:.1f} | "

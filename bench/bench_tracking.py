@@ -262,7 +262,8 @@ class TrackingBench:
         if propagated is not None and len(spots) > 0:
             side = peer_adapters.tetra3rs_solve_with_hint(self.peer, x, y, propagated)
             wrong = check_ids(side.ids, order[side.spot_index], truth)[0] if side.solved else 0
-            rec["propagated"] = {"solved": side.solved, "correct": side.solved and wrong == 0 and side.rotation is not None,
+            rec["propagated"] = {"solved": side.solved,
+                                 "correct": side.solved and wrong == 0 and side.rotation is not None,
                                  "ms": 1e3 * side.elapsed_s}
         solution = None
         if hint is not None and len(spots) > 0:
@@ -364,7 +365,8 @@ class TrackingBench:
         bridged = [tracker.bridge(stamp_of(k)[1], spots[k], CAMERA) for k in range(1, newest + 1)]
         lis_result = self.lis.identify(spots[0], CAMERA)
         published = tracker.complete_acquisition(lis_result)
-        rec = {"solve_s": solve_s, "newest": newest, "bridged_ok": int(sum(bridged)), "lis_solved": bool(lis_result.solved),
+        rec = {"solve_s": solve_s, "newest": newest, "bridged_ok": int(sum(bridged)),
+               "lis_solved": bool(lis_result.solved),
                "lis_ms": 1e3 * lis_result.elapsed_s, "published": published is not None}
         truth_new = frames[newest].truth.rotation
         if lis_result.solved:
@@ -573,7 +575,8 @@ def slew_bias_table(rows: list[dict]) -> list[str]:
 
 def peer_failures(sequences: list[Sequence]) -> list[dict]:
     """Frames where tetra3rs returned a wrong id (hinted or lost-in-space)."""
-    return [{"case": seq.case, "run": seq.run, "k": r["k"], "mode": r["peer"]["mode"], "wrong_ids": r["peer"]["wrong_ids"],
+    return [{"case": seq.case, "run": seq.run, "k": r["k"], "mode": r["peer"]["mode"],
+             "wrong_ids": r["peer"]["wrong_ids"],
              "blend_partner_ids": r["peer"]["blend_partner_ids"], "matched": r["peer"]["matched"]}
             for seq in sequences for r in seq.records if r.get("peer", {}).get("incorrect")]
 
@@ -734,7 +737,8 @@ def rate_table(summaries: dict[str, dict]) -> list[str]:
         if "rate_frames" not in s:
             continue
         lines.append(f"| {name} | {s['rate_frames']} | {_triple(s['rate_rms_arcsec_s'])} | "
-                     f"{_triple(s['rate_sigma_median_arcsec_s'])} | {s['rate_nees_mean']:.2f} | {s['rate_nees_p99']:.1f} |")
+                     f"{_triple(s['rate_sigma_median_arcsec_s'])} | {s['rate_nees_mean']:.2f} | "
+                     f"{s['rate_nees_p99']:.1f} |")
     return lines
 
 
@@ -763,8 +767,9 @@ def reacquisition_table(rows: list[dict]) -> list[str]:
         group = [r for r in rows if r["rate_deg_s"] == rate and r["gap"] == gap]
         frames = ", ".join("never" if r["frames_to_correct"] is None else str(r["frames_to_correct"]) for r in group)
         modes = _counts(r["mode"] for r in group)
-        lines.append(f"| {rate:g} deg/s | {gap} | {len(group)} | {'yes' if all(r['gap_unsolved'] for r in group) else 'no'} | "
-                     f"{frames} | {', '.join(f'{m} x{c}' for m, c in modes.items())} | "
+        lines.append(f"| {rate:g} deg/s | {gap} | {len(group)} | "
+                     f"{'yes' if all(r['gap_unsolved'] for r in group) else 'no'} | {frames} | "
+                     f"{', '.join(f'{m} x{c}' for m, c in modes.items())} | "
                      f"{sum(r['after_correct'] for r in group)}/{sum(r['after_frames'] for r in group)} |")
     return lines
 
@@ -782,8 +787,8 @@ def delay_table(rows: list[dict]) -> list[str]:
         roll = [r["roll_arcsec"] for r in ok]
         stale_c = [r["stale_cross_arcsec"] for r in group if "stale_cross_arcsec" in r]
         stale_r = [r["stale_roll_arcsec"] for r in group if "stale_roll_arcsec" in r]
-        lines.append(f"| {rate:g} deg/s | {solve_s:g} s | {group[0]['newest']} | {len(group)} | {len(ok)}/{len(group)} | "
-                     f"{_fmt(percentile(cross, 50), 2)} ({_fmt(max(cross) if cross else None, 2)}) / "
+        lines.append(f"| {rate:g} deg/s | {solve_s:g} s | {group[0]['newest']} | {len(group)} | {len(ok)}/{len(group)} "
+                     f"| {_fmt(percentile(cross, 50), 2)} ({_fmt(max(cross) if cross else None, 2)}) / "
                      f"{_fmt(percentile(roll, 50), 1)} ({_fmt(max(roll) if roll else None, 1)}) | "
                      f"{_fmt(percentile(stale_c, 50), 0)} / {_fmt(percentile(stale_r, 50), 0)} |")
     return lines
@@ -803,11 +808,12 @@ def peer_table(summaries: dict[str, dict]) -> list[str]:
                  if p["track_ms_median"] and s["track_ms_median"] else None)
         q = p.get("propagated")
         propagated = f"{q['correct']}/{q['frames']} ({_fmt(q['ms_median'], 2)})" if q else "–"
-        lines.append(f"| {name} | {s['frames']} | {_pct(s['correct'], s['frames'], 2)} | {_pct(p['tracked'], p['frames'])} | "
-                     f"{_pct(p['correct'], p['frames'], 2)} | {p['incorrect']} ({p['incorrect'] - p['incorrect_not_blend']}) | "
-                     f"{_fmt(s['track_ms_median'], 2)} / {_fmt(s['track_ms_p99'], 2)} | "
-                     f"{_fmt(p['track_ms_median'], 2)} / {_fmt(p['track_ms_p99'], 2)} | {_fmt(ratio, 2)} | "
-                     f"{_fmt(p['cross_arcsec_rms'], 2)} / {_fmt(p['roll_arcsec_rms'], 1)} | {propagated} |")
+        lines.append(f"| {name} | {s['frames']} | {_pct(s['correct'], s['frames'], 2)} | "
+                     f"{_pct(p['tracked'], p['frames'])} | {_pct(p['correct'], p['frames'], 2)} | {p['incorrect']} "
+                     f"({p['incorrect'] - p['incorrect_not_blend']}) | {_fmt(s['track_ms_median'], 2)} / "
+                     f"{_fmt(s['track_ms_p99'], 2)} | {_fmt(p['track_ms_median'], 2)} / {_fmt(p['track_ms_p99'], 2)} | "
+                     f"{_fmt(ratio, 2)} | {_fmt(p['cross_arcsec_rms'], 2)} / {_fmt(p['roll_arcsec_rms'], 1)} | "
+                     f"{propagated} |")
     return lines
 
 
@@ -872,7 +878,8 @@ def figures(summaries: dict[str, dict], constant: dict[str, list[Sequence]], sle
         fig, axes = plt.subplots(4, 1, figsize=(9, 10.5), sharex=True)
         for i, axis in enumerate("xyz"):
             axes[0].plot(t, true_rate[:, i], color=f"C{i}", lw=1, label=f"truth {axis}")
-            est = [(r["t"], np.degrees(r["true_rate"][i] + r["rate_error"][i])) for r in seq.records if "rate_error" in r]
+            est = [(r["t"], np.degrees(r["true_rate"][i] + r["rate_error"][i])) for r in seq.records
+                   if "rate_error" in r]
             if est:
                 axes[0].plot(*zip(*est), ".", color=f"C{i}", ms=3, label=f"estimate {axis}")
         axes[0].set_ylabel("body rate [deg/s]")
@@ -1044,6 +1051,8 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
     track_ok = goal["track_ms_median"] is not None and goal["track_ms_median"] <= GOAL_TRACK_MS
     reacq_ok = all(r["frames_to_correct"] == 1 for r in reacq_rows)
     delay_ok = all(r["published"] and r.get("published_stamp_is_newest") and r.get("correct") for r in delay_rows)
+    delay_fresh = sum(bool(r["published"] and r.get("published_stamp_is_newest") and r.get("correct"))
+                      for r in delay_rows)
     lines = ["## Tracking", "",
              f"Command: `{meta['command']}` — {meta['date']}, {m['cpu']}, {m['cores']} cores, Python {m['python']}, "
              f"{m['platform']}; {meta['elapsed_s']:.0f} s; core at commit {meta['commit']}. "
@@ -1069,14 +1078,13 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
              f"(p99 {_fmt(goal['track_ms_p99'], 3)} ms), of which `track()` (local recognition and verification) "
              f"{_fmt(goal['track_core_ms_median'], 3)} ms; the rest is `_accept`: the rate estimate (GLS fit and "
              f"χ² window test) and the state update — {met(track_ok)}.",
-             f"- Re-acquisition on the first good frame after a loss: {sum(r['frames_to_correct'] == 1 for r in reacq_rows)}"
-             f"/{len(reacq_rows)} runs — {met(reacq_ok)}.",
+             "- Re-acquisition on the first good frame after a loss: "
+             f"{sum(r['frames_to_correct'] == 1 for r in reacq_rows)}/{len(reacq_rows)} runs — {met(reacq_ok)}.",
              f"- Delay compensation publishes a correct, fresh attitude for the newest frame: "
-             f"{sum(bool(r['published'] and r.get('published_stamp_is_newest') and r.get('correct')) for r in delay_rows)}"
-             f"/{len(delay_rows)} trials — {met(delay_ok)}.", "",
+             f"{delay_fresh}/{len(delay_rows)} trials — {met(delay_ok)}.", "",
              "### 1. Tracking success and time against rate", "",
-             f"Constant-rate runs of {meta['plan']['frames_per_run']} frames each (the first frame is lost-in-space: no "
-             "prediction yet); slews (SlewMotion about a random axis, rest 0.5 s, accelerate at 0.5 or 2 deg/s² to "
+             f"Constant-rate runs of {meta['plan']['frames_per_run']} frames each (the first frame is lost-in-space: "
+             "no prediction yet); slews (SlewMotion about a random axis, rest 0.5 s, accelerate at 0.5 or 2 deg/s² to "
              "2 deg/s, 2 s coast, decelerate, rest 0.5 s). TrackingConfig defaults throughout (acceleration bound "
              f"{math.degrees(meta['tracking_config']['max_angular_acceleration_rad_s2']):g} deg/s²).", ""]
     lines += tracking_table(summaries)
@@ -1086,8 +1094,8 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
         lines += ["", "Slews: the cross-boresight attitude error along the cross-boresight part of the slew axis, by "
                   "phase of the slew (frames whose exposure holds a jump of the acceleration left out). Under a "
                   "constant acceleration α a streak's centroid is the exposure-average position, α T² / 24 ahead of "
-                  "(ramp-up) or behind (ramp-down) the mid-exposure one; the stated covariance does not include it. Ramps are split by "
-                  "the body rate, to show whether the offset depends on it.", ""]
+                  "(ramp-up) or behind (ramp-down) the mid-exposure one; the stated covariance does not include it. "
+                  "Ramps are split by the body rate, to show whether the offset depends on it.", ""]
         lines += slew_bias_table(bias)
     lines += ["", "### 2. Re-acquisition after a loss", "",
               f"Runs at 0.5 and 2 deg/s: {meta['plan']['reacquisition_before']} good frames, then the gap (blank "
@@ -1112,9 +1120,10 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
                          f"{_triple(r['error_arcsec_s'])} | {_triple(r['sigma_arcsec_s'])} | {r['nees']:.0f} |")
         if len(rows) > 16:
             lines.append(f"| … {len(rows) - 16} more in bench_tracking.json | | | | | | | |")
-    lines += ["", "Against `star_tracker.track.streak_rate.rate_from_streaks` on the same frames centroided **without** the "
-              "rate aid (a free streak fit; rate-aided spots would only echo the aid), hint = the tracker's previous "
-              "rate (it only fixes the sense of the streaks). First runs at 1, 2 and 3 deg/s:", ""]
+    lines += ["",
+              "Against `star_tracker.track.streak_rate.rate_from_streaks` on the same frames centroided **without** "
+              "the rate aid (a free streak fit; rate-aided spots would only echo the aid), hint = the tracker's "
+              "previous rate (it only fixes the sense of the streaks). First runs at 1, 2 and 3 deg/s:", ""]
     lines += streak_table({k: v for k, v in summaries.items() if "all runs" not in k})
     lines += ["", "### 4. Delay compensation", "",
               "A lost-in-space solve of frame k that takes S seconds: the frames that arrive meanwhile at 10 Hz "
@@ -1126,18 +1135,19 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
     lines += ["", "### 5. Peer: tetra3rs tracking mode", ""]
     if meta["peer"]:
         lines += ["tetra3rs " + meta["peer"]["version"] + " has a tracking mode: `solve_from_centroids(..., "
-                  "attitude_hint=R, hint_uncertainty_rad=..., strict_hint=...)` (\"projects nearby catalog stars via the "
-                  "hint, nearest-neighbor matches them to centroids, and runs the same verification + WCS refine path as "
-                  "lost-in-space\"). Here on the **same centroid lists** as ours (brightest first), hint = its own "
-                  "previous frame's attitude (it has no rate model), `hint_uncertainty` its default 1°, "
-                  "`strict_hint=True`, timed alone (times: the solves that succeeded, as for ours); when it fails (or on the first frame) its lost-in-space solve "
-                  "runs, as our `process` does. Database and solve settings: those bench_identify's tuning picked "
-                  f"for the nominal setup ({json.dumps(PEER_SOLVE)}). Incorrect: solved with any id that is not the "
-                  "truth star nearest its spot (within 2 px); \"blend-partner\" ids name another truth star within "
-                  f"{BLEND_RADIUS_PX:g} px of the spot (an unresolved double, whose light centroid lies between the "
-                  "two; our database leaves such pairs out). Last column, on the side and not used for the "
-                  "next hint: the same strict hinted solve with the hint carried to the frame's time by our tracker's "
-                  "rate estimate, to separate tetra3rs's matching from its lack of a rate model.", ""]
+                  "attitude_hint=R, hint_uncertainty_rad=..., strict_hint=...)` (\"projects nearby catalog stars via "
+                  "the hint, nearest-neighbor matches them to centroids, and runs the same verification + WCS refine "
+                  "path as lost-in-space\"). Here on the **same centroid lists** as ours (brightest first), hint = its "
+                  "own previous frame's attitude (it has no rate model), `hint_uncertainty` its default 1°, "
+                  "`strict_hint=True`, timed alone (times: the solves that succeeded, as for ours); when it fails (or "
+                  "on the first frame) its lost-in-space solve runs, as our `process` does. Database and solve "
+                  f"settings: those bench_identify's tuning picked for the nominal setup ({json.dumps(PEER_SOLVE)}). "
+                  "Incorrect: solved with any id that is not the truth star nearest its spot (within 2 px); "
+                  f"\"blend-partner\" ids name another truth star within {BLEND_RADIUS_PX:g} px of the spot (an "
+                  "unresolved double, whose light centroid lies between the two; our database leaves such pairs out). "
+                  "Last column, on the side and not used for the next hint: the same strict hinted solve with the hint "
+                  "carried to the frame's time by our tracker's rate estimate, to separate tetra3rs's matching from "
+                  "its lack of a rate model.", ""]
         lines += peer_table({k: v for k, v in summaries.items()})
         status = {k: v["peer"]["track_status"] for k, v in summaries.items() if v.get("peer", {}).get("track_status")}
         if status:
@@ -1157,12 +1167,14 @@ def failure_text(fails: list[dict]) -> list[str]:
     lines = [f"Frames not solved correctly (ours, gap frames excluded): {len(wrong)}; tracking attempts that failed "
              f"but lost-in-space then solved correctly: {len(fallback)}."]
     if wrong or fallback:
-        lines += ["", "| case | run | frame | rate [deg/s] | spots (true) | mode | result | tracking failure | gate [px] |",
+        lines += ["",
+                  "| case | run | frame | rate [deg/s] | spots (true) | mode | result | tracking failure | gate [px] |",
                   "|---|---:|---:|---:|---|---|---|---|---:|"]
         for f in (wrong + fallback)[:30]:
             result = "incorrect" if f["incorrect"] else ("correct" if f["solved"] else "unsolved: " + f["reason"])
-            lines.append(f"| {f['case']} | {f['run']} | {f['k']} | {f['rate_deg_s']:.2f} | {f['spots']} ({f['true_spots']}) | "
-                         f"{f['mode']} | {result} | {f['track_failure'] or '–'} | {_fmt(f['gate_px'], 0)} |")
+            lines.append(f"| {f['case']} | {f['run']} | {f['k']} | {f['rate_deg_s']:.2f} | {f['spots']} "
+                         f"({f['true_spots']}) | {f['mode']} | {result} | {f['track_failure'] or '–'} | "
+                         f"{_fmt(f['gate_px'], 0)} |")
         if len(wrong + fallback) > 30:
             lines.append(f"| … {len(wrong + fallback) - 30} more in bench_tracking.json | | | | | | | | |")
     return lines

@@ -114,7 +114,8 @@ def plot_centroid_crb(results: dict, path: Path) -> Path:
         if smear == 0:  # the goals are set for these two smear lengths (from SNR 20)
             ax.axhline(goals["ratio_no_smear"], color="k", ls="--", lw=0.8, label=f"goal {goals['ratio_no_smear']}×")
         elif smear == 20:
-            ax.axhline(goals["ratio_20px_smear"], color="k", ls="--", lw=0.8, label=f"goal {goals['ratio_20px_smear']}×")
+            ax.axhline(goals["ratio_20px_smear"], color="k", ls="--", lw=0.8,
+                       label=f"goal {goals['ratio_20px_smear']}×")
         ax.axhline(1.0, color="grey", lw=0.6)
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -225,7 +226,8 @@ def plot_identify_false_stars(results: dict, path: Path) -> Path:
                 ys.append(s["correct_pct"])
                 bad.append(s["incorrect"])
             peer = setups[names[0]]["solvers"].get(solver, {}).get("kind") == "peer"
-            ax.plot(xs, ys, "s--" if peer else "o-", color=SOLVER_COLOURS.get(solver), label=solver + (" (peer)" if peer else ""),
+            ax.plot(xs, ys, "s--" if peer else "o-", color=SOLVER_COLOURS.get(solver),
+                    label=solver + (" (peer)" if peer else ""),
                     lw=1.4, ms=5)
             for x, y, n in zip(xs, ys, bad):
                 if n:

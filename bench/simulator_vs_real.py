@@ -157,7 +157,8 @@ def compare(profile: CameraProfile, real: list[RealFrame], stars) -> dict:
                 flux_ratio=flux_ratio, width_ratio=width_ratio, real_bg=real_bg, sim_bg=sim_bg,
                 background=(mu_r, s_r, mu_s, s_s), ks=float(ks.statistic),
                 clipped=(float(np.mean(real_bg <= 0)), float(np.mean(sim_bg <= 0))),
-                spots=(real_spots, sim_spots), neighbour_correlation=(float(np.mean(corr_real)), float(np.mean(corr_sim))))
+                spots=(real_spots, sim_spots),
+                neighbour_correlation=(float(np.mean(corr_real)), float(np.mean(corr_sim))))
 
 
 def solve_counts(real: list[RealFrame], simulated: list[ProfileFrame], corpus: Path) -> dict:
@@ -254,7 +255,7 @@ def profile_yaml(profile: CameraProfile, camera: CameraModel, image_ids: list[st
     saturation_adu: 255.0
     psf_sigma_px: {s.psf_sigma_px:.4f}
     exposure_time_s: {s.exposure_s}
-"""
+"""  # noqa: E501 (a template: the YAML comment lines stay whole)
 
 
 def crop_around(frames: list[RealFrame], fits, size: int) -> tuple[int, int, int]:
@@ -266,7 +267,8 @@ def crop_around(frames: list[RealFrame], fits, size: int) -> tuple[int, int, int
         for x, y in zip(fits.x[mine], fits.y[mine]):
             c0 = int(np.clip(x - size / 2, 0, width - size))
             r0 = int(np.clip(y - size / 2, 0, height - size))
-            inside = mine & (fits.x >= c0 + 8) & (fits.x < c0 + size - 8) & (fits.y >= r0 + 8) & (fits.y < r0 + size - 8)
+            inside = mine & (fits.x >= c0 + 8) & (fits.x < c0 + size - 8) & (fits.y >= r0 + 8) & (fits.y < r0
+                                                                                                  + size - 8)
             score = float(np.sum(fits.flux[inside]))
             if score > best[0]:
                 best = (score, k, r0, c0)
@@ -340,9 +342,11 @@ def pictures(profile: CameraProfile, real: list[RealFrame], result: dict, images
     k2 = max(profile.ptc_model_error, 0.0)
     inverse = profile.inverse_gain_adu_per_e.value
     ax.loglog(grid, profile.background_noise_adu.value ** 2 + inverse * grid + k2 * grid ** 2, "-", color="0.5",
-              label=f"fit s_bg² + S/g + (kS)²: 1/g = {profile.inverse_gain_adu_per_e:.2f} ADU/e⁻, k = {np.sqrt(k2):.2f}")
+              label=f"fit s_bg² + S/g + (kS)²: 1/g = {profile.inverse_gain_adu_per_e:.2f} ADU/e⁻, "
+                    f"k = {np.sqrt(k2):.2f}")
     ax.loglog(grid, profile.background_noise_adu.value ** 2 + grid / g, ":", color="0.5",
-              label=f"s_bg² + S/g at the profile's g = {g:.2f} e⁻/ADU" + (" (2σ limit)" if profile.gain_is_lower_limit else ""))
+              label=f"s_bg² + S/g at the profile's g = {g:.2f} e⁻/ADU"
+              + (" (2σ limit)" if profile.gain_is_lower_limit else ""))
     ax.set_xlabel("model signal S of the pixel [ADU]")
     ax.set_ylabel("residual variance [ADU²]")
     ax.set_title("photon transfer on star pixels (real frames)", fontsize=9)
@@ -374,7 +378,8 @@ def gain_paragraph(p: CameraProfile) -> str:
 
 
 def closure_note(p: CameraProfile, sp: CameraProfile) -> str:
-    off = [name for name in ("psf_sigma_px", "log10_zero_point_adu_per_s", "background_noise_adu", "vignetting_at_corner")
+    off = [name
+           for name in ("psf_sigma_px", "log10_zero_point_adu_per_s", "background_noise_adu", "vignetting_at_corner")
            if abs(getattr(p, name).value - getattr(sp, name).value)
            > 2.0 * np.hypot(getattr(p, name).sigma, getattr(sp, name).sigma)]
     return (" (all of PSF σ, zero point, background noise and vignetting within 2σ)" if not off
@@ -513,7 +518,7 @@ Reproduce (about 3 min of wall time on the machine below):
 
 Measured on {dt.date.today().isoformat()}, {cpu_model()} ({os.cpu_count()} cores, shared), Python
 {platform.python_version()}, numpy {np.__version__}, OpenCV {cv2_version()}.
-"""
+"""  # noqa: E501 (a template: Markdown table rows and paragraphs stay one line each)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -527,7 +532,8 @@ def main(argv: list[str] | None = None) -> int:
     real = load_real_frames(corpus)
     stars = catalog()
     profile = fit_camera_profile([r.frame for r in real], stars)
-    for name in ("psf_sigma_px", "psf_wing_excess", "inverse_gain_adu_per_e", "gain_e_per_adu", "read_noise_e", "background_adu",
+    for name in ("psf_sigma_px", "psf_wing_excess", "inverse_gain_adu_per_e", "gain_e_per_adu", "read_noise_e",
+                 "background_adu",
                  "background_noise_adu", "vignetting_at_corner", "log10_zero_point_adu_per_s", "zero_point_free_slope",
                  "color_coefficient"):
         print(f"{name:28s} {getattr(profile, name):.4f}")
@@ -550,7 +556,8 @@ def main(argv: list[str] | None = None) -> int:
     for path in pictures(profile, real, result, args.images_dir):
         print(f"wrote {path} ({path.stat().st_size / 1e3:.0f} kB)")
     if args.output:
-        command = "python -m bench.simulator_vs_real --output docs/SIMULATOR.md --write-profile config/camera_openstartracker.yaml"
+        command = ("python -m bench.simulator_vs_real --output docs/SIMULATOR.md "
+                   "--write-profile config/camera_openstartracker.yaml")
         write_section(args.output, section(profile, real, result, command))
         print(f"wrote {SECTION!r} into {args.output}")
     return 0

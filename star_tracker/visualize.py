@@ -131,7 +131,8 @@ def save_solution_plot(path, image: np.ndarray, record: dict, spots, residual_sc
     """
     matched = record.get("matched", [])
     used = {(round(m["x"], 3), round(m["y"], 3)) for m in matched}
-    unmatched = np.array([(x, y) for x, y in zip(spots.x, spots.y) if (round(float(x), 3), round(float(y), 3)) not in used])
+    unmatched = np.array([(x, y) for x,
+                          y in zip(spots.x, spots.y) if (round(float(x), 3), round(float(y), 3)) not in used])
     if record.get("solved"):
         s = record["sigma_arcsec"]
         title = (f"RA {record['ra_deg']:.4f}°  Dec {record['dec_deg']:+.4f}°  roll {record['roll_deg']:+.3f}°   "
@@ -183,7 +184,8 @@ def sky_chart(catalog, rotation: np.ndarray, camera, identified_hip=(), magnitud
         _grid_line(ax, rotation, ras, np.full_like(ras, dec), reach, f"{dec:+.0f}°" if step >= 1 else f"{dec:+.1f}°")
     for ra in np.arange(np.floor((ra0 - 180) / ra_step) * ra_step, ra0 + 180, ra_step):
         decs = np.clip(dec0 + samples * 2 * half, -89.9, 89.9)
-        _grid_line(ax, rotation, np.full_like(decs, ra), decs, reach, f"{ra % 360:.0f}°" if ra_step >= 1 else f"{ra % 360:.1f}°")
+        _grid_line(ax, rotation, np.full_like(decs, ra), decs, reach,
+                   f"{ra % 360:.0f}°" if ra_step >= 1 else f"{ra % 360:.1f}°")
     sizes = 2.0 + 60.0 * 10 ** (-0.4 * (magnitude - magnitude.min())) if magnitude.size else 1.0
     ax.scatter(gx, -gy, s=sizes, c="white", linewidths=0, zorder=3)
     marked = np.isin(hip, np.asarray(list(identified_hip), dtype=hip.dtype))
@@ -250,7 +252,8 @@ def run_figure(time_s: np.ndarray, cross_boresight_arcsec: np.ndarray, roll_arcs
     ax.plot(t, cross, ".-", ms=3, lw=0.8, color="#1f77b4", label="cross-boresight error")
     ax.plot(t, roll, ".-", ms=3, lw=0.8, color="#d62728", label="roll error")
     if sigma_cross_arcsec is not None:
-        ax.plot(t, 3 * np.asarray(sigma_cross_arcsec, float), lw=0.8, ls="--", color="#1f77b4", label="3σ cross-boresight")
+        ax.plot(t, 3 * np.asarray(sigma_cross_arcsec, float), lw=0.8, ls="--", color="#1f77b4",
+                label="3σ cross-boresight")
     if sigma_roll_arcsec is not None:
         ax.plot(t, 3 * np.asarray(sigma_roll_arcsec, float), lw=0.8, ls="--", color="#d62728", label="3σ roll")
     lost = ~np.isfinite(cross)

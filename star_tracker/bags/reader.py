@@ -78,7 +78,8 @@ def explain_read_error(path: Path, exc: BaseException) -> str:
     reindex = f"if a recording was interrupted, `star-tracker reindex {path}` recovers what was written"
     if "magic" in text.lower() or "footer" in text.lower() or "Truncated record" in text or "summary" in text:
         return f"{path}: MCAP file {_storage_files(path)} is truncated or was never finished ({text}); {reindex}"
-    if any(key in text for key in ("malformed", "not a database", "missing tables", "I/O error", "Cannot open database")):
+    if any(key in text
+           for key in ("malformed", "not a database", "missing tables", "I/O error", "Cannot open database")):
         return f"{path}: sqlite3 storage file {_storage_files(path)} is corrupt or truncated ({text}); {reindex}"
     if "metadata" in text.lower() or "YAML" in text:
         return f"{path}: invalid metadata.yaml ({text}); `star-tracker reindex {path}` rewrites it from the storage"

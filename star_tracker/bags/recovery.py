@@ -64,7 +64,8 @@ def _recover_sqlite(file: Path) -> None:
         finally:
             connection.close()
     except sqlite3.DatabaseError as exc:
-        raise BagError(f"{file}: sqlite3 storage file is corrupt or truncated ({exc}); it cannot be reindexed") from None
+        raise BagError(f"{file}: sqlite3 storage file is corrupt or truncated ({exc}); "
+                       "it cannot be reindexed") from None
 
 
 def _recover_mcap(file: Path) -> None:

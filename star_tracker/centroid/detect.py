@@ -22,8 +22,9 @@ class Detections:
     """
     Connected components of the thresholded, PSF-matched image (M of them).
 
-    label: each component's value in `labels`; left, top, right, bottom: bounding box on the full-resolution image [px] (right/bottom
-    exclusive); x, y: footprint centroid [px]; area: footprint size on the full-resolution
+    label: each component's value in `labels`; left, top, right, bottom: bounding box on the
+    full-resolution image [px] (right/bottom exclusive); x, y: footprint centroid [px]; area:
+    footprint size on the full-resolution
     grid [px]; labels: component label image on the binned grid (0 = background);
     background: background on the binned grid [ADU]; noise_adu: 1-sigma full-resolution pixel
     noise [ADU]; binning: bin factor of the detection grid; noise_scale: local pixel noise over

@@ -174,7 +174,11 @@ def _fit_group_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarra
 
 def _group_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: float,
                  m_stars: int) -> LeastSquaresModel:
-    """Return the model (x_m, y_m, F_m) of M stars per window, each moving along the window's `offsets` (n, K, 2) [px]."""
+    """
+    Return the model (x_m, y_m, F_m) of M stars per window.
+
+    Each star moves along the window's `offsets` (n, K, 2) [px].
+    """
     var_eff = sigma * sigma + 1.0 / 12.0
     scale = 1.0 / np.sqrt(2.0 * var_eff)
     amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)

@@ -99,7 +99,11 @@ def _fit_path_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray
 
 
 def _path_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: float) -> LeastSquaresModel:
-    """Return the model (x, y, F) of one star per window moving along `offsets` (n, K, 2) [px]: the mean of K PSF copies."""
+    """
+    Return the model (x, y, F) of one star per window moving along `offsets` (n, K, 2) [px].
+
+    The model is the mean of K PSF copies.
+    """
     weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
     var_eff = sigma * sigma + 1.0 / 12.0
     scale = 1.0 / np.sqrt(2.0 * var_eff)

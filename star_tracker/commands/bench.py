@@ -223,12 +223,14 @@ def run(args: argparse.Namespace) -> int:
                         print(f"    {line}")
         else:
             failed.append(bench.name)
-            print(f"{label} FAILED (exit code {code}) after {_duration(elapsed)}; last lines of {log_path}:", flush=True)
+            print(f"{label} FAILED (exit code {code}) after {_duration(elapsed)}; last lines of {log_path}:",
+                  flush=True)
             for line in log_path.read_text(errors="replace").splitlines()[-15:]:
                 print(f"    {line}")
     succeeded = len(commands) - len(failed)
     print(f"{succeeded}/{len(commands)} step(s) succeeded in "
-          f"{_duration(time.perf_counter() - total_started)}; {out}" + (f"; FAILED: {', '.join(failed)}" if failed else ""))
+          f"{_duration(time.perf_counter() - total_started)}; {out}"
+          + (f"; FAILED: {', '.join(failed)}" if failed else ""))
     return 1 if failed else 0
 
 

@@ -204,7 +204,8 @@ def run(args: argparse.Namespace) -> int:
     again = [solve_spots(spots, *size, camera=calibration.camera, options=options) for _, spots, _ in solved]
     identifications = [new.identification if new.solved and new.identification.hip.size >= old.identification.hip.size
                        else old.identification for new, (_, _, old) in zip(again, solved)]
-    frames = [CalibrationFrame.from_identification(spots, ident) for (_, spots, _), ident in zip(solved, identifications)]
+    frames = [CalibrationFrame.from_identification(spots, ident) for (_, spots, _),
+              ident in zip(solved, identifications)]
     calibration = calibrate_camera(frames, calibration.camera, config)
     images = []
     for k, (path, _, _) in enumerate(solved):

@@ -55,7 +55,8 @@ FALSE_OBJECT_PARAMETERS = {
     "false_objects.debris_speed_px_s": "debris_speed_px_s",
 }
 GEOMETRY_PARAMETERS = ("image.width", "image.height", "optics.fov_x_deg", "optics.distortion")
-RENDER_PARAMETERS = ("sky.magnitude_limit", "sky.epoch_jyear", "sky.observer_velocity_m_s", "fixed_pattern_seed", "seed")
+RENDER_PARAMETERS = ("sky.magnitude_limit", "sky.epoch_jyear", "sky.observer_velocity_m_s", "fixed_pattern_seed",
+                     "seed")
 # camera_simulator parameters that describe the run, not the camera: accepted and ignored.
 IGNORED_PREFIXES = ("rate_hz", "max_frames", "start_delay_s", "wait_for_subscribers", "max_backlog_frames",
                     "frame_id", "attitude.", "faults.", "sensor.readout_s")  # readout: when a frame is published
@@ -74,7 +75,8 @@ class CameraFile:
     """
 
     def __init__(self, camera, sensor, false_objects, render: dict, source: str):
-        self.camera, self.sensor, self.false_objects, self.render, self.source = camera, sensor, false_objects, render, source
+        self.camera, self.sensor, self.false_objects = camera, sensor, false_objects
+        self.render, self.source = render, source
 
 
 def default_camera_file() -> CameraFile:
@@ -181,5 +183,5 @@ def _calibration_file(data: dict, path: Path):
 
 def camera_summary(camera) -> str:
     """One line: size, horizontal FOV [deg], focal length [px] and pixel scale [arcsec/px]."""
-    return (f"{camera.width}x{camera.height} px, FOV {math.degrees(2 * math.atan(0.5 * camera.width / camera.fx)):.3f} deg "
-            f"(fx {camera.fx:.2f} px, {math.degrees(camera.pixel_scale_rad) * 3600:.2f}\"/px)")
+    return (f"{camera.width}x{camera.height} px, FOV {math.degrees(2 * math.atan(0.5 * camera.width / camera.fx)):.3f} "
+            f"deg (fx {camera.fx:.2f} px, {math.degrees(camera.pixel_scale_rad) * 3600:.2f}\"/px)")

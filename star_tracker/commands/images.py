@@ -57,7 +57,8 @@ def read_image(path: str | Path) -> LoadedImage:
         channels = pixels.shape[2]
         colour = pixels[:, :, :3] if channels >= 3 else pixels[:, :, :1]
         grey = colour.astype(np.float32).mean(axis=2)
-        description = f"{kind} {bits} {'colour' if channels >= 3 else 'grey+alpha'} {grey.shape[1]}x{grey.shape[0]} (converted to grey)"
+        description = (f"{kind} {bits} {'colour' if channels >= 3 else 'grey+alpha'} {grey.shape[1]}x{grey.shape[0]} "
+                       "(converted to grey)")
         pixels = grey
     else:
         description = f"{kind} {bits} grey {pixels.shape[1]}x{pixels.shape[0]}"

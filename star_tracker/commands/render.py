@@ -100,8 +100,8 @@ def run(args: argparse.Namespace) -> int:
     truth_path.write_text(json.dumps(document, indent=1) + "\n")
     cam = setup.spec.camera
     in_view = sum(1 for s in document["stars"] if s["in_image"])
-    print(f"wrote {output} ({cam.width}x{cam.height} uint16, {camera_summary(cam)}; exposure {setup.sensor.exposure_s:g} s, "
-          f"{in_view} stars to Hp {setup.magnitude_limit:g} in the image)")
+    print(f"wrote {output} ({cam.width}x{cam.height} uint16, {camera_summary(cam)}; exposure "
+          f"{setup.sensor.exposure_s:g} s, {in_view} stars to Hp {setup.magnitude_limit:g} in the image)")
     print(f"wrote {truth_path} (RA {document['ra_deg']:.4f} deg, Dec {document['dec_deg']:.4f} deg, "
           f"roll {document['roll_deg']:.4f} deg, rate {' '.join(f'{w:g}' for w in args.rate)} deg/s)")
     return 0
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
 
 def render_setup(args: argparse.Namespace) -> RenderSetup:
     """
-    Return the camera file (or the default camera with the node's default detector effects) with the command line's exposure.
+    Return the camera file (or the default camera, node detector defaults) with the command line's exposure.
 
     Noise, magnitude limit and epoch applied; CommandError for a calibration-only file or an
     epoch outside [1900, 2200].

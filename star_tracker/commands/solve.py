@@ -260,7 +260,8 @@ def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOpt
         started = time.perf_counter()
         estimates = estimate_fields(spots, nominal, database, patterns, tolerance,
                                     Deadline(PATTERN_SEARCH_BUDGET_S, "cpu"))
-        attempts.append({"fov_x_deg": fov_deg, "search": "patterns", "elapsed_s": round(time.perf_counter() - started, 3),
+        attempts.append({"fov_x_deg": fov_deg, "search": "patterns",
+                         "elapsed_s": round(time.perf_counter() - started, 3),
                          "status": f"{len(estimates)} field(s) found" if estimates else "no pattern matched",
                          "fields_deg": [round(math.degrees(2.0 * math.atan(0.5 * e.camera.width / e.camera.fx)), 4)
                                         for e in estimates]})
@@ -400,7 +401,8 @@ def format_text(record: dict) -> str:
         f"solved: {record['reason']} ({record['algorithm']})",
         f"RA {record['ra_deg']:.5f} deg  Dec {record['dec_deg']:+.5f} deg  roll {record['roll_deg']:+.4f} deg",
         f"quaternion (x, y, z, w) sensor->ICRS: {q[0]:+.8f} {q[1]:+.8f} {q[2]:+.8f} {q[3]:+.8f}",
-        f"1-sigma: cross-boresight {s['cross_boresight']:.2f}\" (x {s['x']:.2f}\", y {s['y']:.2f}\"), roll {s['roll']:.2f}\"",
+        f"1-sigma: cross-boresight {s['cross_boresight']:.2f}\" (x {s['x']:.2f}\", y {s['y']:.2f}\"), roll "
+        f"{s['roll']:.2f}\"",
         f"residual RMS {record['residual_rms_arcsec']:.2f}\" over {len(record['matched'])} stars",
         "",
         f"{'HIP':>7} {'Hp':>6} {'x [px]':>9} {'y [px]':>9} {'residual':>9}",

@@ -129,7 +129,8 @@ def deep_catalog_path(magnitude_limit: float, epoch_jyear: float, directory: Pat
 _MEMO: dict[tuple, DeepCatalog] = {}
 
 
-def load_or_build_deep_catalog(magnitude_limit: float, epoch_jyear: float, directory: Path | None = None) -> DeepCatalog:
+def load_or_build_deep_catalog(magnitude_limit: float, epoch_jyear: float,
+                               directory: Path | None = None) -> DeepCatalog:
     """
     Return the deep catalog for (magnitude_limit [Hp mag], epoch_jyear [Julian year]).
 

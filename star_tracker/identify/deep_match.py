@@ -123,7 +123,8 @@ def spot_pixel_covariance(geometry: "SpotGeometry", camera: CameraModel, attitud
         jt = np.transpose(jac, (0, 2, 1))
         g = jt @ jac  # 2x2 normal matrices, inverted in closed form
         det = g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] * g[:, 1, 0]
-        g_inv = np.stack([np.stack([g[:, 1, 1], -g[:, 0, 1]], 1), np.stack([-g[:, 1, 0], g[:, 0, 0]], 1)], 1) / det[:, None, None]
+        g_inv = np.stack([np.stack([g[:, 1, 1], -g[:, 0, 1]], 1),
+                          np.stack([-g[:, 1, 0], g[:, 0, 0]], 1)], 1) / det[:, None, None]
         pinv = g_inv @ jt
     carry = pinv @ skew  # d pixel / d attitude error (2 x 3)
     attitude = carry @ np.asarray(attitude_covariance, float)[None] @ np.transpose(carry, (0, 2, 1))

@@ -96,7 +96,8 @@ class HybridIdentifier(StarIdentifier):
         The deadline is checked between batches; each candidate triangle is verified inside the kernel.
         """
         n = geometry.x.size
-        radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad, self.grid.max_radius_rad)
+        radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad,
+                         self.grid.max_radius_rad)
         config = self.config  # read per call: a caller may replace it (commands/solve.py)
         tolerances = TriangleTolerances(float(config.sigma_multiplier), float(config.angle_tolerance_floor_rad),
                                         int(config.max_candidates_per_pattern), float(config.false_positive_bound))

@@ -63,7 +63,9 @@ class TriangleConfig:
     @staticmethod
     def for_database(database: StarDatabase, max_side_rad: float | None = None, **kwargs) -> "TriangleConfig":
         """
-        Return the default for a pair database: sides up to its largest pair angle, at most DEFAULT_MAX_SIDE_RAD (8 deg).
+        Return the default for a pair database: sides up to its largest pair angle, at most 8 deg.
+
+        8 deg is DEFAULT_MAX_SIDE_RAD.
 
         For Cole's 8 deg field that is the field itself; for the 15 deg camera, all Hp <= 6.5
         stars with sides <= 8 deg (1.8 M triangles) beat the brightest stars with sides <= 15

@@ -70,7 +70,8 @@ class CalibrationFrame:
     def from_identification(spots, identification) -> "CalibrationFrame":
         """Return the matched stars of a solved Identification of `spots` (unknown covariances: 1 px²)."""
         index = np.asarray(identification.spot_index)
-        cov = np.asarray(spots.cov, dtype=float)[index] if spots.cov is not None else np.tile(np.eye(2), (index.size, 1, 1))
+        cov = np.asarray(spots.cov, dtype=float)[index] if spots.cov is not None else np.tile(np.eye(2),
+                                                                                              (index.size, 1, 1))
         cov = np.where(np.isfinite(cov), cov, np.eye(2))
         return CalibrationFrame(spots.x[index], spots.y[index], cov, identification.star_vectors,
                                 identification.attitude.rotation)
@@ -178,8 +179,9 @@ def calibrate_camera(frames, camera: CameraModel, config: CalibrationConfig = Ca
         if constrained(best, config):
             break
     not_fitted = tuple(GROUP_NAMES[g] for g in groups if not set(PARAMETER_GROUPS[g]) <= set(best.fitted))
-    return replace(best, not_fitted=not_fitted, limits={"max_corner_sigma_px": config.max_corner_sigma_px,
-                                                        "max_principal_point_sigma_px": config.max_principal_point_sigma_px})
+    limits = {"max_corner_sigma_px": config.max_corner_sigma_px,
+              "max_principal_point_sigma_px": config.max_principal_point_sigma_px}
+    return replace(best, not_fitted=not_fitted, limits=limits)
 
 
 def constrained(calibration: CameraCalibration, config: CalibrationConfig) -> bool:

@@ -152,7 +152,8 @@ def parse_hip2(path: Path) -> StarCatalog:
 
 def _file_fingerprint(path: Path) -> str:
     stat = path.stat()
-    return hashlib.sha256(f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}|v{CACHE_FORMAT_VERSION}".encode()).hexdigest()[:16]
+    key = f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}|v{CACHE_FORMAT_VERSION}"
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
 def _payload_checksum(arrays: dict[str, np.ndarray]) -> str:

@@ -162,7 +162,8 @@ def make_scene(setup: SceneSetup, catalog: StarCatalog, rng: np.random.Generator
     noise_px = setup.noise_px
     x = u + rng.normal(scale=noise_px, size=u.size)
     y = v + rng.normal(scale=noise_px, size=v.size)
-    measured_mag = magnitude + rng.normal(scale=setup.magnitude_sigma, size=magnitude.size) if setup.magnitude_sigma else magnitude
+    measured_mag = magnitude + rng.normal(scale=setup.magnitude_sigma,
+                                          size=magnitude.size) if setup.magnitude_sigma else magnitude
     flux = FLUX_AT_MAG0 * 10.0 ** (-0.4 * measured_mag)
     order = np.argsort(-flux, kind="stable")
     if setup.brightest is not None:
@@ -190,9 +191,12 @@ SETUPS: dict[str, SceneSetup] = {s.name: s for s in (
     # Toloei gives no noise figure; 0.1 px is what our centroider reaches on the nominal camera
     # for stars of SNR >= 20 (docs/BENCHMARKS.md, centroiding).
     SceneSetup("toloei_6_50", NOMINAL_CAMERA, None, 6.5, 0.1 * NOMINAL_CAMERA.pixel_scale_rad, 0.1,
-               real_stars=6, false_stars=50, description="Toloei: 6 real stars among 56 spots (nominal camera, 0.1 px)"),
+               real_stars=6, false_stars=50,
+               description="Toloei: 6 real stars among 56 spots (nominal camera, 0.1 px)"),
     SceneSetup("toloei_4_136", NOMINAL_CAMERA, None, 6.5, 0.1 * NOMINAL_CAMERA.pixel_scale_rad, 0.1,
-               real_stars=4, false_stars=136, description="Toloei: 4 real stars among 140 spots (nominal camera, 0.1 px)"),
+               real_stars=4, false_stars=136,
+               description="Toloei: 4 real stars among 140 spots (nominal camera, 0.1 px)"),
     SceneSetup("fast", _circular_camera(np.radians(11.3)), np.radians(11.3 / 2), 7.0, 10.0 * ARCSEC_RAD, 0.3,
-               brightest=8, description="van Bezooijen FAST: 11.3 deg circular FOV, 10 arcsec, brightest 8 spots, 0.3 mag"),
+               brightest=8,
+               description="van Bezooijen FAST: 11.3 deg circular FOV, 10 arcsec, brightest 8 spots, 0.3 mag"),
 )}

@@ -55,7 +55,8 @@ class AttitudeRateEstimator:
                  max_frames: int = 8):
         if not (window_s > 0 and max_angular_acceleration_rad_s2 >= 0 and max_frames >= 2):
             raise ValueError(f"invalid rate estimator settings: window_s={window_s}, "
-                             f"max_angular_acceleration_rad_s2={max_angular_acceleration_rad_s2}, max_frames={max_frames}")
+                             f"max_angular_acceleration_rad_s2={max_angular_acceleration_rad_s2}, "
+                             f"max_frames={max_frames}")
         self.window_ns = int(window_s * 1e9)
         self.alpha_max = float(max_angular_acceleration_rad_s2)
         # The window, oldest first, in arrays (the fit is compiled): stamps [ns], rotations

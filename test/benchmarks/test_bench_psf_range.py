@@ -36,7 +36,8 @@ def test_scoring_matches_stars_counts_extra_spots_and_skips_stars_next_to_defect
     assert row["median_ms"] == pytest.approx(2.0)
 
 
-@pytest.mark.parametrize("case", [bench.Case("alt", alt.GaussianPsf(1.0)), bench.Case("simulator", alt.GaussianPsf(1.0))],
+@pytest.mark.parametrize("case",
+                         [bench.Case("alt", alt.GaussianPsf(1.0)), bench.Case("simulator", alt.GaussianPsf(1.0))],
                          ids=["alt", "simulator"])
 def test_sigma_1_gaussian_at_5000_e_meets_the_goals_on_both_renderers(case):
     measure = bench.measure_alt if case.renderer == "alt" else bench.measure_simulator

@@ -17,7 +17,8 @@ def quantised_frame(rng, stars_xy, flux_e=1000.0, sigma_px=1.0, shape=(512, 512)
     yy, xx = np.mgrid[:shape[0], :shape[1]]
     electrons = np.full(shape, SKY_E)
     for x, y in stars_xy:
-        electrons += flux_e / (2 * np.pi * sigma_px ** 2) * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sigma_px ** 2))
+        electrons += flux_e / (2 * np.pi * sigma_px ** 2) * np.exp(-((xx - x) ** 2 + (yy - y) ** 2)
+                                                                   / (2 * sigma_px ** 2))
     signal = rng.poisson(electrons) + rng.normal(0.0, READ_E, shape)
     adu = np.clip(np.round(signal / GAIN_E_PER_ADU + BIAS_ADU), 0, 4095).astype(np.uint16)
     adu.flat[rng.choice(adu.size, hot_pixels, replace=False)] = 4000

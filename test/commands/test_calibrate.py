@@ -66,7 +66,8 @@ def test_calibrate_rendered_frames_recovers_the_distortion_and_solve_reads_the_f
     assert len(document["projection_matrix"]["data"]) == 12 and out_yaml.read_text().startswith("# star-tracker")
     # The same frames as sensor_msgs/Image (mono16) in a bag give the same camera.
     bag = _image_bag(tmp_path / "frames_bag", [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in frames])
-    code, bag_out, err = cli("calibrate", "--bag", bag, "--fov", "20.3", "--output", tmp_path / "bag.yaml", "--json", "-q")
+    code, bag_out, err = cli("calibrate", "--bag", bag, "--fov", "20.3", "--output", tmp_path / "bag.yaml", "--json",
+                             "-q")
     assert code == 0, err
     from_bag = json.loads(bag_out)["camera"]
     assert (from_bag["fx"], from_bag["cx"], from_bag["cy"]) == pytest.approx(

@@ -311,7 +311,8 @@ def sky_photo() -> Path:
                                       text=True, timeout=600)
         debs = list(Path(tmp).glob("stellarium-data_*.deb"))
         if download.returncode != 0 or not debs:
-            pytest.skip(f"could not fetch stellarium-data (run `apt-get update` first?): {download.stderr.strip()[-300:]}")
+            pytest.skip("could not fetch stellarium-data (run `apt-get update` first?): "
+                        f"{download.stderr.strip()[-300:]}")
         members = [f"./{STELLARIUM_DIR}/{PHOTO}", f"./{STELLARIUM_DIR}/textures.json",
                    "./usr/share/doc/stellarium-data/copyright"]
         subprocess.run(f"dpkg-deb --fsys-tarfile {debs[0]} | tar -x -C {tmp} " + " ".join(members), shell=True,
@@ -556,7 +557,8 @@ def test_monitor_once_shows_the_running_tracker(tmp_path):
     text = format_snapshot(snapshot)
     assert re.search(r"^attitude\s+RA\s+(79\.99|80\.00)\d*°\s+Dec \+(19\.99|20\.00)\d*°", text, re.M), text
     assert re.search(r"^mode\s+(tracking|lost_in_space) \(hybrid\)", text, re.M), text
-    empty = isolated_ros_environment(domain_id=200 + int(env["ROS_DOMAIN_ID"]) % 30)  # not 100-199; valid ids end at 232
+    empty = isolated_ros_environment(domain_id=200
+                                     + int(env["ROS_DOMAIN_ID"]) % 30)  # not 100-199; valid ids end at 232
     result = cli_process("monitor", "--once", "1", env=empty, timeout=60)
     assert result.returncode == 1 and "no star tracker seen on ROS_DOMAIN_ID" in result.stderr
     assert "waiting for the identifier" in result.stdout

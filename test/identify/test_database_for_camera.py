@@ -21,7 +21,8 @@ def widest_angle_on_the_border(camera: CameraModel, samples: int = 200) -> float
     t = np.linspace(0.0, 1.0, samples)
     w, h = camera.width - 0.5, camera.height - 0.5
     u = np.concatenate([-0.5 + t * camera.width, np.full(samples, w), -0.5 + t * camera.width, np.full(samples, -0.5)])
-    v = np.concatenate([np.full(samples, -0.5), -0.5 + t * camera.height, np.full(samples, h), -0.5 + t * camera.height])
+    v = np.concatenate([np.full(samples, -0.5), -0.5 + t * camera.height, np.full(samples, h),
+                        -0.5 + t * camera.height])
     rays = camera.pixel_to_ray(u, v)
     return float(np.arccos(np.clip(rays @ rays.T, -1.0, 1.0)).max())
 

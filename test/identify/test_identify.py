@@ -164,8 +164,9 @@ def test_a_search_step_ends_in_the_shared_final_fit(database, nominal_camera, ca
     """
     Check an identifier that overrides only `search`, answering with true matches 20 arcsec off.
 
-    Its search answers with the true matches under an attitude 20 arcsec off; it gets the shared ending: the matches mapped back to the input spots (given in reverse flux
-    order here), HIP ids, and the final fit's attitude near the truth.
+    Its search answers with the true matches under an attitude 20 arcsec off; it gets the shared
+    ending: the matches mapped back to the input spots (given in reverse flux order here), HIP ids,
+    and the final fit's attitude near the truth.
     """
     from star_tracker.identify.base import AcceptedMatch, SearchOutcome, StarIdentifier
     from star_tracker.models.attitude import rotation_vector_to_matrix

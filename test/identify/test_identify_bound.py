@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.special import gammaln
 
-from star_tracker.identify import DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+from star_tracker.identify import (DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database,
+                                   make_identifier)
 from star_tracker.identify import kernels, verify
 from star_tracker.identify.kernel_records import CatalogArrays
 from star_tracker.identify.base import TIMEOUT
@@ -30,7 +31,8 @@ def test_sky_grid_finds_every_star_within_the_radius(database):
     rays = rng.normal(size=(400, 3))
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     # Put half the rays right next to catalog stars so there is something to find.
-    rays[:200] = database.vectors[rng.choice(database.star_count, 200, replace=False)] + rng.normal(scale=0.3 * radius, size=(200, 3))
+    rays[:200] = database.vectors[rng.choice(database.star_count, 200, replace=False)] + rng.normal(scale=0.3 * radius,
+                                                                                                    size=(200, 3))
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     out_spot, out_star, out_dot = np.empty(400, np.int64), np.empty(400, np.int64), np.empty(400)
     count = kernels.match_all(rays, np.eye(3), CatalogArrays.build(database, grid), chord,
@@ -67,7 +69,8 @@ def test_bound_follows_the_documented_formula(database):
             documented_log_chance(body, sigma, 7.0, 600.0), rel=1e-9)
         t = 1e-20
         subsets = np.exp(gammaln(41) - gammaln(m + 1) - gammaln(41 - m))
-        assert verify.false_positive_bound(np.log(t), 40, m) == pytest.approx(min(1.0, 37 * subsets * t * (1 - np.log(t))), rel=1e-9)
+        assert verify.false_positive_bound(np.log(t), 40,
+                                           m) == pytest.approx(min(1.0, 37 * subsets * t * (1 - np.log(t))), rel=1e-9)
     # Magnitudes: exact agreement on a tight floor gives strong evidence, NaN gives none.
     sorted_mag = np.sort(database.magnitude)
     spot = rng.uniform(-8, -3, 6)

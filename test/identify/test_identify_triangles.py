@@ -195,7 +195,8 @@ def test_cache_round_trip_and_rebuild_of_a_damaged_file(small_database, tmp_path
     # A checksum-valid file that this code did not write for this database (star indices out of
     # range would make the compiled search read outside its arrays; wrong shapes) is rebuilt too.
     arrays = load_validated_npz(path)
-    tampered = {"star index out of range": {**arrays, "planar_stars": arrays["planar_stars"] + small_database.star_count},
+    tampered = {"star index out of range": {**arrays,
+                                            "planar_stars": arrays["planar_stars"] + small_database.star_count},
                 "guide star out of range": {**arrays, "guide_stars": arrays["guide_stars"] - 10**6},
                 "short column": {**arrays, "spherical_area": arrays["spherical_area"][:-1]},
                 "flat stars": {**arrays, "spherical_stars": arrays["spherical_stars"].ravel()}}

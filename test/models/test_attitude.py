@@ -17,7 +17,8 @@ def test_radec_roll_round_trip_and_conventions():
         assert np.allclose(rot.T @ rot, np.eye(3), atol=1e-12) and np.linalg.det(rot) == pytest.approx(1.0)
         ra2, dec2, roll2 = matrix_to_radec_roll(rot)
         assert np.allclose(radec_roll_to_matrix(ra2, dec2, roll2), rot, atol=1e-9)
-        assert np.allclose(matrix_to_quaternion(quaternion_to_matrix(matrix_to_quaternion(rot))), matrix_to_quaternion(rot))
+        assert np.allclose(matrix_to_quaternion(quaternion_to_matrix(matrix_to_quaternion(rot))),
+                           matrix_to_quaternion(rot))
 
 
 def test_roll_zero_puts_north_up_and_east_left():

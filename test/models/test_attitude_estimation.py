@@ -70,7 +70,11 @@ def test_quest_covariance_is_consistent_with_monte_carlo_errors():
 
 
 def tangential_axes(body):
-    """Return unit vectors perpendicular to each direction `body`: tangential (the roll direction about +Z) and radial."""
+    """
+    Return unit vectors perpendicular to each direction `body`: tangential and radial.
+
+    Tangential is the roll direction about +Z.
+    """
     tangential = np.cross([0.0, 0.0, 1.0], body)
     tangential /= np.linalg.norm(tangential, axis=1, keepdims=True)
     return tangential, np.cross(body, tangential)

@@ -49,7 +49,8 @@ def frames(catalog):
     by_hip = dict(zip(renderer.catalog.hip.tolist(), renderer.star_vectors))
     out = []
     for k, pointing in enumerate(POINTINGS):
-        frame = renderer.render(ConstantRateMotion(radec_roll_to_matrix(*pointing), np.zeros(3)), 10.0, frame_seed(0, k))
+        frame = renderer.render(ConstantRateMotion(radec_roll_to_matrix(*pointing), np.zeros(3)), 10.0,
+                                frame_seed(0, k))
         spots = extract_spots(frame.image, CentroidConfig(max_spots=120))
         truth = frame.truth
         stars = np.flatnonzero(truth.stars())

@@ -61,7 +61,8 @@ SCRIPT = textwrap.dedent("""
         spots = convert.cloud_to_spots(convert.spots_to_cloud(spots, stamp, "f"), camera.width, camera.height)
         result = tracker.process(stamp, spots, camera).identification
         # Identified means the true attitude (within 60 arcsec), not merely a solution.
-        identified += bool(result.solved and attitude_error(result.attitude.rotation, frame.truth.rotation)[2] < 60 * ARCSEC)
+        identified += bool(result.solved
+                           and attitude_error(result.attitude.rotation, frame.truth.rotation)[2] < 60 * ARCSEC)
     print("identified", identified)
     print("compiled after the warm-up:", sorted(n for n, f in dispatchers.items() if len(f.signatures) > before[n]))
 """)

@@ -44,7 +44,8 @@ def test_constant_rate_is_a_composition_of_rodrigues_rotations():
     expected = [R0 @ rotation_vector_to_matrix(omega * (t - t0)) for t in times]
     assert np.allclose(motion.rotations_at(times), expected, atol=1e-14, rtol=0)
     # R(t + s) = R(t) exp([omega x] s)
-    assert np.allclose(motion.rotation_at(t0 + 7.5), motion.rotation_at(t0 + 5.0) @ rotation_vector_to_matrix(omega * 2.5),
+    assert np.allclose(motion.rotation_at(t0 + 7.5),
+                       motion.rotation_at(t0 + 5.0) @ rotation_vector_to_matrix(omega * 2.5),
                        atol=1e-14, rtol=0)
     assert_vectorized_matches_scalar(motion, times)
     assert np.array_equal(motion.angular_velocity_at(123.0), omega)
@@ -92,7 +93,8 @@ def test_trapezoidal_slew_follows_its_profile(angle):
     assert max(speeds) == pytest.approx(0.05, abs=1e-15)
     # The rate integrates to the slew angle.
     grid = np.linspace(start, end, 20001)
-    assert np.trapezoid([motion.angular_velocity_at(t) @ SLEW_AXIS for t in grid], grid) == pytest.approx(angle, abs=1e-8)
+    assert np.trapezoid([motion.angular_velocity_at(t) @ SLEW_AXIS for t in grid], grid) == pytest.approx(angle,
+                                                                                                          abs=1e-8)
 
 
 def test_triangular_slew_when_the_max_rate_is_not_reached():
@@ -234,7 +236,8 @@ def test_axisymmetric_tumble_matches_the_closed_form():
     for t in np.random.default_rng(2).uniform(-17.0, 103.0, 40):
         tau = t - 3.0
         c, s = np.cos(lam * tau), np.sin(lam * tau)
-        assert np.allclose(motion.angular_velocity_at(t), [c * 0.2 - s * 0.1, s * 0.2 + c * 0.1, 0.5], atol=1e-11, rtol=0)
+        assert np.allclose(motion.angular_velocity_at(t), [c * 0.2 - s * 0.1, s * 0.2 + c * 0.1, 0.5], atol=1e-11,
+                           rtol=0)
         expected = rotation_vector_to_matrix(momentum * tau / 4.0) @ R0 @ rotation_vector_to_matrix([0, 0, -lam * tau])
         assert angle_between(motion.rotation_at(t), expected) < 1e-9
 

@@ -129,7 +129,8 @@ def test_wrong_prediction_never_gives_a_wrong_attitude(tracker_parts, nominal_ca
     (stamp_ns, frame), = frames_of(renderer, motion, 1, seed=7)
     spots = centroid(frame, nominal_camera)
     for offset_deg in (0.3, 1.0, 3.0):  # prediction off by more than its own gate claims
-        wrong = frame.truth.rotation @ rotation_vector_to_matrix(np.radians([offset_deg, -offset_deg, 0.5 * offset_deg]))
+        wrong = frame.truth.rotation @ rotation_vector_to_matrix(np.radians([offset_deg, -offset_deg,
+                                                                             0.5 * offset_deg]))
         prediction = Prediction(stamp_ns, wrong, np.eye(3) * (20 * ARCSEC) ** 2)
         result, _ = tracker.track(spots, nominal_camera, prediction)
         assert not result.solved, result.reason
