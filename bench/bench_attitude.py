@@ -410,7 +410,7 @@ def bin_table(cases: list[dict], title: str, key: str) -> list[str]:
     for c in cases:
         by = {(r["lo"], r["hi"]): r for r in c["stars"][key]}
         lines.append(f"| {c['name']} | " + " | ".join(f"{by[e]['mean']:.2f} ({by[e]['n']})" if e in by else "-"
-                                                     for e in edges) + " |")
+                                                      for e in edges) + " |")
     return lines + [""]
 
 
@@ -517,15 +517,15 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
     for c in solved:
         by = c["stars"]["chi2_by_flag"]
         lines.append(f"| {c['name']} | " + " | ".join(f"{by[f][0]['mean']:.2f} ({by[f][0]['n']})" if by[f] else "-"
-                                                     for f in flags) + " |")
+                                                      for f in flags) + " |")
     bins = rest["nees_by_star_count"]
     lines += ["", "| stars per frame (rest) | " + " | ".join(f"{r['lo']:g}-{r['hi']:g}".replace("-1000", "+")
-                                                          for r in bins) + " |",
+                                                             for r in bins) + " |",
               "|---|" + "---:|" * len(bins)]
     for key, label in (("nees", "NEES published"), ("nees_floored", "with the floor"), ("nees_unclipped", "- clipped")):
         by = {r["lo"]: r for r in rest[f"{key}_by_star_count"]}
         lines.append(f"| {label} | " + " | ".join(f"{by[r['lo']]['mean']:.2f} ({by[r['lo']]['n']})" if r["lo"] in by
-                                                   else "-" for r in bins) + " |")
+                                                  else "-" for r in bins) + " |")
     lines += ["", f"![NEES diagnostics]({os.path.relpath(images[1], output.parent)})", ""]
     lines += results.get("findings", [])
     lines += ["", f"Median time per frame [ms] and wall time per case [s] ({meta['jobs']} worker processes on a shared "

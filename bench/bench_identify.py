@@ -295,7 +295,7 @@ def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
     real = np.array([s.real_count for s in scenes[:n]])
     rich = real >= 4
     summary["ge4"] = {"scenes": int(rich.sum()), **{key: int(np.sum(codes[rich] == key)) for key in
-                                                     (CORRECT, INCONCLUSIVE, INCORRECT)}}
+                                                    (CORRECT, INCONCLUSIVE, INCORRECT)}}
     return summary
 
 

@@ -192,7 +192,7 @@ def sweep(env: dict, log_dir: Path, rates: list[float], seconds: float, exposure
               "max_backlog_frames": 1}
     nodes = NodeProcesses(env, log_dir,
                           {"camera_simulator": camera, "centroider": {"exposure_time_s": exposure_s, **NEWEST},
-                                         "identifier": NEWEST}, CONFIG, nodes=("centroider", "identifier"))
+                           "identifier": NEWEST}, CONFIG, nodes=("centroider", "identifier"))
     watcher = Watcher(with_truth=True)
     results = []
     try:

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from star_tracker.models.attitude import (attitude_error, matrix_to_rotation_vector, radec_roll_to_matrix,
-                                   rotation_vector_to_matrix)
+                                          rotation_vector_to_matrix)
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import cache_dir, load_hipparcos
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
@@ -1004,7 +1004,7 @@ def main(argv=None) -> None:
     log(f"done in {elapsed:.0f} s")
 
     command = "python -m bench.bench_tracking" + (" " + shlex.join(argv if argv is not None else sys.argv[1:])
-                                                 if (argv if argv is not None else sys.argv[1:]) else "")
+                                                  if (argv if argv is not None else sys.argv[1:]) else "")
     meta = {"command": command, "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "elapsed_s": elapsed, "seed": SEED, "quick": args.quick, "plan": plan.__dict__, "machine": machine(),
             "peer": bench.peer_info, "tracking_config": TrackingConfig().__dict__, "commit": core_commit()}

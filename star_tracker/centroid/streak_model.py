@@ -70,7 +70,7 @@ def cut_windows(residual: np.ndarray, col_lo, col_hi, row_lo, row_hi, excluded=N
     data[~use] = 0.0
     n = cols.shape[0]
     return StreakWindows(n_rows, n_cols, np.stack([col_lo, row_lo], axis=1).astype(np.float64), data.reshape(n, -1),
-                    use.reshape(n, -1).astype(np.float32), bad, np.stack([col_lo, col_hi, row_lo, row_hi], axis=1))
+                         use.reshape(n, -1).astype(np.float32), bad, np.stack([col_lo, col_hi, row_lo, row_hi], axis=1))
 
 
 def _profiles(count: int, positions: np.ndarray, scale: float, log_weights, g_out, vg_out, transposed: bool):

@@ -99,7 +99,7 @@ def add_record_parser(sub) -> None:
                         help="topics to record (default: image_raw, camera_info, the truth/ topics and every "
                              "centroider and identifier output)")
     record.add_argument("-a", "--all", action="store_true", help="record every topic (except /rosout and "
-                                                                  "/parameter_events)")
+                        "/parameter_events)")
     record.add_argument("-o", "--output", help="bag directory to create (default rosbag2_YYYY_MM_DD-HH_MM_SS)")
     record.add_argument("-s", "--storage", choices=("sqlite3", "mcap"), default="sqlite3",
                         help="storage format (default sqlite3, as ros2 bag record)")

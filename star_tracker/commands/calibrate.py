@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("give image files and/or --bag")
     start = load_camera_file(args.camera).camera if args.camera else None
     report = (lambda text: None) if args.quiet else (lambda text: print(f"calibrate: {text}", file=sys.stderr,
-                                                                         flush=True))
+                                                                        flush=True))
     options = SolveOptions(fov_tolerance_pct=args.fov_tolerance, fov_step_pct=args.fov_step,
                            centroid_sigma_floor_px=args.centroid_sigma_floor, max_time_s=args.max_time)
     size = None

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
 DATABASE_FORMAT_VERSION = 2
 log = logging.getLogger(__name__)
 
+
 @dataclass(frozen=True)
 class DatabaseConfig:
     """

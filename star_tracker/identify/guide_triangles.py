@@ -95,7 +95,6 @@ def graph_triangles_kernel(indptr, indices, out):
     return count
 
 
-
 def graph_triangles(indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:
     """(T, 3) the triangles i < j < k of the graph `pair_graph` returns (positions)."""
     count = graph_triangles_kernel(indptr, indices, np.zeros((0, 3), np.int64))

@@ -187,7 +187,6 @@ class TriangleDatabase:
         return self.spherical.nbytes + self.planar.nbytes + int(self.guide_stars.nbytes)
 
 
-
 def select_guide_stars(database: StarDatabase, config: TriangleConfig) -> tuple[np.ndarray, int]:
     """
     Return all database stars if their triangles fit the budget.
@@ -271,7 +270,7 @@ def load_or_build_triangles(database: StarDatabase, config: TriangleConfig | Non
         try:
             guide_stars = arrays["guide_stars"]
             if guide_stars.ndim != 1 or (guide_stars.size and (guide_stars.min() < 0
-                                                                or guide_stars.max() >= database.star_count)):
+                                                               or guide_stars.max() >= database.star_count)):
                 raise ValueError("cached guide stars do not match the database")
             triangles = TriangleDatabase(
                 config=config, spherical=FeatureIndex.from_arrays(arrays, "spherical", database.star_count),

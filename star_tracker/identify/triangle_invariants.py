@@ -81,7 +81,6 @@ def planar_jacobians(a: float, b: float, c: float, d_area, d_moment) -> None:
         d_moment[k] = (d_area[k] * q + 2.0 * area * sides[k]) / 36.0
 
 
-
 @njit(cache=True, inline="always")
 def _vertex_cosine(p, q, r) -> float:
     """Cosine of the spherical angle at p between the arcs toward q and toward r."""

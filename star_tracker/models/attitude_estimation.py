@@ -15,6 +15,7 @@ from numba import njit
 
 from .attitude import matrix_to_quaternion, skew
 
+
 @dataclass(frozen=True)
 class AttitudeSolution:
     """

@@ -461,7 +461,7 @@ _PARAMETERS = {
     "slew": (("axis", "angle_rad", "max_rate_rad_s", "accel_rad_s2"), {"t0": 0.0, "t_start": 0.0}),
     "tumble": (("initial_rate_rad_s", "inertia_kg_m2"), {"t0": 0.0}),
     "jitter": (("amplitudes_rad", "frequencies_hz"), {"body_rate_rad_s": (0.0, 0.0, 0.0), "phases_rad": 0.0,
-                                                       "t0": 0.0}),
+                                                      "t0": 0.0}),
 }
 
 

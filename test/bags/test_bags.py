@@ -32,7 +32,7 @@ def header(k: int):
 def image(k: int, encoding: str = "mono16", size: int = 32) -> bytes:
     data = np.full(size * size * 2, k % 251, np.uint8)
     msg = STORE.types["sensor_msgs/msg/Image"](header=header(k), height=size, width=size, encoding=encoding,
-                                                is_bigendian=0, step=2 * size, data=data)
+                                               is_bigendian=0, step=2 * size, data=data)
     return bytes(STORE.serialize_cdr(msg, "sensor_msgs/msg/Image"))
 
 

@@ -67,7 +67,7 @@ def _solve(image_id: str) -> tuple[int, dict | None, str]:
 
 def _ids_or_skip() -> list:
     return CORPUS_IDS or [pytest.param("absent", marks=pytest.mark.skip(reason="real-image corpus absent "
-                                                                          "(../shared/realdata)"))]
+                                                                        "(../shared/realdata)"))]
 
 
 def _goal_params() -> list:

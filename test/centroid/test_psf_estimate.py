@@ -7,7 +7,6 @@ hot pixels and cosmic-ray tracks), and on a real image when the corpus is presen
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +14,7 @@ import pytest
 from scipy.special import erf
 
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, PsfEstimate
+from star_tracker.centroid.psf_estimate import PsfEstimate
 
 READ_NOISE_E = 5.0
 SKY_E = 50.0  # background per pixel [e-]

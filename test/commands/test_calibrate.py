@@ -93,8 +93,8 @@ def _image_bag(path: Path, images: list[np.ndarray], topic: str = "/image_raw") 
         header = store.types["std_msgs/msg/Header"](stamp=stamp, frame_id="star_tracker_optical")
         height, width = pixels.shape
         msg = store.types["sensor_msgs/msg/Image"](header=header, height=height, width=width, encoding="mono16",
-                                                    is_bigendian=0, step=2 * width,
-                                                    data=np.ascontiguousarray(pixels, "<u2").view(np.uint8).ravel())
+                                                   is_bigendian=0, step=2 * width,
+                                                   data=np.ascontiguousarray(pixels, "<u2").view(np.uint8).ravel())
         writer.write(topic, (100 + k) * 1_000_000_000, bytes(store.serialize_cdr(msg, bags.IMAGE_TYPE)))
     writer.close({})
     return path
@@ -169,7 +169,7 @@ def test_calibrate_real_granasat_images_and_solve_a_held_out_one_closer_to_astro
     # reference TAN-SIP's own fit of them.
     ours, reference = corr_residuals_px(held_out, corpus, load_camera_file(out_yaml).camera)
     assert np.median(ours) < 0.3 and np.median(ours) < 0.5 * np.median(reference), (np.median(ours),
-                                                                                      np.median(reference))
+                                                                                    np.median(reference))
 
 
 def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarray]:

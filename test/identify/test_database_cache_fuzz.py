@@ -33,7 +33,7 @@ def small_database_files(tmp_path_factory):
 
 def same_database(a, b) -> bool:
     return all(np.array_equal(getattr(a, n), getattr(b, n)) for n in ("vectors", "hip", "pair_a", "pair_b",
-                                                                       "pair_angle"))
+                                                                      "pair_angle"))
 
 
 @examples(30)
@@ -73,7 +73,7 @@ def test_a_consistent_but_tampered_pattern_cache_is_rejected(small_database_file
     arrays = load_validated_npz(path)
     tampered = {
         "pair index out of range": {**arrays, "pair_b": np.where(np.arange(arrays["pair_b"].size) == 0,
-                                                                   10**6, arrays["pair_b"]).astype(np.int32)},
+                                                                 10**6, arrays["pair_b"]).astype(np.int32)},
         "wrong dtype": {**arrays, "pair_a": arrays["pair_a"].astype(np.int64)},
         "other configuration": {**arrays, "config": np.array(DatabaseConfig().identity())},
         "old format": {k: v for k, v in arrays.items() if k != "format_version"},

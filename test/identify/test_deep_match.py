@@ -13,10 +13,9 @@ import numpy as np
 import pytest
 
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
-from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+from star_tracker.identify import IdentifyConfig, make_identifier
 from star_tracker.identify.deep_catalog import load_or_build_deep_catalog
 from star_tracker.models.attitude import matrix_to_rotation_vector, quaternion_to_matrix
-from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import radec_to_unit, unit_to_radec
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import KIND_STAR, StarFieldRenderer

@@ -23,6 +23,7 @@ from star_tracker.ros import convert  # noqa: E402
 
 from fuzz_support import CAMERAS, edgy, examples, is_rotation  # noqa: E402
 
+
 @pytest.fixture(scope="module")
 def identifiers(database):
     config = IdentifyConfig(max_time_s=0.02)

@@ -11,10 +11,10 @@ from star_tracker.identify import DatabaseConfig, load_or_build_database
 from star_tracker.identify import triangle_database
 from star_tracker.identify.guide_triangles import count_triangles, sky_cells
 from star_tracker.identify.triangle_database import (TriangleConfig, build_triangle_database, load_or_build_triangles,
-                                                    select_guide_stars, triangle_cache_path)
+                                                     select_guide_stars, triangle_cache_path)
 from star_tracker.identify.triangle_features import (measured_features, planar_area, planar_polar_moment,
-                                                    spherical_area, spherical_area_jacobian, spherical_polar_moment,
-                                                    spherical_polar_moment_fast, triangle_sides)
+                                                     spherical_area, spherical_area_jacobian, spherical_polar_moment,
+                                                     spherical_polar_moment_fast, triangle_sides)
 from star_tracker.identify.triangle_matching import match_triangles
 
 
@@ -116,7 +116,7 @@ def test_feature_sigmas_match_monte_carlo(spherical):
     v1, v2, v3 = (v[0] for v in random_triangles(rng, 1, 0.04))
     sigma = 2e-5
     clean = measured_features(np.array([v1, v2, v3]), np.full(3, sigma), np.array([[0, 1, 2]]), spherical,
-                                  beta=1.0, floor=0.0)
+                              beta=1.0, floor=0.0)
     trials = 3000
     rays = np.concatenate([unit(v + rng.normal(scale=sigma, size=(trials, 3))) for v in (v1, v2, v3)])
     triples = np.column_stack([np.arange(trials), trials + np.arange(trials), 2 * trials + np.arange(trials)])
@@ -243,13 +243,13 @@ def test_matching_finds_a_catalog_triangle_with_its_vertex_order_and_not_its_mir
             rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
             rays = unit(small_database.vectors[stars] @ rotation + rng.normal(scale=sigma, size=(3, 3)))
             features = measured_features(rays, np.full(3, sigma), np.array([[0, 1, 2]]), spherical,
-                                             beta=3.0, floor=1e-5)
+                                         beta=3.0, floor=1e-5)
             found = match_triangles(triangles, small_database, features, spherical, cap=100)
             assert any(np.array_equal(s, stars) for s in found.stars)
             assert found.area_candidates[0] >= found.finalists[0] >= 1
             mirrored = rays * np.array([-1.0, 1.0, 1.0])
             features = measured_features(mirrored, np.full(3, sigma), np.array([[0, 1, 2]]), spherical,
-                                             beta=3.0, floor=1e-5)
+                                         beta=3.0, floor=1e-5)
             if features.handedness[0] == 0:
                 continue  # too flat for a handedness decision
             found = match_triangles(triangles, small_database, features, spherical, cap=100)

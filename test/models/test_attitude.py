@@ -27,6 +27,7 @@ def test_roll_zero_puts_north_up_and_east_left():
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     ra, dec = 1.0, 0.3
     rot = radec_roll_to_matrix(ra, dec, 0.0)
+
     def pixel(ra_s, dec_s):
         v = np.array([np.cos(dec_s) * np.cos(ra_s), np.cos(dec_s) * np.sin(ra_s), np.sin(dec_s)])
         u, vv, _ = camera.project((v @ rot)[None])

@@ -94,7 +94,7 @@ def test_refinement_with_isotropic_covariances_is_quest():
         cov = sigma[:, None, None] ** 2 * (np.eye(3)[None] - noisy[:, :, None] * noisy[:, None, :])
         # From a start 100 arcsec off: the same optimum and Shuster & Oh's covariance.
         refined, chi2, _ = refine_with_covariances(q.rotation @ rotation_vector_to_matrix([4e-4, -3e-4, 2e-4]), noisy,
-                                                ref, cov, iterations=3)
+                                                   ref, cov, iterations=3)
         assert attitude_error(refined.rotation, q.rotation)[2] < 1e-11
         # Shuster & Oh evaluate I - b b^T at the measured b, the refinement at the predicted one:
         # they differ by the residual (~sigma, <= 1e-4 rad) relative.

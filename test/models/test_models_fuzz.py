@@ -74,7 +74,7 @@ def test_attitude_solvers_on_degenerate_inputs(body, data, solver):
 
 @examples(500)
 @given(hnp.arrays(np.float64, (3, 3), elements=st.floats(-10, 10)), st.lists(st.floats(-10, 10), min_size=3,
-                                                                                max_size=3))
+                                                                             max_size=3))
 def test_rotation_conversions_on_arbitrary_matrices(matrix, rotvec):
     q = matrix_to_quaternion(matrix)  # any finite matrix: a finite unit quaternion
     assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1.0) < 1e-9

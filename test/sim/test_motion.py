@@ -10,9 +10,9 @@ from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation, Slerp
 
 from star_tracker.models.attitude import (matrix_to_quaternion, matrix_to_rotation_vector, quaternion_to_matrix,
-                                   radec_roll_to_matrix, rotation_vector_to_matrix, skew)
+                                          radec_roll_to_matrix, rotation_vector_to_matrix, skew)
 from star_tracker.sim.motion import (ConstantRateMotion, JitterMotion, SampledMotion, SlewMotion, TumbleMotion,
-                                 motion_from_parameters)
+                                     motion_from_parameters)
 
 R0 = radec_roll_to_matrix(1.2, -0.4, 0.7)
 

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from star_tracker.models.attitude import radec_roll_to_matrix, rotation_vector_to_matrix
+from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.sim.motion import ConstantRateMotion

@@ -13,7 +13,7 @@ from star_tracker.centroid import CentroidConfig, Spots, extract_spots
 from star_tracker.centroid.smear import SmearModel
 from star_tracker.identify import make_identifier
 from star_tracker.track.tracking import (MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Prediction, Tracker,
-                                            TrackingConfig, log_chance_tuples_in_region)
+                                         TrackingConfig, log_chance_tuples_in_region)
 from star_tracker.identify.verify import log_chance_tuples
 from star_tracker.sim.motion import ConstantRateMotion, SlewMotion
 from star_tracker.track.rate import AttitudeRateEstimator
