@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 A second star-field renderer, written independently of star_tracker.sim (it imports nothing from it).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Attitude accuracy and covariance consistency of render -> extract_spots -> hybrid identify.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Pattern-database build and load times and sizes (issue goal: build <= 10 s, load < 1 s).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Star-identification benchmark: our algorithms and two peer solvers on identical centroid lists.
 

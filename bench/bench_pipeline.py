@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Pipeline throughput, latency and overload: the three nodes as separate processes over DDS.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Rate-aid check of the centroider: false alarms with the right rate, detection of a wrong one.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Real-image benchmark (issue 17, item 4): our solver and two peers on the real-sky corpus.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Camera-simulator render time: one StarFieldRenderer.render() call per frame, wall clock.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Soak: the three nodes at full rate for a long run; memory growth and latency drift.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Adapters for peer star-tracker centroiders, for benchmark comparisons only.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Benchmark plots, drawn from the benchmarks' JSON results (no benchmark is rerun).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """What every benchmark shares when it writes docs/BENCHMARKS.md."""
 from __future__ import annotations
 

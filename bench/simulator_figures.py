@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Figures for docs/SIMULATOR.md, rendered by the simulator itself.
 

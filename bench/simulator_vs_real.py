@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The simulator checked against a real camera (issue 17, part 5).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Regenerate the pictures of README.md's "Pictures" section (docs/images/).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Start the star tracker: camera_simulator -> centroider -> identifier.
 

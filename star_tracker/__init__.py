@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 star_tracker: a simulated spacecraft star tracker.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Shared pieces of the property-based (hypothesis) tests over everything that sees external data.
 

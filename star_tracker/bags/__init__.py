@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Rosbag2 bags (sqlite3 or MCAP storage) without ROS.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Salvaging an MCAP file that was never finished (no footer, possibly cut inside a record).
 

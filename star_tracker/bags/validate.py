@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Checking a bag's content: every message deserializes with its type's definition, and images suit the centroider."""
 from __future__ import annotations
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Writing a new rosbag2 bag (metadata version 9, sqlite3 or MCAP storage) that `ros2 bag info/play` read.
 

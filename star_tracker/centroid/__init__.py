@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions at mid-exposure with covariance).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Weighted least squares by Levenberg-Marquardt on batches of windows.
 

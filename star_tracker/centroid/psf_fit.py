@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Weighted least-squares fit of pixel-integrated Gaussian PSFs to small image windows.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 RunningPsf: the PSF width carried from frame to frame (the centroider node's prior).
 

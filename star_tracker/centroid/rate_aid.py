@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The rate aid: a body rate turned into the smear each star's image shows, and its check.
 

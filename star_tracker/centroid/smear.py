@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Smear geometry: where a fixed star's image moves on the detector during one exposure.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Several stars on one known path shape (streaks merged into one detection, or a neighbour's streak in a spot's window).
 

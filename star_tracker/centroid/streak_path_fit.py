@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Fit of streaks on a known path (the smear a body rate predicts, SmearModel.path).
 

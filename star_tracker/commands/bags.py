@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 `star-tracker record | play | info | reindex`: rosbag2 bags (sqlite3, MCAP) without a ROS 2 install.
 

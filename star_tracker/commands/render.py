@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """`star-tracker render`: one simulated frame to a 16-bit PNG/TIFF or FITS, with its truth as JSON."""
 from __future__ import annotations
 

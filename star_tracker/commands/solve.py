@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 `star-tracker solve IMAGE`: lost-in-space solve of an image file (ours or a real photograph).
 

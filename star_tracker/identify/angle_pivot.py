@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Cole & Crassidis' angle method with pivoting (seed 000 sec. II; Cole's thesis 003, sec. 2.2-2.3, 5.2).
 

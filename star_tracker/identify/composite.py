@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Toloei, Arani & Abaszadeh's composite of the pyramid and planar triangle methods (seed 001, sec. 3.5).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Guide-star catalog and star-pair database with a k-vector on inter-star angle.
 

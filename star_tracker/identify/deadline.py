@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The time budget of one identification: a deadline on a chosen clock.
 

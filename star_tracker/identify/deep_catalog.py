@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The deep verification catalog: every Hipparcos star to a fainter limit than the guide stars.
 

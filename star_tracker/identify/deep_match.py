@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The deep re-match: once an attitude is accepted, match the spots left over to the deep catalog.
 

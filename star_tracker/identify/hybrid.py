@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The default identifier: compiled pyramid-order triangle search with immediate verification.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The records the compiled identification kernels take and give (kernels.py, spot_kernels.py, track/kernels.py).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 k-vector range search (Mortari): O(1) lookup of all sorted values inside [lo, hi].
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 van Bezooijen's match-group algorithm of the Full-sky Autonomous Star Tracker (FAST, seed 002).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Cole's spherical polar moment of a star triangle (eq. 25), I_p = sum theta^2 dA about the triangle's centroid.
 

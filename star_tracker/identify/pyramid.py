@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Triangle matching with k-vector pair search in Mortari's pyramid order.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Scale-free patterns: the field of view of a lost-in-space frame from the stars themselves.
 

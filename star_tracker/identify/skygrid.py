@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Cube-map grid over the celestial sphere: O(1) lookup of the catalog stars near a direction.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Cole & Crassidis' spherical triangle method with pivoting (seed 000 sec. III; Cole's thesis 003, sec. 2.4-2.6 and 5.3).
 

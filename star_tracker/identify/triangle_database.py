@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The catalog triangle database with k-vectors on area, and its on-disk cache.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Attitude-independent shape invariants of a star triangle and their 1-sigma tolerances.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Matching measured star triangles against the catalog triangle database.
 

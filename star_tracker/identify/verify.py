@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Verification of a candidate attitude against every spot, with a false-positive bound.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Camera geometry: pinhole intrinsics + Brown-Conrady distortion, OpenCV conventions.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Camera self-calibration from identified stars: one camera fitted jointly with each frame's attitude.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Hipparcos star catalog (new reduction, ESA I/311 hip2.dat) as numpy arrays.
 

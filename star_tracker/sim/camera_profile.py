@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Fit a camera profile (the SensorModel parameters of sim/sensor.py) to real frames of known attitude.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Synthetic centroid-list scenes with known truth, for identification tests and benchmarks.
 

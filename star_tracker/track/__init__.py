@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Frame to frame: tracking around a predicted attitude, and the body rate.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Body angular velocity from successive attitudes (and, when stars are smeared, from streaks).
 

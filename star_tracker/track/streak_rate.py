@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Body angular velocity from the streaks of a motion-smeared frame.
 

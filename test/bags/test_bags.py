@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Bag I/O without ROS (star_tracker.bags) and the bag commands on bad bags.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The second renderer (bench/alt_renderer.py) knows its own truth.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Smoke test of the identification benchmark (bench/bench_identify.py).
 

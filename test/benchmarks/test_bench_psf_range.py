@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The PSF-range centroiding benchmark (bench/bench_psf_range.py).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The real-image benchmark (bench/bench_realdata.py).
 

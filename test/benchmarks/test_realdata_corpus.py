@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Every image of the real-image corpus solved by the `solve` command at its defaults.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Property-based tests (hypothesis) of spot extraction (star_tracker.centroid) on hostile frames.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Centroider on purpose-built scenes (stars placed at chosen pixels, rendered by the simulator).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The centroider's PSF estimate (centroid/psf_estimate.py) and the automatic PSF mode.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Noise of coarsely quantised frames: the robust noise estimate must not collapse to zero.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Renderer and centroider against the simulator's truth."""
 import numpy as np
 import pytest

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Streak centroiding (star_tracker.centroid: smear, streak_free_fit, streak_path_fit) against the simulator's truth.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The star-tracker subcommands of star_tracker/commands (render, solve, database, monitor, bench).
 

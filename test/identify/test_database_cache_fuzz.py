@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The pattern-database cache file (star_tracker.identify.database) is never trusted.
 

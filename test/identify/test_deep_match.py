@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The deep re-match (identify/deep_match.py): faint stars beyond the guide stars, judged by truth.
 

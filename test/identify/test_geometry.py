@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The identification geometry (identify/geometry.py) against independent computations."""
 import itertools
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Lost-in-space identification on synthetic spot lists with known truth."""
 import numpy as np
 import pytest

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The false-positive bound, its compiled twin, the sky grid and the default identifier.
 

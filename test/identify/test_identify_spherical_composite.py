@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Cole & Crassidis' spherical triangle and Toloei's composite pyramid / planar triangle methods.
 

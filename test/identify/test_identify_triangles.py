@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Triangle features (Cole & Crassidis spherical, Toloei planar) and the catalog triangle database.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Scale-free four-star patterns (identify/scale_free.py).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 QUEST cross-checked against Markley's SVD and Davenport's q-method, and its covariance.
 

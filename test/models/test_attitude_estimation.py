@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Attitude estimation from vector pairs (models/attitude_estimation.py).
 

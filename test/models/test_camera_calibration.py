@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Camera self-calibration (models/camera_calibration.py) against the simulator's truth.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Online f, k1 refinement (models/online_calibration.py) on identifications of projected stars.
 

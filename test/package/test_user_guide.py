@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """docs/USER_GUIDE.md: its Python example runs as written, its command lines parse."""
 from __future__ import annotations
 

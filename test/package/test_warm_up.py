@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The nodes' warm-ups compile every numba variant their first frames use.
 

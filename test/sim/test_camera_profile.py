@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The camera-profile fit (star_tracker.sim.camera_profile).
 

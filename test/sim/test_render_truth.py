@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The renderer's truth listing (FrameTruth) against what it was asked to draw.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 The published attitude covariance against the simulator's truth (issue 6).
 

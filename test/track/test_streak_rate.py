@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Body rate from streak directions (star_tracker.track.streak_rate) on rendered, centroided frames.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """
 Tracking (localized recognition), rate estimate, forced loss and delay compensation, against the simulator's truth.
 
