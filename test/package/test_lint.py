@@ -71,11 +71,13 @@ def _run(module: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow  # ~12 s on the 2-core machine
 def test_flake8():
     result = _run("flake8")
     assert result.returncode == 0, f"flake8 (setup.cfg [flake8]) found:\n{result.stdout}{result.stderr}"
 
 
+@pytest.mark.slow  # ~11 s
 def test_pep257():
     result = _run("pydocstyle")
     assert result.returncode == 0, f"pydocstyle (setup.cfg [pydocstyle]) found:\n{result.stdout}{result.stderr}"
