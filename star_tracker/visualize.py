@@ -30,7 +30,7 @@ def stretch(image: np.ndarray) -> np.ndarray:
 def annotate_frame(image: np.ndarray, pixel_x: np.ndarray, pixel_y: np.ndarray, hip: np.ndarray,
                    title: str = "", spots_xy: np.ndarray | None = None) -> np.ndarray:
     """
-    Draw a BGR picture: detected spots as grey squares, identified stars as labelled green circles.
+    Draw a BGR picture: detected spots as small grey squares, identified stars as labelled green circles.
 
     Identified stars are labelled with their HIP number; a title band above the frame.
     """

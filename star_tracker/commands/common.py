@@ -205,7 +205,7 @@ def auto_magnitude_limit(fov_x_rad: float, width: int, height: int) -> float:
 def database_config_for(fov_x_rad: float, width: int, height: int, magnitude_limit: float | None = None,
                         epoch_jyear: float = DEFAULT_EPOCH_JYEAR):
     """
-    Return the pattern-database configuration for a pinhole camera (FOV fov_x_rad [rad], width x height px).
+    Return the pattern-database configuration for a pinhole camera (horizontal FOV fov_x_rad [rad], width x height px).
 
     Pairs as DatabaseConfig.for_camera derives them; guide stars to `magnitude_limit` (None:
     auto_magnitude_limit).
