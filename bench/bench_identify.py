@@ -287,8 +287,8 @@ def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
         "time_ms": {"median": float(np.median(times)), "p99": float(np.percentile(times, 99)),
                     "max": float(times.max()), "mean": float(times.mean())} if times.size else None,
         # The distribution for bench/plots.py: percentiles 0, 1, ..., 100 [ms].
-        "time_ms_percentiles": [float(f"{v:.5g}") for v in np.percentile(times, np.arange(101))] if times.size
-        else None,
+        "time_ms_percentiles": ([float(f"{v:.5g}") for v in np.percentile(times, np.arange(101))]
+                                if times.size else None),
         "outcomes": "".join(_CODE[o] for o in out.outcome),
     }
     for key in (CORRECT, INCONCLUSIVE, INCORRECT):
@@ -327,8 +327,8 @@ def make_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, candidate
 
 
 def tune_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, catalog: StarCatalog, tuning: list[Scene],
-              max_time_s: float, cache: Path, log, on_scene=None) -> tuple[object, PeerCandidate, dict, dict,
-                                                                           list[dict]]:
+              max_time_s: float, cache: Path, log,
+              on_scene=None) -> tuple[object, PeerCandidate, dict, dict, list[dict]]:
     """
     Try every candidate on the tuning scenes.
 

@@ -587,8 +587,8 @@ def main(argv=None) -> int:
         f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:])), date=date, corpus=str(corpus),
         cpu=info["cpu"], cores=info["cores"], python=info["python"], platform=info["platform"],
         versions=info["versions"], field_error_pct=args.field_error,
-        json_name="bench_realdata.json" if not args.field_error
-        else f"bench_realdata_field{args.field_error:+g}pct.json")
+        json_name=(f"bench_realdata_field{args.field_error:+g}pct.json" if args.field_error
+                   else "bench_realdata.json"))
     json_name = results["meta"]["json_name"]
     text = render_markdown(results)  # meta names the JSON file (json_name) and the field error
     print(text)

@@ -151,8 +151,8 @@ def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> 
     identity = json.dumps({"pairs": database.config.identity(), "radius": round(circle_radius_rad, 6),
                            "circle_stars": CIRCLE_STARS, "spacing": CIRCLE_SPACING, "bin": RATIO_BIN,
                            "version": PATTERN_FORMAT_VERSION}, sort_keys=True)
-    path = (database.cache_directory
-            or cache_dir()) / f"patterns4_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
+    name = f"patterns4_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
+    path = (database.cache_directory or cache_dir()) / name
     arrays = load_validated_npz(path)
     if arrays is not None and set(arrays) >= {"stars", "ratios", "largest", "keys"}:
         return PatternDatabase(arrays["stars"], arrays["ratios"], arrays["largest"], arrays["keys"], circle_radius_rad)
