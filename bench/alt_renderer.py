@@ -1,5 +1,8 @@
-"""A second star-field renderer, written independently of star_tracker.sim (it imports nothing
-from it), so that a centroiding benchmark does not share the simulator's assumptions.
+# SPDX-License-Identifier: Apache-2.0
+"""
+A second star-field renderer, written independently of star_tracker.sim (it imports nothing from it).
+
+A centroiding benchmark run on it does not share the simulator's assumptions.
 
 PSFs (each a normalised 2-D density integrated over every pixel's square):
 - `GaussianPsf`: analytic pixel integral (erf at the pixel edges);
@@ -39,12 +42,18 @@ def _gauss_legendre_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _SupersampledPsf:
-    """A PSF given by a point density [1/px^2] (`density(dx, dy)`), integrated over each pixel
-    with `nodes` x `nodes` Gauss–Legendre points."""
+    """
+    A PSF given by a point density [1/px^2] (`density(dx, dy)`).
+
+    Integrated over each pixel with `nodes` x `nodes` Gauss–Legendre points.
+    """
 
     def pixel_fractions(self, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
-        """Fraction of the star's light in pixels whose centres are at (dx, dy) [px] from the
-        star (broadcast arrays of one shape)."""
+        """
+        Return the fraction of the star's light in pixels whose centres are at (dx, dy) [px].
+
+        dx, dy: offsets from the star, broadcast arrays of one shape.
+        """
         t, w = _gauss_legendre_unit(self.nodes)
         px = dx[..., None, None] + t[None, :]
         py = dy[..., None, None] + t[:, None]
@@ -76,8 +85,11 @@ class GaussianPsf:
 
 @dataclass(frozen=True)
 class EllipticalGaussianPsf(_SupersampledPsf):
-    """Gaussian with 1-sigma widths sigma_major_px >= sigma_minor_px [px], major axis at
-    angle_rad [rad] from +x toward +y."""
+    """
+    Gaussian with 1-sigma widths sigma_major_px >= sigma_minor_px [px].
+
+    Major axis at angle_rad [rad] from +x toward +y.
+    """
 
     sigma_major_px: float
     sigma_minor_px: float
@@ -107,8 +119,11 @@ class EllipticalGaussianPsf(_SupersampledPsf):
 
 @dataclass(frozen=True)
 class MoffatPsf(_SupersampledPsf):
-    """Moffat profile (β - 1)/(π α^2) (1 + r^2/α^2)^-β of full width at half maximum
-    `fwhm_px` [px]; `wing_fraction`: the light beyond the rendered stamp (its truncation)."""
+    """
+    Moffat profile (β - 1)/(π α^2) (1 + r^2/α^2)^-β of full width at half maximum `fwhm_px` [px].
+
+    `wing_fraction`: the light beyond the rendered stamp (its truncation).
+    """
 
     fwhm_px: float
     beta: float = 3.0
@@ -142,8 +157,12 @@ class MoffatPsf(_SupersampledPsf):
 
 @dataclass(frozen=True)
 class AnnulusPsf(_SupersampledPsf):
-    """A defocused pupil: uniform ring between inner_radius_px and outer_radius_px [px]
-    convolved with a Gaussian blur of 1-sigma blur_px [px]."""
+    """
+    A defocused pupil.
+
+    Uniform ring between inner_radius_px and outer_radius_px [px] convolved with a Gaussian
+    blur of 1-sigma blur_px [px].
+    """
 
     outer_radius_px: float
     inner_radius_px: float
@@ -164,8 +183,11 @@ class AnnulusPsf(_SupersampledPsf):
 
     @staticmethod
     def with_equivalent_sigma(sigma_px: float, inner_fraction: float = 0.5, blur_fraction: float = 0.3) -> "AnnulusPsf":
-        """The annulus whose per-axis second moment (r_out^2 + r_in^2)/4 + b^2 equals sigma_px^2,
-        with r_in = inner_fraction r_out and b = blur_fraction sigma_px."""
+        """
+        Return the annulus whose per-axis second moment (r_out^2 + r_in^2)/4 + b^2 equals sigma_px^2.
+
+        With r_in = inner_fraction r_out and b = blur_fraction sigma_px.
+        """
         blur = blur_fraction * sigma_px
         outer = np.sqrt(4.0 * (sigma_px ** 2 - blur ** 2) / (1.0 + inner_fraction ** 2))
         return AnnulusPsf(float(outer), float(inner_fraction * outer), float(blur))
@@ -192,12 +214,15 @@ class AnnulusPsf(_SupersampledPsf):
 
 @dataclass(frozen=True)
 class Detector:
-    """Sky and detector: sky_e [e-/px per exposure]; read_noise_e [e-]; gain_e_per_adu;
-    bias_adu; full_well_e [e-]; adc_bits (12 or 16); hot pixels: hot_pixel_fraction of the
-    pixels carry a fixed dark charge log-uniform in hot_pixel_e [e-] (positions from
-    hot_pixel_seed: the same in every frame); cosmic rays: cosmic_rays_per_frame tracks on
-    average, lengths in cosmic_ray_length_px [px], widths 1-2 px, total charge log-uniform in
-    cosmic_ray_e [e-]."""
+    """
+    Sky and detector.
+
+    sky_e [e-/px per exposure]; read_noise_e [e-]; gain_e_per_adu; bias_adu; full_well_e
+    [e-]; adc_bits (12 or 16); hot pixels: hot_pixel_fraction of the pixels carry a fixed
+    dark charge log-uniform in hot_pixel_e [e-] (positions from hot_pixel_seed: the same in
+    every frame); cosmic rays: cosmic_rays_per_frame tracks on average, lengths in
+    cosmic_ray_length_px [px], widths 1-2 px, total charge log-uniform in cosmic_ray_e [e-].
+    """
 
     sky_e: float = 40.0
     read_noise_e: float = 5.0
@@ -234,8 +259,11 @@ class Stamp(NamedTuple):
 
 
 def star_stamp(psf, x: float, y: float, window_x: float | None = None, window_y: float | None = None) -> Stamp:
-    """The pixel fractions of a star at (x, y) [px] over its PSF's support, centred on the
-    pixel nearest (window_x, window_y) (default: the star itself)."""
+    """
+    Return the pixel fractions of a star at (x, y) [px] over its PSF's support.
+
+    Centred on the pixel nearest (window_x, window_y) (default: the star itself).
+    """
     half = psf.support_radius_px()
     col0 = int(np.rint(x if window_x is None else window_x)) - half
     row0 = int(np.rint(y if window_y is None else window_y)) - half
@@ -246,8 +274,12 @@ def star_stamp(psf, x: float, y: float, window_x: float | None = None, window_y:
 
 def place_stars(width: int, height: int, count: int, min_separation_px: float, margin_px: float,
                 rng: np.random.Generator, attempts: int = 20000) -> tuple[np.ndarray, np.ndarray]:
-    """Up to `count` uniformly random positions [px] (sub-pixel), at least `margin_px` from
-    the borders and `min_separation_px` from each other (dart throwing)."""
+    """
+    Up to `count` uniformly random positions [px] (sub-pixel).
+
+    At least `margin_px` from the borders and `min_separation_px` from each other (dart
+    throwing).
+    """
     xs: list[float] = []
     ys: list[float] = []
     for _ in range(attempts):
@@ -263,10 +295,13 @@ def place_stars(width: int, height: int, count: int, min_separation_px: float, m
 
 @dataclass(frozen=True)
 class StarField:
-    """Stars at fixed positions x, y [px] with one PSF. Their stamps (pixel fractions) and the
-    fractions' derivatives along x and y [1/px] (central differences of step_px on the same
-    window, for the Cramér–Rao bound) are computed once and reused for every flux and noise
-    draw."""
+    """
+    Stars at fixed positions x, y [px] with one PSF.
+
+    Their stamps (pixel fractions) and the fractions' derivatives along x and y [1/px]
+    (central differences of step_px on the same window, for the Cramér–Rao bound) are computed
+    once and reused for every flux and noise draw.
+    """
 
     psf: object
     x: np.ndarray
@@ -296,13 +331,18 @@ def _clipped(stamp: Stamp, width: int, height: int):
     r0, c0 = max(stamp.row0, 0), max(stamp.col0, 0)
     h, w = stamp.fractions.shape
     r1, c1 = min(stamp.row0 + h, height), min(stamp.col0 + w, width)
-    return slice(r0, r1), slice(c0, c1), stamp.fractions[r0 - stamp.row0:r1 - stamp.row0, c0 - stamp.col0:c1 - stamp.col0]
+    return slice(r0, r1), slice(c0, c1), stamp.fractions[r0 - stamp.row0:r1 - stamp.row0,
+                                                         c0 - stamp.col0:c1 - stamp.col0]
 
 
 class Truth(NamedTuple):
-    """What one frame holds. Stars: x, y [px], flux_e: the electrons each put on the chip
-    (expected) [e-], snr: optimal (PSF-weighted) SNR [-]. Defects: hot pixels (fixed) and
-    cosmic rays: their centre x, y [px], charge [e-], extent [px] (1 for a hot pixel)."""
+    """
+    What one frame holds.
+
+    Stars: x, y [px], flux_e: the electrons each put on the chip (expected) [e-], snr:
+    optimal (PSF-weighted) SNR [-]. Defects: hot pixels (fixed) and cosmic rays: their
+    centre x, y [px], charge [e-], extent [px] (1 for a hot pixel).
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -321,8 +361,11 @@ class Frame(NamedTuple):
 
 
 def star_signal(field_: StarField, flux_e: float, width: int, height: int) -> np.ndarray:
-    """Expected star electrons per pixel (float64, (height, width)) for every star at the
-    nominal flux `flux_e` [e-] (the light outside the chip or stamp is lost)."""
+    """
+    Return the expected star electrons per pixel (float64, (height, width)) for every star.
+
+    At the nominal flux `flux_e` [e-]; the light outside the chip or stamp is lost.
+    """
     signal = np.zeros((height, width))
     for stamp in field_.stamps:
         rows, cols, fractions = _clipped(stamp, width, height)
@@ -331,7 +374,7 @@ def star_signal(field_: StarField, flux_e: float, width: int, height: int) -> np
 
 
 def hot_pixels(detector: Detector, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The detector's fixed hot pixels: columns, rows, dark charge [e-]."""
+    """Return the detector's fixed hot pixels: columns, rows, dark charge [e-]."""
     rng = np.random.default_rng([detector.hot_pixel_seed, width, height])
     count = int(round(detector.hot_pixel_fraction * width * height))
     index = rng.choice(width * height, size=count, replace=False)
@@ -340,9 +383,12 @@ def hot_pixels(detector: Detector, width: int, height: int) -> tuple[np.ndarray,
 
 
 def cosmic_rays(detector: Detector, width: int, height: int, rng: np.random.Generator):
-    """One frame's cosmic-ray charge (float64 image [e-]) and listing (x, y centres [px],
-    charge [e-], length [px]). A track is sampled every 0.05 px along its length and
-    uniformly across its width (1-2 px); each sample's charge goes to the pixel it falls in."""
+    """
+    One frame's cosmic-ray charge (float64 image [e-]) and listing (x, y centres [px], charge [e-], length [px]).
+
+    A track is sampled every 0.05 px along its length and uniformly across its width (1-2
+    px); each sample's charge goes to the pixel it falls in.
+    """
     charge = np.zeros((height, width))
     count = rng.poisson(detector.cosmic_rays_per_frame)
     cx, cy = rng.uniform(0, width - 1, count), rng.uniform(0, height - 1, count)
@@ -363,8 +409,11 @@ def cosmic_rays(detector: Detector, width: int, height: int, rng: np.random.Gene
 
 
 def optimal_snr(field_: StarField, flux_e: float, detector: Detector) -> np.ndarray:
-    """Each star's SNR with an optimal PSF-weighted aperture [-]:
-    SNR = F sqrt(sum_i p_i^2 / (F p_i + sky + read^2 + gain^2/12)), p_i its pixel fractions."""
+    """
+    Each star's SNR with an optimal PSF-weighted aperture [-].
+
+    SNR = F sqrt(sum_i p_i^2 / (F p_i + sky + read^2 + gain^2/12)), p_i its pixel fractions.
+    """
     return np.array([flux_e * np.sqrt(np.sum(s.fractions ** 2 / (flux_e * s.fractions + detector.pixel_variance_e2)))
                      for s in field_.stamps])
 
@@ -390,12 +439,16 @@ def render(field_: StarField, flux_e: float, detector: Detector, width: int, hei
 
 
 def cramer_rao(field_: StarField, flux_e: float, detector: Detector) -> np.ndarray:
-    """(N, 2, 2) Cramér–Rao bound of each star's (x, y) [px^2] at flux `flux_e` [e-] (module
-    docstring; the star's own light only: the fields are isolated stars)."""
+    """
+    Return the (N, 2, 2) Cramér–Rao bound of each star's (x, y) [px^2] at flux `flux_e` [e-].
+
+    See the module docstring; the star's own light only: the fields are isolated stars.
+    """
     bounds = np.empty((len(field_.x), 2, 2))
     for k, (stamp, (dx, dy)) in enumerate(zip(field_.stamps, field_.gradients)):
         var = flux_e * stamp.fractions + detector.pixel_variance_e2
         gx, gy = flux_e * dx, flux_e * dy
-        info = np.array([[np.sum(gx * gx / var), np.sum(gx * gy / var)], [np.sum(gx * gy / var), np.sum(gy * gy / var)]])
+        info = np.array([[np.sum(gx * gx / var), np.sum(gx * gy / var)],
+                         [np.sum(gx * gy / var), np.sum(gy * gy / var)]])
         bounds[k] = np.linalg.inv(info)
     return bounds

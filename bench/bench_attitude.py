@@ -1,5 +1,8 @@
-"""Attitude accuracy and covariance consistency of the in-process chain render -> extract_spots
--> hybrid identify, at rest and under body rates.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Attitude accuracy and covariance consistency of render -> extract_spots -> hybrid identify.
+
+The in-process chain, at rest and under body rates.
 
     python -m bench.bench_attitude [--frames N] [--jobs J] [--output docs/BENCHMARKS.md]
 
@@ -21,13 +24,13 @@ mean 2), by SNR, Hp, distance to the nearest other rendered star and flag. The p
 by frame category (a matched spot flagged saturated / blended; a matched star with another
 rendered star within NEIGHBOUR_PX; none of these). And the NEES of the same matches refitted
 (as the identifier: QUEST with each ray's isotropic sigma, then the maximum-likelihood
-refinement with its full 2-D covariance, attitude_estimation.refine_with_covariances) under changes that
-isolate one cause each: "with the floor" = QUEST with every spot's sigma floored at
-IdentifyConfig.centroid_sigma_floor_px (what the identifier published before); "isotropic" =
-QUEST with the isotropic sigmas only (no 2-D refinement); "no rejection" = every matched star
-kept (the identifier leaves out stars beyond 5 sigma); "- clipped" = without spots that have a
-pixel at the sensor's full-well clip level (found in the image); "- crowded" = without stars
-that have another rendered star within NEIGHBOUR_PX.
+refinement with its full 2-D covariance, attitude_estimation.refine_with_covariances) under
+changes that isolate one cause each: "with the floor" = QUEST with every spot's sigma floored
+at IdentifyConfig.centroid_sigma_floor_px (what the identifier published before);
+"isotropic" = QUEST with the isotropic sigmas only (no 2-D refinement); "no rejection" = every
+matched star kept (the identifier leaves out stars beyond 5 sigma); "- clipped" = without
+spots that have a pixel at the sensor's full-well clip level (found in the image);
+"- crowded" = without stars that have another rendered star within NEIGHBOUR_PX.
 """
 from __future__ import annotations
 
@@ -184,8 +187,11 @@ class Chain:
         return record
 
     def clipped(self, image: np.ndarray, x: np.ndarray, y: np.ndarray, streak_length: np.ndarray) -> np.ndarray:
-        """Spots with a pixel at the sensor's full-well clip level (full_well / gain + bias, rounded)
-        within 3 px plus half the streak of their centre."""
+        """
+        Return the spots with a pixel at the sensor's full-well clip level near their centre.
+
+        The clip level is full_well / gain + bias, rounded; near: within 3 px plus half the streak.
+        """
         level = np.floor(self.sensor.full_well_e / self.sensor.gain_e_per_adu + self.sensor.bias_adu + 0.5)
         height, width = image.shape
         out = np.zeros(x.size, bool)
@@ -249,7 +255,8 @@ def summarize(records: list[dict], floor_px: float) -> dict:
     stars = np.array([r["stars"] for r in solved])
     out.update(
         wrong_id_frames=int(sum(r["wrong_ids"] > 0 for r in solved)), stars_median=float(np.median(stars)),
-        cross_rms_arcsec=float(np.sqrt(np.mean(cross**2))), cross_per_axis_rms_arcsec=float(np.sqrt(np.mean(cross**2) / 2)),
+        cross_rms_arcsec=float(np.sqrt(np.mean(cross**2))),
+        cross_per_axis_rms_arcsec=float(np.sqrt(np.mean(cross**2) / 2)),
         cross_median_arcsec=float(np.median(cross)), cross_p95_arcsec=float(np.percentile(cross, 95)),
         roll_rms_arcsec=float(np.sqrt(np.mean(roll**2))), roll_median_arcsec=float(np.median(roll)),
         roll_p95_arcsec=float(np.percentile(roll, 95)),
@@ -359,7 +366,8 @@ def figures(results: dict, image_dir: Path) -> list[Path]:
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-    for panel, key, title in ((0, "chi2_by_snr", "spot SNR"), (1, "chi2_by_neighbour_px", "nearest other rendered star [px]")):
+    for panel, key, title in ((0, "chi2_by_snr", "spot SNR"),
+                              (1, "chi2_by_neighbour_px", "nearest other rendered star [px]")):
         edges = SNR_BINS if key == "chi2_by_snr" else NEIGHBOUR_BINS
         labels = [f"{lo:g}-{hi:g}".replace("-1e+09", "+") for lo, hi in zip(edges[:-1], edges[1:])]
         for c in cases:
@@ -375,7 +383,8 @@ def figures(results: dict, image_dir: Path) -> list[Path]:
     labels = [f"{r['lo']:g}-{r['hi']:g}".replace("-1000", "+") for r in rest["nees_by_star_count"]]
     for key, label in (("nees", "published"), ("nees_floored", "with the floor"), ("nees_unclipped", "- clipped")):
         by = {r["lo"]: r["mean"] / 3 for r in rest[f"{key}_by_star_count"]}
-        axes[2].plot(range(len(labels)), [by.get(r["lo"], np.nan) for r in rest["nees_by_star_count"]], "o-", label=label)
+        axes[2].plot(range(len(labels)), [by.get(r["lo"], np.nan) for r in rest["nees_by_star_count"]], "o-",
+                     label=label)
     axes[2].set_xticks(range(len(labels)), labels)
     axes[2].set_xlabel("matched stars per frame")
     axes[2].set_ylabel("mean NEES / 3")
@@ -402,7 +411,7 @@ def bin_table(cases: list[dict], title: str, key: str) -> list[str]:
     for c in cases:
         by = {(r["lo"], r["hi"]): r for r in c["stars"][key]}
         lines.append(f"| {c['name']} | " + " | ".join(f"{by[e]['mean']:.2f} ({by[e]['n']})" if e in by else "-"
-                                                     for e in edges) + " |")
+                                                      for e in edges) + " |")
     return lines + [""]
 
 
@@ -419,8 +428,8 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
         f"exposure {meta['exposure_s']} s, full well clipped at {meta['clip_level_adu']:.0f} ADU; Hipparcos to Hp "
         f"{MAGNITUDE_LIMIT} at epoch {meta['epoch']}; no aberration, no false objects) -> `extract_spots` (default "
         "`CentroidConfig`, i.e. `saturation_adu` = 0, the uint16 maximum: clipped stars must be found by their flat "
-        "tops or their fits; smear model with the TRUE body rate, as the live centroider once the tracker publishes its rate) -> "
-        "`hybrid` identifier (default database and `IdentifyConfig`). Attitudes uniform over SO(3) "
+        "tops or their fits; smear model with the TRUE body rate, as the live centroider once the tracker publishes "
+        "its rate) -> `hybrid` identifier (default database and `IdentifyConfig`). Attitudes uniform over SO(3) "
         f"(seed {SEED}); cross-boresight rates in a random direction in the x/y plane; the roll case turns about the "
         "boresight.",
         "- Error d: rotation vector of R_true^T R_est (sensor frame). cross-boresight = |(d_x, d_y)| (a 2-D norm; "
@@ -429,8 +438,8 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
         f"roll: d_z^2 / P_zz (expected 1); tail: share of frames with NEES > chi2_3(0.997) = {CHI2_3_997} "
         f"(expected 0.3 %). wrong-id frames: a matched spot more than {WRONG_ID_PX:g} px from its star's true "
         "position.", "",
-        "| case | frames | identified | wrong-id frames | stars (median) | cross-boresight RMS [\"] | median / p95 [\"] "
-        "| roll RMS [\"] | median / p95 [\"] | NEES (3) | NEES x/y (2) | NEES roll (1) | NEES tail (0.3 %) |",
+        "| case | frames | identified | wrong-id frames | stars (median) | cross-boresight RMS [\"] | median / p95 "
+        "[\"] | roll RMS [\"] | median / p95 [\"] | NEES (3) | NEES x/y (2) | NEES roll (1) | NEES tail (0.3 %) |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for c in cases:
@@ -452,7 +461,8 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
     lines += [
         "", "Goals (issue 6):", "",
         f"- At rest, cross-boresight <= {GOAL_CROSS_ARCSEC:g}\" (1-sigma): {rest['cross_rms_arcsec']:.2f}\" (2-D RMS; "
-        f"{rest['cross_per_axis_rms_arcsec']:.2f}\" per axis) {verdict(rest['cross_rms_arcsec'] <= GOAL_CROSS_ARCSEC)}.",
+        f"{rest['cross_per_axis_rms_arcsec']:.2f}\" per axis) "
+        f"{verdict(rest['cross_rms_arcsec'] <= GOAL_CROSS_ARCSEC)}.",
         f"- At rest, roll <= {GOAL_ROLL_ARCSEC:g}\" (1-sigma): {rest['roll_rms_arcsec']:.1f}\" "
         f"{verdict(rest['roll_rms_arcsec'] <= GOAL_ROLL_ARCSEC)}.",
         f"- Mean NEES {GOAL_NEES:g} +- {GOAL_NEES_TOLERANCE:g} over >= 1000 frames: "
@@ -508,15 +518,15 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
     for c in solved:
         by = c["stars"]["chi2_by_flag"]
         lines.append(f"| {c['name']} | " + " | ".join(f"{by[f][0]['mean']:.2f} ({by[f][0]['n']})" if by[f] else "-"
-                                                     for f in flags) + " |")
+                                                      for f in flags) + " |")
     bins = rest["nees_by_star_count"]
     lines += ["", "| stars per frame (rest) | " + " | ".join(f"{r['lo']:g}-{r['hi']:g}".replace("-1000", "+")
-                                                          for r in bins) + " |",
+                                                             for r in bins) + " |",
               "|---|" + "---:|" * len(bins)]
     for key, label in (("nees", "NEES published"), ("nees_floored", "with the floor"), ("nees_unclipped", "- clipped")):
         by = {r["lo"]: r for r in rest[f"{key}_by_star_count"]}
         lines.append(f"| {label} | " + " | ".join(f"{by[r['lo']]['mean']:.2f} ({by[r['lo']]['n']})" if r["lo"] in by
-                                                   else "-" for r in bins) + " |")
+                                                  else "-" for r in bins) + " |")
     lines += ["", f"![NEES diagnostics]({os.path.relpath(images[1], output.parent)})", ""]
     lines += results.get("findings", [])
     lines += ["", f"Median time per frame [ms] and wall time per case [s] ({meta['jobs']} worker processes on a shared "
@@ -530,8 +540,11 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
 
 
 def findings(cases: list[dict], floor_px: float, clip_level: float) -> list[str]:
-    """What this run's numbers show about the covariance, cause by cause. Each statement is
-    made only when the numbers show it."""
+    """
+    Return what this run's numbers show about the covariance, cause by cause.
+
+    Each statement is made only when the numbers show it.
+    """
     solved = [c for c in cases if "stars" in c]
     rest = next((c for c in solved if c["kind"] == "rest"), None)
     if rest is None:
@@ -589,7 +602,7 @@ def findings(cases: list[dict], floor_px: float, clip_level: float) -> list[str]
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000,
                         help="frames at rest (default 1000); each rate case gets half of it (at least 1)")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1,

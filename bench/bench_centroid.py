@@ -1,5 +1,9 @@
-"""Centroiding benchmark: accuracy against the Cramér-Rao bound, completeness and purity,
-and speed (with peers when installed: requirements-bench.txt).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Centroiding benchmark.
+
+Accuracy against the Cramér-Rao bound, completeness and purity, and speed (with peers when
+installed: requirements-bench.txt).
 
     python -m bench.bench_centroid [--quick] [--output docs/BENCHMARKS.md]
 
@@ -47,7 +51,7 @@ EXPOSURE = 0.1
 
 
 def grid_scene(sensor: SensorModel, flux_e: float, rng: np.random.Generator, spacing: int = 110):
-    """A catalog of stars on a pixel grid (random sub-pixel phase) of flux `flux_e` [e-]."""
+    """Return a catalog of stars on a pixel grid (random sub-pixel phase) of flux `flux_e` [e-]."""
     cols, rows = np.meshgrid(np.arange(80, 1024 - 80, spacing), np.arange(80, 1024 - 80, spacing))
     x = cols.ravel() + rng.uniform(-0.5, 0.5, cols.size)
     y = rows.ravel() + rng.uniform(-0.5, 0.5, rows.size)
@@ -77,10 +81,13 @@ def cramer_rao(flux, sigma, smear_px, static_e, read_e, gain, rng, phases=24):
     for _ in range(phases):
         x0, y0 = 100.0 + rng.uniform(-0.5, 0.5), 100.0 + rng.uniform(-0.5, 0.5)
         mu = expected_counts(x0, y0, flux, sigma, smear_px)
-        dx = (expected_counts(x0 + h, y0, flux, sigma, smear_px) - expected_counts(x0 - h, y0, flux, sigma, smear_px)) / (2 * h)
-        dy = (expected_counts(x0, y0 + h, flux, sigma, smear_px) - expected_counts(x0, y0 - h, flux, sigma, smear_px)) / (2 * h)
+        dx = (expected_counts(x0 + h, y0, flux, sigma, smear_px)
+              - expected_counts(x0 - h, y0, flux, sigma, smear_px)) / (2 * h)
+        dy = (expected_counts(x0, y0 + h, flux, sigma, smear_px)
+              - expected_counts(x0, y0 - h, flux, sigma, smear_px)) / (2 * h)
         var = mu + static_e + read_e ** 2 + gain ** 2 / 12.0
-        info = np.array([[np.sum(dx * dx / var), np.sum(dx * dy / var)], [np.sum(dx * dy / var), np.sum(dy * dy / var)]])
+        info = np.array([[np.sum(dx * dx / var), np.sum(dx * dy / var)],
+                         [np.sum(dx * dy / var), np.sum(dy * dy / var)]])
         crb = np.linalg.inv(info)
         var_x.append(crb[0, 0])
         var_y.append(crb[1, 1])
@@ -98,8 +105,11 @@ def static_level(sensor: SensorModel) -> float:
 
 
 def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig(), rate_aided=False):
-    """RMS 2-D error [px] of our centroids vs truth, detection rate, and sqrt(CRB_x + CRB_y).
-    rate_aided: give the centroider the true body rate and exposure (SmearModel)."""
+    """
+    RMS 2-D error [px] of our centroids vs truth, detection rate, and sqrt(CRB_x + CRB_y).
+
+    rate_aided: give the centroider the true body rate and exposure (SmearModel).
+    """
     flux = flux_for_snr(snr, sensor)
     rate = smear_px / (EXPOSURE * CAMERA.fy)
     smear = SmearModel(CAMERA, np.array([rate, 0.0, 0.0]), EXPOSURE) if rate_aided else None
@@ -107,7 +117,8 @@ def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig()
     for k in range(frames):
         catalog = grid_scene(sensor, flux, rng)
         renderer = StarFieldRenderer(CAMERA, sensor, catalog, magnitude_limit=30.0)
-        frame = renderer.render(ConstantRateMotion(POINTING, np.array([rate, 0.0, 0.0])), 1.0, frame_seed(int(snr * 10 + smear_px), k))
+        frame = renderer.render(ConstantRateMotion(POINTING, np.array([rate, 0.0, 0.0])), 1.0,
+                                frame_seed(int(snr * 10 + smear_px), k))
         spots = extract_spots(frame.image, config, smear)
         t = frame.truth
         # Score stars whose whole streak lies inside the image (truth also lists off-chip stars
@@ -132,7 +143,7 @@ def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig()
 
 
 def false_detections(frames, rng):
-    """Detections per star-free frame with every detector effect of the node defaults on."""
+    """Return detections per star-free frame with every detector effect of the node defaults on."""
     sensor = SensorModel(dsnu_fraction=0.1, prnu_fraction=0.01, hot_pixel_fraction=2e-5, cosmic_ray_rate_per_cm2_s=5.0,
                          vignetting_at_corner=0.1)
     empty = StarCatalog(*(np.zeros(0) for _ in range(7)))
@@ -156,8 +167,12 @@ def speed_frames(frames: int, rate_deg_s=(0.0, 0.0, 0.0), magnitude_limit: float
 
 
 def reference_kernel_ms(repeats: int = 15) -> float:
-    """Median time [ms] of a fixed OpenCV kernel (1024^2 float32 Gaussian blur): the host's speed
-    at this moment, so that times measured on a VM with CPU steal can be compared."""
+    """
+    Median time [ms] of a fixed OpenCV kernel (1024^2 float32 Gaussian blur).
+
+    The host's speed at this moment, so that times measured on a VM with CPU steal can be
+    compared.
+    """
     import cv2
 
     image = np.random.default_rng(0).random((1024, 1024), dtype=np.float32)
@@ -170,8 +185,11 @@ def reference_kernel_ms(repeats: int = 15) -> float:
 
 
 def speed(images, smear=None, peers_too=True):
-    """Median/p95 time [ms], detection rate (< 2 px + half the smear) and RMS error [px] of each
-    extractor on identical frames."""
+    """
+    Return each extractor's median/p95 time [ms], detection rate and RMS error [px] on identical frames.
+
+    Detected: within 2 px + half the smear.
+    """
     config = CentroidConfig(saturation_adu=60000.0)
     methods = {"star_tracker (auto)": lambda im: extract_spots(im, config, smear),
                "star_tracker cog": lambda im: extract_spots(im, CentroidConfig(saturation_adu=60000.0, method="cog"))}
@@ -220,7 +238,8 @@ def speed(images, smear=None, peers_too=True):
                 d = np.full(int(stars.sum()), np.inf)
             stats[name]["hits"].append(float(np.mean(d < reach)))
             stats[name]["errors"].extend(d[d < reach] ** 2)
-    return {name: {"median_ms": 1e3 * float(np.median(v["times"])), "p95_ms": 1e3 * float(np.percentile(v["times"], 95)),
+    return {name: {"median_ms": 1e3 * float(np.median(v["times"])),
+                   "p95_ms": 1e3 * float(np.percentile(v["times"], 95)),
                    "rms_px": float(np.sqrt(np.mean(v["errors"]))) if v["errors"] else float("nan"),
                    "detected": float(np.mean(v["hits"])),
                    "stars": int(np.sum((images[0].truth.kind == 0))),
@@ -228,9 +247,12 @@ def speed(images, smear=None, peers_too=True):
 
 
 def measure_roll(frames: int, electrons: float):
-    """Curved streaks: stars on two rings far from the boresight under a 40 deg/s roll (24-33 px
-    arcs). RMS distance [px] to the mid-exposure truth for the rate-aided path fit, the free
-    straight-segment fit and the centre of gravity."""
+    """
+    Curved streaks: stars on two rings far from the boresight under a 40 deg/s roll (24-33 px arcs).
+
+    RMS distance [px] to the mid-exposure truth for the rate-aided path fit, the free
+    straight-segment fit and the centre of gravity.
+    """
     from star_tracker.models.catalog import StarCatalog as Catalog
 
     rate = np.array([0.0, 0.0, np.radians(40.0)])
@@ -252,7 +274,8 @@ def measure_roll(frames: int, electrons: float):
         for name, spots in (("auto + rate (arc)", extract_spots(frame.image, CentroidConfig(), smear)),
                             ("auto (straight segment)", extract_spots(frame.image, CentroidConfig())),
                             ("cog", extract_spots(frame.image, CentroidConfig(method="cog")))):
-            d = np.hypot(t.x[t.kind == 0][:, None] - spots.x[None], t.y[t.kind == 0][:, None] - spots.y[None]).min(axis=1)
+            d = np.hypot(t.x[t.kind == 0][:, None] - spots.x[None],
+                         t.y[t.kind == 0][:, None] - spots.y[None]).min(axis=1)
             errors[name].extend(d[d < 3.0] ** 2)
     return {name: float(np.sqrt(np.mean(e))) for name, e in errors.items()}
 
@@ -270,7 +293,7 @@ def speed_table(timing: dict, reference_ms: float) -> list[str]:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer points and frames (smoke run)")
     parser.add_argument("--output", type=Path, help="write the '## Centroiding' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_centroid.json beside --output)")
@@ -379,10 +402,11 @@ def main(argv=None) -> None:
         "### Speed, side by side with the peers",
         "",
         "Real sky (Hipparcos to Hp 6.3 around RA 80 deg, Dec 20 deg; ~50 stars), 1024x1024 mono16, every detector "
-        "effect on, identical frames for every extractor, each run over all frames in one block; best of 3 rounds (the VM's CPU steal comes in bursts). Peers with their default "
-        "settings via bench/peers.py (tetra3rs's `extract_centroids`, cedar-solve's `get_centroids_from_image`). "
-        "`detected`: stars with a spot within 2 px (+ half the smear); RMS over those. Absolute times on this VM "
-        "vary by +-40 % from run to run (CPU steal); compare the ratios, measured in the same run.",
+        "effect on, identical frames for every extractor, each run over all frames in one block; best of 3 rounds (the "
+        "VM's CPU steal comes in bursts). Peers with their default settings via bench/peers.py (tetra3rs's "
+        "`extract_centroids`, cedar-solve's `get_centroids_from_image`). `detected`: stars with a spot within 2 px (+ "
+        "half the smear); RMS over those. Absolute times on this VM vary by +-40 % from run to run (CPU steal); "
+        "compare the ratios, measured in the same run.",
         "",
         "![centroiding time per frame, ours and the peers](images/centroid_times.png)",
         "",

@@ -1,4 +1,6 @@
-"""Pattern-database build and load times and sizes (issue goal: build <= 10 s, load < 1 s).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Pattern-database build and load times and sizes (issue goal: build <= 10 s, load < 1 s).
 
 Each database is built into an empty temporary cache (so nothing is reused), then loaded
 back from it in a fresh call, best of 3 loads. Writes the "## Pattern databases" table to
@@ -66,7 +68,7 @@ def measure(label: str, config: DatabaseConfig) -> list[list[str]]:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--output", type=Path, default=None, help="markdown file to append the table to")
     args = parser.parse_args(argv)
     header = ["setup", "database", "stars", "entries", "build [s]", "load [s]", "size [MB]"]

@@ -1,4 +1,6 @@
-"""Star-identification benchmark: our algorithms and two peer solvers on identical centroid lists.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Star-identification benchmark: our algorithms and two peer solvers on identical centroid lists.
 
     python -m bench.bench_identify [--scenes N] [--setups a,b] [--algorithms a,b] [--no-peers]
                                    [--output docs/BENCHMARKS.md] [--seed S]
@@ -101,8 +103,12 @@ PAPER_ROWS: dict[str, list[tuple[str, str]]] = {
 
 @dataclass(frozen=True)
 class PeerCandidate:
-    """One peer configuration: label, database generator keywords beyond FOV and magnitude
-    limit, solve keywords beyond FOV, FOV tolerance and time limit."""
+    """
+    One peer configuration.
+
+    Label, database generator keywords beyond FOV and magnitude limit, solve keywords beyond
+    FOV, FOV tolerance and time limit.
+    """
 
     label: str
     database: dict = field(default_factory=dict)
@@ -117,12 +123,14 @@ PEER_CANDIDATES: dict[str, list[PeerCandidate]] = {
     "tetra3rs": [
         PeerCandidate("defaults"),
         PeerCandidate("r0.003 t1e-3", solve=dict(match_radius=0.003, match_threshold=1e-3)),
-        PeerCandidate("r0.003 t1e-3 e0.003", solve=dict(match_radius=0.003, match_threshold=1e-3, match_max_error=0.003)),
+        PeerCandidate("r0.003 t1e-3 e0.003",
+                      solve=dict(match_radius=0.003, match_threshold=1e-3, match_max_error=0.003)),
     ],
     "cedar-solve": [
         PeerCandidate("defaults"),
         PeerCandidate("r0.003 t1e-2", solve=dict(match_radius=0.003, match_threshold=1e-2)),
-        PeerCandidate("r0.003 t1e-2 e0.005", solve=dict(match_radius=0.003, match_threshold=1e-2, match_max_error=0.005)),
+        PeerCandidate("r0.003 t1e-2 e0.005",
+                      solve=dict(match_radius=0.003, match_threshold=1e-2, match_max_error=0.005)),
     ],
 }
 
@@ -132,8 +140,11 @@ def database_config(setup_name: str) -> DatabaseConfig:
 
 
 def make_scenes(setup: SceneSetup, catalog: StarCatalog, count: int, seed: int, stream: int = 0) -> list[Scene]:
-    """`count` scenes of `setup` from a generator seeded by (seed, setup name, stream);
-    stream 0 is the benchmark set, 1 the peers' tuning set."""
+    """
+    `count` scenes of `setup` from a generator seeded by (seed, setup name, stream).
+
+    Stream 0 is the benchmark set, 1 the peers' tuning set.
+    """
     rng = np.random.default_rng([seed, zlib.crc32(setup.name.encode()), stream])
     return [make_scene(setup, catalog, rng) for _ in range(count)]
 
@@ -173,7 +184,7 @@ def score_attitude(solution: peer_adapters.PeerSolution, scene: Scene) -> str:
 
 
 def peer_ids_wrong(solution: peer_adapters.PeerSolution, scene: Scene) -> bool:
-    """A solved peer result that named any spot with a star other than the truth."""
+    """Return a solved peer result that named any spot with a star other than the truth."""
     if not solution.solved or solution.ids.size == 0:
         return False
     return not np.array_equal(solution.ids, scene.hip[solution.spot_index])
@@ -255,7 +266,7 @@ def run_peer(solver, scenes: list[Scene], on_scene=None) -> Outcomes:
 
 
 def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
-    """Counts, percentages, means and time quantiles [ms] of one solver on one setup."""
+    """Return counts, percentages, means and time quantiles [ms] of one solver on one setup."""
     n = len(out.outcome)
     codes = np.array(out.outcome)
     times = np.array(out.time_s, float) * 1e3
@@ -276,7 +287,8 @@ def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
         "time_ms": {"median": float(np.median(times)), "p99": float(np.percentile(times, 99)),
                     "max": float(times.max()), "mean": float(times.mean())} if times.size else None,
         # The distribution for bench/plots.py: percentiles 0, 1, ..., 100 [ms].
-        "time_ms_percentiles": [float(f"{v:.5g}") for v in np.percentile(times, np.arange(101))] if times.size else None,
+        "time_ms_percentiles": ([float(f"{v:.5g}") for v in np.percentile(times, np.arange(101))]
+                                if times.size else None),
         "outcomes": "".join(_CODE[o] for o in out.outcome),
     }
     for key in (CORRECT, INCONCLUSIVE, INCORRECT):
@@ -284,14 +296,18 @@ def summarize(out: Outcomes, scenes: list[Scene]) -> dict:
     real = np.array([s.real_count for s in scenes[:n]])
     rich = real >= 4
     summary["ge4"] = {"scenes": int(rich.sum()), **{key: int(np.sum(codes[rich] == key)) for key in
-                                                     (CORRECT, INCONCLUSIVE, INCORRECT)}}
+                                                    (CORRECT, INCONCLUSIVE, INCORRECT)}}
     return summary
 
 
 def make_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, candidate: PeerCandidate,
               catalog: StarCatalog, max_time_s: float, cache: Path):
-    """The peer adapter for a setup: database for the camera's horizontal FOV and our guide
-    stars' magnitude limit, FOV known to 0.1 deg, the same time limit as ours."""
+    """
+    Return the peer adapter for a setup.
+
+    Database for the camera's horizontal FOV and our guide stars' magnitude limit, FOV known
+    to 0.1 deg, the same time limit as ours.
+    """
     camera = setup.camera
     fov_deg = float(np.degrees(2.0 * np.arctan(0.5 * camera.width / camera.fx)))
     stars = catalog.brighter_than(db_config.magnitude_limit)
@@ -311,10 +327,14 @@ def make_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, candidate
 
 
 def tune_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, catalog: StarCatalog, tuning: list[Scene],
-              max_time_s: float, cache: Path, log, on_scene=None) -> tuple[object, PeerCandidate, dict, dict, list[dict]]:
-    """Try every candidate on the tuning scenes; keep the best (correct - 10 incorrect, then
-    fewer wrong ids, then the lower median time). Returns (solver, candidate, database kw,
-    solve kw, trials)."""
+              max_time_s: float, cache: Path, log,
+              on_scene=None) -> tuple[object, PeerCandidate, dict, dict, list[dict]]:
+    """
+    Try every candidate on the tuning scenes.
+
+    Keep the best (correct - 10 incorrect, then fewer wrong ids, then the lower median
+    time). Returns (solver, candidate, database kw, solve kw, trials).
+    """
     best, trials = None, []
     for candidate in PEER_CANDIDATES[peer]:
         solver, database, solve = make_peer(peer, setup, db_config, candidate, catalog, max_time_s, cache)
@@ -335,8 +355,11 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
                   peers: list[str] = (), tune_scenes: int = 100, hard_scenes: int = 100,
                   catalog: StarCatalog | None = None, cache: Path | None = None,
                   config: IdentifyConfig | None = None, log=print, progress=None) -> dict:
-    """Run every solver on every setup; returns the JSON-ready results (see module docstring).
-    progress(done, total, note): called after every solver call (scenes solved so far of all)."""
+    """
+    Run every solver on every setup; returns the JSON-ready results (see module docstring).
+
+    progress(done, total, note): called after every solver call (scenes solved so far of all).
+    """
     run_started = time.perf_counter()
     catalog = catalog if catalog is not None else load_hipparcos().at_epoch(EPOCH_JYEAR)
     cache = cache if cache is not None else cache_dir() / "bench_peers"
@@ -511,9 +534,9 @@ def render_markdown(results: dict) -> str:
     lines = [
         "## Identification",
         "",
-        f"Command: `{meta['command']}`. Measured {meta['date']} in {meta['elapsed_s']:.0f} s. Machine: {machine['cpu']}, "
-        f"`nproc` = {machine['cores']}; `python -VV`: Python {machine['python']}; numpy {machine['versions']['numpy']}; "
-        f"tetra3rs {machine['versions']['tetra3rs'] or 'not installed'}, cedar-solve "
+        f"Command: `{meta['command']}`. Measured {meta['date']} in {meta['elapsed_s']:.0f} s. Machine: "
+        f"{machine['cpu']}, `nproc` = {machine['cores']}; `python -VV`: Python {machine['python']}; numpy "
+        f"{machine['versions']['numpy']}; tetra3rs {machine['versions']['tetra3rs'] or 'not installed'}, cedar-solve "
         f"{machine['versions']['cedar-solve'] or 'not installed'}.",
         "",
         f"- Scenes: `star_tracker.sim.scenes.SETUPS`, seed {meta['seed']}, the same centroid lists for every solver; "
@@ -521,9 +544,9 @@ def render_markdown(results: dict) -> str:
         "calls there run to the time limit).",
         f"- Ours: every registered algorithm, database per setup (below), default `IdentifyConfig` (time limit "
         f"{meta['max_time_s']:g} s per call; on {', '.join(HARD_SETUPS)} `max_pattern_spots` = 100, so every "
-        f"spot may form patterns as in Toloei's method). **correct** = solved and every returned HIP id is the truth behind its "
-        "spot; **incorrect** = solved with any wrong id; **inconclusive** = no solution (no match, time limit, too "
-        "few spots).",
+        "spot may form patterns as in Toloei's method). **correct** = solved and every returned HIP id is the truth "
+        "behind its spot; **incorrect** = solved with any wrong id; **inconclusive** = no solution (no match, time "
+        "limit, too few spots).",
         "- Peers: the same guide stars (Hipparcos at the scene epoch, Hp, the setup's magnitude limit) in their own "
         "pattern databases built for the camera's FOV; FOV given to 0.1 deg; the same time limit. correct = "
         "boresight within 1 arcmin and roll within 1 deg of the truth. `wrong id` counts solved results that name "
@@ -533,9 +556,10 @@ def render_markdown(results: dict) -> str:
         "the faster (table at the end). Both peers solve single-threaded (tetra3rs: compiled Rust; cedar-solve: "
         "numpy/Python). A peer's wrong ids with a correct attitude are mostly close doubles (e.g. the 5.6 mag "
         "companion 19\" from a 2.9 mag star, which the scenes merge into the brighter star's spot).",
-        "- Times: wall clock around the call (`time.perf_counter`), one process, one call at a time, after one untimed warm-up call per solver and setup. Per-call stats: "
-        "the algorithms' own counters (e.g. pivots) averaged over the calls that report them. The machine is a "
-        "shared 2-core VM: absolute times vary between runs; compare within one run.",
+        "- Times: wall clock around the call (`time.perf_counter`), one process, one call at a time, after one untimed "
+        "warm-up call per solver and setup. Per-call stats: the algorithms' own counters (e.g. pivots) averaged over "
+        "the calls that report them. The machine is a shared 2-core VM: absolute times vary between runs; compare "
+        "within one run.",
         "",
         f"**Incorrect over all scenes: {totals['ours']['incorrect']} in {totals['ours']['calls']}** (our algorithms, "
         f"all setups); peers: {totals['peers']['incorrect']} in {totals['peers']['calls']}.",
@@ -551,9 +575,10 @@ def render_markdown(results: dict) -> str:
             f"### {name}",
             "",
             f"{entry['description'][:1].upper()}{entry['description'][1:]}. {entry['scenes']} scenes, "
-            f"{entry['true_stars_mean']:.2f} true stars and {entry['spots_mean']:.1f} spots on average, {entry['scenes_ge4_true_stars']} scenes with >= 4 true "
-            f"stars. Our database: Hp <= {db['magnitude_limit']:g}, pairs up to {db['max_pair_angle_deg']:.2f} deg, "
-            f"{db['stars']} stars, {db['pairs']} pairs.",
+            f"{entry['true_stars_mean']:.2f} true stars and {entry['spots_mean']:.1f} spots on average, "
+            f"{entry['scenes_ge4_true_stars']} scenes with >= 4 true stars. Our database: Hp <= "
+            f"{db['magnitude_limit']:g}, pairs up to {db['max_pair_angle_deg']:.2f} deg, {db['stars']} stars, "
+            f"{db['pairs']} pairs.",
             "",
             *setup_table(name, entry, reference),
             "",
@@ -579,7 +604,7 @@ def _names(text: str | None, known, what: str) -> list[str]:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=1000, help="scenes per setup (default 1000)")
     parser.add_argument("--hard-scenes", type=int, default=100,
                         help=f"at most this many scenes for {', '.join(HARD_SETUPS)} (default 100)")

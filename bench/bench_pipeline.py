@@ -1,4 +1,6 @@
-"""Pipeline throughput, latency and overload: the three nodes as separate processes over DDS.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Pipeline throughput, latency and overload: the three nodes as separate processes over DDS.
 
     python -m bench.bench_pipeline [--rates 10,20,30,40] [--seconds 20] [--exposure 0.02]
                                    [--quick] [--output docs/BENCHMARKS.md]
@@ -57,7 +59,7 @@ STATUS = {"camera_simulator": "star_tracker/camera_simulator", "centroider": "st
 
 # ----------------------------------------------------------------------------- host figures
 def cpu_seconds(pid: int) -> float:
-    """utime + stime of a process [s]."""
+    """Return utime + stime of a process [s]."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
@@ -83,8 +85,11 @@ def host_usage(before: np.ndarray, after: np.ndarray) -> dict:
 
 # ----------------------------------------------------------------------------- the watcher
 class Watcher:
-    """This benchmark's own node: attitude (and spots, truth) receive times, diagnostics. Spins
-    in a background thread so the main thread can publish on time."""
+    """
+    This benchmark's own node: attitude (and spots, truth) receive times, diagnostics.
+
+    Spins in a background thread so the main thread can publish on time.
+    """
 
     def __init__(self, with_truth: bool):
         import rclpy
@@ -186,8 +191,9 @@ def sweep(env: dict, log_dir: Path, rates: list[float], seconds: float, exposure
     # periods of latency of its own); the frames it skips are counted as camera overruns.
     camera = {"rate_hz": rates[0], "sensor.exposure_s": exposure_s, "attitude.body_rate_deg_s": BODY_RATE_DEG_S,
               "max_backlog_frames": 1}
-    nodes = NodeProcesses(env, log_dir, {"camera_simulator": camera, "centroider": {"exposure_time_s": exposure_s, **NEWEST},
-                                         "identifier": NEWEST}, CONFIG, nodes=("centroider", "identifier"))
+    nodes = NodeProcesses(env, log_dir,
+                          {"camera_simulator": camera, "centroider": {"exposure_time_s": exposure_s, **NEWEST},
+                           "identifier": NEWEST}, CONFIG, nodes=("centroider", "identifier"))
     watcher = Watcher(with_truth=True)
     results = []
     try:
@@ -472,10 +478,11 @@ def render_section(data: dict) -> str:
         mark = "**" if r["rate_hz"] == sustainable else ""
         lines.append(
             f"| {mark}{r['rate_hz']:g} Hz{mark} | {r['frames']} | {r['identified']} | {r['dropped']} "
-            f"({r['camera_skipped_overrun']} / {r['centroider_dropped_overload']} / {r['identifier_dropped_overload']}) "
-            f"| {r['wrong']} | {fmt(lat['median'])} / {fmt(lat['p95'])} / {fmt(lat['max'])} ms | "
-            f"{fmt(cpu.get('camera_simulator'))} / {fmt(cpu.get('centroider'))} / {fmt(cpu.get('identifier'))} ms | "
-            f"{r['host']['busy_percent']:.0f} % / {r['host']['steal_percent']:.1f} % |")
+            f"({r['camera_skipped_overrun']} / {r['centroider_dropped_overload']} / "
+            f"{r['identifier_dropped_overload']}) | {r['wrong']} | {fmt(lat['median'])} / {fmt(lat['p95'])} / "
+            f"{fmt(lat['max'])} ms | {fmt(cpu.get('camera_simulator'))} / {fmt(cpu.get('centroider'))} / "
+            f"{fmt(cpu.get('identifier'))} ms | {r['host']['busy_percent']:.0f} % / {r['host']['steal_percent']:.1f} % "
+            "|")
     goal = next((r for r in sweep_rows if r["rate_hz"] == 20.0), None)
     verdict = "not measured"
     if goal is not None:
@@ -555,9 +562,9 @@ def reliability_figures(data: dict) -> str:
             f"[BENCHMARKS.md](BENCHMARKS.md#pipeline-throughput-and-overload)):", ""]
     if row is not None:
         lat = row["latency_ms"]
-        rows.append(f"- maximum sustainable rate of the three nodes: **{s:g} Hz** ({data['exposure_ms']:g} ms exposure, "
-                    f"1024² mono16): {row['identified']} of {row['frames']} frames identified, none dropped; latency "
-                    f"median {fmt(lat['median'])} ms, p95 {fmt(lat['p95'])} ms, max {fmt(lat['max'])} ms")
+        rows.append(f"- maximum sustainable rate of the three nodes: **{s:g} Hz** ({data['exposure_ms']:g} ms "
+                    f"exposure, 1024² mono16): {row['identified']} of {row['frames']} frames identified, none dropped; "
+                    f"latency median {fmt(lat['median'])} ms, p95 {fmt(lat['p95'])} ms, max {fmt(lat['max'])} ms")
     goal = next((r for r in data["sweep"] if r["rate_hz"] == 20.0), None)
     if goal is not None and row is not None:
         cam, cen, ide = (goal["stages_ms"][n] for n in ("camera_simulator", "centroider", "identifier"))
@@ -567,9 +574,9 @@ def reliability_figures(data: dict) -> str:
                     f"({goal['identified']} / {goal['frames']} frames at 20 Hz); median latency ≤ 50 ms: "
                     f"**{'met' if latency else 'not met'}** ({goal['latency_ms']['median']:.1f} ms). Of that, "
                     f"{cam.get('image_age', float('nan')):.0f} ms pass before the image is published (half the "
-                    f"{data['exposure_ms']:g} ms exposure, then {cam.get('delivery_delay', float('nan')):.1f} ms from the "
-                    f"exposure's end: the simulator renders each frame ahead and publishes it when its exposure ends, "
-                    f"readout 0); the rest is transport, centroiding "
+                    f"{data['exposure_ms']:g} ms exposure, then {cam.get('delivery_delay', float('nan')):.1f} ms from "
+                    "the exposure's end: the simulator renders each frame ahead and publishes it when its exposure "
+                    f"ends, readout 0); the rest is transport, centroiding "
                     f"({cen.get('processing', float('nan')):.0f} ms in the node) and identification "
                     f"({ide.get('processing', float('nan')):.0f} ms)")
     for r in data["overload"]:
@@ -595,8 +602,11 @@ def write_reliability(path: Path, text: str) -> None:
 
 
 def analysis_text(data: dict) -> str:
-    """The latency budget at the goal's 20 Hz (else the sustainable rate) and what limits the
-    rate, from the figures."""
+    """
+    Return the latency budget at the goal's 20 Hz (else the sustainable rate) and what limits the rate.
+
+    Both from the figures.
+    """
     m = data["stages_in_process"]["ms_median"]
     per_frame = sum(m.values())
     row = next((r for r in data["sweep"] if r["rate_hz"] == 20.0), None) or next(
@@ -622,11 +632,13 @@ def analysis_text(data: dict) -> str:
     try:
         budget = [
             ("half the exposure (stamp is mid-exposure)", half),
-            ("camera: exposure end → image published (timer, publish; the render is done ahead)", cam["image_age"] - half),
+            ("camera: exposure end → image published (timer, publish; the render is done ahead)",
+             cam["image_age"] - half),
             ("image transport to the centroider (2 MiB, shared memory, deserialization)",
              cen["input_age"] - cam["image_age"]),
             ("centroider: waiting for the worker + extraction and publish", cen["wait"] + cen["processing"]),
-            ("spots transport to the identifier", ide["input_age"] - cen["input_age"] - cen["wait"] - cen["processing"]),
+            ("spots transport to the identifier",
+             ide["input_age"] - cen["input_age"] - cen["wait"] - cen["processing"]),
             ("identifier: decode, waiting, tracking, publish", ide["processing"]),
         ]
     except KeyError:
@@ -643,7 +655,7 @@ def analysis_text(data: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__.strip(), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rates", default="10,15,20,25,30,40", help="swept camera rates [Hz]")
     parser.add_argument("--seconds", type=float, default=20.0, help="measured window per rate [s]")
     parser.add_argument("--exposure", type=float, default=0.02, help="exposure time [s]")
@@ -699,8 +711,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def publish(data: dict, output: Path | None) -> None:
-    """Print the section; with `output`, write it there, the raw numbers beside it and the
-    figures in RELIABILITY.md."""
+    """Print the section; with `output`, write it there, the raw numbers beside it and the figures in RELIABILITY.md."""
     data["analysis"] = analysis_text(data)
     section = render_section(data)
     print(section)

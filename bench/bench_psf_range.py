@@ -1,13 +1,17 @@
-"""Centroiding across PSFs (issue 17): the centroider at its defaults (`CentroidConfig()`, PSF
-width unknown to it) on stars of PSF sigma 0.4-3 px, from our simulator and from a second,
-independently written renderer (bench/alt_renderer.py: Gaussian, Moffat, defocused annulus,
+# SPDX-License-Identifier: Apache-2.0
+"""
+Centroiding across PSFs (issue 17).
+
+The centroider at its defaults (`CentroidConfig()`, PSF width unknown to it) on stars of PSF sigma 0.4-3 px, from our
+simulator and from a second, independently written renderer (bench/alt_renderer.py: Gaussian, Moffat, defocused annulus,
 elliptical Gaussian; its own noise, hot pixels and cosmic rays).
 
     python -m bench.bench_psf_range [--quick] [--output docs/BENCHMARKS.md]
 
 Goals (issue 17), judged per row: >= 99 % of the stars with SNR >= 10 detected; RMS position
 error <= 1.2x the Cramér–Rao bound (over the matched stars with SNR >= 10, in rows whose median
-SNR is >= 10, with at least MIN_MATCHED stars matched); <= 1 false detection per star-free frame with hot pixels and cosmic rays.
+SNR is >= 10, with at least MIN_MATCHED stars matched); <= 1 false detection per star-free frame
+with hot pixels and cosmic rays.
 
 SNR = F sqrt(sum_i p_i^2 / (F p_i + B + r^2 + g^2/12)): the SNR of an optimal PSF-weighted
 aperture (p_i the star's pixel fractions for its true PSF; F star electrons, B sky (+ dark)
@@ -46,13 +50,18 @@ ALT_DETECTOR_12BIT = alt.Detector(sky_e=40.0, read_noise_e=5.0, gain_e_per_adu=1
                                   hot_pixel_fraction=1e-4, cosmic_rays_per_frame=3.0)
 SNR_GOAL, DETECTED_GOAL, RATIO_GOAL, FALSE_GOAL = 10.0, 0.99, 1.2, 1.0
 MIN_MATCHED = 10  # fewer matched stars than this: the RMS goal is not met (nothing to measure)
-KINDS = {"GaussianPsf": "Gaussian", "MoffatPsf": "Moffat β 3", "AnnulusPsf": "annulus", "EllipticalGaussianPsf": "elliptical"}
+KINDS = {"GaussianPsf": "Gaussian", "MoffatPsf": "Moffat β 3", "AnnulusPsf": "annulus",
+         "EllipticalGaussianPsf": "elliptical"}
 
 
 @dataclass(frozen=True)
 class Case:
-    """One PSF on one renderer: renderer "alt" (psf an alt_renderer PSF, detector) or
-    "simulator" (psf an alt_renderer.GaussianPsf giving the simulator's psf_sigma_px)."""
+    """
+    One PSF on one renderer.
+
+    Renderer "alt" (psf an alt_renderer PSF, detector) or "simulator" (psf an
+    alt_renderer.GaussianPsf giving the simulator's psf_sigma_px).
+    """
 
     renderer: str
     psf: object
@@ -96,7 +105,8 @@ class Scored:
         """Score one frame: stars (x, y, snr, trace of their CRB [px^2]) against `spots`."""
         radius = 2.0 * sigma + 1.0
         if defect_x.size:
-            near = np.hypot(x[:, None] - defect_x[None], y[:, None] - defect_y[None]) < 3 * sigma + 3 + 0.5 * defect_extent[None]
+            near = np.hypot(x[:, None] - defect_x[None],
+                            y[:, None] - defect_y[None]) < 3 * sigma + 3 + 0.5 * defect_extent[None]
             scored = ~near.any(axis=1)
         else:
             scored = np.ones(x.size, bool)
@@ -128,7 +138,8 @@ class Scored:
         detect_ok = None if not bright.any() else detected >= DETECTED_GOAL
         ratio = rms / crb_rms if measured.any() else float("nan")
         ratio_ok = None if not median_snr >= SNR_GOAL else bool(measured.sum() >= MIN_MATCHED and ratio <= RATIO_GOAL)
-        return {"stars": int(snr.size), "matched": int(measured.sum()), "stars_snr_ge_10": int(bright.sum()), "median_snr": median_snr,
+        return {"stars": int(snr.size), "matched": int(measured.sum()), "stars_snr_ge_10": int(bright.sum()),
+                "median_snr": median_snr,
                 "detected_snr_ge_10": detected, "detected_all": float(hit.mean()) if hit.size else float("nan"),
                 "rms_px": rms, "crb_px": crb_rms, "ratio": ratio, "extra_spots_per_frame": float(np.mean(self.extra)),
                 "median_ms": float(np.median(self.ms)), "frames": len(self.ms),
@@ -136,8 +147,12 @@ class Scored:
 
 
 def measure_alt(case: Case, fluxes, fields: int, seed: int) -> list[dict]:
-    """Rows (one per flux) of an alt-renderer case: `fields` star fields of ALT_STARS stars,
-    each rendered once at every flux (independent noise)."""
+    """
+    Rows (one per flux) of an alt-renderer case.
+
+    `fields` star fields of ALT_STARS stars, each rendered once at every flux (independent
+    noise).
+    """
     sigma = case.sigma_px
     scores = {flux: Scored() for flux in fluxes}
     for k in range(fields):
@@ -154,7 +169,8 @@ def measure_alt(case: Case, fluxes, fields: int, seed: int) -> list[dict]:
             t = frame.truth
             scores[flux].add(spots, t.x, t.y, t.snr, crb[:, 0, 0] + crb[:, 1, 1], t.defect_x, t.defect_y,
                              t.defect_extent_px, sigma, elapsed)
-    return [{"renderer": case.renderer, "kind": case.kind, "psf": case.name, "sigma_px": round(sigma, 3), "flux_e": flux,
+    return [{"renderer": case.renderer, "kind": case.kind, "psf": case.name, "sigma_px": round(sigma, 3),
+             "flux_e": flux,
              **scores[flux].row()} for flux in fluxes]
 
 
@@ -165,10 +181,14 @@ def simulator_sensor(sigma: float, **defects):
 
 
 def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
-    """Rows of a simulator case: grids of 64 stars (bench_centroid.grid_scene, random sub-pixel
-    phase) rendered by StarFieldRenderer with SensorModel(psf_sigma_px=sigma) and hot pixels
-    and cosmic rays on. SNR and CRB from alt_renderer's Gaussian at the simulator's noise
-    levels (sky + dark, read noise, gain)."""
+    """
+    Rows of a simulator case.
+
+    Grids of 64 stars (bench_centroid.grid_scene, random sub-pixel phase) rendered by
+    StarFieldRenderer with SensorModel(psf_sigma_px=sigma) and hot pixels and cosmic rays on.
+    SNR and CRB from alt_renderer's Gaussian at the simulator's noise levels (sky + dark, read
+    noise, gain).
+    """
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_STAR, StarFieldRenderer, frame_seed
 
@@ -183,7 +203,8 @@ def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
         for k in range(frames):
             rng = np.random.default_rng([seed, k, int(flux)])
             renderer = StarFieldRenderer(CAMERA, sensor, grid_scene(sensor, flux, rng), magnitude_limit=30.0)
-            frame = renderer.render(ConstantRateMotion(POINTING, np.zeros(3)), 1.0, frame_seed(seed, k * 100 + int(flux) % 97))
+            frame = renderer.render(ConstantRateMotion(POINTING, np.zeros(3)), 1.0,
+                                    frame_seed(seed, k * 100 + int(flux) % 97))
             t0 = time.perf_counter()
             spots = extract_spots(frame.image, CentroidConfig())
             elapsed = time.perf_counter() - t0
@@ -195,13 +216,17 @@ def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
             defects = (t.kind == KIND_COSMIC_RAY) | (t.kind == KIND_HOT_PIXEL)
             scores[flux].add(spots, t.x[stars], t.y[stars], snr, crb[:, 0, 0] + crb[:, 1, 1], t.x[defects],
                              t.y[defects], np.maximum(t.extent_px[defects], 1.0), sigma, elapsed)
-    return [{"renderer": case.renderer, "kind": case.kind, "psf": case.name, "sigma_px": round(sigma, 3), "flux_e": flux,
+    return [{"renderer": case.renderer, "kind": case.kind, "psf": case.name, "sigma_px": round(sigma, 3),
+             "flux_e": flux,
              **scores[flux].row()} for flux in fluxes]
 
 
 def false_detections(frames: int) -> dict:
-    """Spots per star-free frame at the defaults, for each renderer with hot pixels and cosmic
-    rays (simulator: also DSNU and PRNU)."""
+    """
+    Spots per star-free frame at the defaults.
+
+    For each renderer with hot pixels and cosmic rays (simulator: also DSNU and PRNU).
+    """
     from star_tracker.models.catalog import StarCatalog
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import StarFieldRenderer, frame_seed
@@ -222,7 +247,8 @@ def false_detections(frames: int) -> dict:
                                 cosmic_rays_per_frame=5.0)
         frame = alt.render(nobody, 0.0, detector, 1024, 1024, np.random.default_rng([277, k]))
         alt_counts.append(len(extract_spots(frame.image, CentroidConfig())))
-    return {name: {"mean": float(np.mean(c)), "max": int(np.max(c)), "frames": frames, "met": bool(np.mean(c) <= FALSE_GOAL)}
+    return {name: {"mean": float(np.mean(c)), "max": int(np.max(c)), "frames": frames,
+                   "met": bool(np.mean(c) <= FALSE_GOAL)}
             for name, c in (("simulator", sim_counts), ("alt", alt_counts))}
 
 
@@ -267,11 +293,14 @@ def summary(rows: list[dict], false: dict) -> list[str]:
         worst = min(judged, key=lambda r: r["detected_snr_ge_10"]) if judged else None
         lines.append(f"| ≥ 99 % of SNR ≥ 10 stars detected | {renderer} | "
                      f"{sum(r['detection_met'] for r in judged)}/{len(judged)} | "
-                     + (f"{100 * worst['detected_snr_ge_10']:.1f} % ({worst['psf']}, {worst['flux_e']:.0f} e-) |" if worst else "– |"))
+                     + (f"{100 * worst['detected_snr_ge_10']:.1f} % ({worst['psf']}, {worst['flux_e']:.0f} e-) |"
+                        if worst else "– |"))
         judged = [r for r in mine if r["ratio_met"] is not None]
         worst = max(judged, key=lambda r: np.nan_to_num(r["ratio"], nan=np.inf)) if judged else None
-        lines.append(f"| RMS ≤ 1.2× CRB (median SNR ≥ 10) | {renderer} | {sum(r['ratio_met'] for r in judged)}/{len(judged)} | "
-                     + (f"{worst['ratio']:.2f}× ({worst['psf']}, {worst['flux_e']:.0f} e-) |".replace("nan×", "no star matched")
+        lines.append(f"| RMS ≤ 1.2× CRB (median SNR ≥ 10) | {renderer} | "
+                     f"{sum(r['ratio_met'] for r in judged)}/{len(judged)} | "
+                     + (f"{worst['ratio']:.2f}× ({worst['psf']}, {worst['flux_e']:.0f} e-) |".replace("nan×",
+                                                                                                      "no star matched")
                         if worst else "– |"))
         f = false[renderer]
         lines.append(f"| ≤ 1 false detection per star-free frame | {renderer} | {verdict(f['met'])} | "
@@ -280,9 +309,11 @@ def summary(rows: list[dict], false: dict) -> list[str]:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="3 sigmas, 3 PSF kinds, 2 fluxes, 1 frame each (smoke run)")
-    parser.add_argument("--output", type=Path, help="write the '## Centroiding across PSFs (issue 17)' section of this Markdown file")
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="3 sigmas, 3 PSF kinds, 2 fluxes, 1 frame each (smoke run)")
+    parser.add_argument("--output", type=Path,
+                        help="write the '## Centroiding across PSFs (issue 17)' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_psf_range.json beside --output)")
     args = parser.parse_args(argv)
     fluxes = (1000.0, 5000.0) if args.quick else FLUXES
@@ -332,9 +363,9 @@ def main(argv=None) -> dict:
         "a hot pixel or cosmic ray are not scored. `extra spots` are spots matched to no star (false "
         "detections, split stars). `ms / frame`: `extract_spots` time, informational (1024² simulator, 512² "
         "alt frames). Goals (issue 17): ≥ 99 % of the SNR ≥ 10 stars detected; RMS ≤ 1.2× CRB in rows of "
-        f"median SNR ≥ 10 (with at least {MIN_MATCHED} stars matched); ≤ 1 false detection per star-free frame (simulator: 1024² with hot pixels, cosmic "
-        "rays, DSNU, PRNU; alt: 1024² with 105 hot pixels and 5 cosmic rays per frame). `–`: not judged "
-        "(no star with SNR ≥ 10).",
+        f"median SNR ≥ 10 (with at least {MIN_MATCHED} stars matched); ≤ 1 false detection per star-free frame "
+        "(simulator: 1024² with hot pixels, cosmic rays, DSNU, PRNU; alt: 1024² with 105 hot pixels and 5 cosmic rays "
+        "per frame). `–`: not judged (no star with SNR ≥ 10).",
         "",
         *summary(rows, false),
         "",

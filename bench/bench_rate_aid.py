@@ -1,4 +1,6 @@
-"""Rate-aid check of the centroider: false alarms with the right rate, detection of a wrong one.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Rate-aid check of the centroider: false alarms with the right rate, detection of a wrong one.
 
     python -m bench.bench_rate_aid [--frames 8] [--output docs/BENCHMARKS.md]
 
@@ -94,7 +96,7 @@ def render(rejected: dict, spent: list[float], frames: int, seconds: float) -> s
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__.strip(), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=8, help="frames per motion and rate")
     parser.add_argument("--output", type=Path, help="Markdown file whose '## Rate-aid check' section is rewritten")
     args = parser.parse_args(argv)

@@ -1,4 +1,6 @@
-"""Real-image benchmark (issue 17, item 4): our solver and two peers on the real-sky corpus.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Real-image benchmark (issue 17, item 4): our solver and two peers on the real-sky corpus.
 
     python -m bench.bench_realdata [--output docs/BENCHMARKS.md] [--only ID,...] [--corpus DIR] [--no-peers]
 
@@ -77,8 +79,11 @@ class CorpusMissing(RuntimeError):
 
 
 def find_corpus(explicit: Path | None = None, repo: Path = REPO) -> Path:
-    """The corpus folder (holding MANIFEST.json): `explicit`, else shared/realdata beside the
-    repository. Raises CorpusMissing naming the place looked at."""
+    """
+    Return the corpus folder (holding MANIFEST.json): `explicit`, else shared/realdata beside the repository.
+
+    Raises CorpusMissing naming the place looked at.
+    """
     candidates = [Path(explicit) if explicit is not None else repo.parent / CORPUS_RELATIVE]
     for folder in candidates:
         if (folder / "MANIFEST.json").is_file():
@@ -89,9 +94,13 @@ def find_corpus(explicit: Path | None = None, repo: Path = REPO) -> Path:
 
 @dataclass(frozen=True)
 class CorpusImage:
-    """One manifest entry: id, path (absolute), source (the public repository it came from),
-    width, height [px], fov_h_deg: the horizontal field hint [deg]; reference: the reference
-    rotation sensor -> ICRS (3x3) or None when the corpus has none."""
+    """
+    One manifest entry.
+
+    Id, path (absolute), source (the public repository it came from), width, height [px],
+    fov_h_deg: the horizontal field hint [deg]; reference: the reference rotation sensor ->
+    ICRS (3x3) or None when the corpus has none.
+    """
 
     id: str
     path: Path
@@ -110,7 +119,7 @@ class CorpusImage:
 
 
 def load_corpus(corpus: Path, only: list[str] | None = None) -> list[CorpusImage]:
-    """The manifest's images, in manifest order (only those named in `only` when given)."""
+    """Return the manifest's images, in manifest order (only those named in `only` when given)."""
     from star_tracker.models.attitude import quaternion_to_matrix
 
     manifest = json.loads((corpus / "MANIFEST.json").read_text())
@@ -135,9 +144,12 @@ def load_corpus(corpus: Path, only: list[str] | None = None) -> list[CorpusImage
 
 
 def attitude_errors(solved: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
-    """(boresight, roll) errors [rad] of a solved sensor -> ICRS rotation against the
-    reference one: boresight = angle between the two +z axes (in ICRS); roll = |angle about +z|
-    of the error rotation R_ref^T R_solved (expressed in the reference sensor frame)."""
+    """
+    (boresight, roll) errors [rad] of a solved sensor -> ICRS rotation against the reference one.
+
+    Boresight = angle between the two +z axes (in ICRS); roll = |angle about +z| of the error
+    rotation R_ref^T R_solved (expressed in the reference sensor frame).
+    """
     solved, reference = np.asarray(solved, float), np.asarray(reference, float)
     z, z_ref = solved[:, 2], reference[:, 2]
     boresight = math.atan2(float(np.linalg.norm(np.cross(z, z_ref))), float(z @ z_ref))
@@ -147,8 +159,11 @@ def attitude_errors(solved: np.ndarray, reference: np.ndarray) -> tuple[float, f
 
 
 def score(rotation: np.ndarray | None, image: CorpusImage) -> dict:
-    """Errors [rad] of a solution against the image's reference (None when either is absent)
-    and whether it is within 1' (boresight)."""
+    """
+    Return the errors [rad] of a solution against the image's reference, and whether within 1'.
+
+    None when either is absent; the 1' is on the boresight.
+    """
     if rotation is None or image.reference is None:
         return {"boresight_error_rad": None, "roll_error_rad": None, "within_1arcmin": None}
     boresight, roll = attitude_errors(rotation, image.reference)
@@ -160,13 +175,16 @@ def score(rotation: np.ndarray | None, image: CorpusImage) -> dict:
 
 
 def solve_argv(image: CorpusImage) -> list[str]:
-    """The command line of our solve, every option but the field at its default."""
+    """Return the command line of our solve, every option but the field at its default."""
     return ["solve", str(image.path), "--fov", f"{image.hint_deg:g}", "--json", "--quiet"]
 
 
 def run_solve_command(argv: list[str]) -> tuple[int, dict | None, float, str]:
-    """Run `star-tracker <argv>` in-process through the CLI's parser and the command's run();
-    returns (exit code, its --json document or None, wall time [s], its stderr)."""
+    """
+    Run `star-tracker <argv>` in-process through the CLI's parser and the command's run().
+
+    Returns (exit code, its --json document or None, wall time [s], its stderr).
+    """
     from star_tracker.cli import build_parser
 
     args = build_parser().parse_args(argv)
@@ -216,8 +234,11 @@ def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
 
 
 def field_groups(images: list[CorpusImage]) -> list[tuple[float, float]]:
-    """(narrowest, widest) horizontal field [deg] of each group of similar fields: sorted
-    fields split where one is more than FIELD_GROUP_GAP times the previous."""
+    """
+    (narrowest, widest) horizontal field [deg] of each group of similar fields.
+
+    Sorted fields split where one is more than FIELD_GROUP_GAP times the previous.
+    """
     fields = sorted({image.fov_h_deg for image in images})
     groups: list[list[float]] = []
     for fov in fields:
@@ -233,9 +254,12 @@ def group_of(image: CorpusImage, groups: list[tuple[float, float]]) -> tuple[flo
 
 
 class PeerDatabases:
-    """The peers' solvers, one per (peer, field group), built on first use and cached on disk
-    by bench/peers.py. Database range: the group's fields widened by the hint tolerance;
-    guide stars: ours for the group's narrowest field (the faintest magnitude limit)."""
+    """
+    The peers' solvers, one per (peer, field group), built on first use and cached on disk by bench/peers.py.
+
+    Database range: the group's fields widened by the hint tolerance; guide stars: ours for
+    the group's narrowest field (the faintest magnitude limit).
+    """
 
     def __init__(self, images: list[CorpusImage], cache: Path):
         from star_tracker.models.catalog import load_hipparcos
@@ -278,8 +302,12 @@ class PeerDatabases:
 
 
 def peer_pixels(pixels: np.ndarray) -> np.ndarray:
-    """The grey image our solve reads, as the peers take it: uint8/uint16 kept, anything else
-    float32 (both peers accept these; cedar-solve converts to float32 itself)."""
+    """
+    Return the grey image our solve reads, as the peers take it.
+
+    uint8/uint16 kept, anything else float32 (both peers accept these; cedar-solve converts
+    to float32 itself).
+    """
     if pixels.dtype in (np.uint8, np.uint16):
         return np.ascontiguousarray(pixels)
     return np.ascontiguousarray(pixels, dtype=np.float32)
@@ -311,8 +339,11 @@ def solve_tetra3rs(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
 
 
 def solve_cedar(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
-    """cedar-solve's solve_from_image at its defaults (see the module docstring); the full
-    attitude from its target_pixel output (centre and a point right of it)."""
+    """
+    cedar-solve's solve_from_image at its defaults (see the module docstring).
+
+    The full attitude from its target_pixel output (centre and a point right of it).
+    """
     from PIL import Image
 
     height, width = pixels.shape
@@ -344,8 +375,12 @@ def solve_cedar(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
 
 def run_benchmark(images: list[CorpusImage], peers: list[str], cache: Path,
                   corpus_images: list[CorpusImage] | None = None, log=print, progress=None) -> dict:
-    """Solve `images` with ours and `peers`; the peers' databases are grouped over the fields
-    of `corpus_images` (default: `images`), so that a subset run uses the full run's databases."""
+    """
+    Solve `images` with ours and `peers`.
+
+    The peers' databases are grouped over the fields of `corpus_images` (default: `images`), so
+    that a subset run uses the full run's databases.
+    """
     from star_tracker.commands.images import read_image
 
     databases = PeerDatabases(corpus_images or images, cache) if peers else None
@@ -380,8 +415,12 @@ def _brief(s: dict) -> str:
 
 
 def summarize(rows: list[dict], solvers: list[str]) -> dict:
-    """Per solver: images, scored (with a reference), solved, within 1', median boresight and
-    roll error over the scored solves [rad], median solve time [s] over all images."""
+    """
+    Per solver: images, scored (with a reference), solved, within 1'.
+
+    Median boresight and roll error over the scored solves [rad], median solve time [s] over
+    all images.
+    """
     summary = {}
     for name in solvers:
         results = [row["solvers"][name] for row in rows if name in row["solvers"]]
@@ -444,7 +483,8 @@ def render_markdown(results: dict) -> str:
         f"Command: `{meta.get('command', 'python -m bench.bench_realdata')}`. Measured {meta.get('date', '?')} in "
         f"{meta['elapsed_s']:.0f} s. Machine: {meta.get('cpu', '?')}, `nproc` = {meta.get('cores', '?')}; "
         f"Python {meta.get('python', '?')}; tetra3rs {versions.get('tetra3rs') or 'not installed'}, cedar-solve "
-        f"{versions.get('cedar-solve') or 'not installed'}. Raw results: `docs/{meta.get('json_name', 'bench_realdata.json')}`."
+        f"{versions.get('cedar-solve') or 'not installed'}. Raw results: "
+        f"`docs/{meta.get('json_name', 'bench_realdata.json')}`."
         + (f" Every solver is told a field {error_pct:+g} % off the manifest's (the approximate field a user "
            "knows), with the same 5 % tolerance." if error_pct else ""),
         "",
@@ -452,12 +492,12 @@ def render_markdown(results: dict) -> str:
         "references from astrometry.net TAN-SIP solves, sensor frame +x right, +y down, +z boresight). "
         "**Ours** = `star-tracker solve IMG --fov <fov_h_deg>` with every other option at its default (run "
         "in-process through the CLI; time = the whole command: image read, centroiding, field search, focal "
-        "refinement; databases already built and cached by an untimed first run). **tetra3rs**: `extract_centroids` + `solve_from_centroids` "
-        "(it has no image-level solve), **cedar-solve**: `solve_from_image`; both at their defaults with the same "
-        "field hint (fov_h_deg, max error 5 % as our `--fov-tolerance`) and the same grey pixels, databases of "
-        "the same Hipparcos guide stars as ours for each group of fields (table at the end). Boresight error = "
-        "angle between solved and reference boresights; roll = angle of the error rotation about the boresight; "
-        "**within 1′** = boresight error ≤ 1′. \"?\" = no reference for that image.",
+        "refinement; databases already built and cached by an untimed first run). **tetra3rs**: `extract_centroids` + "
+        "`solve_from_centroids` (it has no image-level solve), **cedar-solve**: `solve_from_image`; both at their "
+        "defaults with the same field hint (fov_h_deg, max error 5 % as our `--fov-tolerance`) and the same grey "
+        "pixels, databases of the same Hipparcos guide stars as ours for each group of fields (table at the end). "
+        "Boresight error = angle between solved and reference boresights; roll = angle of the error rotation about the "
+        "boresight; **within 1′** = boresight error ≤ 1′. \"?\" = no reference for that image.",
         "",
         "| image | source | field ° | " + " | ".join(
             f"{name}: solved / ≤1′ | {name}: stars | {name}: boresight ″ | {name}: roll ″ | {name}: time s"
@@ -517,7 +557,7 @@ def machine_info() -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().split("\n\n")[0])
     parser.add_argument("--output", type=Path, help="write the '## Real images' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw results (default: bench_realdata.json beside --output)")
     parser.add_argument("--only", help="comma-separated image ids of the manifest (default: all)")
@@ -547,7 +587,8 @@ def main(argv=None) -> int:
         f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:])), date=date, corpus=str(corpus),
         cpu=info["cpu"], cores=info["cores"], python=info["python"], platform=info["platform"],
         versions=info["versions"], field_error_pct=args.field_error,
-        json_name="bench_realdata.json" if not args.field_error else f"bench_realdata_field{args.field_error:+g}pct.json")
+        json_name=(f"bench_realdata_field{args.field_error:+g}pct.json" if args.field_error
+                   else "bench_realdata.json"))
     json_name = results["meta"]["json_name"]
     text = render_markdown(results)  # meta names the JSON file (json_name) and the field error
     print(text)

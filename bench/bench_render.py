@@ -1,4 +1,6 @@
-"""Camera-simulator render time: one StarFieldRenderer.render() call per frame, wall clock.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Camera-simulator render time: one StarFieldRenderer.render() call per frame, wall clock.
 
 Goal (issue): a 1024 x 1024 frame with ~40 stars, 20 px smear and all noise on renders in
 <= 20 ms on the project's 2-core machine. This script measures that headline point and how
@@ -113,8 +115,11 @@ def make_renderer(camera: CameraModel, catalog, limit: float) -> StarFieldRender
 
 
 class Case:
-    """One benchmark point: a renderer and motion, and the frame times collected so far.
-    staged=True wraps the renderer's stage methods (on this instance only) to time them."""
+    """
+    One benchmark point: a renderer and motion, and the frame times collected so far.
+
+    staged=True wraps the renderer's stage methods (on this instance only) to time them.
+    """
 
     def __init__(self, catalog, size: int, limit: float, smear_px: float, staged: bool = False):
         self.size, self.limit, self.smear_px = size, limit, smear_px
@@ -141,8 +146,11 @@ class Case:
         return wrapper
 
     def run(self, frames: int, warmup: int, reference: list[float]) -> None:
-        """Render warm-up (untimed) then timed frames; same pointing, fresh noise seed each.
-        After each timed frame, time the reference kernel (host-speed monitor)."""
+        """
+        Render warm-up (untimed) then timed frames; same pointing, fresh noise seed each.
+
+        After each timed frame, time the reference kernel (host-speed monitor).
+        """
         for k in range(warmup + frames):
             seed = frame_seed(1, self.frame_index)
             self.frame_index += 1
@@ -193,16 +201,22 @@ _REFERENCE_BUFFER = np.empty((1024, 1024), np.float32)
 
 
 def reference_kernel() -> float:
-    """Wall time [s] of a fixed workload (cv2.randn into a 1024 x 1024 float32 buffer, the
-    renderer's largest single step): its spread is the machine's own timing noise."""
+    """
+    Wall time [s] of a fixed workload (cv2.randn into a 1024 x 1024 float32 buffer, the renderer's largest single step).
+
+    Its spread is the machine's own timing noise.
+    """
     start = time.perf_counter()
     cv2.randn(_REFERENCE_BUFFER, 0.0, 1.0)
     return time.perf_counter() - start
 
 
 class CpuMonitor:
-    """CPU used by other processes during the run, in cores: machine busy time from /proc/stat
-    minus this process's own CPU time."""
+    """
+    CPU used by other processes during the run, in cores.
+
+    Machine busy time from /proc/stat minus this process's own CPU time.
+    """
 
     def __init__(self):
         self.busy0, self.own0, self.wall0 = self._busy(), time.process_time(), time.perf_counter()
@@ -309,8 +323,10 @@ def build_report(headline: Point, stars: list[Point], smears: list[Point], sizes
     rows = []
     for p in stars:
         slope = "" if p.stars == base.stars else f"{(p.median_ms - base.median_ms) / (p.stars - base.stars) * 1e3:.0f}"
-        rows.append([f"{p.limit:.2f}", str(p.stars), f"{p.median_ms:.1f}", f"{p.p95_ms:.1f}", f"{p.cpu_median_ms:.1f}", slope])
-    out += [fmt_table(["Hp limit", "stars", "median ms", "p95 ms", "CPU ms", f"µs per star above {base.stars}"], rows), ""]
+        rows.append([f"{p.limit:.2f}", str(p.stars), f"{p.median_ms:.1f}", f"{p.p95_ms:.1f}", f"{p.cpu_median_ms:.1f}",
+                     slope])
+    out += [fmt_table(["Hp limit", "stars", "median ms", "p95 ms", "CPU ms", f"µs per star above {base.stars}"], rows),
+            ""]
     out += [f"### Smear length ({HEADLINE_SIZE}², {headline.stars} stars)", ""]
     rows = [[f"{p.smear_px:g}", f"{p.rate_deg_s:.2f}", str(p.substeps), f"{p.median_ms:.1f}", f"{p.p95_ms:.1f}",
              f"{p.cpu_median_ms:.1f}"] for p in smears]
@@ -355,14 +371,15 @@ def code_version() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke run: few frames per point")
     parser.add_argument("--frames", type=int, default=None,
                         help="timed frames per point (default 60, headline 150; quick 4)")
     parser.add_argument("--rounds", type=int, default=None,
                         help="the points are measured in this many interleaved rounds, so that load from "
                              "other processes spreads over all of them (default 4; quick 1)")
-    parser.add_argument("--warmup", type=int, default=None, help="untimed warm-up frames per point and round (default 2; quick 1)")
+    parser.add_argument("--warmup", type=int, default=None,
+                        help="untimed warm-up frames per point and round (default 2; quick 1)")
     parser.add_argument("--output", type=Path, default=None,
                         help=f"markdown file in which to write/replace the section '{SECTION_HEADER}'")
     args = parser.parse_args(argv)
@@ -412,8 +429,9 @@ def main(argv: list[str] | None = None) -> int:
     loaded = cases.pop("loaded").point() if can_load else None
     points = {key: case.point() for key, case in cases.items()}
     for p in points.values():
-        print(f"  {p.size:4d}² Hp<={p.limit:.2f} smear {p.smear_px:5.1f} px: {p.stars:4d} stars, {p.substeps:3d} sub-steps, "
-              f"median {p.median_ms:6.1f} ms (CPU {p.cpu_median_ms:6.1f}), p95 {p.p95_ms:6.1f} ms, {p.frames} frames")
+        print(f"  {p.size:4d}² Hp<={p.limit:.2f} smear {p.smear_px:5.1f} px: {p.stars:4d} stars, {p.substeps:3d} "
+              f"sub-steps, median {p.median_ms:6.1f} ms (CPU {p.cpu_median_ms:6.1f}), p95 {p.p95_ms:6.1f} ms, "
+              f"{p.frames} frames")
     headline = points[head_key]
     print(f"headline: {headline.stars} stars in view at Hp <= {head_limit:.2f}; "
           f"{HEADLINE_SMEAR_PX:g} px smear = {headline.rate_deg_s:.3f} deg/s")
@@ -429,7 +447,8 @@ def main(argv: list[str] | None = None) -> int:
     load_after = os.getloadavg()
 
     report = build_report(headline, stars, smears, sizes, stages, stages_total, machine_info(), command, date,
-                          (load_before, load_after), elapsed, args.quick, frames, rounds, other, code_version(), ref_stats, loaded)
+                          (load_before, load_after), elapsed, args.quick, frames, rounds, other, code_version(),
+                          ref_stats, loaded)
     print()
     print(report)
     if args.output is not None:

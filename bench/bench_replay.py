@@ -1,5 +1,9 @@
-"""Replay throughput: how fast a bag of camera frames goes through `star-tracker play` and the
-nodes, in lockstep (the batch mode) and flat out; and how fast bags are read without ROS.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Replay throughput.
+
+How fast a bag of camera frames goes through `star-tracker play` and the nodes, in lockstep
+(the batch mode) and flat out; and how fast bags are read without ROS.
 
     python -m bench.bench_replay [--frames N] [--quick] [--output docs/BENCHMARKS.md]
 
@@ -46,7 +50,7 @@ T0_NS = (time.time_ns() - 3600 * 10**9) // 10**9 * 10**9
 
 
 def make_bag(path: Path, frames: int, storage: str) -> None:
-    """The default demo scenario rendered by the core, serialized as the camera node does."""
+    """Return the default demo scenario rendered by the core, serialized as the camera node does."""
     from rclpy.serialization import serialize_message
 
     from star_tracker.models.attitude import matrix_to_quaternion, radec_roll_to_matrix
@@ -72,8 +76,10 @@ def make_bag(path: Path, frames: int, storage: str) -> None:
         stamp = T0_NS + (k + 1) * PERIOD_NS - 50_000_000  # mid-exposure, as camera_simulator
         frame = renderer.render(motion, stamp * 1e-9, frame_seed(0, k))
         received = stamp + 80_000_000  # bag time = receive time, as a recorder would see it
-        writer.write("/image_raw", received, serialize_message(convert.array_to_image(frame.image, stamp, convert.OPTICAL_FRAME)))
-        writer.write("/camera_info", received + 100_000, serialize_message(convert.camera_to_info(camera, stamp, convert.OPTICAL_FRAME)))
+        writer.write("/image_raw", received,
+                     serialize_message(convert.array_to_image(frame.image, stamp, convert.OPTICAL_FRAME)))
+        writer.write("/camera_info", received + 100_000,
+                     serialize_message(convert.camera_to_info(camera, stamp, convert.OPTICAL_FRAME)))
         writer.write("/truth/attitude", received + 200_000, serialize_message(
             convert.quaternion_msg(matrix_to_quaternion(frame.truth.rotation), stamp)))
     writer.close()
@@ -145,13 +151,14 @@ def machine() -> dict:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--frames", type=int, default=100, help="frames in the bag (default 100)")
     parser.add_argument("--quick", action="store_true", help="20 frames: a smoke run")
     parser.add_argument("--output", type=Path, help="Markdown file whose '## Replay throughput' section is replaced")
     args = parser.parse_args(argv)
     frames = 20 if args.quick else args.frames
-    command = "python -m bench.bench_replay " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+    command = "python -m bench.bench_replay " + " ".join(shlex.quote(a)
+                                                         for a in (argv if argv is not None else sys.argv[1:]))
     started = time.perf_counter()
 
     from star_tracker.ros.pipeline import isolated_ros_environment
@@ -217,8 +224,10 @@ def report(r: dict) -> str:
         f"({r['read_sqlite3']['mib_per_s']:.0f} MiB/s) | – | – |",
         f"| read the bag, no ROS (MCAP) | {r['read_mcap']['frames_per_s']:.0f} "
         f"({r['read_mcap']['mib_per_s']:.0f} MiB/s) | – | – |",
-        f"| `play --rate 0 --no-lockstep`, no subscriber (sqlite3) | {r['player_alone_sqlite3']['frames_per_s']:.0f} | – | – |",
-        f"| `play --rate 0 --no-lockstep`, no subscriber (MCAP) | {r['player_alone_mcap']['frames_per_s']:.0f} | – | – |",
+        f"| `play --rate 0 --no-lockstep`, no subscriber (sqlite3) | {r['player_alone_sqlite3']['frames_per_s']:.0f} | "
+        "– | – |",
+        f"| `play --rate 0 --no-lockstep`, no subscriber (MCAP) | {r['player_alone_mcap']['frames_per_s']:.0f} | – | – "
+        "|",
         f"| **`play --rate 0` (lockstep) → centroider + identifier** | **{lock['frames_per_s']:.1f}** | "
         f"{lock['spots_received']} / {lock['images']} | {lock['attitudes_received']} / {lock['images']} |",
         f"| `play --rate 0 --no-lockstep` → centroider + identifier | {flat['frames_per_s']:.1f} | "

@@ -1,4 +1,6 @@
-"""Soak: the three nodes at full rate for a long run; memory growth and latency drift.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Soak: the three nodes at full rate for a long run; memory growth and latency drift.
 
     python -m bench.bench_soak [--minutes 10] [--rate 20] [--exposure 0.02] [--output docs/BENCHMARKS.md]
 
@@ -36,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench_pipeline import BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu, host_usage, rss_mib
+from .bench_pipeline import (BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu,
+                             host_usage, rss_mib)
 from .report import cpu_model, write_section
 
 BEGIN, END = "<!-- bench_soak -->", "<!-- /bench_soak -->"
@@ -144,7 +147,8 @@ def summarize(run: dict, sample_s: float) -> dict:
         "latency_p95_max_ms": float(np.nanmax([s["latency_ms_p95"] for s in samples])),
         "intervals": len(samples),
         "intervals_with_drops": sum(1 for s in samples if dropped(s)),
-        "steal_percent_with_drops": float(np.mean([s["host"]["steal_percent"] for s in samples if dropped(s)] or [np.nan])),
+        "steal_percent_with_drops": float(np.mean([s["host"]["steal_percent"] for s in samples if dropped(s)]
+                                                  or [np.nan])),
         "steal_percent_without_drops": float(np.mean([s["host"]["steal_percent"] for s in samples if not dropped(s)]
                                                      or [np.nan])),
         "host_busy_percent": float(np.mean([s["host"]["busy_percent"] for s in samples])),
@@ -161,20 +165,21 @@ def render(data: dict) -> str:
         f"Command: `{data['command']}` — {data['date']}, {data['machine']}. Raw time series: `docs/bench_soak.json`.",
         "",
         f"The three nodes as separate processes (`config/star_tracker.yaml`, demo body rate (0.3, 0.4, 0.05) deg/s, "
-        f"1024² mono16, {data['exposure_ms']:g} ms exposure, camera `max_backlog_frames: 1`) at **{data['rate_hz']:g} Hz for {data['minutes']:g} "
-        f"min**, sampled every {data['sample_s']:g} s. The host was {s['host_busy_percent']:.0f} % busy on average "
-        f"({s['host_steal_percent']:.1f} % stolen by the hypervisor){data['load_note']}. "
+        f"1024² mono16, {data['exposure_ms']:g} ms exposure, camera `max_backlog_frames: 1`) at **{data['rate_hz']:g} "
+        f"Hz for {data['minutes']:g} min**, sampled every {data['sample_s']:g} s. The host was "
+        f"{s['host_busy_percent']:.0f} % busy on average ({s['host_steal_percent']:.1f} % stolen by the "
+        f"hypervisor){data['load_note']}. "
         + (f"Before the run the centroider and identifier were stopped for {data['rehearsed_stall_s']:g} s and resumed "
            "(a rehearsed host stall: it fills the bounded DDS reader histories and their payload pools before the "
            "memory baseline; see bench/bench_soak.py)." if data.get("rehearsed_stall_s") else
            "No stall was rehearsed before the run."),
         "",
-        f"- frames: {s['frames']} published, {s['identified']} identified ({100 * s['identified'] / max(s['frames'], 1):.2f} %), "
-        f"{s['wrong']} wrong (> 60″); dropped by overload: centroider {s['dropped_overload']['centroider']}, "
-        f"identifier {s['dropped_overload']['identifier']}; camera overruns {s['camera_overrun']} (all counted on "
-        f"/diagnostics). The drops cluster: {s['intervals_with_drops']} of {s['intervals']} intervals had any, and "
-        f"the hypervisor took {s['steal_percent_with_drops']:.1f} % of the CPU during those against "
-        f"{s['steal_percent_without_drops']:.1f} % during the others",
+        f"- frames: {s['frames']} published, {s['identified']} identified "
+        f"({100 * s['identified'] / max(s['frames'], 1):.2f} %), {s['wrong']} wrong (> 60″); dropped by overload: "
+        f"centroider {s['dropped_overload']['centroider']}, identifier {s['dropped_overload']['identifier']}; camera "
+        f"overruns {s['camera_overrun']} (all counted on /diagnostics). The drops cluster: {s['intervals_with_drops']} "
+        f"of {s['intervals']} intervals had any, and the hypervisor took {s['steal_percent_with_drops']:.1f} % of the "
+        f"CPU during those against {s['steal_percent_without_drops']:.1f} % during the others",
         f"- latency (median per {data['sample_s']:g} s interval): first minute {s['latency_first_minute_ms']:.1f} ms, "
         f"last minute {s['latency_last_minute_ms']:.1f} ms, trend {s['latency_slope_ms_per_min']:+.2f} ms/min; worst "
         f"interval p95 {s['latency_p95_max_ms']:.1f} ms",
@@ -194,7 +199,7 @@ def render(data: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__.strip(), formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--rate", type=float, default=20.0, help="camera rate [Hz]")
     parser.add_argument("--exposure", type=float, default=0.02, help="exposure time [s]")

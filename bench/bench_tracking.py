@@ -1,5 +1,9 @@
-"""Tracking benchmark: tracking success and time against body rate, re-acquisition after a loss,
-the rate estimate, delay compensation, and tetra3rs's tracking mode on the same centroids.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Tracking benchmark.
+
+Tracking success and time against body rate, re-acquisition after a loss, the rate estimate, delay
+compensation, and tetra3rs's tracking mode on the same centroids.
 
     python -m bench.bench_tracking [--quick] [--no-peers] [--output docs/BENCHMARKS.md]
 
@@ -41,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from star_tracker.models.attitude import (attitude_error, matrix_to_rotation_vector, radec_roll_to_matrix,
-                                   rotation_vector_to_matrix)
+                                          rotation_vector_to_matrix)
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import cache_dir, load_hipparcos
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
@@ -106,9 +110,13 @@ QUICK = Plan(constant_rates_deg_s=(0.0, 1.0, 2.0, 5.0), runs_per_rate=1, runs_be
 # ----------------------------------------------------------------------------- truth
 
 def truth_near(frame, spots: Spots) -> tuple[np.ndarray, list[set]]:
-    """(HIP id of the truth star nearest each spot, 0 when none within TRUTH_RADIUS_PX; per spot
+    """
+    Return the truth star nearest each spot and the truth stars blended into it.
+
+    (HIP id of the truth star nearest each spot, 0 when none within TRUTH_RADIUS_PX; per spot
     the set of HIP ids of all truth stars within BLEND_RADIUS_PX: with more than one the spot
-    is an unresolved blend, whose other members are "blend partners")."""
+    is an unresolved blend, whose other members are "blend partners").
+    """
     truth = frame.truth
     stars = np.flatnonzero(truth.stars())
     if len(spots) == 0 or stars.size == 0:
@@ -136,7 +144,7 @@ def random_pointing(rng: np.random.Generator) -> np.ndarray:
 
 
 def random_direction(rng: np.random.Generator) -> np.ndarray:
-    """Unit rate axis in the sensor frame: cross-boresight with a roll part up to MAX_ROLL_FRACTION."""
+    """Return unit rate axis in the sensor frame: cross-boresight with a roll part up to MAX_ROLL_FRACTION."""
     phi = rng.uniform(0, 2 * math.pi)
     axis = np.array([math.cos(phi), math.sin(phi), rng.uniform(-MAX_ROLL_FRACTION, MAX_ROLL_FRACTION)])
     return axis / np.linalg.norm(axis)
@@ -162,8 +170,11 @@ class Sequence:
 
 
 class TrackingBench:
-    """Shared parts (database, hybrid identifier, renderer, tetra3rs when usable) and the
-    per-frame pipeline: render -> rate-aided centroids -> tracker (and the peer)."""
+    """
+    Shared parts (database, hybrid identifier, renderer, tetra3rs when usable) and the per-frame pipeline.
+
+    Render -> rate-aided centroids -> tracker (and the peer).
+    """
 
     def __init__(self, use_peer: bool, log):
         self.log = log
@@ -201,8 +212,11 @@ class TrackingBench:
 
     # --- one frame ----------------------------------------------------------------------
     def step(self, tracker: Tracker, stamp_ns: int, spots: Spots):
-        """Ours on one frame: (TrackedFrame, accept_tracked time [s] or None, failed tracking
-        (reason, gate_px) or None)."""
+        """
+        Run ours on one frame.
+
+        Returns (TrackedFrame, accept_tracked time [s] or None, failed tracking (reason, gate_px) or None).
+        """
         prediction = tracker.predict(stamp_ns)
         track_s, failed = None, None
         if prediction is not None:
@@ -237,17 +251,20 @@ class TrackingBench:
 
     def peer_step(self, spots: Spots, truth, hint: np.ndarray | None, truth_rotation: np.ndarray,
                   propagated: np.ndarray | None = None):
-        """tetra3rs on our centroids: tracking mode with `hint` (strict), lost-in-space when it
-        fails or without a hint. Returns (record, its attitude or None). `propagated`: the
-        same hint carried to this frame by our rate estimate, tried on the side (strict, not
-        used for the next hint)."""
+        """
+        tetra3rs on our centroids: tracking mode with `hint` (strict), lost-in-space when it fails or without a hint.
+
+        Returns (record, its attitude or None). `propagated`: the same hint carried to this
+        frame by our rate estimate, tried on the side (strict, not used for the next hint).
+        """
         order = np.argsort(-spots.flux, kind="stable")
         x, y = spots.x[order], spots.y[order]
         rec = {"mode": MODE_LOST}
         if propagated is not None and len(spots) > 0:
             side = peer_adapters.tetra3rs_solve_with_hint(self.peer, x, y, propagated)
             wrong = check_ids(side.ids, order[side.spot_index], truth)[0] if side.solved else 0
-            rec["propagated"] = {"solved": side.solved, "correct": side.solved and wrong == 0 and side.rotation is not None,
+            rec["propagated"] = {"solved": side.solved,
+                                 "correct": side.solved and wrong == 0 and side.rotation is not None,
                                  "ms": 1e3 * side.elapsed_s}
         solution = None
         if hint is not None and len(spots) > 0:
@@ -278,8 +295,12 @@ class TrackingBench:
     def run(self, case: str, run: int, motion: MotionProfile, frames: int, seed: int,
             config: TrackingConfig = TrackingConfig(), gaps: dict | None = None, peer: bool = True,
             streaks: bool = False) -> Sequence:
-        """Track `frames` frames of `motion`. gaps: {k: "blank" | "two_spots"} replaces frame k's
-        spots; streaks: also centroid every frame without the rate aid and fit the streaks."""
+        """
+        Track `frames` frames of `motion`.
+
+        gaps: {k: "blank" | "two_spots"} replaces frame k's spots; streaks: also centroid every
+        frame without the rate aid and fit the streaks.
+        """
         tracker = Tracker(self.lis, config)
         seq = Sequence(case, run)
         peer_hint = None
@@ -326,9 +347,13 @@ class TrackingBench:
         return seq
 
     def delay_trial(self, motion: MotionProfile, solve_s: float, seed: int) -> dict:
-        """Lost-in-space on frame 0 taking `solve_s`: the frames arriving meanwhile (10 Hz,
-        ceil(solve_s / period)) are bridged; the newest frame's published attitude against
-        its truth, and frame 0's attitude published stale under the newest stamp."""
+        """
+        Lost-in-space on frame 0 taking `solve_s`.
+
+        The frames arriving meanwhile (10 Hz, ceil(solve_s / period)) are bridged; the
+        newest frame's published attitude against its truth, and frame 0's attitude
+        published stale under the newest stamp.
+        """
         newest = math.ceil(solve_s / PERIOD_S - 1e-9)
         tracker = Tracker(self.lis)
         frames, spots = [], []
@@ -341,7 +366,8 @@ class TrackingBench:
         bridged = [tracker.bridge(stamp_of(k)[1], spots[k], CAMERA) for k in range(1, newest + 1)]
         lis_result = self.lis.identify(spots[0], CAMERA)
         published = tracker.complete_acquisition(lis_result)
-        rec = {"solve_s": solve_s, "newest": newest, "bridged_ok": int(sum(bridged)), "lis_solved": bool(lis_result.solved),
+        rec = {"solve_s": solve_s, "newest": newest, "bridged_ok": int(sum(bridged)),
+               "lis_solved": bool(lis_result.solved),
                "lis_ms": 1e3 * lis_result.elapsed_s, "published": published is not None}
         truth_new = frames[newest].truth.rotation
         if lis_result.solved:
@@ -470,8 +496,12 @@ def _counts(values) -> dict:
 
 
 def rate_outliers(sequences: list[Sequence], threshold: float = 25.0) -> dict:
-    """Rate estimates with NEES > threshold, and how many come within 0.3 s after a jump of the
-    body's acceleration (slew start, end of ramp-up, start of ramp-down, end)."""
+    """
+    Return the rate estimates with NEES > threshold, and how many follow an acceleration jump.
+
+    Following: within 0.3 s after a jump of the body's acceleration (slew start, end of
+    ramp-up, start of ramp-down, end).
+    """
     rows = []
     for seq in sequences:
         for r in seq.records:
@@ -491,11 +521,14 @@ PHASES = ("rest", "ramp-up, rate < 1 deg/s", "ramp-up, rate ≥ 1 deg/s", "coast
 
 
 def slew_bias(sequences: list[Sequence]) -> list[dict]:
-    """Cross-boresight attitude error along the slew axis's cross-boresight part, per phase of
-    the slew (frames whose exposure holds an acceleration jump left out), against the offset
-    of a streak's centroid under a constant acceleration: the mean of w t + alpha t^2 / 2 over
-    the exposure T is alpha T^2 / 24, so the measured attitude leads (ramp-up) or lags
-    (ramp-down) the mid-exposure one by that angle (times |axis_xy|)."""
+    """
+    Cross-boresight attitude error along the slew axis's cross-boresight part.
+
+    Per phase of the slew (frames whose exposure holds an acceleration jump left out), against
+    the offset of a streak's centroid under a constant acceleration: the mean of w t + alpha
+    t^2 / 2 over the exposure T is alpha T^2 / 24, so the measured attitude leads (ramp-up) or
+    lags (ramp-down) the mid-exposure one by that angle (times |axis_xy|).
+    """
     rows = []
     by_case: dict[str, list[Sequence]] = {}
     for seq in sequences:
@@ -543,14 +576,18 @@ def slew_bias_table(rows: list[dict]) -> list[str]:
 
 def peer_failures(sequences: list[Sequence]) -> list[dict]:
     """Frames where tetra3rs returned a wrong id (hinted or lost-in-space)."""
-    return [{"case": seq.case, "run": seq.run, "k": r["k"], "mode": r["peer"]["mode"], "wrong_ids": r["peer"]["wrong_ids"],
+    return [{"case": seq.case, "run": seq.run, "k": r["k"], "mode": r["peer"]["mode"],
+             "wrong_ids": r["peer"]["wrong_ids"],
              "blend_partner_ids": r["peer"]["blend_partner_ids"], "matched": r["peer"]["matched"]}
             for seq in sequences for r in seq.records if r.get("peer", {}).get("incorrect")]
 
 
 def failures(sequences: list[Sequence]) -> list[dict]:
-    """Frames not solved correctly (ours), and tracking attempts that fell back, with the
-    evidence: spot counts, reasons, gate."""
+    """
+    Frames not solved correctly (ours), and tracking attempts that fell back, with the evidence.
+
+    Spot counts, reasons, gate.
+    """
     out = []
     for seq in sequences:
         for r in seq.records:
@@ -587,7 +624,7 @@ def constant_rate_runs(bench: TrackingBench, plan: Plan, log) -> dict[str, list[
 
 
 def slew_motion(rng: np.random.Generator, accel_deg_s2: float) -> tuple[SlewMotion, int]:
-    """A slew up to 2 deg/s with a 2 s coast at the top, 0.5 s of rest before and after."""
+    """Return a slew up to 2 deg/s with a 2 s coast at the top, 0.5 s of rest before and after."""
     peak = GOAL_RATE_DEG_S
     angle = peak**2 / accel_deg_s2 + peak * 2.0
     motion = SlewMotion(random_pointing(rng), axis=random_direction(rng), angle_rad=angle * DEG,
@@ -701,7 +738,8 @@ def rate_table(summaries: dict[str, dict]) -> list[str]:
         if "rate_frames" not in s:
             continue
         lines.append(f"| {name} | {s['rate_frames']} | {_triple(s['rate_rms_arcsec_s'])} | "
-                     f"{_triple(s['rate_sigma_median_arcsec_s'])} | {s['rate_nees_mean']:.2f} | {s['rate_nees_p99']:.1f} |")
+                     f"{_triple(s['rate_sigma_median_arcsec_s'])} | {s['rate_nees_mean']:.2f} | "
+                     f"{s['rate_nees_p99']:.1f} |")
     return lines
 
 
@@ -730,8 +768,9 @@ def reacquisition_table(rows: list[dict]) -> list[str]:
         group = [r for r in rows if r["rate_deg_s"] == rate and r["gap"] == gap]
         frames = ", ".join("never" if r["frames_to_correct"] is None else str(r["frames_to_correct"]) for r in group)
         modes = _counts(r["mode"] for r in group)
-        lines.append(f"| {rate:g} deg/s | {gap} | {len(group)} | {'yes' if all(r['gap_unsolved'] for r in group) else 'no'} | "
-                     f"{frames} | {', '.join(f'{m} x{c}' for m, c in modes.items())} | "
+        lines.append(f"| {rate:g} deg/s | {gap} | {len(group)} | "
+                     f"{'yes' if all(r['gap_unsolved'] for r in group) else 'no'} | {frames} | "
+                     f"{', '.join(f'{m} x{c}' for m, c in modes.items())} | "
                      f"{sum(r['after_correct'] for r in group)}/{sum(r['after_frames'] for r in group)} |")
     return lines
 
@@ -749,8 +788,8 @@ def delay_table(rows: list[dict]) -> list[str]:
         roll = [r["roll_arcsec"] for r in ok]
         stale_c = [r["stale_cross_arcsec"] for r in group if "stale_cross_arcsec" in r]
         stale_r = [r["stale_roll_arcsec"] for r in group if "stale_roll_arcsec" in r]
-        lines.append(f"| {rate:g} deg/s | {solve_s:g} s | {group[0]['newest']} | {len(group)} | {len(ok)}/{len(group)} | "
-                     f"{_fmt(percentile(cross, 50), 2)} ({_fmt(max(cross) if cross else None, 2)}) / "
+        lines.append(f"| {rate:g} deg/s | {solve_s:g} s | {group[0]['newest']} | {len(group)} | {len(ok)}/{len(group)} "
+                     f"| {_fmt(percentile(cross, 50), 2)} ({_fmt(max(cross) if cross else None, 2)}) / "
                      f"{_fmt(percentile(roll, 50), 1)} ({_fmt(max(roll) if roll else None, 1)}) | "
                      f"{_fmt(percentile(stale_c, 50), 0)} / {_fmt(percentile(stale_r, 50), 0)} |")
     return lines
@@ -770,11 +809,12 @@ def peer_table(summaries: dict[str, dict]) -> list[str]:
                  if p["track_ms_median"] and s["track_ms_median"] else None)
         q = p.get("propagated")
         propagated = f"{q['correct']}/{q['frames']} ({_fmt(q['ms_median'], 2)})" if q else "–"
-        lines.append(f"| {name} | {s['frames']} | {_pct(s['correct'], s['frames'], 2)} | {_pct(p['tracked'], p['frames'])} | "
-                     f"{_pct(p['correct'], p['frames'], 2)} | {p['incorrect']} ({p['incorrect'] - p['incorrect_not_blend']}) | "
-                     f"{_fmt(s['track_ms_median'], 2)} / {_fmt(s['track_ms_p99'], 2)} | "
-                     f"{_fmt(p['track_ms_median'], 2)} / {_fmt(p['track_ms_p99'], 2)} | {_fmt(ratio, 2)} | "
-                     f"{_fmt(p['cross_arcsec_rms'], 2)} / {_fmt(p['roll_arcsec_rms'], 1)} | {propagated} |")
+        lines.append(f"| {name} | {s['frames']} | {_pct(s['correct'], s['frames'], 2)} | "
+                     f"{_pct(p['tracked'], p['frames'])} | {_pct(p['correct'], p['frames'], 2)} | {p['incorrect']} "
+                     f"({p['incorrect'] - p['incorrect_not_blend']}) | {_fmt(s['track_ms_median'], 2)} / "
+                     f"{_fmt(s['track_ms_p99'], 2)} | {_fmt(p['track_ms_median'], 2)} / {_fmt(p['track_ms_p99'], 2)} | "
+                     f"{_fmt(ratio, 2)} | {_fmt(p['cross_arcsec_rms'], 2)} / {_fmt(p['roll_arcsec_rms'], 1)} | "
+                     f"{propagated} |")
     return lines
 
 
@@ -839,7 +879,8 @@ def figures(summaries: dict[str, dict], constant: dict[str, list[Sequence]], sle
         fig, axes = plt.subplots(4, 1, figsize=(9, 10.5), sharex=True)
         for i, axis in enumerate("xyz"):
             axes[0].plot(t, true_rate[:, i], color=f"C{i}", lw=1, label=f"truth {axis}")
-            est = [(r["t"], np.degrees(r["true_rate"][i] + r["rate_error"][i])) for r in seq.records if "rate_error" in r]
+            est = [(r["t"], np.degrees(r["true_rate"][i] + r["rate_error"][i])) for r in seq.records
+                   if "rate_error" in r]
             if est:
                 axes[0].plot(*zip(*est), ".", color=f"C{i}", ms=3, label=f"estimate {axis}")
         axes[0].set_ylabel("body rate [deg/s]")
@@ -922,7 +963,7 @@ def met(ok: bool) -> str:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="few short runs (smoke run)")
     parser.add_argument("--no-peers", action="store_true", help="skip tetra3rs")
     parser.add_argument("--output", type=Path, help="write the '## Tracking' section of this Markdown file")
@@ -964,7 +1005,7 @@ def main(argv=None) -> None:
     log(f"done in {elapsed:.0f} s")
 
     command = "python -m bench.bench_tracking" + (" " + shlex.join(argv if argv is not None else sys.argv[1:])
-                                                 if (argv if argv is not None else sys.argv[1:]) else "")
+                                                  if (argv if argv is not None else sys.argv[1:]) else "")
     meta = {"command": command, "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "elapsed_s": elapsed, "seed": SEED, "quick": args.quick, "plan": plan.__dict__, "machine": machine(),
             "peer": bench.peer_info, "tracking_config": TrackingConfig().__dict__, "commit": core_commit()}
@@ -1011,6 +1052,8 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
     track_ok = goal["track_ms_median"] is not None and goal["track_ms_median"] <= GOAL_TRACK_MS
     reacq_ok = all(r["frames_to_correct"] == 1 for r in reacq_rows)
     delay_ok = all(r["published"] and r.get("published_stamp_is_newest") and r.get("correct") for r in delay_rows)
+    delay_fresh = sum(bool(r["published"] and r.get("published_stamp_is_newest") and r.get("correct"))
+                      for r in delay_rows)
     lines = ["## Tracking", "",
              f"Command: `{meta['command']}` — {meta['date']}, {m['cpu']}, {m['cores']} cores, Python {m['python']}, "
              f"{m['platform']}; {meta['elapsed_s']:.0f} s; core at commit {meta['commit']}. "
@@ -1036,14 +1079,13 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
              f"(p99 {_fmt(goal['track_ms_p99'], 3)} ms), of which `track()` (local recognition and verification) "
              f"{_fmt(goal['track_core_ms_median'], 3)} ms; the rest is `_accept`: the rate estimate (GLS fit and "
              f"χ² window test) and the state update — {met(track_ok)}.",
-             f"- Re-acquisition on the first good frame after a loss: {sum(r['frames_to_correct'] == 1 for r in reacq_rows)}"
-             f"/{len(reacq_rows)} runs — {met(reacq_ok)}.",
+             "- Re-acquisition on the first good frame after a loss: "
+             f"{sum(r['frames_to_correct'] == 1 for r in reacq_rows)}/{len(reacq_rows)} runs — {met(reacq_ok)}.",
              f"- Delay compensation publishes a correct, fresh attitude for the newest frame: "
-             f"{sum(bool(r['published'] and r.get('published_stamp_is_newest') and r.get('correct')) for r in delay_rows)}"
-             f"/{len(delay_rows)} trials — {met(delay_ok)}.", "",
+             f"{delay_fresh}/{len(delay_rows)} trials — {met(delay_ok)}.", "",
              "### 1. Tracking success and time against rate", "",
-             f"Constant-rate runs of {meta['plan']['frames_per_run']} frames each (the first frame is lost-in-space: no "
-             "prediction yet); slews (SlewMotion about a random axis, rest 0.5 s, accelerate at 0.5 or 2 deg/s² to "
+             f"Constant-rate runs of {meta['plan']['frames_per_run']} frames each (the first frame is lost-in-space: "
+             "no prediction yet); slews (SlewMotion about a random axis, rest 0.5 s, accelerate at 0.5 or 2 deg/s² to "
              "2 deg/s, 2 s coast, decelerate, rest 0.5 s). TrackingConfig defaults throughout (acceleration bound "
              f"{math.degrees(meta['tracking_config']['max_angular_acceleration_rad_s2']):g} deg/s²).", ""]
     lines += tracking_table(summaries)
@@ -1053,8 +1095,8 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
         lines += ["", "Slews: the cross-boresight attitude error along the cross-boresight part of the slew axis, by "
                   "phase of the slew (frames whose exposure holds a jump of the acceleration left out). Under a "
                   "constant acceleration α a streak's centroid is the exposure-average position, α T² / 24 ahead of "
-                  "(ramp-up) or behind (ramp-down) the mid-exposure one; the stated covariance does not include it. Ramps are split by "
-                  "the body rate, to show whether the offset depends on it.", ""]
+                  "(ramp-up) or behind (ramp-down) the mid-exposure one; the stated covariance does not include it. "
+                  "Ramps are split by the body rate, to show whether the offset depends on it.", ""]
         lines += slew_bias_table(bias)
     lines += ["", "### 2. Re-acquisition after a loss", "",
               f"Runs at 0.5 and 2 deg/s: {meta['plan']['reacquisition_before']} good frames, then the gap (blank "
@@ -1079,9 +1121,10 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
                          f"{_triple(r['error_arcsec_s'])} | {_triple(r['sigma_arcsec_s'])} | {r['nees']:.0f} |")
         if len(rows) > 16:
             lines.append(f"| … {len(rows) - 16} more in bench_tracking.json | | | | | | | |")
-    lines += ["", "Against `star_tracker.track.streak_rate.rate_from_streaks` on the same frames centroided **without** the "
-              "rate aid (a free streak fit; rate-aided spots would only echo the aid), hint = the tracker's previous "
-              "rate (it only fixes the sense of the streaks). First runs at 1, 2 and 3 deg/s:", ""]
+    lines += ["",
+              "Against `star_tracker.track.streak_rate.rate_from_streaks` on the same frames centroided **without** "
+              "the rate aid (a free streak fit; rate-aided spots would only echo the aid), hint = the tracker's "
+              "previous rate (it only fixes the sense of the streaks). First runs at 1, 2 and 3 deg/s:", ""]
     lines += streak_table({k: v for k, v in summaries.items() if "all runs" not in k})
     lines += ["", "### 4. Delay compensation", "",
               "A lost-in-space solve of frame k that takes S seconds: the frames that arrive meanwhile at 10 Hz "
@@ -1093,18 +1136,19 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
     lines += ["", "### 5. Peer: tetra3rs tracking mode", ""]
     if meta["peer"]:
         lines += ["tetra3rs " + meta["peer"]["version"] + " has a tracking mode: `solve_from_centroids(..., "
-                  "attitude_hint=R, hint_uncertainty_rad=..., strict_hint=...)` (\"projects nearby catalog stars via the "
-                  "hint, nearest-neighbor matches them to centroids, and runs the same verification + WCS refine path as "
-                  "lost-in-space\"). Here on the **same centroid lists** as ours (brightest first), hint = its own "
-                  "previous frame's attitude (it has no rate model), `hint_uncertainty` its default 1°, "
-                  "`strict_hint=True`, timed alone (times: the solves that succeeded, as for ours); when it fails (or on the first frame) its lost-in-space solve "
-                  "runs, as our `process` does. Database and solve settings: those bench_identify's tuning picked "
-                  f"for the nominal setup ({json.dumps(PEER_SOLVE)}). Incorrect: solved with any id that is not the "
-                  "truth star nearest its spot (within 2 px); \"blend-partner\" ids name another truth star within "
-                  f"{BLEND_RADIUS_PX:g} px of the spot (an unresolved double, whose light centroid lies between the "
-                  "two; our database leaves such pairs out). Last column, on the side and not used for the "
-                  "next hint: the same strict hinted solve with the hint carried to the frame's time by our tracker's "
-                  "rate estimate, to separate tetra3rs's matching from its lack of a rate model.", ""]
+                  "attitude_hint=R, hint_uncertainty_rad=..., strict_hint=...)` (\"projects nearby catalog stars via "
+                  "the hint, nearest-neighbor matches them to centroids, and runs the same verification + WCS refine "
+                  "path as lost-in-space\"). Here on the **same centroid lists** as ours (brightest first), hint = its "
+                  "own previous frame's attitude (it has no rate model), `hint_uncertainty` its default 1°, "
+                  "`strict_hint=True`, timed alone (times: the solves that succeeded, as for ours); when it fails (or "
+                  "on the first frame) its lost-in-space solve runs, as our `process` does. Database and solve "
+                  f"settings: those bench_identify's tuning picked for the nominal setup ({json.dumps(PEER_SOLVE)}). "
+                  "Incorrect: solved with any id that is not the truth star nearest its spot (within 2 px); "
+                  f"\"blend-partner\" ids name another truth star within {BLEND_RADIUS_PX:g} px of the spot (an "
+                  "unresolved double, whose light centroid lies between the two; our database leaves such pairs out). "
+                  "Last column, on the side and not used for the next hint: the same strict hinted solve with the hint "
+                  "carried to the frame's time by our tracker's rate estimate, to separate tetra3rs's matching from "
+                  "its lack of a rate model.", ""]
         lines += peer_table({k: v for k, v in summaries.items()})
         status = {k: v["peer"]["track_status"] for k, v in summaries.items() if v.get("peer", {}).get("track_status")}
         if status:
@@ -1124,12 +1168,14 @@ def failure_text(fails: list[dict]) -> list[str]:
     lines = [f"Frames not solved correctly (ours, gap frames excluded): {len(wrong)}; tracking attempts that failed "
              f"but lost-in-space then solved correctly: {len(fallback)}."]
     if wrong or fallback:
-        lines += ["", "| case | run | frame | rate [deg/s] | spots (true) | mode | result | tracking failure | gate [px] |",
+        lines += ["",
+                  "| case | run | frame | rate [deg/s] | spots (true) | mode | result | tracking failure | gate [px] |",
                   "|---|---:|---:|---:|---|---|---|---|---:|"]
         for f in (wrong + fallback)[:30]:
             result = "incorrect" if f["incorrect"] else ("correct" if f["solved"] else "unsolved: " + f["reason"])
-            lines.append(f"| {f['case']} | {f['run']} | {f['k']} | {f['rate_deg_s']:.2f} | {f['spots']} ({f['true_spots']}) | "
-                         f"{f['mode']} | {result} | {f['track_failure'] or '–'} | {_fmt(f['gate_px'], 0)} |")
+            lines.append(f"| {f['case']} | {f['run']} | {f['k']} | {f['rate_deg_s']:.2f} | {f['spots']} "
+                         f"({f['true_spots']}) | {f['mode']} | {result} | {f['track_failure'] or '–'} | "
+                         f"{_fmt(f['gate_px'], 0)} |")
         if len(wrong + fallback) > 30:
             lines.append(f"| … {len(wrong + fallback) - 30} more in bench_tracking.json | | | | | | | | |")
     return lines

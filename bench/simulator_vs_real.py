@@ -1,4 +1,6 @@
-"""The simulator checked against a real camera (issue 17, part 5).
+# SPDX-License-Identifier: Apache-2.0
+"""
+The simulator checked against a real camera (issue 17, part 5).
 
     python -m bench.simulator_vs_real [--output docs/SIMULATOR.md] [--images-dir docs/images]
                                       [--write-profile config/camera_openstartracker.yaml] [--corpus DIR]
@@ -56,9 +58,13 @@ class RealFrame:
 
 
 def load_real_frames(corpus: Path) -> list[RealFrame]:
-    """The image set's frames that have a reference attitude: green channel [ADU], the camera
-    from the reference's pixel scale at the centre (pinhole, centred; the SIP terms of the
-    astrometry.net solution are below a pixel over this 6 deg field), the reference rotation."""
+    """
+    Return the image set's frames that have a reference attitude.
+
+    Green channel [ADU], the camera from the reference's pixel scale at the centre (pinhole,
+    centred; the SIP terms of the astrometry.net solution are below a pixel over this 6 deg
+    field), the reference rotation.
+    """
     import cv2
 
     manifest = json.loads((corpus / "MANIFEST.json").read_text())
@@ -102,8 +108,11 @@ def background_pixels(frame: ProfileFrame, stars, psf_sigma_px: float) -> np.nda
 
 
 def neighbour_correlation(image: np.ndarray) -> float:
-    """Correlation of horizontally adjacent pixels after removing a 15 px box mean [-]
-    (0 for white noise; demosaicing or smoothing makes it positive)."""
+    """
+    Return the correlation of horizontally adjacent pixels after removing a 15 px box mean [-].
+
+    0 for white noise; demosaicing or smoothing makes it positive.
+    """
     import cv2
 
     data = image.astype(np.float32)
@@ -149,13 +158,18 @@ def compare(profile: CameraProfile, real: list[RealFrame], stars) -> dict:
                 flux_ratio=flux_ratio, width_ratio=width_ratio, real_bg=real_bg, sim_bg=sim_bg,
                 background=(mu_r, s_r, mu_s, s_s), ks=float(ks.statistic),
                 clipped=(float(np.mean(real_bg <= 0)), float(np.mean(sim_bg <= 0))),
-                spots=(real_spots, sim_spots), neighbour_correlation=(float(np.mean(corr_real)), float(np.mean(corr_sim))))
+                spots=(real_spots, sim_spots),
+                neighbour_correlation=(float(np.mean(corr_real)), float(np.mean(corr_sim))))
 
 
 def solve_counts(real: list[RealFrame], simulated: list[ProfileFrame], corpus: Path) -> dict:
-    """`star-tracker solve FILE --fov <the set's field> --json` (every other option at its
-    default) on each real frame as stored (the CLI averages the colour channels), on its green
-    channel alone, and on the simulated frame: how many solve, and the identified stars."""
+    """
+    Solve each real frame and the simulated one with `star-tracker solve FILE --fov <field> --json`.
+
+    The field is the set's; every other option at its default. Each real frame is solved as
+    stored (the CLI averages the colour channels) and on its green channel alone; returns how
+    many solve, and the identified stars.
+    """
     import tempfile
 
     import cv2
@@ -177,7 +191,7 @@ def solve_counts(real: list[RealFrame], simulated: list[ProfileFrame], corpus: P
 
 # ------------------------------------------------------------------ outputs
 def profile_yaml(profile: CameraProfile, camera: CameraModel, image_ids: list[str]) -> str:
-    """The profile as a camera_simulator parameter file (layer it over config/star_tracker.yaml)."""
+    """Return the profile as a camera_simulator parameter file (layer it over config/star_tracker.yaml)."""
     s = profile.sensor_model()
     fov_x_deg = math.degrees(2.0 * math.atan(0.5 * camera.width / camera.fx))
     p = profile
@@ -242,7 +256,7 @@ def profile_yaml(profile: CameraProfile, camera: CameraModel, image_ids: list[st
     saturation_adu: 255.0
     psf_sigma_px: {s.psf_sigma_px:.4f}
     exposure_time_s: {s.exposure_s}
-"""
+"""  # noqa: E501 (a template: the YAML comment lines stay whole)
 
 
 def crop_around(frames: list[RealFrame], fits, size: int) -> tuple[int, int, int]:
@@ -254,7 +268,8 @@ def crop_around(frames: list[RealFrame], fits, size: int) -> tuple[int, int, int
         for x, y in zip(fits.x[mine], fits.y[mine]):
             c0 = int(np.clip(x - size / 2, 0, width - size))
             r0 = int(np.clip(y - size / 2, 0, height - size))
-            inside = mine & (fits.x >= c0 + 8) & (fits.x < c0 + size - 8) & (fits.y >= r0 + 8) & (fits.y < r0 + size - 8)
+            inside = mine & (fits.x >= c0 + 8) & (fits.x < c0 + size - 8) & (fits.y >= r0 + 8) & (fits.y < r0
+                                                                                                  + size - 8)
             score = float(np.sum(fits.flux[inside]))
             if score > best[0]:
                 best = (score, k, r0, c0)
@@ -328,9 +343,11 @@ def pictures(profile: CameraProfile, real: list[RealFrame], result: dict, images
     k2 = max(profile.ptc_model_error, 0.0)
     inverse = profile.inverse_gain_adu_per_e.value
     ax.loglog(grid, profile.background_noise_adu.value ** 2 + inverse * grid + k2 * grid ** 2, "-", color="0.5",
-              label=f"fit s_bg² + S/g + (kS)²: 1/g = {profile.inverse_gain_adu_per_e:.2f} ADU/e⁻, k = {np.sqrt(k2):.2f}")
+              label=f"fit s_bg² + S/g + (kS)²: 1/g = {profile.inverse_gain_adu_per_e:.2f} ADU/e⁻, "
+                    f"k = {np.sqrt(k2):.2f}")
     ax.loglog(grid, profile.background_noise_adu.value ** 2 + grid / g, ":", color="0.5",
-              label=f"s_bg² + S/g at the profile's g = {g:.2f} e⁻/ADU" + (" (2σ limit)" if profile.gain_is_lower_limit else ""))
+              label=f"s_bg² + S/g at the profile's g = {g:.2f} e⁻/ADU"
+              + (" (2σ limit)" if profile.gain_is_lower_limit else ""))
     ax.set_xlabel("model signal S of the pixel [ADU]")
     ax.set_ylabel("residual variance [ADU²]")
     ax.set_title("photon transfer on star pixels (real frames)", fontsize=9)
@@ -362,7 +379,8 @@ def gain_paragraph(p: CameraProfile) -> str:
 
 
 def closure_note(p: CameraProfile, sp: CameraProfile) -> str:
-    off = [name for name in ("psf_sigma_px", "log10_zero_point_adu_per_s", "background_noise_adu", "vignetting_at_corner")
+    off = [name
+           for name in ("psf_sigma_px", "log10_zero_point_adu_per_s", "background_noise_adu", "vignetting_at_corner")
            if abs(getattr(p, name).value - getattr(sp, name).value)
            > 2.0 * np.hypot(getattr(p, name).sigma, getattr(sp, name).sigma)]
     return (" (all of PSF σ, zero point, background noise and vignetting within 2σ)" if not off
@@ -501,7 +519,7 @@ Reproduce (about 3 min of wall time on the machine below):
 
 Measured on {dt.date.today().isoformat()}, {cpu_model()} ({os.cpu_count()} cores, shared), Python
 {platform.python_version()}, numpy {np.__version__}, OpenCV {cv2_version()}.
-"""
+"""  # noqa: E501 (a template: Markdown table rows and paragraphs stay one line each)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -515,7 +533,8 @@ def main(argv: list[str] | None = None) -> int:
     real = load_real_frames(corpus)
     stars = catalog()
     profile = fit_camera_profile([r.frame for r in real], stars)
-    for name in ("psf_sigma_px", "psf_wing_excess", "inverse_gain_adu_per_e", "gain_e_per_adu", "read_noise_e", "background_adu",
+    for name in ("psf_sigma_px", "psf_wing_excess", "inverse_gain_adu_per_e", "gain_e_per_adu", "read_noise_e",
+                 "background_adu",
                  "background_noise_adu", "vignetting_at_corner", "log10_zero_point_adu_per_s", "zero_point_free_slope",
                  "color_coefficient"):
         print(f"{name:28s} {getattr(profile, name):.4f}")
@@ -538,7 +557,8 @@ def main(argv: list[str] | None = None) -> int:
     for path in pictures(profile, real, result, args.images_dir):
         print(f"wrote {path} ({path.stat().st_size / 1e3:.0f} kB)")
     if args.output:
-        command = "python -m bench.simulator_vs_real --output docs/SIMULATOR.md --write-profile config/camera_openstartracker.yaml"
+        command = ("python -m bench.simulator_vs_real --output docs/SIMULATOR.md "
+                   "--write-profile config/camera_openstartracker.yaml")
         write_section(args.output, section(profile, real, result, command))
         print(f"wrote {SECTION!r} into {args.output}")
     return 0

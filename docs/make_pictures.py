@@ -1,4 +1,6 @@
-"""Regenerate the pictures of README.md's "Pictures" section (docs/images/):
+# SPDX-License-Identifier: Apache-2.0
+"""
+Regenerate the pictures of README.md's "Pictures" section (docs/images/).
 
     python docs/make_pictures.py [--output-dir docs/images]
 
@@ -41,11 +43,13 @@ def solve_pictures(out: Path) -> None:
 
         buffer = io.StringIO()
         with contextlib.redirect_stdout(buffer):
-            code = commands(["solve", str(frame), "--fov", "15.6", "--json", "-q", "--plot", str(Path(tmp) / "plot.png")])
+            code = commands(["solve", str(frame), "--fov", "15.6", "--json", "-q", "--plot",
+                             str(Path(tmp) / "plot.png")])
         assert code == 0, buffer.getvalue()
         import cv2  # a noisy frame compresses badly as PNG: JPEG at ~1/6 of the size
 
-        cv2.imwrite(str(out / "solve_frame.jpg"), cv2.imread(str(Path(tmp) / "plot.png")), [cv2.IMWRITE_JPEG_QUALITY, 85])
+        cv2.imwrite(str(out / "solve_frame.jpg"), cv2.imread(str(Path(tmp) / "plot.png")),
+                    [cv2.IMWRITE_JPEG_QUALITY, 85])
         solution = json.loads(buffer.getvalue())
         solution_path.write_text(buffer.getvalue())
     rotation = quaternion_to_matrix(np.array(solution["quaternion_xyzw"]))
@@ -67,7 +71,8 @@ def run_picture(out: Path, rate_hz: float = 5.0, duration_s: float = 20.0) -> No
 
     camera = CameraModel.from_fov(1024, 1024, math.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(), load_hipparcos().at_epoch(2026.0), magnitude_limit=7.5)
-    motion = SlewMotion(radec_roll_to_matrix(math.radians(80.0), math.radians(20.0), 0.0), axis=np.array([0.6, 0.8, 0.0]),
+    motion = SlewMotion(radec_roll_to_matrix(math.radians(80.0), math.radians(20.0), 0.0),
+                        axis=np.array([0.6, 0.8, 0.0]),
                         angle_rad=math.radians(20.0), max_rate_rad_s=math.radians(2.0),
                         accel_rad_s2=math.radians(0.5), t_start=3.0)
     identifier = make_identifier("hybrid", load_or_build_database(DatabaseConfig()))
@@ -97,7 +102,7 @@ def run_picture(out: Path, rate_hz: float = 5.0, duration_s: float = 20.0) -> No
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--output-dir", type=Path, default=REPO / "docs" / "images")
     args = parser.parse_args(argv)
     args.output_dir.mkdir(parents=True, exist_ok=True)

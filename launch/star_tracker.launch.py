@@ -1,4 +1,6 @@
-"""Start the star tracker: camera_simulator -> centroider -> identifier.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Start the star tracker: camera_simulator -> centroider -> identifier.
 
     ros2 launch star_tracker star_tracker.launch.py
     ros2 launch star_tracker star_tracker.launch.py namespace:=st1 params_file:=/path/to/my.yaml

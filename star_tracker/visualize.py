@@ -1,6 +1,11 @@
-"""Pictures for people: a frame with its identified stars circled and labelled (OpenCV), and
-matplotlib figures (imported lazily): a solved frame with residual arrows, a sky chart of the
-field, and attitude error and body rate against time for a run."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Pictures for people.
+
+A frame with its identified stars circled and labelled (OpenCV), and matplotlib figures
+(imported lazily): a solved frame with residual arrows, a sky chart of the field, and
+attitude error and body rate against time for a run.
+"""
 from __future__ import annotations
 
 import cv2
@@ -8,8 +13,12 @@ import numpy as np
 
 
 def stretch(image: np.ndarray) -> np.ndarray:
-    """Display stretch of a raw frame to 8-bit: background at ~10 % grey, asinh compression
-    so faint stars and bright stars are both visible."""
+    """
+    Display stretch of a raw frame to 8-bit.
+
+    Background at ~10 % grey, asinh compression so faint stars and bright stars are both
+    visible.
+    """
     data = image.astype(np.float32)
     background = float(np.median(data))
     noise = float(1.4826 * np.median(np.abs(data - background))) or 1.0
@@ -20,8 +29,11 @@ def stretch(image: np.ndarray) -> np.ndarray:
 
 def annotate_frame(image: np.ndarray, pixel_x: np.ndarray, pixel_y: np.ndarray, hip: np.ndarray,
                    title: str = "", spots_xy: np.ndarray | None = None) -> np.ndarray:
-    """BGR picture: detected spots as small grey squares, identified stars as green circles
-    labelled with their HIP number, and a title band above the frame."""
+    """
+    Draw a BGR picture: detected spots as small grey squares, identified stars as labelled green circles.
+
+    Identified stars are labelled with their HIP number; a title band above the frame.
+    """
     canvas = cv2.cvtColor(stretch(image), cv2.COLOR_GRAY2BGR)
     if spots_xy is not None:
         for x, y in np.asarray(spots_xy).reshape(-1, 2):
@@ -65,11 +77,15 @@ def _save(fig, path) -> str:
 
 def solution_figure(image: np.ndarray, matched: list[dict], unmatched_xy: np.ndarray, title: str = "",
                     residual_scale: float | None = None, max_labels: int = 40):
-    """Figure of an identified frame: the stretched image; identified stars circled and labelled
-    with their HIP number; each star's residual (catalog position predicted by the solved
-    attitude minus the measured spot) drawn as an arrow magnified `residual_scale` times
-    (default: the median residual drawn as ~15 px); unmatched spots as small grey squares.
-    matched: dicts with x, y, predicted_x, predicted_y [px], hip, magnitude (solve's records)."""
+    """
+    Figure of an identified frame.
+
+    The stretched image; identified stars circled and labelled with their HIP number; each
+    star's residual (catalog position predicted by the solved attitude minus the measured spot)
+    drawn as an arrow magnified `residual_scale` times (default: the median residual drawn as
+    ~15 px); unmatched spots as small grey squares. matched: dicts with x, y, predicted_x,
+    predicted_y [px], hip, magnitude (solve's records).
+    """
     plt = _pyplot()
     height, width = image.shape
     size_in = 9.0
@@ -108,11 +124,16 @@ def solution_figure(image: np.ndarray, matched: list[dict], unmatched_xy: np.nda
 
 
 def save_solution_plot(path, image: np.ndarray, record: dict, spots, residual_scale: float | None = None) -> str:
-    """`star-tracker solve --plot`: solution_figure of a solve record (solve.solution_record)
-    with the spots of the frame, written as PNG."""
+    """
+    `star-tracker solve --plot`.
+
+    solution_figure of a solve record (solve.solution_record) with the spots of the frame,
+    written as PNG.
+    """
     matched = record.get("matched", [])
     used = {(round(m["x"], 3), round(m["y"], 3)) for m in matched}
-    unmatched = np.array([(x, y) for x, y in zip(spots.x, spots.y) if (round(float(x), 3), round(float(y), 3)) not in used])
+    unmatched = np.array([(x, y) for x,
+                          y in zip(spots.x, spots.y) if (round(float(x), 3), round(float(y), 3)) not in used])
     if record.get("solved"):
         s = record["sigma_arcsec"]
         title = (f"RA {record['ra_deg']:.4f}°  Dec {record['dec_deg']:+.4f}°  roll {record['roll_deg']:+.3f}°   "
@@ -125,11 +146,15 @@ def save_solution_plot(path, image: np.ndarray, record: dict, spots, residual_sc
 
 def sky_chart(catalog, rotation: np.ndarray, camera, identified_hip=(), magnitude_limit: float = 7.0,
               title: str = ""):
-    """Chart of the sky around a field of view, in the camera's own gnomonic projection about
-    its boresight (so the image rectangle is drawn as it is seen): an RA/Dec grid, catalog
-    stars (`catalog`: StarCatalog) to `magnitude_limit` as dots sized by magnitude, the
-    identified ones (`identified_hip`) circled, and the image outline. rotation: sensor ->
-    ICRS. Axes in degrees from the boresight (x right, y up = -image y)."""
+    """
+    Draw a chart of the sky around a field of view.
+
+    In the camera's own gnomonic projection about its boresight (so the image rectangle is
+    drawn as it is seen): an RA/Dec grid, catalog stars (`catalog`: StarCatalog) to
+    `magnitude_limit` as dots sized by magnitude, the identified ones (`identified_hip`)
+    circled, and the image outline. rotation: sensor -> ICRS. Axes in degrees from the
+    boresight (x right, y up = -image y).
+    """
     plt = _pyplot()
     rotation = np.asarray(rotation, dtype=float)
     half = np.degrees(camera.half_diagonal_fov_rad) * 1.25
@@ -160,7 +185,8 @@ def sky_chart(catalog, rotation: np.ndarray, camera, identified_hip=(), magnitud
         _grid_line(ax, rotation, ras, np.full_like(ras, dec), reach, f"{dec:+.0f}°" if step >= 1 else f"{dec:+.1f}°")
     for ra in np.arange(np.floor((ra0 - 180) / ra_step) * ra_step, ra0 + 180, ra_step):
         decs = np.clip(dec0 + samples * 2 * half, -89.9, 89.9)
-        _grid_line(ax, rotation, np.full_like(decs, ra), decs, reach, f"{ra % 360:.0f}°" if ra_step >= 1 else f"{ra % 360:.1f}°")
+        _grid_line(ax, rotation, np.full_like(decs, ra), decs, reach,
+                   f"{ra % 360:.0f}°" if ra_step >= 1 else f"{ra % 360:.1f}°")
     sizes = 2.0 + 60.0 * 10 ** (-0.4 * (magnitude - magnitude.min())) if magnitude.size else 1.0
     ax.scatter(gx, -gy, s=sizes, c="white", linewidths=0, zorder=3)
     marked = np.isin(hip, np.asarray(list(identified_hip), dtype=hip.dtype))
@@ -209,11 +235,14 @@ def run_figure(time_s: np.ndarray, cross_boresight_arcsec: np.ndarray, roll_arcs
                rate_deg_s: np.ndarray | None = None, true_rate_deg_s: np.ndarray | None = None,
                sigma_cross_arcsec: np.ndarray | None = None, sigma_roll_arcsec: np.ndarray | None = None,
                title: str = ""):
-    """Attitude error and body rate against time for a run, from plain arrays (one entry per
-    frame; NaN where the frame was not identified): time_s [s]; cross-boresight and roll error
-    against truth [arcsec]; optionally the estimated and true body rate (N, 3) [deg/s, sensor
-    frame] and the published 1-sigma [arcsec] (drawn as 3-sigma bands). Unidentified frames are
-    marked along the bottom of the error panel."""
+    """
+    Plot the attitude error and body rate against time for a run.
+
+    From plain arrays (one entry per frame; NaN where the frame was not identified): time_s
+    [s]; cross-boresight and roll error against truth [arcsec]; optionally the estimated and
+    true body rate (N, 3) [deg/s, sensor frame] and the published 1-sigma [arcsec] (drawn as
+    3-sigma bands). Unidentified frames are marked along the bottom of the error panel.
+    """
     plt = _pyplot()
     t = np.asarray(time_s, dtype=float)
     cross = np.asarray(cross_boresight_arcsec, dtype=float)
@@ -224,7 +253,8 @@ def run_figure(time_s: np.ndarray, cross_boresight_arcsec: np.ndarray, roll_arcs
     ax.plot(t, cross, ".-", ms=3, lw=0.8, color="#1f77b4", label="cross-boresight error")
     ax.plot(t, roll, ".-", ms=3, lw=0.8, color="#d62728", label="roll error")
     if sigma_cross_arcsec is not None:
-        ax.plot(t, 3 * np.asarray(sigma_cross_arcsec, float), lw=0.8, ls="--", color="#1f77b4", label="3σ cross-boresight")
+        ax.plot(t, 3 * np.asarray(sigma_cross_arcsec, float), lw=0.8, ls="--", color="#1f77b4",
+                label="3σ cross-boresight")
     if sigma_roll_arcsec is not None:
         ax.plot(t, 3 * np.asarray(sigma_roll_arcsec, float), lw=0.8, ls="--", color="#d62728", label="3σ roll")
     lost = ~np.isfinite(cross)
@@ -260,9 +290,13 @@ def save_figure(fig, path) -> str:
 
 
 def run_arrays(frames) -> dict[str, np.ndarray]:
-    """The arrays run_figure takes, from per-frame records with the fields of
-    ros.pipeline.FrameRecord (stamp_ns, truth, error(), covariance, rate, truth_rate; duck-typed,
-    so this module stays free of ROS): frames with truth only, time from the first one [s]."""
+    """
+    Return the arrays run_figure takes.
+
+    From per-frame records with the fields of ros.pipeline.FrameRecord (stamp_ns, truth, error(),
+    covariance, rate, truth_rate; duck-typed, so this module stays free of ROS): frames with
+    truth only, time from the first one [s].
+    """
     frames = [f for f in frames if f.truth is not None]
     n = len(frames)
     out = {"time_s": np.zeros(n), "cross_boresight_arcsec": np.full(n, np.nan), "roll_arcsec": np.full(n, np.nan),

@@ -1,5 +1,10 @@
-"""Shared fixtures. The star catalog and pattern database are built once per test session
-into a private cache directory, so a run never depends on a developer's ~/.cache."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Shared fixtures.
+
+The star catalog and pattern database are built once per test session into a private cache
+directory, so a run never depends on a developer's ~/.cache.
+"""
 from __future__ import annotations
 
 import os
@@ -19,9 +24,12 @@ def private_cache(tmp_path_factory):
 
 @pytest.fixture(autouse=True)
 def same_cache_after_each_test(private_cache):
-    """Restore STAR_TRACKER_CACHE after every test: a command run in-process with --cache-dir
-    sets it, and the tests after it (whichever subset runs, e.g. -m "not slow") must still
-    find the session's cache."""
+    """
+    Restore STAR_TRACKER_CACHE after every test.
+
+    A command run in-process with --cache-dir sets it, and the tests after it (whichever
+    subset runs, e.g. -m "not slow") must still find the session's cache.
+    """
     before = os.environ["STAR_TRACKER_CACHE"]
     yield
     os.environ["STAR_TRACKER_CACHE"] = before
@@ -49,8 +57,12 @@ def nominal_camera():
 
 
 def join_isolated_ros_domain(monkeypatch) -> dict:
-    """Put this test process on a private ROS domain (localhost discovery, the project's Fast DDS
-    profile) and initialise rclpy; returns that environment for the node processes."""
+    """
+    Put this test process on a private ROS domain and initialise rclpy.
+
+    Localhost discovery, the project's Fast DDS profile; returns that environment for the node
+    processes.
+    """
     import rclpy
 
     from star_tracker.ros.pipeline import isolated_ros_environment
@@ -64,9 +76,12 @@ def join_isolated_ros_domain(monkeypatch) -> dict:
 
 
 def spots_at(sky, camera, rotation):
-    """The spots a perfect centroider measures of the catalog stars `sky` (a Catalog) seen by
-    `camera` at `rotation` (sensor -> ICRS): true positions [px], brightest first, flux from the
-    magnitude, SNR 50, 0.01 px^2 variances; stars within 3 px of the border left out."""
+    """
+    Return the spots a perfect centroider measures of the catalog stars `sky` (a Catalog).
+
+    Seen by `camera` at `rotation` (sensor -> ICRS): true positions [px], brightest first, flux
+    from the magnitude, SNR 50, 0.01 px^2 variances; stars within 3 px of the border left out.
+    """
     from star_tracker.centroid import Spots
 
     u, v, front = camera.project(sky.unit_vectors() @ rotation)

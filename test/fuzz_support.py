@@ -1,12 +1,16 @@
-"""Shared pieces of the property-based (hypothesis) tests over everything that sees external
-data: test/ros/test_fuzz.py (message converters) and the *_fuzz.py files of the core packages
+# SPDX-License-Identifier: Apache-2.0
+"""
+Shared pieces of the property-based (hypothesis) tests over everything that sees external data.
+
+Test/ros/test_fuzz.py (message converters) and the *_fuzz.py files of the core packages
 (test/models, test/centroid, test/identify, test/track). The property is always the same: a
 valid result, or ValueError with a message; never another exception (IndexError,
 ZeroDivisionError, LinAlgError, numba errors, ...).
 
 Examples are derandomized (the same inputs every run, so CI cannot flake); set
 STAR_TRACKER_FUZZ_RANDOM=1 to explore new ones. Defects found are pinned by regression tests
-beside the properties, each with its failing input (docs/RELIABILITY.md, "Fuzzing")."""
+beside the properties, each with its failing input (docs/RELIABILITY.md, "Fuzzing").
+"""
 from __future__ import annotations
 
 import os
@@ -47,8 +51,12 @@ def is_rotation(matrix: np.ndarray) -> bool:
 
 
 def valid_or_value_error(function, *args, **kwargs):
-    """function(*args) or None when it raised ValueError (with a message); anything else fails,
-    LinAlgError too (numpy derives it from ValueError, but it is a failure, not a refusal)."""
+    """
+    function(*args) or None when it raised ValueError (with a message).
+
+    Anything else fails, LinAlgError too (numpy derives it from ValueError, but it is a
+    failure, not a refusal).
+    """
     try:
         return function(*args, **kwargs)
     except np.linalg.LinAlgError:
@@ -59,8 +67,11 @@ def valid_or_value_error(function, *args, **kwargs):
 
 
 def refused(function, *args, match: str, **kwargs) -> None:
-    """Assert that function(*args) refuses with a ValueError matching `match` (a regex), not a
-    LinAlgError, and does not silently return."""
+    """
+    Assert that function(*args) refuses with a ValueError matching `match` (a regex).
+
+    Not a LinAlgError, and it does not silently return.
+    """
     with pytest.raises(ValueError, match=match) as refusal:
         function(*args, **kwargs)
     assert not isinstance(refusal.value, np.linalg.LinAlgError), f"{function.__name__}: {refusal.value!r}"

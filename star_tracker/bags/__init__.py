@@ -1,5 +1,9 @@
-"""Rosbag2 bags (sqlite3 or MCAP storage) without ROS: open and validate, list topics,
-iterate raw (serialized CDR) messages, write, and recover a bag whose recording was killed.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Rosbag2 bags (sqlite3 or MCAP storage) without ROS.
+
+Open and validate, list topics, iterate raw (serialized CDR) messages, write, and recover a
+bag whose recording was killed.
 
 Built on the `rosbags` library, so every bag written here has the standard rosbag2 layout
 (a directory with metadata.yaml, version 9, and one .db3 or .mcap file) that `ros2 bag

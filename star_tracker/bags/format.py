@@ -1,6 +1,9 @@
-"""What every bag module shares: the topics of a star_tracker run, the rosbag2 format
-constants, BagError, the ROS 2 Jazzy type store, and the header stamp of a serialized
-message. Times are integer nanoseconds.
+# SPDX-License-Identifier: Apache-2.0
+"""
+What every bag module shares.
+
+The topics of a star_tracker run, the rosbag2 format constants, BagError, the ROS 2 Jazzy
+type store, and the header stamp of a serialized message. Times are integer nanoseconds.
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ class BagError(Exception):
 
 @lru_cache(maxsize=1)
 def typestore():
-    """The ROS 2 Jazzy message definitions shipped with rosbags (no ROS install needed)."""
+    """Return the ROS 2 Jazzy message definitions shipped with rosbags (no ROS install needed)."""
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)
@@ -42,8 +45,11 @@ def absolute_topic(name: str) -> str:
 
 
 def header_stamp_ns(data: bytes | memoryview) -> int:
-    """The header stamp [ns] of a serialized message whose first field is a std_msgs/Header
-    (every stamped message), read from the CDR bytes without deserializing the rest."""
+    """
+    Return the header stamp [ns] of a serialized message whose first field is a std_msgs/Header (every stamped message).
+
+    Read from the CDR bytes without deserializing the rest.
+    """
     if len(data) < 12:
         raise BagError(f"serialized message of {len(data)} bytes is too short for a header")
     order = "<" if bytes(data[1:2]) in (b"\x01", b"\x03") else ">"  # CDR_LE / PL_CDR_LE

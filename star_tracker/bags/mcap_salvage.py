@@ -1,6 +1,9 @@
-"""Salvaging an MCAP file that was never finished (no footer, possibly cut inside a
-record): schemas, channels and messages of every complete record, chunks included, copied
-to a BagWriter.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Salvaging an MCAP file that was never finished (no footer, possibly cut inside a record).
+
+Schemas, channels and messages of every complete record, chunks included, copied to a
+BagWriter.
 """
 from __future__ import annotations
 
@@ -25,14 +28,17 @@ def _records(buffer: bytes, offset: int, end: int):
 
 
 def _string(buffer: bytes, offset: int) -> tuple[str, int]:
-    """An MCAP string (uint32 length + UTF-8) at offset, and the offset after it."""
+    """Return an MCAP string (uint32 length + UTF-8) at offset, and the offset after it."""
     (n,) = struct.unpack_from("<I", buffer, offset)
     return buffer[offset + 4:offset + 4 + n].decode(), offset + 4 + n
 
 
 def salvage_mcap_records(file: Path, writer: BagWriter) -> None:
-    """Copy schemas, channels and messages of every complete record of `file` to `writer`
-    (stops at the first incomplete record: the point where the recorder was killed)."""
+    """
+    Copy schemas, channels and messages of every complete record of `file` to `writer`.
+
+    Stops at the first incomplete record: the point where the recorder was killed.
+    """
     from rosbags.rosbag2.metadata import parse_qos
 
     data = file.read_bytes()

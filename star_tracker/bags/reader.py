@@ -1,6 +1,10 @@
-"""Opening a rosbag2 bag for reading: metadata.yaml and storage checked against each
-other, topic listing (BagInfo), raw messages in timestamp order; every failure becomes a
-BagError that says what to do (often `star-tracker reindex`).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Opening a rosbag2 bag for reading.
+
+metadata.yaml and storage checked against each other, topic listing (BagInfo), raw messages
+in timestamp order; every failure becomes a BagError that says what to do (often
+`star-tracker reindex`).
 """
 from __future__ import annotations
 
@@ -42,7 +46,7 @@ class BagInfo:
         return max(0, self.end_ns - self.start_ns) * 1e-9
 
     def describe(self) -> str:
-        """A `ros2 bag info`-like summary."""
+        """Return a `ros2 bag info`-like summary."""
         size = sum(f.stat().st_size for f in (self.path / name for name in self.files) if f.exists()) \
             if self.path.is_dir() else self.path.stat().st_size
         lines = [f"bag:       {self.path}",
@@ -70,12 +74,13 @@ def _storage_files(path: Path) -> str:
 
 
 def explain_read_error(path: Path, exc: BaseException) -> str:
-    """A rosbags/sqlite error turned into a sentence a user can act on."""
+    """Return a rosbags/sqlite error turned into a sentence a user can act on."""
     text = str(exc)
     reindex = f"if a recording was interrupted, `star-tracker reindex {path}` recovers what was written"
     if "magic" in text.lower() or "footer" in text.lower() or "Truncated record" in text or "summary" in text:
         return f"{path}: MCAP file {_storage_files(path)} is truncated or was never finished ({text}); {reindex}"
-    if any(key in text for key in ("malformed", "not a database", "missing tables", "I/O error", "Cannot open database")):
+    if any(key in text
+           for key in ("malformed", "not a database", "missing tables", "I/O error", "Cannot open database")):
         return f"{path}: sqlite3 storage file {_storage_files(path)} is corrupt or truncated ({text}); {reindex}"
     if "metadata" in text.lower() or "YAML" in text:
         return f"{path}: invalid metadata.yaml ({text}); `star-tracker reindex {path}` rewrites it from the storage"
@@ -85,10 +90,12 @@ def explain_read_error(path: Path, exc: BaseException) -> str:
 
 
 class BagReader:
-    """A rosbag2 bag (directory, or a bare .db3/.mcap file) opened for reading.
+    """
+    A rosbag2 bag (directory, or a bare .db3/.mcap file) opened for reading.
 
     Use as a context manager. `info` lists topics; `messages()` yields
-    (topic, bag timestamp [ns], serialized CDR bytes) in timestamp order."""
+    (topic, bag timestamp [ns], serialized CDR bytes) in timestamp order.
+    """
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
@@ -147,8 +154,12 @@ class BagReader:
         return BagInfo(self.path, storage, files, start, end, count, topics, custom)
 
     def _check_counts(self, meta: dict) -> None:
-        """metadata.yaml's message counts against what the storage files hold: a file cut
-        short after the bag was closed shows up here, not halfway through a replay."""
+        """
+        metadata.yaml's message counts against what the storage files hold.
+
+        A file cut short after the bag was closed shows up here, not halfway through a
+        replay.
+        """
         stored: Counter[str] = Counter()
         for storage in getattr(self._reader.storage, "storages", []):
             for conn in storage.connections:
@@ -176,8 +187,11 @@ class BagReader:
 
     def messages(self, topics: Iterable[str] | None = None, start_ns: int | None = None,
                  stop_ns: int | None = None) -> Iterator[tuple[str, int, bytes]]:
-        """(topic, timestamp [ns], serialized message) in timestamp order; storage errors met
-        while reading (a damaged file) become BagError."""
+        """
+        (topic, timestamp [ns], serialized message) in timestamp order.
+
+        Storage errors met while reading (a damaged file) become BagError.
+        """
         selected = set(self.select(topics))
         connections = [c for c in self._reader.connections if c.topic in selected]
         if not connections:
@@ -207,8 +221,12 @@ class BagReader:
 
 
 def load_metadata(path: Path) -> dict:
-    """metadata.yaml parsed as YAML 1.2, like rosbags and rosbag2 (PyYAML's 1.1 would turn a
-    custom_data value such as 'yes' into True)."""
+    """
+    metadata.yaml parsed as YAML 1.2.
+
+    Like rosbags and rosbag2 (PyYAML's 1.1 would turn a custom_data value such as 'yes' into
+    True).
+    """
     from ruamel.yaml import YAML
     from ruamel.yaml.error import YAMLError
 

@@ -1,6 +1,9 @@
-"""Crash recovery, like `ros2 bag reindex`: metadata.yaml rebuilt from the storage files
-of a bag whose recorder was killed, an unfinished MCAP file rewritten from its complete
-records, a sqlite3 hot journal rolled back.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Crash recovery, like `ros2 bag reindex`.
+
+metadata.yaml rebuilt from the storage files of a bag whose recorder was killed, an
+unfinished MCAP file rewritten from its complete records, a sqlite3 hot journal rolled back.
 """
 from __future__ import annotations
 
@@ -16,13 +19,16 @@ from .writer import BagWriter
 
 
 def reindex(path: str | Path) -> BagInfo:
-    """Rebuild metadata.yaml of a bag directory from its storage file(s), like `ros2 bag
-    reindex`: after a recorder was killed (no metadata.yaml) or a metadata.yaml was lost.
+    """
+    Rebuild metadata.yaml of a bag directory from its storage file(s), like `ros2 bag reindex`.
+
+    After a recorder was killed (no metadata.yaml) or a metadata.yaml was lost.
 
     sqlite3: opening the database rolls back an unfinished transaction, so everything
     committed (flushed) is kept. MCAP: a file without footer, possibly cut inside a record,
     is rewritten with every complete record up to the cut (the original is kept beside it
-    as NAME.unfinished). Returns the recovered bag's info."""
+    as NAME.unfinished). Returns the recovered bag's info.
+    """
     path = Path(path)
     if not path.is_dir():
         raise BagError(f"{path} is not a bag directory")
@@ -59,7 +65,8 @@ def _recover_sqlite(file: Path) -> None:
         finally:
             connection.close()
     except sqlite3.DatabaseError as exc:
-        raise BagError(f"{file}: sqlite3 storage file is corrupt or truncated ({exc}); it cannot be reindexed") from None
+        raise BagError(f"{file}: sqlite3 storage file is corrupt or truncated ({exc}); "
+                       "it cannot be reindexed") from None
 
 
 def _recover_mcap(file: Path) -> None:

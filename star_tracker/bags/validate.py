@@ -1,6 +1,5 @@
-"""Checking a bag's content: every message deserializes with its type's definition, and
-images suit the centroider.
-"""
+# SPDX-License-Identifier: Apache-2.0
+"""Checking a bag's content: every message deserializes with its type's definition, and images suit the centroider."""
 from __future__ import annotations
 
 from collections import Counter
@@ -30,9 +29,13 @@ def image_problem(data: bytes | memoryview) -> str | None:
 
 
 def check_bag(path: str | Path) -> tuple[BagInfo, list[str]]:
-    """Open a bag and read every message: each must deserialize with its type's definition
-    and images must suit the centroider. Returns the bag's info and the problems found
-    (empty when the bag is sound); a bag that cannot be opened raises BagError."""
+    """
+    Open a bag and read every message.
+
+    Each must deserialize with its type's definition and images must suit the centroider.
+    Returns the bag's info and the problems found (empty when the bag is sound); a bag that
+    cannot be opened raises BagError.
+    """
     problems: list[str] = []
     store = typestore()
     with BagReader(path) as bag:

@@ -1,5 +1,8 @@
-"""Writing a new rosbag2 bag (metadata version 9, sqlite3 or MCAP storage) that `ros2 bag
-info/play` read, with message definitions and type hashes from the ROS 2 Jazzy type store.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Writing a new rosbag2 bag (metadata version 9, sqlite3 or MCAP storage) that `ros2 bag info/play` read.
+
+Message definitions and type hashes come from the ROS 2 Jazzy type store.
 """
 from __future__ import annotations
 
@@ -22,11 +25,13 @@ def message_definition(msgtype: str) -> tuple[str, str]:
 
 
 class BagWriter:
-    """A new rosbag2 bag (metadata version 9) in directory `path`, which must not exist.
+    """
+    A new rosbag2 bag (metadata version 9) in directory `path`, which must not exist.
 
     `flush()` makes what was written so far survive a crash (commit for sqlite3, a closed
     chunk for MCAP); `close()` finishes the bag and writes metadata.yaml. Not thread-safe:
-    one thread owns a writer."""
+    one thread owns a writer.
+    """
 
     def __init__(self, path: str | Path, storage: str = "sqlite3"):
         from rosbags.rosbag2 import StoragePlugin, Writer
@@ -69,9 +74,12 @@ class BagWriter:
         self.bytes_written += len(data)
 
     def flush(self) -> None:
-        """Make everything written so far durable against a crash of this process. Uses the
-        storage objects of the pinned rosbags 0.11.9, which otherwise keep one open sqlite
-        transaction (or one open MCAP chunk) until close()."""
+        """
+        Make everything written so far durable against a crash of this process.
+
+        Uses the storage objects of the pinned rosbags 0.11.9, which otherwise keep one open
+        sqlite transaction (or one open MCAP chunk) until close().
+        """
         storage = self._writer.storage
         if storage is None:
             return

@@ -1,4 +1,6 @@
-"""Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions at mid-exposure with covariance).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions at mid-exposure with covariance).
 
 extract.extract_spots runs the stage: detect (background, noise, threshold, components) ->
 candidates (hot-pixel cleaning, centre of gravity, shape; measure's primitives) -> saturation

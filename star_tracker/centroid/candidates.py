@@ -1,6 +1,11 @@
-"""Measurement of every detection before any fit: aperture (small components) or footprint
-(large ones) centre of gravity, flux, SNR, shape and blend peaks, after hot-pixel cleaning.
-The result is the table of candidate spots (Candidates) the rest of the stage selects from."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Measurement of every detection before any fit.
+
+Aperture (small components) or footprint (large ones) centre of gravity, flux, SNR, shape
+and blend peaks, after hot-pixel cleaning. The result is the table of candidate spots
+(Candidates) the rest of the stage selects from.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
@@ -21,7 +26,8 @@ SEARCH_MARGIN = 8  # search window = spot window + this [px]: footprints up to 1
 
 @dataclass(frozen=True)
 class Candidates:
-    """Measured detections, one entry per candidate spot.
+    """
+    Measured detections, one entry per candidate spot.
 
     x, y [px], flux [ADU], snr [-], cov (n, 2, 2) [px^2]: centre of gravity and its noise;
     minor, major [px^2], angle [rad]: second moments and the major axis; peak, peak_raw:
@@ -58,14 +64,17 @@ class Candidates:
     detection: np.ndarray
 
     def take(self, index: np.ndarray) -> "Candidates":
-        """The candidates at integer `index`, in that order."""
+        """Return the candidates at integer `index`, in that order."""
         taken = {f.name: getattr(self, f.name)[index] for f in fields(self) if f.name != "peaks"}
         return replace(self, peaks=[self.peaks[i] for i in index], **taken)
 
     def moment_covariance(self, idx) -> np.ndarray:
-        """(n, 2, 2) covariance [px^2] as wide as the spots `idx` themselves (their second
-        moments): for centres of gravity no noise model describes (blends of streaks, clipped
-        spots no fit could measure), so that the identifier gives them little weight."""
+        """
+        (n, 2, 2) covariance [px^2] as wide as the spots `idx` themselves (their second moments).
+
+        For centres of gravity no noise model describes (blends of streaks, clipped spots no
+        fit could measure), so that the identifier gives them little weight.
+        """
         major, minor, theta = self.major[idx], self.minor[idx], self.angle[idx]
         # No positive signal left to take moments of (a spot at the clip level everywhere): as wide
         # as a disc of the spot's area (per-axis variance A / 4 pi), at least one pixel's 1/12.
@@ -82,9 +91,12 @@ class Candidates:
 
 
 class _FootprintWindows(NamedTuple):
-    """Windows (n, R, C) of spots with top-left pixel (col0, row0) [px]: cleaned data [ADU];
-    footprint (the matched-filter mask, not grown); valid (inside the image); blend_use (the
-    pixels searched for two stars)."""
+    """
+    Windows (n, R, C) of spots with top-left pixel (col0, row0) [px].
+
+    Cleaned data [ADU]; footprint (the matched-filter mask, not grown); valid (inside the
+    image); blend_use (the pixels searched for two stars).
+    """
 
     data: np.ndarray
     footprint: np.ndarray
@@ -99,8 +111,11 @@ class _FootprintWindows(NamedTuple):
 
 def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float,
                        find_blends: bool = True) -> Candidates:
-    """Aperture (small components) or footprint (large ones) measurements of every detection,
-    after hot-pixel cleaning."""
+    """
+    Measure every detection after hot-pixel cleaning.
+
+    Aperture measurements for small components, footprint measurements for large ones.
+    """
     half = config.window_half + 1  # measuring window: the fit window plus a pixel of room
     size = 2 * half + 1
     big = size + SEARCH_MARGIN  # search window: the spot window is re-centred on the brightest 3x3 sum in it
@@ -124,8 +139,11 @@ def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfi
 
 
 def _measure_small(image, det, config, sigma, idx, out, find_blends: bool) -> None:
-    """Point-window measurements (kernels.measure_small) of the detections `idx`, written to
-    `out`; footprints wider than the aperture get their shape from the footprint too."""
+    """
+    Point-window measurements (kernels.measure_small) of the detections `idx`, written to `out`.
+
+    Footprints wider than the aperture get their shape from the footprint too.
+    """
     half = config.window_half + 1
     big = 2 * half + 1 + SEARCH_MARGIN
     bg = det.background_at(det.x[idx], det.y[idx])
@@ -152,9 +170,12 @@ def _measure_small(image, det, config, sigma, idx, out, find_blends: bool) -> No
 
 
 def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> None:
-    """Footprint measurements of the spots too large for a point window (streaks, bright or
-    blended stars), batched by window size: the footprint (grown by one detection-grid pixel)
-    gives flux, centre of gravity and SNR; its pixels 2 sigma above the noise give the shape."""
+    """
+    Footprint measurements of the spots too large for a point window (streaks, bright or blended stars).
+
+    Batched by window size: the footprint (grown by one detection-grid pixel) gives flux,
+    centre of gravity and SNR; its pixels 2 sigma above the noise give the shape.
+    """
     height, width = image.shape
     noise, gain, b = det.noise_adu, config.gain_e_per_adu, det.binning
     ratio_limit = hot_pixel_ratio(config, sigma)
@@ -196,11 +217,14 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
 
 
 def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends) -> None:
-    """Refine the shape of spots `members` from their detection footprint (the matched-filter
-    mask, not grown), which traces a faint streak that a threshold or an aperture cuts short:
-    the spot is as elongated as the longer measure says; elongated spots get the cross-track
-    width test (_streak_width) and, with find_blends, a search for two stars (two_peaks over
-    windows.blend_use)."""
+    """
+    Refine the shape of spots `members` from their detection footprint (the matched-filter mask, not grown).
+
+    Which traces a faint streak that a threshold or an aperture cuts short: the spot is as
+    elongated as the longer measure says; elongated spots get the cross-track width test
+    (_streak_width) and, with find_blends, a search for two stars (two_peaks over
+    windows.blend_use).
+    """
     noise, gain = det.noise_adu, config.gain_e_per_adu
     col0, row0 = windows.col0, windows.row0
     ridge = aperture_moments(windows.data, windows.footprint, col0, row0, noise, gain, signed_shape=True)
@@ -223,13 +247,15 @@ def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigm
 
 
 def _streak_width(windows: _FootprintWindows, major, noise, sigma, binning) -> np.ndarray:
-    """Stand-in for the narrowest second moment [px^2] of elongated spots, for the width test.
+    """
+    Stand-in for the narrowest second moment [px^2] of elongated spots, for the width test.
 
     Second moments of a faint streak are too noisy to tell a PSF-wide streak from a cosmic-ray
     track a pixel wide, so count instead: where the ridge is >= 10 noise sigmas, a PSF of sigma
     >= 1 px puts >= 5-sigma signal on >= ~2.5 pixels across the track per pixel of length, a
     cosmic-ray track on ~1. Returns 0 (fails the width test) for a spot with fewer than 1.8
-    such pixels per pixel of length (length from the major moment), else inf (no verdict)."""
+    such pixels per pixel of length (length from the major moment), else inf (no verdict).
+    """
     win, footprint, valid = windows.data, windows.footprint, windows.valid
     n, rows, cols = win.shape
     grow = 2 * binning + 1

@@ -1,4 +1,6 @@
-"""Detection: background, noise, thresholding and connected components.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Detection: background, noise, thresholding and connected components.
 
 Works on the image binned `binning` x `binning` (mean of the block, OpenCV INTER_AREA): a
 2x2 bin keeps a PSF of sigma >= 1 px well sampled, loses little sensitivity, and makes the
@@ -18,10 +20,12 @@ MAD_TO_SIGMA = 1.4826
 
 @dataclass(frozen=True)
 class Detections:
-    """Connected components of the thresholded, PSF-matched image (M of them).
+    """
+    Connected components of the thresholded, PSF-matched image (M of them).
 
-    label: each component's value in `labels`; left, top, right, bottom: bounding box on the full-resolution image [px] (right/bottom
-    exclusive); x, y: footprint centroid [px]; area: footprint size on the full-resolution
+    label: each component's value in `labels`; left, top, right, bottom: bounding box on the
+    full-resolution image [px] (right/bottom exclusive); x, y: footprint centroid [px]; area:
+    footprint size on the full-resolution
     grid [px]; labels: component label image on the binned grid (0 = background);
     background: background on the binned grid [ADU]; noise_adu: 1-sigma full-resolution pixel
     noise [ADU]; binning: bin factor of the detection grid; noise_scale: local pixel noise over
@@ -60,8 +64,11 @@ class Detections:
 
 
 def bin_image(image: np.ndarray, binning: int) -> np.ndarray:
-    """Mean over binning x binning blocks (trailing rows/columns that do not fill a block are
-    dropped); integer images stay integer (rounded mean), others become float32."""
+    """
+    Mean over binning x binning blocks (trailing rows/columns that do not fill a block are dropped).
+
+    Integer images stay integer (rounded mean), others become float32.
+    """
     if image.dtype.kind == "f" and image.dtype != np.float32:
         image = image.astype(np.float32)
     elif image.dtype.kind in "ui" and image.dtype not in (np.uint8, np.uint16):
@@ -73,10 +80,13 @@ def bin_image(image: np.ndarray, binning: int) -> np.ndarray:
 
 
 def robust_sigma(values: np.ndarray) -> float:
-    """1.4826 x median absolute deviation: the Gaussian sigma, ignoring outliers (stars). On
-    coarsely quantised data (noise below ~0.7 ADU, most samples equal to the median) the MAD is
-    0: then the standard deviation clipped at 3 sigma about the median (stars and hot pixels
-    clipped away, the quantisation's 1/12 ADU^2 left in for the caller)."""
+    """
+    1.4826 x median absolute deviation: the Gaussian sigma, ignoring outliers (stars).
+
+    On coarsely quantised data (noise below ~0.7 ADU, most samples equal to the median) the MAD
+    is 0: then the standard deviation clipped at 3 sigma about the median (stars and hot pixels
+    clipped away, the quantisation's 1/12 ADU^2 left in for the caller).
+    """
     values = np.asarray(values, dtype=np.float32).ravel()
     if values.size == 0:
         return 0.0
@@ -88,9 +98,13 @@ def robust_sigma(values: np.ndarray) -> float:
 
 
 def clipped_sigma(values: np.ndarray, centre: float, rounds: int = 10) -> float:
-    """Standard deviation of `values` about their own mean, keeping those within 3 sigma of
-    the running mean (starting from `centre`), iterated: robust to stars and hot pixels, and
-    unbiased by where the quantisation steps fall relative to the mean."""
+    """
+    Return the standard deviation of `values` about their own mean.
+
+    Keeping those within 3 sigma of the running mean (starting from `centre`), iterated:
+    robust to stars and hot pixels, and unbiased by where the quantisation steps fall
+    relative to the mean.
+    """
     kept = values[np.isfinite(values)].astype(np.float64)
     if kept.size == 0:
         return 0.0
@@ -111,10 +125,13 @@ def estimate_background(image: np.ndarray, block: int) -> np.ndarray:
 
 
 def background_and_noise(image: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
-    """Smooth background and pixel-noise maps [same units]: the median and the robust sigma
-    (MAD) of each block x block tile (at most 8x8 samples on a regular sub-grid), bilinearly
-    interpolated back to full size. Robust to stars; follow stray-light gradients (whose shot
-    noise raises the local noise)."""
+    """
+    Smooth background and pixel-noise maps [same units].
+
+    The median and the robust sigma (MAD) of each block x block tile (at most 8x8 samples on
+    a regular sub-grid), bilinearly interpolated back to full size. Robust to stars; follow
+    stray-light gradients (whose shot noise raises the local noise).
+    """
     h, w = image.shape
     block = max(2, min(block, h, w))
     step = max(1, block // 8)
@@ -138,7 +155,8 @@ def background_and_noise(image: np.ndarray, block: int) -> tuple[np.ndarray, np.
 
 def detect(image: np.ndarray, *, binning: int, background_block_px: int, detection_sigma: float,
            psf_sigma_px: float, min_area: int, max_area: int, smear_kernel: np.ndarray | None = None) -> Detections:
-    """Threshold the PSF-matched residual at detection_sigma x its own robust noise.
+    """
+    Threshold the PSF-matched residual at detection_sigma x its own robust noise.
 
     smear_kernel: when the body rate is known, a kernel on the detection grid (unit sum)
     matching the predicted streak; it replaces the PSF-sized Gaussian (matched filter).

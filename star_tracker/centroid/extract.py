@@ -1,5 +1,8 @@
-"""Spot extraction, the centroiding stage: detect -> measure -> reject defects -> sub-pixel
-fit (points, blends, streaks) -> `Spots`.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Spot extraction, the centroiding stage.
+
+Detect -> measure -> reject defects -> sub-pixel fit (points, blends, streaks) -> `Spots`.
 
 Input: a 2-D image in ADU (uint8/uint16/float). Output: `Spots` in pixel coordinates with
 (0, 0) at the centre of the top-left pixel, sorted by flux (brightest first). Optionally a
@@ -30,9 +33,13 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class _Clipping:
-    """Clipped spots of a frame: level (n,) raw level [ADU] from which each spot is clipped
-    (inf: not clipped); excluded: (H, W) bool pixels no fit may use (None: none); fitted (n,):
-    clipped spots measured by a fit without their clipped pixels."""
+    """
+    Clipped spots of a frame.
+
+    Level (n,) raw level [ADU] from which each spot is clipped (inf: not clipped); excluded:
+    (H, W) bool pixels no fit may use (None: none); fitted (n,): clipped spots measured by a
+    fit without their clipped pixels.
+    """
 
     level: np.ndarray
     excluded: np.ndarray | None
@@ -45,15 +52,19 @@ class _Clipping:
 
 def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
                   smear: "SmearModel | None" = None, psf_prior: float | None = None) -> Spots:
-    """Detect spots and measure them (see CentroidConfig). `smear`, when given, predicts each
-    star's streak from the body rate and exposure: detection uses the matched streak kernel
-    and positions come from a fit on the predicted path (mid-exposure, curved arcs included).
+    """
+    Detect spots and measure them (see CentroidConfig).
+
+    `smear`, when given, predicts each star's streak from the body rate and exposure:
+    detection uses the matched streak kernel and positions come from a fit on the predicted
+    path (mid-exposure, curved arcs included).
 
     PSF (config.psf_mode "auto"): the frame is measured with the prior width (`psf_prior` [px]
     when given, e.g. the last frames' estimate, else config.psf_sigma_px), its PSF estimated
     from the stars found (psf_estimate.estimate_psf), and, when the estimate differs from the
     prior by more than RERUN_TOLERANCE (relative), measured again with the estimate. The
-    returned Spots carry the estimate (`Spots.psf`, applied_sigma_px = the width used)."""
+    returned Spots carry the estimate (`Spots.psf`, applied_sigma_px = the width used).
+    """
     if image.ndim != 2 or image.size == 0:
         raise ValueError(f"expected a non-empty 2-D image, got shape {image.shape}")
     if image.dtype.kind not in "uif":
@@ -87,9 +98,13 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
 
 @dataclass(frozen=True)
 class _Frame:
-    """What a measurement of a frame leaves for the PSF estimate: its detections, every
-    measured candidate (shape-test rejects included), the saturation level [ADU] and whether
-    a body rate predicted smears (then no star shows the optics' PSF)."""
+    """
+    What a measurement of a frame leaves for the PSF estimate.
+
+    Its detections, every measured candidate (shape-test rejects included), the saturation
+    level [ADU] and whether a body rate predicted smears (then no star shows the optics'
+    PSF).
+    """
 
     det: Detections
     cand: Candidates
@@ -99,8 +114,11 @@ class _Frame:
 
 def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None"
                    ) -> tuple[Spots, _Frame | None]:
-    """One measurement of the frame with config's PSF width: the spots and the _Frame (None
-    when nothing was detected)."""
+    """
+    Measure the frame once with config's PSF width.
+
+    Returns the spots and the _Frame (None when nothing was detected).
+    """
     height, width = image.shape
     binning = config.binning if min(height, width) >= 16 * config.binning else 1
     saturation = config.saturation_adu or (np.iinfo(image.dtype).max if image.dtype.kind in "ui" else np.inf)
@@ -145,8 +163,12 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
 
 
 def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float) -> np.ndarray:
-    """Defects (bool per candidate): cleaned-away hot pixels (nothing left) and spots too sharp
-    or too thin for the PSF (CentroidConfig's shape test; none without a PSF)."""
+    """
+    Defects (bool per candidate).
+
+    Cleaned-away hot pixels (nothing left) and spots too sharp or too thin for the PSF
+    (CentroidConfig's shape test; none without a PSF).
+    """
     rejected = np.zeros(cand.x.size, bool)
     if config.psf_sigma_px > 0:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -158,8 +180,12 @@ def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float) -> np
 
 
 def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate_aided: bool) -> np.ndarray:
-    """Indices of the candidates worth fitting: measured, not defects, positive flux, large
-    enough and with an SNR (under the local noise) above the first cut."""
+    """
+    Return indices of the candidates worth fitting.
+
+    Measured, not defects, positive flux, large enough and with an SNR (under the local
+    noise) above the first cut.
+    """
     config = context.config
     # Streaks spread their signal: their footprint SNR understates what the streak fit recovers,
     # so they pass a lower first cut and face min_snr with the fit's SNR.
@@ -173,8 +199,12 @@ def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate
 
 def _centres_of_gravity(kept: Candidates, config: CentroidConfig, sigma: float, saturated: np.ndarray,
                         multi: np.ndarray) -> SpotRows:
-    """The spot table before any fit: each candidate's centre of gravity (intensity-weighted
-    for "wcog"), flags SATURATED, EDGE and BLENDED (`multi`: several peaks)."""
+    """
+    Return the spot table before any fit.
+
+    Each candidate's centre of gravity (intensity-weighted for "wcog"), flags SATURATED,
+    EDGE and BLENDED (`multi`: several peaks).
+    """
     n = kept.x.size
     flags = np.zeros(n, np.uint32)
     flags[saturated] |= FLAG_SATURATED
@@ -200,9 +230,13 @@ def _centres_of_gravity(kept: Candidates, config: CentroidConfig, sigma: float, 
 
 def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping: _Clipping, multi: np.ndarray,
                aid: "SmearModel | None") -> tuple[SpotRows, list[SpotRows], _Clipping]:
-    """The fits the method calls for: blends, point PSFs (clipped ones without their clipped
-    pixels), streaks (on the predicted path with `aid`), then the refit of spots whose fit
-    shows a clipped core. Returns the spot table, the stars split off, the clipping state."""
+    """
+    Return the fits the method calls for.
+
+    Blends, point PSFs (clipped ones without their clipped pixels), streaks (on the
+    predicted path with `aid`), then the refit of spots whose fit shows a clipped core.
+    Returns the spot table, the stars split off, the clipping state.
+    """
     config, sigma = context.config, context.sigma
     n = len(spots)
     saturated = clipping.saturated
@@ -246,9 +280,12 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
 
 def _refit_undershot(context: FitContext, kept: Candidates, spots: SpotRows, clipping: _Clipping,
                      probe: np.ndarray, aid: "SmearModel | None") -> tuple[SpotRows, SpotRows, _Clipping]:
-    """A star clipped in a single pixel has no flat top, but its fit shows it: the model at its
-    brightest pixel exceeds the data there by many sigmas. The fitted spots `probe` that show
-    it are flagged SATURATED and refitted without their clipped pixels."""
+    """
+    Flag and refit the stars clipped in a single pixel (no flat top, but their fit shows it).
+
+    The model at its brightest pixel exceeds the data there by many sigmas. The fitted spots
+    `probe` that show it are flagged SATURATED and refitted without their clipped pixels.
+    """
     path_fitted = (spots.flags & FLAG_RATE_AIDED) != 0
     level = undershot_peaks(context, kept.detection[probe], spots.take(probe),
                             aid.path(spots.x[probe], spots.y[probe]) if aid is not None and probe.size else None)
@@ -272,8 +309,12 @@ def _refit_undershot(context: FitContext, kept: Candidates, spots: SpotRows, cli
 
 
 def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_values: dict) -> Spots:
-    """`Spots` from the measured table: SNR and covariance scaled to the local noise, spots
-    outside the image or below min_snr dropped, the brightest max_spots kept, by flux."""
+    """
+    `Spots` from the measured table.
+
+    SNR and covariance scaled to the local noise, spots outside the image or below min_snr
+    dropped, the brightest max_spots kept, by flux.
+    """
     config = context.config
     height, width = context.image.shape
     # Measurements above used the frame's typical pixel noise; where stray light makes the local
@@ -293,8 +334,11 @@ def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_v
 
 
 def _local_noise_factor(context: FitContext, x, y, flux) -> np.ndarray:
-    """Variance ratio of a spot's measurement under the local pixel noise vs the frame's typical
-    one: (F/g + N s_local^2) / (F/g + N s^2), N = 4 pi sigma^2 the PSF's effective pixels."""
+    """
+    Variance ratio of a spot's measurement under the local pixel noise vs the frame's typical one.
+
+    (F/g + N s_local^2) / (F/g + N s^2), N = 4 pi sigma^2 the PSF's effective pixels.
+    """
     det = context.det
     scale = det.noise_scale_at(np.nan_to_num(x), np.nan_to_num(y))
     shot = np.maximum(np.nan_to_num(flux), 0.0) / context.gain

@@ -1,5 +1,10 @@
-"""Why a frame gave no usable star spots: blank, saturated, dominated by defects, or simply too
-few stars above the threshold. A short reason for the CLI's output and a node's /diagnostics."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Why a frame gave no usable star spots.
+
+Blank, saturated, dominated by defects, or simply too few stars above the threshold. A short
+reason for the CLI's output and a node's /diagnostics.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -11,9 +16,12 @@ DEFECT_DOMINATED_RATIO = 4.0  # defects rejected per spot kept beyond which a fr
 
 
 def frame_problem(image: np.ndarray, spots: Spots, min_spots: int, saturation_adu: float = 0.0) -> str | None:
-    """The reason a frame (2-D, ADU) cannot be identified from `spots` (extract_spots' result),
-    or None when it holds at least `min_spots` spots. saturation_adu: the clip level [ADU]
-    (0: the dtype's maximum; float images: none)."""
+    """
+    Return the reason a frame (2-D, ADU) cannot be identified from `spots` (extract_spots' result).
+
+    Or None when it holds at least `min_spots` spots. saturation_adu: the clip level [ADU] (0:
+    the dtype's maximum; float images: none).
+    """
     if len(spots) >= min_spots:
         return None
     finite = np.isfinite(image) if image.dtype.kind == "f" else None

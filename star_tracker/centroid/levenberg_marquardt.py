@@ -1,6 +1,11 @@
-"""Weighted least squares by Levenberg-Marquardt on batches of windows: every spot of a batch
-fitted at once, each in its own window, one spot's failure never affecting another's (the
-streak fits' solver; generic in the model, which the caller evaluates)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Weighted least squares by Levenberg-Marquardt on batches of windows.
+
+Every spot of a batch fitted at once, each in its own window, one spot's failure never
+affecting another's (the streak fits' solver; generic in the model, which the caller
+evaluates).
+"""
 from __future__ import annotations
 
 from typing import Callable, NamedTuple
@@ -11,8 +16,12 @@ from .streak_model import StreakWindows
 
 
 def _damping_floor(normal: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """1e-10 of the total information, per parameter in the units of `scale` (n, P): keeps
-    degenerate systems solvable (a zero-length streak has no information on its angle)."""
+    """
+    1e-10 of the total information, per parameter in the units of `scale` (n, P).
+
+    Keeps degenerate systems solvable (a zero-length streak has no information on its
+    angle).
+    """
     diag = np.diagonal(normal, axis1=1, axis2=2)
     return 1e-10 * np.sum(diag * scale * scale, axis=1, keepdims=True) / (scale * scale) + 1e-300
 
@@ -22,7 +31,8 @@ DECREMENT_TOLERANCE = 1e-3  # chi^2 still to gain: stop within ~3 % of a sigma o
 
 
 class LeastSquaresModel(NamedTuple):
-    """The model a batch fit solves (callables over the spots of one batch).
+    """
+    The model a batch fit solves (callables over the spots of one batch).
 
     evaluate(index, params (n, P)) -> aug (n, P + 1, M) float32: the jacobian (P rows) and the
     model [ADU] over the M window pixels of the spots `index` of the batch;
@@ -41,17 +51,19 @@ class LeastSquaresModel(NamedTuple):
 
 
 class PixelNoise(NamedTuple):
-    """Noise model of the pixels: variance max(model, 0) / gain + noise^2 [ADU^2]; noise [ADU],
-    gain [e-/ADU]."""
+    """Noise model of the pixels: variance max(model, 0) / gain + noise^2 [ADU^2]; noise [ADU], gain [e-/ADU]."""
 
     noise: float
     gain: float
 
 
 class LeastSquaresSolution(NamedTuple):
-    """params (N, P) at the solution; fisher (N, P, P) the Fisher (Gauss-Newton) matrices
-    there; done (N,) bool, a minimum was reached within the iterations; chi2 (N,) at the
-    solution (inf where never evaluated)."""
+    """
+    params (N, P) at the solution.
+
+    Fisher (N, P, P) the Fisher (Gauss-Newton) matrices there; done (N,) bool, a minimum was
+    reached within the iterations; chi2 (N,) at the solution (inf where never evaluated).
+    """
 
     params: np.ndarray
     fisher: np.ndarray
@@ -61,8 +73,10 @@ class LeastSquaresSolution(NamedTuple):
 
 def levenberg_marquardt(model: LeastSquaresModel, params: np.ndarray, win: StreakWindows, valid: np.ndarray,
                         pixel_noise: PixelNoise, iterations: int) -> LeastSquaresSolution:
-    """Weighted least squares by Levenberg-Marquardt, all spots at once (those still moving);
-    params (N, P) the start (overwritten), valid (N,) the spots to fit, at most `iterations`
+    """
+    Weighted least squares by Levenberg-Marquardt, all spots at once (those still moving).
+
+    Params (N, P) the start (overwritten), valid (N,) the spots to fit, at most `iterations`
     steps each.
 
     Weights 1 / (max(model, 0) / gain + noise^2) follow the model for REWEIGHT_STEPS
@@ -75,7 +89,8 @@ def levenberg_marquardt(model: LeastSquaresModel, params: np.ndarray, win: Strea
     condition, once the weights are fixed); damping follows the ratio of actual to
     predicted chi^2 decrease (Nielsen's rule). A spot stops when its Gauss-Newton decrement
     g^T N^-1 g (the chi^2 still to gain) is below DECREMENT_TOLERANCE. The Fisher matrix
-    returned is N."""
+    returned is N.
+    """
     state = _BatchState(params.shape, win, pixel_noise)
     n_par = params.shape[1]
     active = np.flatnonzero(valid)
@@ -91,8 +106,12 @@ def levenberg_marquardt(model: LeastSquaresModel, params: np.ndarray, win: Strea
 
 
 class _BatchState:
-    """The solver's per-spot state: normal matrices N and gradients at the current
-    parameters, chi^2, fixed weights, damping (lam, nu), the secant correction S."""
+    """
+    The solver's per-spot state.
+
+    Normal matrices N and gradients at the current parameters, chi^2, fixed weights, damping
+    (lam, nu), the secant correction S.
+    """
 
     def __init__(self, shape: tuple[int, int], win: StreakWindows, pixel_noise: PixelNoise) -> None:
         n, n_par = shape
@@ -111,8 +130,11 @@ class _BatchState:
         self.eye = np.eye(n_par)
 
     def linearize(self, index, aug, residual) -> None:
-        """N, gradient and chi^2 of the spots `index` from aug (jacobian rows, then the model,
-        replaced by the residual here)."""
+        """
+        Return N, gradient and chi^2 of the spots `index`.
+
+        From aug: the jacobian rows, then the model, replaced by the residual here.
+        """
         n_par = self.n_par
         w = self.weights[index]
         fresh = self.reweighted[index] < REWEIGHT_STEPS
@@ -133,8 +155,7 @@ class _BatchState:
         self.chi2[index] = _weighted_sum(weighted[:, n_par], residual)
 
     def iterate(self, model: LeastSquaresModel, params: np.ndarray, active: np.ndarray) -> np.ndarray:
-        """One step for the spots `active` (params updated where chi^2 falls); returns the
-        spots still moving."""
+        """One step for the spots `active` (params updated where chi^2 falls); returns the spots still moving."""
         p, g = params[active], self.grad[active]
         floor = _damping_floor(self.normal[active], model.scale_of(p))
         decrement, hold = self._decrement(model, active, p, g, floor)
@@ -171,8 +192,11 @@ class _BatchState:
         return self._reject(active, active[~better])
 
     def _decrement(self, model: LeastSquaresModel, active, p, g, floor):
-        """Gauss-Newton decrement g^T N^-1 g of the spots `active` (the chi^2 still to gain)
-        over their determined parameters, and the (n, P) mask of parameters the step holds."""
+        """
+        Return the Gauss-Newton decrement g^T N^-1 g of the spots `active` (the chi^2 still to gain).
+
+        Over their determined parameters; also the (n, P) mask of parameters the step holds.
+        """
         floored = self.normal[active] + floor[:, :, None] * self.eye
         if model.undetermined is None:
             judged, hold = g, np.zeros(p.shape, bool)
@@ -201,8 +225,11 @@ class _BatchState:
         self.nu[idx] = 2.0
 
     def _reject(self, active, worse) -> np.ndarray:
-        """Raise the damping of the spots `worse` (no step taken); returns the spots of
-        `active` still moving (not stuck at a minimum to rounding)."""
+        """
+        Raise the damping of the spots `worse` (no step taken).
+
+        Returns the spots of `active` still moving (not stuck at a minimum to rounding).
+        """
         self.lam[worse] *= self.nu[worse]
         self.nu[worse] *= 2.0
         stuck = worse[self.lam[worse] > 1e12]  # no step lowers chi^2: a minimum to rounding
@@ -211,9 +238,13 @@ class _BatchState:
 
 
 class _Trial(NamedTuple):
-    """A trial step of the active spots: params, aug (their jacobian and model, the model
-    row replaced by residual on linearizing), residual, step, model_matrix B = N + S, gradient,
-    the predicted chi^2 decrease and its ratio to the actual one."""
+    """
+    A trial step of the active spots.
+
+    Params, aug (their jacobian and model, the model row replaced by residual on linearizing),
+    residual, step, model_matrix B = N + S, gradient, the predicted chi^2 decrease and its
+    ratio to the actual one.
+    """
 
     params: np.ndarray
     aug: np.ndarray
@@ -231,9 +262,12 @@ def _weighted_sum(a, b):
 
 
 def _secant_update(correction, index, step, model_matrix, gradient_change) -> None:
-    """S += (c - b) / b^2 (B step)(B step)^T with b = step^T B step, c = step^T (g_old -
-    g_new) the measured curvature along the step, clipped to [b / 4, 4 b] (keeps B
-    positive definite and a noisy measurement from flattening it)."""
+    """
+    Update S += (c - b) / b^2 (B step)(B step)^T with b = step^T B step.
+
+    c = step^T (g_old - g_new) is the measured curvature along the step, clipped to [b / 4, 4
+    b] (keeps B positive definite and a noisy measurement from flattening it).
+    """
     if index.size == 0:
         return
     b_step = np.matmul(model_matrix, step[:, :, None])[..., 0]
@@ -259,8 +293,12 @@ def _solve(matrices: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 def inverse_fisher(normal: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Inverse of the Fisher matrices (n, P, P); degenerate directions floored (see
-    _damping_floor): they come out with huge variance instead of failing the batch."""
+    """
+    Inverse of the Fisher matrices (n, P, P).
+
+    Degenerate directions floored (see _damping_floor): they come out with huge variance
+    instead of failing the batch.
+    """
     floored = normal + _damping_floor(normal, scale)[:, :, None] * np.eye(normal.shape[1])[None]
     return _batched_inverse(floored)
 

@@ -1,5 +1,10 @@
-"""Per-spot measurements on small windows: hot-pixel cleaning, centre of gravity (plain or
-intensity-weighted) with its noise-model covariance, shape moments, blend peaks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Per-spot measurements on small windows.
+
+Hot-pixel cleaning, centre of gravity (plain or intensity-weighted) with its noise-model
+covariance, shape moments, blend peaks.
+"""
 from __future__ import annotations
 
 import functools
@@ -11,8 +16,11 @@ from scipy.special import erf
 
 
 def star_peak_to_neighbour_ratio(psf_sigma_px: float) -> float:
-    """Largest ratio of a star's brightest pixel to its brightest 4-neighbour (star centred on
-    a pixel): P0 / P1 with P0, P1 the PSF fractions of the central and next pixel along an axis."""
+    """
+    Largest ratio of a star's brightest pixel to its brightest 4-neighbour (star centred on a pixel).
+
+    P0 / P1 with P0, P1 the PSF fractions of the central and next pixel along an axis.
+    """
     s = np.sqrt(2.0) * max(psf_sigma_px, 1e-3)
     p0 = erf(0.5 / s)
     p1 = 0.5 * (erf(1.5 / s) - erf(0.5 / s))
@@ -21,13 +29,17 @@ def star_peak_to_neighbour_ratio(psf_sigma_px: float) -> float:
 
 @functools.lru_cache(maxsize=32)
 def cog_phase_bias_rms(psf_sigma_px: float, radius_px: float, power: int = 1) -> float:
-    """RMS [px per axis] of the centre-of-gravity bias of a noiseless, pixel-integrated
-    Gaussian PSF (1-sigma psf_sigma_px [px]) measured in a circular aperture of radius
-    radius_px [px] centred on the pixel nearest to the star, over the star's sub-pixel phase
-    (uniform). power 1: plain centre of gravity; 2: intensity-weighted (weights r^2). The
-    aperture cuts the PSF's wings unevenly unless the star sits on a pixel centre: a bias of
-    up to a few hundredths of a pixel that no noise term contains (0.021 px for a 1 px PSF,
-    the measured excess error of bright centres of gravity in the simulator)."""
+    """
+    Return the RMS [px per axis] of the centre-of-gravity bias of a noiseless Gaussian PSF.
+
+    A pixel-integrated Gaussian PSF (1-sigma psf_sigma_px [px]) measured in a circular
+    aperture of radius radius_px [px] centred on the pixel nearest to the star, over the
+    star's sub-pixel phase (uniform). power 1: plain centre of gravity; 2:
+    intensity-weighted (weights r^2). The aperture cuts the PSF's wings unevenly unless the
+    star sits on a pixel centre: a bias of up to a few hundredths of a pixel that no noise
+    term contains (0.021 px for a 1 px PSF, the measured excess error of bright centres of
+    gravity in the simulator).
+    """
     sigma = max(psf_sigma_px, 1e-3)
     reach = int(np.ceil(radius_px)) + 1
     k = np.arange(-reach, reach + 1, dtype=float)
@@ -47,9 +59,13 @@ _CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
 
 
 def clean_hot_pixels(windows: np.ndarray, valid: np.ndarray, noise: float, ratio_limit: float):
-    """Replace isolated hot pixels / cosmic-ray hits in background-subtracted windows (n, S, S)
-    [ADU] by the mean of their 4 neighbours: a pixel brighter than ratio_limit x its brightest
-    neighbour + 5 noise sigmas cannot come from a PSF that wide. Returns (cleaned, hit mask)."""
+    """
+    Replace isolated hot pixels / cosmic-ray hits in background-subtracted windows (n, S, S) [ADU].
+
+    Each is replaced by the mean of its 4 neighbours: a pixel brighter than ratio_limit x its
+    brightest neighbour + 5 noise sigmas cannot come from a PSF that wide. Returns (cleaned,
+    hit mask).
+    """
     n, rows, cols = windows.shape
     if not np.isfinite(ratio_limit):
         return windows, np.zeros(windows.shape, bool)
@@ -65,9 +81,13 @@ def clean_hot_pixels(windows: np.ndarray, valid: np.ndarray, noise: float, ratio
 
 @dataclass(frozen=True)
 class Moments:
-    """Aperture measurements (n spots): flux [ADU], centre of gravity x, y [px], its covariance
-    cov (n, 2, 2) [px^2], snr, second moments mxx, myy, mxy of the positive signal [px^2],
-    minor/major principal moments [px^2], peak (brightest pixel) [ADU]."""
+    """
+    Aperture measurements (n spots).
+
+    Flux [ADU], centre of gravity x, y [px], its covariance cov (n, 2, 2) [px^2], snr, second
+    moments mxx, myy, mxy of the positive signal [px^2], minor/major principal moments [px^2],
+    peak (brightest pixel) [ADU].
+    """
 
     flux: np.ndarray
     x: np.ndarray
@@ -90,8 +110,10 @@ def _moment_features(size_r: int, size_c: int) -> np.ndarray:
 
 def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row0: np.ndarray, noise: float,
                      gain: float, power: int = 1, signed_shape: bool = False) -> Moments:
-    """Centre of gravity of the pixels in `use` (n, R, C) of background-subtracted windows
-    whose top-left pixel is (col0, row0) [px].
+    """
+    Return the centre of gravity of the pixels in `use` (n, R, C) of background-subtracted windows.
+
+    The windows' top-left pixel is (col0, row0) [px].
 
     power 1: plain centre of gravity, weights r_i; power 2: intensity-weighted, weights
     max(r_i, 0)^2 (less noise from the faint wings, more pixel-phase bias). The covariance
@@ -135,10 +157,13 @@ def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row
 
 def secondary_peaks(windows: np.ndarray, valid: np.ndarray, centre: int, threshold: float, min_separation: float,
                     radius: float, gain: float, noise: float):
-    """The brightest local maximum of the 3x3 box sum (box_sums) of each window (n, S, S) that
-    is at least `min_separation` px from the window centre, within `radius` px of it, above
+    """
+    Return the brightest separate local maximum of the 3x3 box sum (box_sums) of each window (n, S, S).
+
+    It is at least `min_separation` px from the window centre, within `radius` px of it, above
     `threshold` [ADU, box sum] and separated from the central peak by a dip (the box sum
-    half-way between them is below 0.9x the fainter peak). Returns (found (n,), row, col)."""
+    half-way between them is below 0.9x the fainter peak). Returns (found (n,), row, col).
+    """
     n, size, _ = windows.shape
     box, _, maxima = box_sums(windows, valid, gain, noise)
     rr, cc = np.mgrid[0:size, 0:size]
@@ -156,9 +181,13 @@ def secondary_peaks(windows: np.ndarray, valid: np.ndarray, centre: int, thresho
 
 
 def box_sums(windows: np.ndarray, use: np.ndarray, gain: float, noise: float):
-    """3x3 box sums of windows (n, R, C) [ADU] inside `use`, their variance (shot + pixel
-    noise) and a mask of their local maxima. Windows are processed stacked (one OpenCV call);
-    a window's first and last rows are never maxima (they see the neighbouring window)."""
+    """
+    3x3 box sums of windows (n, R, C) [ADU] inside `use`.
+
+    Their variance (shot + pixel noise) and a mask of their local maxima. Windows are
+    processed stacked (one OpenCV call); a window's first and last rows are never maxima
+    (they see the neighbouring window).
+    """
     n, rows, cols = windows.shape
     signal = np.where(use, windows, 0.0).astype(np.float32).reshape(n * rows, cols)
     box = cv2.boxFilter(signal, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
@@ -174,12 +203,15 @@ def box_sums(windows: np.ndarray, use: np.ndarray, gain: float, noise: float):
 
 def two_peaks(box: np.ndarray, box_var: np.ndarray, maxima: np.ndarray, threshold: float,
               min_separation: float):
-    """The two brightest separate peaks of each window, from its box sums (see box_sums): local
-    maxima above `threshold` [ADU, box sum], at least `min_separation` px apart, with a real dip
-    between them: the box sum's minimum on the segment joining them is below 0.8x the fainter
-    peak and more than 5 sigma (its shot + pixel noise) under it -- two stars, not noise bumps on
-    one smooth spot or along a streak. Returns (found (n,), rows (n, 2), cols (n, 2)) in window
-    pixels, brightest first; all windows at once."""
+    """
+    Return the two brightest separate peaks of each window, from its box sums (see box_sums).
+
+    Local maxima above `threshold` [ADU, box sum], at least `min_separation` px apart, with a
+    real dip between them: the box sum's minimum on the segment joining them is below 0.8x the
+    fainter peak and more than 5 sigma (its shot + pixel noise) under it -- two stars, not noise
+    bumps on one smooth spot or along a streak. Returns (found (n,), rows (n, 2), cols (n, 2)) in
+    window pixels, brightest first; all windows at once.
+    """
     n, rows, cols = box.shape
     score = np.where(maxima & (box > threshold), box, -np.inf).reshape(n, -1)
     first = score.argmax(axis=1)

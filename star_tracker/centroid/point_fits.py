@@ -1,5 +1,10 @@
-"""PSF fits of point-like spots: single stars, two stars in one point window, blends of
-several peaks in one footprint, and saturated stars fitted on their unclipped wings."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+PSF fits of point-like spots.
+
+Single stars, two stars in one point window, blends of several peaks in one footprint, and
+saturated stars fitted on their unclipped wings.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -12,9 +17,12 @@ from .spots import FLAG_BLENDED
 
 
 def cleaned_windows(context: FitContext, col0, row0, size: int, background):
-    """Background-subtracted (n, size, size) windows with hot pixels cleaned, top-left pixel
-    (col0, row0) [px], background (n,) [ADU]; cleaned on windows one pixel larger, so that a
-    hot pixel on the border is judged against its true neighbours. Returns data and mask."""
+    """
+    Background-subtracted (n, size, size) windows with hot pixels cleaned, top-left pixel (col0, row0) [px].
+
+    Background (n,) [ADU]; cleaned on windows one pixel larger, so that a hot pixel on the
+    border is judged against its true neighbours. Returns data and mask.
+    """
     raw, valid = gather_windows(context.image, np.asarray(col0) - 1, np.asarray(row0) - 1, size + 2)
     win, _ = clean_hot_pixels(np.where(valid, raw - np.asarray(background)[:, None, None], 0.0), valid,
                               context.noise, 2.0 * star_peak_to_neighbour_ratio(context.sigma))
@@ -23,10 +31,13 @@ def cleaned_windows(context: FitContext, col0, row0, size: int, background):
 
 def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray,
                excluded: np.ndarray | None = None) -> FitOutcome:
-    """Gaussian PSF fit of point-like spots `which`; those whose window shows a second peak
-    get a joint 2-PSF fit (flag BLENDED), the second star returned as an added spot unless it
-    is a spot already or below min_snr. Pixels `excluded` (a neighbour's clipped core; None =
-    none) are left out of the fits."""
+    """
+    Gaussian PSF fit of point-like spots `which`.
+
+    Those whose window shows a second peak get a joint 2-PSF fit (flag BLENDED), the second
+    star returned as an added spot unless it is a spot already or below min_snr. Pixels
+    `excluded` (a neighbour's clipped core; None = none) are left out of the fits.
+    """
     config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
     half = config.window_half
     size = 2 * half + 1
@@ -102,10 +113,13 @@ MISFIT_MAX_ELONGATION = 1.2  # ... and a spot no more elongated than this (axis 
 
 
 def _not_gaussian(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> np.ndarray:
-    """Single-PSF fits (bool per window) that the Gaussian does not describe (a non-Gaussian
-    PSF: a defocused ring, strong coma): bright (flux SNR >= MISFIT_MIN_SNR), reduced chi^2
-    above MISFIT_CHI2 and a residual norm above MISFIT_RESIDUAL of the model's. Such a spot keeps
-    its model-free centre of gravity (and its phase-bias covariance) instead."""
+    """
+    Return the single-PSF fits (bool per window) that the Gaussian does not describe.
+
+    A non-Gaussian PSF (a defocused ring, strong coma): bright (flux SNR >= MISFIT_MIN_SNR),
+    reduced chi^2 above MISFIT_CHI2 and a residual norm above MISFIT_RESIDUAL of the model's.
+    Such a spot keeps its model-free centre of gravity (and its phase-bias covariance) instead.
+    """
     with np.errstate(divide="ignore", invalid="ignore"):
         bright = fit.converged[:, 0] & (fit.flux[:, 0] / np.sqrt(np.abs(fit.flux_var[:, 0])) >= MISFIT_MIN_SNR)
     out = np.zeros(bright.size, bool)
@@ -127,9 +141,12 @@ def _not_gaussian(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> n
 
 
 def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray) -> FitOutcome:
-    """Joint fit of one PSF per peak over the footprint window of each blended spot `which`:
-    the brightest star replaces the spot, the others above min_snr are added spots. A blend
-    whose fit fails keeps its centre of gravity."""
+    """
+    Joint fit of one PSF per peak over the footprint window of each blended spot `which`.
+
+    The brightest star replaces the spot, the others above min_snr are added spots. A blend
+    whose fit fails keeps its centre of gravity.
+    """
     sigma, noise, gain = context.sigma, context.noise, context.gain
     margin = int(np.ceil(3.0 * sigma)) + 2
     fitted, first_stars, others, other_peaks = [], [], [], []
@@ -169,10 +186,13 @@ def psf_stars(fit: PsfFit, rows: np.ndarray, source: int) -> FittedStars:
 
 
 def fit_clipped_points(context: FitContext, spots: SpotRows, which: np.ndarray, excluded: np.ndarray) -> FitOutcome:
-    """PSF fit of saturated point-like spots `which` without their clipped pixels (`excluded`):
-    the wings alone fix the centre, and the inverse Fisher information of those pixels is its
-    covariance. The window is the point window grown by the clipped core's radius.
-    converged: which of them the fit describes (the others keep their centre of gravity)."""
+    """
+    PSF fit of saturated point-like spots `which` without their clipped pixels (`excluded`).
+
+    The wings alone fix the centre, and the inverse Fisher information of those pixels is its
+    covariance. The window is the point window grown by the clipped core's radius. converged:
+    which of them the fit describes (the others keep their centre of gravity).
+    """
     config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
     x, y, flux = spots.x, spots.y, spots.flux
     cx, cy = np.rint(x[which]).astype(np.int64), np.rint(y[which]).astype(np.int64)

@@ -1,6 +1,10 @@
-"""The PSF measured on the frame itself: the width [px] of the pixel-integrated Gaussian the
-centroider's fit model, windows, shape test and blend splitting use, from the frame's bright,
-isolated, unsaturated point-like stars (PsfEstimate, estimate_psf).
+# SPDX-License-Identifier: Apache-2.0
+"""
+The PSF measured on the frame itself.
+
+The width [px] of the pixel-integrated Gaussian the centroider's fit model, windows, shape
+test and blend splitting use, from the frame's bright, isolated, unsaturated point-like stars
+(PsfEstimate, estimate_psf).
 
 Each chosen star gets a small fit of a pixel-integrated Gaussian with a free width (and a
 background offset) on a window 4 of its widths wide (kernels.fit_psf_width): not the raw
@@ -37,7 +41,8 @@ SMEARED_ELONGATION = 1.2  # stars more elongated than this are measured with the
 
 @dataclass(frozen=True)
 class PsfEstimate:
-    """The PSF of one frame as the centroider saw it.
+    """
+    The PSF of one frame as the centroider saw it.
 
     sigma_px: the equivalent Gaussian 1-sigma [px] (estimated, or the prior / configured value
     when not estimated); sigma_major_px, sigma_minor_px: 1-sigma along the PSF's major and
@@ -77,18 +82,21 @@ class PsfEstimate:
 
     @staticmethod
     def assumed(sigma_px: float, source: str, reason: str = "", stars: int = 0) -> "PsfEstimate":
-        """A round PSF of sigma_px [px] that was not estimated (source "prior" or "configured")."""
+        """Return a round PSF of sigma_px [px] that was not estimated (source "prior" or "configured")."""
         return PsfEstimate(float(sigma_px), float(sigma_px), float(sigma_px), 0.0, float("nan"), stars, source, reason)
 
 
 def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sigma: float) -> np.ndarray:
-    """Indices of the candidates fit to measure the PSF on, brightest first (at most MAX_STARS):
-    measured, off the image border, peak >= MIN_PEAK_SNR noise sigmas and 2 % below the clip
-    level (`saturation` [ADU]) and the frame's brightest candidate's peak, not
-    most of their light in one pixel once cleaned (hot pixels), not a long track (second
-    moments within 8x of each other), and no other candidate within ISOLATION_SIGMAS PSF
-    widths. Candidates the shape test rejected with the prior are included: with a prior too
-    wide, that is where sharp stars end up."""
+    """
+    Return indices of the candidates fit to measure the PSF on, brightest first (at most MAX_STARS).
+
+    Measured, off the image border, peak >= MIN_PEAK_SNR noise sigmas and 2 % below the clip
+    level (`saturation` [ADU]) and the frame's brightest candidate's peak, not most of their
+    light in one pixel once cleaned (hot pixels), not a long track (second moments within 8x of
+    each other), and no other candidate within ISOLATION_SIGMAS PSF widths. Candidates the shape
+    test rejected with the prior are included: with a prior too wide, that is where sharp stars
+    end up.
+    """
     finite = np.isfinite(cand.x) & np.isfinite(cand.y) & np.isfinite(cand.peak_raw)
     amplitude = cand.peak_raw - det.background_at(np.where(finite, cand.x, 0.0), np.where(finite, cand.y, 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -114,12 +122,16 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
 
 def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturation: float, prior_sigma: float,
                  gain: float) -> PsfEstimate:
-    """The frame's PSF from its usable stars (usable_stars) whose fit converged to a width of
-    at least SHARPEST_STAR_PX and whose axis ratio is below MAX_AXIS_RATIO, or the prior
-    (source "prior", with the reason) when fewer than MIN_STARS remain or the width is outside
-    [MIN_SIGMA_PX, MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
+    """
+    Return the frame's PSF from its usable stars (usable_stars), or the prior.
+
+    The stars used are those whose fit converged to a width of at least SHARPEST_STAR_PX and
+    whose axis ratio is below MAX_AXIS_RATIO; the prior (source "prior", with the reason) is
+    returned when fewer than MIN_STARS remain or the width is outside [MIN_SIGMA_PX,
+    MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
     saturation [ADU]; prior_sigma: the width the candidates were measured with [px]; gain
-    [e-/ADU]."""
+    [e-/ADU].
+    """
     chosen = usable_stars(cand, det, saturation, prior_sigma)
     if chosen.size < MIN_STARS:
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
@@ -167,16 +179,19 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
 
 
 def _median(values: np.ndarray) -> float:
-    """The median of a few values (np.median's overhead is most of the cost at this size)."""
+    """Return the median of a few values (np.median's overhead is most of the cost at this size)."""
     ordered = np.sort(values)
     n = ordered.size
     return float(0.5 * (ordered[(n - 1) // 2] + ordered[n // 2]))
 
 
 def _fit_widths(image, x, y, background, half: int, start: float, noise: float, gain: float):
-    """Free-width fits of the stars at (x, y) [px] on (2 half + 1)^2 windows: the converged
-    stars' x, y, flux, width (sigma [px]) and their windows (data, valid, col0, row0), keeping
-    widths of at least SHARPEST_STAR_PX; None when fewer than MIN_STARS remain."""
+    """
+    Free-width fits of the stars at (x, y) [px] on (2 half + 1)^2 windows.
+
+    The converged stars' x, y, flux, width (sigma [px]) and their windows (data, valid, col0,
+    row0), keeping widths of at least SHARPEST_STAR_PX; None when fewer than MIN_STARS remain.
+    """
     size = 2 * half + 1
     col0, row0 = np.rint(x).astype(np.int64) - half, np.rint(y).astype(np.int64) - half
     # Hot pixels out (one in a star's window would narrow its fit), judged against the sharpest
@@ -197,9 +212,13 @@ def _fit_widths(image, x, y, background, half: int, start: float, noise: float, 
 
 
 def _weighted_moments(windows, x, y, weight_sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """Each star's Gaussian-weighted second moments M (k, 2, 2) [px^2] about its fitted centre
-    (x, y) [px] (weight 1-sigma weight_sigma [px], wider than the PSF so that the product is
-    well sampled by the pixels) and the weighted signal each sums (k,) [ADU]."""
+    """
+    Return each star's Gaussian-weighted second moments M (k, 2, 2) [px^2] and weighted signal.
+
+    The moments are about its fitted centre (x, y) [px] (weight 1-sigma weight_sigma [px], wider
+    than the PSF so that the product is well sampled by the pixels); the weighted signal each
+    sums is (k,) [ADU].
+    """
     data, valid, col0, row0 = windows
     size = data.shape[1]
     dx = (col0[:, None] + np.arange(size)) - x[:, None]  # (k, S) columns
@@ -219,10 +238,13 @@ def _weighted_moments(windows, x, y, weight_sigma: float) -> tuple[np.ndarray, n
 
 
 def _axes(moments: np.ndarray, weight_sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """Axis ratio sigma_major / sigma_minor [-] (inf when not measurable) and major axis angle
-    [rad] in (-pi/2, pi/2] of the PSF under Gaussian-weighted moments (k, 2, 2): for a Gaussian
-    of covariance C, pixelated (C + I/12), such moments are M = ((C + I/12)^-1 + I/w^2)^-1, so
-    C = (M^-1 - I/w^2)^-1 - I/12 (w = weight_sigma [px])."""
+    """
+    Return the axis ratio sigma_major / sigma_minor [-] and major axis angle [rad] of the PSF.
+
+    The ratio is inf when not measurable, the angle in (-pi/2, pi/2], from Gaussian-weighted
+    moments (k, 2, 2): for a Gaussian of covariance C, pixelated (C + I/12), such moments are
+    M = ((C + I/12)^-1 + I/w^2)^-1, so C = (M^-1 - I/w^2)^-1 - I/12 (w = weight_sigma [px]).
+    """
     def inverse(a, b, c):  # of the symmetric [[a, c], [c, b]], and whether it is positive definite
         det = a * b - c * c
         return b / det, a / det, -c / det, np.isfinite(det) & (det > 0) & (a > 0)

@@ -1,4 +1,6 @@
-"""Weighted least-squares fit of pixel-integrated Gaussian PSFs to small image windows.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Weighted least-squares fit of pixel-integrated Gaussian PSFs to small image windows.
 
 One or several sources per window (several = a blend fitted jointly), all windows at once.
 """
@@ -15,8 +17,11 @@ _INV_ROOT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 
 
 def pixel_integrated_profile(edges_lo: np.ndarray, centre: np.ndarray, sigma: float):
-    """Fraction of a 1-D Gaussian (centre [px], sigma [px]) falling in pixels [lo, lo + 1),
-    and its derivative with respect to the centre [1/px]. Broadcasts edges_lo against centre."""
+    """
+    Return the fraction of a 1-D Gaussian (centre [px], sigma [px]) in pixels [lo, lo + 1), and its derivative.
+
+    The derivative is with respect to the centre [1/px]. Broadcasts edges_lo against centre.
+    """
     a = (edges_lo - centre) / sigma
     b = a + 1.0 / sigma
     prob = 0.5 * (erf(b / _ROOT2) - erf(a / _ROOT2))
@@ -43,9 +48,12 @@ def _inverse_3x3(a: np.ndarray) -> np.ndarray:
 
 
 def gather_windows(image: np.ndarray, col0: np.ndarray, row0: np.ndarray, size: int | tuple[int, int]):
-    """(n, rows, cols) float windows with top-left pixel (col0, row0) [px] (size: an int for
-    square windows or (rows, cols)), and a mask of the pixels inside the image (outside ones
-    read as 0)."""
+    """
+    Return (n, rows, cols) float windows with top-left pixel (col0, row0) [px], and a mask.
+
+    size: an int for square windows or (rows, cols); the mask holds the pixels inside the
+    image (outside ones read as 0).
+    """
     height, width = image.shape
     size_r, size_c = (size, size) if np.isscalar(size) else size
     rows = np.asarray(row0, np.int64)[:, None] + np.arange(size_r)[None, :]
@@ -56,8 +64,11 @@ def gather_windows(image: np.ndarray, col0: np.ndarray, row0: np.ndarray, size: 
 
 
 class PsfWindows(NamedTuple):
-    """n windows of background-subtracted data (n, S, S) [ADU]; valid (n, S, S) bool, the
-    usable pixels; col0, row0 (n,) the top-left pixel [px]."""
+    """
+    n windows of background-subtracted data (n, S, S) [ADU].
+
+    Valid (n, S, S) bool, the usable pixels; col0, row0 (n,) the top-left pixel [px].
+    """
 
     data: np.ndarray
     valid: np.ndarray
@@ -66,8 +77,7 @@ class PsfWindows(NamedTuple):
 
 
 class PsfStart(NamedTuple):
-    """Starting values of M sources per window, (n, M) each (or (n,) for M = 1): x, y [px],
-    flux [ADU]."""
+    """Starting values of M sources per window, (n, M) each (or (n,) for M = 1): x, y [px], flux [ADU]."""
 
     x: np.ndarray
     y: np.ndarray
@@ -75,8 +85,12 @@ class PsfStart(NamedTuple):
 
 
 class PsfSettings(NamedTuple):
-    """The fit's fixed values: sigma, the PSF 1-sigma [px]; noise, the 1-sigma pixel noise
-    [ADU]; gain [e-/ADU]; iterations, the most Gauss-Newton steps."""
+    """
+    The fit's fixed values.
+
+    Sigma, the PSF 1-sigma [px]; noise, the 1-sigma pixel noise [ADU]; gain [e-/ADU];
+    iterations, the most Gauss-Newton steps.
+    """
 
     sigma: float
     noise: float
@@ -85,8 +99,12 @@ class PsfSettings(NamedTuple):
 
 
 class PsfFit(NamedTuple):
-    """Fitted sources (n, M): x, y [px], flux [ADU], cov (n, M, 2, 2) [px^2], converged
-    (bool), flux_var [ADU^2] (the flux's variance: its SNR is flux / sqrt(flux_var))."""
+    """
+    Fitted sources (n, M).
+
+    X, y [px], flux [ADU], cov (n, M, 2, 2) [px^2], converged (bool), flux_var [ADU^2] (the
+    flux's variance: its SNR is flux / sqrt(flux_var)).
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -98,8 +116,10 @@ class PsfFit(NamedTuple):
 
 def fit_psf_windows(windows: PsfWindows, start: PsfStart, sigma: float, noise: float, gain: float,
                     iterations: int = 10) -> PsfFit:
-    """Fit M Gaussian PSFs (fixed sigma [px]) per window to the n `windows` of
-    background-subtracted data [ADU] (their `valid` pixels), starting at `start`.
+    """
+    Fit M Gaussian PSFs (fixed sigma [px]) per window to the n `windows`, starting at `start`.
+
+    The windows hold background-subtracted data [ADU] (their `valid` pixels).
 
     Model: mu_ij = sum_m F_m P(col_j; x_m) P(row_i; y_m), P = PSF integral over the pixel;
     weights 1 / (mu / gain + noise^2) (gain e-/ADU, noise 1-sigma ADU). Gauss-Newton on
@@ -140,7 +160,7 @@ def _fit_psf_numpy(windows: PsfWindows, start: PsfStart, sigma, noise, gain, ite
     eye = np.eye(3 * m)[None]
 
     def normal_equations(a):
-        """Normal matrix and gradient of windows `a` at the current parameters."""
+        """Return the normal matrix and gradient of windows `a` at the current parameters."""
         k = a.size
         px, dpx = pixel_integrated_profile(edges_c[a], x[a][:, :, None], sigma)  # (k, M, S)
         py, dpy = pixel_integrated_profile(edges_r[a], y[a][:, :, None], sigma)
@@ -195,8 +215,12 @@ def _fit_psf_numpy(windows: PsfWindows, start: PsfStart, sigma, noise, gain, ite
 
 def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0: np.ndarray, sigma: float,
                      noise: float, gain: float, half: int = 4, iterations: int = 10):
-    """One PSF per spot on (2 half + 1)^2 windows of a background-subtracted image [ADU]
-    centred on the rounded initial positions. Returns x, y, flux (N,), cov (N, 2, 2), converged."""
+    """
+    Fit one PSF per spot on (2 half + 1)^2 windows of a background-subtracted image [ADU].
+
+    The windows are centred on the rounded initial positions. Returns x, y, flux (N,), cov (N, 2,
+    2), converged.
+    """
     x0, y0 = np.asarray(x0, float), np.asarray(y0, float)
     col0, row0 = np.rint(x0).astype(np.int64) - half, np.rint(y0).astype(np.int64) - half
     data, valid = gather_windows(residual, col0, row0, 2 * half + 1)

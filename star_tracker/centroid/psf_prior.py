@@ -1,5 +1,9 @@
-"""RunningPsf: the PSF width carried from frame to frame (the centroider node's prior), so that
-the next frame usually needs one measurement pass (extract_spots(..., psf_prior=...))."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+RunningPsf: the PSF width carried from frame to frame (the centroider node's prior).
+
+With it the next frame usually needs one measurement pass (extract_spots(..., psf_prior=...)).
+"""
 from __future__ import annotations
 
 from collections import deque
@@ -10,9 +14,13 @@ from .psf_estimate import PsfEstimate
 
 
 class RunningPsf:
-    """The median [px] of the last `frames` frames' applied PSF widths; a frame whose
-    estimate failed (source not "estimated": too few stars, out of range) empties it, so the
-    next frame starts again from the configured prior instead of a stale width."""
+    """
+    The median [px] of the last `frames` frames' applied PSF widths.
+
+    A frame whose estimate failed (source not "estimated": too few stars, out of range)
+    empties it, so the next frame starts again from the configured prior instead of a stale
+    width.
+    """
 
     def __init__(self, frames: int = 5) -> None:
         if frames < 1:

@@ -1,5 +1,10 @@
-"""The rate aid: a body rate turned into the smear each star's image shows (its typical
-length, the detection kernel), and the check that the image's streaks agree with it."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The rate aid: a body rate turned into the smear each star's image shows, and its check.
+
+The smear's typical length and the detection kernel; the check that the image's streaks agree
+with it.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -32,11 +37,13 @@ AID_TOLERANCE_FRACTION = 0.15
 AID_REJECT_FRACTION = 0.75
 
 
-
 def rate_aid_disagrees(kept: Candidates, usable: np.ndarray, sigma: float, smear: "SmearModel") -> bool:
-    """True when the footprints of the brightest candidates `kept` (of those `usable`: one
-    peak, not clipped, not at the edge) are not the smear `smear` predicts (AID_* above);
-    sigma: the PSF 1-sigma [px]."""
+    """
+    Return True when the footprints of the brightest candidates are not the smear `smear` predicts.
+
+    The candidates are `kept` of those `usable` (one peak, not clipped, not at the edge); the
+    tests are the AID_* above; sigma: the PSF 1-sigma [px].
+    """
     one_wide = kept.minor <= AID_CHECK_MAX_MINOR * sigma ** 2  # not two streaks side by side
     snr = kept.snr
     candidates = np.flatnonzero(usable & one_wide & (snr >= AID_CHECK_MIN_SNR))
@@ -61,8 +68,11 @@ def typical_smear_px(smear: "SmearModel", width: int, height: int) -> float:
 
 
 def smear_kernel(smear: "SmearModel", width: int, height: int, sigma: float, binning: int) -> np.ndarray | None:
-    """Matched-filter kernel on the detection grid for a smear that is about the same over the
-    field (cross-boresight rates); None when it varies by more than 30 % (roll-dominated)."""
+    """
+    Return the matched-filter kernel on the detection grid for a smear about the same over the field.
+
+    That is, cross-boresight rates; None when the smear varies by more than 30 % (roll-dominated).
+    """
     gx, gy = np.meshgrid(np.linspace(0.1, 0.9, 3) * (width - 1), np.linspace(0.1, 0.9, 3) * (height - 1))
     vectors = smear.smear_vectors(gx.ravel(), gy.ravel()) / binning
     mean = vectors.mean(axis=0)

@@ -1,5 +1,10 @@
-"""Records passed between the steps of the centroiding stage: what every fit reads of the
-frame (FitContext), the table of measured spots (SpotRows) and what a fit returns (FitOutcome)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Records passed between the steps of the centroiding stage.
+
+What every fit reads of the frame (FitContext), the table of measured spots (SpotRows) and what
+a fit returns (FitOutcome).
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
@@ -13,9 +18,13 @@ from .detect import Detections
 
 @dataclass(frozen=True)
 class FitContext:
-    """One frame as the fits see it: image [ADU] (2-D), its detections (background [ADU] on
-    the detection grid, pixel noise [ADU]), the stage's config and the PSF 1-sigma the fits
-    use [px] (config.psf_sigma_px, at least psf_estimate.MIN_SIGMA_PX; 0.5 without a PSF)."""
+    """
+    One frame as the fits see it.
+
+    Image [ADU] (2-D), its detections (background [ADU] on the detection grid, pixel noise
+    [ADU]), the stage's config and the PSF 1-sigma the fits use [px] (config.psf_sigma_px,
+    at least psf_estimate.MIN_SIGMA_PX; 0.5 without a PSF).
+    """
 
     image: np.ndarray
     det: Detections
@@ -34,8 +43,7 @@ class FitContext:
 
 
 class FittedStars(NamedTuple):
-    """Stars as a fit measured them, (n,) each: x, y [px], flux [ADU], cov (n, 2, 2) [px^2],
-    snr [-]."""
+    """Stars as a fit measured them, (n,) each: x, y [px], flux [ADU], cov (n, 2, 2) [px^2], snr [-]."""
 
     x: np.ndarray
     y: np.ndarray
@@ -53,10 +61,14 @@ class FittedStars(NamedTuple):
 
 @dataclass(frozen=True)
 class SpotRows:
-    """Measured spots as parallel arrays (n entries): x, y [px] (mid-exposure); flux [ADU];
-    snr [-]; cov (n, 2, 2) covariance of (x, y) [px^2]; flags (uint32 FLAG_* bits); length,
-    angle: streak length [px] and direction [rad] (0 for point-like spots); peak: brightest
-    background-subtracted pixel [ADU]; area: detection footprint [px] (0: split off a blend)."""
+    """
+    Measured spots as parallel arrays (n entries).
+
+    X, y [px] (mid-exposure); flux [ADU]; snr [-]; cov (n, 2, 2) covariance of (x, y) [px^2];
+    flags (uint32 FLAG_* bits); length, angle: streak length [px] and direction [rad] (0 for
+    point-like spots); peak: brightest background-subtracted pixel [ADU]; area: detection
+    footprint [px] (0: split off a blend).
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -73,11 +85,11 @@ class SpotRows:
         return int(self.x.size)
 
     def take(self, index: np.ndarray) -> "SpotRows":
-        """The spots at `index` (integer or boolean)."""
+        """Return the spots at `index` (integer or boolean)."""
         return SpotRows(**{f.name: getattr(self, f.name)[index] for f in fields(SpotRows)})
 
     def with_values(self, index: np.ndarray, **values) -> "SpotRows":
-        """A copy with the named fields replaced at `index` (the others shared)."""
+        """Return a copy with the named fields replaced at `index` (the others shared)."""
         changed = {}
         for name, value in values.items():
             column = getattr(self, name).copy()
@@ -86,13 +98,17 @@ class SpotRows:
         return replace(self, **changed)
 
     def with_stars(self, index: np.ndarray, stars: FittedStars, **values) -> "SpotRows":
-        """A copy with the spots at `index` replaced by the fitted `stars` (and `values`)."""
+        """Return a copy with the spots at `index` replaced by the fitted `stars` (and `values`)."""
         return self.with_values(index, **stars._asdict(), **values)
 
     @staticmethod
     def split_off(stars: FittedStars, peak, flags: int, length=None, angle=None) -> "SpotRows":
-        """Stars split off a blend (not detections of their own: area 0): peak (n,) [ADU];
-        flags one FLAG_* set for all; length [px], angle [rad] (n,) for streaks, None: point-like."""
+        """
+        Stars split off a blend (not detections of their own: area 0).
+
+        Peak (n,) [ADU]; flags one FLAG_* set for all; length [px], angle [rad] (n,) for streaks,
+        None: point-like.
+        """
         x = np.asarray(stars.x, dtype=float)
         n = x.size
         zero = np.zeros(n)
@@ -104,14 +120,18 @@ class SpotRows:
 
     @staticmethod
     def concatenate(parts: list["SpotRows"]) -> "SpotRows":
-        """The spots of `parts`, in order."""
+        """Return the spots of `parts`, in order."""
         return SpotRows(**{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(SpotRows)})
 
 
 class FitOutcome(NamedTuple):
-    """What a fit step returns: `spots`, the frame's spot table with the fitted values written
-    in; `added`, further stars it split off (new spots); `converged`, for the spots it was
-    asked to fit, which ones its fit describes (None when the step does not tell)."""
+    """
+    What a fit step returns.
+
+    `spots`, the frame's spot table with the fitted values written in; `added`, further stars
+    it split off (new spots); `converged`, for the spots it was asked to fit, which ones its
+    fit describes (None when the step does not tell).
+    """
 
     spots: SpotRows
     added: SpotRows
@@ -119,5 +139,5 @@ class FitOutcome(NamedTuple):
 
 
 def no_spots() -> SpotRows:
-    """An empty SpotRows."""
+    """Return an empty SpotRows."""
     return SpotRows.split_off(FittedStars([], [], [], np.zeros((0, 2, 2)), []), [], 0)

@@ -1,6 +1,10 @@
-"""Clipped (saturated) spots: the level from which a spot's pixels are clipped, from the
-configured saturation, a flat top or a fit the brightest pixel undershoots, and the pixels
-every fit must leave out."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Clipped (saturated) spots.
+
+The level from which a spot's pixels are clipped, from the configured saturation, a flat top
+or a fit the brightest pixel undershoots, and the pixels every fit must leave out.
+"""
 from __future__ import annotations
 
 import math
@@ -27,13 +31,16 @@ UNDERSHOOT_SIGMA = 6.0
 
 
 def clip_levels(context: FitContext, spots: Candidates, configured: float) -> np.ndarray:
-    """Raw level [ADU] from which each spot's pixels are clipped (inf: not saturated): the
-    configured saturation level when its brightest raw pixel reaches it, else the value m of
-    a flat top in its detection box grown by 2 px: k >= 2 pixels at exactly m, where the
+    """
+    Raw level [ADU] from which each spot's pixels are clipped (inf: not saturated).
+
+    The configured saturation level when its brightest raw pixel reaches it, else the value m
+    of a flat top in its detection box grown by 2 px: k >= 2 pixels at exactly m, where the
     chance of such a tie is C(near - 1, k - 1) p^(k - 1) < FLAT_TOP_CHANCE, p = 1 ADU times
     the peak density 1 / (sqrt(2 pi) s) of a pixel's value, s = sqrt((m - bg) / gain +
     noise^2) its shot + pixel noise, near = pixels within 2 s of m (a streak's ridge has many
-    near the top, a clipped core has only its clipped pixels)."""
+    near the top, a clipped core has only its clipped pixels).
+    """
     image, det = context.image, context.det
     n = spots.detection.size
     level = np.full(n, np.inf)
@@ -99,12 +106,15 @@ def box_maxima(image: np.ndarray, top: np.ndarray, left: np.ndarray, bottom: np.
 
 
 def undershot_peaks(context: FitContext, detection: np.ndarray, fits: SpotRows, path) -> np.ndarray:
-    """Clip level [ADU] of fitted spots whose brightest raw pixel (in their detection box grown
-    by 2 px) reads UNDERSHOOT_SIGMA below the fitted model there (inf: none): clipped in too
-    few pixels for a flat top. Only spots FLAT_TOP_MIN_SIGMA above the background are
-    examined. detection: (N,) the spots' indices in the Detections; fits: their fitted x, y,
-    flux; path: (N, K, 2) offsets of fits on a predicted path (the model is their mean PSF,
-    the fits' approximation), None for point fits (the pixel-integrated Gaussian)."""
+    """
+    Return the clip level [ADU] of fitted spots clipped in too few pixels for a flat top (inf: none).
+
+    Those are the spots whose brightest raw pixel (in their detection box grown by 2 px) reads
+    UNDERSHOOT_SIGMA below the fitted model there. Only spots FLAT_TOP_MIN_SIGMA above the
+    background are examined. detection: (N,) the spots' indices in the Detections; fits: their
+    fitted x, y, flux; path: (N, K, 2) offsets of fits on a predicted path (the model is their
+    mean PSF, the fits' approximation), None for point fits (the pixel-integrated Gaussian).
+    """
     image, det, sigma = context.image, context.det, context.sigma
     x, y, flux = fits.x, fits.y, fits.flux
     n = detection.size
@@ -137,9 +147,12 @@ def undershot_peaks(context: FitContext, detection: np.ndarray, fits: SpotRows, 
 
 
 def clipped_pixels(context: FitContext, detection: np.ndarray, level: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the pixels at or above their spot's clip level `level` [ADU] in the
-    detection boxes `detection` (indices in the Detections), grown by the PSF's reach (any
-    fit reading them leaves them out)."""
+    """
+    Return an (H, W) bool mask of the pixels at or above their spot's clip level `level` [ADU].
+
+    Within the detection boxes `detection` (indices in the Detections), grown by the PSF's reach
+    (any fit reading them leaves them out).
+    """
     image, det = context.image, context.det
     height, width = image.shape
     out = np.zeros(image.shape, bool)

@@ -1,5 +1,9 @@
-"""Smear geometry: where a fixed star's image moves on the detector during one exposure under
-a constant body rate (SmearModel), and the length of a straight streak from its second moment.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Smear geometry: where a fixed star's image moves on the detector during one exposure.
+
+Under a constant body rate (SmearModel); and the length of a straight streak from its second
+moment.
 
 Image convention: pixel (0, 0) is the centre of the top-left pixel; x = column, y = row [px].
 Angles are measured from +x toward +y (clockwise on the displayed image, y down) [rad].
@@ -17,15 +21,19 @@ PATH_SPACING_PX = 0.5  # SmearModel.path's default: samples at most this far apa
 
 
 def segment_length(major, sigma: float) -> np.ndarray:
-    """Length [px] of a straight streak whose image (a segment swept by a Gaussian PSF of
-    1-sigma `sigma` [px]) has the second moment `major` [px^2] along it: a uniform segment of
-    length L adds L^2 / 12. 0 where `major` is below sigma^2 (NaN stays NaN)."""
+    """
+    Return the length [px] of a straight streak from its second moment `major` [px^2] along it.
+
+    The streak's image is a segment swept by a Gaussian PSF of 1-sigma `sigma` [px]: a uniform
+    segment of length L adds L^2 / 12. 0 where `major` is below sigma^2 (NaN stays NaN).
+    """
     return np.sqrt(np.maximum(12.0 * (np.asarray(major, dtype=float) - sigma * sigma), 0.0))
 
 
 @dataclass(frozen=True, eq=False)
 class SmearModel:
-    """Image motion of fixed stars during one exposure under a constant body rate.
+    """
+    Image motion of fixed stars during one exposure under a constant body rate.
 
     camera: sensor geometry (distortion included); angular_velocity_rad_s: (3,) body rate
     omega in the sensor frame [rad/s] (+Z boresight, +X right, +Y down); exposure_s: exposure
@@ -69,11 +77,14 @@ class SmearModel:
         return np.where(in_front[..., None], offsets, np.nan)  # behind the camera: no image
 
     def path(self, x, y, samples: int | None = None) -> np.ndarray:
-        """Pixel offsets (N, K, 2) [px] of the star images whose mid-exposure positions are
-        (x, y) [px], at the K times t_k = ((k + 0.5) / K - 0.5) exposure_s, relative to (x, y)
-        (zero at t = 0, antisymmetric for straight constant-speed smear). samples: K; default
-        the fewest giving <= PATH_SPACING_PX between samples along the longest path (>= 1).
-        NaN where the direction is behind the camera."""
+        """
+        Pixel offsets (N, K, 2) [px] of the star images whose mid-exposure positions are (x, y) [px].
+
+        At the K times t_k = ((k + 0.5) / K - 0.5) exposure_s, relative to (x, y) (zero at t =
+        0, antisymmetric for straight constant-speed smear). samples: K; default the fewest
+        giving <= PATH_SPACING_PX between samples along the longest path (>= 1). NaN where the
+        direction is behind the camera.
+        """
         if samples is None:
             probe = self._positions(x, y, self.sample_times(16))
             longest = np.nan_to_num(np.sum(np.linalg.norm(np.diff(probe, axis=1), axis=2), axis=1)) * 16 / 15
@@ -83,8 +94,11 @@ class SmearModel:
         return self._positions(x, y, self.sample_times(int(samples)))
 
     def smear_vectors(self, x, y) -> np.ndarray:
-        """End minus start image position (N, 2) [px] over the exposure (t = +T/2 and -T/2) of
-        the stars at mid-exposure pixels (x, y) [px]."""
+        """
+        Return the end minus start image position (N, 2) [px] over the exposure (t = +T/2 and -T/2).
+
+        Of the stars at mid-exposure pixels (x, y) [px].
+        """
         ends = self._positions(x, y, np.array([-0.5, 0.5]) * self.exposure_s)
         return ends[:, 1] - ends[:, 0]
 

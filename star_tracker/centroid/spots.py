@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The `Spots` record passed from the centroider to the identifier."""
 from __future__ import annotations
 
@@ -26,7 +27,8 @@ _INTEGER_FIELDS = ("flags", "area")
 
 @dataclass(frozen=True)
 class Spots:
-    """Detected spots as parallel arrays (N entries, brightest first).
+    """
+    Detected spots as parallel arrays (N entries, brightest first).
 
     x, y: position at mid-exposure [px], (0, 0) = centre of the top-left pixel; flux:
     background-subtracted signal [ADU]; snr: flux / its 1-sigma [-]; cov: (N, 2, 2) covariance
@@ -73,9 +75,12 @@ class Spots:
         self.validate()
 
     def validate(self) -> None:
-        """Raise ValueError naming the first field whose type, shape or dtype is wrong (run at
-        construction; consumers of a record that may have bypassed it, such as the identifier's
-        compiled kernels, run it again)."""
+        """
+        Raise ValueError naming the first field whose type, shape or dtype is wrong.
+
+        Run at construction; consumers of a record that may have bypassed it, such as the
+        identifier's compiled kernels, run it again.
+        """
         for name in _FLOAT_FIELDS + _INTEGER_FIELDS + ("cov",):
             if not isinstance(getattr(self, name), np.ndarray):
                 raise ValueError(f"Spots.{name} must be a numpy array, got {type(getattr(self, name)).__name__}")
@@ -110,8 +115,10 @@ class Spots:
     @staticmethod
     def from_xy(x, y, magnitude=None, *, sigma_px: float, width: int, height: int, snr: float = 100.0,
                 flux_at_magnitude_0: float = FLUX_AT_MAGNITUDE_0) -> "Spots":
-        """Point-like spots at pixel positions x, y [px] ((N,) each, (0, 0) = centre of the
-        top-left pixel), in the order given (by convention brightest first).
+        """
+        Return point-like spots at pixel positions x, y [px], in the order given (brightest first).
+
+        x, y: (N,) each, (0, 0) = centre of the top-left pixel; by convention brightest first.
 
         magnitude: (N,) stellar magnitudes, flux = flux_at_magnitude_0 10^(-0.4 magnitude)
         [ADU] (default zero point FLUX_AT_MAGNITUDE_0); None: every spot at magnitude 0.
@@ -130,7 +137,7 @@ class Spots:
                      flux / 10.0, width, height)
 
     def take(self, index: np.ndarray) -> "Spots":
-        """The spots at `index` (integer or boolean), frame values kept."""
+        """Return the spots at `index` (integer or boolean), frame values kept."""
         per_spot = {f.name: getattr(self, f.name)[index] for f in fields(self)
                     if isinstance(getattr(self, f.name), np.ndarray)}
         return replace(self, **per_spot)

@@ -1,5 +1,9 @@
-"""The streak fits' common ground: their result record (StreakFit), input checks, window
-bounds and batches, and how a batch's solution is stored.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The streak fits' common ground.
+
+Their result record (StreakFit), input checks, window bounds and batches, and how a batch's
+solution is stored.
 
 Fitting: weighted least squares by Levenberg-Marquardt on all spots at once, each in its own
 window (padded to one size per batch, pixels outside the window, off the image or non-finite
@@ -25,9 +29,13 @@ _MAX_WINDOW_ELEMENTS = 3_000_000  # spots x parameters x pixels per batch (memor
 
 
 class StreakFitSetup(NamedTuple):
-    """What every batch of a streak fit reads: residual (H, W) image minus background [ADU];
-    excluded (H, W) bool pixels no fit may use, or None; sigma the PSF 1-sigma [px]; noise the
-    1-sigma pixel noise [ADU]; gain [e-/ADU]; iterations, the most Levenberg-Marquardt steps."""
+    """
+    What every batch of a streak fit reads.
+
+    Residual (H, W) image minus background [ADU]; excluded (H, W) bool pixels no fit may use,
+    or None; sigma the PSF 1-sigma [px]; noise the 1-sigma pixel noise [ADU]; gain [e-/ADU];
+    iterations, the most Levenberg-Marquardt steps.
+    """
 
     residual: np.ndarray
     excluded: np.ndarray | None
@@ -39,7 +47,8 @@ class StreakFitSetup(NamedTuple):
 
 @dataclass(frozen=True)
 class StreakFit:
-    """Fitted streaks, parallel arrays of N entries.
+    """
+    Fitted streaks, parallel arrays of N entries.
 
     x, y: position at mid-exposure [px]; flux: total [ADU]; length: streak length [px] (end to
     end of the exposure); angle: streak direction from +x toward +y [rad], in (-pi/2, pi/2]
@@ -80,7 +89,7 @@ class StreakFit:
 
     @staticmethod
     def failed(n: int) -> "StreakFit":
-        """n unconverged fits, every value NaN."""
+        """Return n unconverged fits, every value NaN."""
         nan = np.full(n, np.nan)
         return StreakFit(nan.copy(), nan.copy(), nan.copy(), nan.copy(), nan.copy(), np.full((n, 2, 2), np.nan),
                          nan.copy(), np.zeros(n, bool), nan.copy(), nan.copy())
@@ -116,8 +125,11 @@ def check_excluded(excluded, residual: np.ndarray):
 
 
 def window_bounds(residual, valid, lo_x, hi_x, lo_y, hi_y):
-    """Integer pixel bounds of each spot's window (inclusive, clipped to the image) from float
-    extents [px]; spots whose window misses the image become invalid."""
+    """
+    Integer pixel bounds of each spot's window (inclusive, clipped to the image) from float extents [px].
+
+    Spots whose window misses the image become invalid.
+    """
     height, width = residual.shape
     col_lo, col_hi = (np.floor(np.where(valid, lo_x, 0.0)).astype(np.int64),
                       np.ceil(np.where(valid, hi_x, 0.0)).astype(np.int64))
@@ -131,8 +143,12 @@ def window_bounds(residual, valid, lo_x, hi_x, lo_y, hi_y):
 
 
 def batches(valid: np.ndarray, bounds: np.ndarray, n_par: int):
-    """Valid spots in batches of similar window size (less padding), each holding at most
-    _MAX_WINDOW_ELEMENTS padded window elements (spots x (parameters + 1) x pixels)."""
+    """
+    Return valid spots in batches of similar window size (less padding).
+
+    Each holding at most _MAX_WINDOW_ELEMENTS padded window elements (spots x (parameters +
+    1) x pixels).
+    """
     pixels = (bounds[:, 1] - bounds[:, 0] + 1) * (bounds[:, 3] - bounds[:, 2] + 1)
     order = np.flatnonzero(valid)
     order = order[np.argsort(pixels[order], kind="stable")]
@@ -144,12 +160,15 @@ def batches(valid: np.ndarray, bounds: np.ndarray, n_par: int):
         yield order[start:stop]
         start = stop
 
+
 def store_batch(result: StreakFit, batch, win: StreakWindows, params, inverse, done, valid, chi2) -> np.ndarray:
-    """Write x, y, flux, cov, flux_sigma, converged, chi2, dof of a batch; return the 1-sigma
-    errors of all parameters (n, P). Converged: the fit stopped at a minimum with a finite
-    covariance,
-    its centre inside its window, a significant flux, on a window free of non-finite
-    pixels."""
+    """
+    Write x, y, flux, cov, flux_sigma, converged, chi2, dof of a batch.
+
+    Return the 1-sigma errors of all parameters (n, P). Converged: the fit stopped at a
+    minimum with a finite covariance, its centre inside its window, a significant flux, on a
+    window free of non-finite pixels.
+    """
     n = batch.size
     cov = inverse[:, :2, :2]
     variances = np.diagonal(inverse, axis1=1, axis2=2)
@@ -173,16 +192,19 @@ def store_batch(result: StreakFit, batch, win: StreakWindows, params, inverse, d
 
 
 def flux_start(flux0: np.ndarray, win: StreakWindows, noise: float) -> np.ndarray:
-    """The caller's flux where positive, else the window sum (at least the pixel noise)."""
+    """Return the caller's flux where positive, else the window sum (at least the pixel noise)."""
     window_sum = np.sum(win.data, axis=1, dtype=np.float64)
     return np.where(flux0 > 0, flux0, np.maximum(window_sum, noise))
 
 
 def set_path_extent(result: StreakFit, path: np.ndarray) -> None:
-    """Length and angle of fits on the given paths (N, K, 2) [px] (mid-points of K equal
-    slices of the exposure): the chord from the first to the last sample times K / (K - 1)
-    (a straight path's full length), its direction start to end [rad] (NaN for a path without
-    extent); their sigmas 0 (given, not fitted); NaN where nothing was fitted."""
+    """
+    Length and angle of fits on the given paths (N, K, 2) [px] (mid-points of K equal slices of the exposure).
+
+    The chord from the first to the last sample times K / (K - 1) (a straight path's full
+    length), its direction start to end [rad] (NaN for a path without extent); their sigmas 0
+    (given, not fitted); NaN where nothing was fitted.
+    """
     n = path.shape[0]
     if path.shape[1] >= 2:  # the samples are mid-points of K slices of the exposure
         chord = (path[:, -1] - path[:, 0]) * path.shape[1] / (path.shape[1] - 1)
@@ -197,16 +219,22 @@ def set_path_extent(result: StreakFit, path: np.ndarray) -> None:
 
 
 def flux_scaled_units(p: np.ndarray, noise: float) -> np.ndarray:
-    """Typical units (n, P) of parameters laid out as (x, y, F) per star [px, px, ADU]: 1 px
-    for positions (and any further parameters), max(|F|, noise) for fluxes."""
+    """
+    Typical units (n, P) of parameters laid out as (x, y, F) per star [px, px, ADU].
+
+    1 px for positions (and any further parameters), max(|F|, noise) for fluxes.
+    """
     units = np.ones_like(p)
     units[:, 2::3] = np.maximum(np.abs(p[:, 2::3]), noise)
     return units
 
 
 def position_flux_max_step(p: np.ndarray) -> np.ndarray:
-    """Trust region (n, P) of (x, y, F) per star: 1 px per iteration for positions, none for
-    fluxes (the model is linear in them)."""
+    """
+    Trust region (n, P) of (x, y, F) per star.
+
+    1 px per iteration for positions, none for fluxes (the model is linear in them).
+    """
     limit = np.full_like(p, 1.0)  # px per iteration
     limit[:, 2::3] = np.inf
     return limit

@@ -1,5 +1,10 @@
-"""Free fit of straight streaks: the PSF swept uniformly along a segment of fitted centre,
-flux, length and direction, seeded from the spots' moments (no body rate needed)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Free fit of straight streaks.
+
+The PSF swept uniformly along a segment of fitted centre, flux, length and direction, seeded
+from the spots' moments (no body rate needed).
+"""
 from __future__ import annotations
 
 from functools import partial
@@ -18,8 +23,10 @@ NODE_SPACING_SIGMA = 1.0  # Simpson nodes along the segment this far apart [PSF 
 
 def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: float, gain: float,
                 iterations: int = 30, excluded: np.ndarray | None = None) -> StreakFit:
-    """Fit straight streaks (the PSF swept uniformly along a segment) to a background-
-    subtracted image; all spots at once.
+    """
+    Fit straight streaks (the PSF swept uniformly along a segment) to a background- subtracted image.
+
+    All spots at once.
 
     residual: (H, W) image minus background [ADU]. x0, y0: (N,) initial streak centres [px];
     flux0: (N,) initial total fluxes [ADU] (<= 0 or NaN: the window sum); length0: (N,)
@@ -69,8 +76,7 @@ def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: f
 
 
 def _window_moments(win: StreakWindows):
-    """Major second moment [px^2] and its axis angle [rad] of the positive pixels of each
-    window."""
+    """Major second moment [px^2] and its axis angle [rad] of the positive pixels of each window."""
     n = win.data.shape[0]
     c = np.broadcast_to(np.arange(win.n_cols, dtype=float)[None, None, :], (n, win.n_rows, win.n_cols)).reshape(n, -1)
     r = np.broadcast_to(np.arange(win.n_rows, dtype=float)[None, :, None], (n, win.n_rows, win.n_cols)).reshape(n, -1)
@@ -90,8 +96,12 @@ def _even_intervals(count: np.ndarray) -> np.ndarray:
 
 
 class _FreeStart(NamedTuple):
-    """Starting values per spot (n,): x0, y0 [px], flux0 [ADU], length0 [px], angle0 [rad],
-    guess_ok (length0 and angle0 usable; else the window's moments are the start)."""
+    """
+    Starting values per spot (n,).
+
+    x0, y0 [px], flux0 [ADU], length0 [px], angle0 [rad], guess_ok (length0 and angle0
+    usable; else the window's moments are the start).
+    """
 
     x0: np.ndarray
     y0: np.ndarray
@@ -138,9 +148,12 @@ def _fit_free_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray
 
 def _segment_model(win: StreakWindows, sigma: float, noise: float, length: np.ndarray,
                    max_length: np.ndarray) -> LeastSquaresModel:
-    """The straight-segment model (x, y, F, L, theta) on the windows `win`: Simpson nodes
-    along the segment, their count set from the starting lengths `length` [px]; L capped at
-    twice `max_length` [px]."""
+    """
+    Return the straight-segment model (x, y, F, L, theta) on the windows `win`.
+
+    Simpson nodes along the segment, their count set from the starting lengths `length`
+    [px]; L capped at twice `max_length` [px].
+    """
     var_eff = sigma * sigma + 1.0 / 12.0
     scale = 1.0 / np.sqrt(2.0 * var_eff)
     amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)  # peak of the unit-flux Gaussian
@@ -196,11 +209,15 @@ def _segment_max_step(p: np.ndarray) -> np.ndarray:
 
 
 def _unresolved(p: np.ndarray, covariance: np.ndarray):
-    """An unresolved streak (L < 2 sigma_L): the model is even in L, so near L = 0 the chi^2
-    still to gain in L and theta stays at the noise level, ~1, however small L gets; (x, y,
-    F) decouple from them: judge convergence on (x, y, F). Theta is held (it would wander by
-    the trust region and shrink every step with it); L stays free to grow if the spot is a
-    streak after all. Returns the skipped and the held parameters (n, 5) bool."""
+    """
+    Return an unresolved streak (L < 2 sigma_L).
+
+    The model is even in L, so near L = 0 the chi^2 still to gain in L and theta stays at
+    the noise level, ~1, however small L gets; (x, y, F) decouple from them: judge
+    convergence on (x, y, F). Theta is held (it would wander by the trust region and shrink
+    every step with it); L stays free to grow if the spot is a streak after all. Returns the
+    skipped and the held parameters (n, 5) bool.
+    """
     unresolved = p[:, 3] < 2.0 * np.sqrt(np.maximum(covariance[:, 3, 3], 0.0))
     skip, hold = np.zeros(p.shape, bool), np.zeros(p.shape, bool)
     skip[:, 3:] = unresolved[:, None]

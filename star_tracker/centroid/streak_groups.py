@@ -1,6 +1,10 @@
-"""Several stars on one known path shape (streaks merged into one detection, or a
-neighbour's streak in a spot's window): the matched-filter search for one more star in what
-a fit leaves, and the joint fit of a group of stars."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Several stars on one known path shape (streaks merged into one detection, or a neighbour's streak in a spot's window).
+
+The matched-filter search for one more star in what a fit leaves, and the joint fit of a
+group of stars.
+"""
 from __future__ import annotations
 
 from functools import partial
@@ -14,8 +18,11 @@ from .streak_model import StreakWindows, cut_windows, sample_sums
 
 
 def _path_windows(residual, x, y, path, reach, valid):
-    """Integer bounds of windows covering the paths `path` (n, K, 2) around every centre
-    x, y (n, M) [px], grown by `reach` [px] (see window_bounds)."""
+    """
+    Integer bounds of windows covering the paths `path` (n, K, 2) around every centre x, y (n, M) [px].
+
+    Grown by `reach` [px] (see window_bounds).
+    """
     cx, cy = np.round(np.where(valid[:, None], x, 0.0)), np.round(np.where(valid[:, None], y, 0.0))
     return window_bounds(residual, valid, cx.min(axis=1) + path[:, :, 0].min(axis=1) - reach,
                          cx.max(axis=1) + path[:, :, 0].max(axis=1) + reach,
@@ -36,14 +43,17 @@ def _path_model(win: StreakWindows, x, y, flux, offsets, sigma: float) -> np.nda
 
 def second_source_on_path(residual, x, y, flux, path, sigma: float, noise: float, gain: float,
                           excluded: np.ndarray | None = None):
-    """Where one more star on the same path shape would best explain what a fit of M stars
-    (x, y, flux (N,) or (N, M) [px, ADU]; path (N, K, 2) as fit_streaks_on_path) leaves in
-    the window of the first star (the window fit_streaks_on_path uses): the residual (data -
-    model) correlated with the path's own unit-flux profile t (a matched filter), divided by
-    its noise sqrt(sum var t^2) (var = max(data, 0) / gain + noise^2 per pixel). Returns, at
-    the peak of that ratio, x, y [px], the template's least-squares flux [ADU] and the ratio
-    (the matched-filter SNR of the best extra star), each (N,); NaN where nothing is usable.
-    All windows at once (padded to one size, correlations by FFT)."""
+    """
+    Find where one more star on the same path shape would best explain what a fit of M stars leaves.
+
+    The fit: x, y, flux (N,) or (N, M) [px, ADU]; path (N, K, 2) as fit_streaks_on_path. In the
+    window of the first star (the window fit_streaks_on_path uses), the residual (data - model)
+    is correlated with the path's own unit-flux profile t (a matched filter), divided by its
+    noise sqrt(sum var t^2) (var = max(data, 0) / gain + noise^2 per pixel). Returns, at the
+    peak of that ratio, x, y [px], the template's least-squares flux [ADU] and the ratio (the
+    matched-filter SNR of the best extra star), each (N,); NaN where nothing is usable. All
+    windows at once (padded to one size, correlations by FFT).
+    """
     residual = np.asarray(residual)
     excluded = check_excluded(excluded, residual)
     x, y, flux = (np.asarray(v, dtype=float).reshape(np.shape(v)[0], -1) for v in (x, y, flux))
@@ -100,15 +110,19 @@ def second_source_on_path(residual, x, y, flux, path, sigma: float, noise: float
 
 def fit_star_groups_on_path(residual, x0, y0, flux0, path, sigma: float, noise: float, gain: float,
                             iterations: int = 30, excluded: np.ndarray | None = None) -> list[StreakFit]:
-    """Joint fit of M stars moving on the same path shape (streaks merged into one spot, or a
-    neighbour's streak in its window): x0, y0, flux0 (N, M) initial positions [px] and fluxes
-    [ADU], the first star of each group the one whose window is fitted (the window
-    fit_streaks_on_path uses for it, so that the chi^2 of the two fits compare); path (N, K,
-    2) and the rest as fit_streaks_on_path. Returns M StreakFit (star m of every group) with
-    positions, fluxes and covariances (blocks of the joint inverse Fisher matrix: each star's
-    error includes what the others' uncertainty does to it); all carry the group's chi2 and
-    dof. converged: the first star's test of fit_streaks_on_path, and finite values for the
-    others (whose centres may lie outside the window: only their light inside it is used)."""
+    """
+    Fit M stars moving on the same path shape jointly.
+
+    Streaks merged into one spot, or a neighbour's streak in its window: x0, y0, flux0 (N, M)
+    initial positions [px] and fluxes [ADU], the first star of each group the one whose window
+    is fitted (the window fit_streaks_on_path uses for it, so that the chi^2 of the two fits
+    compare); path (N, K, 2) and the rest as fit_streaks_on_path. Returns M StreakFit (star m
+    of every group) with positions, fluxes and covariances (blocks of the joint inverse Fisher
+    matrix: each star's error includes what the others' uncertainty does to it); all carry the
+    group's chi2 and dof. converged: the first star's test of fit_streaks_on_path, and finite
+    values for the others (whose centres may lie outside the window: only their light inside
+    it is used).
+    """
     residual = np.asarray(residual)
     excluded = check_excluded(excluded, residual)
     x0, y0, flux0 = (np.asarray(v, dtype=float) for v in (x0, y0, flux0))
@@ -134,8 +148,11 @@ def fit_star_groups_on_path(residual, x0, y0, flux0, path, sigma: float, noise: 
 
 def _fit_group_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray, start,
                      fits: list[StreakFit]) -> None:
-    """Fit the groups `batch` (window bounds (n, 4); start: x0, y0, flux0 (n, M) and the
-    paths (n, K, 2)) into `fits` (one StreakFit per star of the groups)."""
+    """
+    Fit the groups `batch` into `fits` (one StreakFit per star of the groups).
+
+    batch: window bounds (n, 4); start: x0, y0, flux0 (n, M) and the paths (n, K, 2).
+    """
     x0, y0, flux0, offsets = start
     m_stars = x0.shape[1]
     n_par = 3 * m_stars
@@ -158,8 +175,11 @@ def _fit_group_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarra
 
 def _group_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: float,
                  m_stars: int) -> LeastSquaresModel:
-    """The model (x_m, y_m, F_m) of M stars per window, each moving along the window's
-    `offsets` (n, K, 2) [px]."""
+    """
+    Return the model (x_m, y_m, F_m) of M stars per window.
+
+    Each star moves along the window's `offsets` (n, K, 2) [px].
+    """
     var_eff = sigma * sigma + 1.0 / 12.0
     scale = 1.0 / np.sqrt(2.0 * var_eff)
     amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)

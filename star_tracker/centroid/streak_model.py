@@ -1,5 +1,9 @@
-"""The streak model's pixels: windows cut from a residual image, and the separable PSF copies
-summed along a streak's path (the model and its derivatives for the streak fits).
+# SPDX-License-Identifier: Apache-2.0
+"""
+The streak model's pixels.
+
+Windows cut from a residual image, and the separable PSF copies summed along a streak's path (the
+model and its derivatives for the streak fits).
 
 PSF model: the pixel-integrated Gaussian of 1-sigma `sigma` [px] is approximated by a
 Gaussian of variance sigma^2 + 1/12 px^2 (the pixel's box variance added) evaluated at the
@@ -24,11 +28,14 @@ import numpy as np
 
 @dataclass
 class StreakWindows:
-    """Pixel windows of a batch of spots, padded to one size (R rows x C columns): origin
-    (n, 2) = pixel (col, row) of each window's first element [px]; data (n, R*C) [ADU] (0
-    where masked), mask (n, R*C) (1 = use), float32; bad (n,) True if a non-finite pixel fell
-    inside the spot's own window; bounds (n, 4) col_lo, col_hi, row_lo, row_hi of its own
-    window [px]."""
+    """
+    Pixel windows of a batch of spots, padded to one size (R rows x C columns).
+
+    Origin (n, 2) = pixel (col, row) of each window's first element [px]; data (n, R*C) [ADU]
+    (0 where masked), mask (n, R*C) (1 = use), float32; bad (n,) True if a non-finite pixel
+    fell inside the spot's own window; bounds (n, 4) col_lo, col_hi, row_lo, row_hi of its
+    own window [px].
+    """
 
     n_rows: int
     n_cols: int
@@ -40,9 +47,12 @@ class StreakWindows:
 
 
 def cut_windows(residual: np.ndarray, col_lo, col_hi, row_lo, row_hi, excluded=None) -> StreakWindows:
-    """Windows [col_lo, col_hi] x [row_lo, row_hi] (integer pixel bounds, inclusive) padded to
-    the largest; pixels outside the image, outside the spot's own window, non-finite or
-    `excluded` ((H, W) bool, e.g. clipped at the full well; None = none) are masked."""
+    """
+    Windows [col_lo, col_hi] x [row_lo, row_hi] (integer pixel bounds, inclusive) padded to the largest.
+
+    Pixels outside the image, outside the spot's own window, non-finite or `excluded` ((H, W)
+    bool, e.g. clipped at the full well; None = none) are masked.
+    """
     height, width = residual.shape
     n_cols = int(np.max(col_hi - col_lo)) + 1
     n_rows = int(np.max(row_hi - row_lo)) + 1
@@ -61,15 +71,18 @@ def cut_windows(residual: np.ndarray, col_lo, col_hi, row_lo, row_hi, excluded=N
     data[~use] = 0.0
     n = cols.shape[0]
     return StreakWindows(n_rows, n_cols, np.stack([col_lo, row_lo], axis=1).astype(np.float64), data.reshape(n, -1),
-                    use.reshape(n, -1).astype(np.float32), bad, np.stack([col_lo, col_hi, row_lo, row_hi], axis=1))
+                         use.reshape(n, -1).astype(np.float32), bad, np.stack([col_lo, col_hi, row_lo, row_hi], axis=1))
 
 
 def _profiles(count: int, positions: np.ndarray, scale: float, log_weights, g_out, vg_out, transposed: bool):
-    """Gaussian profiles over the pixel centres 0..count-1 of a window for K sample positions
-    p (n, K) [px, window frame], written to g_out and vg_out (float32): g = w exp(-v^2) and
-    v g, v = (c - p) scale, scale = 1 / sqrt(2 var), w the sample weights (log_weights (n, K),
-    or None for 1); dg/dp = 2 scale (v g). Shapes (n, K, count), or (n, count, K) if
-    transposed. Window-frame coordinates (< 1e3 px) keep float32 to 1e-4 px."""
+    """
+    Gaussian profiles over the pixel centres 0..count-1 of a window for K sample positions p (n, K) [px, window frame].
+
+    Written to g_out and vg_out (float32): g = w exp(-v^2) and v g, v = (c - p) scale, scale =
+    1 / sqrt(2 var), w the sample weights (log_weights (n, K), or None for 1); dg/dp = 2 scale
+    (v g). Shapes (n, K, count), or (n, count, K) if transposed. Window-frame coordinates (<
+    1e3 px) keep float32 to 1e-4 px.
+    """
     centres = np.arange(count, dtype=np.float32) * np.float32(scale)
     p = (positions * scale).astype(np.float32)
     v = centres[None, :, None] - p[:, None, :] if transposed else centres[None, None, :] - p[:, :, None]
@@ -87,9 +100,12 @@ def _profiles(count: int, positions: np.ndarray, scale: float, log_weights, g_ou
 
 
 def simpson_nodes(intervals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Simpson's rule on [-1/2, 1/2] with an even number of intervals per spot (n,): node
-    fractions s and weights (n, K), K = max(intervals) + 1; spots with fewer intervals get
-    weight-0 nodes at 0 to fill up."""
+    """
+    Simpson's rule on [-1/2, 1/2] with an even number of intervals per spot (n,).
+
+    Node fractions s and weights (n, K), K = max(intervals) + 1; spots with fewer intervals
+    get weight-0 nodes at 0 to fill up.
+    """
     node = np.arange(int(np.max(intervals)) + 1)[None, :]
     count = intervals[:, None]
     used = node <= count
@@ -98,12 +114,15 @@ def simpson_nodes(intervals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def sample_sums(win: StreakWindows, sx: np.ndarray, sy: np.ndarray, weights: np.ndarray, lever, scale: float):
-    """Weighted sums over the K samples of a streak of separable PSF copies, for every window
-    pixel, unnormalized (see _profiles): (n, Q, R*C) float32 holding shape = sum w gy gx,
+    """
+    Return weighted sums over the K samples of a streak of separable PSF copies, for every window pixel.
+
+    Unnormalized (see _profiles): (n, Q, R*C) float32 holding shape = sum w gy gx,
     gx' = sum w gy (v g)_x, gy' = sum w (v g)_y gx (the x and y derivatives / 2 scale), and
     with a lever s (n, K) also s gy' and s gx' (the same weighted by s: derivatives along
     the streak). sx, sy: (n, K) sample positions [px] in the window frame; weights: (n, K)
-    >= 0, summing to 1 per spot. Batched matrix products do every sum over samples."""
+    >= 0, summing to 1 per spot. Batched matrix products do every sum over samples.
+    """
     n_rows, n_cols = win.n_rows, win.n_cols
     n, k = sx.shape
     x_profiles = np.empty((n, 2, k, n_cols), np.float32)  # g, v g along x

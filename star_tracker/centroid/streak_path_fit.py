@@ -1,5 +1,10 @@
-"""Fit of streaks on a known path (the smear a body rate predicts, SmearModel.path): only the
-mid-exposure position and the flux are fitted, so curved arcs and uneven speed are exact."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Fit of streaks on a known path (the smear a body rate predicts, SmearModel.path).
+
+Only the mid-exposure position and the flux are fitted, so curved arcs and uneven speed are
+exact.
+"""
 from __future__ import annotations
 
 from functools import partial
@@ -16,8 +21,8 @@ from .streak_model import StreakWindows, cut_windows, sample_sums
 
 def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: float, gain: float,
                         iterations: int = 20, excluded: np.ndarray | None = None) -> StreakFit:
-    """Fit streaks whose shape is known from the body rate (e.g. SmearModel.path); all spots
-    at once.
+    """
+    Fit streaks whose shape is known from the body rate (e.g. SmearModel.path); all spots at once.
 
     residual: (H, W) image minus background [ADU]; x0, y0, flux0: (N,) initial mid-exposure
     positions [px] and total fluxes [ADU] (<= 0 or NaN: the window sum); path: (N, K, 2)
@@ -65,8 +70,12 @@ def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: floa
 
 
 class _PathStart(NamedTuple):
-    """Starting values per spot: x0, y0 (n,) [px], flux0 (n,) [ADU]; offsets (n, K, 2) its
-    path [px] relative to the mid-exposure position."""
+    """
+    Starting values per spot.
+
+    x0, y0 (n,) [px], flux0 (n,) [ADU]; offsets (n, K, 2) its path [px] relative to the
+    mid-exposure position.
+    """
 
     x0: np.ndarray
     y0: np.ndarray
@@ -91,8 +100,11 @@ def _fit_path_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray
 
 
 def _path_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: float) -> LeastSquaresModel:
-    """The model (x, y, F) of one star per window moving along `offsets` (n, K, 2) [px]: the
-    mean of K PSF copies."""
+    """
+    Return the model (x, y, F) of one star per window moving along `offsets` (n, K, 2) [px].
+
+    The model is the mean of K PSF copies.
+    """
     weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
     var_eff = sigma * sigma + 1.0 / 12.0
     scale = 1.0 / np.sqrt(2.0 * var_eff)

@@ -1,5 +1,10 @@
-"""Streak-model fits of the stage's spots: a free line segment, or the path predicted from
-a known body rate, and on that path the split of streaks merged into one detection."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Streak-model fits of the stage's spots.
+
+A free line segment, or the path predicted from a known body rate, and on that path the
+split of streaks merged into one detection.
+"""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, NamedTuple
@@ -35,12 +40,16 @@ MERGED_OVERLAP_SIGMA = 5.0
 
 def fit_streak_spots(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray,
                      smear: "SmearModel | None", excluded: np.ndarray | None = None) -> FitOutcome:
-    """Streak-model fit of spots `which`: on the predicted path when `smear` is given (flags
-    STREAK | RATE_AIDED), else a free line segment seeded from the spot's moments (STREAK);
-    pixels `excluded` (clipped; None = none) are left out. On the predicted path, a spot whose
-    fit leaves another star's light is refitted with it (split_merged_streaks), the stars
-    split off returned as added spots. A spot the model cannot describe gets SNR 0 (dropped)
-    when it should be a streak (rate aided, or elongated), else keeps its centroid."""
+    """
+    Streak-model fit of spots `which`.
+
+    On the predicted path when `smear` is given (flags STREAK | RATE_AIDED), else a free line
+    segment seeded from the spot's moments (STREAK); pixels `excluded` (clipped; None = none)
+    are left out. On the predicted path, a spot whose fit leaves another star's light is
+    refitted with it (split_merged_streaks), the stars split off returned as added spots. A
+    spot the model cannot describe gets SNR 0 (dropped) when it should be a streak (rate
+    aided, or elongated), else keeps its centroid.
+    """
     sigma = context.sigma
     reach = streak_reach(kept, spots, which, smear, sigma)
     if smear is not None:
@@ -76,14 +85,16 @@ def fit_streak_spots(context: FitContext, kept: Candidates, spots: SpotRows, whi
 
 def split_merged_streaks(context: FitContext, residual: np.ndarray, fit: "StreakFit", which: np.ndarray,
                          path: np.ndarray, spots: SpotRows, excluded: np.ndarray | None) -> FitOutcome:
-    """Several stars on one predicted path (streaks merged into one detection, or a
-    neighbour's streak in the window): the one-star fit of such a spot is pulled toward the
-    other stars far beyond its covariance. Spots `which` with one-star fit `fit` (path (n, K,
-    2)) whose residual holds another star (MERGED_*) are refitted jointly with it, seeded at
-    the matched-filter peak of the residual, as long as that helps. When a group wins, its
-    first star (the spot's own) replaces the spot (flag BLENDED, covariance of the joint fit)
-    and the others are added spots unless they are spots already (within 2 px) or below
-    min_snr."""
+    """
+    Several stars on one predicted path (streaks merged into one detection, or a neighbour's streak in the window).
+
+    The one-star fit of such a spot is pulled toward the other stars far beyond its
+    covariance. Spots `which` with one-star fit `fit` (path (n, K, 2)) whose residual holds
+    another star (MERGED_*) are refitted jointly with it, seeded at the matched-filter peak
+    of the residual, as long as that helps. When a group wins, its first star (the spot's
+    own) replaces the spot (flag BLENDED, covariance of the joint fit) and the others are
+    added spots unless they are spots already (within 2 px) or below min_snr.
+    """
     k = np.flatnonzero(fit.converged)
     group = _grow_star_groups(context, residual, fit, path[k], excluded)
     gx, gy, gf, gs, gcov = group.x, group.y, group.flux, group.flux_sigma, group.cov
@@ -117,9 +128,12 @@ def split_merged_streaks(context: FitContext, residual: np.ndarray, fit: "Streak
 
 
 class _StarGroups(NamedTuple):
-    """Stars fitted jointly on one path, one row per spot, one column per star of its group
-    (NaN: no such star; column 0 the spot's own): x, y [px], flux, flux_sigma [ADU] (n, M),
-    cov (n, M, 2, 2) [px^2]."""
+    """
+    Stars fitted jointly on one path, one row per spot.
+
+    One column per star of its group (NaN: no such star; column 0 the spot's own): x, y
+    [px], flux, flux_sigma [ADU] (n, M), cov (n, M, 2, 2) [px^2].
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -129,8 +143,12 @@ class _StarGroups(NamedTuple):
 
 
 def _grow_star_groups(context: FitContext, residual, fit: "StreakFit", path, excluded) -> _StarGroups:
-    """Star groups of the converged one-star fits `fit` (paths `path` (n, K, 2)): one star
-    more while the residual holds one (MERGED_*) and the joint fit lowers chi^2 enough."""
+    """
+    Star groups of the converged one-star fits `fit` (paths `path` (n, K, 2)).
+
+    One star more while the residual holds one (MERGED_*) and the joint fit lowers chi^2
+    enough.
+    """
     sigma, noise, gain = context.sigma, context.noise, context.gain
     k = np.flatnonzero(fit.converged)
     gx, gy, gf, gs = fit.x[k][:, None], fit.y[k][:, None], fit.flux[k][:, None], fit.flux_sigma[k][:, None]
@@ -173,8 +191,12 @@ def _grow_star_groups(context: FitContext, residual, fit: "StreakFit", path, exc
 
 def streak_reach(kept: Candidates, spots: SpotRows, which: np.ndarray, smear: "SmearModel | None",
                  sigma: float) -> np.ndarray:
-    """Half size [px] of the region each streak fit may read: half the predicted (or measured)
-    streak length plus the PSF's reach and slack for the window the fitter builds."""
+    """
+    Half size [px] of the region each streak fit may read.
+
+    Half the predicted (or measured) streak length plus the PSF's reach and slack for the
+    window the fitter builds.
+    """
     if smear is not None:
         half_length = 0.5 * np.linalg.norm(smear.smear_vectors(spots.x[which], spots.y[which]), axis=1)
     else:
@@ -183,9 +205,13 @@ def streak_reach(kept: Candidates, spots: SpotRows, which: np.ndarray, smear: "S
 
 
 def streak_residual(context: FitContext, x, y, reach) -> np.ndarray:
-    """Background-subtracted, hot-pixel-cleaned float32 image for the streak fits: the whole
-    frame when there are many streaks (two OpenCV passes), else only square regions of half
-    size `reach` [px] around (x, y), the rest left at 0 (the fits read nothing else)."""
+    """
+    Background-subtracted, hot-pixel-cleaned float32 image for the streak fits.
+
+    The whole frame when there are many streaks (two OpenCV passes), else only square
+    regions of half size `reach` [px] around (x, y), the rest left at 0 (the fits read
+    nothing else).
+    """
     image, det, noise = context.image, context.det, context.noise
     height, width = image.shape
     b = det.binning

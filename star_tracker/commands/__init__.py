@@ -1,7 +1,10 @@
-"""`star-tracker` subcommands, one module each: `register(subparsers)` adds the subcommand's
-parser (with a complete --help: description, every option with units and defaults, an
-example), `run(args) -> int` runs it (exit code; bad input is a one-line
-`star-tracker <cmd>: error: ...` on stderr with exit code 2).
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker` subcommands, one module each.
+
+`register(subparsers)` adds the subcommand's parser (with a complete --help: description,
+every option with units and defaults, an example), `run(args) -> int` runs it (exit code;
+bad input is a one-line `star-tracker <cmd>: error: ...` on stderr with exit code 2).
 
 `python -m star_tracker.commands <cmd> ...` runs them without the rest of the CLI.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """`python -m star_tracker.commands <cmd> ...`: the subcommands of this package on their own."""
 from __future__ import annotations
 

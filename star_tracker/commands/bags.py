@@ -1,7 +1,11 @@
-"""`star-tracker record | play | info | reindex`: rosbag2 bags (sqlite3, MCAP) without a ROS 2
-install, through `rosbags` (the package star_tracker/bags/) and the recorder/player nodes in
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker record | play | info | reindex`: rosbag2 bags (sqlite3, MCAP) without a ROS 2 install.
+
+Through `rosbags` (the package star_tracker/bags/) and the recorder/player nodes in
 star_tracker/ros/ (docs/RECORD_REPLAY.md). `add_commands(sub)` registers all four; their
---help keeps the form it had in cli.py (no example epilog)."""
+--help keeps the form it had in cli.py (no example epilog).
+"""
 from __future__ import annotations
 
 import argparse
@@ -96,7 +100,7 @@ def add_record_parser(sub) -> None:
                         help="topics to record (default: image_raw, camera_info, the truth/ topics and every "
                              "centroider and identifier output)")
     record.add_argument("-a", "--all", action="store_true", help="record every topic (except /rosout and "
-                                                                  "/parameter_events)")
+                        "/parameter_events)")
     record.add_argument("-o", "--output", help="bag directory to create (default rosbag2_YYYY_MM_DD-HH_MM_SS)")
     record.add_argument("-s", "--storage", choices=("sqlite3", "mcap"), default="sqlite3",
                         help="storage format (default sqlite3, as ros2 bag record)")

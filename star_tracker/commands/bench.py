@@ -1,12 +1,17 @@
-"""`star-tracker bench` (what `make bench` runs): the benchmark scripts (bench/*.py in the source
-tree) of BENCHES, the one list of them, one after the other, with a progress bar, then the
-benchmark plots (bench/plots.py) from their JSON results.
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker bench` (what `make bench` runs).
+
+The benchmark scripts (bench/*.py in the source tree) of BENCHES, the one list of them, one after
+the other, with a progress bar, then the benchmark plots (bench/plots.py) from their JSON
+results.
 
 Progress protocol: the command sets PROGRESS_ENV in each benchmark's environment; a benchmark
 that knows how far it is calls `report_progress(done, total, note)`, which prints a
 `PROGRESS_PREFIX done/total note` line on stderr (throttled; nothing when run on its own).
 Benchmarks that do not report show their latest output line, and a bar estimated from their
-last run's duration (meta.elapsed_s of their JSON results) or else a moving marker."""
+last run's duration (meta.elapsed_s of their JSON results) or else a moving marker.
+"""
 from __future__ import annotations
 
 import argparse
@@ -29,9 +34,12 @@ _last_report = [0.0]
 
 
 def report_progress(done: int, total: int, note: str = "", min_interval_s: float = 0.5) -> None:
-    """For benchmarks: tell a `star-tracker bench` run how far this one is (`done` of `total`
-    units, e.g. scenes solved). No-op unless PROGRESS_ENV is set; at most one line every
-    `min_interval_s` (and always the last), so it can be called per unit of work."""
+    """
+    For benchmarks: tell a `star-tracker bench` run how far this one is (`done` of `total` units, e.g. scenes solved).
+
+    No-op unless PROGRESS_ENV is set; at most one line every `min_interval_s` (and always the
+    last), so it can be called per unit of work.
+    """
     if not os.environ.get(PROGRESS_ENV):
         return
     now = time.monotonic()
@@ -43,8 +51,12 @@ def report_progress(done: int, total: int, note: str = "", min_interval_s: float
 
 @dataclass(frozen=True)
 class Bench:
-    """name: what --only selects; module: python -m target; full/quick: its options
-    ({out} = the Markdown file, {images} = the figure directory); peers: takes --no-peers."""
+    """
+    name: what --only selects.
+
+    Module: python -m target; full/quick: its options ({out} = the Markdown file, {images} =
+    the figure directory); peers: takes --no-peers.
+    """
 
     name: str
     module: str
@@ -155,9 +167,12 @@ def find_repo(repo: str | None) -> Path:
 
 
 def command_for(bench: Bench, quick: bool, out: Path, no_peers: bool, repo: Path) -> list[str]:
-    """The command running `bench` in the source tree `repo` (its working directory). A path
-    inside `repo` is given relative to it (`--output docs/BENCHMARKS.md`): the benchmarks write
-    their own command line into the Markdown."""
+    """
+    Return the command running `bench` in the source tree `repo` (its working directory).
+
+    A path inside `repo` is given relative to it (`--output docs/BENCHMARKS.md`): the
+    benchmarks write their own command line into the Markdown.
+    """
     if out.is_relative_to(repo):
         out = out.relative_to(repo)
     options = [a.format(out=out, images=out.parent / "images", results=out.parent)
@@ -211,20 +226,26 @@ def run(args: argparse.Namespace) -> int:
                         print(f"    {line}")
         else:
             failed.append(bench.name)
-            print(f"{label} FAILED (exit code {code}) after {_duration(elapsed)}; last lines of {log_path}:", flush=True)
+            print(f"{label} FAILED (exit code {code}) after {_duration(elapsed)}; last lines of {log_path}:",
+                  flush=True)
             for line in log_path.read_text(errors="replace").splitlines()[-15:]:
                 print(f"    {line}")
     succeeded = len(commands) - len(failed)
     print(f"{succeeded}/{len(commands)} step(s) succeeded in "
-          f"{_duration(time.perf_counter() - total_started)}; {out}" + (f"; FAILED: {', '.join(failed)}" if failed else ""))
+          f"{_duration(time.perf_counter() - total_started)}; {out}"
+          + (f"; FAILED: {', '.join(failed)}" if failed else ""))
     return 1 if failed else 0
 
 
 class BenchStatus:
-    """The progress bar of one running benchmark: its fraction when it reports progress
-    (PROGRESS_PREFIX lines), else the elapsed share of `expected_s` (its last run's duration),
-    else a moving marker; elapsed time; the latest note or output line. Drawn on stderr by a
-    thread (twice a second on a terminal, every 10 s in a log)."""
+    """
+    The progress bar of one running benchmark.
+
+    Its fraction when it reports progress (PROGRESS_PREFIX lines), else the elapsed share of
+    `expected_s` (its last run's duration), else a moving marker; elapsed time; the latest
+    note or output line. Drawn on stderr by a thread (twice a second on a terminal, every 10 s
+    in a log).
+    """
 
     WIDTH = 24
 
@@ -250,7 +271,7 @@ class BenchStatus:
         self.note = note or self.note
 
     def output(self, line: str) -> None:
-        """The latest output line is the note of benchmarks that do not report progress."""
+        """Keep the latest output line: the note of benchmarks that do not report progress."""
         if line.strip() and self.total == 0:
             self.note = line.strip()
 
@@ -305,8 +326,11 @@ class BenchStatus:
 
 
 def last_duration_s(bench: Bench, results_dir: Path) -> float | None:
-    """How long the benchmark's last full run took [s], from meta.elapsed_s of its JSON
-    results (bench_NAME.json beside the Markdown file), or None."""
+    """
+    Return how long the benchmark's last full run took [s], or None.
+
+    From meta.elapsed_s of its JSON results (bench_NAME.json beside the Markdown file).
+    """
     path = results_dir / f"{bench.module.rsplit('.', 1)[-1]}.json"
     try:
         meta = json.loads(path.read_text()).get("meta", {})
@@ -318,8 +342,12 @@ def last_duration_s(bench: Bench, results_dir: Path) -> float | None:
 
 def run_one(cmd: list[str], cwd: Path, env: dict, log_path: Path, label: str, verbose: bool,
             expected_s: float | None = None) -> tuple[int, float]:
-    """Run one benchmark with its progress bar on stderr; its output goes to log_path (and
-    the terminal with verbose), its progress lines only to the bar."""
+    """
+    Run one benchmark with its progress bar on stderr.
+
+    Its output goes to log_path (and the terminal with verbose), its progress lines only to
+    the bar.
+    """
     started = time.perf_counter()
     with open(log_path, "w") as log, BenchStatus(label, expected_s=expected_s) as status:
         log.write("$ " + " ".join(shlex.quote(c) for c in cmd) + "\n")

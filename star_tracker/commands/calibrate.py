@@ -1,4 +1,8 @@
-"""`star-tracker calibrate IMAGE...`: one camera fitted over several star images, written as a ROS camera calibration file.
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker calibrate IMAGE...`.
+
+One camera fitted over several star images, written as a ROS camera calibration file.
 
 Each image is solved as `solve` does (centroid, field search, per-image refinement); the
 matched stars of all solved images then fit ONE camera jointly with every image's attitude
@@ -85,9 +89,12 @@ def file_images(paths: list[str]):
 
 
 def bag_images(path: str, topic: str, every: int, max_images: int):
-    """(label 'BAG@STAMP_NS', pixels, description) of every `every`-th sensor_msgs/Image on
-    `topic` of a bag, at most max_images; a message the centroider could not take is a
-    BagError naming it (bags/validate.py)."""
+    """
+    (label 'BAG@STAMP_NS', pixels, description) of every `every`-th sensor_msgs/Image on `topic` of a bag.
+
+    At most max_images; a message the centroider could not take is a BagError naming it
+    (bags/validate.py).
+    """
     from ..bags.format import IMAGE_ENCODINGS, IMAGE_TYPE, typestore
     from ..bags.reader import BagReader
     from ..bags.validate import image_problem
@@ -122,8 +129,11 @@ def image_spots(pixels: np.ndarray, description: str, args: argparse.Namespace):
 
 
 def calibration_yaml(calibration, camera_name: str, images: list[dict]) -> str:
-    """The ROS camera calibration file of a CameraCalibration (plumb_bob), with its fit as
-    comments and under `star_tracker_calibration` (ignored by ROS readers)."""
+    """
+    Return the ROS camera calibration file of a CameraCalibration (plumb_bob).
+
+    With its fit as comments and under `star_tracker_calibration` (ignored by ROS readers).
+    """
     import yaml
 
     cam = calibration.camera
@@ -157,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("give image files and/or --bag")
     start = load_camera_file(args.camera).camera if args.camera else None
     report = (lambda text: None) if args.quiet else (lambda text: print(f"calibrate: {text}", file=sys.stderr,
-                                                                         flush=True))
+                                                                        flush=True))
     options = SolveOptions(fov_tolerance_pct=args.fov_tolerance, fov_step_pct=args.fov_step,
                            centroid_sigma_floor_px=args.centroid_sigma_floor, max_time_s=args.max_time)
     size = None
@@ -195,7 +205,8 @@ def run(args: argparse.Namespace) -> int:
     again = [solve_spots(spots, *size, camera=calibration.camera, options=options) for _, spots, _ in solved]
     identifications = [new.identification if new.solved and new.identification.hip.size >= old.identification.hip.size
                        else old.identification for new, (_, _, old) in zip(again, solved)]
-    frames = [CalibrationFrame.from_identification(spots, ident) for (_, spots, _), ident in zip(solved, identifications)]
+    frames = [CalibrationFrame.from_identification(spots, ident) for (_, spots, _),
+              ident in zip(solved, identifications)]
     calibration = calibrate_camera(frames, calibration.camera, config)
     images = []
     for k, (path, _, _) in enumerate(solved):

@@ -1,7 +1,12 @@
-"""Camera files of the `star-tracker` subcommands: camera_simulator parameters (a ros2 param
-file like config/star_tracker.yaml, or the same keys as a mapping) read into a CameraModel,
-SensorModel and FalseObjectModel for `render`, or a ROS camera calibration file for `solve`;
-and the one-line camera summary the commands print."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Camera files of the `star-tracker` subcommands.
+
+camera_simulator parameters (a ros2 param file like config/star_tracker.yaml, or the same
+keys as a mapping) read into a CameraModel, SensorModel and FalseObjectModel for `render`,
+or a ROS camera calibration file for `solve`; and the one-line camera summary the commands
+print.
+"""
 from __future__ import annotations
 
 import math
@@ -16,7 +21,8 @@ from .common import CommandError
 SENSOR_PARAMETERS = {spec.name: spec.field for spec in _node.SENSOR_PARAMETERS}
 FALSE_OBJECT_PARAMETERS = {spec.name: spec.field for spec in _node.FALSE_OBJECT_PARAMETERS}
 GEOMETRY_PARAMETERS = ("image.width", "image.height", "optics.fov_x_deg", "optics.distortion")
-RENDER_PARAMETERS = ("sky.magnitude_limit", "sky.epoch_jyear", "sky.observer_velocity_m_s", "fixed_pattern_seed", "seed")
+RENDER_PARAMETERS = ("sky.magnitude_limit", "sky.epoch_jyear", "sky.observer_velocity_m_s", "fixed_pattern_seed",
+                     "seed")
 # camera_simulator parameters that describe the run, not the camera: accepted and ignored.
 IGNORED_PREFIXES = ("rate_hz", "max_frames", "start_delay_s", "wait_for_subscribers", "max_backlog_frames",
                     "frame_id", "attitude.", "faults.", "sensor.readout_s")  # readout: when a frame is published
@@ -26,17 +32,26 @@ NODE_SENSOR_DEFAULTS = {name: value for name, value in vars(_node.SIMULATED_SENS
 
 
 class CameraFile:
-    """A camera read from YAML: `camera` (CameraModel), and for rendering `sensor`
-    (SensorModel), `false_objects` (FalseObjectModel) and `render` (magnitude_limit,
-    epoch_jyear, observer_velocity_m_s, fixed_pattern_seed, seed: those given)."""
+    """
+    A camera read from YAML.
+
+    `camera` (CameraModel), and for rendering `sensor` (SensorModel), `false_objects`
+    (FalseObjectModel) and `render` (magnitude_limit, epoch_jyear, observer_velocity_m_s,
+    fixed_pattern_seed, seed: those given).
+    """
 
     def __init__(self, camera, sensor, false_objects, render: dict, source: str):
-        self.camera, self.sensor, self.false_objects, self.render, self.source = camera, sensor, false_objects, render, source
+        self.camera, self.sensor, self.false_objects = camera, sensor, false_objects
+        self.render, self.source = render, source
 
 
 def default_camera_file() -> CameraFile:
-    """The camera_simulator node's default camera: 1024 x 1024 px, 15 deg, the node's sensor
-    defaults (NODE_SENSOR_DEFAULTS), no false objects."""
+    """
+    Return the camera_simulator node's default camera.
+
+    1024 x 1024 px, 15 deg, the node's sensor defaults (NODE_SENSOR_DEFAULTS), no false
+    objects.
+    """
     from ..models.camera import CameraModel
     from ..sim.render import FalseObjectModel
     from ..sim.sensor import SensorModel
@@ -57,12 +72,16 @@ def _flatten(mapping: dict, prefix: str = "") -> dict:
 
 
 def load_camera_file(path: str | Path):
-    """Read a camera YAML: either camera_simulator parameters (a ros2 param file like
-    config/star_tracker.yaml, its `/**/camera_simulator: ros__parameters:` block, or the same
-    keys as a plain mapping, nested or dotted: image.width, optics.fov_x_deg, sensor.*, ...;
-    unset keys keep the node's defaults), or a ROS camera calibration file (image_width,
-    image_height, camera_matrix.data, distortion_coefficients.data, as written by
-    camera_calibration) for `solve` with a calibrated camera. Unknown keys are an error."""
+    """
+    Read a camera YAML.
+
+    Either camera_simulator parameters (a ros2 param file like config/star_tracker.yaml, its
+    `/**/camera_simulator: ros__parameters:` block, or the same keys as a plain mapping,
+    nested or dotted: image.width, optics.fov_x_deg, sensor.*, ...; unset keys keep the
+    node's defaults), or a ROS camera calibration file (image_width, image_height,
+    camera_matrix.data, distortion_coefficients.data, as written by camera_calibration) for
+    `solve` with a calibrated camera. Unknown keys are an error.
+    """
     import yaml
 
     from ..models.camera import CameraModel
@@ -130,5 +149,5 @@ def _calibration_file(data: dict, path: Path):
 
 def camera_summary(camera) -> str:
     """One line: size, horizontal FOV [deg], focal length [px] and pixel scale [arcsec/px]."""
-    return (f"{camera.width}x{camera.height} px, FOV {math.degrees(2 * math.atan(0.5 * camera.width / camera.fx)):.3f} deg "
-            f"(fx {camera.fx:.2f} px, {math.degrees(camera.pixel_scale_rad) * 3600:.2f}\"/px)")
+    return (f"{camera.width}x{camera.height} px, FOV {math.degrees(2 * math.atan(0.5 * camera.width / camera.fx)):.3f} "
+            f"deg (fx {camera.fx:.2f} px, {math.degrees(camera.pixel_scale_rad) * 3600:.2f}\"/px)")

@@ -1,5 +1,10 @@
-"""What the `star-tracker` subcommands share: one-line errors, argument types, progress lines
-and the pattern-database configuration for a field of view (camera files: camera_files.py)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+What the `star-tracker` subcommands share.
+
+One-line errors, argument types, progress lines and the pattern-database configuration for a
+field of view (camera files: camera_files.py).
+"""
 from __future__ import annotations
 
 import argparse
@@ -26,10 +31,13 @@ class CommandError(ValueError):
 
 
 def guarded(command: str, errors: tuple[type[Exception], ...] = ()) -> Callable:
-    """Decorator for a subcommand's run(args): bad input (ValueError, FileNotFoundError, other
-    OSError, and the command's own `errors`, e.g. bags.BagError) becomes
-    `star-tracker <command>: error: ...` on stderr and exit code 2; Ctrl-C exit code 130.
-    Anything else is a bug and keeps its traceback."""
+    """
+    Return a decorator for a subcommand's run(args).
+
+    Bad input (ValueError, FileNotFoundError, other OSError, and the command's own `errors`,
+    e.g. bags.BagError) becomes `star-tracker <command>: error: ...` on stderr and exit code
+    2; Ctrl-C exit code 130. Anything else is a bug and keeps its traceback.
+    """
 
     def wrap(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
         @functools.wraps(run)
@@ -60,7 +68,7 @@ def error(command: str, message: str) -> None:
 
 
 def _float_argument(accept, requirement: str):
-    """An argparse type: a finite float for which accept(value) holds, else '<text> must be <requirement>'."""
+    """Return an argparse type: a finite float for which accept(value) holds, else '<text> must be <requirement>'."""
     def parse(text: str) -> float:
         try:
             value = float(text)
@@ -97,8 +105,11 @@ class HelpFormatter(argparse.HelpFormatter):
 
 
 def add_parser(subparsers, name: str, summary: str, description: str, example: str) -> argparse.ArgumentParser:
-    """A subcommand parser with the summary in `star-tracker --help`, a description and an
-    example epilog in `star-tracker NAME --help`."""
+    """
+    Return a subcommand parser with the summary in `star-tracker --help`.
+
+    A description and an example epilog in `star-tracker NAME --help`.
+    """
     return subparsers.add_parser(name, help=summary, description=description,
                                  epilog="example:\n" + "\n".join("  " + line for line in example.strip().splitlines()),
                                  formatter_class=HelpFormatter)
@@ -113,9 +124,12 @@ def progress_bar(fraction: float, width: int = 28) -> str:
 
 
 class StatusLine:
-    """One status line on a stream (stderr by default): redrawn in place on a terminal; on
-    anything else (logs, pipes) appended as a new line at most every `min_interval_s`, and
-    always when `final`."""
+    """
+    One status line on a stream (stderr by default).
+
+    Redrawn in place on a terminal; on anything else (logs, pipes) appended as a new line at
+    most every `min_interval_s`, and always when `final`.
+    """
 
     def __init__(self, stream=None, min_interval_s: float = 2.0):
         self.stream = stream or sys.stderr
@@ -144,8 +158,7 @@ class StatusLine:
 
 
 class Progress:
-    """A one-line progress bar on stderr (StatusLine): label, bar, done/total, elapsed time
-    and a note."""
+    """A one-line progress bar on stderr (StatusLine): label, bar, done/total, elapsed time and a note."""
 
     def __init__(self, total: int, label: str, width: int = 28, stream=None, min_interval_s: float = 2.0):
         self.total, self.label, self.width = max(int(total), 1), label, width
@@ -172,9 +185,13 @@ def field_diagonal_rad(fov_x_rad: float, width: int, height: int) -> float:
 
 
 def auto_magnitude_limit(fov_x_rad: float, width: int, height: int) -> float:
-    """Faintest guide star for a field: the default 6.5 for fields of ~10 deg and wider, fainter
-    for narrower fields so that ~STARS_WANTED_IN_VIEW guide stars are in view on average
-    (star counts grow ~x2.5 per magnitude near Hp 7), at most MAX_AUTO_MAGNITUDE."""
+    """
+    Faintest guide star for a field.
+
+    The default 6.5 for fields of ~10 deg and wider, fainter for narrower fields so that
+    ~STARS_WANTED_IN_VIEW guide stars are in view on average (star counts grow ~x2.5 per
+    magnitude near Hp 7), at most MAX_AUTO_MAGNITUDE.
+    """
     f = 0.5 * width / math.tan(0.5 * fov_x_rad)
     solid_angle_deg2 = (width / f) * (height / f) * (180.0 / math.pi) ** 2
     density_at_default = 8000.0 / 41253.0  # Hipparcos stars to Hp 6.5 per square degree
@@ -187,9 +204,12 @@ def auto_magnitude_limit(fov_x_rad: float, width: int, height: int) -> float:
 
 def database_config_for(fov_x_rad: float, width: int, height: int, magnitude_limit: float | None = None,
                         epoch_jyear: float = DEFAULT_EPOCH_JYEAR):
-    """The pattern-database configuration for a pinhole camera of horizontal FOV fov_x_rad
-    [rad] on width x height px: pairs as DatabaseConfig.for_camera derives them; guide stars
-    to `magnitude_limit` (None: auto_magnitude_limit)."""
+    """
+    Return the pattern-database configuration for a pinhole camera (horizontal FOV fov_x_rad [rad], width x height px).
+
+    Pairs as DatabaseConfig.for_camera derives them; guide stars to `magnitude_limit` (None:
+    auto_magnitude_limit).
+    """
     from ..identify import DatabaseConfig
     from ..models.camera import CameraModel
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """`star-tracker database build|list`: pattern databases in the cache, built ahead of time."""
 from __future__ import annotations
 

@@ -1,5 +1,10 @@
-"""Image files for `render` and `solve`: PNG/TIFF (8/16-bit, grey or colour) through OpenCV,
-FITS through astropy.io.fits (imported only for FITS files)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Image files for `render` and `solve`.
+
+PNG/TIFF (8/16-bit, grey or colour) through OpenCV, FITS through astropy.io.fits (imported
+only for FITS files).
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -15,8 +20,11 @@ RASTER_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm", ".p
 
 @dataclass(frozen=True)
 class LoadedImage:
-    """pixels: 2-D grey image (uint8/uint16 as stored, float32 for colour or FITS floats);
-    description: e.g. "PNG 8-bit colour 1024x1024 (converted to grey)"."""
+    """
+    pixels: 2-D grey image (uint8/uint16 as stored, float32 for colour or FITS floats).
+
+    Description: e.g. "PNG 8-bit colour 1024x1024 (converted to grey)".
+    """
 
     pixels: np.ndarray
     description: str
@@ -28,8 +36,12 @@ def is_fits(path: str | Path) -> bool:
 
 
 def read_image(path: str | Path) -> LoadedImage:
-    """Read an image as a 2-D array. Colour images become grey (the mean of the channels, as
-    float32 to keep the precision of the sum); an alpha channel is dropped."""
+    """
+    Read an image as a 2-D array.
+
+    Colour images become grey (the mean of the channels, as float32 to keep the precision of
+    the sum); an alpha channel is dropped.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(2, "No such file", str(path))
@@ -51,7 +63,8 @@ def read_image(path: str | Path) -> LoadedImage:
         for plane in range(1, colour.shape[2]):
             grey += colour[:, :, plane]
         grey /= np.float32(colour.shape[2])
-        description = f"{kind} {bits} {'colour' if channels >= 3 else 'grey+alpha'} {grey.shape[1]}x{grey.shape[0]} (converted to grey)"
+        description = (f"{kind} {bits} {'colour' if channels >= 3 else 'grey+alpha'} {grey.shape[1]}x{grey.shape[0]} "
+                       "(converted to grey)")
         pixels = grey
     else:
         description = f"{kind} {bits} grey {pixels.shape[1]}x{pixels.shape[0]}"
@@ -91,8 +104,11 @@ def _check_pixels(pixels: np.ndarray, path: Path) -> None:
 
 
 def write_image(path: str | Path, image: np.ndarray, header: dict | None = None) -> None:
-    """Write a uint16 (or uint8) frame losslessly: PNG/TIFF through OpenCV, FITS with `header`
-    cards (name -> value or (value, comment))."""
+    """
+    Write a uint16 (or uint8) frame losslessly.
+
+    PNG/TIFF through OpenCV, FITS with `header` cards (name -> value or (value, comment)).
+    """
     path = Path(path)
     suffix = path.name.lower()
     if path.parent and not path.parent.is_dir():

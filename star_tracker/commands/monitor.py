@@ -1,5 +1,10 @@
-"""`star-tracker monitor`: live terminal view of a running tracker (any ROS 2 graph on this
-domain: `star-tracker demo`, `ros2 launch`, or nodes fed from a real camera)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker monitor`.
+
+Live terminal view of a running tracker (any ROS 2 graph on this domain: `star-tracker
+demo`, `ros2 launch`, or nodes fed from a real camera).
+"""
 from __future__ import annotations
 
 import argparse
@@ -104,7 +109,8 @@ class TrackerStatus:
             out["latency_ms"] = self.latencies[-1] * 1e3
             out["latency_ms_median"] = float(np.median(self.latencies)) * 1e3
         if len(self.attitude_times) >= 2 and self.attitude_times[-1] > self.attitude_times[0]:
-            out["attitude_rate_hz"] = (len(self.attitude_times) - 1) / (self.attitude_times[-1] - self.attitude_times[0])
+            out["attitude_rate_hz"] = (len(self.attitude_times) - 1) / (self.attitude_times[-1]
+                                                                        - self.attitude_times[0])
         counters = out["counters"]
         published = counters["camera_simulator"].get("frames_published")
         received = counters["centroider"].get("frames_received")
@@ -217,7 +223,8 @@ def make_monitor_node(status: TrackerStatus, namespace: str):
 
     def on_diagnostics(msg) -> None:
         for item in msg.status:
-            status.diagnostics[item.name] = {"level": int.from_bytes(item.level, "little") if isinstance(item.level, bytes)
+            status.diagnostics[item.name] = {"level": int.from_bytes(item.level, "little")
+                                             if isinstance(item.level, bytes)
                                              else int(item.level), "message": item.message,
                                              "values": {kv.key: kv.value for kv in item.values}}
 
@@ -238,7 +245,8 @@ def run(args: argparse.Namespace) -> int:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
     except ImportError as exc:
-        raise ValueError(f"monitor needs rclpy ({exc}); run it in the project's .venv or a sourced ROS 2 install") from None
+        raise ValueError(f"monitor needs rclpy ({exc}); "
+                         "run it in the project's .venv or a sourced ROS 2 install") from None
     from ..ros.middleware import configure_middleware
 
     domain = os.environ.get("ROS_DOMAIN_ID", "0").strip() or "0"

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """`star-tracker render`: one simulated frame to a 16-bit PNG/TIFF or FITS, with its truth as JSON."""
 from __future__ import annotations
 
@@ -69,9 +70,13 @@ def truth_path_for(output: Path) -> Path:
 
 @dataclass(frozen=True)
 class RenderSetup:
-    """What a render draws with: `spec` (camera, false objects, render keys and source of the
-    camera file or the default camera), `sensor` with --exposure and --no-noise applied,
-    magnitude_limit [Hp mag] and the catalog epoch [Julian year]."""
+    """
+    What a render draws with.
+
+    `spec` (camera, false objects, render keys and source of the camera file or the default
+    camera), `sensor` with --exposure and --no-noise applied, magnitude_limit [Hp mag] and
+    the catalog epoch [Julian year].
+    """
 
     spec: CameraFile
     sensor: object  # sim.sensor.SensorModel
@@ -96,17 +101,20 @@ def run(args: argparse.Namespace) -> int:
     truth_path.write_text(json.dumps(document, indent=1) + "\n")
     cam = setup.spec.camera
     in_view = sum(1 for s in document["stars"] if s["in_image"])
-    print(f"wrote {output} ({cam.width}x{cam.height} uint16, {camera_summary(cam)}; exposure {setup.sensor.exposure_s:g} s, "
-          f"{in_view} stars to Hp {setup.magnitude_limit:g} in the image)")
+    print(f"wrote {output} ({cam.width}x{cam.height} uint16, {camera_summary(cam)}; exposure "
+          f"{setup.sensor.exposure_s:g} s, {in_view} stars to Hp {setup.magnitude_limit:g} in the image)")
     print(f"wrote {truth_path} (RA {document['ra_deg']:.4f} deg, Dec {document['dec_deg']:.4f} deg, "
           f"roll {document['roll_deg']:.4f} deg, rate {' '.join(f'{w:g}' for w in args.rate)} deg/s)")
     return 0
 
 
 def render_setup(args: argparse.Namespace) -> RenderSetup:
-    """The camera file (or the default camera with the node's default detector effects) with
-    the command line's exposure, noise, magnitude limit and epoch applied; CommandError for a
-    calibration-only file or an epoch outside [1900, 2200]."""
+    """
+    Return the camera file (or the default camera, node detector defaults) with the command line's exposure.
+
+    Noise, magnitude limit and epoch applied; CommandError for a calibration-only file or an
+    epoch outside [1900, 2200].
+    """
     from dataclasses import replace
 
     if args.camera:
@@ -130,8 +138,11 @@ def render_setup(args: argparse.Namespace) -> RenderSetup:
 
 
 def render_frame(args: argparse.Namespace, setup: RenderSetup):
-    """The renderer and its frame at --stamp for the pointing (--ra, --dec, --roll [deg]) and
-    the constant body rate --rate [deg/s]."""
+    """
+    Return the renderer and its frame at --stamp.
+
+    For the pointing (--ra, --dec, --roll [deg]) and the constant body rate --rate [deg/s].
+    """
     from ..models.attitude import radec_roll_to_matrix
     from ..models.catalog import load_hipparcos
     from ..sim.motion import ConstantRateMotion
@@ -149,9 +160,12 @@ def render_frame(args: argparse.Namespace, setup: RenderSetup):
 
 
 def truth_document(args: argparse.Namespace, setup: RenderSetup, catalog, truth, output: Path) -> dict:
-    """The truth JSON: attitude at mid-exposure (quaternion, RA/Dec/roll [deg], matrix), body
-    rate [deg/s], stamp, exposure, seed, epoch, magnitude limit, camera, and every rendered
-    star (HIP, Hp, pixel position, electrons) and other object. catalog: the renderer's."""
+    """
+    Return the truth JSON: attitude at mid-exposure (quaternion, RA/Dec/roll [deg], matrix), body rate [deg/s], stamp.
+
+    Exposure, seed, epoch, magnitude limit, camera, and every rendered star (HIP, Hp, pixel
+    position, electrons) and other object. catalog: the renderer's.
+    """
     from ..models.attitude import matrix_to_quaternion, matrix_to_radec_roll
 
     ra, dec, roll = (math.degrees(a) for a in matrix_to_radec_roll(truth.rotation))

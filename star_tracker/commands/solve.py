@@ -1,4 +1,6 @@
-"""`star-tracker solve IMAGE`: lost-in-space solve of an image file (ours or a real photograph).
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker solve IMAGE`: lost-in-space solve of an image file (ours or a real photograph).
 
 centroid (extract_spots) -> identify (make_identifier, pattern database for the field) with
 the nominal field of view, then, when that fails, with fields stepped outward through
@@ -130,11 +132,14 @@ class SolveOptions:
 
 @dataclass
 class SolveResult:
-    """identification: the final Identification (None when nothing solved); camera: the camera
-    it refers to (refined focal length and distortion); focal_sigma_px: 1-sigma of the refined
-    focal length [px] (None when not refined); calibration: the CameraCalibration of that
-    refinement (models/camera_calibration.py; None when not refined); attempts: one dict per
-    identification attempt."""
+    """
+    identification: the final Identification (None when nothing solved).
+
+    Camera: the camera it refers to (refined focal length and distortion); focal_sigma_px:
+    1-sigma of the refined focal length [px] (None when not refined); calibration: the
+    CameraCalibration of that refinement (models/camera_calibration.py; None when not
+    refined); attempts: one dict per identification attempt.
+    """
 
     identification: object | None
     camera: object
@@ -149,8 +154,11 @@ class SolveResult:
 
 
 def fov_candidates(fov_deg: float, tolerance_pct: float, step_pct: float) -> list[float]:
-    """The nominal field, then fields stepped outward alternately above and below it, within
-    +-tolerance_pct percent (the bounds included)."""
+    """
+    Return the nominal field, then fields stepped outward alternately above and below it.
+
+    Within +-tolerance_pct percent (the bounds included).
+    """
     steps = int(math.floor(tolerance_pct / step_pct + 1e-9))
     values = [fov_deg]
     for k in range(1, steps + 1):
@@ -168,9 +176,13 @@ def camera_for_fov(width: int, height: int, fov_deg: float):
 
 def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, camera=None,
                 options: SolveOptions = SolveOptions(), report=None) -> SolveResult:
-    """Identify `spots` of a width x height image: with `camera` exactly, or with a pinhole of
-    horizontal field fov_deg [deg], searched within the tolerance (see the module docstring).
-    `report(text)` receives one progress line per attempt after the first."""
+    """
+    Identify `spots` of a width x height image.
+
+    With `camera` exactly, or with a pinhole of horizontal field fov_deg [deg], searched
+    within the tolerance (see the module docstring). `report(text)` receives one progress line
+    per attempt after the first.
+    """
     from ..identify import IdentifyConfig, load_or_build_database, make_identifier
     from ..identify.base import TOO_FEW_SPOTS
 
@@ -232,9 +244,12 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
 
 
 def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOptions, attempts: list) -> list:
-    """Cameras to identify at, in order: the focal lengths of scale-free pattern matches
-    (identify/scale_free.py; the search is appended to `attempts`), then (field_search
-    steps/both) the stepped fields."""
+    """
+    Cameras to identify at, in order.
+
+    The focal lengths of scale-free pattern matches (identify/scale_free.py; the search is
+    appended to `attempts`), then (field_search steps/both) the stepped fields.
+    """
     from ..identify.deadline import Deadline
     from ..identify.scale_free import estimate_fields, load_or_build_patterns
 
@@ -246,7 +261,8 @@ def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOpt
         started = time.perf_counter()
         estimates = estimate_fields(spots, nominal, database, patterns, tolerance,
                                     Deadline(PATTERN_SEARCH_BUDGET_S, "cpu"))
-        attempts.append({"fov_x_deg": fov_deg, "search": "patterns", "elapsed_s": round(time.perf_counter() - started, 3),
+        attempts.append({"fov_x_deg": fov_deg, "search": "patterns",
+                         "elapsed_s": round(time.perf_counter() - started, 3),
                          "status": f"{len(estimates)} field(s) found" if estimates else "no pattern matched",
                          "fields_deg": [round(math.degrees(2.0 * math.atan(0.5 * e.camera.width / e.camera.fx)), 4)
                                         for e in estimates]})
@@ -258,10 +274,14 @@ def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOpt
 
 
 def refine_camera(camera, spots, identification, sigma_floor_px: float):
-    """Least-squares camera and attitude over the matched stars (pixel residuals weighted by the
-    spots' covariances, sigma_floor_px [px] added in quadrature): the focal length (fx, fy
-    scaled together), and k1, k2 and the principal point where the stars constrain them
-    (models/camera_calibration.py). Returns the CameraCalibration; ValueError with < 3 stars."""
+    """
+    Fit the camera and attitude by least squares over the matched stars.
+
+    Pixel residuals weighted by the spots' covariances, sigma_floor_px [px] added in
+    quadrature: the focal length (fx, fy scaled together), and k1, k2 and the principal point
+    where the stars constrain them (models/camera_calibration.py). Returns the
+    CameraCalibration; ValueError with < 3 stars.
+    """
     from ..models.camera_calibration import CalibrationConfig, CalibrationFrame, calibrate_camera
 
     frame = CalibrationFrame.from_identification(spots, identification)
@@ -269,10 +289,13 @@ def refine_camera(camera, spots, identification, sigma_floor_px: float):
 
 
 def image_centre_rotation(rotation: np.ndarray, camera) -> np.ndarray:
-    """The sensor -> ICRS rotation of the frame whose +z passes through the image centre pixel
-    ((W-1)/2, (H-1)/2): `rotation` (the camera frame, +z through the principal point) turned by
-    the smallest rotation that takes +z to that pixel's ray. The identity turn when the
-    principal point is the image centre."""
+    """
+    Return the sensor -> ICRS rotation of the frame whose +z passes through the image centre pixel ((W-1)/2, (H-1)/2).
+
+    `rotation` (the camera frame, +z through the principal point) turned by the smallest
+    rotation that takes +z to that pixel's ray. The identity turn when the principal point is
+    the image centre.
+    """
     from ..models.attitude import rotation_vector_to_matrix
 
     centre = camera.pixel_to_ray(np.array([(camera.width - 1) / 2.0]), np.array([(camera.height - 1) / 2.0]))[0]
@@ -346,7 +369,7 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
 
 
 def unsolved_summary(attempts: list[dict]) -> dict:
-    """status "not_solved" and a reason naming what was tried and how each attempt ended."""
+    """Return status "not_solved" and a reason naming what was tried and how each attempt ended."""
     searches = [a for a in attempts if a.get("search") == "patterns"]
     identifications = [a for a in attempts if a.get("search") != "patterns"]
     parts = []
@@ -379,7 +402,8 @@ def format_text(record: dict) -> str:
         f"solved: {record['reason']} ({record['algorithm']})",
         f"RA {record['ra_deg']:.5f} deg  Dec {record['dec_deg']:+.5f} deg  roll {record['roll_deg']:+.4f} deg",
         f"quaternion (x, y, z, w) sensor->ICRS: {q[0]:+.8f} {q[1]:+.8f} {q[2]:+.8f} {q[3]:+.8f}",
-        f"1-sigma: cross-boresight {s['cross_boresight']:.2f}\" (x {s['x']:.2f}\", y {s['y']:.2f}\"), roll {s['roll']:.2f}\"",
+        f"1-sigma: cross-boresight {s['cross_boresight']:.2f}\" (x {s['x']:.2f}\", y {s['y']:.2f}\"), roll "
+        f"{s['roll']:.2f}\"",
         f"residual RMS {record['residual_rms_arcsec']:.2f}\" over {len(record['matched'])} stars",
         "",
         f"{'HIP':>7} {'Hp':>6} {'x [px]':>9} {'y [px]':>9} {'residual':>9}",
@@ -390,8 +414,11 @@ def format_text(record: dict) -> str:
 
 
 def calibration_summary(calibration: dict) -> str:
-    """One line of a CameraCalibration.as_dict(): each fitted parameter +-1 sigma, what the
-    stars left unfitted, the residual RMS."""
+    """
+    One line of a CameraCalibration.as_dict().
+
+    Each fitted parameter +-1 sigma, what the stars left unfitted, the residual RMS.
+    """
     units = {"f": " px", "cx": " px", "cy": " px", "k1": "", "k2": ""}
     fitted = ", ".join(f"{name} {calibration['value'][name]:.6g} +-{calibration['sigma'][name]:.2g}{units[name]}"
                        for name in calibration["fitted"])
@@ -421,9 +448,12 @@ def camera_summary_from(camera: dict) -> str:
 
 
 def centroid_config(pixels: np.ndarray, description: str, args: argparse.Namespace):
-    """The CentroidConfig of an image file read by commands/images.py (`description` names its
-    bit depth) under the --detection-sigma, --psf-sigma (None: estimated) and --max-spots
-    options; solve and calibrate centroid alike."""
+    """
+    Return the CentroidConfig of an image file read by commands/images.py.
+
+    `description` names its bit depth; under the --detection-sigma, --psf-sigma (None:
+    estimated) and --max-spots options; solve and calibrate centroid alike.
+    """
     from ..centroid import CentroidConfig
 
     saturation = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(pixels.dtype, 0.0)

@@ -1,6 +1,11 @@
-"""Star identification: every algorithm implements `StarIdentifier.identify(spots, camera)`
-and is chosen by name with `make_identifier`. Shared machinery: database, k-vector,
-verification, and the final QUEST refinement in `base`."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Star identification.
+
+Every algorithm implements `StarIdentifier.identify(spots, camera)` and is chosen by name
+with `make_identifier`. Shared machinery: database, k-vector, verification, and the final
+QUEST refinement in `base`.
+"""
 from __future__ import annotations
 
 from .base import Identification, IdentifyConfig, StarIdentifier

@@ -1,4 +1,6 @@
-"""Cole & Crassidis' angle method with pivoting (seed 000 sec. II; Cole's thesis 003, sec. 2.2-2.3, 5.2).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Cole & Crassidis' angle method with pivoting (seed 000 sec. II; Cole's thesis 003, sec. 2.2-2.3, 5.2).
 
 Every pair of spots defines an inter-star angle theta = acos(b_i . b_j) (eq. 1). Its standard
 deviation follows from the attitude-independent dot product (eqs. 7-12):
@@ -43,17 +45,23 @@ from .deadline import Deadline
 
 
 def pair_angle_sigma(sigma_i: np.ndarray, sigma_j: np.ndarray) -> np.ndarray:
-    """1-sigma error of the angle between two measured directions with per-axis 1-sigma errors
-    sigma_i, sigma_j [rad] (Cole & Crassidis eq. 12; sqrt(2) sigma for equal errors, eq. 14)."""
+    """
+    1-sigma error of the angle between two measured directions with per-axis 1-sigma errors sigma_i.
+
+    sigma_j [rad] (Cole & Crassidis eq. 12; sqrt(2) sigma for equal errors, eq. 14).
+    """
     var_i, var_j = np.square(sigma_i), np.square(sigma_j)
     return np.sqrt(var_i + var_j + 3.0 * var_i * var_j)
 
 
 def handedness_agrees(rays: np.ndarray, stars: np.ndarray, sigma: np.ndarray, beta: float) -> bool:
-    """Mirror test for one correspondence (rays[k] <-> stars[k], (M, 3) each, M >= 3): the triple
-    product of every spot triple must have the sign of its star triple's, except for triples
-    so flat that noise (beta sigma times the perimeter) could flip the sign. At least one
-    triple must be decisive."""
+    """
+    Mirror test for one correspondence (rays[k] <-> stars[k], (M, 3) each, M >= 3).
+
+    The triple product of every spot triple must have the sign of its star triple's, except for
+    triples so flat that noise (beta sigma times the perimeter) could flip the sign. At least one
+    triple must be decisive.
+    """
     m = rays.shape[0]
     idx = np.array([(i, j, k) for i in range(m) for j in range(i + 1, m) for k in range(j + 1, m)])
     r, s = rays[idx], stars[idx]
@@ -66,9 +74,12 @@ def handedness_agrees(rays: np.ndarray, stars: np.ndarray, sigma: np.ndarray, be
 
 
 def consistent_core(rays: np.ndarray, stars: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
-    """Mask of a correspondence (rays[k] <-> stars[k]) whose every pairwise angle agrees within
-    tolerance (M, M) [rad]: the spot with the most disagreements is dropped until none is left.
-    A chain checks each new spot against one angle only, so a false star can ride along."""
+    """
+    Mask of a correspondence (rays[k] <-> stars[k]) whose every pairwise angle agrees within tolerance (M, M) [rad].
+
+    The spot with the most disagreements is dropped until none is left. A chain checks each new
+    spot against one angle only, so a false star can ride along.
+    """
     keep = np.ones(rays.shape[0], bool)
     misfit = np.abs(chord_angle(rays[:, None], rays[None]) - chord_angle(stars[:, None], stars[None])) / tolerance
     while True:
@@ -82,15 +93,18 @@ def consistent_core(rays: np.ndarray, stars: np.ndarray, tolerance: np.ndarray) 
 
 @dataclass(frozen=True)
 class AnglePivotConfig:
-    """pivot_limit: pivots per chain (paper: 9); max_solutions_per_angle: an angle with more
-    catalog solutions is not used (paper: 10,000); order_by: "candidates" (fewest catalog
-    solutions first, the paper's ideal) or "angle" (largest angle first, the thesis' practice);
-    max_finalists: a chain whose finalists exceed this is abandoned (memory bound);
-    max_left_out: after a chain from every angle, repeat leaving out each spot, then each pair
-    of spots, ... up to this many (0: restarts only); starts_per_round: chains per such round
-    (from the best-ranked angles); restart: start a new chain from every angle in turn (False:
-    one chain, as in the paper); skip_empty_pivots: a pivot that leaves no finalist is skipped
-    (False: the chain ends there, as in the paper)."""
+    """
+    pivot_limit: pivots per chain (paper: 9).
+
+    max_solutions_per_angle: an angle with more catalog solutions is not used (paper: 10,000);
+    order_by: "candidates" (fewest catalog solutions first, the paper's ideal) or "angle"
+    (largest angle first, the thesis' practice); max_finalists: a chain whose finalists exceed
+    this is abandoned (memory bound); max_left_out: after a chain from every angle, repeat
+    leaving out each spot, then each pair of spots, ... up to this many (0: restarts only);
+    starts_per_round: chains per such round (from the best-ranked angles); restart: start a new
+    chain from every angle in turn (False: one chain, as in the paper); skip_empty_pivots: a
+    pivot that leaves no finalist is skipped (False: the chain ends there, as in the paper).
+    """
 
     pivot_limit: int = 9
     max_solutions_per_angle: int = 10000
@@ -121,8 +135,12 @@ class AnglePivotConfig:
 
 @dataclass
 class _SpotPairs:
-    """The measured angles of one frame: spot indices (first, second), angle [rad], search
-    half-width [rad], and the k-vector slice [start, stop) of the catalog solutions."""
+    """
+    The measured angles of one frame.
+
+    Spot indices (first, second), angle [rad], search half-width [rad], and the k-vector
+    slice [start, stop) of the catalog solutions.
+    """
 
     first: np.ndarray
     second: np.ndarray
@@ -138,9 +156,12 @@ class _SpotPairs:
 
 @dataclass(frozen=True)
 class _Ranking:
-    """Order of the measured angles for starting chains and choosing pivots: rank (A,) angle
-    indices best first; position (A,) each angle's place in it; usable (A,) angles with
-    between 1 and max_solutions_per_angle catalog solutions."""
+    """
+    Order of the measured angles for starting chains and choosing pivots.
+
+    Rank (A,) angle indices best first; position (A,) each angle's place in it; usable (A,)
+    angles with between 1 and max_solutions_per_angle catalog solutions.
+    """
 
     rank: np.ndarray
     position: np.ndarray
@@ -163,9 +184,13 @@ def measured_pairs(geometry: SpotGeometry, database: StarDatabase, beta: float, 
 
 
 class AnglePivotIdentifier(StarIdentifier):
-    """Angle method with pivoting; see the module docstring. stats: "chains" (chains started),
-    "pivots" (pivots of the chain behind the latest hypothesis), "pivots_total",
-    "finalists" (finalists after the first angle of that chain), "skipped_pivots"."""
+    """
+    Angle method with pivoting; see the module docstring.
+
+    stats: "chains" (chains started), "pivots" (pivots of the chain behind the latest
+    hypothesis), "pivots_total", "finalists" (finalists after the first angle of that chain),
+    "skipped_pivots".
+    """
 
     name = "angle_pivot"
 
@@ -181,9 +206,12 @@ class AnglePivotIdentifier(StarIdentifier):
         return np.concatenate([a, b]), np.concatenate([b, a])
 
     def _pivot(self, finalists: np.ndarray, column: dict[int, int], pairs: _SpotPairs, e: int) -> np.ndarray:
-        """Finalists (F, k) star arrays (column[spot] -> column) that also solve angle e. When
-        angle e brings a new spot, each finalist is extended by every star its shared spot's
-        star pairs with; a star is never used twice in one finalist."""
+        """
+        Finalists (F, k) star arrays (column[spot] -> column) that also solve angle e.
+
+        When angle e brings a new spot, each finalist is extended by every star its shared
+        spot's star pairs with; a star is never used twice in one finalist.
+        """
         u, v = int(pairs.first[e]), int(pairs.second[e])
         from_star, to_star = self._directed_solutions(pairs, e)
         if u not in column:  # orient so that u is the shared spot
@@ -229,9 +257,11 @@ class AnglePivotIdentifier(StarIdentifier):
 
     # -- chains ---------------------------------------------------------------------------
     def _chain(self, pairs: _SpotPairs, start: int, rank: np.ndarray, excluded: set[int], deadline: Deadline):
-        """Pivot from angle `start`, never using the spots in `excluded` (extended in place by
-        spots found inconsistent); returns (spots, finalists (F, k)) or None (timeout, or
-        too many finalists)."""
+        """
+        Pivot from angle `start`, never using the spots in `excluded` (extended in place by spots found inconsistent).
+
+        Returns (spots, finalists (F, k)) or None (timeout, or too many finalists).
+        """
         cfg = self.pivot_config
         first, second = int(pairs.first[start]), int(pairs.second[start])
         a, b = self._directed_solutions(pairs, start)
@@ -273,8 +303,11 @@ class AnglePivotIdentifier(StarIdentifier):
         return np.array(sorted(column, key=column.get)), finalists
 
     def _solved_core(self, geometry: SpotGeometry, spots: np.ndarray, stars: np.ndarray):
-        """The mutually consistent part of a solved chain, or None if fewer than three spots
-        remain or its handedness is mirrored."""
+        """
+        Return the mutually consistent part of a solved chain.
+
+        Or None if fewer than three spots remain or its handedness is mirrored.
+        """
         beta = self.config.sigma_multiplier
         rays, vectors, sigma = geometry.rays[spots], self.database.vectors[stars], geometry.sigma[spots]
         tolerance = beta * pair_angle_sigma(sigma[:, None], sigma[None]) + self.config.angle_tolerance_floor_rad
@@ -285,13 +318,17 @@ class AnglePivotIdentifier(StarIdentifier):
 
     def _completed(self, geometry: SpotGeometry, pairs: _SpotPairs, spots: np.ndarray, stars: np.ndarray,
                    excluded: set[int]) -> tuple[np.ndarray, np.ndarray]:
-        """A solved core with every further pattern spot (not in `excluded`) whose angles to at
-        least two spots already in it are solved by exactly one catalog star, checked again for
+        """
+        Return a solved core grown by every further pattern spot solved by exactly one catalog star.
+
+        A further spot (not in `excluded`) joins when its angles to at least two spots already in
+        the core are solved by exactly one catalog star; the result is checked again for
         consistency and handedness (else the core as it was). A chain stops pivoting once one
         finalist remains, so it may leave spots out, and an attitude fitted to a few clustered
         spots can put the others' stars beyond the verification radius, where the shared
         re-match cannot find them (Cole scenes: 5 of 9 stars, a poor roll). Like the pivots,
-        this is attitude-independent."""
+        this is attitude-independent.
+        """
         column = {int(s): c for c, s in enumerate(spots)}
         finalists = stars[None, :]
         for spot in range(geometry.pattern_count):
@@ -353,9 +390,12 @@ class AnglePivotIdentifier(StarIdentifier):
     def _round(self, geometry: SpotGeometry, pairs: _SpotPairs, ranking: _Ranking, left_out: set[int],
                starts: int | None, suspicion: np.ndarray, yielded: set,
                deadline: Deadline) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """Chains from the first `starts` (None: all) usable angles in rank order that avoid the
-        spots in `left_out`; yields each new solved core. `suspicion` counts, per spot, the
-        pivots it emptied, its drops from a consistent core and its rejected hypotheses."""
+        """
+        Chains from the first `starts` (None: all) usable angles in rank order that avoid the spots in `left_out`.
+
+        Yields each new solved core. `suspicion` counts, per spot, the pivots it emptied, its
+        drops from a consistent core and its rejected hypotheses.
+        """
         chains = 0
         for start in ranking.rank:
             if deadline.passed() or (starts is not None and chains >= starts):

@@ -1,5 +1,6 @@
-"""Toloei, Arani & Abaszadeh's composite of the pyramid and planar triangle methods (seed 001,
-sec. 3.5).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Toloei, Arani & Abaszadeh's composite of the pyramid and planar triangle methods (seed 001, sec. 3.5).
 
 A base triangle of three spots is described by its planar area (Heron with s = (a+b+c)/2,
 eq. 1) and polar moment I = A (a^2+b^2+c^2)/36 (eq. 2), a, b, c its sides [rad]. Catalog
@@ -39,9 +40,13 @@ from .deadline import Deadline
 
 @dataclass(frozen=True)
 class CompositeSettings:
-    """max_spots: spots (brightest first) the base triangles and fourth stars are drawn from
+    """
+    Configure the composite method.
+
+    max_spots: spots (brightest first) the base triangles and fourth stars are drawn from
     once the brightest `pattern_count` are exhausted; batch_size: base triangles matched per
-    catalog search (small: the first good triangle is reached sooner)."""
+    catalog search (small: the first good triangle is reached sooner).
+    """
 
     max_spots: int = 150
     batch_size: int = 32
@@ -54,17 +59,20 @@ class CompositeSettings:
 
 
 class Neighbours(NamedTuple):
-    """Symmetric CSR of the database pairs: the neighbours of star s are
-    indices[indptr[s]:indptr[s + 1]]."""
+    """Symmetric CSR of the database pairs: the neighbours of star s are indices[indptr[s]:indptr[s + 1]]."""
 
     indptr: np.ndarray
     indices: np.ndarray
 
 
 class SpotDistances(NamedTuple):
-    """The spots of one frame: rays (N, 3) sensor frame, sigma (N,) [rad], dist (N, N)
-    inter-spot angles [rad]; dist_order (N, N) each row's spots by distance, dist_sorted
-    (N, N) the distances in that order."""
+    """
+    The spots of one frame.
+
+    Rays (N, 3) sensor frame, sigma (N,) [rad], dist (N, N) inter-spot angles [rad];
+    dist_order (N, N) each row's spots by distance, dist_sorted (N, N) the distances in that
+    order.
+    """
 
     rays: np.ndarray
     sigma: np.ndarray
@@ -74,8 +82,7 @@ class SpotDistances(NamedTuple):
 
 
 class MatchTolerance(NamedTuple):
-    """beta: sigma multiplier; floor: model error per side [rad]; loose: the fourth star's
-    distance prefilter [rad]."""
+    """beta: sigma multiplier; floor: model error per side [rad]; loose: the fourth star's distance prefilter [rad]."""
 
     beta: float
     floor: float
@@ -83,8 +90,12 @@ class MatchTolerance(NamedTuple):
 
 
 class FourthStars(NamedTuple):
-    """Per base candidate (C,): count of fourth spots with a unique response; the brightest
-    such spot and its star (-1 if none)."""
+    """
+    Per base candidate (C,).
+
+    Count of fourth spots with a unique response; the brightest such spot and its star (-1
+    if none).
+    """
 
     count: np.ndarray
     spot: np.ndarray
@@ -106,9 +117,13 @@ _NEIGHBOURS: dict[str, Neighbours] = {}
 
 @njit(cache=True)
 def _planar_match(frame, spots, vectors, stars, tol, scratch) -> bool:
-    """Do spot triangle `spots` (x, y, r) of SpotDistances `frame` and catalog triangle
-    `stars` (sx, sy, s) agree on planar area and polar moment (eqs. 1-2) within MatchTolerance
-    `tol`, with the same handedness? scratch: (cov (3, 3), jac_a (3,), jac_m (3,))."""
+    """
+    Tell whether a spot triangle and a catalog triangle agree on planar area and polar moment.
+
+    Spot triangle `spots` (x, y, r) of SpotDistances `frame`, catalog triangle `stars` (sx, sy,
+    s): within MatchTolerance `tol` (eqs. 1-2), with the same handedness. scratch: (cov (3, 3),
+    jac_a (3,), jac_m (3,)).
+    """
     rays, sigma, dist = frame.rays, frame.sigma, frame.dist
     x, y, r = spots
     sx, sy, s = stars
@@ -136,9 +151,13 @@ def _planar_match(frame, spots, vectors, stars, tol, scratch) -> bool:
 
 @njit(cache=True)
 def _confirm_kernel(base_spots, base_stars, frame, neighbours, vectors, tol, out):
-    """For each base candidate (stars (C, 3) of the spots base_spots = (i, j, k)): the fourth
-    spots r for which exactly one neighbour star s of s_i makes all three side triangles
-    match. Writes FourthStars `out`: how many such r; the brightest one and its star."""
+    """
+    For each base candidate (stars (C, 3) of the spots base_spots = (i, j, k)).
+
+    The fourth spots r for which exactly one neighbour star s of s_i makes all three side
+    triangles match. Writes FourthStars `out`: how many such r; the brightest one and its
+    star.
+    """
     i, j, k = base_spots
     dist, dist_order, dist_sorted = frame.dist, frame.dist_order, frame.dist_sorted
     nb_ptr, nb_idx = neighbours.indptr, neighbours.indices
@@ -188,8 +207,12 @@ def _confirm_kernel(base_spots, base_stars, frame, neighbours, vectors, tol, out
 
 
 def base_triangle_batches(pattern_count: int, spot_count: int, size: int) -> Iterator[np.ndarray]:
-    """Base triangles in batches of at most `size`: Mortari's pyramid order over the pattern
-    spots, then for each further spot k every triple (i, j, k) with i < j < k."""
+    """
+    Return base triangles in batches of at most `size`.
+
+    Mortari's pyramid order over the pattern spots, then for each further spot k every
+    triple (i, j, k) with i < j < k.
+    """
     first = pyramid_triangles(pattern_count)
     for start in range(0, first.shape[0], size):
         yield first[start:start + size]

@@ -1,4 +1,6 @@
-"""Guide-star catalog and star-pair database with a k-vector on inter-star angle.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Guide-star catalog and star-pair database with a k-vector on inter-star angle.
 
 Built once per parameter set and cached on disk (validated .npz, no pickle). Angles are
 radians; star vectors are ICRS unit vectors at the configured epoch.
@@ -33,14 +35,18 @@ if TYPE_CHECKING:
 DATABASE_FORMAT_VERSION = 2
 log = logging.getLogger(__name__)
 
+
 @dataclass(frozen=True)
 class DatabaseConfig:
-    """magnitude_limit: faintest guide star [Hp mag]; max_pair_angle_rad: largest star-pair
-    separation stored (must cover the camera's full diagonal FOV) [rad]; epoch_jyear: epoch
-    the positions are propagated to [Julian year]; min_separation_rad: a guide star with a
-    companion closer than this (and less than `blend_magnitude_gap` fainter) is left out,
-    because the camera sees the two as one blended spot of ambiguous identity and position
-    [rad]."""
+    """
+    magnitude_limit.
+
+    Faintest guide star [Hp mag]; max_pair_angle_rad: largest star-pair separation stored
+    (must cover the camera's full diagonal FOV) [rad]; epoch_jyear: epoch the positions are
+    propagated to [Julian year]; min_separation_rad: a guide star with a companion closer
+    than this (and less than `blend_magnitude_gap` fainter) is left out, because the camera
+    sees the two as one blended spot of ambiguous identity and position [rad].
+    """
 
     # The default largest pair angle [deg]: every camera whose field diagonal fits in it (up to
     # ~15.5 deg square fields) shares the default database and its cache file (for_camera).
@@ -68,12 +74,15 @@ class DatabaseConfig:
     @classmethod
     def for_camera(cls, camera: CameraModel, magnitude_limit: float | None = None,
                    epoch_jyear: float | None = None) -> "DatabaseConfig":
-        """The configuration whose pairs cover `camera`'s field (models.camera.CameraModel):
-        star pairs up to DEFAULT_PAIR_ANGLE_DEG (the default) when the field diagonal
+        """
+        Return the configuration whose pairs cover `camera`'s field (models.camera.CameraModel).
+
+        Star pairs up to DEFAULT_PAIR_ANGLE_DEG (the default) when the field diagonal
         (field_diagonal_rad) fits in it, else up to the diagonal plus 1 deg rounded up to a
         whole degree (any two stars in view are a stored pair). magnitude_limit [Hp mag] and
         epoch_jyear [Julian year]: None keeps the defaults. ValueError for a field diagonal
-        over MAX_FIELD_DIAGONAL_DEG."""
+        over MAX_FIELD_DIAGONAL_DEG.
+        """
         diagonal_deg = math.degrees(cls.field_diagonal_rad(camera))
         if diagonal_deg > cls.MAX_FIELD_DIAGONAL_DEG:
             raise ValueError(f"a {camera.width}x{camera.height} px camera of fx={camera.fx:.1f} px has a "
@@ -87,10 +96,13 @@ class DatabaseConfig:
 
     @staticmethod
     def field_diagonal_rad(camera: CameraModel) -> float:
-        """The largest angle between two points of `camera`'s image [rad]: the widest
-        separation of any two of its four outer corners (pixel edges, (-0.5, -0.5) to
-        (width - 0.5, height - 0.5)), distortion included; for a pinhole with a centred
-        principal point, 2 atan(half diagonal / f)."""
+        """
+        Return the largest angle between two points of `camera`'s image [rad].
+
+        The widest separation of any two of its four outer corners (pixel edges, (-0.5,
+        -0.5) to (width - 0.5, height - 0.5)), distortion included; for a pinhole with a
+        centred principal point, 2 atan(half diagonal / f).
+        """
         u = np.array([-0.5, camera.width - 0.5, -0.5, camera.width - 0.5])
         v = np.array([-0.5, -0.5, camera.height - 0.5, camera.height - 0.5])
         corners = camera.pixel_to_ray(u, v)
@@ -101,17 +113,20 @@ class DatabaseConfig:
         return hashlib.sha256(self.identity().encode()).hexdigest()[:16]
 
     def identity(self) -> str:
-        """The configuration and format version as canonical JSON (stored in the cache file)."""
+        """Return the configuration and format version as canonical JSON (stored in the cache file)."""
         return json.dumps({**asdict(self), "version": DATABASE_FORMAT_VERSION}, sort_keys=True)
 
 
 @dataclass(frozen=True)
 class StarDatabase:
-    """vectors: (N, 3) ICRS unit vectors; hip: (N,) Hipparcos ids; magnitude: (N,) Hp;
-    pair_a, pair_b: star indices of each pair, sorted by pair_angle [rad] (a < b);
-    kvector: search structure over pair_angle; cache_directory: where its cache file lives
-    (None: the default, catalog.cache_dir()); the databases derived from it (triangles) are
-    cached there too."""
+    """
+    vectors: (N, 3) ICRS unit vectors.
+
+    Hip: (N,) Hipparcos ids; magnitude: (N,) Hp; pair_a, pair_b: star indices of each pair,
+    sorted by pair_angle [rad] (a < b); kvector: search structure over pair_angle;
+    cache_directory: where its cache file lives (None: the default, catalog.cache_dir());
+    the databases derived from it (triangles) are cached there too.
+    """
 
     config: DatabaseConfig
     vectors: np.ndarray
@@ -138,8 +153,11 @@ class StarDatabase:
 
 
 def unblended(catalog: StarCatalog, config: DatabaseConfig) -> np.ndarray:
-    """Mask of stars (Hp <= magnitude_limit) with no companion within min_separation_rad
-    that is brighter than the star's Hp + blend_magnitude_gap."""
+    """
+    Return the mask of stars (Hp <= magnitude_limit) with no brighter companion nearby.
+
+    A companion is within min_separation_rad and brighter than the star's Hp + blend_magnitude_gap.
+    """
     field = catalog.brighter_than(config.magnitude_limit + config.blend_magnitude_gap)
     vectors = field.unit_vectors()
     close = cKDTree(vectors).query_pairs(r=2.0 * np.sin(0.5 * config.min_separation_rad), output_type="ndarray")
@@ -176,9 +194,13 @@ _CACHE_DTYPES = {"vectors": np.float64, "hip": np.int32, "magnitude": np.float64
 
 
 def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -> StarDatabase:
-    """The database stored in `arrays` (a checksum-valid cache file) for `config`; ValueError
-    naming the first problem when the file is of another version or configuration, or its
-    structure is not what build_database makes (the kernels index without bounds checks)."""
+    """
+    Return the database stored in `arrays` (a checksum-valid cache file) for `config`.
+
+    ValueError naming the first problem when the file is of another version or configuration,
+    or its structure is not what build_database makes (the kernels index without bounds
+    checks).
+    """
     for name, dtype in _CACHE_DTYPES.items():
         if name not in arrays:
             raise ValueError(f"array {name!r} missing")
@@ -217,11 +239,14 @@ def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -
 
 
 def load_or_build_database(config: DatabaseConfig, directory: Path | None = None) -> StarDatabase:
-    """Load the cached database for `config` from `directory` (None: catalog.cache_dir();
-    validated: see the module docstring) or build it and cache it there. The database
+    """
+    Load the cached database for `config` from `directory`, or build it and cache it there.
+
+    directory None: catalog.cache_dir(); validated: see the module docstring. The database
     remembers the directory (cache_directory), so the triangle databases built from it are
     cached beside it. A rejected cache file is logged and rebuilt; an unwritable cache
-    directory costs a rebuild at every start (logged), never the database."""
+    directory costs a rebuild at every start (logged), never the database.
+    """
     directory = Path(directory) if directory is not None else None
     path = (directory or cache_dir()) / f"pairs_{config.cache_key()}.npz"
     arrays = load_validated_npz(path)

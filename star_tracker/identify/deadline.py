@@ -1,4 +1,6 @@
-"""The time budget of one identification: a deadline on a chosen clock.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The time budget of one identification: a deadline on a chosen clock.
 
 "wall" counts elapsed time (a node's real-time budget: a frame must be answered before the
 next); "cpu" counts this process's CPU time, so an offline solve does the same search on an

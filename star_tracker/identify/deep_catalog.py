@@ -1,4 +1,6 @@
-"""The deep verification catalog: every Hipparcos star to a fainter limit than the guide stars.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The deep verification catalog: every Hipparcos star to a fainter limit than the guide stars.
 
 Identification searches the pattern database (guide stars, database.py); once an attitude is
 accepted, the spots left unmatched are matched against this catalog (deep_match.py), so a
@@ -32,10 +34,14 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class DeepCatalog:
-    """magnitude_limit: faintest star [Hp mag]; epoch_jyear: epoch of the positions [Julian
-    year]; vectors (N, 3) ICRS unit vectors; hip (N,) Hipparcos ids (increasing); magnitude (N,)
-    Hp [mag]; sorted_magnitudes: `magnitude` sorted (the magnitude CDF of the false-positive
-    bound); tree: KD-tree on `vectors` (chord distances). Made by `of`."""
+    """
+    magnitude_limit.
+
+    Faintest star [Hp mag]; epoch_jyear: epoch of the positions [Julian year]; vectors (N, 3)
+    ICRS unit vectors; hip (N,) Hipparcos ids (increasing); magnitude (N,) Hp [mag];
+    sorted_magnitudes: `magnitude` sorted (the magnitude CDF of the false-positive bound); tree:
+    KD-tree on `vectors` (chord distances). Made by `of`.
+    """
 
     magnitude_limit: float
     epoch_jyear: float
@@ -61,9 +67,12 @@ class DeepCatalog:
         return self.star_count / (4.0 * math.pi)
 
     def stars_in_view(self, rotation: np.ndarray, camera: CameraModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Indices of the stars inside `camera`'s image for the sensor -> ICRS `rotation`, and
-        their projected pixel positions (u, v) [px]: a KD-tree cone around the boresight of the
-        field's half diagonal (+1 mrad), then the camera model."""
+        """
+        Return indices of the stars inside `camera`'s image for the sensor -> ICRS `rotation`.
+
+        And their projected pixel positions (u, v) [px]: a KD-tree cone around the boresight of
+        the field's half diagonal (+1 mrad), then the camera model.
+        """
         half = min(camera.half_diagonal_fov_rad + 1e-3, math.pi / 2)
         near = np.asarray(self.tree.query_ball_point(rotation[:, 2], 2.0 * math.sin(0.5 * half)), np.int64)
         if near.size == 0:
@@ -74,7 +83,7 @@ class DeepCatalog:
 
 
 def deep_catalog_identity(magnitude_limit: float, epoch_jyear: float) -> str:
-    """The catalog's parameters and format version as canonical JSON (stored in its cache file)."""
+    """Return the catalog's parameters and format version as canonical JSON (stored in its cache file)."""
     return json.dumps({"magnitude_limit": round(float(magnitude_limit), 6), "epoch_jyear": round(float(epoch_jyear), 6),
                        "version": DEEP_CATALOG_FORMAT_VERSION}, sort_keys=True)
 
@@ -89,8 +98,12 @@ def build_deep_catalog(magnitude_limit: float, epoch_jyear: float) -> DeepCatalo
 
 
 def deep_catalog_from_cache(arrays: dict[str, np.ndarray], magnitude_limit: float, epoch_jyear: float) -> DeepCatalog:
-    """The catalog stored in `arrays` (a checksum-valid cache file); ValueError naming the
-    first problem when it is of another version or configuration or malformed."""
+    """
+    Return the catalog stored in `arrays` (a checksum-valid cache file).
+
+    ValueError naming the first problem when it is of another version or configuration or
+    malformed.
+    """
     for name, dtype in (("vectors", np.float64), ("hip", np.int32), ("magnitude", np.float64)):
         if name not in arrays or arrays[name].dtype != dtype:
             raise ValueError(f"array {name!r} missing or not {np.dtype(dtype)}")
@@ -108,8 +121,7 @@ def deep_catalog_from_cache(arrays: dict[str, np.ndarray], magnitude_limit: floa
 
 
 def deep_catalog_path(magnitude_limit: float, epoch_jyear: float, directory: Path | None = None) -> Path:
-    """The cache file of the deep catalog for these parameters in `directory` (None:
-    catalog.cache_dir())."""
+    """Return the cache file of the deep catalog for these parameters in `directory` (None: catalog.cache_dir())."""
     identity = deep_catalog_identity(magnitude_limit, epoch_jyear)
     return (Path(directory) if directory is not None else cache_dir()) / \
         f"deep_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
@@ -118,10 +130,14 @@ def deep_catalog_path(magnitude_limit: float, epoch_jyear: float, directory: Pat
 _MEMO: dict[tuple, DeepCatalog] = {}
 
 
-def load_or_build_deep_catalog(magnitude_limit: float, epoch_jyear: float, directory: Path | None = None) -> DeepCatalog:
-    """The deep catalog for (magnitude_limit [Hp mag], epoch_jyear [Julian year]) from
-    `directory` (None: catalog.cache_dir()), built and cached there when missing or rejected
-    (logged). Shared in memory by every identifier of the process."""
+def load_or_build_deep_catalog(magnitude_limit: float, epoch_jyear: float,
+                               directory: Path | None = None) -> DeepCatalog:
+    """
+    Return the deep catalog for (magnitude_limit [Hp mag], epoch_jyear [Julian year]).
+
+    From `directory` (None: catalog.cache_dir()), built and cached there when missing or
+    rejected (logged). Shared in memory by every identifier of the process.
+    """
     directory = Path(directory) if directory is not None else cache_dir()
     identity = deep_catalog_identity(magnitude_limit, epoch_jyear)
     key = (identity, str(directory))

@@ -1,4 +1,6 @@
-"""The deep re-match: once an attitude is accepted, match the spots left over to the deep catalog.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The deep re-match: once an attitude is accepted, match the spots left over to the deep catalog.
 
 Identification (the search and its false-positive logic) uses only the pattern database's
 guide stars. At the accepted attitude, every spot without a guide star is compared with the
@@ -62,11 +64,14 @@ MEDIAN_CHI2_2DOF = 2.0 * np.log(2.0)
 
 @dataclass(frozen=True)
 class DeepMatches:
-    """spot_index (K,) into the flux-sorted spots (base.prepare); star_index (K,) deep catalog
-    indices; stars_in_view: deep stars projected inside the image; ambiguous: spots with a
-    star inside the gate left unmatched as ambiguous; magnitude_rejected: spots left
-    unmatched because their brightness disagreed; too_uncertain: spots not tried because
-    their gate was too wide (MAX_CHANCE_STARS_IN_GATE)."""
+    """
+    spot_index (K,) into the flux-sorted spots (base.prepare).
+
+    star_index (K,) deep catalog indices; stars_in_view: deep stars projected inside the
+    image; ambiguous: spots with a star inside the gate left unmatched as ambiguous;
+    magnitude_rejected: spots left unmatched because their brightness disagreed;
+    too_uncertain: spots not tried because their gate was too wide (MAX_CHANCE_STARS_IN_GATE).
+    """
 
     spot_index: np.ndarray
     star_index: np.ndarray
@@ -78,10 +83,14 @@ class DeepMatches:
 
 def error_scale(geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndarray, spot_index: np.ndarray,
                 star_vectors: np.ndarray, cov_px: np.ndarray) -> float:
-    """Variance scale (>= 1) of the match gate: the median squared Mahalanobis offset of the
-    guide matches (spot_index, their ICRS star_vectors) from their stars projected with
-    `rotation`, under their gate covariances cov_px (N, 2, 2) [px^2] of all spots, over its
-    expectation for a 2-D Gaussian (robust to a few outliers)."""
+    """
+    Variance scale (>= 1) of the match gate.
+
+    The median squared Mahalanobis offset of the guide matches (spot_index, their ICRS
+    star_vectors) from their stars projected with `rotation`, under their gate covariances
+    cov_px (N, 2, 2) [px^2] of all spots, over its expectation for a 2-D Gaussian (robust to
+    a few outliers).
+    """
     u, v, _ = camera.project(np.asarray(star_vectors, float) @ rotation)
     dx, dy = geometry.x[spot_index] - u, geometry.y[spot_index] - v
     cov = cov_px[spot_index]
@@ -93,9 +102,12 @@ def error_scale(geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndar
 
 def spot_pixel_covariance(geometry: "SpotGeometry", camera: CameraModel, attitude_covariance: np.ndarray,
                           floor_px: float) -> np.ndarray:
-    """(N, 2, 2) covariance [px^2] of each spot's offset from its star's predicted pixel: the
-    spot's own covariance + floor_px^2 I + the attitude's, J+ [b]x P [b]x^T J+^T with
-    J = d ray / d pixel and P the sensor-frame attitude covariance [rad^2]."""
+    """
+    (N, 2, 2) covariance [px^2] of each spot's offset from its star's predicted pixel.
+
+    The spot's own covariance + floor_px^2 I + the attitude's, J+ [b]x P [b]x^T J+^T with J =
+    d ray / d pixel and P the sensor-frame attitude covariance [rad^2].
+    """
     rays = geometry.rays
     n = rays.shape[0]
     if geometry.pixel_cov is None:
@@ -112,7 +124,8 @@ def spot_pixel_covariance(geometry: "SpotGeometry", camera: CameraModel, attitud
         jt = np.transpose(jac, (0, 2, 1))
         g = jt @ jac  # 2x2 normal matrices, inverted in closed form
         det = g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] * g[:, 1, 0]
-        g_inv = np.stack([np.stack([g[:, 1, 1], -g[:, 0, 1]], 1), np.stack([-g[:, 1, 0], g[:, 0, 0]], 1)], 1) / det[:, None, None]
+        g_inv = np.stack([np.stack([g[:, 1, 1], -g[:, 0, 1]], 1),
+                          np.stack([-g[:, 1, 0], g[:, 0, 0]], 1)], 1) / det[:, None, None]
         pinv = g_inv @ jt
     carry = pinv @ skew  # d pixel / d attitude error (2 x 3)
     attitude = carry @ np.asarray(attitude_covariance, float)[None] @ np.transpose(carry, (0, 2, 1))
@@ -138,8 +151,11 @@ def _candidate_pairs(spot_xy: np.ndarray, star_xy: np.ndarray, cov: np.ndarray, 
 
 
 def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tuple[float, float] | None:
-    """(zero point, tolerance) [mag] from the guide matches' instrumental and catalog
-    magnitudes, or None when fewer than MIN_ZERO_POINT_STARS are known."""
+    """
+    Return (zero point, tolerance) [mag] from the guide matches' instrumental and catalog magnitudes.
+
+    None when fewer than MIN_ZERO_POINT_STARS are known.
+    """
     difference = np.asarray(spot_magnitude, float) - np.asarray(star_magnitude, float)
     difference = difference[np.isfinite(difference)]
     if difference.size < MIN_ZERO_POINT_STARS:
@@ -152,10 +168,13 @@ def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tu
 def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndarray,
                spot_cov_px: np.ndarray, guide_spots: np.ndarray, guide_hip: np.ndarray,
                guide_magnitude: np.ndarray) -> DeepMatches:
-    """The unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices)
-    under `rotation` (sensor -> ICRS), with each spot's offset covariance spot_cov_px (N, 2, 2)
+    """
+    Return the unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices).
+
+    Under `rotation` (sensor -> ICRS), with each spot's offset covariance spot_cov_px (N, 2, 2)
     [px^2] (spot_pixel_covariance); guide_hip and guide_magnitude (catalog Hp) of the guide
-    matches, in guide_spots' order (the zero point). See the module docstring."""
+    matches, in guide_spots' order (the zero point). See the module docstring.
+    """
     star, u, v = catalog.stars_in_view(rotation, camera)
     spot_xy = np.stack([geometry.x, geometry.y], axis=1)
     spot, star_j, d2 = _candidate_pairs(spot_xy, np.stack([u, v], axis=1), spot_cov_px, AMBIGUITY_FACTOR * GATE_SIGMA)
@@ -189,11 +208,14 @@ def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraMod
 def deep_bound(geometry: "SpotGeometry", spot_index: np.ndarray, star_vectors: np.ndarray, star_magnitude: np.ndarray,
                rotation: np.ndarray, catalog: DeepCatalog, stars_in_view: int, camera: CameraModel,
                magnitude_floor: float) -> float:
-    """The false-positive bound of verify.py over the matches (spot_index into the flux-sorted
-    spots, their ICRS star_vectors and catalog magnitudes) at `rotation`, with the deep
-    catalog's density (the larger of its mean and its density in this view) and magnitude
-    distribution; the matching sigmas as in verification. Matches beyond 5 sigma count
-    for nothing (left out, as verification leaves them out)."""
+    """
+    Return the false-positive bound of verify.py over the matches at `rotation`.
+
+    The matches: spot_index into the flux-sorted spots, their ICRS star_vectors and catalog
+    magnitudes; with the deep catalog's density (the larger of its mean and its density in this
+    view) and magnitude distribution; the matching sigmas as in verification. Matches beyond 5
+    sigma count for nothing (left out, as verification leaves them out).
+    """
     body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
     normalized = np.linalg.norm(body - star_vectors @ rotation, axis=1) / sigma
     keep = normalized <= 5.0

@@ -1,4 +1,6 @@
-"""Geometry of unit vectors shared by the identification algorithms.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Geometry of unit vectors shared by the identification algorithms.
 
 Directions are unit 3-vectors (sensor frame or ICRS, the same frame on both sides); angles
 are radians. The angle between two unit vectors is taken from their chord, 2 asin(|u - v| / 2),
@@ -27,8 +29,12 @@ def triple_products(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def pyramid_triangles(n: int) -> np.ndarray:
-    """(T, 3) Mortari's pyramid order of the index triples i < j < k < n: the index gaps
-    (j - i, k - j) grow slowest, so the search leaves a false spot behind as fast as it can."""
+    """
+    (T, 3) Mortari's pyramid order of the index triples i < j < k < n.
+
+    The index gaps (j - i, k - j) grow slowest, so the search leaves a false spot behind as
+    fast as it can.
+    """
     blocks = [np.zeros((0, 3), np.int64)]
     for dj in range(1, n - 1):
         for dk in range(1, n - dj):
@@ -38,7 +44,7 @@ def pyramid_triangles(n: int) -> np.ndarray:
 
 
 def pyramid_order(n: int) -> Iterator[tuple[int, int, int]]:
-    """The triples of `pyramid_triangles` one by one, as ints."""
+    """Return the triples of `pyramid_triangles` one by one, as ints."""
     for i, j, k in pyramid_triangles(n).tolist():
         yield i, j, k
 

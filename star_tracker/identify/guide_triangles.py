@@ -1,6 +1,10 @@
-"""Which catalog triangles exist: guide stars thinned over the sky, and every triangle of
-guide stars whose three sides are at most a limit, as rows of star indices sorted ascending
-(so a triangle's handedness is the sign of det[v_a, v_b, v_c]).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Which catalog triangles exist.
+
+Guide stars thinned over the sky, and every triangle of guide stars whose three sides are at
+most a limit, as rows of star indices sorted ascending (so a triangle's handedness is the
+sign of det[v_a, v_b, v_c]).
 
 For wide fields the full catalog gives tens of millions of triangles, so guide stars are
 thinned to the brightest `per_cell` of each cell of an equal-angle cube-sphere grid
@@ -15,8 +19,11 @@ from .database import StarDatabase
 
 
 def sky_cells(vectors: np.ndarray, cells_per_face: int) -> np.ndarray:
-    """Cell id of each unit vector on an equal-angle cube-sphere grid with
-    cells_per_face^2 cells on each of the six faces (cell areas within a factor ~1.4)."""
+    """
+    Return the cell id of each unit vector on an equal-angle cube-sphere grid.
+
+    cells_per_face^2 cells on each of the six faces (cell areas within a factor ~1.4).
+    """
     vectors = np.asarray(vectors, dtype=float)
     axis = np.argmax(np.abs(vectors), axis=1)
     rows = np.arange(vectors.shape[0])
@@ -33,7 +40,7 @@ def sky_cells(vectors: np.ndarray, cells_per_face: int) -> np.ndarray:
 
 
 def brightest_per_cell(vectors: np.ndarray, magnitude: np.ndarray, cells_per_face: int, per_cell: int) -> np.ndarray:
-    """Indices (ascending) of the `per_cell` brightest stars of each sky cell."""
+    """Return indices (ascending) of the `per_cell` brightest stars of each sky cell."""
     cell = sky_cells(vectors, cells_per_face)
     order = np.lexsort((np.arange(cell.size), magnitude, cell))
     sorted_cell = cell[order]
@@ -43,8 +50,11 @@ def brightest_per_cell(vectors: np.ndarray, magnitude: np.ndarray, cells_per_fac
 
 
 def pair_graph(database: StarDatabase, stars: np.ndarray, max_side: float) -> tuple[np.ndarray, np.ndarray]:
-    """CSR of 'later' neighbours among `stars` (positions into `stars`): j > i and the pair's
-    angle <= max_side. Columns ascending."""
+    """
+    CSR of 'later' neighbours among `stars` (positions into `stars`): j > i and the pair's angle <= max_side.
+
+    Columns ascending.
+    """
     pair_a, pair_b = database.pairs_in_range(0.0, max_side)
     position = np.full(database.star_count, -1, np.int64)
     position[stars] = np.arange(stars.size)
@@ -61,8 +71,11 @@ def pair_graph(database: StarDatabase, stars: np.ndarray, max_side: float) -> tu
 
 @njit(cache=True)
 def graph_triangles_kernel(indptr, indices, out):
-    """Count (out of size 0) or list the triangles i < j < k of the graph: every j, k > i
-    adjacent to i with k adjacent to j."""
+    """
+    Count (out of size 0) or list the triangles i < j < k of the graph.
+
+    Every j, k > i adjacent to i with k adjacent to j.
+    """
     n = indptr.size - 1
     mark = np.zeros(n, np.bool_)
     count = 0
@@ -81,7 +94,6 @@ def graph_triangles_kernel(indptr, indices, out):
             for q in range(indptr[j], indptr[j + 1]):
                 mark[indices[q]] = False
     return count
-
 
 
 def graph_triangles(indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:

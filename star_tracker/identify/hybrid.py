@@ -1,4 +1,6 @@
-"""The default identifier: compiled pyramid-order triangle search with immediate verification.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The default identifier: compiled pyramid-order triangle search with immediate verification.
 
 It combines what measured best in the seed papers:
 - spot triangles in Mortari's pyramid order over the brightest spots (moves away from a
@@ -49,10 +51,14 @@ def triangles_closing_at(k: int) -> np.ndarray:
 
 
 def triangle_batches(pattern_count: int, spot_count: int):
-    """(triangles, screen_limit) in search order: the pyramid over the brightest
-    `pattern_count` spots, then the triangles each further spot adds (brightest first), in
-    slices of at most PYRAMID_BATCH / BATCH_TRIANGLES so the deadline is checked often. The
-    4th-star screen looks at the pattern spots during the pyramid and at every spot after."""
+    """
+    (triangles, screen_limit) in search order.
+
+    The pyramid over the brightest `pattern_count` spots, then the triangles each further
+    spot adds (brightest first), in slices of at most PYRAMID_BATCH / BATCH_TRIANGLES so the
+    deadline is checked often. The 4th-star screen looks at the pattern spots during the
+    pyramid and at every spot after.
+    """
     pyramid = pyramid_triangles(pattern_count)
     for start in range(0, pyramid.shape[0], PYRAMID_BATCH):
         yield pyramid[start:start + PYRAMID_BATCH], pattern_count
@@ -92,10 +98,14 @@ class HybridIdentifier(StarIdentifier):
         log_chance_tuples(np.eye(3), np.full(3, 1e-5), 3.0, 1e3)  # the bound after the deep re-match
 
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
-        """Compiled triangle search (kernels.search_triangles) in batches, the deadline
-        checked between them; each candidate triangle is verified inside the kernel."""
+        """
+        Run kernels.search_triangles, the compiled triangle search, in batches.
+
+        The deadline is checked between batches; each candidate triangle is verified inside the kernel.
+        """
         n = geometry.x.size
-        radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad, self.grid.max_radius_rad)
+        radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad,
+                         self.grid.max_radius_rad)
         config = self.config  # read per call: a caller may replace it (commands/solve.py)
         tolerances = TriangleTolerances(float(config.sigma_multiplier), float(config.angle_tolerance_floor_rad),
                                         int(config.max_candidates_per_pattern), float(config.false_positive_bound))

@@ -1,6 +1,9 @@
-"""The records the compiled identification kernels take and give (kernels.py,
-spot_kernels.py, track/kernels.py): NamedTuples of arrays and scalars, which numba passes as
-they are, so a kernel's signature names a few records instead of dozens of arrays.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The records the compiled identification kernels take and give (kernels.py, spot_kernels.py, track/kernels.py).
+
+NamedTuples of arrays and scalars, which numba passes as they are, so a kernel's signature
+names a few records instead of dozens of arrays.
 """
 from __future__ import annotations
 
@@ -12,10 +15,13 @@ from .skygrid import SkyGrid
 
 
 class CatalogArrays(NamedTuple):
-    """The database stars as the kernels read them: vectors (N, 3) ICRS unit vectors;
-    magnitude (N,) [Hp mag]; sorted_magnitudes (N,) the same, ascending; the sky grid
-    (skygrid.SkyGrid: cell_start, star_of_cell, grid, cell_density [1/sr]); mean_density:
-    the whole catalog's stars per steradian [1/sr]."""
+    """
+    The database stars as the kernels read them.
+
+    Vectors (N, 3) ICRS unit vectors; magnitude (N,) [Hp mag]; sorted_magnitudes (N,) the
+    same, ascending; the sky grid (skygrid.SkyGrid: cell_start, star_of_cell, grid,
+    cell_density [1/sr]); mean_density: the whole catalog's stars per steradian [1/sr].
+    """
 
     vectors: np.ndarray
     magnitude: np.ndarray
@@ -28,8 +34,7 @@ class CatalogArrays(NamedTuple):
 
     @staticmethod
     def build(database, grid: SkyGrid) -> "CatalogArrays":
-        """The arrays of `database` (identify.database.StarDatabase) on `grid` (built over its
-        vectors)."""
+        """Return the arrays of `database` (identify.database.StarDatabase) on `grid` (built over its vectors)."""
         magnitude = np.asarray(database.magnitude, dtype=float)
         return CatalogArrays(np.ascontiguousarray(database.vectors, dtype=float), magnitude, np.sort(magnitude),
                              grid.cell_start, grid.star_of_cell, grid.grid, grid.cell_density,
@@ -37,8 +42,12 @@ class CatalogArrays(NamedTuple):
 
 
 class PairIndex(NamedTuple):
-    """The star pairs sorted by angle and their k-vector (kvector.KVector): pair_angle (P,)
-    [rad]; k (P,); slope, intercept of the k-vector line; pair_a, pair_b (P,) star indices."""
+    """
+    The star pairs sorted by angle and their k-vector (kvector.KVector).
+
+    pair_angle (P,) [rad]; k (P,); slope, intercept of the k-vector line; pair_a, pair_b
+    (P,) star indices.
+    """
 
     pair_angle: np.ndarray
     k: np.ndarray
@@ -55,8 +64,12 @@ class PairIndex(NamedTuple):
 
 
 class SpotArrays(NamedTuple):
-    """Flux-sorted spots (base.SpotGeometry): rays (N, 3) sensor-frame unit vectors; sigma
-    (N,) 1-sigma direction errors [rad]; magnitude (N,) instrumental [mag] (NaN: unknown)."""
+    """
+    Flux-sorted spots (base.SpotGeometry).
+
+    Rays (N, 3) sensor-frame unit vectors; sigma (N,) 1-sigma direction errors [rad];
+    magnitude (N,) instrumental [mag] (NaN: unknown).
+    """
 
     rays: np.ndarray
     sigma: np.ndarray
@@ -64,9 +77,13 @@ class SpotArrays(NamedTuple):
 
 
 class VerifySettings(NamedTuple):
-    """How a candidate attitude is verified (verify_candidate): chord of the match radius,
-    2 sin(radius / 2); min_stars: fewest matches accepted; magnitude_floor: smallest
-    magnitude residual credited [mag] (verify.log_magnitude_agreement)."""
+    """
+    How a candidate attitude is verified (verify_candidate).
+
+    Chord of the match radius, 2 sin(radius / 2); min_stars: fewest matches accepted;
+    magnitude_floor: smallest magnitude residual credited [mag]
+    (verify.log_magnitude_agreement).
+    """
 
     chord: float
     min_stars: int
@@ -74,9 +91,13 @@ class VerifySettings(NamedTuple):
 
 
 class TriangleTolerances(NamedTuple):
-    """search_triangles' pattern tolerances: a side matches within sigma_multiplier x its
-    angle sigma plus tolerance_floor [rad]; a triangle with more than max_candidates catalog
-    matches is ambiguous; a candidate is accepted at a false-positive bound <= fp_limit."""
+    """
+    search_triangles' pattern tolerances.
+
+    A side matches within sigma_multiplier x its angle sigma plus tolerance_floor [rad]; a
+    triangle with more than max_candidates catalog matches is ambiguous; a candidate is
+    accepted at a false-positive bound <= fp_limit.
+    """
 
     sigma_multiplier: float
     tolerance_floor: float
@@ -85,8 +106,12 @@ class TriangleTolerances(NamedTuple):
 
 
 class SearchScratch(NamedTuple):
-    """Work arrays of search_triangles: head_ik, head_jk (N stars,) all -1 (restored on
-    return); out_spot, out_star (spots,) the accepted matches."""
+    """
+    Work arrays of search_triangles.
+
+    head_ik, head_jk (N stars,) all -1 (restored on return); out_spot, out_star (spots,) the
+    accepted matches.
+    """
 
     head_ik: np.ndarray
     head_jk: np.ndarray
@@ -95,9 +120,12 @@ class SearchScratch(NamedTuple):
 
 
 class TriangleSearchResult(NamedTuple):
-    """status 1 = a candidate accepted (its `count` matches in the scratch's out_*), 0 = none
-    in the batch; rotation sensor -> ICRS; fp its false-positive bound; hypotheses tested;
-    stopped: index after the last triangle tried."""
+    """
+    status 1 = a candidate accepted (its `count` matches in the scratch's out_*), 0 = none in the batch.
+
+    Rotation sensor -> ICRS; fp its false-positive bound; hypotheses tested; stopped: index
+    after the last triangle tried.
+    """
 
     status: int
     count: int
@@ -108,8 +136,12 @@ class TriangleSearchResult(NamedTuple):
 
 
 class CandidateCheck(NamedTuple):
-    """verify_candidate's verdict: count matches (in out_*), the refined rotation (sensor ->
-    ICRS), its false-positive bound fp and chi^2 (0 when rejected early)."""
+    """
+    verify_candidate's verdict.
+
+    Count matches (in out_*), the refined rotation (sensor -> ICRS), its false-positive
+    bound fp and chi^2 (0 when rejected early).
+    """
 
     count: int
     rotation: np.ndarray
@@ -129,7 +161,7 @@ class Pinhole(NamedTuple):
 
     @staticmethod
     def of(camera) -> "Pinhole":
-        """The pinhole part of a models.camera.CameraModel."""
+        """Return the pinhole part of a models.camera.CameraModel."""
         return Pinhole(float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy),
                        float(camera.width), float(camera.height))
 
@@ -144,9 +176,12 @@ class RawSpots(NamedTuple):
 
 
 class PrepareSettings(NamedTuple):
-    """prepare_spots' floors: sigma_floor_px, the matching sigma's lower bound [px];
-    min_fit_sigma_px added to the final fit's sigma [px]; separation_px: closer spots are
-    one [px]."""
+    """
+    prepare_spots' floors.
+
+    sigma_floor_px, the matching sigma's lower bound [px]; min_fit_sigma_px added to the
+    final fit's sigma [px]; separation_px: closer spots are one [px].
+    """
 
     sigma_floor_px: float
     min_fit_sigma_px: float
@@ -154,9 +189,12 @@ class PrepareSettings(NamedTuple):
 
 
 class PreparedSpots(NamedTuple):
-    """prepare_spots' output (base.SpotGeometry's arrays): order (M,) indices into the input;
-    rays (M, 3); sigma (M,) [rad]; magnitude (M,); x, y (M,) [px]; pixel_cov (M, 2, 2)
-    [px^2]; jacobian (M, 3, 2) [rad/px]."""
+    """
+    prepare_spots' output (base.SpotGeometry's arrays).
+
+    Order (M,) indices into the input; rays (M, 3); sigma (M,) [rad]; magnitude (M,); x, y
+    (M,) [px]; pixel_cov (M, 2, 2) [px^2]; jacobian (M, 3, 2) [rad/px].
+    """
 
     order: np.ndarray
     rays: np.ndarray

@@ -1,4 +1,6 @@
-"""k-vector range search (Mortari): O(1) lookup of all sorted values inside [lo, hi].
+# SPDX-License-Identifier: Apache-2.0
+"""
+k-vector range search (Mortari): O(1) lookup of all sorted values inside [lo, hi].
 
 For n sorted values s, a line z(i) = m i + q through (0, s_0 - xi) and (n-1, s_{n-1} + xi)
 is stored with k[i] = number of values <= z(i). A query [lo, hi] maps to the line's indices
@@ -15,8 +17,11 @@ from numba import njit
 
 
 class KVector(NamedTuple):
-    """sorted_values: ascending (n,); k: (n,) counts; slope m and intercept q of z(i). A record
-    of arrays and floats, so compiled code can take it whole."""
+    """
+    sorted_values: ascending (n,); k: (n,) counts; slope m and intercept q of z(i).
+
+    A record of arrays and floats, so compiled code can take it whole.
+    """
 
     sorted_values: np.ndarray
     k: np.ndarray
@@ -56,9 +61,13 @@ class KVector(NamedTuple):
 
 @njit(cache=True)
 def kvector_window(k, slope, intercept, first, last, lo, hi):
-    """Compiled `KVector.range` without the final trim: [start, stop) of the k-vector (k,
-    slope, intercept) over sorted values from `first` to `last` that holds every value in
-    [lo, hi] (and a few beyond; (0, 0) when the window misses the values)."""
+    """
+    Compiled `KVector.range` without the final trim.
+
+    [start, stop) of the k-vector (k, slope, intercept) over sorted values from `first` to
+    `last` that holds every value in [lo, hi] (and a few beyond; (0, 0) when the window
+    misses the values).
+    """
     n = k.size
     if hi < lo or hi < first or lo > last:
         return 0, 0

@@ -1,4 +1,6 @@
-"""van Bezooijen's match-group algorithm of the Full-sky Autonomous Star Tracker (FAST, seed 002).
+# SPDX-License-Identifier: Apache-2.0
+"""
+van Bezooijen's match-group algorithm of the Full-sky Autonomous Star Tracker (FAST, seed 002).
 
 1. Star-pair matching: every pair of pattern spots (i, j) is compared with the guide-star pairs
    (a, b) of the k-vector whose angle agrees within t_dis = beta sigma_p + floor (sigma_p from
@@ -52,10 +54,14 @@ SWEEP_CHUNK = 200_000  # guide pairs swept between two deadline checks
 
 @dataclass(frozen=True)
 class MatchGroupConfig:
-    """magnitude_tolerance: t_mag [mag] (paper, FAST: 0.77 for 0.3 mag errors); relaxed_factor:
-    t_dis1 / t_dis for validation (paper's refined SIRTF case: 4.67 / 3.78); icmaxr: ICMAXR >= 1,
-    how far below the largest possible group the first threshold lies; select_best: offer
-    groups best first when no threshold is unambiguous (paper's ISWPR != 1)."""
+    """
+    magnitude_tolerance.
+
+    t_mag [mag] (paper, FAST: 0.77 for 0.3 mag errors); relaxed_factor: t_dis1 / t_dis for
+    validation (paper's refined SIRTF case: 4.67 / 3.78); icmaxr: ICMAXR >= 1, how far below the
+    largest possible group the first threshold lies; select_best: offer groups best first when no
+    threshold is unambiguous (paper's ISWPR != 1).
+    """
 
     magnitude_tolerance: float = 0.77
     relaxed_factor: float = 1.25
@@ -75,10 +81,13 @@ class MatchGroupConfig:
 
 
 class PairSweep(NamedTuple):
-    """What the compiled sweeps over pair matches read: spot pairs (pair_i, pair_j) (P,) with
-    their guide-pair windows [start, stop) (P,) into (guide_a, guide_b); spot_mag (n,) and
-    star_mag (N,) magnitudes [mag] (NaN: unknown); mag_limit: largest accepted difference of
-    magnitude differences [mag]."""
+    """
+    What the compiled sweeps over pair matches read.
+
+    Spot pairs (pair_i, pair_j) (P,) with their guide-pair windows [start, stop) (P,) into
+    (guide_a, guide_b); spot_mag (n,) and star_mag (N,) magnitudes [mag] (NaN: unknown);
+    mag_limit: largest accepted difference of magnitude differences [mag].
+    """
 
     pair_i: np.ndarray
     pair_j: np.ndarray
@@ -92,8 +101,12 @@ class PairSweep(NamedTuple):
 
 
 class Associates(NamedTuple):
-    """Associated matches of the kernels: counts (K + 1,) (filled at k + 1 while counting),
-    fill (K,) next write position of each kernel, spots and stars (A,) the matches."""
+    """
+    Associated matches of the kernels.
+
+    Counts (K + 1,) (filled at k + 1 while counting), fill (K,) next write position of each
+    kernel, spots and stars (A,) the matches.
+    """
 
     counts: np.ndarray
     fill: np.ndarray
@@ -112,10 +125,13 @@ def _magnitudes_agree(m_i, m_j, mag_a, mag_b, limit):
 
 @njit(cache=True)
 def _confirm(p0, p1, sweep, conf, last):
-    """Add to conf (n_spots, n_stars) the confirmations by spot pairs p0..p1-1 of PairSweep
-    `sweep`: a match (spot, star) is confirmed once per other spot whose pair with it matches a
-    guide pair containing the star. last[spot, star] holds the last confirming spot pair.
-    Returns the number of oriented pair matches that passed the magnitude test."""
+    """
+    Add to conf (n_spots, n_stars) the confirmations by spot pairs p0..p1-1 of PairSweep `sweep`.
+
+    A match (spot, star) is confirmed once per other spot whose pair with it matches a guide
+    pair containing the star. last[spot, star] holds the last confirming spot pair. Returns the
+    number of oriented pair matches that passed the magnitude test.
+    """
     pair_i, pair_j, start, stop, guide_a, guide_b, spot_mag, star_mag, mag_limit = sweep
     passed = 0
     for p in range(p0, p1):
@@ -138,11 +154,14 @@ def _confirm(p0, p1, sweep, conf, last):
 
 @njit(cache=True)
 def _collect(p0, p1, sweep, conf, kernel_id, min_conf, counting, out):
-    """Associated matches (spot, star) of the kernels numbered in kernel_id (-1: not a kernel)
-    from spot pairs p0..p1-1 of PairSweep `sweep`: counted into out.counts[k + 1] (counting) or
+    """
+    Collect the associated matches (spot, star) of the kernels numbered in kernel_id (-1: not a kernel).
+
+    From spot pairs p0..p1-1 of PairSweep `sweep`: counted into out.counts[k + 1] (counting) or
     written at out.fill[k] (Associates). Associates whose own confirmation is below min_conf
     cannot be in a group of min_conf + 1 and are left out (the paper's adjustment for
-    eliminated kernels)."""
+    eliminated kernels).
+    """
     pair_i, pair_j, start, stop, guide_a, guide_b, spot_mag, star_mag, mag_limit = sweep
     counts, fill, spots, stars = out
     for p in range(p0, p1):
@@ -170,8 +189,11 @@ def _collect(p0, p1, sweep, conf, kernel_id, min_conf, counting, out):
 
 @njit(cache=True)
 def _rank_associates(offsets, spots, stars, conf, keep):
-    """Put the best-confirmed associates of every kernel with more than `keep` first: the
-    clique search sees only the first `keep`."""
+    """
+    Put the best-confirmed associates of every kernel with more than `keep` first.
+
+    The clique search sees only the first `keep`.
+    """
     for k in range(offsets.size - 1):
         lo, hi = offsets[k], offsets[k + 1]
         if hi - lo > keep:
@@ -194,8 +216,11 @@ def _popcount(x):
 
 @njit(cache=True)
 def _relaxed_chord_bounds(spot_angle, relaxed):
-    """Squared chord bounds (n, n) each of the relaxed angle windows spot_angle +- relaxed [rad]:
-    a cheap first test on a star pair."""
+    """
+    Squared chord bounds (n, n) each of the relaxed angle windows spot_angle +- relaxed [rad].
+
+    A cheap first test on a star pair.
+    """
     n_spots = spot_angle.shape[0]
     chord2_lo = np.empty((n_spots, n_spots))
     chord2_hi = np.empty((n_spots, n_spots))
@@ -210,10 +235,13 @@ def _relaxed_chord_bounds(spot_angle, relaxed):
 
 @njit(cache=True)
 def _consistency_graph(k, n, kernels, frame, vectors, beta, chord2_lo, chord2_hi):
-    """For kernel k and its first n associates: adj (n,) bitmasks of the associate pairs that
-    agree (relaxed angle, distinct spots and stars, the kernel's handedness wherever noise
-    cannot flip it), cost (n, n) their |angle difference| / tolerance, and base (n,) each
-    associate's own with the kernel."""
+    """
+    For kernel k and its first n associates.
+
+    Adj (n,) bitmasks of the associate pairs that agree (relaxed angle, distinct spots and
+    stars, the kernel's handedness wherever noise cannot flip it), cost (n, n) their |angle
+    difference| / tolerance, and base (n,) each associate's own with the kernel.
+    """
     one = np.uint64(1)
     rays, sigma, spot_angle = frame.rays, frame.sigma, frame.spot_angle
     tolerance, relaxed = frame.tolerance, frame.relaxed
@@ -252,10 +280,13 @@ def _consistency_graph(k, n, kernels, frame, vectors, beta, chord2_lo, chord2_hi
 
 @njit(cache=True)
 def _largest_clique(n, adj, cost, base):
-    """Largest set of mutually agreeing associates (adjacency bitmasks adj (n,), n <= 64) by
-    branch and bound over (chosen, allowed) bitmasks, depth first; among equal sizes (of real
+    """
+    Return the largest set of mutually agreeing associates (adjacency bitmasks adj (n,), n <= 64).
+
+    By branch and bound over (chosen, allowed) bitmasks, depth first; among equal sizes (of real
     groups, >= 2 associates) the lowest quality index, the sum of base over the members and
-    cost over their pairs. Returns (member bitmask, size, quality)."""
+    cost over their pairs. Returns (member bitmask, size, quality).
+    """
     one = np.uint64(1)
     stack_chosen = np.zeros(n + 2, np.uint64)
     stack_allowed = np.zeros(n + 2, np.uint64)
@@ -296,12 +327,15 @@ def _largest_clique(n, adj, cost, base):
 
 @njit(cache=True)
 def _validate(selected, kernels, frame, vectors, beta):
-    """Largest mutually consistent subset of each kernel's associates (at most 64, the first
-    ones): pairwise angles within the relaxed tolerance, distinct spots and stars, and the
+    """
+    Find the largest mutually consistent subset of each kernel's associates (at most 64, the first ones).
+
+    Consistent: pairwise angles within the relaxed tolerance, distinct spots and stars, and the
     kernel's handedness wherever noise cannot flip it. Writes the member bitmask, the group
     size (kernel included) and the quality index (sum over the group's pairs of
     |angle difference| / tolerance; lower is better; ties in size go to the lower index) of
-    the kernels listed in `selected` into kernels.mask, size, quality (_Kernels; frame: _Frame)."""
+    the kernels listed in `selected` into kernels.mask, size, quality (_Kernels; frame: _Frame).
+    """
     chord2_lo, chord2_hi = _relaxed_chord_bounds(frame.spot_angle, frame.relaxed)
     offsets = kernels.offsets
     for k in selected:
@@ -320,8 +354,11 @@ _WARM = False
 
 
 def _warm_up() -> None:
-    """Compile (or load from the on-disk cache) the compiled loops once per process, so the
-    first identify() call does not spend its time budget on it."""
+    """
+    Compile (or load from the on-disk cache) the compiled loops once per process.
+
+    Then the first identify() call does not spend its time budget on it.
+    """
     global _WARM
     if _WARM:
         return
@@ -364,9 +401,13 @@ class _Group:
 
 
 class _Frame(NamedTuple):
-    """Per-frame geometry of the pattern spots: rays (n, 3) sensor frame, sigma (n,) [rad],
-    magnitude (n,) (NaN: unknown), spot_angle (n, n) [rad], tolerance t_dis and relaxed t_dis1
-    (n, n) [rad]. A record of arrays: the compiled validation takes it whole."""
+    """
+    Per-frame geometry of the pattern spots.
+
+    Rays (n, 3) sensor frame, sigma (n,) [rad], magnitude (n,) (NaN: unknown), spot_angle (n,
+    n) [rad], tolerance t_dis and relaxed t_dis1 (n, n) [rad]. A record of arrays: the
+    compiled validation takes it whole.
+    """
 
     rays: np.ndarray
     sigma: np.ndarray
@@ -377,10 +418,13 @@ class _Frame(NamedTuple):
 
 
 class _Kernels(NamedTuple):
-    """Every match (spot, star) with confirmation >= 2 (a possible kernel of a group of three):
-    spot, star, conf (K,); its associated matches assoc_spot/assoc_star[offsets[k]:offsets[k+1]];
-    and, once validated, its group as a bitmask over the first 64 associates, the group size
-    (0: not validated) and quality index (written in place by the compiled validation)."""
+    """
+    Every match (spot, star) with confirmation >= 2 (a possible kernel of a group of three).
+
+    Spot, star, conf (K,); its associated matches assoc_spot/assoc_star[offsets[k]:offsets[k+1]];
+    and, once validated, its group as a bitmask over the first 64 associates, the group size (0:
+    not validated) and quality index (written in place by the compiled validation).
+    """
 
     spot: np.ndarray
     star: np.ndarray
@@ -404,10 +448,14 @@ class _Kernels(NamedTuple):
 
 
 class MatchGroupIdentifier(StarIdentifier):
-    """Match-group voting (FAST); see the module docstring. stats: "pair_matches" (guide pairs
-    within t_dis of a spot pair), "oriented_matches" (both orientations, after the magnitude
-    test), "threshold" (initial ICLIM), "levels" (thresholds tried), "kernels" (match groups
-    validated), "groups" (valid groups of >= 3, before merging), "largest_group"."""
+    """
+    Match-group voting (FAST); see the module docstring.
+
+    stats: "pair_matches" (guide pairs within t_dis of a spot pair), "oriented_matches" (both
+    orientations, after the magnitude test), "threshold" (initial ICLIM), "levels" (thresholds
+    tried), "kernels" (match groups validated), "groups" (valid groups of >= 3, before
+    merging), "largest_group".
+    """
 
     name = "match_groups"
 
@@ -488,8 +536,11 @@ class MatchGroupIdentifier(StarIdentifier):
                       self.group_config.relaxed_factor * tolerance)
 
     def _match_groups(self, frame: _Frame, deadline: Deadline) -> _Kernels | None:
-        """Steps 1-2: star-pair matching, confirmation values, and the associated matches of
-        every possible kernel. None when the deadline passed."""
+        """
+        Run steps 1-2: star-pair matching, confirmation values, every possible kernel's associated matches.
+
+        None when the deadline passed.
+        """
         db = self.database
         n = frame.rays.shape[0]
         pair_i, pair_j = np.triu_indices(n, k=1)
@@ -535,8 +586,11 @@ class MatchGroupIdentifier(StarIdentifier):
                         assoc_star, np.zeros(k, np.uint64), np.zeros(k, np.int64), np.zeros(k))
 
     def _validate_above(self, level: int, frame: _Frame, kernels: _Kernels, deadline: Deadline) -> bool:
-        """Steps 3-4: validate the kernels with confirmation > level not validated yet. False
-        when the deadline passed."""
+        """
+        Run steps 3-4: validate the kernels with confirmation > level not validated yet.
+
+        False when the deadline passed.
+        """
         fresh = np.flatnonzero((kernels.conf > level) & (kernels.size == 0))
         for chunk in range(0, fresh.size, VALIDATION_CHUNK):
             if deadline.passed():
@@ -548,9 +602,12 @@ class MatchGroupIdentifier(StarIdentifier):
 
     @staticmethod
     def _distinct(kernels: np.ndarray, group_of, yielded: set, deadline: Deadline) -> tuple[list[_Group], bool]:
-        """Step 5: the distinct groups of these kernels not yet yielded, in order, and whether
-        they are unambiguous (all share >= 2 matches); stops at the first group that makes
-        them ambiguous."""
+        """
+        Run step 5: the distinct groups of these kernels not yet yielded, in order.
+
+        Also whether they are unambiguous (all share >= 2 matches); stops at the first group
+        that makes them ambiguous.
+        """
         found: dict[tuple, _Group] = {}
         for count, k in enumerate(kernels):
             if count % 256 == 255 and deadline.passed():

@@ -1,9 +1,12 @@
-"""Cole's spherical polar moment of a star triangle (eq. 25), I_p = sum theta^2 dA about the
-triangle's centroid, by recursive subdivision into 4^depth sub-triangles (the thesis uses
-depth 3) [sr rad^2]; one triangle at a time (exact), or many side by side with series for
-atan and asin (the catalog build), and its derivative in the sides by central differences of
-the same subdivision. The thesis bounds the moment's sigma by simulation (a line above the
-worst case); the derivative here follows each triangle's shape. Vertices are unit 3-vectors.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Cole's spherical polar moment of a star triangle (eq. 25), I_p = sum theta^2 dA about the triangle's centroid.
+
+By recursive subdivision into 4^depth sub-triangles (the thesis uses depth 3) [sr rad^2];
+one triangle at a time (exact), or many side by side with series for atan and asin (the
+catalog build), and its derivative in the sides by central differences of the same
+subdivision. The thesis bounds the moment's sigma by simulation (a line above the worst
+case); the derivative here follows each triangle's shape. Vertices are unit 3-vectors.
 """
 from __future__ import annotations
 
@@ -47,11 +50,15 @@ def moment_workspace(depth: int) -> np.ndarray:
 
 @njit(cache=True)
 def polar_moment(v1, v2, v3, depth: int, work) -> float:
-    """Cole's spherical polar moment (eq. 25): split the triangle into four at its
-    (normalized) edge midpoints, `depth` times (the children tile the parent exactly), and
-    sum over the 4^depth leaves the leaf area dA times the squared arc theta from the leaf
-    centroid to the triangle centroid; centroids are normalized vertex sums.
-    `work` is moment_workspace(depth). (Indexing, not slicing: array views cost here.)"""
+    """
+    Cole's spherical polar moment (eq. 25).
+
+    Split the triangle into four at its (normalized) edge midpoints, `depth` times (the
+    children tile the parent exactly), and sum over the 4^depth leaves the leaf area dA
+    times the squared arc theta from the leaf centroid to the triangle centroid; centroids
+    are normalized vertex sums. `work` is moment_workspace(depth). (Indexing, not slicing:
+    array views cost here.)
+    """
     gx, gy, gz = _normalize_sum(v1[0], v1[1], v1[2], v2[0], v2[1], v2[2], v3[0], v3[1], v3[2])
     cur = 0
     for k in range(3):
@@ -99,17 +106,24 @@ def _put(work, level, row, a, b, c) -> None:
 
 
 class SubdivisionTables(NamedTuple):
-    """The subdivision of `polar_moment` over a shared vertex list (corners 0, 1, 2): ops
-    (V, 2), vertex 3 + o is the normalized sum of vertices ops[o]; leaves (4^depth, 3), the
-    vertex indices of the final sub-triangles."""
+    """
+    The subdivision of `polar_moment` over a shared vertex list (corners 0, 1, 2).
+
+    Ops (V, 2), vertex 3 + o is the normalized sum of vertices ops[o]; leaves (4^depth, 3),
+    the vertex indices of the final sub-triangles.
+    """
 
     ops: np.ndarray
     leaves: np.ndarray
 
 
 class LaneScratch(NamedTuple):
-    """Work arrays of `polar_moment_lanes`: vert (3 + V, 3, LANES) subdivision vertices,
-    centroid (3, LANES), acc and worst (LANES,) per-lane sums and series-range checks."""
+    """
+    Work arrays of `polar_moment_lanes`.
+
+    Vert (3 + V, 3, LANES) subdivision vertices, centroid (3, LANES), acc and worst (LANES,)
+    per-lane sums and series-range checks.
+    """
 
     vert: np.ndarray
     centroid: np.ndarray
@@ -118,9 +132,12 @@ class LaneScratch(NamedTuple):
 
 
 def subdivision_tables(depth: int) -> SubdivisionTables:
-    """The subdivision of `polar_moment` as index tables over a shared vertex list (corners
-    0, 1, 2): ops (V, 2), vertex 3 + o is the normalized sum of vertices ops[o] (each edge
-    midpoint once); leaves (4^depth, 3), the vertex indices of the final sub-triangles."""
+    """
+    Return the subdivision of `polar_moment` as index tables over a shared vertex list (corners 0, 1, 2).
+
+    Ops (V, 2), vertex 3 + o is the normalized sum of vertices ops[o] (each edge midpoint
+    once); leaves (4^depth, 3), the vertex indices of the final sub-triangles.
+    """
     ops: list[tuple[int, int]] = []
     midpoint: dict[tuple[int, int], int] = {}
     triangles = [(0, 1, 2)]
@@ -152,11 +169,14 @@ def lane_scratch(tables) -> LaneScratch:
 
 @njit(cache=True, fastmath=True)
 def polar_moment_lanes(vectors, stars, start, stop, tables, scratch, out) -> None:
-    """`polar_moment` for catalog triangles stars[start:stop] (rows of indices into
-    `vectors`), LANES at a time so the arithmetic vectorizes: atan and asin become their
-    series, good to ~1e-9 while leaves have tan(dA/2) < 0.01 and lie within 0.2 rad of the
-    centroid; out = -1 marks triangles beyond that (sides > ~20 deg) for an exact redo.
-    `tables`: SubdivisionTables; `scratch`: lane_scratch(tables)."""
+    """
+    `polar_moment` for catalog triangles stars[start:stop] (rows of indices into `vectors`).
+
+    LANES at a time so the arithmetic vectorizes: atan and asin become their series, good to
+    ~1e-9 while leaves have tan(dA/2) < 0.01 and lie within 0.2 rad of the centroid; out =
+    -1 marks triangles beyond that (sides > ~20 deg) for an exact redo. `tables`:
+    SubdivisionTables; `scratch`: lane_scratch(tables).
+    """
     ops, leaves = tables.ops, tables.leaves
     vert, centroid, acc, worst = scratch.vert, scratch.centroid, scratch.acc, scratch.worst
     for first in range(start, stop, LANES):
@@ -207,7 +227,7 @@ def polar_moment_lanes(vectors, stars, start, stop, tables, scratch, out) -> Non
 
 @njit(cache=True)
 def _vertices_from_sides(a: float, b: float, c: float, v1, v2, v3) -> bool:
-    """A triangle with sides d12 = a, d23 = b, d31 = c (v1 at the pole); False if none."""
+    """Return a triangle with sides d12 = a, d23 = b, d31 = c (v1 at the pole); False if none."""
     sa, ca, sc, cc = math.sin(a), math.cos(a), math.sin(c), math.cos(c)
     if sa <= 0.0 or sc <= 0.0:
         return False

@@ -1,4 +1,6 @@
-"""Triangle matching with k-vector pair search in Mortari's pyramid order.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Triangle matching with k-vector pair search in Mortari's pyramid order.
 
 For spot triangles (i, j, k) taken in the pyramid enumeration order (which moves away from
 a false spot as fast as possible), each side's angle is looked up in the k-vector; catalog

@@ -1,4 +1,6 @@
-"""Scale-free patterns: the field of view of a lost-in-space frame from the stars themselves.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Scale-free patterns: the field of view of a lost-in-space frame from the stars themselves.
 
 `solve --fov` knows the field only roughly (+-5 %), and the pattern search (hybrid and the
 others) needs it within ~0.3 %. Instead of stepping through the fields, four-star patterns are
@@ -48,9 +50,13 @@ def _pair_angles(vectors: np.ndarray) -> np.ndarray:
 
 
 def pattern_shape(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Shape of patterns (P, 4, 3): (ratios (P, 5): the five smaller sorted pair angles over
-    the largest; largest (P,) [rad]; order (P, 4): the four stars by their angle from the
-    pattern's centroid, the correspondence that matching preserves)."""
+    """
+    Shape of patterns (P, 4, 3).
+
+    (ratios (P, 5): the five smaller sorted pair angles over the largest; largest (P,)
+    [rad]; order (P, 4): the four stars by their angle from the pattern's centroid, the
+    correspondence that matching preserves).
+    """
     angles = np.sort(_pair_angles(vectors), axis=1)
     largest = angles[:, 5]
     centroid = vectors.sum(axis=1)
@@ -67,8 +73,12 @@ def ratio_keys(ratios: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PatternDatabase:
-    """Catalog four-star patterns sorted by ratio key: stars (P, 4) guide-star indices in
-    centroid-distance order; ratios (P, 5); largest (P,) largest pair angle [rad]; keys (P,)."""
+    """
+    Catalog four-star patterns sorted by ratio key.
+
+    Stars (P, 4) guide-star indices in centroid-distance order; ratios (P, 5); largest (P,)
+    largest pair angle [rad]; keys (P,).
+    """
 
     stars: np.ndarray
     ratios: np.ndarray
@@ -77,7 +87,7 @@ class PatternDatabase:
     circle_radius_rad: float
 
     def candidates(self, keys: np.ndarray) -> np.ndarray:
-        """Indices of the patterns whose key is one of `keys`."""
+        """Return indices of the patterns whose key is one of `keys`."""
         lo = np.searchsorted(self.keys, keys, side="left")
         hi = np.searchsorted(self.keys, keys, side="right")
         hits = hi > lo
@@ -87,7 +97,7 @@ class PatternDatabase:
 
 
 def circle_centres(spacing_rad: float) -> np.ndarray:
-    """Unit vectors spread evenly over the sphere (a Fibonacci lattice), ~spacing_rad apart."""
+    """Return unit vectors spread evenly over the sphere (a Fibonacci lattice), ~spacing_rad apart."""
     count = max(12, int(math.ceil(4.0 * math.pi / spacing_rad ** 2)))
     k = np.arange(count) + 0.5
     z = 1.0 - 2.0 * k / count
@@ -97,8 +107,11 @@ def circle_centres(spacing_rad: float) -> np.ndarray:
 
 
 def build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternDatabase:
-    """Every four-subset of the CIRCLE_STARS brightest guide stars of each sky circle of
-    radius circle_radius_rad [rad], without repeats."""
+    """
+    Return every four-subset, without repeats, of the brightest guide stars of each sky circle.
+
+    The CIRCLE_STARS brightest of each circle of radius circle_radius_rad [rad].
+    """
     from scipy.spatial import cKDTree
 
     tree = cKDTree(database.vectors)
@@ -128,14 +141,18 @@ RADIUS_STEP = 1.02  # circle radii are rounded down to a power of this: nearby f
 
 
 def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternDatabase:
-    """The pattern database for these guide stars and circles of at most circle_radius_rad
-    [rad] (rounded down to a power of RADIUS_STEP, so that fields a few percent apart share
-    it), cached beside the pair database."""
+    """
+    Return the pattern database for these guide stars and circles of at most circle_radius_rad [rad].
+
+    The radius is rounded down to a power of RADIUS_STEP, so that fields a few percent apart
+    share it; cached beside the pair database.
+    """
     circle_radius_rad = RADIUS_STEP ** math.floor(math.log(circle_radius_rad) / math.log(RADIUS_STEP))
     identity = json.dumps({"pairs": database.config.identity(), "radius": round(circle_radius_rad, 6),
                            "circle_stars": CIRCLE_STARS, "spacing": CIRCLE_SPACING, "bin": RATIO_BIN,
                            "version": PATTERN_FORMAT_VERSION}, sort_keys=True)
-    path = (database.cache_directory or cache_dir()) / f"patterns4_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
+    name = f"patterns4_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
+    path = (database.cache_directory or cache_dir()) / name
     arrays = load_validated_npz(path)
     if arrays is not None and set(arrays) >= {"stars", "ratios", "largest", "keys"}:
         return PatternDatabase(arrays["stars"], arrays["ratios"], arrays["largest"], arrays["keys"], circle_radius_rad)
@@ -151,8 +168,12 @@ def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> 
 
 @dataclass(frozen=True)
 class FieldEstimate:
-    """A focal length found by a pattern match: camera (nominal with fx, fy scaled), the
-    attitude (sensor -> ICRS) of the match, and the spots that landed on guide stars."""
+    """
+    A focal length found by a pattern match.
+
+    Camera (nominal with fx, fy scaled), the attitude (sensor -> ICRS) of the match, and the
+    spots that landed on guide stars.
+    """
 
     camera: CameraModel
     rotation: np.ndarray
@@ -167,9 +188,12 @@ def scaled_camera(camera: CameraModel, scale: float) -> CameraModel:
 def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns: PatternDatabase,
                     tolerance: float, deadline: Deadline, ratio_tolerance: float = 0.01,
                     radius_px: float = 3.0, max_estimates: int = 3) -> list[FieldEstimate]:
-    """Focal lengths within +-tolerance (fraction) of `camera`'s at which patterns of the
-    brightest spots match catalog patterns, best first (most spots on guide stars), distinct
-    to 0.2 %, at most max_estimates. Empty when nothing matched before `deadline`."""
+    """
+    Return focal lengths within +-tolerance (fraction) of `camera`'s at which brightest-spot patterns match.
+
+    Matching catalog patterns, best first (most spots on guide stars), distinct to 0.2 %, at
+    most max_estimates. Empty when nothing matched before `deadline`.
+    """
     n = min(len(spots), IMAGE_SPOTS)
     if n < 4:
         return []

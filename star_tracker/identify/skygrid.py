@@ -1,4 +1,6 @@
-"""Cube-map grid over the celestial sphere: O(1) lookup of the catalog stars near a direction.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Cube-map grid over the celestial sphere: O(1) lookup of the catalog stars near a direction.
 
 Each unit vector belongs to the cube face of its largest component and to one of G x G
 cells of that face (gnomonic coordinates u, v in [-1, 1]). Stars are stored sorted by cell,
@@ -35,8 +37,11 @@ def cell_of(x: float, y: float, z: float, grid: int) -> int:
 
 @njit(cache=True)
 def cells_near(x: float, y: float, z: float, radius: float, grid: int, out: np.ndarray) -> int:
-    """Cells that may hold stars within `radius` [rad] of the unit vector (x, y, z): written
-    to out[:count] (out has room for 4); returns count."""
+    """
+    Cells that may hold stars within `radius` [rad] of the unit vector (x, y, z).
+
+    Written to out[:count] (out has room for 4); returns count.
+    """
     ax, ay, az = abs(x), abs(y), abs(z)
     if ax >= ay and ax >= az:
         axis, major, u, v = 0, x, y / ax, z / ax
@@ -68,10 +73,14 @@ def cells_near(x: float, y: float, z: float, radius: float, grid: int, out: np.n
 
 @dataclass(frozen=True)
 class SkyGrid:
-    """grid: cells per face edge; cell_start: (6 G^2 + 1,) offsets into star_of_cell (star
-    indices sorted by cell); cell_density: (6 G^2,) catalog stars per steradian within
-    `density_radius_rad` of each cell's centre [1/sr]; max_radius_rad: largest cone radius the
-    4-corner lookup covers exactly [rad]."""
+    """
+    grid: cells per face edge.
+
+    cell_start: (6 G^2 + 1,) offsets into star_of_cell (star indices sorted by cell);
+    cell_density: (6 G^2,) catalog stars per steradian within `density_radius_rad` of each
+    cell's centre [1/sr]; max_radius_rad: largest cone radius the 4-corner lookup covers
+    exactly [rad].
+    """
 
     grid: int
     cell_start: np.ndarray
@@ -103,7 +112,7 @@ def _cells_of(vectors: np.ndarray, grid: int) -> np.ndarray:
 
 
 def _cell_centres(grid: int) -> np.ndarray:
-    """Unit vectors at the centre of every cell, in cell-index order."""
+    """Return unit vectors at the centre of every cell, in cell-index order."""
     centre = (np.arange(grid) + 0.5) / grid * 2.0 - 1.0
     u, v = np.meshgrid(centre, centre, indexing="ij")
     u, v, one = u.ravel(), v.ravel(), np.ones(grid * grid)

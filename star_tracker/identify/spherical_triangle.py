@@ -1,5 +1,6 @@
-"""Cole & Crassidis' spherical triangle method with pivoting (seed 000 sec. III; Cole's
-thesis 003, sec. 2.4-2.6 and 5.3).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Cole & Crassidis' spherical triangle method with pivoting (seed 000 sec. III; Cole's thesis 003, sec. 2.4-2.6 and 5.3).
 
 Every triple of pattern spots whose sides fit the catalog forms a spherical triangle with an
 area (eq. 15) and a polar moment (eq. 25), each with a 1-sigma (eqs. 17-24; see
@@ -39,15 +40,19 @@ from .deadline import Deadline
 
 @dataclass(frozen=True)
 class SphericalTriangleSettings:
-    """pivot_limit: pivots per chain (Cole: 3); max_final: a chain yields its assignments once
-    at most this many remain (Cole: 1, a unique solution); max_leftover: a chain that ends
-    without one (pivot limit, or no triangle to pivot to) still yields its assignments if at
-    most this many remain, for verification to decide (Cole: 0, "inconclusive");
-    max_assignments: a triangle with more vertex assignments is rejected as ambiguous (Cole
-    rejects triangles with > 10,000 solutions); max_joint: a chain whose joint assignments
-    exceed this is abandoned; side_check: assign a finalist's vertices by the sides and drop
-    it if none fits (False: as in the paper, only area, moment and handedness, so each
-    finalist enters with its three handedness-preserving assignments and pivoting decides)."""
+    """
+    pivot_limit: pivots per chain (Cole: 3).
+
+    max_final: a chain yields its assignments once at most this many remain (Cole: 1, a unique
+    solution); max_leftover: a chain that ends without one (pivot limit, or no triangle to
+    pivot to) still yields its assignments if at most this many remain, for verification to
+    decide (Cole: 0, "inconclusive"); max_assignments: a triangle with more vertex assignments
+    is rejected as ambiguous (Cole rejects triangles with > 10,000 solutions); max_joint: a
+    chain whose joint assignments exceed this is abandoned; side_check: assign a finalist's
+    vertices by the sides and drop it if none fits (False: as in the paper, only area, moment
+    and handedness, so each finalist enters with its three handedness-preserving assignments
+    and pivoting decides).
+    """
 
     pivot_limit: int = 3
     max_final: int = 1
@@ -77,7 +82,7 @@ def spot_triples(count: int) -> np.ndarray:
 
 
 def fitting_triples(rays: np.ndarray, triples: np.ndarray, max_side: float, slack: float) -> np.ndarray:
-    """The triples whose three sides are all <= max_side + slack [rad]."""
+    """Return the triples whose three sides are all <= max_side + slack [rad]."""
     cos_limit = np.cos(min(max_side + slack, np.pi))
     dots = rays @ rays.T
     ok = ((dots[triples[:, 0], triples[:, 1]] >= cos_limit) & (dots[triples[:, 1], triples[:, 2]] >= cos_limit)
@@ -87,9 +92,12 @@ def fitting_triples(rays: np.ndarray, triples: np.ndarray, max_side: float, slac
 
 def join_assignments(spots: list[int], table: np.ndarray, triangle: np.ndarray, candidates: np.ndarray,
                      star_count: int) -> tuple[list[int], np.ndarray]:
-    """Join the chain's joint assignments `table` (M, len(spots)) with a triangle's
-    candidates (C, 3) (stars of its vertex spots `triangle`), which shares >= 2 spots with
-    the chain: rows must agree on the shared spots' stars and stay one-to-one."""
+    """
+    Join the chain's joint assignments `table` (M, len(spots)) with a triangle's candidates.
+
+    The candidates (C, 3) are stars of its vertex spots `triangle`, which shares >= 2 spots with
+    the chain: rows must agree on the shared spots' stars and stay one-to-one.
+    """
     shared = [m for m in range(3) if triangle[m] in spots]
     p, q = shared[0], shared[1]
     col_p, col_q = spots.index(triangle[p]), spots.index(triangle[q])
@@ -198,8 +206,11 @@ class SphericalTriangleIdentifier(StarIdentifier):
     @staticmethod
     def _next_pivot(order: list[int], used: set[int], spot_sets: list[set], current: int, chain_spots: set[int],
                     excluded: set[int], candidates, deadline: Deadline) -> int | None:
-        """Largest unused triangle with finalists sharing two spots with the current one
-        (thesis 5.3.3), else with any two of the chain's spots; none with excluded spots."""
+        """
+        Return the largest unused triangle with finalists sharing two spots with the current one.
+
+        Thesis 5.3.3; else one sharing any two of the chain's spots; none with excluded spots.
+        """
         for pool in (spot_sets[current], chain_spots):
             for t in order:  # descending area
                 if deadline.passed():

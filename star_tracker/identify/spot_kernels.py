@@ -1,5 +1,8 @@
-"""Compiled spot preparation for cameras without distortion (base.StarIdentifier.prepare):
-usable spots sorted by flux, their rays, matching sigmas, magnitudes, final-fit covariances
+# SPDX-License-Identifier: Apache-2.0
+"""
+Compiled spot preparation for cameras without distortion (base.StarIdentifier.prepare).
+
+Usable spots sorted by flux, their rays, matching sigmas, magnitudes, final-fit covariances
 and ray jacobians, in one pass.
 """
 from __future__ import annotations
@@ -14,13 +17,16 @@ from .kernel_records import PreparedSpots
 
 @njit(cache=True)
 def prepare_spots(raw, camera, settings):
-    """The compiled form of StarIdentifier.prepare for cameras without distortion (Pinhole),
-    as PreparedSpots: indices of the usable spots (RawSpots: finite, not coincident:
-    coincident_later) sorted by flux (brightest first, NaN flux last, stable), their unit rays
-    (N, 3), 1-sigma direction errors [rad] for matching (floored at sigma_floor_px),
-    instrumental magnitudes (NaN for flux <= 0), pixel positions x, y [px], pixel covariances
-    for the final fit (N, 2, 2) [px^2] (unknown: 1 px^2, plus min_fit_sigma_px^2 on both axes)
-    and the rays' pixel jacobians (N, 3, 2) [rad/px] (PrepareSettings: the floors)."""
+    """
+    Return the compiled form of StarIdentifier.prepare for cameras without distortion (Pinhole), as PreparedSpots.
+
+    Indices of the usable spots (RawSpots: finite, not coincident: coincident_later) sorted by
+    flux (brightest first, NaN flux last, stable), their unit rays (N, 3), 1-sigma direction
+    errors [rad] for matching (floored at sigma_floor_px), instrumental magnitudes (NaN for
+    flux <= 0), pixel positions x, y [px], pixel covariances for the final fit (N, 2, 2)
+    [px^2] (unknown: 1 px^2, plus min_fit_sigma_px^2 on both axes) and the rays' pixel
+    jacobians (N, 3, 2) [rad/px] (PrepareSettings: the floors).
+    """
     x, y, flux, cov = raw.x, raw.y, raw.flux, raw.cov
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx, camera.cy
     sigma_floor_px, min_fit_sigma_px = settings.sigma_floor_px, settings.min_fit_sigma_px
@@ -66,8 +72,7 @@ def prepare_spots(raw, camera, settings):
 
 @njit(cache=True)
 def pinhole_jacobian(rays, fx, fy):
-    """(N, 3, 2) d ray / d pixel [rad/px] of pinhole unit rays (N, 3):
-    r_z (I - r r^T)[:, :2] diag(1/fx, 1/fy)."""
+    """(N, 3, 2) d ray / d pixel [rad/px] of pinhole unit rays (N, 3): r_z (I - r r^T)[:, :2] diag(1/fx, 1/fy)."""
     out = np.empty((rays.shape[0], 3, 2))
     for i in range(rays.shape[0]):
         a, b = rays[i, 2] / fx, rays[i, 2] / fy
@@ -79,8 +84,11 @@ def pinhole_jacobian(rays, fx, fy):
 
 @njit(cache=True)
 def coincident_later(x, y, separation_px):
-    """(N,) bool: spots within separation_px [px] of an earlier (lower-index) finite spot.
-    Sweep over x-sorted finite spots, O(N log N) for spread-out spots."""
+    """
+    (N,) bool: spots within separation_px [px] of an earlier (lower-index) finite spot.
+
+    Sweep over x-sorted finite spots, O(N log N) for spread-out spots.
+    """
     n = x.size
     dropped = np.zeros(n, np.bool_)
     finite = np.empty(n, np.int64)

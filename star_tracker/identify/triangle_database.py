@@ -1,4 +1,6 @@
-"""The catalog triangle database with k-vectors on area, and its on-disk cache.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The catalog triangle database with k-vectors on area, and its on-disk cache.
 
 The database holds every triangle of guide stars whose three sides are at most
 `max_side_rad` (`guide_triangles`). Each feature pair has its own ordering (Cole keeps
@@ -32,11 +34,14 @@ DEFAULT_MAX_SIDE_RAD = float(np.radians(8.0))
 
 @dataclass(frozen=True)
 class TriangleConfig:
-    """max_side_rad: longest side of a cataloged triangle (the field of view) [rad];
-    moment_depth: subdivision levels of the spherical polar moment (Cole: 3);
-    max_triangles: budget; if all guide stars give more triangles, stars are thinned;
-    stars_per_cell: brightest stars kept per sky cell when thinning (the cell size is then the
-    finest that fits the budget)."""
+    """
+    max_side_rad: longest side of a cataloged triangle (the field of view) [rad].
+
+    moment_depth: subdivision levels of the spherical polar moment (Cole: 3); max_triangles:
+    budget; if all guide stars give more triangles, stars are thinned; stars_per_cell:
+    brightest stars kept per sky cell when thinning (the cell size is then the finest that
+    fits the budget).
+    """
 
     max_side_rad: float = DEFAULT_MAX_SIDE_RAD
     moment_depth: int = 3
@@ -58,12 +63,17 @@ class TriangleConfig:
 
     @staticmethod
     def for_database(database: StarDatabase, max_side_rad: float | None = None, **kwargs) -> "TriangleConfig":
-        """Default for a pair database: sides up to its largest pair angle, at most
-        DEFAULT_MAX_SIDE_RAD (8 deg). For Cole's 8 deg field that is the field itself; for
-        the 15 deg camera, all Hp <= 6.5 stars with sides <= 8 deg (1.8 M triangles) beat the
-        brightest stars with sides <= 15 deg under the same budget: a 15 deg field always holds
-        small triangles of bright stars, and with many false stars (Toloei's scenes) the few
-        real ones must all be in the catalog."""
+        """
+        Return the default for a pair database: sides up to its largest pair angle, at most 8 deg.
+
+        8 deg is DEFAULT_MAX_SIDE_RAD.
+
+        For Cole's 8 deg field that is the field itself; for the 15 deg camera, all Hp <= 6.5
+        stars with sides <= 8 deg (1.8 M triangles) beat the brightest stars with sides <= 15
+        deg under the same budget: a 15 deg field always holds small triangles of bright stars,
+        and with many false stars (Toloei's scenes) the few real ones must all be in the
+        catalog.
+        """
         if max_side_rad is None:
             max_side_rad = min(database.config.max_pair_angle_rad, DEFAULT_MAX_SIDE_RAD)
         return TriangleConfig(max_side_rad=float(max_side_rad), **kwargs)
@@ -75,7 +85,8 @@ class TriangleConfig:
 
 
 class FeatureIndex(NamedTuple):
-    """Catalog triangles ordered for one feature pair (area, polar moment).
+    """
+    Catalog triangles ordered for one feature pair (area, polar moment).
 
     Rows are sorted by area and cut into blocks of `block` rows; within a block, rows are
     re-sorted by moment. An area window is then a run of blocks (found with a k-vector over
@@ -83,7 +94,8 @@ class FeatureIndex(NamedTuple):
     finalists without scanning the window row by row. stars (T, 3): database star indices,
     ascending within a row; area, moment (T,) [sr or rad^2; sr rad^2 or rad^4]; product
     (T,): side product a b c [rad^3]; block_min, block_max (B,) area range of each block.
-    A record of arrays, so the compiled matching takes it whole."""
+    A record of arrays, so the compiled matching takes it whole.
+    """
 
     stars: np.ndarray
     area: np.ndarray
@@ -126,8 +138,12 @@ class FeatureIndex(NamedTuple):
 
     @staticmethod
     def from_arrays(arrays: dict[str, np.ndarray], prefix: str, star_count: int) -> "FeatureIndex":
-        """The index saved by `arrays`; ValueError when the arrays are not one this code wrote
-        for a database of `star_count` stars (shapes, dtypes, star indices in range)."""
+        """
+        Return the index saved by `arrays`.
+
+        ValueError when the arrays are not one this code wrote for a database of `star_count`
+        stars (shapes, dtypes, star indices in range).
+        """
         stars, line = arrays[f"{prefix}_stars"], arrays[f"{prefix}_line"]
         rows = stars.shape[0] if stars.ndim == 2 else -1
         columns = [arrays[f"{prefix}_{name}"] for name in ("area", "moment", "product")]
@@ -146,10 +162,14 @@ class FeatureIndex(NamedTuple):
 
 @dataclass(frozen=True)
 class TriangleDatabase:
-    """Catalog triangles with both feature pairs: spherical (Cole: area [sr], polar moment
-    [sr rad^2]) and planar (Toloei: area [rad^2], polar moment [rad^4]), each a FeatureIndex.
-    guide_stars: database star indices used (after thinning); cells_per_face: thinning grid
-    (0: all stars); build_seconds: time of the build [s]."""
+    """
+    Catalog triangles with both feature pairs.
+
+    Spherical (Cole: area [sr], polar moment [sr rad^2]) and planar (Toloei: area [rad^2],
+    polar moment [rad^4]), each a FeatureIndex. guide_stars: database star indices used
+    (after thinning); cells_per_face: thinning grid (0: all stars); build_seconds: time of
+    the build [s].
+    """
 
     config: TriangleConfig
     spherical: FeatureIndex
@@ -168,11 +188,14 @@ class TriangleDatabase:
         return self.spherical.nbytes + self.planar.nbytes + int(self.guide_stars.nbytes)
 
 
-
 def select_guide_stars(database: StarDatabase, config: TriangleConfig) -> tuple[np.ndarray, int]:
-    """All database stars if their triangles fit the budget, else the brightest
-    `stars_per_cell` per cell of the finest grid that fits: (star indices, cells_per_face).
-    The grid is first guessed from triangles ~ stars^3, then stepped to the finest that fits."""
+    """
+    Return all database stars if their triangles fit the budget.
+
+    Else the brightest `stars_per_cell` per cell of the finest grid that fits: (star indices,
+    cells_per_face). The grid is first guessed from triangles ~ stars^3, then stepped to the
+    finest that fits.
+    """
     everything = np.arange(database.star_count)
     total = count_triangles(database, everything, config.max_side_rad)
     if total <= config.max_triangles:
@@ -221,16 +244,23 @@ _MEMO: dict[Path, TriangleDatabase] = {}
 
 
 def triangle_cache_path(database: StarDatabase, config: TriangleConfig, directory: Path | None = None) -> Path:
-    """The cache file of the triangles of `database` and `config`: in `directory`, else where
-    the pair database lives (database.cache_directory), else in catalog.cache_dir()."""
+    """
+    Return the cache file of the triangles of `database` and `config`.
+
+    In `directory`, else where the pair database lives (database.cache_directory), else in
+    catalog.cache_dir().
+    """
     return (directory or database.cache_directory or cache_dir()) / f"triangles_{config.cache_key(database)}.npz"
 
 
 def load_or_build_triangles(database: StarDatabase, config: TriangleConfig | None = None,
                             directory: Path | None = None) -> TriangleDatabase:
-    """The triangle database of `database` and `config` (default: for_database), loaded from
-    the checksum-validated cache (triangle_cache_path: by default beside the pair database)
-    or built and cached; kept in memory per cache file."""
+    """
+    Return the triangle database of `database` and `config` (default: for_database).
+
+    Loaded from the checksum-validated cache (triangle_cache_path: by default beside the
+    pair database) or built and cached; kept in memory per cache file.
+    """
     config = config or TriangleConfig.for_database(database)
     path = triangle_cache_path(database, config, directory)
     if path in _MEMO and path.is_file():
@@ -241,7 +271,7 @@ def load_or_build_triangles(database: StarDatabase, config: TriangleConfig | Non
         try:
             guide_stars = arrays["guide_stars"]
             if guide_stars.ndim != 1 or (guide_stars.size and (guide_stars.min() < 0
-                                                                or guide_stars.max() >= database.star_count)):
+                                                               or guide_stars.max() >= database.star_count)):
                 raise ValueError("cached guide stars do not match the database")
             triangles = TriangleDatabase(
                 config=config, spherical=FeatureIndex.from_arrays(arrays, "spherical", database.star_count),

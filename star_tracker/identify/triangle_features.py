@@ -1,7 +1,10 @@
-"""Features of star triangles, measured and cataloged: sides, spherical and planar areas and
-polar moments (`triangle_invariants`, `polar_moment`), for measured spot triangles with their
-match tolerances (beta sigma + floor, propagated from the spots' direction sigmas), and for
-catalog triangles in bulk (the database build).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Features of star triangles, measured and cataloged.
+
+Sides, spherical and planar areas and polar moments (`triangle_invariants`, `polar_moment`),
+for measured spot triangles with their match tolerances (beta sigma + floor, propagated from
+the spots' direction sigmas), and for catalog triangles in bulk (the database build).
 """
 from __future__ import annotations
 
@@ -76,8 +79,12 @@ def spherical_polar_moment(v1: np.ndarray, v2: np.ndarray, v3: np.ndarray, depth
 
 
 def spherical_polar_moment_fast(v1: np.ndarray, v2: np.ndarray, v3: np.ndarray, depth: int = 3) -> np.ndarray:
-    """The same as the catalog build computes it: many triangles side by side with series for
-    atan and asin (exact triangles beyond their range)."""
+    """
+    Return the polar moments as the catalog build computes them.
+
+    Many triangles side by side with series for atan and asin (exact triangles beyond their
+    range).
+    """
     v1, v2, v3 = (np.ascontiguousarray(np.atleast_2d(v), dtype=float) for v in (v1, v2, v3))
     n = v1.shape[0]
     vectors = np.concatenate([v1, v2, v3])
@@ -99,12 +106,15 @@ def planar_polar_moment(sides: np.ndarray) -> np.ndarray:
 
 
 class FeatureSet(NamedTuple):
-    """Features of measured triangles with their match tolerances (beta sigma + floor):
-    sides (T, 3) [rad], handedness (T,) sign of det[v1, v2, v3] (0: too flat to tell),
+    """
+    Features of measured triangles with their match tolerances (beta sigma + floor).
+
+    Sides (T, 3) [rad], handedness (T,) sign of det[v1, v2, v3] (0: too flat to tell),
     side_tol (T, 3) [rad], area, area_tol, moment, moment_tol (T,); product, product_tol
     (T,): the side product a b c [rad^3], the third invariant of the shape besides area and
     moment (with them it fixes the triangle up to reflection), used to skip finalists before
-    the vertex assignment."""
+    the vertex assignment.
+    """
 
     sides: np.ndarray
     handedness: np.ndarray
@@ -121,7 +131,7 @@ class FeatureSet(NamedTuple):
         return int(self.area.size)
 
     def take(self, index) -> "FeatureSet":
-        """The features of the triangles `index` (an int or an index array)."""
+        """Return the features of the triangles `index` (an int or an index array)."""
         index = np.atleast_1d(index)
         return FeatureSet(*(np.ascontiguousarray(column[index]) for column in self))
 
@@ -165,10 +175,13 @@ def _measured_kernel(rays, sigma, triples, spherical, depth, beta, floor, out):
 
 def measured_features(rays: np.ndarray, sigma: np.ndarray, triples: np.ndarray, spherical: bool,
                       depth: int = 3, beta: float = 3.0, floor: float = 0.0) -> FeatureSet:
-    """Features of spot triangles `triples` (T, 3) of indices into `rays` (N, 3) (sensor
-    frame) with per-axis direction 1-sigma `sigma` (N,) [rad]; tolerances are beta sigma
-    plus `floor` [rad] of model error on each side, propagated. spherical=True: Cole's area
-    and polar moment (depth levels); False: Toloei's planar ones."""
+    """
+    Return the features of spot triangles `triples` (T, 3) of indices into `rays` (N, 3).
+
+    rays in the sensor frame, with per-axis direction 1-sigma `sigma` (N,) [rad]; tolerances are
+    beta sigma plus `floor` [rad] of model error on each side, propagated. spherical=True:
+    Cole's area and polar moment (depth levels); False: Toloei's planar ones.
+    """
     triples = np.ascontiguousarray(triples, dtype=np.int64).reshape(-1, 3)
     t = triples.shape[0]
     out = FeatureSet(np.empty((t, 3)), np.empty(t, np.int8), np.empty((t, 3)), *(np.empty(t) for _ in range(6)))
@@ -179,8 +192,11 @@ def measured_features(rays: np.ndarray, sigma: np.ndarray, triples: np.ndarray, 
 
 @njit(cache=True, parallel=True)
 def _catalog_features_kernel(vectors, stars, depth, tables, out):
-    """Fill `out` (CatalogFeatures of T rows) for the triangles `stars` (T, 3); `tables`
-    are the SubdivisionTables of `depth`."""
+    """
+    Fill `out` (CatalogFeatures of T rows) for the triangles `stars` (T, 3).
+
+    `tables` are the SubdivisionTables of `depth`.
+    """
     sph_area, sph_moment, pl_area, pl_moment, product = (out.spherical_area, out.spherical_moment, out.planar_area,
                                                          out.planar_moment, out.product)
     n = stars.shape[0]
@@ -202,8 +218,12 @@ def _catalog_features_kernel(vectors, stars, depth, tables, out):
 
 
 class CatalogFeatures(NamedTuple):
-    """Features of catalog triangles (T,) each: spherical area [sr] and polar moment
-    [sr rad^2], planar area [rad^2] and polar moment [rad^4], side product a b c [rad^3]."""
+    """
+    Features of catalog triangles (T,) each.
+
+    Spherical area [sr] and polar moment [sr rad^2], planar area [rad^2] and polar moment
+    [rad^4], side product a b c [rad^3].
+    """
 
     spherical_area: np.ndarray
     spherical_moment: np.ndarray
@@ -213,8 +233,11 @@ class CatalogFeatures(NamedTuple):
 
 
 def catalog_features(vectors: np.ndarray, stars: np.ndarray, depth: int) -> CatalogFeatures:
-    """Features of the triangles `stars` (T, 3) of row indices into `vectors` (N, 3) (unit
-    vectors), many side by side (series for atan and asin where exact enough)."""
+    """
+    Return the features of the triangles `stars` (T, 3) of row indices into `vectors` (N, 3) (unit vectors).
+
+    Many side by side (series for atan and asin where exact enough).
+    """
     count = stars.shape[0]
     out = CatalogFeatures(*(np.empty(count) for _ in range(5)))
     _catalog_features_kernel(np.ascontiguousarray(vectors, dtype=float), stars, depth, subdivision_tables(depth), out)

@@ -1,4 +1,6 @@
-"""Attitude-independent shape invariants of a star triangle and their 1-sigma tolerances.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Attitude-independent shape invariants of a star triangle and their 1-sigma tolerances.
 
 Side lengths are the inter-star angles a = d12, b = d23, c = d31 [rad].
 
@@ -34,8 +36,11 @@ def lhuilier_area(a: float, b: float, c: float) -> float:
 
 @njit(cache=True)
 def lhuilier_jacobian(a: float, b: float, c: float, out) -> None:
-    """dA/d(a, b, c) of the spherical area (eqs. 20-23; the sign follows from
-    differentiating z^2, Cole's leading minus does not affect H H^T)."""
+    """
+    Return dA/d(a, b, c) of the spherical area (eqs. 20-23).
+
+    The sign follows from differentiating z^2; Cole's leading minus does not affect H H^T.
+    """
     q0, q1, q2, q3 = 0.25 * (a + b + c), 0.25 * (b + c - a), 0.25 * (a + c - b), 0.25 * (a + b - c)
     t0, t1, t2, t3 = math.tan(q0), math.tan(q1), math.tan(q2), math.tan(q3)
     z2 = t0 * t1 * t2 * t3
@@ -77,7 +82,6 @@ def planar_jacobians(a: float, b: float, c: float, d_area, d_moment) -> None:
         d_moment[k] = (d_area[k] * q + 2.0 * area * sides[k]) / 36.0
 
 
-
 @njit(cache=True, inline="always")
 def _vertex_cosine(p, q, r) -> float:
     """Cosine of the spherical angle at p between the arcs toward q and toward r."""
@@ -91,8 +95,11 @@ def _vertex_cosine(p, q, r) -> float:
 
 @njit(cache=True)
 def side_covariance(v1, v2, v3, s1: float, s2: float, s3: float, out) -> None:
-    """Covariance of the sides (d12, d23, d31) from per-axis direction sigmas s_i [rad]:
-    a star's error moves both sides meeting there, correlated by the vertex angle's cosine."""
+    """
+    Covariance of the sides (d12, d23, d31) from per-axis direction sigmas s_i [rad].
+
+    A star's error moves both sides meeting there, correlated by the vertex angle's cosine.
+    """
     out[0, 0] = s1 * s1 + s2 * s2
     out[1, 1] = s2 * s2 + s3 * s3
     out[2, 2] = s3 * s3 + s1 * s1
@@ -103,7 +110,7 @@ def side_covariance(v1, v2, v3, s1: float, s2: float, s3: float, out) -> None:
 
 @njit(cache=True)
 def feature_tolerance(jac, cov, beta: float, floor: float) -> float:
-    """beta * sqrt(H R H^T) plus the worst case of a `floor` error on every side."""
+    """Return beta * sqrt(H R H^T) plus the worst case of a `floor` error on every side."""
     var = 0.0
     worst = 0.0
     for i in range(3):

@@ -1,6 +1,9 @@
-"""Matching measured star triangles against the catalog triangle database: the area window
-by k-vector, the polar moment window by binary search per block, then the vertex
-assignments whose sides agree and whose handedness is the spots' (mirror test).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Matching measured star triangles against the catalog triangle database.
+
+The area window by k-vector, the polar moment window by binary search per block, then the
+vertex assignments whose sides agree and whose handedness is the spots' (mirror test).
 """
 from __future__ import annotations
 
@@ -28,13 +31,17 @@ def _fits_any(d2, lo2, hi2) -> bool:
 
 @njit(cache=True)
 def _match_kernel(features, index, vectors, cap, check_sides, out):
-    """For every measured triangle q: catalog rows with area within area_tol and moment within
-    moment_tol (blocks by k-vector, rows by binary search on the moment within each block);
-    each vertex assignment whose three sides agree within side_tol (if check_sides) and
-    whose handedness agrees is emitted as (q, star of vertex 1, 2, 3). More than `cap`
-    assignments: the triangle is ambiguous and emits nothing (n_final = -1). Sides are
-    compared as squared chords (monotonic in the angle). features: FeatureSet; index:
-    FeatureIndex; out: TriangleMatches with room for the rows; returns how many were emitted."""
+    """
+    For every measured triangle q.
+
+    Catalog rows with area within area_tol and moment within moment_tol (blocks by k-vector,
+    rows by binary search on the moment within each block); each vertex assignment whose three
+    sides agree within side_tol (if check_sides) and whose handedness agrees is emitted as (q,
+    star of vertex 1, 2, 3). More than `cap` assignments: the triangle is ambiguous and emits
+    nothing (n_final = -1). Sides are compared as squared chords (monotonic in the angle).
+    features: FeatureSet; index: FeatureIndex; out: TriangleMatches with room for the rows;
+    returns how many were emitted.
+    """
     area, area_tol, moment, moment_tol = features.area, features.area_tol, features.moment, features.moment_tol
     product, product_tol, sides, side_tol = features.product, features.product_tol, features.sides, features.side_tol
     hand = features.handedness
@@ -112,10 +119,13 @@ def _match_kernel(features, index, vectors, cap, check_sides, out):
 
 
 class TriangleMatches(NamedTuple):
-    """query (M,): index of the measured triangle; stars (M, 3): database stars assigned to its
-    vertices 1, 2, 3. area_candidates, finalists (Q,): catalog triangles within the area
-    window, and also within the moment window (-1: more than the cap of assignments). The
-    kernel fills one with room for M rows, of which match_triangles keeps those emitted."""
+    """
+    query (M,): index of the measured triangle; stars (M, 3): database stars assigned to its vertices 1, 2, 3.
+
+    area_candidates, finalists (Q,): catalog triangles within the area window, and also within
+    the moment window (-1: more than the cap of assignments). The kernel fills one with room
+    for M rows, of which match_triangles keeps those emitted.
+    """
 
     query: np.ndarray
     stars: np.ndarray
@@ -125,9 +135,12 @@ class TriangleMatches(NamedTuple):
 
 def match_triangles(triangles: TriangleDatabase, database: StarDatabase, features: FeatureSet, spherical: bool,
                     cap: int, check_sides: bool = True) -> TriangleMatches:
-    """Catalog matches of measured triangles: area window (k-vector), then polar moment, then
-    the vertex assignments whose sides agree (all that keep the handedness if not
-    check_sides), with the handedness (mirror) test."""
+    """
+    Catalog matches of measured triangles.
+
+    Area window (k-vector), then polar moment, then the vertex assignments whose sides agree
+    (all that keep the handedness if not check_sides), with the handedness (mirror) test.
+    """
     q = features.triangle_count
     index = triangles.spherical if spherical else triangles.planar
     capacity = max(min(q * (cap + 6), 1 << 20), 16)

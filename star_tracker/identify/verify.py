@@ -1,4 +1,6 @@
-"""Verification of a candidate attitude against every spot, with a false-positive bound.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Verification of a candidate attitude against every spot, with a false-positive bound.
 
 Null hypothesis: the spots are unrelated to the catalog stars they are matched to (false
 stars, or real stars given a wrong identity). For a set of m spots, unit vectors b_i with
@@ -40,9 +42,13 @@ from .database import StarDatabase
 
 @dataclass(frozen=True)
 class Verification:
-    """spot_index, star_index: one-to-one matches (database star indices);
-    distance_px: projected-star to spot distance [px]; stars_in_view: database stars
-    projected inside the image; radius_px: match radius [px]."""
+    """
+    spot_index, star_index.
+
+    One-to-one matches (database star indices); distance_px: projected-star to spot distance
+    [px]; stars_in_view: database stars projected inside the image; radius_px: match radius
+    [px].
+    """
 
     spot_index: np.ndarray
     star_index: np.ndarray
@@ -63,10 +69,13 @@ def project_database(rotation: np.ndarray, database: StarDatabase, camera: Camer
 
 def match_spots(spot_x: np.ndarray, spot_y: np.ndarray, star_u: np.ndarray, star_v: np.ndarray,
                 radius_px: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each spot's nearest star within the radius: (spot idx, star idx, distance). A star
-    with a second spot within twice the radius is ambiguous (e.g. a false object beside a
-    star that pulled the fit toward itself) and matches no spot, so no identity is claimed
-    for the wrong one."""
+    """
+    Each spot's nearest star within the radius: (spot idx, star idx, distance).
+
+    A star with a second spot within twice the radius is ambiguous (e.g. a false object
+    beside a star that pulled the fit toward itself) and matches no spot, so no identity is
+    claimed for the wrong one.
+    """
     if spot_x.size == 0 or star_u.size == 0:
         empty = np.zeros(0, np.int64)
         return empty, empty, np.zeros(0)
@@ -84,8 +93,12 @@ MIN_STARS = 4
 
 
 def log_chance_tuples(body: np.ndarray, sigma: np.ndarray, chi2: float, density_per_sr: float) -> float:
-    """ln lambda_m(c): expected number of catalog m-tuples (uniform density [1/sr]) fitting the
-    m sensor-frame unit vectors `body` (sigma [rad] each) with weighted chi^2 <= `chi2`."""
+    """
+    Return ln lambda_m(c): expected number of catalog m-tuples fitting the m unit vectors `body`.
+
+    Uniform density [1/sr]; `body` in the sensor frame (sigma [rad] each), fitting with weighted
+    chi^2 <= `chi2`.
+    """
     # Contiguous float64 always: one compiled specialisation, the one the warm-ups compile.
     return float(kernels.log_chance_tuples(np.ascontiguousarray(body, float), np.ascontiguousarray(sigma, float),
                                            float(chi2), float(density_per_sr)))
@@ -93,8 +106,11 @@ def log_chance_tuples(body: np.ndarray, sigma: np.ndarray, chi2: float, density_
 
 def log_magnitude_agreement(spot_magnitude: np.ndarray, star_magnitude: np.ndarray,
                             sorted_catalog_magnitudes: np.ndarray, floor: float) -> float:
-    """ln M: chance that random catalog stars agree with the spots' instrumental magnitudes
-    (zero point fitted) as well as the matched stars do; 0 when magnitudes are unknown."""
+    """
+    Return ln M: chance that random catalog stars agree with the spots' instrumental magnitudes.
+
+    As well as the matched stars do (zero point fitted); 0 when magnitudes are unknown.
+    """
     return float(kernels.log_magnitude_agreement(np.asarray(spot_magnitude, float), np.asarray(star_magnitude, float),
                                                  np.asarray(sorted_catalog_magnitudes, float), float(floor)))
 
@@ -106,8 +122,11 @@ def false_positive_bound(log_statistic: float, spots: int, matched: int) -> floa
 
 def verify(rotation: np.ndarray, spot_x: np.ndarray, spot_y: np.ndarray, database: StarDatabase,
            camera: CameraModel, radius_px: float) -> Verification:
-    """Match the spots to the database stars projected with `rotation` (sensor -> ICRS):
-    one-to-one nearest matches within `radius_px`."""
+    """
+    Match the spots to the database stars projected with `rotation` (sensor -> ICRS).
+
+    One-to-one nearest matches within `radius_px`.
+    """
     star_idx, u, v = project_database(rotation, database, camera)
     spot_i, star_j, dist = match_spots(spot_x, spot_y, u, v, radius_px)
     return Verification(spot_i, star_idx[star_j], dist, int(star_idx.size), float(radius_px))

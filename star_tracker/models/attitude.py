@@ -1,6 +1,10 @@
-"""Attitude representations: quaternions, rotation matrices and rotation vectors, boresight
-RA/Dec/roll, and the small-angle error between two attitudes. Estimation from measured
-directions is in attitude_estimation.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Attitude representations.
+
+Quaternions, rotation matrices and rotation vectors, boresight RA/Dec/roll, and the
+small-angle error between two attitudes. Estimation from measured directions is in
+attitude_estimation.
 
 Quaternions are (x, y, z, w) like ROS `geometry_msgs/Quaternion`, unit norm, w >= 0.
 An attitude quaternion q is the orientation of the sensor frame in ICRS: it maps
@@ -95,7 +99,8 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 
 def radec_roll_to_matrix(ra: float, dec: float, roll: float) -> np.ndarray:
-    """Sensor-to-ICRS rotation for a boresight (+Z) at (ra, dec) [rad] and a roll [rad].
+    """
+    Sensor-to-ICRS rotation for a boresight (+Z) at (ra, dec) [rad] and a roll [rad].
 
     roll = 0 puts image "up" (-Y, toward smaller row numbers) toward celestial north; a
     positive roll turns the camera about its boresight by the right-hand rule about +Z.
@@ -127,7 +132,8 @@ def matrix_to_radec_roll(rot: np.ndarray) -> tuple[float, float, float]:
 
 
 def attitude_error(rot_est: np.ndarray, rot_true: np.ndarray) -> tuple[float, float, float]:
-    """Small-angle error of an estimate in the sensor frame [rad].
+    """
+    Small-angle error of an estimate in the sensor frame [rad].
 
     Returns (cross_boresight, roll, total): the rotation R_true^T R_est as a rotation
     vector; cross-boresight = norm of its X, Y part, roll = |Z part|.

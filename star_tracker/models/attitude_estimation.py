@@ -1,6 +1,9 @@
-"""Attitude estimation from matched direction pairs (sensor-frame measurements, ICRS catalog):
-Wahba's problem by QUEST (with Shuster & Oh's covariance), the Davenport q-method and the
-SVD method as cross-checks, and maximum-likelihood refinement with per-direction anisotropic
+# SPDX-License-Identifier: Apache-2.0
+"""
+Attitude estimation from matched direction pairs (sensor-frame measurements, ICRS catalog).
+
+Wahba's problem by QUEST (with Shuster & Oh's covariance), the Davenport q-method and the SVD
+method as cross-checks, and maximum-likelihood refinement with per-direction anisotropic
 covariances. Conventions (quaternion order, frames) as in attitude.
 """
 from __future__ import annotations
@@ -13,11 +16,16 @@ from numba import njit
 
 from .attitude import matrix_to_quaternion, skew
 
+
 @dataclass(frozen=True)
 class AttitudeSolution:
-    """quaternion: (x, y, z, w) sensor -> ICRS; rotation: same as a 3x3 matrix;
-    covariance: 3x3 small-angle attitude error covariance in the sensor frame [rad^2];
-    loss: Wahba loss at the optimum (sum of weighted squared residuals / 2)."""
+    """
+    quaternion: (x, y, z, w) sensor -> ICRS.
+
+    Rotation: same as a 3x3 matrix; covariance: 3x3 small-angle attitude error covariance in
+    the sensor frame [rad^2]; loss: Wahba loss at the optimum (sum of weighted squared
+    residuals / 2).
+    """
 
     quaternion: np.ndarray
     rotation: np.ndarray
@@ -40,8 +48,11 @@ def _davenport_k(body: np.ndarray, ref: np.ndarray, weights: np.ndarray) -> tupl
 
 
 def attitude_covariance(body: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
-    """QUEST measurement-model covariance in the sensor frame [rad^2]:
-    P = [sum_i sigma_i^-2 (I - b_i b_i^T)]^-1 (Shuster & Oh)."""
+    """
+    QUEST measurement-model covariance in the sensor frame [rad^2].
+
+    P = [sum_i sigma_i^-2 (I - b_i b_i^T)]^-1 (Shuster & Oh).
+    """
     body = np.asarray(body, dtype=float).reshape(-1, 3)
     weights = 1.0 / np.asarray(sigmas, dtype=float) ** 2
     info = np.sum(weights) * np.eye(3) - (weights[:, None] * body).T @ body
@@ -56,8 +67,10 @@ def refine_with_covariances(rotation: np.ndarray, body: np.ndarray, ref: np.ndar
                             *, jacobian: np.ndarray | None = None, pixel_cov: np.ndarray | None = None,
                             used: np.ndarray | None = None,
                             iterations: int = 2) -> tuple[AttitudeSolution, np.ndarray, np.ndarray]:
-    """Maximum-likelihood refinement of an attitude when each measured direction has its own
-    2-D error covariance (an anisotropic centroid, e.g. a streak: far larger along the smear).
+    """
+    Refine an attitude by maximum likelihood when each measured direction has its own error covariance.
+
+    A 2-D covariance: an anisotropic centroid, e.g. a streak, is far larger along the smear.
 
     rotation: sensor -> ICRS start (e.g. QUEST, or any fit within a few arcmin); body (N, 3)
     measured sensor-frame unit vectors; ref (N, 3) their ICRS catalog vectors; the error of
@@ -70,7 +83,8 @@ def refine_with_covariances(rotation: np.ndarray, body: np.ndarray, ref: np.ndar
     Wahba's problem, whose optimum QUEST finds, and the covariance is Shuster & Oh's.
     Returns the solution (covariance (sum G_i^T W_i G_i)^-1 over the used directions [rad^2],
     sensor frame, G_i = E_i^T [p_i]x; loss: their chi^2 / 2), every direction's chi^2
-    r_i^T W_i r_i (2 DOF) and its residual angle arccos(b_i . R^T r_i) [rad] at it."""
+    r_i^T W_i r_i (2 DOF) and its residual angle arccos(b_i . R^T r_i) [rad] at it.
+    """
     body = np.ascontiguousarray(body, dtype=float).reshape(-1, 3)
     n = body.shape[0]
     if ray_cov is not None:
@@ -87,10 +101,14 @@ def refine_with_covariances(rotation: np.ndarray, body: np.ndarray, ref: np.ndar
 
 @njit(cache=True)
 def _refine_kernel(rotation, body, ref, cov, jac, used, iterations):
-    """refine_with_covariances' loops, scalar arithmetic (no temporaries). cov: (N, 3, 3) ray
-    covariances when jac is empty, else (N, 2, 2) pixel covariances mapped by jac (N, 3, 2).
-    Returns the rotation, the covariance (inverse information of the used directions, 3x3),
-    the loss (half their chi^2), chi^2 (N,) and the residual angles (N,) [rad]."""
+    """
+    refine_with_covariances' loops, scalar arithmetic (no temporaries).
+
+    cov: (N, 3, 3) ray covariances when jac is empty, else (N, 2, 2) pixel covariances mapped
+    by jac (N, 3, 2). Returns the rotation, the covariance (inverse information of the used
+    directions, 3x3), the loss (half their chi^2), chi^2 (N,) and the residual angles (N,)
+    [rad].
+    """
     n = body.shape[0]
     basis = np.empty((n, 2, 3))  # e1, e2 per direction
     weight = np.empty((n, 3))  # W00, W01, W11
@@ -197,10 +215,12 @@ def davenport_q_method(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) ->
 
 
 def svd_attitude(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:
-    """Markley's SVD solution of Wahba's problem (cross-check; no singularity at any angle).
+    """
+    Markley's SVD solution of Wahba's problem (cross-check; no singularity at any angle).
 
     B = sum_i w_i b_i r_i^T = U S V^T gives A = U diag(1, 1, det U det V) V^T, the proper
-    rotation closest to B (ICRS -> sensor). Inputs and result as `quest`."""
+    rotation closest to B (ICRS -> sensor). Inputs and result as `quest`.
+    """
     body, ref, sigmas = _as_inputs(body, ref, sigmas)
     weights = 1.0 / sigmas**2
     u, _, vt = np.linalg.svd((weights[:, None] * body).T @ ref)
@@ -209,9 +229,12 @@ def svd_attitude(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> Attit
 
 
 def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:
-    """QUEST (Shuster & Oh 1981): Newton-Raphson on the characteristic polynomial of K,
-    starting at lambda = sum(weights); a sequential rotation is applied when the optimal
-    rotation is near pi (QUEST's singularity); falls back to the q-method if Newton fails.
+    """
+    QUEST (Shuster & Oh 1981).
+
+    Newton-Raphson on the characteristic polynomial of K, starting at lambda = sum(weights); a
+    sequential rotation is applied when the optimal rotation is near pi (QUEST's singularity);
+    falls back to the q-method if Newton fails.
 
     body: (N, 3) sensor-frame unit vectors; ref: (N, 3) ICRS unit vectors; sigmas: (N,) 1-sigma
     direction errors [rad]. N >= 2 non-parallel vectors are needed.
@@ -285,9 +308,12 @@ def _as_inputs(body, ref, sigmas):
 
 def _adjugate(m: np.ndarray) -> np.ndarray:
     return np.array([
-        [m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1], m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2], m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]],
-        [m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2], m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0], m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]],
-        [m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0], m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1], m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]],
+        [m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1], m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2],
+         m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]],
+        [m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2], m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0],
+         m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]],
+        [m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0], m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1],
+         m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]],
     ])
 
 

@@ -1,4 +1,6 @@
-"""Camera geometry: pinhole intrinsics + Brown-Conrady distortion, OpenCV conventions.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Camera geometry: pinhole intrinsics + Brown-Conrady distortion, OpenCV conventions.
 
 Sensor frame `star_tracker_optical`: +Z boresight, +X image right (columns), +Y image down
 (rows). Pixel (0, 0) is the centre of the top-left pixel. Distortion coefficients are
@@ -85,8 +87,11 @@ class CameraModel:
         return xd, yd
 
     def project(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Sensor-frame directions (N, 3) -> pixel u, v [px] and a mask of rays in front of the
-        camera (Z > 0). Matches cv2.projectPoints with K, D."""
+        """
+        Sensor-frame directions (N, 3) -> pixel u, v [px] and a mask of rays in front of the camera (Z > 0).
+
+        Matches cv2.projectPoints with K, D.
+        """
         rays = np.asarray(rays, dtype=float)
         z = rays[..., 2]
         in_front = z > 1e-9
@@ -95,7 +100,7 @@ class CameraModel:
         return self.fx * x + self.cx, self.fy * y + self.cy, in_front
 
     def in_image(self, u: np.ndarray, v: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """True where (u, v) lies within the pixel area shrunk by `margin` [px]."""
+        """Return True where (u, v) lies within the pixel area shrunk by `margin` [px]."""
         return ((u >= -0.5 + margin) & (u <= self.width - 0.5 - margin)
                 & (v >= -0.5 + margin) & (v <= self.height - 0.5 - margin))
 
@@ -116,8 +121,11 @@ class CameraModel:
         return rays / np.linalg.norm(rays, axis=-1, keepdims=True)
 
     def pixel_covariance_to_ray_sigma(self, cov_px: np.ndarray) -> np.ndarray:
-        """1-sigma angular error [rad] of a ray from a 2x2 pixel covariance (N, 2, 2), using
-        the mean variance per axis and the local pixel scale (distortion neglected)."""
+        """
+        Return the 1-sigma angular error [rad] of a ray from a 2x2 pixel covariance (N, 2, 2).
+
+        Using the mean variance per axis and the local pixel scale (distortion neglected).
+        """
         cov_px = np.asarray(cov_px, dtype=float).reshape(-1, 2, 2)
         var_px = 0.5 * (cov_px[:, 0, 0] + cov_px[:, 1, 1])
         return np.sqrt(np.maximum(var_px, 0.0)) * self.pixel_scale_rad

@@ -1,4 +1,6 @@
-"""Camera self-calibration from identified stars: one camera fitted jointly with each frame's attitude.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Camera self-calibration from identified stars: one camera fitted jointly with each frame's attitude.
 
 Given, for one or several frames, the matched stars (spot pixel positions with their
 covariances and the catalog unit vectors in ICRS), `calibrate_camera` fits the focal length
@@ -38,9 +40,13 @@ GROUP_NAMES = ("f", "k1", "k2", "principal_point")
 
 @dataclass(frozen=True)
 class CalibrationFrame:
-    """One frame's matched stars: x, y (N,) spot positions [px]; cov (N, 2, 2) their
-    covariance [px²]; stars (N, 3) catalog unit vectors in ICRS; rotation (3, 3) a first
-    attitude sensor -> ICRS (the identification's)."""
+    """
+    One frame's matched stars.
+
+    X, y (N,) spot positions [px]; cov (N, 2, 2) their covariance [px²]; stars (N, 3)
+    catalog unit vectors in ICRS; rotation (3, 3) a first attitude sensor -> ICRS (the
+    identification's).
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -63,9 +69,10 @@ class CalibrationFrame:
 
     @staticmethod
     def from_identification(spots, identification) -> "CalibrationFrame":
-        """The matched stars of a solved Identification of `spots` (unknown covariances: 1 px²)."""
+        """Return the matched stars of a solved Identification of `spots` (unknown covariances: 1 px²)."""
         index = np.asarray(identification.spot_index)
-        cov = np.asarray(spots.cov, dtype=float)[index] if spots.cov is not None else np.tile(np.eye(2), (index.size, 1, 1))
+        cov = np.asarray(spots.cov, dtype=float)[index] if spots.cov is not None else np.tile(np.eye(2),
+                                                                                              (index.size, 1, 1))
         cov = np.where(np.isfinite(cov), cov, np.eye(2))
         return CalibrationFrame(spots.x[index], spots.y[index], cov, identification.star_vectors,
                                 identification.attitude.rotation)
@@ -73,13 +80,16 @@ class CalibrationFrame:
 
 @dataclass(frozen=True)
 class CalibrationConfig:
-    """fit: the parameter groups that may be fitted, of GROUP_NAMES ("f" always is);
+    """
+    fit: the parameter groups that may be fitted, of GROUP_NAMES ("f" always is).
+
     max_corner_sigma_px, max_principal_point_sigma_px: the rule deciding which are (module
-    docstring) [px];
-    sigma_floor_px: added in quadrature to every spot's 1-sigma (optics, JPEG, catalog) [px];
-    robust_scale: soft-L1 transition of the first pass [whitened sigmas];
-    outlier_sigma: a star whose whitened residual exceeds this many RMS is left out of the
-    final pass [-]; min_stars_per_group: fewest stars (all frames) per fitted parameter."""
+    docstring) [px]; sigma_floor_px: added in quadrature to every spot's 1-sigma (optics,
+    JPEG, catalog) [px]; robust_scale: soft-L1 transition of the first pass [whitened
+    sigmas]; outlier_sigma: a star whose whitened residual exceeds this many RMS is left out
+    of the final pass [-]; min_stars_per_group: fewest stars (all frames) per fitted
+    parameter.
+    """
 
     fit: tuple[str, ...] = GROUP_NAMES
     max_corner_sigma_px: float = 2.0
@@ -102,7 +112,8 @@ class CalibrationConfig:
 
 @dataclass(frozen=True)
 class CameraCalibration:
-    """Result of calibrate_camera.
+    """
+    Result of calibrate_camera.
 
     camera: the fitted CameraModel; fitted: fitted parameter names of ("f", "k1", "k2", "cx",
     "cy") (f = fx, with fy scaled alike); not_fitted: the candidate groups the stars did not
@@ -112,7 +123,8 @@ class CameraCalibration:
     rotations: each frame's fitted attitude sensor -> ICRS; inliers: each frame's mask of the
     stars kept; frame_rms_px: each frame's inlier residual RMS [px] (per axis); residual_rms_px:
     the same over all frames; stars: inliers over all frames; limits: the rule's limits it was
-    decided by (max_corner_sigma_px, max_principal_point_sigma_px [px])."""
+    decided by (max_corner_sigma_px, max_principal_point_sigma_px [px]).
+    """
 
     camera: CameraModel
     fitted: tuple[str, ...]
@@ -146,10 +158,13 @@ def corner_radius(camera: CameraModel) -> float:
 
 
 def calibrate_camera(frames, camera: CameraModel, config: CalibrationConfig = CalibrationConfig()) -> CameraCalibration:
-    """Fit `camera` (the starting values: f, cx, cy, k1, k2; p1, p2, k3 kept) and each frame's
-    attitude to the matched stars of `frames` (CalibrationFrame, one or several). Keeps the
-    largest nested model the stars constrain (module docstring). Raises ValueError with too
-    few stars for even the focal length."""
+    """
+    Fit `camera` and each frame's attitude to the matched stars of `frames` (CalibrationFrame).
+
+    `camera` gives the starting values (f, cx, cy, k1, k2; p1, p2, k3 kept); one frame or
+    several. Keeps the largest nested model the stars constrain (module docstring). Raises
+    ValueError with too few stars for even the focal length.
+    """
     frames = list(frames)
     if not frames:
         raise ValueError("calibrate_camera needs at least one frame")
@@ -165,8 +180,9 @@ def calibrate_camera(frames, camera: CameraModel, config: CalibrationConfig = Ca
         if constrained(best, config):
             break
     not_fitted = tuple(GROUP_NAMES[g] for g in groups if not set(PARAMETER_GROUPS[g]) <= set(best.fitted))
-    return replace(best, not_fitted=not_fitted, limits={"max_corner_sigma_px": config.max_corner_sigma_px,
-                                                        "max_principal_point_sigma_px": config.max_principal_point_sigma_px})
+    limits = {"max_corner_sigma_px": config.max_corner_sigma_px,
+              "max_principal_point_sigma_px": config.max_principal_point_sigma_px}
+    return replace(best, not_fitted=not_fitted, limits=limits)
 
 
 def constrained(calibration: CameraCalibration, config: CalibrationConfig) -> bool:
@@ -177,7 +193,7 @@ def constrained(calibration: CameraCalibration, config: CalibrationConfig) -> bo
 
 
 def _camera_with(camera: CameraModel, names: tuple[str, ...], params: np.ndarray) -> CameraModel:
-    """camera with the fitted parameters: f as a log scale of fx (fy alike), cx, cy offsets [px], k1, k2."""
+    """Return the camera with the fitted parameters: f as a log scale of fx (fy alike), cx, cy offsets [px], k1, k2."""
     values = dict(zip(names, params))
     scale = math.exp(values.get("f", 0.0))
     k1, k2, p1, p2, k3 = camera.distortion
@@ -195,9 +211,13 @@ def _whitening(frames, sigma_floor_px: float) -> np.ndarray:
 
 def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: CalibrationConfig,
          radius: float) -> CameraCalibration:
-    """One model: the camera parameters `names` and every frame's rotation (a rotation vector
-    applied to its starting attitude) by soft-L1 least squares, then plain least squares over the
-    inliers; covariance = (JᵀJ)⁻¹ scaled by the inliers' reduced χ². radius: corner_radius [-]."""
+    """
+    Fit one model: the camera parameters `names` and every frame's rotation.
+
+    The rotation is a rotation vector applied to the frame's starting attitude; soft-L1 least
+    squares, then plain least squares over the inliers; covariance = (JᵀJ)⁻¹ scaled by the
+    inliers' reduced χ². radius: corner_radius [-].
+    """
     from scipy.optimize import least_squares
 
     count = len(frames)

@@ -1,4 +1,6 @@
-"""Hipparcos star catalog (new reduction, ESA I/311 hip2.dat) as numpy arrays.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Hipparcos star catalog (new reduction, ESA I/311 hip2.dat) as numpy arrays.
 
 Positions are ICRS at the Hipparcos epoch J1991.25, propagated linearly by proper
 motion to the requested epoch. Angles are radians, magnitudes are Hipparcos Hp.
@@ -31,7 +33,8 @@ _COLUMNS = {
 
 @dataclass(frozen=True)
 class StarCatalog:
-    """Stars as parallel arrays.
+    """
+    Stars as parallel arrays.
 
     hip: Hipparcos number; ra, dec: ICRS right ascension/declination [rad] at `epoch_jyear`;
     pm_ra, pm_dec: proper motion [rad/yr] (pm_ra includes cos(dec)); hp: Hp magnitude;
@@ -64,8 +67,11 @@ class StarCatalog:
         return self.subset(self.hp <= magnitude_limit)
 
     def at_epoch(self, epoch_jyear: float) -> "StarCatalog":
-        """Propagate positions linearly by proper motion (tangent-plane step; < 1 mas error
-        over decades for all but the fastest stars)."""
+        """
+        Propagate positions linearly by proper motion.
+
+        A tangent-plane step: < 1 mas error over decades for all but the fastest stars.
+        """
         dt = epoch_jyear - self.epoch_jyear
         cos_dec = np.cos(self.dec)
         safe_cos = np.where(np.abs(cos_dec) < 1e-9, 1e-9, cos_dec)
@@ -81,7 +87,7 @@ class StarCatalog:
 
 
 def radec_to_unit(ra: np.ndarray, dec: np.ndarray) -> np.ndarray:
-    """Unit vectors (N, 3) from right ascension and declination [rad]."""
+    """Return unit vectors (N, 3) from right ascension and declination [rad]."""
     cd = np.cos(dec)
     return np.stack([cd * np.cos(ra), cd * np.sin(ra), np.sin(dec)], axis=-1)
 
@@ -147,7 +153,8 @@ def parse_hip2(path: Path) -> StarCatalog:
 
 def _file_fingerprint(path: Path) -> str:
     stat = path.stat()
-    return hashlib.sha256(f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}|v{CACHE_FORMAT_VERSION}".encode()).hexdigest()[:16]
+    key = f"{path.resolve()}|{stat.st_size}|{stat.st_mtime_ns}|v{CACHE_FORMAT_VERSION}"
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
 def _payload_checksum(arrays: dict[str, np.ndarray]) -> str:
@@ -183,7 +190,7 @@ _CATALOG_MEMO: dict[str, StarCatalog] = {}
 
 
 def load_hipparcos(path: Path | None = None) -> StarCatalog:
-    """The full Hipparcos catalog at epoch J1991.25 (cached on disk and in memory)."""
+    """Return the full Hipparcos catalog at epoch J1991.25 (cached on disk and in memory)."""
     path = Path(path) if path is not None else hip2_path()
     key = _file_fingerprint(path)
     if key in _CATALOG_MEMO:

@@ -1,7 +1,10 @@
-"""Fit a camera profile (the SensorModel parameters of sim/sensor.py) to real frames of known
-attitude: PSF width and shape, conversion gain and read noise from the image statistics,
-background level and vignetting, hot pixels, and the photometric zero point against the
-Hipparcos Hp magnitudes of the identified stars, each with a 1-sigma uncertainty.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Fit a camera profile (the SensorModel parameters of sim/sensor.py) to real frames of known attitude.
+
+PSF width and shape, conversion gain and read noise from the image statistics, background level
+and vignetting, hot pixels, and the photometric zero point against the Hipparcos Hp magnitudes
+of the identified stars, each with a 1-sigma uncertainty.
 
 Methods and their assumptions (docs/SIMULATOR.md, "The simulator against a real camera"):
 
@@ -68,8 +71,12 @@ class Measured:
 
 @dataclass(frozen=True)
 class ProfileFrame:
-    """One real (or rendered) frame to fit: image (H, W) [ADU] as the camera wrote it,
-    camera (its geometry), rotation (3, 3) sensor -> ICRS at mid-exposure, exposure_s [s]."""
+    """
+    One real (or rendered) frame to fit.
+
+    Image (H, W) [ADU] as the camera wrote it, camera (its geometry), rotation (3, 3) sensor
+    -> ICRS at mid-exposure, exposure_s [s].
+    """
 
     image: np.ndarray
     camera: CameraModel
@@ -79,10 +86,14 @@ class ProfileFrame:
 
 @dataclass(frozen=True)
 class StarFits:
-    """Per identified star (parallel arrays): frame index, hip, hp, b_v [mag]; x, y [px];
-    flux [ADU] and psf_sigma_px [px] of the Gaussian fit; local background [ADU];
-    aperture_flux [ADU]: the fit's flux plus the data-minus-fit residual within 5 sigma (equal
-    to flux for a Gaussian PSF, larger when the PSF has wings)."""
+    """
+    Per identified star (parallel arrays).
+
+    Frame index, hip, hp, b_v [mag]; x, y [px]; flux [ADU] and psf_sigma_px [px] of the
+    Gaussian fit; local background [ADU]; aperture_flux [ADU]: the fit's flux plus the
+    data-minus-fit residual within 5 sigma (equal to flux for a Gaussian PSF, larger when the
+    PSF has wings).
+    """
 
     frame: np.ndarray
     hip: np.ndarray
@@ -98,7 +109,8 @@ class StarFits:
 
 @dataclass(frozen=True)
 class CameraProfile:
-    """The fitted camera (values with 1-sigma uncertainties) and the evidence behind it.
+    """
+    The fitted camera (values with 1-sigma uncertainties) and the evidence behind it.
 
     inverse_gain_adu_per_e: the photon-transfer slope 1/g [ADU/e-] (may be consistent with 0);
     gain_e_per_adu [e-/ADU]: 1/slope, or, when the slope is below 2 sigma
@@ -114,7 +126,8 @@ class CameraProfile:
     exposure_s, width, height: of the frames; stars: every star's fit, used: those with
     SNR >= MIN_SNR that the PSF and photometry come from; ptc: binned
     (signal [ADU], variance [ADU^2], count) of the star photon transfer and ptc_model_error
-    its fitted k^2 [-]; tiles: the background tiles of every frame (tile_statistics rows)."""
+    its fitted k^2 [-]; tiles: the background tiles of every frame (tile_statistics rows).
+    """
 
     gain_e_per_adu: Measured
     inverse_gain_adu_per_e: Measured
@@ -142,9 +155,13 @@ class CameraProfile:
     ptc_model_error: float = field(default=0.0, repr=False)
 
     def sensor_model(self, base: SensorModel = SensorModel()) -> SensorModel:
-        """`base` with the fitted values: the background goes to the sky term (vignetted),
-        dark current, DSNU, PRNU and cosmic rays off (not measurable from these frames), hot
-        pixels as a dark-current multiple of a small dark floor, bias 0, 8-bit output."""
+        """
+        Return `base` with the fitted values.
+
+        The background goes to the sky term (vignetted), dark current, DSNU, PRNU and cosmic
+        rays off (not measurable from these frames), hot pixels as a dark-current multiple
+        of a small dark floor, bias 0, 8-bit output.
+        """
         g = self.gain_e_per_adu.value
         t = self.exposure_s
         dark_floor = 1e-3 * max(self.background_adu.value, 1e-3) * g / t  # carries the hot pixels only
@@ -165,10 +182,14 @@ class CameraProfile:
 
 # ------------------------------------------------------------------ background statistics
 def censored_gaussian_fit(values: np.ndarray, upper: float | None = None) -> tuple[float, float, float, float]:
-    """(mu, s, sigma_mu, sigma_s) [ADU] of integer pixel values that are a Gaussian N(mu, s^2)
-    rounded to the nearest integer and clipped at 0: maximum likelihood over the histogram,
-    0 counted as "at or below 0.5", values above `upper` (default mu + 5 s of a first robust
-    pass) as censored above (faint stars, hot pixels). Uncertainties from the Hessian."""
+    """
+    Return (mu, s, sigma_mu, sigma_s) [ADU] of integer pixel values from a rounded, clipped Gaussian.
+
+    The values are a Gaussian N(mu, s^2) rounded to the nearest integer and clipped at 0:
+    maximum likelihood over the histogram, 0 counted as "at or below 0.5", values above
+    `upper` (default mu + 5 s of a first robust pass) as censored above (faint stars, hot
+    pixels). Uncertainties from the Hessian.
+    """
     values = np.asarray(values).ravel()
     if values.size < 20:
         raise ValueError(f"need at least 20 background pixels, got {values.size}")
@@ -212,7 +233,7 @@ def _numeric_hessian(f, x, step=1e-3):
 
 
 def star_mask(shape: tuple[int, int], x: np.ndarray, y: np.ndarray, radius_px: float) -> np.ndarray:
-    """True where a pixel lies within radius_px of any (x, y) [px]."""
+    """Return True where a pixel lies within radius_px of any (x, y) [px]."""
     import cv2
 
     mask = np.zeros(shape, np.uint8)
@@ -223,8 +244,12 @@ def star_mask(shape: tuple[int, int], x: np.ndarray, y: np.ndarray, radius_px: f
 
 
 def tile_statistics(image: np.ndarray, masked: np.ndarray, tile_px: int = 64) -> np.ndarray:
-    """Censored Gaussian fit of the unmasked pixels of every tile: rows (x_centre, y_centre,
-    mu, s, sigma_mu) [px, ADU]; tiles with fewer than half their pixels free are left out."""
+    """
+    Censored Gaussian fit of the unmasked pixels of every tile.
+
+    Rows (x_centre, y_centre, mu, s, sigma_mu) [px, ADU]; tiles with fewer than half their
+    pixels free are left out.
+    """
     height, width = image.shape
     rows = []
     for r0 in range(0, height - tile_px // 2, tile_px):
@@ -239,10 +264,13 @@ def tile_statistics(image: np.ndarray, masked: np.ndarray, tile_px: int = 64) ->
 
 
 def fit_background(tiles: np.ndarray, width: int, height: int) -> tuple[Measured, float, tuple[float, float]]:
-    """Fit mu = b + c r^2/r_c^2 + g_x dx + g_y dy to tile means (rows as tile_statistics,
-    pooled over frames): (b at the centre [ADU], c [ADU], (g_x, g_y) [ADU/px]). Additive,
-    because a black-level-subtracted sky near 0 ADU gives no vignetting ratio; the
-    uncertainty of b from the least-squares covariance scaled by the residual scatter."""
+    """
+    Fit mu = b + c r^2/r_c^2 + g_x dx + g_y dy to tile means (rows as tile_statistics, pooled over frames).
+
+    (b at the centre [ADU], c [ADU], (g_x, g_y) [ADU/px]). Additive, because a
+    black-level-subtracted sky near 0 ADU gives no vignetting ratio; the uncertainty of b
+    from the least-squares covariance scaled by the residual scatter.
+    """
     x, y, mu = tiles[:, 0], tiles[:, 1], tiles[:, 2]
     dx, dy = x - (width - 1) / 2, y - (height - 1) / 2
     design = np.column_stack([np.ones_like(x), radius_squared(x, y, width, height), dx, dy])
@@ -261,8 +289,11 @@ def radius_squared(x, y, width: int, height: int) -> np.ndarray:
 
 # ------------------------------------------------------------------ stars
 def gaussian_stamp(params: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """Background + flux x pixel-integrated circular Gaussian, as the renderer draws a star:
-    params (x, y, flux [ADU], sigma [px], background [ADU]); cols, rows: pixel indices."""
+    """
+    Background + flux x pixel-integrated circular Gaussian, as the renderer draws a star.
+
+    Params (x, y, flux [ADU], sigma [px], background [ADU]); cols, rows: pixel indices.
+    """
     x, y, flux, sigma, background = params
     scale = 1.0 / (np.sqrt(2.0) * abs(sigma))
     px = 0.5 * (erf((cols + 0.5 - x) * scale) - erf((cols - 0.5 - x) * scale))
@@ -271,8 +302,12 @@ def gaussian_stamp(params: np.ndarray, cols: np.ndarray, rows: np.ndarray) -> np
 
 
 def clipped_mean(model: np.ndarray, noise_adu: float) -> np.ndarray:
-    """Expected value of max(X, 0), X ~ N(model, noise_adu^2) [ADU]: what a camera that clips
-    at 0 records on average where the expected signal is `model` (noise_adu 0: no clipping)."""
+    """
+    Return the expected value of max(X, 0), X ~ N(model, noise_adu^2) [ADU].
+
+    What a camera that clips at 0 records on average where the expected signal is `model`
+    (noise_adu 0: no clipping).
+    """
     if noise_adu <= 0:
         return model
     z = model / noise_adu
@@ -281,11 +316,14 @@ def clipped_mean(model: np.ndarray, noise_adu: float) -> np.ndarray:
 
 def fit_star(image: np.ndarray, x: float, y: float, sigma_guess: float = 1.0, noise_adu: float = 0.0,
              half: int = STAMP_HALF_PX):
-    """Least-squares fit of the stamp around (x, y) [px] with gaussian_stamp seen through the
-    camera's clip at 0 (clipped_mean with the background noise noise_adu [ADU]; without it
-    a background near 0 reads high and the wings, the width and the flux come out low).
-    Returns (params as gaussian_stamp, the stamp [ADU], the expected recorded stamp [ADU],
-    the leverage of each pixel in the fit [-]) or None at the image edge or when the fit fails."""
+    """
+    Fit the stamp around (x, y) [px] by least squares with gaussian_stamp seen through the clip at 0.
+
+    The camera's clip: clipped_mean with the background noise noise_adu [ADU]; without it a
+    background near 0 reads high and the wings, the width and the flux come out low. Returns
+    (params as gaussian_stamp, the stamp [ADU], the expected recorded stamp [ADU], the leverage
+    of each pixel in the fit [-]) or None at the image edge or when the fit fails.
+    """
     height, width = image.shape
     c0, r0 = int(round(x)), int(round(y))
     if not (half <= c0 < width - half and half <= r0 < height - half):
@@ -318,10 +356,13 @@ def fit_star(image: np.ndarray, x: float, y: float, sigma_guess: float = 1.0, no
 
 def identified_stars(frame: ProfileFrame, catalog: StarCatalog, config: CentroidConfig,
                      match_radius_px: float = 3.0, isolation_px: float = 8.0):
-    """Catalog stars of the frame matched to detected spots: (catalog indices, spots, spot
-    indices). A star counts when one spot lies within match_radius_px of its projection, no
-    other catalog star lies within isolation_px (blends) and the spot's peak is below the
-    saturation level (fit_stars also drops stamps with a pixel at it)."""
+    """
+    Catalog stars of the frame matched to detected spots: (catalog indices, spots, spot indices).
+
+    A star counts when one spot lies within match_radius_px of its projection, no other
+    catalog star lies within isolation_px (blends) and the spot's peak is below the
+    saturation level (fit_stars also drops stamps with a pixel at it).
+    """
     spots = extract_spots(frame.image, config)
     camera = frame.camera
     u, v, front = camera.project(catalog.unit_vectors() @ frame.rotation)
@@ -343,11 +384,13 @@ def identified_stars(frame: ProfileFrame, catalog: StarCatalog, config: Centroid
 
 
 def fit_stars(frames: list[ProfileFrame], catalog: StarCatalog, config: CentroidConfig, noise_adu: float = 0.0):
-    """fit_star (with the background noise noise_adu [ADU]) on every identified, isolated,
-    unsaturated star of every frame: (StarFits, rows (model signal above background [ADU],
-    squared residual / (1 - leverage) [ADU^2]) of all star pixels: an unbiased estimate of each
-    pixel's noise variance, since the fit itself absorbs part of the noise of its brightest
-    pixels)."""
+    """
+    fit_star (with the background noise noise_adu [ADU]) on every identified, isolated, unsaturated star of every frame.
+
+    (StarFits, rows (model signal above background [ADU], squared residual / (1 - leverage)
+    [ADU^2]) of all star pixels: an unbiased estimate of each pixel's noise variance, since the
+    fit itself absorbs part of the noise of its brightest pixels).
+    """
     columns = {name: [] for name in StarFits.__dataclass_fields__}
     residuals = []
     for index, frame in enumerate(frames):
@@ -381,11 +424,14 @@ def fit_stars(frames: list[ProfileFrame], catalog: StarCatalog, config: Centroid
 
 def photon_transfer_from_stars(residuals: np.ndarray, background_noise_adu: float, min_signal_adu: float = 2.0,
                                bins: int = 12) -> tuple[Measured, float, np.ndarray]:
-    """Inverse gain from star pixels: residual variance in log-spaced bins of the model signal
-    S (pixels from min_signal_adu up), fitted as var = s_bg^2 + S/g + (k S)^2 (s_bg fixed,
-    weights from the bin counts). Returns (1/g [ADU/e-] with its 1-sigma from the weighted fit's
-    covariance; it may be consistent with 0 when shot noise is too small to see, k^2 [-], rows
-    (S, var, count))."""
+    """
+    Inverse gain from star pixels.
+
+    Residual variance in log-spaced bins of the model signal S (pixels from min_signal_adu up),
+    fitted as var = s_bg^2 + S/g + (k S)^2 (s_bg fixed, weights from the bin counts). Returns
+    (1/g [ADU/e-] with its 1-sigma from the weighted fit's covariance; it may be consistent with
+    0 when shot noise is too small to see, k^2 [-], rows (S, var, count)).
+    """
     signal, squared = residuals[:, 0], residuals[:, 1]
     use = signal >= min_signal_adu
     edges = np.geomspace(min_signal_adu, max(signal[use].max(), min_signal_adu * 2), bins + 1)
@@ -411,8 +457,11 @@ def photon_transfer_from_stars(residuals: np.ndarray, background_noise_adu: floa
 
 
 def _robust_linear_fit(design: np.ndarray, values: np.ndarray, clip: float = 3.0):
-    """Least squares with iterative clipping of residuals beyond `clip` sigma: (coefficients,
-    their covariance scaled by the residual scatter)."""
+    """
+    Least squares with iterative clipping of residuals beyond `clip` sigma.
+
+    (coefficients, their covariance scaled by the residual scatter).
+    """
     keep = np.isfinite(values)
     for _ in range(5):
         coef, *_ = np.linalg.lstsq(design[keep], values[keep], rcond=None)
@@ -427,9 +476,12 @@ def _robust_linear_fit(design: np.ndarray, values: np.ndarray, clip: float = 3.0
 
 
 def fit_zero_point(r2: np.ndarray, values: np.ndarray) -> tuple[Measured, Measured]:
-    """Fit values = z0 + log10(1 - a r2) (r2 = r^2/r_c^2 of each star, values = log10 of its
-    flux per second + 0.4 Hp) with a robust (soft L1) loss at the data's MAD scatter:
-    (z0 [log10 flux/s at Hp 0 at the centre], a [-]); 1-sigma from the Jacobian and the scatter."""
+    """
+    Fit values = z0 + log10(1 - a r2) with a robust (soft L1) loss at the data's MAD scatter.
+
+    r2 = r^2/r_c^2 of each star, values = log10 of its flux per second + 0.4 Hp. Returns (z0
+    [log10 flux/s at Hp 0 at the centre], a [-]); 1-sigma from the Jacobian and the scatter.
+    """
     def residual(p):
         return p[0] + np.log10(1.0 - p[1] * r2) - values
 
@@ -469,9 +521,12 @@ def robust_mean(values: np.ndarray, clip: float = 3.0) -> Measured:
 # ------------------------------------------------------------------ the whole profile
 def fit_camera_profile(frames: list[ProfileFrame], catalog: StarCatalog, psf_sigma_guess_px: float = 1.0,
                        saturation_adu: float = 255.0, tile_px: int = 64) -> CameraProfile:
-    """Fit the profile to frames of one camera setting (same exposure and gain); see the
-    module docstring for the methods. catalog: stars (Hp, B-V) at the frames' epoch, to a
-    magnitude a little fainter than the faintest detected star."""
+    """
+    Fit the profile to frames of one camera setting (same exposure and gain); see the module docstring for the methods.
+
+    catalog: stars (Hp, B-V) at the frames' epoch, to a magnitude a little fainter than the
+    faintest detected star.
+    """
     if not frames:
         raise ValueError("need at least one frame")
     height, width = frames[0].image.shape

@@ -1,4 +1,6 @@
-"""Spacecraft attitude motion profiles.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Spacecraft attitude motion profiles.
 
 An attitude is the sensor -> ICRS rotation matrix R (v_icrs = R v_sensor). Body rates omega are
 expressed in the sensor frame [rad/s], so dR/dt = R [omega x]. Times are seconds on the node's
@@ -99,7 +101,8 @@ def _set(obj, **values) -> None:  # assign validated fields of a frozen dataclas
 
 @dataclass(frozen=True)
 class ConstantRateMotion(MotionProfile):
-    """R(t) = R0 exp([omega x] (t - t0)): a fixed attitude when omega = 0.
+    """
+    R(t) = R0 exp([omega x] (t - t0)): a fixed attitude when omega = 0.
 
     initial_rotation: R0 at time t0 [s]; body_rate: omega in the sensor frame [rad/s].
     """
@@ -122,7 +125,8 @@ class ConstantRateMotion(MotionProfile):
 
 @dataclass(frozen=True, eq=False)
 class SlewMotion(MotionProfile):
-    """Eigen-axis slew with a trapezoidal rate profile.
+    """
+    Eigen-axis slew with a trapezoidal rate profile.
 
     Rest at R0 until t0 + t_start; then rotation about the body-fixed axis: accelerate at
     accel_rad_s2 up to max_rate_rad_s, coast, decelerate at accel_rad_s2 (a triangular profile
@@ -187,7 +191,8 @@ class SlewMotion(MotionProfile):
 
 @dataclass(frozen=True, eq=False)
 class JitterMotion(MotionProfile):
-    """Sinusoidal jitter on top of a base profile.
+    """
+    Sinusoidal jitter on top of a base profile.
 
     R(t) = R_base(t) exp([theta(t) x]), theta(t) = sum_i A_i sin(2 pi f_i (t - t0) + phi_i): a
     rotation vector in the sensor frame [rad]; t0 = base.t0 (0 if the base has none).
@@ -224,7 +229,7 @@ class JitterMotion(MotionProfile):
         _set(self, amplitudes_rad=amp, frequencies_hz=freq, phases_rad=phase)
 
     def _theta(self, times) -> tuple[np.ndarray, np.ndarray]:
-        """theta (K, 3) [rad] and dtheta/dt (K, 3) [rad/s]."""
+        """Return theta (K, 3) [rad] and dtheta/dt (K, 3) [rad/s]."""
         omega = 2 * np.pi * self.frequencies_hz[:, None]  # (N, 1)
         arg = omega * (_times(times) - getattr(self.base, "t0", 0.0))[:, None, None] + self.phases_rad
         return (np.sum(self.amplitudes_rad * np.sin(arg), axis=1),
@@ -245,7 +250,8 @@ _TUMBLE_RTOL = 1e-12  # DOP853 + dense output: < 1e-10 rad over 100 s at ~1 rad/
 
 @dataclass(frozen=True, eq=False)
 class TumbleMotion(MotionProfile):
-    """Torque-free rigid body whose principal axes are the sensor axes.
+    """
+    Torque-free rigid body whose principal axes are the sensor axes.
 
     Euler's equations I domega/dt = (I omega) x omega with the kinematics dq/dt = q (x) (omega, 0) / 2,
     integrated with DOP853 (rtol 1e-12) and evaluated from its dense output. Integration is lazy
@@ -325,7 +331,8 @@ class TumbleMotion(MotionProfile):
 
 @dataclass(frozen=True, eq=False)
 class SampledMotion(MotionProfile):
-    """Attitude truth supplied as samples (e.g. by a dynamics simulator).
+    """
+    Attitude truth supplied as samples (e.g. by a dynamics simulator).
 
     times: (M,) strictly increasing [s]; quaternions: (M, 4) xyzw sensor -> ICRS (normalized here,
     either sign); rates: optional (M, 3) body rates in the sensor frame [rad/s];
@@ -415,8 +422,11 @@ class SampledMotion(MotionProfile):
         return self._buffer["step"][self.times.size - 2] / (self.times[-1] - self.times[-2])
 
     def _interval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Index of the sample starting each time's interval (the last one when past it) and the
-        time elapsed since that sample [s]."""
+        """
+        Return the index of the sample starting each time's interval and the time since that sample [s].
+
+        The index is the last sample's when past it.
+        """
         i = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, self.times.size - 1)
         return i, t - self.times[i]
 
@@ -452,12 +462,13 @@ _PARAMETERS = {
     "slew": (("axis", "angle_rad", "max_rate_rad_s", "accel_rad_s2"), {"t0": 0.0, "t_start": 0.0}),
     "tumble": (("initial_rate_rad_s", "inertia_kg_m2"), {"t0": 0.0}),
     "jitter": (("amplitudes_rad", "frequencies_hz"), {"body_rate_rad_s": (0.0, 0.0, 0.0), "phases_rad": 0.0,
-                                                       "t0": 0.0}),
+                                                      "t0": 0.0}),
 }
 
 
 def motion_from_parameters(kind: str, initial_rotation, **kwargs) -> MotionProfile:
-    """Build a motion profile from plain values (floats and flat lists, as ROS parameters give them).
+    """
+    Build a motion profile from plain values (floats and flat lists, as ROS parameters give them).
 
     initial_rotation: 3x3 sensor -> ICRS rotation at t0. Every kind takes t0 [s] (default 0).
       "fixed": no other parameter.

@@ -1,6 +1,10 @@
-"""Star-field rendering: radiometry, pixel-integrated Gaussian PSF, motion smear over the
-exposure (global or rolling shutter), frame-transfer smear, detector effects and noise, with
-the parameters of sensor.SensorModel and FalseObjectModel; every frame comes with its truth.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Star-field rendering.
+
+Radiometry, pixel-integrated Gaussian PSF, motion smear over the exposure (global or rolling
+shutter), frame-transfer smear, detector effects and noise, with the parameters of
+sensor.SensorModel and FalseObjectModel; every frame comes with its truth.
 
 Units: electrons [e-] inside, ADU on output; angles in radians; times in seconds. Equations
 are in docs/SIMULATOR.md. A frame is reproducible from (fixed-pattern seed, frame seed).
@@ -26,10 +30,14 @@ KIND_STAR, KIND_PLANET, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL = 0, 1, 2, 
 
 @dataclass(frozen=True)
 class FalseObjectModel:
-    """Non-star objects drawn anew each frame. Planets: bright points fixed on the sky
-    (they smear like stars), instrument magnitude uniform in planet_magnitude_range. Debris:
-    objects moving across the image at debris_speed_px_s [px/s] (uniform in the range, random
-    direction), magnitude uniform in debris_magnitude_range."""
+    """
+    Non-star objects drawn anew each frame.
+
+    Planets: bright points fixed on the sky (they smear like stars), instrument magnitude
+    uniform in planet_magnitude_range. Debris: objects moving across the image at
+    debris_speed_px_s [px/s] (uniform in the range, random direction), magnitude uniform in
+    debris_magnitude_range.
+    """
 
     planets_per_frame: int = parameter(0, "bright non-catalog points per frame", "", 0, 100)
     planet_magnitude_range: tuple[float, float] = parameter((-1.0, 2.0), "planets' instrument magnitude range "
@@ -56,7 +64,8 @@ class FalseObjectModel:
 
 @dataclass(frozen=True)
 class FrameTruth:
-    """What the simulator used for one frame.
+    """
+    What the simulator used for one frame.
 
     stamp_s: mid-exposure time [s]; rotation: sensor -> ICRS at mid-exposure; body_rate:
     [rad/s] in the sensor frame at mid-exposure. Per object (stars, then planets, debris,
@@ -89,9 +98,11 @@ class RenderedFrame:
 
 
 class _Listed(NamedTuple):
-    """FrameTruth's per-object columns for one group of objects (stars and planets, debris,
-    cosmic rays, hot pixels): kind, hip, x, y [px], electrons [e-] before vignetting,
-    extent_px [px]."""
+    """
+    FrameTruth's per-object columns for one group of objects (stars and planets, debris, cosmic rays, hot pixels).
+
+    Kind, hip, x, y [px], electrons [e-] before vignetting, extent_px [px].
+    """
 
     kind: np.ndarray
     hip: np.ndarray
@@ -106,9 +117,12 @@ class _Listed(NamedTuple):
 
 
 class _SkyObjects(NamedTuple):
-    """Objects fixed on the sky in one frame: vectors (N, 3) apparent ICRS unit vectors,
-    electrons (N,) expected per exposure [e-], kind (KIND_STAR / KIND_PLANET), hip (0 for
-    planets)."""
+    """
+    Objects fixed on the sky in one frame.
+
+    Vectors (N, 3) apparent ICRS unit vectors, electrons (N,) expected per exposure [e-],
+    kind (KIND_STAR / KIND_PLANET), hip (0 for planets).
+    """
 
     vectors: np.ndarray
     electrons: np.ndarray
@@ -117,8 +131,12 @@ class _SkyObjects(NamedTuple):
 
 
 class _Debris(NamedTuple):
-    """One frame's debris: tracks u, v (n, steps) [px] over the exposure, step_electrons
-    (n, steps) [e-] per step, and their truth listing (at mid-exposure, track length)."""
+    """
+    One frame's debris.
+
+    Tracks u, v (n, steps) [px] over the exposure, step_electrons (n, steps) [e-] per step,
+    and their truth listing (at mid-exposure, track length).
+    """
 
     u: np.ndarray
     v: np.ndarray
@@ -132,9 +150,12 @@ def frame_seed(seed: int, frame_index: int) -> int:
 
 
 class StarFieldRenderer:
-    """Renders frames for a camera, sensor, catalog (stars to a magnitude limit) and false
-    objects. The fixed pattern (PRNU, DSNU, hot pixels) is drawn once from `fixed_pattern_seed`.
-    observer_velocity_m_s: ICRS velocity of the spacecraft for stellar aberration [m/s]."""
+    """
+    Renders frames for a camera, sensor, catalog (stars to a magnitude limit) and false objects.
+
+    The fixed pattern (PRNU, DSNU, hot pixels) is drawn once from `fixed_pattern_seed`.
+    observer_velocity_m_s: ICRS velocity of the spacecraft for stellar aberration [m/s].
+    """
 
     def __init__(self, camera: CameraModel, sensor: SensorModel, catalog: StarCatalog,
                  magnitude_limit: float = 7.5, false_objects: FalseObjectModel = FalseObjectModel(),
@@ -184,12 +205,14 @@ class StarFieldRenderer:
 
     # ------------------------------------------------------------------ rendering
     def render(self, motion, stamp_s: float, seed: int) -> RenderedFrame:
-        """Render the exposure centred on stamp_s [s] (the middle row's mid-exposure).
+        """
+        Render the exposure centred on stamp_s [s] (the middle row's mid-exposure).
 
         motion: provides rotations_at(times) -> (K, 3, 3) sensor->ICRS and
         angular_velocity_at(t) -> (3,) [rad/s]; seed: frame seed (see frame_seed). The random
         draws come in a fixed order (planets, debris, detector noise, cosmic rays), so a frame
-        is reproducible from its seed."""
+        is reproducible from its seed.
+        """
         rng = np.random.default_rng(seed)
         rot_mid = motion.rotations_at(np.array([stamp_s]))[0]
         body_rate = np.asarray(motion.angular_velocity_at(stamp_s), dtype=float)
@@ -214,8 +237,12 @@ class StarFieldRenderer:
         return RenderedFrame(image=self._digitize(image_e), truth=truth, substeps=substeps)
 
     def _sky_objects(self, rot_mid: np.ndarray, rng: np.random.Generator) -> _SkyObjects:
-        """Objects fixed on the sky: catalog stars near the boresight, then this frame's planets
-        (drawn uniformly over the image at mid-exposure)."""
+        """
+        Objects fixed on the sky.
+
+        Catalog stars near the boresight, then this frame's planets (drawn uniformly over the
+        image at mid-exposure).
+        """
         cam, sensor, fo = self.camera, self.sensor, self.false_objects
         near = np.flatnonzero(self.star_vectors @ rot_mid[:, 2] > self._cos_search)
         vectors = [self.star_vectors[near]]
@@ -233,9 +260,12 @@ class StarFieldRenderer:
                            np.concatenate(hips))
 
     def _substep_offsets(self, motion, stamp_s: float, rot_mid: np.ndarray) -> np.ndarray:
-        """Sub-step times relative to mid-exposure (K,) [s]: no object moves more than
-        max_substep_px between two of them. The image path of the corners and centre over the
-        exposure bounds it (roll moves the centre not at all)."""
+        """
+        Sub-step times relative to mid-exposure (K,) [s]: no object moves more than max_substep_px between two of them.
+
+        The image path of the corners and centre over the exposure bounds it (roll moves the
+        centre not at all).
+        """
         cam, exposure = self.camera, self.sensor.exposure_s
         row_time = self.sensor.rolling_shutter_row_time_s
         probe_times = stamp_s + np.linspace(-0.5, 0.5, 9) * (exposure + abs(row_time) * cam.height)
@@ -245,8 +275,12 @@ class StarFieldRenderer:
         return ((np.arange(substeps) + 0.5) / substeps - 0.5) * exposure
 
     def _debris(self, rng: np.random.Generator, substeps: int) -> _Debris:
-        """This frame's debris: straight tracks in the image (their angular motion dominates
-        the attitude's), sampled finely enough that a step moves at most max_substep_px."""
+        """
+        Return this frame's debris.
+
+        Straight tracks in the image (their angular motion dominates the attitude's),
+        sampled finely enough that a step moves at most max_substep_px.
+        """
         cam, sensor, fo = self.camera, self.sensor, self.false_objects
         exposure = sensor.exposure_s
         n = fo.debris_per_frame
@@ -264,9 +298,12 @@ class StarFieldRenderer:
 
     def _collected_light(self, u: np.ndarray, v: np.ndarray, sky_step_electrons: np.ndarray,
                          debris: _Debris | None) -> np.ndarray:
-        """Expected signal electrons (H, W) [e-] collected over the exposure: the sky tracks u, v
-        (N, K) [px] with sky_step_electrons (N,) per sub-step, the debris tracks, then
-        vignetting, PRNU and frame-transfer smear."""
+        """
+        Return the expected signal electrons (H, W) [e-] collected over the exposure.
+
+        The sky tracks u, v (N, K) [px] with sky_step_electrons (N,) per sub-step, the debris
+        tracks, then vignetting, PRNU and frame-transfer smear.
+        """
         cam, sensor = self.camera, self.sensor
         signal = np.zeros((cam.height, cam.width), np.float32)
         per_step = np.broadcast_to(sky_step_electrons[:, None], u.shape)
@@ -283,8 +320,11 @@ class StarFieldRenderer:
 
     def _frame_truth(self, stamp_s: float, rot_mid: np.ndarray, body_rate: np.ndarray,
                      listed: list[_Listed]) -> FrameTruth:
-        """FrameTruth of the objects that can put light on the chip (PSF wings and streaks
-        included), their expected electrons scaled by the vignetting where they land."""
+        """
+        Return the FrameTruth of the objects that can put light on the chip (PSF wings and streaks included).
+
+        Their expected electrons scaled by the vignetting where they land.
+        """
         cam = self.camera
         u_all = np.concatenate([group.x for group in listed])
         v_all = np.concatenate([group.y for group in listed])
@@ -303,8 +343,11 @@ class StarFieldRenderer:
                           extent_px=extent[on_chip])
 
     def _probe_paths(self, rotations: np.ndarray, rot_mid: np.ndarray):
-        """Image positions (P, K, 2) over `rotations` of the sky directions that sit at the image
-        corners and centre at mid-exposure."""
+        """
+        Return image positions (P, K, 2) over `rotations` of the sky directions at the image corners and centre.
+
+        The directions are those at the corners and the centre at mid-exposure.
+        """
         cam = self.camera
         px = np.array([0, cam.width - 1, 0, cam.width - 1, cam.cx], dtype=float)
         py = np.array([0, 0, cam.height - 1, cam.height - 1, cam.cy], dtype=float)
@@ -313,9 +356,12 @@ class StarFieldRenderer:
         return np.stack([u, v], axis=-1)
 
     def _sky_tracks(self, motion, rot_mid, vectors, stamp_s, offsets, row_time):
-        """Pixel tracks (N, K) of sky-fixed objects over the exposure, and their positions at
-        their own mid-exposure. Under a rolling shutter each object's exposure is shifted by
-        its row's delay; tracks are then interpolated on a common time grid."""
+        """
+        Pixel tracks (N, K) of sky-fixed objects over the exposure, and their positions at their own mid-exposure.
+
+        Under a rolling shutter each object's exposure is shifted by its row's delay; tracks
+        are then interpolated on a common time grid.
+        """
         cam = self.camera
         u_mid, v_mid, front = cam.project(vectors @ rot_mid)
         u_mid = np.where(front, u_mid, np.nan)
@@ -349,13 +395,15 @@ class StarFieldRenderer:
         return u, v, own_mid_u[:, 0], own_mid_v[:, 0]
 
     def _accumulate(self, signal: np.ndarray, u: np.ndarray, v: np.ndarray, electrons: np.ndarray) -> None:
-        """Add objects' smeared, pixel-integrated Gaussian PSFs to `signal` (H, W) in place.
+        """
+        Add objects' smeared, pixel-integrated Gaussian PSFs to `signal` (H, W) in place.
 
         u, v, electrons: (N, K) track of each object over K sub-steps [px] (NaN = not visible)
         and the electrons of each sub-step. Each pixel gets the PSF integral over its area
         (separable: erf differences along x and y), so over an object's bounding box the
         smeared image is sum_k e_k py_k (x) px_k = PY^T diag(e) PX. All objects are done as
-        one batched matrix product over a common window size, then one scatter-add."""
+        one batched matrix product over a common window size, then one scatter-add.
+        """
         cam, half = self.camera, self._half
         finite = np.isfinite(u) & np.isfinite(v)
         keep = finite.any(axis=1)
@@ -389,7 +437,8 @@ class StarFieldRenderer:
             np.add.at(flat_signal, flat, blocks[valid].astype(np.float32))  # no full-frame pass
 
     def _detector(self, signal: np.ndarray, rng: np.random.Generator, seed: int) -> np.ndarray:
-        """Electrons read out: expected static level + signal with shot and read noise.
+        """
+        Electrons read out: expected static level + signal with shot and read noise.
 
         Pixels with object signal get exact Poisson draws of (signal + static level). Elsewhere
         shot noise of the static level (sky + dark, tens of e- or more) and read noise are one
@@ -408,8 +457,11 @@ class StarFieldRenderer:
         return electrons
 
     def _cosmic_rays(self, electrons: np.ndarray, rng: np.random.Generator) -> _Listed:
-        """Add cosmic-ray tracks (straight, 1-15 px, exponential energy) in place; returns their
-        listing: centres x, y [px], deposited charge [e-] and track length [px]."""
+        """
+        Add cosmic-ray tracks (straight, 1-15 px, exponential energy) in place.
+
+        Returns their listing: centres x, y [px], deposited charge [e-] and track length [px].
+        """
         cam, sensor = self.camera, self.sensor
         area_cm2 = cam.width * cam.height * (sensor.pixel_pitch_m * 100.0) ** 2
         count = rng.poisson(sensor.cosmic_ray_rate_per_cm2_s * area_cm2 * sensor.exposure_s)
@@ -428,10 +480,12 @@ class StarFieldRenderer:
         return _Listed.cosmic_rays(centre[:, 0], centre[:, 1], energy, length)
 
     def _digitize(self, electrons: np.ndarray) -> np.ndarray:
-        """Full-well clip (no blooming), gain, bias, rounding, ADC range -> uint16 [ADU].
+        """
+        Full-well clip (no blooming), gain, bias, rounding, ADC range -> uint16 [ADU].
 
         `electrons` already holds read noise, which comes from the output amplifier and may
-        be negative (that is what the bias is for): only the ADC range clips the low end."""
+        be negative (that is what the bias is for): only the ADC range clips the low end.
+        """
         sensor = self.sensor
         np.minimum(electrons, sensor.full_well_e, out=electrons)
         electrons *= 1.0 / sensor.gain_e_per_adu

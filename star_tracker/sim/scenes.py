@@ -1,4 +1,6 @@
-"""Synthetic centroid-list scenes with known truth, for identification tests and benchmarks.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Synthetic centroid-list scenes with known truth, for identification tests and benchmarks.
 
 A scene is what a centroider would report for a random attitude: the projected positions of
 the catalog stars in the field of view plus Gaussian noise, fluxes from the stars' Hp
@@ -26,7 +28,8 @@ FLUX_AT_MAG0 = 1.0e6  # flux of an Hp = 0 star in the scenes [arbitrary units]
 
 @dataclass(frozen=True)
 class SceneSetup:
-    """One test setup.
+    """
+    One test setup.
 
     camera: the pixel grid and optics; fov_radius_rad: circular field stop around the
     boresight (None: the whole rectangular image) [rad]; magnitude_limit: faintest star that
@@ -56,8 +59,12 @@ class SceneSetup:
 
 @dataclass(frozen=True)
 class Scene:
-    """spots: the centroid list, brightest first; rotation: true sensor->ICRS matrix;
-    hip: (N,) HIP id behind each spot, 0 for false stars; setup: how it was made."""
+    """
+    spots: the centroid list, brightest first.
+
+    Rotation: true sensor->ICRS matrix; hip: (N,) HIP id behind each spot, 0 for false
+    stars; setup: how it was made.
+    """
 
     spots: Spots
     rotation: np.ndarray
@@ -86,8 +93,11 @@ def _inside_field(setup: SceneSetup, u: np.ndarray, v: np.ndarray, rays: np.ndar
 
 def _random_field_points(setup: SceneSetup, count: int, rng: np.random.Generator,
                          avoid: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel positions uniform over the field (by rejection), at least min_separation_px from
-    every position in `avoid` (u, v) [px]."""
+    """
+    Return pixel positions uniform over the field (by rejection).
+
+    Each at least min_separation_px from every position in `avoid` (u, v) [px].
+    """
     xs, ys = [], []
     camera, have = setup.camera, 0
     while have < count:
@@ -105,8 +115,12 @@ def _random_field_points(setup: SceneSetup, count: int, rng: np.random.Generator
 
 def make_scene(setup: SceneSetup, catalog: StarCatalog, rng: np.random.Generator,
                rotation: np.ndarray | None = None, max_redraws: int = 1000) -> Scene:
-    """One scene for a random (or the given) attitude. `catalog` is at the scene epoch.
-    When `real_stars` is set and the field holds fewer stars, a new attitude is drawn."""
+    """
+    One scene for a random (or the given) attitude.
+
+    `catalog` is at the scene epoch. When `real_stars` is set and the field holds fewer
+    stars, a new attitude is drawn.
+    """
     stars = catalog.brighter_than(setup.magnitude_limit)
     vectors = stars.unit_vectors()
     camera = setup.camera
@@ -149,7 +163,8 @@ def make_scene(setup: SceneSetup, catalog: StarCatalog, rng: np.random.Generator
     noise_px = setup.noise_px
     x = u + rng.normal(scale=noise_px, size=u.size)
     y = v + rng.normal(scale=noise_px, size=v.size)
-    measured_mag = magnitude + rng.normal(scale=setup.magnitude_sigma, size=magnitude.size) if setup.magnitude_sigma else magnitude
+    measured_mag = magnitude + rng.normal(scale=setup.magnitude_sigma,
+                                          size=magnitude.size) if setup.magnitude_sigma else magnitude
     flux = FLUX_AT_MAG0 * 10.0 ** (-0.4 * measured_mag)
     order = np.argsort(-flux, kind="stable")
     if setup.brightest is not None:
@@ -177,9 +192,12 @@ SETUPS: dict[str, SceneSetup] = {s.name: s for s in (
     # Toloei gives no noise figure; 0.1 px is what our centroider reaches on the nominal camera
     # for stars of SNR >= 20 (docs/BENCHMARKS.md, centroiding).
     SceneSetup("toloei_6_50", NOMINAL_CAMERA, None, 6.5, 0.1 * NOMINAL_CAMERA.pixel_scale_rad, 0.1,
-               real_stars=6, false_stars=50, description="Toloei: 6 real stars among 56 spots (nominal camera, 0.1 px)"),
+               real_stars=6, false_stars=50,
+               description="Toloei: 6 real stars among 56 spots (nominal camera, 0.1 px)"),
     SceneSetup("toloei_4_136", NOMINAL_CAMERA, None, 6.5, 0.1 * NOMINAL_CAMERA.pixel_scale_rad, 0.1,
-               real_stars=4, false_stars=136, description="Toloei: 4 real stars among 140 spots (nominal camera, 0.1 px)"),
+               real_stars=4, false_stars=136,
+               description="Toloei: 4 real stars among 140 spots (nominal camera, 0.1 px)"),
     SceneSetup("fast", _circular_camera(np.radians(11.3)), np.radians(11.3 / 2), 7.0, 10.0 * ARCSEC_RAD, 0.3,
-               brightest=8, description="van Bezooijen FAST: 11.3 deg circular FOV, 10 arcsec, brightest 8 spots, 0.3 mag"),
+               brightest=8,
+               description="van Bezooijen FAST: 11.3 deg circular FOV, 10 arcsec, brightest 8 spots, 0.3 mag"),
 )}

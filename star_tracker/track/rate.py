@@ -1,4 +1,6 @@
-"""Body angular velocity from successive attitudes (and, when stars are smeared, from streaks).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Body angular velocity from successive attitudes (and, when stars are smeared, from streaks).
 
 Model: over a short window the body rate is constant, so the attitudes R_i (sensor -> ICRS)
 at times t_i follow R(t) = R_ref exp([a + omega (t - t_ref)]x) with omega in the sensor
@@ -29,8 +31,12 @@ from ..models.attitude import matrix_to_rotation_vector
 
 @dataclass(frozen=True)
 class RateEstimate:
-    """angular_velocity: (3,) body rate in the sensor frame [rad/s] at `stamp_ns`;
-    covariance: (3, 3) [rad^2/s^2]; frames: attitudes used."""
+    """
+    angular_velocity.
+
+    (3,) body rate in the sensor frame [rad/s] at `stamp_ns`; covariance: (3, 3)
+    [rad^2/s^2]; frames: attitudes used.
+    """
 
     stamp_ns: int
     angular_velocity: np.ndarray
@@ -50,7 +56,8 @@ class AttitudeRateEstimator:
                  max_frames: int = 8):
         if not (window_s > 0 and max_angular_acceleration_rad_s2 >= 0 and max_frames >= 2):
             raise ValueError(f"invalid rate estimator settings: window_s={window_s}, "
-                             f"max_angular_acceleration_rad_s2={max_angular_acceleration_rad_s2}, max_frames={max_frames}")
+                             f"max_angular_acceleration_rad_s2={max_angular_acceleration_rad_s2}, "
+                             f"max_frames={max_frames}")
         self.window_ns = int(window_s * 1e9)
         self.alpha_max = float(max_angular_acceleration_rad_s2)
         # The window, oldest first, in arrays (the fit is compiled): stamps [ns], rotations
@@ -66,8 +73,11 @@ class AttitudeRateEstimator:
         self._count = 0
 
     def add(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray) -> RateEstimate | None:
-        """Add a verified attitude; return the rate at `stamp_ns` once two attitudes are in the
-        window, else None. Stamps must increase; an older one restarts the window."""
+        """
+        Add a verified attitude; return the rate at `stamp_ns` once two attitudes are in the window, else None.
+
+        Stamps must increase; an older one restarts the window.
+        """
         stamp_ns = int(stamp_ns)
         if self._count and stamp_ns <= self._stamps[self._count - 1]:
             self._count = 0
@@ -90,10 +100,14 @@ class AttitudeRateEstimator:
         return self.estimate()
 
     def estimate(self) -> RateEstimate | None:
-        """The rate at the newest attitude: the longest window (newest frames) whose fit passes
-        two chi^2 tests at 1 % (all residuals; the newest attitude's own residual, which an
-        acceleration change since the previous frame shows first); a failed test drops the
-        oldest attitude and refits, down to two."""
+        """
+        Return the rate at the newest attitude.
+
+        The longest window (newest frames) whose fit passes two chi^2 tests at 1 % (all
+        residuals; the newest attitude's own residual, which an acceleration change since the
+        previous frame shows first); a failed test drops the oldest attitude and refits, down
+        to two.
+        """
         count = self._count
         if count < 2:
             return None
@@ -119,9 +133,12 @@ def _chi2_limits(max_dof: int) -> np.ndarray:
 
 
 def _relative_rotation_vectors(rotations: np.ndarray) -> np.ndarray:
-    """(k, 3) rotation vectors [rad] of R_newest^T R_k for (k, 3, 3) rotations (newest last),
-    from the antisymmetric part (compiled; exact below pi/2, which a rate window never
-    approaches; larger angles fall back to matrix_to_rotation_vector)."""
+    """
+    Return the (k, 3) rotation vectors [rad] of R_newest^T R_k for (k, 3, 3) rotations (newest last).
+
+    From the antisymmetric part (compiled; exact below pi/2, which a rate window never
+    approaches; larger angles fall back to matrix_to_rotation_vector).
+    """
     phi, small = _relative_small_rotation_vectors(np.ascontiguousarray(rotations, dtype=float))
     if small:
         return phi
@@ -178,12 +195,16 @@ def _inverse3(matrix):
 
 @njit(cache=True)
 def _window_fit(tau, phi, weight, newest_covariance, alpha_max, limits):
-    """estimate()'s window loop: GLS fits of phi(tau) [rad] at times tau [s] (newest last,
-    tau = 0) with weights P^-1, from the whole window down to the newest two until both chi^2
-    tests pass (limits[dof]). With 4+ attitudes the fit includes a constant acceleration, so
-    the rate at the newest frame is unbiased while the body accelerates; with 2-3 it is the
-    constant-rate fit, whose slope is the rate at the weighted mean time: its lag times
-    alpha_max is added to the covariance. Returns (ok, omega [rad/s], covariance, frames)."""
+    """
+    estimate()'s window loop.
+
+    GLS fits of phi(tau) [rad] at times tau [s] (newest last, tau = 0) with weights P^-1,
+    from the whole window down to the newest two until both chi^2 tests pass (limits[dof]).
+    With 4+ attitudes the fit includes a constant acceleration, so the rate at the newest
+    frame is unbiased while the body accelerates; with 2-3 it is the constant-rate fit, whose
+    slope is the rate at the weighted mean time: its lag times alpha_max is added to the
+    covariance. Returns (ok, omega [rad/s], covariance, frames).
+    """
     count = tau.size
     for first in range(count - 1):
         frames = count - first
@@ -210,9 +231,12 @@ def _window_fit(tau, phi, weight, newest_covariance, alpha_max, limits):
 
 @njit(cache=True)
 def _gls(tau, phi, weight, newest_covariance, terms):
-    """phi_k = sum_a basis_a(tau_k) theta_a, basis = (1, tau, tau^2/2)[:terms], weights W_k:
+    """
+    phi_k = sum_a basis_a(tau_k) theta_a, basis = (1, tau, tau^2/2)[:terms], weights W_k.
+
     (ok, omega = theta_1, its covariance, chi^2, chi^2 of the newest residual). Compiled: the
-    rate fit runs on every tracked frame."""
+    rate fit runs on every tracked frame.
+    """
     count = tau.size
     size = 3 * terms
     basis = np.empty((count, terms))

@@ -1,4 +1,6 @@
-"""Body angular velocity from the streaks of a motion-smeared frame.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Body angular velocity from the streaks of a motion-smeared frame.
 
 Frames: sensor frame `star_tracker_optical` (+Z boresight, +X image right, +Y image down);
 the attitude R maps sensor to ICRS (v_icrs = R v_sensor) and the body rate omega [rad/s] is in
@@ -73,7 +75,8 @@ _JACOBIAN_STEP = 1e-6  # [rad] central-difference step on the ray (distortion in
 
 @dataclass(frozen=True)
 class StreakRate:
-    """Body rate from one frame's streaks.
+    """
+    Body rate from one frame's streaks.
 
     angular_velocity: (3,) omega [rad/s] in the sensor frame (dR/dt = R [omega x], R sensor ->
     ICRS) over the exposure; covariance: (3, 3) its covariance [rad^2/s^2]; streaks_used:
@@ -94,10 +97,14 @@ class StreakRate:
 
 
 def streak_design_matrix(camera: CameraModel, x, y, exposure_s: float) -> np.ndarray:
-    """A (N, 2, 3) [px s/rad]: the streak (end minus start) [px] of the stars imaged at
-    mid-exposure pixels (x, y) under body rate omega is A @ omega (global shutter, first order
-    in omega T). Column k is T J(b) (b x e_k), J the projection Jacobian by central
-    differences along the ray (so distortion is included)."""
+    """
+    Return the streak design matrix A (N, 2, 3) [px s/rad].
+
+    The streak (end minus start) [px] of the stars imaged at mid-exposure pixels (x, y) under
+    body rate omega is A @ omega (global shutter, first order in omega T). Column k is T J(b)
+    (b x e_k), J the projection Jacobian by central differences along the ray (so distortion
+    is included).
+    """
     rays = camera.pixel_to_ray(x, y)  # (N, 3) unit, sensor frame
     tangents = np.cross(rays[:, None, :], np.eye(3)[None, :, :])  # (N, 3, 3): [k] = b x e_k
     h = _JACOBIAN_STEP
@@ -110,7 +117,8 @@ def streak_design_matrix(camera: CameraModel, x, y, exposure_s: float) -> np.nda
 
 def rate_from_streaks(spots: Spots, camera: CameraModel, exposure_s: float, hint=None,
                       min_length_px: float = 3.0) -> StreakRate | None:
-    """Body angular velocity [rad/s, sensor frame] from the streaks of one frame.
+    """
+    Body angular velocity [rad/s, sensor frame] from the streaks of one frame.
 
     spots: the centroider's output; used: spots flagged FLAG_STREAK, not saturated, blended
     or at the image edge (their length is cut), with a finite length >= min_length_px [px],
@@ -166,7 +174,7 @@ def rate_from_streaks(spots: Spots, camera: CameraModel, exposure_s: float, hint
 # ---------------------------------------------------------------- internals
 
 def _usable_streaks(spots: Spots, min_length_px: float) -> np.ndarray:
-    """Indices of the spots whose streak length and direction are usable."""
+    """Return indices of the spots whose streak length and direction are usable."""
     flags = np.asarray(spots.flags)
     length, angle, snr = (np.asarray(a, dtype=float) for a in (spots.streak_length, spots.streak_angle, spots.snr))
     ok = ((flags & FLAG_STREAK) != 0) & ((flags & (FLAG_SATURATED | FLAG_BLENDED | FLAG_EDGE)) == 0)
@@ -178,12 +186,15 @@ def _usable_streaks(spots: Spots, min_length_px: float) -> np.ndarray:
 
 
 def _initial_senses(measured, design, shape, aided, hint):
-    """Candidate senses (n,) of +-1 for the measured streak vectors, one list per start:
-    from the hint when given; from the direction field (streak directions only, sense-free:
+    """
+    Candidate senses (n,) of +-1 for the measured streak vectors, one list per start.
+
+    From the hint when given; from the direction field (streak directions only, sense-free:
     the image motion A_i omega must be parallel to streak i, so perp(s_i) . A_i omega = 0, a
-    homogeneous system whose smallest singular vector is omega's direction); and all
-    aligned with the longest streak (a field that is mostly a translation). Rate-aided
-    streaks keep +1."""
+    homogeneous system whose smallest singular vector is omega's direction); and all aligned
+    with the longest streak (a field that is mostly a translation). Rate-aided streaks keep
+    +1.
+    """
     starts = []
     if hint is not None and np.any(hint):
         starts.append(np.sign(np.sum(measured * (design @ hint), axis=1)))
@@ -218,8 +229,11 @@ class _Fit:
 
 
 def _robust_fit(measured, design, shape, aided, senses) -> _Fit | None:
-    """Iterated weighted least squares in the streak frames (along, cross) with sense
-    re-choice and OUTLIER_SIGMA rejection, until senses and inliers settle."""
+    """
+    Fit the rate by iterated weighted least squares in the streak frames (along, cross).
+
+    With sense re-choice and OUTLIER_SIGMA rejection, until senses and inliers settle.
+    """
     n = measured.shape[0]
     unit = measured / np.linalg.norm(measured, axis=1, keepdims=True)
     frame = np.stack([unit, np.stack([-unit[:, 1], unit[:, 0]], axis=1)], axis=1)  # (n, 2, 2): rows along, cross
@@ -277,8 +291,11 @@ def _robust_fit(measured, design, shape, aided, senses) -> _Fit | None:
 
 
 def _robust_scales(normalized: np.ndarray) -> np.ndarray:
-    """Scale (along, cross) of residuals / shape from the median absolute value (1.4826 x MAD
-    about zero, the model's mean); pooled when too few streaks for two."""
+    """
+    Return the scale (along, cross) of residuals / shape from the median absolute value.
+
+    1.4826 x MAD about zero, the model's mean; pooled when too few streaks for two.
+    """
     if normalized.shape[0] >= SEPARATE_SCALES_MIN:
         scales = 1.4826 * np.median(np.abs(normalized), axis=0)
     else:
@@ -287,8 +304,11 @@ def _robust_scales(normalized: np.ndarray) -> np.ndarray:
 
 
 def _solve(projected, senses, lengths, sigma):
-    """Weighted least squares of F_i A_i omega = (sense_i |s_i|, 0): omega and its covariance
-    (inverse normal matrix); None if singular."""
+    """
+    Weighted least squares of F_i A_i omega = (sense_i |s_i|, 0).
+
+    Omega and its covariance (inverse normal matrix); None if singular.
+    """
     weighted = projected / sigma[:, :, None]  # (m, 2, 3)
     target = np.stack([senses * lengths, np.zeros_like(lengths)], axis=1) / sigma
     normal = np.einsum("mki,mkj->ij", weighted, weighted)

@@ -1,5 +1,9 @@
-"""Bag I/O without ROS (star_tracker.bags) and the bag commands on bad bags: every problem
-is an error naming it (exit code != 0, no traceback)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Bag I/O without ROS (star_tracker.bags) and the bag commands on bad bags.
+
+Every problem is an error naming it (exit code != 0, no traceback).
+"""
 from __future__ import annotations
 
 import os
@@ -29,7 +33,7 @@ def header(k: int):
 def image(k: int, encoding: str = "mono16", size: int = 32) -> bytes:
     data = np.full(size * size * 2, k % 251, np.uint8)
     msg = STORE.types["sensor_msgs/msg/Image"](header=header(k), height=size, width=size, encoding=encoding,
-                                                is_bigendian=0, step=2 * size, data=data)
+                                               is_bigendian=0, step=2 * size, data=data)
     return bytes(STORE.serialize_cdr(msg, "sensor_msgs/msg/Image"))
 
 

@@ -1,6 +1,11 @@
-"""The second renderer (bench/alt_renderer.py) knows its own truth: each PSF holds the star's
-flux, a noiseless star's centre of light is its truth position, its noise has the stated
-variance, and its Cramér–Rao bound scales as 1/sqrt(flux) for bright stars."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The second renderer (bench/alt_renderer.py) knows its own truth.
+
+Each PSF holds the star's flux, a noiseless star's centre of light is its truth position, its
+noise has the stated variance, and its Cramér–Rao bound scales as 1/sqrt(flux) for bright
+stars.
+"""
 from __future__ import annotations
 
 import sys
@@ -39,10 +44,12 @@ def test_noiseless_star_holds_its_flux_and_its_centre_of_light_is_the_truth(name
 
 def test_annulus_is_a_ring_and_its_second_moment_is_the_equivalent_sigma():
     psf = alt.AnnulusPsf.with_equivalent_sigma(3.0)
-    centre, on_ring = psf.density(np.array(0.0), np.array(0.0)), psf.density(np.array(0.75 * psf.outer_radius_px), np.array(0.0))
+    centre, on_ring = psf.density(np.array(0.0), np.array(0.0)), psf.density(np.array(0.75 * psf.outer_radius_px),
+                                                                             np.array(0.0))
     assert on_ring > 3 * centre  # dark centre: a defocused pupil's obstruction
     stamp = alt.star_stamp(psf, 30.3, 30.7)
-    rows, cols = np.mgrid[stamp.row0:stamp.row0 + stamp.fractions.shape[0], stamp.col0:stamp.col0 + stamp.fractions.shape[1]]
+    rows, cols = np.mgrid[stamp.row0:stamp.row0 + stamp.fractions.shape[0],
+                          stamp.col0:stamp.col0 + stamp.fractions.shape[1]]
     second_moment = (stamp.fractions * (cols - 30.3) ** 2).sum()  # the pixels add 1/12
     assert second_moment == pytest.approx(3.0 ** 2 + 1.0 / 12.0, rel=1e-3)
 
@@ -63,7 +70,8 @@ def test_defects_and_clipping_are_where_the_truth_says():
     second = alt.render(nobody, 0.0, detector, 200, 150, np.random.default_rng(2))
     hot = ~first.truth.defect_is_cosmic_ray
     cols, rows = first.truth.defect_x[hot].astype(int), first.truth.defect_y[hot].astype(int)
-    assert hot.sum() == 60 and np.array_equal(first.truth.defect_x[hot], second.truth.defect_x[~second.truth.defect_is_cosmic_ray])
+    assert hot.sum() == 60 and np.array_equal(first.truth.defect_x[hot],
+                                              second.truth.defect_x[~second.truth.defect_is_cosmic_ray])
     assert np.all(first.image[rows, cols] >= 4095)  # 12-bit ADC: > 4000 e- at 1 e-/ADU clips
     assert first.image.max() == 4095
     rays = first.truth.defect_is_cosmic_ray

@@ -1,5 +1,10 @@
-"""Smoke test of the identification benchmark (bench/bench_identify.py): a tiny run adds up,
-and the scoring calls a true identification correct and a wrong one incorrect."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Smoke test of the identification benchmark (bench/bench_identify.py).
+
+A tiny run adds up, and the scoring calls a true identification correct and a wrong one
+incorrect.
+"""
 from __future__ import annotations
 
 import sys
@@ -83,9 +88,12 @@ def test_peer_attitude_scoring(catalog_now):
 
     tilt = float(np.radians(2.0 / 60.0))  # 2 arcmin about the sensor x axis
     assert bench.score_attitude(solved(truth), scene) == bench.CORRECT
-    assert bench.score_attitude(solved(truth @ rotation_vector_to_matrix(np.array([tilt, 0, 0]))), scene) == bench.INCORRECT
-    assert bench.score_attitude(solved(truth @ rotation_vector_to_matrix(np.array([0, 0, 0.005]))), scene) == bench.CORRECT
-    assert bench.score_attitude(solved(truth @ rotation_vector_to_matrix(np.array([0, 0, 0.05]))), scene) == bench.INCORRECT
+    assert bench.score_attitude(solved(truth @ rotation_vector_to_matrix(np.array([tilt, 0, 0]))),
+                                scene) == bench.INCORRECT
+    assert bench.score_attitude(solved(truth @ rotation_vector_to_matrix(np.array([0, 0, 0.005]))),
+                                scene) == bench.CORRECT
+    assert bench.score_attitude(solved(truth @ rotation_vector_to_matrix(np.array([0, 0, 0.05]))),
+                                scene) == bench.INCORRECT
     assert bench.score_attitude(PeerSolution(False, "no_match", 0.001), scene) == bench.INCONCLUSIVE
     assert bench.score_attitude(PeerSolution(True, "parity_flip", 0.001), scene) == bench.INCORRECT
 

@@ -1,6 +1,10 @@
-"""The PSF-range centroiding benchmark (bench/bench_psf_range.py): its scoring against known
-positions, a few of its cases at the centroider's defaults (today's centroider meets the goals at
-the sigma it assumes, 1 px), and the quick run's report."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The PSF-range centroiding benchmark (bench/bench_psf_range.py).
+
+Its scoring against known positions, a few of its cases at the centroider's defaults (today's
+centroider meets the goals at the sigma it assumes, 1 px), and the quick run's report.
+"""
 from __future__ import annotations
 
 import json
@@ -33,7 +37,8 @@ def test_scoring_matches_stars_counts_extra_spots_and_skips_stars_next_to_defect
     assert row["median_ms"] == pytest.approx(2.0)
 
 
-@pytest.mark.parametrize("case", [bench.Case("alt", alt.GaussianPsf(1.0)), bench.Case("simulator", alt.GaussianPsf(1.0))],
+@pytest.mark.parametrize("case",
+                         [bench.Case("alt", alt.GaussianPsf(1.0)), bench.Case("simulator", alt.GaussianPsf(1.0))],
                          ids=["alt", "simulator"])
 def test_sigma_1_gaussian_at_5000_e_meets_the_goals_on_both_renderers(case):
     measure = bench.measure_alt if case.renderer == "alt" else bench.measure_simulator

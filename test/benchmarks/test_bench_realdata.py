@@ -1,5 +1,10 @@
-"""The real-image benchmark (bench/bench_realdata.py): its scoring against known rotations
-(no corpus needed) and its report. The corpus itself is solved in test_realdata_corpus.py."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The real-image benchmark (bench/bench_realdata.py).
+
+Its scoring against known rotations (no corpus needed) and its report. The corpus itself is
+solved in test_realdata_corpus.py.
+"""
 from __future__ import annotations
 
 import math
@@ -18,7 +23,7 @@ REFERENCE = radec_roll_to_matrix(math.radians(181.2), math.radians(16.8), math.r
 
 
 def rotated(reference: np.ndarray, sensor_axis: tuple[float, float, float], angle_rad: float) -> np.ndarray:
-    """`reference` (sensor -> ICRS) turned by angle_rad [rad] about a sensor-frame axis."""
+    """Return `reference` (sensor -> ICRS) turned by angle_rad [rad] about a sensor-frame axis."""
     return reference @ rotation_vector_to_matrix(np.asarray(sensor_axis, float) * angle_rad)
 
 

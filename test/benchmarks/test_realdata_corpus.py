@@ -1,11 +1,15 @@
-"""Every image of the real-image corpus (../shared/realdata, MANIFEST.json) solved by the
-`solve` command at its defaults (only the manifest's approximate field given), judged against
-the image's astrometry.net reference pointing.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Every image of the real-image corpus solved by the `solve` command at its defaults.
+
+The corpus is ../shared/realdata (MANIFEST.json); only the manifest's approximate field is
+given; each solve is judged against the image's astrometry.net reference pointing.
 
 Two claims per image: a solve is never a wrong one (within 5' of the reference: a false match
 lands degrees away), and issue 17's goal, solved within 1'. Images that miss the goal today are
 listed with the reason measured; they are strict xfails, so an image that starts meeting it
-fails the run until it is taken off the list. Skipped where the corpus is absent."""
+fails the run until it is taken off the list. Skipped where the corpus is absent.
+"""
 from __future__ import annotations
 
 import math
@@ -64,7 +68,7 @@ def _solve(image_id: str) -> tuple[int, dict | None, str]:
 
 def _ids_or_skip() -> list:
     return CORPUS_IDS or [pytest.param("absent", marks=pytest.mark.skip(reason="real-image corpus absent "
-                                                                          "(../shared/realdata)"))]
+                                                                        "(../shared/realdata)"))]
 
 
 def _goal_params() -> list:

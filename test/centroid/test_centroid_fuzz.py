@@ -1,8 +1,12 @@
-"""Property-based tests (hypothesis) of spot extraction (star_tracker.centroid) on frames as a
-sensor, a fault or an attacker makes them: spots with finite values, or ValueError with a
-message; never another exception. What the identifier node keeps of them
-(convert.drop_invalid_spots) is checked too. Defects found by fuzzing are pinned at the end,
-each with its failing input (docs/RELIABILITY.md, "Defects found by fuzzing in the core")."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Property-based tests (hypothesis) of spot extraction (star_tracker.centroid) on hostile frames.
+
+Frames as a sensor, a fault or an attacker makes them: spots with finite values, or ValueError
+with a message; never another exception. What the identifier node keeps of them (convert.drop_invalid_spots)
+is checked too. Defects found by fuzzing are pinned at the end, each with its failing input
+(docs/RELIABILITY.md, "Defects found by fuzzing in the core").
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -24,8 +28,12 @@ from fuzz_support import examples, valid_or_value_error  # noqa: E402
 
 @st.composite
 def frames(draw):
-    """Small images as a sensor, a fault or an attacker makes them: constant (black, saturated),
-    noise, star-like blobs, hot pixels, stripes, with any config and sometimes a rate aid."""
+    """
+    Small images as a sensor, a fault or an attacker makes them.
+
+    Constant (black, saturated), noise, star-like blobs, hot pixels, stripes, with any config
+    and sometimes a rate aid.
+    """
     dtype = draw(st.sampled_from([np.uint8, np.uint16]))
     top = np.iinfo(dtype).max
     height, width = draw(st.integers(1, 48)), draw(st.integers(1, 48))
@@ -69,9 +77,12 @@ def frames(draw):
 @given(frames())
 @pytest.mark.slow  # ~5 s warm, ~30 s compiling
 def test_extract_spots_on_any_frame(frame):
-    """Spots with finite positions, fluxes and SNRs, or ValueError. Covariances and positions
-    outside the image are pinned below as known defects; the identifier node drops such
-    spots (convert.drop_invalid_spots), which is checked here too."""
+    """
+    Spots with finite positions, fluxes and SNRs, or ValueError.
+
+    Covariances and positions outside the image are pinned below as known defects; the
+    identifier node drops such spots (convert.drop_invalid_spots), which is checked here too.
+    """
     image, config, smear = frame
     spots = valid_or_value_error(extract_spots, image, config, smear)
     if spots is None:
@@ -109,8 +120,11 @@ def test_saturated_spot_covariance_is_finite():
 
 
 def test_streak_fit_on_a_saturated_frame():
-    """Found by fuzzing: the streak fit did int(NaN) on this valid frame and refused it. The
-    frame is measured: its spot has finite values and lies in the image."""
+    """
+    Found by fuzzing: the streak fit did int(NaN) on this valid frame and refused it.
+
+    The frame is measured: its spot has finite values and lies in the image.
+    """
     image = SATURATED_STRIP.copy()
     image[0, 9] = 254
     spots = extract_spots(image, CentroidConfig(**EXTREME, background_block_px=4, method="streak", psf_sigma_px=0.5))

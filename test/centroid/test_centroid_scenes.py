@@ -1,6 +1,10 @@
-"""Centroider on purpose-built scenes (stars placed at chosen pixels, rendered by the simulator):
-blends, hot pixels next to stars, the selectable methods, straight and curved streaks, and
-the rate aid. Every check is against the simulator's truth."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Centroider on purpose-built scenes (stars placed at chosen pixels, rendered by the simulator).
+
+Blends, hot pixels next to stars, the selectable methods, straight and curved streaks, and the
+rate aid. Every check is against the simulator's truth.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -23,8 +27,11 @@ EXPOSURE = 0.1
 
 
 def render_stars(x, y, electrons, sensor=SensorModel(), rate=(0.0, 0.0, 0.0), seed=0):
-    """A frame with stars of `electrons` [e-] whose mid-exposure images fall at pixels (x, y).
-    Returns the frame; truth is sorted back to the input order (truth.hip = index + 1)."""
+    """
+    Return a frame with stars of `electrons` [e-] whose mid-exposure images fall at pixels (x, y).
+
+    Returns the frame; truth is sorted back to the input order (truth.hip = index + 1).
+    """
     x, y = np.asarray(x, float), np.asarray(y, float)
     ra, dec = unit_to_radec(CAMERA.pixel_to_ray(x, y) @ POINTING.T)
     hp = -2.5 * np.log10(np.asarray(electrons, float) / (sensor.zero_point_e_per_s * sensor.exposure_s))

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """frame_problem: the reason a frame gave too few spots, judged on frames whose trouble is known."""
 import numpy as np
 import pytest

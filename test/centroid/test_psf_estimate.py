@@ -1,10 +1,13 @@
-"""The centroider's PSF estimate (centroid/psf_estimate.py) and the automatic PSF mode, on our
-simulator AND on frames from a renderer written here, independently of it (pixel-integrated
-Gaussian by erf, a Moffat, a defocused annulus; Poisson + read noise; own hot pixels and
-cosmic-ray tracks), and on a real image when the corpus is present."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The centroider's PSF estimate (centroid/psf_estimate.py) and the automatic PSF mode.
+
+Tested on our simulator AND on frames from a renderer written here, independently of it
+(pixel-integrated Gaussian by erf, a Moffat, a defocused annulus; Poisson + read noise; own
+hot pixels and cosmic-ray tracks), and on a real image when the corpus is present.
+"""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +15,7 @@ import pytest
 from scipy.special import erf
 
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, PsfEstimate
+from star_tracker.centroid.psf_estimate import PsfEstimate
 
 READ_NOISE_E = 5.0
 SKY_E = 50.0  # background per pixel [e-]
@@ -24,8 +27,11 @@ SPACING = 64  # grid of isolated stars [px]
 # ---------------------------------------------------------------- a renderer of our own (not sim/)
 
 def _gaussian_stamp(dx: np.ndarray, dy: np.ndarray, sigma: float) -> np.ndarray:
-    """Fraction of a Gaussian (sigma [px]) centred at offset (dx, dy) in each pixel of the
-    stamp: the exact pixel integral, 1-D erf differences multiplied."""
+    """
+    Fraction of a Gaussian (sigma [px]) centred at offset (dx, dy) in each pixel of the stamp.
+
+    The exact pixel integral, 1-D erf differences multiplied.
+    """
     def axis(d):
         k = np.arange(-HALF, HALF + 1)[None, :] - d[:, None]
         return 0.5 * (erf((k + 0.5) / (np.sqrt(2) * sigma)) - erf((k - 0.5) / (np.sqrt(2) * sigma)))
@@ -54,15 +60,19 @@ def moffat(fwhm: float, beta: float = 3.0):
 
 
 def annulus(radius: float, width: float = 1.0):
-    """A defocused star: a ring of the given radius [px] and Gaussian cross-section 1-sigma width/2."""
+    """Return a defocused star: a ring of the given radius [px] and Gaussian cross-section 1-sigma width/2."""
     return lambda r: np.exp(-0.5 * ((r - radius) / (0.5 * width)) ** 2)
 
 
 def render(psf, snr_range=(10.0, 300.0), seed: int = 0, hot_pixels: int = 0, cosmic_rays: int = 0):
-    """One SIZE^2 uint16 frame [ADU, gain 1] of stars on a jittered SPACING grid, fluxes set so
-    that their SNR spans snr_range (log-uniform), sky SKY_E e-, Poisson + READ_NOISE_E read
-    noise. psf: a Gaussian sigma [px] (float) or a radial profile function. Returns the image,
-    the stars' (x, y) [px] and SNR, and the hot pixels' and cosmic rays' pixels (x, y)."""
+    """
+    One SIZE^2 uint16 frame [ADU, gain 1] of stars on a jittered SPACING grid.
+
+    Fluxes set so that their SNR spans snr_range (log-uniform), sky SKY_E e-, Poisson +
+    READ_NOISE_E read noise. psf: a Gaussian sigma [px] (float) or a radial profile function.
+    Returns the image, the stars' (x, y) [px] and SNR, and the hot pixels' and cosmic rays'
+    pixels (x, y).
+    """
     rng = np.random.default_rng(seed)
     centres = np.arange(SPACING // 2, SIZE - SPACING // 2 + 1, SPACING, dtype=float)
     gx, gy = np.meshgrid(centres, centres)
@@ -120,8 +130,12 @@ CONFIG = CentroidConfig(saturation_adu=60000.0)
 
 @pytest.mark.parametrize("sigma", [0.35, 0.45, 0.6, 1.0, 2.0, 3.0])
 def test_estimate_and_detection_on_foreign_gaussian_frames(sigma):
-    """Pixel-integrated Gaussians of our own renderer: the estimate is within 5 % of the true
-    sigma and >= 99 % of the SNR >= 10 stars are found with the default config."""
+    """
+    Pixel-integrated Gaussians of our own renderer.
+
+    The estimate is within 5 % of the true sigma and >= 99 % of the SNR >= 10 stars are found
+    with the default config.
+    """
     found, estimates = [], []
     for seed in range(2):
         image, xy, snr, _ = render(sigma, seed=seed)
@@ -144,13 +158,16 @@ _ALPHA = 2.5 / (2.0 * np.sqrt(2.0 ** (1.0 / 3.0) - 1.0))
     ("defocused annulus", annulus(2.5), (1.0, 2.5), 15.0),
 ])
 def test_non_gaussian_psfs_keep_their_stars(name, profile, between, complete_from):
-    """A broad-wing Moffat (FWHM 2.5 px) and a defocused annulus (radius 2.5 px): the estimate
-    is an equivalent Gaussian (the Moffat's between its core's and its second moment's widths,
-    the annulus' between 0.4x and 1x its radius); every star from SNR complete_from (the
-    Moffat's 10; the ring's 15: a Gaussian-matched filter and aperture lose a ring's faintest)
-    and >= 95 % of the SNR >= 10 ones are found, the bright ones (SNR >= 50) within 0.15 px
-    (the ring's: 70 % of them, median < 0.1 px: the blend splitter takes some bright rings'
-    two sides for two stars, a known limit)."""
+    """
+    A broad-wing Moffat (FWHM 2.5 px) and a defocused annulus (radius 2.5 px).
+
+    The estimate is an equivalent Gaussian (the Moffat's between its core's and its second
+    moment's widths, the annulus' between 0.4x and 1x its radius); every star from SNR
+    complete_from (the Moffat's 10; the ring's 15: a Gaussian-matched filter and aperture lose
+    a ring's faintest) and >= 95 % of the SNR >= 10 ones are found, the bright ones (SNR >=
+    50) within 0.15 px (the ring's: 70 % of them, median < 0.1 px: the blend splitter takes
+    some bright rings' two sides for two stars, a known limit).
+    """
     image, xy, snr, _ = render(profile, seed=3)
     spots = extract_spots(image, CONFIG)
     assert spots.psf.source == "estimated", spots.psf.reason
@@ -165,9 +182,12 @@ def test_non_gaussian_psfs_keep_their_stars(name, profile, between, complete_fro
 
 
 def test_own_hot_pixels_and_cosmic_rays_are_still_rejected_with_a_sharp_psf():
-    """An undersampled PSF (sigma 0.45 px) looks most like a hot pixel: with the estimate, the
-    shape test still rejects our own hot pixels and cosmic-ray tracks (<= 1 false detection),
-    and the estimate is not pulled by them."""
+    """
+    An undersampled PSF (sigma 0.45 px) looks most like a hot pixel.
+
+    With the estimate, the shape test still rejects our own hot pixels and cosmic-ray tracks
+    (<= 1 false detection), and the estimate is not pulled by them.
+    """
     image, xy, snr, defects = render(0.45, seed=5, hot_pixels=30, cosmic_rays=10)
     spots = extract_spots(image, CONFIG)
     assert spots.psf.sigma_px == pytest.approx(0.45, rel=0.05)
@@ -179,8 +199,11 @@ def test_own_hot_pixels_and_cosmic_rays_are_still_rejected_with_a_sharp_psf():
 
 @pytest.mark.parametrize("sigma, words", [(0.15, ""), (7.0, "outside")])
 def test_a_psf_outside_the_supported_range_falls_back_with_a_reason(sigma, words):
-    """Far too sharp (0.15 px: no star can be told from a hot pixel) or too wide (7 px): no
-    crash, the prior is used and the reason says why."""
+    """
+    Far too sharp (0.15 px: no star can be told from a hot pixel) or too wide (7 px).
+
+    No crash, the prior is used and the reason says why.
+    """
     image, xy, _, _ = render(sigma, snr_range=(50.0, 300.0), seed=7)
     spots = extract_spots(image, CONFIG)
     assert spots.psf.source == "prior"
@@ -205,8 +228,11 @@ def test_fixed_mode_and_no_psf_are_configured():
 
 
 def test_a_prior_close_to_the_truth_is_kept_and_a_far_one_replaced():
-    """Within the tolerance the frame is measured with the prior exactly (the estimate still
-    reported); a prior 2x off is replaced by the estimate (psf_prior overrides the config)."""
+    """
+    Within the tolerance the frame is measured with the prior exactly (the estimate still reported).
+
+    A prior 2x off is replaced by the estimate (psf_prior overrides the config).
+    """
     image, xy, _, _ = render(1.0, seed=4)
     near = extract_spots(image, CONFIG, psf_prior=1.04)
     assert near.psf.applied_sigma_px == 1.04
@@ -216,8 +242,11 @@ def test_a_prior_close_to_the_truth_is_kept_and_a_far_one_replaced():
 
 
 def test_an_elongated_psf_is_measured():
-    """An astigmatic PSF (sigma 1.5 x 0.9 px, major axis at 30 deg) from our renderer: axes
-    within 10 %, angle within 10 deg."""
+    """
+    An astigmatic PSF (sigma 1.5 x 0.9 px, major axis at 30 deg) from our renderer.
+
+    Axes within 10 %, angle within 10 deg.
+    """
     major, minor, angle = 1.5, 0.9, np.radians(30.0)
     c, s = np.cos(angle), np.sin(angle)
 
@@ -262,8 +291,11 @@ def test_running_psf_carries_the_median_and_resets_on_a_failed_estimate():
 
 
 def test_the_running_prior_saves_the_second_pass():
-    """A frame measured from the last frame's estimate needs one pass, and gives the same spots
-    as the two-pass measurement from a wrong prior."""
+    """
+    Check that a frame measured from the last frame's estimate needs one pass.
+
+    It gives the same spots as the two-pass measurement from a wrong prior.
+    """
     image, xy, _, _ = render(0.5, seed=9)
     cold = extract_spots(image, CONFIG)
     warm = extract_spots(image, CONFIG, psf_prior=cold.psf.sigma_px)
@@ -288,8 +320,12 @@ def _sim_frame(catalog, camera, sigma: float, seed: int, **sensor_values):
 
 @pytest.mark.parametrize("sigma", [0.4, 0.6, 1.0, 2.0, 3.0])
 def test_estimate_and_detection_on_our_simulator(catalog, nominal_camera, sigma):
-    """Our renderer at PSF sigma 0.4-3 px: estimate within 5 %, >= 99 % of the isolated
-    SNR >= 10 stars found with the default config."""
+    """
+    Our renderer at PSF sigma 0.4-3 px.
+
+    Estimate within 5 %, >= 99 % of the isolated SNR >= 10 stars found with the default
+    config.
+    """
     frame, sensor = _sim_frame(catalog, nominal_camera, sigma, seed=1)
     spots = extract_spots(frame.image, CONFIG)
     assert spots.psf.source == "estimated", spots.psf.reason
@@ -309,8 +345,11 @@ def test_estimate_and_detection_on_our_simulator(catalog, nominal_camera, sigma)
 
 
 def test_star_free_simulated_frames_with_hot_pixels_and_cosmic_rays(catalog, nominal_camera):
-    """Our simulator's hot pixels and cosmic rays (4x the node defaults' rate), no stars: <= 1
-    false detection per frame, and no PSF estimated from the defects."""
+    """
+    Our simulator's hot pixels and cosmic rays (4x the node defaults' rate), no stars.
+
+    <= 1 false detection per frame, and no PSF estimated from the defects.
+    """
     from star_tracker.models.catalog import StarCatalog
 
     empty = StarCatalog(*(np.zeros(0) for _ in range(7)))
@@ -330,9 +369,12 @@ REAL_IMAGE = "openstartracker_img2"  # 6.1 deg field, sharp stars: not solved at
 
 @pytest.mark.slow
 def test_real_image_psf_is_estimated_and_the_image_solves_at_defaults():
-    """A real camera frame (openstartracker, sharp undersampled stars): the estimate is
-    0.4-0.7 px from the image itself, and `solve --fov` at the defaults now solves it within
-    1' of the manifest (astrometry.net) reference."""
+    """
+    A real camera frame (openstartracker, sharp undersampled stars).
+
+    The estimate is 0.4-0.7 px from the image itself, and `solve --fov` at the defaults now
+    solves it within 1' of the manifest (astrometry.net) reference.
+    """
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package

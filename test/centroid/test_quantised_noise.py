@@ -1,7 +1,11 @@
-"""Noise of coarsely quantised frames (a 12-bit camera at 16 e-/ADU: pixel noise below one
-ADU, most pixels equal to the median): the robust noise estimate must not collapse to zero
-(then an unclipped standard deviation, inflated by hot pixels, set the threshold 8x too high
-and no star was detected). Frames made here, not by our simulator."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Noise of coarsely quantised frames: the robust noise estimate must not collapse to zero.
+
+A 12-bit camera at 16 e-/ADU: pixel noise below one ADU, most pixels equal to the median.
+Then an unclipped standard deviation, inflated by hot pixels, set the threshold 8x too high
+and no star was detected. Frames made here, not by our simulator.
+"""
 import numpy as np
 
 from star_tracker.centroid import CentroidConfig, extract_spots
@@ -14,7 +18,8 @@ def quantised_frame(rng, stars_xy, flux_e=1000.0, sigma_px=1.0, shape=(512, 512)
     yy, xx = np.mgrid[:shape[0], :shape[1]]
     electrons = np.full(shape, SKY_E)
     for x, y in stars_xy:
-        electrons += flux_e / (2 * np.pi * sigma_px ** 2) * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sigma_px ** 2))
+        electrons += flux_e / (2 * np.pi * sigma_px ** 2) * np.exp(-((xx - x) ** 2 + (yy - y) ** 2)
+                                                                   / (2 * sigma_px ** 2))
     signal = rng.poisson(electrons) + rng.normal(0.0, READ_E, shape)
     adu = np.clip(np.round(signal / GAIN_E_PER_ADU + BIAS_ADU), 0, 4095).astype(np.uint16)
     adu.flat[rng.choice(adu.size, hot_pixels, replace=False)] = 4000

@@ -1,5 +1,10 @@
-"""The records the centroiding steps pass each other (centroid.records): a fit step writes its
-values into a copy of the spot table and returns the stars it split off as rows of their own."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The records the centroiding steps pass each other (centroid.records).
+
+A fit step writes its values into a copy of the spot table and returns the stars it split off
+as rows of their own.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Renderer and centroider against the simulator's truth."""
 import numpy as np
 import pytest
@@ -125,7 +126,8 @@ def test_hot_pixels_and_cosmic_rays_are_never_reported_as_stars(catalog, nominal
         # blend into one spot; splitting blends is separate work) and no defect within 20 px.
         pixels = np.pi * 9.0
         snr = t.electrons[star] / np.sqrt(t.electrons[star] + pixels * (4.2 + 420 * 0.1 + 64))
-        clear = ~(np.hypot(t.x[star][:, None] - t.x[defect][None], t.y[star][:, None] - t.y[defect][None]) < 20).any(axis=1)
+        clear = ~(np.hypot(t.x[star][:, None] - t.x[defect][None],
+                           t.y[star][:, None] - t.y[defect][None]) < 20).any(axis=1)
         want = (snr >= 10) & isolated(t, 10.0)[star] & clear & (t.x[star] > 5) & (t.x[star] < 1018) \
             & (t.y[star] > 5) & (t.y[star] < 1018)
         d = np.hypot(t.x[star][want][:, None] - spots.x[None], t.y[star][want][:, None] - spots.y[None]).min(axis=1)

@@ -1,5 +1,10 @@
-"""The Spots record: building it from pixel positions (Spots.from_xy) and the checks that refuse
-malformed arrays before they reach a compiled kernel."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The Spots record.
+
+Building it from pixel positions (Spots.from_xy) and the checks that refuse malformed arrays
+before they reach a compiled kernel.
+"""
 from __future__ import annotations
 
 import numpy as np

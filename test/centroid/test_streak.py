@@ -1,4 +1,6 @@
-"""Streak centroiding (star_tracker.centroid: smear, streak_free_fit, streak_path_fit) against the simulator's truth.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Streak centroiding (star_tracker.centroid: smear, streak_free_fit, streak_path_fit) against the simulator's truth.
 
 Frames come from StarFieldRenderer with a constant body rate, so every star is smeared into a
 streak whose mid-exposure position is in frame.truth. The accuracy bound is a Cramer-Rao
@@ -41,9 +43,12 @@ def flux_for_snr(snr: float) -> float:
 
 
 def cramer_rao(flux_e: float, smear_px: float, phases: int = 16, steps: int = 64) -> float:
-    """sqrt(CRB_x + CRB_y) [px] of a streak's position (flux, length and angle known),
-    averaged over sub-pixel phases: PSF integrated over each pixel (erf), averaged over
-    `steps` points along x, pixel variance mu + B + r^2 + g^2 / 12 [e-^2]."""
+    """
+    sqrt(CRB_x + CRB_y) [px] of a streak's position (flux, length and angle known), averaged over sub-pixel phases.
+
+    PSF integrated over each pixel (erf), averaged over `steps` points along x, pixel
+    variance mu + B + r^2 + g^2 / 12 [e-^2].
+    """
     rng = np.random.default_rng(0)
     reach = int(np.ceil(6 * SIGMA)) + 1
     cols = np.arange(-int(np.ceil(smear_px / 2)) - reach, int(np.ceil(smear_px / 2)) + reach + 1)
@@ -91,8 +96,11 @@ def render(x, y, flux_e, body_rate, seed, camera=CAMERA):
 
 
 def cross_rate(smear_px, direction_rad):
-    """Body rate [rad/s] about an axis in the image plane that smears stars by ~smear_px at
-    angle direction_rad in the image (a rotation about +X moves the stars toward +Y)."""
+    """
+    Return the body rate [rad/s] about an axis in the image plane that smears stars by ~smear_px.
+
+    At angle direction_rad in the image (a rotation about +X moves the stars toward +Y).
+    """
     rate = smear_px / (EXPOSURE * CAMERA.fy)
     return rate * np.array([np.sin(direction_rad), -np.cos(direction_rad), 0.0])
 
@@ -103,9 +111,13 @@ def stars_inside(truth, margin):
 
 
 def moment_guesses(residual, x, y, half):
-    """What a detector gives the fit: flux, centre of gravity, length from the major second
-    moment and its axis, over the pixels of a square window around (x, y) [px] that stand
-    3 sigma above the noise after a PSF-matched blur."""
+    """
+    Return what a detector gives the fit.
+
+    Flux, centre of gravity, length from the major second moment and its axis, over the
+    pixels of a square window around (x, y) [px] that stand 3 sigma above the noise after a
+    PSF-matched blur.
+    """
     smoothed = cv2.GaussianBlur(residual.astype(np.float32), (0, 0), SIGMA)
     smoothed_noise = NOISE / (2.0 * np.sqrt(np.pi) * SIGMA)
     out = []

@@ -1,6 +1,11 @@
-"""`star-tracker calibrate` (commands/calibrate.py): frames rendered through a distorted camera
-(truth known), the real granasat 27 deg images (astrometry.net references, a held-out image),
-the written ROS calibration file read back by `solve --camera`, and bad input."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker calibrate` (commands/calibrate.py).
+
+Frames rendered through a distorted camera (truth known), the real granasat 27 deg images
+(astrometry.net references, a held-out image), the written ROS calibration file read back by
+`solve --camera`, and bad input.
+"""
 from __future__ import annotations
 
 import argparse
@@ -62,7 +67,8 @@ def test_calibrate_rendered_frames_recovers_the_distortion_and_solve_reads_the_f
     assert len(document["projection_matrix"]["data"]) == 12 and out_yaml.read_text().startswith("# star-tracker")
     # The same frames as sensor_msgs/Image (mono16) in a bag give the same camera.
     bag = _image_bag(tmp_path / "frames_bag", [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in frames])
-    code, bag_out, err = cli("calibrate", "--bag", bag, "--fov", "20.3", "--output", tmp_path / "bag.yaml", "--json", "-q")
+    code, bag_out, err = cli("calibrate", "--bag", bag, "--fov", "20.3", "--output", tmp_path / "bag.yaml", "--json",
+                             "-q")
     assert code == 0, err
     from_bag = json.loads(bag_out)["camera"]
     assert (from_bag["fx"], from_bag["cx"], from_bag["cy"]) == pytest.approx(
@@ -88,8 +94,8 @@ def _image_bag(path: Path, images: list[np.ndarray], topic: str = "/image_raw") 
         header = store.types["std_msgs/msg/Header"](stamp=stamp, frame_id="star_tracker_optical")
         height, width = pixels.shape
         msg = store.types["sensor_msgs/msg/Image"](header=header, height=height, width=width, encoding="mono16",
-                                                    is_bigendian=0, step=2 * width,
-                                                    data=np.ascontiguousarray(pixels, "<u2").view(np.uint8).ravel())
+                                                   is_bigendian=0, step=2 * width,
+                                                   data=np.ascontiguousarray(pixels, "<u2").view(np.uint8).ravel())
         writer.write(topic, (100 + k) * 1_000_000_000, bytes(store.serialize_cdr(msg, bags.IMAGE_TYPE)))
     writer.close({})
     return path
@@ -131,8 +137,12 @@ def _corpus_or_skip() -> Path:
 
 @pytest.mark.slow
 def test_calibrate_real_granasat_images_and_solve_a_held_out_one_closer_to_astrometry_net(tmp_path):
-    """Five granasat 27 deg images calibrate one camera; andromeda_05seg (not among them),
-    1.06' off the astrometry.net reference with a focal-length-only solve, lands within 1' with it."""
+    """
+    Five granasat 27 deg images calibrate one camera.
+
+    andromeda_05seg (not among them), 1.06' off the astrometry.net reference with a
+    focal-length-only solve, lands within 1' with it.
+    """
     corpus = _corpus_or_skip()
     from bench import bench_realdata
 
@@ -160,13 +170,16 @@ def test_calibrate_real_granasat_images_and_solve_a_held_out_one_closer_to_astro
     # reference TAN-SIP's own fit of them.
     ours, reference = corr_residuals_px(held_out, corpus, load_camera_file(out_yaml).camera)
     assert np.median(ours) < 0.3 and np.median(ours) < 0.5 * np.median(reference), (np.median(ours),
-                                                                                      np.median(reference))
+                                                                                    np.median(reference))
 
 
 def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel distances between astrometry.net's detected positions of its matched stars and
+    """
+    Return pixel distances between astrometry.net's detected positions of its matched stars and ours.
+
     (ours) where the image's solve with `camera` puts those catalog stars, (reference) where its
-    TAN-SIP WCS puts them."""
+    TAN-SIP WCS puts them.
+    """
     from astropy.io import fits
     from astropy.table import Table
     from astropy.wcs import WCS
@@ -192,8 +205,12 @@ def corr_residuals_px(image, corpus: Path, camera) -> tuple[np.ndarray, np.ndarr
 
 
 def test_the_calibration_file_round_trips_through_solve_camera_and_camera_info(tmp_path, catalog):
-    """calibration_yaml of a fit (projected stars of an off-centre, distorted camera) read back
-    by `solve --camera`'s reader and, as the nodes get it, through a CameraInfo message."""
+    """
+    Check that calibration_yaml of a fit reads back through `solve --camera` and a CameraInfo.
+
+    The fit: projected stars of an off-centre, distorted camera; read back by `solve --camera`'s
+    reader and, as the nodes get it, through a CameraInfo message.
+    """
     convert = pytest.importorskip("star_tracker.ros.convert")  # ROS messages (sensor_msgs)
     from star_tracker.commands.calibrate import calibration_yaml
     from star_tracker.models.attitude import radec_roll_to_matrix

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The star-tracker command line, run for real."""
 from __future__ import annotations
 

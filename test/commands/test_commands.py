@@ -1,5 +1,9 @@
-"""The star-tracker subcommands of star_tracker/commands (render, solve, database, monitor,
-bench), run for real on small inputs and checked against truth."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The star-tracker subcommands of star_tracker/commands (render, solve, database, monitor, bench).
+
+Each is run for real on small inputs and checked against truth.
+"""
 from __future__ import annotations
 
 import argparse
@@ -27,7 +31,7 @@ ARCSEC = math.radians(1.0 / 3600.0)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """What cli.py builds: every subcommand registered on one parser."""
+    """Return what cli.py builds: every subcommand registered on one parser."""
     parser = argparse.ArgumentParser(prog="star-tracker")
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMANDS:
@@ -153,7 +157,7 @@ def test_render_rejects_bad_input_in_one_line(tmp_path):
 # ---------------------------------------------------------------- solve
 
 def _to_8bit_colour(image: np.ndarray) -> np.ndarray:
-    """What a user does to share a frame: a linear stretch to 8 bits, saved as colour."""
+    """Return what a user does to share a frame: a linear stretch to 8 bits, saved as colour."""
     low, high = np.percentile(image, 1.0), np.percentile(image, 99.95)
     grey = np.clip((image.astype(float) - low) * 255.0 / (high - low), 0, 255).astype(np.uint8)
     return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
@@ -286,9 +290,13 @@ def _photo_cache() -> Path:
 
 @pytest.fixture(scope="module")
 def sky_photo() -> Path:
-    """Directory with sh2-264.png and textures.json: an installed stellarium-data, the test
-    data cache, or fetched into that cache with `apt-get download stellarium-data` (246 MB,
-    once per machine; only the two files are kept)."""
+    """
+    Directory with sh2-264.png and textures.json.
+
+    An installed stellarium-data, the test data cache, or fetched into that cache with
+    `apt-get download stellarium-data` (246 MB, once per machine; only the two files are
+    kept).
+    """
     for directory in (Path("/") / STELLARIUM_DIR, _photo_cache()):
         if (directory / PHOTO).is_file() and (directory / "textures.json").is_file():
             return directory
@@ -304,7 +312,8 @@ def sky_photo() -> Path:
                                       text=True, timeout=600)
         debs = list(Path(tmp).glob("stellarium-data_*.deb"))
         if download.returncode != 0 or not debs:
-            pytest.skip(f"could not fetch stellarium-data (run `apt-get update` first?): {download.stderr.strip()[-300:]}")
+            pytest.skip("could not fetch stellarium-data (run `apt-get update` first?): "
+                        f"{download.stderr.strip()[-300:]}")
         members = [f"./{STELLARIUM_DIR}/{PHOTO}", f"./{STELLARIUM_DIR}/textures.json",
                    "./usr/share/doc/stellarium-data/copyright"]
         subprocess.run(f"dpkg-deb --fsys-tarfile {debs[0]} | tar -x -C {tmp} " + " ".join(members), shell=True,
@@ -473,8 +482,11 @@ def test_bench_progress_protocol_and_bar(tmp_path):
 
 @pytest.mark.slow  # runs bench.plots in a subprocess
 def test_bench_plots_redraw_from_json_results(tmp_path, catalog):
-    """bench/plots.py on identification results of a tiny real run (with the percentiles)
-    and on the committed ones; a missing result is skipped, a broken one fails."""
+    """
+    bench/plots.py on identification results of a tiny real run (with the percentiles) and on the committed ones.
+
+    A missing result is skipped, a broken one fails.
+    """
     sys.path.insert(0, str(REPO))
     from bench import bench_identify, plots
 
@@ -546,7 +558,8 @@ def test_monitor_once_shows_the_running_tracker(tmp_path):
     text = format_snapshot(snapshot)
     assert re.search(r"^attitude\s+RA\s+(79\.99|80\.00)\d*°\s+Dec \+(19\.99|20\.00)\d*°", text, re.M), text
     assert re.search(r"^mode\s+(tracking|lost_in_space) \(hybrid\)", text, re.M), text
-    empty = isolated_ros_environment(domain_id=200 + int(env["ROS_DOMAIN_ID"]) % 30)  # not 100-199; valid ids end at 232
+    empty = isolated_ros_environment(domain_id=200
+                                     + int(env["ROS_DOMAIN_ID"]) % 30)  # not 100-199; valid ids end at 232
     result = cli_process("monitor", "--once", "1", env=empty, timeout=60)
     assert result.returncode == 1 and "no star tracker seen on ROS_DOMAIN_ID" in result.stderr
     assert "waiting for the identifier" in result.stdout

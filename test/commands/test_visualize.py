@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Pictures (star_tracker/visualize.py): what is drawn lands where the data says."""
 from __future__ import annotations
 

@@ -1,6 +1,10 @@
-"""The pattern-database cache file (star_tracker.identify.database) is never trusted: damaged
-(hypothesis: bit flips, truncation, garbage, empty), consistently tampered with or unwritable,
-the database is rebuilt and the same as a fresh one, and the log says so."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The pattern-database cache file (star_tracker.identify.database) is never trusted.
+
+Damaged (hypothesis: bit flips, truncation, garbage, empty), consistently tampered with or
+unwritable, the database is rebuilt and the same as a fresh one, and the log says so.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -20,7 +24,7 @@ from fuzz_support import examples  # noqa: E402
 
 @pytest.fixture(scope="module")
 def small_database_files(tmp_path_factory):
-    """A small pattern database (fast to rebuild), its cache file bytes and its directory."""
+    """Return a small pattern database (fast to rebuild), its cache file bytes and its directory."""
     directory = tmp_path_factory.mktemp("pattern_cache")
     config = DatabaseConfig(magnitude_limit=3.5, max_pair_angle_rad=float(np.radians(10.0)))
     reference = database_module.load_or_build_database(config, directory)
@@ -30,7 +34,7 @@ def small_database_files(tmp_path_factory):
 
 def same_database(a, b) -> bool:
     return all(np.array_equal(getattr(a, n), getattr(b, n)) for n in ("vectors", "hip", "pair_a", "pair_b",
-                                                                       "pair_angle"))
+                                                                      "pair_angle"))
 
 
 @examples(30)
@@ -60,14 +64,17 @@ def test_a_damaged_pattern_cache_is_rebuilt_never_trusted(small_database_files, 
 
 
 def test_a_consistent_but_tampered_pattern_cache_is_rejected(small_database_files, caplog):
-    """A file with a valid checksum (recomputed by whoever changed it) is still checked: star
-    indices out of range would make the compiled kernels read outside their arrays."""
+    """
+    A file with a valid checksum (recomputed by whoever changed it) is still checked.
+
+    Star indices out of range would make the compiled kernels read outside their arrays.
+    """
     config, reference, path, original = small_database_files
     path.write_bytes(original)
     arrays = load_validated_npz(path)
     tampered = {
         "pair index out of range": {**arrays, "pair_b": np.where(np.arange(arrays["pair_b"].size) == 0,
-                                                                   10**6, arrays["pair_b"]).astype(np.int32)},
+                                                                 10**6, arrays["pair_b"]).astype(np.int32)},
         "wrong dtype": {**arrays, "pair_a": arrays["pair_a"].astype(np.int64)},
         "other configuration": {**arrays, "config": np.array(DatabaseConfig().identity())},
         "old format": {k: v for k, v in arrays.items() if k != "format_version"},

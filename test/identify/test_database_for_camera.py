@@ -1,5 +1,10 @@
-"""DatabaseConfig.for_camera: the pair-angle limit derived from a camera model covers its
-field, and the database it gives solves that camera's scenes (against simulator truth)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+DatabaseConfig.for_camera.
+
+The pair-angle limit derived from a camera model covers its field, and the database it gives
+solves that camera's scenes (against simulator truth).
+"""
 import math
 
 import numpy as np
@@ -13,11 +18,12 @@ WIDE = CameraModel.from_fov(1024, 1024, math.radians(20.0))  # 28.1 deg diagonal
 
 
 def widest_angle_on_the_border(camera: CameraModel, samples: int = 200) -> float:
-    """The largest angle between two points of the image border (pixel edges), brute force [rad]."""
+    """Return the largest angle between two points of the image border (pixel edges), brute force [rad]."""
     t = np.linspace(0.0, 1.0, samples)
     w, h = camera.width - 0.5, camera.height - 0.5
     u = np.concatenate([-0.5 + t * camera.width, np.full(samples, w), -0.5 + t * camera.width, np.full(samples, -0.5)])
-    v = np.concatenate([np.full(samples, -0.5), -0.5 + t * camera.height, np.full(samples, h), -0.5 + t * camera.height])
+    v = np.concatenate([np.full(samples, -0.5), -0.5 + t * camera.height, np.full(samples, h),
+                        -0.5 + t * camera.height])
     rays = camera.pixel_to_ray(u, v)
     return float(np.arccos(np.clip(rays @ rays.T, -1.0, 1.0)).max())
 

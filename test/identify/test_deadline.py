@@ -1,5 +1,10 @@
-"""The identification budget's clocks (identify/deadline.py): "cpu" counts only this process's
-work, so a solve does the same search however busy the host is; "wall" counts elapsed time."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The identification budget's clocks (identify/deadline.py).
+
+"cpu" counts only this process's work, so a solve does the same search however busy the host
+is; "wall" counts elapsed time.
+"""
 import time
 
 import pytest

@@ -1,4 +1,6 @@
-"""The deep re-match (identify/deep_match.py): faint stars beyond the guide stars, judged by truth.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The deep re-match (identify/deep_match.py): faint stars beyond the guide stars, judged by truth.
 
 Simulated frames know which star made each spot; the real images are judged by
 astrometry.net's independent TAN-SIP solutions (reference attitude, .anet.wcs), never by
@@ -12,10 +14,9 @@ import numpy as np
 import pytest
 
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
-from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+from star_tracker.identify import IdentifyConfig, make_identifier
 from star_tracker.identify.deep_catalog import load_or_build_deep_catalog
 from star_tracker.models.attitude import matrix_to_rotation_vector, quaternion_to_matrix
-from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import radec_to_unit, unit_to_radec
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import KIND_STAR, StarFieldRenderer
@@ -32,7 +33,7 @@ def error_rad(rotation, truth):
 
 
 def solve_both(database, spots, camera, **config):
-    """The guide-only and the deep identification of the same spots."""
+    """Return the guide-only and the deep identification of the same spots."""
     results = []
     for deep in (False, True):
         identifier = make_identifier("hybrid", database, IdentifyConfig(deep_match=deep, max_time_s=5.0, **config))
@@ -41,8 +42,12 @@ def solve_both(database, spots, camera, **config):
 
 
 def test_deep_rematch_adds_the_faint_stars_without_a_wrong_id(database, nominal_camera, catalog):
-    """Spots of every star to Hp 8.5 (guide stars to 6.5): the deep catalog names the faint
-    ones, every id is the truth's, and the attitude error against truth shrinks."""
+    """
+    Spots of every star to Hp 8.5 (guide stars to 6.5).
+
+    The deep catalog names the faint ones, every id is the truth's, and the attitude error
+    against truth shrinks.
+    """
     rng = np.random.default_rng(31)
     errors = {False: [], True: []}
     for _ in range(12):
@@ -65,8 +70,11 @@ def test_deep_rematch_adds_the_faint_stars_without_a_wrong_id(database, nominal_
 
 
 def test_uncatalogued_spots_get_no_deep_identity(database, nominal_camera, catalog):
-    """False objects of every brightness among the stars (the way a deep match could go wrong:
-    a chance catalog star in an uncatalogued spot's gate) are never named."""
+    """
+    Check that false objects of every brightness among the stars are never named.
+
+    The way a deep match could go wrong: a chance catalog star in an uncatalogued spot's gate.
+    """
     rng = np.random.default_rng(32)
     for _ in range(8):
         truth = random_rotation(rng)
@@ -87,10 +95,14 @@ def test_uncatalogued_spots_get_no_deep_identity(database, nominal_camera, catal
 
 
 def test_deep_rematch_on_rendered_frames(database, nominal_camera, catalog):
-    """Rendered, centroided frames (stars to Hp 8.5, noise, PSF): every match, guide or deep,
-    is the star the renderer drew at that spot; the cross-boresight error against truth does
-    not grow (the faint stars' centroids are ~5x noisier, so they add less than their number
-    suggests) and the published covariance stays honest (chi^2 of the error, 3 DOF)."""
+    """
+    Rendered, centroided frames (stars to Hp 8.5, noise, PSF).
+
+    Every match, guide or deep, is the star the renderer drew at that spot; the
+    cross-boresight error against truth does not grow (the faint stars' centroids are ~5x
+    noisier, so they add less than their number suggests) and the published covariance stays
+    honest (chi^2 of the error, 3 DOF).
+    """
     renderer = StarFieldRenderer(nominal_camera, SensorModel(), catalog.at_epoch(database.config.epoch_jyear),
                                  magnitude_limit=8.5)
     rng = np.random.default_rng(33)
@@ -163,9 +175,12 @@ def real_frame(image_id):
 @pytest.mark.skipif(not (REALDATA / "MANIFEST.json").is_file(), reason="real-image corpus absent")
 @pytest.mark.parametrize("image_id", ["gran_vega_05sec", "unh_DSC_0058"])
 def test_deep_rematch_on_real_images(image_id):
-    """More stars on a real photograph, the error against astrometry.net's reference does not
-    grow, and astrometry.net's own TAN-SIP solution puts every deep-matched star on its spot
-    (and no other deep-catalog star nearer)."""
+    """
+    Check: more stars on a real photograph, the error against astrometry.net's reference does not grow.
+
+    Also astrometry.net's own TAN-SIP solution puts every deep-matched star on its spot (and
+    no other deep-catalog star nearer).
+    """
     from astropy.io import fits
     from astropy.wcs import WCS
 

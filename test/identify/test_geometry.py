@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The identification geometry (identify/geometry.py) against independent computations."""
 import itertools
 
@@ -15,7 +16,7 @@ def unit(v):
 
 @njit
 def _compiled(u, v, w, rows):
-    """The scalar forms as kernels call them (inlined into a compiled caller)."""
+    """Return the scalar forms as kernels call them (inlined into a compiled caller)."""
     return (angle_between(u, v), triple_product(u, v, w), chord2_rows(rows, 0, 1),
             triple_product_rows(rows, 0, 1, 2))
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Lost-in-space identification on synthetic spot lists with known truth."""
 import numpy as np
 import pytest
@@ -13,8 +14,11 @@ ARCSEC = np.radians(1 / 3600)
 
 
 def synthetic_scene(catalog, camera, rotation, rng, noise_px=0.1, magnitude_limit=7.0):
-    """Spots at the projected positions of catalog stars (+ Gaussian noise), brightest first,
-    with the HIP id of the star behind each spot."""
+    """
+    Return spots at the projected positions of catalog stars (+ Gaussian noise), brightest first.
+
+    Also the HIP id of the star behind each spot.
+    """
     stars = catalog.brighter_than(magnitude_limit).at_epoch(2026.0)
     u, v, front = camera.project(stars.unit_vectors() @ rotation)
     inside = front & camera.in_image(u, v, margin=2)
@@ -34,8 +38,12 @@ def synthetic_scene(catalog, camera, rotation, rng, noise_px=0.1, magnitude_limi
 
 
 def warmed(algorithm, database, catalog, config=None):
-    """The identifier, after one solve without a time budget: on a cold numba cache the
-    first call compiles its kernels, which must not count against the budget under test."""
+    """
+    Return the identifier, after one solve without a time budget.
+
+    On a cold numba cache the first call compiles its kernels, which must not count against
+    the budget under test.
+    """
     camera = SETUPS["nominal"].camera
     spots, _ = synthetic_scene(catalog, camera, random_rotation(np.random.default_rng(0)), np.random.default_rng(0))
     make_identifier(algorithm, database, IdentifyConfig(max_time_s=60.0)).identify(spots, camera)
@@ -98,8 +106,12 @@ def test_too_few_spots_and_unknown_algorithm(database, nominal_camera):
 
 @pytest.mark.parametrize("algorithm", sorted(ALGORITHMS))
 def test_every_algorithm_respects_its_time_budget(algorithm, database, catalog):
-    """140 spots, 4 of them real: unsolvable under the bound, so every algorithm must give up
-    near its budget (1 s slack for a loaded CI host; the point is "bounded")."""
+    """
+    140 spots, 4 of them real.
+
+    Unsolvable under the bound, so every algorithm must give up near its budget (1 s slack
+    for a loaded CI host; the point is "bounded").
+    """
     identifier = make_identifier(algorithm, database, IdentifyConfig(max_time_s=0.05, max_pattern_spots=100))
     if hasattr(identifier, "warm_up"):
         identifier.warm_up(SETUPS["toloei_4_136"].camera)
@@ -150,9 +162,13 @@ def test_an_identifier_must_override_a_search_step(database):
 
 
 def test_a_search_step_ends_in_the_shared_final_fit(database, nominal_camera, catalog):
-    """An identifier that overrides only `search`, answering with the true matches under an
-    attitude 20 arcsec off, gets the shared ending: the matches mapped back to the input spots
-    (given in reverse flux order here), HIP ids, and the final fit's attitude near the truth."""
+    """
+    Check an identifier that overrides only `search`, answering with true matches 20 arcsec off.
+
+    Its search answers with the true matches under an attitude 20 arcsec off; it gets the shared
+    ending: the matches mapped back to the input spots (given in reverse flux order here), HIP ids,
+    and the final fit's attitude near the truth.
+    """
     from star_tracker.identify.base import AcceptedMatch, SearchOutcome, StarIdentifier
     from star_tracker.models.attitude import rotation_vector_to_matrix
 

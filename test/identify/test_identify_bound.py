@@ -1,12 +1,17 @@
-"""The false-positive bound, its compiled twin, the sky grid, and the default identifier's
-behaviour on the seed setups (against simulator truth)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The false-positive bound, its compiled twin, the sky grid and the default identifier.
+
+The identifier's behaviour on the seed setups, against simulator truth.
+"""
 from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.special import gammaln
 
-from star_tracker.identify import DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
+from star_tracker.identify import (DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig, load_or_build_database,
+                                   make_identifier)
 from star_tracker.identify import kernels, verify
 from star_tracker.identify.kernel_records import CatalogArrays
 from star_tracker.identify.base import TIMEOUT
@@ -27,7 +32,8 @@ def test_sky_grid_finds_every_star_within_the_radius(database):
     rays = rng.normal(size=(400, 3))
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     # Put half the rays right next to catalog stars so there is something to find.
-    rays[:200] = database.vectors[rng.choice(database.star_count, 200, replace=False)] + rng.normal(scale=0.3 * radius, size=(200, 3))
+    rays[:200] = database.vectors[rng.choice(database.star_count, 200, replace=False)] + rng.normal(scale=0.3 * radius,
+                                                                                                    size=(200, 3))
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     out_spot, out_star, out_dot = np.empty(400, np.int64), np.empty(400, np.int64), np.empty(400)
     count = kernels.match_all(rays, np.eye(3), CatalogArrays.build(database, grid), chord,
@@ -64,7 +70,8 @@ def test_bound_follows_the_documented_formula(database):
             documented_log_chance(body, sigma, 7.0, 600.0), rel=1e-9)
         t = 1e-20
         subsets = np.exp(gammaln(41) - gammaln(m + 1) - gammaln(41 - m))
-        assert verify.false_positive_bound(np.log(t), 40, m) == pytest.approx(min(1.0, 37 * subsets * t * (1 - np.log(t))), rel=1e-9)
+        assert verify.false_positive_bound(np.log(t), 40,
+                                           m) == pytest.approx(min(1.0, 37 * subsets * t * (1 - np.log(t))), rel=1e-9)
     # Magnitudes: exact agreement on a tight floor gives strong evidence, NaN gives none.
     sorted_mag = np.sort(database.magnitude)
     spot = rng.uniform(-8, -3, 6)
@@ -73,8 +80,12 @@ def test_bound_follows_the_documented_formula(database):
 
 
 def test_bound_is_conservative_on_random_spots(database, sky):
-    """With the acceptance threshold opened to 0.5, random-spot scenes must still almost never
-    yield a solution with a small bound: P(bound <= t) <= t is what the math promises."""
+    """
+    Check that random-spot scenes almost never yield a small bound, the threshold opened to 0.5.
+
+    With the acceptance threshold opened to 0.5, random-spot scenes must still almost never
+    yield a solution with a small bound: P(bound <= t) <= t is what the math promises.
+    """
     identifier = make_identifier(DEFAULT_ALGORITHM, database, IdentifyConfig(false_positive_bound=0.5, max_time_s=0.2))
     setup = replace(SETUPS["nominal"], real_stars=0, false_stars=15)
     rng = np.random.default_rng(3)

@@ -1,8 +1,12 @@
-"""Property-based tests (hypothesis) of identification (star_tracker.identify) on spots as a
-faulty centroider could send them, through the identifier node's own input path
+# SPDX-License-Identifier: Apache-2.0
+"""
+Property-based tests (hypothesis) of identification (star_tracker.identify) on faulty spots.
+
+Spots as a faulty centroider could send them, through the identifier node's own input path
 (convert.drop_invalid_spots, then identify): a proper rotation or no solution, never an
 exception. Defects found by fuzzing are pinned at the end, each with its failing input
-(docs/RELIABILITY.md, "Defects found by fuzzing in the core")."""
+(docs/RELIABILITY.md, "Defects found by fuzzing in the core").
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -20,6 +24,7 @@ from star_tracker.ros import convert  # noqa: E402
 
 from fuzz_support import CAMERAS, edgy, examples, is_rotation  # noqa: E402
 
+
 @pytest.fixture(scope="module")
 def identifiers(database):
     config = IdentifyConfig(max_time_s=0.02)
@@ -32,8 +37,12 @@ variance = st.one_of(st.floats(0.0, 2.0), edgy, st.floats(-1e3, 1e6))
 
 @st.composite
 def spot_sets(draw, max_spots=30):
-    """Spots as a faulty centroider could send them: NaN/inf/huge positions, fluxes and
-    covariances, duplicates (one position repeated), empty."""
+    """
+    Spots as a faulty centroider could send them.
+
+    NaN/inf/huge positions, fluxes and covariances, duplicates (one position repeated),
+    empty.
+    """
     n = draw(st.integers(0, max_spots))
     x = np.array(draw(st.lists(position, min_size=n, max_size=n)), float)
     y = np.array(draw(st.lists(position, min_size=n, max_size=n)), float)
@@ -52,8 +61,11 @@ def spot_sets(draw, max_spots=30):
 @examples(200)
 @given(spot_sets(), st.sampled_from(sorted(ALGORITHMS)), st.sampled_from(sorted(CAMERAS)))
 def test_identify_after_the_nodes_input_checks_never_raises(identifiers, spots, algorithm, camera_name):
-    """What the identifier node runs for a received spots message: drop_invalid_spots, then
-    (with at least one spot left) identify."""
+    """
+    What the identifier node runs for a received spots message.
+
+    drop_invalid_spots, then (with at least one spot left) identify.
+    """
     kept, dropped = convert.drop_invalid_spots(spots)
     if len(kept) == 0:
         return  # the node reports too_few_spots without calling identify
@@ -65,9 +77,13 @@ def test_identify_after_the_nodes_input_checks_never_raises(identifiers, spots, 
 
 # ============================================================================ defects found, fixed
 def test_identify_with_an_infinite_covariance(identifiers):
-    """Found by fuzzing: an infinite spot covariance raised OverflowError (int(inf) in
-    KVector.range) or stalled hybrid and composite for seconds. Random spots are no stars:
-    every algorithm returns without a solution, and says why."""
+    """
+    Found by fuzzing.
+
+    An infinite spot covariance raised OverflowError (int(inf) in KVector.range) or stalled
+    hybrid and composite for seconds. Random spots are no stars: every algorithm returns
+    without a solution, and says why.
+    """
     rng = np.random.default_rng(1)
     n = 20
     spots = Spots(rng.uniform(0, 1023, n), rng.uniform(0, 1023, n), rng.uniform(10, 1e3, n), np.full(n, 10.0),
@@ -79,9 +95,12 @@ def test_identify_with_an_infinite_covariance(identifiers):
 
 
 def test_identify_with_coincident_spots(identifiers):
-    """Found by fuzzing: hybrid raised ZeroDivisionError (kernels.triad, parallel rays) for
-    two spots at the same position. Four spots at one position and one beside them are two
-    distinct directions: too few to identify."""
+    """
+    Found by fuzzing: hybrid raised ZeroDivisionError (kernels.triad, parallel rays) for two spots at the same position.
+
+    Four spots at one position and one beside them are two distinct directions: too few to
+    identify.
+    """
     n = 5
     cov = np.tile(np.eye(2), (n, 1, 1))
     spots = Spots(np.zeros(n), np.array([0.0, 0.0, 0.0, 0.0, 6.0]), np.ones(n), np.full(n, 10.0), cov,

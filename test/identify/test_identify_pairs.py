@@ -1,5 +1,10 @@
-"""Pair-based lost-in-space identification: Cole & Crassidis' angle method with pivoting and
-van Bezooijen's match groups (FAST), scored against scene truth (exact HIP ids)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Pair-based lost-in-space identification.
+
+Cole & Crassidis' angle method with pivoting and van Bezooijen's match groups (FAST), scored
+against scene truth (exact HIP ids).
+"""
 from dataclasses import replace
 
 import numpy as np
@@ -22,8 +27,12 @@ def sky(catalog):
 
 @pytest.fixture(scope="module")
 def databases(database):
-    """Pattern databases per setup: the nominal default; the seed papers' cameras get pairs up to
-    their FOV diameter and guide stars to their sensitivity."""
+    """
+    Pattern databases per setup.
+
+    The nominal default; the seed papers' cameras get pairs up to their FOV diameter and guide
+    stars to their sensitivity.
+    """
     return {
         "nominal": database,
         "cole": load_or_build_database(DatabaseConfig(magnitude_limit=6.0, max_pair_angle_rad=np.radians(8.0))),
@@ -32,7 +41,7 @@ def databases(database):
 
 
 def scenes(setup_name, sky, database, count, seed, min_guide_stars=6):
-    """The first `count` scenes with at least `min_guide_stars` spots of database stars."""
+    """Return the first `count` scenes with at least `min_guide_stars` spots of database stars."""
     rng = np.random.default_rng(seed)
     found = []
     while len(found) < count:

@@ -1,5 +1,9 @@
-"""Cole & Crassidis' spherical triangle method and Toloei's composite pyramid / planar
-triangle method on seed-paper scenes with known truth."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Cole & Crassidis' spherical triangle and Toloei's composite pyramid / planar triangle methods.
+
+On seed-paper scenes with known truth.
+"""
 import numpy as np
 import pytest
 
@@ -52,8 +56,12 @@ def test_exact_hip_ids_on_nominal_scenes(cls, database, sky):
 
 @pytest.mark.parametrize("cls", ALGORITHMS)
 def test_exact_hip_ids_on_cole_scenes(cls, cole_database, sky):
-    """Cole's 8 deg, magnitude 6.0 tracker: fields with 3 stars or fewer cannot be solved
-    (too few for a hypothesis plus verification); most others must be, all correctly."""
+    """
+    Cole's 8 deg, magnitude 6.0 tracker.
+
+    Fields with 3 stars or fewer cannot be solved (too few for a hypothesis plus
+    verification); most others must be, all correctly.
+    """
     identifier = cls(cole_database, IdentifyConfig())
     setup = SETUPS["cole"]
     rng = np.random.default_rng(22)
@@ -69,8 +77,11 @@ def test_exact_hip_ids_on_cole_scenes(cls, cole_database, sky):
 
 
 def test_paper_mode_pivots_on_area_and_moment_alone(cole_database, sky):
-    """Without the side check (Cole's finalists: area, polar moment, handedness) the pivots
-    must narrow the candidates down; results stay correct."""
+    """
+    Check that without the side check the pivots narrow the candidates down; results stay correct.
+
+    The side check is Cole's finalists: area, polar moment, handedness.
+    """
     identifier = SphericalTriangleIdentifier(cole_database, IdentifyConfig(),
                                              settings=SphericalTriangleSettings(side_check=False, max_leftover=0))
     setup = SETUPS["cole"]
@@ -145,9 +156,12 @@ def test_pivot_join_keeps_only_assignments_that_agree_on_the_shared_spots():
 
 
 def test_a_database_directory_holds_the_triangle_databases_too(catalog, tmp_path, monkeypatch):
-    """Whoever passes a directory to load_or_build_database gets every database there: the
-    triangle databases that spherical_triangle and composite build from it land beside the
-    pair database, and nothing goes to the default cache."""
+    """
+    Whoever passes a directory to load_or_build_database gets every database there.
+
+    The triangle databases that spherical_triangle and composite build from it land beside
+    the pair database, and nothing goes to the default cache.
+    """
     default, chosen = tmp_path / "default", tmp_path / "chosen"
     monkeypatch.setenv("STAR_TRACKER_CACHE", str(default))
     config = DatabaseConfig(magnitude_limit=4.5, max_pair_angle_rad=float(np.radians(8.0)))

@@ -1,5 +1,9 @@
-"""Triangle features (Cole & Crassidis spherical, Toloei planar) against independent
-computations, and the catalog triangle database."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Triangle features (Cole & Crassidis spherical, Toloei planar) and the catalog triangle database.
+
+The features are checked against independent computations.
+"""
 import numpy as np
 import pytest
 
@@ -8,10 +12,10 @@ from star_tracker.identify import DatabaseConfig, load_or_build_database
 from star_tracker.identify import triangle_database
 from star_tracker.identify.guide_triangles import count_triangles, sky_cells
 from star_tracker.identify.triangle_database import (TriangleConfig, build_triangle_database, load_or_build_triangles,
-                                                    select_guide_stars, triangle_cache_path)
+                                                     select_guide_stars, triangle_cache_path)
 from star_tracker.identify.triangle_features import (measured_features, planar_area, planar_polar_moment,
-                                                    spherical_area, spherical_area_jacobian, spherical_polar_moment,
-                                                    spherical_polar_moment_fast, triangle_sides)
+                                                     spherical_area, spherical_area_jacobian, spherical_polar_moment,
+                                                     spherical_polar_moment_fast, triangle_sides)
 from star_tracker.identify.triangle_matching import match_triangles
 
 
@@ -21,7 +25,7 @@ def unit(v):
 
 
 def random_triangles(rng, n, spread):
-    """n random small triangles around random centres, vertex scatter `spread` [rad]."""
+    """Return n random small triangles around random centres, vertex scatter `spread` [rad]."""
     centre = unit(rng.normal(size=(n, 3)))
     return [unit(centre + rng.normal(scale=spread, size=(n, 3))) for _ in range(3)]
 
@@ -104,13 +108,16 @@ def test_planar_features_against_heron_and_monte_carlo_integration():
 
 @pytest.mark.parametrize("spherical", [True, False])
 def test_feature_sigmas_match_monte_carlo(spherical):
-    """Linearized 1-sigma of area, moment and side product (beta = 1, no floor) against
-    the scatter of noisy measurements of the same triangle."""
+    """
+    Check the linearized 1-sigma of area, moment and side product against a Monte-Carlo scatter.
+
+    beta = 1, no floor; the scatter of noisy measurements of the same triangle.
+    """
     rng = np.random.default_rng(5 if spherical else 6)
     v1, v2, v3 = (v[0] for v in random_triangles(rng, 1, 0.04))
     sigma = 2e-5
     clean = measured_features(np.array([v1, v2, v3]), np.full(3, sigma), np.array([[0, 1, 2]]), spherical,
-                                  beta=1.0, floor=0.0)
+                              beta=1.0, floor=0.0)
     trials = 3000
     rays = np.concatenate([unit(v + rng.normal(scale=sigma, size=(trials, 3))) for v in (v1, v2, v3)])
     triples = np.column_stack([np.arange(trials), trials + np.arange(trials), 2 * trials + np.arange(trials)])
@@ -189,7 +196,8 @@ def test_cache_round_trip_and_rebuild_of_a_damaged_file(small_database, tmp_path
     # A checksum-valid file that this code did not write for this database (star indices out of
     # range would make the compiled search read outside its arrays; wrong shapes) is rebuilt too.
     arrays = load_validated_npz(path)
-    tampered = {"star index out of range": {**arrays, "planar_stars": arrays["planar_stars"] + small_database.star_count},
+    tampered = {"star index out of range": {**arrays,
+                                            "planar_stars": arrays["planar_stars"] + small_database.star_count},
                 "guide star out of range": {**arrays, "guide_stars": arrays["guide_stars"] - 10**6},
                 "short column": {**arrays, "spherical_area": arrays["spherical_area"][:-1]},
                 "flat stars": {**arrays, "spherical_stars": arrays["spherical_stars"].ravel()}}
@@ -236,13 +244,13 @@ def test_matching_finds_a_catalog_triangle_with_its_vertex_order_and_not_its_mir
             rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
             rays = unit(small_database.vectors[stars] @ rotation + rng.normal(scale=sigma, size=(3, 3)))
             features = measured_features(rays, np.full(3, sigma), np.array([[0, 1, 2]]), spherical,
-                                             beta=3.0, floor=1e-5)
+                                         beta=3.0, floor=1e-5)
             found = match_triangles(triangles, small_database, features, spherical, cap=100)
             assert any(np.array_equal(s, stars) for s in found.stars)
             assert found.area_candidates[0] >= found.finalists[0] >= 1
             mirrored = rays * np.array([-1.0, 1.0, 1.0])
             features = measured_features(mirrored, np.full(3, sigma), np.array([[0, 1, 2]]), spherical,
-                                             beta=3.0, floor=1e-5)
+                                         beta=3.0, floor=1e-5)
             if features.handedness[0] == 0:
                 continue  # too flat for a handedness decision
             found = match_triangles(triangles, small_database, features, spherical, cap=100)

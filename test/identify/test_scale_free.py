@@ -1,7 +1,11 @@
-"""Scale-free four-star patterns (identify/scale_free.py): the focal length of a frame whose
-field is known only to +-5 %, judged against the true camera and attitude; a frame of stars in
-no sky pattern finds none. Real photographs at a field 4 % off: test_realdata_corpus and the
-solve test below."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Scale-free four-star patterns (identify/scale_free.py).
+
+The focal length of a frame whose field is known only to +-5 %, judged against the true camera
+and attitude; a frame of stars in no sky pattern finds none. Real photographs at a field 4 %
+off: test_realdata_corpus and the solve test below.
+"""
 from __future__ import annotations
 
 import math
@@ -42,7 +46,7 @@ def test_pattern_shape_ignores_scale_and_order():
 
 @pytest.mark.parametrize("seed, field_error", [(1, 0.04), (2, -0.045), (3, 0.02), (4, -0.01)])
 def test_focal_length_found_from_a_field_known_to_five_percent(catalog, database, nominal_camera, patterns,
-                                                              seed, field_error):
+                                                               seed, field_error):
     rng = np.random.default_rng(seed)
     truth = rotation_vector_to_matrix(rng.normal(size=3) * 2.0)
     spots = spots_at(catalog.brighter_than(7.5).at_epoch(2026.0), nominal_camera, truth)

@@ -1,5 +1,9 @@
-"""Attitude representations (models/attitude.py): RA/Dec/roll and quaternion round trips,
-and the image orientation convention of roll = 0."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Attitude representations (models/attitude.py).
+
+RA/Dec/roll and quaternion round trips, and the image orientation convention of roll = 0.
+"""
 import numpy as np
 import pytest
 
@@ -14,7 +18,8 @@ def test_radec_roll_round_trip_and_conventions():
         assert np.allclose(rot.T @ rot, np.eye(3), atol=1e-12) and np.linalg.det(rot) == pytest.approx(1.0)
         ra2, dec2, roll2 = matrix_to_radec_roll(rot)
         assert np.allclose(radec_roll_to_matrix(ra2, dec2, roll2), rot, atol=1e-9)
-        assert np.allclose(matrix_to_quaternion(quaternion_to_matrix(matrix_to_quaternion(rot))), matrix_to_quaternion(rot))
+        assert np.allclose(matrix_to_quaternion(quaternion_to_matrix(matrix_to_quaternion(rot))),
+                           matrix_to_quaternion(rot))
 
 
 def test_roll_zero_puts_north_up_and_east_left():
@@ -23,6 +28,7 @@ def test_roll_zero_puts_north_up_and_east_left():
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     ra, dec = 1.0, 0.3
     rot = radec_roll_to_matrix(ra, dec, 0.0)
+
     def pixel(ra_s, dec_s):
         v = np.array([np.cos(dec_s) * np.cos(ra_s), np.cos(dec_s) * np.sin(ra_s), np.sin(dec_s)])
         u, vv, _ = camera.project((v @ rot)[None])

@@ -1,5 +1,9 @@
-"""QUEST cross-checked against Markley's SVD and Davenport's q-method, and the QUEST
-measurement-model covariance against the Monte-Carlo scatter of QUEST estimates.
+# SPDX-License-Identifier: Apache-2.0
+"""
+QUEST cross-checked against Markley's SVD and Davenport's q-method, and its covariance.
+
+The QUEST measurement-model covariance against the Monte-Carlo scatter of QUEST
+estimates.
 
 Geometries: "sphere" = directions anywhere on the sky (generic Wahba problem); "fov" =
 directions inside the default camera's field (a 15 deg x 15 deg square, half-diagonal
@@ -30,8 +34,12 @@ def random_axis(rng: np.random.Generator) -> np.ndarray:
 
 
 def random_rotation(rng: np.random.Generator, kind: str) -> np.ndarray:
-    """'any': random axis, angle uniform in [0, pi); 'pi': exactly pi about a random or a
-    coordinate axis (QUEST's singularity); 'near_pi': pi - 10^(-12..-3) rad."""
+    """
+    'any': random axis, angle uniform in [0, pi).
+
+    'pi': exactly pi about a random or a coordinate axis (QUEST's singularity); 'near_pi':
+    pi - 10^(-12..-3) rad.
+    """
     if kind == "any":
         angle = rng.uniform(0.0, np.pi)
     elif kind == "pi":
@@ -69,8 +77,11 @@ def sigmas_with_ratio(rng: np.random.Generator, n: int, ratio: float, smallest: 
 
 def worst_clean_disagreement(seed: int, counts, geometry: str, ratio: float, kinds=("any", "pi", "near_pi"),
                              trials_per_count: int = 12) -> float:
-    """Largest angle [rad] between any solver and the truth (hence between solvers) on
-    noise-free data, over star counts `counts` and rotation kinds."""
+    """
+    Return the largest angle [rad] between any solver and the truth on noise-free data.
+
+    Hence also between solvers; over star counts `counts` and rotation kinds.
+    """
     rng = np.random.default_rng(seed)
     worst = 0.0
     for n in counts:
@@ -105,8 +116,11 @@ def mahalanobis(rot_a: np.ndarray, rot_b: np.ndarray, covariance: np.ndarray) ->
 
 
 def worst_noisy_quest_vs_svd(seed: int, n: int, ratio: float, trials: int = 400) -> float:
-    """Largest QUEST-SVD difference over noisy trials in the camera field, in units of the
-    attitude's own 1-sigma (QUEST covariance)."""
+    """
+    Return the largest QUEST-SVD difference over noisy trials in the camera field.
+
+    In units of the attitude's own 1-sigma (QUEST covariance).
+    """
     rng = np.random.default_rng(seed)
     worst = 0.0
     for k in range(trials):
@@ -131,8 +145,12 @@ def test_quest_with_two_close_stars_and_very_unequal_weights(ratio):
 
 
 def monte_carlo_nees(seed: int, body: np.ndarray, sigmas: np.ndarray, trials: int = 2000):
-    """QUEST on `trials` noisy copies of one geometry at a random attitude: per-trial NEES
-    (trials, 3): 3-DOF, cross-boresight 2-DOF (x/y block of the covariance), roll 1-DOF."""
+    """
+    QUEST on `trials` noisy copies of one geometry at a random attitude.
+
+    Per-trial NEES (trials, 3): 3-DOF, cross-boresight 2-DOF (x/y block of the covariance),
+    roll 1-DOF.
+    """
     rng = np.random.default_rng(seed)
     truth = random_rotation(rng, "any")
     ref = body @ truth.T

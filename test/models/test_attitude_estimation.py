@@ -1,6 +1,11 @@
-"""Attitude estimation from vector pairs (models/attitude_estimation.py): QUEST against a
-known rotation and the q-method, its covariance against Monte-Carlo scatter, and the
-covariance-weighted refinement. Cross-checks against SVD: test_attitude_crosscheck.py."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Attitude estimation from vector pairs (models/attitude_estimation.py).
+
+QUEST against a known rotation and the q-method, its covariance against Monte-Carlo scatter,
+and the covariance-weighted refinement. Cross-checks against SVD:
+test_attitude_crosscheck.py.
+"""
 import numpy as np
 import pytest
 
@@ -66,8 +71,11 @@ def test_quest_covariance_is_consistent_with_monte_carlo_errors():
 
 
 def tangential_axes(body):
-    """Unit vectors perpendicular to each direction `body`: tangential (the roll direction
-    about +Z) and radial."""
+    """
+    Return unit vectors perpendicular to each direction `body`: tangential and radial.
+
+    Tangential is the roll direction about +Z.
+    """
     tangential = np.cross([0.0, 0.0, 1.0], body)
     tangential /= np.linalg.norm(tangential, axis=1, keepdims=True)
     return tangential, np.cross(body, tangential)
@@ -87,7 +95,7 @@ def test_refinement_with_isotropic_covariances_is_quest():
         cov = sigma[:, None, None] ** 2 * (np.eye(3)[None] - noisy[:, :, None] * noisy[:, None, :])
         # From a start 100 arcsec off: the same optimum and Shuster & Oh's covariance.
         refined, chi2, _ = refine_with_covariances(q.rotation @ rotation_vector_to_matrix([4e-4, -3e-4, 2e-4]), noisy,
-                                                ref, cov, iterations=3)
+                                                   ref, cov, iterations=3)
         assert attitude_error(refined.rotation, q.rotation)[2] < 1e-11
         # Shuster & Oh evaluate I - b b^T at the measured b, the refinement at the predicted one:
         # they differ by the residual (~sigma, <= 1e-4 rad) relative.

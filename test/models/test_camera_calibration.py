@@ -1,7 +1,11 @@
-"""Camera self-calibration (models/camera_calibration.py) against the simulator's truth: frames
-rendered through a distorted camera with an off-centre principal point, centroided, each spot
-matched to the star that made it; the fit must recover the true camera within its own stated
-uncertainty (3 sigma). Real images: test/commands/test_calibrate.py."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Camera self-calibration (models/camera_calibration.py) against the simulator's truth.
+
+Frames rendered through a distorted camera with an off-centre principal point, centroided, each
+spot matched to the star that made it; the fit must recover the true camera within its own
+stated uncertainty (3 sigma). Real images: test/commands/test_calibrate.py.
+"""
 import math
 
 import numpy as np
@@ -30,20 +34,24 @@ def true_camera() -> CameraModel:
 
 
 def starting_camera() -> CameraModel:
-    """What a --fov user knows: a pinhole 0.4 % off in focal length, centred, undistorted."""
+    """Return what a --fov user knows: a pinhole 0.4 % off in focal length, centred, undistorted."""
     return CameraModel.from_fov(WIDTH, HEIGHT, FOV_RAD * 1.004)
 
 
 @pytest.fixture(scope="module")
 def frames(catalog):
-    """(Rendering: the tests using it are slow.) One CalibrationFrame per pointing: measured spots matched (within 2 px) to the true stars,
-    starting attitude the truth turned by ~0.1 deg."""
+    """
+    Return one CalibrationFrame per pointing (rendering: the tests using it are slow).
+
+    Measured spots matched (within 2 px) to the true stars, starting attitude the truth turned by ~0.1 deg.
+    """
     camera = true_camera()
     renderer = StarFieldRenderer(camera, SensorModel(), catalog, magnitude_limit=6.5)
     by_hip = dict(zip(renderer.catalog.hip.tolist(), renderer.star_vectors))
     out = []
     for k, pointing in enumerate(POINTINGS):
-        frame = renderer.render(ConstantRateMotion(radec_roll_to_matrix(*pointing), np.zeros(3)), 10.0, frame_seed(0, k))
+        frame = renderer.render(ConstantRateMotion(radec_roll_to_matrix(*pointing), np.zeros(3)), 10.0,
+                                frame_seed(0, k))
         spots = extract_spots(frame.image, CentroidConfig(max_spots=120))
         truth = frame.truth
         stars = np.flatnonzero(truth.stars())

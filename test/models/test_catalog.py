@@ -1,6 +1,7 @@
+# SPDX-License-Identifier: Apache-2.0
 import numpy as np
 
-from star_tracker.models.catalog import MAS_TO_RAD, load_hipparcos, load_validated_npz, cache_dir, radec_to_unit, unit_to_radec
+from star_tracker.models.catalog import load_hipparcos, load_validated_npz, cache_dir, radec_to_unit, unit_to_radec
 
 ARCSEC = np.radians(1 / 3600)
 

@@ -1,8 +1,12 @@
-"""Property-based tests (hypothesis) of the shared models on arbitrary numbers: camera models
-(star_tracker.models.camera) and the attitude solvers and rotation conversions
+# SPDX-License-Identifier: Apache-2.0
+"""
+Property-based tests (hypothesis) of the shared models on arbitrary numbers.
+
+Camera models (star_tracker.models.camera) and the attitude solvers and rotation conversions
 (star_tracker.models.attitude). A valid result, or ValueError with a message; never another
 exception. Defects found by fuzzing are pinned at the end, each with its failing input
-(docs/RELIABILITY.md, "Defects found by fuzzing in the core")."""
+(docs/RELIABILITY.md, "Defects found by fuzzing in the core").
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -50,9 +54,13 @@ sigma_values = st.one_of(st.floats(1e-6, 1.0), st.sampled_from([0.0, -1.0, np.na
 @given(st.lists(direction, max_size=6), st.data(), st.sampled_from([quest, davenport_q_method, svd_attitude]))
 @pytest.mark.slow  # ~5 s
 def test_attitude_solvers_on_degenerate_inputs(body, data, solver):
-    """A proper rotation or ValueError. Two or more finite vectors with positive sigmas
-    (parallel, antiparallel or duplicated included): always a rotation. NaN, infinities,
-    zero or negative sigmas, fewer than two pairs: refused (never a NaN attitude)."""
+    """
+    A proper rotation or ValueError.
+
+    Two or more finite vectors with positive sigmas (parallel, antiparallel or duplicated
+    included): always a rotation. NaN, infinities, zero or negative sigmas, fewer than two
+    pairs: refused (never a NaN attitude).
+    """
     n = len(body)
     ref = data.draw(st.one_of(st.just(body), st.lists(direction, min_size=n, max_size=n)))
     sigmas = np.asarray(data.draw(st.one_of(st.just(1e-4), st.lists(sigma_values, min_size=n, max_size=n))), float)
@@ -67,7 +75,7 @@ def test_attitude_solvers_on_degenerate_inputs(body, data, solver):
 
 @examples(500)
 @given(hnp.arrays(np.float64, (3, 3), elements=st.floats(-10, 10)), st.lists(st.floats(-10, 10), min_size=3,
-                                                                                max_size=3))
+                                                                             max_size=3))
 def test_rotation_conversions_on_arbitrary_matrices(matrix, rotvec):
     q = matrix_to_quaternion(matrix)  # any finite matrix: a finite unit quaternion
     assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1.0) < 1e-9
@@ -80,8 +88,7 @@ def test_rotation_conversions_on_arbitrary_matrices(matrix, rotvec):
 
 # ============================================================================ defects found, fixed
 def test_pixel_to_ray_of_no_points_with_distortion():
-    """Found by fuzzing: cv2.undistortPoints returns None for no points (an AttributeError);
-    no points give no rays."""
+    """Found by fuzzing: cv2.undistortPoints returns None for no points (an AttributeError); no points give no rays."""
     rays = CAMERAS["distorted"].pixel_to_ray(np.zeros(0), np.zeros(0))
     assert rays.shape == (0, 3)
 
@@ -95,8 +102,12 @@ def test_zero_quaternion_is_refused():
                                           (svd_attitude, [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
                                           (quest, [[0.0, 0.0, 1.0], [0.0, 0.0, 1.35e154]])])
 def test_zero_or_overflowing_vectors_are_refused(solver, body):
-    """Found by fuzzing: LinAlgError (or a NaN attitude) for a zero vector, and for quest a
-    vector whose norm overflows; the documented refusal is a ValueError."""
+    """
+    Found by fuzzing.
+
+    LinAlgError (or a NaN attitude) for a zero vector, and for quest a vector whose norm
+    overflows; the documented refusal is a ValueError.
+    """
     with np.errstate(all="ignore"):
         refused(solver, np.array(body), np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), 1e-4,
                 match="vectors must be finite and non-zero")

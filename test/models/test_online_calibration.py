@@ -1,5 +1,9 @@
-"""Online f, k1 refinement (models/online_calibration.py) on identifications of projected stars:
-a camera whose focal length drifted 0.3 % and with k1 = 0.05 that the nominal model lacks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Online f, k1 refinement (models/online_calibration.py) on identifications of projected stars.
+
+A camera whose focal length drifted 0.3 % and with k1 = 0.05 that the nominal model lacks.
+"""
 import math
 
 import numpy as np
@@ -44,7 +48,8 @@ def test_accumulates_refits_and_applies_only_a_constrained_estimate(catalog):
     assert abs(estimate.value["k1"] - 0.05) <= 3 * estimate.sigma["k1"]
     assert set(online.applied) == {"f", "k1"}  # 10 frames: both well inside the 0.3 px rule
     refined = online.camera_for(NOMINAL)
-    assert refined.fx == pytest.approx(estimate.value["f"]) and refined.distortion[0] == pytest.approx(estimate.value["k1"])
+    assert refined.fx == pytest.approx(estimate.value["f"])
+    assert refined.distortion[0] == pytest.approx(estimate.value["k1"])
     assert online.camera_for(TRUE) is TRUE  # not the nominal camera of the estimate: untouched
 
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """docs/USER_GUIDE.md: its Python example runs as written, its command lines parse."""
 from __future__ import annotations
 
@@ -37,7 +38,8 @@ def test_every_command_line_of_the_guide_parses():
     ours = set(sub.choices)
     blocks = re.findall(r"```bash\n(.*?)```", GUIDE.read_text(), re.S)
     # Drop comments, a trailing `&` and shell redirections.
-    lines = [re.split(r"\s[#>|]", line)[0].strip().rstrip("&").strip() for block in blocks for line in block.splitlines()]
+    lines = [re.split(r"\s[#>|]", line)[0].strip().rstrip("&").strip() for block in blocks
+             for line in block.splitlines()]
     checked = 0
     for line in lines:
         words = shlex.split(line) if line.startswith("star-tracker ") else []

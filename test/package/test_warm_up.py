@@ -1,7 +1,11 @@
-"""The nodes' warm-ups compile every numba variant their first frames use. A variant missed
-there is compiled on the first frame instead: on a fresh install that took > 8 s in the
-centroider (a read-only image from a ROS message is its own numba type), so the first
-frames of `star-tracker demo --gyro` were dropped for overload."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The nodes' warm-ups compile every numba variant their first frames use.
+
+A variant missed there is compiled on the first frame instead: on a fresh install that took
+> 8 s in the centroider (a read-only image from a ROS message is its own numba type), so the
+first frames of `star-tracker demo --gyro` were dropped for overload.
+"""
 from __future__ import annotations
 
 import subprocess
@@ -58,7 +62,8 @@ SCRIPT = textwrap.dedent("""
         spots = convert.cloud_to_spots(convert.spots_to_cloud(spots, stamp, "f"), camera.width, camera.height)
         result = tracker.process(stamp, spots, camera).identification
         # Identified means the true attitude (within 60 arcsec), not merely a solution.
-        identified += bool(result.solved and attitude_error(result.attitude.rotation, frame.truth.rotation)[2] < 60 * ARCSEC)
+        identified += bool(result.solved
+                           and attitude_error(result.attitude.rotation, frame.truth.rotation)[2] < 60 * ARCSEC)
     print("identified", identified)
     print("compiled after the warm-up:", sorted(n for n, f in dispatchers.items() if len(f.signatures) > before[n]))
 """)

@@ -1,7 +1,12 @@
-"""The camera-profile fit (star_tracker.sim.camera_profile): it recovers a known camera from
-frames our simulator rendered with known values, it reproduces the shipped profile of the
-real openstartracker frames, and the shipped profile loads through the camera_simulator's
-parameter path (the CLI's --camera loader and the node's declarations)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The camera-profile fit (star_tracker.sim.camera_profile).
+
+It recovers a known camera from frames our simulator rendered with known values, it
+reproduces the shipped profile of the real openstartracker frames, and the shipped profile
+loads through the camera_simulator's parameter path (the CLI's --camera loader and the
+node's declarations).
+"""
 from __future__ import annotations
 
 import math
@@ -51,7 +56,8 @@ def test_fit_recovers_known_camera_from_simulated_frames(catalog):
     stars = catalog.at_epoch(2026.0).brighter_than(9.5)
     renderer = StarFieldRenderer(camera, TRUTH, stars, magnitude_limit=9.5)
     frames = []
-    for k, (ra, dec) in enumerate([(83.0, -2.0), (100.0, 5.0), (280.0, 35.0), (270.0, -25.0), (60.0, 20.0), (300.0, 40.0)]):
+    pointings = [(83.0, -2.0), (100.0, 5.0), (280.0, 35.0), (270.0, -25.0), (60.0, 20.0), (300.0, 40.0)]
+    for k, (ra, dec) in enumerate(pointings):
         rotation = radec_roll_to_matrix(math.radians(ra), math.radians(dec), 0.4 * k)
         image = renderer.render(ConstantRateMotion(rotation, np.zeros(3)), 0.0, frame_seed(11, k)).image
         frames.append(ProfileFrame(image, camera, rotation, TRUTH.exposure_s))

@@ -1,14 +1,19 @@
-"""Attitude motion profiles against independent truth: closed forms, finite differences of the
-attitude, conservation laws and a separately formulated high-accuracy integration."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Attitude motion profiles against independent truth.
+
+Closed forms, finite differences of the attitude, conservation laws and a separately
+formulated high-accuracy integration.
+"""
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation, Slerp
 
 from star_tracker.models.attitude import (matrix_to_quaternion, matrix_to_rotation_vector, quaternion_to_matrix,
-                                   radec_roll_to_matrix, rotation_vector_to_matrix, skew)
+                                          radec_roll_to_matrix, rotation_vector_to_matrix, skew)
 from star_tracker.sim.motion import (ConstantRateMotion, JitterMotion, SampledMotion, SlewMotion, TumbleMotion,
-                                 motion_from_parameters)
+                                     motion_from_parameters)
 
 R0 = radec_roll_to_matrix(1.2, -0.4, 0.7)
 
@@ -18,7 +23,7 @@ def angle_between(ra, rb):
 
 
 def rate_by_finite_difference(motion, t, h=1e-6):
-    """omega from R^T dR/dt = [omega x], dR/dt by central differences."""
+    """Return omega from R^T dR/dt = [omega x], dR/dt by central differences."""
     r_minus, r, r_plus = motion.rotations_at(np.array([t - h, t, t + h]))
     a = r.T @ (r_plus - r_minus) / (2 * h)
     return 0.5 * np.array([a[2, 1] - a[1, 2], a[0, 2] - a[2, 0], a[1, 0] - a[0, 1]])
@@ -40,7 +45,8 @@ def test_constant_rate_is_a_composition_of_rodrigues_rotations():
     expected = [R0 @ rotation_vector_to_matrix(omega * (t - t0)) for t in times]
     assert np.allclose(motion.rotations_at(times), expected, atol=1e-14, rtol=0)
     # R(t + s) = R(t) exp([omega x] s)
-    assert np.allclose(motion.rotation_at(t0 + 7.5), motion.rotation_at(t0 + 5.0) @ rotation_vector_to_matrix(omega * 2.5),
+    assert np.allclose(motion.rotation_at(t0 + 7.5),
+                       motion.rotation_at(t0 + 5.0) @ rotation_vector_to_matrix(omega * 2.5),
                        atol=1e-14, rtol=0)
     assert_vectorized_matches_scalar(motion, times)
     assert np.array_equal(motion.angular_velocity_at(123.0), omega)
@@ -88,7 +94,8 @@ def test_trapezoidal_slew_follows_its_profile(angle):
     assert max(speeds) == pytest.approx(0.05, abs=1e-15)
     # The rate integrates to the slew angle.
     grid = np.linspace(start, end, 20001)
-    assert np.trapezoid([motion.angular_velocity_at(t) @ SLEW_AXIS for t in grid], grid) == pytest.approx(angle, abs=1e-8)
+    assert np.trapezoid([motion.angular_velocity_at(t) @ SLEW_AXIS for t in grid], grid) == pytest.approx(angle,
+                                                                                                          abs=1e-8)
 
 
 def test_triangular_slew_when_the_max_rate_is_not_reached():
@@ -230,7 +237,8 @@ def test_axisymmetric_tumble_matches_the_closed_form():
     for t in np.random.default_rng(2).uniform(-17.0, 103.0, 40):
         tau = t - 3.0
         c, s = np.cos(lam * tau), np.sin(lam * tau)
-        assert np.allclose(motion.angular_velocity_at(t), [c * 0.2 - s * 0.1, s * 0.2 + c * 0.1, 0.5], atol=1e-11, rtol=0)
+        assert np.allclose(motion.angular_velocity_at(t), [c * 0.2 - s * 0.1, s * 0.2 + c * 0.1, 0.5], atol=1e-11,
+                           rtol=0)
         expected = rotation_vector_to_matrix(momentum * tau / 4.0) @ R0 @ rotation_vector_to_matrix([0, 0, -lam * tau])
         assert angle_between(motion.rotation_at(t), expected) < 1e-9
 

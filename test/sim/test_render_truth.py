@@ -1,6 +1,11 @@
-"""The renderer's truth listing (FrameTruth) against what it was asked to draw: objects grouped
-in the documented order, each group's count, positions and signal within the false-object and
-sensor parameters, hot pixels at the fixed pattern's positions with their dark charge."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The renderer's truth listing (FrameTruth) against what it was asked to draw.
+
+Objects grouped in the documented order, each group's count, positions and signal within the
+false-object and sensor parameters, hot pixels at the fixed pattern's positions with their dark
+charge.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -42,7 +47,8 @@ def test_truth_lists_every_group_as_drawn(catalog, nominal_camera):
             # Light collected through the vignetting: at most 20 % lost at the corner.
             assert np.all(t.electrons[group] <= sensor.star_electrons(bright) * (1 + 1e-9))
             assert np.all(t.electrons[group] >= 0.8 * sensor.star_electrons(faint) * (1 - 1e-9))
-        assert np.all((t.extent_px[debris] >= 200.0 * sensor.exposure_s) & (t.extent_px[debris] <= 400.0 * sensor.exposure_s))
+        assert np.all((t.extent_px[debris] >= 200.0 * sensor.exposure_s) & (t.extent_px[debris] <= 400.0
+                                                                            * sensor.exposure_s))
         cosmic = t.kind == KIND_COSMIC_RAY
         cosmic_rays += cosmic.sum()
         assert np.all((t.extent_px[cosmic] >= 1.0) & (t.extent_px[cosmic] <= 15.0))

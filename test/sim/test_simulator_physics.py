@@ -1,12 +1,17 @@
-"""The camera simulator against physics: photometry, geometry, smear, noise, distortion,
-shutter effects, aberration and truth. Each test compares with an independent model."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The camera simulator against physics.
+
+Photometry, geometry, smear, noise, distortion, shutter effects, aberration and truth. Each
+test compares with an independent model.
+"""
 from __future__ import annotations
 
 import cv2
 import numpy as np
 import pytest
 
-from star_tracker.models.attitude import radec_roll_to_matrix, rotation_vector_to_matrix
+from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.sim.motion import ConstantRateMotion
@@ -52,7 +57,8 @@ def test_photometry_matches_expected_electrons_within_shot_noise(catalog, nomina
         r0, c0 = int(round(y)), int(round(x))
         box = (slice(r0 - half, r0 + half + 1), slice(c0 - half, c0 + half + 1))
         measured = residual[box].sum()
-        variance = expected + np.sum(r.static_e[box] + sensor.read_noise_e ** 2) + residual[box].size * sensor.gain_e_per_adu ** 2 / 12
+        variance = expected + np.sum(r.static_e[box]
+                                     + sensor.read_noise_e ** 2) + residual[box].size * sensor.gain_e_per_adu ** 2 / 12
         normalized.append((measured - expected) / np.sqrt(variance))
     normalized = np.array(normalized)
     assert normalized.size >= 30
@@ -193,7 +199,8 @@ def test_every_spot_is_traceable_to_truth(catalog, nominal_camera):
     for k in range(3):
         frame = r.render(ConstantRateMotion(POINTING, np.radians([0.3, 0.2, 0.0])), 5.0 + k, frame_seed(5, k))
         t = frame.truth
-        spots = extract_spots(frame.image, CentroidConfig(min_area=1, psf_sigma_px=0.0, method="cog"))  # every defect too
+        spots = extract_spots(frame.image,
+                              CentroidConfig(min_area=1, psf_sigma_px=0.0, method="cog"))  # every defect too
         # A spot belongs to an object if it lies on the object's track (+ a few px for blends).
         d = np.hypot(spots.x[:, None] - t.x[None], spots.y[:, None] - t.y[None])
         reach = 3.0 + 0.5 * t.extent_px[None, :]
@@ -258,7 +265,8 @@ def test_frame_transfer_smear(catalog, nominal_camera):
 
 def test_aberration_shift(catalog, nominal_camera):
     velocity = 30_000.0 * radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.0)[:, 0]  # along image +x
-    still = renderer(catalog, nominal_camera, QUIET, limit=5.0).render(ConstantRateMotion(POINTING, np.zeros(3)), 5.0, 0)
+    still = renderer(catalog, nominal_camera, QUIET, limit=5.0).render(ConstantRateMotion(POINTING, np.zeros(3)), 5.0,
+                                                                       0)
     moving = renderer(catalog, nominal_camera, QUIET, limit=5.0, observer_velocity_m_s=velocity).render(
         ConstantRateMotion(POINTING, np.zeros(3)), 5.0, 0)
     a, b = still.truth, moving.truth
@@ -278,7 +286,8 @@ def test_aberration_shift(catalog, nominal_camera):
 def test_cosmic_ray_count_follows_the_rate(catalog, nominal_camera, rate):
     sensor = SensorModel(cosmic_ray_rate_per_cm2_s=rate)
     r = StarFieldRenderer(nominal_camera, sensor, catalog, magnitude_limit=-5.0)
-    counts = [np.sum(r.render(ConstantRateMotion(POINTING, np.zeros(3)), 1.0, frame_seed(9, k)).truth.kind == KIND_COSMIC_RAY)
+    counts = [np.sum(r.render(ConstantRateMotion(POINTING, np.zeros(3)), 1.0,
+                              frame_seed(9, k)).truth.kind == KIND_COSMIC_RAY)
               for k in range(20)]
     expected = rate * (1024 * 13e-4) ** 2 * sensor.exposure_s
     assert abs(np.mean(counts) - expected) <= 4 * np.sqrt(max(expected, 1e-9) / 20) + 1e-9
@@ -301,7 +310,8 @@ def test_background_vignetting_gradient_dark_and_adc_levels(nominal_camera, cata
     assert np.allclose(flat, (4000.0 + 100.0) * t, atol=0.13)  # within ADC rounding (0.125 e-)
     # Vignetting: 1 - a r^2 / r_corner^2 on the sky light only (dark current is not light).
     vignetted = level(vignetting_at_corner=0.2)
-    assert vignetted[0, 0] == pytest.approx(4000.0 * t * (1 - 0.2 * 2 * 511.5 ** 2 / (2 * 512.0 ** 2)) + 100.0 * t, abs=0.13)
+    assert vignetted[0, 0] == pytest.approx(4000.0 * t * (1 - 0.2 * 2 * 511.5 ** 2 / (2 * 512.0 ** 2)) + 100.0 * t,
+                                            abs=0.13)
     assert vignetted[512, 512] == pytest.approx(flat[512, 512], abs=0.13)
     # Stray-light gradient: linear in x and y about the image centre.
     graded = level(stray_light_gradient_e_per_px2_s=(2.0, -1.0))

@@ -1,7 +1,11 @@
-"""The published attitude covariance against the simulator's truth (issue 6): render ->
-extract_spots -> hybrid identify with default settings, NEES of the attitude error under the
-published covariance. The full benchmark (bench/bench_attitude.py) runs >= 1000 frames; this
-is its small, fast cousin with bands wide enough for 150 frames."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The published attitude covariance against the simulator's truth (issue 6).
+
+Render -> extract_spots -> hybrid identify with default settings, NEES of the attitude error
+under the published covariance. The full benchmark (bench/bench_attitude.py) runs >= 1000
+frames; this is its small, fast cousin with bands wide enough for 150 frames.
+"""
 from __future__ import annotations
 
 import numpy as np

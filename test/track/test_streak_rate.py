@@ -1,4 +1,6 @@
-"""Body rate from streak directions (star_tracker.track.streak_rate) on rendered, centroided frames.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Body rate from streak directions (star_tracker.track.streak_rate) on rendered, centroided frames.
 
 Constant-rate frames of the default camera (1024 x 1024, 15 deg, exposure 0.1 s) go through the
 real renderer and the real centroider, free streak fits or fits on the path predicted from the
@@ -37,8 +39,12 @@ def _renderer() -> StarFieldRenderer:
 
 @lru_cache(maxsize=None)
 def spots_for(rate_deg_s, pointing: int, aided: bool = False, aid_deg_s=None):
-    """Spots of a frame at body rate rate_deg_s, centroided freely or with the rate aid
-    (smear model of aid_deg_s, the true rate by default)."""
+    """
+    Spots of a frame at body rate rate_deg_s.
+
+    Centroided freely or with the rate aid (smear model of aid_deg_s, the true rate by
+    default).
+    """
     omega = np.radians(rate_deg_s)
     frame = _renderer().render(ConstantRateMotion(radec_roll_to_matrix(*POINTINGS[pointing]), omega), 10.0,
                                frame_seed(11, pointing))
@@ -47,8 +53,7 @@ def spots_for(rate_deg_s, pointing: int, aided: bool = False, aid_deg_s=None):
 
 
 def errors(estimate: StreakRate, truth: np.ndarray) -> tuple[np.ndarray, float]:
-    """Per-axis normalized error and NEES of the estimate, its sign taken towards the truth
-    when it is not known."""
+    """Per-axis normalized error and NEES of the estimate, its sign taken towards the truth when it is not known."""
     omega = estimate.angular_velocity
     if not estimate.sign_known and np.dot(omega, truth) < 0:
         omega = -omega
@@ -98,8 +103,12 @@ def test_sigma_is_useful_and_roll_is_the_weak_axis():
 
 
 def test_covariance_is_honest_over_frames():
-    """Over 8 frames at 2 deg/s (random directions and pointings) the NEES averages near 3 (its
-    chi-square mean) and no axis is off by 4 sigma: the sigma is neither optimistic nor padded."""
+    """
+    Check that the NEES over 8 frames at 2 deg/s averages near 3 and no axis is off by 4 sigma.
+
+    Random directions and pointings; 3 is its chi-square mean: the sigma is neither optimistic
+    nor padded.
+    """
     rng = np.random.default_rng(5)
     renderer = _renderer()
     nees, z_all = [], []
@@ -159,9 +168,12 @@ def test_rate_aided_streaks_carry_the_sign(rate_deg_s):
 
 
 def test_rate_aided_streaks_echo_the_aiding_rate():
-    """The aided centroider reports the predicted path's length and direction, not measured
-    ones: the estimate reproduces the aid (here 10 % too fast), not the true rate. Documents
-    the module's caveat; if the centroider starts measuring aided streaks, revisit it."""
+    """
+    The aided centroider reports the predicted path's length and direction, not measured ones.
+
+    The estimate reproduces the aid (here 10 % too fast), not the true rate. Documents the
+    module's caveat; if the centroider starts measuring aided streaks, revisit it.
+    """
     aid = tuple(1.1 * np.array(CROSS_2))
     estimate = rate_from_streaks(spots_for(CROSS_2, 0, aided=True, aid_deg_s=aid), CAMERA, EXPOSURE)
     assert np.linalg.norm(estimate.angular_velocity - np.radians(aid)) < 1e-3 * np.linalg.norm(np.radians(aid))

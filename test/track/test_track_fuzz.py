@@ -1,7 +1,11 @@
-"""Property-based tests (hypothesis) of tracking and rate estimation (star_tracker.track) with
-stamps as a faulty or replayed stream delivers them: duplicated, backward, far apart. Never a
-wrong attitude, never a non-finite rate, never an exception other than the documented
-refusal (pinned at the end, docs/RELIABILITY.md, "Defects found by fuzzing in the core")."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Property-based tests (hypothesis) of tracking and rate estimation (star_tracker.track).
+
+With stamps as a faulty or replayed stream delivers them: duplicated, backward, far apart.
+Never a wrong attitude, never a non-finite rate, never an exception other than the documented
+refusal (pinned at the end, docs/RELIABILITY.md, "Defects found by fuzzing in the core").
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -30,9 +34,12 @@ def sky(catalog):
 @examples(30)
 @given(st.lists(st.integers(0, 12), min_size=2, max_size=8), st.floats(0.0, 2 * np.pi), st.floats(-1.4, 1.4))
 def test_tracker_with_duplicate_and_backward_stamps_never_publishes_a_wrong_attitude(database, sky, stamps, ra, dec):
-    """Frames 100 ms apart on a 1 deg/s slew, delivered in any order with repeats: the tracker
-    solves them or not, but every solved attitude is the true one at that frame's stamp and
-    every rate is finite."""
+    """
+    Frames 100 ms apart on a 1 deg/s slew, delivered in any order with repeats.
+
+    The tracker solves them or not, but every solved attitude is the true one at that frame's
+    stamp and every rate is finite.
+    """
     camera = CAMERAS["nominal"]
     motion = ConstantRateMotion(radec_roll_to_matrix(ra, dec, 0.3), np.radians([1.0, -0.5, 0.2]))
     tracker = Tracker(make_identifier("hybrid", database, IdentifyConfig(max_time_s=0.2)))
@@ -71,6 +78,5 @@ def test_rate_estimator_with_out_of_order_and_duplicate_stamps(stream, window_s,
 
 # ============================================================================ defects found, fixed
 def test_rate_estimator_refuses_a_singular_covariance():
-    """Found by fuzzing: a singular attitude covariance raised LinAlgError; the documented
-    refusal is a ValueError."""
+    """Found by fuzzing: a singular attitude covariance raised LinAlgError; the documented refusal is a ValueError."""
     refused(AttitudeRateEstimator().add, 1, np.eye(3), np.zeros((3, 3)), match="covariance must be invertible")

@@ -1,5 +1,9 @@
-"""Tracking (localized recognition), rate estimate, forced loss and delay compensation, against
-the simulator's truth: real renderer, real centroider, real database."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Tracking (localized recognition), rate estimate, forced loss and delay compensation, against the simulator's truth.
+
+Real renderer, real centroider, real database.
+"""
 import math
 
 import numpy as np
@@ -10,7 +14,7 @@ from star_tracker.centroid import CentroidConfig, Spots, extract_spots
 from star_tracker.centroid.smear import SmearModel
 from star_tracker.identify import make_identifier
 from star_tracker.track.tracking import (MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Prediction, Tracker,
-                                            TrackingConfig, log_chance_tuples_in_region)
+                                         TrackingConfig, log_chance_tuples_in_region)
 from star_tracker.identify.verify import log_chance_tuples
 from star_tracker.sim.motion import ConstantRateMotion, SlewMotion
 from star_tracker.track.rate import AttitudeRateEstimator
@@ -38,7 +42,7 @@ def frames_of(renderer, motion, count, first=0, seed=0):
 
 
 def centroid(frame, camera, rate=None):
-    """The centroider, rate-aided by the tracker's own estimate as in the node pipeline."""
+    """Return the centroider, rate-aided by the tracker's own estimate as in the node pipeline."""
     smear = None if rate is None else SmearModel(camera, rate.angular_velocity, 0.1)
     return extract_spots(frame.image, CentroidConfig(), smear)
 
@@ -126,7 +130,8 @@ def test_wrong_prediction_never_gives_a_wrong_attitude(tracker_parts, nominal_ca
     (stamp_ns, frame), = frames_of(renderer, motion, 1, seed=7)
     spots = centroid(frame, nominal_camera)
     for offset_deg in (0.3, 1.0, 3.0):  # prediction off by more than its own gate claims
-        wrong = frame.truth.rotation @ rotation_vector_to_matrix(np.radians([offset_deg, -offset_deg, 0.5 * offset_deg]))
+        wrong = frame.truth.rotation @ rotation_vector_to_matrix(np.radians([offset_deg, -offset_deg,
+                                                                             0.5 * offset_deg]))
         prediction = Prediction(stamp_ns, wrong, np.eye(3) * (20 * ARCSEC) ** 2)
         result, _ = tracker.track(spots, nominal_camera, prediction)
         assert not result.solved, result.reason
@@ -205,8 +210,12 @@ def test_rate_estimator_gls_matches_its_covariance():
 
 
 def test_rate_window_restarts_after_a_rate_step():
-    """A rate step before the newest attitude breaks the window's model: the fit falls back to
-    the newest two attitudes, whose constant-rate slope (with the lag term) covers the truth."""
+    """
+    A rate step before the newest attitude breaks the window's model.
+
+    The fit falls back to the newest two attitudes, whose constant-rate slope (with the lag
+    term) covers the truth.
+    """
     rng = np.random.default_rng(5)
     start = radec_roll_to_matrix(0.4, -0.3, 1.0)
     cov = np.diag([(1 * ARCSEC) ** 2, (1 * ARCSEC) ** 2, (6 * ARCSEC) ** 2])
