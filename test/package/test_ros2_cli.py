@@ -30,6 +30,7 @@ import importlib.util
 import math
 import os
 import re
+import shlex
 import shutil
 import signal
 import subprocess
@@ -55,6 +56,7 @@ RCLPY_OWN_PARAMETERS = {"use_sim_time", "start_type_description_service"}  # dec
 DOMAIN_RUN = 216  # the README's three `ros2 run` lines
 DOMAIN_REMAP = 217  # the README's remap examples (centroider, identifier)
 DOMAIN_GYRO = 218  # the README's gyro example (a second centroider)
+DOMAIN_AUTOSTART = 221  # the README's lifecycle walk-through (an identifier started unconfigured)
 DOMAIN_LAUNCH = {"": 219, "st1": 220}  # ros2 launch, plain and namespace:=st1
 
 MY_YAML_CAMERA_RATE_HZ = 2.0  # the README's /path/to/my.yaml: the shipped YAML with a slow camera
@@ -82,41 +84,60 @@ def readme_section() -> str:
 
 
 def readme_ros2_commands() -> list[str]:
-    """Return every `ros2 ...` command of the README section: code-block lines and inline code."""
+    """Return every `ros2 ...` command of the README section, comments stripped, continuations joined.
+
+    From its bash blocks, and its inline code that is a whole command (4+ words, no <placeholder>).
+    """
     section = readme_section()
-    blocks = re.findall(r"```bash\n(.*?)```", section, re.S)
-    commands = [line.strip() for block in blocks for line in block.splitlines() if line.strip().startswith("ros2 ")]
+    commands = []
+    for block in re.findall(r"```bash\n(.*?)```", section, re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            line = re.sub(r"\s+#.*$", "", line).strip()
+            if line.startswith("ros2 "):
+                commands.append(line)
     prose = re.sub(r"```.*?```", "", section, flags=re.S)
-    commands += re.findall(r"`(ros2 [^`]+)`", prose)
+    commands += [c for c in re.findall(r"`(ros2 [^`]+)`", prose) if len(c.split()) >= 4 and "<" not in c]
     return commands
 
 
-def readme_commands(kind: str) -> list[str]:
-    """Return the README's commands of one kind: run, remap, gyro, launch or describe."""
-    def kind_of(command: str) -> str:
-        if command.startswith("ros2 launch "):
-            return "launch"
-        if command.startswith("ros2 param describe "):
-            return "describe"
-        if command.startswith("ros2 run ") and "--params-file" in command:
-            return "run"
-        if command.startswith("ros2 run ") and "angular_velocity:=" in command:
+def kind_of(command: str) -> str:
+    """Return which test runs a README command: run, autostart, gyro, remap, launch, describe, ..."""
+    words = shlex.split(command)
+    if words[:2] == ["ros2", "launch"]:
+        return "launch"
+    if words[:2] == ["ros2", "run"]:
+        if "--params-file" in words:
+            return "run"  # the three nodes, one terminal each
+        if "autostart:=false" in words:
+            return "autostart"  # the lifecycle walk-through
+        if any(w.startswith("exposure_time_s:=") for w in words):
             return "gyro"
-        if command.startswith("ros2 run ") and " -r " in command:
+        if "-r" in words:
             return "remap"
-        return "unknown"
+    return {("param", "describe"): "describe", ("lifecycle", "get"): "lifecycle_get",
+            ("lifecycle", "set"): "lifecycle_set", ("service", "call"): "service"}.get(tuple(words[1:3]), "unknown")
+
+
+def readme_commands(kind: str) -> list[str]:
+    """Return the README's commands of one kind (see kind_of), in README order."""
     return [c for c in readme_ros2_commands() if kind_of(c) == kind]
+
+
+def ros_args(command: str, flag: str) -> list[tuple[str, str]]:
+    """Return the (name, value) pairs of a command's `-r from:=to` or `-p name:=value` arguments."""
+    words = shlex.split(command)
+    return [tuple(words[i + 1].split(":=", 1)) for i in range(len(words) - 1) if words[i] == flag]
 
 
 def test_readme_ros2_commands_are_all_run_here():
     """Every ROS 2 command of the README section is one that a test below runs as written."""
     commands = readme_ros2_commands()
-    kinds = {k: readme_commands(k) for k in ("run", "remap", "gyro", "launch", "describe")}
-    unknown = [c for c in commands if not any(c in v for v in kinds.values())]
-    assert not unknown, f"README commands no test runs (add them to test_ros2_cli.py): {unknown}"
-    assert sorted(c.split()[3] for c in kinds["run"]) == sorted(NODES), kinds["run"]
-    assert len(kinds["launch"]) == 2 and "namespace:=st1" in kinds["launch"][1], kinds["launch"]
-    assert len(kinds["remap"]) == 2 and len(kinds["gyro"]) == 1 and len(kinds["describe"]) == 1, kinds
+    unknown = [c for c in commands if kind_of(c) == "unknown"]
+    assert not unknown, f"README commands no test runs (teach test_ros2_cli.py kind_of): {unknown}"
+    assert sorted(c.split()[3] for c in readme_commands("run")) == sorted(NODES), readme_commands("run")
+    launches = readme_commands("launch")
+    assert len(launches) == 2 and "namespace:=st1" in launches[1] and "/path/to/my.yaml" in launches[1], launches
+    assert len(readme_commands("gyro")) <= 1 and len(readme_commands("autostart")) <= 1
     section = readme_section()
     assert "colcon build" in section and "source install/setup.bash" in section  # what the fixtures do
 
@@ -429,10 +450,11 @@ def test_ros2_run_nodes_form_the_pipeline(run_nodes):
 
 
 def test_readme_param_describe_command(run_nodes):
-    (command,) = readme_commands("describe")
-    out = run_nodes(*command.split()[1:])
-    assert "Parameter name: rate_hz" in out and "Type: double" in out, out
-    assert re.search(r"Description: \S", out), out
+    for command in readme_commands("describe"):
+        name = command.split()[4]
+        out = run_nodes(*shlex.split(command)[1:])
+        assert f"Parameter name: {name}" in out and "Type: " in out, out
+        assert re.search(r"Description: \S", out), out
 
 
 @pytest.mark.parametrize("node", NODES)
@@ -498,6 +520,11 @@ def test_ros2_lifecycle_get_every_node(run_nodes):
     assert {f"/{n}" for n in NODES} <= set(listed), listed
     for node in NODES:
         assert run_nodes("lifecycle", "get", f"/{node}").strip() == "active [3]"
+    for command in readme_commands("lifecycle_get"):  # e.g. `ros2 lifecycle get /identifier  # active`
+        assert run_nodes(*shlex.split(command)[1:]).strip() == "active [3]", command
+
+
+LIFECYCLE_GOAL = {"configure": "inactive", "activate": "active", "deactivate": "inactive", "cleanup": "unconfigured"}
 
 
 def lifecycle_set(ros2: Ros2, node: str, transition: str, state: str) -> None:
@@ -530,7 +557,8 @@ def test_ros2_service_call_identifier_reset(run_nodes):
     skip_without_lifecycle(run_nodes)
     if "/identifier/reset" not in run_nodes("service", "list").split():
         pytest.skip("issue 18 part 5 (lifecycle branch) not merged: no /identifier/reset service")
-    out = run_nodes("service", "call", "/identifier/reset", "std_srvs/srv/Trigger")
+    command = (readme_commands("service") or ["ros2 service call /identifier/reset std_srvs/srv/Trigger"])[0]
+    out = run_nodes(*shlex.split(command)[1:])
     assert "success=True" in out, out
     run_nodes.one_message("/attitude", "geometry_msgs/msg/QuaternionStamped")  # identified again
     assert int(run_nodes.diagnostics_of("/identifier").get("resets", "0")) >= 1
@@ -540,54 +568,85 @@ def test_ros2_run_nodes_stop_on_ctrl_c(run_nodes):
     stop_all_cleanly(run_nodes)
 
 
-# --- the README's remap and gyro examples (started without --params-file) -----------------------
+# --- the README's remap, gyro and lifecycle examples (started without --params-file) -------------
 
 @pytest.fixture(scope="module")
-def remapped_nodes(user_env, tmp_path_factory):
-    """Start the README's remap lines (one domain) and its gyro line (another: a second centroider)."""
-    log_dir = tmp_path_factory.mktemp("ros2_remap")
-    remap, gyro = Ros2(user_env, DOMAIN_REMAP, log_dir), Ros2(user_env, DOMAIN_GYRO, log_dir)
+def readme_examples(user_env, tmp_path_factory):
+    """Start the README's remap lines (one domain), gyro line and lifecycle walk-through (one each)."""
+    log_dir = tmp_path_factory.mktemp("ros2_examples")
+    shells = {kind: Ros2(user_env, domain, log_dir)
+              for kind, domain in (("remap", DOMAIN_REMAP), ("gyro", DOMAIN_GYRO), ("autostart", DOMAIN_AUTOSTART))}
     try:
-        for command in readme_commands("remap"):
-            remap.start(f"remap_{command.split()[3]}", command)
-        (command,) = readme_commands("gyro")
-        gyro.start("gyro_centroider", command)
-        remap.wait_nodes(["/centroider", "/identifier"])
-        gyro.wait_nodes(["/centroider"])
-        yield remap, gyro
+        for kind, ros2 in shells.items():
+            for command in readme_commands(kind):
+                ros2.start(f"{kind}_{command.split()[3]}", command)
+        for kind, ros2 in shells.items():
+            ros2.wait_nodes([f"/{c.split()[3]}" for c in readme_commands(kind)])
+        yield shells
     finally:
-        remap.kill_all()
-        gyro.kill_all()
+        for ros2 in shells.values():
+            ros2.kill_all()
 
 
-def subscriptions(ros2: Ros2, node: str) -> list[str]:
-    """Return the topics `ros2 node info` lists under the node's Subscribers."""
+def topics_of(ros2: Ros2, node: str) -> list[str]:
+    """Return the topics `ros2 node info` lists under the node's Subscribers and Publishers."""
     out = ros2("node", "info", node)
-    section = out.split("Subscribers:", 1)[1].split("Publishers:", 1)[0]
-    return [line.split(":")[0].strip() for line in section.splitlines() if line.strip()]
+    section = out.split("Subscribers:", 1)[1].split("Service Servers:", 1)[0]
+    return [line.split(":")[0].strip() for line in section.splitlines() if line.strip().startswith("/")]
 
 
-def test_readme_remaps_subscribe_the_remapped_topics(remapped_nodes):
-    remap, gyro = remapped_nodes
-    assert "/cam0/image_raw" in subscriptions(remap, "/centroider")
-    assert "/cam0/camera_info" in subscriptions(remap, "/identifier")
-    assert "/imu/rate_in_camera_frame" in subscriptions(gyro, "/centroider")
-    assert gyro("param", "get", "/centroider", "exposure_time_s").strip() == "Double value is: 0.1"
+def test_readme_remaps_and_parameters_take_effect(readme_examples):
+    """Each README remap/gyro line: its nodes use the remapped topics and the -p values."""
+    checked = 0
+    for kind in ("remap", "gyro"):
+        ros2 = readme_examples[kind]
+        for command in readme_commands(kind):
+            node = f"/{command.split()[3]}"
+            topics = topics_of(ros2, node)
+            for _, to in ros_args(command, "-r"):
+                assert to in topics, f"{command}: {to} not among {node}'s topics {topics}"
+                checked += 1
+            if ros_args(command, "-p"):
+                dumped = dump(ros2, node)
+                for name, value in ros_args(command, "-p"):
+                    assert same_value(dumped.get(name), yaml.safe_load(value)), (command, name, dumped.get(name))
+    assert checked >= 3, "the README's remap examples went missing"
 
 
-def test_nodes_started_without_a_params_file_equal_the_yaml(remapped_nodes, shipped_yaml):
+def test_readme_lifecycle_walk_through(readme_examples):
+    """The README's `-p autostart:=false` identifier driven by its `ros2 lifecycle set` lines, as written."""
+    if not readme_commands("autostart"):
+        pytest.skip("issue 18 part 5 (lifecycle branch) not merged: the README has no lifecycle walk-through")
+    ros2 = readme_examples["autostart"]
+    (node,) = {f"/{c.split()[3]}" for c in readme_commands("autostart")}
+    assert ros2("lifecycle", "get", node).strip() == "unconfigured [1]"
+    assert "value is" in ros2("param", "get", node, "autostart")  # parameters visible while unconfigured
+    for command in readme_commands("lifecycle_set"):
+        out = ros2(*shlex.split(command)[1:])
+        assert "Transitioning successful" in out, (command, out)
+        goal = LIFECYCLE_GOAL[shlex.split(command)[4]]
+        assert ros2("lifecycle", "get", node).strip().startswith(goal + " ["), command
+    values = ros2.diagnostics_of(node)
+    assert int(values.get("database_loads", "0")) == 1, values  # activate again did not reload it
+
+
+def test_nodes_started_without_a_params_file_equal_the_yaml(readme_examples, shipped_yaml):
     """Issue 18 part 1: `ros2 run` without --params-file gives every parameter the YAML's value."""
-    remap, _ = remapped_nodes
-    differ = {node: mismatches(dump(remap, f"/{node}"), yaml_parameters(shipped_yaml, node))
-              for node in ("centroider", "identifier")}
+    ros2 = readme_examples["remap"]
+    differ = {}
+    for command in readme_commands("remap"):
+        node = command.split()[3]
+        given = dict(ros_args(command, "-p"))
+        expected = {k: v for k, v in yaml_parameters(shipped_yaml, node).items() if k not in given}
+        differ[node] = mismatches(dump(ros2, f"/{node}"), expected)
     differ = {node: d for node, d in differ.items() if d}
     if differ and importlib.util.find_spec("star_tracker.ros.parameter_yaml") is None:
         pytest.skip(f"issue 18 part 1 (params branch) not merged; built-in defaults differ: {differ}")
     assert not differ, f"built-in defaults (dump) vs the shipped YAML: {differ}"
 
 
-def test_readme_remap_nodes_stop_on_ctrl_c(remapped_nodes):
-    for ros2 in remapped_nodes:
+def test_readme_example_nodes_stop_on_ctrl_c(readme_examples):
+    for ros2 in readme_examples.values():
         stop_all_cleanly(ros2)
 
 
