@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: venv demo test test-fast clean example-bag
+.PHONY: venv demo test test-fast clean example-bag ros2cli
 
 venv: $(STAMP)
 
@@ -21,11 +21,24 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml
 demo: $(STAMP)
 	$(VENV)/bin/star-tracker demo --duration 30 --output demo_output
 
-test: $(STAMP)
+test: $(STAMP) ros2cli
 	$(PY) -m pytest
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -m "not slow"
+
+# The real ros2 CLI (ros2 run/launch/param/lifecycle/...) for test/package/test_ros2_cli.py, from the
+# workplace's ../shared/ros2cli, installed into .venv only where that exists (elsewhere: nothing
+# to do, and those tests skip); colcon-bash gives colcon builds their install/setup.bash.
+ROS2CLI       := ../shared/ros2cli
+ROS2CLI_STAMP := $(VENV)/.ros2cli-installed
+
+ros2cli: $(if $(wildcard $(ROS2CLI)/install.sh),$(ROS2CLI_STAMP))
+
+$(ROS2CLI_STAMP): $(STAMP) $(wildcard $(ROS2CLI)/install.sh)
+	bash $(ROS2CLI)/install.sh $(VENV)
+	$(PY) -m pip install --quiet colcon-bash==0.5.0
+	touch $(ROS2CLI_STAMP)
 
 # A small example bag (4 s at 5 Hz through the three nodes, ~40 MiB), made by a command and
 # never committed: `star-tracker play example_bag` replays it (README, docs/RECORD_REPLAY.md).

@@ -8,6 +8,9 @@ directory, so a run never depends on a developer's ~/.cache.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -91,3 +94,39 @@ def spots_at(sky, camera, rotation):
     return Spots(u[keep][order], v[keep][order], 1e5 * 10 ** (-0.4 * sky.hp[keep][order]), np.full(n, 50.0),
                  np.tile(np.eye(2) * 0.01, (n, 1, 1)), np.zeros(n, np.uint32), np.ones(n, np.int32), np.ones(n),
                  camera.width, camera.height)
+
+
+# --- the package built by colcon, shared by test/package/test_colcon_install.py and test_ros2_cli.py ---
+COLCON_REPO = Path(os.environ.get("STAR_TRACKER_REPO") or Path(__file__).resolve().parents[1]).resolve()
+COLCON_REPO_ARTIFACTS = ("build", "install", "log", "star_tracker.egg-info")  # a build must never make these
+
+
+@pytest.fixture(scope="session")
+def colcon_workspace(tmp_path_factory) -> Path:
+    """
+    Run `colcon build` of the repository once per session; return the workspace (holds install/).
+
+    The build runs with the interpreter running pytest, into a tmp workspace, and must leave
+    nothing in the repository. STAR_TRACKER_REPO builds another checkout.
+    """
+    ws = tmp_path_factory.mktemp("colcon_ws")
+    preexisting = {name for name in COLCON_REPO_ARTIFACTS if (COLCON_REPO / name).exists()}
+    env = os.environ.copy()
+    # Ignore the user's ~/.colcon/defaults.yaml (e.g. `symlink-install: true` would install
+    # only an egg-link, making the node import star_tracker from the source tree).
+    env.pop("COLCON_DEFAULTS_FILE", None)
+    env["COLCON_HOME"] = str(ws / "colcon_home")
+    env["COLCON_LOG_PATH"] = str(ws / "log")
+    cmd = [sys.executable, "-m", "colcon", "--log-base", str(ws / "log"), "build",
+           "--base-paths", str(COLCON_REPO), "--build-base", str(ws / "build"),
+           "--install-base", str(ws / "install"), "--event-handlers", "console_direct+"]
+    # 900 s: the build compiles the nodes' numba kernels (star_tracker/install_compile.py).
+    result = subprocess.run(cmd, cwd=ws, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, timeout=900, check=False)
+    created = sorted(n for n in COLCON_REPO_ARTIFACTS if (COLCON_REPO / n).exists() and n not in preexisting)
+    assert not created, f"colcon build created {created} inside the repo {COLCON_REPO}"
+    assert result.returncode == 0, (
+        f"colcon build failed (exit {result.returncode}):\n{' '.join(cmd)}\n{result.stdout[-8000:]}")
+    assert "Finished <<< star_tracker" in result.stdout, (
+        f"colcon did not build star_tracker from {COLCON_REPO}:\n{result.stdout[-8000:]}")
+    return ws

@@ -12,7 +12,8 @@ Real build, real processes, no mocks:
   until its lifecycle ``~/get_state`` answers ``active`` (autostart), sends SIGINT and expects
   exit code 0 within 15 s.
 
-Set STAR_TRACKER_REPO to build another checkout (default: the repo containing this file).
+Set STAR_TRACKER_REPO to build another checkout (default: the repo containing this file); the
+build is test/conftest.py's session fixture `colcon_workspace`.
 """
 from __future__ import annotations
 
@@ -30,16 +31,11 @@ import pytest
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
-REPO = Path(os.environ.get("STAR_TRACKER_REPO") or Path(__file__).resolve().parents[2]).resolve()
 PACKAGE = "star_tracker"
 DIST_NAME = "star-tracker"  # setuptools' normalised name used by the generated entry scripts
 NODE_EXECUTABLES = ("camera_simulator", "centroider", "identifier")
 SITE_PACKAGES = f"lib/python{sys.version_info.major}.{sys.version_info.minor}/site-packages"
 
-# Things a build must never create inside the source repository.
-REPO_ARTIFACTS = ("build", "install", "log", f"{PACKAGE}.egg-info")
-
-BUILD_TIMEOUT_S = 900  # the build compiles the nodes' numba kernels (install_compile.py): 1-4 min
 READY_TIMEOUT_S = 120
 SHUTDOWN_TIMEOUT_S = 15
 
@@ -69,46 +65,10 @@ def _is_inside(path: str | Path, root: Path) -> bool:
 
 
 @pytest.fixture(scope="module")
-def workspace(tmp_path_factory) -> Path:
-    """Run `colcon build` once for the module; return the workspace dir (holds install/)."""
-    ws = tmp_path_factory.mktemp("colcon_ws")
-    preexisting = {name for name in REPO_ARTIFACTS if (REPO / name).exists()}
-
-    env = os.environ.copy()
-    # Ignore the user's ~/.colcon/defaults.yaml (e.g. `symlink-install: true` would install
-    # only an egg-link, making the node import star_tracker from the source tree).
-    env.pop("COLCON_DEFAULTS_FILE", None)
-    env["COLCON_HOME"] = str(ws / "colcon_home")
-    env["COLCON_LOG_PATH"] = str(ws / "log")
-    cmd = [
-        sys.executable, "-m", "colcon",
-        "--log-base", str(ws / "log"),
-        "build",
-        "--base-paths", str(REPO),
-        "--build-base", str(ws / "build"),
-        "--install-base", str(ws / "install"),
-        "--event-handlers", "console_direct+",
-    ]
-    result = subprocess.run(
-        cmd, cwd=ws, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT, text=True, timeout=BUILD_TIMEOUT_S, check=False,
-    )
-
-    created = sorted(n for n in REPO_ARTIFACTS if (REPO / n).exists() and n not in preexisting)
-    assert not created, f"colcon build created {created} inside the repo {REPO}"
-    assert result.returncode == 0, (
-        f"colcon build failed (exit {result.returncode}):\n{' '.join(cmd)}\n{result.stdout[-8000:]}"
-    )
-    assert f"Finished <<< {PACKAGE}" in result.stdout, (
-        f"colcon did not build {PACKAGE} from {REPO}:\n{result.stdout[-8000:]}"
-    )
-    return ws
-
-
-@pytest.fixture(scope="module")
-def prefix(workspace) -> Path:
-    """The package's install prefix, install/star_tracker (colcon's isolated layout)."""
-    return workspace / "install" / PACKAGE
+def prefix(colcon_workspace) -> Path:
+    """The package's install prefix, install/star_tracker (colcon's isolated layout); the
+    build is the session's (test/conftest.py colcon_workspace, shared with test_ros2_cli.py)."""
+    return colcon_workspace / "install" / PACKAGE
 
 
 @pytest.fixture(scope="module")
