@@ -10,11 +10,11 @@ STAMP  := $(VENV)/.installed
 venv: $(STAMP)
 
 # Re-install when the pins or the package metadata change.
-$(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml
+$(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements-dev.txt
-	$(PY) -m pip install --quiet --no-deps -e .
+	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .  # pyproject's build requirements are installed already
 	$(PY) -m star_tracker.warm_up  # compile the numba kernels now, not at the first node start
 	touch $(STAMP)
 
