@@ -1,6 +1,11 @@
-"""`star-tracker` command line. `star-tracker demo` (here) is what `make demo` runs; the other
-subcommands are in star_tracker/commands/: `record`, `play`, `info` and `reindex` handle rosbag2
-bags (commands/bags.py, docs/RECORD_REPLAY.md), then render, solve, calibrate, database, monitor, bench."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker` command line.
+
+`star-tracker demo` (here) is what `make demo` runs; the other subcommands are in
+star_tracker/commands/: `record`, `play`, `info` and `reindex` handle rosbag2 bags (commands/bags.py,
+docs/RECORD_REPLAY.md), then render, solve, calibrate, database, monitor, bench.
+"""
 from __future__ import annotations
 
 import argparse
@@ -42,9 +47,11 @@ def default_params_file() -> Path | None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """`star-tracker demo`: the three nodes on a scenario, one status line per frame, then a
-    summary and the output files. Exit code 0 when every node exited cleanly, frames arrived
-    and a picture was written."""
+    """
+    `star-tracker demo`: the three nodes on a scenario, one status line per frame, then a summary and the output files.
+
+    Exit code 0 when every node exited cleanly, frames arrived and a picture was written.
+    """
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     print(f"star_tracker demo: scenario '{args.scenario}', {args.duration:g} s at {args.rate:g} Hz"
@@ -64,8 +71,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _prepare_catalog_and_database() -> None:
-    """Parse the catalog and build (or load) the pattern database before the nodes start, so
-    that the nodes find both cached."""
+    """
+    Parse the catalog and build (or load) the pattern database before the nodes start.
+
+    so that the nodes find both cached.
+    """
     from .identify import DatabaseConfig, load_or_build_database
     from .models.catalog import load_hipparcos
 
@@ -76,9 +86,11 @@ def _prepare_catalog_and_database() -> None:
 
 
 def _run_demo_nodes(args: argparse.Namespace, out: Path):
-    """Run the nodes (and the recorder with --record) on a private DDS domain until every frame
+    """
+    Run the nodes (and the recorder with --record) on a private DDS domain until every frame
     was reported or the time is up. Returns the monitor's frames in stamp order and the
-    processes' exit codes."""
+    processes' exit codes.
+    """
     from .ros.pipeline import NodeProcesses, TrackerMonitor, isolated_ros_environment
 
     env = isolated_ros_environment()
@@ -111,8 +123,10 @@ def _run_demo_nodes(args: argparse.Namespace, out: Path):
 
 
 def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
-    """Spin the monitor and print one line per frame as soon as its attitude and matches
-    arrived (or 1.5 s after it was first seen), until frames_wanted lines or duration_s + 8 s."""
+    """
+    Spin the monitor and print one line per frame as soon as its attitude and matches
+    arrived (or 1.5 s after it was first seen), until frames_wanted lines or duration_s + 8 s.
+    """
     printed: set[int] = set()
     index = 0
     print(f"{'frame':>5}  {'stamp [s]':>16}  {'spots':>5}  {'ident':>5}  {'cross-bore':>10}  {'roll':>8}  {'latency':>8}")
@@ -134,8 +148,12 @@ def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
 
 
 def _frame_status_line(index: int, ns: int, f) -> str:
-    """One status line: frame number, stamp [s], spots, identified stars, attitude error vs
-    truth [arcsec] and latency [ms]."""
+    """
+    One status line.
+
+    frame number, stamp [s], spots, identified stars, attitude error vs truth [arcsec] and
+    latency [ms].
+    """
     error = f.error()
     spots = "-" if f.spot_count is None else str(f.spot_count)
     if error is None:
@@ -156,8 +174,12 @@ def _summarize_demo(frames, scenario: str, codes: dict[str, int]) -> dict:
 
 
 def write_frames_csv(frames, path: Path) -> None:
-    """Per frame with truth: stamp [ns], spots, matched stars, cross-boresight and roll error
-    [arcsec], latency [ms] (empty where not identified)."""
+    """
+    Per frame with truth.
+
+    stamp [ns], spots, matched stars, cross-boresight and roll error [arcsec], latency [ms]
+    (empty where not identified).
+    """
     with open(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(["stamp_ns", "spots", "matched", "cross_boresight_arcsec", "roll_arcsec", "latency_ms"])
@@ -185,9 +207,12 @@ def print_demo_summary(summary: dict, codes: dict[str, int]) -> None:
 
 
 def start_recorder(output: str, env: dict[str, str]):
-    """`star-tracker record` (default topics) as a separate process on the demo's domain. It
-    subscribes as the nodes' publishers appear, well before the camera's first exposure
-    (the camera waits for its subscribers, then start_delay_s)."""
+    """
+    `star-tracker record` (default topics) as a separate process on the demo's domain.
+
+    It subscribes as the nodes' publishers appear, well before the camera's first exposure
+    (the camera waits for its subscribers, then start_delay_s).
+    """
     import subprocess
 
     if Path(output).exists():
@@ -217,8 +242,7 @@ def stop_recorder(process) -> int:
 
 
 def write_run_figure(frames, path: Path) -> Path | None:
-    """Attitude error and rate against time for the run (visualize.run_figure), or None when
-    no frame had truth."""
+    """Attitude error and rate against time for the run (visualize.run_figure), or None when no frame had truth."""
     from .visualize import run_arrays, run_figure, save_figure
 
     arrays = run_arrays(frames)

@@ -1,4 +1,6 @@
-"""camera_simulator: renders Hipparcos star frames and publishes them with the truth used.
+# SPDX-License-Identifier: Apache-2.0
+"""
+camera_simulator: renders Hipparcos star frames and publishes them with the truth used.
 
 Publishes image_raw (mono16), camera_info, truth/attitude, truth/angular_velocity and
 truth/objects, all with the frame's mid-exposure stamp. See msg_docs/.
@@ -100,8 +102,11 @@ class CameraSimulatorNode(ManagedNode):
             f"{len(self.renderer.catalog)} stars to Hp {sky.magnitude_limit}, attitude profile {self.profile}")
 
     def activate(self) -> None:
-        """First activation: start the exposures (once subscribed, with wait_for_subscribers).
-        Later ones resume the same time line: frames that fell in the inactive time are skipped."""
+        """
+        First activation: start the exposures (once subscribed, with wait_for_subscribers).
+
+        Later ones resume the same time line: frames that fell in the inactive time are skipped.
+        """
         if self.t0_ns is not None:
             self.resume()
         elif self.wait_for_subscribers:
@@ -119,8 +124,9 @@ class CameraSimulatorNode(ManagedNode):
         self.pending = None
 
     def release(self) -> None:
-        """Undo configure: timers, topics, renderer and catalog; the next activation starts a new
-        time line from frame 0."""
+        """
+        Undo configure: timers, topics, renderer and catalog; the next activation starts a new time line from frame 0.
+        """
         self.deactivate()
         for name in ("pub_image", "pub_info", "pub_truth", "pub_truth_rate", "pub_truth_objects"):
             if getattr(self, name, None) is not None:
@@ -141,11 +147,15 @@ class CameraSimulatorNode(ManagedNode):
         self.wait_for_subscribers, self.seed = values["wait_for_subscribers"], values["seed"]
 
     def apply_parameters(self, changes: dict) -> str | None:
-        """Runtime sensor changes (see parameters.guard_parameter_changes): the new SensorModel
-        is built (checked) first; the renderer is rebuilt with it (the fixed pattern is drawn
-        from the same seed: unchanged; ~0.2 s for 1024 x 1024 px, so a frame due meanwhile is
-        delivered late, counted as frames_rendered_late) and a frame rendered ahead is dropped,
-        so the next frame delivered is exposed with the new settings."""
+        """
+        Runtime sensor changes (see parameters.guard_parameter_changes).
+
+        the new SensorModel is built (checked) first; the renderer is rebuilt with it (the
+        fixed pattern is drawn from the same seed: unchanged; ~0.2 s for 1024 x 1024 px, so a
+        frame due meanwhile is delivered late, counted as frames_rendered_late) and a frame
+        rendered ahead is dropped, so the next frame delivered is exposed with the new
+        settings.
+        """
         sensor = replace(self.sensor, **field_values(SENSOR_PARAMETERS, changes))
         if sensor.exposure_s * self.rate_hz > 1.0:
             return f"sensor.exposure_s={sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s"
@@ -192,9 +202,12 @@ class CameraSimulatorNode(ManagedNode):
                                                            self.on_external_rate, **overridable(TRUTH_INPUT_QOS))
 
     def start(self) -> None:
-        """Fix the time origin and start the frame timer. Its ticks fall at now + n*period and
-        are never early; frame k is delivered on a tick, t0 + (k+1) period + delivery_offset_ns,
-        and t0 is at least start_delay_s after now."""
+        """
+        Fix the time origin and start the frame timer.
+
+        Its ticks fall at now + n*period and are never early; frame k is delivered on a tick, t0
+        + (k+1) period + delivery_offset_ns, and t0 is at least start_delay_s after now.
+        """
         now_ns = self.get_clock().now().nanoseconds
         delay_ticks = int(np.ceil((self.start_delay_s * 1e9 + self.delivery_offset_ns) / self.period_ns))
         self.t0_ns = now_ns + delay_ticks * self.period_ns - self.delivery_offset_ns
@@ -204,8 +217,12 @@ class CameraSimulatorNode(ManagedNode):
         self._start_timer(now_ns)
 
     def resume(self) -> None:
-        """Activated again: the same t0 and motion (the attitude went on meanwhile); the frames
-        due while inactive, or too soon to expose fully, are skipped (frames_skipped_inactive)."""
+        """
+        Activated again.
+
+        the same t0 and motion (the attitude went on meanwhile); the frames due while inactive,
+        or too soon to expose fully, are skipped (frames_skipped_inactive).
+        """
         now_ns = self.get_clock().now().nanoseconds
         delivered = (now_ns - self.t0_ns - self.delivery_offset_ns) // self.period_ns  # frames due by now
         following = max(self.frame_index, int(delivered) + 1)
@@ -311,8 +328,12 @@ class CameraSimulatorNode(ManagedNode):
             self.call_at(self.delivery_ns(k), now_ns)
 
     def render_lead_ns(self) -> int:
-        """How long before its delivery a frame's render starts [ns]: 1.5 x the slowest of the
-        recent renders + 3 ms, at most a period (i.e. as soon as the previous frame is out)."""
+        """
+        How long before its delivery a frame's render starts [ns].
+
+        1.5 x the slowest of the recent renders + 3 ms, at most a period (i.e. as soon as the
+        previous frame is out).
+        """
         if not self.render_times:
             return self.period_ns
         return min(self.period_ns, int((1.5 * max(self.render_times) + 0.003) * 1e9))

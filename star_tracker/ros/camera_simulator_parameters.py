@@ -1,12 +1,17 @@
-"""camera_simulator's parameters, each declared once (ROS-free): the SensorModel and
-FalseObjectModel fields (their spec is the dataclass field metadata, sim/sensor.py, sim/render.py)
-under the node's names with the simulated camera's defaults, and the node's own; in the order the
-node declares them (the first bad value is the one reported) and config/star_tracker.yaml lists
-them. The models the node runs are built from the declared values here.
+# SPDX-License-Identifier: Apache-2.0
+"""
+camera_simulator's parameters, each declared once (ROS-free).
+
+the SensorModel and FalseObjectModel fields (their spec is the dataclass field metadata,
+sim/sensor.py, sim/render.py) under the node's names with the simulated camera's defaults, and the
+node's own; in the order the node declares them (the first bad value is the one reported) and
+config/star_tracker.yaml lists them. The models the node runs are built from the declared values
+here.
 
 Dynamic (`ros2 param set` while running): the sensor settings a camera driver changes between
 frames (exposure, gain, read noise, bias, detector temperature); the renderer is rebuilt with
-them for the next frame. The rest (image size, optics, sky, motion) is read-only."""
+them for the next frame. The rest (image size, optics, sky, motion) is read-only.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -197,8 +202,11 @@ def motion_kwargs_from(values: dict) -> dict:
 
 
 def attitude_from(values: dict) -> AttitudeSetup:
-    """The initial attitude (a quaternion, else RA/Dec/roll) and the motion profile, checked:
-    a bad profile fails at startup, not at the first frame."""
+    """
+    The initial attitude (a quaternion, else RA/Dec/roll) and the motion profile, checked.
+
+    a bad profile fails at startup, not at the first frame.
+    """
     quaternion = values["attitude.quaternion"]
     ra, dec, roll = (np.radians(values[f"attitude.{k}"]) for k in ("ra_deg", "dec_deg", "roll_deg"))
     profile = values["attitude.profile"]

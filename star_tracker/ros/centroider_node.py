@@ -1,4 +1,6 @@
-"""centroider: extracts star spots from any mono8/mono16 Image and publishes `spots`.
+# SPDX-License-Identifier: Apache-2.0
+"""
+centroider: extracts star spots from any mono8/mono16 Image and publishes `spots`.
 
 The spots message carries the image's header unchanged (stamp = mid-exposure). A malformed
 image is logged, counted in /diagnostics and skipped; the next good one is processed. Frames
@@ -103,8 +105,11 @@ class CentroiderNode(ManagedNode):
         self.sub_imu = self.create_subscription(Imu, "imu", self.rate_input.on_imu, **overridable(RATE_INPUT_QOS))
 
     def release(self) -> None:
-        """Undo configure: stop the worker, remove the topics, forget the camera model, the
-        latest rate and the PSF estimate."""
+        """
+        Undo configure: stop the worker, remove the topics, forget the camera model.
+
+        the latest rate and the PSF estimate.
+        """
         if self.frames is not None:
             self.frames.stop()
             self.frames = None
@@ -217,8 +222,10 @@ class CentroiderNode(ManagedNode):
                       **psf_values(spots.psf))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:
-        """Count and log a frame with no signal (every pixel equal: lens cap, dead sensor) or a
-        saturated background (Sun, Earth limb, overexposure); None for a usable frame."""
+        """
+        Count and log a frame with no signal (every pixel equal: lens cap, dead sensor) or a
+        saturated background (Sun, Earth limb, overexposure); None for a usable frame.
+        """
         saturation = self.config.saturation_adu or np.iinfo(image.dtype).max
         if spots.background_adu >= saturation:
             self.reject("frames_saturated", f"saturated frame: background {spots.background_adu:.0f} ADU "

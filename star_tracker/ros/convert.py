@@ -1,4 +1,6 @@
-"""Message <-> core-record conversion. Layouts are documented in msg_docs/.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Message <-> core-record conversion. Layouts are documented in msg_docs/.
 
 Raises ValueError with a message naming the problem for any malformed message (and never
 another exception type: test/ros/test_fuzz.py checks that on generated garbage).
@@ -210,12 +212,16 @@ def cloud_to_spots(msg: PointCloud2, width: int, height: int) -> Spots:
 
 
 def drop_invalid_spots(spots: Spots) -> tuple[Spots, int]:
-    """The spots a real measurement can produce, and how many others were dropped: position,
-    flux and covariance finite, variances in [0, MAX_SPOT_SIGMA_PX^2] px^2, position within
-    SPOT_MARGIN_PX of the image, and no two closer than MIN_SPOT_SEPARATION_PX (the first,
-    brightest, is kept). NaN/inf from a faulty producer would otherwise reach the identifier,
-    whose tolerances grow with the covariance (and its run time with them); coincident spots
-    make its pattern kernels divide by zero (docs/RELIABILITY.md, known defects)."""
+    """
+    The spots a real measurement can produce, and how many others were dropped.
+
+    position, flux and covariance finite, variances in [0, MAX_SPOT_SIGMA_PX^2] px^2,
+    position within SPOT_MARGIN_PX of the image, and no two closer than
+    MIN_SPOT_SEPARATION_PX (the first, brightest, is kept). NaN/inf from a faulty producer
+    would otherwise reach the identifier, whose tolerances grow with the covariance (and its
+    run time with them); coincident spots make its pattern kernels divide by zero
+    (docs/RELIABILITY.md, known defects).
+    """
     with np.errstate(invalid="ignore"):
         var_x, var_y = spots.cov[:, 0, 0], spots.cov[:, 1, 1]
         limit = MAX_SPOT_SIGMA_PX ** 2
@@ -260,8 +266,12 @@ def quaternion_from_msg(msg: QuaternionStamped) -> np.ndarray:
 
 
 def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int, frame_id: str = ICRS_FRAME) -> PoseWithCovarianceStamped:
-    """Orientation + 6x6 covariance: the position block is unknown (-1 on its diagonal); the
-    rotation block is the sensor-frame small-angle attitude error covariance [rad^2]."""
+    """
+    Orientation + 6x6 covariance.
+
+    the position block is unknown (-1 on its diagonal); the rotation block is the
+    sensor-frame small-angle attitude error covariance [rad^2].
+    """
     msg = PoseWithCovarianceStamped()
     msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
     o = msg.pose.pose.orientation
@@ -271,8 +281,10 @@ def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int, frame_id
 
 
 def _rotation_block_covariance(block: np.ndarray) -> list[float]:
-    """Row-major 6x6 covariance of a pose/twist whose linear part is unknown (-1 on its
-    diagonal, as REP 145 suggests) and whose angular part is `block` (3x3)."""
+    """
+    Row-major 6x6 covariance of a pose/twist whose linear part is unknown (-1 on its
+    diagonal, as REP 145 suggests) and whose angular part is `block` (3x3).
+    """
     cov = np.zeros((6, 6))
     cov[0, 0] = cov[1, 1] = cov[2, 2] = -1.0
     cov[3:, 3:] = block
@@ -287,8 +299,10 @@ def vector3_msg(vector: np.ndarray, stamp_ns: int, frame_id: str) -> Vector3Stam
 
 
 def rate_with_covariance_msg(rate, frame_id: str) -> TwistWithCovarianceStamped:
-    """Body rate (sensor frame, rad/s) with its 3x3 covariance [rad^2/s^2] in the angular
-    block of a TwistWithCovarianceStamped; the linear part is unknown (-1 on its diagonal)."""
+    """
+    Body rate (sensor frame, rad/s) with its 3x3 covariance [rad^2/s^2] in the angular
+    block of a TwistWithCovarianceStamped; the linear part is unknown (-1 on its diagonal).
+    """
     msg = TwistWithCovarianceStamped()
     msg.header = Header(stamp=ns_to_stamp(rate.stamp_ns), frame_id=frame_id)
     msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z = (

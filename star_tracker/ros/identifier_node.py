@@ -1,4 +1,6 @@
-"""identifier: star identification (lost-in-space, then tracking) + attitude and body rate.
+# SPDX-License-Identifier: Apache-2.0
+"""
+identifier: star identification (lost-in-space, then tracking) + attitude and body rate.
 
 Needs the camera model from `camera_info`. Publishes attitude, attitude_with_covariance and
 matched_stars with the spots' stamp, only for verified solutions, and angular_velocity once two
@@ -124,8 +126,11 @@ class IdentifierNode(ManagedNode):
         self.srv_reset = self.create_service(Trigger, "~/reset", self.on_reset)
 
     def configure(self) -> None:
-        """Load (or build) the pattern database, make the identifier and the tracker, compile
-        their kernels, then create the topics and the worker threads."""
+        """
+        Load (or build) the pattern database, make the identifier and the tracker, compile their kernels.
+
+        then create the topics and the worker threads.
+        """
         started = time.perf_counter()
         self.database = load_or_build_database(self.db_config)
         self.identifier = make_identifier(self.algorithm, self.database, self.config)
@@ -152,8 +157,11 @@ class IdentifierNode(ManagedNode):
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, **overridable(SPOTS_QOS))
 
     def release(self) -> None:
-        """Undo configure: stop the workers, remove the topics, drop the track, the camera model
-        and the database (the next configure loads it again)."""
+        """
+        Undo configure: stop the workers, remove the topics, drop the track.
+
+        the camera model and the database (the next configure loads it again).
+        """
         if self.frames is not None:
             self.frames.stop()
             self.frames = None
@@ -176,8 +184,9 @@ class IdentifierNode(ManagedNode):
         self.diag.value("mode", MODE_LOST)
 
     def on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        """~/reset: drop the track (and any lost-in-space solve in progress); the next frame is
-        identified lost-in-space."""
+        """
+        ~/reset: drop the track (and any lost-in-space solve in progress); the next frame is identified lost-in-space.
+        """
         with self._lock:
             if self.tracker is None:
                 response.success = False
@@ -203,10 +212,13 @@ class IdentifierNode(ManagedNode):
         return None
 
     def apply_parameters(self, changes: dict) -> str | None:
-        """Runtime parameter changes (see parameters.guard_parameter_changes): the new
-        identification and tracking configurations are built (checked) first, then applied
-        together between two frames; a lost-in-space solve running reads them from its next
-        step on."""
+        """
+        Runtime parameter changes (see parameters.guard_parameter_changes).
+
+        the new identification and tracking configurations are built (checked) first, then
+        applied together between two frames; a lost-in-space solve running reads them from
+        its next step on.
+        """
         identify = {spec.field: changes[spec.name] for spec in IDENTIFY_PARAMETERS if spec.name in changes}
         tracking = {spec.field: changes[spec.name] for spec in TRACKING_PARAMETERS if spec.name in changes}
         config = replace(self.config, **identify)
@@ -224,8 +236,7 @@ class IdentifierNode(ManagedNode):
         return None
 
     def on_spots(self, msg: PointCloud2) -> None:
-        """Executor thread: count, check the stamp and the message, decode; the worker
-        identifies (identify_frame())."""
+        """Executor thread: count, check the stamp and the message, decode; the worker identifies (identify_frame())."""
         received = time.perf_counter()
         if not self.active:  # inactive: configured, not processing
             self.diag.count("frames_ignored_inactive")
@@ -386,8 +397,12 @@ class IdentifierNode(ManagedNode):
                       last_gate_px="" if tracked.gate_px is None else f"{tracked.gate_px:.1f}")
 
     def refine_camera(self, spots, result) -> None:
-        """Online calibration: add a published frame's matches; after a fit report the estimate
-        (and what is applied) on /diagnostics."""
+        """
+        Online calibration.
+
+        add a published frame's matches; after a fit report the estimate (and what is applied)
+        on /diagnostics.
+        """
         nominal = self.camera_info.camera
         if nominal is None:
             return

@@ -1,4 +1,6 @@
-"""The lifecycle of the star tracker's nodes (REP 2005-style managed nodes, lifecycle_msgs).
+# SPDX-License-Identifier: Apache-2.0
+"""
+The lifecycle of the star tracker's nodes (REP 2005-style managed nodes, lifecycle_msgs).
 
     unconfigured --configure--> inactive --activate--> active
     active --deactivate--> inactive --cleanup--> unconfigured; any of them --shutdown--> finalized
@@ -36,8 +38,12 @@ SHUTDOWN_TRANSITIONS = (Transition.TRANSITION_UNCONFIGURED_SHUTDOWN, Transition.
 
 
 def transition_callback(method: Callable) -> Callable:
-    """A lifecycle callback that never raises: an exception is logged with its reason (rclpy
-    itself would swallow it), kept in `transition_error`, and returned as FAILURE."""
+    """
+    A lifecycle callback that never raises.
+
+    an exception is logged with its reason (rclpy itself would swallow it), kept in
+    `transition_error`, and returned as FAILURE.
+    """
 
     @functools.wraps(method)
     def wrapper(self: "ManagedNode", state: LifecycleState) -> TransitionCallbackReturn:
@@ -57,10 +63,13 @@ def transition_callback(method: Callable) -> Callable:
 
 
 class ManagedNode(LifecycleNode):
-    """A lifecycle node whose `active` flag gates input, whose ~/change_state refuses a wrong
-    transition cleanly, and which reports its state on /diagnostics (`self.diag`: the subclass's
-    constructor makes it with start_diagnostics()). Subclasses override configure/activate/deactivate/release,
-    each returning None (success) or raising."""
+    """
+    A lifecycle node whose `active` flag gates input, whose ~/change_state refuses a wrong transition cleanly.
+
+    and which reports its state on /diagnostics (`self.diag`: the subclass's constructor makes it with
+    start_diagnostics()). Subclasses override configure/activate/deactivate/release, each returning None
+    (success) or raising.
+    """
 
     def __init__(self, node_name: str, **kwargs) -> None:
         super().__init__(node_name, **kwargs)
@@ -150,8 +159,12 @@ class ManagedNode(LifecycleNode):
 
     # --- transitions requested from outside (~/change_state) or by autostart ---
     def _on_change_state(self, request: ChangeState.Request, response: ChangeState.Response) -> ChangeState.Response:
-        """~/change_state: a transition this state offers runs; any other is refused, logged and
-        counted (rclpy would raise out of the executor on an unknown transition id)."""
+        """
+        ~/change_state: a transition this state offers runs.
+
+        any other is refused, logged and counted (rclpy would raise out of the executor on an
+        unknown transition id).
+        """
         wanted = request.transition.label or str(request.transition.id)
         offered = self._state_machine.available_transitions  # (id, label, start id, start, goal id, goal)
         matches = [t[0] for t in offered if (t[1] == request.transition.label if request.transition.label

@@ -1,4 +1,6 @@
-"""`colcon build` of the star_tracker ament_python package, and the layout `ros2 run` uses.
+# SPDX-License-Identifier: Apache-2.0
+"""
+`colcon build` of the star_tracker ament_python package, and the layout `ros2 run` uses.
 
 Real build, real processes, no mocks:
 

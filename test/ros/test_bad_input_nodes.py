@@ -1,7 +1,11 @@
-"""Bad input through the real nodes (separate processes, Fast DDS, isolated domain): each node
-is fed a sequence of bad messages and bad parameter changes, then a good message. Each bad
-input must show up as a counter on /diagnostics and a log line, the node must keep running
-and process the good message, and nothing may end in a traceback. No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Bad input through the real nodes (separate processes, Fast DDS, isolated domain).
+
+each node is fed a sequence of bad messages and bad parameter changes, then a good message.
+Each bad input must show up as a counter on /diagnostics and a log line, the node must keep
+running and process the good message, and nothing may end in a traceback. No ROS mocks.
+"""
 from __future__ import annotations
 
 import subprocess
@@ -197,8 +201,12 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp
 
 # ------------------------------------------------------------------------------ identifier
 def with_garbage(spots: Spots) -> Spots:
-    """`spots` plus NaN, infinite, far-away and absurdly uncertain ones, and a second copy of
-    the brightest (9 in all; a coincident pair used to crash the hybrid identifier)."""
+    """
+    `spots` plus NaN, infinite, far-away and absurdly uncertain ones.
+
+    and a second copy of the brightest (9 in all; a coincident pair used to crash the hybrid
+    identifier).
+    """
     nan, inf = np.nan, np.inf
     x = np.array([nan, 10.0, inf, 20.0, 1e9, 30.0, 40.0, -inf])
     y = np.array([5.0, nan, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0])

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """camera_simulator node over DDS: motion profiles, external truth, published truth."""
 from __future__ import annotations
 

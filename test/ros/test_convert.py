@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Message <-> record conversion (real ROS message classes, no ROS graph needed)."""
 import numpy as np
 import pytest

@@ -1,5 +1,9 @@
-"""The three nodes as separate processes over Fast DDS (private domain, localhost only),
-checked against the simulator's truth. No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The three nodes as separate processes over Fast DDS (private domain, localhost only).
+
+checked against the simulator's truth. No ROS mocks.
+"""
 from __future__ import annotations
 
 import time
@@ -28,9 +32,13 @@ def ros_graph(monkeypatch):
 
 def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, remaps: dict | None = None,
                  node_params: dict | None = None):
-    """Run FRAMES frames through the three nodes; `diagnostics`, when given, receives the latest
-    /diagnostics values per status name; `remaps`: per node, topic -> new name; `node_params`:
-    per node (centroider, identifier), parameters over config/star_tracker.yaml."""
+    """
+    Run FRAMES frames through the three nodes.
+
+    `diagnostics`, when given, receives the latest /diagnostics values per status name;
+    `remaps`: per node, topic -> new name; `node_params`: per node (centroider, identifier),
+    parameters over config/star_tracker.yaml.
+    """
     monitor = TrackerMonitor(name="integration_monitor")
     params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 2.0, "wait_for_subscribers": True, "rate_hz": RATE_HZ, **camera_params},
               **(node_params or {})}
@@ -68,8 +76,7 @@ def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, 
 
 
 def host_timing_outcomes(diagnostics: dict) -> int:
-    """Frames whose outcome the host's timing explains (stalls, discovery order), by the nodes'
-    own counters."""
+    """Frames whose outcome the host's timing explains (stalls, discovery order), by the nodes' own counters."""
     centroider = diagnostics.get("star_tracker/centroider", {})
     identifier = diagnostics.get("star_tracker/identifier", {})
     keys = ("frames_dropped_overload", "frames_bridged", "frames_not_bridged", "not_identified_timeout",
@@ -133,8 +140,12 @@ def test_three_nodes_track_truth(ros_graph, tmp_path, rate_deg_s):
 
 
 def test_the_monitor_keeps_the_newest_identified_frames_image(ros_graph):
-    """The demo's picture needs an identified frame's image: after a host stall the newest 8
-    images (all the monitor keeps) can all belong to frames not identified yet."""
+    """
+    The demo's picture needs an identified frame's image.
+
+    after a host stall the newest 8 images (all the monitor keeps) can all belong to frames
+    not identified yet.
+    """
     from star_tracker.ros import convert
 
     monitor = TrackerMonitor(name="image_keeping_monitor")

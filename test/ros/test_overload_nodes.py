@@ -1,4 +1,6 @@
-"""Overload and faults through the real nodes (separate processes, Fast DDS, isolated domain).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Overload and faults through the real nodes (separate processes, Fast DDS, isolated domain).
 
 - Input faster than processing: a burst of frames, as deep as the DDS queues, is published
   back to back into the centroider, then the identifier (the overload does not depend on this
@@ -56,9 +58,13 @@ def accounted(counters: dict[str, str], outcomes: tuple[str, ...]) -> int:
 
 
 def burst(messages: list) -> float:
-    """Publish (publisher, serialized message) pairs back to back. Serialized beforehand and
-    never yielding the CPU in between (a sleep would hand it to the node on a loaded host), the
-    burst takes a few memory copies, not the node's pace. Returns its duration [s]."""
+    """
+    Publish (publisher, serialized message) pairs back to back.
+
+    Serialized beforehand and never yielding the CPU in between (a sleep would hand it to the
+    node on a loaded host), the burst takes a few memory copies, not the node's pace. Returns
+    its duration [s].
+    """
     started = time.perf_counter()
     for publisher, data in messages:
         publisher.publish(data)
@@ -66,8 +72,12 @@ def burst(messages: list) -> float:
 
 
 class FloodRig:
-    """This test's side of the flood: publishers into the centroider and the identifier, the
-    outputs seen (spots and attitude stamps), and the two nodes' diagnostics."""
+    """
+    This test's side of the flood.
+
+    publishers into the centroider and the identifier, the outputs seen (spots and attitude
+    stamps), and the two nodes' diagnostics.
+    """
 
     def __init__(self):
         self.centroider, self.identifier = Driver("centroider"), Driver("identifier")
@@ -168,10 +178,13 @@ def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp
 
 
 def flood_centroider(rig: FloodRig, images, info, first_ns: int, baseline: dict):
-    """A burst of 10 images (the depth of the DDS queues on both sides: none is lost there),
-    10 ms apart in stamps, published faster than the centroider measures one 1024^2 frame:
-    more than its 3 waiting places and the frame in progress. Returns its counters once every
-    received frame is accounted (processed or dropped), and the stamps sent."""
+    """
+    A burst of 10 images (the depth of the DDS queues on both sides: none is lost there), 10 ms apart in stamps.
+
+    published faster than the centroider measures one 1024^2 frame: more than its 3 waiting
+    places and the frame in progress. Returns its counters once every received frame is
+    accounted (processed or dropped), and the stamps sent.
+    """
     stamps = [first_ns + k * 10 * MS for k in range(10)]
     burst_s = burst([(publisher, serialize_message(stamped(msg, stamp)))
                      for k, stamp in enumerate(stamps)
@@ -188,10 +201,12 @@ def flood_centroider(rig: FloodRig, images, info, first_ns: int, baseline: dict)
 
 
 def flood_identifier(rig: FloodRig, star_spots, first_ns: int, baseline: dict, base: int):
-    """A burst of 20 spots messages (the depth of the DDS queues on both sides), at rest, 1 ms
-    apart in stamps, published faster than the identifier tracks one frame. Returns its
-    counters once every received frame is accounted (identified, dropped or not identified),
-    and the stamps sent."""
+    """
+    A burst of 20 spots messages (the depth of the DDS queues on both sides), at rest, 1 ms apart in stamps.
+
+    published faster than the identifier tracks one frame. Returns its counters once every
+    received frame is accounted (identified, dropped or not identified), and the stamps sent.
+    """
     spot_stamps = [first_ns + k * MS for k in range(20)]
     burst_s = burst([(rig.pub_spots, serialize_message(stamped(star_spots, stamp))) for stamp in spot_stamps])
     newest = spot_stamps[-1]

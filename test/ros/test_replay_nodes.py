@@ -1,5 +1,8 @@
-"""Record and replay with the real nodes and the real `star-tracker record/play` processes
-over Fast DDS (private domain, localhost only). No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Record and replay with the real nodes and the real `star-tracker record/play` processes
+over Fast DDS (private domain, localhost only). No ROS mocks.
+"""
 from __future__ import annotations
 
 import json
@@ -125,9 +128,12 @@ def bag_attitudes(path: Path, topic: str) -> dict[int, tuple]:
 
 @pytest.mark.integration
 def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_path):
-    """Live: camera -> two pipelines (default configuration at the root, the deterministic one
-    in /det), recorded. Replay: the recorded camera topics into two fresh pipelines, lockstep;
-    the /det one on the bag's /clock (use_sim_time). Attitudes compared by stamp."""
+    """
+    Live: camera -> two pipelines (default configuration at the root, the deterministic one in /det), recorded.
+
+    Replay: the recorded camera topics into two fresh pipelines, lockstep; the /det one on the
+    bag's /clock (use_sim_time). Attitudes compared by stamp.
+    """
     env = ros_graph
     bag = tmp_path / "live"
     camera = NodeProcesses(env, tmp_path / "camera", {"camera_simulator": {
@@ -271,8 +277,12 @@ def _publisher_node():
 
 @pytest.mark.integration
 def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recovered(ros_graph, tmp_path):
-    """Four recorders at once: sqlite3 and MCAP each stopped cleanly (SIGINT, SIGTERM) and
-    killed (SIGKILL, then `star-tracker reindex`)."""
+    """
+    Four recorders at once.
+
+    sqlite3 and MCAP each stopped cleanly (SIGINT, SIGTERM) and killed (SIGKILL, then
+    `star-tracker reindex`).
+    """
     env = ros_graph
     cases = {"sqlite3_int": ("sqlite3", signal.SIGINT), "mcap_term": ("mcap", signal.SIGTERM),
              "sqlite3_kill": ("sqlite3", signal.SIGKILL), "mcap_kill": ("mcap", signal.SIGKILL)}
@@ -346,8 +356,12 @@ def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recover
 
 
 def _flushed_images(bag: Path, scratch: Path) -> int:
-    """/image_raw messages a recorder has made durable so far: a copy of its unfinished bag,
-    recovered as after a kill (0 while nothing is readable yet)."""
+    """
+    /image_raw messages a recorder has made durable so far.
+
+    a copy of its unfinished bag, recovered as after a kill (0 while nothing is readable
+    yet).
+    """
     shutil.rmtree(scratch, ignore_errors=True)
     try:
         shutil.copytree(bag, scratch)

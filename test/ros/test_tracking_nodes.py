@@ -1,5 +1,9 @@
-"""Tracking through the real nodes (separate processes, Fast DDS): a slew with an occulted
-frame, checked against the simulator's truth. No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Tracking through the real nodes (separate processes, Fast DDS).
+
+a slew with an occulted frame, checked against the simulator's truth. No ROS mocks.
+"""
 from __future__ import annotations
 
 import numpy as np
