@@ -58,7 +58,7 @@ def run(cmd: list[str], env: dict[str, str], cwd: Path, log: Path, timeout_s: fl
 
 
 def fresh_environment(tmp: Path) -> dict[str, str]:
-    """This process's environment with empty caches in `tmp` (what a new user has)."""
+    """Return this process's environment with empty caches in `tmp` (what a new user has)."""
     env = dict(os.environ)
     for name in ("NUMBA_CACHE_DIR", "STAR_TRACKER_SKIP_INSTALL_COMPILE", "PYTHONPATH", "AMENT_PREFIX_PATH",
                  "COLCON_DEFAULTS_FILE"):
@@ -72,7 +72,7 @@ def fresh_environment(tmp: Path) -> dict[str, str]:
 
 def install_colcon(clone: Path, tmp: Path, env: dict[str, str]) -> tuple[float, dict[str, str], Path, Path]:
     """
-    colcon build of `clone`.
+    Run a colcon build of `clone`.
 
     returns (install wall time [s], the node environment, the directory of the executables,
     the installed config file).
@@ -88,7 +88,7 @@ def install_colcon(clone: Path, tmp: Path, env: dict[str, str]) -> tuple[float, 
 
 
 def install_pip(clone: Path, tmp: Path, env: dict[str, str]) -> tuple[float, dict[str, str], Path, Path]:
-    """A fresh venv, its dependencies (not timed), then `pip install <clone>` (timed)."""
+    """Make a fresh venv, its dependencies (not timed), then `pip install <clone>` (timed)."""
     venv = tmp / "venv"
     run([sys.executable, "-m", "venv", str(venv)], env, tmp, tmp / "venv.log")
     pip = [str(venv / "bin" / "python"), "-m", "pip", "install", "--quiet", "--disable-pip-version-check"]

@@ -87,8 +87,9 @@ def _prepare_catalog_and_database() -> None:
 
 def _run_demo_nodes(args: argparse.Namespace, out: Path):
     """
-    Run the nodes (and the recorder with --record) on a private DDS domain until every frame
-    was reported or the time is up. Returns the monitor's frames in stamp order and the
+    Run the nodes (and the recorder with --record) on a private DDS domain.
+
+    Until every frame was reported or the time is up. Returns the monitor's frames in stamp order and the
     processes' exit codes.
     """
     from .ros.pipeline import NodeProcesses, TrackerMonitor, isolated_ros_environment
@@ -124,8 +125,10 @@ def _run_demo_nodes(args: argparse.Namespace, out: Path):
 
 def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
     """
-    Spin the monitor and print one line per frame as soon as its attitude and matches
-    arrived (or 1.5 s after it was first seen), until frames_wanted lines or duration_s + 8 s.
+    Spin the monitor and print one line per frame.
+
+    Each line as soon as its frame's attitude and matches arrived (or 1.5 s after the frame was
+    first seen), until frames_wanted lines or duration_s + 8 s.
     """
     printed: set[int] = set()
     index = 0
@@ -253,7 +256,7 @@ def write_run_figure(frames, path: Path) -> Path | None:
 
 
 def write_picture(frames, path: Path) -> Path | None:
-    """The newest identified frame with its image, identified stars circled + HIP labels."""
+    """Draw the newest identified frame: its image, identified stars circled + HIP labels."""
     import cv2
 
     from .visualize import annotate_frame

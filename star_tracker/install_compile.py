@@ -48,8 +48,9 @@ def child_environments(build_lib: Path, environ: dict[str, str] | None = None) -
 
 def seed_cache(source_package: Path, built_package: Path) -> int:
     """
-    Copy the numba cache files (`__pycache__/*.nbi, *.nbc`) the source tree already holds
-    (`make venv` compiles there) into the built copy, so that the compile below only loads
+    Copy the numba cache files the source tree already holds into the built copy.
+
+    The files are `__pycache__/*.nbi, *.nbc` (`make venv` compiles there), so that the compile below only loads
     what is current. Safe because numba keys each entry on its source file's content: an entry
     of a changed source is not used. Returns the number of files copied.
     """

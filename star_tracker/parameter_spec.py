@@ -62,7 +62,7 @@ class ParameterSpec:
         return self.low is not None
 
     def range_text(self) -> str:
-        """The range in interval notation, e.g. "(0, 20]"; "" without one."""
+        """Return the range in interval notation, e.g. "(0, 20]"; "" without one."""
         if not self.has_range:
             return ""
 
@@ -71,7 +71,7 @@ class ParameterSpec:
         return f"{'(' if self.low_open else '['}{text(self.low)}, {text(self.high)}{')' if self.high_open else ']'}"
 
     def full_description(self) -> str:
-        """Description with the unit and the choices, as `ros2 param describe` shows it."""
+        """Return the description with the unit and the choices, as `ros2 param describe` shows it."""
         text = self.description
         if self.unit:
             text += f" [{self.unit}]"
@@ -101,7 +101,7 @@ class ParameterSpec:
 def parameter(default, description: str, unit: str = "", low: float | None = None, high: float | None = None, *,
               low_open: bool = False, high_open: bool = False, choices: Iterable[str] = (),
               dynamic: bool = False) -> dataclasses.Field:
-    """A dataclass field with its ParameterSpec (named after the field) in the metadata."""
+    """Make a dataclass field with its ParameterSpec (named after the field) in the metadata."""
     spec = ParameterSpec("", default, description, unit, low, high, low_open, high_open, tuple(choices), dynamic)
     return dataclasses.field(default=default, metadata={SPEC_KEY: spec})
 
@@ -109,7 +109,7 @@ def parameter(default, description: str, unit: str = "", low: float | None = Non
 def field_specs(config_class, prefix: str = "", names: dict[str, str] | None = None, defaults=None,
                 dynamic: Iterable[str] | None = None, only: Iterable[str] | None = None) -> list[ParameterSpec]:
     """
-    The ParameterSpecs of a configuration dataclass's declared fields, in field order.
+    Return the ParameterSpecs of a configuration dataclass's declared fields, in field order.
 
     prefix: put before each field name ("tracking."); names: field -> parameter name where it
     differs; defaults: an instance whose values replace the field defaults (a node that ships
@@ -147,7 +147,7 @@ def field_values(specs: Iterable[ParameterSpec], values: dict[str, Any]) -> dict
 
 def range_problems(config) -> list[str]:
     """
-    What is out of range or not among the choices in a configuration dataclass instance.
+    List what is out of range or not among the choices in a configuration dataclass instance.
 
     one message per field ("detection_sigma=0.5 must be in [1, 100]"); [] when all is well.
     """

@@ -22,7 +22,7 @@ PARTS = ("all", "nodes", "centroider", "identifier")
 
 
 def warm_centroider() -> None:
-    """What CentroiderNode compiles before its first frame (centroid.kernels.warm_up)."""
+    """Compile the kernels CentroiderNode needs before its first frame (centroid.kernels.warm_up)."""
     from .centroid.kernels import warm_up
 
     warm_up()
@@ -30,7 +30,7 @@ def warm_centroider() -> None:
 
 def warm_identifier() -> None:
     """
-    What IdentifierNode compiles and loads before its first frame.
+    Compile and load what IdentifierNode needs before its first frame.
 
     the default database (built and cached when missing) and its deep catalog, the default
     algorithm inside a Tracker (Tracker.warm_up).

@@ -17,8 +17,10 @@ PSF_MODES = ("auto", "fixed")
 @dataclass(frozen=True)
 class CentroidConfig:
     """
-    Parameters of `extract_spots` (the centroider node's parameters, same names; default, unit,
-    range and description of each in its field's `parameter(...)`, parameter_spec.py).
+    Parameters of `extract_spots`, the centroider node's parameters (same names).
+
+    Default, unit, range and description of each are in its field's `parameter(...)`
+    (parameter_spec.py).
 
     detection_sigma: threshold in units of the noise of the PSF-matched detection image;
     binning: detection grid bin factor (1 or 2; 2 is 4x cheaper and splits pairs >= ~4 px);

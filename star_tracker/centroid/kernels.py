@@ -178,8 +178,10 @@ def component_stats(labels: np.ndarray, count: int):
 @njit(cache=True)
 def _centre_and_covariance(weighted_sums, variance_sums, col0, row0, out_x, out_y, out_cov, s):
     """
-    Centre of gravity from sums of w (1, x, y) and its covariance from sums of
-    var (dw/dr)^2 (1, x, y, x^2, y^2, xy) (local window coordinates; written at index s).
+    Centre of gravity and its covariance from the weighted and variance sums of a window.
+
+    The centre from sums of w (1, x, y), its covariance from sums of var (dw/dr)^2 (1, x, y,
+    x^2, y^2, xy) (local window coordinates; written at index s).
     """
     total = weighted_sums[0]
     if total == 0.0:
@@ -287,7 +289,7 @@ def read_only(image: np.ndarray) -> np.ndarray:
 @njit(cache=True)
 def _measure_small(image, spots, settings):
     """
-    The point-window measurements of candidates.measure_candidates, compiled.
+    Compute the point-window measurements of candidates.measure_candidates, compiled.
 
     Per spot n: a search window of (2 half + 1 + search_margin)^2 around (cx, cy) [px] minus
     bg [ADU], hot pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels),
@@ -472,7 +474,7 @@ def _profile_with_width(lo: float, centre: float, sigma: float, size: int, prob:
 @njit(cache=True)
 def _solve_spd(normal: np.ndarray, rhs: np.ndarray, out: np.ndarray) -> bool:
     """
-    out = normal^-1 rhs by Cholesky (normal symmetric positive definite, overwritten by its factor).
+    Solve out = normal^-1 rhs by Cholesky (normal symmetric positive definite, overwritten by its factor).
 
     False when it is not positive definite.
     """

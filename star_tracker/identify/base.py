@@ -128,8 +128,10 @@ class Identification:
     @property
     def deep_count(self) -> int:
         """
-        Matches the deep re-match added (stars fainter than the guide stars, or left out of
-        them, or left unmatched by the guide verification).
+        Matches the deep re-match added.
+
+        Stars fainter than the guide stars, or left out of them, or left unmatched by the guide
+        verification.
         """
         return int(np.count_nonzero(self.deep))
 
@@ -221,7 +223,7 @@ class _Matches:
 
     def extended(self, spot_index: np.ndarray, star_vectors: np.ndarray, hip: np.ndarray,
                  magnitude: np.ndarray) -> "_Matches":
-        """These matches followed by deep ones."""
+        """Return these matches followed by deep ones."""
         return _Matches(np.concatenate([self.spot_index, spot_index]), np.concatenate([self.star_vectors, star_vectors]),
                         np.concatenate([self.hip, hip.astype(self.hip.dtype)]),
                         np.concatenate([self.magnitude, magnitude]),
@@ -259,8 +261,10 @@ def sanitized_covariance(cov_px: np.ndarray) -> np.ndarray:
 
 def direction_covariance(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
     """
-    (N, 3, 3) covariance [rad^2] of the sensor-frame rays of spots at (x, y) [px] with
-    pixel covariance cov_px (N, 2, 2) [px^2]: J C J^T (ray_jacobian, sanitized_covariance).
+    Return the (N, 3, 3) covariance [rad^2] of the sensor-frame rays of spots at (x, y) [px].
+
+    From the pixel covariance cov_px (N, 2, 2) [px^2]: J C J^T (ray_jacobian,
+    sanitized_covariance).
     """
     jac = ray_jacobian(camera, x, y)
     return jac @ sanitized_covariance(cov_px) @ np.transpose(jac, (0, 2, 1))
@@ -268,9 +272,11 @@ def direction_covariance(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_
 
 def direction_sigma(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
     """
-    Isotropic 1-sigma direction error [rad] of the rays of spots at (x, y) [px] with pixel
-    covariance cov_px (N, 2, 2) [px^2]: sqrt(trace(J C J^T) / 2) (direction_covariance), so
-    the field angle's foreshortening and the spot's anisotropy enter the variance.
+    Isotropic 1-sigma direction error [rad] of the rays of spots at (x, y) [px].
+
+    From the pixel covariance cov_px (N, 2, 2) [px^2]: sqrt(trace(J C J^T) / 2)
+    (direction_covariance), so the field angle's foreshortening and the spot's anisotropy
+    enter the variance.
     """
     return np.sqrt(0.5 * np.trace(direction_covariance(camera, x, y, cov_px), axis1=1, axis2=2))
 
@@ -323,9 +329,9 @@ class StarIdentifier:
 
     def prepare(self, spots: Spots, camera: CameraModel) -> tuple[np.ndarray, SpotGeometry]:
         """
-        Indices (into `spots`) of the finite spots sorted by flux, brightest first, and the geometry algorithms work on.
+        Return the finite spots' indices (into `spots`) and the geometry algorithms work on.
 
-        in that order. Resets the per-call stats. Compiled (spot_kernels.prepare_spots) for
+        The finite spots sorted by flux, brightest first, and their geometry in that order. Resets the per-call stats. Compiled (spot_kernels.prepare_spots) for
         undistorted cameras, numpy with distortion. A malformed record is refused first
         (Spots.validate: ValueError).
         """
@@ -378,7 +384,7 @@ class StarIdentifier:
 
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
         """
-        The algorithm's step between `prepare` and the final fit.
+        Run the algorithm's step between `prepare` and the final fit.
 
         find a verified match of the flux-sorted spots in `geometry` before `deadline` is
         passed. This default draws correspondences from `hypotheses`, turns each into a QUEST
@@ -452,7 +458,7 @@ class StarIdentifier:
     def solved(self, geometry: SpotGeometry, order: np.ndarray, match: AcceptedMatch, tested: int,
                started: float, algorithm: str | None = None, deep_match: bool = True) -> Identification:
         """
-        The Identification of an accepted match.
+        Return the Identification of an accepted match.
 
         refitted with the final weights (final_fit), then, with config.deep_match and `deep_match` (False: a tracked
         frame), extended by the deep re-match (deep_rematch) when its bound holds; match.spot_index refers to the
@@ -483,7 +489,7 @@ class StarIdentifier:
 
     def deep_catalog(self) -> DeepCatalog:
         """
-        The deep catalog of this identifier's database.
+        Return the deep catalog of this identifier's database.
 
         every Hipparcos star to its guide limit + config.deep_magnitude_margin at its epoch,
         cached beside it (deep_catalog.py).
@@ -496,9 +502,10 @@ class StarIdentifier:
     def deep_rematch(self, geometry: SpotGeometry, guide: "_Matches",
                      solution: AttitudeSolution) -> tuple["_Matches", AttitudeSolution, np.ndarray, float] | None:
         """
-        The guide matches extended by the deep catalog (deep_match.match_deep) at their
-        fitted `solution` (their offsets scale the match gate: deep_match.error_scale), refitted,
-        matched again at the refined attitude and refitted (DEEP_PASSES); returns the matches,
+        Extend the guide matches by the deep catalog (deep_match.match_deep) and refit.
+
+        At their fitted `solution` (their offsets scale the match gate: deep_match.error_scale),
+        refitted, matched again at the refined attitude and refitted (DEEP_PASSES); returns the matches,
         solution, residuals [rad] and their false-positive bound (deep_match.deep_bound), or None
         when no deep star was added or the bound exceeds config.false_positive_bound (the
         guide solution stands). Counters in stats: deep_matches, deep_ambiguous,
@@ -540,9 +547,9 @@ class StarIdentifier:
     def final_fit(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
                   rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray]:
         """
-        The published attitude of accepted matches (database star indices), weighted by each spot's own covariance.
+        Fit the published attitude of accepted matches (database star indices).
 
-        see _fit. Returns the solution and every match's residual angle [rad].
+        Weighted by each spot's own covariance, see _fit. Returns the solution and every match's residual angle [rad].
         """
         solution, _, residual = self._fit(geometry, spot_index, self.database.vectors[star_index], rotation)
         return solution, residual
@@ -550,9 +557,9 @@ class StarIdentifier:
     def _fit(self, geometry: SpotGeometry, spot_index: np.ndarray, stars: np.ndarray,
              rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray, np.ndarray]:
         """
-        The published attitude of matches (spot_index into the flux-sorted spots, `stars` their ICRS unit vectors).
+        Fit the published attitude of matches (spot_index into the flux-sorted spots).
 
-        weighted by each spot's own covariance (the centroider's, without the matching floor):
+        `stars` are their ICRS unit vectors. Weighted by each spot's own covariance (the centroider's, without the matching floor):
         from `rotation` (the matching fit, sensor -> ICRS, weighted with the floored sigma), a
         maximum-likelihood refinement with each ray's full 2-D covariance
         (attitude_estimation.refine_with_covariances; a streak's error is far larger along its

@@ -106,7 +106,7 @@ def triad(b1, b2, r1, r2):
 @njit(cache=True)
 def nearest_star(rotation, ray, chord, catalog, cells):
     """
-    The catalog star (CatalogArrays) nearest to the sensor-frame `ray` rotated to ICRS.
+    Find the catalog star (CatalogArrays) nearest to the sensor-frame `ray` rotated to ICRS.
 
     if within `chord` (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of
     4.
@@ -131,9 +131,10 @@ def nearest_star(rotation, ray, chord, catalog, cells):
 @njit(cache=True)
 def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, catalog, chord):
     """
-    True when any spot in [0, limit) other than the three given lands within `chord` of a catalog star under `rotation`.
+    Tell whether any other spot lands on a catalog star under `rotation`.
 
-    the pyramid's 4th-star confirmation, used as a screen.
+    True when any spot in [0, limit) other than the three given lands within `chord` of a
+    catalog star under `rotation`: the pyramid's 4th-star confirmation, used as a screen.
     """
     cells = np.empty(4, np.int64)
     for s in range(min(limit, rays.shape[0])):
@@ -146,9 +147,10 @@ def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, catalog, chord)
 @njit(cache=True)
 def match_all(rays, rotation, catalog, chord, out_spot, out_star, out_dot):
     """
-    One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star
-    (CatalogArrays) within `chord` (2 sin(radius/2)); a star with another spot within twice
-    the radius matches no spot (ambiguous). Returns the number of matches written to out_*.
+    One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star.
+
+    The nearest star of the catalog (CatalogArrays) within `chord` (2 sin(radius/2)); a star
+    with another spot within twice the radius matches no spot (ambiguous). Returns the number of matches written to out_*.
     """
     n = rays.shape[0]
     vectors = catalog.vectors
@@ -187,7 +189,7 @@ def match_all(rays, rotation, catalog, chord, out_spot, out_star, out_dot):
 
 @njit(cache=True)
 def log_chance_tuples(body, sigma, chi2, density):
-    """ln lambda_m(c) of verify.log_chance_tuples."""
+    """Return ln lambda_m(c) of verify.log_chance_tuples."""
     m = body.shape[0]
     info = np.zeros((3, 3))
     total = 0.0
@@ -208,7 +210,7 @@ def log_chance_tuples(body, sigma, chi2, density):
 
 @njit(cache=True)
 def log_magnitude_agreement(spot_mag, star_mag, sorted_catalog, floor):
-    """ln M of verify.log_magnitude_agreement (0 when fewer than two magnitudes are known)."""
+    """Return ln M of verify.log_magnitude_agreement; 0 when fewer than two magnitudes are known."""
     m = spot_mag.size
     offset = np.empty(m)
     count = 0

@@ -61,7 +61,7 @@ class OnlineCalibration:
         self._since_fit = 0
 
     def reset(self, nominal: CameraModel) -> None:
-        """A new nominal camera (another camera_info): forget the frames and the estimate."""
+        """Take a new nominal camera (another camera_info): forget the frames and the estimate."""
         self.nominal, self._current = nominal, (None, (), None)
         self.frames.clear()
         self._since_fit = 0
@@ -90,7 +90,7 @@ class OnlineCalibration:
         return estimate
 
     def _refined(self, estimate: CameraCalibration, applied: tuple[str, ...]) -> CameraModel:
-        """The nominal camera with the applied parameters of `estimate` (f scales fx and fy alike)."""
+        """Return the nominal camera with the applied parameters of `estimate` (f scales fx and fy alike)."""
         camera, fitted = self.nominal, estimate.camera
         scale = fitted.fx / camera.fx if "f" in applied else 1.0
         k1 = fitted.distortion[0] if "k1" in applied else camera.distortion[0]
@@ -109,7 +109,7 @@ class OnlineCalibration:
 
     def camera_for(self, camera: CameraModel) -> CameraModel:
         """
-        The camera to identify with.
+        Return the camera to identify with.
 
         `camera` with the applied parameters of the estimate (f scales fx and fy alike; k1),
         or `camera` itself when none applies or it is not the nominal camera the estimate

@@ -20,7 +20,7 @@ PLAY_QUEUE_DEPTH = 10  # rosbag2's playback depth; the camera_simulator's own im
 
 
 def message_class(type_name: str) -> type:
-    """The Python class of 'package/msg/Name' (needs the package's rclpy bindings installed)."""
+    """Return the Python class of 'package/msg/Name' (needs the package's rclpy bindings installed)."""
     parts = type_name.split("/")
     if len(parts) != 3 or not all(parts):
         raise BagError(f"message type {type_name!r} is not of the form package/msg/Name")
@@ -46,7 +46,7 @@ def _time(duration: Duration) -> QosTime:
 
 def offered_qos(profile: QoSProfile) -> Qos:
     """
-    A publisher's QoS (from get_publishers_info_by_topic) as rosbag2 records it.
+    Return a publisher's QoS (from get_publishers_info_by_topic) as rosbag2 records it.
 
     Fast DDS does not report a remote writer's history and depth: they are recorded as
     unknown / 0, as `ros2 bag record` does.
@@ -76,7 +76,7 @@ def subscription_qos(offers: list[QoSProfile], depth: int) -> QoSProfile:
 
 def playback_qos(recorded: tuple | list, depth: int = PLAY_QUEUE_DEPTH) -> QoSProfile:
     """
-    The QoS to offer when playing a topic.
+    Return the QoS to offer when playing a topic.
 
     the recorded publishers' reliability and durability when they all agree (rosbag2's
     rule), else reliable + volatile, which every subscriber matches; keep last `depth`.

@@ -125,7 +125,9 @@ class CameraSimulatorNode(ManagedNode):
 
     def release(self) -> None:
         """
-        Undo configure: timers, topics, renderer and catalog; the next activation starts a new time line from frame 0.
+        Undo configure: timers, topics, renderer and catalog.
+
+        The next activation starts a new time line from frame 0.
         """
         self.deactivate()
         for name in ("pub_image", "pub_info", "pub_truth", "pub_truth_rate", "pub_truth_objects"):
@@ -141,7 +143,7 @@ class CameraSimulatorNode(ManagedNode):
         self.render_times.clear()
 
     def _read_output(self, values: dict) -> None:
-        """What is published and when: rate, frame count, frame_id, start, backlog, noise seed."""
+        """Read what is published and when: rate, frame count, frame_id, start, backlog, noise seed."""
         self.rate_hz, self.max_frames, self.frame_id = values["rate_hz"], values["max_frames"], values["frame_id"]
         self.start_delay_s, self.max_backlog_frames = values["start_delay_s"], values["max_backlog_frames"]
         self.wait_for_subscribers, self.seed = values["wait_for_subscribers"], values["seed"]
@@ -169,7 +171,7 @@ class CameraSimulatorNode(ManagedNode):
         return None
 
     def _set_up_schedule(self, readout_s: float) -> None:
-        """The frame period, when frames are delivered, and the render-ahead state."""
+        """Set up the frame period, when frames are delivered, and the render-ahead state."""
         self.period_ns = int(round(1e9 / self.rate_hz))
         if self.sensor.exposure_s * 1e9 > self.period_ns:
             raise ValueError(f"sensor.exposure_s={self.sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s")
@@ -184,7 +186,7 @@ class CameraSimulatorNode(ManagedNode):
         self.frame_index = 0
 
     def _create_interfaces(self) -> None:
-        """Publishers (lifecycle: silent unless active) and (external profile) the truth input."""
+        """Create the publishers (lifecycle: silent unless active) and (external profile) the truth input."""
         publisher = self.create_lifecycle_publisher
         self.pub_image = publisher(Image, "image_raw", **overridable(IMAGE_QOS))
         self.pub_info = publisher(CameraInfo, "camera_info", **overridable(IMAGE_QOS))
@@ -231,7 +233,7 @@ class CameraSimulatorNode(ManagedNode):
         self._start_timer(now_ns)
 
     def _start_timer(self, now_ns: int) -> None:
-        """The periodic frame timer, and the render-ahead of frame frame_index."""
+        """Start the periodic frame timer, and the render-ahead of frame frame_index."""
         self.timer = self.create_timer(self.period_ns * 1e-9, self.on_timer)
         self.timer.timer_period_ns = self.period_ns  # exact: seconds -> ns may round down, and ticks drift early
         if self.render_ahead:  # the first frame is rendered a period before its delivery, like every frame at first
@@ -414,7 +416,7 @@ class CameraSimulatorNode(ManagedNode):
                       smear_substeps=frame.substeps)
 
     def _blank(self, frame, k: int):
-        """The frame with the field occulted: its median level plus read noise, nothing in view."""
+        """Return the frame with the field occulted: its median level plus read noise, nothing in view."""
         rng = np.random.default_rng(frame_seed(self.seed, k) ^ 0x5EED)
         level = float(np.median(frame.image))
         noise = self.sensor.read_noise_e / self.sensor.gain_e_per_adu

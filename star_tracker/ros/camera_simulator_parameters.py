@@ -124,13 +124,13 @@ CAMERA_SIMULATOR_PARAMETERS = [
 
 
 def read(p: Declare, specs) -> dict[str, Any]:
-    """name -> value of `specs` from a parameter source p(name, default, description, low, high)."""
+    """Read name -> value of `specs` from a parameter source p(name, default, description, low, high)."""
     return {spec.name: p(spec.name, list(spec.default) if isinstance(spec.default, tuple) else spec.default,
                          spec.full_description(), spec.low, spec.high) for spec in specs}
 
 
 def camera_from(values: dict) -> tuple[CameraModel, float]:
-    """The image size and optics: (the camera model, the horizontal field of view [deg])."""
+    """Return the image size and optics: (the camera model, the horizontal field of view [deg])."""
     fov_x_deg = values["optics.fov_x_deg"]
     # A distortion of other than 5 values is refused here, by the camera model.
     camera = CameraModel.from_fov(values["image.width"], values["image.height"], np.radians(fov_x_deg),
@@ -203,7 +203,7 @@ def motion_kwargs_from(values: dict) -> dict:
 
 def attitude_from(values: dict) -> AttitudeSetup:
     """
-    The initial attitude (a quaternion, else RA/Dec/roll) and the motion profile, checked.
+    Return the initial attitude (a quaternion, else RA/Dec/roll) and the motion profile, checked.
 
     a bad profile fails at startup, not at the first frame.
     """

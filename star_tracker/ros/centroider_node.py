@@ -144,7 +144,7 @@ class CentroiderNode(ManagedNode):
         return None
 
     def smear_for(self, stamp_ns: int, width: int, height: int) -> SmearModel | None:
-        """The smear prediction for an image, or None when exposure, camera or rate is unknown."""
+        """Return the smear prediction for an image, or None when exposure, camera or rate is unknown."""
         camera = self.camera_info.camera
         source = self.rate_source  # read once: it may change meanwhile
         if self.exposure_s <= 0 or source == "none" or camera is None:
@@ -223,8 +223,10 @@ class CentroiderNode(ManagedNode):
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:
         """
-        Count and log a frame with no signal (every pixel equal: lens cap, dead sensor) or a
-        saturated background (Sun, Earth limb, overexposure); None for a usable frame.
+        Count and log a frame with no signal or a saturated background.
+
+        No signal: every pixel equal (lens cap, dead sensor); saturated background: Sun, Earth
+        limb, overexposure. None for a usable frame.
         """
         saturation = self.config.saturation_adu or np.iinfo(image.dtype).max
         if spots.background_adu >= saturation:
@@ -243,7 +245,7 @@ class CentroiderNode(ManagedNode):
 
 
 def psf_values(psf) -> dict:
-    """The /diagnostics values of a frame's PsfEstimate (msg_docs/diagnostics.md)."""
+    """Return the /diagnostics values of a frame's PsfEstimate (msg_docs/diagnostics.md)."""
     if psf is None:
         return {}
     return {"psf_sigma_px": f"{psf.sigma_px:.3f}", "psf_sigma_uncertainty_px": f"{psf.sigma_uncertainty_px:.3f}",

@@ -53,7 +53,7 @@ class Diagnostics:
             self.values.update({k: str(v) for k, v in values.items()})
 
     def value(self, key: str, value) -> None:
-        """Set one latest value (kept until set again)."""
+        """Set one latest value, kept until set again."""
         with self._lock:
             self.values[key] = str(value)
 

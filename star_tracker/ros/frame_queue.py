@@ -85,7 +85,7 @@ class NewestFrame:
                 self.log.error("internal", f"frame {stamp_ns * 1e-9:.6f} failed: {type(exc).__name__}: {exc}")
 
     def wait_idle(self, timeout_s: float) -> bool:
-        """True once nothing waits and the worker is idle."""
+        """Return True once nothing waits and the worker is idle."""
         with self._condition:
             return self._condition.wait_for(lambda: not self._waiting and self._idle, timeout_s)
 

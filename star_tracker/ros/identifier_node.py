@@ -81,7 +81,7 @@ class SpotsFrame:
 
 
 def keep_time_reset(dropped: SpotsFrame, following: SpotsFrame) -> SpotsFrame:
-    """A dropped frame's time reset still applies to the frame after it."""
+    """Carry a dropped frame's time reset over to the frame after it."""
     following.time_reset = following.time_reset or dropped.time_reset
     return following
 
@@ -185,7 +185,9 @@ class IdentifierNode(ManagedNode):
 
     def on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """
-        ~/reset: drop the track (and any lost-in-space solve in progress); the next frame is identified lost-in-space.
+        ~/reset: drop the track (and any lost-in-space solve in progress).
+
+        The next frame is identified lost-in-space.
         """
         with self._lock:
             if self.tracker is None:
@@ -321,7 +323,7 @@ class IdentifierNode(ManagedNode):
         self._finish_acquisition()
 
     def on_solve_done(self, future) -> None:
-        """A solve that outlived inline_wait_s ended (runs in the solve's thread)."""
+        """Handle the end of a solve that outlived inline_wait_s (runs in the solve's thread)."""
         with self._lock:
             if self._acquisition is None or self._acquisition[0] is not future:
                 return  # already finished by a frame, or dropped by a time reset

@@ -1,7 +1,8 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Asking managed nodes in other processes for their lifecycle state and driving their
-transitions (lifecycle_msgs services ~/get_state and ~/change_state), from a private rclpy
+Ask managed nodes in other processes for their lifecycle state and drive their transitions.
+
+Through the lifecycle_msgs services ~/get_state and ~/change_state, from a private rclpy
 context on their ROS domain: what `ros2 lifecycle get/set` does.
 """
 from __future__ import annotations
@@ -27,8 +28,9 @@ TRANSITIONS = {"configure": Transition.TRANSITION_CONFIGURE, "cleanup": Transiti
 
 class LifecycleClient:
     """
-    Lifecycle service calls to nodes on the domain of `env` (ROS_DOMAIN_ID and discovery
-    settings as the node processes get them). Close it (or use `with`) when done.
+    Lifecycle service calls to nodes on the domain of `env`.
+
+    `env`: ROS_DOMAIN_ID and discovery settings as the node processes get them. Close it (or use `with`) when done.
     """
 
     _instances = itertools.count()
@@ -81,7 +83,7 @@ class LifecycleClient:
 
     def get_state(self, node_name: str, timeout_s: float = 5.0) -> str | None:
         """
-        The node's state label (unconfigured, inactive, active, finalized, ...).
+        Return the node's state label (unconfigured, inactive, active, finalized, ...).
 
         or None if its service is not found or does not answer within timeout_s (each).
         """

@@ -39,7 +39,7 @@ SHUTDOWN_TRANSITIONS = (Transition.TRANSITION_UNCONFIGURED_SHUTDOWN, Transition.
 
 def transition_callback(method: Callable) -> Callable:
     """
-    A lifecycle callback that never raises.
+    Make a lifecycle callback that never raises.
 
     an exception is logged with its reason (rclpy itself would swallow it), kept in
     `transition_error`, and returned as FAILURE.
@@ -146,7 +146,7 @@ class ManagedNode(LifecycleNode):
         return None
 
     def start_diagnostics(self) -> Diagnostics:
-        """This node's /diagnostics, published from now on in every state."""
+        """Start this node's /diagnostics, published from now on in every state."""
         diag = Diagnostics(self)
         diag.value("lifecycle_state", self.lifecycle_state)
         diag.set(DiagnosticStatus.OK, "unconfigured; waiting for configure")
@@ -180,7 +180,7 @@ class ManagedNode(LifecycleNode):
         return response
 
     def transition(self, transition_id: int) -> bool:
-        """Run one lifecycle transition (lifecycle_msgs/Transition id); True if it succeeded."""
+        """Run one lifecycle transition by its lifecycle_msgs/Transition id; True if it succeeded."""
         trigger = {Transition.TRANSITION_CONFIGURE: self.trigger_configure,
                    Transition.TRANSITION_CLEANUP: self.trigger_cleanup,
                    Transition.TRANSITION_ACTIVATE: self.trigger_activate,

@@ -50,7 +50,7 @@ def node_parameters() -> dict[str, list[ParameterSpec]]:
 
 def yaml_value(value) -> str:
     """
-    A value as ros2 param-file YAML that reads back with the same type.
+    Return a value as ros2 param-file YAML that reads back with the same type.
 
     floats always with a decimal point (1.0, 2.0e-05), lists in flow style, strings plain (quoted where YAML
     would retype them).
@@ -73,7 +73,7 @@ def yaml_value(value) -> str:
 
 
 def comment_lines(spec: ParameterSpec, width: int) -> list[str]:
-    """The comment above a parameter, wrapped: description [unit]; range; runtime (the range is never split)."""
+    """Return the comment above a parameter, wrapped: description [unit]; range; runtime (the range is never split)."""
     lines = textwrap.wrap(spec.full_description(), width, break_on_hyphens=False)
     suffix = "".join(f"; {part}" for part in (spec.range_text(), "runtime" if spec.dynamic else "") if part)
     if suffix:
@@ -110,7 +110,7 @@ def _lines(tree: dict, indent: int) -> list[str]:
 
 
 def generate() -> str:
-    """The whole file."""
+    """Return the whole file."""
     parts = [HEADER]
     for node, specs in node_parameters().items():
         parts.append(f"/**/{node}:\n  ros__parameters:\n" + "\n".join(_lines(_nest(specs), 4)) + "\n")

@@ -26,13 +26,13 @@ if TYPE_CHECKING:  # annotations only
 
 
 def ros_value(value):
-    """A spec value as a ROS parameter value: tuples become lists."""
+    """Return a spec value as a ROS parameter value: tuples become lists."""
     return list(value) if isinstance(value, tuple) else value
 
 
 def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
     """
-    The ParameterDescriptor `ros2 param describe` shows.
+    Return the ParameterDescriptor `ros2 param describe` shows.
 
     description with the unit (and the choices), the range, read-only unless the spec is
     dynamic; additional_constraints: the choices, an open end of the range, an array's range
@@ -77,8 +77,9 @@ def declare_parameters(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, 
 def declare(node: Node, name: str, default, description: str, low=None, high=None,
             read_only: bool = True):
     """
-    Declare one parameter that has no ParameterSpec (prefer a spec: it reaches the YAML and
-    the docs) with a descriptor (and range) and return its value.
+    Declare one parameter that has no ParameterSpec, with a descriptor (and range); return its value.
+
+    Prefer a spec: it reaches the YAML and the docs.
     """
     return declare_parameters(node, [ParameterSpec(name, default, description, low=low, high=high,
                                                    dynamic=not read_only)])[name]

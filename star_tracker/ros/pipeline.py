@@ -137,14 +137,14 @@ class NodeProcesses:
 
     def expected_state(self, name: str) -> str:
         """
-        The state a node reaches by itself.
+        Return the state a node reaches by itself.
 
         active, or unconfigured with `autostart: false` among this object's `params`.
         """
         return "unconfigured" if self.params.get(name, {}).get("autostart") is False else "active"
 
     def node_path(self, name: str) -> str:
-        """A node's fully qualified name, with its `__ns` / `__node` remaps (e.g. /det/identifier)."""
+        """Return a node's fully qualified name, with its `__ns` / `__node` remaps (e.g. /det/identifier)."""
         remaps = self.remaps.get(name, {})
         namespace = remaps.get("__ns", "").strip("/")
         node = remaps.get("__node", name)
@@ -158,9 +158,10 @@ class NodeProcesses:
 
     def wait_ready(self, timeout_s: float = 120.0, names=None) -> None:
         """
-        Block until every started node (or those in `names`) answers ~/get_state with the
-        state it reaches by itself (active with autostart, the default; else unconfigured);
-        raise with its log if one died, TimeoutError if one hung.
+        Block until every started node (or those in `names`) is in the state it reaches by itself.
+
+        That is, until it answers ~/get_state with that state (active with autostart, the
+        default; else unconfigured); raise with its log if one died, TimeoutError if one hung.
         """
         names = list(self.processes if names is None else names)
         for state in sorted({self.expected_state(name) for name in names}):
@@ -168,7 +169,7 @@ class NodeProcesses:
             self.lifecycle.wait_for_state(list(paths), state, timeout_s, check=lambda path: self.check_alive(paths[path]))
 
     def get_state(self, name: str) -> str | None:
-        """A node's lifecycle state label (None: no answer)."""
+        """Return a node's lifecycle state label (None: no answer)."""
         return self.lifecycle.get_state(self.node_path(name))
 
     def change_state(self, name: str, transition: str, timeout_s: float = 120.0) -> bool:

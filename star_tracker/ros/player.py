@@ -196,8 +196,9 @@ class BagPlayer(Node):
 
     def publish_clock(self, bag_ns: int) -> None:
         """
-        /clock never runs backwards within a pass (a message published late would otherwise
-        follow a periodic tick that got ahead of it).
+        Keep /clock from running backwards within a pass.
+
+        A message published late would otherwise follow a periodic tick that got ahead of it.
         """
         from builtin_interfaces.msg import Time
 
@@ -208,7 +209,7 @@ class BagPlayer(Node):
         self._last_clock = time.monotonic()
 
     def wait_for_graph(self) -> None:
-        """Subscribers before the first message: best-effort volatile topics give nothing to a late subscriber."""
+        """Wait for subscribers before the first message: best-effort volatile topics give nothing to a late one."""
         options = self.options
         need = options.wait_for_subscribers or (1 if self.lockstep and self.images else 0)
         targets = self.topics if options.wait_for_subscribers else sorted(self.images)
@@ -346,8 +347,9 @@ class BagPlayer(Node):
 
     def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> list[str]:
         """
-        Wait until every reliable subscriber has acknowledged all that was published (a
-        player that exits at once can take its last messages with it); returns the topics still
+        Wait until every reliable subscriber has acknowledged all that was published.
+
+        A player that exits at once can take its last messages with it. Returns the topics still
         unacknowledged after timeout_s [s].
         """
         deadline = time.monotonic() + timeout_s

@@ -52,8 +52,9 @@ OVERRIDABLE_POLICIES = (QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH, QoSPolicyKin
 
 def _check_overrides(qos: QoSProfile) -> SetParametersResult:
     """
-    A keep-last queue must hold at least one message (depth 0 is rejected by the middleware
-    with a less clear message, or not at all).
+    Check that a keep-last queue holds at least one message.
+
+    Depth 0 is rejected by the middleware with a less clear message, or not at all.
     """
     if qos.history == HistoryPolicy.KEEP_LAST and qos.depth < 1:
         return SetParametersResult(successful=False, reason=f"depth {qos.depth} must be >= 1 with history keep_last")
@@ -75,5 +76,5 @@ def overridable(profile: QoSProfile) -> dict:
 
 
 def is_qos_override(parameter_name: str) -> bool:
-    """True for the parameters rclpy declares for overridable QoS (read-only, set at startup)."""
+    """Return True for the parameters rclpy declares for overridable QoS (read-only, set at startup)."""
     return parameter_name.startswith("qos_overrides.")

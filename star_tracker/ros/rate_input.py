@@ -78,7 +78,7 @@ class RateSamples:
 
     def for_frame(self, frame_stamp: int, exposure_s: float, max_age_s: float) -> tuple[np.ndarray | None, str]:
         """
-        The rate for a frame stamped `frame_stamp` (mid-exposure) [ns].
+        Return the rate for a frame stamped `frame_stamp` (mid-exposure) [ns].
 
         the mean of the samples inside its exposure when there are any (the smear is the mean
         rate's), else the sample nearest its stamp if within max_age_s. Returns (rate or None,
@@ -141,7 +141,7 @@ class RateInput:
         self.samples[topic].add(stamp, self.mounting @ vector if rotate else vector)
 
     def for_frame(self, topic: str, frame_stamp: int, exposure_s: float, max_age_s: float) -> np.ndarray | None:
-        """The body rate [rad/s, sensor frame] from `topic` for a frame, or None (counted)."""
+        """Return the body rate [rad/s, sensor frame] from `topic` for a frame, or None (counted)."""
         omega, verdict = self.samples[topic].for_frame(frame_stamp, exposure_s, max_age_s)
         if verdict == "too_old":
             self.reject("frames_rate_too_old", f"frame {frame_stamp * 1e-9:.6f}: no {topic} message within "

@@ -1,7 +1,9 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Stamp policy: where a frame's header stamp stands against the newest stamp so far and the
-node's clock (ok, unstamped, from the future, out of order, a jump back in time).
+Stamp policy: where a frame's header stamp stands.
+
+Against the newest stamp so far and the node's clock: ok, unstamped, from the future, out of
+order, a jump back in time.
 """
 from __future__ import annotations
 

@@ -40,7 +40,7 @@ class ThrottledLog:
             write(line)
 
     def _line(self, key: str, text: str) -> str | None:
-        """The line to write now, or None (counted as suppressed)."""
+        """Return the line to write now, or None (counted as suppressed)."""
         key = key + ":" + _NUMBERS.sub("#", text)
         now = time.monotonic()
         if len(self._last) > 256:  # garbage input can make endless kinds: forget the quiet ones

@@ -90,7 +90,7 @@ class SensorModel:
         return self.photon_flux_hp0 * area * self.optical_transmission * self.quantum_efficiency
 
     def star_electrons(self, hp: np.ndarray, b_v: np.ndarray | float = 0.0) -> np.ndarray:
-        """Expected photo-electrons per exposure (before vignetting) of stars of Hp and B-V."""
+        """Return the expected photo-electrons per exposure (before vignetting) of stars of Hp and B-V."""
         magnitude = np.asarray(hp) + self.color_coefficient * np.asarray(b_v)
         return self.zero_point_e_per_s * self.exposure_s * 10.0 ** (-0.4 * magnitude)
 

@@ -18,9 +18,10 @@ from ..identify.kernels import LN_8PI2, log_chance_tuples
 @njit(cache=True)
 def log_chance_tuples_in_region(body, sigma, chi2, density, region_covariance, region_sigma):
     """
-    ln of the expected chance m-tuples fitting `body` with chi^2 <= `chi2` under an attitude
-    inside the region_sigma ellipsoid of `region_covariance` [rad^2]: log_chance_tuples with
-    the volume of SO(3) replaced by the searched region when that is smaller (see
+    Return ln of the expected chance m-tuples fitting `body` with chi^2 <= `chi2` in a region.
+
+    Under an attitude inside the region_sigma ellipsoid of `region_covariance` [rad^2]:
+    log_chance_tuples with the volume of SO(3) replaced by the searched region when that is smaller (see
     tracking.log_chance_tuples_in_region for the math).
     """
     whole = log_chance_tuples(body, sigma, chi2, density)
@@ -79,9 +80,10 @@ def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius):
 @njit(cache=True)
 def stars_in_view(vectors, rotation, cos_reach, camera, margin):
     """
-    Catalog stars (ICRS unit vectors) within acos(cos_reach) of the boresight of `rotation`
-    (sensor -> ICRS) that a pinhole camera (Pinhole) puts inside its pixel area shrunk by
-    `margin` [px] (negative: grown): (indices, u, v [px]). One pass over the catalog (~8k
+    Catalog stars (ICRS unit vectors) a pinhole camera at `rotation` sees: (indices, u, v [px]).
+
+    Those within acos(cos_reach) of the boresight of `rotation` (sensor -> ICRS) that the camera
+    (Pinhole) puts inside its pixel area shrunk by `margin` [px] (negative: grown). One pass over the catalog (~8k
     stars).
     """
     fx, fy, cx, cy, width, height = camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height

@@ -89,7 +89,9 @@ class TrackingConfig:
 @dataclass(frozen=True)
 class Prediction:
     """
-    Predicted attitude (sensor -> ICRS) at `stamp_ns` and its small-angle error covariance in the sensor frame [rad^2].
+    Predicted attitude (sensor -> ICRS) at `stamp_ns` and its error covariance.
+
+    The covariance is the small-angle one in the sensor frame [rad^2].
     """
 
     stamp_ns: int
@@ -124,9 +126,11 @@ class TrackedFrame:
 def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float, density_per_sr: float,
                                 region_covariance: np.ndarray, region_sigma: float) -> float:
     """
-    ln of the expected number of catalog m-tuples (uniform density [1/sr]) fitting the m
-    sensor-frame unit vectors `body` with weighted chi^2 <= `chi2` under some attitude inside
-    the region_sigma ellipsoid of `region_covariance` [rad^2] (sensor frame).
+    Return ln of the expected number of chance catalog m-tuples fitting `body` in a region.
+
+    Catalog m-tuples (uniform density [1/sr]) fitting the m sensor-frame unit vectors `body`
+    with weighted chi^2 <= `chi2` under some attitude inside the region_sigma ellipsoid of
+    `region_covariance` [rad^2] (sensor frame).
 
     verify.log_chance_tuples with the volume of SO(3) (8 pi^2 sqrt(det G) in coordinates scaled
     by G^(1/2), G = sum (I - b b^T)/s^2) replaced by the searched region: there the ellipsoid
@@ -143,7 +147,7 @@ def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float
 def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray, ref_y: np.ndarray,
                       gate_px: float, bin_px: float) -> tuple[float, float, int]:
     """
-    The displacement (dx, dy) [px] shared by most spot - reference pairs within `gate_px`.
+    Vote the displacement (dx, dy) [px] shared by most spot - reference pairs within `gate_px`.
 
     voted in a histogram of `bin_px` cells (2x2 neighbourhoods, so a cluster on a cell edge
     still wins), refined as the mean of the pairs within one bin of the winner. Returns (dx,
@@ -170,8 +174,10 @@ def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray,
 
 def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius_px: float) -> tuple[np.ndarray, np.ndarray]:
     """
-    One-to-one nearest pairs within `radius_px` (a reference claimed by two spots, or a
-    spot with two references within the radius, is dropped): (spot idx, ref idx).
+    One-to-one nearest pairs within `radius_px`: (spot idx, ref idx).
+
+    A reference claimed by two spots, or a spot with two references within the radius, is
+    dropped.
     """
     as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
     return track_kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y),
@@ -395,7 +401,7 @@ class Tracker:
 
     # --- delay compensation ------------------------------------------------------------
     def begin_acquisition(self, stamp_ns: int, spots: Spots, camera: CameraModel) -> None:
-        """A lost-in-space solve of this frame starts (elsewhere, e.g. in a worker thread)."""
+        """Note that a lost-in-space solve of this frame starts (elsewhere, e.g. in a worker thread)."""
         self._pending = [(stamp_ns, spots, camera)]
         self._chain = []
 
@@ -405,7 +411,7 @@ class Tracker:
 
     def bridge(self, stamp_ns: int, spots: Spots, camera: CameraModel) -> bool:
         """
-        A newer frame arrived during the solve: chain its rotation relative to the previous pending frame.
+        Chain a newer frame that arrived during the solve, relative to the previous pending frame.
 
         False when the two frames share too few stars (the chain restarts from this frame on
         the next acquisition).
@@ -422,7 +428,7 @@ class Tracker:
 
     def complete_acquisition(self, result: Identification) -> TrackedFrame | None:
         """
-        The solve of the first pending frame ended with `result`.
+        End the solve of the first pending frame with `result`.
 
         Returns the newest pending frame's TrackedFrame (attitude chained and verified by
         local recognition), or the solved frame's own when nothing was bridged; None when

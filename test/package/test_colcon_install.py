@@ -109,13 +109,13 @@ def workspace(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def prefix(workspace) -> Path:
-    """The package's install prefix, install/star_tracker (colcon's isolated layout)."""
+    """Return the package's install prefix, install/star_tracker (colcon's isolated layout)."""
     return workspace / "install" / PACKAGE
 
 
 @pytest.fixture(scope="module")
 def node_env(prefix, tmp_path_factory) -> dict[str, str]:
-    """What `source install/setup.sh` gives, plus an isolated localhost-only ROS domain."""
+    """Return what `source install/setup.sh` gives, plus an isolated localhost-only ROS domain."""
     env = os.environ.copy()
     _prepend(env, "PYTHONPATH", prefix / SITE_PACKAGES)
     _prepend(env, "AMENT_PREFIX_PATH", prefix)

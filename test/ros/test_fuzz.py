@@ -1,7 +1,8 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Property-based tests (hypothesis) of the message converters (star_tracker.ros.convert) on
-real rclpy message classes filled with garbage: a valid result, or ValueError with a message;
+Property-based tests (hypothesis) of the message converters (star_tracker.ros.convert).
+
+On real rclpy message classes filled with garbage: a valid result, or ValueError with a message;
 never another exception. Shared strategies and checks: test/fuzz_support.py; the core
 functions behind the converters are fuzzed in test/models, test/centroid, test/identify and
 test/track (*_fuzz.py).

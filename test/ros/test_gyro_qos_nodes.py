@@ -51,7 +51,9 @@ def join_domain(monkeypatch, domain_id: int) -> dict:
 
 class Probe:
     """
-    This test's node: the gyro (republishing the simulator's true rate), spots, truth and the centroider's diagnostics.
+    This test's node: the gyro, spots, truth and the centroider's diagnostics.
+
+    The gyro republishes the simulator's true rate.
     """
 
     def __init__(self):

@@ -32,9 +32,10 @@ from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 
 def join_domain(monkeypatch, domain_id: int) -> dict:
     """
-    This test process on the private ROS domain `domain_id` (as conftest's join_isolated_ros_domain, with a fixed id).
+    Join this test process to the private ROS domain `domain_id`.
 
-    returns the environment for the nodes.
+    As conftest's join_isolated_ros_domain, with a fixed id; returns the environment for the
+    nodes.
     """
     env = isolated_ros_environment(domain_id)
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
@@ -79,7 +80,7 @@ class IdentifierDriver:
         return until()
 
     def fresh_diagnostics(self) -> dict[str, str]:
-        """The identifier's /diagnostics published after this call (1 Hz)."""
+        """Return the identifier's /diagnostics published after this call (1 Hz)."""
         seen = self.diagnostics_seen
         assert self.spin(10.0, until=lambda: self.diagnostics_seen > seen + 1), "no /diagnostics from the identifier"
         return self.diagnostics
@@ -268,7 +269,7 @@ def test_pipeline_driven_through_the_lifecycle_services(monkeypatch, tmp_path):
 @pytest.mark.integration
 def test_a_failed_configure_leaves_the_node_unconfigured_and_running(monkeypatch, tmp_path, catalog, nominal_camera):
     """
-    autostart false and an unknown algorithm.
+    Start with autostart false and an unknown algorithm.
 
     configure fails with the reason in the log and `transitions_failed` counted; the node stays
     unconfigured and still answers; shutdown ends it.

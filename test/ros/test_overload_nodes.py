@@ -179,8 +179,9 @@ def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp
 
 def flood_centroider(rig: FloodRig, images, info, first_ns: int, baseline: dict):
     """
-    A burst of 10 images (the depth of the DDS queues on both sides: none is lost there), 10 ms apart in stamps.
+    Publish a burst of 10 images, 10 ms apart in stamps.
 
+    10 is the depth of the DDS queues on both sides: none is lost there. They are
     published faster than the centroider measures one 1024^2 frame: more than its 3 waiting
     places and the frame in progress. Returns its counters once every received frame is
     accounted (processed or dropped), and the stamps sent.
@@ -202,9 +203,9 @@ def flood_centroider(rig: FloodRig, images, info, first_ns: int, baseline: dict)
 
 def flood_identifier(rig: FloodRig, star_spots, first_ns: int, baseline: dict, base: int):
     """
-    A burst of 20 spots messages (the depth of the DDS queues on both sides), at rest, 1 ms apart in stamps.
+    Publish a burst of 20 spots messages, at rest, 1 ms apart in stamps.
 
-    published faster than the identifier tracks one frame. Returns its counters once every
+    20 is the depth of the DDS queues on both sides. They are published faster than the identifier tracks one frame. Returns its counters once every
     received frame is accounted (identified, dropped or not identified), and the stamps sent.
     """
     spot_stamps = [first_ns + k * MS for k in range(20)]

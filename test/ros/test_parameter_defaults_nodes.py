@@ -95,7 +95,7 @@ class Probe:
 
 @pytest.fixture
 def started(request, monkeypatch, tmp_path):
-    """The node `request.param` started without a params file; yields (probe, processes)."""
+    """Start the node `request.param` without a params file; yields (probe, processes)."""
     node = request.param
     env = isolated_ros_environment(DOMAINS[node])
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):

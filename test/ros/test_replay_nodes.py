@@ -1,7 +1,8 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Record and replay with the real nodes and the real `star-tracker record/play` processes
-over Fast DDS (private domain, localhost only). No ROS mocks.
+Record and replay with the real nodes and the real `star-tracker record/play` processes.
+
+Over Fast DDS (private domain, localhost only). No ROS mocks.
 """
 from __future__ import annotations
 
@@ -106,7 +107,7 @@ def cli(args, env, log: Path) -> subprocess.Popen:
 
 
 def pipeline(env, log_dir: Path, namespace: str | None, params: dict, use_sim_time: bool = False) -> NodeProcesses:
-    """A centroider + identifier, in `namespace`, fed by the root image_raw and camera_info."""
+    """Start a centroider + identifier, in `namespace`, fed by the root image_raw and camera_info."""
     params = {node: {**params.get(node, {}), "use_sim_time": use_sim_time} for node in ("centroider", "identifier")}
     remaps = None
     if namespace:
@@ -259,7 +260,7 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
 
 
 def last_diagnostics(reader) -> dict[str, dict[str, str]]:
-    """The last key/values per status name on a bag's /diagnostics."""
+    """Return the last key/values per status name on a bag's /diagnostics."""
     store = bags.typestore()
     out = {}
     for _, _, data in reader.messages(["/diagnostics"]):
@@ -371,7 +372,7 @@ def _flushed_images(bag: Path, scratch: Path) -> int:
 
 
 def _synthetic_bag(path: Path, frames: int = 20, period_ns: int = 100_000_000) -> list[int]:
-    """A bag as a run at 10 Hz would leave: small images, camera_info and truth (serialized by rclpy)."""
+    """Write a bag as a run at 10 Hz would leave: small images, camera_info and truth (serialized by rclpy)."""
     from rclpy.serialization import serialize_message
 
     from star_tracker.ros.bag_ros import offered_qos
