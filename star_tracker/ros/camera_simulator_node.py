@@ -64,7 +64,7 @@ class CameraSimulatorNode(ManagedNode):
         values = declare_parameters(self, CAMERA_SIMULATOR_PARAMETERS)  # camera_simulator_parameters.py
         self._read_output(values)
         self.camera, fov_x_deg = camera_from(values)
-        self.sensor = sensor = sensor_from(values)
+        self.sensor = sensor_from(values)
         readout_s = values["sensor.readout_s"]
         false_objects = false_objects_from(values)
         self.sky = sky = sky_from(values)

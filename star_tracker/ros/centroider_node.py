@@ -238,7 +238,6 @@ class CentroiderNode(ManagedNode):
             return "frame without signal"
         return None
 
-
     def destroy_node(self) -> None:
         self.release()
         super().destroy_node()

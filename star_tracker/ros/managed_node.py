@@ -168,7 +168,7 @@ class ManagedNode(LifecycleNode):
         wanted = request.transition.label or str(request.transition.id)
         offered = self._state_machine.available_transitions  # (id, label, start id, start, goal id, goal)
         matches = [t[0] for t in offered if (t[1] == request.transition.label if request.transition.label
-                                               else t[0] == request.transition.id)]
+                                             else t[0] == request.transition.id)]
         if not matches:
             self.diag.count("transitions_refused")
             self.get_logger().warning(

@@ -308,7 +308,7 @@ class Tracker:
             near, u, v = near[keep], u[keep], v[keep]
         else:
             near, u, v = track_kernels.stars_in_view(self._vectors, rotation, cos_reach, Pinhole.of(camera),
-                                               -float(gate))
+                                                     -float(gate))
         if near.size < self.config.min_stars:
             return fail(f"{near.size} catalog stars near the predicted attitude")
         voters = min(n, self.config.max_pattern_spots)
@@ -354,7 +354,7 @@ class Tracker:
         body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
         density = max(self.catalog.mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
         log_t = float(track_kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
-                                                          self.config.gate_sigma))
+                                                                self.config.gate_sigma))
         log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self.catalog.magnitude[star_index],
                                                        self.catalog.sorted_magnitudes, lis.magnitude_floor))
         fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))

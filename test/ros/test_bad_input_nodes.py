@@ -95,7 +95,7 @@ def stamped(msg, stamp_ns: int):
 
 # ------------------------------------------------------------------------------ centroider
 @pytest.mark.integration
-def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp_path, catalog):
+def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp_path, catalog):  # noqa: F811  the fixture
     camera = CameraModel.from_fov(256, 256, np.radians(4.0))
     renderer = StarFieldRenderer(camera, SensorModel(), catalog.at_epoch(2026.0), magnitude_limit=8.5)
     good_image = renderer.render(ConstantRateMotion(radec_roll_to_matrix(1.5, 0.3, 0.0), np.zeros(3)), 1.0, 7).image
@@ -223,7 +223,7 @@ def with_garbage(spots: Spots) -> Spots:
 
 
 @pytest.mark.integration
-def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph, tmp_path, catalog, database):
+def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph, tmp_path, catalog, database):  # noqa: F811  the fixture
     # A distorted lens: with it, an empty frame used to crash identify() (camera.pixel_to_ray).
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0), (-0.05, 0.0, 0.0, 0.0, 0.0))
     sky = catalog.brighter_than(6.8).at_epoch(2026.0)
@@ -315,7 +315,7 @@ def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph, tmp
 
 # ------------------------------------------------------------------------------ camera simulator
 @pytest.mark.integration
-def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_path):
+def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_path):  # noqa: F811  the fixture
     driver = Driver("camera_simulator")
     pub_q = driver.node.create_publisher(QuaternionStamped, "truth_in/attitude", RESULT_QOS)
     pub_w = driver.node.create_publisher(Vector3Stamped, "truth_in/angular_velocity", RESULT_QOS)

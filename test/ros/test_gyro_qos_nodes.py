@@ -148,6 +148,7 @@ def test_best_effort_imu_then_vector3_aid_the_centroider(tmp_path, monkeypatch):
         switched = probe.set_parameter("centroider", "rate_source", "topic")
         probe.source = "topic"
         last_imu = max(probe.imu_stamps)
+
         # Until the camera is done and the centroider has measured every image it received
         # (a best-effort image lost on a loaded host must not stall the test).
         def done() -> bool:

@@ -46,6 +46,7 @@ def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, 
     try:
         nodes.start()
         nodes.wait_ready(timeout_s=120)
+
         # Until the camera is done (by its own count: published + skipped) and every published
         # frame's truth is in, then for the pipeline to drain.
         def camera_done() -> bool:
@@ -54,6 +55,7 @@ def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, 
             return (published + int(camera.get("frames_skipped_overrun", "0")) >= FRAMES
                     and sum(f.truth is not None for f in monitor.frames.values()) >= published)
         monitor.spin_for(FRAMES / RATE_HZ + 30.0, until=camera_done)
+
         # Drained: no new spots or attitude for 3 s (a node behind after a host stall keeps
         # publishing its backlog until then).
         def outputs() -> int:

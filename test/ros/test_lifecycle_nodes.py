@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 import pytest
 pytestmark = pytest.mark.slow  # every test here starts node processes
 

@@ -122,7 +122,7 @@ def counted_since(baseline: dict[str, str], counters: dict[str, str], outcomes: 
 
 
 @pytest.mark.integration
-def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp_path, catalog):
+def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp_path, catalog):  # noqa: F811  the fixture
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     truth = radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.3)
     renderer = StarFieldRenderer(camera, SensorModel(exposure_s=0.02), catalog.at_epoch(2026.0), 7.5)
@@ -223,7 +223,7 @@ def flood_identifier(rig: FloodRig, star_spots, first_ns: int, baseline: dict, b
 
 
 @pytest.mark.integration
-def test_identifier_killed_and_camera_restarted_mid_run(ros_graph, tmp_path):
+def test_identifier_killed_and_camera_restarted_mid_run(ros_graph, tmp_path):  # noqa: F811  the fixture
     monitor = TrackerMonitor(name="overload_monitor")
     params = {"camera_simulator": {"rate_hz": 5.0, "sensor.exposure_s": 0.02, "wait_for_subscribers": True,
                                    "attitude.body_rate_deg_s": [0.3, 0.4, 0.05]},

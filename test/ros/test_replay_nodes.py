@@ -128,7 +128,7 @@ def bag_attitudes(path: Path, topic: str) -> dict[int, tuple]:
 
 
 @pytest.mark.integration
-def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_path):
+def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_path):  # noqa: F811  the fixture
     """
     Live: camera -> two pipelines (default configuration at the root, the deterministic one in /det), recorded.
 
@@ -277,7 +277,7 @@ def _publisher_node():
 
 
 @pytest.mark.integration
-def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recovered(ros_graph, tmp_path):
+def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recovered(ros_graph, tmp_path):  # noqa: F811  the fixture
     """
     Four recorders at once.
 
@@ -396,7 +396,7 @@ def _synthetic_bag(path: Path, frames: int = 20, period_ns: int = 100_000_000) -
 
 
 @pytest.mark.integration
-def test_play_options_rate_offset_topics_remap_clock_and_loop(ros_graph, tmp_path):
+def test_play_options_rate_offset_topics_remap_clock_and_loop(ros_graph, tmp_path):  # noqa: F811  the fixture
     env = ros_graph
     stamps = _synthetic_bag(tmp_path / "bag")  # 20 frames over 1.9 s
     extra = {"/camera_info": (CameraInfo, MONITOR_SENSOR_QOS), "/image_raw": (Image, MONITOR_SENSOR_QOS),
