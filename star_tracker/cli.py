@@ -95,7 +95,9 @@ def _run_demo_nodes(args: argparse.Namespace, out: Path):
     from .ros.pipeline import NodeProcesses, TrackerMonitor, isolated_ros_environment
 
     env = isolated_ros_environment()
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE") if k in env})
+    os.environ.update({k: env[k]
+                       for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE")
+                       if k in env})
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     frames_wanted = int(round(args.duration * args.rate))
     params = {"camera_simulator": {**SCENARIOS[args.scenario], "rate_hz": float(args.rate),
@@ -132,7 +134,8 @@ def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
     """
     printed: set[int] = set()
     index = 0
-    print(f"{'frame':>5}  {'stamp [s]':>16}  {'spots':>5}  {'ident':>5}  {'cross-bore':>10}  {'roll':>8}  {'latency':>8}")
+    print(f"{'frame':>5}  {'stamp [s]':>16}  {'spots':>5}  {'ident':>5}  {'cross-bore':>10}  {'roll':>8}  "
+          f"{'latency':>8}")
     started_frames = time.monotonic()
     end = started_frames + duration_s + 8.0
     while time.monotonic() < end:
@@ -202,8 +205,8 @@ def print_demo_summary(summary: dict, codes: dict[str, int]) -> None:
     print(f"summary: {summary['frames']} frames, {summary['identified']} identified "
           f"({100 * summary['identification_rate']:.1f} %), {summary['wrong_over_60_arcsec']} wrong (> 60\")")
     print(f"attitude error vs truth: median {summary['cross_boresight_arcsec_median']:.2f}\" cross-boresight, "
-          f"{summary['roll_arcsec_median']:.2f}\" roll; 95th percentile {summary['cross_boresight_arcsec_p95']:.2f}\" / "
-          f"{summary['roll_arcsec_p95']:.2f}\"")
+          f"{summary['roll_arcsec_median']:.2f}\" roll; 95th percentile {summary['cross_boresight_arcsec_p95']:.2f}\" "
+          f"/ {summary['roll_arcsec_p95']:.2f}\"")
     print(f"latency (mid-exposure stamp -> attitude received): median {summary['latency_ms_median']:.0f} ms, "
           f"max {summary['latency_ms_max']:.0f} ms")
     print(f"node exit codes: {codes}")
@@ -265,7 +268,8 @@ def write_picture(frames, path: Path) -> Path | None:
         if f.image is not None and f.matched is not None and f.matched.size:
             err = f.error()
             title = (f"{f.matched.size} stars identified" +
-                     (f", error {np.degrees(err[0]) * 3600:.1f}\" cross-boresight / {np.degrees(err[1]) * 3600:.1f}\" roll"
+                     (f", error {np.degrees(err[0]) * 3600:.1f}\" cross-boresight / "
+                      f"{np.degrees(err[1]) * 3600:.1f}\" roll"
                       if err is not None else ""))
             canvas = annotate_frame(f.image, f.matched["pixel_x"], f.matched["pixel_y"], f.matched["hip_id"], title)
             cv2.imwrite(str(path), canvas)
@@ -280,7 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Start camera_simulator, centroider and identifier as separate processes "
                                       "on a private DDS domain, print one status line per frame (spots, identified "
                                       "stars, attitude error vs truth, latency), then a summary; write "
-                                      "OUTPUT/frame.png, run.png (attitude error and rate vs time), summary.json and frames.csv.")
+                                      "OUTPUT/frame.png, run.png (attitude error and rate vs time), summary.json and "
+                                      "frames.csv.")
     demo.add_argument("--scenario", choices=sorted(SCENARIOS), default="default",
                       help="attitude motion: default = 0.5 deg/s cross-boresight + slow roll; rest; fast ~1.5 deg/s; "
                            "slew = 20 deg at up to 2 deg/s from t = 3 s; tumble = torque-free tumble ~1.1 deg/s; "

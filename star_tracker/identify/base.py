@@ -224,7 +224,8 @@ class _Matches:
     def extended(self, spot_index: np.ndarray, star_vectors: np.ndarray, hip: np.ndarray,
                  magnitude: np.ndarray) -> "_Matches":
         """Return these matches followed by deep ones."""
-        return _Matches(np.concatenate([self.spot_index, spot_index]), np.concatenate([self.star_vectors, star_vectors]),
+        return _Matches(np.concatenate([self.spot_index, spot_index]),
+                        np.concatenate([self.star_vectors, star_vectors]),
                         np.concatenate([self.hip, hip.astype(self.hip.dtype)]),
                         np.concatenate([self.magnitude, magnitude]),
                         np.concatenate([self.deep, np.ones(spot_index.size, bool)]))
@@ -331,7 +332,8 @@ class StarIdentifier:
         """
         Return the finite spots' indices (into `spots`) and the geometry algorithms work on.
 
-        The finite spots sorted by flux, brightest first, and their geometry in that order. Resets the per-call stats. Compiled (spot_kernels.prepare_spots) for
+        The finite spots sorted by flux, brightest first, and their geometry in that order.
+        Resets the per-call stats. Compiled (spot_kernels.prepare_spots) for
         undistorted cameras, numpy with distortion. A malformed record is refused first
         (Spots.validate: ValueError).
         """
@@ -341,7 +343,8 @@ class StarIdentifier:
         as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
         x, y = as_float(spots.x), as_float(spots.y)
         if not camera.has_distortion:
-            p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)), Pinhole.of(camera),
+            p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)),
+                                           Pinhole.of(camera),
                                            PrepareSettings(float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX))
             return p.order, SpotGeometry(p.rays, p.sigma, min(p.order.size, self.config.max_pattern_spots),
                                          p.magnitude, p.x, p.y, p.pixel_cov, p.jacobian, camera)
@@ -397,7 +400,8 @@ class StarIdentifier:
                 return self._timed_out(tested)
             tested += 1
             try:
-                candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars], geometry.sigma[pattern_spots])
+                candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars],
+                                  geometry.sigma[pattern_spots])
             except (ValueError, np.linalg.LinAlgError):
                 continue
             match = self.verify_hypothesis(geometry, camera, candidate.rotation)
@@ -414,7 +418,8 @@ class StarIdentifier:
 
     def verification_radius_px(self, geometry: SpotGeometry, camera: CameraModel) -> float:
         """Verification radius: the configured one, widened to 4 sigma of the typical spot."""
-        typical_px = float(np.partition(geometry.sigma, geometry.sigma.size // 2)[geometry.sigma.size // 2]) / camera.pixel_scale_rad
+        typical_px = (float(np.partition(geometry.sigma, geometry.sigma.size // 2)[geometry.sigma.size // 2])
+                      / camera.pixel_scale_rad)
         return max(self.config.match_radius_px, 4.0 * typical_px)
 
     def verify_hypothesis(self, geometry: SpotGeometry, camera: CameraModel,
@@ -443,10 +448,12 @@ class StarIdentifier:
             if spot_index.size < MIN_STARS:
                 return None
             solution = quest(body, vectors[star_index], geometry.sigma[spot_index])
-            normalized = np.linalg.norm(body - vectors[star_index] @ solution.rotation, axis=1) / geometry.sigma[spot_index]
+            normalized = (np.linalg.norm(body - vectors[star_index] @ solution.rotation, axis=1)
+                          / geometry.sigma[spot_index])
         sigma = geometry.sigma[spot_index]
         chi2 = float(np.sum(normalized**2))
-        density = max(self._mean_density, check.stars_in_view / (camera.width * camera.height * camera.pixel_scale_rad**2))
+        density = max(self._mean_density,
+                      check.stars_in_view / (camera.width * camera.height * camera.pixel_scale_rad**2))
         log_t = log_chance_tuples(body, sigma, chi2, density)
         log_t += log_magnitude_agreement(geometry.magnitude[spot_index], self.database.magnitude[star_index],
                                          self._sorted_magnitudes, self.magnitude_floor)
@@ -496,7 +503,8 @@ class StarIdentifier:
         """
         limit = self.database.config.magnitude_limit + self.config.deep_magnitude_margin
         if self._deep is None or self._deep.magnitude_limit != limit:  # config may be replaced (commands/solve.py)
-            self._deep = load_or_build_deep_catalog(limit, self.database.config.epoch_jyear, self.database.cache_directory)
+            self._deep = load_or_build_deep_catalog(limit, self.database.config.epoch_jyear,
+                                                    self.database.cache_directory)
         return self._deep
 
     def deep_rematch(self, geometry: SpotGeometry, guide: "_Matches",
@@ -559,7 +567,8 @@ class StarIdentifier:
         """
         Fit the published attitude of matches (spot_index into the flux-sorted spots).
 
-        `stars` are their ICRS unit vectors. Weighted by each spot's own covariance (the centroider's, without the matching floor):
+        `stars` are their ICRS unit vectors. Weighted by each spot's own covariance (the
+        centroider's, without the matching floor):
         from `rotation` (the matching fit, sensor -> ICRS, weighted with the floored sigma), a
         maximum-likelihood refinement with each ray's full 2-D covariance
         (attitude_estimation.refine_with_covariances; a streak's error is far larger along its

@@ -150,7 +150,8 @@ def match_all(rays, rotation, catalog, chord, out_spot, out_star, out_dot):
     One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star.
 
     The nearest star of the catalog (CatalogArrays) within `chord` (2 sin(radius/2)); a star
-    with another spot within twice the radius matches no spot (ambiguous). Returns the number of matches written to out_*.
+    with another spot within twice the radius matches no spot (ambiguous). Returns the number
+    of matches written to out_*.
     """
     n = rays.shape[0]
     vectors = catalog.vectors

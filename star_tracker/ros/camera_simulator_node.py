@@ -174,7 +174,8 @@ class CameraSimulatorNode(ManagedNode):
         """Set up the frame period, when frames are delivered, and the render-ahead state."""
         self.period_ns = int(round(1e9 / self.rate_hz))
         if self.sensor.exposure_s * 1e9 > self.period_ns:
-            raise ValueError(f"sensor.exposure_s={self.sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s")
+            raise ValueError(f"sensor.exposure_s={self.sensor.exposure_s} is longer than the frame period "
+                             f"{1 / self.rate_hz} s")
         # Frame k's middle row ends its exposure at t0 + (k+1) period; the last row ends
         # last_row_ns later, and the frame is delivered delivery_offset_ns after the middle row.
         self.last_row_ns = int(round(abs(self.sensor.rolling_shutter_row_time_s) * (self.camera.height - 1) / 2 * 1e9))
@@ -199,7 +200,8 @@ class CameraSimulatorNode(ManagedNode):
             self.motion = None
             self._external_pending: dict[int, list] = {}
             self.sub_truth_attitude = self.create_subscription(QuaternionStamped, "truth_in/attitude",
-                                                               self.on_external_attitude, **overridable(TRUTH_INPUT_QOS))
+                                                               self.on_external_attitude,
+                                                               **overridable(TRUTH_INPUT_QOS))
             self.sub_truth_rate = self.create_subscription(Vector3Stamped, "truth_in/angular_velocity",
                                                            self.on_external_rate, **overridable(TRUTH_INPUT_QOS))
 

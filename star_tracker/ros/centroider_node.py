@@ -177,7 +177,8 @@ class CentroiderNode(ManagedNode):
         except ValueError as exc:
             self.diag.count("frames_rejected")
             self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
-            self.log.warn("bad_image", f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
+            self.log.warn("bad_image",
+                          f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
             return
         self.diag.time("decode", time.perf_counter() - received)
         self.frames.put((image, msg.header, stamp_ns), stamp_ns)
@@ -209,15 +210,18 @@ class CentroiderNode(ManagedNode):
         if smear is not None and spots.rate_aid_rejected:
             self.diag.count("frames_rate_aid_rejected")
             omega = np.degrees(smear.angular_velocity_rad_s)
-            self.log.warn("rate_aid_rejected", f"frame {stamp_ns * 1e-9:.6f}: the streaks disagree with the aiding rate "
+            self.log.warn("rate_aid_rejected",
+                          f"frame {stamp_ns * 1e-9:.6f}: the streaks disagree with the aiding rate "
                           f"({omega[0]:.3f}, {omega[1]:.3f}, {omega[2]:.3f}) deg/s; measured without it")
         elif smear is not None:
             self.diag.count("frames_rate_aided")
         self.diag.count("spots_rejected_shape", spots.rejected_shape)
         problem = self.content_problem(image, spots)
-        self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok", last_spot_count=len(spots),
+        self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok",
+                      last_spot_count=len(spots),
                       last_processing_ms=f"{processing_s * 1e3:.2f}",
-                      last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None and not spots.rate_aid_rejected),
+                      last_noise_adu=f"{spots.noise_adu:.2f}",
+                      rate_aided=str(smear is not None and not spots.rate_aid_rejected),
                       rate_source=self.rate_source,
                       **psf_values(spots.psf))
 

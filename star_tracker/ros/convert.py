@@ -265,7 +265,8 @@ def quaternion_from_msg(msg: QuaternionStamped) -> np.ndarray:
     return np.array([q.x, q.y, q.z, q.w])
 
 
-def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int, frame_id: str = ICRS_FRAME) -> PoseWithCovarianceStamped:
+def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int,
+                             frame_id: str = ICRS_FRAME) -> PoseWithCovarianceStamped:
     """
     Orientation + 6x6 covariance.
 

@@ -151,7 +151,8 @@ class IdentifierNode(ManagedNode):
         self.pub_rate_cov = publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance",
                                       **overridable(RESULT_QOS))
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
-        self.frames = NewestFrame(self, self.identify_frame, self.diag, self.log, self.queue_depth, merge=keep_time_reset)
+        self.frames = NewestFrame(self, self.identify_frame, self.diag, self.log, self.queue_depth,
+                                  merge=keep_time_reset)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
                                                  **overridable(IMAGE_QOS))
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, **overridable(SPOTS_QOS))
@@ -375,7 +376,8 @@ class IdentifierNode(ManagedNode):
         solution = result.attitude
         self.pub_attitude.publish(convert.quaternion_msg(solution.quaternion, stamp_ns, self.frame_id))
         self.pub_pose.publish(convert.pose_with_covariance_msg(solution, stamp_ns, self.frame_id))
-        self.pub_matches.publish(convert.identification_to_cloud(result, spots, result.magnitude, stamp_ns, self.frame_id))
+        self.pub_matches.publish(convert.identification_to_cloud(result, spots, result.magnitude, stamp_ns,
+                                                                 self.frame_id))
         if tracked.rate is not None:
             frame = sensor_frame or convert.OPTICAL_FRAME
             self.pub_rate.publish(convert.vector3_msg(tracked.rate.angular_velocity, stamp_ns, frame))

@@ -166,7 +166,8 @@ class NodeProcesses:
         names = list(self.processes if names is None else names)
         for state in sorted({self.expected_state(name) for name in names}):
             paths = {self.node_path(n): n for n in names if self.expected_state(n) == state}
-            self.lifecycle.wait_for_state(list(paths), state, timeout_s, check=lambda path: self.check_alive(paths[path]))
+            self.lifecycle.wait_for_state(list(paths), state, timeout_s,
+                                          check=lambda path: self.check_alive(paths[path]))
 
     def get_state(self, name: str) -> str | None:
         """Return a node's lifecycle state label (None: no answer)."""
@@ -278,7 +279,8 @@ class TrackerMonitor(Node):
         self.create_subscription(PointCloud2, "truth/objects", self._on_truth_objects, MONITOR_RESULT_QOS)
         self.create_subscription(PointCloud2, "spots", self._on_spots, MONITOR_SENSOR_QOS)
         self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, MONITOR_RESULT_QOS)
-        self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, MONITOR_RESULT_QOS)
+        self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose,
+                                 MONITOR_RESULT_QOS)
         self.create_subscription(PointCloud2, "matched_stars", self._on_matches, MONITOR_RESULT_QOS)
         self.create_subscription(Vector3Stamped, "truth/angular_velocity", self._on_truth_rate, MONITOR_RESULT_QOS)
         self.create_subscription(TwistWithCovarianceStamped, "angular_velocity_with_covariance", self._on_rate,
@@ -332,7 +334,8 @@ class TrackerMonitor(Node):
         self.frame(msg.header.stamp).covariance = np.asarray(msg.pose.covariance).reshape(6, 6)[3:, 3:]
 
     def _on_matches(self, msg: PointCloud2) -> None:
-        self.frame(msg.header.stamp).matched = convert.cloud_to_records(msg, convert.MATCH_FIELDS, convert.MATCH_DTYPE).copy()
+        self.frame(msg.header.stamp).matched = convert.cloud_to_records(msg, convert.MATCH_FIELDS,
+                                                                        convert.MATCH_DTYPE).copy()
 
     def _on_image(self, msg: Image) -> None:
         record = self.frame(msg.header.stamp)

@@ -101,7 +101,8 @@ def prepare(bag: BagReader, options: PlayOptions) -> tuple[list[str], dict[str, 
     for old in options.remap:
         if old not in info.topics:
             raise BagError(f"--remap {old}: no such topic in the bag (topics: {', '.join(sorted(info.topics))})")
-    if options.start_offset_s < 0 or (info.message_count and options.start_offset_s * 1e9 > info.end_ns - info.start_ns):
+    if options.start_offset_s < 0 or (info.message_count
+                                      and options.start_offset_s * 1e9 > info.end_ns - info.start_ns):
         raise BagError(f"--start-offset {options.start_offset_s:g} s is outside the bag's {info.duration_s:.3f} s")
     images = [t for t in topics if info.topics[t].type == IMAGE_TYPE]
     if options.check_images:
@@ -179,7 +180,8 @@ class BagPlayer(Node):
 
             self._clock_msg = Clock
             # Reliable: matches the nodes' best-effort /clock readers and reliable ones alike.
-            self.clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+            self.clock_pub = self.create_publisher(Clock, "/clock",
+                                                   QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
         self.acks = AckTracker(self, options.ack_topics if self.lockstep else ())
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)

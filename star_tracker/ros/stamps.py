@@ -47,5 +47,6 @@ class StampOrder:
     def describe(self, verdict: str, stamp_ns: int) -> str:
         now_ns = self.node.get_clock().now().nanoseconds
         newest = "none" if self._previous_ns is None else f"{self._previous_ns * 1e-9:.6f} s"
-        what = {STAMP_UNSET: "unstamped (zero)", STAMP_RESET: "a jump back in time"}.get(verdict, verdict.replace("_", " "))
+        what = {STAMP_UNSET: "unstamped (zero)",
+                STAMP_RESET: "a jump back in time"}.get(verdict, verdict.replace("_", " "))
         return f"frame stamp {stamp_ns * 1e-9:.6f} s is {what} (newest {newest}, clock {now_ns * 1e-9:.6f} s)"

@@ -293,7 +293,8 @@ class Tracker:
         n = order.size
         tolerance_px = lis.verification_radius_px(geometry, camera) if n else lis.config.match_radius_px
         gate = self.gate_px(camera, prediction, tolerance_px)
-        fail = lambda reason: (Identification("no_match", reason, "tracking", time.perf_counter() - started), gate)  # noqa: E731
+        fail = lambda reason: (Identification("no_match", reason, "tracking",  # noqa: E731
+                                              time.perf_counter() - started), gate)
         if n < self.config.min_stars:
             return fail(f"{n} spots; tracking needs {self.config.min_stars}")
         # Catalog stars the predicted attitude puts in (or within the gate of) the image.
@@ -355,7 +356,8 @@ class Tracker:
         density = max(self.catalog.mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
         log_t = float(track_kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
                                                                 self.config.gate_sigma))
-        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self.catalog.magnitude[star_index],
+        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index],
+                                                       self.catalog.magnitude[star_index],
                                                        self.catalog.sorted_magnitudes, lis.magnitude_floor))
         fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))
         if fp > self.config.false_positive_bound:

@@ -95,7 +95,8 @@ def stamped(msg, stamp_ns: int):
 
 # ------------------------------------------------------------------------------ centroider
 @pytest.mark.integration
-def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp_path, catalog):  # noqa: F811  the fixture
+def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph,  # noqa: F811  the fixture
+                                                                  tmp_path, catalog):
     camera = CameraModel.from_fov(256, 256, np.radians(4.0))
     renderer = StarFieldRenderer(camera, SensorModel(), catalog.at_epoch(2026.0), magnitude_limit=8.5)
     good_image = renderer.render(ConstantRateMotion(radec_roll_to_matrix(1.5, 0.3, 0.0), np.zeros(3)), 1.0, 7).image
@@ -223,7 +224,8 @@ def with_garbage(spots: Spots) -> Spots:
 
 
 @pytest.mark.integration
-def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph, tmp_path, catalog, database):  # noqa: F811  the fixture
+def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph,  # noqa: F811  the fixture
+                                                                  tmp_path, catalog, database):
     # A distorted lens: with it, an empty frame used to crash identify() (camera.pixel_to_ray).
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0), (-0.05, 0.0, 0.0, 0.0, 0.0))
     sky = catalog.brighter_than(6.8).at_epoch(2026.0)
@@ -328,7 +330,8 @@ def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_pa
     try:
         nodes.start()
         nodes.wait_ready()
-        assert driver.spin(20.0, until=lambda: pub_q.get_subscription_count() > 0 and pub_w.get_subscription_count() > 0)
+        assert driver.spin(20.0,
+                           until=lambda: pub_q.get_subscription_count() > 0 and pub_w.get_subscription_count() > 0)
         refused = driver.set_parameters("camera_simulator", rate_hz=1000.0)
         refused += driver.set_parameters("camera_simulator", rate_hz=-1.0)
         rate_hz = driver.get_parameter("camera_simulator", "rate_hz")
@@ -347,7 +350,8 @@ def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_pa
             pub_q.publish(convert.quaternion_msg(q, t_now))
             pub_w.publish(convert.vector3_msg(np.zeros(3), t_now, FRAME))
             driver.spin(0.02)
-        driver.spin(5.0, until=lambda: driver.count("external_samples_rejected") >= 3 and driver.count("frames_published"))
+        driver.spin(5.0,
+                    until=lambda: driver.count("external_samples_rejected") >= 3 and driver.count("frames_published"))
     finally:
         codes = nodes.stop()
         driver.node.destroy_node()

@@ -191,7 +191,8 @@ def test_a_stalled_camera_skips_only_the_backlog_beyond_its_limit(driver, tmp_pa
         os.kill(pid, signal.SIGCONT)
 
         def done() -> bool:
-            counted = int(diagnostics.get("frames_published", "0")) + int(diagnostics.get("frames_skipped_overrun", "0"))
+            counted = (int(diagnostics.get("frames_published", "0"))
+                       + int(diagnostics.get("frames_skipped_overrun", "0")))
             return counted >= frames and len(truth) >= int(diagnostics.get("frames_published", "0"))
         end = time.monotonic() + 30.0
         while time.monotonic() < end and not done():

@@ -71,7 +71,8 @@ def test_identifier_node_publishes_only_verified_attitudes(monkeypatch, tmp_path
         pub_spots.publish(malformed)
         spin(0.5)
         pub_spots.publish(convert.spots_to_cloud(good, stamps["good"], "star_tracker_optical"))
-        spin(10.0, until=lambda: attitudes and any("frames_identified" in [kv.key for kv in s.values] for s in diagnostics))
+        spin(10.0,
+             until=lambda: attitudes and any("frames_identified" in [kv.key for kv in s.values] for s in diagnostics))
         spin(1.5)
     finally:
         codes = processes.stop()

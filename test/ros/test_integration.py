@@ -40,7 +40,8 @@ def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, 
     parameters over config/star_tracker.yaml.
     """
     monitor = TrackerMonitor(name="integration_monitor")
-    params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 2.0, "wait_for_subscribers": True, "rate_hz": RATE_HZ, **camera_params},
+    params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 2.0, "wait_for_subscribers": True,
+                                   "rate_hz": RATE_HZ, **camera_params},
               **(node_params or {})}
     nodes = NodeProcesses(env, tmp_path / "logs", params, REPO / "config" / "star_tracker.yaml", remaps=remaps)
     try:

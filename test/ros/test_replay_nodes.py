@@ -182,7 +182,8 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
     first = max(next(k for k, (_, stamp) in enumerate(images) if stamp in s) for s in seen.values())
     missed = {topic: [k for k, (_, stamp) in enumerate(images) if k >= first and stamp not in s]
               for topic, s in seen.items()}
-    counters = {name: {key: values.get(key) for key in ("frames_received", "frames_processed", "frames_dropped_overload")}
+    counters = {name: {key: values.get(key)
+                       for key in ("frames_received", "frames_processed", "frames_dropped_overload")}
                 for name, values in live_diagnostics.items() if name.endswith("centroider")}
     assert first <= 8 and not any(missed.values()), (first, missed, counters)
     first_stamp = images[first][1]
@@ -242,9 +243,11 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
     common = sorted(set(live["/attitude"]) & set(replayed["/attitude"]))
     assert len(common) >= max(len(live["/attitude"]), len(replayed["/attitude"])) - 4, play_log
     errors = np.array([attitude_error(quaternion_to_matrix(np.array(replayed["/attitude"][s])),
-                                      quaternion_to_matrix(np.array(live["/attitude"][s])))[:2] for s in common]) / ARCSEC
+                                      quaternion_to_matrix(np.array(live["/attitude"][s])))[:2]
+                       for s in common]) / ARCSEC
     aided = {name: (live_diagnostics.get(f"star_tracker{name}", {}).get("frames_rate_aided"),
-                    collector.values.get(f"star_tracker{name}", {}).get("frames_rate_aided")) for name in ("/centroider",)}
+                    collector.values.get(f"star_tracker{name}", {}).get("frames_rate_aided"))
+             for name in ("/centroider",)}
     (tmp_path / "determinism.json").write_text(json.dumps({  # the figures quoted in docs/RECORD_REPLAY.md
         "frames": len(images), "replayed_from": first, "deterministic_identified": len(live["/det/attitude"]),
         "default_identified_live_replay": [len(live["/attitude"]), len(replayed["/attitude"])],
@@ -277,7 +280,8 @@ def _publisher_node():
 
 
 @pytest.mark.integration
-def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recovered(ros_graph, tmp_path):  # noqa: F811  the fixture
+def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recovered(
+        ros_graph, tmp_path):  # noqa: F811  the fixture
     """
     Four recorders at once.
 
