@@ -71,11 +71,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _prepare_catalog_and_database() -> None:
-    """
-    Parse the catalog and build (or load) the pattern database before the nodes start.
-
-    so that the nodes find both cached.
-    """
+    """Parse the catalog and build (or load) the pattern database before the nodes start, so they find both cached."""
     from .identify import DatabaseConfig, load_or_build_database
     from .models.catalog import load_hipparcos
 

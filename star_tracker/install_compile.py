@@ -2,7 +2,7 @@
 """
 Compile the nodes' numba kernels into a built copy of the package at install time.
 
-so the first start after `pip install .` or `colcon build` loads them (~1 s) instead of
+So the first start after `pip install .` or `colcon build` loads them (~1 s) instead of
 compiling them (1-4 min). setup.py's build_py runs `compile_into(build_lib)` after copying the
 sources; the cache files numba writes beside each module (`__pycache__/*.nbi, *.nbc`) are
 installed with it. numba keys its cache on the source's content, CPU and numba version, not on

@@ -2,7 +2,7 @@
 """
 Compile the numba kernels once (written to numba's on-disk cache).
 
-so the first node start after an install does not spend a minute compiling. `make venv` runs
+So the first node start after an install does not spend a minute compiling. `make venv` runs
 it on the source tree; `pip install .` and `colcon build` run it on the built copy
 (install_compile.py), whose cache is installed with the package. Running it again only loads
 the cache.
@@ -46,9 +46,9 @@ def warm_identifier() -> None:
 
 def warm_everything() -> None:
     """
-    Every kernel: the nodes', then one solve with each algorithm (the CLI's and the benchmarks').
+    Compile every kernel: the nodes', then one solve with each algorithm (the CLI's and the benchmarks').
 
-    without a time budget so that every kernel compiles.
+    The solves run without a time budget so that every kernel compiles.
     """
     from .identify import ALGORITHMS, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
     from .models.catalog import load_hipparcos

@@ -22,7 +22,7 @@ def _profile(lo: float, centre: float, sigma: float, size: int, prob: np.ndarray
     """
     Fraction of a 1-D Gaussian in pixels [lo + k, lo + k + 1) and its derivative with respect to the centre.
 
-    k = 0..size-1 (see psf_fit.pixel_integrated_profile).
+    For k = 0..size-1 (see psf_fit.pixel_integrated_profile).
     """
     for k in range(size):
         a = (lo + k - centre) / sigma
@@ -143,9 +143,10 @@ def warm_up() -> None:
 @njit(cache=True)
 def component_stats(labels: np.ndarray, count: int):
     """
-    Bounding box (left, top, right, bottom; exclusive).
+    Bounding box, pixel count and centroid of each label of a label image, in one pass.
 
-    pixel count and centroid (x, y) of each label 1..count-1 of a label image, in one pass
+    Box (left, top, right, bottom; exclusive), pixel count and centroid (x, y) of each label
+    1..count-1, in one pass
     (OpenCV's WithStats variant is slower for the few, small components of a star field).
     """
     height, width = labels.shape

@@ -319,7 +319,7 @@ class StarIdentifier:
         """
         Yield (pattern spot indices, database star indices) correspondences, most promising first.
 
-        for the default `search`. Spot indices refer to the flux-sorted spot list. None here:
+        For the default `search`. Spot indices refer to the flux-sorted spot list. None here:
         an algorithm that overrides `search` proposes none outside it.
         """
         return iter(())
@@ -425,9 +425,9 @@ class StarIdentifier:
     def verify_hypothesis(self, geometry: SpotGeometry, camera: CameraModel,
                           rotation: np.ndarray) -> AcceptedMatch | None:
         """
-        Match all spots under `rotation` (sensor -> ICRS), refine with QUEST over the matches (twice).
+        Match all spots under `rotation` (sensor -> ICRS) and verify the refined attitude.
 
-        drop matches beyond 5 sigma, and accept only under the false-positive bound of
+        Refine with QUEST over the matches (twice), drop matches beyond 5 sigma, and accept only under the false-positive bound of
         `verify`; None when rejected.
         """
         radius = self.verification_radius_px(geometry, camera)

@@ -274,9 +274,9 @@ def refit(rays, sigma, vectors, spot_index, star_index, count):
 @njit(cache=True)
 def verify_candidate(rotation, spots, catalog, verification, out_spot, out_star, match_passes=3):
     """
-    Match every spot (SpotArrays) to the catalog (CatalogArrays) under `rotation`.
+    Match every spot (SpotArrays) to the catalog (CatalogArrays) under `rotation` and verify.
 
-    refine with the q-method over the matches (match_passes times: a hypothesis from 3-4
+    Refine with the q-method over the matches (match_passes times: a hypothesis from 3-4
     stars needs 3; a tracked attitude, already fitted to a dozen stars, 1), drop matches
     beyond 5 sigma and bound the false-positive probability (VerifySettings: radius, fewest
     stars). Returns a CandidateCheck (the matches are written to out_*).

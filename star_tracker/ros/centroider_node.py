@@ -106,9 +106,9 @@ class CentroiderNode(ManagedNode):
 
     def release(self) -> None:
         """
-        Undo configure: stop the worker, remove the topics, forget the camera model.
+        Undo configure: stop the worker, remove the topics, forget what was received.
 
-        the latest rate and the PSF estimate.
+        Forget the camera model, the latest rate and the PSF estimate.
         """
         if self.frames is not None:
             self.frames.stop()

@@ -127,9 +127,10 @@ class IdentifierNode(ManagedNode):
 
     def configure(self) -> None:
         """
-        Load (or build) the pattern database, make the identifier and the tracker, compile their kernels.
+        Load (or build) the database, make the identifier and tracker, create topics and workers.
 
-        then create the topics and the worker threads.
+        In order: the pattern database, the identifier and the tracker, compiling their kernels,
+        then the topics and the worker threads.
         """
         started = time.perf_counter()
         self.database = load_or_build_database(self.db_config)
@@ -159,9 +160,9 @@ class IdentifierNode(ManagedNode):
 
     def release(self) -> None:
         """
-        Undo configure: stop the workers, remove the topics, drop the track.
+        Undo configure: stop the workers, remove the topics, drop the track and the database.
 
-        the camera model and the database (the next configure loads it again).
+        Also drop the camera model; the next configure loads the database again.
         """
         if self.frames is not None:
             self.frames.stop()

@@ -64,9 +64,10 @@ def transition_callback(method: Callable) -> Callable:
 
 class ManagedNode(LifecycleNode):
     """
-    A lifecycle node whose `active` flag gates input, whose ~/change_state refuses a wrong transition cleanly.
+    A lifecycle node that gates input, refuses a wrong transition cleanly and reports its state.
 
-    and which reports its state on /diagnostics (`self.diag`: the subclass's constructor makes it with
+    Its `active` flag gates input, its ~/change_state refuses a wrong transition cleanly, and it
+    reports its state on /diagnostics (`self.diag`: the subclass's constructor makes it with
     start_diagnostics()). Subclasses override configure/activate/deactivate/release, each returning None
     (success) or raising.
     """

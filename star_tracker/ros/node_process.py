@@ -42,9 +42,9 @@ def check_params_files(args: list[str]) -> None:
 
 def check_cache_directory(environ=os.environ) -> None:
     """
-    STAR_TRACKER_CACHE (catalog and pattern-database caches), when set.
+    Check STAR_TRACKER_CACHE (catalog and pattern-database caches), when set.
 
-    must be a directory this process can read and write, or a path it can create.
+    It must be a directory this process can read and write, or a path it can create.
     """
     value = environ.get("STAR_TRACKER_CACHE")
     if not value:
@@ -138,9 +138,9 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
 
 def spin_until_stopped(node: Node, stop_requested: threading.Event) -> None:
     """
-    rclpy.spin on the global executor, but waiting at most STOP_POLL_S at a time.
+    Spin the global executor (rclpy.spin), waiting at most STOP_POLL_S at a time.
 
-    so a stop signal ends the spin even if its wake-up of the executor is lost. A managed
+    So a stop signal ends the spin even if its wake-up of the executor is lost. A managed
     node's shutdown transition ends it too (after the transition's answer went out).
     """
     executor = rclpy.get_global_executor()

@@ -95,9 +95,9 @@ class NodeProcesses:
 
     def start(self, timeout_s: float = 120.0) -> "NodeProcesses":
         """
-        Start the processing nodes.
+        Start the processing nodes, wait until they are active, then start the camera.
 
-        wait until they are active (configured: compiled kernels loaded, database built; asked
+        Wait until they are active (configured: compiled kernels loaded, database built; asked
         over ~/get_state), then the camera: no frame is published into a pipeline still
         starting.
         """

@@ -123,9 +123,9 @@ class BagWriterThread(threading.Thread):
 
 class BagRecorder(Node):
     """
-    Subscribes (raw) to `topics` (None: every topic but /rosout and /parameter_events) as their publishers appear.
+    Subscribe (raw) to `topics` as their publishers appear; hand every message to a BagWriterThread.
 
-    and hands every message to a BagWriterThread.
+    `topics` None: every topic but /rosout and /parameter_events.
     """
 
     def __init__(self, path: Path, storage: str = "sqlite3", topics: list[str] | None = None,

@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Tracking: localized recognition from a predicted attitude, lost-in-space fallback, rate.
+Tracking: localized recognition from a predicted attitude.
 
-and delay compensation (Hu & Huang, seed 004).
+With lost-in-space fallback, rate and delay compensation (Hu & Huang, seed 004).
 
 After a verified solution the tracker predicts the next frame's attitude from the last one
 and the body rate, R_pred = R_last exp([omega dt]x), with a covariance that grows with dt.
@@ -212,7 +212,7 @@ class Tracker:
         """
         Predicted attitude at `stamp_ns` from the last solution and the rate.
 
-        or None when there is no solution within max_coast_s (or the stamp is older than it).
+        None when there is no solution within max_coast_s (or the stamp is older than it).
         """
         if self._last is None:
             return None
@@ -464,7 +464,7 @@ class Tracker:
         """
         Rotation dR of the sensor between frames a and b (R_b = R_a dR) from their spots alone.
 
-        with its covariance [rad^2, frame b]: the rate (or its prior) predicts where frame
+        With its covariance [rad^2, frame b]: the rate (or its prior) predicts where frame
         a's spots land in frame b, the displacement is voted, spots are paired, and dR is
         the q-method fit of the pairs. None with fewer than 3 pairs.
         """

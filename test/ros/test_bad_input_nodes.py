@@ -203,9 +203,9 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph,  # 
 # ------------------------------------------------------------------------------ identifier
 def with_garbage(spots: Spots) -> Spots:
     """
-    `spots` plus NaN, infinite, far-away and absurdly uncertain ones.
+    Return `spots` plus bad ones: NaN, infinite, far-away, absurdly uncertain, a duplicate.
 
-    and a second copy of the brightest (9 in all; a coincident pair used to crash the hybrid
+    The duplicate is a second copy of the brightest (9 in all; a coincident pair used to crash the hybrid
     identifier).
     """
     nan, inf = np.nan, np.inf

@@ -78,7 +78,7 @@ def streak_errors(frames):
     """
     Position errors [px] of bright, unflagged-edge streak spots vs their star's mid-exposure truth.
 
-    the spots' flags and their streak lengths.
+    Also the spots' flags and their streak lengths.
     """
     errors, flags, lengths = [], [], []
     for rec, t in frames.values():

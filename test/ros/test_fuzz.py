@@ -116,9 +116,9 @@ field_names = st.sampled_from([f.name for f in convert.SPOT_FIELDS] + ["z", "rgb
 @st.composite
 def spot_clouds(draw):
     """
-    Spot clouds with the right layout and arbitrary bytes (any float32 bit pattern: NaN, inf, denormals).
+    Spot clouds with the right layout and arbitrary bytes, or with a broken layout, sizes or data.
 
-    or with a broken layout, sizes or data.
+    Arbitrary bytes: any float32 bit pattern (NaN, inf, denormals).
     """
     n = draw(st.integers(0, 12))
     msg = PointCloud2(height=1, width=n, point_step=convert.SPOT_DTYPE.itemsize, fields=list(convert.SPOT_FIELDS),

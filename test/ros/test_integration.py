@@ -2,7 +2,7 @@
 """
 The three nodes as separate processes over Fast DDS (private domain, localhost only).
 
-checked against the simulator's truth. No ROS mocks.
+Checked against the simulator's truth. No ROS mocks.
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 """
 Each node started without a params file (a real process over DDS, isolated domain).
 
-read from outside with a parameter client: every parameter equals config/star_tracker.yaml's
+Read from outside with a parameter client: every parameter equals config/star_tracker.yaml's
 value, `describe` gives the spec's range and read-only flag, a runtime change is applied and
 reported, and an invalid combination is refused with the reason and nothing of it applied. No
 ROS mocks.
