@@ -427,8 +427,8 @@ class StarIdentifier:
         """
         Match all spots under `rotation` (sensor -> ICRS) and verify the refined attitude.
 
-        Refine with QUEST over the matches (twice), drop matches beyond 5 sigma, and accept only under the false-positive bound of
-        `verify`; None when rejected.
+        Refine with QUEST over the matches (twice), drop matches beyond 5 sigma, and accept only
+        under the false-positive bound of `verify`; None when rejected.
         """
         radius = self.verification_radius_px(geometry, camera)
         vectors = self.database.vectors
