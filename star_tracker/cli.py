@@ -151,9 +151,9 @@ def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
 
 def _frame_status_line(index: int, ns: int, f) -> str:
     """
-    One status line.
+    Return one status line.
 
-    frame number, stamp [s], spots, identified stars, attitude error vs truth [arcsec] and
+    Frame number, stamp [s], spots, identified stars, attitude error vs truth [arcsec] and
     latency [ms].
     """
     error = f.error()
@@ -177,9 +177,9 @@ def _summarize_demo(frames, scenario: str, codes: dict[str, int]) -> dict:
 
 def write_frames_csv(frames, path: Path) -> None:
     """
-    Per frame with truth.
+    Write one CSV row per frame with truth.
 
-    stamp [ns], spots, matched stars, cross-boresight and roll error [arcsec], latency [ms]
+    Columns: stamp [ns], spots, matched stars, cross-boresight and roll error [arcsec], latency [ms]
     (empty where not identified).
     """
     with open(path, "w", newline="") as handle:

@@ -45,9 +45,9 @@ COINCIDENT_SEPARATION_PX = 0.01
 @dataclass(frozen=True)
 class IdentifyConfig:
     """
-    max_pattern_spots.
+    Parameters of the lost-in-space identification.
 
-    brightest spots used to form patterns; sigma_multiplier: pattern tolerance in standard
+    max_pattern_spots: brightest spots used to form patterns; sigma_multiplier: pattern tolerance in standard
     deviations; angle_tolerance_floor_rad: added to every angle tolerance for model errors
     (aberration, distortion calibration) [rad]; centroid_sigma_floor_px: lower bound on a spot's
     1-sigma for matching (pattern tolerances, verification radius) [px] -- the published attitude

@@ -245,9 +245,9 @@ def log_magnitude_agreement(spot_mag, star_mag, sorted_catalog, floor):
 @njit(cache=True)
 def false_positive_bound(log_statistic, spots, matched, min_stars):
     """
-    P_fp of verify.false_positive_bound.
+    Return P_fp of verify.false_positive_bound.
 
-    (n - min_stars + 1) C(n, m) T (1 + ln 1/T), the look-elsewhere factor over every subset
+    P_fp = (n - min_stars + 1) C(n, m) T (1 + ln 1/T), the look-elsewhere factor over every subset
     size min_stars..n.
     """
     if matched < min_stars or spots < matched:

@@ -25,11 +25,11 @@ from .camera_calibration import CalibrationConfig, CalibrationFrame, CameraCalib
 @dataclass(frozen=True)
 class OnlineCalibrationConfig:
     """
-    frames_per_fit: solved frames between fits.
+    Parameters of the online calibration.
 
-    max_frames: newest frames kept for a fit; min_stars: fewest matched stars a frame needs
-    to be kept; apply_corner_sigma_px: the rule above [px]; sigma_floor_px: added in
-    quadrature to each spot's 1-sigma [px].
+    frames_per_fit: solved frames between fits; max_frames: newest frames kept for a fit;
+    min_stars: fewest matched stars a frame needs to be kept; apply_corner_sigma_px: the rule
+    above [px]; sigma_floor_px: added in quadrature to each spot's 1-sigma [px].
     """
 
     frames_per_fit: int = parameter(10, "solved frames between two fits", "", 1, 100000)

@@ -62,9 +62,9 @@ def offered_qos(profile: QoSProfile) -> Qos:
 
 def subscription_qos(offers: list[QoSProfile], depth: int) -> QoSProfile:
     """
-    rosbag2's adaptation.
+    Return the subscription QoS for a topic's publishers, as rosbag2 adapts it.
 
-    reliable only if every publisher is (a reliable reader does not match a best-effort
+    Reliable only if every publisher is (a reliable reader does not match a best-effort
     writer), transient local only if every publisher is; keep last `depth`.
     """
     reliable = bool(offers) and all(p.reliability == ReliabilityPolicy.RELIABLE for p in offers)

@@ -222,9 +222,9 @@ class CameraSimulatorNode(ManagedNode):
 
     def resume(self) -> None:
         """
-        Activated again.
+        Resume when activated again.
 
-        the same t0 and motion (the attitude went on meanwhile); the frames due while inactive,
+        The same t0 and motion (the attitude went on meanwhile); the frames due while inactive,
         or too soon to expose fully, are skipped (frames_skipped_inactive).
         """
         now_ns = self.get_clock().now().nanoseconds

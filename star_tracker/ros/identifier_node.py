@@ -403,9 +403,9 @@ class IdentifierNode(ManagedNode):
 
     def refine_camera(self, spots, result) -> None:
         """
-        Online calibration.
+        Run the online calibration.
 
-        add a published frame's matches; after a fit report the estimate (and what is applied)
+        Add a published frame's matches; after a fit report the estimate (and what is applied)
         on /diagnostics.
         """
         nominal = self.camera_info.camera

@@ -77,10 +77,10 @@ class NodeProcesses:
                  params_files: Path | list[Path] | None = None, nodes: tuple[str, ...] = tuple(NODE_MODULES),
                  remaps: dict[str, dict[str, str]] | None = None):
         """
-        params_files: ros2 parameter files, later ones overriding earlier ones.
+        Describe the node processes to start on the private graph of `env`.
 
-        `params` (per node name) override both; remaps: per node name, topic -> new name
-        (`-r`).
+        params_files: ros2 parameter files, later ones overriding earlier ones; `params` (per node
+        name) override both; remaps: per node name, topic -> new name (`-r`).
         """
         self.env, self.log_dir = env, Path(log_dir)
         self.remaps = remaps or {}

@@ -50,8 +50,9 @@ MODE_LOST = "lost"
 @dataclass(frozen=True)
 class TrackingConfig:
     """
-    gate_sigma: searched region = this many sigma of the predicted attitude.
+    Parameters of tracking.
 
+    gate_sigma: searched region = this many sigma of the predicted attitude;
     min_stars: fewest matched stars tracking accepts (the bound still decides);
     max_gate_fov_radii: largest gate in field radii (half diagonals), Hu & Huang's 2R;
     max_coast_s: longest time a prediction is used without a new solution [s];

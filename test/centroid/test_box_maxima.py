@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-saturation.box_maxima.
+Tests of saturation.box_maxima.
 
-the brightest pixel of many boxes at once, exactly as np.argmax on each box (ties: the first
+The brightest pixel of many boxes at once, exactly as np.argmax on each box (ties: the first
 in row-major order), for small boxes gathered together and large ones read one by one.
 """
 import numpy as np

@@ -26,9 +26,9 @@ FRAMES = 8
 
 def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None, camera_params=None):
     """
-    camera_simulator + centroider.
+    Run camera_simulator + centroider.
 
-    returns {stamp: (spots records, truth records)} and the centroider's last diagnostics values.
+    Returns {stamp: (spots records, truth records)} and the centroider's last diagnostics values.
     camera_params override the camera's (streaks by default).
     """
     env = join_isolated_ros_domain(monkeypatch)

@@ -109,9 +109,9 @@ def test_bad_parameters_stop_startup_with_a_clear_error(module, args, message):
 def test_online_calibration_reports_the_drifted_focal_length_on_diagnostics(monkeypatch, tmp_path, catalog,
                                                                             nominal_camera, database):
     """
-    calibration.enabled.
+    Check calibration.enabled with a drifted camera.
 
-    spots of a camera whose focal length drifted 0.1 % (and k1 = 0.01) from the camera_info;
+    Spots of a camera whose focal length drifted 0.1 % (and k1 = 0.01) from the camera_info;
     after frames_per_fit published frames /diagnostics carries the fit.
     """
     from star_tracker.models.camera import CameraModel
