@@ -74,7 +74,7 @@ def install_colcon(clone: Path, tmp: Path, env: dict[str, str]) -> tuple[float, 
     """
     Run a colcon build of `clone`.
 
-    returns (install wall time [s], the node environment, the directory of the executables,
+    Returns (install wall time [s], the node environment, the directory of the executables,
     the installed config file).
     """
     env = dict(env, COLCON_HOME=str(tmp / "colcon_home"))
@@ -111,7 +111,7 @@ def first_identified(bin_dir: Path, config: Path, env: dict[str, str], domain_id
     """
     Start the three node executables at once.
 
-    return the seconds from their start to the first attitude within CORRECT_RAD of truth
+    Return the seconds from their start to the first attitude within CORRECT_RAD of truth
     (None if none within timeout_s), to each node's `ready` line, and the frames seen by then.
     """
     import rclpy

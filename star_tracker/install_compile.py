@@ -35,7 +35,7 @@ def child_environments(build_lib: Path, environ: dict[str, str] | None = None) -
     """
     Where the compile may run, in order.
 
-    the installing interpreter's own environment (pip's build isolation works through
+    The installing interpreter's own environment (pip's build isolation works through
     PYTHONPATH: only the built copy on it), then the build environment itself (the built copy
     first; it has the dependencies only if the build requirements list them). Neither has
     NUMBA_CACHE_DIR: the cache lands beside the modules.

@@ -2,7 +2,7 @@
 """
 One declaration per parameter.
 
-default, unit, range, description and whether it may change while a node runs, written once
+Default, unit, range, description and whether it may change while a node runs, written once
 and read by everything that needs it (ROS-free).
 
 A core configuration dataclass declares its tunable fields with `parameter(...)` (dataclass
@@ -149,7 +149,7 @@ def range_problems(config) -> list[str]:
     """
     List what is out of range or not among the choices in a configuration dataclass instance.
 
-    one message per field ("detection_sigma=0.5 must be in [1, 100]"); [] when all is well.
+    One message per field ("detection_sigma=0.5 must be in [1, 100]"); [] when all is well.
     """
     problems = []
     for f in dataclasses.fields(config):

@@ -32,7 +32,7 @@ def warm_identifier() -> None:
     """
     Compile and load what IdentifierNode needs before its first frame.
 
-    the default database (built and cached when missing) and its deep catalog, the default
+    The default database (built and cached when missing) and its deep catalog, the default
     algorithm inside a Tracker (Tracker.warm_up).
     """
     from .identify import DEFAULT_ALGORITHM, DatabaseConfig, load_or_build_database, make_identifier

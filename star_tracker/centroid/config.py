@@ -89,7 +89,7 @@ class CentroidConfig:
         """
         Half size of a point-spot window [px].
 
-        the PSF to 3 sigma (beyond, a pixel carries < 1 % of the position information).
+        The PSF to 3 sigma (beyond, a pixel carries < 1 % of the position information).
         """
         return int(max(3, np.ceil(3.0 * max(self.psf_sigma_px, 1.0))))
 

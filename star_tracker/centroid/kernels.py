@@ -2,7 +2,7 @@
 """
 Compiled inner loops of the centroider (numba).
 
-the per-spot work that is too small for numpy's per-call overhead to pay off. Compiled on
+The per-spot work that is too small for numpy's per-call overhead to pay off. Compiled on
 first use and cached on disk next to this module (or in NUMBA_CACHE_DIR).
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ def fit_single_psf(windows, start, settings):
     """
     One pixel-integrated Gaussian PSF per window.
 
-    the same weighted Gauss-Newton as psf_fit.fit_psf_windows with M = 1 (1 px trust region,
+    The same weighted Gauss-Newton as psf_fit.fit_psf_windows with M = 1 (1 px trust region,
     1e-9 relative damping, stop when the position step is below 1 % of its sigma, covariance
     from the last step's inverse). windows: psf_fit.PsfWindows, data float64 and valid bool
     (n, S, S), col0, row0 float64 (n,); start: psf_fit.PsfStart of (n,) arrays; settings:
@@ -511,7 +511,7 @@ def fit_psf_width(data, valid, col0, row0, x0, y0, flux0, sigma0, noise, gain, i
     """
     One pixel-integrated circular Gaussian per window with free width and a constant background offset.
 
-    parameters (x, y [px], flux [ADU], sigma [px], offset [ADU]) by weighted Gauss-Newton
+    Parameters (x, y [px], flux [ADU], sigma [px], offset [ADU]) by weighted Gauss-Newton
     (weights 1 / (star model / gain + noise^2)), 1 px trust region on the centre, sigma kept in
     [0.1, 12] px and changed by at most half of itself per step; converged when a step moves
     the centre < 0.01 px and sigma < 0.2 % (the estimate is a median over stars). data (n, S,

@@ -73,7 +73,7 @@ def box_maxima(image: np.ndarray, top: np.ndarray, left: np.ndarray, bottom: np.
     """
     Brightest pixel of each box image[top:bottom, left:right] (bottom, right exclusive, inside the image).
 
-    its value [ADU] (-inf for an empty box), row and column [px]; the first in row-major order
+    Its value [ADU] (-inf for an empty box), row and column [px]; the first in row-major order
     on ties, as np.argmax on the box. Boxes of at most BOX_WINDOW_PX a side are read as one
     (N, S, S) gather (a Python loop over ~100 small boxes cost ~1 ms a frame).
     """

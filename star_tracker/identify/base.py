@@ -235,7 +235,7 @@ def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.nda
     """
     (N, 3, 2) derivative of the sensor-frame unit ray with respect to the pixel position (x, y) [rad/px].
 
-    for the pinhole, ray = p / |p| with p = ((x - cx) / fx, (y - cy) / fy, 1), J = r_z (I - r
+    For the pinhole, ray = p / |p| with p = ((x - cx) / fx, (y - cy) / fy, 1), J = r_z (I - r
     r^T)[:, :2] diag(1/fx, 1/fy) (compiled; `rays` if already known); with distortion, central
     differences of camera.pixel_to_ray.
     """
@@ -253,7 +253,7 @@ def sanitized_covariance(cov_px: np.ndarray) -> np.ndarray:
     """
     Spot covariances (N, 2, 2) [px^2] for the final fit.
 
-    unknown (non-finite) ones count as 1 px^2, and MIN_FIT_SIGMA_PX^2 is added on both axes.
+    Unknown (non-finite) ones count as 1 px^2, and MIN_FIT_SIGMA_PX^2 is added on both axes.
     """
     cov_px = np.asarray(cov_px, dtype=float).reshape(-1, 2, 2)
     cov = np.where(np.isfinite(cov_px).all(axis=(1, 2))[:, None, None], cov_px, np.eye(2)[None])
@@ -389,7 +389,7 @@ class StarIdentifier:
         """
         Run the algorithm's step between `prepare` and the final fit.
 
-        find a verified match of the flux-sorted spots in `geometry` before `deadline` is
+        Find a verified match of the flux-sorted spots in `geometry` before `deadline` is
         passed. This default draws correspondences from `hypotheses`, turns each into a QUEST
         attitude and accepts the first that `verify_hypothesis` passes; an algorithm with its
         own (e.g. compiled) search overrides this instead of `hypotheses`.
@@ -467,7 +467,7 @@ class StarIdentifier:
         """
         Return the Identification of an accepted match.
 
-        refitted with the final weights (final_fit), then, with config.deep_match and `deep_match` (False: a tracked
+        Refitted with the final weights (final_fit), then, with config.deep_match and `deep_match` (False: a tracked
         frame), extended by the deep re-match (deep_rematch) when its bound holds; match.spot_index refers to the
         flux-sorted spots of `geometry` and is mapped back to the input spots through `order` (prepare). `started`: the
         call's time.perf_counter() [s]; `algorithm`: the name reported (default: this one's).
@@ -498,7 +498,7 @@ class StarIdentifier:
         """
         Return the deep catalog of this identifier's database.
 
-        every Hipparcos star to its guide limit + config.deep_magnitude_margin at its epoch,
+        Every Hipparcos star to its guide limit + config.deep_magnitude_margin at its epoch,
         cached beside it (deep_catalog.py).
         """
         limit = self.database.config.magnitude_limit + self.config.deep_magnitude_margin

@@ -84,7 +84,7 @@ class HybridIdentifier(StarIdentifier):
         """
         Compile the kernels (or load them from numba's cache) on a small random scene, with the longest time budget.
 
-        compiling the first kernels must not spend the budget before the search runs (on a
+        Compiling the first kernels must not spend the budget before the search runs (on a
         loaded host it did, and the search compiled at the first frame).
         """
         rng = np.random.default_rng(0)

@@ -2,7 +2,7 @@
 """
 Compiled identification kernels (numba).
 
-triangle search over the pair k-vector, the q-method, spot-to-star matching on the sky grid
+Triangle search over the pair k-vector, the q-method, spot-to-star matching on the sky grid
 and the false-positive bound of `verify`, in one call per batch of spot triangles so a frame
 costs microseconds, not Python overhead. Spot preparation is in spot_kernels.py, tracking's
 kernels in track/kernels.py.
@@ -82,7 +82,7 @@ def triad(b1, b2, r1, r2):
     """
     Sensor -> ICRS rotation taking b1 exactly onto r1 and b2 into the r1-r2 plane (TRIAD).
 
-    a cheap first attitude for screening candidates.
+    A cheap first attitude for screening candidates.
     """
     rot = np.zeros((3, 3))
     fb = np.empty((3, 3))
@@ -108,7 +108,7 @@ def nearest_star(rotation, ray, chord, catalog, cells):
     """
     Find the catalog star (CatalogArrays) nearest to the sensor-frame `ray` rotated to ICRS.
 
-    if within `chord` (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of
+    If within `chord` (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of
     4.
     """
     vectors, cell_start, star_of_cell, grid = catalog.vectors, catalog.cell_start, catalog.star_of_cell, catalog.grid
@@ -338,7 +338,7 @@ def search_triangles(triangles, first, last, spots, pairs, catalog, tolerances, 
     """
     Try spot triangles triangles[first:last] in order.
 
-    catalog triangles whose three sides match within the angle tolerance (TriangleTolerances)
+    Catalog triangles whose three sides match within the angle tolerance (TriangleTolerances)
     in the pair index (PairIndex) and whose handedness agrees (mirror test) are verified
     against all spots (SpotArrays) at once (verify_candidate). Returns a TriangleSearchResult
     (accepted matches in scratch.out_*). screen_limit: spots [0, screen_limit) are tried for

@@ -70,7 +70,7 @@ class OnlineCalibration:
         """
         One solved frame (its spots, Identification and the nominal camera).
 
-        kept when it has min_stars; returns the new estimate when this frame completes a fit,
+        Kept when it has min_stars; returns the new estimate when this frame completes a fit,
         else None.
         """
         if camera != self.nominal:

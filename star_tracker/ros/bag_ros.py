@@ -2,7 +2,7 @@
 """
 What the bag recorder and player share on the ROS side.
 
-message classes by type name and QoS conversions between rclpy and rosbag2 metadata
+Message classes by type name and QoS conversions between rclpy and rosbag2 metadata
 (rosbags' Qos records).
 """
 from __future__ import annotations
@@ -78,7 +78,7 @@ def playback_qos(recorded: tuple | list, depth: int = PLAY_QUEUE_DEPTH) -> QoSPr
     """
     Return the QoS to offer when playing a topic.
 
-    the recorded publishers' reliability and durability when they all agree (rosbag2's
+    The recorded publishers' reliability and durability when they all agree (rosbag2's
     rule), else reliable + volatile, which every subscriber matches; keep last `depth`.
     """
     reliability, durability = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE

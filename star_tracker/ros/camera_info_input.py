@@ -2,7 +2,7 @@
 """
 The camera model a node reads from `camera_info`.
 
-parsed when the message changes, an invalid one counted, logged and ignored (the last good
+Parsed when the message changes, an invalid one counted, logged and ignored (the last good
 model is kept).
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ class CameraInfoInput:
     """
     The camera model from `camera_info` messages.
 
-    parsed only when the message changes; an invalid one (or one `check` refuses with a
+    Parsed only when the message changes; an invalid one (or one `check` refuses with a
     reason) is counted as camera_info_rejected on /diagnostics, logged, and ignored, keeping
     the last good model in `camera`.
     """

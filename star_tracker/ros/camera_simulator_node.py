@@ -152,7 +152,7 @@ class CameraSimulatorNode(ManagedNode):
         """
         Runtime sensor changes (see parameters.guard_parameter_changes).
 
-        the new SensorModel is built (checked) first; the renderer is rebuilt with it (the
+        The new SensorModel is built (checked) first; the renderer is rebuilt with it (the
         fixed pattern is drawn from the same seed: unchanged; ~0.2 s for 1024 x 1024 px, so a
         frame due meanwhile is delivered late, counted as frames_rendered_late) and a frame
         rendered ahead is dropped, so the next frame delivered is exposed with the new

@@ -2,7 +2,7 @@
 """
 camera_simulator's parameters, each declared once (ROS-free).
 
-the SensorModel and FalseObjectModel fields (their spec is the dataclass field metadata,
+The SensorModel and FalseObjectModel fields (their spec is the dataclass field metadata,
 sim/sensor.py, sim/render.py) under the node's names with the simulated camera's defaults, and the
 node's own; in the order the node declares them (the first bad value is the one reported) and
 config/star_tracker.yaml lists them. The models the node runs are built from the declared values
@@ -205,7 +205,7 @@ def attitude_from(values: dict) -> AttitudeSetup:
     """
     Return the initial attitude (a quaternion, else RA/Dec/roll) and the motion profile, checked.
 
-    a bad profile fails at startup, not at the first frame.
+    A bad profile fails at startup, not at the first frame.
     """
     quaternion = values["attitude.quaternion"]
     ra, dec, roll = (np.radians(values[f"attitude.{k}"]) for k in ("ra_deg", "dec_deg", "roll_deg"))

@@ -215,7 +215,7 @@ def drop_invalid_spots(spots: Spots) -> tuple[Spots, int]:
     """
     Return the spots a real measurement can produce, and how many others were dropped.
 
-    position, flux and covariance finite, variances in [0, MAX_SPOT_SIGMA_PX^2] px^2,
+    Position, flux and covariance finite, variances in [0, MAX_SPOT_SIGMA_PX^2] px^2,
     position within SPOT_MARGIN_PX of the image, and no two closer than
     MIN_SPOT_SEPARATION_PX (the first, brightest, is kept). NaN/inf from a faulty producer
     would otherwise reach the identifier, whose tolerances grow with the covariance (and its
@@ -270,7 +270,7 @@ def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int,
     """
     Orientation + 6x6 covariance.
 
-    the position block is unknown (-1 on its diagonal); the rotation block is the
+    The position block is unknown (-1 on its diagonal); the rotation block is the
     sensor-frame small-angle attitude error covariance [rad^2].
     """
     msg = PoseWithCovarianceStamped()

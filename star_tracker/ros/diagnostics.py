@@ -2,7 +2,7 @@
 """
 A node's /diagnostics.
 
-counters, stage timings and latest values (Diagnostics), and the report of one rejected
+Counters, stage timings and latest values (Diagnostics), and the report of one rejected
 input (Rejections: counter, WARN status, throttled log line).
 """
 from __future__ import annotations
@@ -61,7 +61,7 @@ class Diagnostics:
         """
         One frame's duration of `stage` [s].
 
-        published as <stage>_ms_p50 and <stage>_ms_max over the last TIMING_WINDOW frames.
+        Published as <stage>_ms_p50 and <stage>_ms_max over the last TIMING_WINDOW frames.
         """
         with self._lock:
             self.timings.setdefault(stage, deque(maxlen=self.TIMING_WINDOW)).append(seconds)
@@ -92,7 +92,7 @@ class Rejections:
     """
     One call per rejected input.
 
-    a counter on /diagnostics, a WARN status with the reason, and a throttled log line
+    A counter on /diagnostics, a WARN status with the reason, and a throttled log line
     (ThrottledLog: one per kind of message and period).
     """
 

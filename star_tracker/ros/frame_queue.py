@@ -2,7 +2,7 @@
 """
 The hand-off of decoded frames from a node's executor to its worker thread.
 
-newest frame wins, and every frame dropped for a newer one is counted and logged.
+Newest frame wins, and every frame dropped for a newer one is counted and logged.
 """
 from __future__ import annotations
 

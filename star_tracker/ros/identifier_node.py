@@ -219,7 +219,7 @@ class IdentifierNode(ManagedNode):
         """
         Runtime parameter changes (see parameters.guard_parameter_changes).
 
-        the new identification and tracking configurations are built (checked) first, then
+        The new identification and tracking configurations are built (checked) first, then
         applied together between two frames; a lost-in-space solve running reads them from
         its next step on.
         """

@@ -2,7 +2,7 @@
 """
 The identifier's parameters, each declared once (ROS-free).
 
-the fields of DatabaseConfig, IdentifyConfig, TrackingConfig and OnlineCalibrationConfig (their
+The fields of DatabaseConfig, IdentifyConfig, TrackingConfig and OnlineCalibrationConfig (their
 spec is the dataclass field metadata) under the node's names, and the node's own, in the order
 the node declares them and config/star_tracker.yaml lists them.
 

@@ -62,7 +62,7 @@ class LifecycleClient:
         """
         One service call.
 
-        wait up to discovery_s for the service, send once, wait up to timeout_s for the
+        Wait up to discovery_s for the service, send once, wait up to timeout_s for the
         answer; None if the service is not there or did not answer.
         """
         key = (node_name, srv_type)
@@ -85,7 +85,7 @@ class LifecycleClient:
         """
         Return the node's state label (unconfigured, inactive, active, finalized, ...).
 
-        or None if its service is not found or does not answer within timeout_s (each).
+        Or None if its service is not found or does not answer within timeout_s (each).
         """
         response = self._call(node_name, GetState, "get_state", GetState.Request(), timeout_s, discovery_s=timeout_s)
         return None if response is None else response.current_state.label

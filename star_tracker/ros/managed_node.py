@@ -41,7 +41,7 @@ def transition_callback(method: Callable) -> Callable:
     """
     Make a lifecycle callback that never raises.
 
-    an exception is logged with its reason (rclpy itself would swallow it), kept in
+    An exception is logged with its reason (rclpy itself would swallow it), kept in
     `transition_error`, and returned as FAILURE.
     """
 
@@ -163,7 +163,7 @@ class ManagedNode(LifecycleNode):
         """
         ~/change_state: a transition this state offers runs.
 
-        any other is refused, logged and counted (rclpy would raise out of the executor on an
+        Any other is refused, logged and counted (rclpy would raise out of the executor on an
         unknown transition id).
         """
         wanted = request.transition.label or str(request.transition.id)

@@ -52,7 +52,7 @@ def yaml_value(value) -> str:
     """
     Return a value as ros2 param-file YAML that reads back with the same type.
 
-    floats always with a decimal point (1.0, 2.0e-05), lists in flow style, strings plain (quoted where YAML
+    Floats always with a decimal point (1.0, 2.0e-05), lists in flow style, strings plain (quoted where YAML
     would retype them).
     """
     if isinstance(value, bool):

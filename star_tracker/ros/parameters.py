@@ -2,7 +2,7 @@
 """
 Node parameters.
 
-declaration from their ParameterSpecs (star_tracker/parameter_spec.py: the one place a
+Declaration from their ParameterSpecs (star_tracker/parameter_spec.py: the one place a
 parameter's default, unit, range, description and dynamic/read-only are written) with
 descriptors and ranges, runtime `set_parameters` checks (all or none, refused with the reason,
 reported in the log and on /diagnostics), and the report of parameter overrides no node
@@ -34,7 +34,7 @@ def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
     """
     Return the ParameterDescriptor `ros2 param describe` shows.
 
-    description with the unit (and the choices), the range, read-only unless the spec is
+    Description with the unit (and the choices), the range, read-only unless the spec is
     dynamic; additional_constraints: the choices, an open end of the range, an array's range
     per value.
     """
@@ -150,7 +150,7 @@ def report_unknown_parameters(node: Node) -> list[str]:
     """
     Log the parameter overrides (command line, params file) this node does not declare.
 
-    a misspelled name would otherwise be ignored without a word. Returns their names.
+    A misspelled name would otherwise be ignored without a word. Returns their names.
     """
     overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps them only privately
     unknown = sorted(name for name in overrides if not node.has_parameter(name))

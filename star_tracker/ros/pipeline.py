@@ -44,7 +44,7 @@ def isolated_ros_environment(domain_id: int | None = None) -> dict[str, str]:
     """
     Environment for a private DDS graph on this host.
 
-    a random domain id and localhost-only discovery, plus the Fast DDS profile.
+    A random domain id and localhost-only discovery, plus the Fast DDS profile.
     """
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(100, 199))
@@ -139,7 +139,7 @@ class NodeProcesses:
         """
         Return the state a node reaches by itself.
 
-        active, or unconfigured with `autostart: false` among this object's `params`.
+        Active, or unconfigured with `autostart: false` among this object's `params`.
         """
         return "unconfigured" if self.params.get(name, {}).get("autostart") is False else "active"
 

@@ -81,7 +81,7 @@ def prepare(bag: BagReader, options: PlayOptions) -> tuple[list[str], dict[str, 
     """
     Validate a bag for playing before any ROS setup.
 
-    topics exist, types are installed, the offset is inside the bag, the first image of each
+    Topics exist, types are installed, the offset is inside the bag, the first image of each
     image topic suits the centroider. Returns (topics, message classes, image topics);
     raises BagError naming the problem.
     """

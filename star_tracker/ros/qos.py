@@ -2,7 +2,7 @@
 """
 Quality-of-service profiles of the star tracker's topics, and `overridable()`.
 
-the arguments that make a publisher's or subscription's QoS settable by parameters.
+The arguments that make a publisher's or subscription's QoS settable by parameters.
 
 Outputs: reliable results; best-effort sensor data (images, spots) with queues deep enough to
 ride out a short stall. Inputs from sensors (a gyro, external truth) are subscribed best
@@ -67,7 +67,7 @@ def overridable(profile: QoSProfile) -> dict:
     """
     Keyword arguments for create_publisher/create_subscription.
 
-    a copy of `profile` (rclpy writes the overrides into the profile it is given) and the
+    A copy of `profile` (rclpy writes the overrides into the profile it is given) and the
     overriding options. A bad override stops the node at startup with the parameter's name
     (rclpy's InvalidQosOverridesError or RuntimeError).
     """

@@ -80,7 +80,7 @@ class RateSamples:
         """
         Return the rate for a frame stamped `frame_stamp` (mid-exposure) [ns].
 
-        the mean of the samples inside its exposure when there are any (the smear is the mean
+        The mean of the samples inside its exposure when there are any (the smear is the mean
         rate's), else the sample nearest its stamp if within max_age_s. Returns (rate or None,
         "ok" | "none" | "too_old").
         """

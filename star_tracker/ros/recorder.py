@@ -51,7 +51,7 @@ class BagWriterThread(threading.Thread):
     """
     Owns the BagWriter (sqlite connections belong to one thread).
 
-    takes topics and messages from a queue; flushes periodically; closes the bag on stop().
+    Takes topics and messages from a queue; flushes periodically; closes the bag on stop().
     """
 
     def __init__(self, path: Path, storage: str, flush_period_s: float):

@@ -2,7 +2,7 @@
 """
 The simulated sensor.
 
-optics radiometry (star magnitude to photo-electrons), detector (dark current and its
+Optics radiometry (star magnitude to photo-electrons), detector (dark current and its
 temperature law, fixed-pattern non-uniformities, hot pixels, cosmic rays, read noise, gain,
 full well, ADC) and shutter timing, as one validated parameter record that
 sim.render.StarFieldRenderer draws frames with. SI units; equations in docs/SIMULATOR.md.

@@ -2,7 +2,7 @@
 """
 Compiled kernels of local recognition (tracking.py).
 
-the chance-match volume of the searched attitude region, one-to-one nearest pairs, the
+The chance-match volume of the searched attitude region, one-to-one nearest pairs, the
 catalog stars in a predicted view and an attitude's Mahalanobis offset from the prediction.
 """
 from __future__ import annotations
@@ -50,7 +50,7 @@ def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius):
     """
     One-to-one pairs within `radius` [px].
 
-    a spot with exactly one reference within the radius, whose reference has no other spot
+    A spot with exactly one reference within the radius, whose reference has no other spot
     within it. Returns (spot idx, ref idx).
     """
     n, m = spot_x.size, ref_x.size
@@ -112,7 +112,7 @@ def offset_mahalanobis2(predicted, rotation, covariance):
     """
     Squared Mahalanobis distance of `rotation` from `predicted` (both sensor -> ICRS).
 
-    the rotation vector of predicted^T rotation [rad] (sensor frame) against `covariance`
+    The rotation vector of predicted^T rotation [rad] (sensor frame) against `covariance`
     [rad^2].
     """
     rel = predicted.T @ rotation

@@ -150,7 +150,7 @@ def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray,
     """
     Vote the displacement (dx, dy) [px] shared by most spot - reference pairs within `gate_px`.
 
-    voted in a histogram of `bin_px` cells (2x2 neighbourhoods, so a cluster on a cell edge
+    Voted in a histogram of `bin_px` cells (2x2 neighbourhoods, so a cluster on a cell edge
     still wins), refined as the mean of the pairs within one bin of the winner. Returns (dx,
     dy, votes).
     """
@@ -237,7 +237,7 @@ class Tracker:
         """
         Track when a prediction exists, else (or when tracking fails) lost-in-space.
 
-        update the state with a verified result. Synchronous; see begin_acquisition for the
+        Update the state with a verified result. Synchronous; see begin_acquisition for the
         node's asynchronous path.
         """
         started = time.perf_counter()

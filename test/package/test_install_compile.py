@@ -2,7 +2,7 @@
 """
 Cold start (issue 18 part 6).
 
-the kernels compiled at install time (install_compile.py, run by setup.py's build_py) are
+The kernels compiled at install time (install_compile.py, run by setup.py's build_py) are
 found by the installed copy, which then compiles nothing, and they give the same results as
 kernels compiled at the first start. Counted outcomes only, never timing: numba's
 per-dispatcher cache hits and misses, frames identified, the attitudes' bytes.

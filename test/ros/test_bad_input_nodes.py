@@ -2,7 +2,7 @@
 """
 Bad input through the real nodes (separate processes, Fast DDS, isolated domain).
 
-each node is fed a sequence of bad messages and bad parameter changes, then a good message.
+Each node is fed a sequence of bad messages and bad parameter changes, then a good message.
 Each bad input must show up as a counter on /diagnostics and a log line, the node must keep
 running and process the good message, and nothing may end in a traceback. No ROS mocks.
 """

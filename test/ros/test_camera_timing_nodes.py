@@ -2,7 +2,7 @@
 """
 camera_simulator timing over DDS.
 
-a frame rendered ahead is never published before its exposure, frame transfer and readout
+A frame rendered ahead is never published before its exposure, frame transfer and readout
 have ended (wall clock and sim time), and it is still the frame its stamp says (pixel for
 pixel the same as a render of that frame here); after a host stall only the backlog beyond
 `max_backlog_frames` is skipped, counted.
@@ -86,7 +86,7 @@ def assert_frames_are_the_rendered_ones(images, truth, period_ns: int) -> None:
     """
     Each image equals this process's render of its frame.
 
-    frame k is the k-th truth stamp (truth is reliable and the camera waited for its
+    Frame k is the k-th truth stamp (truth is reliable and the camera waited for its
     subscriber, so frame 0's truth arrives).
     """
     renderer = renderer_like_the_node()
@@ -128,7 +128,7 @@ def test_frames_wait_for_sim_time(driver, tmp_path):
     """
     use_sim_time with a clock at half speed.
 
-    a frame rendered ahead waits for /clock to pass its delivery time (a wall-clock wait
+    A frame rendered ahead waits for /clock to pass its delivery time (a wall-clock wait
     would publish it early).
     """
     env, node = driver
@@ -167,7 +167,7 @@ def test_a_stalled_camera_skips_only_the_backlog_beyond_its_limit(driver, tmp_pa
     """
     A host stall of 1.5 s at 10 Hz leaves ~15 frames due at once.
 
-    the camera publishes the newest `max_backlog_frames` of them late and skips the older
+    The camera publishes the newest `max_backlog_frames` of them late and skips the older
     ones, counted and logged; every published frame keeps its own stamp on the frame grid.
     """
     env, node = driver

@@ -128,7 +128,7 @@ def test_centroider_estimates_the_psf_and_reports_it(tmp_path, monkeypatch):
     """
     A camera with a 0.6 px PSF at rest and the centroider at its defaults (prior 1 px).
 
-    the running estimate on /diagnostics is the camera's width, from many stars; streaked
+    The running estimate on /diagnostics is the camera's width, from many stars; streaked
     frames (no round stars) report the prior and why.
     """
     frames, diag = run_pipeline(tmp_path / "sharp", monkeypatch, {"rate_source": "none"},

@@ -2,7 +2,7 @@
 """
 The identifier node over DDS, driven by this test's own publisher.
 
-it publishes only verified attitudes, explains failures on /diagnostics, and survives bad
+It publishes only verified attitudes, explains failures on /diagnostics, and survives bad
 input.
 """
 from __future__ import annotations

@@ -146,7 +146,7 @@ def test_the_monitor_keeps_the_newest_identified_frames_image(ros_graph):
     """
     The demo's picture needs an identified frame's image.
 
-    after a host stall the newest 8 images (all the monitor keeps) can all belong to frames
+    After a host stall the newest 8 images (all the monitor keeps) can all belong to frames
     not identified yet.
     """
     from star_tracker.ros import convert

@@ -95,7 +95,7 @@ class IdentifierDriver:
         """
         Publish n spots frames 0.1 s apart in stamp, one at a time.
 
-        each waits for its attitude (answered) or 0.4 s (not expected to be answered).
+        Each waits for its attitude (answered) or 0.4 s (not expected to be answered).
         Returns their stamps.
         """
         stamps = []
@@ -225,7 +225,7 @@ def test_pipeline_driven_through_the_lifecycle_services(monkeypatch, tmp_path):
     """
     All three nodes with autostart false.
 
-    configured and activated over ~/change_state (the camera last), attitudes flow; the camera
+    Configured and activated over ~/change_state (the camera last), attitudes flow; the camera
     deactivated publishes nothing, activated again it resumes its time line (skipped frames
     counted) and attitudes flow again.
     """
@@ -270,7 +270,7 @@ def test_a_failed_configure_leaves_the_node_unconfigured_and_running(monkeypatch
     """
     Start with autostart false and an unknown algorithm.
 
-    configure fails with the reason in the log and `transitions_failed` counted; the node stays
+    Configure fails with the reason in the log and `transitions_failed` counted; the node stays
     unconfigured and still answers; shutdown ends it.
     """
     env = join_domain(monkeypatch, DOMAIN + 3)

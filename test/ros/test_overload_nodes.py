@@ -75,7 +75,7 @@ class FloodRig:
     """
     This test's side of the flood.
 
-    publishers into the centroider and the identifier, the outputs seen (spots and attitude
+    Publishers into the centroider and the identifier, the outputs seen (spots and attitude
     stamps), and the two nodes' diagnostics.
     """
 

@@ -2,7 +2,7 @@
 """
 The parameter specs (star_tracker/parameter_spec.py and the nodes' *_parameters.py), without ROS.
 
-the shipped config/star_tracker.yaml is the generated one, its values read back with the specs'
+The shipped config/star_tracker.yaml is the generated one, its values read back with the specs'
 types, the core configurations check their ranges from the same specs.
 """
 from __future__ import annotations
@@ -71,7 +71,7 @@ def test_known_defaults():
     """
     The decisions of issue 18.
 
-    the centroider has the rate aid without the params file (the simulator's exposure);
+    The centroider has the rate aid without the params file (the simulator's exposure);
     saturation_adu 0 = the image dtype's maximum, as `solve` has it.
     """
     centroider = {spec.name: spec for spec in CENTROIDER_PARAMETERS}

@@ -2,7 +2,7 @@
 """
 The centroider's rate inputs (rate_input.py) and the QoS helper (qos.py), with real message classes and no ROS graph.
 
-rotation into the sensor frame, the frame/stamp/REP 145 checks and their counters, the choice
+Rotation into the sensor frame, the frame/stamp/REP 145 checks and their counters, the choice
 of the sample for a frame.
 """
 import numpy as np

@@ -364,7 +364,7 @@ def _flushed_images(bag: Path, scratch: Path) -> int:
     """
     /image_raw messages a recorder has made durable so far.
 
-    a copy of its unfinished bag, recovered as after a kill (0 while nothing is readable
+    A copy of its unfinished bag, recovered as after a kill (0 while nothing is readable
     yet).
     """
     shutil.rmtree(scratch, ignore_errors=True)

@@ -2,7 +2,7 @@
 """
 Tracking through the real nodes (separate processes, Fast DDS).
 
-a slew with an occulted frame, checked against the simulator's truth. No ROS mocks.
+A slew with an occulted frame, checked against the simulator's truth. No ROS mocks.
 """
 from __future__ import annotations
 
