@@ -19,7 +19,8 @@ PACKAGE = "star_tracker"
 
 
 class BuildPyAndCompile(build_py):
-    """Build_py, then compile the nodes' numba kernels into the built copy.
+    """
+    Run build_py, then compile the nodes' numba kernels into the built copy.
 
     Their cache is installed with it: the first start loads them (star_tracker/install_compile.py).
     """

@@ -1,4 +1,6 @@
-"""Cold start: process start -> first identified frame on a fresh install (issue 18 part 6).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Cold start: process start -> first identified frame on a fresh install (issue 18 part 6).
 
 Each case starts from a fresh clone (`git clone` of the repository's HEAD) and empty caches
 (STAR_TRACKER_CACHE and XDG_CACHE_HOME in a temp dir, no NUMBA_CACHE_DIR: numba's default,
@@ -56,7 +58,7 @@ def run(cmd: list[str], env: dict[str, str], cwd: Path, log: Path, timeout_s: fl
 
 
 def fresh_environment(tmp: Path) -> dict[str, str]:
-    """This process's environment with empty caches in `tmp` (what a new user has)."""
+    """Return this process's environment with empty caches in `tmp` (what a new user has)."""
     env = dict(os.environ)
     for name in ("NUMBA_CACHE_DIR", "STAR_TRACKER_SKIP_INSTALL_COMPILE", "PYTHONPATH", "AMENT_PREFIX_PATH",
                  "COLCON_DEFAULTS_FILE"):
@@ -69,8 +71,12 @@ def fresh_environment(tmp: Path) -> dict[str, str]:
 
 
 def install_colcon(clone: Path, tmp: Path, env: dict[str, str]) -> tuple[float, dict[str, str], Path, Path]:
-    """colcon build of `clone`; returns (install wall time [s], the node environment, the
-    directory of the executables, the installed config file)."""
+    """
+    Run a colcon build of `clone`.
+
+    Returns (install wall time [s], the node environment, the directory of the executables,
+    the installed config file).
+    """
     env = dict(env, COLCON_HOME=str(tmp / "colcon_home"))
     seconds = run([sys.executable, "-m", "colcon", "--log-base", str(tmp / "log"), "build", "--base-paths",
                    str(clone), "--build-base", str(tmp / "build"), "--install-base", str(tmp / "install"),
@@ -82,7 +88,7 @@ def install_colcon(clone: Path, tmp: Path, env: dict[str, str]) -> tuple[float, 
 
 
 def install_pip(clone: Path, tmp: Path, env: dict[str, str]) -> tuple[float, dict[str, str], Path, Path]:
-    """A fresh venv, its dependencies (not timed), then `pip install <clone>` (timed)."""
+    """Make a fresh venv, its dependencies (not timed), then `pip install <clone>` (timed)."""
     venv = tmp / "venv"
     run([sys.executable, "-m", "venv", str(venv)], env, tmp, tmp / "venv.log")
     pip = [str(venv / "bin" / "python"), "-m", "pip", "install", "--quiet", "--disable-pip-version-check"]
@@ -102,9 +108,12 @@ def cpu_seconds(pid: int) -> float | None:
 
 def first_identified(bin_dir: Path, config: Path, env: dict[str, str], domain_id: int, logs: Path,
                      timeout_s: float) -> dict:
-    """Start the three node executables at once; return the seconds from their start to the
-    first attitude within CORRECT_RAD of truth (None if none within timeout_s), to each node's
-    `ready` line, and the frames seen by then."""
+    """
+    Start the three node executables at once.
+
+    Return the seconds from their start to the first attitude within CORRECT_RAD of truth
+    (None if none within timeout_s), to each node's `ready` line, and the frames seen by then.
+    """
     import rclpy
     from geometry_msgs.msg import QuaternionStamped
 

@@ -1,6 +1,11 @@
-"""`star-tracker` command line. `star-tracker demo` (here) is what `make demo` runs; the other
-subcommands are in star_tracker/commands/: `record`, `play`, `info` and `reindex` handle rosbag2
-bags (commands/bags.py, docs/RECORD_REPLAY.md), then render, solve, calibrate, database, monitor, bench."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker` command line.
+
+`star-tracker demo` (here) is what `make demo` runs; the other subcommands are in
+star_tracker/commands/: `record`, `play`, `info` and `reindex` handle rosbag2 bags (commands/bags.py,
+docs/RECORD_REPLAY.md), then render, solve, calibrate, database, monitor, bench.
+"""
 from __future__ import annotations
 
 import argparse
@@ -42,9 +47,11 @@ def default_params_file() -> Path | None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """`star-tracker demo`: the three nodes on a scenario, one status line per frame, then a
-    summary and the output files. Exit code 0 when every node exited cleanly, frames arrived
-    and a picture was written."""
+    """
+    `star-tracker demo`: the three nodes on a scenario, one status line per frame, then a summary and the output files.
+
+    Exit code 0 when every node exited cleanly, frames arrived and a picture was written.
+    """
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     print(f"star_tracker demo: scenario '{args.scenario}', {args.duration:g} s at {args.rate:g} Hz"
@@ -64,8 +71,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _prepare_catalog_and_database() -> None:
-    """Parse the catalog and build (or load) the pattern database before the nodes start, so
-    that the nodes find both cached."""
+    """Parse the catalog and build (or load) the pattern database before the nodes start, so they find both cached."""
     from .identify import DatabaseConfig, load_or_build_database
     from .models.catalog import load_hipparcos
 
@@ -76,13 +82,18 @@ def _prepare_catalog_and_database() -> None:
 
 
 def _run_demo_nodes(args: argparse.Namespace, out: Path):
-    """Run the nodes (and the recorder with --record) on a private DDS domain until every frame
-    was reported or the time is up. Returns the monitor's frames in stamp order and the
-    processes' exit codes."""
+    """
+    Run the nodes (and the recorder with --record) on a private DDS domain.
+
+    Until every frame was reported or the time is up. Returns the monitor's frames in stamp order and the
+    processes' exit codes.
+    """
     from .ros.pipeline import NodeProcesses, TrackerMonitor, isolated_ros_environment
 
     env = isolated_ros_environment()
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE") if k in env})
+    os.environ.update({k: env[k]
+                       for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE")
+                       if k in env})
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     frames_wanted = int(round(args.duration * args.rate))
     params = {"camera_simulator": {**SCENARIOS[args.scenario], "rate_hz": float(args.rate),
@@ -111,11 +122,16 @@ def _run_demo_nodes(args: argparse.Namespace, out: Path):
 
 
 def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
-    """Spin the monitor and print one line per frame as soon as its attitude and matches
-    arrived (or 1.5 s after it was first seen), until frames_wanted lines or duration_s + 8 s."""
+    """
+    Spin the monitor and print one line per frame.
+
+    Each line as soon as its frame's attitude and matches arrived (or 1.5 s after the frame was
+    first seen), until frames_wanted lines or duration_s + 8 s.
+    """
     printed: set[int] = set()
     index = 0
-    print(f"{'frame':>5}  {'stamp [s]':>16}  {'spots':>5}  {'ident':>5}  {'cross-bore':>10}  {'roll':>8}  {'latency':>8}")
+    print(f"{'frame':>5}  {'stamp [s]':>16}  {'spots':>5}  {'ident':>5}  {'cross-bore':>10}  {'roll':>8}  "
+          f"{'latency':>8}")
     started_frames = time.monotonic()
     end = started_frames + duration_s + 8.0
     while time.monotonic() < end:
@@ -134,8 +150,12 @@ def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
 
 
 def _frame_status_line(index: int, ns: int, f) -> str:
-    """One status line: frame number, stamp [s], spots, identified stars, attitude error vs
-    truth [arcsec] and latency [ms]."""
+    """
+    Return one status line.
+
+    Frame number, stamp [s], spots, identified stars, attitude error vs truth [arcsec] and
+    latency [ms].
+    """
     error = f.error()
     spots = "-" if f.spot_count is None else str(f.spot_count)
     if error is None:
@@ -156,8 +176,12 @@ def _summarize_demo(frames, scenario: str, codes: dict[str, int]) -> dict:
 
 
 def write_frames_csv(frames, path: Path) -> None:
-    """Per frame with truth: stamp [ns], spots, matched stars, cross-boresight and roll error
-    [arcsec], latency [ms] (empty where not identified)."""
+    """
+    Write one CSV row per frame with truth.
+
+    Columns: stamp [ns], spots, matched stars, cross-boresight and roll error [arcsec], latency [ms]
+    (empty where not identified).
+    """
     with open(path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(["stamp_ns", "spots", "matched", "cross_boresight_arcsec", "roll_arcsec", "latency_ms"])
@@ -177,17 +201,20 @@ def print_demo_summary(summary: dict, codes: dict[str, int]) -> None:
     print(f"summary: {summary['frames']} frames, {summary['identified']} identified "
           f"({100 * summary['identification_rate']:.1f} %), {summary['wrong_over_60_arcsec']} wrong (> 60\")")
     print(f"attitude error vs truth: median {summary['cross_boresight_arcsec_median']:.2f}\" cross-boresight, "
-          f"{summary['roll_arcsec_median']:.2f}\" roll; 95th percentile {summary['cross_boresight_arcsec_p95']:.2f}\" / "
-          f"{summary['roll_arcsec_p95']:.2f}\"")
+          f"{summary['roll_arcsec_median']:.2f}\" roll; 95th percentile {summary['cross_boresight_arcsec_p95']:.2f}\" "
+          f"/ {summary['roll_arcsec_p95']:.2f}\"")
     print(f"latency (mid-exposure stamp -> attitude received): median {summary['latency_ms_median']:.0f} ms, "
           f"max {summary['latency_ms_max']:.0f} ms")
     print(f"node exit codes: {codes}")
 
 
 def start_recorder(output: str, env: dict[str, str]):
-    """`star-tracker record` (default topics) as a separate process on the demo's domain. It
-    subscribes as the nodes' publishers appear, well before the camera's first exposure
-    (the camera waits for its subscribers, then start_delay_s)."""
+    """
+    `star-tracker record` (default topics) as a separate process on the demo's domain.
+
+    It subscribes as the nodes' publishers appear, well before the camera's first exposure
+    (the camera waits for its subscribers, then start_delay_s).
+    """
     import subprocess
 
     if Path(output).exists():
@@ -217,8 +244,7 @@ def stop_recorder(process) -> int:
 
 
 def write_run_figure(frames, path: Path) -> Path | None:
-    """Attitude error and rate against time for the run (visualize.run_figure), or None when
-    no frame had truth."""
+    """Attitude error and rate against time for the run (visualize.run_figure), or None when no frame had truth."""
     from .visualize import run_arrays, run_figure, save_figure
 
     arrays = run_arrays(frames)
@@ -229,7 +255,7 @@ def write_run_figure(frames, path: Path) -> Path | None:
 
 
 def write_picture(frames, path: Path) -> Path | None:
-    """The newest identified frame with its image, identified stars circled + HIP labels."""
+    """Draw the newest identified frame: its image, identified stars circled + HIP labels."""
     import cv2
 
     from .visualize import annotate_frame
@@ -238,7 +264,8 @@ def write_picture(frames, path: Path) -> Path | None:
         if f.image is not None and f.matched is not None and f.matched.size:
             err = f.error()
             title = (f"{f.matched.size} stars identified" +
-                     (f", error {np.degrees(err[0]) * 3600:.1f}\" cross-boresight / {np.degrees(err[1]) * 3600:.1f}\" roll"
+                     (f", error {np.degrees(err[0]) * 3600:.1f}\" cross-boresight / "
+                      f"{np.degrees(err[1]) * 3600:.1f}\" roll"
                       if err is not None else ""))
             canvas = annotate_frame(f.image, f.matched["pixel_x"], f.matched["pixel_y"], f.matched["hip_id"], title)
             cv2.imwrite(str(path), canvas)
@@ -253,7 +280,8 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Start camera_simulator, centroider and identifier as separate processes "
                                       "on a private DDS domain, print one status line per frame (spots, identified "
                                       "stars, attitude error vs truth, latency), then a summary; write "
-                                      "OUTPUT/frame.png, run.png (attitude error and rate vs time), summary.json and frames.csv.")
+                                      "OUTPUT/frame.png, run.png (attitude error and rate vs time), summary.json and "
+                                      "frames.csv.")
     demo.add_argument("--scenario", choices=sorted(SCENARIOS), default="default",
                       help="attitude motion: default = 0.5 deg/s cross-boresight + slow roll; rest; fast ~1.5 deg/s; "
                            "slew = 20 deg at up to 2 deg/s from t = 3 s; tumble = torque-free tumble ~1.1 deg/s; "

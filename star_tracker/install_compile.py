@@ -1,9 +1,12 @@
-"""Compile the nodes' numba kernels into a built copy of the package at install time, so the
-first start after `pip install .` or `colcon build` loads them (~1 s) instead of compiling
-them (1-4 min). setup.py's build_py runs `compile_into(build_lib)` after copying the sources;
-the cache files numba writes beside each module (`__pycache__/*.nbi, *.nbc`) are installed
-with it. numba keys its cache on the source's content, CPU and numba version, not on the
-path, so the installed copy finds them; a copy moved to another CPU compiles again at its
+# SPDX-License-Identifier: Apache-2.0
+"""
+Compile the nodes' numba kernels into a built copy of the package at install time.
+
+So the first start after `pip install .` or `colcon build` loads them (~1 s) instead of
+compiling them (1-4 min). setup.py's build_py runs `compile_into(build_lib)` after copying the
+sources; the cache files numba writes beside each module (`__pycache__/*.nbi, *.nbc`) are
+installed with it. numba keys its cache on the source's content, CPU and numba version, not on
+the path, so the installed copy finds them; a copy moved to another CPU compiles again at its
 first start, with the same results.
 
 Standard library only: setup.py loads this file by path, possibly in pip's isolated build
@@ -29,10 +32,14 @@ TIMEOUT_S = 1800.0  # [s] per part; a cold compile takes ~1-2 min on a loaded 2-
 
 
 def child_environments(build_lib: Path, environ: dict[str, str] | None = None) -> list[dict[str, str]]:
-    """Where the compile may run, in order: the installing interpreter's own environment (pip's
-    build isolation works through PYTHONPATH: only the built copy on it), then the build
-    environment itself (the built copy first; it has the dependencies only if the build
-    requirements list them). Neither has NUMBA_CACHE_DIR: the cache lands beside the modules."""
+    """
+    Where the compile may run, in order.
+
+    The installing interpreter's own environment (pip's build isolation works through
+    PYTHONPATH: only the built copy on it), then the build environment itself (the built copy
+    first; it has the dependencies only if the build requirements list them). Neither has
+    NUMBA_CACHE_DIR: the cache lands beside the modules.
+    """
     env = dict(os.environ if environ is None else environ)
     env.pop("NUMBA_CACHE_DIR", None)
     isolated = dict(env, PYTHONPATH=os.pathsep.join(p for p in (str(build_lib), env.get("PYTHONPATH", "")) if p))
@@ -40,10 +47,13 @@ def child_environments(build_lib: Path, environ: dict[str, str] | None = None) -
 
 
 def seed_cache(source_package: Path, built_package: Path) -> int:
-    """Copy the numba cache files (`__pycache__/*.nbi, *.nbc`) the source tree already holds
-    (`make venv` compiles there) into the built copy, so that the compile below only loads
+    """
+    Copy the numba cache files the source tree already holds into the built copy.
+
+    The files are `__pycache__/*.nbi, *.nbc` (`make venv` compiles there), so that the compile below only loads
     what is current. Safe because numba keys each entry on its source file's content: an entry
-    of a changed source is not used. Returns the number of files copied."""
+    of a changed source is not used. Returns the number of files copied.
+    """
     copied = 0
     if source_package.resolve() == built_package.resolve():
         return 0
@@ -59,9 +69,12 @@ def seed_cache(source_package: Path, built_package: Path) -> int:
 
 
 def compile_into(build_lib: str | Path, environ: dict[str, str] | None = None) -> bool:
-    """Compile the nodes' kernels into `build_lib`/star_tracker. Returns True when every part
-    compiled; False (after a note on stderr) when skipped or failed: the install goes on and
-    the first node start compiles instead."""
+    """
+    Compile the nodes' kernels into `build_lib`/star_tracker.
+
+    Returns True when every part compiled; False (after a note on stderr) when skipped or
+    failed: the install goes on and the first node start compiles instead.
+    """
     build_lib = Path(build_lib).resolve()
     candidates = child_environments(build_lib, environ)
     if candidates[0].get(SKIP_ENV):

@@ -1,5 +1,9 @@
-"""One declaration per parameter: default, unit, range, description and whether it may change
-while a node runs, written once and read by everything that needs it (ROS-free).
+# SPDX-License-Identifier: Apache-2.0
+"""
+One declaration per parameter.
+
+Default, unit, range, description and whether it may change while a node runs, written once
+and read by everything that needs it (ROS-free).
 
 A core configuration dataclass declares its tunable fields with `parameter(...)` (dataclass
 field metadata); its `__post_init__` checks them with `range_problems(self)` (plus the checks
@@ -21,7 +25,8 @@ SPEC_KEY = "parameter"  # the dataclass field metadata key holding a field's Par
 
 @dataclass(frozen=True)
 class ParameterSpec:
-    """One parameter.
+    """
+    One parameter.
 
     name: the node parameter's name (dotted for groups, e.g. "sensor.exposure_s"); default:
     bool, int, float, str, or a tuple/list of one of them; description: what it is and what a
@@ -30,7 +35,8 @@ class ParameterSpec:
     low_open/high_open (a ROS descriptor can only say inclusive: it gives [low, high] and the
     configuration refuses the open end itself); choices: the accepted strings; dynamic: may
     change while the node runs; field: the configuration dataclass field it sets (None for a
-    node-only parameter)."""
+    node-only parameter).
+    """
 
     name: str
     default: Any
@@ -56,7 +62,7 @@ class ParameterSpec:
         return self.low is not None
 
     def range_text(self) -> str:
-        """The range in interval notation, e.g. "(0, 20]"; "" without one."""
+        """Return the range in interval notation, e.g. "(0, 20]"; "" without one."""
         if not self.has_range:
             return ""
 
@@ -65,7 +71,7 @@ class ParameterSpec:
         return f"{'(' if self.low_open else '['}{text(self.low)}, {text(self.high)}{')' if self.high_open else ']'}"
 
     def full_description(self) -> str:
-        """Description with the unit and the choices, as `ros2 param describe` shows it."""
+        """Return the description with the unit and the choices, as `ros2 param describe` shows it."""
         text = self.description
         if self.unit:
             text += f" [{self.unit}]"
@@ -74,8 +80,11 @@ class ParameterSpec:
         return text
 
     def problem(self, value) -> str | None:
-        """Why `value` is not acceptable ("name=value must be in [low, high]"), or None. Lists
-        are checked element by element against the range."""
+        """
+        Why `value` is not acceptable ("name=value must be in [low, high]"), or None.
+
+        Lists are checked element by element against the range.
+        """
         if self.choices and value not in self.choices:
             return f"{self.name}={value!r} must be one of {self.choices}"
         if not self.has_range or isinstance(value, (bool, str)):
@@ -92,19 +101,21 @@ class ParameterSpec:
 def parameter(default, description: str, unit: str = "", low: float | None = None, high: float | None = None, *,
               low_open: bool = False, high_open: bool = False, choices: Iterable[str] = (),
               dynamic: bool = False) -> dataclasses.Field:
-    """A dataclass field with its ParameterSpec (named after the field) in the metadata."""
+    """Make a dataclass field with its ParameterSpec (named after the field) in the metadata."""
     spec = ParameterSpec("", default, description, unit, low, high, low_open, high_open, tuple(choices), dynamic)
     return dataclasses.field(default=default, metadata={SPEC_KEY: spec})
 
 
 def field_specs(config_class, prefix: str = "", names: dict[str, str] | None = None, defaults=None,
                 dynamic: Iterable[str] | None = None, only: Iterable[str] | None = None) -> list[ParameterSpec]:
-    """The ParameterSpecs of a configuration dataclass's declared fields, in field order.
+    """
+    Return the ParameterSpecs of a configuration dataclass's declared fields, in field order.
 
     prefix: put before each field name ("tracking."); names: field -> parameter name where it
     differs; defaults: an instance whose values replace the field defaults (a node that ships
     other values than the core's); dynamic: field names runtime-settable in this node (None:
-    each field's own `dynamic`); only: the fields to take (None: every declared field)."""
+    each field's own `dynamic`); only: the fields to take (None: every declared field).
+    """
     names, dynamic = names or {}, None if dynamic is None else set(dynamic)
     chosen = None if only is None else set(only)
     specs = []
@@ -120,8 +131,12 @@ def field_specs(config_class, prefix: str = "", names: dict[str, str] | None = N
 
 
 def field_values(specs: Iterable[ParameterSpec], values: dict[str, Any]) -> dict[str, Any]:
-    """Keyword arguments for the configuration dataclass: field -> value for every spec with a
-    field whose parameter is in `values` (lists become tuples where the default is a tuple)."""
+    """
+    Keyword arguments for the configuration dataclass.
+
+    field -> value for every spec with a field whose parameter is in `values` (lists become
+    tuples where the default is a tuple).
+    """
     kwargs = {}
     for spec in specs:
         if spec.field is not None and spec.name in values:
@@ -131,8 +146,11 @@ def field_values(specs: Iterable[ParameterSpec], values: dict[str, Any]) -> dict
 
 
 def range_problems(config) -> list[str]:
-    """What is out of range or not among the choices in a configuration dataclass instance,
-    one message per field ("detection_sigma=0.5 must be in [1, 100]"); [] when all is well."""
+    """
+    List what is out of range or not among the choices in a configuration dataclass instance.
+
+    One message per field ("detection_sigma=0.5 must be in [1, 100]"); [] when all is well.
+    """
     problems = []
     for f in dataclasses.fields(config):
         spec = f.metadata.get(SPEC_KEY)

@@ -1,7 +1,11 @@
-"""Compile the numba kernels once (written to numba's on-disk cache), so the first node start
-after an install does not spend a minute compiling. `make venv` runs it on the source tree;
-`pip install .` and `colcon build` run it on the built copy (install_compile.py), whose
-cache is installed with the package. Running it again only loads the cache.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Compile the numba kernels once (written to numba's on-disk cache).
+
+So the first node start after an install does not spend a minute compiling. `make venv` runs
+it on the source tree; `pip install .` and `colcon build` run it on the built copy
+(install_compile.py), whose cache is installed with the package. Running it again only loads
+the cache.
 
     python -m star_tracker.warm_up                 # every kernel: nodes, CLI, every algorithm
     python -m star_tracker.warm_up --only nodes    # what the three nodes' warm-ups compile
@@ -18,16 +22,19 @@ PARTS = ("all", "nodes", "centroider", "identifier")
 
 
 def warm_centroider() -> None:
-    """What CentroiderNode compiles before its first frame (centroid.kernels.warm_up)."""
+    """Compile the kernels CentroiderNode needs before its first frame (centroid.kernels.warm_up)."""
     from .centroid.kernels import warm_up
 
     warm_up()
 
 
 def warm_identifier() -> None:
-    """What IdentifierNode compiles and loads before its first frame: the default
-    database (built and cached when missing) and its deep catalog, the default algorithm
-    inside a Tracker (Tracker.warm_up)."""
+    """
+    Compile and load what IdentifierNode needs before its first frame.
+
+    The default database (built and cached when missing) and its deep catalog, the default
+    algorithm inside a Tracker (Tracker.warm_up).
+    """
     from .identify import DEFAULT_ALGORITHM, DatabaseConfig, load_or_build_database, make_identifier
     from .models.camera import CameraModel
     from .track.tracking import Tracker
@@ -38,8 +45,11 @@ def warm_identifier() -> None:
 
 
 def warm_everything() -> None:
-    """Every kernel: the nodes', then one solve with each algorithm (the CLI's and the
-    benchmarks'), without a time budget so that every kernel compiles."""
+    """
+    Compile every kernel: the nodes', then one solve with each algorithm (the CLI's and the benchmarks').
+
+    The solves run without a time budget so that every kernel compiles.
+    """
     from .identify import ALGORITHMS, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
     from .models.catalog import load_hipparcos
     from .sim.scenes import SETUPS, make_scene

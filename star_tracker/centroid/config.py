@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """CentroidConfig: the parameters of the centroiding stage, and the limits derived from them."""
 from __future__ import annotations
 
@@ -15,8 +16,11 @@ PSF_MODES = ("auto", "fixed")
 
 @dataclass(frozen=True)
 class CentroidConfig:
-    """Parameters of `extract_spots` (the centroider node's parameters, same names; default, unit,
-    range and description of each in its field's `parameter(...)`, parameter_spec.py).
+    """
+    Parameters of `extract_spots`, the centroider node's parameters (same names).
+
+    Default, unit, range and description of each are in its field's `parameter(...)`
+    (parameter_spec.py).
 
     detection_sigma: threshold in units of the noise of the PSF-matched detection image;
     binning: detection grid bin factor (1 or 2; 2 is 4x cheaper and splits pairs >= ~4 px);
@@ -82,28 +86,40 @@ class CentroidConfig:
 
     @property
     def window_half(self) -> int:
-        """Half size of a point-spot window [px]: the PSF to 3 sigma (beyond, a
-        pixel carries < 1 % of the position information)."""
+        """
+        Half size of a point-spot window [px].
+
+        The PSF to 3 sigma (beyond, a pixel carries < 1 % of the position information).
+        """
         return int(max(3, np.ceil(3.0 * max(self.psf_sigma_px, 1.0))))
 
 
 def elongation_limit(sigma: float) -> float:
-    """Largest second moment [px^2] of a point-like spot: 2.5x a pixelated PSF's (a segment of
-    length L adds L^2 / 12), the PSF taken at least 0.6 px wide: the noise in a faint spot's
-    aperture adds ~0.2-0.4 px^2 to its moments, which a sharper PSF's limit would call a
-    streak."""
+    """
+    Largest second moment [px^2] of a point-like spot.
+
+    2.5x a pixelated PSF's (a segment of length L adds L^2 / 12), the PSF taken at least 0.6
+    px wide: the noise in a faint spot's aperture adds ~0.2-0.4 px^2 to its moments, which a
+    sharper PSF's limit would call a streak.
+    """
     return 2.5 * (max(sigma, 0.6) ** 2 + 1.0 / 12.0)
 
 
 def hot_pixel_ratio(config: CentroidConfig, sigma: float) -> float:
-    """Peak-to-brightest-neighbour ratio above which a pixel is a defect, not starlight
-    (twice what the PSF allows); inf (no cleaning) without a PSF."""
+    """
+    Peak-to-brightest-neighbour ratio above which a pixel is a defect, not starlight (twice what the PSF allows).
+
+    inf (no cleaning) without a PSF.
+    """
     return 2.0 * star_peak_to_neighbour_ratio(sigma) if config.psf_sigma_px > 0 else np.inf
 
 
 def peak_fraction_limit(config: CentroidConfig, sigma: float) -> float:
-    """Largest share of a spot's flux its brightest pixel may hold [-]: max_peak_fraction, or
-    for a PSF so narrow that a star centred on a pixel puts more than that in it, 1.3x that
-    share (at most 0.95: a hot pixel holds all of it)."""
+    """
+    Largest share of a spot's flux its brightest pixel may hold [-].
+
+    max_peak_fraction, or for a PSF so narrow that a star centred on a pixel puts more than
+    that in it, 1.3x that share (at most 0.95: a hot pixel holds all of it).
+    """
     centred = float(erf(0.5 / (np.sqrt(2.0) * max(sigma, 1e-3))) ** 2)
     return max(config.max_peak_fraction, min(0.95, 1.3 * centred))

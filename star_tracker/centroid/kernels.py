@@ -1,6 +1,10 @@
-"""Compiled inner loops of the centroider (numba): the per-spot work that is too small for
-numpy's per-call overhead to pay off. Compiled on first use and cached on disk next to this
-module (or in NUMBA_CACHE_DIR)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Compiled inner loops of the centroider (numba).
+
+The per-spot work that is too small for numpy's per-call overhead to pay off. Compiled on
+first use and cached on disk next to this module (or in NUMBA_CACHE_DIR).
+"""
 from __future__ import annotations
 
 import math
@@ -15,8 +19,11 @@ _INV_ROOT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 @njit(cache=True, fastmath=False)
 def _profile(lo: float, centre: float, sigma: float, size: int, prob: np.ndarray, deriv: np.ndarray) -> None:
-    """Fraction of a 1-D Gaussian in pixels [lo + k, lo + k + 1) and its derivative with respect
-    to the centre, k = 0..size-1 (see psf_fit.pixel_integrated_profile)."""
+    """
+    Fraction of a 1-D Gaussian in pixels [lo + k, lo + k + 1) and its derivative with respect to the centre.
+
+    For k = 0..size-1 (see psf_fit.pixel_integrated_profile).
+    """
     for k in range(size):
         a = (lo + k - centre) / sigma
         b = a + 1.0 / sigma
@@ -26,12 +33,16 @@ def _profile(lo: float, centre: float, sigma: float, size: int, prob: np.ndarray
 
 @njit(cache=True, fastmath=False)
 def fit_single_psf(windows, start, settings):
-    """One pixel-integrated Gaussian PSF per window: the same weighted Gauss-Newton as
-    psf_fit.fit_psf_windows with M = 1 (1 px trust region, 1e-9 relative damping, stop when
-    the position step is below 1 % of its sigma, covariance from the last step's inverse).
-    windows: psf_fit.PsfWindows, data float64 and valid bool (n, S, S), col0, row0 float64
-    (n,); start: psf_fit.PsfStart of (n,) arrays; settings: psf_fit.PsfSettings. Returns x, y,
-    flux (n,), cov (n, 2, 2), flux_var (n,), converged (n,)."""
+    """
+    One pixel-integrated Gaussian PSF per window.
+
+    The same weighted Gauss-Newton as psf_fit.fit_psf_windows with M = 1 (1 px trust region,
+    1e-9 relative damping, stop when the position step is below 1 % of its sigma, covariance
+    from the last step's inverse). windows: psf_fit.PsfWindows, data float64 and valid bool
+    (n, S, S), col0, row0 float64 (n,); start: psf_fit.PsfStart of (n,) arrays; settings:
+    psf_fit.PsfSettings. Returns x, y, flux (n,), cov (n, 2, 2), flux_var (n,), converged
+    (n,).
+    """
     data, valid, col0, row0 = windows.data, windows.valid, windows.col0, windows.row0
     x0, y0, flux0 = start.x, start.y, start.flux
     sigma, noise, gain, iterations = settings.sigma, settings.noise, settings.gain, settings.iterations
@@ -131,9 +142,13 @@ def warm_up() -> None:
 
 @njit(cache=True)
 def component_stats(labels: np.ndarray, count: int):
-    """Bounding box (left, top, right, bottom; exclusive), pixel count and centroid (x, y) of
-    each label 1..count-1 of a label image, in one pass (OpenCV's WithStats variant is slower
-    for the few, small components of a star field)."""
+    """
+    Bounding box, pixel count and centroid of each label of a label image, in one pass.
+
+    Box (left, top, right, bottom; exclusive), pixel count and centroid (x, y) of each label
+    1..count-1, in one pass
+    (OpenCV's WithStats variant is slower for the few, small components of a star field).
+    """
     height, width = labels.shape
     left = np.full(count, width, np.int64)
     top = np.full(count, height, np.int64)
@@ -163,8 +178,12 @@ def component_stats(labels: np.ndarray, count: int):
 
 @njit(cache=True)
 def _centre_and_covariance(weighted_sums, variance_sums, col0, row0, out_x, out_y, out_cov, s):
-    """Centre of gravity from sums of w (1, x, y) and its covariance from sums of
-    var (dw/dr)^2 (1, x, y, x^2, y^2, xy) (local window coordinates; written at index s)."""
+    """
+    Centre of gravity and its covariance from the weighted and variance sums of a window.
+
+    The centre from sums of w (1, x, y), its covariance from sums of var (dw/dr)^2 (1, x, y,
+    x^2, y^2, xy) (local window coordinates; written at index s).
+    """
     total = weighted_sums[0]
     if total == 0.0:
         return
@@ -178,9 +197,12 @@ def _centre_and_covariance(weighted_sums, variance_sums, col0, row0, out_x, out_
 
 
 class SmallSpots(NamedTuple):
-    """Detections to measure in a point window, per spot (n,): cx, cy the footprint centroid
-    [px]; bg the background there [ADU]; top, bottom, left, right its bounding box
-    (full-resolution px, bottom/right exclusive; int64)."""
+    """
+    Detections to measure in a point window, per spot (n,).
+
+    cx, cy the footprint centroid [px]; bg the background there [ADU]; top, bottom, left,
+    right its bounding box (full-resolution px, bottom/right exclusive; int64).
+    """
 
     cx: np.ndarray
     cy: np.ndarray
@@ -192,10 +214,14 @@ class SmallSpots(NamedTuple):
 
 
 class PointWindowSettings(NamedTuple):
-    """How measure_small measures: half (int) the half size of the measuring window [px];
-    search_margin (int) the search window's extra size [px]; sigma the PSF 1-sigma [px];
-    noise the pixel noise [ADU]; gain [e-/ADU]; ratio_limit the hot-pixel peak-to-neighbour
-    ratio (inf: no cleaning); weighted: also the intensity-weighted centre of gravity."""
+    """
+    How measure_small measures.
+
+    half (int) the half size of the measuring window [px]; search_margin (int) the search
+    window's extra size [px]; sigma the PSF 1-sigma [px]; noise the pixel noise [ADU]; gain
+    [e-/ADU]; ratio_limit the hot-pixel peak-to-neighbour ratio (inf: no cleaning);
+    weighted: also the intensity-weighted centre of gravity.
+    """
 
     half: int
     search_margin: int
@@ -207,11 +233,15 @@ class PointWindowSettings(NamedTuple):
 
 
 class SmallSpotMeasurements(NamedTuple):
-    """measure_small's results per spot (n,): x, y [px], flux [ADU], snr, minor, major [px^2],
-    angle [rad], peak, peak_raw [ADU], cov (n, 2, 2) [px^2], wx, wy, wcov (intensity-weighted
-    centre), edge, cleaned; window, window_valid (n, S, S) and their top-left pixel
-    window_col0, window_row0; search, search_valid (n, B, B): the cleaned search windows and
-    their top-left pixel search_col0, search_row0."""
+    """
+    measure_small's results per spot (n,).
+
+    x, y [px], flux [ADU], snr, minor, major [px^2], angle [rad], peak, peak_raw [ADU], cov
+    (n, 2, 2) [px^2], wx, wy, wcov (intensity-weighted centre), edge, cleaned; window,
+    window_valid (n, S, S) and their top-left pixel window_col0, window_row0; search,
+    search_valid (n, B, B): the cleaned search windows and their top-left pixel search_col0,
+    search_row0.
+    """
 
     x: np.ndarray
     y: np.ndarray
@@ -244,9 +274,12 @@ def measure_small(image: np.ndarray, spots: SmallSpots, settings: PointWindowSet
 
 
 def read_only(image: np.ndarray) -> np.ndarray:
-    """`image` as a read-only array (a view when it is writeable, no copy). Read-only and
-    writeable arrays are distinct numba types: passing one kind halves the variants compiled
-    (each took ~10 s at a cold start)."""
+    """
+    `image` as a read-only array (a view when it is writeable, no copy).
+
+    Read-only and writeable arrays are distinct numba types: passing one kind halves the
+    variants compiled (each took ~10 s at a cold start).
+    """
     if not image.flags.writeable:
         return image
     view = image.view()
@@ -256,15 +289,18 @@ def read_only(image: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _measure_small(image, spots, settings):
-    """The point-window measurements of candidates.measure_candidates, compiled. Per spot n:
-    a search window of (2 half + 1 + search_margin)^2 around (cx, cy) [px] minus bg [ADU], hot
-    pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels), re-centred on the
-    brightest 3x3 sum inside the footprint box (top/bottom/left/right, full-resolution px),
-    then a (2 half + 1)^2 window measured in a circular aperture (measure.aperture_moments:
-    centre of gravity, covariance, second moments; with `weighted` also the intensity-weighted
-    centre), SNR in the near-optimal aperture, brightest raw value, edge flag.
-    ratio_limit = inf switches the cleaning off. spots: SmallSpots; settings:
-    PointWindowSettings. Returns a tuple of arrays in SmallSpotMeasurements' order."""
+    """
+    Compute the point-window measurements of candidates.measure_candidates, compiled.
+
+    Per spot n: a search window of (2 half + 1 + search_margin)^2 around (cx, cy) [px] minus
+    bg [ADU], hot pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels),
+    re-centred on the brightest 3x3 sum inside the footprint box (top/bottom/left/right,
+    full-resolution px), then a (2 half + 1)^2 window measured in a circular aperture
+    (measure.aperture_moments: centre of gravity, covariance, second moments; with `weighted`
+    also the intensity-weighted centre), SNR in the near-optimal aperture, brightest raw
+    value, edge flag. ratio_limit = inf switches the cleaning off. spots: SmallSpots;
+    settings: PointWindowSettings. Returns a tuple of arrays in SmallSpotMeasurements' order.
+    """
     cx, cy, bg, top, bottom, left, right = (spots.cx, spots.cy, spots.bg, spots.top, spots.bottom, spots.left,
                                             spots.right)
     half, search_margin, sigma = settings.half, settings.search_margin, settings.sigma
@@ -438,8 +474,11 @@ def _profile_with_width(lo: float, centre: float, sigma: float, size: int, prob:
 
 @njit(cache=True)
 def _solve_spd(normal: np.ndarray, rhs: np.ndarray, out: np.ndarray) -> bool:
-    """out = normal^-1 rhs by Cholesky (normal symmetric positive definite, overwritten by its
-    factor); False when it is not positive definite."""
+    """
+    Solve out = normal^-1 rhs by Cholesky (normal symmetric positive definite, overwritten by its factor).
+
+    False when it is not positive definite.
+    """
     n = rhs.size
     for j in range(n):
         d = normal[j, j]
@@ -469,15 +508,18 @@ def _solve_spd(normal: np.ndarray, rhs: np.ndarray, out: np.ndarray) -> bool:
 
 @njit(cache=True, fastmath=False)
 def fit_psf_width(data, valid, col0, row0, x0, y0, flux0, sigma0, noise, gain, iterations):
-    """One pixel-integrated circular Gaussian per window with free width and a constant
-    background offset: parameters (x, y [px], flux [ADU], sigma [px], offset [ADU]) by weighted
-    Gauss-Newton (weights 1 / (star model / gain + noise^2)), 1 px trust region on the centre,
-    sigma kept in [0.1, 12] px and changed by at most half of itself per step; converged when a
-    step moves the centre < 0.01 px and sigma < 0.2 % (the estimate is a median over stars).
-    data (n, S, S) background-subtracted windows [ADU], valid (n, S, S) bool, col0/row0 (n,)
-    top-left pixels [px]; starts x0, y0, flux0, sigma0 (n,). Returns x, y, flux, sigma (n,),
-    sigma_var (n,) [px^2] (inverse Fisher information), chi2 (n,) (reduced: per degree of
-    freedom), converged (n,)."""
+    """
+    One pixel-integrated circular Gaussian per window with free width and a constant background offset.
+
+    Parameters (x, y [px], flux [ADU], sigma [px], offset [ADU]) by weighted Gauss-Newton
+    (weights 1 / (star model / gain + noise^2)), 1 px trust region on the centre, sigma kept in
+    [0.1, 12] px and changed by at most half of itself per step; converged when a step moves
+    the centre < 0.01 px and sigma < 0.2 % (the estimate is a median over stars). data (n, S,
+    S) background-subtracted windows [ADU], valid (n, S, S) bool, col0/row0 (n,) top-left
+    pixels [px]; starts x0, y0, flux0, sigma0 (n,). Returns x, y, flux, sigma (n,), sigma_var
+    (n,) [px^2] (inverse Fisher information), chi2 (n,) (reduced: per degree of freedom),
+    converged (n,).
+    """
     n, size, _ = data.shape
     x, y, flux, sigma = x0.copy(), y0.copy(), np.maximum(flux0.copy(), 1e-9), sigma0.copy()
     offset = np.zeros(n)

@@ -70,10 +70,13 @@ BOX_WINDOW_PX = 24  # boxes up to this size are searched together on gathered wi
 
 def box_maxima(image: np.ndarray, top: np.ndarray, left: np.ndarray, bottom: np.ndarray,
                right: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Brightest pixel of each box image[top:bottom, left:right] (bottom, right exclusive,
-    inside the image): its value [ADU] (-inf for an empty box), row and column [px]; the first
-    in row-major order on ties, as np.argmax on the box. Boxes of at most BOX_WINDOW_PX a side
-    are read as one (N, S, S) gather (a Python loop over ~100 small boxes cost ~1 ms a frame)."""
+    """
+    Brightest pixel of each box image[top:bottom, left:right] (bottom, right exclusive, inside the image).
+
+    Its value [ADU] (-inf for an empty box), row and column [px]; the first in row-major order
+    on ties, as np.argmax on the box. Boxes of at most BOX_WINDOW_PX a side are read as one
+    (N, S, S) gather (a Python loop over ~100 small boxes cost ~1 ms a frame).
+    """
     n = top.size
     value, row, col = np.full(n, -np.inf), np.zeros(n, np.int64), np.zeros(n, np.int64)
     if n == 0:

@@ -1,4 +1,6 @@
-"""The common identification interface and the machinery every algorithm shares.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The common identification interface and the machinery every algorithm shares.
 
 An algorithm only searches: it proposes hypotheses (pattern spot indices, database star
 indices), or overrides the whole search step (hybrid, compiled). The base class turns each
@@ -42,22 +44,25 @@ COINCIDENT_SEPARATION_PX = 0.01
 
 @dataclass(frozen=True)
 class IdentifyConfig:
-    """max_pattern_spots: brightest spots used to form patterns; sigma_multiplier: pattern
-    tolerance in standard deviations; angle_tolerance_floor_rad: added to every angle
-    tolerance for model errors (aberration, distortion calibration) [rad];
-    centroid_sigma_floor_px: lower bound on a spot's 1-sigma for matching (pattern tolerances,
-    verification radius) [px] -- the published attitude and its covariance use each spot's own
-    covariance (final_fit); match_radius_px: spot to projected-star radius for verification
-    [px]; false_positive_bound: largest accepted
+    """
+    Parameters of the lost-in-space identification.
+
+    max_pattern_spots: brightest spots used to form patterns; sigma_multiplier: pattern tolerance in standard
+    deviations; angle_tolerance_floor_rad: added to every angle tolerance for model errors
+    (aberration, distortion calibration) [rad]; centroid_sigma_floor_px: lower bound on a spot's
+    1-sigma for matching (pattern tolerances, verification radius) [px] -- the published attitude
+    and its covariance use each spot's own covariance (final_fit); match_radius_px: spot to
+    projected-star radius for verification [px]; false_positive_bound: largest accepted
     probability that a published solution is a chance match (all hypotheses of the frame);
-    max_time_s: time budget of one identify() call [s], counted on budget_clock: "wall"
-    (elapsed time, a node's real-time budget) or "cpu" (this process's CPU time: the same
-    search on an idle and on a loaded host; identify/deadline.py); max_candidates_per_pattern:
-    cap on hypotheses taken from one pattern (a pattern with more is ambiguous); deep_match: after
-    a match is accepted, add the unambiguous matches of the remaining spots to the deep
-    catalog's stars (every Hipparcos star to the guide limit + deep_magnitude_margin [mag];
-    deep_match.py) before the final fit and bound. Each node parameter's default, unit and range
-    is its field's `parameter(...)` (parameter_spec.py)."""
+    max_time_s: time budget of one identify() call [s], counted on budget_clock: "wall" (elapsed
+    time, a node's real-time budget) or "cpu" (this process's CPU time: the same search on an idle
+    and on a loaded host; identify/deadline.py); max_candidates_per_pattern: cap on hypotheses
+    taken from one pattern (a pattern with more is ambiguous); deep_match: after a match is
+    accepted, add the unambiguous matches of the remaining spots to the deep catalog's stars
+    (every Hipparcos star to the guide limit + deep_magnitude_margin [mag]; deep_match.py) before
+    the final fit and bound. Each node parameter's default, unit and range is its field's
+    `parameter(...)` (parameter_spec.py).
+    """
 
     max_pattern_spots: int = parameter(12, "brightest spots used to form patterns", "", 3, 100)
     sigma_multiplier: float = parameter(3.0, "pattern tolerance", "sigmas", 0.1, 20.0, dynamic=True)
@@ -88,7 +93,8 @@ class IdentifyConfig:
 
 @dataclass(frozen=True)
 class Identification:
-    """Result of one identify() call.
+    """
+    Result of one identify() call.
 
     status: "solved", "too_few_spots", "no_match" or "timeout"; reason: human-readable.
     When solved: spot_index (M,) into the input spots; hip (M,); star_vectors (M, 3) ICRS;
@@ -121,23 +127,30 @@ class Identification:
 
     @property
     def deep_count(self) -> int:
-        """Matches the deep re-match added (stars fainter than the guide stars, or left out of
-        them, or left unmatched by the guide verification)."""
+        """
+        Matches the deep re-match added.
+
+        Stars fainter than the guide stars, or left out of them, or left unmatched by the guide
+        verification.
+        """
         return int(np.count_nonzero(self.deep))
 
 
 @dataclass
 class SpotGeometry:
-    """Per-frame quantities algorithms share, for the flux-sorted spots: rays (N, 3) unit
-    vectors in the sensor frame; sigma (N,) 1-sigma direction error [rad] for matching
-    (floored at centroid_sigma_floor_px: pattern tolerances, verification radius);
-    pattern_count: how many of the brightest spots may form patterns; magnitude (N,)
-    instrumental magnitude -2.5 log10(flux) [mag] with an unknown zero point (NaN where
-    flux <= 0); x, y (N,) pixel positions [px]; pixel_cov (N, 2, 2) each spot's own
-    covariance [px^2] (the centroider's, not floored; unknown counts as 1 px^2) and jacobian
-    (N, 3, 2) d ray / d pixel [rad/px] (ray_jacobian): the weights of the final attitude fit
-    and its published covariance (None: isotropic, sigma); camera: the camera the rays are of
-    (the deep re-match projects stars with it; None: no deep re-match)."""
+    """
+    Per-frame quantities algorithms share, for the flux-sorted spots.
+
+    rays (N, 3) unit vectors in the sensor frame; sigma (N,) 1-sigma direction error [rad]
+    for matching (floored at centroid_sigma_floor_px: pattern tolerances, verification
+    radius); pattern_count: how many of the brightest spots may form patterns; magnitude (N,)
+    instrumental magnitude -2.5 log10(flux) [mag] with an unknown zero point (NaN where flux
+    <= 0); x, y (N,) pixel positions [px]; pixel_cov (N, 2, 2) each spot's own covariance
+    [px^2] (the centroider's, not floored; unknown counts as 1 px^2) and jacobian (N, 3, 2) d
+    ray / d pixel [rad/px] (ray_jacobian): the weights of the final attitude fit and its
+    published covariance (None: isotropic, sigma); camera: the camera the rays are of (the
+    deep re-match projects stars with it; None: no deep re-match).
+    """
 
     rays: np.ndarray
     sigma: np.ndarray
@@ -152,9 +165,13 @@ class SpotGeometry:
 
 @dataclass(frozen=True)
 class AcceptedMatch:
-    """A verified match: spot_index (M,) into the flux-sorted spots (prepare); star_index (M,)
-    database star indices; rotation (3, 3) the matching fit, sensor -> ICRS;
-    false_positive_probability: its bound over all hypotheses of the frame (verify)."""
+    """
+    A verified match.
+
+    spot_index (M,) into the flux-sorted spots (prepare); star_index (M,) database star
+    indices; rotation (3, 3) the matching fit, sensor -> ICRS; false_positive_probability: its
+    bound over all hypotheses of the frame (verify).
+    """
 
     spot_index: np.ndarray
     star_index: np.ndarray
@@ -164,9 +181,12 @@ class AcceptedMatch:
 
 @dataclass(frozen=True)
 class SearchOutcome:
-    """What an algorithm's search step found: `match` when a hypothesis was accepted, else
-    None with the failing `status` (NO_MATCH or TIMEOUT) and its `reason`; `tested`:
-    hypotheses tested."""
+    """
+    What an algorithm's search step found.
+
+    `match` when a hypothesis was accepted, else None with the failing `status` (NO_MATCH or
+    TIMEOUT) and its `reason`; `tested`: hypotheses tested.
+    """
 
     match: AcceptedMatch | None
     tested: int
@@ -188,8 +208,12 @@ DEEP_PASSES = 2
 
 @dataclass(frozen=True)
 class _Matches:
-    """Matches being published: spot_index (M,) into the flux-sorted spots; star_vectors
-    (M, 3) ICRS; hip (M,); magnitude (M,) catalog Hp [mag]; deep (M,) from the deep catalog."""
+    """
+    Matches being published.
+
+    spot_index (M,) into the flux-sorted spots; star_vectors (M, 3) ICRS; hip (M,);
+    magnitude (M,) catalog Hp [mag]; deep (M,) from the deep catalog.
+    """
 
     spot_index: np.ndarray
     star_vectors: np.ndarray
@@ -199,18 +223,22 @@ class _Matches:
 
     def extended(self, spot_index: np.ndarray, star_vectors: np.ndarray, hip: np.ndarray,
                  magnitude: np.ndarray) -> "_Matches":
-        """These matches followed by deep ones."""
-        return _Matches(np.concatenate([self.spot_index, spot_index]), np.concatenate([self.star_vectors, star_vectors]),
+        """Return these matches followed by deep ones."""
+        return _Matches(np.concatenate([self.spot_index, spot_index]),
+                        np.concatenate([self.star_vectors, star_vectors]),
                         np.concatenate([self.hip, hip.astype(self.hip.dtype)]),
                         np.concatenate([self.magnitude, magnitude]),
                         np.concatenate([self.deep, np.ones(spot_index.size, bool)]))
 
 
 def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
-    """(N, 3, 2) derivative of the sensor-frame unit ray with respect to the pixel position
-    (x, y) [rad/px]: for the pinhole, ray = p / |p| with p = ((x - cx) / fx, (y - cy) / fy, 1),
-    J = r_z (I - r r^T)[:, :2] diag(1/fx, 1/fy) (compiled; `rays` if already known); with
-    distortion, central differences of camera.pixel_to_ray."""
+    """
+    (N, 3, 2) derivative of the sensor-frame unit ray with respect to the pixel position (x, y) [rad/px].
+
+    For the pinhole, ray = p / |p| with p = ((x - cx) / fx, (y - cy) / fy, 1), J = r_z (I - r
+    r^T)[:, :2] diag(1/fx, 1/fy) (compiled; `rays` if already known); with distortion, central
+    differences of camera.pixel_to_ray.
+    """
     x, y = np.asarray(x, dtype=float).ravel(), np.asarray(y, dtype=float).ravel()
     if camera.has_distortion:
         h = 0.5
@@ -222,33 +250,47 @@ def ray_jacobian(camera: CameraModel, x: np.ndarray, y: np.ndarray, rays: np.nda
 
 
 def sanitized_covariance(cov_px: np.ndarray) -> np.ndarray:
-    """Spot covariances (N, 2, 2) [px^2] for the final fit: unknown (non-finite) ones count as
-    1 px^2, and MIN_FIT_SIGMA_PX^2 is added on both axes."""
+    """
+    Spot covariances (N, 2, 2) [px^2] for the final fit.
+
+    Unknown (non-finite) ones count as 1 px^2, and MIN_FIT_SIGMA_PX^2 is added on both axes.
+    """
     cov_px = np.asarray(cov_px, dtype=float).reshape(-1, 2, 2)
     cov = np.where(np.isfinite(cov_px).all(axis=(1, 2))[:, None, None], cov_px, np.eye(2)[None])
     return cov + MIN_FIT_SIGMA_PX ** 2 * np.eye(2)[None]
 
 
 def direction_covariance(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) covariance [rad^2] of the sensor-frame rays of spots at (x, y) [px] with
-    pixel covariance cov_px (N, 2, 2) [px^2]: J C J^T (ray_jacobian, sanitized_covariance)."""
+    """
+    Return the (N, 3, 3) covariance [rad^2] of the sensor-frame rays of spots at (x, y) [px].
+
+    From the pixel covariance cov_px (N, 2, 2) [px^2]: J C J^T (ray_jacobian,
+    sanitized_covariance).
+    """
     jac = ray_jacobian(camera, x, y)
     return jac @ sanitized_covariance(cov_px) @ np.transpose(jac, (0, 2, 1))
 
 
 def direction_sigma(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
-    """Isotropic 1-sigma direction error [rad] of the rays of spots at (x, y) [px] with pixel
-    covariance cov_px (N, 2, 2) [px^2]: sqrt(trace(J C J^T) / 2) (direction_covariance), so
-    the field angle's foreshortening and the spot's anisotropy enter the variance."""
+    """
+    Isotropic 1-sigma direction error [rad] of the rays of spots at (x, y) [px].
+
+    From the pixel covariance cov_px (N, 2, 2) [px^2]: sqrt(trace(J C J^T) / 2)
+    (direction_covariance), so the field angle's foreshortening and the spot's anisotropy
+    enter the variance.
+    """
     return np.sqrt(0.5 * np.trace(direction_covariance(camera, x, y, cov_px), axis1=1, axis2=2))
 
 
 class StarIdentifier:
-    """Lost-in-space identification: identify() = prepare -> search -> solved (final fit).
+    """
+    Lost-in-space identification: identify() = prepare -> search -> solved (final fit).
+
     A subclass overrides one step: `hypotheses` (correspondences the default `search`
     verifies one by one) or, with a search of its own, `search` itself (e.g. hybrid's
     compiled triangle search, which verifies inside it). Checked when the subclass is
-    defined."""
+    defined.
+    """
 
     name = "base"
 
@@ -274,9 +316,12 @@ class StarIdentifier:
     magnitude_floor = 0.05
 
     def hypotheses(self, geometry: SpotGeometry, deadline: Deadline) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """Yield (pattern spot indices, database star indices) correspondences, most
-        promising first, for the default `search`. Spot indices refer to the flux-sorted spot
-        list. None here: an algorithm that overrides `search` proposes none outside it."""
+        """
+        Yield (pattern spot indices, database star indices) correspondences, most promising first.
+
+        For the default `search`. Spot indices refer to the flux-sorted spot list. None here:
+        an algorithm that overrides `search` proposes none outside it.
+        """
         return iter(())
 
     def angle_tolerance(self, sigma_a: np.ndarray, sigma_b: np.ndarray) -> np.ndarray:
@@ -284,17 +329,22 @@ class StarIdentifier:
         return self.config.sigma_multiplier * np.sqrt(sigma_a**2 + sigma_b**2) + self.config.angle_tolerance_floor_rad
 
     def prepare(self, spots: Spots, camera: CameraModel) -> tuple[np.ndarray, SpotGeometry]:
-        """Indices (into `spots`) of the finite spots sorted by flux, brightest first, and the
-        geometry algorithms work on, in that order. Resets the per-call stats. Compiled
-        (spot_kernels.prepare_spots) for undistorted cameras, numpy with distortion. A malformed
-        record is refused first (Spots.validate: ValueError)."""
+        """
+        Return the finite spots' indices (into `spots`) and the geometry algorithms work on.
+
+        The finite spots sorted by flux, brightest first, and their geometry in that order.
+        Resets the per-call stats. Compiled (spot_kernels.prepare_spots) for
+        undistorted cameras, numpy with distortion. A malformed record is refused first
+        (Spots.validate: ValueError).
+        """
         spots.validate()
         self.stats = {}
         floor_px = self.config.centroid_sigma_floor_px
         as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
         x, y = as_float(spots.x), as_float(spots.y)
         if not camera.has_distortion:
-            p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)), Pinhole.of(camera),
+            p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)),
+                                           Pinhole.of(camera),
                                            PrepareSettings(float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX))
             return p.order, SpotGeometry(p.rays, p.sigma, min(p.order.size, self.config.max_pattern_spots),
                                          p.magnitude, p.x, p.y, p.pixel_cov, p.jacobian, camera)
@@ -317,10 +367,13 @@ class StarIdentifier:
                                    jacobian=ray_jacobian(camera, x, y), camera=camera)
 
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
-        """Identify the stars behind `spots` (pixel positions in `camera`); see Identification.
-        Every algorithm runs the same steps: prepare the spots, `search` (the algorithm's
-        step: propose and verify hypotheses), then the accepted match's final fit
-        (`solved`). ValueError for a malformed Spots record (Spots.validate)."""
+        """
+        Identify the stars behind `spots` (pixel positions in `camera`); see Identification.
+
+        Every algorithm runs the same steps: prepare the spots, `search` (the algorithm's step:
+        propose and verify hypotheses), then the accepted match's final fit (`solved`).
+        ValueError for a malformed Spots record (Spots.validate).
+        """
         started = time.perf_counter()
         deadline = Deadline(self.config.max_time_s, self.config.budget_clock)
         order, geometry = self.prepare(spots, camera)
@@ -333,18 +386,22 @@ class StarIdentifier:
         return self.solved(geometry, order, outcome.match, outcome.tested, started)
 
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
-        """The algorithm's step between `prepare` and the final fit: find a verified match of
-        the flux-sorted spots in `geometry` before `deadline` is passed. This
-        default draws correspondences from `hypotheses`, turns each into a QUEST attitude and
-        accepts the first that `verify_hypothesis` passes; an algorithm with its own (e.g.
-        compiled) search overrides this instead of `hypotheses`."""
+        """
+        Run the algorithm's step between `prepare` and the final fit.
+
+        Find a verified match of the flux-sorted spots in `geometry` before `deadline` is
+        passed. This default draws correspondences from `hypotheses`, turns each into a QUEST
+        attitude and accepts the first that `verify_hypothesis` passes; an algorithm with its
+        own (e.g. compiled) search overrides this instead of `hypotheses`.
+        """
         tested = 0
         for pattern_spots, stars in self.hypotheses(geometry, deadline):
             if deadline.passed():
                 return self._timed_out(tested)
             tested += 1
             try:
-                candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars], geometry.sigma[pattern_spots])
+                candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars],
+                                  geometry.sigma[pattern_spots])
             except (ValueError, np.linalg.LinAlgError):
                 continue
             match = self.verify_hypothesis(geometry, camera, candidate.rotation)
@@ -361,14 +418,18 @@ class StarIdentifier:
 
     def verification_radius_px(self, geometry: SpotGeometry, camera: CameraModel) -> float:
         """Verification radius: the configured one, widened to 4 sigma of the typical spot."""
-        typical_px = float(np.partition(geometry.sigma, geometry.sigma.size // 2)[geometry.sigma.size // 2]) / camera.pixel_scale_rad
+        typical_px = (float(np.partition(geometry.sigma, geometry.sigma.size // 2)[geometry.sigma.size // 2])
+                      / camera.pixel_scale_rad)
         return max(self.config.match_radius_px, 4.0 * typical_px)
 
     def verify_hypothesis(self, geometry: SpotGeometry, camera: CameraModel,
                           rotation: np.ndarray) -> AcceptedMatch | None:
-        """Match all spots under `rotation` (sensor -> ICRS), refine with QUEST over the
-        matches (twice), drop matches beyond 5 sigma, and accept only under the false-positive
-        bound of `verify`; None when rejected."""
+        """
+        Match all spots under `rotation` (sensor -> ICRS) and verify the refined attitude.
+
+        Refine with QUEST over the matches (twice), drop matches beyond 5 sigma, and accept only
+        under the false-positive bound of `verify`; None when rejected.
+        """
         radius = self.verification_radius_px(geometry, camera)
         vectors = self.database.vectors
         spot_index = star_index = None
@@ -387,10 +448,12 @@ class StarIdentifier:
             if spot_index.size < MIN_STARS:
                 return None
             solution = quest(body, vectors[star_index], geometry.sigma[spot_index])
-            normalized = np.linalg.norm(body - vectors[star_index] @ solution.rotation, axis=1) / geometry.sigma[spot_index]
+            normalized = (np.linalg.norm(body - vectors[star_index] @ solution.rotation, axis=1)
+                          / geometry.sigma[spot_index])
         sigma = geometry.sigma[spot_index]
         chi2 = float(np.sum(normalized**2))
-        density = max(self._mean_density, check.stars_in_view / (camera.width * camera.height * camera.pixel_scale_rad**2))
+        density = max(self._mean_density,
+                      check.stars_in_view / (camera.width * camera.height * camera.pixel_scale_rad**2))
         log_t = log_chance_tuples(body, sigma, chi2, density)
         log_t += log_magnitude_agreement(geometry.magnitude[spot_index], self.database.magnitude[star_index],
                                          self._sorted_magnitudes, self.magnitude_floor)
@@ -401,11 +464,14 @@ class StarIdentifier:
 
     def solved(self, geometry: SpotGeometry, order: np.ndarray, match: AcceptedMatch, tested: int,
                started: float, algorithm: str | None = None, deep_match: bool = True) -> Identification:
-        """The Identification of an accepted match: refitted with the final weights
-        (final_fit), then, with config.deep_match and `deep_match` (False: a tracked frame),
-        extended by the deep re-match (deep_rematch) when its bound holds; match.spot_index refers to the flux-sorted spots of `geometry`
-        and is mapped back to the input spots through `order` (prepare). `started`: the call's
-        time.perf_counter() [s]; `algorithm`: the name reported (default: this one's)."""
+        """
+        Return the Identification of an accepted match.
+
+        Refitted with the final weights (final_fit), then, with config.deep_match and `deep_match` (False: a tracked
+        frame), extended by the deep re-match (deep_rematch) when its bound holds; match.spot_index refers to the
+        flux-sorted spots of `geometry` and is mapped back to the input spots through `order` (prepare). `started`: the
+        call's time.perf_counter() [s]; `algorithm`: the name reported (default: this one's).
+        """
         guide = _Matches(match.spot_index, self.database.vectors[match.star_index], self.database.hip[match.star_index],
                          self.database.magnitude[match.star_index], np.zeros(match.spot_index.size, bool))
         solution, _, residual = self._fit(geometry, guide.spot_index, guide.star_vectors, match.rotation)
@@ -429,22 +495,30 @@ class StarIdentifier:
             stats=dict(self.stats))
 
     def deep_catalog(self) -> DeepCatalog:
-        """The deep catalog of this identifier's database: every Hipparcos star to its guide
-        limit + config.deep_magnitude_margin at its epoch, cached beside it (deep_catalog.py)."""
+        """
+        Return the deep catalog of this identifier's database.
+
+        Every Hipparcos star to its guide limit + config.deep_magnitude_margin at its epoch,
+        cached beside it (deep_catalog.py).
+        """
         limit = self.database.config.magnitude_limit + self.config.deep_magnitude_margin
         if self._deep is None or self._deep.magnitude_limit != limit:  # config may be replaced (commands/solve.py)
-            self._deep = load_or_build_deep_catalog(limit, self.database.config.epoch_jyear, self.database.cache_directory)
+            self._deep = load_or_build_deep_catalog(limit, self.database.config.epoch_jyear,
+                                                    self.database.cache_directory)
         return self._deep
 
     def deep_rematch(self, geometry: SpotGeometry, guide: "_Matches",
                      solution: AttitudeSolution) -> tuple["_Matches", AttitudeSolution, np.ndarray, float] | None:
-        """The guide matches extended by the deep catalog (deep_match.match_deep) at their
-        fitted `solution` (their offsets scale the match gate: deep_match.error_scale), refitted,
-        matched again at the refined attitude and refitted (DEEP_PASSES); returns the matches,
+        """
+        Extend the guide matches by the deep catalog (deep_match.match_deep) and refit.
+
+        At their fitted `solution` (their offsets scale the match gate: deep_match.error_scale),
+        refitted, matched again at the refined attitude and refitted (DEEP_PASSES); returns the matches,
         solution, residuals [rad] and their false-positive bound (deep_match.deep_bound), or None
         when no deep star was added or the bound exceeds config.false_positive_bound (the
         guide solution stands). Counters in stats: deep_matches, deep_ambiguous,
-        deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view (deep_match.DeepMatches)."""
+        deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view (deep_match.DeepMatches).
+        """
         camera, catalog = geometry.camera, self.deep_catalog()
         floor_px = self.config.centroid_sigma_floor_px
         cov = spot_pixel_covariance(geometry, camera, solution.covariance, floor_px)
@@ -480,24 +554,30 @@ class StarIdentifier:
 
     def final_fit(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
                   rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray]:
-        """The published attitude of accepted matches (database star indices), weighted by
-        each spot's own covariance; see _fit. Returns the solution and every match's residual
-        angle [rad]."""
+        """
+        Fit the published attitude of accepted matches (database star indices).
+
+        Weighted by each spot's own covariance, see _fit. Returns the solution and every match's residual angle [rad].
+        """
         solution, _, residual = self._fit(geometry, spot_index, self.database.vectors[star_index], rotation)
         return solution, residual
 
     def _fit(self, geometry: SpotGeometry, spot_index: np.ndarray, stars: np.ndarray,
              rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray, np.ndarray]:
-        """The published attitude of matches (spot_index into the flux-sorted spots, `stars`
-        their ICRS unit vectors), weighted by each spot's own covariance (the centroider's,
-        without the matching floor): from `rotation` (the matching fit, sensor -> ICRS,
-        weighted with the floored sigma), a maximum-likelihood refinement with each ray's full
-        2-D covariance (attitude_estimation.refine_with_covariances; a streak's error is far
-        larger along its smear than across it). Stars whose residual exceeds
-        FIT_OUTLIER_SIGMA of their own covariance (chi^2 > FIT_OUTLIER_SIGMA^2) are left out of
-        the fit (once; never below MIN_STARS). Returns the solution (sensor -> ICRS; covariance
-        [rad^2] in the sensor frame, the inverse information of the fit: Shuster & Oh's for
-        isotropic covariances), every match's chi^2 (2 DOF) and residual angle [rad] under it."""
+        """
+        Fit the published attitude of matches (spot_index into the flux-sorted spots).
+
+        `stars` are their ICRS unit vectors. Weighted by each spot's own covariance (the
+        centroider's, without the matching floor):
+        from `rotation` (the matching fit, sensor -> ICRS, weighted with the floored sigma), a
+        maximum-likelihood refinement with each ray's full 2-D covariance
+        (attitude_estimation.refine_with_covariances; a streak's error is far larger along its
+        smear than across it). Stars whose residual exceeds FIT_OUTLIER_SIGMA of their own
+        covariance (chi^2 > FIT_OUTLIER_SIGMA^2) are left out of the fit (once; never below
+        MIN_STARS). Returns the solution (sensor -> ICRS; covariance [rad^2] in the sensor
+        frame, the inverse information of the fit: Shuster & Oh's for isotropic covariances),
+        every match's chi^2 (2 DOF) and residual angle [rad] under it.
+        """
         body = geometry.rays[spot_index]
         if geometry.pixel_cov is None:  # isotropic
             weights = dict(ray_cov=geometry.sigma[spot_index, None, None] ** 2

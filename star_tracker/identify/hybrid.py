@@ -81,9 +81,12 @@ class HybridIdentifier(StarIdentifier):
         self._head_jk = np.full(database.star_count, -1, np.int64)
 
     def warm_up(self, camera: CameraModel) -> None:
-        """Compile the kernels (or load them from numba's cache) on a small random scene, with
-        the longest time budget: compiling the first kernels must not spend the budget before
-        the search runs (on a loaded host it did, and the search compiled at the first frame)."""
+        """
+        Compile the kernels (or load them from numba's cache) on a small random scene, with the longest time budget.
+
+        Compiling the first kernels must not spend the budget before the search runs (on a
+        loaded host it did, and the search compiled at the first frame).
+        """
         rng = np.random.default_rng(0)
         n = 8
         x, y = rng.uniform(0, camera.width - 1, n), rng.uniform(0, camera.height - 1, n)

@@ -1,7 +1,11 @@
-"""Compiled identification kernels (numba): triangle search over the pair k-vector, the
-q-method, spot-to-star matching on the sky grid and the false-positive bound of `verify`,
-in one call per batch of spot triangles so a frame costs microseconds, not Python overhead.
-Spot preparation is in spot_kernels.py, tracking's kernels in track/kernels.py.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Compiled identification kernels (numba).
+
+Triangle search over the pair k-vector, the q-method, spot-to-star matching on the sky grid
+and the false-positive bound of `verify`, in one call per batch of spot triangles so a frame
+costs microseconds, not Python overhead. Spot preparation is in spot_kernels.py, tracking's
+kernels in track/kernels.py.
 
 The mathematics is the one documented in base.py and verify.py; these are its loops.
 Kernels take their inputs as small records (kernel_records.py): the catalog, the spots, the
@@ -75,8 +79,11 @@ def q_method(body, ref, weights):
 
 @njit(cache=True)
 def triad(b1, b2, r1, r2):
-    """Sensor -> ICRS rotation taking b1 exactly onto r1 and b2 into the r1-r2 plane (TRIAD):
-    a cheap first attitude for screening candidates."""
+    """
+    Sensor -> ICRS rotation taking b1 exactly onto r1 and b2 into the r1-r2 plane (TRIAD).
+
+    A cheap first attitude for screening candidates.
+    """
     rot = np.zeros((3, 3))
     fb = np.empty((3, 3))
     fr = np.empty((3, 3))
@@ -98,8 +105,12 @@ def triad(b1, b2, r1, r2):
 
 @njit(cache=True)
 def nearest_star(rotation, ray, chord, catalog, cells):
-    """The catalog star (CatalogArrays) nearest to the sensor-frame `ray` rotated to ICRS, if
-    within `chord` (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of 4."""
+    """
+    Find the catalog star (CatalogArrays) nearest to the sensor-frame `ray` rotated to ICRS.
+
+    If within `chord` (2 sin(radius/2)): (star index or -1, dot product). `cells`: scratch of
+    4.
+    """
     vectors, cell_start, star_of_cell, grid = catalog.vectors, catalog.cell_start, catalog.star_of_cell, catalog.grid
     radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
     cos_limit = 1.0 - 0.5 * chord * chord
@@ -119,8 +130,12 @@ def nearest_star(rotation, ray, chord, catalog, cells):
 
 @njit(cache=True)
 def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, catalog, chord):
-    """True when any spot in [0, limit) other than the three given lands within `chord` of a
-    catalog star under `rotation`: the pyramid's 4th-star confirmation, used as a screen."""
+    """
+    Tell whether any other spot lands on a catalog star under `rotation`.
+
+    True when any spot in [0, limit) other than the three given lands within `chord` of a
+    catalog star under `rotation`: the pyramid's 4th-star confirmation, used as a screen.
+    """
     cells = np.empty(4, np.int64)
     for s in range(min(limit, rays.shape[0])):
         if s != skip_a and s != skip_b and s != skip_c:
@@ -131,9 +146,13 @@ def lands_on_star(rays, skip_a, skip_b, skip_c, limit, rotation, catalog, chord)
 
 @njit(cache=True)
 def match_all(rays, rotation, catalog, chord, out_spot, out_star, out_dot):
-    """One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star
-    (CatalogArrays) within `chord` (2 sin(radius/2)); a star with another spot within twice
-    the radius matches no spot (ambiguous). Returns the number of matches written to out_*."""
+    """
+    One-to-one matches of every spot ray (rotated to ICRS) with the nearest catalog star.
+
+    The nearest star of the catalog (CatalogArrays) within `chord` (2 sin(radius/2)); a star
+    with another spot within twice the radius matches no spot (ambiguous). Returns the number
+    of matches written to out_*.
+    """
     n = rays.shape[0]
     vectors = catalog.vectors
     radius = 2.0 * math.asin(min(1.0, 0.5 * chord))
@@ -171,7 +190,7 @@ def match_all(rays, rotation, catalog, chord, out_spot, out_star, out_dot):
 
 @njit(cache=True)
 def log_chance_tuples(body, sigma, chi2, density):
-    """ln lambda_m(c) of verify.log_chance_tuples."""
+    """Return ln lambda_m(c) of verify.log_chance_tuples."""
     m = body.shape[0]
     info = np.zeros((3, 3))
     total = 0.0
@@ -192,7 +211,7 @@ def log_chance_tuples(body, sigma, chi2, density):
 
 @njit(cache=True)
 def log_magnitude_agreement(spot_mag, star_mag, sorted_catalog, floor):
-    """ln M of verify.log_magnitude_agreement (0 when fewer than two magnitudes are known)."""
+    """Return ln M of verify.log_magnitude_agreement; 0 when fewer than two magnitudes are known."""
     m = spot_mag.size
     offset = np.empty(m)
     count = 0
@@ -225,8 +244,12 @@ def log_magnitude_agreement(spot_mag, star_mag, sorted_catalog, floor):
 
 @njit(cache=True)
 def false_positive_bound(log_statistic, spots, matched, min_stars):
-    """P_fp of verify.false_positive_bound: (n - min_stars + 1) C(n, m) T (1 + ln 1/T), the
-    look-elsewhere factor over every subset size min_stars..n."""
+    """
+    Return P_fp of verify.false_positive_bound.
+
+    P_fp = (n - min_stars + 1) C(n, m) T (1 + ln 1/T), the look-elsewhere factor over every subset
+    size min_stars..n.
+    """
     if matched < min_stars or spots < matched:
         return 1.0
     log_t = min(log_statistic, 0.0)
@@ -250,11 +273,14 @@ def refit(rays, sigma, vectors, spot_index, star_index, count):
 
 @njit(cache=True)
 def verify_candidate(rotation, spots, catalog, verification, out_spot, out_star, match_passes=3):
-    """Match every spot (SpotArrays) to the catalog (CatalogArrays) under `rotation`, refine
-    with the q-method over the matches (match_passes times: a hypothesis from 3-4 stars needs
-    3; a tracked attitude, already fitted to a dozen stars, 1), drop matches beyond 5 sigma
-    and bound the false-positive probability (VerifySettings: radius, fewest stars).
-    Returns a CandidateCheck (the matches are written to out_*)."""
+    """
+    Match every spot (SpotArrays) to the catalog (CatalogArrays) under `rotation` and verify.
+
+    Refine with the q-method over the matches (match_passes times: a hypothesis from 3-4
+    stars needs 3; a tracked attitude, already fitted to a dozen stars, 1), drop matches
+    beyond 5 sigma and bound the false-positive probability (VerifySettings: radius, fewest
+    stars). Returns a CandidateCheck (the matches are written to out_*).
+    """
     rays, sigma, magnitude = spots.rays, spots.sigma, spots.magnitude
     vectors = catalog.vectors
     chord, min_stars = verification.chord, verification.min_stars
@@ -309,11 +335,15 @@ def verify_candidate(rotation, spots, catalog, verification, out_spot, out_star,
 @njit(cache=True)
 def search_triangles(triangles, first, last, spots, pairs, catalog, tolerances, verification, scratch,
                      screen_limit):
-    """Try spot triangles triangles[first:last] in order: catalog triangles whose three sides
-    match within the angle tolerance (TriangleTolerances) in the pair index (PairIndex) and
-    whose handedness agrees (mirror test) are verified against all spots (SpotArrays) at once
-    (verify_candidate). Returns a TriangleSearchResult (accepted matches in scratch.out_*).
-    screen_limit: spots [0, screen_limit) are tried for the 4th-star screen."""
+    """
+    Try spot triangles triangles[first:last] in order.
+
+    Catalog triangles whose three sides match within the angle tolerance (TriangleTolerances)
+    in the pair index (PairIndex) and whose handedness agrees (mirror test) are verified
+    against all spots (SpotArrays) at once (verify_candidate). Returns a TriangleSearchResult
+    (accepted matches in scratch.out_*). screen_limit: spots [0, screen_limit) are tried for
+    the 4th-star screen.
+    """
     rays, sigma = spots.rays, spots.sigma
     sigma_multiplier, tolerance_floor = tolerances.sigma_multiplier, tolerances.tolerance_floor
     max_candidates = tolerances.max_candidates

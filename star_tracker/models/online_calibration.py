@@ -1,4 +1,6 @@
-"""Online refinement of the focal length and k1 from the stars a tracker identifies (thermo-elastic drift).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Online refinement of the focal length and k1 from the stars a tracker identifies (thermo-elastic drift).
 
 `OnlineCalibration` keeps the matched stars of the newest `max_frames` solved frames, re-fits
 f and k1 (models/camera_calibration.py, principal point and k2 left as given) every
@@ -22,9 +24,13 @@ from .camera_calibration import CalibrationConfig, CalibrationFrame, CameraCalib
 
 @dataclass(frozen=True)
 class OnlineCalibrationConfig:
-    """frames_per_fit: solved frames between fits; max_frames: newest frames kept for a fit;
-    min_stars: fewest matched stars a frame needs to be kept; apply_corner_sigma_px: the
-    rule above [px]; sigma_floor_px: added in quadrature to each spot's 1-sigma [px]."""
+    """
+    Parameters of the online calibration.
+
+    frames_per_fit: solved frames between fits; max_frames: newest frames kept for a fit;
+    min_stars: fewest matched stars a frame needs to be kept; apply_corner_sigma_px: the rule
+    above [px]; sigma_floor_px: added in quadrature to each spot's 1-sigma [px].
+    """
 
     frames_per_fit: int = parameter(10, "solved frames between two fits", "", 1, 100000)
     max_frames: int = parameter(20, "newest solved frames (>= min_stars stars) a fit uses", "", 1, 1000)
@@ -55,14 +61,18 @@ class OnlineCalibration:
         self._since_fit = 0
 
     def reset(self, nominal: CameraModel) -> None:
-        """A new nominal camera (another camera_info): forget the frames and the estimate."""
+        """Take a new nominal camera (another camera_info): forget the frames and the estimate."""
         self.nominal, self._current = nominal, (None, (), None)
         self.frames.clear()
         self._since_fit = 0
 
     def add(self, spots, identification, camera: CameraModel) -> CameraCalibration | None:
-        """One solved frame (its spots, Identification and the nominal camera): kept when it has
-        min_stars; returns the new estimate when this frame completes a fit, else None."""
+        """
+        One solved frame (its spots, Identification and the nominal camera).
+
+        Kept when it has min_stars; returns the new estimate when this frame completes a fit,
+        else None.
+        """
         if camera != self.nominal:
             self.reset(camera)
         if not identification.solved or identification.hip.size < self.config.min_stars:
@@ -80,7 +90,7 @@ class OnlineCalibration:
         return estimate
 
     def _refined(self, estimate: CameraCalibration, applied: tuple[str, ...]) -> CameraModel:
-        """The nominal camera with the applied parameters of `estimate` (f scales fx and fy alike)."""
+        """Return the nominal camera with the applied parameters of `estimate` (f scales fx and fy alike)."""
         camera, fitted = self.nominal, estimate.camera
         scale = fitted.fx / camera.fx if "f" in applied else 1.0
         k1 = fitted.distortion[0] if "k1" in applied else camera.distortion[0]
@@ -98,8 +108,12 @@ class OnlineCalibration:
         return self._current[1]
 
     def camera_for(self, camera: CameraModel) -> CameraModel:
-        """The camera to identify with: `camera` with the applied parameters of the estimate
-        (f scales fx and fy alike; k1), or `camera` itself when none applies or it is not the
-        nominal camera the estimate refers to. Safe to call from another thread than add()."""
+        """
+        Return the camera to identify with.
+
+        `camera` with the applied parameters of the estimate (f scales fx and fy alike; k1),
+        or `camera` itself when none applies or it is not the nominal camera the estimate
+        refers to. Safe to call from another thread than add().
+        """
         _, applied, refined = self._current
         return refined if applied and camera == self.nominal else camera

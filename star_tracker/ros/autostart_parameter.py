@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The one parameter every managed node shares (ROS-free spec, see managed_node.py)."""
 from __future__ import annotations
 

@@ -1,5 +1,10 @@
-"""What the bag recorder and player share on the ROS side: message classes by type name and
-QoS conversions between rclpy and rosbag2 metadata (rosbags' Qos records)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+What the bag recorder and player share on the ROS side.
+
+Message classes by type name and QoS conversions between rclpy and rosbag2 metadata
+(rosbags' Qos records).
+"""
 from __future__ import annotations
 
 import importlib
@@ -15,7 +20,7 @@ PLAY_QUEUE_DEPTH = 10  # rosbag2's playback depth; the camera_simulator's own im
 
 
 def message_class(type_name: str) -> type:
-    """The Python class of 'package/msg/Name' (needs the package's rclpy bindings installed)."""
+    """Return the Python class of 'package/msg/Name' (needs the package's rclpy bindings installed)."""
     parts = type_name.split("/")
     if len(parts) != 3 or not all(parts):
         raise BagError(f"message type {type_name!r} is not of the form package/msg/Name")
@@ -40,9 +45,12 @@ def _time(duration: Duration) -> QosTime:
 
 
 def offered_qos(profile: QoSProfile) -> Qos:
-    """A publisher's QoS (from get_publishers_info_by_topic) as rosbag2 records it. Fast DDS
-    does not report a remote writer's history and depth: they are recorded as unknown / 0,
-    as `ros2 bag record` does."""
+    """
+    Return a publisher's QoS (from get_publishers_info_by_topic) as rosbag2 records it.
+
+    Fast DDS does not report a remote writer's history and depth: they are recorded as
+    unknown / 0, as `ros2 bag record` does.
+    """
     return Qos(
         _enum(QosHistory, profile.history.value, QosHistory.UNKNOWN), int(profile.depth),
         _enum(QosReliability, profile.reliability.value, QosReliability.UNKNOWN),
@@ -53,8 +61,12 @@ def offered_qos(profile: QoSProfile) -> Qos:
 
 
 def subscription_qos(offers: list[QoSProfile], depth: int) -> QoSProfile:
-    """rosbag2's adaptation: reliable only if every publisher is (a reliable reader does not
-    match a best-effort writer), transient local only if every publisher is; keep last `depth`."""
+    """
+    Return the subscription QoS for a topic's publishers, as rosbag2 adapts it.
+
+    Reliable only if every publisher is (a reliable reader does not match a best-effort
+    writer), transient local only if every publisher is; keep last `depth`.
+    """
     reliable = bool(offers) and all(p.reliability == ReliabilityPolicy.RELIABLE for p in offers)
     latched = bool(offers) and all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in offers)
     return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
@@ -63,9 +75,12 @@ def subscription_qos(offers: list[QoSProfile], depth: int) -> QoSProfile:
 
 
 def playback_qos(recorded: tuple | list, depth: int = PLAY_QUEUE_DEPTH) -> QoSProfile:
-    """The QoS to offer when playing a topic: the recorded publishers' reliability and
-    durability when they all agree (rosbag2's rule), else reliable + volatile, which every
-    subscriber matches; keep last `depth`."""
+    """
+    Return the QoS to offer when playing a topic.
+
+    The recorded publishers' reliability and durability when they all agree (rosbag2's
+    rule), else reliable + volatile, which every subscriber matches; keep last `depth`.
+    """
     reliability, durability = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE
     if recorded and len({(q.reliability, q.durability) for q in recorded}) == 1:
         if recorded[0].reliability == QosReliability.BEST_EFFORT:

@@ -1,5 +1,10 @@
-"""The camera model a node reads from `camera_info`: parsed when the message changes, an
-invalid one counted, logged and ignored (the last good model is kept)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The camera model a node reads from `camera_info`.
+
+Parsed when the message changes, an invalid one counted, logged and ignored (the last good
+model is kept).
+"""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Callable
@@ -15,9 +20,13 @@ if TYPE_CHECKING:  # annotations only
 
 
 class CameraInfoInput:
-    """The camera model from `camera_info` messages: parsed only when the message changes; an
-    invalid one (or one `check` refuses with a reason) is counted as camera_info_rejected on
-    /diagnostics, logged, and ignored, keeping the last good model in `camera`."""
+    """
+    The camera model from `camera_info` messages.
+
+    Parsed only when the message changes; an invalid one (or one `check` refuses with a
+    reason) is counted as camera_info_rejected on /diagnostics, logged, and ignored, keeping
+    the last good model in `camera`.
+    """
 
     def __init__(self, node: Node, diag: "Diagnostics", log: "ThrottledLog",
                  check: Callable[[object], str | None] | None = None):

@@ -1,4 +1,6 @@
-"""camera_simulator: renders Hipparcos star frames and publishes them with the truth used.
+# SPDX-License-Identifier: Apache-2.0
+"""
+camera_simulator: renders Hipparcos star frames and publishes them with the truth used.
 
 Publishes image_raw (mono16), camera_info, truth/attitude, truth/angular_velocity and
 truth/objects, all with the frame's mid-exposure stamp. See msg_docs/.
@@ -62,7 +64,7 @@ class CameraSimulatorNode(ManagedNode):
         values = declare_parameters(self, CAMERA_SIMULATOR_PARAMETERS)  # camera_simulator_parameters.py
         self._read_output(values)
         self.camera, fov_x_deg = camera_from(values)
-        self.sensor = sensor = sensor_from(values)
+        self.sensor = sensor_from(values)
         readout_s = values["sensor.readout_s"]
         false_objects = false_objects_from(values)
         self.sky = sky = sky_from(values)
@@ -100,8 +102,11 @@ class CameraSimulatorNode(ManagedNode):
             f"{len(self.renderer.catalog)} stars to Hp {sky.magnitude_limit}, attitude profile {self.profile}")
 
     def activate(self) -> None:
-        """First activation: start the exposures (once subscribed, with wait_for_subscribers).
-        Later ones resume the same time line: frames that fell in the inactive time are skipped."""
+        """
+        First activation: start the exposures (once subscribed, with wait_for_subscribers).
+
+        Later ones resume the same time line: frames that fell in the inactive time are skipped.
+        """
         if self.t0_ns is not None:
             self.resume()
         elif self.wait_for_subscribers:
@@ -119,8 +124,11 @@ class CameraSimulatorNode(ManagedNode):
         self.pending = None
 
     def release(self) -> None:
-        """Undo configure: timers, topics, renderer and catalog; the next activation starts a new
-        time line from frame 0."""
+        """
+        Undo configure: timers, topics, renderer and catalog.
+
+        The next activation starts a new time line from frame 0.
+        """
         self.deactivate()
         for name in ("pub_image", "pub_info", "pub_truth", "pub_truth_rate", "pub_truth_objects"):
             if getattr(self, name, None) is not None:
@@ -135,17 +143,21 @@ class CameraSimulatorNode(ManagedNode):
         self.render_times.clear()
 
     def _read_output(self, values: dict) -> None:
-        """What is published and when: rate, frame count, frame_id, start, backlog, noise seed."""
+        """Read what is published and when: rate, frame count, frame_id, start, backlog, noise seed."""
         self.rate_hz, self.max_frames, self.frame_id = values["rate_hz"], values["max_frames"], values["frame_id"]
         self.start_delay_s, self.max_backlog_frames = values["start_delay_s"], values["max_backlog_frames"]
         self.wait_for_subscribers, self.seed = values["wait_for_subscribers"], values["seed"]
 
     def apply_parameters(self, changes: dict) -> str | None:
-        """Runtime sensor changes (see parameters.guard_parameter_changes): the new SensorModel
-        is built (checked) first; the renderer is rebuilt with it (the fixed pattern is drawn
-        from the same seed: unchanged; ~0.2 s for 1024 x 1024 px, so a frame due meanwhile is
-        delivered late, counted as frames_rendered_late) and a frame rendered ahead is dropped,
-        so the next frame delivered is exposed with the new settings."""
+        """
+        Runtime sensor changes (see parameters.guard_parameter_changes).
+
+        The new SensorModel is built (checked) first; the renderer is rebuilt with it (the
+        fixed pattern is drawn from the same seed: unchanged; ~0.2 s for 1024 x 1024 px, so a
+        frame due meanwhile is delivered late, counted as frames_rendered_late) and a frame
+        rendered ahead is dropped, so the next frame delivered is exposed with the new
+        settings.
+        """
         sensor = replace(self.sensor, **field_values(SENSOR_PARAMETERS, changes))
         if sensor.exposure_s * self.rate_hz > 1.0:
             return f"sensor.exposure_s={sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s"
@@ -159,10 +171,11 @@ class CameraSimulatorNode(ManagedNode):
         return None
 
     def _set_up_schedule(self, readout_s: float) -> None:
-        """The frame period, when frames are delivered, and the render-ahead state."""
+        """Set up the frame period, when frames are delivered, and the render-ahead state."""
         self.period_ns = int(round(1e9 / self.rate_hz))
         if self.sensor.exposure_s * 1e9 > self.period_ns:
-            raise ValueError(f"sensor.exposure_s={self.sensor.exposure_s} is longer than the frame period {1 / self.rate_hz} s")
+            raise ValueError(f"sensor.exposure_s={self.sensor.exposure_s} is longer than the frame period "
+                             f"{1 / self.rate_hz} s")
         # Frame k's middle row ends its exposure at t0 + (k+1) period; the last row ends
         # last_row_ns later, and the frame is delivered delivery_offset_ns after the middle row.
         self.last_row_ns = int(round(abs(self.sensor.rolling_shutter_row_time_s) * (self.camera.height - 1) / 2 * 1e9))
@@ -174,7 +187,7 @@ class CameraSimulatorNode(ManagedNode):
         self.frame_index = 0
 
     def _create_interfaces(self) -> None:
-        """Publishers (lifecycle: silent unless active) and (external profile) the truth input."""
+        """Create the publishers (lifecycle: silent unless active) and (external profile) the truth input."""
         publisher = self.create_lifecycle_publisher
         self.pub_image = publisher(Image, "image_raw", **overridable(IMAGE_QOS))
         self.pub_info = publisher(CameraInfo, "camera_info", **overridable(IMAGE_QOS))
@@ -187,14 +200,18 @@ class CameraSimulatorNode(ManagedNode):
             self.motion = None
             self._external_pending: dict[int, list] = {}
             self.sub_truth_attitude = self.create_subscription(QuaternionStamped, "truth_in/attitude",
-                                                               self.on_external_attitude, **overridable(TRUTH_INPUT_QOS))
+                                                               self.on_external_attitude,
+                                                               **overridable(TRUTH_INPUT_QOS))
             self.sub_truth_rate = self.create_subscription(Vector3Stamped, "truth_in/angular_velocity",
                                                            self.on_external_rate, **overridable(TRUTH_INPUT_QOS))
 
     def start(self) -> None:
-        """Fix the time origin and start the frame timer. Its ticks fall at now + n*period and
-        are never early; frame k is delivered on a tick, t0 + (k+1) period + delivery_offset_ns,
-        and t0 is at least start_delay_s after now."""
+        """
+        Fix the time origin and start the frame timer.
+
+        Its ticks fall at now + n*period and are never early; frame k is delivered on a tick, t0
+        + (k+1) period + delivery_offset_ns, and t0 is at least start_delay_s after now.
+        """
         now_ns = self.get_clock().now().nanoseconds
         delay_ticks = int(np.ceil((self.start_delay_s * 1e9 + self.delivery_offset_ns) / self.period_ns))
         self.t0_ns = now_ns + delay_ticks * self.period_ns - self.delivery_offset_ns
@@ -204,8 +221,12 @@ class CameraSimulatorNode(ManagedNode):
         self._start_timer(now_ns)
 
     def resume(self) -> None:
-        """Activated again: the same t0 and motion (the attitude went on meanwhile); the frames
-        due while inactive, or too soon to expose fully, are skipped (frames_skipped_inactive)."""
+        """
+        Resume when activated again.
+
+        The same t0 and motion (the attitude went on meanwhile); the frames due while inactive,
+        or too soon to expose fully, are skipped (frames_skipped_inactive).
+        """
         now_ns = self.get_clock().now().nanoseconds
         delivered = (now_ns - self.t0_ns - self.delivery_offset_ns) // self.period_ns  # frames due by now
         following = max(self.frame_index, int(delivered) + 1)
@@ -214,7 +235,7 @@ class CameraSimulatorNode(ManagedNode):
         self._start_timer(now_ns)
 
     def _start_timer(self, now_ns: int) -> None:
-        """The periodic frame timer, and the render-ahead of frame frame_index."""
+        """Start the periodic frame timer, and the render-ahead of frame frame_index."""
         self.timer = self.create_timer(self.period_ns * 1e-9, self.on_timer)
         self.timer.timer_period_ns = self.period_ns  # exact: seconds -> ns may round down, and ticks drift early
         if self.render_ahead:  # the first frame is rendered a period before its delivery, like every frame at first
@@ -311,8 +332,12 @@ class CameraSimulatorNode(ManagedNode):
             self.call_at(self.delivery_ns(k), now_ns)
 
     def render_lead_ns(self) -> int:
-        """How long before its delivery a frame's render starts [ns]: 1.5 x the slowest of the
-        recent renders + 3 ms, at most a period (i.e. as soon as the previous frame is out)."""
+        """
+        How long before its delivery a frame's render starts [ns].
+
+        1.5 x the slowest of the recent renders + 3 ms, at most a period (i.e. as soon as the
+        previous frame is out).
+        """
         if not self.render_times:
             return self.period_ns
         return min(self.period_ns, int((1.5 * max(self.render_times) + 0.003) * 1e9))
@@ -393,7 +418,7 @@ class CameraSimulatorNode(ManagedNode):
                       smear_substeps=frame.substeps)
 
     def _blank(self, frame, k: int):
-        """The frame with the field occulted: its median level plus read noise, nothing in view."""
+        """Return the frame with the field occulted: its median level plus read noise, nothing in view."""
         rng = np.random.default_rng(frame_seed(self.seed, k) ^ 0x5EED)
         level = float(np.median(frame.image))
         noise = self.sensor.read_noise_e / self.sensor.gain_e_per_adu

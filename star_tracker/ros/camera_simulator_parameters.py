@@ -1,12 +1,17 @@
-"""camera_simulator's parameters, each declared once (ROS-free): the SensorModel and
-FalseObjectModel fields (their spec is the dataclass field metadata, sim/sensor.py, sim/render.py)
-under the node's names with the simulated camera's defaults, and the node's own; in the order the
-node declares them (the first bad value is the one reported) and config/star_tracker.yaml lists
-them. The models the node runs are built from the declared values here.
+# SPDX-License-Identifier: Apache-2.0
+"""
+camera_simulator's parameters, each declared once (ROS-free).
+
+The SensorModel and FalseObjectModel fields (their spec is the dataclass field metadata,
+sim/sensor.py, sim/render.py) under the node's names with the simulated camera's defaults, and the
+node's own; in the order the node declares them (the first bad value is the one reported) and
+config/star_tracker.yaml lists them. The models the node runs are built from the declared values
+here.
 
 Dynamic (`ros2 param set` while running): the sensor settings a camera driver changes between
 frames (exposure, gain, read noise, bias, detector temperature); the renderer is rebuilt with
-them for the next frame. The rest (image size, optics, sky, motion) is read-only."""
+them for the next frame. The rest (image size, optics, sky, motion) is read-only.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -119,13 +124,13 @@ CAMERA_SIMULATOR_PARAMETERS = [
 
 
 def read(p: Declare, specs) -> dict[str, Any]:
-    """name -> value of `specs` from a parameter source p(name, default, description, low, high)."""
+    """Read name -> value of `specs` from a parameter source p(name, default, description, low, high)."""
     return {spec.name: p(spec.name, list(spec.default) if isinstance(spec.default, tuple) else spec.default,
                          spec.full_description(), spec.low, spec.high) for spec in specs}
 
 
 def camera_from(values: dict) -> tuple[CameraModel, float]:
-    """The image size and optics: (the camera model, the horizontal field of view [deg])."""
+    """Return the image size and optics: (the camera model, the horizontal field of view [deg])."""
     fov_x_deg = values["optics.fov_x_deg"]
     # A distortion of other than 5 values is refused here, by the camera model.
     camera = CameraModel.from_fov(values["image.width"], values["image.height"], np.radians(fov_x_deg),
@@ -197,8 +202,11 @@ def motion_kwargs_from(values: dict) -> dict:
 
 
 def attitude_from(values: dict) -> AttitudeSetup:
-    """The initial attitude (a quaternion, else RA/Dec/roll) and the motion profile, checked:
-    a bad profile fails at startup, not at the first frame."""
+    """
+    Return the initial attitude (a quaternion, else RA/Dec/roll) and the motion profile, checked.
+
+    A bad profile fails at startup, not at the first frame.
+    """
     quaternion = values["attitude.quaternion"]
     ra, dec, roll = (np.radians(values[f"attitude.{k}"]) for k in ("ra_deg", "dec_deg", "roll_deg"))
     profile = values["attitude.profile"]

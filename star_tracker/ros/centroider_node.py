@@ -1,4 +1,6 @@
-"""centroider: extracts star spots from any mono8/mono16 Image and publishes `spots`.
+# SPDX-License-Identifier: Apache-2.0
+"""
+centroider: extracts star spots from any mono8/mono16 Image and publishes `spots`.
 
 The spots message carries the image's header unchanged (stamp = mid-exposure). A malformed
 image is logged, counted in /diagnostics and skipped; the next good one is processed. Frames
@@ -103,8 +105,11 @@ class CentroiderNode(ManagedNode):
         self.sub_imu = self.create_subscription(Imu, "imu", self.rate_input.on_imu, **overridable(RATE_INPUT_QOS))
 
     def release(self) -> None:
-        """Undo configure: stop the worker, remove the topics, forget the camera model, the
-        latest rate and the PSF estimate."""
+        """
+        Undo configure: stop the worker, remove the topics, forget what was received.
+
+        Forget the camera model, the latest rate and the PSF estimate.
+        """
         if self.frames is not None:
             self.frames.stop()
             self.frames = None
@@ -139,7 +144,7 @@ class CentroiderNode(ManagedNode):
         return None
 
     def smear_for(self, stamp_ns: int, width: int, height: int) -> SmearModel | None:
-        """The smear prediction for an image, or None when exposure, camera or rate is unknown."""
+        """Return the smear prediction for an image, or None when exposure, camera or rate is unknown."""
         camera = self.camera_info.camera
         source = self.rate_source  # read once: it may change meanwhile
         if self.exposure_s <= 0 or source == "none" or camera is None:
@@ -172,7 +177,8 @@ class CentroiderNode(ManagedNode):
         except ValueError as exc:
             self.diag.count("frames_rejected")
             self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
-            self.log.warn("bad_image", f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
+            self.log.warn("bad_image",
+                          f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
             return
         self.diag.time("decode", time.perf_counter() - received)
         self.frames.put((image, msg.header, stamp_ns), stamp_ns)
@@ -204,21 +210,28 @@ class CentroiderNode(ManagedNode):
         if smear is not None and spots.rate_aid_rejected:
             self.diag.count("frames_rate_aid_rejected")
             omega = np.degrees(smear.angular_velocity_rad_s)
-            self.log.warn("rate_aid_rejected", f"frame {stamp_ns * 1e-9:.6f}: the streaks disagree with the aiding rate "
+            self.log.warn("rate_aid_rejected",
+                          f"frame {stamp_ns * 1e-9:.6f}: the streaks disagree with the aiding rate "
                           f"({omega[0]:.3f}, {omega[1]:.3f}, {omega[2]:.3f}) deg/s; measured without it")
         elif smear is not None:
             self.diag.count("frames_rate_aided")
         self.diag.count("spots_rejected_shape", spots.rejected_shape)
         problem = self.content_problem(image, spots)
-        self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok", last_spot_count=len(spots),
+        self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok",
+                      last_spot_count=len(spots),
                       last_processing_ms=f"{processing_s * 1e3:.2f}",
-                      last_noise_adu=f"{spots.noise_adu:.2f}", rate_aided=str(smear is not None and not spots.rate_aid_rejected),
+                      last_noise_adu=f"{spots.noise_adu:.2f}",
+                      rate_aided=str(smear is not None and not spots.rate_aid_rejected),
                       rate_source=self.rate_source,
                       **psf_values(spots.psf))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:
-        """Count and log a frame with no signal (every pixel equal: lens cap, dead sensor) or a
-        saturated background (Sun, Earth limb, overexposure); None for a usable frame."""
+        """
+        Count and log a frame with no signal or a saturated background.
+
+        No signal: every pixel equal (lens cap, dead sensor); saturated background: Sun, Earth
+        limb, overexposure. None for a usable frame.
+        """
         saturation = self.config.saturation_adu or np.iinfo(image.dtype).max
         if spots.background_adu >= saturation:
             self.reject("frames_saturated", f"saturated frame: background {spots.background_adu:.0f} ADU "
@@ -229,14 +242,13 @@ class CentroiderNode(ManagedNode):
             return "frame without signal"
         return None
 
-
     def destroy_node(self) -> None:
         self.release()
         super().destroy_node()
 
 
 def psf_values(psf) -> dict:
-    """The /diagnostics values of a frame's PsfEstimate (msg_docs/diagnostics.md)."""
+    """Return the /diagnostics values of a frame's PsfEstimate (msg_docs/diagnostics.md)."""
     if psf is None:
         return {}
     return {"psf_sigma_px": f"{psf.sigma_px:.3f}", "psf_sigma_uncertainty_px": f"{psf.sigma_uncertainty_px:.3f}",

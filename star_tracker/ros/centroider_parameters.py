@@ -1,6 +1,10 @@
-"""The centroider's parameters, each declared once (ROS-free): CentroidConfig's fields (their
-spec is the dataclass field metadata, centroid/config.py) and the node's own, in the order the
-node declares them and config/star_tracker.yaml lists them."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The centroider's parameters, each declared once (ROS-free).
+
+CentroidConfig's fields (their spec is the dataclass field metadata, centroid/config.py) and
+the node's own, in the order the node declares them and config/star_tracker.yaml lists them.
+"""
 from __future__ import annotations
 
 from ..centroid import CentroidConfig

@@ -1,4 +1,6 @@
-"""Message <-> core-record conversion. Layouts are documented in msg_docs/.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Message <-> core-record conversion. Layouts are documented in msg_docs/.
 
 Raises ValueError with a message naming the problem for any malformed message (and never
 another exception type: test/ros/test_fuzz.py checks that on generated garbage).
@@ -42,7 +44,7 @@ def ns_to_stamp(ns: int) -> Time:
 
 # ----------------------------------------------------------------------------- image
 def image_to_array(msg: Image) -> np.ndarray:
-    """A mono8/mono16 Image as a (height, width) array view-free copy in native byte order."""
+    """Return a mono8/mono16 Image as a (height, width) array view-free copy in native byte order."""
     dtype = _IMAGE_DTYPES.get(msg.encoding)
     if dtype is None:
         raise ValueError(f"unsupported image encoding {msg.encoding!r}; expected one of {sorted(_IMAGE_DTYPES)}")
@@ -93,7 +95,7 @@ def camera_to_info(camera: CameraModel, stamp_ns: int, frame_id: str) -> CameraI
 
 
 def info_to_camera(msg: CameraInfo) -> CameraModel:
-    """CameraModel from K and D (plumb_bob or empty D = no distortion)."""
+    """Return the CameraModel from K and D (plumb_bob or empty D = no distortion)."""
     k = np.asarray(msg.k, dtype=float)
     if k.size != 9 or not np.all(np.isfinite(k)):
         raise ValueError(f"CameraInfo K must be 9 finite values, got {list(k)}")
@@ -210,12 +212,16 @@ def cloud_to_spots(msg: PointCloud2, width: int, height: int) -> Spots:
 
 
 def drop_invalid_spots(spots: Spots) -> tuple[Spots, int]:
-    """The spots a real measurement can produce, and how many others were dropped: position,
-    flux and covariance finite, variances in [0, MAX_SPOT_SIGMA_PX^2] px^2, position within
-    SPOT_MARGIN_PX of the image, and no two closer than MIN_SPOT_SEPARATION_PX (the first,
-    brightest, is kept). NaN/inf from a faulty producer would otherwise reach the identifier,
-    whose tolerances grow with the covariance (and its run time with them); coincident spots
-    make its pattern kernels divide by zero (docs/RELIABILITY.md, known defects)."""
+    """
+    Return the spots a real measurement can produce, and how many others were dropped.
+
+    Position, flux and covariance finite, variances in [0, MAX_SPOT_SIGMA_PX^2] px^2,
+    position within SPOT_MARGIN_PX of the image, and no two closer than
+    MIN_SPOT_SEPARATION_PX (the first, brightest, is kept). NaN/inf from a faulty producer
+    would otherwise reach the identifier, whose tolerances grow with the covariance (and its
+    run time with them); coincident spots make its pattern kernels divide by zero
+    (docs/RELIABILITY.md, known defects).
+    """
     with np.errstate(invalid="ignore"):
         var_x, var_y = spots.cov[:, 0, 0], spots.cov[:, 1, 1]
         limit = MAX_SPOT_SIGMA_PX ** 2
@@ -259,9 +265,14 @@ def quaternion_from_msg(msg: QuaternionStamped) -> np.ndarray:
     return np.array([q.x, q.y, q.z, q.w])
 
 
-def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int, frame_id: str = ICRS_FRAME) -> PoseWithCovarianceStamped:
-    """Orientation + 6x6 covariance: the position block is unknown (-1 on its diagonal); the
-    rotation block is the sensor-frame small-angle attitude error covariance [rad^2]."""
+def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int,
+                             frame_id: str = ICRS_FRAME) -> PoseWithCovarianceStamped:
+    """
+    Orientation + 6x6 covariance.
+
+    The position block is unknown (-1 on its diagonal); the rotation block is the
+    sensor-frame small-angle attitude error covariance [rad^2].
+    """
     msg = PoseWithCovarianceStamped()
     msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
     o = msg.pose.pose.orientation
@@ -271,8 +282,11 @@ def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int, frame_id
 
 
 def _rotation_block_covariance(block: np.ndarray) -> list[float]:
-    """Row-major 6x6 covariance of a pose/twist whose linear part is unknown (-1 on its
-    diagonal, as REP 145 suggests) and whose angular part is `block` (3x3)."""
+    """
+    Row-major 6x6 covariance of a pose/twist whose angular part is `block` (3x3).
+
+    The linear part is unknown (-1 on its diagonal, as REP 145 suggests).
+    """
     cov = np.zeros((6, 6))
     cov[0, 0] = cov[1, 1] = cov[2, 2] = -1.0
     cov[3:, 3:] = block
@@ -287,8 +301,12 @@ def vector3_msg(vector: np.ndarray, stamp_ns: int, frame_id: str) -> Vector3Stam
 
 
 def rate_with_covariance_msg(rate, frame_id: str) -> TwistWithCovarianceStamped:
-    """Body rate (sensor frame, rad/s) with its 3x3 covariance [rad^2/s^2] in the angular
-    block of a TwistWithCovarianceStamped; the linear part is unknown (-1 on its diagonal)."""
+    """
+    Return a TwistWithCovarianceStamped of a body rate (sensor frame, rad/s) and its covariance.
+
+    The 3x3 covariance [rad^2/s^2] fills the angular block; the linear part is unknown (-1 on
+    its diagonal).
+    """
     msg = TwistWithCovarianceStamped()
     msg.header = Header(stamp=ns_to_stamp(rate.stamp_ns), frame_id=frame_id)
     msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z = (

@@ -1,5 +1,10 @@
-"""A node's /diagnostics: counters, stage timings and latest values (Diagnostics), and the
-report of one rejected input (Rejections: counter, WARN status, throttled log line)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+A node's /diagnostics.
+
+Counters, stage timings and latest values (Diagnostics), and the report of one rejected
+input (Rejections: counter, WARN status, throttled log line).
+"""
 from __future__ import annotations
 
 import threading
@@ -17,8 +22,11 @@ if TYPE_CHECKING:  # annotations only
 
 
 class Diagnostics:
-    """Counters, stage timings and the latest state of a node, published on /diagnostics at
-    1 Hz. Thread-safe: a node's worker thread and its executor both report here."""
+    """
+    Counters, stage timings and the latest state of a node, published on /diagnostics at 1 Hz.
+
+    Thread-safe: a node's worker thread and its executor both report here.
+    """
 
     TIMING_WINDOW = 100  # frames behind each <stage>_ms_p50 / _max
 
@@ -45,13 +53,16 @@ class Diagnostics:
             self.values.update({k: str(v) for k, v in values.items()})
 
     def value(self, key: str, value) -> None:
-        """Set one latest value (kept until set again)."""
+        """Set one latest value, kept until set again."""
         with self._lock:
             self.values[key] = str(value)
 
     def time(self, stage: str, seconds: float) -> None:
-        """One frame's duration of `stage` [s]; published as <stage>_ms_p50 and <stage>_ms_max
-        over the last TIMING_WINDOW frames."""
+        """
+        One frame's duration of `stage` [s].
+
+        Published as <stage>_ms_p50 and <stage>_ms_max over the last TIMING_WINDOW frames.
+        """
         with self._lock:
             self.timings.setdefault(stage, deque(maxlen=self.TIMING_WINDOW)).append(seconds)
 
@@ -78,8 +89,12 @@ class Diagnostics:
 
 
 class Rejections:
-    """One call per rejected input: a counter on /diagnostics, a WARN status with the reason,
-    and a throttled log line (ThrottledLog: one per kind of message and period)."""
+    """
+    One call per rejected input.
+
+    A counter on /diagnostics, a WARN status with the reason, and a throttled log line
+    (ThrottledLog: one per kind of message and period).
+    """
 
     def __init__(self, diag: "Diagnostics", log: "ThrottledLog"):
         self.diag, self.log = diag, log

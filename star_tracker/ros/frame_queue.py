@@ -1,5 +1,9 @@
-"""The hand-off of decoded frames from a node's executor to its worker thread: newest frame
-wins, and every frame dropped for a newer one is counted and logged."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The hand-off of decoded frames from a node's executor to its worker thread.
+
+Newest frame wins, and every frame dropped for a newer one is counted and logged.
+"""
 from __future__ import annotations
 
 import threading
@@ -16,19 +20,25 @@ if TYPE_CHECKING:  # annotations only
 
 
 class NewestFrame:
-    """Newest-frame-wins hand-off from the executor to one worker thread.
+    """
+    Newest-frame-wins hand-off from the executor to one worker thread.
 
     The subscription callback only checks and decodes a message and `put`s it here: it keeps
     up with any input rate, so the DDS queue never overflows (which would drop frames without
     a trace). Up to `depth` frames wait, oldest first (default 1: the worker always takes the
     newest). When a frame arrives and `depth` are waiting, the oldest waiting one is dropped,
     counted as `frames_dropped_overload` on /diagnostics and logged (throttled). Latency stays
-    bounded: `depth` waiting frames plus the one in progress."""
+    bounded: `depth` waiting frames plus the one in progress.
+    """
 
     def __init__(self, node: Node, process: Callable[[object], None], diag: "Diagnostics", log: "ThrottledLog",
                  depth: int = 1, merge: Callable[[object, object], object] | None = None):
-        """process(item) runs on the worker thread; merge(dropped, next) -> the item to keep in
-        place of `next`, for state a dropped frame must hand on (a time reset)."""
+        """
+        process(item) runs on the worker thread.
+
+        merge(dropped, next) -> the item to keep in place of `next`, for state a dropped frame
+        must hand on (a time reset).
+        """
         self.node, self.process, self.diag, self.log = node, process, diag, log
         self.depth = int(depth)
         self.merge = merge or (lambda dropped, following: following)
@@ -75,7 +85,7 @@ class NewestFrame:
                 self.log.error("internal", f"frame {stamp_ns * 1e-9:.6f} failed: {type(exc).__name__}: {exc}")
 
     def wait_idle(self, timeout_s: float) -> bool:
-        """True once nothing waits and the worker is idle."""
+        """Return True once nothing waits and the worker is idle."""
         with self._condition:
             return self._condition.wait_for(lambda: not self._waiting and self._idle, timeout_s)
 

@@ -1,4 +1,6 @@
-"""identifier: star identification (lost-in-space, then tracking) + attitude and body rate.
+# SPDX-License-Identifier: Apache-2.0
+"""
+identifier: star identification (lost-in-space, then tracking) + attitude and body rate.
 
 Needs the camera model from `camera_info`. Publishes attitude, attitude_with_covariance and
 matched_stars with the spots' stamp, only for verified solutions, and angular_velocity once two
@@ -79,7 +81,7 @@ class SpotsFrame:
 
 
 def keep_time_reset(dropped: SpotsFrame, following: SpotsFrame) -> SpotsFrame:
-    """A dropped frame's time reset still applies to the frame after it."""
+    """Carry a dropped frame's time reset over to the frame after it."""
     following.time_reset = following.time_reset or dropped.time_reset
     return following
 
@@ -124,8 +126,12 @@ class IdentifierNode(ManagedNode):
         self.srv_reset = self.create_service(Trigger, "~/reset", self.on_reset)
 
     def configure(self) -> None:
-        """Load (or build) the pattern database, make the identifier and the tracker, compile
-        their kernels, then create the topics and the worker threads."""
+        """
+        Load (or build) the database, make the identifier and tracker, create topics and workers.
+
+        In order: the pattern database, the identifier and the tracker, compiling their kernels,
+        then the topics and the worker threads.
+        """
         started = time.perf_counter()
         self.database = load_or_build_database(self.db_config)
         self.identifier = make_identifier(self.algorithm, self.database, self.config)
@@ -146,14 +152,18 @@ class IdentifierNode(ManagedNode):
         self.pub_rate_cov = publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance",
                                       **overridable(RESULT_QOS))
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
-        self.frames = NewestFrame(self, self.identify_frame, self.diag, self.log, self.queue_depth, merge=keep_time_reset)
+        self.frames = NewestFrame(self, self.identify_frame, self.diag, self.log, self.queue_depth,
+                                  merge=keep_time_reset)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
                                                  **overridable(IMAGE_QOS))
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, **overridable(SPOTS_QOS))
 
     def release(self) -> None:
-        """Undo configure: stop the workers, remove the topics, drop the track, the camera model
-        and the database (the next configure loads it again)."""
+        """
+        Undo configure: stop the workers, remove the topics, drop the track and the database.
+
+        Also drop the camera model; the next configure loads the database again.
+        """
         if self.frames is not None:
             self.frames.stop()
             self.frames = None
@@ -176,8 +186,11 @@ class IdentifierNode(ManagedNode):
         self.diag.value("mode", MODE_LOST)
 
     def on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        """~/reset: drop the track (and any lost-in-space solve in progress); the next frame is
-        identified lost-in-space."""
+        """
+        ~/reset: drop the track (and any lost-in-space solve in progress).
+
+        The next frame is identified lost-in-space.
+        """
         with self._lock:
             if self.tracker is None:
                 response.success = False
@@ -203,10 +216,13 @@ class IdentifierNode(ManagedNode):
         return None
 
     def apply_parameters(self, changes: dict) -> str | None:
-        """Runtime parameter changes (see parameters.guard_parameter_changes): the new
-        identification and tracking configurations are built (checked) first, then applied
-        together between two frames; a lost-in-space solve running reads them from its next
-        step on."""
+        """
+        Runtime parameter changes (see parameters.guard_parameter_changes).
+
+        The new identification and tracking configurations are built (checked) first, then
+        applied together between two frames; a lost-in-space solve running reads them from
+        its next step on.
+        """
         identify = {spec.field: changes[spec.name] for spec in IDENTIFY_PARAMETERS if spec.name in changes}
         tracking = {spec.field: changes[spec.name] for spec in TRACKING_PARAMETERS if spec.name in changes}
         config = replace(self.config, **identify)
@@ -224,8 +240,7 @@ class IdentifierNode(ManagedNode):
         return None
 
     def on_spots(self, msg: PointCloud2) -> None:
-        """Executor thread: count, check the stamp and the message, decode; the worker
-        identifies (identify_frame())."""
+        """Executor thread: count, check the stamp and the message, decode; the worker identifies (identify_frame())."""
         received = time.perf_counter()
         if not self.active:  # inactive: configured, not processing
             self.diag.count("frames_ignored_inactive")
@@ -310,7 +325,7 @@ class IdentifierNode(ManagedNode):
         self._finish_acquisition()
 
     def on_solve_done(self, future) -> None:
-        """A solve that outlived inline_wait_s ended (runs in the solve's thread)."""
+        """Handle the end of a solve that outlived inline_wait_s (runs in the solve's thread)."""
         with self._lock:
             if self._acquisition is None or self._acquisition[0] is not future:
                 return  # already finished by a frame, or dropped by a time reset
@@ -362,7 +377,8 @@ class IdentifierNode(ManagedNode):
         solution = result.attitude
         self.pub_attitude.publish(convert.quaternion_msg(solution.quaternion, stamp_ns, self.frame_id))
         self.pub_pose.publish(convert.pose_with_covariance_msg(solution, stamp_ns, self.frame_id))
-        self.pub_matches.publish(convert.identification_to_cloud(result, spots, result.magnitude, stamp_ns, self.frame_id))
+        self.pub_matches.publish(convert.identification_to_cloud(result, spots, result.magnitude, stamp_ns,
+                                                                 self.frame_id))
         if tracked.rate is not None:
             frame = sensor_frame or convert.OPTICAL_FRAME
             self.pub_rate.publish(convert.vector3_msg(tracked.rate.angular_velocity, stamp_ns, frame))
@@ -386,8 +402,12 @@ class IdentifierNode(ManagedNode):
                       last_gate_px="" if tracked.gate_px is None else f"{tracked.gate_px:.1f}")
 
     def refine_camera(self, spots, result) -> None:
-        """Online calibration: add a published frame's matches; after a fit report the estimate
-        (and what is applied) on /diagnostics."""
+        """
+        Run the online calibration.
+
+        Add a published frame's matches; after a fit report the estimate (and what is applied)
+        on /diagnostics.
+        """
         nominal = self.camera_info.camera
         if nominal is None:
             return

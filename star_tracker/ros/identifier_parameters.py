@@ -1,7 +1,10 @@
-"""The identifier's parameters, each declared once (ROS-free): the fields of DatabaseConfig,
-IdentifyConfig, TrackingConfig and OnlineCalibrationConfig (their spec is the dataclass field
-metadata) under the node's names, and the node's own, in the order the node declares them and
-config/star_tracker.yaml lists them.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The identifier's parameters, each declared once (ROS-free).
+
+The fields of DatabaseConfig, IdentifyConfig, TrackingConfig and OnlineCalibrationConfig (their
+spec is the dataclass field metadata) under the node's names, and the node's own, in the order
+the node declares them and config/star_tracker.yaml lists them.
 
 Dynamic (`ros2 param set` while running): the identification tolerances and time budget (read
 by every identify() call: applied from the next solve), inline_wait_s, tracking.enabled, the

@@ -1,6 +1,10 @@
-"""Asking managed nodes in other processes for their lifecycle state and driving their
-transitions (lifecycle_msgs services ~/get_state and ~/change_state), from a private rclpy
-context on their ROS domain: what `ros2 lifecycle get/set` does."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Ask managed nodes in other processes for their lifecycle state and drive their transitions.
+
+Through the lifecycle_msgs services ~/get_state and ~/change_state, from a private rclpy
+context on their ROS domain: what `ros2 lifecycle get/set` does.
+"""
 from __future__ import annotations
 
 import itertools
@@ -23,8 +27,11 @@ TRANSITIONS = {"configure": Transition.TRANSITION_CONFIGURE, "cleanup": Transiti
 
 
 class LifecycleClient:
-    """Lifecycle service calls to nodes on the domain of `env` (ROS_DOMAIN_ID and discovery
-    settings as the node processes get them). Close it (or use `with`) when done."""
+    """
+    Lifecycle service calls to nodes on the domain of `env`.
+
+    `env`: ROS_DOMAIN_ID and discovery settings as the node processes get them. Close it (or use `with`) when done.
+    """
 
     _instances = itertools.count()
 
@@ -52,8 +59,12 @@ class LifecycleClient:
         self._clients: dict[tuple[str, type], object] = {}
 
     def _call(self, node_name: str, srv_type, suffix: str, request, timeout_s: float, discovery_s: float = 0.1):
-        """One service call: wait up to discovery_s for the service, send once, wait up to
-        timeout_s for the answer; None if the service is not there or did not answer."""
+        """
+        One service call.
+
+        Wait up to discovery_s for the service, send once, wait up to timeout_s for the
+        answer; None if the service is not there or did not answer.
+        """
         key = (node_name, srv_type)
         if key not in self._clients:
             self._clients[key] = self.node.create_client(srv_type, f"/{node_name.lstrip('/')}/{suffix}")
@@ -71,15 +82,21 @@ class LifecycleClient:
         return future.result()
 
     def get_state(self, node_name: str, timeout_s: float = 5.0) -> str | None:
-        """The node's state label (unconfigured, inactive, active, finalized, ...), or None if its
-        service is not found or does not answer within timeout_s (each)."""
+        """
+        Return the node's state label (unconfigured, inactive, active, finalized, ...).
+
+        Or None if its service is not found or does not answer within timeout_s (each).
+        """
         response = self._call(node_name, GetState, "get_state", GetState.Request(), timeout_s, discovery_s=timeout_s)
         return None if response is None else response.current_state.label
 
     def change_state(self, node_name: str, transition: str, timeout_s: float = 120.0) -> bool:
-        """Request a transition by label (configure, activate, deactivate, cleanup, shutdown) and
-        wait for its answer; True if it succeeded, False if refused or failed. Raises
-        TimeoutError if the service is absent or did not answer within timeout_s."""
+        """
+        Request a transition by label (configure, activate, deactivate, cleanup, shutdown) and wait for its answer.
+
+        True if it succeeded, False if refused or failed. Raises TimeoutError if the service is
+        absent or did not answer within timeout_s.
+        """
         request = ChangeState.Request()
         request.transition.label = transition
         if transition in TRANSITIONS:
@@ -91,9 +108,12 @@ class LifecycleClient:
 
     def wait_for_state(self, node_names, state: str = "active", timeout_s: float = 120.0,
                        check: Callable[[str], None] | None = None) -> None:
-        """Block until every node answers ~/get_state with `state`; `check(name)` runs between
-        attempts (to raise if the node's process died). TimeoutError names the nodes still
-        elsewhere and their last answer."""
+        """
+        Block until every node answers ~/get_state with `state`.
+
+        `check(name)` runs between attempts (to raise if the node's process died).
+        TimeoutError names the nodes still elsewhere and their last answer.
+        """
         deadline = time.monotonic() + timeout_s
         last: dict[str, str | None] = {name: None for name in node_names}
         while True:

@@ -1,4 +1,6 @@
-"""The lifecycle of the star tracker's nodes (REP 2005-style managed nodes, lifecycle_msgs).
+# SPDX-License-Identifier: Apache-2.0
+"""
+The lifecycle of the star tracker's nodes (REP 2005-style managed nodes, lifecycle_msgs).
 
     unconfigured --configure--> inactive --activate--> active
     active --deactivate--> inactive --cleanup--> unconfigured; any of them --shutdown--> finalized
@@ -36,8 +38,12 @@ SHUTDOWN_TRANSITIONS = (Transition.TRANSITION_UNCONFIGURED_SHUTDOWN, Transition.
 
 
 def transition_callback(method: Callable) -> Callable:
-    """A lifecycle callback that never raises: an exception is logged with its reason (rclpy
-    itself would swallow it), kept in `transition_error`, and returned as FAILURE."""
+    """
+    Make a lifecycle callback that never raises.
+
+    An exception is logged with its reason (rclpy itself would swallow it), kept in
+    `transition_error`, and returned as FAILURE.
+    """
 
     @functools.wraps(method)
     def wrapper(self: "ManagedNode", state: LifecycleState) -> TransitionCallbackReturn:
@@ -57,10 +63,14 @@ def transition_callback(method: Callable) -> Callable:
 
 
 class ManagedNode(LifecycleNode):
-    """A lifecycle node whose `active` flag gates input, whose ~/change_state refuses a wrong
-    transition cleanly, and which reports its state on /diagnostics (`self.diag`: the subclass's
-    constructor makes it with start_diagnostics()). Subclasses override configure/activate/deactivate/release,
-    each returning None (success) or raising."""
+    """
+    A lifecycle node that gates input, refuses a wrong transition cleanly and reports its state.
+
+    Its `active` flag gates input, its ~/change_state refuses a wrong transition cleanly, and it
+    reports its state on /diagnostics (`self.diag`: the subclass's constructor makes it with
+    start_diagnostics()). Subclasses override configure/activate/deactivate/release, each returning None
+    (success) or raising.
+    """
 
     def __init__(self, node_name: str, **kwargs) -> None:
         super().__init__(node_name, **kwargs)
@@ -137,7 +147,7 @@ class ManagedNode(LifecycleNode):
         return None
 
     def start_diagnostics(self) -> Diagnostics:
-        """This node's /diagnostics, published from now on in every state."""
+        """Start this node's /diagnostics, published from now on in every state."""
         diag = Diagnostics(self)
         diag.value("lifecycle_state", self.lifecycle_state)
         diag.set(DiagnosticStatus.OK, "unconfigured; waiting for configure")
@@ -150,12 +160,16 @@ class ManagedNode(LifecycleNode):
 
     # --- transitions requested from outside (~/change_state) or by autostart ---
     def _on_change_state(self, request: ChangeState.Request, response: ChangeState.Response) -> ChangeState.Response:
-        """~/change_state: a transition this state offers runs; any other is refused, logged and
-        counted (rclpy would raise out of the executor on an unknown transition id)."""
+        """
+        ~/change_state: a transition this state offers runs.
+
+        Any other is refused, logged and counted (rclpy would raise out of the executor on an
+        unknown transition id).
+        """
         wanted = request.transition.label or str(request.transition.id)
         offered = self._state_machine.available_transitions  # (id, label, start id, start, goal id, goal)
         matches = [t[0] for t in offered if (t[1] == request.transition.label if request.transition.label
-                                               else t[0] == request.transition.id)]
+                                             else t[0] == request.transition.id)]
         if not matches:
             self.diag.count("transitions_refused")
             self.get_logger().warning(
@@ -167,7 +181,7 @@ class ManagedNode(LifecycleNode):
         return response
 
     def transition(self, transition_id: int) -> bool:
-        """Run one lifecycle transition (lifecycle_msgs/Transition id); True if it succeeded."""
+        """Run one lifecycle transition by its lifecycle_msgs/Transition id; True if it succeeded."""
         trigger = {Transition.TRANSITION_CONFIGURE: self.trigger_configure,
                    Transition.TRANSITION_CLEANUP: self.trigger_cleanup,
                    Transition.TRANSITION_ACTIVATE: self.trigger_activate,

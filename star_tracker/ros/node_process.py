@@ -1,5 +1,10 @@
-"""A node's own process: argv and environment checks, rclpy start-up, spin, and a shutdown
-that never hangs (watchdog), with exit codes 0 (normal stop), 1 (hung clean-up), 2 (could not start)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+A node's own process.
+
+argv and environment checks, rclpy start-up, spin, and a shutdown that never hangs (watchdog), with
+exit codes 0 (normal stop), 1 (hung clean-up), 2 (could not start).
+"""
 from __future__ import annotations
 
 import faulthandler
@@ -20,8 +25,7 @@ from .parameters import report_unknown_parameters
 
 
 def check_params_files(args: list[str]) -> None:
-    """Every `--params-file PATH` must name a readable regular file (rcl's own error is a C
-    parser trace)."""
+    """Every `--params-file PATH` must name a readable regular file (rcl's own error is a C parser trace)."""
     for i, arg in enumerate(args):
         if arg == "--params-file" or arg.startswith("--params-file="):
             value = arg.partition("=")[2] if "=" in arg else (args[i + 1] if i + 1 < len(args) else "")
@@ -37,8 +41,11 @@ def check_params_files(args: list[str]) -> None:
 
 
 def check_cache_directory(environ=os.environ) -> None:
-    """STAR_TRACKER_CACHE (catalog and pattern-database caches), when set, must be a
-    directory this process can read and write, or a path it can create."""
+    """
+    Check STAR_TRACKER_CACHE (catalog and pattern-database caches), when set.
+
+    It must be a directory this process can read and write, or a path it can create.
+    """
     value = environ.get("STAR_TRACKER_CACHE")
     if not value:
         return
@@ -54,11 +61,15 @@ STOP_POLL_S = 0.5  # [s] longest wait of the spin between checks of a requested 
 
 
 def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
-    """Init rclpy (SIGINT/SIGTERM shut it down), build the node, spin, clean up. Returns the
-    process exit code: 0 on a normal shutdown, 2 when the node could not start (bad
-    arguments or parameters: one `fatal:` line on stderr, no traceback). A clean-up that
-    hangs ends the process after SHUTDOWN_WATCHDOG_S with code 1 and every thread's stack on
-    stderr; SIGUSR1 prints those stacks at any time. For a node's own process only (main())."""
+    """
+    Init rclpy (SIGINT/SIGTERM shut it down), build the node, spin, clean up.
+
+    Returns the process exit code: 0 on a normal shutdown, 2 when the node could not start
+    (bad arguments or parameters: one `fatal:` line on stderr, no traceback). A clean-up
+    that hangs ends the process after SHUTDOWN_WATCHDOG_S with code 1 and every thread's
+    stack on stderr; SIGUSR1 prints those stacks at any time. For a node's own process only
+    (main()).
+    """
     args = sys.argv if argv is None else argv
     configure_middleware()
     node = None
@@ -126,9 +137,12 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
 
 
 def spin_until_stopped(node: Node, stop_requested: threading.Event) -> None:
-    """rclpy.spin on the global executor, but waiting at most STOP_POLL_S at a time, so a stop
-    signal ends the spin even if its wake-up of the executor is lost. A managed node's
-    shutdown transition ends it too (after the transition's answer went out)."""
+    """
+    Spin the global executor (rclpy.spin), waiting at most STOP_POLL_S at a time.
+
+    So a stop signal ends the spin even if its wake-up of the executor is lost. A managed
+    node's shutdown transition ends it too (after the transition's answer went out).
+    """
     executor = rclpy.get_global_executor()
     executor.add_node(node)
     finished = getattr(node, "finished", threading.Event())

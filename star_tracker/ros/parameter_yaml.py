@@ -1,4 +1,6 @@
-"""config/star_tracker.yaml, generated from the nodes' ParameterSpecs (ROS-free):
+# SPDX-License-Identifier: Apache-2.0
+"""
+config/star_tracker.yaml, generated from the nodes' ParameterSpecs (ROS-free).
 
     python -m star_tracker.ros.parameter_yaml            # print it
     python -m star_tracker.ros.parameter_yaml --write    # rewrite config/star_tracker.yaml
@@ -6,7 +8,8 @@
 
 Every parameter of every node with its default, under a comment with its description, unit,
 range and whether it may change while the node runs (test/ros/test_parameter_spec.py proves the
-shipped file equal to this output)."""
+shipped file equal to this output).
+"""
 from __future__ import annotations
 
 import argparse
@@ -46,8 +49,12 @@ def node_parameters() -> dict[str, list[ParameterSpec]]:
 
 
 def yaml_value(value) -> str:
-    """A value as ros2 param-file YAML that reads back with the same type: floats always with
-    a decimal point (1.0, 2.0e-05), lists in flow style, strings plain (quoted where YAML would retype them)."""
+    """
+    Return a value as ros2 param-file YAML that reads back with the same type.
+
+    Floats always with a decimal point (1.0, 2.0e-05), lists in flow style, strings plain (quoted where YAML
+    would retype them).
+    """
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
@@ -66,8 +73,7 @@ def yaml_value(value) -> str:
 
 
 def comment_lines(spec: ParameterSpec, width: int) -> list[str]:
-    """The comment above a parameter, wrapped: description [unit]; range; runtime (the range is
-    never split)."""
+    """Return the comment above a parameter, wrapped: description [unit]; range; runtime (the range is never split)."""
     lines = textwrap.wrap(spec.full_description(), width, break_on_hyphens=False)
     suffix = "".join(f"; {part}" for part in (spec.range_text(), "runtime" if spec.dynamic else "") if part)
     if suffix:
@@ -104,7 +110,7 @@ def _lines(tree: dict, indent: int) -> list[str]:
 
 
 def generate() -> str:
-    """The whole file."""
+    """Return the whole file."""
     parts = [HEADER]
     for node, specs in node_parameters().items():
         parts.append(f"/**/{node}:\n  ros__parameters:\n" + "\n".join(_lines(_nest(specs), 4)) + "\n")

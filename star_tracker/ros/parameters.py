@@ -1,8 +1,13 @@
-"""Node parameters: declaration from their ParameterSpecs (star_tracker/parameter_spec.py: the
-one place a parameter's default, unit, range, description and dynamic/read-only are written)
-with descriptors and ranges, runtime `set_parameters` checks (all or none, refused with the
-reason, reported in the log and on /diagnostics), and the report of parameter overrides no
-node declares."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Node parameters.
+
+Declaration from their ParameterSpecs (star_tracker/parameter_spec.py: the one place a
+parameter's default, unit, range, description and dynamic/read-only are written) with
+descriptors and ranges, runtime `set_parameters` checks (all or none, refused with the reason,
+reported in the log and on /diagnostics), and the report of parameter overrides no node
+declares.
+"""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any, Callable, Iterable
@@ -21,14 +26,18 @@ if TYPE_CHECKING:  # annotations only
 
 
 def ros_value(value):
-    """A spec value as a ROS parameter value: tuples become lists."""
+    """Return a spec value as a ROS parameter value: tuples become lists."""
     return list(value) if isinstance(value, tuple) else value
 
 
 def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
-    """The ParameterDescriptor `ros2 param describe` shows: description with the unit (and the
-    choices), the range, read-only unless the spec is dynamic; additional_constraints: the
-    choices, an open end of the range, an array's range per value."""
+    """
+    Return the ParameterDescriptor `ros2 param describe` shows.
+
+    Description with the unit (and the choices), the range, read-only unless the spec is
+    dynamic; additional_constraints: the choices, an open end of the range, an array's range
+    per value.
+    """
     description = spec.full_description()
     is_list = isinstance(spec.default, (list, tuple))
     constraints = [f"one of: {', '.join(spec.choices)}"] if spec.choices else []
@@ -47,11 +56,14 @@ def descriptor_for(spec: ParameterSpec) -> ParameterDescriptor:
 
 
 def declare_parameters(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, Any]:
-    """Declare every spec's parameter (in order: the first bad value is the one reported) and
-    return name -> value. Values outside a range are refused by rclpy at startup with a message
-    naming the parameter, a list's elements outside the range here (ValueError naming it); a
-    string not among the choices by the configuration or node code it goes to (its message
-    says what the value selects, e.g. "unknown identification algorithm")."""
+    """
+    Declare every spec's parameter (in order: the first bad value is the one reported) and return name -> value.
+
+    Values outside a range are refused by rclpy at startup with a message naming the parameter,
+    a list's elements outside the range here (ValueError naming it); a string not among the
+    choices by the configuration or node code it goes to (its message says what the value
+    selects, e.g. "unknown identification algorithm").
+    """
     values = {}
     for spec in specs:
         value = node.declare_parameter(spec.name, ros_value(spec.default), descriptor_for(spec)).value
@@ -64,8 +76,11 @@ def declare_parameters(node: Node, specs: Iterable[ParameterSpec]) -> dict[str, 
 
 def declare(node: Node, name: str, default, description: str, low=None, high=None,
             read_only: bool = True):
-    """Declare one parameter that has no ParameterSpec (prefer a spec: it reaches the YAML and
-    the docs) with a descriptor (and range) and return its value."""
+    """
+    Declare one parameter that has no ParameterSpec, with a descriptor (and range); return its value.
+
+    Prefer a spec: it reaches the YAML and the docs.
+    """
     return declare_parameters(node, [ParameterSpec(name, default, description, low=low, high=high,
                                                    dynamic=not read_only)])[name]
 
@@ -87,14 +102,17 @@ def _descriptor_problem(node: Node, param: Parameter) -> str | None:
 
 def guard_parameter_changes(node: Node, apply: Callable[[dict], str | None], diag: "Diagnostics",
                             log: "ThrottledLog") -> None:
-    """Runtime `set_parameters`: rclpy refuses read-only, mistyped and out-of-range values
-    itself; `apply(changes)` then checks the new values together (building the new
-    configuration) and either applies them, returning None, or returns the reason they are
-    refused (a ValueError's message counts as one). A refused request keeps every old value,
-    answers the caller with the reason, logs it and counts `parameter_changes_rejected`; an
-    applied one is logged, counted (`parameter_changes_applied`) and shown on /diagnostics
-    (`last_parameter_change`).
-    Call after every parameter is declared."""
+    """
+    Runtime `set_parameters`.
+
+    rclpy refuses read-only, mistyped and out-of-range values itself; `apply(changes)` then
+    checks the new values together (building the new configuration) and either applies them,
+    returning None, or returns the reason they are refused (a ValueError's message counts as
+    one). A refused request keeps every old value, answers the caller with the reason, logs
+    it and counts `parameter_changes_rejected`; an applied one is logged, counted
+    (`parameter_changes_applied`) and shown on /diagnostics (`last_parameter_change`). Call
+    after every parameter is declared.
+    """
 
     def refused(reason: str) -> None:
         diag.count("parameter_changes_rejected")
@@ -129,8 +147,11 @@ def guard_parameter_changes(node: Node, apply: Callable[[dict], str | None], dia
 
 
 def report_unknown_parameters(node: Node) -> list[str]:
-    """Log the parameter overrides (command line, params file) this node does not declare: a
-    misspelled name would otherwise be ignored without a word. Returns their names."""
+    """
+    Log the parameter overrides (command line, params file) this node does not declare.
+
+    A misspelled name would otherwise be ignored without a word. Returns their names.
+    """
     overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps them only privately
     unknown = sorted(name for name in overrides if not node.has_parameter(name))
     if unknown:

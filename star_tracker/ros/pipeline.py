@@ -1,4 +1,6 @@
-"""Run the three nodes as separate processes and watch their outputs against truth.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Run the three nodes as separate processes and watch their outputs against truth.
 
 Used by `star-tracker demo` and by the integration tests: real processes, real DDS.
 """
@@ -39,8 +41,11 @@ NODE_MODULES = {
 
 
 def isolated_ros_environment(domain_id: int | None = None) -> dict[str, str]:
-    """Environment for a private DDS graph on this host: a random domain id and
-    localhost-only discovery, plus the Fast DDS profile."""
+    """
+    Environment for a private DDS graph on this host.
+
+    A random domain id and localhost-only discovery, plus the Fast DDS profile.
+    """
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(100, 199))
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -71,8 +76,12 @@ class NodeProcesses:
     def __init__(self, env: dict[str, str], log_dir: Path, params: dict[str, dict] | None = None,
                  params_files: Path | list[Path] | None = None, nodes: tuple[str, ...] = tuple(NODE_MODULES),
                  remaps: dict[str, dict[str, str]] | None = None):
-        """params_files: ros2 parameter files, later ones overriding earlier ones; `params`
-        (per node name) override both; remaps: per node name, topic -> new name (`-r`)."""
+        """
+        Describe the node processes to start on the private graph of `env`.
+
+        params_files: ros2 parameter files, later ones overriding earlier ones; `params` (per node
+        name) override both; remaps: per node name, topic -> new name (`-r`).
+        """
         self.env, self.log_dir = env, Path(log_dir)
         self.remaps = remaps or {}
         self.params = params or {}
@@ -85,9 +94,13 @@ class NodeProcesses:
         self._lifecycle: LifecycleClient | None = None
 
     def start(self, timeout_s: float = 120.0) -> "NodeProcesses":
-        """Start the processing nodes, wait until they are active (configured: compiled kernels
-        loaded, database built; asked over ~/get_state), then the camera: no frame is published
-        into a pipeline still starting."""
+        """
+        Start the processing nodes, wait until they are active, then start the camera.
+
+        Wait until they are active (configured: compiled kernels loaded, database built; asked
+        over ~/get_state), then the camera: no frame is published into a pipeline still
+        starting.
+        """
         self.log_dir.mkdir(parents=True, exist_ok=True)
         sources = [name for name in self.nodes if name == "camera_simulator"]
         processors = [name for name in self.nodes if name not in sources]
@@ -123,12 +136,15 @@ class NodeProcesses:
         return self._lifecycle
 
     def expected_state(self, name: str) -> str:
-        """The state a node reaches by itself: active, or unconfigured with `autostart: false`
-        among this object's `params`."""
+        """
+        Return the state a node reaches by itself.
+
+        Active, or unconfigured with `autostart: false` among this object's `params`.
+        """
         return "unconfigured" if self.params.get(name, {}).get("autostart") is False else "active"
 
     def node_path(self, name: str) -> str:
-        """A node's fully qualified name, with its `__ns` / `__node` remaps (e.g. /det/identifier)."""
+        """Return a node's fully qualified name, with its `__ns` / `__node` remaps (e.g. /det/identifier)."""
         remaps = self.remaps.get(name, {})
         namespace = remaps.get("__ns", "").strip("/")
         node = remaps.get("__node", name)
@@ -141,27 +157,37 @@ class NodeProcesses:
             raise RuntimeError(f"{name} exited with {self.processes[name].returncode}:\n{text}")
 
     def wait_ready(self, timeout_s: float = 120.0, names=None) -> None:
-        """Block until every started node (or those in `names`) answers ~/get_state with the
-        state it reaches by itself (active with autostart, the default; else unconfigured);
-        raise with its log if one died, TimeoutError if one hung."""
+        """
+        Block until every started node (or those in `names`) is in the state it reaches by itself.
+
+        That is, until it answers ~/get_state with that state (active with autostart, the
+        default; else unconfigured); raise with its log if one died, TimeoutError if one hung.
+        """
         names = list(self.processes if names is None else names)
         for state in sorted({self.expected_state(name) for name in names}):
             paths = {self.node_path(n): n for n in names if self.expected_state(n) == state}
-            self.lifecycle.wait_for_state(list(paths), state, timeout_s, check=lambda path: self.check_alive(paths[path]))
+            self.lifecycle.wait_for_state(list(paths), state, timeout_s,
+                                          check=lambda path: self.check_alive(paths[path]))
 
     def get_state(self, name: str) -> str | None:
-        """A node's lifecycle state label (None: no answer)."""
+        """Return a node's lifecycle state label (None: no answer)."""
         return self.lifecycle.get_state(self.node_path(name))
 
     def change_state(self, name: str, transition: str, timeout_s: float = 120.0) -> bool:
-        """Request a lifecycle transition of a node (configure, activate, deactivate, cleanup,
-        shutdown); True if it succeeded."""
+        """
+        Request a lifecycle transition of a node (configure, activate, deactivate, cleanup, shutdown).
+
+        True if it succeeded.
+        """
         self.check_alive(name)
         return self.lifecycle.change_state(self.node_path(name), transition, timeout_s)
 
     def kill(self, name: str, sig: int = signal.SIGKILL, timeout_s: float = 15.0) -> int:
-        """Send `sig` to one node and wait for it to exit (SIGKILL after timeout_s). Returns its
-        exit code (negative: killed by that signal)."""
+        """
+        Send `sig` to one node and wait for it to exit (SIGKILL after timeout_s).
+
+        Returns its exit code (negative: killed by that signal).
+        """
         proc = self.processes[name]
         if proc.poll() is None:
             proc.send_signal(sig)
@@ -172,21 +198,22 @@ class NodeProcesses:
             return proc.wait()
 
     def launch(self, name: str, timeout_s: float = 120.0) -> None:
-        """Start one node now (any of NODE_MODULES, with this object's parameters) and wait
-        until it is ready; `stop` stops it with the others."""
+        """
+        Start one node now (any of NODE_MODULES, with this object's parameters) and wait until it is ready.
+
+        `stop` stops it with the others.
+        """
         self._launch(name)
         self.wait_ready(timeout_s, names=[name])
 
     def restart(self, name: str, timeout_s: float = 120.0) -> None:
-        """Start a node again after it exited (its new log: `<name>.restart<n>.log`) and wait
-        until it is ready."""
+        """Start a node again after it exited (its new log: `<name>.restart<n>.log`) and wait until it is ready."""
         if self.processes[name].poll() is None:
             raise RuntimeError(f"{name} is still running")
         self.launch(name, timeout_s)
 
     def stop(self, timeout_s: float = 15.0, sig: int = signal.SIGINT) -> dict[str, int]:
-        """Send `sig` (SIGINT or SIGTERM) to every node, wait, SIGKILL what is left. Returns
-        exit codes."""
+        """Send `sig` (SIGINT or SIGTERM) to every node, wait, SIGKILL what is left. Returns exit codes."""
         for proc in self.processes.values():
             if proc.poll() is None:
                 proc.send_signal(sig)
@@ -252,7 +279,8 @@ class TrackerMonitor(Node):
         self.create_subscription(PointCloud2, "truth/objects", self._on_truth_objects, MONITOR_RESULT_QOS)
         self.create_subscription(PointCloud2, "spots", self._on_spots, MONITOR_SENSOR_QOS)
         self.create_subscription(QuaternionStamped, "attitude", self._on_attitude, MONITOR_RESULT_QOS)
-        self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, MONITOR_RESULT_QOS)
+        self.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose,
+                                 MONITOR_RESULT_QOS)
         self.create_subscription(PointCloud2, "matched_stars", self._on_matches, MONITOR_RESULT_QOS)
         self.create_subscription(Vector3Stamped, "truth/angular_velocity", self._on_truth_rate, MONITOR_RESULT_QOS)
         self.create_subscription(TwistWithCovarianceStamped, "angular_velocity_with_covariance", self._on_rate,
@@ -306,7 +334,8 @@ class TrackerMonitor(Node):
         self.frame(msg.header.stamp).covariance = np.asarray(msg.pose.covariance).reshape(6, 6)[3:, 3:]
 
     def _on_matches(self, msg: PointCloud2) -> None:
-        self.frame(msg.header.stamp).matched = convert.cloud_to_records(msg, convert.MATCH_FIELDS, convert.MATCH_DTYPE).copy()
+        self.frame(msg.header.stamp).matched = convert.cloud_to_records(msg, convert.MATCH_FIELDS,
+                                                                        convert.MATCH_DTYPE).copy()
 
     def _on_image(self, msg: Image) -> None:
         record = self.frame(msg.header.stamp)
@@ -320,8 +349,11 @@ class TrackerMonitor(Node):
                 self.frames[ns].image = None
 
     def spin_for(self, seconds: float, until=None) -> bool:
-        """Process callbacks for `seconds`, or until `until()` is true. Returns whether
-        `until()` became true (False without one)."""
+        """
+        Process callbacks for `seconds`, or until `until()` is true.
+
+        Returns whether `until()` became true (False without one).
+        """
         if self._executor is None:
             self._executor = SingleThreadedExecutor(context=self.context)
             self._executor.add_node(self)

@@ -1,5 +1,6 @@
-"""`star-tracker play`: publish a bag's serialized messages, with the original timing or as
-fast as the pipeline answers.
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker play`: publish a bag's serialized messages, with the original timing or as fast as the pipeline answers.
 
 Timing: message k goes out at t0 + (stamp_k - start) / rate on the monotonic clock, where
 stamp is the bag (receive) time; `--clock` publishes /clock with the bag time (nodes started
@@ -77,9 +78,13 @@ class PlayReport:
 
 
 def prepare(bag: BagReader, options: PlayOptions) -> tuple[list[str], dict[str, type], list[str]]:
-    """Validate a bag for playing before any ROS setup: topics exist, types are installed,
-    the offset is inside the bag, the first image of each image topic suits the centroider.
-    Returns (topics, message classes, image topics); raises BagError naming the problem."""
+    """
+    Validate a bag for playing before any ROS setup.
+
+    Topics exist, types are installed, the offset is inside the bag, the first image of each
+    image topic suits the centroider. Returns (topics, message classes, image topics);
+    raises BagError naming the problem.
+    """
     info = bag.info
     topics = bag.select(options.topics)
     if not topics:
@@ -96,7 +101,8 @@ def prepare(bag: BagReader, options: PlayOptions) -> tuple[list[str], dict[str, 
     for old in options.remap:
         if old not in info.topics:
             raise BagError(f"--remap {old}: no such topic in the bag (topics: {', '.join(sorted(info.topics))})")
-    if options.start_offset_s < 0 or (info.message_count and options.start_offset_s * 1e9 > info.end_ns - info.start_ns):
+    if options.start_offset_s < 0 or (info.message_count
+                                      and options.start_offset_s * 1e9 > info.end_ns - info.start_ns):
         raise BagError(f"--start-offset {options.start_offset_s:g} s is outside the bag's {info.duration_s:.3f} s")
     images = [t for t in topics if info.topics[t].type == IMAGE_TYPE]
     if options.check_images:
@@ -112,8 +118,7 @@ def prepare(bag: BagReader, options: PlayOptions) -> tuple[list[str], dict[str, 
 
 
 class AckTracker:
-    """Raw subscriptions to the ack topics (created once a publisher exists) and the header
-    stamps they carried."""
+    """Raw subscriptions to the ack topics (created once a publisher exists) and the header stamps they carried."""
 
     def __init__(self, node: Node, topics: tuple[str, ...]):
         self.node = node
@@ -175,7 +180,8 @@ class BagPlayer(Node):
 
             self._clock_msg = Clock
             # Reliable: matches the nodes' best-effort /clock readers and reliable ones alike.
-            self.clock_pub = self.create_publisher(Clock, "/clock", QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+            self.clock_pub = self.create_publisher(Clock, "/clock",
+                                                   QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
         self.acks = AckTracker(self, options.ack_topics if self.lockstep else ())
         self.executor_ = SingleThreadedExecutor(context=self.context)
         self.executor_.add_node(self)
@@ -191,8 +197,11 @@ class BagPlayer(Node):
         self.executor_.spin_once(timeout_sec=max(0.0, timeout_s))
 
     def publish_clock(self, bag_ns: int) -> None:
-        """/clock never runs backwards within a pass (a message published late would otherwise
-        follow a periodic tick that got ahead of it)."""
+        """
+        Keep /clock from running backwards within a pass.
+
+        A message published late would otherwise follow a periodic tick that got ahead of it.
+        """
         from builtin_interfaces.msg import Time
 
         bag_ns = max(int(bag_ns), self._clock_ns)
@@ -202,8 +211,7 @@ class BagPlayer(Node):
         self._last_clock = time.monotonic()
 
     def wait_for_graph(self) -> None:
-        """Subscribers before the first message: best-effort volatile topics give nothing to
-        a late subscriber."""
+        """Wait for subscribers before the first message: best-effort volatile topics give nothing to a late one."""
         options = self.options
         need = options.wait_for_subscribers or (1 if self.lockstep and self.images else 0)
         targets = self.topics if options.wait_for_subscribers else sorted(self.images)
@@ -233,9 +241,13 @@ class BagPlayer(Node):
             self.spin(end - time.monotonic())
 
     def settle_acks(self, deadline: float) -> None:
-        """Subscribe to the ack topics and connect before the first image. Required ack topics
-        (given explicitly) must all have a publisher; otherwise the graph gets a second to
-        show the answering nodes (they are discovered one participant at a time)."""
+        """
+        Subscribe to the ack topics and connect before the first image.
+
+        Required ack topics (given explicitly) must all have a publisher; otherwise the graph
+        gets a second to show the answering nodes (they are discovered one participant at a
+        time).
+        """
         required = self.options.ack_required
         quiet_until = time.monotonic() + 1.0
         limit = deadline if required else quiet_until + 3.0
@@ -336,9 +348,12 @@ class BagPlayer(Node):
         return report
 
     def flush(self, timeout_s: float = FLUSH_TIMEOUT_S) -> list[str]:
-        """Wait until every reliable subscriber has acknowledged all that was published (a
-        player that exits at once can take its last messages with it); returns the topics still
-        unacknowledged after timeout_s [s]."""
+        """
+        Wait until every reliable subscriber has acknowledged all that was published.
+
+        A player that exits at once can take its last messages with it. Returns the topics still
+        unacknowledged after timeout_s [s].
+        """
         deadline = time.monotonic() + timeout_s
         late = []
         for topic, pub in self.pubs.items():

@@ -1,6 +1,10 @@
-"""The centroider's body-rate inputs for the rate aid: `angular_velocity`
-(geometry_msgs/Vector3Stamped) and `imu` (sensor_msgs/Imu, its angular_velocity), checked,
-rotated into the sensor frame and kept for the frames that need them.
+# SPDX-License-Identifier: Apache-2.0
+"""
+The centroider's body-rate inputs for the rate aid.
+
+`angular_velocity` (geometry_msgs/Vector3Stamped) and `imu` (sensor_msgs/Imu, its
+angular_velocity), checked, rotated into the sensor frame and kept for the frames that need
+them.
 
 A gyro measures in its own frame: `mounting` rotates its vectors into the sensor frame
 (v_sensor = R(q) v_gyro, q = (x, y, z, w): the gyro frame's orientation in the sensor frame).
@@ -13,7 +17,8 @@ Bad messages are counted and ignored, through `reject(counter, text)`:
 with angular_velocity_covariance[0] == -1: no angular velocity, REP 145). Per frame, a source
 with samples none of which is within `max_age_s` of the frame's stamp counts
 `frames_rate_too_old`; one with no sample yet `frames_without_rate`. Messages are only read
-here (duck-typed), so this module needs no running ROS."""
+here (duck-typed), so this module needs no running ROS.
+"""
 from __future__ import annotations
 
 import threading
@@ -36,8 +41,11 @@ def stamp_ns(stamp) -> int:
 
 
 def mounting_matrix(quaternion) -> np.ndarray:
-    """Rotation gyro -> sensor frame (3x3) of a mounting quaternion (x, y, z, w); ValueError
-    unless 4 finite values of unit norm (within UNIT_NORM_TOLERANCE)."""
+    """
+    Rotation gyro -> sensor frame (3x3) of a mounting quaternion (x, y, z, w).
+
+    ValueError unless 4 finite values of unit norm (within UNIT_NORM_TOLERANCE).
+    """
     q = np.asarray(quaternion, float)
     if q.shape != (4,) or not np.all(np.isfinite(q)):
         raise ValueError(f"gyro.mounting_quaternion={list(np.ravel(q))} must be 4 finite values (x, y, z, w)")
@@ -48,8 +56,11 @@ def mounting_matrix(quaternion) -> np.ndarray:
 
 
 class RateSamples:
-    """Recent body-rate samples of one input: (stamp [ns], rate [rad/s] in the sensor frame).
-    Thread-safe: the executor adds, the centroider's worker reads."""
+    """
+    Recent body-rate samples of one input: (stamp [ns], rate [rad/s] in the sensor frame).
+
+    Thread-safe: the executor adds, the centroider's worker reads.
+    """
 
     def __init__(self, kept: int = SAMPLES_KEPT):
         self._samples: deque[tuple[int, np.ndarray]] = deque(maxlen=kept)
@@ -66,9 +77,13 @@ class RateSamples:
             return len(self._samples)
 
     def for_frame(self, frame_stamp: int, exposure_s: float, max_age_s: float) -> tuple[np.ndarray | None, str]:
-        """The rate for a frame stamped `frame_stamp` (mid-exposure) [ns]: the mean of the samples
-        inside its exposure when there are any (the smear is the mean rate's), else the sample
-        nearest its stamp if within max_age_s. Returns (rate or None, "ok" | "none" | "too_old")."""
+        """
+        Return the rate for a frame stamped `frame_stamp` (mid-exposure) [ns].
+
+        The mean of the samples inside its exposure when there are any (the smear is the mean
+        rate's), else the sample nearest its stamp if within max_age_s. Returns (rate or None,
+        "ok" | "none" | "too_old").
+        """
         with self._lock:
             if not self._samples:
                 return None, "none"
@@ -126,7 +141,7 @@ class RateInput:
         self.samples[topic].add(stamp, self.mounting @ vector if rotate else vector)
 
     def for_frame(self, topic: str, frame_stamp: int, exposure_s: float, max_age_s: float) -> np.ndarray | None:
-        """The body rate [rad/s, sensor frame] from `topic` for a frame, or None (counted)."""
+        """Return the body rate [rad/s, sensor frame] from `topic` for a frame, or None (counted)."""
         omega, verdict = self.samples[topic].for_frame(frame_stamp, exposure_s, max_age_s)
         if verdict == "too_old":
             self.reject("frames_rate_too_old", f"frame {frame_stamp * 1e-9:.6f}: no {topic} message within "

@@ -1,4 +1,6 @@
-"""`star-tracker record`: subscribe to topics as serialized bytes and write a rosbag2 bag.
+# SPDX-License-Identifier: Apache-2.0
+"""
+`star-tracker record`: subscribe to topics as serialized bytes and write a rosbag2 bag.
 
 A topic is subscribed once a publisher for it is discovered: its type and the QoS its
 publishers offer are then known (both go into the bag). The subscription is reliable when
@@ -46,8 +48,11 @@ class TopicStats:
 
 
 class BagWriterThread(threading.Thread):
-    """Owns the BagWriter (sqlite connections belong to one thread); takes topics and
-    messages from a queue; flushes periodically; closes the bag on stop()."""
+    """
+    Owns the BagWriter (sqlite connections belong to one thread).
+
+    Takes topics and messages from a queue; flushes periodically; closes the bag on stop().
+    """
 
     def __init__(self, path: Path, storage: str, flush_period_s: float):
         super().__init__(name="bag_writer", daemon=True)
@@ -117,8 +122,11 @@ class BagWriterThread(threading.Thread):
 
 
 class BagRecorder(Node):
-    """Subscribes (raw) to `topics` (None: every topic but /rosout and /parameter_events)
-    as their publishers appear, and hands every message to a BagWriterThread."""
+    """
+    Subscribe (raw) to `topics` as their publishers appear; hand every message to a BagWriterThread.
+
+    `topics` None: every topic but /rosout and /parameter_events.
+    """
 
     def __init__(self, path: Path, storage: str = "sqlite3", topics: list[str] | None = None,
                  queue_depth: int = RECORD_QUEUE_DEPTH, flush_period_s: float = 1.0, use_sim_time: bool = False,
@@ -251,8 +259,12 @@ class BagRecorder(Node):
 def record(output: str | Path, topics: list[str] | None = None, storage: str = "sqlite3",
            duration_s: float | None = None, queue_depth: int = RECORD_QUEUE_DEPTH, flush_period_s: float = 1.0,
            use_sim_time: bool = False) -> int:
-    """Record until SIGINT/SIGTERM (or `duration_s`); print the per-topic report. Returns the
-    exit code: 0 recorded without loss, 1 messages lost or not written, 2 could not start."""
+    """
+    Record until SIGINT/SIGTERM (or `duration_s`); print the per-topic report.
+
+    Returns the exit code: 0 recorded without loss, 1 messages lost or not written, 2 could
+    not start.
+    """
     configure_middleware()
     path = Path(output)
     if path.exists():

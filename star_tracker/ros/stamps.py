@@ -1,5 +1,10 @@
-"""Stamp policy: where a frame's header stamp stands against the newest stamp so far and the
-node's clock (ok, unstamped, from the future, out of order, a jump back in time)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Stamp policy: where a frame's header stamp stands.
+
+Against the newest stamp so far and the node's clock: ok, unstamped, from the future, out of
+order, a jump back in time.
+"""
 from __future__ import annotations
 
 from rclpy.node import Node
@@ -9,13 +14,15 @@ STAMP_OK, STAMP_UNSET, STAMP_FUTURE, STAMP_OUT_OF_ORDER, STAMP_RESET = (
 
 
 class StampOrder:
-    """Where a frame's stamp stands against the newest stamp so far and the node's clock.
+    """
+    Where a frame's stamp stands against the newest stamp so far and the node's clock.
 
     unstamped: zero (a header never filled in). from_future: more than `max_future_s` ahead of
     the clock (0 disables; skipped while the clock reads zero, as sim time does before the
     first /clock). out_of_order: not newer than the newest stamp (duplicates included) by at
     most `reset_after_s`. time_reset: older by more than that (a replay or a simulation
-    restarted). Only ok and time_reset frames become the newest."""
+    restarted). Only ok and time_reset frames become the newest.
+    """
 
     def __init__(self, node: Node, max_future_s: float, reset_after_s: float):
         self.node, self.max_future_s, self.reset_after_s = node, max_future_s, reset_after_s
@@ -40,5 +47,6 @@ class StampOrder:
     def describe(self, verdict: str, stamp_ns: int) -> str:
         now_ns = self.node.get_clock().now().nanoseconds
         newest = "none" if self._previous_ns is None else f"{self._previous_ns * 1e-9:.6f} s"
-        what = {STAMP_UNSET: "unstamped (zero)", STAMP_RESET: "a jump back in time"}.get(verdict, verdict.replace("_", " "))
+        what = {STAMP_UNSET: "unstamped (zero)",
+                STAMP_RESET: "a jump back in time"}.get(verdict, verdict.replace("_", " "))
         return f"frame stamp {stamp_ns * 1e-9:.6f} s is {what} (newest {newest}, clock {now_ns * 1e-9:.6f} s)"

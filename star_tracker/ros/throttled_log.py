@@ -1,5 +1,5 @@
-"""Log throttling: at most one line per key and kind of message per period, with the count
-of suppressed repeats."""
+# SPDX-License-Identifier: Apache-2.0
+"""Log throttling: at most one line per key and kind of message per period, with the count of suppressed repeats."""
 from __future__ import annotations
 
 import re
@@ -14,9 +14,12 @@ _NUMBERS = re.compile(r"[-+]?(\d[\d.eE+-]*|nan|inf)")
 
 
 class ThrottledLog:
-    """At most one log line per key and kind of message per period, with the count of
-    suppressed repeats. Messages differing only in their numbers are of one kind: a stream
-    of the same fault logs once per period, while a different fault still gets its line."""
+    """
+    At most one log line per key and kind of message per period, with the count of suppressed repeats.
+
+    Messages differing only in their numbers are of one kind: a stream of the same fault
+    logs once per period, while a different fault still gets its line.
+    """
 
     def __init__(self, node: Node, period_s: float = 2.0):
         self.node, self.period = node, period_s
@@ -37,7 +40,7 @@ class ThrottledLog:
             write(line)
 
     def _line(self, key: str, text: str) -> str | None:
-        """The line to write now, or None (counted as suppressed)."""
+        """Return the line to write now, or None (counted as suppressed)."""
         key = key + ":" + _NUMBERS.sub("#", text)
         now = time.monotonic()
         if len(self._last) > 256:  # garbage input can make endless kinds: forget the quiet ones

@@ -1,6 +1,10 @@
-"""The simulated sensor: optics radiometry (star magnitude to photo-electrons), detector
-(dark current and its temperature law, fixed-pattern non-uniformities, hot pixels, cosmic rays,
-read noise, gain, full well, ADC) and shutter timing, as one validated parameter record that
+# SPDX-License-Identifier: Apache-2.0
+"""
+The simulated sensor.
+
+Optics radiometry (star magnitude to photo-electrons), detector (dark current and its
+temperature law, fixed-pattern non-uniformities, hot pixels, cosmic rays, read noise, gain,
+full well, ADC) and shutter timing, as one validated parameter record that
 sim.render.StarFieldRenderer draws frames with. SI units; equations in docs/SIMULATOR.md.
 """
 from __future__ import annotations
@@ -14,7 +18,8 @@ from ..parameter_spec import parameter, range_problems
 
 @dataclass(frozen=True)
 class SensorModel:
-    """Optics radiometry, detector and shutter parameters (SI units).
+    """
+    Optics radiometry, detector and shutter parameters (SI units).
 
     Radiometry: a star of instrument magnitude m = Hp + color_coefficient (B-V) delivers
     photon_flux_hp0 10^(-0.4 m) [photons/s/m^2] to an aperture of diameter
@@ -85,7 +90,7 @@ class SensorModel:
         return self.photon_flux_hp0 * area * self.optical_transmission * self.quantum_efficiency
 
     def star_electrons(self, hp: np.ndarray, b_v: np.ndarray | float = 0.0) -> np.ndarray:
-        """Expected photo-electrons per exposure (before vignetting) of stars of Hp and B-V."""
+        """Return the expected photo-electrons per exposure (before vignetting) of stars of Hp and B-V."""
         magnitude = np.asarray(hp) + self.color_coefficient * np.asarray(b_v)
         return self.zero_point_e_per_s * self.exposure_s * 10.0 ** (-0.4 * magnitude)
 

@@ -1,6 +1,9 @@
-"""Compiled kernels of local recognition (tracking.py): the chance-match volume of the
-searched attitude region, one-to-one nearest pairs, the catalog stars in a predicted view and
-an attitude's Mahalanobis offset from the prediction.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Compiled kernels of local recognition (tracking.py).
+
+The chance-match volume of the searched attitude region, one-to-one nearest pairs, the
+catalog stars in a predicted view and an attitude's Mahalanobis offset from the prediction.
 """
 from __future__ import annotations
 
@@ -14,10 +17,13 @@ from ..identify.kernels import LN_8PI2, log_chance_tuples
 
 @njit(cache=True)
 def log_chance_tuples_in_region(body, sigma, chi2, density, region_covariance, region_sigma):
-    """ln of the expected chance m-tuples fitting `body` with chi^2 <= `chi2` under an attitude
-    inside the region_sigma ellipsoid of `region_covariance` [rad^2]: log_chance_tuples with
-    the volume of SO(3) replaced by the searched region when that is smaller (see
-    tracking.log_chance_tuples_in_region for the math)."""
+    """
+    Return ln of the expected chance m-tuples fitting `body` with chi^2 <= `chi2` in a region.
+
+    Under an attitude inside the region_sigma ellipsoid of `region_covariance` [rad^2]:
+    log_chance_tuples with the volume of SO(3) replaced by the searched region when that is smaller (see
+    tracking.log_chance_tuples_in_region for the math).
+    """
     whole = log_chance_tuples(body, sigma, chi2, density)
     m = body.shape[0]
     info = np.zeros((3, 3))
@@ -41,8 +47,12 @@ def log_chance_tuples_in_region(body, sigma, chi2, density, region_covariance, r
 
 @njit(cache=True)
 def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius):
-    """One-to-one pairs within `radius` [px]: a spot with exactly one reference within the
-    radius, whose reference has no other spot within it. Returns (spot idx, ref idx)."""
+    """
+    One-to-one pairs within `radius` [px].
+
+    A spot with exactly one reference within the radius, whose reference has no other spot
+    within it. Returns (spot idx, ref idx).
+    """
     n, m = spot_x.size, ref_x.size
     r2 = radius * radius
     refs_near_spot = np.zeros(n, np.int64)
@@ -69,10 +79,13 @@ def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius):
 
 @njit(cache=True)
 def stars_in_view(vectors, rotation, cos_reach, camera, margin):
-    """Catalog stars (ICRS unit vectors) within acos(cos_reach) of the boresight of `rotation`
-    (sensor -> ICRS) that a pinhole camera (Pinhole) puts inside its pixel area shrunk by
-    `margin` [px] (negative: grown): (indices, u, v [px]). One pass over the catalog (~8k
-    stars)."""
+    """
+    Catalog stars (ICRS unit vectors) a pinhole camera at `rotation` sees: (indices, u, v [px]).
+
+    Those within acos(cos_reach) of the boresight of `rotation` (sensor -> ICRS) that the camera
+    (Pinhole) puts inside its pixel area shrunk by `margin` [px] (negative: grown). One pass over the catalog (~8k
+    stars).
+    """
     fx, fy, cx, cy, width, height = camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height
     n = vectors.shape[0]
     near = np.empty(n, np.int64)
@@ -96,8 +109,12 @@ def stars_in_view(vectors, rotation, cos_reach, camera, margin):
 
 @njit(cache=True)
 def offset_mahalanobis2(predicted, rotation, covariance):
-    """Squared Mahalanobis distance of `rotation` from `predicted` (both sensor -> ICRS): the
-    rotation vector of predicted^T rotation [rad] (sensor frame) against `covariance` [rad^2]."""
+    """
+    Squared Mahalanobis distance of `rotation` from `predicted` (both sensor -> ICRS).
+
+    The rotation vector of predicted^T rotation [rad] (sensor frame) against `covariance`
+    [rad^2].
+    """
     rel = predicted.T @ rotation
     sx = 0.5 * (rel[2, 1] - rel[1, 2])
     sy = 0.5 * (rel[0, 2] - rel[2, 0])

@@ -1,5 +1,8 @@
-"""Tracking: localized recognition from a predicted attitude, lost-in-space fallback, rate,
-and delay compensation (Hu & Huang, seed 004).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Tracking: localized recognition from a predicted attitude.
+
+With lost-in-space fallback, rate and delay compensation (Hu & Huang, seed 004).
 
 After a verified solution the tracker predicts the next frame's attitude from the last one
 and the body rate, R_pred = R_last exp([omega dt]x), with a covariance that grows with dt.
@@ -46,14 +49,19 @@ MODE_LOST = "lost"
 
 @dataclass(frozen=True)
 class TrackingConfig:
-    """gate_sigma: searched region = this many sigma of the predicted attitude; min_stars:
-    fewest matched stars tracking accepts (the bound still decides); max_gate_fov_radii:
-    largest gate in field radii (half diagonals), Hu & Huang's 2R; max_coast_s: longest time
-    a prediction is used without a new solution [s]; max_angular_rate_rad_s: rate prior per
-    axis before a rate estimate exists [rad/s]; max_angular_acceleration_rad_s2: assumed bound
-    on |d omega/dt| for the rate's model error and the prediction [rad/s^2]; rate_window_s:
-    attitudes used for the rate estimate [s]; false_positive_bound: as for lost-in-space;
-    max_pattern_spots: brightest spots used to vote the displacement."""
+    """
+    Parameters of tracking.
+
+    gate_sigma: searched region = this many sigma of the predicted attitude;
+    min_stars: fewest matched stars tracking accepts (the bound still decides);
+    max_gate_fov_radii: largest gate in field radii (half diagonals), Hu & Huang's 2R;
+    max_coast_s: longest time a prediction is used without a new solution [s];
+    max_angular_rate_rad_s: rate prior per axis before a rate estimate exists [rad/s];
+    max_angular_acceleration_rad_s2: assumed bound on |d omega/dt| for the rate's model error
+    and the prediction [rad/s^2]; rate_window_s: attitudes used for the rate estimate [s];
+    false_positive_bound: as for lost-in-space; max_pattern_spots: brightest spots used to
+    vote the displacement.
+    """
 
     gate_sigma: float = parameter(5.0, "searched region around the predicted attitude", "sigmas", 1.0, 20.0)
     min_stars: int = parameter(3, "fewest verified stars a tracked frame needs", "", 2, 10)
@@ -81,8 +89,11 @@ class TrackingConfig:
 
 @dataclass(frozen=True)
 class Prediction:
-    """Predicted attitude (sensor -> ICRS) at `stamp_ns` and its small-angle error covariance
-    in the sensor frame [rad^2]."""
+    """
+    Predicted attitude (sensor -> ICRS) at `stamp_ns` and its error covariance.
+
+    The covariance is the small-angle one in the sensor frame [rad^2].
+    """
 
     stamp_ns: int
     rotation: np.ndarray
@@ -91,12 +102,14 @@ class Prediction:
 
 @dataclass(frozen=True)
 class TrackedFrame:
-    """What the tracker made of one frame.
+    """
+    What the tracker made of one frame.
 
     mode: "tracking" (local recognition), "lost_in_space" or "lost" (no verified attitude);
     identification: the result (its attitude when solved); rate: body rate at this frame when
     estimated; gate_px: searched radius when a prediction was used [px]; bridged_frames: frames
-    chained by delay compensation to reach this one; elapsed_s: processing time [s]."""
+    chained by delay compensation to reach this one; elapsed_s: processing time [s].
+    """
 
     stamp_ns: int
     mode: str
@@ -113,16 +126,20 @@ class TrackedFrame:
 
 def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float, density_per_sr: float,
                                 region_covariance: np.ndarray, region_sigma: float) -> float:
-    """ln of the expected number of catalog m-tuples (uniform density [1/sr]) fitting the m
-    sensor-frame unit vectors `body` with weighted chi^2 <= `chi2` under some attitude inside
-    the region_sigma ellipsoid of `region_covariance` [rad^2] (sensor frame).
+    """
+    Return ln of the expected number of chance catalog m-tuples fitting `body` in a region.
+
+    Catalog m-tuples (uniform density [1/sr]) fitting the m sensor-frame unit vectors `body`
+    with weighted chi^2 <= `chi2` under some attitude inside the region_sigma ellipsoid of
+    `region_covariance` [rad^2] (sensor frame).
 
     verify.log_chance_tuples with the volume of SO(3) (8 pi^2 sqrt(det G) in coordinates scaled
     by G^(1/2), G = sum (I - b b^T)/s^2) replaced by the searched region: there the ellipsoid
     has semi-axes region_sigma sqrt(mu_i), mu_i the eigenvalues of G P, and the tube of radius
     sqrt(c) around it a 3-D cross-section of at most (4/3) pi prod(region_sigma sqrt(mu_i) +
     sqrt(c)); never more than the whole group. The subset bound is kernels.false_positive_bound
-    with min_stars = TrackingConfig.min_stars."""
+    with min_stars = TrackingConfig.min_stars.
+    """
     return float(track_kernels.log_chance_tuples_in_region(
         np.ascontiguousarray(body, dtype=float), np.ascontiguousarray(sigma, dtype=float), float(chi2),
         float(density_per_sr), np.ascontiguousarray(region_covariance, dtype=float), float(region_sigma)))
@@ -130,10 +147,13 @@ def log_chance_tuples_in_region(body: np.ndarray, sigma: np.ndarray, chi2: float
 
 def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray, ref_y: np.ndarray,
                       gate_px: float, bin_px: float) -> tuple[float, float, int]:
-    """The displacement (dx, dy) [px] shared by most spot - reference pairs within `gate_px`,
-    voted in a histogram of `bin_px` cells (2x2 neighbourhoods, so a cluster on a cell edge
-    still wins), refined as the mean of the pairs within one bin of the winner. Returns
-    (dx, dy, votes)."""
+    """
+    Vote the displacement (dx, dy) [px] shared by most spot - reference pairs within `gate_px`.
+
+    Voted in a histogram of `bin_px` cells (2x2 neighbourhoods, so a cluster on a cell edge
+    still wins), refined as the mean of the pairs within one bin of the winner. Returns (dx,
+    dy, votes).
+    """
     dx = spot_x[:, None] - ref_x[None, :]
     dy = spot_y[:, None] - ref_y[None, :]
     near = dx * dx + dy * dy <= gate_px * gate_px
@@ -154,8 +174,12 @@ def vote_displacement(spot_x: np.ndarray, spot_y: np.ndarray, ref_x: np.ndarray,
 
 
 def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """One-to-one nearest pairs within `radius_px` (a reference claimed by two spots, or a
-    spot with two references within the radius, is dropped): (spot idx, ref idx)."""
+    """
+    One-to-one nearest pairs within `radius_px`: (spot idx, ref idx).
+
+    A reference claimed by two spots, or a spot with two references within the radius, is
+    dropped.
+    """
     as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
     return track_kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y),
                                         float(radius_px))
@@ -186,8 +210,11 @@ class Tracker:
         self._pending, self._chain = [], []
 
     def predict(self, stamp_ns: int) -> Prediction | None:
-        """Predicted attitude at `stamp_ns` from the last solution and the rate, or None when
-        there is no solution within max_coast_s (or the stamp is older than it)."""
+        """
+        Predicted attitude at `stamp_ns` from the last solution and the rate.
+
+        None when there is no solution within max_coast_s (or the stamp is older than it).
+        """
         if self._last is None:
             return None
         last_ns, rotation, covariance = self._last
@@ -207,9 +234,12 @@ class Tracker:
 
     # --- per frame -------------------------------------------------------------------
     def process(self, stamp_ns: int, spots: Spots, camera: CameraModel) -> TrackedFrame:
-        """Track when a prediction exists, else (or when tracking fails) lost-in-space; update
-        the state with a verified result. Synchronous; see begin_acquisition for the node's
-        asynchronous path."""
+        """
+        Track when a prediction exists, else (or when tracking fails) lost-in-space.
+
+        Update the state with a verified result. Synchronous; see begin_acquisition for the
+        node's asynchronous path.
+        """
         started = time.perf_counter()
         prediction = self.predict(stamp_ns)
         gate_px = None
@@ -241,9 +271,13 @@ class Tracker:
         return TrackedFrame(stamp_ns, mode, result, self.rate, gate_px, bridged, time.perf_counter() - started)
 
     def gate_px(self, camera: CameraModel, prediction: Prediction, tolerance_px: float) -> float:
-        """Search radius [px]: gate_sigma x the predicted position sigma of a star at the field
-        corner (cross-boresight and roll), plus the match tolerance, capped at
-        max_gate_fov_radii field radii."""
+        """
+        Search radius [px].
+
+        gate_sigma x the predicted position sigma of a star at the field corner
+        (cross-boresight and roll), plus the match tolerance, capped at max_gate_fov_radii
+        field radii.
+        """
         cov = prediction.covariance
         cross = math.sqrt(max(cov[0, 0], cov[1, 1], 0.0))
         half_diagonal = self._half_diagonal(camera)
@@ -260,7 +294,8 @@ class Tracker:
         n = order.size
         tolerance_px = lis.verification_radius_px(geometry, camera) if n else lis.config.match_radius_px
         gate = self.gate_px(camera, prediction, tolerance_px)
-        fail = lambda reason: (Identification("no_match", reason, "tracking", time.perf_counter() - started), gate)  # noqa: E731
+        fail = lambda reason: (Identification("no_match", reason, "tracking",  # noqa: E731
+                                              time.perf_counter() - started), gate)
         if n < self.config.min_stars:
             return fail(f"{n} spots; tracking needs {self.config.min_stars}")
         # Catalog stars the predicted attitude puts in (or within the gate of) the image.
@@ -275,7 +310,7 @@ class Tracker:
             near, u, v = near[keep], u[keep], v[keep]
         else:
             near, u, v = track_kernels.stars_in_view(self._vectors, rotation, cos_reach, Pinhole.of(camera),
-                                               -float(gate))
+                                                     -float(gate))
         if near.size < self.config.min_stars:
             return fail(f"{near.size} catalog stars near the predicted attitude")
         voters = min(n, self.config.max_pattern_spots)
@@ -321,8 +356,9 @@ class Tracker:
         body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
         density = max(self.catalog.mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
         log_t = float(track_kernels.log_chance_tuples_in_region(body, sigma, chi2, density, prediction.covariance,
-                                                          self.config.gate_sigma))
-        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index], self.catalog.magnitude[star_index],
+                                                                self.config.gate_sigma))
+        log_t += float(kernels.log_magnitude_agreement(geometry.magnitude[spot_index],
+                                                       self.catalog.magnitude[star_index],
                                                        self.catalog.sorted_magnitudes, lis.magnitude_floor))
         fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))
         if fp > self.config.false_positive_bound:
@@ -368,19 +404,21 @@ class Tracker:
 
     # --- delay compensation ------------------------------------------------------------
     def begin_acquisition(self, stamp_ns: int, spots: Spots, camera: CameraModel) -> None:
-        """A lost-in-space solve of this frame starts (elsewhere, e.g. in a worker thread)."""
+        """Note that a lost-in-space solve of this frame starts (elsewhere, e.g. in a worker thread)."""
         self._pending = [(stamp_ns, spots, camera)]
         self._chain = []
 
     def pending_spots(self) -> Spots | None:
-        """Spots of the newest frame waiting for the running solve (what complete_acquisition
-        will publish), or None."""
+        """Spots of the newest frame waiting for the running solve (what complete_acquisition will publish), or None."""
         return self._pending[-1][1] if self._pending else None
 
     def bridge(self, stamp_ns: int, spots: Spots, camera: CameraModel) -> bool:
-        """A newer frame arrived during the solve: chain its rotation relative to the previous
-        pending frame. False when the two frames share too few stars (the chain restarts from
-        this frame on the next acquisition)."""
+        """
+        Chain a newer frame that arrived during the solve, relative to the previous pending frame.
+
+        False when the two frames share too few stars (the chain restarts from this frame on
+        the next acquisition).
+        """
         if not self._pending:
             return False
         prev_ns, prev_spots, prev_camera = self._pending[-1]
@@ -392,9 +430,13 @@ class Tracker:
         return True
 
     def complete_acquisition(self, result: Identification) -> TrackedFrame | None:
-        """The solve of the first pending frame ended with `result`. Returns the newest
-        pending frame's TrackedFrame (attitude chained and verified by local recognition), or
-        the solved frame's own when nothing was bridged; None when unsolved."""
+        """
+        End the solve of the first pending frame with `result`.
+
+        Returns the newest pending frame's TrackedFrame (attitude chained and verified by
+        local recognition), or the solved frame's own when nothing was bridged; None when
+        unsolved.
+        """
         started = time.perf_counter()
         pending, chain = self._pending, self._chain
         self._pending, self._chain = [], []
@@ -420,10 +462,13 @@ class Tracker:
 
     def relative_rotation(self, spots_a: Spots, camera_a: CameraModel, spots_b: Spots, camera_b: CameraModel,
                           dt: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """Rotation dR of the sensor between frames a and b (R_b = R_a dR) from their spots
-        alone, with its covariance [rad^2, frame b]: the rate (or its prior) predicts where
-        frame a's spots land in frame b, the displacement is voted, spots are paired, and
-        dR is the q-method fit of the pairs. None with fewer than 3 pairs."""
+        """
+        Rotation dR of the sensor between frames a and b (R_b = R_a dR) from their spots alone.
+
+        With its covariance [rad^2, frame b]: the rate (or its prior) predicts where frame
+        a's spots land in frame b, the displacement is voted, spots are paired, and dR is
+        the q-method fit of the pairs. None with fewer than 3 pairs.
+        """
         lis = self.lost_in_space
         _, ga = self.lost_in_space.prepare(spots_a, camera_a)
         _, gb = self.lost_in_space.prepare(spots_b, camera_b)

@@ -1,6 +1,10 @@
-"""saturation.box_maxima: the brightest pixel of many boxes at once, exactly as np.argmax on
-each box (ties: the first in row-major order), for small boxes gathered together and large
-ones read one by one."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Tests of saturation.box_maxima.
+
+The brightest pixel of many boxes at once, exactly as np.argmax on each box (ties: the first
+in row-major order), for small boxes gathered together and large ones read one by one.
+"""
 import numpy as np
 import pytest
 

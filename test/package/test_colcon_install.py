@@ -1,4 +1,6 @@
-"""`colcon build` of the star_tracker ament_python package, and the layout `ros2 run` uses.
+# SPDX-License-Identifier: Apache-2.0
+"""
+`colcon build` of the star_tracker ament_python package, and the layout `ros2 run` uses.
 
 Real build, real processes, no mocks:
 
@@ -24,7 +26,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import pytest
@@ -66,14 +67,17 @@ def _is_inside(path: str | Path, root: Path) -> bool:
 
 @pytest.fixture(scope="module")
 def prefix(colcon_workspace) -> Path:
-    """The package's install prefix, install/star_tracker (colcon's isolated layout); the
-    build is the session's (test/conftest.py colcon_workspace, shared with test_ros2_cli.py)."""
+    """
+    Return the package's install prefix, install/star_tracker (colcon's isolated layout).
+
+    The build is the session's (test/conftest.py colcon_workspace, shared with test_ros2_cli.py).
+    """
     return colcon_workspace / "install" / PACKAGE
 
 
 @pytest.fixture(scope="module")
 def node_env(prefix, tmp_path_factory) -> dict[str, str]:
-    """What `source install/setup.sh` gives, plus an isolated localhost-only ROS domain."""
+    """Return what `source install/setup.sh` gives, plus an isolated localhost-only ROS domain."""
     env = os.environ.copy()
     _prepend(env, "PYTHONPATH", prefix / SITE_PACKAGES)
     _prepend(env, "AMENT_PREFIX_PATH", prefix)

@@ -1,10 +1,15 @@
-"""Cold start (issue 18 part 6): the kernels compiled at install time (install_compile.py, run
-by setup.py's build_py) are found by the installed copy, which then compiles nothing, and they
-give the same results as kernels compiled at the first start. Counted outcomes only, never
-timing: numba's per-dispatcher cache hits and misses, frames identified, the attitudes' bytes.
+# SPDX-License-Identifier: Apache-2.0
+"""
+Cold start (issue 18 part 6).
+
+The kernels compiled at install time (install_compile.py, run by setup.py's build_py) are
+found by the installed copy, which then compiles nothing, and they give the same results as
+kernels compiled at the first start. Counted outcomes only, never timing: numba's
+per-dispatcher cache hits and misses, frames identified, the attitudes' bytes.
 
 The "install" is what install_lib does to the built copy: the whole tree (sources and numba's
-__pycache__ files) copied to another path, so numba's cache must not depend on the path."""
+__pycache__ files) copied to another path, so numba's cache must not depend on the path.
+"""
 from __future__ import annotations
 
 import os

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The README's Python examples run as written and solve the frames they make."""
 import re
 from pathlib import Path

@@ -84,7 +84,8 @@ def readme_section() -> str:
 
 
 def readme_ros2_commands() -> list[str]:
-    """Return every `ros2 ...` command of the README section, comments stripped, continuations joined.
+    """
+    Return every `ros2 ...` command of the README section, comments stripped, continuations joined.
 
     From its bash blocks, and its inline code that is a whole command (4+ words, no <placeholder>).
     """
@@ -679,7 +680,8 @@ def launched(request, user_env, shipped_yaml, tmp_path_factory):
 
 
 def test_ros2_launch_attitudes_at_the_camera_rate(launched):
-    """`ros2 topic hz` fills its window; with the 2 Hz camera the rate is within a wide band of it.
+    """
+    `ros2 topic hz` fills its window; with the 2 Hz camera the rate is within a wide band of it.
 
     The plain launch runs the shipped 10 Hz camera, which a loaded 2-core host may not keep up
     with (frames dropped, counted): there it is judged by the messages seen alone.

@@ -1,7 +1,11 @@
-"""Bad input through the real nodes (separate processes, Fast DDS, isolated domain): each node
-is fed a sequence of bad messages and bad parameter changes, then a good message. Each bad
-input must show up as a counter on /diagnostics and a log line, the node must keep running
-and process the good message, and nothing may end in a traceback. No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Bad input through the real nodes (separate processes, Fast DDS, isolated domain).
+
+Each node is fed a sequence of bad messages and bad parameter changes, then a good message.
+Each bad input must show up as a counter on /diagnostics and a log line, the node must keep
+running and process the good message, and nothing may end in a traceback. No ROS mocks.
+"""
 from __future__ import annotations
 
 import subprocess
@@ -91,7 +95,8 @@ def stamped(msg, stamp_ns: int):
 
 # ------------------------------------------------------------------------------ centroider
 @pytest.mark.integration
-def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp_path, catalog):
+def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph,  # noqa: F811  the fixture
+                                                                  tmp_path, catalog):
     camera = CameraModel.from_fov(256, 256, np.radians(4.0))
     renderer = StarFieldRenderer(camera, SensorModel(), catalog.at_epoch(2026.0), magnitude_limit=8.5)
     good_image = renderer.render(ConstantRateMotion(radec_roll_to_matrix(1.5, 0.3, 0.0), np.zeros(3)), 1.0, 7).image
@@ -197,8 +202,12 @@ def test_centroider_survives_bad_images_info_rates_and_parameters(ros_graph, tmp
 
 # ------------------------------------------------------------------------------ identifier
 def with_garbage(spots: Spots) -> Spots:
-    """`spots` plus NaN, infinite, far-away and absurdly uncertain ones, and a second copy of
-    the brightest (9 in all; a coincident pair used to crash the hybrid identifier)."""
+    """
+    Return `spots` plus bad ones: NaN, infinite, far-away, absurdly uncertain, a duplicate.
+
+    The duplicate is a second copy of the brightest (9 in all; a coincident pair used to crash the hybrid
+    identifier).
+    """
     nan, inf = np.nan, np.inf
     x = np.array([nan, 10.0, inf, 20.0, 1e9, 30.0, 40.0, -inf])
     y = np.array([5.0, nan, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0])
@@ -215,7 +224,8 @@ def with_garbage(spots: Spots) -> Spots:
 
 
 @pytest.mark.integration
-def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph, tmp_path, catalog, database):
+def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph,  # noqa: F811  the fixture
+                                                                  tmp_path, catalog, database):
     # A distorted lens: with it, an empty frame used to crash identify() (camera.pixel_to_ray).
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0), (-0.05, 0.0, 0.0, 0.0, 0.0))
     sky = catalog.brighter_than(6.8).at_epoch(2026.0)
@@ -307,7 +317,7 @@ def test_identifier_survives_bad_spots_stamps_info_and_parameters(ros_graph, tmp
 
 # ------------------------------------------------------------------------------ camera simulator
 @pytest.mark.integration
-def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_path):
+def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_path):  # noqa: F811  the fixture
     driver = Driver("camera_simulator")
     pub_q = driver.node.create_publisher(QuaternionStamped, "truth_in/attitude", RESULT_QOS)
     pub_w = driver.node.create_publisher(Vector3Stamped, "truth_in/angular_velocity", RESULT_QOS)
@@ -320,7 +330,8 @@ def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_pa
     try:
         nodes.start()
         nodes.wait_ready()
-        assert driver.spin(20.0, until=lambda: pub_q.get_subscription_count() > 0 and pub_w.get_subscription_count() > 0)
+        assert driver.spin(20.0,
+                           until=lambda: pub_q.get_subscription_count() > 0 and pub_w.get_subscription_count() > 0)
         refused = driver.set_parameters("camera_simulator", rate_hz=1000.0)
         refused += driver.set_parameters("camera_simulator", rate_hz=-1.0)
         rate_hz = driver.get_parameter("camera_simulator", "rate_hz")
@@ -339,7 +350,8 @@ def test_camera_refuses_runtime_changes_and_bad_external_truth(ros_graph, tmp_pa
             pub_q.publish(convert.quaternion_msg(q, t_now))
             pub_w.publish(convert.vector3_msg(np.zeros(3), t_now, FRAME))
             driver.spin(0.02)
-        driver.spin(5.0, until=lambda: driver.count("external_samples_rejected") >= 3 and driver.count("frames_published"))
+        driver.spin(5.0,
+                    until=lambda: driver.count("external_samples_rejected") >= 3 and driver.count("frames_published"))
     finally:
         codes = nodes.stop()
         driver.node.destroy_node()

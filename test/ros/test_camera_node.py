@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """camera_simulator node over DDS: motion profiles, external truth, published truth."""
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ rclpy = pytest.importorskip("rclpy")
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 
-from star_tracker.models.attitude import attitude_error, matrix_to_quaternion, quaternion_to_matrix, radec_roll_to_matrix  # noqa: E402
+from star_tracker.models.attitude import (  # noqa: E402
+    attitude_error, matrix_to_quaternion, quaternion_to_matrix, radec_roll_to_matrix)
 from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)

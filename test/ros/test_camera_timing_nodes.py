@@ -1,7 +1,12 @@
-"""camera_simulator timing over DDS: a frame rendered ahead is never published before its
-exposure, frame transfer and readout have ended (wall clock and sim time), and it is still
-the frame its stamp says (pixel for pixel the same as a render of that frame here); after a
-host stall only the backlog beyond `max_backlog_frames` is skipped, counted."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+camera_simulator timing over DDS.
+
+A frame rendered ahead is never published before its exposure, frame transfer and readout
+have ended (wall clock and sim time), and it is still the frame its stamp says (pixel for
+pixel the same as a render of that frame here); after a host stall only the backlog beyond
+`max_backlog_frames` is skipped, counted.
+"""
 from __future__ import annotations
 
 import os
@@ -78,8 +83,12 @@ def renderer_like_the_node() -> StarFieldRenderer:
 
 
 def assert_frames_are_the_rendered_ones(images, truth, period_ns: int) -> None:
-    """Each image equals this process's render of its frame; frame k is the k-th truth stamp
-    (truth is reliable and the camera waited for its subscriber, so frame 0's truth arrives)."""
+    """
+    Each image equals this process's render of its frame.
+
+    Frame k is the k-th truth stamp (truth is reliable and the camera waited for its
+    subscriber, so frame 0's truth arrives).
+    """
     renderer = renderer_like_the_node()
     motion = motion_from_parameters("fixed", quaternion_to_matrix(np.asarray(QUATERNION)))
     frame0 = convert.stamp_to_ns(truth[0].header.stamp)
@@ -116,8 +125,12 @@ def test_frames_are_published_after_exposure_and_readout_wall_clock(driver, tmp_
 
 @pytest.mark.integration
 def test_frames_wait_for_sim_time(driver, tmp_path):
-    """use_sim_time with a clock at half speed: a frame rendered ahead waits for /clock to
-    pass its delivery time (a wall-clock wait would publish it early)."""
+    """
+    use_sim_time with a clock at half speed.
+
+    A frame rendered ahead waits for /clock to pass its delivery time (a wall-clock wait
+    would publish it early).
+    """
     env, node = driver
     clock = {"ns": 1_000_000_000_000}  # the newest /clock this test has published
     images, truth = subscribe(node, lambda: clock["ns"])
@@ -151,9 +164,12 @@ def test_frames_wait_for_sim_time(driver, tmp_path):
 
 @pytest.mark.integration
 def test_a_stalled_camera_skips_only_the_backlog_beyond_its_limit(driver, tmp_path):
-    """A host stall of 1.5 s at 10 Hz leaves ~15 frames due at once: the camera publishes the
-    newest `max_backlog_frames` of them late and skips the older ones, counted and logged;
-    every published frame keeps its own stamp on the frame grid."""
+    """
+    A host stall of 1.5 s at 10 Hz leaves ~15 frames due at once.
+
+    The camera publishes the newest `max_backlog_frames` of them late and skips the older
+    ones, counted and logged; every published frame keeps its own stamp on the frame grid.
+    """
     env, node = driver
     images, truth = subscribe(node, time.time_ns)
     diagnostics = {}
@@ -175,7 +191,8 @@ def test_a_stalled_camera_skips_only_the_backlog_beyond_its_limit(driver, tmp_pa
         os.kill(pid, signal.SIGCONT)
 
         def done() -> bool:
-            counted = int(diagnostics.get("frames_published", "0")) + int(diagnostics.get("frames_skipped_overrun", "0"))
+            counted = (int(diagnostics.get("frames_published", "0"))
+                       + int(diagnostics.get("frames_skipped_overrun", "0")))
             return counted >= frames and len(truth) >= int(diagnostics.get("frames_published", "0"))
         end = time.monotonic() + 30.0
         while time.monotonic() < end and not done():

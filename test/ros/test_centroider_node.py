@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """centroider node over DDS: streaks measured at mid-exposure, with and without the rate aid."""
 from __future__ import annotations
 
@@ -24,8 +25,12 @@ FRAMES = 8
 
 
 def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None, camera_params=None):
-    """camera_simulator + centroider; returns {stamp: (spots records, truth records)} and the
-    centroider's last diagnostics values. camera_params override the camera's (streaks by default)."""
+    """
+    Run camera_simulator + centroider.
+
+    Returns {stamp: (spots records, truth records)} and the centroider's last diagnostics values.
+    camera_params override the camera's (streaks by default).
+    """
     env = join_isolated_ros_domain(monkeypatch)
     node = rclpy.create_node("centroider_probe")
     spots, truth, diag = {}, {}, {}
@@ -70,8 +75,11 @@ def run_pipeline(tmp_path, monkeypatch, centroider_params, remaps=None, camera_p
 
 
 def streak_errors(frames):
-    """Position errors [px] of bright, unflagged-edge streak spots vs their star's mid-exposure
-    truth, the spots' flags and their streak lengths."""
+    """
+    Position errors [px] of bright, unflagged-edge streak spots vs their star's mid-exposure truth.
+
+    Also the spots' flags and their streak lengths.
+    """
     errors, flags, lengths = [], [], []
     for rec, t in frames.values():
         stars = t[t["kind"] == 0]
@@ -117,9 +125,12 @@ def test_centroider_measures_streaks_at_mid_exposure_with_and_without_the_rate(t
 
 @pytest.mark.integration
 def test_centroider_estimates_the_psf_and_reports_it(tmp_path, monkeypatch):
-    """A camera with a 0.6 px PSF at rest and the centroider at its defaults (prior 1 px): the
-    running estimate on /diagnostics is the camera's width, from many stars; streaked frames
-    (no round stars) report the prior and why."""
+    """
+    A camera with a 0.6 px PSF at rest and the centroider at its defaults (prior 1 px).
+
+    The running estimate on /diagnostics is the camera's width, from many stars; streaked
+    frames (no round stars) report the prior and why.
+    """
     frames, diag = run_pipeline(tmp_path / "sharp", monkeypatch, {"rate_source": "none"},
                                 camera_params={"attitude.body_rate_deg_s": [0.0, 0.0, 0.0],
                                                "optics.psf_sigma_px": 0.6})

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Message <-> record conversion (real ROS message classes, no ROS graph needed)."""
 import numpy as np
 import pytest
@@ -68,8 +69,8 @@ def test_spots_cloud_round_trip_and_layout():
     msg = convert.spots_to_cloud(spots, 42, "star_tracker_optical")
     assert msg.point_step == 40 and msg.row_step == 40 * n and msg.height == 1 and msg.width == n
     assert [(f.name, f.offset) for f in msg.fields] == [("x", 0), ("y", 4), ("flux", 8), ("snr", 12), ("cov_xx", 16),
-                                                         ("cov_xy", 20), ("cov_yy", 24), ("flags", 28),
-                                                         ("streak_length", 32), ("streak_angle", 36)]
+                                                        ("cov_xy", 20), ("cov_yy", 24), ("flags", 28),
+                                                        ("streak_length", 32), ("streak_angle", 36)]
     back = convert.cloud_to_spots(msg, 1024, 1024)
     assert np.allclose(back.x, spots.x) and np.allclose(back.y, spots.y)
     assert np.allclose(back.cov, spots.cov) and np.array_equal(back.flags, spots.flags)

@@ -1,8 +1,12 @@
-"""Property-based tests (hypothesis) of the message converters (star_tracker.ros.convert) on
-real rclpy message classes filled with garbage: a valid result, or ValueError with a message;
+# SPDX-License-Identifier: Apache-2.0
+"""
+Property-based tests (hypothesis) of the message converters (star_tracker.ros.convert).
+
+On real rclpy message classes filled with garbage: a valid result, or ValueError with a message;
 never another exception. Shared strategies and checks: test/fuzz_support.py; the core
 functions behind the converters are fuzzed in test/models, test/centroid, test/identify and
-test/track (*_fuzz.py)."""
+test/track (*_fuzz.py).
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -111,8 +115,11 @@ field_names = st.sampled_from([f.name for f in convert.SPOT_FIELDS] + ["z", "rgb
 
 @st.composite
 def spot_clouds(draw):
-    """Spot clouds with the right layout and arbitrary bytes (any float32 bit pattern: NaN,
-    inf, denormals), or with a broken layout, sizes or data."""
+    """
+    Spot clouds with the right layout and arbitrary bytes, or with a broken layout, sizes or data.
+
+    Arbitrary bytes: any float32 bit pattern (NaN, inf, denormals).
+    """
     n = draw(st.integers(0, 12))
     msg = PointCloud2(height=1, width=n, point_step=convert.SPOT_DTYPE.itemsize, fields=list(convert.SPOT_FIELDS),
                       is_bigendian=False, is_dense=True)

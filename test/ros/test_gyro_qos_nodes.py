@@ -1,10 +1,14 @@
-"""A gyro as it comes, and QoS overrides, through the real nodes (separate processes, Fast DDS,
-isolated domains 211-212). No ROS mocks.
+# SPDX-License-Identifier: Apache-2.0
+"""
+A gyro as it comes, and QoS overrides, through the real nodes (separate processes, Fast DDS, isolated domains 211-212).
+
+No ROS mocks.
 
 - A best-effort sensor_msgs/Imu publisher in its own, rotated frame aids the centroider on
   streaked frames; `rate_source` switched at runtime to `topic` then takes a best-effort
   Vector3Stamped; bad Imu messages are counted.
-- A `qos_overrides.` parameter changes a subscription's reliability, as the graph shows."""
+- A `qos_overrides.` parameter changes a subscription's reliability, as the graph shows.
+"""
 from __future__ import annotations
 
 import time
@@ -46,8 +50,11 @@ def join_domain(monkeypatch, domain_id: int) -> dict:
 
 
 class Probe:
-    """This test's node: the gyro (republishing the simulator's true rate), spots, truth and the
-    centroider's diagnostics."""
+    """
+    This test's node: the gyro, spots, truth and the centroider's diagnostics.
+
+    The gyro republishes the simulator's true rate.
+    """
 
     def __init__(self):
         self.node = rclpy.create_node("gyro_probe")
@@ -141,6 +148,7 @@ def test_best_effort_imu_then_vector3_aid_the_centroider(tmp_path, monkeypatch):
         switched = probe.set_parameter("centroider", "rate_source", "topic")
         probe.source = "topic"
         last_imu = max(probe.imu_stamps)
+
         # Until the camera is done and the centroider has measured every image it received
         # (a best-effort image lost on a loaded host must not stall the test).
         def done() -> bool:

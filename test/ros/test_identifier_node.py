@@ -1,5 +1,10 @@
-"""The identifier node over DDS, driven by this test's own publisher: it publishes only
-verified attitudes, explains failures on /diagnostics, and survives bad input."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The identifier node over DDS, driven by this test's own publisher.
+
+It publishes only verified attitudes, explains failures on /diagnostics, and survives bad
+input.
+"""
 from __future__ import annotations
 
 import subprocess
@@ -66,7 +71,8 @@ def test_identifier_node_publishes_only_verified_attitudes(monkeypatch, tmp_path
         pub_spots.publish(malformed)
         spin(0.5)
         pub_spots.publish(convert.spots_to_cloud(good, stamps["good"], "star_tracker_optical"))
-        spin(10.0, until=lambda: attitudes and any("frames_identified" in [kv.key for kv in s.values] for s in diagnostics))
+        spin(10.0,
+             until=lambda: attitudes and any("frames_identified" in [kv.key for kv in s.values] for s in diagnostics))
         spin(1.5)
     finally:
         codes = processes.stop()
@@ -102,8 +108,12 @@ def test_bad_parameters_stop_startup_with_a_clear_error(module, args, message):
 @pytest.mark.integration
 def test_online_calibration_reports_the_drifted_focal_length_on_diagnostics(monkeypatch, tmp_path, catalog,
                                                                             nominal_camera, database):
-    """calibration.enabled: spots of a camera whose focal length drifted 0.1 % (and k1 = 0.01)
-    from the camera_info; after frames_per_fit published frames /diagnostics carries the fit."""
+    """
+    Check calibration.enabled with a drifted camera.
+
+    Spots of a camera whose focal length drifted 0.1 % (and k1 = 0.01) from the camera_info;
+    after frames_per_fit published frames /diagnostics carries the fit.
+    """
     from star_tracker.models.camera import CameraModel
 
     env = join_isolated_ros_domain(monkeypatch)

@@ -1,5 +1,9 @@
-"""The three nodes as separate processes over Fast DDS (private domain, localhost only),
-checked against the simulator's truth. No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The three nodes as separate processes over Fast DDS (private domain, localhost only).
+
+Checked against the simulator's truth. No ROS mocks.
+"""
 from __future__ import annotations
 
 import time
@@ -28,16 +32,22 @@ def ros_graph(monkeypatch):
 
 def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, remaps: dict | None = None,
                  node_params: dict | None = None):
-    """Run FRAMES frames through the three nodes; `diagnostics`, when given, receives the latest
-    /diagnostics values per status name; `remaps`: per node, topic -> new name; `node_params`:
-    per node (centroider, identifier), parameters over config/star_tracker.yaml."""
+    """
+    Run FRAMES frames through the three nodes.
+
+    `diagnostics`, when given, receives the latest /diagnostics values per status name;
+    `remaps`: per node, topic -> new name; `node_params`: per node (centroider, identifier),
+    parameters over config/star_tracker.yaml.
+    """
     monitor = TrackerMonitor(name="integration_monitor")
-    params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 2.0, "wait_for_subscribers": True, "rate_hz": RATE_HZ, **camera_params},
+    params = {"camera_simulator": {"max_frames": FRAMES, "start_delay_s": 2.0, "wait_for_subscribers": True,
+                                   "rate_hz": RATE_HZ, **camera_params},
               **(node_params or {})}
     nodes = NodeProcesses(env, tmp_path / "logs", params, REPO / "config" / "star_tracker.yaml", remaps=remaps)
     try:
         nodes.start()
         nodes.wait_ready(timeout_s=120)
+
         # Until the camera is done (by its own count: published + skipped) and every published
         # frame's truth is in, then for the pipeline to drain.
         def camera_done() -> bool:
@@ -46,6 +56,7 @@ def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, 
             return (published + int(camera.get("frames_skipped_overrun", "0")) >= FRAMES
                     and sum(f.truth is not None for f in monitor.frames.values()) >= published)
         monitor.spin_for(FRAMES / RATE_HZ + 30.0, until=camera_done)
+
         # Drained: no new spots or attitude for 3 s (a node behind after a host stall keeps
         # publishing its backlog until then).
         def outputs() -> int:
@@ -68,8 +79,7 @@ def run_pipeline(env, tmp_path, camera_params, diagnostics: dict | None = None, 
 
 
 def host_timing_outcomes(diagnostics: dict) -> int:
-    """Frames whose outcome the host's timing explains (stalls, discovery order), by the nodes'
-    own counters."""
+    """Frames whose outcome the host's timing explains (stalls, discovery order), by the nodes' own counters."""
     centroider = diagnostics.get("star_tracker/centroider", {})
     identifier = diagnostics.get("star_tracker/identifier", {})
     keys = ("frames_dropped_overload", "frames_bridged", "frames_not_bridged", "not_identified_timeout",
@@ -133,8 +143,12 @@ def test_three_nodes_track_truth(ros_graph, tmp_path, rate_deg_s):
 
 
 def test_the_monitor_keeps_the_newest_identified_frames_image(ros_graph):
-    """The demo's picture needs an identified frame's image: after a host stall the newest 8
-    images (all the monitor keeps) can all belong to frames not identified yet."""
+    """
+    The demo's picture needs an identified frame's image.
+
+    After a host stall the newest 8 images (all the monitor keeps) can all belong to frames
+    not identified yet.
+    """
     from star_tracker.ros import convert
 
     monitor = TrackerMonitor(name="image_keeping_monitor")

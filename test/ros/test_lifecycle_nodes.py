@@ -1,13 +1,16 @@
-"""The nodes as managed (lifecycle) nodes over DDS, driven through their lifecycle_msgs services
-as `ros2 lifecycle` does: autostart false leaves them unconfigured; a transition the state
-does not offer is refused and the node carries on; deactivate -> activate keeps the
-identifier's database (no reload); input while inactive is ignored and counted; cleanup and
-shutdown end cleanly; ~/reset forces lost-in-space. Real node processes, no ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The nodes as managed (lifecycle) nodes over DDS, driven through their lifecycle_msgs services as `ros2 lifecycle` does.
+
+autostart false leaves them unconfigured; a transition the state does not offer is refused and
+the node carries on; deactivate -> activate keeps the identifier's database (no reload); input
+while inactive is ignored and counted; cleanup and shutdown end cleanly; ~/reset forces
+lost-in-space. Real node processes, no ROS mocks.
+"""
 from __future__ import annotations
 
 import time
 
-import numpy as np
 import pytest
 pytestmark = pytest.mark.slow  # every test here starts node processes
 
@@ -27,8 +30,12 @@ from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 
 
 def join_domain(monkeypatch, domain_id: int) -> dict:
-    """This test process on the private ROS domain `domain_id` (as conftest's
-    join_isolated_ros_domain, with a fixed id); returns the environment for the nodes."""
+    """
+    Join this test process to the private ROS domain `domain_id`.
+
+    As conftest's join_isolated_ros_domain, with a fixed id; returns the environment for the
+    nodes.
+    """
     env = isolated_ros_environment(domain_id)
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
         monkeypatch.setenv(key, env[key])
@@ -38,8 +45,12 @@ def join_domain(monkeypatch, domain_id: int) -> dict:
 
 
 class IdentifierDriver:
-    """This test's side of an identifier: camera_info and spots publishers, attitude and
-    /diagnostics subscriptions, a ~/reset client."""
+    """
+    This test's side of an identifier.
+
+    camera_info and spots publishers, attitude and /diagnostics subscriptions, a ~/reset
+    client.
+    """
 
     def __init__(self, spots):
         self.node = rclpy.create_node("lifecycle_driver")
@@ -68,7 +79,7 @@ class IdentifierDriver:
         return until()
 
     def fresh_diagnostics(self) -> dict[str, str]:
-        """The identifier's /diagnostics published after this call (1 Hz)."""
+        """Return the identifier's /diagnostics published after this call (1 Hz)."""
         seen = self.diagnostics_seen
         assert self.spin(10.0, until=lambda: self.diagnostics_seen > seen + 1), "no /diagnostics from the identifier"
         return self.diagnostics
@@ -81,8 +92,12 @@ class IdentifierDriver:
             self.spin(0.3)
 
     def send_frames(self, n: int, answered: bool) -> list[int]:
-        """Publish n spots frames 0.1 s apart in stamp, one at a time: each waits for its
-        attitude (answered) or 0.4 s (not expected to be answered). Returns their stamps."""
+        """
+        Publish n spots frames 0.1 s apart in stamp, one at a time.
+
+        Each waits for its attitude (answered) or 0.4 s (not expected to be answered).
+        Returns their stamps.
+        """
         stamps = []
         for _ in range(n):
             self.stamp_ns += 100_000_000
@@ -207,9 +222,13 @@ def test_reset_drops_tracking_and_the_next_frame_is_lost_in_space(monkeypatch, t
 
 @pytest.mark.integration
 def test_pipeline_driven_through_the_lifecycle_services(monkeypatch, tmp_path):
-    """All three nodes with autostart false: configured and activated over ~/change_state (the
-    camera last), attitudes flow; the camera deactivated publishes nothing, activated again it
-    resumes its time line (skipped frames counted) and attitudes flow again."""
+    """
+    All three nodes with autostart false.
+
+    Configured and activated over ~/change_state (the camera last), attitudes flow; the camera
+    deactivated publishes nothing, activated again it resumes its time line (skipped frames
+    counted) and attitudes flow again.
+    """
     env = join_domain(monkeypatch, DOMAIN + 2)
     params = {name: {"autostart": False} for name in ("camera_simulator", "centroider", "identifier")}
     params["camera_simulator"].update({"rate_hz": 2.0})
@@ -248,8 +267,12 @@ def test_pipeline_driven_through_the_lifecycle_services(monkeypatch, tmp_path):
 
 @pytest.mark.integration
 def test_a_failed_configure_leaves_the_node_unconfigured_and_running(monkeypatch, tmp_path, catalog, nominal_camera):
-    """autostart false and an unknown algorithm: configure fails with the reason in the log and
-    `transitions_failed` counted; the node stays unconfigured and still answers; shutdown ends it."""
+    """
+    Start with autostart false and an unknown algorithm.
+
+    Configure fails with the reason in the log and `transitions_failed` counted; the node stays
+    unconfigured and still answers; shutdown ends it.
+    """
     env = join_domain(monkeypatch, DOMAIN + 3)
     driver = IdentifierDriver(spots=None)
     params = {"identifier": {"autostart": False, "algorithm": "guesswork"}}

@@ -1,6 +1,11 @@
-"""A node process never hangs on shutdown: run_node's watchdog ends a clean-up that blocks,
-with every thread's stack on stderr; SIGUSR1 prints the stacks of a running node. Real rclpy
-nodes in their own processes (no ROS mocks)."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+A node process never hangs on shutdown.
+
+run_node's watchdog ends a clean-up that blocks, with every thread's stack on stderr;
+SIGUSR1 prints the stacks of a running node. Real rclpy nodes in their own processes (no ROS
+mocks).
+"""
 from __future__ import annotations
 
 import signal

@@ -1,4 +1,6 @@
-"""Overload and faults through the real nodes (separate processes, Fast DDS, isolated domain).
+# SPDX-License-Identifier: Apache-2.0
+"""
+Overload and faults through the real nodes (separate processes, Fast DDS, isolated domain).
 
 - Input faster than processing: a burst of frames, as deep as the DDS queues, is published
   back to back into the centroider, then the identifier (the overload does not depend on this
@@ -56,9 +58,13 @@ def accounted(counters: dict[str, str], outcomes: tuple[str, ...]) -> int:
 
 
 def burst(messages: list) -> float:
-    """Publish (publisher, serialized message) pairs back to back. Serialized beforehand and
-    never yielding the CPU in between (a sleep would hand it to the node on a loaded host), the
-    burst takes a few memory copies, not the node's pace. Returns its duration [s]."""
+    """
+    Publish (publisher, serialized message) pairs back to back.
+
+    Serialized beforehand and never yielding the CPU in between (a sleep would hand it to the
+    node on a loaded host), the burst takes a few memory copies, not the node's pace. Returns
+    its duration [s].
+    """
     started = time.perf_counter()
     for publisher, data in messages:
         publisher.publish(data)
@@ -66,8 +72,12 @@ def burst(messages: list) -> float:
 
 
 class FloodRig:
-    """This test's side of the flood: publishers into the centroider and the identifier, the
-    outputs seen (spots and attitude stamps), and the two nodes' diagnostics."""
+    """
+    This test's side of the flood.
+
+    Publishers into the centroider and the identifier, the outputs seen (spots and attitude
+    stamps), and the two nodes' diagnostics.
+    """
 
     def __init__(self):
         self.centroider, self.identifier = Driver("centroider"), Driver("identifier")
@@ -112,11 +122,13 @@ def counted_since(baseline: dict[str, str], counters: dict[str, str], outcomes: 
 
 
 @pytest.mark.integration
-def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp_path, catalog):
+def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph,  # noqa: F811  the fixture
+                                                                  tmp_path, catalog):
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     truth = radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.3)
     renderer = StarFieldRenderer(camera, SensorModel(exposure_s=0.02), catalog.at_epoch(2026.0), 7.5)
-    images = [convert.array_to_image(renderer.render(ConstantRateMotion(truth, np.zeros(3)), 1.0, frame_seed(0, k)).image,
+    images = [convert.array_to_image(renderer.render(ConstantRateMotion(truth, np.zeros(3)), 1.0,
+                                                     frame_seed(0, k)).image,
                                      0, FRAME) for k in range(4)]
     star_spots = convert.spots_to_cloud(spots_at(catalog.brighter_than(6.8).at_epoch(2026.0), camera, truth), 0, FRAME)
     info = convert.camera_to_info(camera, 0, FRAME)
@@ -126,7 +138,9 @@ def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp
     try:
         nodes.start()
         nodes.wait_ready()
-        assert rig.spin(20.0, lambda: all(p.get_subscription_count() > 0 for p in (rig.pub_image, rig.pub_info, rig.pub_spots)))
+        assert rig.spin(20.0,
+                        lambda: all(p.get_subscription_count() > 0
+                                    for p in (rig.pub_image, rig.pub_info, rig.pub_spots)))
         base = time.time_ns() - 30 * 10**9
         # One frame answered end to end first (best effort may lose the first messages after matching).
         for attempt in range(20):
@@ -168,10 +182,14 @@ def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph, tmp
 
 
 def flood_centroider(rig: FloodRig, images, info, first_ns: int, baseline: dict):
-    """A burst of 10 images (the depth of the DDS queues on both sides: none is lost there),
-    10 ms apart in stamps, published faster than the centroider measures one 1024^2 frame:
-    more than its 3 waiting places and the frame in progress. Returns its counters once every
-    received frame is accounted (processed or dropped), and the stamps sent."""
+    """
+    Publish a burst of 10 images, 10 ms apart in stamps.
+
+    10 is the depth of the DDS queues on both sides: none is lost there. They are
+    published faster than the centroider measures one 1024^2 frame: more than its 3 waiting
+    places and the frame in progress. Returns its counters once every received frame is
+    accounted (processed or dropped), and the stamps sent.
+    """
     stamps = [first_ns + k * 10 * MS for k in range(10)]
     burst_s = burst([(publisher, serialize_message(stamped(msg, stamp)))
                      for k, stamp in enumerate(stamps)
@@ -182,32 +200,38 @@ def flood_centroider(rig: FloodRig, images, info, first_ns: int, baseline: dict)
 
     def settled():
         received = int(counters.counters.get("frames_received", 0)) - int(baseline.get("frames_received", 0))
-        return counted_since(baseline, counters.counters, ("frames_processed", "frames_dropped_overload")) == received > 0
+        return counted_since(baseline, counters.counters,
+                             ("frames_processed", "frames_dropped_overload")) == received > 0
     assert rig.spin(10.0, settled), (counters.counters, baseline)
     return {**counters.counters, "burst_s": f"{burst_s:.3f}"}, stamps
 
 
 def flood_identifier(rig: FloodRig, star_spots, first_ns: int, baseline: dict, base: int):
-    """A burst of 20 spots messages (the depth of the DDS queues on both sides), at rest, 1 ms
-    apart in stamps, published faster than the identifier tracks one frame. Returns its
-    counters once every received frame is accounted (identified, dropped or not identified),
-    and the stamps sent."""
+    """
+    Publish a burst of 20 spots messages, at rest, 1 ms apart in stamps.
+
+    20 is the depth of the DDS queues on both sides. They are published faster than the
+    identifier tracks one frame. Returns its counters once every received frame is accounted
+    (identified, dropped or not identified), and the stamps sent.
+    """
     spot_stamps = [first_ns + k * MS for k in range(20)]
     burst_s = burst([(rig.pub_spots, serialize_message(stamped(star_spots, stamp))) for stamp in spot_stamps])
     newest = spot_stamps[-1]
     counters = rig.identifier
     assert rig.spin(30.0, lambda: newest in rig.attitudes), (burst_s, counters.counters)
-    received = lambda: int(counters.counters.get("frames_received", 0)) - int(baseline.get("frames_received", 0))  # noqa: E731
+    received = lambda: (int(counters.counters.get("frames_received", 0))  # noqa: E731
+                        - int(baseline.get("frames_received", 0)))
     outcomes = ("frames_identified", "frames_dropped_overload", "not_identified_")
     # Fresh counters: the identifier received at least every frame it answered since the baseline.
     answered_since = lambda: sum(s > base for s in rig.attitudes)  # noqa: E731
     assert rig.spin(10.0, lambda: received() >= answered_since()
-                    and counted_since(baseline, counters.counters, outcomes) == received()), (counters.counters, baseline)
+                    and counted_since(baseline, counters.counters, outcomes) == received()), \
+        (counters.counters, baseline)
     return {**counters.counters, "burst_s": f"{burst_s:.3f}"}, spot_stamps
 
 
 @pytest.mark.integration
-def test_identifier_killed_and_camera_restarted_mid_run(ros_graph, tmp_path):
+def test_identifier_killed_and_camera_restarted_mid_run(ros_graph, tmp_path):  # noqa: F811  the fixture
     monitor = TrackerMonitor(name="overload_monitor")
     params = {"camera_simulator": {"rate_hz": 5.0, "sensor.exposure_s": 0.02, "wait_for_subscribers": True,
                                    "attitude.body_rate_deg_s": [0.3, 0.4, 0.05]},
@@ -240,7 +264,8 @@ def test_identifier_killed_and_camera_restarted_mid_run(ros_graph, tmp_path):
         restarted = lambda: monitor.diagnostics.get("star_tracker/identifier", {})  # noqa: E731
         outcomes = ("frames_identified", "frames_bridged", "frames_dropped_overload", "frames_without_camera_info")
         assert monitor.spin_for(10.0, until=lambda: int(restarted().get("frames_identified", 0)) >= 3
-                                and accounted(restarted(), outcomes) == int(restarted()["frames_received"])), restarted()
+                                and accounted(restarted(), outcomes) == int(restarted()["frames_received"])), \
+            restarted()
         after_kill = dict(restarted())
 
         # The camera restarted (SIGTERM: exits cleanly): the centroider and identifier carry on.

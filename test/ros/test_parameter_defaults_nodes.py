@@ -1,7 +1,12 @@
-"""Each node started without a params file (a real process over DDS, isolated domain), read
-from outside with a parameter client: every parameter equals config/star_tracker.yaml's value,
-`describe` gives the spec's range and read-only flag, a runtime change is applied and reported,
-and an invalid combination is refused with the reason and nothing of it applied. No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Each node started without a params file (a real process over DDS, isolated domain).
+
+Read from outside with a parameter client: every parameter equals config/star_tracker.yaml's
+value, `describe` gives the spec's range and read-only flag, a runtime change is applied and
+reported, and an invalid combination is refused with the reason and nothing of it applied. No
+ROS mocks.
+"""
 from __future__ import annotations
 
 import time
@@ -90,7 +95,7 @@ class Probe:
 
 @pytest.fixture
 def started(request, monkeypatch, tmp_path):
-    """The node `request.param` started without a params file; yields (probe, processes)."""
+    """Start the node `request.param` without a params file; yields (probe, processes)."""
     node = request.param
     env = isolated_ros_environment(DOMAINS[node])
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):

@@ -1,6 +1,10 @@
-"""The parameter specs (star_tracker/parameter_spec.py and the nodes' *_parameters.py), without
-ROS: the shipped config/star_tracker.yaml is the generated one, its values read back with the
-specs' types, the core configurations check their ranges from the same specs."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The parameter specs (star_tracker/parameter_spec.py and the nodes' *_parameters.py), without ROS.
+
+The shipped config/star_tracker.yaml is the generated one, its values read back with the specs'
+types, the core configurations check their ranges from the same specs.
+"""
 from __future__ import annotations
 
 import dataclasses
@@ -64,8 +68,12 @@ def test_every_spec_is_described_and_its_default_in_range():
 
 
 def test_known_defaults():
-    """The decisions of issue 18: the centroider has the rate aid without the params file (the
-    simulator's exposure); saturation_adu 0 = the image dtype's maximum, as `solve` has it."""
+    """
+    The decisions of issue 18.
+
+    The centroider has the rate aid without the params file (the simulator's exposure);
+    saturation_adu 0 = the image dtype's maximum, as `solve` has it.
+    """
     centroider = {spec.name: spec for spec in CENTROIDER_PARAMETERS}
     assert centroider["exposure_time_s"].default == 0.1
     assert centroider["saturation_adu"].default == 0.0 == CentroidConfig().saturation_adu

@@ -1,6 +1,10 @@
-"""The centroider's rate inputs (rate_input.py) and the QoS helper (qos.py), with real message
-classes and no ROS graph: rotation into the sensor frame, the frame/stamp/REP 145 checks and
-their counters, the choice of the sample for a frame."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+The centroider's rate inputs (rate_input.py) and the QoS helper (qos.py), with real message classes and no ROS graph.
+
+Rotation into the sensor frame, the frame/stamp/REP 145 checks and their counters, the choice
+of the sample for a frame.
+"""
 import numpy as np
 import pytest
 

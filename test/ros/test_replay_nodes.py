@@ -1,5 +1,9 @@
-"""Record and replay with the real nodes and the real `star-tracker record/play` processes
-over Fast DDS (private domain, localhost only). No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Record and replay with the real nodes and the real `star-tracker record/play` processes.
+
+Over Fast DDS (private domain, localhost only). No ROS mocks.
+"""
 from __future__ import annotations
 
 import json
@@ -103,7 +107,7 @@ def cli(args, env, log: Path) -> subprocess.Popen:
 
 
 def pipeline(env, log_dir: Path, namespace: str | None, params: dict, use_sim_time: bool = False) -> NodeProcesses:
-    """A centroider + identifier, in `namespace`, fed by the root image_raw and camera_info."""
+    """Start a centroider + identifier, in `namespace`, fed by the root image_raw and camera_info."""
     params = {node: {**params.get(node, {}), "use_sim_time": use_sim_time} for node in ("centroider", "identifier")}
     remaps = None
     if namespace:
@@ -124,10 +128,13 @@ def bag_attitudes(path: Path, topic: str) -> dict[int, tuple]:
 
 
 @pytest.mark.integration
-def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_path):
-    """Live: camera -> two pipelines (default configuration at the root, the deterministic one
-    in /det), recorded. Replay: the recorded camera topics into two fresh pipelines, lockstep;
-    the /det one on the bag's /clock (use_sim_time). Attitudes compared by stamp."""
+def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_path):  # noqa: F811  the fixture
+    """
+    Live: camera -> two pipelines (default configuration at the root, the deterministic one in /det), recorded.
+
+    Replay: the recorded camera topics into two fresh pipelines, lockstep; the /det one on the
+    bag's /clock (use_sim_time). Attitudes compared by stamp.
+    """
     env = ros_graph
     bag = tmp_path / "live"
     camera = NodeProcesses(env, tmp_path / "camera", {"camera_simulator": {
@@ -175,7 +182,8 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
     first = max(next(k for k, (_, stamp) in enumerate(images) if stamp in s) for s in seen.values())
     missed = {topic: [k for k, (_, stamp) in enumerate(images) if k >= first and stamp not in s]
               for topic, s in seen.items()}
-    counters = {name: {key: values.get(key) for key in ("frames_received", "frames_processed", "frames_dropped_overload")}
+    counters = {name: {key: values.get(key)
+                       for key in ("frames_received", "frames_processed", "frames_dropped_overload")}
                 for name, values in live_diagnostics.items() if name.endswith("centroider")}
     assert first <= 8 and not any(missed.values()), (first, missed, counters)
     first_stamp = images[first][1]
@@ -235,9 +243,11 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
     common = sorted(set(live["/attitude"]) & set(replayed["/attitude"]))
     assert len(common) >= max(len(live["/attitude"]), len(replayed["/attitude"])) - 4, play_log
     errors = np.array([attitude_error(quaternion_to_matrix(np.array(replayed["/attitude"][s])),
-                                      quaternion_to_matrix(np.array(live["/attitude"][s])))[:2] for s in common]) / ARCSEC
+                                      quaternion_to_matrix(np.array(live["/attitude"][s])))[:2]
+                       for s in common]) / ARCSEC
     aided = {name: (live_diagnostics.get(f"star_tracker{name}", {}).get("frames_rate_aided"),
-                    collector.values.get(f"star_tracker{name}", {}).get("frames_rate_aided")) for name in ("/centroider",)}
+                    collector.values.get(f"star_tracker{name}", {}).get("frames_rate_aided"))
+             for name in ("/centroider",)}
     (tmp_path / "determinism.json").write_text(json.dumps({  # the figures quoted in docs/RECORD_REPLAY.md
         "frames": len(images), "replayed_from": first, "deterministic_identified": len(live["/det/attitude"]),
         "default_identified_live_replay": [len(live["/attitude"]), len(replayed["/attitude"])],
@@ -253,7 +263,7 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
 
 
 def last_diagnostics(reader) -> dict[str, dict[str, str]]:
-    """The last key/values per status name on a bag's /diagnostics."""
+    """Return the last key/values per status name on a bag's /diagnostics."""
     store = bags.typestore()
     out = {}
     for _, _, data in reader.messages(["/diagnostics"]):
@@ -270,9 +280,14 @@ def _publisher_node():
 
 
 @pytest.mark.integration
-def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recovered(ros_graph, tmp_path):
-    """Four recorders at once: sqlite3 and MCAP each stopped cleanly (SIGINT, SIGTERM) and
-    killed (SIGKILL, then `star-tracker reindex`)."""
+def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recovered(
+        ros_graph, tmp_path):  # noqa: F811  the fixture
+    """
+    Four recorders at once.
+
+    sqlite3 and MCAP each stopped cleanly (SIGINT, SIGTERM) and killed (SIGKILL, then
+    `star-tracker reindex`).
+    """
     env = ros_graph
     cases = {"sqlite3_int": ("sqlite3", signal.SIGINT), "mcap_term": ("mcap", signal.SIGTERM),
              "sqlite3_kill": ("sqlite3", signal.SIGKILL), "mcap_kill": ("mcap", signal.SIGKILL)}
@@ -346,8 +361,12 @@ def test_record_finishes_on_sigint_and_sigterm_and_a_killed_recording_is_recover
 
 
 def _flushed_images(bag: Path, scratch: Path) -> int:
-    """/image_raw messages a recorder has made durable so far: a copy of its unfinished bag,
-    recovered as after a kill (0 while nothing is readable yet)."""
+    """
+    /image_raw messages a recorder has made durable so far.
+
+    A copy of its unfinished bag, recovered as after a kill (0 while nothing is readable
+    yet).
+    """
     shutil.rmtree(scratch, ignore_errors=True)
     try:
         shutil.copytree(bag, scratch)
@@ -357,7 +376,7 @@ def _flushed_images(bag: Path, scratch: Path) -> int:
 
 
 def _synthetic_bag(path: Path, frames: int = 20, period_ns: int = 100_000_000) -> list[int]:
-    """A bag as a run at 10 Hz would leave: small images, camera_info and truth (serialized by rclpy)."""
+    """Write a bag as a run at 10 Hz would leave: small images, camera_info and truth (serialized by rclpy)."""
     from rclpy.serialization import serialize_message
 
     from star_tracker.ros.bag_ros import offered_qos
@@ -381,7 +400,7 @@ def _synthetic_bag(path: Path, frames: int = 20, period_ns: int = 100_000_000) -
 
 
 @pytest.mark.integration
-def test_play_options_rate_offset_topics_remap_clock_and_loop(ros_graph, tmp_path):
+def test_play_options_rate_offset_topics_remap_clock_and_loop(ros_graph, tmp_path):  # noqa: F811  the fixture
     env = ros_graph
     stamps = _synthetic_bag(tmp_path / "bag")  # 20 frames over 1.9 s
     extra = {"/camera_info": (CameraInfo, MONITOR_SENSOR_QOS), "/image_raw": (Image, MONITOR_SENSOR_QOS),

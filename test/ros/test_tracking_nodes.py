@@ -1,5 +1,9 @@
-"""Tracking through the real nodes (separate processes, Fast DDS): a slew with an occulted
-frame, checked against the simulator's truth. No ROS mocks."""
+# SPDX-License-Identifier: Apache-2.0
+"""
+Tracking through the real nodes (separate processes, Fast DDS).
+
+A slew with an occulted frame, checked against the simulator's truth. No ROS mocks.
+"""
 from __future__ import annotations
 
 import numpy as np
@@ -25,7 +29,7 @@ PATIENT = {"centroider": {"queue_depth": FRAMES},
 
 
 @pytest.mark.integration
-def test_slew_is_tracked_through_the_nodes_and_a_loss_reacquires(ros_graph, tmp_path):
+def test_slew_is_tracked_through_the_nodes_and_a_loss_reacquires(ros_graph, tmp_path):  # noqa: F811  the fixture
     # 2 deg/s coast, 1 deg/s^2 ramps (2 s each) starting 1 s in; frames 20 and 30 are occulted.
     camera = {"attitude.profile": "slew", "attitude.slew.axis": [0.6, 0.8, 0.0], "attitude.slew.angle_deg": 8.0,
               "attitude.slew.max_rate_deg_s": 2.0, "attitude.slew.accel_deg_s2": 1.0, "attitude.slew.start_s": 1.0,
