@@ -159,3 +159,19 @@ def range_problems(config) -> list[str]:
             if problem:
                 problems.append(problem)
     return problems
+
+
+def dotted_names(tree: dict, prefix: str = "") -> dict[str, Any]:
+    """
+    Flatten a nested ros__parameters mapping into {dotted.name: value}.
+
+    A params file nests groups ("sensor": {"exposure_s": 0.1}); node parameters are named
+    "sensor.exposure_s".
+    """
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            flat.update(dotted_names(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..parameter_spec import dotted_names
 from ..ros import camera_simulator_parameters as _node  # ROS-free: the parameter specs
 from .common import CommandError
 
@@ -60,17 +61,6 @@ def default_camera_file() -> CameraFile:
                       FalseObjectModel(), {}, "default camera")
 
 
-def _flatten(mapping: dict, prefix: str = "") -> dict:
-    flat = {}
-    for key, value in mapping.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict):
-            flat.update(_flatten(value, name + "."))
-        else:
-            flat[name] = value
-    return flat
-
-
 def load_camera_file(path: str | Path):
     """
     Read a camera YAML.
@@ -106,7 +96,7 @@ def load_camera_file(path: str | Path):
         data = data["ros__parameters"]
     if not isinstance(data, dict):
         raise CommandError(f"{path}: expected camera_simulator parameters")
-    flat = _flatten(data)
+    flat = dotted_names(data)
     known = set(SENSOR_PARAMETERS) | set(FALSE_OBJECT_PARAMETERS) | set(GEOMETRY_PARAMETERS) | set(RENDER_PARAMETERS)
     unknown = sorted(k for k in flat if k not in known and not k.startswith(IGNORED_PREFIXES))
     if unknown:

@@ -191,7 +191,12 @@ def shipped_yaml(colcon_workspace) -> dict:
 
 
 def flatten(tree: dict, prefix: str = "") -> dict[str, object]:
-    """Return a nested ros__parameters dict as {dotted.name: value}."""
+    """
+    Return a nested ros__parameters dict as {dotted.name: value}.
+
+    Its own copy of star_tracker.parameter_spec.dotted_names: this file tests the installed
+    package from the outside and imports nothing of the source tree.
+    """
     flat = {}
     for key, value in tree.items():
         if isinstance(value, dict):

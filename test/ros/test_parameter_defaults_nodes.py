@@ -24,6 +24,7 @@ from rcl_interfaces.srv import ListParameters  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 
+from star_tracker.parameter_spec import dotted_names  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
@@ -32,16 +33,8 @@ IGNORED = ("use_sim_time", "start_type_description_service", "qos_overrides.")  
 
 
 def shipped_values(node: str) -> dict:
-    def flatten(mapping: dict, prefix: str = "") -> dict:
-        flat = {}
-        for key, value in mapping.items():
-            if isinstance(value, dict):
-                flat.update(flatten(value, f"{prefix}{key}."))
-            else:
-                flat[f"{prefix}{key}"] = value
-        return flat
     shipped = yaml.safe_load((REPO / "config" / "star_tracker.yaml").read_text())
-    return flatten(shipped[f"/**/{node}"]["ros__parameters"])
+    return dotted_names(shipped[f"/**/{node}"]["ros__parameters"])
 
 
 class Probe:

@@ -15,7 +15,8 @@ import yaml
 from star_tracker.centroid import CentroidConfig
 from star_tracker.identify import DatabaseConfig, IdentifyConfig
 from star_tracker.models.online_calibration import OnlineCalibrationConfig
-from star_tracker.parameter_spec import SPEC_KEY, ParameterSpec, field_specs, field_values, range_problems
+from star_tracker.parameter_spec import (SPEC_KEY, ParameterSpec, dotted_names, field_specs, field_values,
+                                         range_problems)
 from star_tracker.ros import parameter_yaml
 from star_tracker.ros.camera_simulator_parameters import (CAMERA_SIMULATOR_PARAMETERS, SENSOR_PARAMETERS,
                                                           SIMULATED_SENSOR, sensor_from)
@@ -31,16 +32,6 @@ NODES = {"camera_simulator": CAMERA_SIMULATOR_PARAMETERS, "centroider": CENTROID
          "identifier": IDENTIFIER_PARAMETERS}
 
 
-def flatten(mapping: dict, prefix: str = "") -> dict:
-    flat = {}
-    for key, value in mapping.items():
-        if isinstance(value, dict):
-            flat.update(flatten(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
-
-
 def test_the_shipped_yaml_is_the_generated_one():
     assert parameter_yaml.SHIPPED.read_text() == parameter_yaml.generate(), \
         "config/star_tracker.yaml differs from the specs: python -m star_tracker.ros.parameter_yaml --write"
@@ -49,7 +40,7 @@ def test_the_shipped_yaml_is_the_generated_one():
 
 @pytest.mark.parametrize("node", sorted(NODES))
 def test_the_yaml_holds_every_parameter_with_its_default_and_type(node):
-    shipped = flatten(yaml.safe_load(parameter_yaml.SHIPPED.read_text())[f"/**/{node}"]["ros__parameters"])
+    shipped = dotted_names(yaml.safe_load(parameter_yaml.SHIPPED.read_text())[f"/**/{node}"]["ros__parameters"])
     specs = {spec.name: spec for spec in NODES[node]}
     assert len(specs) == len(NODES[node]), "a parameter declared twice"
     assert set(shipped) == set(specs)

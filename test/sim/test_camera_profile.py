@@ -18,6 +18,7 @@ import yaml
 
 from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
+from star_tracker.parameter_spec import dotted_names
 from star_tracker.sim.camera_profile import ProfileFrame, censored_gaussian_fit, fit_camera_profile
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
@@ -85,16 +86,6 @@ def test_fit_recovers_known_camera_from_simulated_frames(catalog):
     assert abs(sensor.zero_point_e_per_s / TRUTH.zero_point_e_per_s - 1) < relative
 
 
-def flatten(mapping, prefix=""):
-    flat = {}
-    for key, value in mapping.items():
-        if isinstance(value, dict):
-            flat.update(flatten(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
-
-
 def test_shipped_profile_loads_through_the_camera_simulator_parameters():
     from star_tracker.commands.camera_files import load_camera_file
     from star_tracker.ros.camera_simulator_parameters import declare_camera, declare_sensor
@@ -105,7 +96,7 @@ def test_shipped_profile_loads_through_the_camera_simulator_parameters():
     assert 15.6 < pixel_scale_arcsec < 15.8  # the set's astrometry.net scale (15.72"/px)
     assert loaded.sensor.adc_bits == 8 and loaded.sensor.bias_adu == 0.0 and loaded.sensor.exposure_s == 0.05
     # The node declares every parameter with its range: the file's values must all be inside.
-    values = flatten(yaml.safe_load(PROFILE.read_text())["/**/camera_simulator"]["ros__parameters"])
+    values = dotted_names(yaml.safe_load(PROFILE.read_text())["/**/camera_simulator"]["ros__parameters"])
     used = set()
 
     def declare(name, default, description, low=None, high=None):
