@@ -67,8 +67,9 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     Returns the process exit code: 0 on a normal shutdown, 2 when the node could not start
     (bad arguments or parameters: one `fatal:` line on stderr, no traceback). A clean-up
     that hangs ends the process after SHUTDOWN_WATCHDOG_S with code 1 and every thread's
-    stack on stderr; SIGUSR1 prints those stacks at any time. For a node's own process only
-    (main()).
+    stack on stderr; SIGUSR1 prints those stacks at any time. Once stopping, further
+    SIGINT/SIGTERM are ignored (the watchdog bounds the clean-up). For a node's own process
+    only (main()): the signal handlers are not restored.
     """
     args = sys.argv if argv is None else argv
     configure_middleware()
@@ -90,7 +91,9 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
 
     main_thread = threading.current_thread() is threading.main_thread()
     stop_signals = (signal.SIGINT, signal.SIGTERM)
-    previous = {sig: signal.signal(sig, on_stop_signal) for sig in stop_signals} if main_thread else {}
+    if main_thread:
+        for sig in stop_signals:
+            signal.signal(sig, on_stop_signal)
     if main_thread and hasattr(signal, "SIGUSR1"):
         # `kill -USR1 <pid>` prints every thread's stack to stderr, even while the main
         # thread is blocked in C (a node that does not stop, a stuck DDS call).
@@ -124,6 +127,10 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
             code = 2
     finally:
         if main_thread:
+            # Stopping now: a second SIGINT (Ctrl-C reaches the whole process group, and `ros2
+            # launch` forwards one more) must not kill the clean-up half way (exit code -2).
+            for sig in stop_signals:
+                signal.signal(sig, signal.SIG_IGN)
             # A stop must never hang: past SHUTDOWN_WATCHDOG_S (here or in the interpreter's
             # exit), every thread's stack goes to stderr and the process exits with code 1.
             # A node with longer legitimate work in flight declares it (shutdown_extra_s [s]).
@@ -131,8 +138,6 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     return code
 
 
