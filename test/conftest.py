@@ -59,18 +59,18 @@ def nominal_camera():
     return CameraModel.from_fov(1024, 1024, np.radians(15.0))
 
 
-def join_isolated_ros_domain(monkeypatch) -> dict:
+def join_isolated_ros_domain(monkeypatch, domain_id: int | None = None) -> dict:
     """
     Put this test process on a private ROS domain and initialise rclpy.
 
-    Localhost discovery, the project's Fast DDS profile; returns that environment for the node
-    processes.
+    Localhost discovery, the project's Fast DDS profile; `domain_id` a fixed one (None: a
+    random one); returns that environment for the node processes.
     """
     import rclpy
 
     from star_tracker.ros.pipeline import isolated_ros_environment
 
-    env = isolated_ros_environment()
+    env = isolated_ros_environment(domain_id)
     for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
         monkeypatch.setenv(key, env[key])
     monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)

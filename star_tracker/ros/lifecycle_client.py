@@ -18,6 +18,8 @@ from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
+from .middleware import configure_middleware
+
 # The environment a process reads at rclpy.init: these must match the nodes' (discovery, profile).
 _DDS_VARIABLES = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "FASTRTPS_DEFAULT_PROFILES_FILE",
                   "FASTDDS_DEFAULT_PROFILES_FILE", "RMW_IMPLEMENTATION")
@@ -36,6 +38,11 @@ class LifecycleClient:
     _instances = itertools.count()
 
     def __init__(self, env: dict[str, str], name: str | None = None):
+        # The nodes' own profile (run_node does the same) unless `env` names one: the first
+        # participant of a process fixes Fast DDS's profiles for every later one in it (a test
+        # process without it lost most 2 MiB frames of a burst over fragmented UDP).
+        env = dict(env)
+        configure_middleware(env)
         saved = {key: os.environ.get(key) for key in _DDS_VARIABLES}
         try:
             for key in _DDS_VARIABLES:  # rmw reads them from this process's environment at init

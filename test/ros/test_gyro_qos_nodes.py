@@ -29,7 +29,8 @@ from sensor_msgs.msg import Imu, PointCloud2  # noqa: E402
 from star_tracker.centroid import FLAG_RATE_AIDED, FLAG_STREAK  # noqa: E402
 from star_tracker.models.attitude import quaternion_to_matrix  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
-from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
+from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
+from conftest import join_isolated_ros_domain  # noqa: E402
 from star_tracker.ros.qos import RESULT_QOS, SPOTS_QOS  # noqa: E402
 from test_centroider_node import RATE_DEG_S, streak_errors  # noqa: E402  (same camera, same checks)
 
@@ -38,15 +39,6 @@ RATE_HZ = 5.0
 MOUNTING = [0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5)]  # gyro +X along the sensor's +Y
 GYRO_FRAME = "imu_link"
 BEST_EFFORT = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)  # as IMU drivers publish
-
-
-def join_domain(monkeypatch, domain_id: int) -> dict:
-    env = isolated_ros_environment(domain_id)
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        monkeypatch.setenv(key, env[key])
-    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
-    rclpy.init(args=[])
-    return env
 
 
 class Probe:
@@ -125,7 +117,7 @@ class Probe:
 
 @pytest.mark.integration
 def test_best_effort_imu_then_vector3_aid_the_centroider(tmp_path, monkeypatch):
-    env = join_domain(monkeypatch, 211)
+    env = join_isolated_ros_domain(monkeypatch, 211)
     probe = Probe()
     params = {"camera_simulator": {"attitude.profile": "constant_rate", "attitude.body_rate_deg_s": RATE_DEG_S,
                                    "max_frames": FRAMES, "rate_hz": RATE_HZ, "wait_for_subscribers": True,
@@ -190,7 +182,7 @@ def test_best_effort_imu_then_vector3_aid_the_centroider(tmp_path, monkeypatch):
 
 @pytest.mark.integration
 def test_qos_override_parameter_changes_a_subscriptions_reliability(tmp_path, monkeypatch):
-    env = join_domain(monkeypatch, 212)
+    env = join_isolated_ros_domain(monkeypatch, 212)
     probe = rclpy.create_node("qos_probe")
     params = {"centroider": {"qos_overrides./imu.subscription.reliability": "reliable",
                              "qos_overrides./spots.publisher.depth": 5},

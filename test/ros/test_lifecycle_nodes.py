@@ -22,26 +22,11 @@ from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402
 from sensor_msgs.msg import CameraInfo, PointCloud2  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from conftest import spots_at  # noqa: E402
+from conftest import join_isolated_ros_domain, spots_at  # noqa: E402
 from star_tracker.models.attitude import radec_roll_to_matrix  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
-from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor, isolated_ros_environment  # noqa: E402
+from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor  # noqa: E402
 from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
-
-
-def join_domain(monkeypatch, domain_id: int) -> dict:
-    """
-    Join this test process to the private ROS domain `domain_id`.
-
-    As conftest's join_isolated_ros_domain, with a fixed id; returns the environment for the
-    nodes.
-    """
-    env = isolated_ros_environment(domain_id)
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        monkeypatch.setenv(key, env[key])
-    monkeypatch.delenv("ROS_LOCALHOST_ONLY", raising=False)
-    rclpy.init(args=[])
-    return env
 
 
 class IdentifierDriver:
@@ -128,7 +113,7 @@ def counter(values: dict[str, str], key: str) -> int:
 @pytest.mark.integration
 def test_identifier_lifecycle_round_trip_keeps_its_database(monkeypatch, tmp_path, catalog, nominal_camera,
                                                             database):
-    env = join_domain(monkeypatch, DOMAIN)
+    env = join_isolated_ros_domain(monkeypatch, DOMAIN)
     good = spots_at(catalog.brighter_than(6.8).at_epoch(2026.0), nominal_camera, radec_roll_to_matrix(2.0, -0.4, 1.0))
     driver = IdentifierDriver(good)
     nodes = NodeProcesses(env, tmp_path / "logs", params={"identifier": {"autostart": False}}, nodes=("identifier",))
@@ -190,7 +175,7 @@ def test_identifier_lifecycle_round_trip_keeps_its_database(monkeypatch, tmp_pat
 @pytest.mark.integration
 def test_reset_drops_tracking_and_the_next_frame_is_lost_in_space(monkeypatch, tmp_path, catalog, nominal_camera,
                                                                   database):
-    env = join_domain(monkeypatch, DOMAIN + 1)
+    env = join_isolated_ros_domain(monkeypatch, DOMAIN + 1)
     good = spots_at(catalog.brighter_than(6.8).at_epoch(2026.0), nominal_camera, radec_roll_to_matrix(2.0, -0.4, 1.0))
     driver = IdentifierDriver(good)
     nodes = NodeProcesses(env, tmp_path / "logs", nodes=("identifier",))
@@ -229,7 +214,7 @@ def test_pipeline_driven_through_the_lifecycle_services(monkeypatch, tmp_path):
     deactivated publishes nothing, activated again it resumes its time line (skipped frames
     counted) and attitudes flow again.
     """
-    env = join_domain(monkeypatch, DOMAIN + 2)
+    env = join_isolated_ros_domain(monkeypatch, DOMAIN + 2)
     params = {name: {"autostart": False} for name in ("camera_simulator", "centroider", "identifier")}
     params["camera_simulator"].update({"rate_hz": 2.0})
     monitor = TrackerMonitor(name="lifecycle_monitor")
@@ -273,7 +258,7 @@ def test_a_failed_configure_leaves_the_node_unconfigured_and_running(monkeypatch
     Configure fails with the reason in the log and `transitions_failed` counted; the node stays
     unconfigured and still answers; shutdown ends it.
     """
-    env = join_domain(monkeypatch, DOMAIN + 3)
+    env = join_isolated_ros_domain(monkeypatch, DOMAIN + 3)
     driver = IdentifierDriver(spots=None)
     params = {"identifier": {"autostart": False, "algorithm": "guesswork"}}
     nodes = NodeProcesses(env, tmp_path / "logs", params=params, nodes=("identifier",))
