@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import itertools
 import os
+import subprocess
+import sys
 import time
 from typing import Callable
 
@@ -145,3 +147,52 @@ class LifecycleClient:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def wait_for_state(env: dict[str, str], node_names, state: str = "active", timeout_s: float = 120.0,
+                   check: Callable[[str], None] | None = None) -> None:
+    """
+    Block until every node answers ~/get_state with `state`, from this process or a child.
+
+    Where this process has no default rclpy context yet (a test of the CLI or the install,
+    the demo's own code), the polling client runs in a child process: a private context as
+    the first DDS participant of a process was followed, in the same process, by best-effort
+    2 MiB bursts that never arrived (test_overload_nodes after test_colcon_install). Where the
+    default context is up already, in-process as before. `check(name)` as in
+    LifecycleClient.wait_for_state; TimeoutError with the child's reason.
+    """
+    names = list(node_names)
+    if rclpy.ok():
+        with LifecycleClient(env) as client:
+            client.wait_for_state(names, state, timeout_s, check=check)
+        return
+    child = subprocess.Popen([sys.executable, "-m", __name__, state, str(timeout_s), *names], env=dict(env),
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        while child.poll() is None:
+            if check is not None:
+                for name in names:
+                    check(name)
+            time.sleep(0.2)
+    finally:
+        if child.poll() is None:
+            child.kill()
+        reason = child.communicate()[1].strip()
+    if child.returncode != 0:
+        raise TimeoutError(reason.splitlines()[-1] if reason else f"not {state} after {timeout_s} s: {names}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Wait in this process: `python -m star_tracker.ros.lifecycle_client STATE TIMEOUT_S NODE...` (exit 1: timeout)."""
+    state, timeout_s, *names = sys.argv[1:] if argv is None else argv
+    with LifecycleClient(dict(os.environ)) as client:
+        try:
+            client.wait_for_state(names, state, float(timeout_s))
+        except TimeoutError as exc:
+            print(exc, file=sys.stderr)
+            return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -25,7 +25,7 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from ..models.attitude import attitude_error, quaternion_to_matrix
 from . import convert
-from .lifecycle_client import LifecycleClient
+from .lifecycle_client import LifecycleClient, wait_for_state
 from .middleware import configure_middleware
 from .qos import IMAGE_QOS, sensor_qos
 
@@ -166,8 +166,7 @@ class NodeProcesses:
         names = list(self.processes if names is None else names)
         for state in sorted({self.expected_state(name) for name in names}):
             paths = {self.node_path(n): n for n in names if self.expected_state(n) == state}
-            self.lifecycle.wait_for_state(list(paths), state, timeout_s,
-                                          check=lambda path: self.check_alive(paths[path]))
+            wait_for_state(self.env, list(paths), state, timeout_s, check=lambda path: self.check_alive(paths[path]))
 
     def get_state(self, name: str) -> str | None:
         """Return a node's lifecycle state label (None: no answer)."""

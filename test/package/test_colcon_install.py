@@ -181,18 +181,17 @@ def test_installed_node_runs_from_install_tree_and_stops_on_sigint(
             stderr=subprocess.STDOUT, start_new_session=True, preexec_fn=_default_signals,
         )
     try:
-        from star_tracker.ros.lifecycle_client import LifecycleClient
+        from star_tracker.ros.lifecycle_client import wait_for_state
 
         def alive(_name):
             if proc.poll() is not None:
                 pytest.fail(f"{executable} exited with {proc.returncode} before it was active"
                             f":\n{_tail(log_path)}")
 
-        with LifecycleClient(node_env) as lifecycle:  # readiness is the lifecycle state, not a log line
-            try:
-                lifecycle.wait_for_state([executable], "active", READY_TIMEOUT_S, check=alive)
-            except TimeoutError as exc:
-                pytest.fail(f"{executable}: {exc}:\n{_tail(log_path)}")
+        try:  # readiness is the lifecycle state, not a log line
+            wait_for_state(node_env, [executable], "active", READY_TIMEOUT_S, check=alive)
+        except TimeoutError as exc:
+            pytest.fail(f"{executable}: {exc}:\n{_tail(log_path)}")
         assert proc.poll() is None, f"{executable} exited right after activating:\n{_tail(log_path)}"
 
         proc.send_signal(signal.SIGINT)
