@@ -121,8 +121,7 @@ class CentroiderNode(ManagedNode):
             self.destroy_lifecycle_publisher(self.pub)
             self.pub = None
         self.camera_info = CameraInfoInput(self, self.diag, self.log)
-        self.rate_input = RateInput(self.rate_input.reject, self.rate_input.mounting_quaternion,
-                                    self.rate_input.gyro_frame_id)  # no samples carried over
+        self.rate_input.clear()
         self.psf.reset()
 
     def apply_parameters(self, changes: dict) -> str | None:

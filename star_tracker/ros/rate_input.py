@@ -106,10 +106,13 @@ class RateInput:
                  gyro_frame_id: str = ""):
         """reject(counter, text): count and report a refused message or an unaided frame."""
         self.reject = reject
-        self.mounting_quaternion = mounting_quaternion
         self.mounting = mounting_matrix(mounting_quaternion)
         self.gyro_frame_id = gyro_frame_id
         self.samples = {"angular_velocity": RateSamples(), "imu": RateSamples()}
+
+    def clear(self) -> None:
+        """Forget every sample received (lifecycle cleanup); the mounting and frame stay."""
+        self.samples = {topic: RateSamples() for topic in self.samples}
 
     def on_vector3(self, msg) -> None:
         """geometry_msgs/Vector3Stamped: in the gyro frame (when configured) or the sensor frame."""

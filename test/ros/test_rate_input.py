@@ -97,6 +97,17 @@ def test_frames_without_a_recent_rate_are_counted():
     assert reject.counts == {"frames_without_rate": 2, "frames_rate_too_old": 2}
 
 
+def test_clear_forgets_the_samples_and_keeps_the_mounting():
+    reject = Counted()
+    rates = RateInput(reject, MOUNT_Z90, "imu_link")
+    rates.on_imu(imu([0.01, 0.0, 0.0], T0))
+    rates.clear()  # lifecycle cleanup
+    assert rates.for_frame("imu", T0, 0.1, 0.5) is None
+    assert reject.counts == {"frames_without_rate": 1}
+    rates.on_imu(imu([0.01, 0.0, 0.0], T0))
+    assert np.allclose(rates.for_frame("imu", T0, 0.1, 0.5), [0.0, 0.01, 0.0], atol=1e-15)
+
+
 def test_the_frame_gets_the_mean_rate_of_its_exposure_else_the_nearest_sample():
     samples = RateSamples()
     for k in range(-100, 101):  # a 1 kHz gyro, rate ramping in x by 0.001 rad/s per ms
