@@ -10,7 +10,9 @@ Parameters are declared in the constructor (so `ros2 param` works while unconfig
 topics; `activate` starts publishing (lifecycle publishers) and processing; `deactivate`
 stops it, keeping everything configured (input arriving meanwhile is ignored and counted);
 `cleanup` releases what `configure` made; `shutdown` releases everything and ends the
-process. /diagnostics is published in every state, with `lifecycle_state`.
+process. After `configure` the heap is collected and frozen (settle_heap), so no full garbage
+collection scans the long-lived objects while frames arrive. /diagnostics is published in
+every state, with `lifecycle_state`.
 
 A transition requested in a state that has no such transition is refused (success false),
 logged and counted (`transitions_refused`); the node keeps its state. A transition callback
@@ -21,6 +23,7 @@ itself on start, so `ros2 run` stays one command.
 from __future__ import annotations
 
 import functools
+import gc
 import threading
 import traceback
 from typing import Callable
@@ -60,6 +63,18 @@ def transition_callback(method: Callable) -> Callable:
         return TransitionCallbackReturn.SUCCESS if result is None else result
 
     return wrapper
+
+
+def settle_heap() -> None:
+    """
+    Collect once, then exempt every object alive now from later collections (gc.freeze).
+
+    The imports, kernels and database leave ~1.5e5 long-lived objects; without this a full
+    collection scans them all while frames arrive (a 134 ms pause mid-run measured in the
+    centroider of `star-tracker demo`; 0.1 ms after the freeze).
+    """
+    gc.collect()
+    gc.freeze()
 
 
 class ManagedNode(LifecycleNode):
@@ -106,6 +121,7 @@ class ManagedNode(LifecycleNode):
         except Exception:
             self.release()  # nothing half-made survives a failed configure
             raise
+        settle_heap()
         self._report("inactive", "configured; waiting for activate")
         return None
 
@@ -128,6 +144,7 @@ class ManagedNode(LifecycleNode):
     @transition_callback
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.release()
+        gc.unfreeze()  # what configure made may be collected again
         self._report("unconfigured", "cleaned up; waiting for configure")
         return None
 
