@@ -21,8 +21,10 @@ $(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml p
 demo: $(STAMP)
 	$(VENV)/bin/star-tracker demo --duration 30 --output demo_output
 
+# Two workers (pytest-xdist), each test file in one of them (the files' fixed ROS domains);
+# `pytest` alone runs the same tests in one process.
 test: $(STAMP) ros2cli
-	$(PY) -m pytest
+	$(PY) -m pytest -n 2 --dist loadfile
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -m "not slow"

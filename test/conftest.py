@@ -16,6 +16,26 @@ import numpy as np
 import pytest
 
 
+# ROS domains: random private ones come from 100-199 (star_tracker/ros/domain_ids.py),
+# split between pytest-xdist workers below; fixed ones, each used by one test file (which
+# --dist loadfile keeps in one worker): 201-203 parameter defaults, 206-209 lifecycle, 211-212
+# gyro/QoS, 214 an empty domain (test_commands), 216-221 ros2 CLI, 231 bags; 223-226 the
+# cold-start benchmark.
+
+
+def pytest_configure(config):
+    """Give each pytest-xdist worker its own share of the random private ROS domains."""
+    from star_tracker.ros.domain_ids import DEFAULT_DOMAIN_IDS, DOMAIN_IDS_VARIABLE
+
+    worker, count = os.environ.get("PYTEST_XDIST_WORKER"), os.environ.get("PYTEST_XDIST_WORKER_COUNT")
+    if not worker or not count:
+        return
+    low, high = DEFAULT_DOMAIN_IDS
+    share = (high - low + 1) // int(count)
+    first = low + int(worker.removeprefix("gw")) * share
+    os.environ[DOMAIN_IDS_VARIABLE] = f"{first}-{first + share - 1}"
+
+
 @pytest.fixture(scope="session", autouse=True)
 def private_cache(tmp_path_factory):
     if "STAR_TRACKER_TEST_CACHE" in os.environ:  # opt-in reuse for quick local iterations

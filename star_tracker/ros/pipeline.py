@@ -25,6 +25,7 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from ..models.attitude import attitude_error, quaternion_to_matrix
 from . import convert
+from .domain_ids import private_domain_ids
 from .lifecycle_client import LifecycleClient, wait_for_state
 from .middleware import configure_middleware
 from .qos import IMAGE_QOS, sensor_qos
@@ -44,10 +45,11 @@ def isolated_ros_environment(domain_id: int | None = None) -> dict[str, str]:
     """
     Environment for a private DDS graph on this host.
 
-    A random domain id and localhost-only discovery, plus the Fast DDS profile.
+    A random domain id (from private_domain_ids()) and localhost-only discovery, plus the Fast
+    DDS profile.
     """
     env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(100, 199))
+    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(*private_domain_ids()))
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy; conflicts with the range setting
     configure_middleware(env)

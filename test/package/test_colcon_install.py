@@ -81,7 +81,9 @@ def node_env(prefix, tmp_path_factory) -> dict[str, str]:
     env = os.environ.copy()
     _prepend(env, "PYTHONPATH", prefix / SITE_PACKAGES)
     _prepend(env, "AMENT_PREFIX_PATH", prefix)
-    env["ROS_DOMAIN_ID"] = str(random.randint(100, 200))
+    from star_tracker.ros.domain_ids import private_domain_ids  # this run's share of the private ids (conftest)
+
+    env["ROS_DOMAIN_ID"] = str(random.randint(*private_domain_ids()))
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy; would fight the setting above
     if not env.get("STAR_TRACKER_CACHE"):

@@ -147,7 +147,8 @@ def test_every_test_and_bench_import_is_declared():
 def test_linters_and_test_plugins_are_declared():
     test_depends = _depends(("test_depend",))
     dev_pins = _pins("requirements-dev.txt")
-    for key, pip_name in (("python3-pytest-timeout", "pytest-timeout"), ("python3-flake8", "flake8"),
+    for key, pip_name in (("python3-pytest-timeout", "pytest-timeout"), ("python3-pytest-xdist", "pytest-xdist"),
+                          ("python3-flake8", "flake8"),
                           ("python3-pydocstyle", "pydocstyle")):
         assert key in test_depends and canonicalize_name(pip_name) in dev_pins, pip_name
 
