@@ -26,7 +26,6 @@ kernels and builds the pattern database, minutes on a loaded 2-core host).
 from __future__ import annotations
 
 import copy
-import importlib.util
 import math
 import os
 import re
@@ -436,10 +435,10 @@ def run_nodes(user_env, tmp_path_factory):
         ros2.kill_all()
 
 
-def skip_without_lifecycle(ros2: Ros2) -> None:
+def require_lifecycle(ros2: Ros2) -> None:
+    """Fail (never skip: issue 18 made every node managed) when the nodes offer no lifecycle services."""
     if not ros2.lifecycle:
-        pytest.skip("issue 18 part 5 (lifecycle branch) not merged: the nodes have no lifecycle services "
-                    "(/identifier/get_state), so there is no `ros2 lifecycle` to drive")
+        pytest.fail("the nodes have no lifecycle services (/identifier/get_state): no `ros2 lifecycle` to drive")
 
 
 def test_ros2_run_nodes_form_the_pipeline(run_nodes):
@@ -507,7 +506,7 @@ def test_ros2_param_set_of_a_runtime_parameter(run_nodes, node):
     """Issue 18 part 2: a runtime parameter is set, an invalid value refused with the reason, unchanged."""
     name, new, invalid = RUNTIME_PARAMETER[node]
     if describe(run_nodes, f"/{node}", [name])[name].get("Read only") == "true":
-        pytest.skip(f"issue 18 part 2 (params branch) not merged: {node} {name} is read-only")
+        pytest.fail(f"{node} {name} is read-only; it must be settable at runtime")
     before = run_nodes("param", "get", f"/{node}", name)
     try:
         out = run_nodes("param", "set", f"/{node}", name, repr(new))
@@ -521,7 +520,7 @@ def test_ros2_param_set_of_a_runtime_parameter(run_nodes, node):
 
 
 def test_ros2_lifecycle_get_every_node(run_nodes):
-    skip_without_lifecycle(run_nodes)
+    require_lifecycle(run_nodes)
     listed = run_nodes("lifecycle", "nodes").split()
     assert {f"/{n}" for n in NODES} <= set(listed), listed
     for node in NODES:
@@ -541,7 +540,7 @@ def lifecycle_set(ros2: Ros2, node: str, transition: str, state: str) -> None:
 
 def test_ros2_lifecycle_round_trip_keeps_the_identifier_database(run_nodes):
     """Deactivate, a refused transition, cleanup, configure, activate, deactivate, activate: attitudes again."""
-    skip_without_lifecycle(run_nodes)
+    require_lifecycle(run_nodes)
     node = "/identifier"
     lifecycle_set(run_nodes, node, "deactivate", "inactive")
     out = run_nodes("lifecycle", "set", node, "deactivate", check=False)
@@ -560,9 +559,9 @@ def test_ros2_lifecycle_round_trip_keeps_the_identifier_database(run_nodes):
 
 
 def test_ros2_service_call_identifier_reset(run_nodes):
-    skip_without_lifecycle(run_nodes)
+    require_lifecycle(run_nodes)
     if "/identifier/reset" not in run_nodes("service", "list").split():
-        pytest.skip("issue 18 part 5 (lifecycle branch) not merged: no /identifier/reset service")
+        pytest.fail("no /identifier/reset service")
     command = (readme_commands("service") or ["ros2 service call /identifier/reset std_srvs/srv/Trigger"])[0]
     out = run_nodes(*shlex.split(command)[1:])
     assert "success=True" in out, out
@@ -622,7 +621,7 @@ def test_readme_remaps_and_parameters_take_effect(readme_examples):
 def test_readme_lifecycle_walk_through(readme_examples):
     """The README's `-p autostart:=false` identifier driven by its `ros2 lifecycle set` lines, as written."""
     if not readme_commands("autostart"):
-        pytest.skip("issue 18 part 5 (lifecycle branch) not merged: the README has no lifecycle walk-through")
+        pytest.fail("the README has no lifecycle walk-through")
     ros2 = readme_examples["autostart"]
     (node,) = {f"/{c.split()[3]}" for c in readme_commands("autostart")}
     assert ros2("lifecycle", "get", node).strip() == "unconfigured [1]"
@@ -646,8 +645,6 @@ def test_nodes_started_without_a_params_file_equal_the_yaml(readme_examples, shi
         expected = {k: v for k, v in yaml_parameters(shipped_yaml, node).items() if k not in given}
         differ[node] = mismatches(dump(ros2, f"/{node}"), expected)
     differ = {node: d for node, d in differ.items() if d}
-    if differ and importlib.util.find_spec("star_tracker.ros.parameter_yaml") is None:
-        pytest.skip(f"issue 18 part 1 (params branch) not merged; built-in defaults differ: {differ}")
     assert not differ, f"built-in defaults (dump) vs the shipped YAML: {differ}"
 
 
@@ -712,7 +709,7 @@ def test_ros2_launch_names_nodes_and_topics_in_its_namespace(launched):
 def test_ros2_launch_lifecycle_and_reset(launched):
     ns = launched.namespace
     if not launched.has_lifecycle(f"{ns}/identifier"):
-        pytest.skip("issue 18 part 5 (lifecycle branch) not merged: no lifecycle services")
+        pytest.fail(f"{ns}/identifier has no lifecycle services")
     for node in NODES:
         assert launched("lifecycle", "get", f"{ns}/{node}").strip() == "active [3]"
     out = launched("service", "call", f"{ns}/identifier/reset", "std_srvs/srv/Trigger")
