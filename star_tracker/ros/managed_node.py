@@ -160,6 +160,7 @@ class ManagedNode(LifecycleNode):
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.active = False
         self.release()
+        gc.unfreeze()  # as cleanup: a later configure freezes what it makes
         self._report("unconfigured", f"error in a transition from {state.label}; cleaned up")
         return None
 
