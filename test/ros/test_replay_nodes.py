@@ -208,7 +208,9 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
         player = cli(["play", bag, "--rate", "0", "--start-offset", f"{(images[first][0] - info.start_ns) * 1e-9:.9f}",
                       "--topics", "image_raw", "camera_info", "--clock",
                       "--ack-topics", "spots", "attitude", "/det/spots", "/det/attitude",
-                      "--wait-for-subscribers", "2"], env, tmp_path / "play.log")
+                      # Lockstep must hold on a loaded host: the default 1 s once expired (CI
+                      # rehearsal, two workers) and the next image overtook a frame in work.
+                      "--ack-timeout", "10", "--wait-for-subscribers", "2"], env, tmp_path / "play.log")
         collector.spin_for(180, until=lambda: player.poll() is not None)
         collector.spin_for(2.0)  # the last /diagnostics
     finally:
