@@ -248,7 +248,14 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     else:  # gaussian: streaks keep the centre of gravity
         as_streak = np.zeros(n, bool)
     as_streak &= ~multi
-    as_point = ~as_streak & ~elongated & ~multi
+    # In a frame whose well-measured stars are round, a faint spot's elongation is its noise:
+    # measured as a streak it gains the flux of the noise along the fitted segment and outranks
+    # real stars (real photographs' dark frames). Such spots are measured as points.
+    noise_elongated = np.zeros(n, bool)
+    if aid is None and config.method == "auto" and _round_frame(kept, elongated, saturated, multi):
+        noise_elongated = elongated & ~multi & ~saturated & (kept.snr < STATIC_STREAK_MIN_SNR)
+        as_streak &= ~noise_elongated
+    as_point = ~as_streak & (~elongated | noise_elongated) & ~multi
     clipped_point = as_point & saturated
     as_point &= ~saturated
     # In a smeared frame (most well-measured spots are streaks) a spot with several peaks is
@@ -276,6 +283,21 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     probe = np.flatnonzero(~saturated & ~multi & ((as_point & (spots.snr > 0)) | path_fitted))
     spots, more, clipping = _refit_undershot(context, kept, spots, replace(clipping, fitted=fitted), probe, aid)
     return spots, added + [more], clipping
+
+
+# A frame is judged static (its stars round) from at least ROUND_FRAME_MIN_SPOTS spots of SNR >=
+# ROUND_FRAME_MIN_SNR, unsaturated and single-peaked, of which fewer than half are elongated;
+# there, elongated spots below STATIC_STREAK_MIN_SNR are measured as points.
+ROUND_FRAME_MIN_SNR = 10.0
+ROUND_FRAME_MIN_SPOTS = 2
+STATIC_STREAK_MIN_SNR = 10.0
+
+
+def _round_frame(kept: Candidates, elongated: np.ndarray, saturated: np.ndarray, multi: np.ndarray) -> bool:
+    """Whether the frame's well-measured spots show round stars (no smear): see ROUND_FRAME_*."""
+    clear = (kept.snr >= ROUND_FRAME_MIN_SNR) & ~saturated & ~multi
+    count = int(clear.sum())
+    return count >= ROUND_FRAME_MIN_SPOTS and int((elongated & clear).sum()) < 0.5 * count
 
 
 def _refit_undershot(context: FitContext, kept: Candidates, spots: SpotRows, clipping: _Clipping,
