@@ -35,6 +35,7 @@ ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
 FIELD_SEARCHES = ("patterns", "steps", "both")
 DEFAULT_FIELD_SEARCH = "both"
 PATTERN_SEARCH_BUDGET_S = 1.5  # CPU time for the scale-free pattern search
+DEFAULT_STEP_SEARCH_TIME_S = 1.5  # CPU time shared by the stepped fields (a fallback: say "not solved" soon)
 
 ALGORITHM_NAMES = ("angle_pivot", "composite", "hybrid", "match_groups", "pyramid", "spherical_triangle")
 DEFAULT_ALGORITHM = "hybrid"
@@ -76,6 +77,10 @@ def register(subparsers) -> None:
                              "matched by shape alone give the focal length (fast, and a frame that cannot be "
                              "solved says so quickly); 'steps' = identify at fields stepped by --fov-step; "
                              f"'both' = patterns first, then steps (default {DEFAULT_FIELD_SEARCH})")
+    parser.add_argument("--step-search-time", type=positive_float, default=DEFAULT_STEP_SEARCH_TIME_S, metavar="S",
+                        help="CPU time shared by the stepped fields of --field-search steps/both [s] (default "
+                             f"{DEFAULT_STEP_SEARCH_TIME_S:g}: each field gets its share, at most --max-time; the "
+                             "pattern search finds the field of most frames, and an unsolvable frame says so soon)")
     parser.add_argument("--no-refine", action="store_true",
                         help="keep the given/searched camera (default with --fov: refine its focal length and, "
                              "where the stars constrain them, k1, k2 and the principal point by least squares over "
@@ -123,6 +128,7 @@ class SolveOptions:
     fov_tolerance_pct: float = 5.0
     field_search: str = DEFAULT_FIELD_SEARCH
     fov_step_pct: float = 0.5
+    step_search_time_s: float = DEFAULT_STEP_SEARCH_TIME_S
     refine_focal: bool = True
     centroid_sigma_floor_px: float = 0.3
     max_time_s: float = 0.5
@@ -199,16 +205,21 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     if hasattr(identifier, "warm_up"):
         identifier.warm_up(nominal)  # compile/load the kernels outside the time budget
     result = SolveResult(None, nominal, database)
-    candidates = [nominal] if camera is not None else field_candidates(spots, nominal, database, fov_deg, options,
-                                                                       result.attempts)
-    for index, trial in enumerate(candidates):
+    candidates = [(nominal, False)] if camera is not None else field_candidates(spots, nominal, database, fov_deg,
+                                                                                options, result.attempts)
+    steps = sum(stepped for _, stepped in candidates)
+    step_budget = min(options.max_time_s, options.step_search_time_s / steps) if steps else options.max_time_s
+    for index, (trial, stepped) in enumerate(candidates):
         budget = options.max_time_s if hasattr(identifier, "warm_up") or index else max(options.max_time_s, 20.0)
+        if stepped:
+            budget = step_budget
         identifier.config = replace(config, max_time_s=budget)
         started = time.perf_counter()
         identification = identifier.identify(spots, trial)
         trial_fov = math.degrees(2.0 * math.atan(0.5 * trial.width / trial.fx))
         result.attempts.append({"fov_x_deg": trial_fov, "status": identification.status,
-                                "elapsed_s": round(time.perf_counter() - started, 3)})
+                                "elapsed_s": round(time.perf_counter() - started, 3), "budget_s": budget}
+                               | ({"stepped": True} if stepped else {}))
         if report is not None and (index or not identification.solved):
             report(f"FOV {trial_fov:.4f} deg: {identification.status} ({time.perf_counter() - started:.2f} s)"
                    f"  [{index + 1}/{len(candidates)}]")
@@ -245,10 +256,11 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
 
 def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOptions, attempts: list) -> list:
     """
-    Cameras to identify at, in order.
+    (camera, stepped) pairs to identify at, in order.
 
     The focal lengths of scale-free pattern matches (identify/scale_free.py; the search is
-    appended to `attempts`), then (field_search steps/both) the stepped fields.
+    appended to `attempts`), then (field_search steps/both) the stepped fields (stepped True:
+    they share options.step_search_time_s).
     """
     from ..identify.deadline import Deadline
     from ..identify.scale_free import estimate_fields, load_or_build_patterns
@@ -266,9 +278,9 @@ def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOpt
                          "status": f"{len(estimates)} field(s) found" if estimates else "no pattern matched",
                          "fields_deg": [round(math.degrees(2.0 * math.atan(0.5 * e.camera.width / e.camera.fx)), 4)
                                         for e in estimates]})
-        cameras += [estimate.camera for estimate in estimates]
+        cameras += [(estimate.camera, False) for estimate in estimates]
     if options.field_search in ("steps", "both"):
-        cameras += [camera_for_fov(nominal.width, nominal.height, f)
+        cameras += [(camera_for_fov(nominal.width, nominal.height, f), True)
                     for f in fov_candidates(fov_deg, options.fov_tolerance_pct, options.fov_step_pct)]
     return cameras
 
@@ -491,7 +503,8 @@ def run(args: argparse.Namespace) -> int:
     spots = extract_spots(pixels, config)
     report = None if args.quiet else (lambda text: print(f"solve: {text}", file=sys.stderr, flush=True))
     options = SolveOptions(algorithm=args.algorithm, fov_tolerance_pct=args.fov_tolerance,
-                           fov_step_pct=args.fov_step, field_search=args.field_search, refine_focal=not args.no_refine,
+                           fov_step_pct=args.fov_step, field_search=args.field_search,
+                           step_search_time_s=args.step_search_time, refine_focal=not args.no_refine,
                            centroid_sigma_floor_px=args.centroid_sigma_floor, max_time_s=args.max_time,
                            magnitude_limit=args.magnitude_limit, epoch_jyear=args.epoch)
     result = solve_spots(spots, width, height, fov_deg=args.fov, camera=camera, options=options, report=report)

@@ -218,16 +218,16 @@ def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -
         raise ValueError(f"star arrays disagree: vectors {vectors.shape}, hip {hip.shape}, magnitude {magnitude.shape}")
     if not (np.all(np.isfinite(vectors)) and np.all(np.abs(np.linalg.norm(vectors, axis=1) - 1.0) < 1e-9)):
         raise ValueError("star vectors are not finite unit vectors")
-    if not (np.all(np.diff(hip) > 0) and hip[0] > 0 and np.all(np.isfinite(magnitude))):
+    if not (np.all(hip[1:] > hip[:-1]) and hip[0] > 0 and np.all(np.isfinite(magnitude))):
         raise ValueError("hip ids not strictly increasing, or magnitudes not finite")
     if pair_a.shape != (m,) or pair_b.shape != (m,) or k.shape != (m,) or angle.ndim != 1 or m < 2:
         raise ValueError(f"pair arrays disagree: a {pair_a.shape}, b {pair_b.shape}, angle {angle.shape}, k {k.shape}")
     if not (np.all(pair_a >= 0) and np.all(pair_a < pair_b) and np.all(pair_b < n)):
         raise ValueError("pair star indices out of range")
-    if not (np.all(np.isfinite(angle)) and angle[0] >= 0.0 and np.all(np.diff(angle) >= 0.0)
+    if not (np.all(np.isfinite(angle)) and angle[0] >= 0.0 and np.all(angle[1:] >= angle[:-1])
             and angle[-1] <= config.max_pair_angle_rad + 1e-12):
         raise ValueError("pair angles not sorted within [0, max_pair_angle_rad]")
-    if not (np.all(np.diff(k) >= 0) and k[0] >= 0 and k[-1] <= m and np.isfinite(slope) and slope > 0
+    if not (np.all(k[1:] >= k[:-1]) and k[0] >= 0 and k[-1] <= m and np.isfinite(slope) and slope > 0
             and np.isfinite(intercept)):
         raise ValueError("k-vector inconsistent")
     # The stored angles must be those of the stored stars (a sample: this runs at every start).

@@ -36,10 +36,11 @@ from .skygrid import SkyGrid
 from .verify import MIN_STARS, log_chance_tuples
 from .deadline import Deadline
 
-# Triangles per compiled call; the deadline is checked between calls. The first pyramid
-# batch holds all 220 triangles of the default 12 pattern spots (one call on easy frames).
-PYRAMID_BATCH = 256
-BATCH_TRIANGLES = 64
+# Triangles per compiled call; the deadline is checked between calls. Small enough that a
+# frame of wide spots (loose tolerances: ~2 ms a triangle over a wide field's pairs) still
+# checks it every ~0.03-0.06 s; an easy frame solves within the first call.
+PYRAMID_BATCH = 16
+BATCH_TRIANGLES = 16
 
 
 @lru_cache(maxsize=128)

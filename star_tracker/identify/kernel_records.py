@@ -46,7 +46,7 @@ class PairIndex(NamedTuple):
     The star pairs sorted by angle and their k-vector (kvector.KVector).
 
     pair_angle (P,) [rad]; k (P,); slope, intercept of the k-vector line; pair_a, pair_b
-    (P,) star indices.
+    (P,) star indices (int32, as the database holds them).
     """
 
     pair_angle: np.ndarray
@@ -59,8 +59,11 @@ class PairIndex(NamedTuple):
     @staticmethod
     def build(database) -> "PairIndex":
         kv = database.kvector
-        return PairIndex(kv.sorted_values, kv.k.astype(np.int64), float(kv.slope), float(kv.intercept),
-                         database.pair_a.astype(np.int64), database.pair_b.astype(np.int64))
+        # The pair arrays as stored (int32 star indices): a copy of tens of millions of pairs
+        # would cost more than the search it serves.
+        return PairIndex(kv.sorted_values, np.ascontiguousarray(kv.k, dtype=np.int64), float(kv.slope),
+                         float(kv.intercept), np.ascontiguousarray(database.pair_a),
+                         np.ascontiguousarray(database.pair_b))
 
 
 class SpotArrays(NamedTuple):

@@ -258,6 +258,12 @@ def test_solve_reports_failure_and_bad_input(tmp_path):
     assert unsolved["reason"].startswith("no four-star pattern of the brightest spots matched the sky at a field "
                                          f"within the tolerance; no field of {len(stepped)} tried (9.900-10.100 deg) "
                                          "identified the stars: ")
+    # The stepped fields share one CPU budget (default 1.5 s), so an unsolvable frame says so soon.
+    assert all(a["stepped"] for a in stepped) and sum(a["budget_s"] for a in stepped) <= 1.5 + 1e-9
+    code, out, _ = cli("solve", tmp_path / "fake.png", "--fov", "10", "--fov-tolerance", "1", "--json",
+                       "--step-search-time", "0.2")
+    shared = [a for a in json.loads(out)["attempts"] if a.get("stepped")]
+    assert len(shared) == len(stepped) and sum(a["budget_s"] for a in shared) == pytest.approx(0.2)
     code, out, _ = cli("solve", tmp_path / "fake.png", "--fov", "10", "--field-search", "patterns", "--json")
     quick = json.loads(out)
     assert code == 1 and [a.get("search") for a in quick["attempts"]] == ["patterns"]
