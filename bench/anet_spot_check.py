@@ -28,7 +28,7 @@ CENTRE = re.compile(r"RA,Dec = \(([\d.]+),([-\d.]+)\), pixel scale ([\d.]+) arcs
 
 
 def anet_best(log: str) -> dict | None:
-    """The best-scoring match in a solve-field log: log-odds, matches, conflicts, RA, Dec [deg]."""
+    """Return the best-scoring match in a solve-field log: log-odds, matches, conflicts, RA, Dec [deg]."""
     best = None
     lines = log.splitlines()
     for k, line in enumerate(lines):
@@ -37,7 +37,8 @@ def anet_best(log: str) -> dict | None:
             continue
         centre = next((CENTRE.search(x) for x in lines[k:k + 6] if CENTRE.search(x)), None)
         row = {"log_odds": float(found.group(1)), "matches": int(found.group(2)), "conflicts": int(found.group(3)),
-               "ra_deg": float(centre.group(1)) if centre else None, "dec_deg": float(centre.group(2)) if centre else None}
+               "ra_deg": float(centre.group(1)) if centre else None,
+               "dec_deg": float(centre.group(2)) if centre else None}
         if best is None or row["log_odds"] > best["log_odds"]:
             best = row
     return best
