@@ -53,6 +53,7 @@ class DatabaseConfig:
     DEFAULT_PAIR_ANGLE_DEG: ClassVar[float] = 22.0
     # Widest field diagonal for_camera accepts [deg]: its pairs (diagonal + 1 deg) stay within 90 deg.
     MAX_FIELD_DIAGONAL_DEG: ClassVar[float] = 89.0
+    NARROW_PAIR_MARGIN: ClassVar[float] = 1.1  # a narrow field's pair range over its diagonal (for_camera)
 
     magnitude_limit: float = parameter(6.5, "faintest guide star", "Hp mag", -2.0, 12.0)
     max_pair_angle_rad: float = float(np.radians(DEFAULT_PAIR_ANGLE_DEG))  # the node's parameter is in degrees
@@ -79,9 +80,13 @@ class DatabaseConfig:
 
         Star pairs up to DEFAULT_PAIR_ANGLE_DEG (the default) when the field diagonal
         (field_diagonal_rad) fits in it, else up to the diagonal plus 1 deg rounded up to a
-        whole degree (any two stars in view are a stored pair). magnitude_limit [Hp mag] and
-        epoch_jyear [Julian year]: None keeps the defaults. ValueError for a field diagonal
-        over MAX_FIELD_DIAGONAL_DEG.
+        whole degree (any two stars in view are a stored pair). A field so narrow that
+        NARROW_PAIR_MARGIN x its diagonal + 1 deg is under half the default range gets that
+        range (whole degrees): the default would store over 4x the pairs ever in view (a 6
+        deg field's database at Hp 7.9: 21 M pairs, 0.5 GB, most of them never looked up;
+        the margin covers a field up to 10 % wider than the nominal one). magnitude_limit
+        [Hp mag] and epoch_jyear [Julian year]: None keeps the defaults. ValueError for a
+        field diagonal over MAX_FIELD_DIAGONAL_DEG.
         """
         diagonal_deg = math.degrees(cls.field_diagonal_rad(camera))
         if diagonal_deg > cls.MAX_FIELD_DIAGONAL_DEG:
@@ -90,6 +95,9 @@ class DatabaseConfig:
                              f"supported")
         default_deg = cls.DEFAULT_PAIR_ANGLE_DEG
         pair_deg = default_deg if diagonal_deg <= default_deg else math.ceil(diagonal_deg + 1.0)
+        narrow_deg = math.ceil(cls.NARROW_PAIR_MARGIN * diagonal_deg + 1.0)
+        if narrow_deg <= 0.5 * default_deg:
+            pair_deg = narrow_deg
         optional = dict(magnitude_limit=magnitude_limit, epoch_jyear=epoch_jyear)
         return cls(max_pair_angle_rad=float(np.radians(pair_deg)),
                    **{name: float(value) for name, value in optional.items() if value is not None})

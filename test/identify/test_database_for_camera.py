@@ -83,3 +83,13 @@ def test_fast_setup_database_is_the_default_pair_range():
     # van Bezooijen's FAST: 11.3 deg field, 16 deg diagonal, guide stars to 7.0.
     config = DatabaseConfig.for_camera(SETUPS["fast"].camera, magnitude_limit=7.0)
     assert config.max_pair_angle_rad == DatabaseConfig().max_pair_angle_rad and config.magnitude_limit == 7.0
+
+
+@pytest.mark.parametrize("fov_deg", [3.0, 6.07])
+def test_a_narrow_field_stores_only_the_pairs_it_can_see(fov_deg):
+    # The openstartracker camera (1392 x 1040 px, 6.07 deg): 7.6 deg diagonal, pairs to 10 deg.
+    camera = CameraModel.from_fov(1392, 1040, math.radians(fov_deg))
+    config = DatabaseConfig.for_camera(camera, magnitude_limit=7.9)
+    diagonal = widest_angle_on_the_border(camera)
+    assert 1.1 * diagonal + math.radians(1.0) <= config.max_pair_angle_rad < 1.1 * diagonal + math.radians(2.0)
+    assert config.max_pair_angle_rad <= 0.5 * DatabaseConfig().max_pair_angle_rad
