@@ -33,6 +33,10 @@ SHARPEST_STAR_PX = 0.25  # a fit narrower than this is a hot pixel (or an unders
 MIN_STARS = 5  # fewer usable stars: no estimate (a few cosmic-ray hits must not set the PSF)
 MAX_STARS = 12  # the brightest usable stars fitted: the median of 12 is good to ~1-3 % (and cheap)
 MIN_PEAK_SNR = 7.0  # brightest pixel above the background [noise sigmas]: enough to fit a width
+# A wide PSF spreads a star's light: at SNR 12 a sigma-2 px star's brightest pixel is ~3 sigmas.
+# Such a star is usable on its footprint SNR (>= MIN_STAR_SNR) with a peak of MIN_WIDE_PEAK_SNR.
+MIN_STAR_SNR = 10.0
+MIN_WIDE_PEAK_SNR = 3.0
 ISOLATION_SIGMAS = 8.0  # no other candidate closer than this many (rough) PSF widths
 MAX_AXIS_RATIO = 3.0  # a star more elongated than this (noise included) is smeared or blended, not the optics' PSF
 RERUN_TOLERANCE = 0.1  # relative difference from the prior beyond which a frame is measured again
@@ -90,7 +94,8 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     """
     Return indices of the candidates fit to measure the PSF on, brightest first (at most MAX_STARS).
 
-    Measured, off the image border, peak >= MIN_PEAK_SNR noise sigmas and 2 % below the clip
+    Measured, off the image border, peak >= MIN_PEAK_SNR noise sigmas (or footprint SNR >=
+    MIN_STAR_SNR with a peak >= MIN_WIDE_PEAK_SNR sigmas: a wide PSF's star) and 2 % below the clip
     level (`saturation` [ADU]) and the frame's brightest candidate's peak, not most of their
     light in one pixel once cleaned (hot pixels), not a long track (second moments within 8x of
     each other), and no other candidate within ISOLATION_SIGMAS PSF widths. Candidates the shape
@@ -107,8 +112,9 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     # Clipped: at the clip level (configured or seen as a flat top), or at the frame's brightest
     # value (a clip level no flat top showed; in a frame without one it costs the brightest star).
     ceiling = min(saturation, float(np.max(cand.peak_raw[finite]))) if finite.any() else saturation
-    ok = (finite & ~cand.edge & (amplitude >= MIN_PEAK_SNR * det.noise_adu) & (cand.peak_raw < 0.98 * ceiling)
-          & not_track & ~one_pixel)
+    bright = (amplitude >= MIN_PEAK_SNR * det.noise_adu) | (
+        (cand.snr >= MIN_STAR_SNR) & (amplitude >= MIN_WIDE_PEAK_SNR * det.noise_adu))
+    ok = finite & ~cand.edge & bright & (cand.peak_raw < 0.98 * ceiling) & not_track & ~one_pixel
     chosen = np.flatnonzero(ok)
     if chosen.size == 0:
         return chosen
@@ -135,7 +141,7 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     chosen = usable_stars(cand, det, saturation, prior_sigma)
     if chosen.size < MIN_STARS:
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
-                                   f"peak SNR >= {MIN_PEAK_SNR:g} (need {MIN_STARS})", int(chosen.size))
+                                   f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {MIN_STAR_SNR:g} (need {MIN_STARS})", int(chosen.size))
     x, y = cand.x[chosen], cand.y[chosen]
     background = det.background_at(x, y)
     # A window cut to the prior would shrink a wider PSF's fit: start from the candidates' moments
