@@ -44,12 +44,41 @@ def anet_best(log: str) -> dict | None:
     return best
 
 
+def wcs_centre(path: Path, width: int, height: int):
+    """Return the ICRS unit vector of the image centre pixel ((W-1)/2, (H-1)/2, 0-based) through a WCS file."""
+    import numpy as np
+    from astropy.io import fits
+    from astropy.wcs import WCS
+
+    ra, dec = WCS(fits.getheader(path)).all_pix2world([(width - 1) / 2.0], [(height - 1) / 2.0], 0)
+    ra, dec = np.radians(ra[0]), np.radians(dec[0])
+    return np.array([np.cos(dec) * np.cos(ra), np.cos(dec) * np.sin(ra), np.sin(dec)])
+
+
+def _arcsec(a, b) -> float:
+    import numpy as np
+
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b))) * 3600.0)
+
+
+def _apart(centre, ours: dict, code: int) -> str:
+    import numpy as np
+
+    if code != 0:
+        return "(ours not solved)"
+    ra, dec = np.radians(ours["ra_deg"]), np.radians(ours["dec_deg"])
+    return f"{_arcsec(centre, np.array([np.cos(dec) * np.cos(ra), np.cos(dec) * np.sin(ra), np.sin(dec)])):.0f}\""
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("images", nargs="+", help="corpus image ids")
     parser.add_argument("--scale", nargs=2, type=float, metavar=("LOW", "HIGH"), required=True,
                         help="pixel scale range [arcsec/px]")
     parser.add_argument("--cpulimit", type=int, default=150)
+    parser.add_argument("--tweak-order", type=int, default=2, metavar="N",
+                        help="SIP order of astrometry.net's fit (its default 2); with a solve, the image centre's "
+                             "line of sight from that WCS is compared with ours and with the manifest's reference")
     args = parser.parse_args(argv)
     if shutil.which("solve-field") is None:
         print("solve-field not found: apt-get install astrometry.net astrometry-data-tycho2-10-19", file=sys.stderr)
@@ -74,8 +103,16 @@ def main(argv=None) -> int:
             run = subprocess.run(["solve-field", "--overwrite", "--no-plots", "--width", str(width), "--height",
                                   str(height), "--scale-units", "arcsecperpix", "--scale-low", str(args.scale[0]),
                                   "--scale-high", str(args.scale[1]), "--sort-column", "FLUX", "--cpulimit",
-                                  str(args.cpulimit), "--dir", work, str(xy)], capture_output=True, text=True)
+                                  str(args.cpulimit), "--tweak-order", str(args.tweak_order), "--dir", work, str(xy)],
+                                 capture_output=True, text=True)
+            wcs_file = Path(work) / "spots.xy.wcs"  # solve-field names its outputs after the input, less .fits
+            centre = wcs_centre(wcs_file, width, height) if wcs_file.exists() else None
         best = anet_best(run.stdout + run.stderr)
+        if centre is not None:
+            print(f"{image.id}: astrometry.net solved (SIP order {args.tweak_order}); image centre "
+                  f"{_apart(centre, ours, code)} from ours, "
+                  + (f"{_arcsec(centre, image.reference[:, 2]):.0f}\" from the manifest's reference"
+                     if image.reference is not None else "no manifest reference"), flush=True)
         mine = (f"ours: RA {ours['ra_deg']:.4f} Dec {ours['dec_deg']:+.4f}, {len(ours['matched'])} stars"
                 if code == 0 else "ours: not solved")
         if best is None or best["ra_deg"] is None:

@@ -141,7 +141,8 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     chosen = usable_stars(cand, det, saturation, prior_sigma)
     if chosen.size < MIN_STARS:
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
-                                   f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {MIN_STAR_SNR:g} (need {MIN_STARS})", int(chosen.size))
+                                   f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {MIN_STAR_SNR:g} (need {MIN_STARS})",
+                                   int(chosen.size))
     x, y = cand.x[chosen], cand.y[chosen]
     background = det.background_at(x, y)
     # A window cut to the prior would shrink a wider PSF's fit: start from the candidates' moments
