@@ -14,7 +14,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from .config import CentroidConfig, elongation_limit, hot_pixel_ratio
+from .config import CentroidConfig, blend_separation_px, elongation_limit, hot_pixel_ratio
 from .detect import Detections
 from .kernels import PointWindowSettings, SmallSpots, measure_small
 from .measure import aperture_moments, box_sums, clean_hot_pixels, two_peaks
@@ -110,11 +110,12 @@ class _FootprintWindows(NamedTuple):
 
 
 def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float,
-                       find_blends: bool = True) -> Candidates:
+                       find_blends: bool = True, rings: bool = False) -> Candidates:
     """
     Measure every detection after hot-pixel cleaning.
 
-    Aperture measurements for small components, footprint measurements for large ones.
+    Aperture measurements for small components, footprint measurements for large ones; rings:
+    the stars are rings (blend peaks farther apart, config.blend_separation_px).
     """
     half = config.window_half + 1  # measuring window: the fit window plus a pixel of room
     size = 2 * half + 1
@@ -131,14 +132,14 @@ def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfi
     out["has_window"] = small.copy()
     out["peaks"] = [np.zeros((0, 2))] * m
     if idx.size:
-        _measure_small(image, det, config, sigma, idx, out, find_blends)
+        _measure_small(image, det, config, sigma, idx, out, find_blends, rings)
     large = np.flatnonzero(~small)
     if large.size:
-        _measure_large(image, det, config, sigma, large, out, find_blends)
+        _measure_large(image, det, config, sigma, large, out, find_blends, rings)
     return Candidates(area=det.area.astype(np.int64), detection=np.arange(m), **out)
 
 
-def _measure_small(image, det, config, sigma, idx, out, find_blends: bool) -> None:
+def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False) -> None:
     """
     Point-window measurements (kernels.measure_small) of the detections `idx`, written to `out`.
 
@@ -166,10 +167,10 @@ def _measure_small(image, det, config, sigma, idx, out, find_blends: bool) -> No
         footprint = det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[idx[wide]][:, None, None]
         windows = _FootprintWindows(win[wide], footprint & valid[wide], valid[wide], footprint & valid[wide],
                                     c0[wide], r0[wide])
-        _footprint_shape(windows, idx[wide], out, det, config, sigma, find_blends)
+        _footprint_shape(windows, idx[wide], out, det, config, sigma, find_blends, rings)
 
 
-def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> None:
+def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False) -> None:
     """
     Footprint measurements of the spots too large for a point window (streaks, bright or blended stars).
 
@@ -213,10 +214,10 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool) -> No
                                 | (det.bottom[members] >= height))
         out["cleaned"][members] = hit.any(axis=(1, 2))
         _footprint_shape(_FootprintWindows(win, labels & valid, valid, use, col0, row0), members, out, det, config,
-                         sigma, find_blends)
+                         sigma, find_blends, rings)
 
 
-def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends) -> None:
+def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False) -> None:
     """
     Refine the shape of spots `members` from their detection footprint (the matched-filter mask, not grown).
 
@@ -240,7 +241,7 @@ def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigm
     if find_blends:
         box, box_var, maxima = box_sums(long.data, long.blend_use, gain, noise)
         found, rows, cols = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
-                                      max(2.0, 2.0 * sigma))
+                                      blend_separation_px(sigma, rings))
         for j in np.flatnonzero(found):
             k = stretched[j]
             out["peaks"][members[k]] = np.column_stack([cols[j] + col0[k], rows[j] + row0[k]]).astype(float)

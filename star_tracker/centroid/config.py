@@ -105,6 +105,18 @@ def elongation_limit(sigma: float) -> float:
     return 2.5 * (max(sigma, 0.6) ** 2 + 1.0 / 12.0)
 
 
+RING_BLEND_SIGMAS = 4.0  # a ring PSF's maxima on opposite sides lie ~2.7 sigma apart: one star, not a blend
+
+
+def blend_separation_px(sigma: float, rings: bool = False) -> float:
+    """
+    Smallest separation [px] of a second star split from a spot.
+
+    2 PSF sigmas (at least 2 px); RING_BLEND_SIGMAS for ring stars (psf_estimate.PsfEstimate.annular).
+    """
+    return max(2.0, (RING_BLEND_SIGMAS if rings else 2.0) * sigma)
+
+
 def hot_pixel_ratio(config: CentroidConfig, sigma: float) -> float:
     """
     Peak-to-brightest-neighbour ratio above which a pixel is a defect, not starlight (twice what the PSF allows).

@@ -90,9 +90,11 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     # prior only when clearly different.
     elongated = estimate.elongation > SMEARED_ELONGATION
     width = estimate.sigma_minor_px if elongated else estimate.sigma_px
-    if abs(width - prior) <= (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior:
+    # Ring stars (a defocused PSF): a ring's maxima are one star; measured again with blends
+    # split only farther apart.
+    if abs(width - prior) <= (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior and not estimate.annular:
         return replace(spots, psf=replace(estimate, applied_sigma_px=prior))
-    spots, _ = _measure_frame(image, replace(config, psf_sigma_px=width), smear)
+    spots, _ = _measure_frame(image, replace(config, psf_sigma_px=width), smear, rings=estimate.annular)
     return replace(spots, psf=replace(estimate, applied_sigma_px=width))
 
 
@@ -112,12 +114,13 @@ class _Frame:
     smeared: bool = False
 
 
-def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None"
+def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False
                    ) -> tuple[Spots, _Frame | None]:
     """
     Measure the frame once with config's PSF width.
 
-    Returns the spots and the _Frame (None when nothing was detected).
+    rings: the stars are rings (PsfEstimate.annular; config.blend_separation_px). Returns the
+    spots and the _Frame (None when nothing was detected).
     """
     height, width = image.shape
     binning = config.binning if min(height, width) >= 16 * config.binning else 1
@@ -131,8 +134,8 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     frame_values = dict(background_adu=float(np.median(det.background[::8, ::8])), noise_adu=det.noise_adu)
     if det.x.size == 0:
         return Spots.empty(width, height, **frame_values), None
-    context = FitContext(image, det, config, sigma)
-    cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None)
+    context = FitContext(image, det, config, sigma, rings)
+    cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None, rings=rings)
     rejected = _shape_defects(cand, config, sigma)
     first = _first_cut(context, cand, rejected, aid is not None)
     kept = cand.take(first)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .candidates import Candidates
+from .config import blend_separation_px
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
 from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows, pixel_integrated_profile
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
@@ -61,7 +62,8 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     added = no_spots()
     if config.split_blends:
         found, pr, pc = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
-                                        min_separation=max(2.0, 2.0 * sigma), radius=half - 1.5, gain=gain, noise=noise)
+                                        min_separation=blend_separation_px(sigma, context.rings), radius=half - 1.5,
+                                        gain=gain, noise=noise)
         px, py = col0 + pc, row0 + pr
         blended = found
         if blended.any():

@@ -41,6 +41,7 @@ ISOLATION_SIGMAS = 8.0  # no other candidate closer than this many (rough) PSF w
 MAX_AXIS_RATIO = 3.0  # a star more elongated than this (noise included) is smeared or blended, not the optics' PSF
 RERUN_TOLERANCE = 0.1  # relative difference from the prior beyond which a frame is measured again
 SMEARED_ELONGATION = 1.2  # stars more elongated than this are measured with the minor-axis width
+RING_CENTRE_RATIO = 0.6  # centre-to-ring light below this x a Gaussian's of the same width: a ring PSF
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,9 @@ class PsfEstimate:
     frame), "prior" (too few usable stars or out of range: the prior was used) or "configured"
     (psf_mode "fixed" or no PSF: nothing estimated); reason: why it fell back ("" when
     estimated); applied_sigma_px: the width the frame was measured with [px] (the prior when
-    the estimate agreed with it within its tolerance, see extract.extract_spots).
+    the estimate agreed with it within its tolerance, see extract.extract_spots); annular:
+    the stars are rings (a defocused PSF: less light at the centre than RING_CENTRE_RATIO x
+    a Gaussian's), so that a spot's several maxima are one star, not a blend.
     """
 
     sigma_px: float
@@ -68,6 +71,7 @@ class PsfEstimate:
     source: str
     reason: str = ""
     applied_sigma_px: float = float("nan")
+    annular: bool = False
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -183,8 +187,35 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     total = np.sum(moments[round_] * weights[round_, None, None], axis=0) / np.sum(weights[round_])
     ratio, angle = _axes(total[None], weight_sigma, pixel_term=False)
     ratio = float(ratio[0]) if np.isfinite(ratio[0]) else 1.0
+    annular = _is_ring(windows, fx, fy, round_, sigma)
     return PsfEstimate(sigma, float(sigma * np.sqrt(ratio)), float(sigma / np.sqrt(ratio)), float(angle[0]),
-                       float(uncertainty), int(width.size), "estimated")
+                       float(uncertainty), int(width.size), "estimated", annular=annular)
+
+
+def _is_ring(windows, x, y, use: np.ndarray, sigma: float) -> bool:
+    """
+    Whether the stars `use` of the fit windows are rings (see RING_CENTRE_RATIO).
+
+    Light within 0.5 sigma of each fitted centre over light at 1-1.5 sigma, summed over the
+    stars, against the same ratio of a Gaussian of width sigma [px] (exp(-r^2 / 2 sigma^2)
+    averaged over each zone). Needs a PSF of at least 1 px (an undersampled ring is not told
+    from a Gaussian) and both zones holding pixels.
+    """
+    if sigma < 1.0:
+        return False
+    data, valid, col0, row0 = windows
+    size = data.shape[1]
+    dx = (col0[use, None] + np.arange(size)) - x[use, None]
+    dy = (row0[use, None] + np.arange(size)) - y[use, None]
+    r = np.hypot(dy[:, :, None], dx[:, None, :]) / sigma
+    ok = valid[use]
+    centre, ring = ok & (r < 0.5), ok & (r >= 1.0) & (r < 1.5)
+    if not centre.any() or not ring.any():
+        return False
+    light = data[use]
+    measured = (light[centre].sum() / centre.sum()) / max(light[ring].sum() / ring.sum(), 1e-12)
+    gaussian = np.exp(-0.5 * r[centre] ** 2).mean() / np.exp(-0.5 * r[ring] ** 2).mean()
+    return bool(measured < RING_CENTRE_RATIO * gaussian)
 
 
 def _median(values: np.ndarray) -> float:

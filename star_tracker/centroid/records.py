@@ -23,13 +23,15 @@ class FitContext:
 
     Image [ADU] (2-D), its detections (background [ADU] on the detection grid, pixel noise
     [ADU]), the stage's config and the PSF 1-sigma the fits use [px] (config.psf_sigma_px,
-    at least psf_estimate.MIN_SIGMA_PX; 0.5 without a PSF).
+    at least psf_estimate.MIN_SIGMA_PX; 0.5 without a PSF); rings: the stars are rings
+    (psf_estimate.PsfEstimate.annular: blends split farther apart, config.blend_separation_px).
     """
 
     image: np.ndarray
     det: Detections
     config: CentroidConfig
     sigma: float
+    rings: bool = False
 
     @property
     def noise(self) -> float:

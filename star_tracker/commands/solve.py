@@ -339,7 +339,7 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
                          "sigma_minor_px": psf.sigma_minor_px, "angle_deg": math.degrees(psf.angle_rad),
                          "sigma_uncertainty_px": None if math.isnan(psf.sigma_uncertainty_px)
                          else psf.sigma_uncertainty_px, "stars": psf.stars, "source": psf.source,
-                         "reason": psf.reason, "applied_sigma_px": psf.applied_sigma_px}
+                         "reason": psf.reason, "applied_sigma_px": psf.applied_sigma_px, "annular": psf.annular}
     ident = result.identification
     if ident is None:
         record.update(unsolved_summary(result.attempts))
@@ -445,6 +445,7 @@ def psf_summary(psf: dict) -> str:
         text = (f"sigma {psf['sigma_px']:.2f} +-{psf['sigma_uncertainty_px']:.2f} px estimated from {psf['stars']} "
                 f"stars (major {psf['sigma_major_px']:.2f}, minor {psf['sigma_minor_px']:.2f} px at "
                 f"{psf['angle_deg']:+.0f} deg)")
+        text += ", ring stars (a defocused PSF)" if psf.get("annular") else ""
         return text + (f", measured with the prior {psf['applied_sigma_px']:.2f} px"
                        if psf["applied_sigma_px"] != psf["sigma_px"] else "")
     if psf["source"] == "prior":

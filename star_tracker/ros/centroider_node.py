@@ -252,7 +252,8 @@ def psf_values(psf) -> dict:
         return {}
     return {"psf_sigma_px": f"{psf.sigma_px:.3f}", "psf_sigma_uncertainty_px": f"{psf.sigma_uncertainty_px:.3f}",
             "psf_elongation": f"{psf.elongation:.3f}", "psf_stars": psf.stars, "psf_source": psf.source,
-            "psf_applied_sigma_px": f"{psf.applied_sigma_px:.3f}", "psf_reason": psf.reason or "-"}
+            "psf_applied_sigma_px": f"{psf.applied_sigma_px:.3f}", "psf_annular": psf.annular,
+            "psf_reason": psf.reason or "-"}
 
 
 def main(argv: list[str] | None = None) -> None:
