@@ -51,7 +51,8 @@ class PsfEstimate:
 
     sigma_px: the equivalent Gaussian 1-sigma [px] (estimated, or the prior / configured value
     when not estimated); sigma_major_px, sigma_minor_px: 1-sigma along the PSF's major and
-    minor axes [px] (both sigma_px when not measured); angle_rad: the major axis' direction
+    minor axes [px] (sigma_px times and over the square root of the pixelated shape's axis
+    ratio; both sigma_px when not measured); angle_rad: the major axis' direction
     [rad] from +x toward +y, in (-pi/2, pi/2]; sigma_uncertainty_px: 1-sigma of sigma_px [px]
     (nan when not estimated); stars: stars the estimate used; source: "estimated" (from this
     frame), "prior" (too few usable stars or out of range: the prior was used) or "configured"
@@ -171,7 +172,7 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     # such star looked elongated (sigma 0.4 px at SNR ~11: 4 of 11 "round").
     weight_sigma = max(2.0 * _median(width), 1.5)
     moments, weights = _weighted_moments(windows, fx, fy, weight_sigma)
-    ratio, _ = _axes(moments, weight_sigma, pixel_term=False)
+    ratio, _ = _axes(moments, weight_sigma)
     round_ = ratio < MAX_AXIS_RATIO
     if round_.sum() < MIN_STARS:
         return PsfEstimate.assumed(prior_sigma, "prior", f"{int(round_.sum())} of {width.size} stars round (axis "
@@ -185,7 +186,7 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
         return PsfEstimate.assumed(prior_sigma, "prior", f"estimated PSF sigma {sigma:.2f} px is outside the "
                                    f"supported [{MIN_SIGMA_PX}, {MAX_SIGMA_PX}] px", int(width.size))
     total = np.sum(moments[round_] * weights[round_, None, None], axis=0) / np.sum(weights[round_])
-    ratio, angle = _axes(total[None], weight_sigma, pixel_term=False)
+    ratio, angle = _axes(total[None], weight_sigma)
     ratio = float(ratio[0]) if np.isfinite(ratio[0]) else 1.0
     annular = _is_ring(windows, fx, fy, round_, sigma)
     return PsfEstimate(sigma, float(sigma * np.sqrt(ratio)), float(sigma / np.sqrt(ratio)), float(angle[0]),
@@ -277,14 +278,15 @@ def _weighted_moments(windows, x, y, weight_sigma: float) -> tuple[np.ndarray, n
     return moments, total
 
 
-def _axes(moments: np.ndarray, weight_sigma: float, pixel_term: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def _axes(moments: np.ndarray, weight_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """
-    Return the axis ratio sigma_major / sigma_minor [-] and major axis angle [rad] of the PSF.
+    Return the axis ratio sigma_major / sigma_minor [-] and major axis angle [rad] of the pixelated PSF.
 
     The ratio is inf when not measurable, the angle in (-pi/2, pi/2], from Gaussian-weighted
     moments (k, 2, 2): for a Gaussian of covariance C, pixelated (C + I/12), such moments are
-    M = ((C + I/12)^-1 + I/w^2)^-1, so C = (M^-1 - I/w^2)^-1 - I/12 (w = weight_sigma [px]).
-    pixel_term False: the axes of the pixelated C + I/12 instead.
+    M = ((C + I/12)^-1 + I/w^2)^-1, so C + I/12 = (M^-1 - I/w^2)^-1 (w = weight_sigma [px]).
+    The axes are those of C + I/12: with the pixel term taken off, a faint undersampled star's
+    noisy minor axis goes to ~0 and any such star looks elongated.
     """
     def inverse(a, b, c):  # of the symmetric [[a, c], [c, b]], and whether it is positive definite
         det = a * b - c * c
@@ -293,8 +295,6 @@ def _axes(moments: np.ndarray, weight_sigma: float, pixel_term: bool = True) -> 
     with np.errstate(invalid="ignore", divide="ignore"):
         a, b, c, ok = inverse(moments[:, 0, 0], moments[:, 1, 1], moments[:, 0, 1])
         a, b, c, ok2 = inverse(a - weight_sigma ** -2, b - weight_sigma ** -2, c)
-        if pixel_term:
-            a, b = a - 1.0 / 12.0, b - 1.0 / 12.0
         spread = np.sqrt(0.25 * (a - b) ** 2 + c * c)
         major, minor = 0.5 * (a + b) + spread, 0.5 * (a + b) - spread
         ratio = np.where(ok & ok2 & (minor > 0), np.sqrt(major / minor), np.inf)
