@@ -49,13 +49,13 @@ class IdentifierDriver:
         self.reset_client = self.node.create_client(Trigger, "/identifier/reset")
         self.spots = spots
         self.stamp_ns = 1_000_000_000
-        self.diagnostics_seen = 0
+        self.diagnostics_stamp_ns = 0  # header stamp of the latest identifier status [ns, wall clock]
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name.endswith("/identifier"):
                 self.diagnostics = {kv.key: kv.value for kv in status.values}
-                self.diagnostics_seen += 1
+                self.diagnostics_stamp_ns = convert.stamp_to_ns(msg.header.stamp)
 
     def spin(self, seconds: float, until=lambda: False) -> bool:
         end = time.monotonic() + seconds
@@ -64,9 +64,15 @@ class IdentifierDriver:
         return until()
 
     def fresh_diagnostics(self) -> dict[str, str]:
-        """Return the identifier's /diagnostics published after this call (1 Hz)."""
-        seen = self.diagnostics_seen
-        assert self.spin(10.0, until=lambda: self.diagnostics_seen > seen + 1), "no /diagnostics from the identifier"
+        """
+        Return the identifier's /diagnostics published after this call (1 Hz).
+
+        Judged by the message's own stamp: messages queued while the test did not spin (a
+        lifecycle call) arrive first and describe the node before it.
+        """
+        called_ns = time.time_ns()
+        assert self.spin(10.0, until=lambda: self.diagnostics_stamp_ns > called_ns), \
+            "no /diagnostics from the identifier"
         return self.diagnostics
 
     def connect(self, camera) -> None:
