@@ -189,7 +189,12 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
     first_stamp = images[first][1]
     live = {topic: {s: q for s, q in bag_attitudes(bag, topic).items() if s >= first_stamp}
             for topic in ("/attitude", "/det/attitude")}
-    assert len(live["/det/attitude"]) >= len(images) - first - 1, record_log  # all, but maybe the first
+    # Every frame answered but those whose spots reached the identifier before any camera_info
+    # did (counted; the first one or two, as the late camera_info subscription matched on a
+    # loaded host).
+    det_identifier = live_diagnostics.get("star_tracker/det/identifier", {})
+    without_info = int(det_identifier.get("frames_without_camera_info", "0"))
+    assert len(live["/det/attitude"]) >= len(images) - first - max(1, without_info), (record_log, det_identifier)
 
     replay_default = pipeline(env, tmp_path / "replay_default", None, DEFAULT_DEEP_QUEUES)
     replay_det = pipeline(env, tmp_path / "replay_det", "det", DETERMINISTIC, use_sim_time=True)
@@ -226,12 +231,14 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
 
     # Deterministic configuration: the same frames identified, bit-identical attitudes, stamps
     # unchanged (every replayed stamp is a live one). One live-only race is allowed: the first
-    # frame's spots reaching the live identifier before its camera_info (it logs that), which
-    # the replay, publishing camera_info right after the image, does not reproduce.
+    # frames' spots reaching the live identifier before its camera_info (it logs and counts
+    # that), which the replay, publishing camera_info right after the image, does not reproduce.
     extra = set(replayed["/det/attitude"]) - set(live["/det/attitude"])
-    if extra == {first_stamp}:
+    early = {stamp for _, stamp in images[first:first + max(1, without_info)]}
+    if extra and extra <= early:
         assert "spots received before any valid camera_info" in (tmp_path / "live_det" / "identifier.log").read_text()
-        del replayed["/det/attitude"][first_stamp]
+        for stamp in extra:
+            del replayed["/det/attitude"][stamp]
     # Compared where both the live and the replay collector received the attitude: a test
     # subscriber that matched a fresh node late misses its first messages (volatile QoS; the
     # player's lockstep acknowledgements show the node did answer every frame).
