@@ -210,9 +210,9 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     steps = sum(stepped for _, stepped in candidates)
     step_budget = min(options.max_time_s, options.step_search_time_s / steps) if steps else options.max_time_s
     for index, (trial, stepped) in enumerate(candidates):
-        budget = options.max_time_s if hasattr(identifier, "warm_up") or index else max(options.max_time_s, 20.0)
-        if stepped:
-            budget = step_budget
+        budget = step_budget if stepped else options.max_time_s
+        if index == 0 and not hasattr(identifier, "warm_up"):
+            budget = max(budget, 20.0)  # its kernels compile in the first attempt
         identifier.config = replace(config, max_time_s=budget)
         started = time.perf_counter()
         identification = identifier.identify(spots, trial)

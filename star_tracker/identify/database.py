@@ -5,7 +5,7 @@ Guide-star catalog and star-pair database with a k-vector on inter-star angle.
 Built once per parameter set and cached on disk (validated .npz, no pickle). Angles are
 radians; star vectors are ICRS unit vectors at the configured epoch.
 
-A cache file is trusted only after three checks: the checksum of its arrays (catalog.
+A cache file is trusted only after three checks: the CRC-32 of each array (catalog.
 load_validated_npz: truncation, bit rot), its format version and configuration, and the
 structure the compiled kernels rely on without bounds checks (dtypes, shapes, star indices
 in range, sorted angles, unit vectors). A file failing any of them is logged and rebuilt.
