@@ -19,9 +19,13 @@ from star_tracker.sim.motion import ConstantRateMotion  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402  (what a generic user subscribes with)
 
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+
 from star_tracker.ros.qos import RESULT_QOS, sensor_qos  # noqa: E402
 from conftest import join_isolated_ros_domain  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
+
+TRUTH_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 
 
 @pytest.fixture
@@ -29,9 +33,11 @@ def driver(monkeypatch):
     env = join_isolated_ros_domain(monkeypatch)
     node = rclpy.create_node("camera_driver")
     received = {"truth": [], "rate": [], "objects": [], "images": 0, "image_stamps": set()}
-    node.create_subscription(QuaternionStamped, "truth/attitude", received["truth"].append, RESULT_QOS)
-    node.create_subscription(Vector3Stamped, "truth/angular_velocity", received["rate"].append, RESULT_QOS)
-    node.create_subscription(PointCloud2, "truth/objects", received["objects"].append, RESULT_QOS)
+    # Reliable like the nodes' RESULT_QOS, with a queue deep enough for a test process that decodes
+    # images on a loaded host (depth 10 lost truth messages there).
+    node.create_subscription(QuaternionStamped, "truth/attitude", received["truth"].append, TRUTH_QOS)
+    node.create_subscription(Vector3Stamped, "truth/angular_velocity", received["rate"].append, TRUTH_QOS)
+    node.create_subscription(PointCloud2, "truth/objects", received["objects"].append, TRUTH_QOS)
 
     def on_image(_msg):
         received["images"] += 1
@@ -100,7 +106,10 @@ def test_slew_profile_truth_is_consistent(driver, tmp_path):
     frames = 40
     params = {"attitude.profile": "slew", "attitude.slew.axis": [0.0, 1.0, 0.0], "attitude.slew.angle_deg": 3.0,
               "attitude.slew.max_rate_deg_s": 2.0, "attitude.slew.accel_deg_s2": 4.0, "attitude.slew.start_s": 0.5,
-              "max_frames": frames, "wait_for_subscribers": True, "rate_hz": 10.0, "false_objects.debris_per_frame": 1}
+              "max_frames": frames, "wait_for_subscribers": True, "rate_hz": 10.0, "false_objects.debris_per_frame": 1,
+              # The publisher can see this reader before the reader has matched it (a loaded host):
+              # without the delay the first truth messages were lost and first -> last was 1 deg.
+              "start_delay_s": 2.0}
     cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": params}, nodes=("camera_simulator",)).start()
     try:
         cam.wait_ready()
@@ -109,6 +118,7 @@ def test_slew_profile_truth_is_consistent(driver, tmp_path):
     finally:
         codes = cam.stop()
     assert codes == {"camera_simulator": 0}
+    assert len(received["truth"]) == frames and len(received["rate"]) == frames, "the test's reader lost truth"
     rotations = [quaternion_to_matrix(convert.quaternion_from_msg(m)) for m in received["truth"]]
     rates = np.array([[m.vector.x, m.vector.y, m.vector.z] for m in received["rate"]])
     speed = np.linalg.norm(rates, axis=1)
