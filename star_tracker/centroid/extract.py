@@ -2,7 +2,8 @@
 """
 Spot extraction, the centroiding stage.
 
-Detect -> measure -> reject defects -> sub-pixel fit (points, blends, streaks) -> `Spots`.
+Detect -> measure -> reject defects and extended objects -> sub-pixel fit (points, blends,
+streaks) -> `Spots`.
 
 Input: a 2-D image in ADU (uint8/uint16/float). Output: `Spots` in pixel coordinates with
 (0, 0) at the centre of the top-left pixel, sorted by flux (brightest first). Optionally a
@@ -18,6 +19,7 @@ import numpy as np
 from .candidates import Candidates, measure_candidates
 from .config import CentroidConfig, elongation_limit, peak_fraction_limit
 from .detect import Detections, detect
+from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
 from .point_fits import fit_blends, fit_clipped_points, fit_points
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
@@ -29,6 +31,9 @@ from .streak_spots import fit_streak_spots
 
 if TYPE_CHECKING:
     from .smear import SmearModel
+
+
+EMPIRICAL_MAX_SMEAR_PX = 0.5  # predicted smear [px] below which stars keep the optics' shape
 
 
 @dataclass(frozen=True)
@@ -134,13 +139,21 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     frame_values = dict(background_adu=float(np.median(det.background[::8, ::8])), noise_adu=det.noise_adu)
     if det.x.size == 0:
         return Spots.empty(width, height, **frame_values), None
-    context = FitContext(image, det, config, sigma, rings)
+    # A known rate that smears the stars by more than EMPIRICAL_MAX_SMEAR_PX (aided or not)
+    # shapes them, not the optics: no empirical PSF.
+    still = smear is None or typical_smear_px(smear, width, height) < EMPIRICAL_MAX_SMEAR_PX
+    context = FitContext(image, det, config, sigma, rings, own_psf=still)
     cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None, rings=rings)
     rejected = _shape_defects(cand, config, sigma)
     first = _first_cut(context, cand, rejected, aid is not None)
     kept = cand.take(first)
     clip = clip_levels(context, kept, saturation)
     saturated = np.isfinite(clip)
+    # Clouds and stray-light structure: no star (a rate-aided frame's streaks are not judged).
+    extended = extended_candidates(kept, sigma, saturated) if aid is None else np.zeros(kept.x.size, bool)
+    if extended.any():
+        kept, clip = kept.take(np.flatnonzero(~extended)), clip[~extended]
+        saturated = np.isfinite(clip)
     # The sensor's clip level, where a flat top showed it below the configured one: every
     # candidate that reaches it is clipped too, for the PSF estimate.
     frame = _Frame(det, cand, float(min(saturation, clip[saturated].min() if saturated.any() else np.inf)),
@@ -162,6 +175,7 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     wide = np.flatnonzero(clipping.saturated & ~clipping.fitted)
     if wide.size:
         spots = spots.with_values(wide, cov=kept.moment_covariance(wide))
+    frame_values["rejected_extended"] = int(extended.sum())
     return _assemble(context, SpotRows.concatenate([spots, *added]), int(rejected.sum()), frame_values), frame
 
 

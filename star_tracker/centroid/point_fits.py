@@ -2,8 +2,9 @@
 """
 PSF fits of point-like spots.
 
-Single stars, two stars in one point window, blends of several peaks in one footprint, and
-saturated stars fitted on their unclipped wings.
+Single stars (with the frame's empirical PSF where the Gaussian misfits its bright stars),
+two stars in one point window, blends of several peaks in one footprint, and saturated stars
+fitted on their unclipped wings.
 """
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 
 from .candidates import Candidates
 from .config import blend_separation_px
+from .empirical_psf import MIN_TEMPLATE_STARS, build_empirical_psf, fit_empirical
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
 from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows, pixel_integrated_profile
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
@@ -101,17 +103,61 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         # Only round spots: an elongated one is smeared (no body rate known) or a blend, which the
         # symmetric Gaussian centres better than a centre of gravity.
         round_ = kept.major[which[single]] <= MISFIT_MAX_ELONGATION ** 2 * kept.minor[which[single]]
-        converged = fit.converged[:, 0] & ~(_not_gaussian(win[single], valid[single], col0[single], row0[single], fit,
-                                                          context) & round_)
+        misfit = _not_gaussian(win[single], valid[single], col0[single], row0[single], fit, context) & round_
+        converged = fit.converged[:, 0] & ~misfit
         good = np.flatnonzero(converged)
         spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
+        # Enough bright stars the Gaussian does not describe: the frame's own PSF fits every one.
+        rows, stars = _template_fits(context, win[single], valid[single], col0[single], row0[single], fit, misfit,
+                                     spots.x[which[single]], spots.y[which[single]])
+        if rows.size:
+            spots = spots.with_stars(which[single[rows]], stars)
     return FitOutcome(spots, added)
+
+
+def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, misfit: np.ndarray, x, y
+                   ) -> tuple[np.ndarray, FittedStars]:
+    """
+    Fit the single-star windows with the frame's empirical PSF, where the Gaussian does not describe the frame.
+
+    That is where MIN_TEMPLATE_STARS or more bright stars misfit (`misfit`), at least
+    TEMPLATE_MIN_SHARE of the bright ones (flux SNR >= MISFIT_MIN_SNR); or, in a frame of
+    ring stars (context.rings), where MIN_TEMPLATE_STARS are bright. Never where
+    context.own_psf is False. The profile is built from those stars; every window is fitted
+    with it, from the Gaussian fit's position where it converged, else from (x, y). Returns
+    the windows fitted (indices) and their stars.
+    """
+    empty = np.zeros(0, np.int64), FittedStars(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 2, 2)),
+                                               np.zeros(0))
+    if not context.own_psf:
+        return empty
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bright = fit.converged[:, 0] & (fit.flux[:, 0] / np.sqrt(np.abs(fit.flux_var[:, 0])) >= MISFIT_MIN_SNR)
+    # The PSF's shape is the frame's: many bright stars misfit (a few: smear onset, blends; 6 of 54).
+    template = misfit if misfit.sum() >= TEMPLATE_MIN_SHARE * bright.sum() else np.zeros_like(misfit)
+    if template.sum() < MIN_TEMPLATE_STARS and context.rings:  # a ring the Gaussian fits within its noise
+        template = bright
+    if template.sum() < MIN_TEMPLATE_STARS:
+        return empty
+    start_x = np.where(fit.converged[:, 0], fit.x[:, 0], x)
+    start_y = np.where(fit.converged[:, 0], fit.y[:, 0], y)
+    m = np.flatnonzero(template)
+    psf = build_empirical_psf(win[m], valid[m], col0[m], row0[m], start_x[m], start_y[m], context.noise, context.gain)
+    if psf is None:
+        return empty
+    flux0 = np.where(valid, win, 0.0).sum(axis=(1, 2))
+    fx, fy, flux, cov, flux_var, ok = fit_empirical(psf, win, valid, col0, row0, start_x, start_y,
+                                                    np.where(fit.converged[:, 0], fit.flux[:, 0], flux0),
+                                                    context.noise, context.gain)
+    rows = np.flatnonzero(ok)
+    return rows, FittedStars(fx[rows], fy[rows], flux[rows], cov[rows], flux[rows] / np.sqrt(flux_var[rows]))
 
 
 MISFIT_MIN_SNR = 30.0  # fainter spots' residuals are noise whatever the PSF
 MISFIT_CHI2 = 4.0  # reduced chi^2 of a fit the model does not describe ...
 MISFIT_RESIDUAL = 0.1  # ... with a residual this large a fraction of the model (norm): not PRNU's 1 %
 MISFIT_MAX_ELONGATION = 1.2  # ... and a spot no more elongated than this (axis ratio of its moments)
+TEMPLATE_MIN_SHARE = 0.25  # the empirical PSF replaces the Gaussian when this share of the bright stars misfit
 
 
 def _not_gaussian(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> np.ndarray:

@@ -197,8 +197,8 @@ def _is_ring(windows, x, y, use: np.ndarray, sigma: float) -> bool:
     """
     Whether the stars `use` of the fit windows are rings (see RING_CENTRE_RATIO).
 
-    Light within 0.5 sigma of each fitted centre over light at 1-1.5 sigma, summed over the
-    stars, against the same ratio of a Gaussian of width sigma [px] (exp(-r^2 / 2 sigma^2)
+    Light within 0.5 sigma of each fitted centre over light at 1-1.5 sigma, the median over
+    the stars, against the same ratio of a Gaussian of width sigma [px] (exp(-r^2 / 2 sigma^2)
     averaged over each zone). Needs a PSF of at least 1 px (an undersampled ring is not told
     from a Gaussian) and both zones holding pixels.
     """
@@ -213,8 +213,15 @@ def _is_ring(windows, x, y, use: np.ndarray, sigma: float) -> bool:
     centre, ring = ok & (r < 0.5), ok & (r >= 1.0) & (r < 1.5)
     if not centre.any() or not ring.any():
         return False
-    light = data[use]
-    measured = (light[centre].sum() / centre.sum()) / max(light[ring].sum() / ring.sum(), 1e-12)
+    light = np.where(ok, data[use], 0.0)
+    # Per star, then the median: a hot pixel or cosmic ray in one window must not decide.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        centre_mean = (light * centre).sum(axis=(1, 2)) / centre.sum(axis=(1, 2))
+        ring_mean = (light * ring).sum(axis=(1, 2)) / ring.sum(axis=(1, 2))
+    judged = (centre.sum(axis=(1, 2)) > 0) & (ring_mean > 0)
+    if not judged.any():
+        return False
+    measured = float(np.median(centre_mean[judged] / ring_mean[judged]))
     gaussian = np.exp(-0.5 * r[centre] ** 2).mean() / np.exp(-0.5 * r[ring] ** 2).mean()
     return bool(measured < RING_CENTRE_RATIO * gaussian)
 

@@ -24,7 +24,9 @@ class FitContext:
     Image [ADU] (2-D), its detections (background [ADU] on the detection grid, pixel noise
     [ADU]), the stage's config and the PSF 1-sigma the fits use [px] (config.psf_sigma_px,
     at least psf_estimate.MIN_SIGMA_PX; 0.5 without a PSF); rings: the stars are rings
-    (psf_estimate.PsfEstimate.annular: blends split farther apart, config.blend_separation_px).
+    (psf_estimate.PsfEstimate.annular: blends split farther apart, config.blend_separation_px);
+    own_psf: the frame's empirical PSF may replace the Gaussian (point_fits; not when a known
+    body rate smears the stars: their shapes then differ across the field).
     """
 
     image: np.ndarray
@@ -32,6 +34,7 @@ class FitContext:
     config: CentroidConfig
     sigma: float
     rings: bool = False
+    own_psf: bool = True
 
     @property
     def noise(self) -> float:

@@ -38,6 +38,8 @@ class Spots:
     from +x toward +y (start -> end when the body rate is known, else in (-pi/2, pi/2]).
     width, height: image size [px]; background_adu, noise_adu: frame background level and
     1-sigma pixel noise [ADU]; rejected_shape: detections dropped as hot pixels or cosmic rays;
+    rejected_extended: spots dropped as extended objects (far broader than the PSF: clouds,
+    stray-light structure; extended_objects.py);
     rate_aid_rejected: a body rate was given but the streaks in the image disagreed with it, so
     the frame was measured without it (rate_aid.AID_* rules); psf: the frame's PSF as the
     centroider estimated or assumed it (psf_estimate.PsfEstimate; None for spots that did not
@@ -62,6 +64,7 @@ class Spots:
     background_adu: float = 0.0
     noise_adu: float = 0.0
     rejected_shape: int = 0
+    rejected_extended: int = 0
     streak_length: np.ndarray | None = None
     streak_angle: np.ndarray | None = None
     rate_aid_rejected: bool = False

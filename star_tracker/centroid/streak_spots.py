@@ -17,7 +17,7 @@ from .config import elongation_limit
 from .measure import clean_hot_pixels, star_peak_to_neighbour_ratio
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
 from .smear import segment_length
-from .spots import FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_STREAK
+from .spots import FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK
 from .streak_fit import StreakFit
 from .streak_free_fit import fit_streaks
 from .streak_groups import fit_star_groups_on_path, second_source_on_path
@@ -48,7 +48,7 @@ def fit_streak_spots(context: FitContext, kept: Candidates, spots: SpotRows, whi
     are left out. On the predicted path, a spot whose fit leaves another star's light is
     refitted with it (split_merged_streaks), the stars split off returned as added spots. A
     spot the model cannot describe gets SNR 0 (dropped) when it should be a streak (rate
-    aided, or elongated), else keeps its centroid.
+    aided, or elongated) unless it is saturated, else keeps its centroid.
     """
     sigma = context.sigma
     reach = streak_reach(kept, spots, which, smear, sigma)
@@ -77,9 +77,12 @@ def fit_streak_spots(context: FitContext, kept: Candidates, spots: SpotRows, whi
         spots, added, _ = split_merged_streaks(context, residual, fit, which, path, spots, excluded)
     # A spot the streak model could not describe is not reported when it should be a streak
     # (rate aided, or elongated: a fragment or a defect); a point-like one keeps its centroid.
+    # So does a saturated one: a clipped star is the brightest in its field (a bloomed 8-bit
+    # star's flat top often fits no streak), kept with a covariance as wide as the spot.
     failed = which[~good]
     elongated = kept.major[failed] > elongation_limit(sigma)
-    spots = spots.with_values(failed[elongated | (smear is not None)], snr=0.0)
+    clipped = (spots.flags[failed] & FLAG_SATURATED) != 0
+    spots = spots.with_values(failed[(elongated | (smear is not None)) & ~clipped], snr=0.0)
     return FitOutcome(spots, added)
 
 

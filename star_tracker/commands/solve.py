@@ -324,6 +324,8 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
 
     cam = result.camera
     record = {"image": image_path, "image_description": description, "spots": int(len(spots)),
+              "spots_rejected_shape": int(getattr(spots, "rejected_shape", 0)),
+              "spots_rejected_extended": int(getattr(spots, "rejected_extended", 0)),
               "solved": result.solved, "attempts": result.attempts,
               "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy, "cx": cam.cx,
                          "cy": cam.cy, "distortion": list(cam.distortion),

@@ -215,6 +215,7 @@ class CentroiderNode(ManagedNode):
         elif smear is not None:
             self.diag.count("frames_rate_aided")
         self.diag.count("spots_rejected_shape", spots.rejected_shape)
+        self.diag.count("spots_rejected_extended", spots.rejected_extended)
         problem = self.content_problem(image, spots)
         self.diag.set(DiagnosticStatus.WARN if problem else DiagnosticStatus.OK, problem or "ok",
                       last_spot_count=len(spots),
