@@ -150,7 +150,7 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     clip = clip_levels(context, kept, saturation)
     saturated = np.isfinite(clip)
     # Clouds and stray-light structure: no star (a rate-aided frame's streaks are not judged).
-    extended = extended_candidates(kept, sigma, saturated) if aid is None else np.zeros(kept.x.size, bool)
+    extended = extended_candidates(kept, sigma, saturated, image, det) if aid is None else np.zeros(kept.x.size, bool)
     if extended.any():
         kept, clip = kept.take(np.flatnonzero(~extended)), clip[~extended]
         saturated = np.isfinite(clip)

@@ -103,13 +103,15 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         # Only round spots: an elongated one is smeared (no body rate known) or a blend, which the
         # symmetric Gaussian centres better than a centre of gravity.
         round_ = kept.major[which[single]] <= MISFIT_MAX_ELONGATION ** 2 * kept.minor[which[single]]
-        misfit = _not_gaussian(win[single], valid[single], col0[single], row0[single], fit, context) & round_
+        not_gaussian = _not_gaussian(win[single], valid[single], col0[single], row0[single], fit, context)
+        misfit = not_gaussian & round_
         converged = fit.converged[:, 0] & ~misfit
         good = np.flatnonzero(converged)
         spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
-        # Enough bright stars the Gaussian does not describe: the frame's own PSF fits every one.
-        rows, stars = _template_fits(context, win[single], valid[single], col0[single], row0[single], fit, misfit,
-                                     spots.x[which[single]], spots.y[which[single]])
+        # Enough bright stars the Gaussian does not describe (round or elongated alike: an
+        # astigmatic PSF): the frame's own PSF fits every one.
+        rows, stars = _template_fits(context, win[single], valid[single], col0[single], row0[single], fit,
+                                     not_gaussian, spots.x[which[single]], spots.y[which[single]])
         if rows.size:
             spots = spots.with_stars(which[single[rows]], stars)
     return FitOutcome(spots, added)

@@ -28,6 +28,11 @@ FLAT_TOP_CHANCE = 0.01
 # A fitted spot whose model exceeds its brightest raw pixel by more than UNDERSHOOT_SIGMA of
 # that pixel's noise has a clipped core (a pixel can only read low when it is clipped).
 UNDERSHOOT_SIGMA = 6.0
+# ... and, for point fits, whose brightest raw pixel reads within this fraction (of the range
+# above the background) of the frame's brightest pixel (an 8-bit JPEG's clipped stars read
+# 244-255; a stuck pixel above a lower clip level would hide single-pixel clips: the
+# configured saturation_adu still flags those at it).
+CLIP_TOP_FRACTION = 0.05
 
 
 def clip_levels(context: FitContext, spots: Candidates, configured: float) -> np.ndarray:
@@ -145,6 +150,13 @@ def undershot_peaks(context: FitContext, detection: np.ndarray, fits: SpotRows, 
         model = f * np.mean(np.exp(-0.5 * (dx * dx + dy * dy) / var_eff), axis=1) / (2.0 * np.pi * var_eff)
     noise = np.sqrt(np.maximum(model, 0.0) / context.gain + det.noise_adu ** 2)
     hit = above[examined] < model - UNDERSHOOT_SIGMA * noise
+    if path is None:
+        # A clip is the sensor's ceiling: no pixel of the frame reads above it. A point whose peak
+        # is well below the frame's brightest pixel undershoots because the star is not the
+        # Gaussian's shape (an elliptical or winged PSF), not because it is clipped.
+        top = float(np.max(image))
+        floor = float(np.median(background[examined]))
+        hit &= value[examined] >= top - CLIP_TOP_FRACTION * max(top - floor, 0.0)
     level[examined[hit]] = value[examined[hit]]
     return level
 

@@ -365,7 +365,11 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
                         "x": round(float(spots.x[spot]), 3), "y": round(float(spots.y[spot]), 3),
                         "predicted_x": round(float(predicted_x[k]), 3), "predicted_y": round(float(predicted_y[k]), 3),
                         "residual_arcsec": round(float(ident.residual_rad[k]) * ARCSEC_PER_RAD, 3),
-                        "flux": round(float(spots.flux[spot]), 2), "deep": bool(ident.deep[k])})
+                        "flux": round(float(spots.flux[spot]), 2), "deep": bool(ident.deep[k]),
+                        # The spot's own 1-sigma (largest axis of its covariance) and flags
+                        # (msg_docs/spots.md: 1 saturated, 4 streak, 8 blended, ...).
+                        "sigma_px": round(float(np.sqrt(np.linalg.eigvalsh(spots.cov[spot])[-1])), 4),
+                        "flags": int(spots.flags[spot])})
     matched.sort(key=lambda m: m["magnitude"])
     record.update({
         "ra_deg": ra, "dec_deg": dec, "roll_deg": roll,
