@@ -241,18 +241,23 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
         return residual.ravel()
 
     # A frame's rotation moves only its own stars: finite differences of all frames' rotations at once.
-    sparsity = np.zeros((2 * bounds[-1], x0.size), dtype=bool)
-    for k in range(count):
-        sparsity[2 * bounds[k]:2 * bounds[k + 1], 3 * k:3 * k + 3] = True
-    sparsity[:, 3 * count:] = True
+    # One frame (solve) is a small dense problem: a dense Jacobian and an exact trust-region step
+    # (the sparse path's iterative solver took half of a solve's time).
+    sparse = {}
+    if count > 1:
+        sparsity = np.zeros((2 * bounds[-1], x0.size), dtype=bool)
+        for k in range(count):
+            sparsity[2 * bounds[k]:2 * bounds[k + 1], 3 * k:3 * k + 3] = True
+        sparsity[:, 3 * count:] = True
+        sparse = {"jac_sparsity": sparsity}
     robust = least_squares(whitened, x0, loss="soft_l1", f_scale=config.robust_scale, x_scale="jac", method="trf",
-                           jac_sparsity=sparsity)
+                           **sparse)
     norms = np.linalg.norm(robust.fun.reshape(-1, 2), axis=1)
     # Robust spread of the whitened residuals (the median norm of a 2-D unit normal is sqrt(2 ln 2)),
     # at least the stated one: noise-free or overestimated covariances must not make the cut tighter.
     spread = max(float(np.median(norms)) / math.sqrt(2.0 * math.log(2.0)), 1.0)
     keep = (norms <= config.outlier_sigma * spread).astype(float)
-    final = least_squares(lambda p: whitened(p, keep), robust.x, x_scale="jac", method="trf", jac_sparsity=sparsity)
+    final = least_squares(lambda p: whitened(p, keep), robust.x, x_scale="jac", method="trf", **sparse)
     inlier_count = int(keep.sum())
     dof = max(2 * inlier_count - final.x.size, 1)
     reduced_chi2 = float(np.sum(final.fun ** 2)) / dof
