@@ -23,6 +23,7 @@ from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
 from .point_fits import fit_blends, fit_clipped_points, fit_points
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
+from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
 from .records import FitContext, SpotRows, no_spots
 from .saturation import clip_levels, clipped_pixels, undershot_peaks
@@ -33,6 +34,11 @@ if TYPE_CHECKING:
     from .smear import SmearModel
 
 
+# A frame with WIDER_PRIOR_MIN_CANDIDATES detections whose PSF could not be estimated for too
+# few usable stars is measured again at these multiples of the prior width (up to MAX_SIGMA_PX),
+# until one gives an estimate.
+WIDER_PRIOR_FACTORS = (2.0, 3.0)
+WIDER_PRIOR_MIN_CANDIDATES = 20
 EMPIRICAL_MAX_SMEAR_PX = 0.5  # predicted smear [px] below which stars keep the optics' shape
 
 
@@ -87,6 +93,24 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     if frame.smeared:
         return replace(spots, psf=PsfEstimate.assumed(prior, "prior", "rate-aided frame: the stars are smeared"))
     estimate = estimate_psf(image, frame.det, frame.cand, frame.saturation, prior, config.gain_e_per_adu)
+    if not estimate.estimated and estimate.stars < MIN_ESTIMATE_STARS \
+            and frame.cand.x.size >= WIDER_PRIOR_MIN_CANDIDATES:
+        # Many detections but too few usable stars (not: usable ones all elongated, a smear): a
+        # PSF much wider than the prior (a defocused camera's faint rings are fragments and
+        # streaks at a narrow width, their light outside its apertures). Measured once more at a
+        # wider width, estimated there.
+        for factor in WIDER_PRIOR_FACTORS:
+            wider = prior * factor
+            if wider > MAX_SIGMA_PX:
+                break
+            wide_spots, wide_frame = _measure_frame(image, replace(config, psf_sigma_px=wider), smear)
+            if wide_frame is None:
+                break
+            again = estimate_psf(image, wide_frame.det, wide_frame.cand, wide_frame.saturation, wider,
+                                 config.gain_e_per_adu)
+            if again.estimated:
+                spots, prior, estimate = wide_spots, wider, again
+                break
     if not estimate.estimated:
         return replace(spots, psf=estimate)
     # Stars elongated alike are smeared (an unknown body rate) or astigmatic: their minor axis is

@@ -139,6 +139,12 @@ def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, mis
     template = misfit if misfit.sum() >= TEMPLATE_MIN_SHARE * bright.sum() else np.zeros_like(misfit)
     if template.sum() < MIN_TEMPLATE_STARS and context.rings:  # a ring the Gaussian fits within its noise
         template = bright
+        if bright.sum() < MIN_TEMPLATE_STARS:  # faint rings: the profile pools more of them
+            with np.errstate(divide="ignore", invalid="ignore"):
+                snr = fit.flux[:, 0] / np.sqrt(np.abs(fit.flux_var[:, 0]))
+            template = fit.converged[:, 0] & (snr >= RING_TEMPLATE_MIN_SNR)
+            if template.sum() < RING_TEMPLATE_MIN_STARS:
+                return empty
     if template.sum() < MIN_TEMPLATE_STARS:
         return empty
     start_x = np.where(fit.converged[:, 0], fit.x[:, 0], x)
@@ -159,6 +165,8 @@ MISFIT_MIN_SNR = 30.0  # fainter spots' residuals are noise whatever the PSF
 MISFIT_CHI2 = 4.0  # reduced chi^2 of a fit the model does not describe ...
 MISFIT_RESIDUAL = 0.1  # ... with a residual this large a fraction of the model (norm): not PRNU's 1 %
 MISFIT_MAX_ELONGATION = 1.2  # ... and a spot no more elongated than this (axis ratio of its moments)
+RING_TEMPLATE_MIN_SNR = 10.0  # faint ring frames: a profile from this many stars of this SNR ...
+RING_TEMPLATE_MIN_STARS = 15  # ... (noise pooled over their pixels)
 TEMPLATE_MIN_SHARE = 0.25  # the empirical PSF replaces the Gaussian when this share of the bright stars misfit
 
 
