@@ -58,12 +58,15 @@ def extended_candidates(cand: Candidates, sigma_px: float, saturated: np.ndarray
         share = cand.peak / cand.flux
     wide = ~np.isfinite(cand.minor) | (cand.minor > EXTENDED_MIN_WIDTH * sigma_px ** 2)
     judged = ~saturated & (cand.snr >= EXTENDED_MIN_SNR) & (cand.flux > 0)
+    extended = judged & wide & (share < EXTENDED_PEAK_SHARE * centred_point_share(sigma_px))
+    which = np.flatnonzero(extended)
+    if which.size == 0:  # the common case: no image-wide work
+        return extended
     # Near the frame's ceiling: a clipped star not flagged so (a colour image's grey average of a
     # star clipped in one channel has no flat top), bloomed into a disc wider than the PSF.
     top = float(np.max(image))
     floor = float(np.median(det.background[::4, ::4]))
-    judged &= cand.peak_raw < top - EXTENDED_NEAR_TOP * max(top - floor, 0.0)
-    extended = judged & wide & (share < EXTENDED_PEAK_SHARE * centred_point_share(sigma_px))
+    extended[which[cand.peak_raw[which] >= top - EXTENDED_NEAR_TOP * max(top - floor, 0.0)]] = False
     which = np.flatnonzero(extended)
     if which.size:
         extended[which[star_on_top(image, det, cand.detection[which], sigma_px)]] = False

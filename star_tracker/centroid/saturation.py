@@ -150,7 +150,7 @@ def undershot_peaks(context: FitContext, detection: np.ndarray, fits: SpotRows, 
         model = f * np.mean(np.exp(-0.5 * (dx * dx + dy * dy) / var_eff), axis=1) / (2.0 * np.pi * var_eff)
     noise = np.sqrt(np.maximum(model, 0.0) / context.gain + det.noise_adu ** 2)
     hit = above[examined] < model - UNDERSHOOT_SIGMA * noise
-    if path is None:
+    if path is None and hit.any():
         # A clip is the sensor's ceiling: no pixel of the frame reads above it. A point whose peak
         # is well below the frame's brightest pixel undershoots because the star is not the
         # Gaussian's shape (an elliptical or winged PSF), not because it is clipped.
