@@ -81,17 +81,19 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     if image.dtype.kind not in "uif":
         raise ValueError(f"expected a numeric image, got dtype {image.dtype}")
     if config.psf_mode == "fixed" or config.psf_sigma_px <= 0:
-        spots, _ = _measure_frame(image, config, smear)
-        return replace(spots, psf=PsfEstimate.assumed(config.psf_sigma_px, "configured"))
+        return replace(_finish(_measure_frame(image, config, smear)),
+                       psf=PsfEstimate.assumed(config.psf_sigma_px, "configured"))
     prior = config.psf_sigma_px
     if psf_prior is not None and np.isfinite(psf_prior) and MIN_SIGMA_PX <= psf_prior <= MAX_SIGMA_PX:
         prior = float(psf_prior)
     first = config if prior == config.psf_sigma_px else replace(config, psf_sigma_px=prior)
-    spots, frame = _measure_frame(image, first, smear)
+    measured = _measure_frame(image, first, smear)
+    frame = measured.frame
     if frame is None:
-        return replace(spots, psf=PsfEstimate.assumed(prior, "prior", "no detections"))
+        return replace(_finish(measured), psf=PsfEstimate.assumed(prior, "prior", "no detections"))
     if frame.smeared:
-        return replace(spots, psf=PsfEstimate.assumed(prior, "prior", "rate-aided frame: the stars are smeared"))
+        return replace(_finish(measured),
+                       psf=PsfEstimate.assumed(prior, "prior", "rate-aided frame: the stars are smeared"))
     estimate = estimate_psf(image, frame.det, frame.cand, frame.saturation, prior, config.gain_e_per_adu)
     if not estimate.estimated and estimate.stars < MIN_ESTIMATE_STARS \
             and frame.cand.x.size >= WIDER_PRIOR_MIN_CANDIDATES:
@@ -103,16 +105,16 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
             wider = prior * factor
             if wider > MAX_SIGMA_PX:
                 break
-            wide_spots, wide_frame = _measure_frame(image, replace(config, psf_sigma_px=wider), smear)
-            if wide_frame is None:
+            wide = _measure_frame(image, replace(config, psf_sigma_px=wider), smear)
+            if wide.frame is None:
                 break
-            again = estimate_psf(image, wide_frame.det, wide_frame.cand, wide_frame.saturation, wider,
+            again = estimate_psf(image, wide.frame.det, wide.frame.cand, wide.frame.saturation, wider,
                                  config.gain_e_per_adu)
             if again.estimated:
-                spots, prior, estimate = wide_spots, wider, again
+                measured, prior, estimate = wide, wider, again
                 break
     if not estimate.estimated:
-        return replace(spots, psf=estimate)
+        return replace(_finish(measured), psf=estimate)
     # Stars elongated alike are smeared (an unknown body rate) or astigmatic: their minor axis is
     # the PSF, and a round width would hide the smear from the streak fits.
     # Their minor width is only approximate (the round fit over the axis ratio): it overrides the
@@ -122,8 +124,8 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     # Ring stars (a defocused PSF): a ring's maxima are one star; measured again with blends
     # split only farther apart.
     if abs(width - prior) <= (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior and not estimate.annular:
-        return replace(spots, psf=replace(estimate, applied_sigma_px=prior))
-    spots, _ = _measure_frame(image, replace(config, psf_sigma_px=width), smear, rings=estimate.annular)
+        return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
+    spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, rings=estimate.annular))
     return replace(spots, psf=replace(estimate, applied_sigma_px=width))
 
 
@@ -143,13 +145,51 @@ class _Frame:
     smeared: bool = False
 
 
-def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False
-                   ) -> tuple[Spots, _Frame | None]:
+@dataclass(frozen=True)
+class _Measurement:
     """
-    Measure the frame once with config's PSF width.
+    A frame measured with one PSF width up to its sub-pixel fits.
 
-    rings: the stars are rings (PsfEstimate.annular; config.blend_separation_px). Returns the
-    spots and the _Frame (None when nothing was detected).
+    Detections judged, defects and extended objects removed, centres of gravity; the fits
+    (`_finish`) run only for the measurement whose spots are returned: a measurement made
+    for the PSF estimate alone, replaced by one at the estimated width, never pays for them.
+    `frame` None: nothing was detected (`empty` holds the spots).
+    """
+
+    frame: _Frame | None
+    empty: Spots | None = None
+    context: FitContext | None = None
+    kept: Candidates | None = None
+    spots: SpotRows | None = None
+    clipping: _Clipping | None = None
+    multi: np.ndarray | None = None
+    aid: "SmearModel | None" = None
+    rejected_shape: int = 0
+    frame_values: dict | None = None
+    rate_aid_rejected: bool = False
+
+
+def _finish(measurement: _Measurement) -> Spots:
+    """Return the measurement's spots: its sub-pixel fits (the method's) run, the spot table assembled."""
+    if measurement.frame is None:
+        return measurement.empty
+    m = measurement
+    spots, added, clipping = m.spots, [], m.clipping
+    if m.context.config.method not in ("cog", "wcog"):
+        spots, added, clipping = _fit_spots(m.context, m.kept, spots, clipping, m.multi, m.aid)
+    wide = np.flatnonzero(clipping.saturated & ~clipping.fitted)
+    if wide.size:
+        spots = spots.with_values(wide, cov=m.kept.moment_covariance(wide))
+    result = _assemble(m.context, SpotRows.concatenate([spots, *added]), m.rejected_shape, m.frame_values)
+    return replace(result, rate_aid_rejected=True) if m.rate_aid_rejected else result
+
+
+def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False
+                   ) -> _Measurement:
+    """
+    Measure the frame once with config's PSF width, up to the fits (`_finish` runs them).
+
+    rings: the stars are rings (PsfEstimate.annular; config.blend_separation_px).
     """
     height, width = image.shape
     binning = config.binning if min(height, width) >= 16 * config.binning else 1
@@ -162,7 +202,7 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
                  smear_kernel=smear_kernel(aid, width, height, sigma, binning) if aid is not None else None)
     frame_values = dict(background_adu=float(np.median(det.background[::8, ::8])), noise_adu=det.noise_adu)
     if det.x.size == 0:
-        return Spots.empty(width, height, **frame_values), None
+        return _Measurement(None, empty=Spots.empty(width, height, **frame_values))
     # A known rate that smears the stars by more than EMPIRICAL_MAX_SMEAR_PX (aided or not)
     # shapes them, not the optics: no empirical PSF.
     still = smear is None or typical_smear_px(smear, width, height) < EMPIRICAL_MAX_SMEAR_PX
@@ -185,22 +225,16 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     # Several separate peaks with dips between them: stars blended into one footprint, not a streak.
     multi = np.array([len(p) >= 2 for p in kept.peaks], bool) & ~saturated
     if aid is not None and rate_aid_disagrees(kept, ~saturated & ~kept.edge & ~multi, sigma, aid):
-        spots, frame = _measure_frame(image, config, None)
-        return replace(spots, rate_aid_rejected=True), frame
+        return replace(_measure_frame(image, config, None), rate_aid_rejected=True)
     spots = _centres_of_gravity(kept, config, sigma, saturated, multi)
     # Clipped spots: their pixels at the clip level carry no shape information, so every fit
     # leaves them out (`excluded`); a saturated spot no fit describes gets a covariance as wide
     # as the spot.
     excluded = clipped_pixels(context, kept.detection[saturated], clip[saturated]) if saturated.any() else None
     clipping = _Clipping(clip, excluded, np.zeros(len(spots), bool))
-    added = []
-    if config.method not in ("cog", "wcog"):
-        spots, added, clipping = _fit_spots(context, kept, spots, clipping, multi, aid)
-    wide = np.flatnonzero(clipping.saturated & ~clipping.fitted)
-    if wide.size:
-        spots = spots.with_values(wide, cov=kept.moment_covariance(wide))
     frame_values["rejected_extended"] = int(extended.sum())
-    return _assemble(context, SpotRows.concatenate([spots, *added]), int(rejected.sum()), frame_values), frame
+    return _Measurement(frame, context=context, kept=kept, spots=spots, clipping=clipping, multi=multi, aid=aid,
+                        rejected_shape=int(rejected.sum()), frame_values=frame_values)
 
 
 def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float) -> np.ndarray:
