@@ -40,6 +40,11 @@ if TYPE_CHECKING:
 WIDER_PRIOR_FACTORS = (2.0, 3.0)
 WIDER_PRIOR_MIN_CANDIDATES = 20
 EMPIRICAL_MAX_SMEAR_PX = 0.5  # predicted smear [px] below which stars keep the optics' shape
+# Only the FIT_CANDIDATES_PER_SPOT x max_spots brightest candidates (footprint flux) are fitted:
+# the fits rank the spots by fitted flux and keep max_spots, and a deep photograph's thousands of
+# faint detections would cost seconds of fits for spots never reported (margin for fitted flux
+# reordering the footprint's; see _first_cut).
+FIT_CANDIDATES_PER_SPOT = 3
 
 
 @dataclass(frozen=True)
@@ -259,7 +264,8 @@ def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate
     Return indices of the candidates worth fitting.
 
     Measured, not defects, positive flux, large enough and with an SNR (under the local
-    noise) above the first cut.
+    noise) above the first cut; of those at most FIT_CANDIDATES_PER_SPOT x max_spots, the
+    brightest by footprint flux.
     """
     config = context.config
     # Streaks spread their signal: their footprint SNR understates what the streak fit recovers,
@@ -267,9 +273,12 @@ def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate
     streaky = (rate_aided or (cand.major > elongation_limit(context.sigma))) & (config.method in ("auto", "streak"))
     first_cut = np.where(streaky, 0.4 * config.min_snr, config.min_snr)
     local = _local_noise_factor(context, cand.x, cand.y, cand.flux)
-    keep = (~rejected & np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.flux > 0)
-            & (cand.snr / np.sqrt(local) >= first_cut) & (cand.area >= config.min_area))
-    return np.flatnonzero(keep)
+    keep = np.flatnonzero(~rejected & np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.flux > 0)
+                          & (cand.snr / np.sqrt(local) >= first_cut) & (cand.area >= config.min_area))
+    limit = FIT_CANDIDATES_PER_SPOT * config.max_spots
+    if keep.size > limit:
+        keep = np.sort(keep[np.argsort(-cand.flux[keep], kind="stable")[:limit]])
+    return keep
 
 
 def _centres_of_gravity(kept: Candidates, config: CentroidConfig, sigma: float, saturated: np.ndarray,
