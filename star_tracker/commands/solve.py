@@ -231,7 +231,8 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     if not result.solved or camera is not None or not options.refine_focal:
         return result
     # A first solve may hold only a few stars near the centre (the rest fell outside the match
-    # radius at the wrong scale): refine, identify again with more stars, until none are added.
+    # radius at the wrong scale): refine, identify again with more stars, until none are added
+    # (near the attitude fitted with the camera: its stars match without a search).
     identifier.config = replace(config, max_time_s=4.0 * options.max_time_s)
     for round_index in range(MAX_REFINE_ROUNDS):
         try:
@@ -240,7 +241,7 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
             break
         refined = calibration.camera
         started = time.perf_counter()
-        final = identifier.identify(spots, refined)
+        final = identifier.identify_near(spots, refined, calibration.rotations[0])
         result.attempts.append({"fov_x_deg": math.degrees(2.0 * math.atan(0.5 * refined.width / refined.fx)),
                                 "status": final.status, "elapsed_s": round(time.perf_counter() - started, 3),
                                 "refined": True, "stars": int(final.hip.size), "fitted": list(calibration.fitted)})

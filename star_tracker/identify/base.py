@@ -385,6 +385,24 @@ class StarIdentifier:
             return self._fail(outcome.status, outcome.reason, started, outcome.tested)
         return self.solved(geometry, order, outcome.match, outcome.tested, started)
 
+    def identify_near(self, spots: Spots, camera: CameraModel, rotation: np.ndarray) -> Identification:
+        """
+        Identify `spots` near a known attitude `rotation` (sensor -> ICRS).
+
+        E.g. the same frame's solve before its camera was refined: its stars within the
+        verification radius (verification_radius_px) of where they are predicted. The attitude
+        is verified as the only hypothesis (verify_hypothesis: every spot matched under it,
+        refitted, the false-positive bound applied) and the match finished as identify's; when
+        it fails, the full search (identify).
+        """
+        started = time.perf_counter()
+        order, geometry = self.prepare(spots, camera)
+        if order.size >= MIN_STARS:
+            match = self.verify_hypothesis(geometry, camera, np.asarray(rotation, float))
+            if match is not None:
+                return self.solved(geometry, order, match, 1, started)
+        return self.identify(spots, camera)
+
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
         """
         Run the algorithm's step between `prepare` and the final fit.

@@ -201,6 +201,39 @@ def test_a_search_step_ends_in_the_shared_final_fit(database, nominal_camera, ca
     assert np.allclose(result.body_vectors, nominal_camera.pixel_to_ray(spots.x, spots.y)[result.spot_index])
 
 
+@pytest.mark.parametrize("algorithm", ["hybrid", "pyramid"])
+def test_identify_near_a_known_attitude_verifies_it_without_a_search(algorithm, database, nominal_camera, catalog,
+                                                                     monkeypatch):
+    """
+    Identify near an attitude 0.7 px off the truth (within the 1.5 px match radius).
+
+    Its true stars and attitude come from verification alone, no search; an attitude far off
+    falls back to the full search and solves the frame all the same.
+    """
+    from star_tracker.models.attitude import rotation_vector_to_matrix
+
+    identifier = warmed(algorithm, database, catalog)
+    rng = np.random.default_rng(31)
+    for _ in range(5):
+        truth = random_rotation(rng)
+        spots, hip = synthetic_scene(catalog, nominal_camera, truth, rng)
+        axis = rng.normal(size=3)
+        near = truth @ rotation_vector_to_matrix(axis / np.linalg.norm(axis) * 0.7 * nominal_camera.pixel_scale_rad)
+        with monkeypatch.context() as patched:
+            patched.setattr(identifier, "search", lambda *a: pytest.fail("searched near a known attitude"))
+            result = identifier.identify_near(spots, nominal_camera, near)
+        assert result.solved and result.hypotheses == 1, result.reason
+        assert np.array_equal(result.hip, hip[result.spot_index])
+        assert result.hip.size >= 0.8 * np.sum(np.isin(hip, database.hip))
+        cross, roll, _ = attitude_error(result.attitude.rotation, truth)
+        assert cross < 3 * ARCSEC and roll < 30 * ARCSEC
+        far = truth @ rotation_vector_to_matrix(np.array([0.0, 0.3, 0.0]))  # 17 deg: no star where predicted
+        fallback = identifier.identify_near(spots, nominal_camera, far)
+        assert fallback.solved and np.array_equal(fallback.hip, hip[fallback.spot_index])
+        cross, roll, _ = attitude_error(fallback.attitude.rotation, truth)
+        assert cross < 3 * ARCSEC and roll < 30 * ARCSEC
+
+
 def malformed(spots, **arrays):
     """`spots` with some arrays replaced, bypassing any check the record itself makes."""
     bad = object.__new__(Spots)
