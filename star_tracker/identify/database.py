@@ -25,6 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..models.catalog import StarCatalog, cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
+from ..models.file_memo import FileMemo
 from ..parameter_spec import parameter, range_problems
 from .geometry import chord_angle
 from .kvector import KVector
@@ -246,21 +247,33 @@ def database_from_cache(arrays: dict[str, np.ndarray], config: DatabaseConfig) -
     return StarDatabase(config, vectors, hip, magnitude, pair_a, pair_b, KVector(angle, k, slope, intercept))
 
 
+# Databases loaded in this process, reused while their cache file is unchanged (a narrow
+# field's is ~0.5 GB: the last two only).
+_LOADED: FileMemo[StarDatabase] = FileMemo(2)
+
+
 def load_or_build_database(config: DatabaseConfig, directory: Path | None = None) -> StarDatabase:
     """
     Load the cached database for `config` from `directory`, or build it and cache it there.
 
-    directory None: catalog.cache_dir(); validated: see the module docstring. The database
+    directory None: catalog.cache_dir(); validated: see the module docstring. Reused in the
+    process while its file is unchanged (models/file_memo.py). The database
     remembers the directory (cache_directory), so the triangle databases built from it are
     cached beside it. A rejected cache file is logged and rebuilt; an unwritable cache
     directory costs a rebuild at every start (logged), never the database.
     """
     directory = Path(directory) if directory is not None else None
     path = (directory or cache_dir()) / f"pairs_{config.cache_key()}.npz"
+    identity = f"{config.identity()}|{directory}"
+    loaded = _LOADED.get(path, identity)
+    if loaded is not None:
+        return loaded
     arrays = load_validated_npz(path)
     if arrays is not None:
         try:
-            return replace(database_from_cache(arrays, config), cache_directory=directory)
+            db = replace(database_from_cache(arrays, config), cache_directory=directory)
+            _LOADED.put(path, identity, db)
+            return db
         except ValueError as exc:
             log.warning("pattern database cache %s rejected (%s); rebuilding it", path, exc)
     elif path.exists():
@@ -275,4 +288,5 @@ def load_or_build_database(config: DatabaseConfig, directory: Path | None = None
             "format_version": np.array(DATABASE_FORMAT_VERSION, np.int64), "config": np.array(config.identity())})
     except OSError as exc:
         log.warning("pattern database cache %s not written (%s); it is rebuilt at every start", path, exc)
+    _LOADED.put(path, identity, replace(db, build_seconds=0.0))  # the next call loads it (from memory)
     return db

@@ -29,6 +29,7 @@ import numpy as np
 from ..models.attitude_estimation import svd_attitude
 from ..models.camera import CameraModel
 from ..models.catalog import cache_dir, load_validated_npz, save_validated_npz
+from ..models.file_memo import FileMemo
 from .database import StarDatabase
 from .deadline import Deadline
 from .verify import verify
@@ -140,12 +141,16 @@ def build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternD
 RADIUS_STEP = 1.02  # circle radii are rounded down to a power of this: nearby fields share one file
 
 
+_LOADED: FileMemo[PatternDatabase] = FileMemo(4)  # reused in the process while the file is unchanged
+
+
 def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> PatternDatabase:
     """
     Return the pattern database for these guide stars and circles of at most circle_radius_rad [rad].
 
     The radius is rounded down to a power of RADIUS_STEP, so that fields a few percent apart
-    share it; cached beside the pair database.
+    share it; cached beside the pair database, and reused in the process while that file is
+    unchanged (models/file_memo.py).
     """
     circle_radius_rad = RADIUS_STEP ** math.floor(math.log(circle_radius_rad) / math.log(RADIUS_STEP))
     identity = json.dumps({"pairs": database.config.identity(), "radius": round(circle_radius_rad, 6),
@@ -153,9 +158,15 @@ def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> 
                            "version": PATTERN_FORMAT_VERSION}, sort_keys=True)
     name = f"patterns4_{hashlib.sha256(identity.encode()).hexdigest()[:16]}.npz"
     path = (database.cache_directory or cache_dir()) / name
+    loaded = _LOADED.get(path, identity)
+    if loaded is not None:
+        return loaded
     arrays = load_validated_npz(path)
     if arrays is not None and set(arrays) >= {"stars", "ratios", "largest", "keys"}:
-        return PatternDatabase(arrays["stars"], arrays["ratios"], arrays["largest"], arrays["keys"], circle_radius_rad)
+        patterns = PatternDatabase(arrays["stars"], arrays["ratios"], arrays["largest"], arrays["keys"],
+                                   circle_radius_rad)
+        _LOADED.put(path, identity, patterns)
+        return patterns
     patterns = build_patterns(database, circle_radius_rad)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -163,6 +174,7 @@ def load_or_build_patterns(database: StarDatabase, circle_radius_rad: float) -> 
                                   "keys": patterns.keys})
     except OSError:
         pass  # an unwritable cache costs a rebuild next time, never the patterns
+    _LOADED.put(path, identity, patterns)
     return patterns
 
 
