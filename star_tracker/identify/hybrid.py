@@ -18,6 +18,7 @@ triangles, so the time budget is checked between batches.
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import replace
 from functools import lru_cache
 
@@ -69,14 +70,30 @@ def triangle_batches(pattern_count: int, spot_count: int):
             yield block[start:start + BATCH_TRIANGLES], spot_count
 
 
+# The search's read-only tables of each database alive in the process (id -> (weak reference,
+# tables)): a process solving many images makes an identifier per image on the same database.
+_TABLES: dict[int, tuple] = {}
+
+
+def _search_tables(database: StarDatabase) -> tuple[SkyGrid, CatalogArrays, PairIndex]:
+    """Return the sky grid, catalog arrays and pair index of `database`, built once while it lives."""
+    key = id(database)
+    entry = _TABLES.get(key)
+    if entry is not None and entry[0]() is database:
+        return entry[1]
+    grid = SkyGrid.build(database.vectors)
+    tables = (grid, CatalogArrays.build(database, grid), PairIndex.build(database))
+    _TABLES[key] = (weakref.ref(database, lambda _ref, key=key: _TABLES.pop(key, None)), tables)
+    return tables
+
+
 class HybridIdentifier(StarIdentifier):
     name = "hybrid"
+    _kernels_ready = False  # warm_up ran in this process
 
     def __init__(self, database: StarDatabase, config: IdentifyConfig):
         super().__init__(database, config)
-        self.grid = SkyGrid.build(database.vectors)
-        self.catalog = CatalogArrays.build(database, self.grid)
-        self._pairs = PairIndex.build(database)
+        self.grid, self.catalog, self._pairs = _search_tables(database)
         # Search scratch: heads of the adjacency lists, all -1 between calls (search_triangles).
         self._head_ik = np.full(database.star_count, -1, np.int64)
         self._head_jk = np.full(database.star_count, -1, np.int64)
@@ -86,8 +103,12 @@ class HybridIdentifier(StarIdentifier):
         Compile the kernels (or load them from numba's cache) on a small random scene, with the longest time budget.
 
         Compiling the first kernels must not spend the budget before the search runs (on a
-        loaded host it did, and the search compiled at the first frame).
+        loaded host it did, and the search compiled at the first frame). Once per process: the
+        compiled kernels are shared by every identifier (a process solving many images made a
+        new one per image).
         """
+        if HybridIdentifier._kernels_ready:
+            return
         rng = np.random.default_rng(0)
         n = 8
         x, y = rng.uniform(0, camera.width - 1, n), rng.uniform(0, camera.height - 1, n)
@@ -100,6 +121,7 @@ class HybridIdentifier(StarIdentifier):
             self.config = saved
         refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
         log_chance_tuples(np.eye(3), np.full(3, 1e-5), 3.0, 1e3)  # the bound after the deep re-match
+        HybridIdentifier._kernels_ready = True
 
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
         """

@@ -278,3 +278,21 @@ def test_tracking_refuses_malformed_spots_too(database, nominal_camera, catalog)
     assert tracker.track(spots, nominal_camera, prediction)[0].solved
     with pytest.raises(ValueError, match=r"Spots\.cov must have shape"):
         tracker.track(malformed(spots, cov=spots.cov[:, 0]), nominal_camera, prediction)
+
+
+def test_identifiers_on_one_database_share_its_search_tables(database, nominal_camera, catalog):
+    """A process solving many images makes an identifier per image: the tables are built once per database."""
+    from dataclasses import replace
+
+    first, second = make_identifier("hybrid", database), make_identifier("hybrid", database)
+    assert first.grid is second.grid and first.catalog is second.catalog and first._pairs is second._pairs
+    copy = replace(database)  # another database object (e.g. loaded again from a rewritten file)
+    other = make_identifier("hybrid", copy)
+    assert other.grid is not first.grid
+    assert np.array_equal(other.grid.star_of_cell, first.grid.star_of_cell)
+    rng = np.random.default_rng(41)
+    truth = random_rotation(rng)
+    spots, hip = synthetic_scene(catalog, nominal_camera, truth, rng)
+    for identifier in (first, second, other):
+        result = identifier.identify(spots, nominal_camera)
+        assert result.solved and np.array_equal(result.hip, hip[result.spot_index])
