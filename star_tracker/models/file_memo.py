@@ -7,6 +7,7 @@ several images) loads each pattern database from disk once, not once per image (
 each, more for a narrow field's). An entry is keyed by what the object was built for and by
 the file's identity (inode, size, modification time): a file rewritten or corrupted since is
 read, and judged, again. At most `size` objects are held, the least recently used dropped.
+`forget_all()` empties every memo (a benchmark timing a one-image process's first load).
 """
 from __future__ import annotations
 
@@ -15,6 +16,13 @@ from pathlib import Path
 from typing import Generic, TypeVar
 
 T = TypeVar("T")
+_ALL: list["FileMemo"] = []  # every memo of the process (forget_all)
+
+
+def forget_all() -> None:
+    """Empty every FileMemo of the process: the next loads read their files again."""
+    for memo in _ALL:
+        memo.clear()
 
 
 class FileMemo(Generic[T]):
@@ -25,6 +33,7 @@ class FileMemo(Generic[T]):
             raise ValueError(f"a memo holds at least 1 object, got {size}")
         self.size = size
         self._items: OrderedDict[tuple, T] = OrderedDict()
+        _ALL.append(self)
 
     @staticmethod
     def _key(path: Path, identity: str) -> tuple | None:

@@ -5,7 +5,7 @@ import os
 import numpy as np
 import pytest
 
-from star_tracker.models.file_memo import FileMemo
+from star_tracker.models.file_memo import FileMemo, forget_all
 
 
 def test_an_object_is_reused_only_while_its_file_is_unchanged(tmp_path):
@@ -35,6 +35,8 @@ def test_the_least_recently_used_object_is_dropped(tmp_path):
     assert memo.get(paths[0], "x") == 0  # a is now the most recent
     memo.put(paths[2], "x", 2)
     assert memo.get(paths[1], "x") is None and memo.get(paths[0], "x") == 0 and memo.get(paths[2], "x") == 2
+    forget_all()  # every memo of the process, this one included
+    assert all(memo.get(path, "x") is None for path in paths)
     with pytest.raises(ValueError, match="at least 1"):
         FileMemo(0)
 
