@@ -17,10 +17,12 @@ import numpy as np
 from .config import CentroidConfig, blend_separation_px, elongation_limit, hot_pixel_ratio
 from .detect import Detections
 from .kernels import PointWindowSettings, SmallSpots, measure_small
-from .measure import aperture_moments, box_sums, clean_hot_pixels, two_peaks
+from .measure import Moments, aperture_moments, box_sums, clean_hot_pixels, major_moment_noise, two_peaks
 from .psf_fit import gather_windows
 from .smear import segment_length
 
+FOOTPRINT_NOISE_SIGMAS = 3.0  # the footprint alone makes a streak only this many moment-noise sigmas past the limit
+APERTURE_WIDER = 0.7  # an aperture moment this x the elongation limit (~1.75x a star's): wider than a star
 SEARCH_MARGIN = 8  # search window = spot window + this [px]: footprints up to 15 px take the point path
 
 
@@ -222,17 +224,31 @@ def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigm
     Refine the shape of spots `members` from their detection footprint (the matched-filter mask, not grown).
 
     Which traces a faint streak that a threshold or an aperture cuts short: the spot is as
-    elongated as the longer measure says; elongated spots get the cross-track width test
-    (_streak_width) and, with find_blends, a search for two stars (two_peaks over
-    windows.blend_use).
+    elongated as the longer measure says (the footprint's makes a point-like spot elongated
+    when the aperture's is APERTURE_WIDER x the limit, or FOOTPRINT_NOISE_SIGMAS of its noise,
+    major_moment_noise, past the limit); elongated
+    spots get the cross-track width test (_streak_width) and, with find_blends, a search for
+    two stars (two_peaks over windows.blend_use).
     """
     noise, gain = det.noise_adu, config.gain_e_per_adu
     col0, row0 = windows.col0, windows.row0
     ridge = aperture_moments(windows.data, windows.footprint, col0, row0, noise, gain, signed_shape=True)
-    longer = ridge.major > out["major"][members]
+    # The footprint makes a point-like spot a streak when the aperture saw it wider than a point
+    # too (a faint streak the aperture cuts short) or beyond the footprint moment's own noise: a
+    # faint point star's wide footprint (grown by its own noise) stretches it by ~0.2-0.4 px^2,
+    # past a sharp PSF's elongation limit.
+    limit = elongation_limit(sigma)
+    aperture = out["major"][members]
+    longer = (ridge.major > aperture) & (aperture > APERTURE_WIDER * limit)
+    doubt = np.flatnonzero((ridge.major > aperture) & ~longer & (ridge.major > limit))
+    if doubt.size:  # the moment noise only where it decides
+        sub = windows.take(doubt)
+        spread = major_moment_noise(sub.data, sub.footprint, sub.col0, sub.row0,
+                                    Moments(*(getattr(ridge, f.name)[doubt] for f in fields(Moments))), noise, gain)
+        longer[doubt] = ridge.major[doubt] - FOOTPRINT_NOISE_SIGMAS * spread > limit
     out["major"][members] = np.where(longer, ridge.major, out["major"][members])
     out["angle"][members] = np.where(longer, ridge.angle, out["angle"][members])
-    stretched = np.flatnonzero(out["major"][members] > elongation_limit(sigma))
+    stretched = np.flatnonzero(out["major"][members] > limit)
     if stretched.size == 0:
         return
     long = windows.take(stretched)

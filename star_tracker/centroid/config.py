@@ -38,7 +38,8 @@ class CentroidConfig:
     brightest pixel holds more than max_peak_fraction of its flux (raised for an undersampled
     PSF to what a star centred on a pixel gives, see peak_fraction_limit), or, at SNR >= shape_min_snr,
     when its narrowest second moment is below min_width_fraction * psf_sigma_px^2 (a star is
-    never thinner than the PSF; a cosmic-ray track is).
+    never thinner than the PSF; a cosmic-ray track is; an estimated elongated PSF's minor
+    axis in place of psf_sigma_px).
     method: "auto" (default) = PSF fit for point-like spots, streak model for elongated ones;
     "gaussian" = PSF fit for point-like spots, centre of gravity for streaks; "streak" = streak
     model for every spot; "cog" = centre of gravity; "wcog" = intensity-weighted (squared)

@@ -105,7 +105,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         # Many detections but too few usable stars (not: usable ones all elongated, a smear): a
         # PSF much wider than the prior (a defocused camera's faint rings are fragments and
         # streaks at a narrow width, their light outside its apertures). Measured once more at a
-        # wider width, estimated there.
+        # wider width, estimated there (from fainter stars too: psf_estimate.FAINT_STAR_SNR).
         for factor in WIDER_PRIOR_FACTORS:
             wider = prior * factor
             if wider > MAX_SIGMA_PX:
@@ -114,7 +114,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
             if wide.frame is None:
                 break
             again = estimate_psf(image, wide.frame.det, wide.frame.cand, wide.frame.saturation, wider,
-                                 config.gain_e_per_adu)
+                                 config.gain_e_per_adu, faint=True)
             if again.estimated:
                 measured, prior, estimate = wide, wider, again
                 break
@@ -129,6 +129,10 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     # Ring stars (a defocused PSF): a ring's maxima are one star; measured again with blends
     # split only farther apart.
     if abs(width - prior) <= (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior and not estimate.annular:
+        if elongated and width < (1.0 - RERUN_TOLERANCE) * prior:
+            # Astigmatic stars are narrower across than the prior: measured again with the width
+            # test at their minor axis, which the prior's rejected some of them at.
+            measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, narrowest_px=width)
         return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
     spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, rings=estimate.annular))
     return replace(spots, psf=replace(estimate, applied_sigma_px=width))
@@ -189,12 +193,14 @@ def _finish(measurement: _Measurement) -> Spots:
     return replace(result, rate_aid_rejected=True) if m.rate_aid_rejected else result
 
 
-def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False
-                   ) -> _Measurement:
+def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False,
+                   narrowest_px: float | None = None) -> _Measurement:
     """
     Measure the frame once with config's PSF width, up to the fits (`_finish` runs them).
 
-    rings: the stars are rings (PsfEstimate.annular; config.blend_separation_px).
+    rings: the stars are rings (PsfEstimate.annular; config.blend_separation_px);
+    narrowest_px: an elongated PSF's minor-axis 1-sigma [px] for the width test (None: the
+    PSF width).
     """
     height, width = image.shape
     binning = config.binning if min(height, width) >= 16 * config.binning else 1
@@ -213,7 +219,7 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     still = smear is None or typical_smear_px(smear, width, height) < EMPIRICAL_MAX_SMEAR_PX
     context = FitContext(image, det, config, sigma, rings, own_psf=still)
     cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None, rings=rings)
-    rejected = _shape_defects(cand, config, sigma)
+    rejected = _shape_defects(cand, config, sigma, sigma if narrowest_px is None else min(sigma, narrowest_px))
     first = _first_cut(context, cand, rejected, aid is not None)
     kept = cand.take(first)
     clip = clip_levels(context, kept, saturation)
@@ -242,19 +248,26 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
                         rejected_shape=int(rejected.sum()), frame_values=frame_values)
 
 
-def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float) -> np.ndarray:
+def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narrowest: float | None = None
+                   ) -> np.ndarray:
     """
     Defects (bool per candidate).
 
-    Cleaned-away hot pixels (nothing left) and spots too sharp or too thin for the PSF
-    (CentroidConfig's shape test; none without a PSF).
+    Cleaned-away hot pixels (nothing left) and spots too sharp for a PSF of 1-sigma `sigma`
+    [px] (peak share beyond peak_fraction_limit by more than its noise allows) or thinner than
+    its narrowest axis `narrowest` [px] (default sigma) (CentroidConfig's shape test; none
+    without a PSF).
     """
+    narrowest = sigma if narrowest is None else narrowest
     rejected = np.zeros(cand.x.size, bool)
     if config.psf_sigma_px > 0:
         with np.errstate(divide="ignore", invalid="ignore"):
             sharp = cand.peak / cand.flux
-        rejected = ((cand.cleaned & (cand.snr < config.min_snr)) | (sharp > peak_fraction_limit(config, sigma))
-                    | ((cand.snr >= config.shape_min_snr) & (cand.minor < config.min_width_fraction * sigma ** 2)))
+            # A faint star's peak share is as noisy as its flux: the limit widened by 2 of its sigmas.
+            sharp_limit = np.minimum(peak_fraction_limit(config, sigma) * (1.0 + 2.0 / np.fmax(cand.snr, 2.0)),
+                                     0.95)
+        rejected = ((cand.cleaned & (cand.snr < config.min_snr)) | (sharp > sharp_limit)
+                    | ((cand.snr >= config.shape_min_snr) & (cand.minor < config.min_width_fraction * narrowest ** 2)))
         rejected &= np.isfinite(cand.x)
     return rejected
 

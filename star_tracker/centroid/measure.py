@@ -155,6 +155,27 @@ def aperture_moments(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row
                    minor=0.5 * (mxx + myy) - spread, major=0.5 * (mxx + myy) + spread, angle=angle, peak=peak)
 
 
+def major_moment_noise(windows: np.ndarray, use: np.ndarray, col0: np.ndarray, row0: np.ndarray, moments: Moments,
+                       noise: float, gain: float) -> np.ndarray:
+    """
+    Return the 1-sigma noise [px^2] of each spot's signed second moment along its major axis.
+
+    `moments`: aperture_moments(windows, use, col0, row0, noise, gain, signed_shape=True).
+    The moment M = sum r_i u_i^2 / sum r_i (u_i along the major axis from the centre) moves by
+    (u_i^2 - M) / flux per unit of pixel i, whose variance is max(r_i, 0)/gain + noise^2.
+    """
+    n, size_r, size_c = windows.shape
+    rows, cols = np.mgrid[0:size_r, 0:size_c]
+    dx = cols[None] - (moments.x - np.asarray(col0, float))[:, None, None]
+    dy = rows[None] - (moments.y - np.asarray(row0, float))[:, None, None]
+    along = dx * np.cos(moments.angle)[:, None, None] + dy * np.sin(moments.angle)[:, None, None]
+    signal = np.where(use, windows, 0.0)
+    var = np.where(use, np.maximum(signal, 0.0) / gain + noise * noise, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = (along * along - moments.major[:, None, None]) / moments.flux[:, None, None]
+        return np.sqrt((var * slope * slope).sum(axis=(1, 2)))
+
+
 def secondary_peaks(windows: np.ndarray, valid: np.ndarray, centre: int, threshold: float, min_separation: float,
                     radius: float, gain: float, noise: float):
     """

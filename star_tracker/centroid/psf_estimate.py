@@ -13,7 +13,7 @@ frame's width is the median over the stars (a star that is not one, a hot pixel 
 does not move it), its uncertainty the median's spread / sqrt(n). For a non-Gaussian PSF (a
 Moffat's wings, a defocused annulus) it is the Gaussian that fits the core best: what the
 windows and tests need. Elongation and orientation come from the stars' Gaussian-weighted
-second moments (corrected for the weight and the pixel), summed over the chosen stars.
+second moments (corrected for the weight and the pixel), the median over the chosen stars.
 """
 from __future__ import annotations
 
@@ -37,8 +37,14 @@ MIN_PEAK_SNR = 7.0  # brightest pixel above the background [noise sigmas]: enoug
 # Such a star is usable on its footprint SNR (>= MIN_STAR_SNR) with a peak of MIN_WIDE_PEAK_SNR.
 MIN_STAR_SNR = 10.0
 MIN_WIDE_PEAK_SNR = 3.0
+# A frame re-measured at a wider prior (extract.WIDER_PRIOR_FACTORS) whose stars are all faint
+# (a defocused camera's stars at SNR ~10 have peaks of ~2 noise sigmas and, in an aperture
+# still narrower than the PSF, a footprint SNR of ~6-8): stars from these levels count.
+FAINT_STAR_SNR = 6.0
+FAINT_WIDE_PEAK_SNR = 1.5
 ISOLATION_SIGMAS = 8.0  # no other candidate closer than this many (rough) PSF widths
 MAX_AXIS_RATIO = 3.0  # a star more elongated than this (noise included) is smeared or blended, not the optics' PSF
+WIDER_START = 1.2  # stars' moment width beyond this x the prior: the fit starts from the moment (an aperture cuts it)
 RERUN_TOLERANCE = 0.1  # relative difference from the prior beyond which a frame is measured again
 SMEARED_ELONGATION = 1.2  # stars more elongated than this are measured with the minor-axis width
 RING_CENTRE_RATIO = 0.6  # centre-to-ring light below this x a Gaussian's of the same width: a ring PSF
@@ -95,12 +101,14 @@ class PsfEstimate:
         return PsfEstimate(float(sigma_px), float(sigma_px), float(sigma_px), 0.0, float("nan"), stars, source, reason)
 
 
-def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sigma: float) -> np.ndarray:
+def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sigma: float, faint: bool = False
+                 ) -> np.ndarray:
     """
     Return indices of the candidates fit to measure the PSF on, brightest first (at most MAX_STARS).
 
     Measured, off the image border, peak >= MIN_PEAK_SNR noise sigmas (or footprint SNR >=
-    MIN_STAR_SNR with a peak >= MIN_WIDE_PEAK_SNR sigmas: a wide PSF's star) and 2 % below the clip
+    MIN_STAR_SNR with a peak >= MIN_WIDE_PEAK_SNR sigmas: a wide PSF's star; with `faint`,
+    FAINT_STAR_SNR and FAINT_WIDE_PEAK_SNR) and 2 % below the clip
     level (`saturation` [ADU]) and the frame's brightest candidate's peak, not most of their
     light in one pixel once cleaned (hot pixels), not a long track (second moments within 8x of
     each other), and no other candidate within ISOLATION_SIGMAS PSF widths. Candidates the shape
@@ -117,8 +125,9 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     # Clipped: at the clip level (configured or seen as a flat top), or at the frame's brightest
     # value (a clip level no flat top showed; in a frame without one it costs the brightest star).
     ceiling = min(saturation, float(np.max(cand.peak_raw[finite]))) if finite.any() else saturation
+    min_snr, min_wide_peak = (FAINT_STAR_SNR, FAINT_WIDE_PEAK_SNR) if faint else (MIN_STAR_SNR, MIN_WIDE_PEAK_SNR)
     bright = (amplitude >= MIN_PEAK_SNR * det.noise_adu) | (
-        (cand.snr >= MIN_STAR_SNR) & (amplitude >= MIN_WIDE_PEAK_SNR * det.noise_adu))
+        (cand.snr >= min_snr) & (amplitude >= min_wide_peak * det.noise_adu))
     ok = finite & ~cand.edge & bright & (cand.peak_raw < 0.98 * ceiling) & not_track & ~one_pixel
     chosen = np.flatnonzero(ok)
     if chosen.size == 0:
@@ -132,7 +141,7 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
 
 
 def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturation: float, prior_sigma: float,
-                 gain: float) -> PsfEstimate:
+                 gain: float, faint: bool = False) -> PsfEstimate:
     """
     Return the frame's PSF from its usable stars (usable_stars), or the prior.
 
@@ -141,9 +150,9 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     returned when fewer than MIN_STARS remain or the width is outside [MIN_SIGMA_PX,
     MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
     saturation [ADU]; prior_sigma: the width the candidates were measured with [px]; gain
-    [e-/ADU].
+    [e-/ADU]; faint: fainter stars are usable (usable_stars).
     """
-    chosen = usable_stars(cand, det, saturation, prior_sigma)
+    chosen = usable_stars(cand, det, saturation, prior_sigma, faint)
     if chosen.size < MIN_STARS:
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
                                    f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {MIN_STAR_SNR:g} (need {MIN_STARS})",
@@ -153,7 +162,7 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     # A window cut to the prior would shrink a wider PSF's fit: start from the candidates' moments
     # (pixel term removed), and widen the window when the fit says the PSF is wider.
     moment = np.sqrt(max(_median(0.5 * (cand.major[chosen] + cand.minor[chosen])) - 1.0 / 12.0, 0.04))
-    start, fit = (float(moment) if moment > 1.5 * prior_sigma else prior_sigma), None
+    start, fit = (float(moment) if moment > WIDER_START * prior_sigma else prior_sigma), None
     for _ in range(3):
         half = int(np.clip(np.ceil(4.0 * start), 3, int(np.ceil(4.0 * MAX_SIGMA_PX))))
         wider = _fit_widths(image, x, y, background, half, start, det.noise_adu, gain)
@@ -171,7 +180,7 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     # the pixel term removed, a faint undersampled star's noisy minor axis goes to ~0 and any
     # such star looked elongated (sigma 0.4 px at SNR ~11: 4 of 11 "round").
     weight_sigma = max(2.0 * _median(width), 1.5)
-    moments, weights = _weighted_moments(windows, fx, fy, weight_sigma)
+    moments, _ = _weighted_moments(windows, fx, fy, weight_sigma)
     ratio, _ = _axes(moments, weight_sigma)
     round_ = ratio < MAX_AXIS_RATIO
     if round_.sum() < MIN_STARS:
@@ -185,7 +194,9 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     if not MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX:
         return PsfEstimate.assumed(prior_sigma, "prior", f"estimated PSF sigma {sigma:.2f} px is outside the "
                                    f"supported [{MIN_SIGMA_PX}, {MAX_SIGMA_PX}] px", int(width.size))
-    total = np.sum(moments[round_] * weights[round_, None, None], axis=0) / np.sum(weights[round_])
+    # The median star's moments (element-wise): their flux-weighted sum, which one odd star can
+    # pull, made a round Moffat PSF 1.46x elongated on one of four bench frames (1.02-1.07 so).
+    total = np.median(moments[round_], axis=0)
     ratio, angle = _axes(total[None], weight_sigma)
     ratio = float(ratio[0]) if np.isfinite(ratio[0]) else 1.0
     annular = _is_ring(windows, fx, fy, round_, sigma)
