@@ -22,6 +22,7 @@ from .psf_fit import gather_windows
 from .smear import segment_length
 
 FOOTPRINT_NOISE_SIGMAS = 3.0  # the footprint alone makes a streak only this many moment-noise sigmas past the limit
+STREAK_COUNT_MIN_SIGMA_PX = 1.0  # _streak_width's count tells a streak from a cosmic-ray track from this PSF sigma
 APERTURE_WIDER = 0.7  # an aperture moment this x the elongation limit (~1.75x a star's): wider than a star
 SEARCH_MARGIN = 8  # search window = spot window + this [px]: footprints up to 15 px take the point path
 
@@ -112,12 +113,14 @@ class _FootprintWindows(NamedTuple):
 
 
 def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float,
-                       find_blends: bool = True, rings: bool = False) -> Candidates:
+                       find_blends: bool = True, rings: bool = False, streaks_expected: bool = False) -> Candidates:
     """
     Measure every detection after hot-pixel cleaning.
 
     Aperture measurements for small components, footprint measurements for large ones; rings:
-    the stars are rings (blend peaks farther apart, config.blend_separation_px).
+    the stars are rings (blend peaks farther apart, config.blend_separation_px);
+    streaks_expected: a body rate predicts streaks (the detection footprints are the matched
+    streak filter's), so a footprint longer than the aperture's measure is taken as it is.
     """
     half = config.window_half + 1  # measuring window: the fit window plus a pixel of room
     size = 2 * half + 1
@@ -134,14 +137,15 @@ def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfi
     out["has_window"] = small.copy()
     out["peaks"] = [np.zeros((0, 2))] * m
     if idx.size:
-        _measure_small(image, det, config, sigma, idx, out, find_blends, rings)
+        _measure_small(image, det, config, sigma, idx, out, find_blends, rings, streaks_expected)
     large = np.flatnonzero(~small)
     if large.size:
-        _measure_large(image, det, config, sigma, large, out, find_blends, rings)
+        _measure_large(image, det, config, sigma, large, out, find_blends, rings, streaks_expected)
     return Candidates(area=det.area.astype(np.int64), detection=np.arange(m), **out)
 
 
-def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False) -> None:
+def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False,
+                   streaks_expected: bool = False) -> None:
     """
     Point-window measurements (kernels.measure_small) of the detections `idx`, written to `out`.
 
@@ -169,10 +173,11 @@ def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings
         footprint = det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[idx[wide]][:, None, None]
         windows = _FootprintWindows(win[wide], footprint & valid[wide], valid[wide], footprint & valid[wide],
                                     c0[wide], r0[wide])
-        _footprint_shape(windows, idx[wide], out, det, config, sigma, find_blends, rings)
+        _footprint_shape(windows, idx[wide], out, det, config, sigma, find_blends, rings, streaks_expected)
 
 
-def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False) -> None:
+def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False,
+                   streaks_expected: bool = False) -> None:
     """
     Footprint measurements of the spots too large for a point window (streaks, bright or blended stars).
 
@@ -216,30 +221,35 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings
                                 | (det.bottom[members] >= height))
         out["cleaned"][members] = hit.any(axis=(1, 2))
         _footprint_shape(_FootprintWindows(win, labels & valid, valid, use, col0, row0), members, out, det, config,
-                         sigma, find_blends, rings)
+                         sigma, find_blends, rings, streaks_expected)
 
 
-def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False) -> None:
+def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False,
+                     streaks_expected=False) -> None:
     """
     Refine the shape of spots `members` from their detection footprint (the matched-filter mask, not grown).
 
     Which traces a faint streak that a threshold or an aperture cuts short: the spot is as
-    elongated as the longer measure says (the footprint's makes a point-like spot elongated
-    when the aperture's is APERTURE_WIDER x the limit, or FOOTPRINT_NOISE_SIGMAS of its noise,
-    major_moment_noise, past the limit); elongated
-    spots get the cross-track width test (_streak_width) and, with find_blends, a search for
-    two stars (two_peaks over windows.blend_use).
+    elongated as the longer measure says (for sigma < STREAK_COUNT_MIN_SIGMA_PX without
+    streaks_expected, the footprint's makes a point-like spot elongated only when the
+    aperture's is APERTURE_WIDER x the limit, or FOOTPRINT_NOISE_SIGMAS of its noise,
+    major_moment_noise, past the limit); elongated spots get the cross-track width test
+    (_streak_width) and, with find_blends, a search for two stars (two_peaks over
+    windows.blend_use).
     """
     noise, gain = det.noise_adu, config.gain_e_per_adu
     col0, row0 = windows.col0, windows.row0
     ridge = aperture_moments(windows.data, windows.footprint, col0, row0, noise, gain, signed_shape=True)
-    # The footprint makes a point-like spot a streak when the aperture saw it wider than a point
-    # too (a faint streak the aperture cuts short) or beyond the footprint moment's own noise: a
-    # faint point star's wide footprint (grown by its own noise) stretches it by ~0.2-0.4 px^2,
-    # past a sharp PSF's elongation limit.
+    # For a PSF sharper than the cross-track count's (_streak_width) reach, the footprint makes a
+    # point-like spot a streak only when the aperture saw it wider too (a faint streak the
+    # aperture cuts short) or beyond the footprint moment's own noise: a faint point star's wide
+    # footprint (grown by its own noise) stretches it by ~0.2-0.4 px^2, past such a PSF's
+    # elongation limit (floored at 1.11 px^2), and the count then drops it. Wider PSFs, and
+    # predicted streaks, take the footprint as it is (faint smeared stars need it).
     limit = elongation_limit(sigma)
     aperture = out["major"][members]
-    longer = (ridge.major > aperture) & (aperture > APERTURE_WIDER * limit)
+    trusted = streaks_expected or sigma >= STREAK_COUNT_MIN_SIGMA_PX
+    longer = (ridge.major > aperture) & (trusted | (aperture > APERTURE_WIDER * limit))
     doubt = np.flatnonzero((ridge.major > aperture) & ~longer & (ridge.major > limit))
     if doubt.size:  # the moment noise only where it decides
         sub = windows.take(doubt)

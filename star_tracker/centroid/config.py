@@ -36,10 +36,10 @@ class CentroidConfig:
     Shape test (hot pixels, cosmic rays; psf_sigma_px > 0): isolated pixels brighter than a
     PSF allows are replaced by their neighbours' mean first; then a spot is rejected when its
     brightest pixel holds more than max_peak_fraction of its flux (raised for an undersampled
-    PSF to what a star centred on a pixel gives, see peak_fraction_limit), or, at SNR >= shape_min_snr,
-    when its narrowest second moment is below min_width_fraction * psf_sigma_px^2 (a star is
-    never thinner than the PSF; a cosmic-ray track is; an estimated elongated PSF's minor
-    axis in place of psf_sigma_px).
+    PSF to what a star centred on a pixel gives, see peak_fraction_limit; x (1 + 2/SNR) for
+    its noise), or, at SNR >= shape_min_snr, when its narrowest second moment is below
+    min_width_fraction * psf_sigma_px^2 (a star is never thinner than the PSF; a cosmic-ray
+    track is; an estimated elongated PSF's minor axis in place of psf_sigma_px).
     method: "auto" (default) = PSF fit for point-like spots, streak model for elongated ones;
     "gaussian" = PSF fit for point-like spots, centre of gravity for streaks; "streak" = streak
     model for every spot; "cog" = centre of gravity; "wcog" = intensity-weighted (squared)

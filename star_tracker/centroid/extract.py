@@ -218,7 +218,8 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     # shapes them, not the optics: no empirical PSF.
     still = smear is None or typical_smear_px(smear, width, height) < EMPIRICAL_MAX_SMEAR_PX
     context = FitContext(image, det, config, sigma, rings, own_psf=still)
-    cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None, rings=rings)
+    cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None, rings=rings,
+                              streaks_expected=aid is not None)
     rejected = _shape_defects(cand, config, sigma, sigma if narrowest_px is None else min(sigma, narrowest_px))
     first = _first_cut(context, cand, rejected, aid is not None)
     kept = cand.take(first)
