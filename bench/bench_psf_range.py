@@ -146,6 +146,14 @@ class Scored:
                 "detection_met": detect_ok, "ratio_met": ratio_ok}
 
 
+def alt_star_field(psf, rng: np.random.Generator) -> "alt.StarField":
+    """ALT_STARS stars of an alt_renderer `psf` at random positions >= 5 FWHM (at least 12 px) apart on ALT_SIZE²."""
+    sigma = float(psf.equivalent_sigma_px)
+    separation = max(5.0 * sigma / alt.SIGMA_PER_FWHM, 12.0)
+    x, y = alt.place_stars(ALT_SIZE, ALT_SIZE, ALT_STARS, separation, 3 * sigma + 8, rng)
+    return alt.StarField.build(psf, x, y)
+
+
 def measure_alt(case: Case, fluxes, fields: int, seed: int) -> list[dict]:
     """
     Rows (one per flux) of an alt-renderer case.
@@ -157,9 +165,7 @@ def measure_alt(case: Case, fluxes, fields: int, seed: int) -> list[dict]:
     scores = {flux: Scored() for flux in fluxes}
     for k in range(fields):
         rng = np.random.default_rng([seed, k])
-        separation = max(5.0 * sigma / alt.SIGMA_PER_FWHM, 12.0)  # 5 FWHM
-        x, y = alt.place_stars(ALT_SIZE, ALT_SIZE, ALT_STARS, separation, 3 * sigma + 8, rng)
-        star_field = alt.StarField.build(case.psf, x, y)
+        star_field = alt_star_field(case.psf, rng)
         for flux in fluxes:
             frame = alt.render(star_field, flux, case.detector, ALT_SIZE, ALT_SIZE, rng)
             t0 = time.perf_counter()

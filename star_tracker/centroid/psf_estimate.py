@@ -154,8 +154,9 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     """
     chosen = usable_stars(cand, det, saturation, prior_sigma, faint)
     if chosen.size < MIN_STARS:
+        min_snr = FAINT_STAR_SNR if faint else MIN_STAR_SNR
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
-                                   f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {MIN_STAR_SNR:g} (need {MIN_STARS})",
+                                   f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {min_snr:g} (need {MIN_STARS})",
                                    int(chosen.size))
     x, y = cand.x[chosen], cand.y[chosen]
     background = det.background_at(x, y)
@@ -180,7 +181,7 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     # the pixel term removed, a faint undersampled star's noisy minor axis goes to ~0 and any
     # such star looked elongated (sigma 0.4 px at SNR ~11: 4 of 11 "round").
     weight_sigma = max(2.0 * _median(width), 1.5)
-    moments, _ = _weighted_moments(windows, fx, fy, weight_sigma)
+    moments = _weighted_moments(windows, fx, fy, weight_sigma)
     ratio, _ = _axes(moments, weight_sigma)
     round_ = ratio < MAX_AXIS_RATIO
     if round_.sum() < MIN_STARS:
@@ -270,13 +271,12 @@ def _fit_widths(image, x, y, background, half: int, start: float, noise: float, 
     return fx[keep], fy[keep], flux[keep], width[keep], (data[keep], valid[keep], col0[keep], row0[keep])
 
 
-def _weighted_moments(windows, x, y, weight_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+def _weighted_moments(windows, x, y, weight_sigma: float) -> np.ndarray:
     """
-    Return each star's Gaussian-weighted second moments M (k, 2, 2) [px^2] and weighted signal.
+    Return each star's Gaussian-weighted second moments M (k, 2, 2) [px^2].
 
     The moments are about its fitted centre (x, y) [px] (weight 1-sigma weight_sigma [px], wider
-    than the PSF so that the product is well sampled by the pixels); the weighted signal each
-    sums is (k,) [ADU].
+    than the PSF so that the product is well sampled by the pixels).
     """
     data, valid, col0, row0 = windows
     size = data.shape[1]
@@ -293,7 +293,7 @@ def _weighted_moments(windows, x, y, weight_sigma: float) -> tuple[np.ndarray, n
     moments = np.empty((x.size, 2, 2))
     moments[:, 0, 0], moments[:, 1, 1] = mxx, myy
     moments[:, 0, 1] = moments[:, 1, 0] = mxy
-    return moments, total
+    return moments
 
 
 def _axes(moments: np.ndarray, weight_sigma: float) -> tuple[np.ndarray, np.ndarray]:
