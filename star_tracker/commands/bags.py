@@ -37,15 +37,31 @@ def parse_remaps(pairs: list[str]) -> dict[str, str]:
     return remap
 
 
+def parse_subscriber_counts(items: list[str]) -> tuple[int, dict[str, int]]:
+    """["N" | "TOPIC=N", ...] -> (N for every played topic, {TOPIC: N}); ValueError naming a bad item."""
+    every, per_topic = 0, {}
+    for item in items:
+        topic, sep, count = item.rpartition("=")
+        if not count.isdigit() or (sep and not topic):
+            raise ValueError(f"--wait-for-subscribers {item!r}: expected N or TOPIC=N (N a whole number)")
+        if sep:
+            per_topic[topic] = int(count)
+        else:
+            every = int(count)
+    return every, per_topic
+
+
 @guarded("play", errors=(BagError,))
 def cmd_play(args: argparse.Namespace) -> int:
     from ..ros.player import DEFAULT_ACK_TOPICS, PlayOptions, play
 
+    every, per_topic = parse_subscriber_counts(args.wait_for_subscribers)
     options = PlayOptions(rate=args.rate, start_offset_s=args.start_offset, loop=args.loop, topics=args.topics,
                           remap=parse_remaps(args.remap), clock_hz=args.clock, lockstep=not args.no_lockstep,
                           ack_topics=tuple(args.ack_topics or DEFAULT_ACK_TOPICS),
                           ack_required=args.ack_topics is not None, ack_timeout_s=args.ack_timeout,
-                          wait_for_subscribers=args.wait_for_subscribers, wait_timeout_s=args.wait_timeout,
+                          wait_for_subscribers=every,
+                          subscribers_per_topic=per_topic, wait_timeout_s=args.wait_timeout,
                           delay_s=args.delay, check_images=not args.no_check)
     return play(args.bag, options)
 
@@ -146,9 +162,10 @@ def add_play_parser(sub) -> None:
                            "among those that have a publisher)")
     play.add_argument("--ack-timeout", type=positive_float, default=1.0, metavar="S",
                       help="longest wait for an answer in lockstep (default 1.0; unidentified frames wait this long)")
-    play.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
-                      help="before playing, wait until every played topic has N subscribers (default 0; lockstep "
-                           "waits for one on the image topics)")
+    play.add_argument("--wait-for-subscribers", nargs="+", default=[], metavar="N|TOPIC=N",
+                      help="before playing, wait until every played topic has N subscribers, TOPIC=N for one "
+                           "topic (e.g. 2 camera_info=4: two pipelines' centroiders and identifiers); default 0, "
+                           "lockstep waits for one on the image topics")
     play.add_argument("--wait-timeout", type=positive_float, default=60.0, metavar="S",
                       help="give up waiting for subscribers after S seconds (default 60)")
     play.add_argument("--delay", type=non_negative_float, default=0.0, metavar="S",

@@ -46,6 +46,7 @@ class PlayOptions:
     ack_required: bool = False  # wait until every ack topic has a publisher before playing
     ack_timeout_s: float = 1.0
     wait_for_subscribers: int = 0  # wait until every played topic has this many subscribers
+    subscribers_per_topic: dict[str, int] = field(default_factory=dict)  # bag topic -> count, overrides the above
     wait_timeout_s: float = 60.0
     delay_s: float = 0.0
     check_images: bool = True
@@ -101,6 +102,9 @@ def prepare(bag: BagReader, options: PlayOptions) -> tuple[list[str], dict[str, 
     for old in options.remap:
         if old not in info.topics:
             raise BagError(f"--remap {old}: no such topic in the bag (topics: {', '.join(sorted(info.topics))})")
+    for topic in options.subscribers_per_topic:
+        if topic not in topics:
+            raise BagError(f"--wait-for-subscribers {topic}: not a played topic (played: {', '.join(topics)})")
     if options.start_offset_s < 0 or (info.message_count
                                       and options.start_offset_s * 1e9 > info.end_ns - info.start_ns):
         raise BagError(f"--start-offset {options.start_offset_s:g} s is outside the bag's {info.duration_s:.3f} s")
@@ -159,6 +163,11 @@ class AckTracker:
         return [t for t in topics if stamp_ns not in self.stamps[t]]
 
 
+def _counts(need: dict[str, int], topics: list[str]) -> str:
+    """'2 on /image_raw, 4 on /camera_info'."""
+    return ", ".join(f"{need[t]} on {t}" for t in topics)
+
+
 FLUSH_TIMEOUT_S = 5.0  # after the last message: how long reliable subscribers get to acknowledge it
 
 
@@ -213,22 +222,25 @@ class BagPlayer(Node):
     def wait_for_graph(self) -> None:
         """Wait for subscribers before the first message: best-effort volatile topics give nothing to a late one."""
         options = self.options
-        need = options.wait_for_subscribers or (1 if self.lockstep and self.images else 0)
-        targets = self.topics if options.wait_for_subscribers else sorted(self.images)
+        explicit = bool(options.wait_for_subscribers or options.subscribers_per_topic)
+        if explicit:
+            need = {t: options.subscribers_per_topic.get(t, options.wait_for_subscribers) for t in self.topics}
+        else:
+            need = {t: 1 for t in sorted(self.images)} if self.lockstep else {}
         deadline = time.monotonic() + options.wait_timeout_s
         told = False
         while self.ok():
-            short = [t for t in targets if self.pubs[t].get_subscription_count() < need]
+            short = [t for t, n in need.items() if self.pubs[t].get_subscription_count() < n]
             if not short:
                 break
             if time.monotonic() > deadline:
-                text = f"fewer than {need} subscriber(s) on {', '.join(short)} after {options.wait_timeout_s:g} s"
-                if options.wait_for_subscribers:
+                text = f"fewer than {_counts(need, short)} subscriber(s) after {options.wait_timeout_s:g} s"
+                if explicit:
                     raise BagError(text)
                 self.log(f"WARNING: {text}; playing anyway")
                 break
             if not told:
-                self.log(f"waiting for {need} subscriber(s) on {', '.join(short)} ...")
+                self.log(f"waiting for {_counts(need, short)} subscriber(s) ...")
                 told = True
             self.spin(0.05)
         if self.lockstep:  # connect to the answering nodes before the first image
@@ -405,6 +417,7 @@ def play(path: str, options: PlayOptions) -> int:
     try:
         try:
             options.remap = {absolute_topic(k): absolute_topic(v) for k, v in options.remap.items()}
+            options.subscribers_per_topic = {absolute_topic(k): n for k, n in options.subscribers_per_topic.items()}
             topics, classes, images = prepare(bag, options)
         except BagError as exc:
             print(f"star-tracker play: error: {exc}", flush=True)

@@ -126,6 +126,8 @@ def test_missing_topics_are_named(tmp_path):
         bag.select(["image_raw", "spots"])
     assert_clear_error(cli("play", path, "--topics", "image_raw", "spots"), 2, "no topic /spots", "/truth/attitude")
     assert_clear_error(cli("play", path, "--remap", "/nothing:=/x"), 2, "--remap /nothing: no such topic")
+    assert_clear_error(cli("play", path, "--topics", "image_raw", "--wait-for-subscribers", "1", "truth/attitude=2"),
+                       2, "--wait-for-subscribers /truth/attitude: not a played topic", "/image_raw")
 
 
 @pytest.mark.slow  # runs the CLI in a subprocess
@@ -255,4 +257,6 @@ def test_every_bag_command_documents_its_options():
         assert result.returncode == 0 and all(option in result.stdout for option in options), result.stdout
     assert "--record" in cli("demo", "--help").stdout
     assert_clear_error(cli("play", "bag", "--remap", "a=b"), 2, "expected OLD:=NEW")
+    assert_clear_error(cli("play", "bag", "--wait-for-subscribers", "camera_info=two"), 2, "expected N or TOPIC=N")
+    assert_clear_error(cli("play", "bag", "--wait-for-subscribers", "=2"), 2, "expected N or TOPIC=N")
     assert_clear_error(cli("play", "bag", "--rate", "-1"), 2, "must be >= 0")

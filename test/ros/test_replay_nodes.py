@@ -215,7 +215,11 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
                       "--ack-topics", "spots", "attitude", "/det/spots", "/det/attitude",
                       # Lockstep must hold on a loaded host: the default 1 s once expired (CI
                       # rehearsal, two workers) and the next image overtook a frame in work.
-                      "--ack-timeout", "10", "--wait-for-subscribers", "2"], env, tmp_path / "play.log")
+                      "--ack-timeout", "10",
+                      # Both pipelines' centroiders and identifiers on camera_info: an identifier
+                      # matched late skips the first frame, and its next one is then solved
+                      # lost-in-space instead of tracked (another attitude; CI rehearsal of d2b366c).
+                      "--wait-for-subscribers", "2", "camera_info=4"], env, tmp_path / "play.log")
         collector.spin_for(180, until=lambda: player.poll() is not None)
         collector.spin_for(2.0)  # the last /diagnostics
     finally:
@@ -233,19 +237,29 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
     # unchanged (every replayed stamp is a live one). One live-only race is allowed: the first
     # frames' spots reaching the live identifier before its camera_info (it logs and counts
     # that), which the replay, publishing camera_info right after the image, does not reproduce.
+    # The live identifier's first solved frame is then lost-in-space where the replay tracks:
+    # that one frame differs (within the attitude noise), the track converges on the next.
     extra = set(replayed["/det/attitude"]) - set(live["/det/attitude"])
     early = {stamp for _, stamp in images[first:first + max(1, without_info)]}
+    converging = set()
     if extra and extra <= early:
         assert "spots received before any valid camera_info" in (tmp_path / "live_det" / "identifier.log").read_text()
         for stamp in extra:
             del replayed["/det/attitude"][stamp]
+        converging = {min(live["/det/attitude"])}
     # Compared where both the live and the replay collector received the attitude: a test
     # subscriber that matched a fresh node late misses its first messages (volatile QoS; the
     # player's lockstep acknowledgements show the node did answer every frame).
     shared = set(replayed["/det/attitude"]) & set(live["/det/attitude"])
     assert set(replayed["/det/attitude"]) <= set(live["/det/attitude"]), play_log
     assert len(shared) >= len(live["/det/attitude"]) - 4, (sorted(live["/det/attitude"]), sorted(shared))
-    assert all(replayed["/det/attitude"][s] == live["/det/attitude"][s] for s in shared), play_log
+    differing = sorted(s for s in shared - converging if replayed["/det/attitude"][s] != live["/det/attitude"][s])
+    assert not differing, ([k for k, (_, stamp) in enumerate(images) if stamp in differing], play_log,
+                           (tmp_path / "replay_det" / "identifier.log").read_text()[-3000:])
+    for stamp in converging & shared:
+        cross, roll, _ = attitude_error(quaternion_to_matrix(np.array(replayed["/det/attitude"][stamp])),
+                                        quaternion_to_matrix(np.array(live["/det/attitude"][stamp])))
+        assert cross <= DEFAULT_BOUND_ARCSEC[0] * ARCSEC and roll <= DEFAULT_BOUND_ARCSEC[1] * ARCSEC, (cross, roll)
 
     # Default configuration: the same frames identified; a frame whose rate aid differed
     # (docs/RECORD_REPLAY.md) differs within the attitude's own noise.
