@@ -16,11 +16,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .candidates import Candidates, measure_candidates
+from .candidates import STREAK_COUNT_MIN_SIGMA_PX, Candidates, measure_candidates
 from .config import CentroidConfig, elongation_limit, peak_fraction_limit
 from .detect import Detections, detect
 from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
+from .peak_shape import TRUNCATED_MOMENT, peak_minor_moments
 from .point_fits import fit_blends, fit_clipped_points, fit_points
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
 from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
@@ -176,6 +177,7 @@ class _Measurement:
     rejected_shape: int = 0
     frame_values: dict | None = None
     rate_aid_rejected: bool = False
+    track_peaks: dict | None = None  # kept blend index -> ((K,) bool: its track peaks (dropped), (K, 2) centres)
 
 
 def _finish(measurement: _Measurement) -> Spots:
@@ -185,7 +187,7 @@ def _finish(measurement: _Measurement) -> Spots:
     m = measurement
     spots, added, clipping = m.spots, [], m.clipping
     if m.context.config.method not in ("cog", "wcog"):
-        spots, added, clipping = _fit_spots(m.context, m.kept, spots, clipping, m.multi, m.aid)
+        spots, added, clipping = _fit_spots(m.context, m.kept, spots, clipping, m.multi, m.aid, m.track_peaks or {})
     wide = np.flatnonzero(clipping.saturated & ~clipping.fitted)
     if wide.size:
         spots = spots.with_values(wide, cov=m.kept.moment_covariance(wide))
@@ -220,16 +222,23 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     context = FitContext(image, det, config, sigma, rings, own_psf=still)
     cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None, rings=rings,
                               streaks_expected=aid is not None)
-    rejected = _shape_defects(cand, config, sigma, sigma if narrowest_px is None else min(sigma, narrowest_px))
+    narrowest = sigma if narrowest_px is None else min(sigma, narrowest_px)
+    rejected, thin = _shape_defects(cand, config, sigma, narrowest)
+    track_peaks = {}
+    if config.split_blends and aid is None and narrowest >= STREAK_COUNT_MIN_SIGMA_PX:
+        rejected, track_peaks = _stars_beside_tracks(context, cand, rejected, thin, narrowest)
     first = _first_cut(context, cand, rejected, aid is not None)
     kept = cand.take(first)
+    track_peaks = {j: track_peaks[i] for j, i in enumerate(first) if i in track_peaks}
     clip = clip_levels(context, kept, saturation)
     saturated = np.isfinite(clip)
     # Clouds and stray-light structure: no star (a rate-aided frame's streaks are not judged).
     extended = extended_candidates(kept, sigma, saturated, image, det) if aid is None else np.zeros(kept.x.size, bool)
     if extended.any():
-        kept, clip = kept.take(np.flatnonzero(~extended)), clip[~extended]
+        remaining = np.flatnonzero(~extended)
+        kept, clip = kept.take(remaining), clip[~extended]
         saturated = np.isfinite(clip)
+        track_peaks = {j: track_peaks[i] for j, i in enumerate(remaining) if i in track_peaks}
     # The sensor's clip level, where a flat top showed it below the configured one: every
     # candidate that reaches it is clipped too, for the PSF estimate.
     frame = _Frame(det, cand, float(min(saturation, clip[saturated].min() if saturated.any() else np.inf)),
@@ -246,13 +255,13 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     clipping = _Clipping(clip, excluded, np.zeros(len(spots), bool))
     frame_values["rejected_extended"] = int(extended.sum())
     return _Measurement(frame, context=context, kept=kept, spots=spots, clipping=clipping, multi=multi, aid=aid,
-                        rejected_shape=int(rejected.sum()), frame_values=frame_values)
+                        rejected_shape=int(rejected.sum()), frame_values=frame_values, track_peaks=track_peaks)
 
 
 def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narrowest: float | None = None
-                   ) -> np.ndarray:
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """
-    Defects (bool per candidate).
+    Defects (bool per candidate), and which of them only the width test rejected.
 
     Cleaned-away hot pixels (nothing left) and spots too sharp for a PSF of 1-sigma `sigma`
     [px] (peak share beyond peak_fraction_limit by more than its noise allows) or thinner than
@@ -261,16 +270,46 @@ def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narro
     """
     narrowest = sigma if narrowest is None else narrowest
     rejected = np.zeros(cand.x.size, bool)
+    thin = rejected.copy()
     if config.psf_sigma_px > 0:
         with np.errstate(divide="ignore", invalid="ignore"):
             sharp = cand.peak / cand.flux
             # A faint star's peak share is as noisy as its flux: the limit widened by 2 of its sigmas.
             sharp_limit = np.minimum(peak_fraction_limit(config, sigma) * (1.0 + 2.0 / np.fmax(cand.snr, 2.0)),
                                      0.95)
-        rejected = ((cand.cleaned & (cand.snr < config.min_snr)) | (sharp > sharp_limit)
-                    | ((cand.snr >= config.shape_min_snr) & (cand.minor < config.min_width_fraction * narrowest ** 2)))
-        rejected &= np.isfinite(cand.x)
-    return rejected
+        other = (cand.cleaned & (cand.snr < config.min_snr)) | (sharp > sharp_limit)
+        thin = (cand.snr >= config.shape_min_snr) & (cand.minor < config.min_width_fraction * narrowest ** 2)
+        finite = np.isfinite(cand.x)
+        rejected = (other | thin) & finite
+        thin &= ~other & finite
+    return rejected, thin
+
+
+def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.ndarray, thin: np.ndarray,
+                         narrowest: float) -> tuple[np.ndarray, dict]:
+    """
+    Apply the width test per peak to the blends it rejected whole (peak_shape).
+
+    A footprint of several peaks that failed only the width test is kept when at least one
+    peak is as wide as a star (second moment >= min_width_fraction x TRUNCATED_MOMENT x
+    narrowest^2 [px^2], at an SNR >= shape_min_snr): returns the rejections without them and,
+    per kept footprint with thin peaks, the mask of its thin (track) peaks and each peak's
+    centre of gravity [px] (K, 2).
+    """
+    config = context.config
+    rejected, tracks = rejected.copy(), {}
+    limit = config.min_width_fraction * TRUNCATED_MOMENT * narrowest ** 2
+    for i in np.flatnonzero(thin):
+        peaks = cand.peaks[i]
+        if len(peaks) < 2:
+            continue
+        minor, snr, centre = peak_minor_moments(context.image, context.det, peaks, context.sigma, context.gain)
+        star = (minor >= limit) & (snr >= config.shape_min_snr)
+        if star.any():
+            rejected[i] = False
+            if not star.all():
+                tracks[int(i)] = (~star, centre)
+    return rejected, tracks
 
 
 def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate_aided: bool) -> np.ndarray:
@@ -327,14 +366,19 @@ def _centres_of_gravity(kept: Candidates, config: CentroidConfig, sigma: float, 
 
 
 def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping: _Clipping, multi: np.ndarray,
-               aid: "SmearModel | None") -> tuple[SpotRows, list[SpotRows], _Clipping]:
+               aid: "SmearModel | None", track_peaks: dict | None = None
+               ) -> tuple[SpotRows, list[SpotRows], _Clipping]:
     """
     Return the fits the method calls for.
 
-    Blends, point PSFs (clipped ones without their clipped pixels), streaks (on the
-    predicted path with `aid`), then the refit of spots whose fit shows a clipped core.
-    Returns the spot table, the stars split off, the clipping state.
+    Blends (their track peaks, `track_peaks` (_stars_beside_tracks), fitted and dropped),
+    point PSFs (clipped ones without their clipped pixels), streaks (on the predicted path
+    with `aid`), then the refit of spots whose fit shows a clipped core. Returns the spot
+    table, the stars split off, the clipping state.
     """
+    track_peaks = track_peaks or {}
+    # Saturated, it is not fitted as a blend: no fit would measure the star without the track.
+    beside_track = np.array([t for t in track_peaks if not multi[t]], np.int64)
     config, sigma = context.config, context.sigma
     n = len(spots)
     saturated = clipping.saturated
@@ -364,8 +408,10 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     added, fitted = [], clipping.fitted.copy()
     if multi.any() and (smeared_frame or not config.split_blends):
         spots = spots.with_values(np.flatnonzero(multi), cov=kept.moment_covariance(np.flatnonzero(multi)))
+        if track_peaks:  # a centre of gravity would hold the track: no star measured
+            spots = spots.with_values(np.array(sorted(track_peaks)), snr=0.0)
     elif multi.any():
-        spots, more, _ = fit_blends(context, kept, spots, np.flatnonzero(multi))
+        spots, more, _ = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)
         added.append(more)
     if as_point.any():
         spots, more, _ = fit_points(context, kept, spots, np.flatnonzero(as_point), clipping.excluded)
@@ -380,6 +426,8 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     path_fitted = (spots.flags & FLAG_RATE_AIDED) != 0
     probe = np.flatnonzero(~saturated & ~multi & ((as_point & (spots.snr > 0)) | path_fitted))
     spots, more, clipping = _refit_undershot(context, kept, spots, replace(clipping, fitted=fitted), probe, aid)
+    if beside_track.size:
+        spots = spots.with_values(beside_track, snr=0.0)
     return spots, added + [more], clipping
 
 

@@ -198,16 +198,25 @@ def _not_gaussian(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> n
     return out
 
 
-def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray) -> FitOutcome:
+TRACK_PULL_SIGMAS = 1.0  # a star fitted beside a track: its largest offset from its pixels' centre (x sigma, >= 1 px)
+
+
+def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray,
+               track_peaks: dict | None = None) -> FitOutcome:
     """
     Joint fit of one PSF per peak over the footprint window of each blended spot `which`.
 
     The brightest star replaces the spot, the others above min_snr are added spots. A blend
-    whose fit fails keeps its centre of gravity.
+    whose fit fails keeps its centre of gravity. track_peaks: blend index -> ((K,) bool, its
+    peaks that are cosmic-ray tracks; (K, 2) each peak's centre of gravity [px]) (peak_shape):
+    tracks are fitted with the stars, never a star; a star fitted more than TRACK_PULL_SIGMAS
+    x sigma from its centre is not kept; such a blend whose fit fails, or with no star left,
+    is dropped (SNR 0): its centre of gravity holds the track.
     """
     sigma, noise, gain = context.sigma, context.noise, context.gain
+    track_peaks = track_peaks or {}
     margin = int(np.ceil(3.0 * sigma)) + 2
-    fitted, first_stars, others, other_peaks = [], [], [], []
+    fitted, first_stars, others, other_peaks, dropped = [], [], [], [], []
     for t in which:
         peaks = kept.peaks[t]
         left = int(np.floor(peaks[:, 0].min())) - margin
@@ -220,8 +229,19 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         fit = fit_psf_windows(PsfWindows(win, valid, np.array([left]), np.array([top])),
                               PsfStart(peaks[None, :, 0], peaks[None, :, 1], flux0[None]), sigma, noise, gain)
         if not fit.converged[0].all():
+            if t in track_peaks:
+                dropped.append(t)
             continue  # keep the centre of gravity, flagged as a blend
         order = np.argsort(-fit.flux[0])  # brightest first
+        if t in track_peaks:
+            # A star pulled off its peak by the track's light (a PSF does not describe a track) is
+            # not measured: kept only within TRACK_PULL_SIGMAS of its own pixels' centre of gravity.
+            track, centre = track_peaks[t]
+            pulled = np.hypot(fit.x[0] - centre[:, 0], fit.y[0] - centre[:, 1]) > max(TRACK_PULL_SIGMAS * sigma, 1.0)
+            order = order[~(track | pulled)[order]]
+            if order.size == 0:
+                dropped.append(t)
+                continue
         stars = FittedStars(fit.x[0, order], fit.y[0, order], fit.flux[0, order], fit.cov[0, order],
                             fit.flux[0, order] / np.sqrt(fit.flux_var[0, order]))
         fitted.append(t)
@@ -231,6 +251,8 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         other_peaks.append(amplitude[order[bright]])
     if fitted:
         spots = spots.with_stars(np.array(fitted), FittedStars.concatenate(first_stars))
+    if dropped:
+        spots = spots.with_values(np.array(dropped), snr=0.0)
     if not others:
         return FitOutcome(spots, no_spots())
     return FitOutcome(spots, SpotRows.split_off(FittedStars.concatenate(others), np.concatenate(other_peaks),
