@@ -229,7 +229,8 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
         rejected, track_peaks = _stars_beside_tracks(context, cand, rejected, thin, narrowest)
     first = _first_cut(context, cand, rejected, aid is not None)
     kept = cand.take(first)
-    track_peaks = {j: track_peaks[i] for j, i in enumerate(first) if i in track_peaks}
+    if track_peaks:
+        track_peaks = {j: track_peaks[i] for j, i in enumerate(first) if i in track_peaks}
     clip = clip_levels(context, kept, saturation)
     saturated = np.isfinite(clip)
     # Clouds and stray-light structure: no star (a rate-aided frame's streaks are not judged).
@@ -238,7 +239,8 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
         remaining = np.flatnonzero(~extended)
         kept, clip = kept.take(remaining), clip[~extended]
         saturated = np.isfinite(clip)
-        track_peaks = {j: track_peaks[i] for j, i in enumerate(remaining) if i in track_peaks}
+        if track_peaks:
+            track_peaks = {j: track_peaks[i] for j, i in enumerate(remaining) if i in track_peaks}
     # The sensor's clip level, where a flat top showed it below the configured one: every
     # candidate that reaches it is clipped too, for the PSF estimate.
     frame = _Frame(det, cand, float(min(saturation, clip[saturated].min() if saturated.any() else np.inf)),
@@ -285,30 +287,40 @@ def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narro
     return rejected, thin
 
 
+KEPT_BLEND_TRACK_FRACTION = 0.5  # cosmic rays 0.15x the limit, real stars' cores >= 0.77x (see _stars_beside_tracks)
+
+
 def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.ndarray, thin: np.ndarray,
                          narrowest: float) -> tuple[np.ndarray, dict]:
     """
-    Apply the width test per peak to the blends it rejected whole (peak_shape).
+    Apply the width test per peak to every blend kept or rejected only by it (peak_shape).
 
-    A footprint of several peaks that failed only the width test is kept when at least one
-    peak is as wide as a star (second moment >= min_width_fraction x TRUNCATED_MOMENT x
-    narrowest^2 [px^2], at an SNR >= shape_min_snr): returns the rejections without them and,
-    per kept footprint with thin peaks, the mask of its thin (track) peaks and each peak's
-    centre of gravity [px] (K, 2).
+    A peak is a star when its second moment is >= min_width_fraction x TRUNCATED_MOMENT x
+    narrowest^2 [px^2] (the limit) at an SNR >= shape_min_snr. A blend the width test rejected
+    whole is kept when a peak is a star (its other peaks count as tracks); in a kept blend a
+    peak below KEPT_BLEND_TRACK_FRACTION x the limit at that SNR is a track (a cosmic ray merged
+    with a star, which the footprint's moments did not show). Returns the rejections and, per blend with tracks,
+    the mask of its track peaks and each peak's centre of gravity [px] (K, 2).
     """
     config = context.config
     rejected, tracks = rejected.copy(), {}
     limit = config.min_width_fraction * TRUNCATED_MOMENT * narrowest ** 2
-    for i in np.flatnonzero(thin):
+    # A peak's SNR is at most its footprint's: fainter footprints have no measured peak.
+    for i in np.flatnonzero((thin | ~rejected) & (cand.snr >= config.shape_min_snr)):
         peaks = cand.peaks[i]
         if len(peaks) < 2:
             continue
         minor, snr, centre = peak_minor_moments(context.image, context.det, peaks, context.sigma, context.gain)
-        star = (minor >= limit) & (snr >= config.shape_min_snr)
-        if star.any():
-            rejected[i] = False
-            if not star.all():
-                tracks[int(i)] = (~star, centre)
+        measured = snr >= config.shape_min_snr
+        star = measured & (minor >= limit)
+        if not star.any():
+            continue
+        # In a blend the footprint test kept, only a peak far thinner than a star is a track: a
+        # star's core without its wings (cut at 2.5 sigma) can read ~0.8x the limit on a real lens.
+        track = ~star if rejected[i] else measured & (minor < KEPT_BLEND_TRACK_FRACTION * limit)
+        rejected[i] = False
+        if track.any():
+            tracks[int(i)] = (track, centre)
     return rejected, tracks
 
 

@@ -37,25 +37,28 @@ def peak_minor_moments(image: np.ndarray, det: Detections, peaks: np.ndarray, si
     height, width = image.shape
     radius = max(MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS * sigma)
     half = int(math.ceil(radius))
+    peaks = np.asarray(peaks, float)
     minor = np.zeros(len(peaks))
     snr = np.zeros(len(peaks))
-    centre = np.array(peaks, float).copy()
+    centre = peaks.copy()
     noise2 = det.noise_adu ** 2
+    background = det.background_at(peaks[:, 0], peaks[:, 1])
     for k, (px, py) in enumerate(peaks):
         col, row = int(round(px)), int(round(py))
         c0, c1 = max(col - half, 0), min(col + half + 1, width)
         r0, r1 = max(row - half, 0), min(row + half + 1, height)
-        yy, xx = np.mgrid[r0:r1, c0:c1].astype(float)
-        own = np.hypot(xx - px, yy - py) <= radius
+        xx = np.arange(c0, c1, dtype=float)[None, :]
+        yy = np.arange(r0, r1, dtype=float)[:, None]
+        own = (xx - px) ** 2 + (yy - py) ** 2
+        inside = own <= radius * radius
         for j, (qx, qy) in enumerate(peaks):
             if j != k:
-                own &= np.hypot(xx - px, yy - py) < np.hypot(xx - qx, yy - qy)
-        values = image[r0:r1, c0:c1].astype(float) - float(det.background_at(np.array([px]), np.array([py]))[0])
-        values = np.where(own, values, 0.0)
+                inside &= own < (xx - qx) ** 2 + (yy - qy) ** 2
+        values = np.where(inside, image[r0:r1, c0:c1] - background[k], 0.0)
         flux = float(values.sum())
         if flux <= 0.0:
             continue
-        snr[k] = flux / math.sqrt(own.sum() * noise2 + flux / gain)
+        snr[k] = flux / math.sqrt(np.count_nonzero(inside) * noise2 + flux / gain)
         mx, my = float((values * xx).sum()) / flux, float((values * yy).sum()) / flux
         centre[k] = mx, my
         dx, dy = xx - mx, yy - my
