@@ -22,7 +22,7 @@ from .detect import Detections, detect
 from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
 from .peak_shape import TRUNCATED_MOMENT, peak_minor_moments
-from .point_fits import fit_blends, fit_clipped_points, fit_points
+from .point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
 from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
@@ -177,7 +177,7 @@ class _Measurement:
     rejected_shape: int = 0
     frame_values: dict | None = None
     rate_aid_rejected: bool = False
-    track_peaks: dict | None = None  # kept blend index -> ((K,) bool: its track peaks (dropped), (K, 2) centres)
+    track_peaks: dict | None = None  # kept blend index -> ((K,) bool: its track peaks (dropped), PeakShapes)
 
 
 def _finish(measurement: _Measurement) -> Spots:
@@ -300,7 +300,7 @@ def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.nda
     whole is kept when a peak is a star (its other peaks count as tracks); in a kept blend a
     peak below KEPT_BLEND_TRACK_FRACTION x the limit at that SNR is a track (a cosmic ray merged
     with a star, which the footprint's moments did not show). Returns the rejections and, per blend with tracks,
-    the mask of its track peaks and each peak's centre of gravity [px] (K, 2).
+    the mask of its track peaks and the peaks' PeakShapes.
     """
     config = context.config
     rejected, tracks = rejected.copy(), {}
@@ -310,8 +310,9 @@ def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.nda
         peaks = cand.peaks[i]
         if len(peaks) < 2:
             continue
-        minor, snr, centre = peak_minor_moments(context.image, context.det, peaks, context.sigma, context.gain)
-        measured = snr >= config.shape_min_snr
+        shapes = peak_minor_moments(context.image, context.det, peaks, context.sigma, context.gain, centres=False)
+        minor = shapes.minor
+        measured = shapes.snr >= config.shape_min_snr
         star = measured & (minor >= limit)
         if not star.any():
             continue
@@ -319,8 +320,8 @@ def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.nda
         # star's core without its wings (cut at 2.5 sigma) can read ~0.8x the limit on a real lens.
         track = ~star if rejected[i] else measured & (minor < KEPT_BLEND_TRACK_FRACTION * limit)
         rejected[i] = False
-        if track.any():
-            tracks[int(i)] = (track, centre)
+        if track.any():  # their centres only where a fit may need the fallback
+            tracks[int(i)] = (track, peak_minor_moments(context.image, context.det, peaks, context.sigma, context.gain))
     return rejected, tracks
 
 
@@ -420,8 +421,12 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     added, fitted = [], clipping.fitted.copy()
     if multi.any() and (smeared_frame or not config.split_blends):
         spots = spots.with_values(np.flatnonzero(multi), cov=kept.moment_covariance(np.flatnonzero(multi)))
-        if track_peaks:  # a centre of gravity would hold the track: no star measured
-            spots = spots.with_values(np.array(sorted(track_peaks)), snr=0.0)
+        for t, (track, shapes) in track_peaks.items():  # the footprint's centre would hold the track
+            stars, _ = own_centres(track, shapes)
+            if stars.x.size:  # its brightest star, model-free (no point fit in a smeared frame)
+                spots = spots.with_stars(np.array([t]), stars.take(slice(0, 1)))
+            else:
+                spots = spots.with_values(np.array([t]), snr=0.0)
     elif multi.any():
         spots, more, _ = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)
         added.append(more)

@@ -8,11 +8,14 @@ can reject as a track, the star with it. Here each peak of such a footprint is m
 its own: the pixels around it (nearer to it than to the footprint's other peaks), their
 second moments about the peak. A peak at least as wide as the PSF allows is a star
 (kept, fitted jointly with the others); a thinner one is the track (fitted with the stars so
-that it does not bias them, then dropped: point_fits.fit_blends).
+that it does not bias them, then dropped: point_fits.fit_blends). Where no fit describes the
+star (pulled by the track, a failed fit, a smeared frame's blend) its own pixels' centre of
+gravity measures it, model-free.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -22,47 +25,92 @@ PEAK_RADIUS_SIGMAS = 2.5  # pixels within this many PSF sigmas of a peak are its
 MIN_PEAK_RADIUS_PX = 2.0
 # A Gaussian cut at 2.5 sigma keeps 0.86 of its second moment: the width limit is scaled by it.
 TRUNCATED_MOMENT = 1.0 - 3.125 * math.exp(-3.125) / (1.0 - math.exp(-3.125))
+CENTRE_PASSES = 3  # the centre of gravity: the disk re-centred on it this many times
+# What the disk's cut leaves in the centre (the track's light inside it, the neighbour's side
+# cut off): up to ~0.09 sigma on bench/alt_renderer stars beside tracks, added to its covariance.
+CENTRE_SYSTEMATIC_SIGMAS = 0.1
+
+
+class PeakShapes(NamedTuple):
+    """
+    Each peak's own pixels (K peaks).
+
+    minor (K,) narrowest second moment [px^2]; snr (K,) [-]; flux (K,) [ADU]; centre (K, 2)
+    centre of gravity (x, y) [px]; centre_cov (K, 2, 2) its covariance: the pixel noise's plus
+    (CENTRE_SYSTEMATIC_SIGMAS x sigma)^2 [px^2] (the model-free fallback of a star a fit does not
+    describe).
+    """
+
+    minor: np.ndarray
+    snr: np.ndarray
+    flux: np.ndarray
+    centre: np.ndarray
+    centre_cov: np.ndarray
 
 
 def peak_minor_moments(image: np.ndarray, det: Detections, peaks: np.ndarray, sigma: float,
-                       gain: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       gain: float, centres: bool = True) -> PeakShapes:
     """
-    Return the narrowest second moment [px^2], SNR [-] and centre (K, 2) [px] of each of a footprint's peaks (K, 2).
+    Measure each of a footprint's peaks (K, 2) (x, y) [px] on its own pixels (PeakShapes).
 
     From the background-subtracted pixels within max(MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS x
-    sigma) of the peak and nearer to it than to any other peak; moments about the peak pixel's
-    centre of gravity. A peak with no positive flux there gets minor 0 and SNR 0. The second
-    moment is TRUNCATED_MOMENT x sigma^2 for a Gaussian star of 1-sigma `sigma` [px].
+    sigma) of the peak and nearer to it than to any other peak: the SNR and the second moments
+    about their centre of gravity (TRUNCATED_MOMENT x sigma^2 for a Gaussian star of 1-sigma
+    `sigma` [px]); the centre, flux and centre covariance with the disk re-centred on the
+    centre of gravity CENTRE_PASSES times (centres False: not measured, flux 0, centre the
+    peak, covariance inf). A peak with no positive flux gets minor 0, SNR 0 and flux 0.
     """
     height, width = image.shape
     radius = max(MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS * sigma)
     half = int(math.ceil(radius))
     peaks = np.asarray(peaks, float)
-    minor = np.zeros(len(peaks))
-    snr = np.zeros(len(peaks))
+    minor, snr, flux_of = np.zeros(len(peaks)), np.zeros(len(peaks)), np.zeros(len(peaks))
     centre = peaks.copy()
+    centre_cov = np.full((len(peaks), 2, 2), np.inf)
     noise2 = det.noise_adu ** 2
     background = det.background_at(peaks[:, 0], peaks[:, 1])
-    for k, (px, py) in enumerate(peaks):
-        col, row = int(round(px)), int(round(py))
+
+    def own_pixels(k: int, cx: float, cy: float):
+        """Return the peak's pixels in the disk about (cx, cy): columns, rows, background-subtracted values, mask."""
+        col, row = int(round(cx)), int(round(cy))
         c0, c1 = max(col - half, 0), min(col + half + 1, width)
         r0, r1 = max(row - half, 0), min(row + half + 1, height)
         xx = np.arange(c0, c1, dtype=float)[None, :]
         yy = np.arange(r0, r1, dtype=float)[:, None]
-        own = (xx - px) ** 2 + (yy - py) ** 2
-        inside = own <= radius * radius
+        distance2 = (xx - cx) ** 2 + (yy - cy) ** 2
+        inside = distance2 <= radius * radius
         for j, (qx, qy) in enumerate(peaks):
             if j != k:
-                inside &= own < (xx - qx) ** 2 + (yy - qy) ** 2
-        values = np.where(inside, image[r0:r1, c0:c1] - background[k], 0.0)
+                inside &= distance2 < (xx - qx) ** 2 + (yy - qy) ** 2
+        return xx, yy, np.where(inside, image[r0:r1, c0:c1] - background[k], 0.0), inside
+
+    for k, (px, py) in enumerate(peaks):
+        xx, yy, values, inside = own_pixels(k, px, py)
         flux = float(values.sum())
         if flux <= 0.0:
             continue
         snr[k] = flux / math.sqrt(np.count_nonzero(inside) * noise2 + flux / gain)
         mx, my = float((values * xx).sum()) / flux, float((values * yy).sum()) / flux
-        centre[k] = mx, my
         dx, dy = xx - mx, yy - my
         sxx, syy, sxy = ((values * dx * dx).sum() / flux, (values * dy * dy).sum() / flux,
                          (values * dx * dy).sum() / flux)
         minor[k] = 0.5 * (sxx + syy) - math.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
-    return minor, snr, centre
+        if not centres:
+            continue
+        # The centre: the disk moved onto the centre of gravity (a disk about the peak pixel cuts the
+        # star unevenly, pulling the centre toward that pixel).
+        for _ in range(CENTRE_PASSES):
+            xx, yy, values, inside = own_pixels(k, mx, my)
+            flux = float(values.sum())
+            if flux <= 0.0:
+                break
+            mx, my = float((values * xx).sum()) / flux, float((values * yy).sum()) / flux
+        if flux <= 0.0:
+            continue
+        centre[k], flux_of[k] = (mx, my), flux
+        dx, dy = xx - mx, yy - my
+        variance = np.where(inside, np.maximum(values, 0.0) / gain + noise2, 0.0)
+        centre_cov[k] = (np.array([[(variance * dx * dx).sum(), (variance * dx * dy).sum()],
+                                   [(variance * dx * dy).sum(), (variance * dy * dy).sum()]]) / flux ** 2
+                         + (CENTRE_SYSTEMATIC_SIGMAS * sigma) ** 2 * np.eye(2))
+    return PeakShapes(minor, snr, flux_of, centre, centre_cov)

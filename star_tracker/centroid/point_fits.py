@@ -210,8 +210,9 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     whose fit fails keeps its centre of gravity. track_peaks: blend index -> ((K,) bool, its
     peaks that are cosmic-ray tracks; (K, 2) each peak's centre of gravity [px]) (peak_shape):
     tracks are fitted with the stars, never a star; a star fitted more than TRACK_PULL_SIGMAS
-    x sigma from its centre is not kept; such a blend whose fit fails, or with no star left,
-    is dropped (SNR 0): its centre of gravity holds the track.
+    x sigma (>= 1 px) from its own pixels' centre of gravity, or every star when the fit fails,
+    is measured by that centre of gravity instead (_stars_beside_track); with no star left the
+    blend is dropped (SNR 0): its centre of gravity holds the track.
     """
     sigma, noise, gain = context.sigma, context.noise, context.gain
     track_peaks = track_peaks or {}
@@ -228,22 +229,18 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         flux0 = np.maximum(amplitude * 2.0 * np.pi * sigma ** 2, 1.0)
         fit = fit_psf_windows(PsfWindows(win, valid, np.array([left]), np.array([top])),
                               PsfStart(peaks[None, :, 0], peaks[None, :, 1], flux0[None]), sigma, noise, gain)
-        if not fit.converged[0].all():
-            if t in track_peaks:
-                dropped.append(t)
+        converged = bool(fit.converged[0].all())
+        if not converged and t not in track_peaks:
             continue  # keep the centre of gravity, flagged as a blend
-        order = np.argsort(-fit.flux[0])  # brightest first
         if t in track_peaks:
-            # A star pulled off its peak by the track's light (a PSF does not describe a track) is
-            # not measured: kept only within TRACK_PULL_SIGMAS of its own pixels' centre of gravity.
-            track, centre = track_peaks[t]
-            pulled = np.hypot(fit.x[0] - centre[:, 0], fit.y[0] - centre[:, 1]) > max(TRACK_PULL_SIGMAS * sigma, 1.0)
-            order = order[~(track | pulled)[order]]
+            stars, order = _stars_beside_track(fit, converged, *track_peaks[t], max(TRACK_PULL_SIGMAS * sigma, 1.0))
             if order.size == 0:
                 dropped.append(t)
                 continue
-        stars = FittedStars(fit.x[0, order], fit.y[0, order], fit.flux[0, order], fit.cov[0, order],
-                            fit.flux[0, order] / np.sqrt(fit.flux_var[0, order]))
+        else:
+            order = np.argsort(-fit.flux[0])  # brightest first
+            stars = FittedStars(fit.x[0, order], fit.y[0, order], fit.flux[0, order], fit.cov[0, order],
+                                fit.flux[0, order] / np.sqrt(fit.flux_var[0, order]))
         fitted.append(t)
         first_stars.append(stars.take(slice(0, 1)))
         bright = 1 + np.flatnonzero(stars.snr[1:] >= context.config.min_snr)
@@ -257,6 +254,48 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         return FitOutcome(spots, no_spots())
     return FitOutcome(spots, SpotRows.split_off(FittedStars.concatenate(others), np.concatenate(other_peaks),
                                                 FLAG_BLENDED))
+
+
+def _stars_beside_track(fit: PsfFit, converged: bool, track: np.ndarray, shapes, pull_px: float):
+    """
+    Return (stars brightest first, their peak indices) of a blend fitted with cosmic-ray `track` peaks.
+
+    Tracks are never stars. A star the fit placed more than pull_px [px] from its own pixels'
+    centre of gravity (pulled by the track's light, which no PSF describes), or every star
+    when the fit failed, is measured model-free: that centre of gravity, its noise covariance,
+    flux and SNR (peak_shape.PeakShapes).
+    """
+    flux = np.where(converged, fit.flux[0], shapes.flux)
+    order = np.argsort(-flux)
+    order = order[~track[order]]
+    fitted_x, fitted_y = fit.x[0, order], fit.y[0, order]
+    centre = shapes.centre[order]
+    pulled = np.hypot(fitted_x - centre[:, 0], fitted_y - centre[:, 1]) > pull_px
+    own = (pulled | (not converged)) & np.isfinite(shapes.centre_cov[order]).all(axis=(1, 2)) \
+        & (shapes.flux[order] > 0)
+    keep = own | (converged & ~pulled)
+    order, own, centre = order[keep], own[keep], centre[keep]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fitted_snr = fit.flux[0, order] / np.sqrt(fit.flux_var[0, order])
+    stars = FittedStars(np.where(own, centre[:, 0], fit.x[0, order]), np.where(own, centre[:, 1], fit.y[0, order]),
+                        np.where(own, shapes.flux[order], fit.flux[0, order]),
+                        np.where(own[:, None, None], shapes.centre_cov[order], fit.cov[0, order]),
+                        np.where(own, shapes.snr[order], fitted_snr))
+    resorted = np.argsort(-stars.flux, kind="stable")
+    return stars.take(resorted), order[resorted]
+
+
+def own_centres(track: np.ndarray, shapes) -> tuple[FittedStars, np.ndarray]:
+    """
+    Return (stars brightest first, their peak indices): the model-free measure of a blend's non-track peaks.
+
+    Each star's own pixels' centre of gravity, its noise covariance, flux and SNR
+    (peak_shape.PeakShapes); peaks with no positive flux left out.
+    """
+    order = np.argsort(-shapes.flux)
+    order = order[~track[order] & (shapes.flux[order] > 0) & np.isfinite(shapes.centre_cov[order]).all(axis=(1, 2))]
+    return FittedStars(shapes.centre[order, 0], shapes.centre[order, 1], shapes.flux[order],
+                       shapes.centre_cov[order], shapes.snr[order]), order
 
 
 def psf_stars(fit: PsfFit, rows: np.ndarray, source: int) -> FittedStars:
