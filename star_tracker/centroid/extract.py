@@ -299,8 +299,8 @@ def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.nda
     narrowest^2 [px^2] (the limit) at an SNR >= shape_min_snr. A blend the width test rejected
     whole is kept when a peak is a star (its other peaks count as tracks); in a kept blend a
     peak below KEPT_BLEND_TRACK_FRACTION x the limit at that SNR is a track (a cosmic ray merged
-    with a star, which the footprint's moments did not show). Returns the rejections and, per blend with tracks,
-    the mask of its track peaks and the peaks' PeakShapes.
+    with a star, which the footprint's moments did not show). Returns the rejections and, per
+    blend with tracks, the mask of its track peaks and the peaks' PeakShapes.
     """
     config = context.config
     rejected, tracks = rejected.copy(), {}

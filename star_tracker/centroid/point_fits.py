@@ -208,7 +208,7 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
 
     The brightest star replaces the spot, the others above min_snr are added spots. A blend
     whose fit fails keeps its centre of gravity. track_peaks: blend index -> ((K,) bool, its
-    peaks that are cosmic-ray tracks; (K, 2) each peak's centre of gravity [px]) (peak_shape):
+    peaks that are cosmic-ray tracks; their peak_shape.PeakShapes):
     tracks are fitted with the stars, never a star; a star fitted more than TRACK_PULL_SIGMAS
     x sigma (>= 1 px) from its own pixels' centre of gravity, or every star when the fit fails,
     is measured by that centre of gravity instead (_stars_beside_track); with no star left the

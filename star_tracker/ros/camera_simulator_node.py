@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.duration import Duration
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
@@ -40,6 +41,8 @@ from .node_process import run_node
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, TRUTH_INPUT_QOS, overridable
 from .throttled_log import ThrottledLog
+
+TRUTH_FLUSH_TIMEOUT_S = 1.0  # on exit: how long truth subscribers get to acknowledge the last frames
 
 
 @dataclass
@@ -122,6 +125,22 @@ class CameraSimulatorNode(ManagedNode):
                 setattr(self, name, None)
         self.cancel_call()
         self.pending = None
+
+    def destroy_node(self) -> None:
+        """
+        Flush the truth topics, then destroy the node.
+
+        Reliable truth still unacknowledged when the process exits is lost, while its
+        best-effort image has gone out: an attitude downstream without its truth. Waits up to
+        TRUTH_FLUSH_TIMEOUT_S for every truth subscriber to acknowledge.
+        """
+        deadline = time.monotonic() + TRUTH_FLUSH_TIMEOUT_S
+        for name in ("pub_truth", "pub_truth_rate", "pub_truth_objects"):
+            pub = getattr(self, name, None)
+            if pub is not None and self.context.ok():
+                left = max(0.0, deadline - time.monotonic())
+                pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+        super().destroy_node()
 
     def release(self) -> None:
         """
@@ -402,6 +421,11 @@ class CameraSimulatorNode(ManagedNode):
 
     def publish(self, frame: "PreparedFrame") -> None:
         started = time.perf_counter()
+        # The truth first: a frame whose publishing a shutdown (SIGTERM) cuts short must not
+        # leave an image, and its attitude downstream, without the truth it was made from.
+        self.pub_truth.publish(frame.truth)
+        self.pub_truth_rate.publish(frame.truth_rate)
+        self.pub_truth_objects.publish(frame.truth_objects)
         self.pub_image.publish(frame.image)
         now_ns = self.get_clock().now().nanoseconds
         self.diag.time("image_age", (now_ns - frame.stamp_ns) * 1e-9)
@@ -409,9 +433,6 @@ class CameraSimulatorNode(ManagedNode):
         if self.render_ahead and frame.ready_ns > self.delivery_ns(frame.index):
             self.diag.count("frames_rendered_late")
         self.pub_info.publish(frame.info)
-        self.pub_truth.publish(frame.truth)
-        self.pub_truth_rate.publish(frame.truth_rate)
-        self.pub_truth_objects.publish(frame.truth_objects)
         self.diag.time("publish", time.perf_counter() - started)
         self.diag.count("frames_published")
         self.diag.set(DiagnosticStatus.OK, "publishing", objects_in_view=frame.objects_in_view,
