@@ -151,7 +151,16 @@ def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph,  # 
         # the nodes have been quiet for 3 s (the 1 Hz diagnostics have caught up), then count.
         rig.spin(60.0, lambda: time.monotonic() - rig.last_output > 3.0)
         baseline_c, baseline_i = dict(rig.centroider.counters), dict(rig.identifier.counters)
-        centroider_counters, stamps = flood_centroider(rig, images, info, base + 10**9, baseline_c)
+        # A loaded host's shared-memory transport can lose most of a best-effort burst before the
+        # centroider receives it (CI rehearsal of 6878c03: 1 of 10 received): then nothing was there
+        # to drop, so the burst is sent again (at most 3 times), each judged from its own baseline.
+        for attempt in range(3):
+            centroider_counters, stamps = flood_centroider(rig, images, info, base + (1 + attempt) * 10**9,
+                                                           baseline_c)
+            received = int(centroider_counters.get("frames_received", 0)) - int(baseline_c.get("frames_received", 0))
+            if received > 5:  # more than the 3 waiting places and the frame in progress
+                break
+            baseline_c = {k: v for k, v in centroider_counters.items() if k != "burst_s"}
         identifier_counters, spot_stamps = flood_identifier(rig, star_spots, stamps[-1] + 10**9, baseline_i, base)
     finally:
         codes = nodes.stop(sig=signal.SIGINT)
