@@ -265,15 +265,14 @@ def _stars_beside_track(fit: PsfFit, converged: bool, track: np.ndarray, shapes,
     when the fit failed, is measured model-free: that centre of gravity, its noise covariance,
     flux and SNR (peak_shape.PeakShapes).
     """
-    flux = np.where(converged, fit.flux[0], shapes.flux)
-    order = np.argsort(-flux)
+    if not converged:
+        return own_centres(track, shapes)
+    order = np.argsort(-fit.flux[0])
     order = order[~track[order]]
-    fitted_x, fitted_y = fit.x[0, order], fit.y[0, order]
     centre = shapes.centre[order]
-    pulled = np.hypot(fitted_x - centre[:, 0], fitted_y - centre[:, 1]) > pull_px
-    own = (pulled | (not converged)) & np.isfinite(shapes.centre_cov[order]).all(axis=(1, 2)) \
-        & (shapes.flux[order] > 0)
-    keep = own | (converged & ~pulled)
+    pulled = np.hypot(fit.x[0, order] - centre[:, 0], fit.y[0, order] - centre[:, 1]) > pull_px
+    own = pulled & np.isfinite(shapes.centre_cov[order]).all(axis=(1, 2)) & (shapes.flux[order] > 0)
+    keep = own | ~pulled
     order, own, centre = order[keep], own[keep], centre[keep]
     with np.errstate(divide="ignore", invalid="ignore"):
         fitted_snr = fit.flux[0, order] / np.sqrt(fit.flux_var[0, order])
