@@ -421,8 +421,8 @@ class CameraSimulatorNode(ManagedNode):
 
     def publish(self, frame: "PreparedFrame") -> None:
         started = time.perf_counter()
-        # The truth first: a frame whose publishing a shutdown (SIGTERM) cuts short must not
-        # leave an image, and its attitude downstream, without the truth it was made from.
+        # The truth first: whoever has the image has been sent its truth (reliable; destroy_node
+        # flushes it on exit), so no attitude downstream lacks the truth it was made from.
         self.pub_truth.publish(frame.truth)
         self.pub_truth_rate.publish(frame.truth_rate)
         self.pub_truth_objects.publish(frame.truth_objects)
