@@ -86,6 +86,17 @@ class CameraModel:
         yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
         return xd, yd
 
+    def distortion_jacobian(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(N, 2, 2) derivative of distort_normalized's (xd, yd) by the undistorted (x, y) [-]."""
+        k1, k2, p1, p2, k3 = self.distortion
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        slope = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3))  # d radial / d r2, times 2 (d r2 = 2x dx + 2y dy)
+        cross = slope * x * y + 2.0 * p1 * x + 2.0 * p2 * y
+        return np.stack([np.stack([radial + slope * x * x + 2.0 * p1 * y + 6.0 * p2 * x, cross], axis=-1),
+                         np.stack([cross, radial + slope * y * y + 6.0 * p1 * y + 2.0 * p2 * x], axis=-1)],
+                        axis=-2)
+
     def project(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
         Sensor-frame directions (N, 3) -> pixel u, v [px] and a mask of rays in front of the camera (Z > 0).

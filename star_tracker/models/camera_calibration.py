@@ -228,36 +228,30 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
     sizes = np.array([frame.size for frame in frames])
     bounds = np.concatenate([[0], np.cumsum(sizes)])
 
-    def whitened(params, keep=None):
-        trial = _camera_with(camera, names, params[3 * count:])
-        predicted = []
-        for k, frame in enumerate(frames):
-            rotation = frame.rotation @ rotation_vector_to_matrix(params[3 * k:3 * k + 3])
-            u, v, _ = trial.project(frame.stars @ rotation)
-            predicted.append(np.stack([u, v], axis=-1))
-        residual = np.einsum("nij,nj->ni", whiten, np.concatenate(predicted) - measured)
-        if keep is not None:
-            residual = residual * keep[:, None]
-        return residual.ravel()
+    residual_and_jacobian = _whitened_model(frames, camera, names, whiten, measured, bounds)
 
-    # A frame's rotation moves only its own stars: finite differences of all frames' rotations at once.
-    # One frame (solve) is a small dense problem: a dense Jacobian and an exact trust-region step
-    # (the sparse path's iterative solver took half of a solve's time).
-    sparse = {}
-    if count > 1:
-        sparsity = np.zeros((2 * bounds[-1], x0.size), dtype=bool)
-        for k in range(count):
-            sparsity[2 * bounds[k]:2 * bounds[k + 1], 3 * k:3 * k + 3] = True
-        sparsity[:, 3 * count:] = True
-        sparse = {"jac_sparsity": sparsity}
-    robust = least_squares(whitened, x0, loss="soft_l1", f_scale=config.robust_scale, x_scale="jac", method="trf",
-                           **sparse)
+    def whitened(params, keep=None):
+        residual, _ = residual_and_jacobian(params)  # copies: least_squares scales its arrays in place
+        return residual.copy() if keep is None else residual * np.repeat(keep, 2)
+
+    def jacobian(params, keep=None):
+        _, jac = residual_and_jacobian(params)
+        if keep is None:
+            return jac.copy()
+        rows = np.repeat(keep, 2)
+        return jac.multiply(rows[:, None]).tocsr() if hasattr(jac, "multiply") else jac * rows[:, None]
+
+    # Analytic derivatives (finite differences took most of a solve's refinement time). One frame
+    # (solve) is a small dense problem with an exact trust-region step; several frames (calibrate)
+    # a sparse one: a frame's rotation moves only its own stars.
+    robust = least_squares(whitened, x0, jac=jacobian, loss="soft_l1", f_scale=config.robust_scale, x_scale="jac",
+                           method="trf")
     norms = np.linalg.norm(robust.fun.reshape(-1, 2), axis=1)
     # Robust spread of the whitened residuals (the median norm of a 2-D unit normal is sqrt(2 ln 2)),
     # at least the stated one: noise-free or overestimated covariances must not make the cut tighter.
     spread = max(float(np.median(norms)) / math.sqrt(2.0 * math.log(2.0)), 1.0)
     keep = (norms <= config.outlier_sigma * spread).astype(float)
-    final = least_squares(lambda p: whitened(p, keep), robust.x, x_scale="jac", method="trf", **sparse)
+    final = least_squares(whitened, robust.x, jac=jacobian, args=(keep,), x_scale="jac", method="trf")
     inlier_count = int(keep.sum())
     dof = max(2 * inlier_count - final.x.size, 1)
     reduced_chi2 = float(np.sum(final.fun ** 2)) / dof
@@ -292,6 +286,90 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
     return CameraCalibration(fitted_camera, names, (), value, sigma, covariance, corner, rotations, tuple(inliers),
                              tuple(frame_rms), math.sqrt(float(np.mean(all_inliers ** 2))) if all_inliers.size
                              else float("nan"), inlier_count)
+
+
+def _whitened_model(frames, camera: CameraModel, names: tuple[str, ...], whiten: np.ndarray, measured: np.ndarray,
+                    bounds: np.ndarray):
+    """
+    Return f(params) -> (whitened residuals (2N,), their Jacobian (2N, P)); the last evaluation is kept.
+
+    params: every frame's rotation vector (3 each, applied after its starting attitude), then the
+    camera parameters `names` (_camera_with). The Jacobian is analytic: dense for one frame,
+    scipy.sparse CSR for several (a frame's rotation moves only its own stars).
+    """
+    from scipy import sparse
+
+    count = len(frames)
+    size = int(bounds[-1])
+    last: dict = {}
+
+    def evaluate(params):
+        key = params.tobytes()
+        if last.get("key") == key:
+            return last["value"]
+        trial = _camera_with(camera, names, params[3 * count:])
+        fx, fy = trial.fx, trial.fy
+        pixel = np.empty((size, 2))
+        by_rotation = np.empty((size, 2, 3))
+        by_camera = np.empty((size, 2, len(names)))
+        for k, frame in enumerate(frames):
+            theta = params[3 * k:3 * k + 3]
+            rays = frame.stars @ (frame.rotation @ rotation_vector_to_matrix(theta))
+            z = rays[:, 2]
+            z = np.where(np.abs(z) > 1e-9, z, 1e-9)
+            x, y = rays[:, 0] / z, rays[:, 1] / z
+            xd, yd = trial.distort_normalized(x, y)
+            rows = slice(int(bounds[k]), int(bounds[k + 1]))
+            pixel[rows, 0] = fx * xd + trial.cx
+            pixel[rows, 1] = fy * yd + trial.cy
+            # d pixel / d ray = diag(fx, fy) · d distorted / d normalized · d normalized / d ray
+            by_normalized = trial.distortion_jacobian(x, y) * np.array([fx, fy])[None, :, None]
+            by_ray = np.zeros((x.size, 2, 3))
+            by_ray[:, 0, 0] = by_ray[:, 1, 1] = 1.0 / z
+            by_ray[:, 0, 2], by_ray[:, 1, 2] = -x / z, -y / z
+            by_ray = by_normalized @ by_ray
+            # d ray / d theta = [ray]x J_r(theta) (right Jacobian of the rotation vector)
+            by_rotation[rows] = by_ray @ _skew_rows(rays) @ _right_jacobian(theta)
+            r2 = x * x + y * y
+            columns = {"f": (fx * xd, fy * yd), "cx": (1.0, 0.0), "cy": (0.0, 1.0),
+                       "k1": (fx * x * r2, fy * y * r2), "k2": (fx * x * r2 * r2, fy * y * r2 * r2)}
+            for j, name in enumerate(names):
+                by_camera[rows, 0, j], by_camera[rows, 1, j] = columns[name]
+        residual = np.einsum("nij,nj->ni", whiten, pixel - measured).ravel()
+        rotation_block = whiten @ by_rotation  # (N, 2, 3)
+        camera_block = (whiten @ by_camera).reshape(2 * size, len(names))
+        if count == 1:
+            jac = np.concatenate([rotation_block.reshape(2 * size, 3), camera_block], axis=1)
+        else:
+            frame_of_row = np.repeat(np.repeat(np.arange(count), np.diff(bounds)), 2)
+            row = np.arange(2 * size)
+            rows = np.concatenate([np.repeat(row, 3), np.repeat(row, len(names))])
+            cols = np.concatenate([(3 * frame_of_row[:, None] + np.arange(3)).ravel(),
+                                   np.tile(3 * count + np.arange(len(names)), 2 * size)])
+            data = np.concatenate([rotation_block.reshape(-1), camera_block.reshape(-1)])
+            jac = sparse.csr_matrix((data, (rows, cols)), shape=(2 * size, 3 * count + len(names)))
+        last.update(key=key, value=(residual, jac))
+        return residual, jac
+
+    return evaluate
+
+
+def _skew_rows(v: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) cross-product matrices [v]x of the rows of v (N, 3)."""
+    out = np.zeros((v.shape[0], 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
+
+
+def _right_jacobian(theta: np.ndarray) -> np.ndarray:
+    """(3, 3) J_r with Exp(theta + d) = Exp(theta) Exp(J_r d) to first order (theta a rotation vector [rad])."""
+    angle = float(np.linalg.norm(theta))
+    k = np.array([[0.0, -theta[2], theta[1]], [theta[2], 0.0, -theta[0]], [-theta[1], theta[0], 0.0]])
+    if angle < 1e-8:
+        return np.eye(3) - 0.5 * k
+    return (np.eye(3) - (1.0 - math.cos(angle)) / angle ** 2 * k
+            + (angle - math.sin(angle)) / angle ** 3 * (k @ k))
 
 
 def _pixel_residuals(frames, camera: CameraModel, params: np.ndarray, count: int) -> np.ndarray:

@@ -150,3 +150,33 @@ def test_bad_input_is_refused(frames):
         calibrate_camera([], starting_camera())
     with pytest.raises(ValueError, match="unknown calibration parameter"):
         CalibrationConfig(fit=("f", "k7"))
+
+
+@pytest.mark.parametrize("frame_count", [1, 3])
+def test_analytic_jacobian_matches_finite_differences(frame_count):
+    """The fit's analytic derivatives (rotations, f, k1, k2, cx, cy; p1, p2, k3 set) against central differences."""
+    from star_tracker.models import camera_calibration as calibration
+
+    rng = np.random.default_rng(7)
+    camera = CameraModel(WIDTH, HEIGHT, 900.0, 905.0, 510.0, 380.0, (-0.1, 0.03, 1e-3, -2e-3, 0.01))
+    frames = []
+    for _ in range(frame_count):
+        rotation = rotation_vector_to_matrix(rng.normal(size=3))
+        rays = np.column_stack([rng.uniform(-0.5, 0.5, 12), rng.uniform(-0.4, 0.4, 12), np.ones(12)])
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        u, v, _ = camera.project(rays)
+        frames.append(CalibrationFrame(u + rng.normal(size=12), v + rng.normal(size=12),
+                                       np.tile(np.diag([0.3, 0.5]), (12, 1, 1)), rays @ rotation.T, rotation))
+    names = ("f", "k1", "k2", "cx", "cy")
+    bounds = np.concatenate([[0], np.cumsum([f.size for f in frames])])
+    measured = np.concatenate([np.stack([f.x, f.y], axis=-1) for f in frames])
+    model = calibration._whitened_model(frames, camera, names, calibration._whitening(frames, 0.3), measured, bounds)
+    params = np.concatenate([rng.normal(scale=0.05, size=3 * frame_count), [0.01, -0.08, 0.02, 1.5, -2.0]])
+    _, jacobian = model(params)
+    jacobian = jacobian.toarray() if hasattr(jacobian, "toarray") else jacobian
+    numeric = np.empty_like(jacobian)
+    for i in range(params.size):
+        step = np.zeros_like(params)
+        step[i] = 1e-6
+        numeric[:, i] = (model(params + step)[0] - model(params - step)[0]) / 2e-6
+    assert np.max(np.abs(jacobian - numeric)) < 1e-6 * np.max(np.abs(numeric))
