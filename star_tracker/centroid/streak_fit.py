@@ -26,6 +26,7 @@ PSF_RADIUS_SIGMA = 4.0  # window margin beyond the streak ends [sigma] (plus 1 p
 # noise, with flux > 2 sigma in ~20 % of empty windows and > 3 sigma in ~3 %.
 SIGNIFICANT_FLUX = 3.0
 _MAX_WINDOW_ELEMENTS = 3_000_000  # spots x parameters x pixels per batch (memory bound)
+_MAX_PADDING = 2.0  # padded window pixels per own window pixel in a batch
 
 
 class StreakFitSetup(NamedTuple):
@@ -146,19 +147,28 @@ def batches(valid: np.ndarray, bounds: np.ndarray, n_par: int):
     """
     Return valid spots in batches of similar window size (less padding).
 
-    Each holding at most _MAX_WINDOW_ELEMENTS padded window elements (spots x (parameters +
-    1) x pixels).
+    A batch's windows are padded to its tallest and widest: a batch holds at most
+    _MAX_WINDOW_ELEMENTS padded window elements (spots x (parameters + 1) x pixels) and at
+    most _MAX_PADDING times its own windows' pixels (the model's cost grows with the padded
+    size: one long streak among hundreds of small spots would make them all its size).
     """
-    pixels = (bounds[:, 1] - bounds[:, 0] + 1) * (bounds[:, 3] - bounds[:, 2] + 1)
+    cols = bounds[:, 1] - bounds[:, 0] + 1
+    rows = bounds[:, 3] - bounds[:, 2] + 1
+    pixels = cols * rows
     order = np.flatnonzero(valid)
-    order = order[np.argsort(pixels[order], kind="stable")]
-    per_spot = pixels[order] * (n_par + 1)  # sorted ascending: a batch's largest is its last
-    start = 0
-    while start < order.size:
-        fits = per_spot[start:] * np.arange(1, order.size - start + 1) <= _MAX_WINDOW_ELEMENTS
-        stop = start + max(1, int(np.sum(fits)))
-        yield order[start:stop]
-        start = stop
+    order = order[np.lexsort((pixels[order], np.maximum(rows, cols)[order]))]
+    batch: list[int] = []
+    own = top = wide = 0
+    for spot in order.tolist():
+        grown_top, grown_wide = max(top, int(rows[spot])), max(wide, int(cols[spot]))
+        padded = (len(batch) + 1) * grown_top * grown_wide
+        if batch and (padded * (n_par + 1) > _MAX_WINDOW_ELEMENTS or padded > _MAX_PADDING * (own + pixels[spot])):
+            yield np.array(batch, np.int64)
+            batch, own, grown_top, grown_wide = [], 0, int(rows[spot]), int(cols[spot])
+        batch.append(spot)
+        own, top, wide = own + int(pixels[spot]), grown_top, grown_wide
+    if batch:
+        yield np.array(batch, np.int64)
 
 
 def store_batch(result: StreakFit, batch, win: StreakWindows, params, inverse, done, valid, chi2) -> np.ndarray:
