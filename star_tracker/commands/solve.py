@@ -205,20 +205,24 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     if hasattr(identifier, "warm_up"):
         identifier.warm_up(nominal)  # compile/load the kernels outside the time budget
     result = SolveResult(None, nominal, database)
-    candidates = [(nominal, False)] if camera is not None else field_candidates(spots, nominal, database, fov_deg,
-                                                                                options, result.attempts)
-    steps = sum(stepped for _, stepped in candidates)
+    candidates = [(nominal, False, None)] if camera is not None else field_candidates(
+        spots, nominal, database, fov_deg, options, result.attempts)
+    steps = sum(stepped for _, stepped, _ in candidates)
     step_budget = min(options.max_time_s, options.step_search_time_s / steps) if steps else options.max_time_s
-    for index, (trial, stepped) in enumerate(candidates):
+    for index, (trial, stepped, rotation) in enumerate(candidates):
         budget = step_budget if stepped else options.max_time_s
         if index == 0 and not hasattr(identifier, "warm_up"):
             budget = max(budget, 20.0)  # its kernels compile in the first attempt
         identifier.config = replace(config, max_time_s=budget)
         started = time.perf_counter()
-        identification = identifier.identify(spots, trial)
+        # A pattern match's own attitude is verified first (verify_hypothesis: the false-positive
+        # bound applies); the search runs only when it fails.
+        identification = (identifier.identify(spots, trial) if rotation is None
+                          else identifier.identify_near(spots, trial, rotation))
         trial_fov = math.degrees(2.0 * math.atan(0.5 * trial.width / trial.fx))
         result.attempts.append({"fov_x_deg": trial_fov, "status": identification.status,
-                                "elapsed_s": round(time.perf_counter() - started, 3), "budget_s": budget}
+                                "elapsed_s": round(time.perf_counter() - started, 3), "budget_s": budget,
+                                "hypotheses": identification.hypotheses}
                                | ({"stepped": True} if stepped else {}))
         if report is not None and (index or not identification.solved):
             report(f"FOV {trial_fov:.4f} deg: {identification.status} ({time.perf_counter() - started:.2f} s)"
@@ -257,11 +261,11 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
 
 def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOptions, attempts: list) -> list:
     """
-    (camera, stepped) pairs to identify at, in order.
+    (camera, stepped, rotation) to identify at, in order.
 
-    The focal lengths of scale-free pattern matches (identify/scale_free.py; the search is
-    appended to `attempts`), then (field_search steps/both) the stepped fields (stepped True:
-    they share options.step_search_time_s).
+    The focal lengths of scale-free pattern matches with their attitudes (identify/scale_free.py;
+    the search is appended to `attempts`), then (field_search steps/both) the stepped fields
+    (stepped True: they share options.step_search_time_s; rotation None).
     """
     from ..identify.deadline import Deadline
     from ..identify.scale_free import estimate_fields, load_or_build_patterns
@@ -279,9 +283,9 @@ def field_candidates(spots, nominal, database, fov_deg: float, options: SolveOpt
                          "status": f"{len(estimates)} field(s) found" if estimates else "no pattern matched",
                          "fields_deg": [round(math.degrees(2.0 * math.atan(0.5 * e.camera.width / e.camera.fx)), 4)
                                         for e in estimates]})
-        cameras += [(estimate.camera, False) for estimate in estimates]
+        cameras += [(estimate.camera, False, estimate.rotation) for estimate in estimates]
     if options.field_search in ("steps", "both"):
-        cameras += [(camera_for_fov(nominal.width, nominal.height, f), True)
+        cameras += [(camera_for_fov(nominal.width, nominal.height, f), True, None)
                     for f in fov_candidates(fov_deg, options.fov_tolerance_pct, options.fov_step_pct)]
     return cameras
 
@@ -493,7 +497,9 @@ def run(args: argparse.Namespace) -> int:
     from ..identify.verify import MIN_STARS
     from .images import read_image
 
+    started = time.perf_counter()
     image = read_image(args.image)
+    read_s = time.perf_counter() - started
     height, width = image.pixels.shape
     camera = None
     if args.camera:
@@ -508,15 +514,23 @@ def run(args: argparse.Namespace) -> int:
     pixels = image.pixels
     config = centroid_config(pixels, image.description, args)
     saturation = config.saturation_adu
+    centroid_started = time.perf_counter()
     spots = extract_spots(pixels, config)
+    centroid_s = time.perf_counter() - centroid_started
     report = None if args.quiet else (lambda text: print(f"solve: {text}", file=sys.stderr, flush=True))
     options = SolveOptions(algorithm=args.algorithm, fov_tolerance_pct=args.fov_tolerance,
                            fov_step_pct=args.fov_step, field_search=args.field_search,
                            step_search_time_s=args.step_search_time, refine_focal=not args.no_refine,
                            centroid_sigma_floor_px=args.centroid_sigma_floor, max_time_s=args.max_time,
                            magnitude_limit=args.magnitude_limit, epoch_jyear=args.epoch)
+    solve_started = time.perf_counter()
     result = solve_spots(spots, width, height, fov_deg=args.fov, camera=camera, options=options, report=report)
+    solve_s = time.perf_counter() - solve_started
     record = solution_record(result, spots, str(args.image), image.description)
+    # Wall time of each stage [s]: reading and decoding the file, centroiding, field search + identification
+    # + camera refinement; total to here (the record's own assembly included).
+    record["timing_s"] = {"read": read_s, "centroid": centroid_s, "solve": solve_s,
+                          "total": time.perf_counter() - started}
     problem = frame_problem(pixels, spots, MIN_STARS, saturation) if not result.solved else None
     if problem:
         record["reason"] = problem

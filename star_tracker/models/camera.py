@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -67,7 +68,7 @@ class CameraModel:
         """Angle subtended by one pixel at the principal point [rad/px]."""
         return 1.0 / math.sqrt(self.fx * self.fy)
 
-    @property
+    @cached_property  # the model is immutable; asked by every verification
     def half_diagonal_fov_rad(self) -> float:
         """Angle from the boresight to the farthest image corner [rad]."""
         corners = np.array([[0, 0], [self.width - 1, 0], [0, self.height - 1],

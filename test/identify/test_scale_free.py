@@ -65,3 +65,20 @@ def test_stars_in_no_sky_pattern_match_nothing(database, nominal_camera, pattern
     x, y = rng.uniform(20, 1000, (2, 30))
     spots = Spots.from_xy(x, y, np.linspace(3.0, 6.5, 30), sigma_px=0.1, width=1024, height=1024)
     assert estimate_fields(spots, nominal_camera, database, patterns, TOLERANCE, Deadline(30.0, "cpu")) == []
+
+
+@pytest.mark.parametrize("seed, field_error", [(6, 0.04), (7, -0.03)])
+def test_solve_verifies_the_pattern_attitude_before_any_search(catalog, nominal_camera, seed, field_error):
+    """The first identification at a pattern-matched field tests one hypothesis (the pattern's) and is the truth."""
+    from star_tracker.commands.solve import solve_spots
+
+    rng = np.random.default_rng(seed)
+    truth = rotation_vector_to_matrix(rng.normal(size=3) * 2.0)
+    spots = spots_at(catalog.brighter_than(7.5).at_epoch(2026.0), nominal_camera, truth)
+    fov_deg = math.degrees(2.0 * math.atan(0.5 * nominal_camera.width / nominal_camera.fx)) * (1.0 + field_error)
+    result = solve_spots(spots, nominal_camera.width, nominal_camera.height, fov_deg=fov_deg)
+    searched = [a for a in result.attempts if a.get("search") == "patterns"]
+    first = result.attempts[len(searched)]
+    assert searched and searched[0]["fields_deg"] and first["status"] == "solved" and first["hypotheses"] == 1
+    error = truth.T @ result.identification.attitude.rotation
+    assert math.acos(min(1.0, (np.trace(error) - 1.0) / 2.0)) < math.radians(2.0 / 3600.0)
