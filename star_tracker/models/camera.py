@@ -71,6 +71,9 @@ class CameraModel:
     @cached_property  # the model is immutable; asked by every verification
     def half_diagonal_fov_rad(self) -> float:
         """Angle from the boresight to the farthest image corner [rad]."""
+        if not self.has_distortion:  # a pinhole: plain floats (cameras are made per field hypothesis)
+            return max(math.atan(math.hypot((u - self.cx) / self.fx, (v - self.cy) / self.fy))
+                       for u in (0.0, self.width - 1.0) for v in (0.0, self.height - 1.0))
         corners = np.array([[0, 0], [self.width - 1, 0], [0, self.height - 1],
                             [self.width - 1, self.height - 1]], dtype=float)
         rays = self.pixel_to_ray(corners[:, 0], corners[:, 1])
