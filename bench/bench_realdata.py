@@ -13,7 +13,8 @@ in our sensor frame (+x image right, +y image down, +z boresight; quaternion sen
   its default, run in-process through the CLI's own parser and run() (image reading,
   centroiding, the field search and focal refinement are the command's). Time = wall time of
   that call; pixels_time_s = its --json `timing_s` total less `read` (from decoded pixels to
-  the solution, as cedar-solve's solve_from_image is timed). A warm-up call of the same
+  the solution, as cedar-solve's solve_from_image is timed). The process keeps freed memory
+  as the `star-tracker` command does (star_tracker/process_memory.py), for the peers too. A warm-up call of the same
   image precedes it, its pair and pattern databases read from disk (built and cached first
   if missing; the deep catalog and the numba kernels are loaded by the first image only):
   timed as first_run_s, close to what a one-image `solve` process spends after its imports.
@@ -625,6 +626,9 @@ def main(argv=None) -> int:
     images = [replace(image, field_error=args.field_error / 100.0) for image in load_corpus(corpus, only)]
     peers = [] if args.no_peers else peer_adapters.usable_peers()
     from star_tracker.models.catalog import cache_dir
+    from star_tracker.process_memory import keep_freed_memory
+
+    keep_freed_memory()  # as `star-tracker` itself does (cli.main); the peers run in this process too
 
     date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     results = run_benchmark(images, peers, cache_dir() / "bench_peers", load_corpus(corpus),

@@ -305,6 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from .process_memory import keep_freed_memory
+
+    keep_freed_memory()  # our own process: freed frame buffers are reused, not page-faulted in again
     args = build_parser().parse_args(argv)
     if args.command == "demo" and (args.duration <= 0 or args.rate <= 0):
         from .commands.common import error

@@ -19,6 +19,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
+from ..process_memory import keep_freed_memory
 from .managed_node import ManagedNode
 from .middleware import configure_middleware
 from .parameters import report_unknown_parameters
@@ -72,6 +73,7 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     only (main()): the signal handlers are not restored.
     """
     args = sys.argv if argv is None else argv
+    keep_freed_memory()  # a node's own process: freed frame buffers are reused (process_memory.py)
     configure_middleware()
     node = None
     code = 0
