@@ -98,3 +98,18 @@ def test_report_rows_and_summary(tmp_path):
     bench.write_section(doc, text)  # idempotent
     body = doc.read_text()
     assert "keep me" in body and body.count("## Real images") == 1
+
+
+def test_time_goal_counted_both_ways():
+    """Faster than a peer from decoded pixels (the peer's own timing) while slower as a whole command."""
+    image = fake_image()
+    solved = bench.score(rotated(REFERENCE, (1, 0, 0), 20.0 * ARCSEC), image)
+    ours = {"solved": True, "status": "solved", "matched": 12, "time_s": 0.5, "pixels_time_s": 0.3, **solved}
+    peer = {"solved": True, "status": "solved", "matched": 10, "time_s": 0.4, **solved}
+    rows = [{"id": "fake", "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
+             "solvers": {"ours": ours, "cedar-solve": peer}}]
+    results = {"images": rows, "summary": bench.summarize(rows, ["ours", "cedar-solve"]), "peer_databases": {},
+               "meta": {"elapsed_s": 1.0, "peers": ["cedar-solve"], "command": "test"}}
+    text = bench.render_markdown(results)
+    assert "faster on 0 of the 1 images cedar-solve solves" in text and "from decoded pixels on 1 of 1" in text
+    assert "| 0.50 (0.30) |" in text and results["summary"]["ours"]["median_pixels_time_s"] == pytest.approx(0.3)
