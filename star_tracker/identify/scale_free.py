@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..models.attitude_estimation import svd_rotation
 from ..models.camera import CameraModel
 from ..models.catalog import cache_dir, load_validated_npz, save_validated_npz
 from ..models.file_memo import FileMemo
@@ -197,16 +198,6 @@ def scaled_camera(camera: CameraModel, scale: float) -> CameraModel:
                        tuple(camera.distortion))
 
 
-def _pattern_rotation(body: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """
-    Sensor -> ICRS rotation best aligning unit vectors `body` (sensor) with `ref` (ICRS), equal weights.
-
-    Markley's SVD solution (as svd_attitude, without its covariance: one per pattern candidate).
-    """
-    u, _, vt = np.linalg.svd(body.T @ ref)
-    return (u @ np.diag([1.0, 1.0, np.linalg.det(u) * np.linalg.det(vt)]) @ vt).T
-
-
 def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns: PatternDatabase,
                     tolerance: float, deadline: Deadline, ratio_tolerance: float = 0.01,
                     radius_px: float = 3.0, max_estimates: int = 3) -> list[FieldEstimate]:
@@ -254,7 +245,7 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
             trial = scaled_camera(camera, float(s))
             spot_idx = brightest[subsets[p]]
             body = trial.pixel_to_ray(spots.x[spot_idx], spots.y[spot_idx])
-            rotation = _pattern_rotation(body, database.vectors[patterns.stars[c]])
+            rotation = svd_rotation(body, database.vectors[patterns.stars[c]])
             matched = verify(rotation, spots.x[check], spots.y[check], database, trial, radius_px).spot_index.size
             if matched >= need:
                 found.append(FieldEstimate(trial, rotation, int(matched)))

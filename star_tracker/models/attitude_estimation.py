@@ -223,9 +223,19 @@ def svd_attitude(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> Attit
     """
     body, ref, sigmas = _as_inputs(body, ref, sigmas)
     weights = 1.0 / sigmas**2
-    u, _, vt = np.linalg.svd((weights[:, None] * body).T @ ref)
-    a_matrix = u @ np.diag([1.0, 1.0, np.linalg.det(u) * np.linalg.det(vt)]) @ vt
+    a_matrix = svd_rotation(body, ref, weights).T
     return _solution(a_matrix, body, ref, weights, sigmas)
+
+
+def svd_rotation(body: np.ndarray, ref: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """
+    Sensor -> ICRS rotation of svd_attitude alone: unit vectors body (N, 3) and ref (N, 3), weights (N,) or equal.
+
+    No input checks, no covariance: for many candidate matches (scale_free's patterns).
+    """
+    weighted = body if weights is None else weights[:, None] * body
+    u, _, vt = np.linalg.svd(weighted.T @ ref)
+    return (u @ np.diag([1.0, 1.0, np.linalg.det(u) * np.linalg.det(vt)]) @ vt).T
 
 
 def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .attitude import rotation_vector_to_matrix
+from .attitude import rotation_vector_to_matrix, skew
 from .camera import CameraModel
 
 # Nested models, smallest first: each group's parameter names (CameraCalibration.sigma keys).
@@ -365,7 +365,7 @@ def _skew_rows(v: np.ndarray) -> np.ndarray:
 def _right_jacobian(theta: np.ndarray) -> np.ndarray:
     """(3, 3) J_r with Exp(theta + d) = Exp(theta) Exp(J_r d) to first order (theta a rotation vector [rad])."""
     angle = float(np.linalg.norm(theta))
-    k = np.array([[0.0, -theta[2], theta[1]], [theta[2], 0.0, -theta[0]], [-theta[1], theta[0], 0.0]])
+    k = skew(theta)
     if angle < 1e-8:
         return np.eye(3) - 0.5 * k
     return (np.eye(3) - (1.0 - math.cos(angle)) / angle ** 2 * k
