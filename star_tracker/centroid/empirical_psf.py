@@ -24,6 +24,7 @@ BIN_PX = 0.1  # radial bin [px]
 MIN_TEMPLATE_STARS = 5  # fewer bright stars give too noisy a profile
 MIN_BIN_SAMPLES = 3  # a bin with fewer samples takes its neighbours' value
 BUILD_PASSES = 2  # profile from the first positions, stars refitted, profile again
+STEP_DONE_PX = 1e-3  # a fit whose position step is below this [px] is done (Gauss-Newton: the next is far smaller)
 
 
 @dataclass(frozen=True)
@@ -120,14 +121,17 @@ def _template(win, valid, col0, row0, x, y) -> EmpiricalPsf | None:
     return EmpiricalPsf(profile / norm, psf.slope / norm, angle, stretch_u, stretch_v)
 
 
-def fit_empirical(psf: EmpiricalPsf, win, valid, col0, row0, x0, y0, flux0, noise: float, gain: float,
+def fit_empirical(psf, win, valid, col0, row0, x0, y0, flux0, noise: float, gain: float,
                   iterations: int = 8):
     """
-    Fit the profile to n windows: (x, y, flux, cov (n, 2, 2), flux_var, converged).
+    Fit a PSF model to n windows: (x, y, flux, cov (n, 2, 2), flux_var, converged).
 
-    Windows: background-subtracted data [ADU] with their valid masks, top-left pixel (col0,
-    row0). Model F * psf(pixel - (x, y)); weights 1 / (model / gain + noise^2); Gauss-Newton
-    with steps clipped to 0.5 px; converged when finite, within 2 px of the start, flux > 0.
+    `psf`: any model with sample(dx, dy) -> (value, d/ddx, d/ddy) of unit flux (EmpiricalPsf,
+    elliptical_psf.EllipticalGaussianPsf). Windows: background-subtracted data [ADU] with
+    their valid masks, top-left pixel (col0, row0). Model F * psf(pixel - (x, y)); weights 1 /
+    (model / gain + noise^2); Gauss-Newton with steps clipped to 0.5 px, a window done once
+    its step is below STEP_DONE_PX (the covariance is at its last position); converged when
+    finite, within 2 px of the start, flux > 0.
     """
     size = win.shape[1]
     x, y = np.asarray(x0, float).copy(), np.asarray(y0, float).copy()
@@ -135,26 +139,32 @@ def fit_empirical(psf: EmpiricalPsf, win, valid, col0, row0, x0, y0, flux0, nois
     n = x.size
     data = np.where(valid, win, 0.0)
     info = np.zeros((n, 3, 3))
+    active = np.arange(n)
     for _ in range(iterations):
-        dx, dy = _offsets(col0, row0, size, x, y)
+        if active.size == 0:
+            break
+        a = active
+        dx, dy = _offsets(col0[a], row0[a], size, x[a], y[a])
         p, px, py = psf.sample(dx, dy)
-        model = flux[:, None, None] * p
-        weight = np.where(valid, 1.0 / (np.maximum(model, 0.0) / gain + noise ** 2), 0.0).reshape(n, -1)
-        jac = np.stack([-flux[:, None, None] * px, -flux[:, None, None] * py, p], axis=-1).reshape(n, -1, 3)
-        residual = (data - model).reshape(n, -1)
-        info = np.einsum("npi,np,npj->nij", jac, weight, jac)
+        f = flux[a][:, None, None]
+        model = f * p
+        weight = np.where(valid[a], 1.0 / (np.maximum(model, 0.0) / gain + noise ** 2), 0.0).reshape(a.size, -1)
+        jac = np.stack([-f * px, -f * py, p], axis=-1).reshape(a.size, -1, 3)
+        residual = (data[a] - model).reshape(a.size, -1)
+        info[a] = np.einsum("npi,np,npj->nij", jac, weight, jac)
         grad = np.einsum("npi,np,np->ni", jac, weight, residual)
-        damped = info + 1e-9 * np.trace(info, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+        damped = info[a] + 1e-9 * np.trace(info[a], axis1=1, axis2=2)[:, None, None] * np.eye(3)
         ok = np.isfinite(damped).all(axis=(1, 2)) & (np.abs(np.linalg.det(damped)) > 0)
-        step = np.zeros((n, 3))
+        step = np.zeros((a.size, 3))
         if ok.any():
             step[ok] = np.linalg.solve(damped[ok], grad[ok][..., None])[..., 0]
         step = np.nan_to_num(step)
         shift = np.hypot(step[:, 0], step[:, 1])
         scale = np.where(shift > 0.5, 0.5 / np.maximum(shift, 1e-12), 1.0)
-        x += step[:, 0] * scale
-        y += step[:, 1] * scale
-        flux = np.maximum(flux + step[:, 2], 1e-9)
+        x[a] += step[:, 0] * scale
+        y[a] += step[:, 1] * scale
+        flux[a] = np.maximum(flux[a] + step[:, 2], 1e-9)
+        active = a[shift >= STEP_DONE_PX]
     inverse = np.full((n, 3, 3), np.nan)
     ok = np.isfinite(info).all(axis=(1, 2)) & (np.abs(np.linalg.det(info)) > 0)
     if ok.any():

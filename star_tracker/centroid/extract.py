@@ -19,6 +19,7 @@ import numpy as np
 from .candidates import STREAK_COUNT_MIN_SIGMA_PX, Candidates, measure_candidates
 from .config import CentroidConfig, elongation_limit, peak_fraction_limit
 from .detect import Detections, detect
+from .elliptical_psf import EllipticalGaussianPsf
 from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
 from .peak_shape import TRUNCATED_MOMENT, peak_minor_moments
@@ -129,13 +130,23 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     width = estimate.sigma_minor_px if elongated else estimate.sigma_px
     # Ring stars (a defocused PSF): a ring's maxima are one star; measured again with blends
     # split only farther apart.
+    # Astigmatic stars (elongated with no known rate that smears them): their single stars are
+    # fitted with the estimate's elliptical shape (a round Gaussian's centre is pulled with the
+    # sub-pixel phase). Under a known rate the elongation is motion, not the optics' shape.
+    still = smear is None or typical_smear_px(smear, image.shape[1], image.shape[0]) < config.min_smear_px
+    elliptical = EllipticalGaussianPsf(estimate.sigma_major_px, estimate.sigma_minor_px,
+                                       estimate.angle_rad) if elongated and still else None
     if abs(width - prior) <= (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior and not estimate.annular:
         if elongated and width < (1.0 - RERUN_TOLERANCE) * prior:
             # Astigmatic stars are narrower across than the prior: measured again with the width
             # test at their minor axis, which the prior's rejected some of them at.
-            measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, narrowest_px=width)
+            measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, narrowest_px=width,
+                                      elliptical=elliptical)
+        elif elliptical is not None and measured.context.own_psf:
+            measured = replace(measured, context=replace(measured.context, elliptical=elliptical))
         return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
-    spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, rings=estimate.annular))
+    spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, rings=estimate.annular,
+                                   elliptical=elliptical))
     return replace(spots, psf=replace(estimate, applied_sigma_px=width))
 
 
@@ -196,13 +207,14 @@ def _finish(measurement: _Measurement) -> Spots:
 
 
 def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False,
-                   narrowest_px: float | None = None) -> _Measurement:
+                   narrowest_px: float | None = None, elliptical: EllipticalGaussianPsf | None = None
+                   ) -> _Measurement:
     """
     Measure the frame once with config's PSF width, up to the fits (`_finish` runs them).
 
     rings: the stars are rings (PsfEstimate.annular; config.blend_separation_px);
     narrowest_px: an elongated PSF's minor-axis 1-sigma [px] for the width test (None: the
-    PSF width).
+    PSF width); elliptical: an astigmatic PSF, the single stars' fit model (FitContext).
     """
     height, width = image.shape
     binning = config.binning if min(height, width) >= 16 * config.binning else 1
@@ -219,7 +231,7 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     # A known rate that smears the stars by more than EMPIRICAL_MAX_SMEAR_PX (aided or not)
     # shapes them, not the optics: no empirical PSF.
     still = smear is None or typical_smear_px(smear, width, height) < EMPIRICAL_MAX_SMEAR_PX
-    context = FitContext(image, det, config, sigma, rings, own_psf=still)
+    context = FitContext(image, det, config, sigma, rings, own_psf=still, elliptical=elliptical if still else None)
     cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None, rings=rings,
                               streaks_expected=aid is not None)
     narrowest = sigma if narrowest_px is None else min(sigma, narrowest_px)

@@ -131,6 +131,10 @@ def warm_up() -> None:
     fit_single_psf(PsfWindows(data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1)),
                    PsfStart(np.full(1, 3.0), np.full(1, 3.0), np.full(1, 100.0)), PsfSettings(1.0, 1.0, 1.0, 5))
     component_stats(np.zeros((4, 4), np.int32), 1)
+    from .elliptical_psf import EllipticalGaussianPsf, fit_elliptical
+
+    fit_elliptical(EllipticalGaussianPsf(1.5, 1.0, 0.3), data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1),
+                   np.full(1, 3.0), np.full(1, 3.0), np.full(1, 100.0), 1.0, 1.0)
     fit_psf_width(data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1), np.full(1, 3.0), np.full(1, 3.0),
                   np.full(1, 100.0), np.full(1, 1.0), 1.0, 1.0, 5)
     one = np.full(1, 16.0)

@@ -14,6 +14,7 @@ import numpy as np
 
 from .config import CentroidConfig
 from .detect import Detections
+from .elliptical_psf import EllipticalGaussianPsf
 
 
 @dataclass(frozen=True)
@@ -26,7 +27,9 @@ class FitContext:
     at least psf_estimate.MIN_SIGMA_PX; 0.5 without a PSF); rings: the stars are rings
     (psf_estimate.PsfEstimate.annular: blends split farther apart, config.blend_separation_px);
     own_psf: the frame's empirical PSF may replace the Gaussian (point_fits; not when a known
-    body rate smears the stars: their shapes then differ across the field).
+    body rate smears the stars: their shapes then differ across the field); elliptical: an
+    astigmatic frame's PSF (elliptical_psf.EllipticalGaussianPsf, from the PSF estimate), the
+    single stars' fit model in place of the round Gaussian (None: round).
     """
 
     image: np.ndarray
@@ -35,6 +38,7 @@ class FitContext:
     sigma: float
     rings: bool = False
     own_psf: bool = True
+    elliptical: "EllipticalGaussianPsf | None" = None
 
     @property
     def noise(self) -> float:
