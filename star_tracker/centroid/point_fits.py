@@ -12,11 +12,11 @@ import numpy as np
 
 from .candidates import Candidates
 from .config import blend_separation_px
-from .elliptical_psf import fit_elliptical
 from .empirical_psf import MIN_TEMPLATE_STARS, build_empirical_psf, fit_empirical
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
 from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows, pixel_integrated_profile
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
+from .single_star_model import fit_frame_model
 from .spots import FLAG_BLENDED
 
 
@@ -101,13 +101,12 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
                          spots.flux[which[single]][:, None])
         fit = fit_psf_windows(PsfWindows(win[single], valid[single], col0[single], row0[single]), start, sigma, noise,
                               gain)
-        if context.elliptical is not None:
-            fit = _elliptical_refit(context, win[single], valid[single], col0[single], row0[single], fit,
-                                    start)
         # Only round spots: an elongated one is smeared (no body rate known) or a blend, which the
         # symmetric Gaussian centres better than a centre of gravity.
         round_ = kept.major[which[single]] <= MISFIT_MAX_ELONGATION ** 2 * kept.minor[which[single]]
-        not_gaussian = _misfits(win[single], valid[single], col0[single], row0[single], fit, context)
+        model, fit = fit_frame_model(context, PsfWindows(win[single], valid[single], col0[single], row0[single]),
+                                     fit, start, round_)
+        not_gaussian = _misfits(win[single], valid[single], col0[single], row0[single], fit, context, model)
         misfit = not_gaussian & round_
         converged = fit.converged[:, 0] & ~misfit
         good = np.flatnonzero(converged)
@@ -174,29 +173,14 @@ RING_TEMPLATE_MIN_STARS = 15  # ... (noise pooled over their pixels)
 TEMPLATE_MIN_SHARE = 0.25  # the empirical PSF replaces the Gaussian when this share of the bright stars misfit
 
 
-def _elliptical_refit(context: FitContext, win, valid, col0, row0, fit: PsfFit, start: PsfStart) -> PsfFit:
-    """
-    Fit the single-star windows again with the frame's elliptical PSF (context.elliptical).
-
-    From the round Gaussian's position and flux where it converged, else from `start`; a
-    PsfFit of one source per window (covariance: the inverse Fisher information of that model).
-    """
-    converged = fit.converged[:, 0]
-    x0 = np.where(converged, fit.x[:, 0], start.x[:, 0])
-    y0 = np.where(converged, fit.y[:, 0], start.y[:, 0])
-    flux0 = np.where(converged, fit.flux[:, 0], np.maximum(np.where(valid, win, 0.0).sum(axis=(1, 2)), 1.0))
-    x, y, flux, cov, flux_var, ok = fit_elliptical(context.elliptical, win, valid, col0, row0, x0, y0, flux0,
-                                                   context.noise, context.gain)
-    return PsfFit(x[:, None], y[:, None], flux[:, None], cov[:, None], ok[:, None], flux_var[:, None])
-
-
-def _misfits(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> np.ndarray:
+def _misfits(win, valid, col0, row0, fit: PsfFit, context: FitContext, model=None) -> np.ndarray:
     """
     Return the single-PSF fits (bool per window) that the frame's PSF model does not describe.
 
-    The model: the round Gaussian, or the elliptical one of an astigmatic frame
-    (context.elliptical). A non-Gaussian PSF (a defocused ring, strong coma): bright (flux
-    SNR >= MISFIT_MIN_SNR), reduced chi^2 above MISFIT_CHI2 and a residual norm above
+    The model: the round Gaussian (None), or the frame's own shape (any model with `sample`:
+    the elliptical Gaussian of an astigmatic frame, the core/halo of one with wings). A PSF
+    it does not describe (a defocused ring, strong coma): bright (flux SNR >=
+    MISFIT_MIN_SNR), reduced chi^2 above MISFIT_CHI2 and a residual norm above
     MISFIT_RESIDUAL of the model's. Such a spot keeps its model-free centre of gravity (and
     its phase-bias covariance) instead.
     """
@@ -207,11 +191,11 @@ def _misfits(win, valid, col0, row0, fit: PsfFit, context: FitContext) -> np.nda
     if k.size == 0:
         return out
     size = win.shape[1]
-    if context.elliptical is not None:
+    if model is not None:
         steps = np.arange(size, dtype=float)
         dx = (col0[k, None] + steps)[:, None, :] - fit.x[k, 0][:, None, None]
         dy = (row0[k, None] + steps)[:, :, None] - fit.y[k, 0][:, None, None]
-        share, _, _ = context.elliptical.sample(*np.broadcast_arrays(dx, dy))
+        share, _, _ = model.sample(*np.broadcast_arrays(dx, dy))
     else:
         steps = np.arange(size) - 0.5
         px, _ = pixel_integrated_profile(col0[k, None] + steps, fit.x[k, 0][:, None], context.sigma)

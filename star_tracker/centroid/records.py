@@ -29,7 +29,8 @@ class FitContext:
     own_psf: the frame's empirical PSF may replace the Gaussian (point_fits; not when a known
     body rate smears the stars: their shapes then differ across the field); elliptical: an
     astigmatic frame's PSF (elliptical_psf.EllipticalGaussianPsf, from the PSF estimate), the
-    single stars' fit model in place of the round Gaussian (None: round).
+    single stars' fit model unless their bright stars fit it worse than the round Gaussian
+    (single_star_model; None: round).
     """
 
     image: np.ndarray
