@@ -242,6 +242,11 @@ def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
     # From decoded pixels to the solution, as cedar-solve's solve_from_image is timed: the
     # command's own total less its file read and decode (and less printing the JSON).
     result["pixels_time_s"] = timing["total"] - timing["read"] if {"total", "read"} <= set(timing) else None
+    # Each matched star's residual after the attitude and camera fit [arcsec], by HIP: two runs'
+    # centroids compared on the stars both match (bench/compare_residuals.py).
+    result["residual_rms_arcsec"] = record.get("residual_rms_arcsec") if solved else None
+    result["residual_arcsec_by_hip"] = ({str(m["hip"]): m["residual_arcsec"] for m in record["matched"]}
+                                        if solved else {})
     result.update(score(rotation, image))
     return result
 
