@@ -89,12 +89,15 @@ def estimate_double_gaussian(windows: PsfWindows, x, y, sigma_px: float, noise: 
     weight = np.where(windows.valid, 1.0, 0.0)
     size = data.shape[1]
     x, y = np.asarray(x, float).copy(), np.asarray(y, float).copy()
-    shape = np.array([np.log(0.8 * sigma_px), np.log(2.0 - MIN_HALO_RATIO), 0.0])  # core, halo ratio - 1.05, logit
+    # Unbounded values (MINPACK's Levenberg-Marquardt): log core [px], logit of the halo ratio's
+    # place in [MIN_HALO_RATIO, MAX_HALO_RATIO], logit of the halo share.
+    start_ratio = (2.0 - MIN_HALO_RATIO) / (MAX_HALO_RATIO - MIN_HALO_RATIO)
+    shape = np.array([np.log(0.8 * sigma_px), np.log(start_ratio / (1.0 - start_ratio)), 0.0])
 
     def unpack(p) -> DoubleGaussianPsf:
-        core = float(np.exp(p[0]))
-        ratio = MIN_HALO_RATIO + float(np.exp(p[1]))
-        return DoubleGaussianPsf(core, core * ratio, float(1.0 / (1.0 + np.exp(-p[2]))))
+        core = float(np.exp(np.clip(p[0], np.log(0.1), np.log(20.0))))
+        ratio = MIN_HALO_RATIO + (MAX_HALO_RATIO - MIN_HALO_RATIO) / (1.0 + float(np.exp(-np.clip(p[1], -30, 30))))
+        return DoubleGaussianPsf(core, core * ratio, 1.0 / (1.0 + float(np.exp(-np.clip(p[2], -30, 30)))))
 
     psf = None
     for _ in range(SHAPE_PASSES):
@@ -104,9 +107,7 @@ def estimate_double_gaussian(windows: PsfWindows, x, y, sigma_px: float, noise: 
                                                                          1e-300)
             return (np.sqrt(weight) * (data - flux[:, None, None] * share)).ravel()
 
-        upper = np.log(MAX_HALO_RATIO - MIN_HALO_RATIO)
-        result = least_squares(residuals, shape, bounds=([np.log(0.1), -6.0, -6.0], [np.log(20.0), upper, 6.0]),
-                               x_scale=1.0, xtol=1e-4, ftol=1e-6, max_nfev=60)
+        result = least_squares(residuals, shape, method="lm", xtol=1e-4, ftol=1e-6, max_nfev=60)
         if not np.all(np.isfinite(result.x)):
             return None
         shape = result.x
