@@ -23,6 +23,7 @@ import numpy as np
 BIN_PX = 0.1  # radial bin [px]
 MIN_TEMPLATE_STARS = 5  # fewer bright stars give too noisy a profile
 MIN_BIN_SAMPLES = 3  # a bin with fewer samples takes its neighbours' value
+CLIP_MADS = 4.0  # a radial bin's samples farther than this many robust sigmas from its median are left out
 BUILD_PASSES = 2  # profile from the first positions, stars refitted, profile again
 STEP_DONE_PX = 1e-3  # a fit whose position step is below this [px] is done (Gauss-Newton: the next is far smaller)
 
@@ -102,12 +103,21 @@ def _template(win, valid, col0, row0, x, y) -> EmpiricalPsf | None:
     keep = radius < outer
     bins = (radius[keep] / BIN_PX).astype(np.int64)
     count = np.bincount(bins, minlength=int(outer / BIN_PX))
-    total = np.bincount(bins, weights=share[use][keep], minlength=count.size)
     profile = np.full(count.size, np.nan)
     filled = count >= MIN_BIN_SAMPLES
     if filled.sum() < 3:
         return None
-    profile[filled] = total[filled] / count[filled]
+    # Per bin the mean of the samples within CLIP_MADS robust sigmas of their median: a cosmic
+    # ray or a neighbour in one star's window is a few samples of many, not the profile.
+    order = np.argsort(bins, kind="stable")
+    values = share[use][keep][order]
+    starts = np.concatenate([[0], np.cumsum(count)])
+    for k in np.flatnonzero(filled):
+        v = values[starts[k]:starts[k + 1]]
+        centre = np.median(v)
+        spread = 1.4826 * np.median(np.abs(v - centre))
+        inside = np.abs(v - centre) <= CLIP_MADS * spread if spread > 0 else np.ones(v.size, bool)
+        profile[k] = v[inside].mean()
     centres = (np.arange(count.size) + 0.5) * BIN_PX
     profile = np.interp(centres, centres[filled], profile[filled])
     # Light smoothing over 3 bins (0.3 px): the radius bins are far finer than the pixels.
