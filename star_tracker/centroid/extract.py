@@ -128,14 +128,14 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     # prior only when clearly different.
     elongated = estimate.elongation > SMEARED_ELONGATION
     width = estimate.sigma_minor_px if elongated else estimate.sigma_px
-    # Ring stars (a defocused PSF): a ring's maxima are one star; measured again with blends
-    # split only farther apart.
     # Astigmatic stars (elongated with no known rate that smears them): their single stars are
     # fitted with the estimate's elliptical shape (a round Gaussian's centre is pulled with the
     # sub-pixel phase). Under a known rate the elongation is motion, not the optics' shape.
     still = smear is None or typical_smear_px(smear, image.shape[1], image.shape[0]) < config.min_smear_px
     elliptical = EllipticalGaussianPsf(estimate.sigma_major_px, estimate.sigma_minor_px,
                                        estimate.angle_rad) if elongated and still else None
+    # Ring stars (a defocused PSF): a ring's maxima are one star; measured again with blends
+    # split only farther apart.
     if abs(width - prior) <= (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior and not estimate.annular:
         if elongated and width < (1.0 - RERUN_TOLERANCE) * prior:
             # Astigmatic stars are narrower across than the prior: measured again with the width

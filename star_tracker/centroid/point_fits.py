@@ -173,11 +173,11 @@ RING_TEMPLATE_MIN_STARS = 15  # ... (noise pooled over their pixels)
 TEMPLATE_MIN_SHARE = 0.25  # the empirical PSF replaces the Gaussian when this share of the bright stars misfit
 
 
-def _misfits(win, valid, col0, row0, fit: PsfFit, context: FitContext, model=None) -> np.ndarray:
+def _misfits(win, valid, col0, row0, fit: PsfFit, context: FitContext, psf_model=None) -> np.ndarray:
     """
     Return the single-PSF fits (bool per window) that the frame's PSF model does not describe.
 
-    The model: the round Gaussian (None), or the frame's own shape (any model with `sample`:
+    psf_model: the round Gaussian (None), or the frame's own shape (any model with `sample`:
     the elliptical Gaussian of an astigmatic frame, the core/halo of one with wings). A PSF
     it does not describe (a defocused ring, strong coma): bright (flux SNR >=
     MISFIT_MIN_SNR), reduced chi^2 above MISFIT_CHI2 and a residual norm above
@@ -191,11 +191,11 @@ def _misfits(win, valid, col0, row0, fit: PsfFit, context: FitContext, model=Non
     if k.size == 0:
         return out
     size = win.shape[1]
-    if model is not None:
+    if psf_model is not None:
         steps = np.arange(size, dtype=float)
         dx = (col0[k, None] + steps)[:, None, :] - fit.x[k, 0][:, None, None]
         dy = (row0[k, None] + steps)[:, :, None] - fit.y[k, 0][:, None, None]
-        share, _, _ = model.sample(*np.broadcast_arrays(dx, dy))
+        share, _, _ = psf_model.sample(*np.broadcast_arrays(dx, dy))
     else:
         steps = np.arange(size) - 0.5
         px, _ = pixel_integrated_profile(col0[k, None] + steps, fit.x[k, 0][:, None], context.sigma)
