@@ -25,6 +25,7 @@ from numba import njit
 from scipy.special import erf
 
 from .empirical_psf import STEP_DONE_PX
+from .kernels import invert_3x3
 
 Y_NODES = 4  # Gauss-Legendre nodes across a pixel in y: within 1e-4 of the peak down to sigma 0.35 px
 _ROOT2 = np.sqrt(2.0)
@@ -104,7 +105,7 @@ def _fit_windows(data, valid, col0, row0, x0, y0, flux0, cxx, cxy, cyy, noise, g
     cov = np.full((n, 2, 2), np.nan)
     flux_var = np.full(n, np.nan)
     converged = np.zeros(n, np.bool_)
-    normal = np.empty((3, 3))
+    normal, inv = np.empty((3, 3)), np.empty((3, 3))
     grad = np.empty(3)
     value, grad_x, grad_y = np.empty((size, size)), np.empty((size, size)), np.empty((size, size))
     cdf, pdf = np.empty(size + 1), np.empty(size + 1)
@@ -153,20 +154,12 @@ def _fit_windows(data, valid, col0, row0, x0, y0, flux0, cxx, cxy, cyy, noise, g
             for a in range(3):
                 for b in range(a):
                     normal[a, b] = normal[b, a]
-            c00 = normal[1, 1] * normal[2, 2] - normal[1, 2] * normal[2, 1]
-            c01 = normal[1, 2] * normal[2, 0] - normal[1, 0] * normal[2, 2]
-            c02 = normal[1, 0] * normal[2, 1] - normal[1, 1] * normal[2, 0]
-            det = normal[0, 0] * c00 + normal[0, 1] * c01 + normal[0, 2] * c02
-            if not (det != 0.0 and math.isfinite(det)):
+            if not invert_3x3(normal, inv):
                 ok = False
                 break
-            i00, i10, i20 = c00 / det, c01 / det, c02 / det
-            i01 = (normal[0, 2] * normal[2, 1] - normal[0, 1] * normal[2, 2]) / det
-            i02 = (normal[0, 1] * normal[1, 2] - normal[0, 2] * normal[1, 1]) / det
-            i11 = (normal[0, 0] * normal[2, 2] - normal[0, 2] * normal[2, 0]) / det
-            i12 = (normal[0, 2] * normal[1, 0] - normal[0, 0] * normal[1, 2]) / det
-            i21 = (normal[0, 1] * normal[2, 0] - normal[0, 0] * normal[2, 1]) / det
-            i22 = (normal[0, 0] * normal[1, 1] - normal[0, 1] * normal[1, 0]) / det
+            i00, i01, i02 = inv[0, 0], inv[0, 1], inv[0, 2]
+            i10, i11, i12 = inv[1, 0], inv[1, 1], inv[1, 2]
+            i20, i21, i22 = inv[2, 0], inv[2, 1], inv[2, 2]
             cov[s, 0, 0], cov[s, 0, 1], cov[s, 1, 0], cov[s, 1, 1] = i00, i01, i10, i11
             flux_var[s] = i22
             ok = True

@@ -32,6 +32,25 @@ def _profile(lo: float, centre: float, sigma: float, size: int, prob: np.ndarray
 
 
 @njit(cache=True, fastmath=False)
+def invert_3x3(a: np.ndarray, out: np.ndarray) -> bool:
+    """Write the inverse of the 3x3 matrix `a` into `out` by cofactors; False (out unchanged) when singular."""
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+    if not (det != 0.0 and math.isfinite(det)):
+        return False
+    out[0, 0], out[1, 0], out[2, 0] = c00 / det, c01 / det, c02 / det
+    out[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) / det
+    out[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) / det
+    out[1, 1] = (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]) / det
+    out[1, 2] = (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) / det
+    out[2, 1] = (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]) / det
+    out[2, 2] = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) / det
+    return True
+
+
+@njit(cache=True, fastmath=False)
 def fit_single_psf(windows, start, settings):
     """
     One pixel-integrated Gaussian PSF per window.
@@ -97,20 +116,8 @@ def fit_single_psf(windows, start, settings):
                 for b in range(a):
                     normal[a, b] = normal[b, a]
                 normal[a, a] += 1e-9 * abs(normal[a, a]) + 1e-300
-            # Inverse by cofactors (symmetric 3x3).
-            c00 = normal[1, 1] * normal[2, 2] - normal[1, 2] * normal[2, 1]
-            c01 = normal[1, 2] * normal[2, 0] - normal[1, 0] * normal[2, 2]
-            c02 = normal[1, 0] * normal[2, 1] - normal[1, 1] * normal[2, 0]
-            det = normal[0, 0] * c00 + normal[0, 1] * c01 + normal[0, 2] * c02
-            if not (det != 0.0 and math.isfinite(det)):
+            if not invert_3x3(normal, inv):
                 break
-            inv[0, 0], inv[1, 0], inv[2, 0] = c00 / det, c01 / det, c02 / det
-            inv[0, 1] = (normal[0, 2] * normal[2, 1] - normal[0, 1] * normal[2, 2]) / det
-            inv[0, 2] = (normal[0, 1] * normal[1, 2] - normal[0, 2] * normal[1, 1]) / det
-            inv[1, 1] = (normal[0, 0] * normal[2, 2] - normal[0, 2] * normal[2, 0]) / det
-            inv[1, 2] = (normal[0, 2] * normal[1, 0] - normal[0, 0] * normal[1, 2]) / det
-            inv[2, 1] = (normal[0, 1] * normal[2, 0] - normal[0, 0] * normal[2, 1]) / det
-            inv[2, 2] = (normal[0, 0] * normal[1, 1] - normal[0, 1] * normal[1, 0]) / det
             step_x = inv[0, 0] * grad[0] + inv[0, 1] * grad[1] + inv[0, 2] * grad[2]
             step_y = inv[1, 0] * grad[0] + inv[1, 1] * grad[1] + inv[1, 2] * grad[2]
             step_f = inv[2, 0] * grad[0] + inv[2, 1] * grad[1] + inv[2, 2] * grad[2]

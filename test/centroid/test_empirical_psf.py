@@ -65,18 +65,21 @@ def test_non_gaussian_stars_are_fitted_near_the_bound(psf, flux_e):
     assert ratio <= 1.2, f"RMS {ratio:.2f}x the Cramer-Rao bound"
 
 
+def _noiseless_windows(psf, x0, y0, half: int, flux_e: float):
+    """Windows of 2 half + 1 px around each star (x0, y0) [px] of flux_e, no noise: data, col0, row0."""
+    col0, row0 = np.rint(x0).astype(int) - half, np.rint(y0).astype(int) - half
+    stamps = np.stack([alt.star_stamp(psf, xk, yk, xk, yk).fractions for xk, yk in zip(x0, y0)])
+    # Stamps are centred on the star's pixel; cropped to the fit window.
+    lo = stamps.shape[1] // 2 - half
+    return flux_e * stamps[:, lo:lo + 2 * half + 1, lo:lo + 2 * half + 1], col0, row0
+
+
 def test_profile_of_a_ring_recovers_its_shape_and_the_stars():
     """Built from noiseless ring stars at known positions, the profile fits them back to ~0."""
     psf = alt.AnnulusPsf.with_equivalent_sigma(2.0)
     rng = np.random.default_rng(3)
     x0, y0 = rng.uniform(20, 21, 12), rng.uniform(20, 21, 12)
-    size, half = 17, 8
-    col0, row0 = np.rint(x0).astype(int) - half, np.rint(y0).astype(int) - half
-    windows = np.stack([alt.star_stamp(psf, xk, yk, xk, yk).fractions for xk, yk in zip(x0, y0)])
-    # Stamps are centred on the star's pixel; crop/pad them to the fit window.
-    stamp_half = windows.shape[1] // 2
-    lo = stamp_half - half
-    win = 1000.0 * windows[:, lo:lo + size, lo:lo + size]
+    win, col0, row0 = _noiseless_windows(psf, x0, y0, 8, 1000.0)
     valid = np.ones_like(win, bool)
     model = build_empirical_psf(win, valid, col0, row0, x0 + 0.2, y0 - 0.2, noise=1.0, gain=1.0)
     assert isinstance(model, EmpiricalPsf)
@@ -95,11 +98,7 @@ def test_a_cosmic_ray_in_one_template_star_does_not_shape_the_profile():
     psf = alt.AnnulusPsf.with_equivalent_sigma(3.0)
     rng = np.random.default_rng(9)
     x0, y0 = rng.uniform(30, 31, 30), rng.uniform(30, 31, 30)
-    size, half = 23, 11
-    col0, row0 = np.rint(x0).astype(int) - half, np.rint(y0).astype(int) - half
-    stamps = np.stack([alt.star_stamp(psf, xk, yk, xk, yk).fractions for xk, yk in zip(x0, y0)])
-    lo = stamps.shape[1] // 2 - half
-    clean = 30000.0 * stamps[:, lo:lo + size, lo:lo + size]
+    clean, col0, row0 = _noiseless_windows(psf, x0, y0, 11, 30000.0)
     hit = clean.copy()
     hit[0, 3, 12:15] += 20.0 * clean.max()
     valid = np.ones_like(clean, bool)
