@@ -14,9 +14,9 @@ from .candidates import Candidates
 from .config import blend_separation_px
 from .empirical_psf import MIN_TEMPLATE_STARS, build_empirical_psf, fit_empirical
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
-from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows, pixel_integrated_profile
+from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
-from .single_star_model import fit_frame_model
+from .single_star_model import fit_frame_model, window_shares
 from .spots import FLAG_BLENDED
 
 
@@ -190,17 +190,7 @@ def _misfits(win, valid, col0, row0, fit: PsfFit, context: FitContext, psf_model
     k = np.flatnonzero(bright)
     if k.size == 0:
         return out
-    size = win.shape[1]
-    if psf_model is not None:
-        steps = np.arange(size, dtype=float)
-        dx = (col0[k, None] + steps)[:, None, :] - fit.x[k, 0][:, None, None]
-        dy = (row0[k, None] + steps)[:, :, None] - fit.y[k, 0][:, None, None]
-        share, _, _ = psf_model.sample(*np.broadcast_arrays(dx, dy))
-    else:
-        steps = np.arange(size) - 0.5
-        px, _ = pixel_integrated_profile(col0[k, None] + steps, fit.x[k, 0][:, None], context.sigma)
-        py, _ = pixel_integrated_profile(row0[k, None] + steps, fit.y[k, 0][:, None], context.sigma)
-        share = py[:, :, None] * px[:, None, :]
+    share = window_shares(psf_model, col0[k], row0[k], fit.x[k, 0], fit.y[k, 0], win.shape[1], context.sigma)
     model = fit.flux[k, 0][:, None, None] * share
     use = valid[k]
     residual = np.where(use, win[k] - model, 0.0)

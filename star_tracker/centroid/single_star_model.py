@@ -83,18 +83,29 @@ def _refit(context: FitContext, psf, windows: PsfWindows, fit: PsfFit, start: Ps
     return PsfFit(x[:, None], y[:, None], flux[:, None], cov[:, None], ok[:, None], flux_var[:, None])
 
 
+def window_shares(psf, col0, row0, x, y, size: int, sigma: float) -> np.ndarray:
+    """
+    Return the (n, size, size) shares of unit-flux stars at (x, y) [px] in windows with top-left pixel (col0, row0).
+
+    psf: None for the round Gaussian of 1-sigma `sigma` [px], else any model with `sample`
+    (DoubleGaussianPsf through its separable profiles).
+    """
+    if psf is None:
+        psf = DoubleGaussianPsf(sigma, sigma, 0.0)
+    if isinstance(psf, DoubleGaussianPsf):
+        return psf.window_shares(col0, row0, x, y, size)
+    steps = np.arange(size, dtype=float)
+    dx = (np.asarray(col0, float)[:, None] + steps)[:, None, :] - np.asarray(x, float)[:, None, None]
+    dy = (np.asarray(row0, float)[:, None] + steps)[:, :, None] - np.asarray(y, float)[:, None, None]
+    share, _, _ = psf.sample(*np.broadcast_arrays(dx, dy))
+    return share
+
+
 def _median_chi2(psf, windows: PsfWindows, fit: PsfFit, rows: np.ndarray, context: FitContext) -> float:
     """Return the median reduced chi^2 of fits `rows` under `psf` (any model with `sample`)."""
     data, valid = windows.data[rows], windows.valid[rows]
-    size = data.shape[1]
-    col0, row0 = np.asarray(windows.col0, float)[rows], np.asarray(windows.row0, float)[rows]
-    if isinstance(psf, DoubleGaussianPsf):  # separable: its profiles per row and column
-        share = psf.window_shares(col0, row0, fit.x[rows, 0], fit.y[rows, 0], size)
-    else:
-        steps = np.arange(size, dtype=float)
-        dx = (col0[:, None] + steps)[:, None, :] - fit.x[rows, 0][:, None, None]
-        dy = (row0[:, None] + steps)[:, :, None] - fit.y[rows, 0][:, None, None]
-        share, _, _ = psf.sample(*np.broadcast_arrays(dx, dy))
+    share = window_shares(psf, np.asarray(windows.col0)[rows], np.asarray(windows.row0)[rows], fit.x[rows, 0],
+                          fit.y[rows, 0], data.shape[1], context.sigma)
     model = fit.flux[rows, 0][:, None, None] * share
     residual = np.where(valid, data - model, 0.0)
     chi2 = np.sum(residual ** 2 / (np.maximum(model, 0.0) / context.gain + context.noise ** 2), axis=(1, 2))
