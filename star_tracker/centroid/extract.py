@@ -196,14 +196,15 @@ def _finish(measurement: _Measurement) -> Spots:
     if measurement.frame is None:
         return measurement.empty
     m = measurement
-    spots, added, clipping = m.spots, [], m.clipping
+    spots, added, clipping, fit_model = m.spots, [], m.clipping, ""
     if m.context.config.method not in ("cog", "wcog"):
-        spots, added, clipping = _fit_spots(m.context, m.kept, spots, clipping, m.multi, m.aid, m.track_peaks or {})
+        spots, added, clipping, fit_model = _fit_spots(m.context, m.kept, spots, clipping, m.multi, m.aid,
+                                                       m.track_peaks or {})
     wide = np.flatnonzero(clipping.saturated & ~clipping.fitted)
     if wide.size:
         spots = spots.with_values(wide, cov=m.kept.moment_covariance(wide))
     result = _assemble(m.context, SpotRows.concatenate([spots, *added]), m.rejected_shape, m.frame_values)
-    return replace(result, rate_aid_rejected=True) if m.rate_aid_rejected else result
+    return replace(result, rate_aid_rejected=m.rate_aid_rejected, fit_model=fit_model)
 
 
 def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False,
@@ -440,16 +441,18 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
             else:
                 spots = spots.with_values(np.array([t]), snr=0.0)
     elif multi.any():
-        spots, more, _ = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)
+        spots, more = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)[:2]
         added.append(more)
+    fit_model = ""
     if as_point.any():
-        spots, more, _ = fit_points(context, kept, spots, np.flatnonzero(as_point), clipping.excluded)
+        outcome = fit_points(context, kept, spots, np.flatnonzero(as_point), clipping.excluded)
+        spots, more, fit_model = outcome.spots, outcome.added, outcome.model
         added.append(more)
     if clipped_point.any():
         outcome = fit_clipped_points(context, spots, np.flatnonzero(clipped_point), clipping.excluded)
         spots, fitted[clipped_point] = outcome.spots, outcome.converged
     if as_streak.any():
-        spots, more, _ = fit_streak_spots(context, kept, spots, np.flatnonzero(as_streak), aid, clipping.excluded)
+        spots, more = fit_streak_spots(context, kept, spots, np.flatnonzero(as_streak), aid, clipping.excluded)[:2]
         added.append(more)
         fitted |= as_streak & ((spots.flags & FLAG_STREAK) != 0)
     path_fitted = (spots.flags & FLAG_RATE_AIDED) != 0
@@ -457,7 +460,7 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     spots, more, clipping = _refit_undershot(context, kept, spots, replace(clipping, fitted=fitted), probe, aid)
     if beside_track.size:
         spots = spots.with_values(beside_track, snr=0.0)
-    return spots, added + [more], clipping
+    return spots, added + [more], clipping, fit_model
 
 
 # A frame is judged static (its stars round) from at least ROUND_FRAME_MIN_SPOTS spots of SNR >=
@@ -500,7 +503,7 @@ def _refit_undershot(context: FitContext, kept: Candidates, spots: SpotRows, cli
         outcome = fit_clipped_points(context, spots, points, excluded)
         spots, fitted[points] = outcome.spots, outcome.converged
     if streaks.size:
-        spots, added, _ = fit_streak_spots(context, kept, spots, streaks, aid, excluded)
+        spots, added = fit_streak_spots(context, kept, spots, streaks, aid, excluded)[:2]
         fitted[streaks] = spots.snr[streaks] > 0
     return spots, added, _Clipping(clip, excluded, fitted)
 

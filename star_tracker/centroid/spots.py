@@ -43,7 +43,11 @@ class Spots:
     rate_aid_rejected: a body rate was given but the streaks in the image disagreed with it, so
     the frame was measured without it (rate_aid.AID_* rules); psf: the frame's PSF as the
     centroider estimated or assumed it (psf_estimate.PsfEstimate; None for spots that did not
-    come from an image, e.g. Spots.from_xy or a decoded message).
+    come from an image, e.g. Spots.from_xy or a decoded message); fit_model: what the single
+    point-like stars were fitted with (centroid/single_star_model.py): "gaussian" (round),
+    "elliptical" (the estimate's astigmatic shape), "core_halo" (two Gaussians fitted to the
+    frame's bright stars), "template" (the frame's own radial profile: rings, strong misfits);
+    "" when no point star was fitted.
 
     The record checks its arrays when built (every frame, so only cheap checks): numpy arrays,
     x of shape (N,) and every other per-spot array of the same length, cov (N, 2, 2), float
@@ -69,6 +73,7 @@ class Spots:
     streak_angle: np.ndarray | None = None
     rate_aid_rejected: bool = False
     psf: "PsfEstimate | None" = None
+    fit_model: str = ""
 
     def __post_init__(self) -> None:
         n = np.asarray(self.x).size

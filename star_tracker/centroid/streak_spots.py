@@ -74,7 +74,7 @@ def fit_streak_spots(context: FitContext, kept: Candidates, spots: SpotRows, whi
                               flags=spots.flags[t] | fit_flag, snr=snr)
     added = no_spots()
     if smear is not None and good.any():
-        spots, added, _ = split_merged_streaks(context, residual, fit, which, path, spots, excluded)
+        spots, added = split_merged_streaks(context, residual, fit, which, path, spots, excluded)[:2]
     # A spot the streak model could not describe is not reported when it should be a streak
     # (rate aided, or elongated: a fragment or a defect); a point-like one keeps its centroid.
     # So does a saturated one: a clipped star is the brightest in its field (a bloomed 8-bit

@@ -346,7 +346,8 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
                          "sigma_minor_px": psf.sigma_minor_px, "angle_deg": math.degrees(psf.angle_rad),
                          "sigma_uncertainty_px": None if math.isnan(psf.sigma_uncertainty_px)
                          else psf.sigma_uncertainty_px, "stars": psf.stars, "source": psf.source,
-                         "reason": psf.reason, "applied_sigma_px": psf.applied_sigma_px, "annular": psf.annular}
+                         "reason": psf.reason, "applied_sigma_px": psf.applied_sigma_px, "annular": psf.annular,
+                         "fit_model": getattr(spots, "fit_model", "")}
     ident = result.identification
     if ident is None:
         record.update(unsolved_summary(result.attempts))
@@ -450,6 +451,11 @@ def calibration_summary(calibration: dict) -> str:
             "stars")
 
 
+FIT_MODEL_TEXT = {"elliptical": ", stars fitted with its elliptical shape",
+                  "core_halo": ", stars fitted with a core and halo (wings)",
+                  "template": ", stars fitted with the image's own profile"}
+
+
 def psf_summary(psf: dict) -> str:
     """One line on the PSF the centroider used (solution_record's "psf")."""
     if psf["source"] == "estimated":
@@ -457,6 +463,7 @@ def psf_summary(psf: dict) -> str:
                 f"stars (major {psf['sigma_major_px']:.2f}, minor {psf['sigma_minor_px']:.2f} px at "
                 f"{psf['angle_deg']:+.0f} deg)")
         text += ", ring stars (a defocused PSF)" if psf.get("annular") else ""
+        text += FIT_MODEL_TEXT.get(psf.get("fit_model", ""), "")
         return text + (f", measured with the prior {psf['applied_sigma_px']:.2f} px"
                        if psf["applied_sigma_px"] != psf["sigma_px"] else "")
     if psf["source"] == "prior":

@@ -223,6 +223,7 @@ class CentroiderNode(ManagedNode):
                       last_noise_adu=f"{spots.noise_adu:.2f}",
                       rate_aided=str(smear is not None and not spots.rate_aid_rejected),
                       rate_source=self.rate_source,
+                      psf_fit_model=spots.fit_model or "-",
                       **psf_values(spots.psf))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:

@@ -95,7 +95,7 @@ def test_a_gaussian_frame_keeps_the_gaussian(monkeypatch):
         rng = np.random.default_rng([23, seed])
         x, y = alt.place_stars(SIZE, SIZE, 50, 12.0, 12.0, rng)
         frame = alt.render(alt.StarField.build(alt.GaussianPsf(0.6), x, y), 30000.0, DETECTOR, SIZE, SIZE, rng)
-        extract_spots(frame.image, CentroidConfig())
+        assert extract_spots(frame.image, CentroidConfig()).fit_model == "gaussian"
     assert chosen and all(model is None for model in chosen)
 
 
@@ -103,7 +103,10 @@ def test_undersampled_stars_with_wings_are_centred_near_the_cramer_rao_bound():
     # Moffat beta 3 of FWHM 0.94 px (equivalent sigma 0.4 px), 5000 e- (SNR ~65), the width
     # unknown to the centroider: one Gaussian read 1.74x the bound on these frames (its
     # centre pulled with the sub-pixel phase); the frame's core/halo shape reads 1.09x.
+    def with_wings(spots):
+        assert spots.fit_model == "core_halo"
+
     ratio, found, scored = rms_over_crb(alt.MoffatPsf(0.4 / alt.SIGMA_PER_FWHM, beta=3.0), 5000.0,
-                                        [[0, seed] for seed in range(4)], clear_px=5.0)
+                                        [[0, seed] for seed in range(4)], clear_px=5.0, check=with_wings)
     assert found >= 0.99 * scored
     assert ratio < 1.25, ratio

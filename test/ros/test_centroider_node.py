@@ -138,5 +138,6 @@ def test_centroider_estimates_the_psf_and_reports_it(tmp_path, monkeypatch):
     assert float(diag["psf_sigma_px"]) == pytest.approx(0.6, rel=0.05)
     assert int(diag["psf_stars"]) >= 5 and float(diag["psf_sigma_uncertainty_px"]) < 0.03
     assert float(diag["psf_elongation"]) < 1.2
+    assert diag["psf_fit_model"] == "gaussian"  # our simulator's PSF is a Gaussian
     frames, diag = run_pipeline(tmp_path / "streaks", monkeypatch, {"rate_source": "none"})
     assert diag["psf_source"] == "prior" and float(diag["psf_sigma_px"]) == 1.0 and diag["psf_reason"] != "-"
