@@ -17,6 +17,7 @@ refitted with the shape, the shape fitted again (SHAPE_PASSES).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -36,6 +37,7 @@ class DoubleGaussianPsf:
     core_px: float
     halo_px: float
     halo_share: float
+    label: ClassVar[str] = "core_halo"  # its name in Spots.fit_model
 
     def sample(self, dx: np.ndarray, dy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Share of the flux in the pixel centred at offset (dx, dy) [px] from the star, and its derivatives [1/px]."""

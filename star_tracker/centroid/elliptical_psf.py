@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import ClassVar
 
 import math
 
@@ -45,6 +46,7 @@ class EllipticalGaussianPsf:
     major_px: float
     minor_px: float
     angle_rad: float
+    label: ClassVar[str] = "elliptical"  # its name in Spots.fit_model
 
     @cached_property
     def _covariance(self) -> tuple[float, float, float]:

@@ -142,7 +142,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
             # test at their minor axis, which the prior's rejected some of them at.
             measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, narrowest_px=width,
                                       elliptical=elliptical)
-        elif elliptical is not None and measured.context.own_psf:
+        elif elliptical is not None:
             measured = replace(measured, context=replace(measured.context, elliptical=elliptical))
         return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
     spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, rings=estimate.annular,
@@ -203,8 +203,8 @@ def _finish(measurement: _Measurement) -> Spots:
     wide = np.flatnonzero(clipping.saturated & ~clipping.fitted)
     if wide.size:
         spots = spots.with_values(wide, cov=m.kept.moment_covariance(wide))
-    result = _assemble(m.context, SpotRows.concatenate([spots, *added]), m.rejected_shape, m.frame_values)
-    return replace(result, rate_aid_rejected=m.rate_aid_rejected, fit_model=fit_model)
+    result = _assemble(m.context, SpotRows.concatenate([spots, *added]), m.rejected_shape, m.frame_values, fit_model)
+    return replace(result, rate_aid_rejected=True) if m.rate_aid_rejected else result
 
 
 def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False,
@@ -232,7 +232,7 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     # A known rate that smears the stars by more than EMPIRICAL_MAX_SMEAR_PX (aided or not)
     # shapes them, not the optics: no empirical PSF.
     still = smear is None or typical_smear_px(smear, width, height) < EMPIRICAL_MAX_SMEAR_PX
-    context = FitContext(image, det, config, sigma, rings, own_psf=still, elliptical=elliptical if still else None)
+    context = FitContext(image, det, config, sigma, rings, own_psf=still, elliptical=elliptical)
     cand = measure_candidates(image, det, config, sigma, find_blends=config.split_blends and aid is None, rings=rings,
                               streaks_expected=aid is not None)
     narrowest = sigma if narrowest_px is None else min(sigma, narrowest_px)
@@ -508,9 +508,10 @@ def _refit_undershot(context: FitContext, kept: Candidates, spots: SpotRows, cli
     return spots, added, _Clipping(clip, excluded, fitted)
 
 
-def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_values: dict) -> Spots:
+def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_values: dict,
+              fit_model: str = "") -> Spots:
     """
-    `Spots` from the measured table.
+    `Spots` from the measured table (fit_model: Spots.fit_model).
 
     SNR and covariance scaled to the local noise, spots outside the image or below min_snr
     dropped, the brightest max_spots kept, by flux.
@@ -530,7 +531,7 @@ def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_v
     return Spots(x=x[order], y=y[order], flux=spots.flux[order], snr=snr[order], cov=cov[order],
                  flags=spots.flags[order], area=spots.area[order].astype(np.int32), peak=spots.peak[order],
                  width=width, height=height, rejected_shape=rejected_shape, streak_length=spots.length[order],
-                 streak_angle=spots.angle[order], **frame_values)
+                 streak_angle=spots.angle[order], fit_model=fit_model, **frame_values)
 
 
 def _local_noise_factor(context: FitContext, x, y, flux) -> np.ndarray:

@@ -115,15 +115,12 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         # astigmatic PSF): the frame's own PSF fits every one.
         rows, stars = _template_fits(context, win[single], valid[single], col0[single], row0[single], fit,
                                      not_gaussian, spots.x[which[single]], spots.y[which[single]])
-        label = MODEL_LABELS[type(model).__name__]
+        label = "gaussian" if model is None else model.label
         if rows.size:
             spots = spots.with_stars(which[single[rows]], stars)
             label = "template"
         return FitOutcome(spots, added, None, label)
     return FitOutcome(spots, added)
-
-
-MODEL_LABELS = {"NoneType": "gaussian", "EllipticalGaussianPsf": "elliptical", "DoubleGaussianPsf": "core_halo"}
 
 
 def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, misfit: np.ndarray, x, y
