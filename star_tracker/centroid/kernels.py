@@ -334,6 +334,9 @@ def _measure_small(image, spots, settings):
     big = size + search_margin
     r_ap = min(max(2.5, 3.0 * sigma), float(half))
     r_snr = max(1.5, 1.6 * sigma)
+    # The seed box: 3x3, or the PSF's core for wide PSFs (a faint wide star's brightest 3x3 is noise
+    # a pixel or two off its centre, and its SNR aperture with it).
+    seed_half = max(1, int(sigma + 0.5))
     out_x = np.full(n, np.nan)
     out_y = np.full(n, np.nan)
     out_flux = np.full(n, np.nan)
@@ -393,7 +396,7 @@ def _measure_small(image, spots, settings):
         out_cleaned[s] = hit_any
         search[s] = win
         search_valid[s] = valid
-        # Seed: brightest 3x3 sum in the footprint box, kept half a window from the border.
+        # Seed: brightest box sum in the footprint box, kept half a window from the border.
         row_lo = min(max(top[s] - r0, lo), hi)
         row_hi = min(max(bottom[s] - r0, lo + 1), hi + 1)
         col_lo = min(max(left[s] - c0, lo), hi)
@@ -404,8 +407,8 @@ def _measure_small(image, spots, settings):
                 if not (row_lo <= i < row_hi and col_lo <= j < col_hi):
                     continue
                 total = np.float32(0.0)
-                for a in range(-1, 2):
-                    for b in range(-1, 2):
+                for a in range(-seed_half, seed_half + 1):
+                    for b in range(-seed_half, seed_half + 1):
                         total += np.float32(win[i + a, j + b])
                 if total > best:
                     best, br, bc = total, i, j
