@@ -27,6 +27,7 @@ from .common import (CommandError, add_parser, database_config_for, guarded, non
 
 NAME = "solve"
 MAX_REFINE_ROUNDS = 5
+MARGINAL_LOSS = 0.02  # share of the matched stars a refined camera fitted to more stars may lose
 ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
 
 
@@ -251,7 +252,13 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
                                 "refined": True, "stars": int(final.hip.size), "fitted": list(calibration.fitted)})
         grew = final.solved and final.hip.size > result.identification.hip.size
         # As many stars: keep the camera fitted to the most stars (the one reported with them).
-        if final.solved and final.hip.size >= result.identification.hip.size:
+        # A camera fitted to more stars than the kept one's is kept too when its identification
+        # lost only a marginal match or two: else a camera fitted to a first, smaller star set is
+        # reported with the larger one found through it.
+        fitted_to_more = result.calibration is None or calibration.stars > result.calibration.stars
+        if final.solved and (final.hip.size >= result.identification.hip.size
+                             or fitted_to_more and final.hip.size >= result.identification.hip.size
+                             - max(1, round(MARGINAL_LOSS * result.identification.hip.size))):
             result.identification, result.camera, result.calibration = final, refined, calibration
             result.focal_sigma_px = calibration.sigma["f"]
         if not grew:

@@ -120,6 +120,18 @@ def test_real_image_solved_within_one_arcminute(image_id):
         assert boresight <= ARCMIN, f"{image_id}: {boresight / ARCMIN:.2f}' from the reference"
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("image_id", _ids_or_skip())
+def test_real_image_camera_is_fitted_to_the_stars_it_is_reported_with(image_id):
+    # A refinement round whose identification lost a marginal match once kept the previous round's
+    # camera, fitted to 98 of unh_DSC_0059's 142 reported stars (k2 and the principal point unfitted).
+    code, record, _ = _solve(image_id)
+    calibration = (record or {}).get("camera", {}).get("calibration")
+    if code != 0 or calibration is None:
+        pytest.skip(f"{image_id}: not solved or no camera refined")
+    assert calibration["stars"] >= 0.9 * len(record["matched"]), (calibration, len(record["matched"]))
+
+
 def _rotation(record: dict):
     import numpy as np
 
