@@ -31,25 +31,25 @@ KNOWN_SHORT = {
     # its siblings img7 and img8 (no reference either) solve since noise clumps are no longer
     # measured as streaks.
     "openstartracker_img1": "not solved: no pattern matched, no stepped field identified",
-    "gran_IMG_007985": "1.9' off (the peers 84-88\" off); astrometry.net on our 150 spots matches only 12 stars "
-                       "and its SIP 3-4 centres lie 4.8-7.7' from ours: not settled",
-    # Wide-field lenses: 1-2.3' off although k1, k2 and the principal point are fitted. The
-    # reference WCS misplaces its own matched stars (.anet.corr) by 0.75-3.2 px median where our
-    # fitted camera does 0.17-0.65 px (calib's check), and astrometry.net itself, given our spot
-    # list, lands 5-21" from our solve at SIP order 3-4 and 58-125" from that reference
-    # (docs/BENCHMARKS.md § Real images: the references checked): the miss is the reference's.
-    "ubst_webcam_w1": "1-2.3' off: the reference's own residuals 0.9 px vs ours 0.65 px; astrometry.net's own "
-                      "centre moves 2.7' between SIP orders on our spots (not settled)",
-    "lost_img_7660": "1-2.3' off: astrometry.net on our spots (SIP 3-4) is 16-21\" from ours, "
-                     "58-59\" from the reference",
-    "gran_casiopea_01seg_gain_max": "1-2.3' off: astrometry.net on our spots (SIP 3-4) 17-19\" from ours, "
-                                    "123-125\" from the reference",
-    "gran_polar_05sec": "1-2.3' off: astrometry.net on our spots (SIP 3-4) 9-10\" from ours, "
-                        "89-91\" from the reference",
-    "gran_polar_30sec": "1-2.3' off: astrometry.net on our spots (SIP 3-4) 14-20\" from ours, "
-                        "62-86\" from the reference",
-    "gran_sagitario_2seg_gain_max": "1-2.3' off: astrometry.net on our spots (SIP 3-4) 5-8\" from ours, "
-                                    "107-108\" from the reference",
+    "gran_IMG_007985": "1.9' off (the peers 84-88\" off); astrometry.net on the image itself (80-102 matches, "
+                       "mostly in its top half) moves its centre 170-174\" between SIP orders: not settled",
+    # Wide-field lenses: 1-2.3' off although k1, k2 and the principal point are fitted. astrometry.net on
+    # the image itself (its own extraction, not our spots), re-verified against the densest Tycho-2
+    # index that fits (260-2133 matches), lands 2-21" from our solve at SIP orders 2-4 and 52-137" from
+    # the reference, a few-star order-2 fit (docs/BENCHMARKS.md § Real images: the references checked
+    # on the images themselves): the miss is the reference's. Two are not settled by it either.
+    "ubst_webcam_w1": "1-2.3' off; astrometry.net on the image itself (34-43 matches) moves its centre 91-212\" "
+                      "between SIP orders: not settled",
+    "lost_img_7660": "the reference's miss: astrometry.net on the image, 1293-1468 matches, 3-14\" from ours, "
+                     "52-68\" from the reference",
+    "gran_casiopea_01seg_gain_max": "the reference's miss: astrometry.net on the image, 259-260 matches, 5-7\" "
+                                    "from ours, 133-137\" from the reference",
+    "gran_polar_05sec": "the reference's miss (a TAN-only fit): astrometry.net on the image, 409-423 matches, "
+                        "4-7\" from ours, 94-99\" from the reference",
+    "gran_polar_30sec": "the reference's miss: astrometry.net on the image, 2131-2133 matches, 19-21\" from ours, "
+                        "78-82\" from the reference",
+    "gran_sagitario_2seg_gain_max": "the reference's miss: astrometry.net on the image, 1010-1037 matches, 2\" "
+                                    "from ours, 103-106\" from the reference",
 }
 
 
