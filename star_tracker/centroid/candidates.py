@@ -39,7 +39,9 @@ class Candidates:
     intensity-weighted centre of gravity and its covariance; has_window: a small spot that
     keeps its cleaned fit window `window` (n, S, S) with mask `window_valid` and top-left pixel
     (window_col0, window_row0); peaks: per spot, (K, 2) full-resolution (x, y) of separate
-    peaks (K >= 2: a blend); detection: index of each candidate in the Detections.
+    peaks (K >= 2: a blend); detection: index of each candidate in the Detections; cut_snr: the
+    SNR the defect test and the first cut judge (snr, or where a hot pixel was cleaned from a
+    footprint, the SNR of a PSF-sized disk around its centre of gravity when higher).
     """
 
     x: np.ndarray
@@ -65,6 +67,7 @@ class Candidates:
     window_row0: np.ndarray
     peaks: list
     detection: np.ndarray
+    cut_snr: np.ndarray
 
     def take(self, index: np.ndarray) -> "Candidates":
         """Return the candidates at integer `index`, in that order."""
@@ -128,7 +131,7 @@ def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfi
     m = det.x.size
     small = ((det.right - det.left) <= big - 2) & ((det.bottom - det.top) <= big - 2)
     out = {k: np.full(m, np.nan) for k in ("x", "y", "flux", "snr", "minor", "major", "angle", "peak", "peak_raw",
-                                           "wx", "wy")}
+                                           "wx", "wy", "disk_snr")}
     out["cov"], out["wcov"] = np.full((m, 2, 2), np.nan), np.full((m, 2, 2), np.nan)
     out["edge"], out["cleaned"] = np.zeros(m, bool), np.zeros(m, bool)
     out["window"], out["window_valid"] = np.zeros((m, size, size)), np.zeros((m, size, size), bool)
@@ -141,7 +144,11 @@ def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfi
     large = np.flatnonzero(~small)
     if large.size:
         _measure_large(image, det, config, sigma, large, out, find_blends, rings, streaks_expected)
-    return Candidates(area=det.area.astype(np.int64), detection=np.arange(m), **out)
+    cut_snr = out["snr"].copy()
+    if large.size:
+        cut_snr[large] = np.fmax(cut_snr[large], out.pop("disk_snr")[large])
+    out.pop("disk_snr", None)
+    return Candidates(area=det.area.astype(np.int64), detection=np.arange(m), cut_snr=cut_snr, **out)
 
 
 def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False,
@@ -213,6 +220,13 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings
         wmom = aperture_moments(win, use, col0, row0, noise, gain, power=2) if config.method == "wcog" else mom
         for key in ("x", "y", "flux", "snr", "peak", "cov"):
             out[key][members] = getattr(mom, key)
+        # A footprint with a hot pixel cleaned from it is a defect when nothing is left (cut_snr <
+        # min_snr); a wide faint star merged with one holds far more noise pixels than light: judged
+        # by the SNR of a PSF-sized disk around its centre of gravity.
+        cleaned = hit.any(axis=(1, 2))
+        out["disk_snr"][members[cleaned]] = _disk_snr(win[cleaned], use[cleaned], mom.x[cleaned] - col0[cleaned],
+                                                      mom.y[cleaned] - row0[cleaned], max(1.5, 1.6 * sigma), noise,
+                                                      gain)
         out["major"][members], out["angle"][members] = shape.major, shape.angle
         out["minor"][members] = np.where(shape.peak >= 10.0 * noise, shape.minor, np.inf)
         out["wx"][members], out["wy"][members], out["wcov"][members] = wmom.x, wmom.y, wmom.cov
@@ -222,6 +236,23 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings
         out["cleaned"][members] = hit.any(axis=(1, 2))
         _footprint_shape(_FootprintWindows(win, labels & valid, valid, use, col0, row0), members, out, det, config,
                          sigma, find_blends, rings, streaks_expected)
+
+
+def _disk_snr(windows: np.ndarray, use: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: float, noise: float,
+              gain: float) -> np.ndarray:
+    """
+    SNR of the pixels in `use` within `radius` [px] of (cx, cy) [px, window coordinates] of each window (n, R, C).
+
+    Variance per pixel max(r, 0) / gain + noise^2 [ADU^2]; NaN where the disk holds no pixel.
+    """
+    _, rows, cols = windows.shape
+    dx = np.arange(cols)[None, None, :] - cx[:, None, None]
+    dy = np.arange(rows)[None, :, None] - cy[:, None, None]
+    disk = use & (dx * dx + dy * dy <= radius * radius)
+    signal = np.where(disk, windows, 0.0).sum(axis=(1, 2))
+    variance = np.where(disk, np.maximum(windows, 0.0) / gain + noise * noise, 0.0).sum(axis=(1, 2))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(variance > 0, signal / np.sqrt(variance), np.nan)
 
 
 def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False,

@@ -292,7 +292,7 @@ def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narro
             # A faint star's peak share is as noisy as its flux: the limit widened by 2 of its sigmas.
             sharp_limit = np.minimum(peak_fraction_limit(config, sigma) * (1.0 + 2.0 / np.fmax(cand.snr, 2.0)),
                                      0.95)
-        other = (cand.cleaned & (cand.snr < config.min_snr)) | (sharp > sharp_limit)
+        other = (cand.cleaned & (cand.cut_snr < config.min_snr)) | (sharp > sharp_limit)
         thin = (cand.snr >= config.shape_min_snr) & (cand.minor < config.min_width_fraction * narrowest ** 2)
         finite = np.isfinite(cand.x)
         rejected = (other | thin) & finite
@@ -353,7 +353,7 @@ def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate
     first_cut = np.where(streaky, 0.4 * config.min_snr, config.min_snr)
     local = _local_noise_factor(context, cand.x, cand.y, cand.flux)
     keep = np.flatnonzero(~rejected & np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.flux > 0)
-                          & (cand.snr / np.sqrt(local) >= first_cut) & (cand.area >= config.min_area))
+                          & (cand.cut_snr / np.sqrt(local) >= first_cut) & (cand.area >= config.min_area))
     limit = FIT_CANDIDATES_PER_SPOT * config.max_spots
     if keep.size > limit:
         keep = np.sort(keep[np.argsort(-cand.flux[keep], kind="stable")[:limit]])

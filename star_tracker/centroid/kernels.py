@@ -311,14 +311,70 @@ def read_only(image: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def _clean_search_window(image, c0, r0, bg, ratio_limit, noise, raw, win, valid):
+    """
+    Fill the search window (top-left pixel (c0, r0)) from `image` less `bg`, hot pixels cleaned.
+
+    raw, win, valid (big, big) are overwritten; returns whether a hot pixel was cleaned. The
+    4-neighbour test of measure.clean_hot_pixels: interior rows only (as the stacked OpenCV pass),
+    replicate at the columns.
+    """
+    height, width = image.shape
+    big = win.shape[0]
+    for i in range(big):
+        for j in range(big):
+            rr, cc = r0 + i, c0 + j
+            inside = 0 <= rr < height and 0 <= cc < width
+            valid[i, j] = inside
+            raw[i, j] = float(image[min(max(rr, 0), height - 1), min(max(cc, 0), width - 1)]) if inside else 0.0
+            win[i, j] = raw[i, j] - bg if inside else 0.0
+    hit_any = False
+    cleaned = win.copy()
+    for i in range(1, big - 1):
+        for j in range(big):
+            if not valid[i, j]:
+                continue
+            up = np.float32(win[i - 1, j])
+            down = np.float32(win[i + 1, j])
+            lft = np.float32(win[i, j - 1] if j > 0 else win[i, j])
+            rgt = np.float32(win[i, j + 1] if j < big - 1 else win[i, j])
+            brightest = max(max(up, down), max(lft, rgt))
+            if win[i, j] > ratio_limit * max(float(brightest), 0.0) + 5.0 * noise:
+                hit_any = True
+                cleaned[i, j] = float(np.float32(0.25) * (up + down + lft + rgt))
+    win[:, :] = cleaned
+    return hit_any
+
+
+@njit(cache=True)
+def _brightest_box(win, seed_half, row_lo, row_hi, col_lo, col_hi):
+    """
+    Return (sum, row, col) of the brightest (2 seed_half + 1)^2 box sum of `win`.
+
+    Over the box centres in rows [row_lo, row_hi) and columns [col_lo, col_hi); row -1 if none.
+    """
+    best, br, bc = -np.inf, -1, -1
+    for i in range(row_lo, row_hi):
+        for j in range(col_lo, col_hi):
+            total = np.float32(0.0)
+            for a in range(-seed_half, seed_half + 1):
+                for b in range(-seed_half, seed_half + 1):
+                    total += np.float32(win[i + a, j + b])
+            if total > best:
+                best, br, bc = total, i, j
+    return best, br, bc
+
+
+@njit(cache=True)
 def _measure_small(image, spots, settings):
     """
     Compute the point-window measurements of candidates.measure_candidates, compiled.
 
     Per spot n: a search window of (2 half + 1 + search_margin)^2 around (cx, cy) [px] minus
     bg [ADU], hot pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels),
-    re-centred on the brightest 3x3 sum inside the footprint box (top/bottom/left/right,
-    full-resolution px), then a (2 half + 1)^2 window measured in a circular aperture
+    re-centred on the brightest box sum (3x3, wider for wide PSFs) inside the footprint box
+    (top/bottom/left/right, full-resolution px; the search window itself is re-centred once
+    on a seed lying beyond half a window from its border), then a (2 half + 1)^2 window measured in a circular aperture
     (measure.aperture_moments: centre of gravity, covariance, second moments; with `weighted`
     also the intensity-weighted centre), SNR in the near-optimal aperture, brightest raw
     value, edge flag. ratio_limit = inf switches the cleaning off. spots: SmallSpots;
@@ -369,49 +425,27 @@ def _measure_small(image, spots, settings):
     for s in range(n):
         c0 = int(np.rint(cx[s])) - big // 2
         r0 = int(np.rint(cy[s])) - big // 2
+        # The search window is centred on the footprint's centroid; a star at one end of a long
+        # footprint (a faint wide star merged with a hot pixel) lies beyond the seeds half a window
+        # from its border: the window is then centred on the star's seed once and searched again.
+        for attempt in range(2):
+            hit_any = _clean_search_window(image, c0, r0, bg[s], ratio_limit, noise, raw, win, valid)
+            row_lo, row_hi = top[s] - r0, bottom[s] - r0
+            col_lo, col_hi = left[s] - c0, right[s] - c0
+            if attempt == 0:
+                best, br, bc = _brightest_box(win, seed_half, max(row_lo, seed_half), min(row_hi, big - seed_half),
+                                              max(col_lo, seed_half), min(col_hi, big - seed_half))
+                if br < 0 or (lo <= br <= hi and lo <= bc <= hi):
+                    break
+                c0, r0 = c0 + bc - big // 2, r0 + br - big // 2
+                continue
+            # Seed: brightest box sum in the footprint box, kept half a window from the border.
+            best, br, bc = _brightest_box(win, seed_half, min(max(row_lo, lo), hi), min(max(row_hi, lo + 1), hi + 1),
+                                          min(max(col_lo, lo), hi), min(max(col_hi, lo + 1), hi + 1))
         c0_out[s], r0_out[s] = c0, r0
-        for i in range(big):
-            for j in range(big):
-                rr, cc = r0 + i, c0 + j
-                inside = 0 <= rr < height and 0 <= cc < width
-                valid[i, j] = inside
-                raw[i, j] = float(image[min(max(rr, 0), height - 1), min(max(cc, 0), width - 1)]) if inside else 0.0
-                win[i, j] = raw[i, j] - bg[s] if inside else 0.0
-        # Hot pixels: interior rows only (as the stacked OpenCV pass), replicate at the columns.
-        hit_any = False
-        cleaned = win.copy()
-        for i in range(1, big - 1):
-            for j in range(big):
-                if not valid[i, j]:
-                    continue
-                up = np.float32(win[i - 1, j])
-                down = np.float32(win[i + 1, j])
-                lft = np.float32(win[i, j - 1] if j > 0 else win[i, j])
-                rgt = np.float32(win[i, j + 1] if j < big - 1 else win[i, j])
-                brightest = max(max(up, down), max(lft, rgt))
-                if win[i, j] > ratio_limit * max(float(brightest), 0.0) + 5.0 * noise:
-                    hit_any = True
-                    cleaned[i, j] = float(np.float32(0.25) * (up + down + lft + rgt))
-        win[:, :] = cleaned
         out_cleaned[s] = hit_any
         search[s] = win
         search_valid[s] = valid
-        # Seed: brightest box sum in the footprint box, kept half a window from the border.
-        row_lo = min(max(top[s] - r0, lo), hi)
-        row_hi = min(max(bottom[s] - r0, lo + 1), hi + 1)
-        col_lo = min(max(left[s] - c0, lo), hi)
-        col_hi = min(max(right[s] - c0, lo + 1), hi + 1)
-        best, br, bc = -np.inf, -1, -1
-        for i in range(big):
-            for j in range(big):
-                if not (row_lo <= i < row_hi and col_lo <= j < col_hi):
-                    continue
-                total = np.float32(0.0)
-                for a in range(-seed_half, seed_half + 1):
-                    for b in range(-seed_half, seed_half + 1):
-                        total += np.float32(win[i + a, j + b])
-                if total > best:
-                    best, br, bc = total, i, j
         if br < 0:
             continue
         col0, row0 = c0 + bc - half, r0 + br - half

@@ -1,12 +1,15 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The pre-fit SNR of a faint, wide star is measured where the star is.
+The pre-fit measurement of a faint, wide star is made where the star is.
 
 The first cut (extract._first_cut) keeps a candidate for the fits by its aperture SNR; the
 aperture is centred on the candidate's seed. A wide (defocused) faint star's brightest 3x3 pixel
 sum is noise a pixel or two off its centre: the aperture then missed part of the star and the
 cut dropped stars of SNR 10 (bench_psf_range: alt Gaussian sigma 3 @ 1000 e-, 98.95 % detected).
-The seed box now spans the PSF's core. Frames from bench/alt_renderer.py (not our simulator).
+The seed box now spans the PSF's core. Beside a bright hot pixel such a star shares one
+footprint with it: the search window, centred on that footprint, could not reach the star, and a
+footprint too large for it was judged by its whole area's SNR. Frames from bench/alt_renderer.py
+(not our simulator).
 """
 from __future__ import annotations
 
@@ -20,7 +23,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
 from bench import alt_renderer as alt  # noqa: E402
 
-from star_tracker.centroid import CentroidConfig  # noqa: E402
+from star_tracker.centroid import CentroidConfig, extract_spots  # noqa: E402
 from star_tracker.centroid.candidates import measure_candidates  # noqa: E402
 from star_tracker.centroid.detect import detect  # noqa: E402
 
@@ -60,3 +63,26 @@ def test_faint_wide_stars_are_measured_at_their_centre_before_the_fits(sigma):
     ratios = _snr_ratios(sigma, 1000.0, range(6))
     assert np.median(ratios) >= 0.97
     assert np.mean(ratios < 0.75) <= 0.01
+
+
+@pytest.mark.parametrize("psf, flux_e, distance_px, least", [
+    (alt.MoffatPsf(2.0 / alt.SIGMA_PER_FWHM, beta=3.0), 1000.0, 12.0, 50),  # before: 30 of 60
+    (alt.GaussianPsf(3.0), 1500.0, 14.0, 58),  # before: 51 of 60
+])
+def test_faint_wide_stars_beside_a_bright_hot_pixel_are_kept(psf, flux_e, distance_px, least):
+    # Every third star (SNR ~12) gets a 10,000 e- hot pixel distance_px away; the PSF is estimated
+    # from the others (the defaults throughout).
+    found = 0
+    for seed in range(6):
+        rng = np.random.default_rng([7, seed])
+        x, y = alt.place_stars(SIZE, SIZE, 30, 40.0, 20.0, rng)
+        image = alt.render(alt.StarField.build(psf, x, y), flux_e, DETECTOR, SIZE, SIZE, rng).image.astype(float)
+        beside = np.arange(x.size) % 3 == 0
+        angle = rng.uniform(0.0, 2.0 * np.pi, x.size)
+        hot_x = np.rint(x + distance_px * np.cos(angle)).astype(int)[beside]
+        hot_y = np.rint(y + distance_px * np.sin(angle)).astype(int)[beside]
+        image[hot_y, hot_x] += 10000.0
+        spots = extract_spots(image.astype(np.uint16), CentroidConfig())
+        distance = np.hypot(x[beside][:, None] - spots.x[None], y[beside][:, None] - spots.y[None])
+        found += int((distance.min(axis=1) < 0.5 * psf.equivalent_sigma_px + 1.0).sum())
+    assert found >= least, f"{found} of 60 stars beside a hot pixel found"
