@@ -356,12 +356,7 @@ def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate
                           & (cand.cut_snr / np.sqrt(local) >= first_cut) & (cand.area >= config.min_area))
     limit = FIT_CANDIDATES_PER_SPOT * config.max_spots
     if keep.size > limit:
-        ranked = keep[np.argsort(-cand.flux[keep], kind="stable")]
-        # Elongated candidates that point every way are texture, not smear: the round ones first.
-        elongated = cand.major[ranked] > elongation_limit(context.sigma)
-        if not rate_aided and _point_every_way(cand.angle[ranked][elongated]):
-            ranked = np.concatenate([ranked[~elongated], ranked[elongated]])
-        keep = np.sort(ranked[:limit])
+        keep = np.sort(keep[np.argsort(-cand.flux[keep], kind="stable")[:limit]])
     return keep
 
 
@@ -532,38 +527,11 @@ def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_v
     x, y = spots.x, spots.y
     inside = (x >= -0.5) & (x <= width - 0.5) & (y >= -0.5) & (y <= height - 0.5)
     final = np.flatnonzero((snr >= config.min_snr) & inside)
-    order = final[np.argsort(-spots.flux[final], kind="stable")]
-    # Streaks that point every way are not a motion's smear but texture (a cloud lit from below):
-    # the point-like spots, the stars, are kept first, else the texture's brighter blobs crowd them
-    # out; the spots kept stay brightest first.
-    texture = _texture_streaks(spots.take(order))
-    if texture.any():
-        rank = np.concatenate([np.flatnonzero(~texture), np.flatnonzero(texture)])
-        order = order[np.sort(rank[: config.max_spots])]
-    order = order[: config.max_spots]
+    order = final[np.argsort(-spots.flux[final], kind="stable")][: config.max_spots]
     return Spots(x=x[order], y=y[order], flux=spots.flux[order], snr=snr[order], cov=cov[order],
                  flags=spots.flags[order], area=spots.area[order].astype(np.int32), peak=spots.peak[order],
                  width=width, height=height, rejected_shape=rejected_shape, streak_length=spots.length[order],
                  streak_angle=spots.angle[order], fit_model=fit_model, **frame_values)
-
-
-# At least TEXTURE_MIN_STREAKS elongated spots (no known rate) point every way when their axes'
-# mean resultant length R = |mean exp(2i angle)| is below TEXTURE_MAX_ALIGNMENT. A real frame's
-# trailed or smeared stars share a direction (R 0.3-0.9 on the corpus); gran_IMG_007985's cloud
-# texture reads 0.06 (not uniform either: 0.21 over its brightest elongated candidates).
-TEXTURE_MIN_STREAKS = 30
-TEXTURE_MAX_ALIGNMENT = 0.15
-
-
-def _point_every_way(angles: np.ndarray) -> bool:
-    """Whether at least TEXTURE_MIN_STREAKS elongated spots of directions `angles` [rad] point every way."""
-    return angles.size >= TEXTURE_MIN_STREAKS and abs(np.mean(np.exp(2j * angles))) < TEXTURE_MAX_ALIGNMENT
-
-
-def _texture_streaks(spots: SpotRows) -> np.ndarray:
-    """Mask of the free streaks of a frame whose free streaks point every way (none otherwise)."""
-    free = ((spots.flags & FLAG_STREAK) != 0) & ((spots.flags & FLAG_RATE_AIDED) == 0)
-    return free if _point_every_way(spots.angle[free]) else np.zeros(len(spots), bool)
 
 
 def _local_noise_factor(context: FitContext, x, y, flux) -> np.ndarray:
