@@ -221,12 +221,17 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings
         for key in ("x", "y", "flux", "snr", "peak", "cov"):
             out[key][members] = getattr(mom, key)
         # A footprint with a hot pixel cleaned from it is a defect when nothing is left (cut_snr <
-        # min_snr); a wide faint star merged with one holds far more noise pixels than light: judged
-        # by the SNR of a PSF-sized disk around its centre of gravity.
-        cleaned = hit.any(axis=(1, 2))
-        out["disk_snr"][members[cleaned]] = _disk_snr(win[cleaned], use[cleaned], mom.x[cleaned] - col0[cleaned],
-                                                      mom.y[cleaned] - row0[cleaned], max(1.5, 1.6 * sigma), noise,
-                                                      gain)
+        # min_snr); a wide faint star merged with one holds far more noise pixels than light, and its
+        # centre of gravity lies between the two: judged, and placed, by a PSF-sized disk around its
+        # brightest PSF-sized box where that disk's SNR is the higher.
+        cleaned = np.flatnonzero(hit.any(axis=(1, 2)))
+        if cleaned.size:
+            x, y, snr = _brightest_disk(win[cleaned], use[cleaned], sigma, noise, gain)
+            better = snr > mom.snr[cleaned]
+            chosen = members[cleaned[better]]
+            out["x"][chosen] = x[better] + col0[cleaned[better]]
+            out["y"][chosen] = y[better] + row0[cleaned[better]]
+            out["disk_snr"][chosen] = snr[better]
         out["major"][members], out["angle"][members] = shape.major, shape.angle
         out["minor"][members] = np.where(shape.peak >= 10.0 * noise, shape.minor, np.inf)
         out["wx"][members], out["wy"][members], out["wcov"][members] = wmom.x, wmom.y, wmom.cov
@@ -238,21 +243,32 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings
                          sigma, find_blends, rings, streaks_expected)
 
 
-def _disk_snr(windows: np.ndarray, use: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: float, noise: float,
-              gain: float) -> np.ndarray:
+def _brightest_disk(windows: np.ndarray, use: np.ndarray, sigma: float, noise: float, gain: float):
     """
-    SNR of the pixels in `use` within `radius` [px] of (cx, cy) [px, window coordinates] of each window (n, R, C).
+    Centre of gravity (x, y) [px, window coordinates] and SNR of a PSF-sized disk in each window (n, R, C).
 
-    Variance per pixel max(r, 0) / gain + noise^2 [ADU^2]; NaN where the disk holds no pixel.
+    The disk (radius max(1.5, 1.6 sigma) [px], the pixels in `use`) around the brightest
+    (2 round(sigma) + 1)^2 box sum; per-pixel variance max(r, 0) / gain + noise^2 [ADU^2]; NaN
+    where the disk holds no signal.
     """
-    _, rows, cols = windows.shape
-    dx = np.arange(cols)[None, None, :] - cx[:, None, None]
-    dy = np.arange(rows)[None, :, None] - cy[:, None, None]
+    n, rows, cols = windows.shape
+    box = 2 * max(1, int(sigma + 0.5)) + 1
+    radius = max(1.5, 1.6 * sigma)
+    data = np.where(use, windows, 0.0)
+    sums = np.stack([cv2.boxFilter(w, -1, (box, box), normalize=False, borderType=cv2.BORDER_CONSTANT) for w in data])
+    seed = np.argmax(sums.reshape(n, -1), axis=1)
+    seed_y, seed_x = np.divmod(seed, cols)
+    dx = np.arange(cols)[None, None, :] - seed_x[:, None, None]
+    dy = np.arange(rows)[None, :, None] - seed_y[:, None, None]
     disk = use & (dx * dx + dy * dy <= radius * radius)
-    signal = np.where(disk, windows, 0.0).sum(axis=(1, 2))
-    variance = np.where(disk, np.maximum(windows, 0.0) / gain + noise * noise, 0.0).sum(axis=(1, 2))
+    values = np.where(disk, data, 0.0)
+    signal = values.sum(axis=(1, 2))
+    variance = np.where(disk, np.maximum(data, 0.0) / gain + noise * noise, 0.0).sum(axis=(1, 2))
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(variance > 0, signal / np.sqrt(variance), np.nan)
+        x = (values * np.arange(cols)[None, None, :]).sum(axis=(1, 2)) / signal
+        y = (values * np.arange(rows)[None, :, None]).sum(axis=(1, 2)) / signal
+        snr = np.where((variance > 0) & (signal > 0), signal / np.sqrt(variance), np.nan)
+    return x, y, snr
 
 
 def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False,
