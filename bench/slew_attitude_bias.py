@@ -33,7 +33,9 @@ def main() -> int:
 
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     sensor = SensorModel()
-    renderer = StarFieldRenderer(camera, sensor, load_hipparcos(), magnitude_limit=7.5)
+    # The sky at the database's epoch, as the tests' `catalog` fixture renders it (test/conftest.py).
+    renderer = StarFieldRenderer(camera, sensor, load_hipparcos().at_epoch(DatabaseConfig().epoch_jyear),
+                                 magnitude_limit=7.5)
     identifier = make_identifier("hybrid", load_or_build_database(DatabaseConfig()))
     tracker = Tracker(identifier, TrackingConfig(max_angular_acceleration_rad_s2=np.radians(2.0)))
     axis = np.array([0.6, 0.8, 0.0])

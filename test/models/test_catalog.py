@@ -1,9 +1,16 @@
 # SPDX-License-Identifier: Apache-2.0
 import numpy as np
+import pytest
 
 from star_tracker.models.catalog import load_hipparcos, load_validated_npz, cache_dir, radec_to_unit, unit_to_radec
 
 ARCSEC = np.radians(1 / 3600)
+
+
+@pytest.fixture
+def catalog(hipparcos):
+    """The catalogue as loaded (J1991.25), not conftest's sky at the database epoch."""
+    return hipparcos
 
 
 def test_full_catalog_is_loaded(catalog):
