@@ -60,7 +60,7 @@ def same_cache_after_each_test(private_cache):
 
 @pytest.fixture(scope="session")
 def hipparcos():
-    """The Hipparcos catalogue as loaded, at its own epoch J1991.25."""
+    """Return the Hipparcos catalogue as loaded, at its own epoch J1991.25."""
     from star_tracker.models.catalog import load_hipparcos
 
     return load_hipparcos()
@@ -69,7 +69,7 @@ def hipparcos():
 @pytest.fixture(scope="session")
 def catalog(hipparcos):
     """
-    The sky the tests render: Hipparcos at the pattern database's epoch.
+    Return the sky the tests render: Hipparcos at the pattern database's epoch.
 
     Rendered at J1991.25 against a 2026 database, every simulated frame's truth carried 35 years
     of proper motion: a (-0.8, -0.1)" attitude bias, ~5 sigma, in each frame at rest.

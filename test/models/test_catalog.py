@@ -9,7 +9,7 @@ ARCSEC = np.radians(1 / 3600)
 
 @pytest.fixture
 def catalog(hipparcos):
-    """The catalogue as loaded (J1991.25), not conftest's sky at the database epoch."""
+    """Return the catalogue as loaded (J1991.25), not conftest's sky at the database epoch."""
     return hipparcos
 
 
