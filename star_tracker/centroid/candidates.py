@@ -16,7 +16,7 @@ import numpy as np
 
 from .config import CentroidConfig, blend_separation_px, elongation_limit, hot_pixel_ratio
 from .detect import Detections
-from .kernels import PointWindowSettings, SmallSpots, measure_small
+from .kernels import PointWindowSettings, SmallSpots, brightest_box, measure_small
 from .measure import Moments, aperture_moments, box_sums, clean_hot_pixels, major_moment_noise, two_peaks
 from .psf_fit import gather_windows
 from .smear import segment_length
@@ -144,10 +144,7 @@ def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfi
     large = np.flatnonzero(~small)
     if large.size:
         _measure_large(image, det, config, sigma, large, out, find_blends, rings, streaks_expected)
-    cut_snr = out["snr"].copy()
-    if large.size:
-        cut_snr[large] = np.fmax(cut_snr[large], out.pop("disk_snr")[large])
-    out.pop("disk_snr", None)
+    cut_snr = np.fmax(out["snr"], out.pop("disk_snr"))  # disk_snr: NaN but where _measure_large set it
     return Candidates(area=det.area.astype(np.int64), detection=np.arange(m), cut_snr=cut_snr, **out)
 
 
@@ -247,28 +244,22 @@ def _brightest_disk(windows: np.ndarray, use: np.ndarray, sigma: float, noise: f
     """
     Centre of gravity (x, y) [px, window coordinates] and SNR of a PSF-sized disk in each window (n, R, C).
 
-    The disk (radius max(1.5, 1.6 sigma) [px], the pixels in `use`) around the brightest
-    (2 round(sigma) + 1)^2 box sum; per-pixel variance max(r, 0) / gain + noise^2 [ADU^2]; NaN
-    where the disk holds no signal.
+    The disk (radius max(1.5, 1.6 sigma) [px], the pixels in `use`) around the brightest box sum
+    (kernels.brightest_box, as the point windows are seeded); measure.aperture_moments over it.
     """
     n, rows, cols = windows.shape
-    box = 2 * max(1, int(sigma + 0.5)) + 1
+    seed_half = max(1, int(sigma + 0.5))
     radius = max(1.5, 1.6 * sigma)
     data = np.where(use, windows, 0.0)
-    sums = np.stack([cv2.boxFilter(w, -1, (box, box), normalize=False, borderType=cv2.BORDER_CONSTANT) for w in data])
-    seed = np.argmax(sums.reshape(n, -1), axis=1)
-    seed_y, seed_x = np.divmod(seed, cols)
+    seed_x, seed_y = np.zeros(n), np.zeros(n)
+    for k in range(n):
+        _, seed_y[k], seed_x[k] = brightest_box(data[k], seed_half, seed_half, rows - seed_half, seed_half,
+                                                cols - seed_half)
     dx = np.arange(cols)[None, None, :] - seed_x[:, None, None]
     dy = np.arange(rows)[None, :, None] - seed_y[:, None, None]
     disk = use & (dx * dx + dy * dy <= radius * radius)
-    values = np.where(disk, data, 0.0)
-    signal = values.sum(axis=(1, 2))
-    variance = np.where(disk, np.maximum(data, 0.0) / gain + noise * noise, 0.0).sum(axis=(1, 2))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x = (values * np.arange(cols)[None, None, :]).sum(axis=(1, 2)) / signal
-        y = (values * np.arange(rows)[None, :, None]).sum(axis=(1, 2)) / signal
-        snr = np.where((variance > 0) & (signal > 0), signal / np.sqrt(variance), np.nan)
-    return x, y, snr
+    moments = aperture_moments(data, disk, np.zeros(n), np.zeros(n), noise, gain)
+    return moments.x, moments.y, np.where(moments.flux > 0, moments.snr, np.nan)
 
 
 def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False,

@@ -347,7 +347,7 @@ def _clean_search_window(image, c0, r0, bg, ratio_limit, noise, raw, win, valid)
 
 
 @njit(cache=True)
-def _brightest_box(win, seed_half, row_lo, row_hi, col_lo, col_hi):
+def brightest_box(win, seed_half, row_lo, row_hi, col_lo, col_hi):
     """
     Return (sum, row, col) of the brightest (2 seed_half + 1)^2 box sum of `win`.
 
@@ -373,9 +373,9 @@ def _measure_small(image, spots, settings):
     Per spot n: a search window of (2 half + 1 + search_margin)^2 around (cx, cy) [px] minus
     bg [ADU], hot pixels cleaned (the 4-neighbour test of measure.clean_hot_pixels),
     re-centred on the brightest box sum (3x3, wider for wide PSFs) inside the footprint box
-    (top/bottom/left/right, full-resolution px; the search window itself is re-centred once
-    on a seed lying beyond half a window from its border), then a (2 half + 1)^2 window measured in a circular aperture
-    (measure.aperture_moments: centre of gravity, covariance, second moments; with `weighted`
+    (top/bottom/left/right, full-resolution px; the search window itself re-centred once on a
+    seed beyond half a window from its border), then a (2 half + 1)^2 window measured in a
+    circular aperture (measure.aperture_moments: centre of gravity, covariance, second moments; with `weighted`
     also the intensity-weighted centre), SNR in the near-optimal aperture, brightest raw
     value, edge flag. ratio_limit = inf switches the cleaning off. spots: SmallSpots;
     settings: PointWindowSettings. Returns a tuple of arrays in SmallSpotMeasurements' order.
@@ -425,23 +425,19 @@ def _measure_small(image, spots, settings):
     for s in range(n):
         c0 = int(np.rint(cx[s])) - big // 2
         r0 = int(np.rint(cy[s])) - big // 2
-        # The search window is centred on the footprint's centroid; a star at one end of a long
-        # footprint (a faint wide star merged with a hot pixel) lies beyond the seeds half a window
-        # from its border: the window is then centred on the star's seed once and searched again.
-        for attempt in range(2):
+        hit_any = _clean_search_window(image, c0, r0, bg[s], ratio_limit, noise, raw, win, valid)
+        # Seed: brightest box sum in the footprint box. The search window is centred on the
+        # footprint's centroid; a star at one end of a long footprint (a faint wide star merged
+        # with a hot pixel) can lie beyond the seeds kept half a window from its border: the window
+        # is then centred on that star once and searched again, its seed kept from the border.
+        best, br, bc = brightest_box(win, seed_half, max(top[s] - r0, seed_half), min(bottom[s] - r0, big - seed_half),
+                                     max(left[s] - c0, seed_half), min(right[s] - c0, big - seed_half))
+        if br >= 0 and not (lo <= br <= hi and lo <= bc <= hi):
+            c0, r0 = c0 + bc - big // 2, r0 + br - big // 2
             hit_any = _clean_search_window(image, c0, r0, bg[s], ratio_limit, noise, raw, win, valid)
-            row_lo, row_hi = top[s] - r0, bottom[s] - r0
-            col_lo, col_hi = left[s] - c0, right[s] - c0
-            if attempt == 0:
-                best, br, bc = _brightest_box(win, seed_half, max(row_lo, seed_half), min(row_hi, big - seed_half),
-                                              max(col_lo, seed_half), min(col_hi, big - seed_half))
-                if br < 0 or (lo <= br <= hi and lo <= bc <= hi):
-                    break
-                c0, r0 = c0 + bc - big // 2, r0 + br - big // 2
-                continue
-            # Seed: brightest box sum in the footprint box, kept half a window from the border.
-            best, br, bc = _brightest_box(win, seed_half, min(max(row_lo, lo), hi), min(max(row_hi, lo + 1), hi + 1),
-                                          min(max(col_lo, lo), hi), min(max(col_hi, lo + 1), hi + 1))
+            best, br, bc = brightest_box(win, seed_half, min(max(top[s] - r0, lo), hi),
+                                         min(max(bottom[s] - r0, lo + 1), hi + 1), min(max(left[s] - c0, lo), hi),
+                                         min(max(right[s] - c0, lo + 1), hi + 1))
         c0_out[s], r0_out[s] = c0, r0
         out_cleaned[s] = hit_any
         search[s] = win
