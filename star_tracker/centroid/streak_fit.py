@@ -27,6 +27,9 @@ PSF_RADIUS_SIGMA = 4.0  # window margin beyond the streak ends [sigma] (plus 1 p
 SIGNIFICANT_FLUX = 3.0
 _MAX_WINDOW_ELEMENTS = 3_000_000  # spots x parameters x pixels per batch (memory bound)
 _MAX_PADDING = 2.0  # padded window pixels per own window pixel in a batch
+# ... once the batch holds this many padded pixels: below it a batch costs its fixed
+# per-iteration overhead (~0.2 ms x 30 Levenberg-Marquardt steps), not its pixels.
+_PADDING_FREE_PIXELS = 20_000
 
 
 class StreakFitSetup(NamedTuple):
@@ -148,9 +151,10 @@ def batches(valid: np.ndarray, bounds: np.ndarray, n_par: int):
     Return valid spots in batches of similar window size (less padding).
 
     A batch's windows are padded to its tallest and widest: a batch holds at most
-    _MAX_WINDOW_ELEMENTS padded window elements (spots x (parameters + 1) x pixels) and at
-    most _MAX_PADDING times its own windows' pixels (the model's cost grows with the padded
-    size: one long streak among hundreds of small spots would make them all its size).
+    _MAX_WINDOW_ELEMENTS padded window elements (spots x (parameters + 1) x pixels) and, beyond
+    _PADDING_FREE_PIXELS padded pixels, at most _MAX_PADDING times its own windows' pixels (the
+    model's cost grows with the padded size: one long streak among hundreds of small spots would
+    make them all its size; a few small batches would each pay the solver's fixed cost).
     """
     cols = bounds[:, 1] - bounds[:, 0] + 1
     rows = bounds[:, 3] - bounds[:, 2] + 1
@@ -162,7 +166,8 @@ def batches(valid: np.ndarray, bounds: np.ndarray, n_par: int):
     for spot in order.tolist():
         grown_top, grown_wide = max(top, int(rows[spot])), max(wide, int(cols[spot]))
         padded = (len(batch) + 1) * grown_top * grown_wide
-        if batch and (padded * (n_par + 1) > _MAX_WINDOW_ELEMENTS or padded > _MAX_PADDING * (own + pixels[spot])):
+        too_padded = padded > _MAX_PADDING * (own + pixels[spot]) and padded > _PADDING_FREE_PIXELS
+        if batch and (padded * (n_par + 1) > _MAX_WINDOW_ELEMENTS or too_padded):
             yield np.array(batch, np.int64)
             batch, own, grown_top, grown_wide = [], 0, int(rows[spot]), int(cols[spot])
         batch.append(spot)
