@@ -46,6 +46,8 @@ class CentroidConfig:
     centre of gravity. Saturated spots always use the centre of gravity.
     split_blends: fit two PSFs jointly when a point-like spot shows a second peak.
     min_smear_px: with a known body rate, predicted smears shorter than this are point-like.
+    texture_last: elongated spots pointing every way (texture.py) ranked after the point-like
+    ones for the fits and max_spots (default off: bloated stars can point every way too).
     """
 
     detection_sigma: float = parameter(4.5, "detection threshold on the PSF-matched, binned image", "noise sigmas",
@@ -75,6 +77,9 @@ class CentroidConfig:
     split_blends: bool = parameter(True, "fit two PSFs when a point-like spot has a second peak", dynamic=True)
     min_smear_px: float = parameter(1.5, "predicted smears shorter than this are point-like", "px", 0.0, 1e4,
                                     dynamic=True)
+    texture_last: bool = parameter(False, "where >= 30 elongated spots (no known rate) point every way (texture such "
+                                   "as a lit cloud, not smear), keep the point-like ones first for the fits and "
+                                   "max_spots", dynamic=True)
 
     def __post_init__(self) -> None:
         bad = range_problems(self)

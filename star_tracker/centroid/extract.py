@@ -31,6 +31,7 @@ from .records import FitContext, SpotRows, no_spots
 from .saturation import clip_levels, clipped_pixels, undershot_peaks
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
 from .streak_spots import fit_streak_spots
+from .texture import point_every_way, texture_streaks
 
 if TYPE_CHECKING:
     from .smear import SmearModel
@@ -344,7 +345,7 @@ def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate
 
     Measured, not defects, positive flux, large enough and with an SNR (under the local
     noise) above the first cut; of those at most FIT_CANDIDATES_PER_SPOT x max_spots, the
-    brightest by footprint flux.
+    brightest by footprint flux (config.texture_last: elongated candidates pointing every way last).
     """
     config = context.config
     # Streaks spread their signal: their footprint SNR understates what the streak fit recovers,
@@ -356,7 +357,12 @@ def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate
                           & (cand.cut_snr / np.sqrt(local) >= first_cut) & (cand.area >= config.min_area))
     limit = FIT_CANDIDATES_PER_SPOT * config.max_spots
     if keep.size > limit:
-        keep = np.sort(keep[np.argsort(-cand.flux[keep], kind="stable")[:limit]])
+        ranked = keep[np.argsort(-cand.flux[keep], kind="stable")]
+        if config.texture_last and not rate_aided:  # texture.py: the round candidates first
+            elongated = cand.major[ranked] > elongation_limit(context.sigma)
+            if point_every_way(cand.angle[ranked][elongated]):
+                ranked = np.concatenate([ranked[~elongated], ranked[elongated]])
+        keep = np.sort(ranked[:limit])
     return keep
 
 
@@ -514,7 +520,7 @@ def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_v
     `Spots` from the measured table (fit_model: Spots.fit_model).
 
     SNR and covariance scaled to the local noise, spots outside the image or below min_snr
-    dropped, the brightest max_spots kept, by flux.
+    dropped, the brightest max_spots kept, by flux (config.texture_last: texture after the others).
     """
     config = context.config
     height, width = context.image.shape
@@ -527,7 +533,13 @@ def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_v
     x, y = spots.x, spots.y
     inside = (x >= -0.5) & (x <= width - 0.5) & (y >= -0.5) & (y <= height - 0.5)
     final = np.flatnonzero((snr >= config.min_snr) & inside)
-    order = final[np.argsort(-spots.flux[final], kind="stable")][: config.max_spots]
+    order = final[np.argsort(-spots.flux[final], kind="stable")]
+    if config.texture_last:  # texture.py: the point-like spots kept first, the kept ones brightest first
+        texture = texture_streaks(spots.flags[order], spots.angle[order])
+        if texture.any():
+            points_first = np.concatenate([np.flatnonzero(~texture), np.flatnonzero(texture)])
+            order = order[np.sort(points_first[: config.max_spots])]
+    order = order[: config.max_spots]
     return Spots(x=x[order], y=y[order], flux=spots.flux[order], snr=snr[order], cov=cov[order],
                  flags=spots.flags[order], area=spots.area[order].astype(np.int32), peak=spots.peak[order],
                  width=width, height=height, rejected_shape=rejected_shape, streak_length=spots.length[order],

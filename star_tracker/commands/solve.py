@@ -504,6 +504,23 @@ def centroid_config(pixels: np.ndarray, description: str, args: argparse.Namespa
                           saturation_adu=saturation)
 
 
+# A frame whose solve explains fewer than this share of its spots, while its elongated spots point
+# every way (centroid/texture.py), is centroided again with those ranked last.
+TEXTURE_RETRY_MATCHED_SHARE = 1.0 / 3.0
+
+
+def _matched(result: SolveResult) -> int:
+    return int(result.identification.spot_index.size) if result.solved else 0
+
+
+def texture_crowds_stars(spots, result: SolveResult) -> bool:
+    """Whether texture (elongated spots pointing every way) may have crowded the stars out of `spots`."""
+    from ..centroid.texture import texture_streaks
+
+    return bool(texture_streaks(spots.flags, spots.streak_angle).any()) and \
+        _matched(result) < TEXTURE_RETRY_MATCHED_SHARE * len(spots)
+
+
 @guarded(NAME)
 def run(args: argparse.Namespace) -> int:
     from ..centroid import extract_spots
@@ -540,7 +557,25 @@ def run(args: argparse.Namespace) -> int:
     solve_started = time.perf_counter()
     result = solve_spots(spots, width, height, fov_deg=args.fov, camera=camera, options=options, report=report)
     solve_s = time.perf_counter() - solve_started
+    texture_last = False
+    if texture_crowds_stars(spots, result):
+        # centroid/texture.py: spots pointing every way fill the list and most are no star; the
+        # point-like ones ranked first may be the stars (or the bloated stars were the streaks:
+        # the solution matching more stars is kept).
+        if report:
+            report(f"{_matched(result)} of {len(spots)} spots matched, elongated spots point every way: "
+                   "centroiding again with them ranked last")
+        started_again = time.perf_counter()
+        texture_spots = extract_spots(pixels, replace(config, texture_last=True))
+        solve_again = time.perf_counter()
+        second = solve_spots(texture_spots, width, height, fov_deg=args.fov, camera=camera, options=options,
+                             report=report)
+        centroid_s += solve_again - started_again
+        solve_s += time.perf_counter() - solve_again
+        if _matched(second) > _matched(result):
+            spots, result, texture_last = texture_spots, second, True
     record = solution_record(result, spots, str(args.image), image.description)
+    record["texture_last"] = texture_last
     # Wall time of each stage [s]: reading and decoding the file, centroiding, field search + identification
     # + camera refinement; total to here (the record's own assembly included).
     record["timing_s"] = {"read": read_s, "centroid": centroid_s, "solve": solve_s,
