@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .beside_tracks import refit_beside_tracks
 from .candidates import STREAK_COUNT_MIN_SIGMA_PX, Candidates, measure_candidates
 from .config import CentroidConfig, elongation_limit, peak_fraction_limit
 from .detect import Detections, detect
@@ -449,11 +450,15 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     elif multi.any():
         spots, more = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)[:2]
         added.append(more)
+    fitted_blends = multi.any() and not (smeared_frame or not config.split_blends)
     fit_model = ""
     if as_point.any():
         outcome = fit_points(context, kept, spots, np.flatnonzero(as_point), clipping.excluded)
         spots, more, fit_model = outcome.spots, outcome.added, outcome.model
         added.append(more)
+        if outcome.psf is not None and fitted_blends:  # beside_tracks.py: the frame's model, not the Gaussian
+            peaks = {t: (kept.peaks[t], track) for t, (track, _) in track_peaks.items() if multi[t]}
+            spots = refit_beside_tracks(context, peaks, spots, outcome.psf, clipping.excluded)
     if clipped_point.any():
         outcome = fit_clipped_points(context, spots, np.flatnonzero(clipped_point), clipping.excluded)
         spots, fitted[clipped_point] = outcome.spots, outcome.converged

@@ -12,7 +12,7 @@ import numpy as np
 
 from .candidates import Candidates
 from .config import blend_separation_px
-from .empirical_psf import MIN_TEMPLATE_STARS, build_empirical_psf, fit_empirical
+from .empirical_psf import MIN_TEMPLATE_STARS, EmpiricalPsf, build_empirical_psf, fit_empirical
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
 from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
@@ -113,18 +113,18 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
         # Enough bright stars the Gaussian does not describe (round or elongated alike: an
         # astigmatic PSF): the frame's own PSF fits every one.
-        rows, stars = _template_fits(context, win[single], valid[single], col0[single], row0[single], fit,
-                                     not_gaussian, spots.x[which[single]], spots.y[which[single]])
+        rows, stars, template = _template_fits(context, win[single], valid[single], col0[single], row0[single], fit,
+                                               not_gaussian, spots.x[which[single]], spots.y[which[single]])
         label = "gaussian" if model is None else model.label
         if rows.size:
             spots = spots.with_stars(which[single[rows]], stars)
-            label = "template"
-        return FitOutcome(spots, added, None, label)
+            label, model = "template", template
+        return FitOutcome(spots, added, None, label, model)
     return FitOutcome(spots, added)
 
 
 def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, misfit: np.ndarray, x, y
-                   ) -> tuple[np.ndarray, FittedStars]:
+                   ) -> tuple[np.ndarray, FittedStars, "EmpiricalPsf | None"]:
     """
     Fit the single-star windows with the frame's empirical PSF, where the Gaussian does not describe the frame.
 
@@ -133,10 +133,10 @@ def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, mis
     ring stars (context.rings), where MIN_TEMPLATE_STARS are bright. Never where
     context.own_psf is False. The profile is built from those stars; every window is fitted
     with it, from the Gaussian fit's position where it converged, else from (x, y). Returns
-    the windows fitted (indices) and their stars.
+    the windows fitted (indices), their stars and the profile (None when none was built).
     """
     empty = np.zeros(0, np.int64), FittedStars(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 2, 2)),
-                                               np.zeros(0))
+                                               np.zeros(0)), None
     if not context.own_psf:
         return empty
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -164,7 +164,7 @@ def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, mis
                                                     np.where(fit.converged[:, 0], fit.flux[:, 0], flux0),
                                                     context.noise, context.gain)
     rows = np.flatnonzero(ok)
-    return rows, FittedStars(fx[rows], fy[rows], flux[rows], cov[rows], flux[rows] / np.sqrt(flux_var[rows]))
+    return rows, FittedStars(fx[rows], fy[rows], flux[rows], cov[rows], flux[rows] / np.sqrt(flux_var[rows])), psf
 
 
 MISFIT_MIN_SNR = 30.0  # fainter spots' residuals are noise whatever the PSF

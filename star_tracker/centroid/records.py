@@ -141,13 +141,16 @@ class FitOutcome(NamedTuple):
     `spots`, the frame's spot table with the fitted values written in; `added`, further stars
     it split off (new spots); `converged`, for the spots it was asked to fit, which ones its
     fit describes (None when the step does not tell); `model`, the single stars' fit model
-    (fit_points: "gaussian", "elliptical", "core_halo" or "template"; "" from other steps).
+    (fit_points: "gaussian", "elliptical", "core_halo" or "template"; "" from other steps);
+    `psf`, that model itself where it is not the round Gaussian (any object with
+    sample(dx, dy), e.g. empirical_psf.EmpiricalPsf; None otherwise).
     """
 
     spots: SpotRows
     added: SpotRows
     converged: np.ndarray | None = None
     model: str = ""
+    psf: object | None = None
 
 
 def no_spots() -> SpotRows:

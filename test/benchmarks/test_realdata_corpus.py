@@ -31,8 +31,9 @@ KNOWN_SHORT = {
     # its siblings img7 and img8 (no reference either) solve since noise clumps are no longer
     # measured as streaks.
     "openstartracker_img1": "not solved: no pattern matched, no stepped field identified",
-    "gran_IMG_007985": "1.9' off (the peers 84-88\" off); astrometry.net on the image itself (80-102 matches, "
-                       "mostly in its top half) moves its centre 170-174\" between SIP orders: not settled",
+    "gran_IMG_007985": "2.0' off with 46 stars (the peers 84-88\" off with 15-22); astrometry.net on the image "
+                       "itself (80-102 matches, mostly in its top half) moves its centre 170-174\" between SIP orders: "
+                       "not settled",
     # Wide-field lenses: 1-2.3' off although k1, k2 and the principal point are fitted. astrometry.net on
     # the image itself (its own extraction, not our spots), re-verified against the densest Tycho-2
     # index that fits (260-2133 matches), lands 2-21" from our solve at SIP orders 2-4 and 52-137" from
