@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .empirical_psf import fit_empirical
+from .point_fits import cleaned_windows
 from .psf_fit import gather_windows
 from .records import FitContext, SpotRows
 
@@ -31,8 +32,6 @@ def refit_beside_tracks(context: FitContext, peaks: dict, spots: SpotRows, psf, 
     fit may use (clipped), or None. A refit that converges within MAX_SHIFT_PX replaces the
     row's position, flux, covariance and SNR.
     """
-    from .point_fits import cleaned_windows  # point_fits imports this module's caller
-
     rows = np.array([t for t in peaks if spots.snr[t] > 0], np.int64)
     if rows.size == 0:
         return spots

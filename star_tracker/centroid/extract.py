@@ -32,7 +32,7 @@ from .records import FitContext, SpotRows, no_spots
 from .saturation import clip_levels, clipped_pixels, undershot_peaks
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
 from .streak_spots import fit_streak_spots
-from .texture import point_every_way, texture_streaks
+from .texture import point_every_way, rank_last, texture_streaks
 
 if TYPE_CHECKING:
     from .smear import SmearModel
@@ -362,7 +362,7 @@ def _first_cut(context: FitContext, cand: Candidates, rejected: np.ndarray, rate
         if config.texture_last and not rate_aided:  # texture.py: the round candidates first
             elongated = cand.major[ranked] > elongation_limit(context.sigma)
             if point_every_way(cand.angle[ranked][elongated]):
-                ranked = np.concatenate([ranked[~elongated], ranked[elongated]])
+                ranked = rank_last(ranked, elongated)
         keep = np.sort(ranked[:limit])
     return keep
 
@@ -439,6 +439,7 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     clear = (kept.snr >= 20) & ~saturated
     smeared_frame = aid is not None or (np.sum(elongated & clear & ~multi) >= max(5, 0.5 * np.sum(clear)))
     added, fitted = [], clipping.fitted.copy()
+    fitted_blends = False  # blends fitted star by star (fit_blends), not left at their centres of gravity
     if multi.any() and (smeared_frame or not config.split_blends):
         spots = spots.with_values(np.flatnonzero(multi), cov=kept.moment_covariance(np.flatnonzero(multi)))
         for t, (track, shapes) in track_peaks.items():  # the footprint's centre would hold the track
@@ -450,7 +451,7 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     elif multi.any():
         spots, more = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)[:2]
         added.append(more)
-    fitted_blends = multi.any() and not (smeared_frame or not config.split_blends)
+        fitted_blends = True
     fit_model = ""
     if as_point.any():
         outcome = fit_points(context, kept, spots, np.flatnonzero(as_point), clipping.excluded)
@@ -542,8 +543,7 @@ def _assemble(context: FitContext, spots: SpotRows, rejected_shape: int, frame_v
     if config.texture_last:  # texture.py: the point-like spots kept first, the kept ones brightest first
         texture = texture_streaks(spots.flags[order], spots.angle[order])
         if texture.any():
-            points_first = np.concatenate([np.flatnonzero(~texture), np.flatnonzero(texture)])
-            order = order[np.sort(points_first[: config.max_spots])]
+            order = order[np.sort(rank_last(np.arange(order.size), texture)[: config.max_spots])]
     order = order[: config.max_spots]
     return Spots(x=x[order], y=y[order], flux=spots.flux[order], snr=snr[order], cov=cov[order],
                  flags=spots.flags[order], area=spots.area[order].astype(np.int32), peak=spots.peak[order],

@@ -34,3 +34,8 @@ def texture_streaks(flags: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """
     free = ((flags & FLAG_STREAK) != 0) & ((flags & FLAG_RATE_AIDED) == 0)
     return free if point_every_way(angles[free]) else np.zeros(np.shape(flags), bool)
+
+
+def rank_last(items: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """Return `items` with those where `last` (bool, same length) moved behind the others, each part in its order."""
+    return np.concatenate([items[~last], items[last]])
