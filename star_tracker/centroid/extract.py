@@ -19,7 +19,7 @@ import numpy as np
 from .beside_tracks import refit_beside_tracks
 from .candidates import STREAK_COUNT_MIN_SIGMA_PX, Candidates, measure_candidates
 from .config import CentroidConfig, elongation_limit, peak_fraction_limit
-from .detect import Detections, detect
+from .detect import DetectionGround, Detections, detect, detection_ground
 from .elliptical_psf import EllipticalGaussianPsf
 from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
@@ -89,14 +89,16 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         raise ValueError(f"expected a non-empty 2-D image, got shape {image.shape}")
     if image.dtype.kind not in "uif":
         raise ValueError(f"expected a numeric image, got dtype {image.dtype}")
+    # The background and noise do not depend on the PSF: computed once for every measurement below.
+    ground = detection_ground(image, _binning(image, config), config.background_block_px)
     if config.psf_mode == "fixed" or config.psf_sigma_px <= 0:
-        return replace(_finish(_measure_frame(image, config, smear)),
+        return replace(_finish(_measure_frame(image, config, smear, ground)),
                        psf=PsfEstimate.assumed(config.psf_sigma_px, "configured"))
     prior = config.psf_sigma_px
     if psf_prior is not None and np.isfinite(psf_prior) and MIN_SIGMA_PX <= psf_prior <= MAX_SIGMA_PX:
         prior = float(psf_prior)
     first = config if prior == config.psf_sigma_px else replace(config, psf_sigma_px=prior)
-    measured = _measure_frame(image, first, smear)
+    measured = _measure_frame(image, first, smear, ground)
     frame = measured.frame
     if frame is None:
         return replace(_finish(measured), psf=PsfEstimate.assumed(prior, "prior", "no detections"))
@@ -114,7 +116,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
             wider = prior * factor
             if wider > MAX_SIGMA_PX:
                 break
-            wide = _measure_frame(image, replace(config, psf_sigma_px=wider), smear)
+            wide = _measure_frame(image, replace(config, psf_sigma_px=wider), smear, ground)
             if wide.frame is None:
                 break
             again = estimate_psf(image, wide.frame.det, wide.frame.cand, wide.frame.saturation, wider,
@@ -142,12 +144,12 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         if elongated and width < (1.0 - RERUN_TOLERANCE) * prior:
             # Astigmatic stars are narrower across than the prior: measured again with the width
             # test at their minor axis, which the prior's rejected some of them at.
-            measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, narrowest_px=width,
+            measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, ground, narrowest_px=width,
                                       elliptical=elliptical)
         elif elliptical is not None:
             measured = replace(measured, context=replace(measured.context, elliptical=elliptical))
         return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
-    spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, rings=estimate.annular,
+    spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, ground, rings=estimate.annular,
                                    elliptical=elliptical))
     return replace(spots, psf=replace(estimate, applied_sigma_px=width))
 
@@ -209,25 +211,32 @@ def _finish(measurement: _Measurement) -> Spots:
     return replace(result, rate_aid_rejected=True) if m.rate_aid_rejected else result
 
 
-def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", rings: bool = False,
-                   narrowest_px: float | None = None, elliptical: EllipticalGaussianPsf | None = None
-                   ) -> _Measurement:
+def _binning(image: np.ndarray, config: CentroidConfig) -> int:
+    """Return the detection grid's bin factor: config.binning, 1 for an image under 16 bins across."""
+    return config.binning if min(image.shape) >= 16 * config.binning else 1
+
+
+def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", ground: DetectionGround,
+                   rings: bool = False, narrowest_px: float | None = None,
+                   elliptical: EllipticalGaussianPsf | None = None) -> _Measurement:
     """
     Measure the frame once with config's PSF width, up to the fits (`_finish` runs them).
 
-    rings: the stars are rings (PsfEstimate.annular; config.blend_separation_px);
-    narrowest_px: an elongated PSF's minor-axis 1-sigma [px] for the width test (None: the
-    PSF width); elliptical: an astigmatic PSF, the single stars' fit model (FitContext).
+    ground: the frame's detection_ground (the same at every width); rings: the stars are rings
+    (PsfEstimate.annular; config.blend_separation_px); narrowest_px: an elongated PSF's
+    minor-axis 1-sigma [px] for the width test (None: the PSF width); elliptical: an
+    astigmatic PSF, the single stars' fit model (FitContext).
     """
     height, width = image.shape
-    binning = config.binning if min(height, width) >= 16 * config.binning else 1
+    binning = ground.binning
     saturation = config.saturation_adu or (np.iinfo(image.dtype).max if image.dtype.kind in "ui" else np.inf)
     sigma = max(config.psf_sigma_px, MIN_SIGMA_PX) if config.psf_sigma_px > 0 else 0.5
     aid = smear if smear is not None and typical_smear_px(smear, width, height) >= config.min_smear_px else None
     det = detect(image, binning=binning, background_block_px=config.background_block_px,
                  detection_sigma=config.detection_sigma, psf_sigma_px=config.psf_sigma_px,
                  min_area=config.min_area, max_area=config.max_area,
-                 smear_kernel=smear_kernel(aid, width, height, sigma, binning) if aid is not None else None)
+                 smear_kernel=smear_kernel(aid, width, height, sigma, binning) if aid is not None else None,
+                 ground=ground)
     frame_values = dict(background_adu=float(np.median(det.background[::8, ::8])), noise_adu=det.noise_adu)
     if det.x.size == 0:
         return _Measurement(None, empty=Spots.empty(width, height, **frame_values))
@@ -263,7 +272,7 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     # Several separate peaks with dips between them: stars blended into one footprint, not a streak.
     multi = np.array([len(p) >= 2 for p in kept.peaks], bool) & ~saturated
     if aid is not None and rate_aid_disagrees(kept, ~saturated & ~kept.edge & ~multi, sigma, aid):
-        return replace(_measure_frame(image, config, None), rate_aid_rejected=True)
+        return replace(_measure_frame(image, config, None, ground), rate_aid_rejected=True)
     spots = _centres_of_gravity(kept, config, sigma, saturated, multi)
     # Clipped spots: their pixels at the clip level carry no shape information, so every fit
     # leaves them out (`excluded`); a saturated spot no fit describes gets a covariance as wide
