@@ -88,15 +88,6 @@ class PatternDatabase:
     keys: np.ndarray
     circle_radius_rad: float
 
-    def candidates(self, keys: np.ndarray) -> np.ndarray:
-        """Return indices of the patterns whose key is one of `keys`."""
-        lo = np.searchsorted(self.keys, keys, side="left")
-        hi = np.searchsorted(self.keys, keys, side="right")
-        hits = hi > lo
-        if not hits.any():
-            return np.empty(0, np.int64)
-        return np.concatenate([np.arange(a, b) for a, b in zip(lo[hits], hi[hits])])
-
 
 def circle_centres(spacing_rad: float) -> np.ndarray:
     """Return unit vectors spread evenly over the sphere (a Fibonacci lattice), ~spacing_rad apart."""
@@ -222,18 +213,27 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
     found: list[FieldEstimate] = []
     last_match = 0
     lo_scale, hi_scale = 1.0 / (1.0 + tolerance), 1.0 / (1.0 - tolerance)
+    # Hash keys of an image pattern: its own bin and, per ratio within ratio_tolerance of a bin
+    # edge, the neighbour bin (offsets -1/0/+1 per ratio), in increasing key order (no repeats).
     offsets = np.array(list(itertools.product((-1, 0, 1), repeat=5)), np.int64)
     weights = RATIO_BASE ** np.arange(5, dtype=np.int64)
+    by_key = np.argsort(offsets @ weights)
+    offsets = offsets[by_key]
+    offset_keys = offsets @ weights
+    lower, upper = offsets < 0, offsets > 0
     for p in range(subsets.shape[0]):
         if deadline.passed() or (found and p - last_match > SCAN_AFTER_MATCH):
             break
         base = np.floor(ratios[p] / RATIO_BIN).astype(np.int64)
-        near = (offsets == 0) | ((offsets < 0) & (ratios[p] - ratio_tolerance < base * RATIO_BIN)) | (
-            (offsets > 0) & (ratios[p] + ratio_tolerance >= (base + 1) * RATIO_BIN))
-        keys = np.unique(((base + offsets)[near.all(axis=1)]) @ weights)
-        cand = patterns.candidates(keys)
-        if cand.size == 0:
+        near = ((offsets == 0) | (lower & (ratios[p] - ratio_tolerance < base * RATIO_BIN))
+                | (upper & (ratios[p] + ratio_tolerance >= (base + 1) * RATIO_BIN))).all(axis=1)
+        keys = base @ weights + offset_keys[near]
+        first = np.searchsorted(patterns.keys, keys, side="left")
+        last = np.searchsorted(patterns.keys, keys, side="right")
+        hit = last > first
+        if not hit.any():
             continue
+        cand = np.concatenate([np.arange(a, b) for a, b in zip(first[hit], last[hit])])
         # f_true / f_nominal = image angle (rays of the nominal focal length) / catalog angle.
         scale = largest[p] / patterns.largest[cand]
         close = np.all(np.abs(patterns.ratios[cand] - ratios[p]) <= ratio_tolerance, axis=1)
