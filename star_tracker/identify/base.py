@@ -455,6 +455,9 @@ class StarIdentifier:
             check = verify(rotation, geometry.x, geometry.y, self.database, camera, radius)
             if check.spot_index.size < MIN_STARS:
                 return None
+            if spot_index is not None and np.array_equal(check.spot_index, spot_index) \
+                    and np.array_equal(check.star_index, star_index):
+                break  # the same matches: the refit, and every pass after it, would repeat the last
             spot_index, star_index = check.spot_index, check.star_index
             solution = quest(geometry.rays[spot_index], vectors[star_index], geometry.sigma[spot_index])
             rotation = solution.rotation
