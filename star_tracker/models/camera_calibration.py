@@ -6,10 +6,9 @@ Given, for one or several frames, the matched stars (spot pixel positions with t
 covariances and the catalog unit vectors in ICRS), `calibrate_camera` fits the focal length
 (fx and fy scaled together: the aspect ratio is kept), the radial distortion k1, k2 and the
 principal point cx, cy of a `CameraModel`, together with every frame's attitude, by weighted
-least squares on the pixel residuals (a soft-L1 loss first so a wrong match cannot drag the
-fit, then a plain least-squares pass over the inliers for the covariance; one frame by
-models/dense_least_squares.py, several by scipy.optimize.least_squares on the sparse
-problem). Tangential distortion p1, p2 and k3 are kept as given.
+least squares on the pixel residuals (scipy.optimize.least_squares; a soft-L1 loss first so a
+wrong match cannot drag the fit, then a plain least-squares pass over the inliers for the
+covariance). Tangential distortion p1, p2 and k3 are kept as given.
 
 What is fitted is decided by the stars (`CalibrationConfig.max_corner_sigma_px`): the
 parameter groups are nested, f ⊂ f + k1 ⊂ f + k1 + k2 ⊂ f + k1 + k2 + (cx, cy), and the largest
@@ -33,7 +32,6 @@ import numpy as np
 
 from .attitude import rotation_vector_to_matrix, skew
 from .camera import CameraModel
-from .dense_least_squares import dense_least_squares
 
 # Nested models, smallest first: each group's parameter names (CameraCalibration.sigma keys).
 PARAMETER_GROUPS = (("f",), ("k1",), ("k2",), ("cx", "cy"))
@@ -238,41 +236,38 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
 
     def jacobian(params, keep=None):
         _, jac = residual_and_jacobian(params)
-        return jac.copy() if keep is None else jac.multiply(np.repeat(keep, 2)[:, None]).tocsr()
+        if keep is None:
+            return jac.copy()
+        rows = np.repeat(keep, 2)
+        return jac.multiply(rows[:, None]).tocsr() if hasattr(jac, "multiply") else jac * rows[:, None]
 
     # Analytic derivatives (finite differences took most of a solve's refinement time). One frame
-    # (solve) is a small dense problem: models/dense_least_squares.py (scipy's per-call cost was half
-    # its time); several frames (calibrate) a sparse one: a frame's rotation moves only its own stars.
-    if count == 1:
-        plain = dense_least_squares(residual_and_jacobian, x0)
-        robust = dense_least_squares(residual_and_jacobian, plain.x, soft_l1_scale=config.robust_scale)
-        robust_residual = robust.residual
-    else:
-        robust = least_squares(whitened, x0, jac=jacobian, loss="soft_l1", f_scale=config.robust_scale,
-                               x_scale="jac", method="trf")
-        robust_residual = robust.fun
-    norms = np.linalg.norm(robust_residual.reshape(-1, 2), axis=1)
+    # (solve) is a small dense problem with an exact trust-region step; several frames (calibrate)
+    # a sparse one: a frame's rotation moves only its own stars.
+    # One frame: MINPACK's Levenberg-Marquardt (plain least squares, dense only) brings the start
+    # near the minimum in a few steps; trf's trust region, sized from the start (~0 here), takes
+    # ~8 steps to grow to it (the robust fit 13-16 evaluations -> 4; same minimum to 1e-8 px).
+    plain = least_squares(whitened, x0, jac=jacobian, method="lm", x_scale="jac") if count == 1 else None
+    robust = least_squares(whitened, x0 if plain is None else plain.x, jac=jacobian, loss="soft_l1",
+                           f_scale=config.robust_scale, x_scale="jac", method="trf")
+    norms = np.linalg.norm(robust.fun.reshape(-1, 2), axis=1)
     # Robust spread of the whitened residuals (the median norm of a 2-D unit normal is sqrt(2 ln 2)),
     # at least the stated one: noise-free or overestimated covariances must not make the cut tighter.
     spread = max(float(np.median(norms)) / math.sqrt(2.0 * math.log(2.0)), 1.0)
     keep = (norms <= config.outlier_sigma * spread).astype(float)
-    if count == 1 and keep.all():  # the final pass's problem is the plain fit's: solved already
-        final_x, final_residual, jac = plain.x, plain.residual, plain.jacobian
-    elif count == 1:
-        rows = np.repeat(keep, 2)
-        final = dense_least_squares(residual_and_jacobian, robust.x, row_weights=rows)
-        final_x, final_residual, jac = final.x, final.residual * rows, final.jacobian * rows[:, None]
+    if plain is not None and keep.all():
+        final = plain  # every star an inlier: the final pass's problem is the plain fit's, solved already
     else:
         final = least_squares(whitened, robust.x, jac=jacobian, args=(keep,), x_scale="jac", method="trf")
-        final_x, final_residual, jac = final.x, final.fun, final.jac.toarray()
     inlier_count = int(keep.sum())
-    dof = max(2 * inlier_count - final_x.size, 1)
-    reduced_chi2 = float(np.sum(final_residual ** 2)) / dof
+    dof = max(2 * inlier_count - final.x.size, 1)
+    reduced_chi2 = float(np.sum(final.fun ** 2)) / dof
+    jac = final.jac.toarray() if hasattr(final.jac, "toarray") else final.jac
     try:
         covariance_all = np.linalg.inv(jac.T @ jac) * max(reduced_chi2, 1e-12)
     except np.linalg.LinAlgError:
         covariance_all = np.full((x0.size, x0.size), np.inf)
-    fitted_camera = _camera_with(camera, names, final_x[3 * count:])
+    fitted_camera = _camera_with(camera, names, final.x[3 * count:])
     block = covariance_all[3 * count:, 3 * count:].copy()
     # f is fitted as a log scale: its covariance rows/columns scale by f.
     jacobian = np.diag([fitted_camera.fx if n == "f" else 1.0 for n in names])
@@ -285,7 +280,7 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
     f = fitted_camera.fx
     effect = {"f": radius, "k1": f * radius ** 3, "k2": f * radius ** 5, "cx": 1.0, "cy": 1.0}  # d corner / d param
     corner = {n: sigma[n] * effect[n] for n in names}
-    residual_px = _pixel_residuals(frames, fitted_camera, final_x, count)
+    residual_px = _pixel_residuals(frames, fitted_camera, final.x, count)
     inliers, frame_rms = [], []
     for k in range(count):
         mask = keep[bounds[k]:bounds[k + 1]] > 0
@@ -293,7 +288,7 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
         r = residual_px[bounds[k]:bounds[k + 1]][mask]
         frame_rms.append(math.sqrt(float(np.mean(r ** 2))) if r.size else float("nan"))
     all_inliers = residual_px[keep > 0]
-    rotations = tuple(frame.rotation @ rotation_vector_to_matrix(final_x[3 * k:3 * k + 3])
+    rotations = tuple(frame.rotation @ rotation_vector_to_matrix(final.x[3 * k:3 * k + 3])
                       for k, frame in enumerate(frames))
     return CameraCalibration(fitted_camera, names, (), value, sigma, covariance, corner, rotations, tuple(inliers),
                              tuple(frame_rms), math.sqrt(float(np.mean(all_inliers ** 2))) if all_inliers.size
