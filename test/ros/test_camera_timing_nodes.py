@@ -182,7 +182,9 @@ def test_a_stalled_camera_skips_only_the_backlog_beyond_its_limit(driver, tmp_pa
     node.create_subscription(DiagnosticArray, "/diagnostics", lambda msg: diagnostics.update(
         {kv.key: kv.value for status in msg.status if status.name.endswith("camera_simulator")
          for kv in status.values}), 10)
-    frames, backlog = 40, 2
+    # Enough frames that the stall ends well before the last one even when a loaded host
+    # delivers the first five late (with 40, the schedule's end clamped the frames due).
+    frames, backlog = 100, 2
     cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": {**PARAMS, "max_frames": frames,
                                                                       "max_backlog_frames": backlog}},
                         nodes=("camera_simulator",)).start()
