@@ -5,8 +5,8 @@ Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions at mid-exposure w
 extract.extract_spots runs the stage: detect (background, noise, threshold, components) ->
 candidates (hot-pixel cleaning, centre of gravity, shape; measure's primitives) -> saturation
 (clipped spots) -> point_fits (Gaussian PSF: psf_fit, kernels; blends) / streak_spots (smeared
-stars: smear, streak_free_fit, streak_path_fit, streak_groups on streak_model and
-levenberg_marquardt) -> `Spots` (spots). config holds CentroidConfig, rate_aid the body-rate
+stars: smear, streak_free_fit (compiled: streak_free_kernel), streak_path_fit, streak_groups on
+streak_model and levenberg_marquardt) -> `Spots` (spots). config holds CentroidConfig, rate_aid the body-rate
 aid's check, records the records passed between the steps.
 """
 from .detect import estimate_background, robust_sigma

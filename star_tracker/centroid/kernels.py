@@ -161,6 +161,11 @@ def warm_up() -> None:
     for dtype in WARM_IMAGE_DTYPES:  # measure_small passes every image read-only: one variant per dtype
         measure_small(np.zeros((32, 32), dtype), SmallSpots(one, one, np.zeros(1), index, index + 4, index, index + 4),
                       PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
+    from .streak_free_fit import fit_streaks
+
+    streak = np.zeros((24, 24), np.float32)  # fit_streaks hands the kernel float32 windows whatever the image
+    streak[12, 8:16] = 100.0
+    fit_streaks(streak, [12.0], [12.0], [800.0], [8.0], [0.0], 1.0, 1.0, 1.0, iterations=2)
 
 
 @njit(cache=True)

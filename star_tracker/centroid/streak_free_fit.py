@@ -3,22 +3,21 @@
 Free fit of straight streaks.
 
 The PSF swept uniformly along a segment of fitted centre, flux, length and direction, seeded
-from the spots' moments (no body rate needed).
+from the spots' moments (no body rate needed). Windows are cut here; the fit itself is
+compiled (streak_free_kernel), one spot at a time.
 """
 from __future__ import annotations
 
-from functools import partial
 from typing import NamedTuple
 
 import numpy as np
 
-from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, levenberg_marquardt
+from .levenberg_marquardt import DECREMENT_TOLERANCE, REWEIGHT_STEPS, inverse_fisher
 from .smear import segment_length
 from .streak_fit import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, batches, check_common_inputs, check_excluded,
                          flux_scaled_units, flux_start, store_batch, window_bounds)
-from .streak_model import StreakWindows, cut_windows, sample_sums, simpson_nodes
-
-NODE_SPACING_SIGMA = 1.0  # Simpson nodes along the segment this far apart [PSF sigma]
+from .streak_free_kernel import FreeFitSettings, fit_segments
+from .streak_model import StreakWindows, cut_windows
 
 
 def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: float, gain: float,
@@ -89,12 +88,6 @@ def _window_moments(win: StreakWindows):
     return major, 0.5 * np.arctan2(2 * mxy, mxx - myy)
 
 
-def _even_intervals(count: np.ndarray) -> np.ndarray:
-    """Smallest even integers >= count (at least 2): Simpson interval counts."""
-    n = np.maximum(np.ceil(count), 2).astype(np.int64)
-    return n + n % 2
-
-
 class _FreeStart(NamedTuple):
     """
     Starting values per spot (n,).
@@ -128,13 +121,18 @@ def _fit_free_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray
     max_length = np.hypot(bounds[:, 1] - bounds[:, 0], bounds[:, 3] - bounds[:, 2]) + 1.0
     # Start off L = 0: there the model is flat in L and theta (a saddle the fit cannot leave).
     length = np.clip(length, 0.5 * sigma, 2.0 * max_length)
-    model = _segment_model(win, sigma, noise, length, max_length)
     params = np.column_stack([start.x0, start.y0, flux_start(start.flux0, win, noise), length, angle])
     valid = np.all(np.isfinite(params), axis=1) & (win.mask.sum(axis=1) > 6)
-    params, normal, done, chi2 = levenberg_marquardt(model, params, win, valid, PixelNoise(noise, setup.gain),
-                                                     setup.iterations)
-    sigmas = store_batch(result, batch, win, params, inverse_fisher(normal, model.scale_of(params)), done, valid,
-                         chi2)
+    n = batch.size
+    own_size = np.stack([bounds[:, 3] - bounds[:, 2] + 1, bounds[:, 1] - bounds[:, 0] + 1], axis=1)
+    settings = FreeFitSettings(float(sigma), float(noise), float(setup.gain), int(setup.iterations), REWEIGHT_STEPS,
+                               DECREMENT_TOLERANCE)
+    solution = fit_segments(win.data.reshape(n, win.n_rows, win.n_cols), win.mask.reshape(n, win.n_rows, win.n_cols),
+                            win.origin, own_size.astype(np.int64), np.ascontiguousarray(params, np.float64),
+                            max_length.astype(np.float64), valid, settings)
+    params = solution.params
+    inverse = inverse_fisher(solution.fisher, flux_scaled_units(params, noise))
+    sigmas = store_batch(result, batch, win, params, inverse, solution.done, valid, solution.chi2)
     fitted_length, fitted_angle = params[:, 3], params[:, 4]
     result.converged[batch] &= fitted_length <= max_length
     # Direction of an undirected segment in (-pi/2, pi/2]; undefined for an unresolved one.
@@ -144,82 +142,3 @@ def _fit_free_batch(setup: StreakFitSetup, batch: np.ndarray, bounds: np.ndarray
     result.length_sigma[batch] = np.where(valid, sigmas[:, 3], np.nan)
     result.angle[batch] = np.where(resolved, direction, np.nan)
     result.angle_sigma[batch] = np.where(resolved, sigmas[:, 4], np.nan)
-
-
-def _segment_model(win: StreakWindows, sigma: float, noise: float, length: np.ndarray,
-                   max_length: np.ndarray) -> LeastSquaresModel:
-    """
-    Return the straight-segment model (x, y, F, L, theta) on the windows `win`.
-
-    Simpson nodes along the segment, their count set from the starting lengths `length`
-    [px]; L capped at twice `max_length` [px].
-    """
-    var_eff = sigma * sigma + 1.0 / 12.0
-    scale = 1.0 / np.sqrt(2.0 * var_eff)
-    amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)  # peak of the unit-flux Gaussian
-    node_spacing = NODE_SPACING_SIGMA * np.sqrt(var_eff)
-
-    # Nodes per spot: a fixed count keeps each spot's model a smooth function of L (a count
-    # following L would change the model in steps the acceptance test sees as noise); it
-    # grows, once in a while, only when L outgrows the node spacing.
-    intervals = _even_intervals(1.2 * length / node_spacing)
-
-    def evaluate(index, p):
-        xc, yc, f, ell, th = p.T
-        needed = _even_intervals(ell / node_spacing)
-        grow = needed > intervals[index]
-        if np.any(grow):
-            intervals[index[grow]] = _even_intervals(1.2 * ell[grow] / node_spacing)
-        s, w = simpson_nodes(intervals[index])
-        ct, st = np.cos(th), np.sin(th)
-        sx = (xc - win.origin[index, 0])[:, None] + (ell * ct)[:, None] * s
-        sy = (yc - win.origin[index, 1])[:, None] + (ell * st)[:, None] * s
-        sums = sample_sums(win, sx, sy, w, s, scale)  # shape, gx', gy', s gy', s gx'
-        a = f * amplitude_unit
-        b = a * (2.0 * scale)  # d/d(sample position) of the unnormalized profiles
-        bl = b * ell
-        # Jacobian rows (x, y, F, L, theta) and the model as combinations of the sums.
-        mix = np.zeros((index.size, 6, 5), np.float32)
-        mix[:, 0, 1] = b
-        mix[:, 1, 2] = b
-        mix[:, 2, 0] = amplitude_unit
-        mix[:, 3, 3], mix[:, 3, 4] = b * st, b * ct  # along the streak, growing with s
-        mix[:, 4, 3], mix[:, 4, 4] = bl * ct, -bl * st  # across it, growing with s
-        mix[:, 5, 0] = a
-        return np.matmul(mix, sums)
-
-    def constrain(index, p):
-        p = p.copy()
-        # The model is even in L; the cap (flagged below) bounds the nodes of a runaway fit.
-        p[:, 3] = np.minimum(np.abs(p[:, 3]), 2.0 * max_length[index])
-        return p
-
-    return LeastSquaresModel(evaluate, _segment_max_step, constrain, partial(flux_scaled_units, noise=noise),
-                             _unresolved)
-
-
-def _segment_max_step(p: np.ndarray) -> np.ndarray:
-    """Trust region of (x, y, F, L, theta): 1 px, none (linear), max(2 px, L / 2), 0.3 rad."""
-    limit = np.empty_like(p)
-    limit[:, 0:2] = 1.0  # px per iteration
-    limit[:, 2] = np.inf  # the model is linear in flux
-    limit[:, 3] = np.maximum(2.0, 0.5 * p[:, 3])  # px
-    limit[:, 4] = 0.3  # rad
-    return limit
-
-
-def _unresolved(p: np.ndarray, covariance: np.ndarray):
-    """
-    Return an unresolved streak (L < 2 sigma_L).
-
-    The model is even in L, so near L = 0 the chi^2 still to gain in L and theta stays at
-    the noise level, ~1, however small L gets; (x, y, F) decouple from them: judge
-    convergence on (x, y, F). Theta is held (it would wander by the trust region and shrink
-    every step with it); L stays free to grow if the spot is a streak after all. Returns the
-    skipped and the held parameters (n, 5) bool.
-    """
-    unresolved = p[:, 3] < 2.0 * np.sqrt(np.maximum(covariance[:, 3, 3], 0.0))
-    skip, hold = np.zeros(p.shape, bool), np.zeros(p.shape, bool)
-    skip[:, 3:] = unresolved[:, None]
-    hold[:, 4] = unresolved
-    return skip, hold
