@@ -3,8 +3,9 @@
 Weighted least squares by Levenberg-Marquardt on batches of windows.
 
 Every spot of a batch fitted at once, each in its own window, one spot's failure never
-affecting another's (the streak fits' solver; generic in the model, which the caller
-evaluates).
+affecting another's (the path and group streak fits' solver; generic in the model, which
+the caller evaluates). The free streak fit runs the same algorithm compiled, one spot at a
+time (streak_free_kernel).
 """
 from __future__ import annotations
 
@@ -37,17 +38,13 @@ class LeastSquaresModel(NamedTuple):
     evaluate(index, params (n, P)) -> aug (n, P + 1, M) float32: the jacobian (P rows) and the
     model [ADU] over the M window pixels of the spots `index` of the batch;
     max_step(params) -> (n, P) trust-region half-widths; constrain(index, params) -> params
-    projected onto the feasible set; scale_of(params) -> (n, P) typical parameter units;
-    undetermined(params, covariance (n, P, P)) -> two (n, P) bool masks: parameters left out
-    of the convergence test, and parameters held fixed in the step (a zero-length streak's
-    length and angle, see streak_free_fit), or None (every parameter determined).
+    projected onto the feasible set; scale_of(params) -> (n, P) typical parameter units.
     """
 
     evaluate: Callable
     max_step: Callable
     constrain: Callable
     scale_of: Callable
-    undetermined: Callable | None = None
 
 
 class PixelNoise(NamedTuple):
@@ -158,19 +155,17 @@ class _BatchState:
         """One step for the spots `active` (params updated where chi^2 falls); returns the spots still moving."""
         p, g = params[active], self.grad[active]
         floor = _damping_floor(self.normal[active], model.scale_of(p))
-        decrement, hold = self._decrement(model, active, p, g, floor)
+        decrement = self._decrement(active, g, floor)
         a = self.normal[active] + self.correction[active]
         finished = ~(decrement > DECREMENT_TOLERANCE)  # NaN: give up
         self.done[active[finished & np.isfinite(decrement)]] = True
         keep = ~finished
-        active, p, a, g, floor, hold = active[keep], p[keep], a[keep], g[keep], floor[keep], hold[keep]
+        active, p, a, g, floor = active[keep], p[keep], a[keep], g[keep], floor[keep]
         if active.size == 0:
             return active
         diag = np.diagonal(a, axis1=1, axis2=2)
         damped = a + (self.lam[active, None] * diag + floor)[:, :, None] * self.eye
-        if np.any(hold):  # a free direction would take the whole trust region
-            damped = np.where(hold[:, :, None] | hold[:, None, :], self.eye, damped)
-        step = _solve(damped, np.where(hold, 0.0, g))
+        step = _solve(damped, g)
         over = np.max(np.abs(step) / model.max_step(p), axis=1)
         step /= np.maximum(over, 1.0)[:, None]  # trust region, direction kept
         trial = model.constrain(active, p + step)
@@ -191,20 +186,10 @@ class _BatchState:
             self._accept(params, active, better, _Trial(trial, aug, r, step, a, g, predicted, ratio))
         return self._reject(active, active[~better])
 
-    def _decrement(self, model: LeastSquaresModel, active, p, g, floor):
-        """
-        Return the Gauss-Newton decrement g^T N^-1 g of the spots `active` (the chi^2 still to gain).
-
-        Over their determined parameters; also the (n, P) mask of parameters the step holds.
-        """
+    def _decrement(self, active, g, floor):
+        """Return the Gauss-Newton decrement g^T N^-1 g of the spots `active` (the chi^2 still to gain)."""
         floored = self.normal[active] + floor[:, :, None] * self.eye
-        if model.undetermined is None:
-            judged, hold = g, np.zeros(p.shape, bool)
-        else:  # decrement over the other parameters, the undetermined ones held fixed
-            skip, hold = model.undetermined(p, _batched_inverse(floored))
-            judged = np.where(skip, 0.0, g)
-            floored = np.where(skip[:, :, None] | skip[:, None, :], self.eye, floored)
-        return np.sum(_solve(floored, judged) * judged, axis=1), hold
+        return np.sum(_solve(floored, g) * g, axis=1)
 
     def _accept(self, params, active, better, trial: "_Trial") -> None:
         """Take the trial of the spots active[better]: relinearize, update S, relax damping."""

@@ -37,7 +37,7 @@ def _path_model(win: StreakWindows, x, y, flux, offsets, sigma: float) -> np.nda
     sx = (x - win.origin[:, 0])[:, None] + offsets[:, :, 0]
     sy = (y - win.origin[:, 1])[:, None] + offsets[:, :, 1]
     weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
-    shape = sample_sums(win, sx, sy, weights, None, scale)[:, 0]
+    shape = sample_sums(win, sx, sy, weights, scale)[:, 0]
     return shape * (flux / (2.0 * np.pi * var_eff))[:, None]
 
 
@@ -191,7 +191,7 @@ def _group_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: f
         for m in range(m_stars):
             sx = (p[:, 3 * m] - win.origin[index, 0])[:, None] + offsets[index, :, 0]
             sy = (p[:, 3 * m + 1] - win.origin[index, 1])[:, None] + offsets[index, :, 1]
-            sums = sample_sums(win, sx, sy, weights[index], None, scale)  # shape, gx', gy'
+            sums = sample_sums(win, sx, sy, weights[index], scale)  # shape, gx', gy'
             a = (p[:, 3 * m + 2] * amplitude_unit).astype(np.float32)[:, None]
             aug[:, 3 * m] = a * np.float32(2.0 * scale) * sums[:, 1]
             aug[:, 3 * m + 1] = a * np.float32(2.0 * scale) * sums[:, 2]

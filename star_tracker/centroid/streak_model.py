@@ -13,9 +13,10 @@ centre; the fits reach the Cramer-Rao bound of the exact model, see test/centroi
 and it needs exp only, ~5x cheaper than erf. A streak is a weighted sum of PSF copies along
 its path: Simpson's rule with nodes <= 1 PSF sigma apart for a straight segment (< 1 % of
 the peak from the continuous segment, at its ends; symmetric, so no position error, and
-lengths come out within 0.01 px), the given samples for a known path. Each copy is
-separable in x and y, so a window's model and its derivatives are batched matrix products
-sum_k w_k py_k px_k^T, as in the renderer; the profiles are float32 in window coordinates.
+lengths come out within 0.01 px; the free fit's, compiled in streak_free_kernel), the given
+samples for a known path. Each copy is separable in x and y, so a window's model and its
+derivatives are batched matrix products sum_k w_k py_k px_k^T, as in the renderer; the
+profiles are float32 in window coordinates.
 
 Image convention: pixel (0, 0) is the centre of the top-left pixel; x = column, y = row [px].
 """
@@ -99,47 +100,24 @@ def _profiles(count: int, positions: np.ndarray, scale: float, log_weights, g_ou
     np.multiply(v, g_out, out=vg_out)
 
 
-def simpson_nodes(intervals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """
-    Simpson's rule on [-1/2, 1/2] with an even number of intervals per spot (n,).
-
-    Node fractions s and weights (n, K), K = max(intervals) + 1; spots with fewer intervals
-    get weight-0 nodes at 0 to fill up.
-    """
-    node = np.arange(int(np.max(intervals)) + 1)[None, :]
-    count = intervals[:, None]
-    used = node <= count
-    weights = np.where((node == 0) | (node == count), 1.0, np.where(node % 2 == 1, 4.0, 2.0))
-    return np.where(used, node / count - 0.5, 0.0), np.where(used, weights / (3.0 * count), 0.0)
-
-
-def sample_sums(win: StreakWindows, sx: np.ndarray, sy: np.ndarray, weights: np.ndarray, lever, scale: float):
+def sample_sums(win: StreakWindows, sx: np.ndarray, sy: np.ndarray, weights: np.ndarray, scale: float):
     """
     Return weighted sums over the K samples of a streak of separable PSF copies, for every window pixel.
 
-    Unnormalized (see _profiles): (n, Q, R*C) float32 holding shape = sum w gy gx,
-    gx' = sum w gy (v g)_x, gy' = sum w (v g)_y gx (the x and y derivatives / 2 scale), and
-    with a lever s (n, K) also s gy' and s gx' (the same weighted by s: derivatives along
-    the streak). sx, sy: (n, K) sample positions [px] in the window frame; weights: (n, K)
-    >= 0, summing to 1 per spot. Batched matrix products do every sum over samples.
+    Unnormalized (see _profiles): (n, 3, R*C) float32 holding shape = sum w gy gx,
+    gx' = sum w gy (v g)_x, gy' = sum w (v g)_y gx (the x and y derivatives / 2 scale). sx,
+    sy: (n, K) sample positions [px] in the window frame; weights: (n, K) >= 0, summing to
+    1 per spot. Batched matrix products do every sum over samples.
     """
     n_rows, n_cols = win.n_rows, win.n_cols
     n, k = sx.shape
     x_profiles = np.empty((n, 2, k, n_cols), np.float32)  # g, v g along x
     _profiles(n_cols, sx, scale, None, x_profiles[:, 0], x_profiles[:, 1], transposed=False)
     gy = np.empty((n, n_rows, k), np.float32)
-    vgy = np.empty((n, 1 if lever is None else 2, n_rows, k), np.float32)  # v g [, s v g] along y
-    _profiles(n_rows, sy, scale, np.log(weights), gy, vgy[:, 0], transposed=True)
-    sums = np.empty((n, 3 if lever is None else 5, n_rows, n_cols), np.float32)
-    stacked = sums.reshape(n, -1, n_cols)  # a view: slices of it are outputs for matmul
+    vgy = np.empty((n, n_rows, k), np.float32)  # v g along y
+    _profiles(n_rows, sy, scale, np.log(weights), gy, vgy, transposed=True)
+    sums = np.empty((n, 3, n_rows, n_cols), np.float32)
     np.matmul(gy, x_profiles[:, 0], out=sums[:, 0])  # shape
     np.matmul(gy, x_profiles[:, 1], out=sums[:, 1])  # gx'
-    if lever is None:
-        np.matmul(vgy[:, 0], x_profiles[:, 0], out=sums[:, 2])  # gy'
-    else:
-        lever = lever.astype(np.float32)[:, None, :]
-        np.multiply(vgy[:, 0], lever, out=vgy[:, 1])
-        np.matmul(vgy.reshape(n, 2 * n_rows, k), x_profiles[:, 0], out=stacked[:, 2 * n_rows:4 * n_rows])  # gy', s gy'
-        np.multiply(gy, lever, out=gy)  # gy is not needed any more
-        np.matmul(gy, x_profiles[:, 1], out=sums[:, 4])  # s gx'
-    return sums.reshape(n, sums.shape[1], -1)
+    np.matmul(vgy, x_profiles[:, 0], out=sums[:, 2])  # gy'
+    return sums.reshape(n, 3, -1)

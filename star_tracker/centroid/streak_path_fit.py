@@ -114,7 +114,7 @@ def _path_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: fl
         xc, yc, f = p.T
         sx = (xc - win.origin[index, 0])[:, None] + offsets[index, :, 0]
         sy = (yc - win.origin[index, 1])[:, None] + offsets[index, :, 1]
-        sums = sample_sums(win, sx, sy, weights[index], None, scale)  # shape, gx', gy'
+        sums = sample_sums(win, sx, sy, weights[index], scale)  # shape, gx', gy'
         a = f * amplitude_unit
         mix = np.zeros((index.size, 4, 3), np.float32)  # jacobian rows (x, y, F) and the model
         mix[:, 0, 1] = mix[:, 1, 2] = a * (2.0 * scale)
