@@ -5,9 +5,10 @@ The streak fits' common ground.
 Their result record (StreakFit), input checks, window bounds and batches, and how a batch's
 solution is stored.
 
-Fitting: weighted least squares by Levenberg-Marquardt on all spots at once, each in its own
-window (padded to one size per batch, pixels outside the window, off the image or non-finite
-masked); one spot's failure never affects another's. Noise model as fit_gaussian_psf: pixel
+Fitting: weighted least squares by Levenberg-Marquardt, each spot in its own window (padded
+to one size per batch, pixels outside the window, off the image or non-finite masked), all
+spots of a batch at once (levenberg_marquardt) or, for the free fit, one at a time compiled
+(streak_free_kernel); one spot's failure never affects another's. Noise model as fit_gaussian_psf: pixel
 variance = max(model, 0) / gain + noise^2 [ADU^2]; residual images are background-
 subtracted [ADU]. The covariance reported is the (x, y) block of the inverse Fisher matrix
 of all fitted parameters at the solution.
@@ -27,8 +28,9 @@ PSF_RADIUS_SIGMA = 4.0  # window margin beyond the streak ends [sigma] (plus 1 p
 SIGNIFICANT_FLUX = 3.0
 _MAX_WINDOW_ELEMENTS = 3_000_000  # spots x parameters x pixels per batch (memory bound)
 _MAX_PADDING = 2.0  # padded window pixels per own window pixel in a batch
-# ... once the batch holds this many padded pixels: below it a batch costs its fixed
-# per-iteration overhead (~0.2 ms x 30 Levenberg-Marquardt steps), not its pixels.
+# ... once the batch holds this many padded pixels: below it a batch of the numpy solver
+# (levenberg_marquardt) costs its fixed per-iteration overhead (~0.2 ms x 30 steps), not its
+# pixels (the compiled free fit works on each spot's own window: padding costs it memory only).
 _PADDING_FREE_PIXELS = 20_000
 
 
