@@ -170,8 +170,10 @@ def _fit_spot(data, mask, col0, row0, rows, cols, p, max_length, normal, setting
     intervals = _even_intervals(1.2 * p[3] / node_spacing)
     _segment_model(p, col0, row0, rows, cols, intervals, scale, work)
     _segment_jacobian(p, rows, cols, intervals, scale, work)
-    chi2 = _linearize(data, mask, rows, cols, True, noise2, settings.gain, normal, grad, work)
-    reweighted = 1
+    reweighted = 0  # linearizations so far: the first settings.reweight_steps set the weights
+    chi2 = _linearize(data, mask, rows, cols, reweighted < settings.reweight_steps, noise2, settings.gain, normal,
+                      grad, work)
+    reweighted += 1
     if not math.isfinite(chi2):
         return False, chi2, 0
     lam, nu = _START_DAMPING, 2.0
