@@ -59,14 +59,15 @@ def fit_single_psf(windows, start, settings):
     1e-9 relative damping, stop when the position step is below 1 % of its sigma, covariance
     from the last step's inverse). windows: psf_fit.PsfWindows, data float64 and valid bool
     (n, S, S), col0, row0 float64 (n,); start: psf_fit.PsfStart of (n,) arrays; settings:
-    psf_fit.PsfSettings (a halo share > 0: the core and halo Gaussians of
-    double_gaussian_psf). Returns x, y, flux (n,), cov (n, 2, 2), flux_var (n,), converged
-    (n,).
+    psf_fit.PsfSettings (halo components: the core and halo Gaussians of core_halo_psf).
+    Returns x, y, flux (n,), cov (n, 2, 2), flux_var (n,), converged (n,).
     """
     data, valid, col0, row0 = windows.data, windows.valid, windows.col0, windows.row0
     x0, y0, flux0 = start.x, start.y, start.flux
     sigma, noise, gain, iterations = settings.sigma, settings.noise, settings.gain, settings.iterations
-    halo, core_share = settings.halo_share, 1.0 - settings.halo_share
+    halo_sigmas, halo_shares = settings.halo_sigmas, settings.halo_shares
+    halos = halo_sigmas.size
+    core_share = 1.0 - halo_shares.sum()
     n, size, _ = data.shape
     x, y, flux = x0.copy(), y0.copy(), np.maximum(flux0.copy(), 1e-9)
     cov = np.full((n, 2, 2), np.nan)
@@ -76,7 +77,8 @@ def fit_single_psf(windows, start, settings):
     dpx = np.empty(size)
     py = np.empty(size)
     dpy = np.empty(size)
-    hx, dhx, hy, dhy = np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+    hx, dhx = np.empty((halos, size)), np.empty((halos, size))  # the halo Gaussians' profiles
+    hy, dhy = np.empty((halos, size)), np.empty((halos, size))
     normal = np.empty((3, 3))
     inv = np.empty((3, 3))
     grad = np.empty(3)
@@ -85,9 +87,9 @@ def fit_single_psf(windows, start, settings):
         for _ in range(iterations):
             _profile(col0[s] - 0.5, x[s], sigma, size, px, dpx)
             _profile(row0[s] - 0.5, y[s], sigma, size, py, dpy)
-            if halo > 0.0:
-                _profile(col0[s] - 0.5, x[s], settings.halo_sigma, size, hx, dhx)
-                _profile(row0[s] - 0.5, y[s], settings.halo_sigma, size, hy, dhy)
+            for h in range(halos):
+                _profile(col0[s] - 0.5, x[s], halo_sigmas[h], size, hx[h], dhx[h])
+                _profile(row0[s] - 0.5, y[s], halo_sigmas[h], size, hy[h], dhy[h])
             normal[:, :] = 0.0
             grad[:] = 0.0
             f = flux[s]
@@ -95,10 +97,16 @@ def fit_single_psf(windows, start, settings):
                 for j in range(size):
                     if not valid[s, i, j]:
                         continue
-                    if halo > 0.0:
-                        shape = core_share * py[i] * px[j] + halo * hy[i] * hx[j]
-                        jac[0] = f * (core_share * py[i] * dpx[j] + halo * hy[i] * dhx[j])
-                        jac[1] = f * (core_share * dpy[i] * px[j] + halo * dhy[i] * hx[j])
+                    if halos:
+                        shape = core_share * py[i] * px[j]
+                        slope_x = core_share * py[i] * dpx[j]
+                        slope_y = core_share * dpy[i] * px[j]
+                        for h in range(halos):
+                            shape += halo_shares[h] * hy[h, i] * hx[h, j]
+                            slope_x += halo_shares[h] * hy[h, i] * dhx[h, j]
+                            slope_y += halo_shares[h] * dhy[h, i] * hx[h, j]
+                        jac[0] = f * slope_x
+                        jac[1] = f * slope_y
                     else:
                         shape = py[i] * px[j]
                         jac[0] = f * py[i] * dpx[j]
@@ -148,7 +156,7 @@ def warm_up() -> None:
     data[0, 3, 3] = 100.0
     fit_single_psf(PsfWindows(data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1)),
                    PsfStart(np.full(1, 3.0), np.full(1, 3.0), np.full(1, 100.0)),
-                   PsfSettings(1.0, 1.0, 1.0, 5, 0.0, 0.0))
+                   PsfSettings(1.0, 1.0, 1.0, 5))
     component_stats(np.zeros((4, 4), np.int32), 1)
     from .elliptical_psf import EllipticalGaussianPsf, fit_elliptical
 

@@ -89,17 +89,17 @@ class PsfSettings(NamedTuple):
     The fit's fixed values.
 
     Sigma, the PSF 1-sigma [px]; noise, the 1-sigma pixel noise [ADU]; gain [e-/ADU];
-    iterations, the most Gauss-Newton steps; halo_sigma [px], halo_share: a second, wider
-    Gaussian of that share of the flux on the same centre (double_gaussian_psf; share 0:
-    one Gaussian).
+    iterations, the most Gauss-Newton steps; halo_sigmas [px], halo_shares (k,) float64:
+    wider Gaussians on the same centre with these shares of the flux, the core (sigma) the
+    rest (core_halo_psf; none: one Gaussian).
     """
 
     sigma: float
     noise: float
     gain: float
     iterations: int
-    halo_sigma: float = 0.0
-    halo_share: float = 0.0
+    halo_sigmas: np.ndarray = np.zeros(0)
+    halo_shares: np.ndarray = np.zeros(0)
 
 
 class PsfFit(NamedTuple):
@@ -137,7 +137,7 @@ def fit_psf_windows(windows: PsfWindows, start: PsfStart, sigma: float, noise: f
     n, m = x0.shape
     if n == 0:
         return PsfFit(x0, y0, flux0, np.zeros((0, m, 2, 2)), np.zeros((0, m), bool), np.zeros((0, m)))
-    settings = PsfSettings(float(sigma), float(noise), float(gain), int(iterations), 0.0, 0.0)
+    settings = PsfSettings(float(sigma), float(noise), float(gain), int(iterations))
     if m == 1 and USE_COMPILED:  # the common case, compiled: numpy's per-call overhead dominates it
         from .kernels import fit_single_psf
 

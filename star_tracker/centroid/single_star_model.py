@@ -9,7 +9,7 @@ The frame's bright stars judge (median reduced chi^2 of those of flux SNR >= BRI
   chi^2 2.56 vs 2.44, residuals against the catalogue 2-28 % larger); with fewer than
   MIN_JUDGED bright stars (faint frames) the estimate's shape is kept;
 - a round-model frame with WINGS_MIN_STARS or more bright round stars whose chi^2 exceeds
-  WINGS_MIN_CHI2 is refitted with the core/halo shape fitted to them (double_gaussian_psf)
+  WINGS_MIN_CHI2 is refitted with the core/halo shape fitted to them (core_halo_psf)
   when that lowers the chi^2 below WINGS_GAIN x the Gaussian's (judged on 6 stars, a real
   frame's shape lowered their chi^2 1.58 -> 1.06 and raised the residuals of its 100
   matched stars against the catalogue by 9 %).
@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .double_gaussian_psf import SHAPE_STARS, DoubleGaussianPsf, estimate_double_gaussian
+from .core_halo_psf import SHAPE_STARS, CoreHaloPsf, estimate_core_halo
 from .elliptical_psf import fit_elliptical
 from .psf_fit import PsfFit, PsfStart, PsfWindows
 from .records import FitContext
 
 BRIGHT_SNR = 30.0  # stars whose chi^2 judges the model (fainter ones' residuals are noise whatever the PSF)
 MIN_JUDGED = 5  # fewer bright stars than this judge nothing: the default stays
-WINGS_MIN_STARS = 15  # a core/halo shape (3 values) is judged on at least this many bright round stars
+WINGS_MIN_STARS = 15  # a core/halo shape (5 values) is judged on at least this many bright round stars
 WINGS_MIN_CHI2 = 1.5  # bright round stars' median reduced chi^2 under the Gaussian above this: look for wings
 WINGS_GAIN = 0.7  # ... and use the core/halo shape when it brings that median below this x the Gaussian's
 
@@ -45,7 +45,7 @@ def fit_frame_model(context: FitContext, windows: PsfWindows, fit: PsfFit, start
     with np.errstate(divide="ignore", invalid="ignore"):
         snr = fit.flux[:, 0] / np.sqrt(np.abs(fit.flux_var[:, 0]))
     bright = fit.converged[:, 0] & (snr >= BRIGHT_SNR)
-    gaussian = DoubleGaussianPsf(context.sigma, context.sigma, 0.0)
+    gaussian = CoreHaloPsf(context.sigma)
     if context.elliptical is not None:
         refit = _refit(context, context.elliptical, windows, fit, start)
         judged = np.flatnonzero(bright & refit.converged[:, 0])
@@ -59,8 +59,8 @@ def fit_frame_model(context: FitContext, windows: PsfWindows, fit: PsfFit, start
     if not one > WINGS_MIN_CHI2:
         return None, fit
     pick = judged[np.argsort(-snr[judged])[:SHAPE_STARS]]
-    psf = estimate_double_gaussian(_take(windows, pick), fit.x[pick, 0], fit.y[pick, 0], context.sigma,
-                                   context.noise, context.gain)
+    psf = estimate_core_halo(_take(windows, pick), fit.x[pick, 0], fit.y[pick, 0], context.sigma, context.noise,
+                             context.gain)
     if psf is None:
         return None, fit
     refit = _refit(context, psf, windows, fit, start)
@@ -76,7 +76,7 @@ def _refit(context: FitContext, psf, windows: PsfWindows, fit: PsfFit, start: Ps
     x0 = np.where(converged, fit.x[:, 0], start.x[:, 0])
     y0 = np.where(converged, fit.y[:, 0], start.y[:, 0])
     flux0 = np.where(converged, fit.flux[:, 0], np.maximum(start.flux[:, 0], 1.0))
-    if isinstance(psf, DoubleGaussianPsf):
+    if isinstance(psf, CoreHaloPsf):
         return psf.fit(windows, PsfStart(x0, y0, flux0), context.noise, context.gain)
     x, y, flux, cov, flux_var, ok = fit_elliptical(psf, windows.data, windows.valid, windows.col0, windows.row0, x0,
                                                    y0, flux0, context.noise, context.gain)
@@ -88,11 +88,11 @@ def window_shares(psf, col0, row0, x, y, size: int, sigma: float) -> np.ndarray:
     Return the (n, size, size) shares of unit-flux stars at (x, y) [px] in windows with top-left pixel (col0, row0).
 
     psf: None for the round Gaussian of 1-sigma `sigma` [px], else any model with `sample`
-    (DoubleGaussianPsf through its separable profiles).
+    (CoreHaloPsf through its separable profiles).
     """
     if psf is None:
-        psf = DoubleGaussianPsf(sigma, sigma, 0.0)
-    if isinstance(psf, DoubleGaussianPsf):
+        psf = CoreHaloPsf(sigma)
+    if isinstance(psf, CoreHaloPsf):
         return psf.window_shares(col0, row0, x, y, size)
     steps = np.arange(size, dtype=float)
     dx = (np.asarray(col0, float)[:, None] + steps)[:, None, :] - np.asarray(x, float)[:, None, None]

@@ -45,8 +45,8 @@ class Spots:
     centroider estimated or assumed it (psf_estimate.PsfEstimate; None for spots that did not
     come from an image, e.g. Spots.from_xy or a decoded message); fit_model: what the single
     point-like stars were fitted with (centroid/single_star_model.py): "gaussian" (round),
-    "elliptical" (the estimate's astigmatic shape), "core_halo" (two Gaussians fitted to the
-    frame's bright stars), "template" (the frame's own radial profile: rings, strong misfits);
+    "elliptical" (the estimate's astigmatic shape), "core_halo" (a core and up to two wider Gaussians on one
+    centre, fitted to the frame's bright stars), "template" (the frame's own radial profile: rings, strong misfits);
     "" when no point star was fitted.
 
     The record checks its arrays when built (every frame, so only cheap checks): numpy arrays,

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-PSFs with wings: the core/halo (double Gaussian) model and the centroider on undersampled Moffat stars.
+PSFs with wings: the core/halo model (Gaussians on one centre) and the centroider on undersampled Moffat stars.
 
 Frames from bench/alt_renderer.py (not our renderer: its Moffat PSF supersampled over each
 pixel, its own noise, hot pixels and cosmic rays); errors judged against its truth and its
@@ -12,10 +12,11 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid import single_star_model
-from star_tracker.centroid.double_gaussian_psf import DoubleGaussianPsf, estimate_double_gaussian
+from star_tracker.centroid.core_halo_psf import CoreHaloPsf, estimate_core_halo
 from star_tracker.centroid.empirical_psf import fit_empirical
 from star_tracker.centroid.psf_fit import PsfStart, PsfWindows
 
@@ -39,11 +40,12 @@ def _windows(psf_sample, n: int, size: int, flux: float, rng):
     return flux * share + rng.normal(0.0, 5.0, share.shape), np.ones(share.shape, bool), col0, row0, x, y
 
 
-def test_the_model_is_two_pixel_integrated_gaussians_on_one_centre():
-    psf = DoubleGaussianPsf(0.45, 1.2, 0.3)
+def test_the_model_is_pixel_integrated_gaussians_on_one_centre():
+    psf = CoreHaloPsf(0.45, (0.8, 1.7), (0.3, 0.1))
     dx, dy = np.meshgrid(np.arange(-5, 6) + 0.27, np.arange(-5, 6) - 0.41)
     value, grad_x, grad_y = psf.sample(dx, dy)
-    truth = 0.7 * alt.GaussianPsf(0.45).pixel_fractions(dx, dy) + 0.3 * alt.GaussianPsf(1.2).pixel_fractions(dx, dy)
+    truth = (0.6 * alt.GaussianPsf(0.45).pixel_fractions(dx, dy) + 0.3 * alt.GaussianPsf(0.8).pixel_fractions(dx, dy)
+             + 0.1 * alt.GaussianPsf(1.7).pixel_fractions(dx, dy))
     assert np.max(np.abs(value - truth)) < 1e-9
     step = 1e-6
     assert np.allclose((psf.sample(dx + step, dy)[0] - value) / step, grad_x, atol=1e-5)
@@ -56,7 +58,7 @@ def test_the_model_is_two_pixel_integrated_gaussians_on_one_centre():
 
 def test_the_compiled_fit_is_the_reference_gauss_newton():
     rng = np.random.default_rng(5)
-    psf = DoubleGaussianPsf(0.5, 1.3, 0.35)
+    psf = CoreHaloPsf(0.5, (0.9, 1.8), (0.25, 0.1))
     data, valid, col0, row0, x, y = _windows(lambda a, b: psf.sample(a, b)[0], 30, 9, 4000.0, rng)
     valid &= rng.random(valid.shape) > 0.03
     start = (x + 0.3, y - 0.2, np.full(x.size, 3000.0))
@@ -72,13 +74,17 @@ def test_the_compiled_fit_is_the_reference_gauss_newton():
 
 def test_the_shape_is_found_from_stars_of_that_shape():
     rng = np.random.default_rng(8)
-    truth = DoubleGaussianPsf(0.55, 1.6, 0.3)
+    truth = CoreHaloPsf(0.55, (1.0, 2.0), (0.3, 0.1))
     data, valid, col0, row0, x, y = _windows(lambda a, b: truth.sample(a, b)[0], 30, 11, 20000.0, rng)
     # Started from biased positions (a one-Gaussian fit's) and the one-Gaussian width.
-    found = estimate_double_gaussian(PsfWindows(data, valid, col0, row0), x + rng.normal(0, 0.02, x.size),
-                                     y + rng.normal(0, 0.02, y.size), 0.8, 5.0, 1.0)
+    found = estimate_core_halo(PsfWindows(data, valid, col0, row0), x + rng.normal(0, 0.02, x.size),
+                               y + rng.normal(0, 0.02, y.size), 0.8, 5.0, 1.0)
     assert found is not None
-    assert abs(found.core_px - 0.55) < 0.03 and abs(found.halo_px - 1.6) < 0.1 and abs(found.halo_share - 0.3) < 0.05
+    # Judged on what the centre depends on: the profile, within 1 % of its peak.
+    dx, dy = np.meshgrid(np.arange(-5, 6) + 0.3, np.arange(-5, 6) - 0.2)
+    expected = truth.sample(dx, dy)[0]
+    assert np.max(np.abs(found.sample(dx, dy)[0] - expected)) < 0.01 * expected.max()
+    assert abs(found.core_px - 0.55) < 0.05
 
 
 def test_a_gaussian_frame_keeps_the_gaussian(monkeypatch):
@@ -99,14 +105,17 @@ def test_a_gaussian_frame_keeps_the_gaussian(monkeypatch):
     assert chosen and all(model is None for model in chosen)
 
 
-def test_undersampled_stars_with_wings_are_centred_near_the_cramer_rao_bound():
-    # Moffat beta 3 of FWHM 0.94 px (equivalent sigma 0.4 px), 5000 e- (SNR ~65), the width
-    # unknown to the centroider: one Gaussian read 1.74x the bound on these frames (its
-    # centre pulled with the sub-pixel phase); the frame's core/halo shape reads 1.09x.
+@pytest.mark.parametrize("flux", [5000.0, 30000.0])
+def test_undersampled_stars_with_wings_are_centred_near_the_cramer_rao_bound(flux):
+    # Moffat beta 3 of FWHM 0.94 px (equivalent sigma 0.4 px), SNR ~65 and ~170, the width
+    # unknown to the centroider: one Gaussian read 1.74x the bound at 5000 e- on these frames
+    # (its centre pulled with the sub-pixel phase); a core and one halo Gaussian 1.09x at
+    # 5000 e- and 1.30x at 30000 e- (bench_psf_range), where its misfit outgrows the noise.
     def with_wings(spots):
         assert spots.fit_model == "core_halo"
 
-    ratio, found, scored = rms_over_crb(alt.MoffatPsf(0.4 / alt.SIGMA_PER_FWHM, beta=3.0), 5000.0,
+    ratio, found, scored = rms_over_crb(alt.MoffatPsf(0.4 / alt.SIGMA_PER_FWHM, beta=3.0), flux,
                                         [[0, seed] for seed in range(4)], clear_px=5.0, check=with_wings)
     assert found >= 0.99 * scored
-    assert ratio < 1.25, ratio
+    print(f"RMS / CRB {ratio:.3f}")
+    assert ratio < 1.2, ratio
