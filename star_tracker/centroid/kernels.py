@@ -510,6 +510,11 @@ def _measure_small(image, spots, settings):
         out_peak_raw[s] = peak_raw
         out_snr[s] = snr_signal / math.sqrt(snr_var) if snr_var > 0 else np.nan
         _centre_and_covariance(sig, var_sum, col0, row0, out_x, out_y, out_cov, s)
+        # A centre of gravity outside its own aperture is no centre: a faint wide star's aperture
+        # sum is mostly noise, and a sum near 0 sends it anywhere (70 px off a ring of SNR 11).
+        # The aperture's centre, on the brightest box, is kept.
+        if math.isfinite(out_x[s]) and math.hypot(out_x[s] - (col0 + half), out_y[s] - (row0 + half)) > r_ap:
+            out_x[s], out_y[s] = float(col0 + half), float(row0 + half)
         if pos[0] > 0.0:
             px, py = pos[1] / pos[0], pos[2] / pos[0]
             mxx = pos[3] / pos[0] - px * px

@@ -12,7 +12,7 @@ import numpy as np
 
 from .candidates import Candidates
 from .config import blend_separation_px
-from .empirical_psf import MIN_TEMPLATE_STARS, EmpiricalPsf, build_empirical_psf, fit_empirical
+from .empirical_psf import MIN_TEMPLATE_STARS, SMOOTHING_PX, EmpiricalPsf, build_empirical_psf, fit_empirical
 from .measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
 from .psf_fit import PsfFit, PsfStart, PsfWindows, fit_psf_windows, gather_windows
 from .records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
@@ -143,6 +143,7 @@ def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, mis
         bright = fit.converged[:, 0] & (fit.flux[:, 0] / np.sqrt(np.abs(fit.flux_var[:, 0])) >= MISFIT_MIN_SNR)
     # The PSF's shape is the frame's: many bright stars misfit (a few: smear onset, blends; 6 of 54).
     template = misfit if misfit.sum() >= TEMPLATE_MIN_SHARE * bright.sum() else np.zeros_like(misfit)
+    smoothing, faint = SMOOTHING_PX, False
     if template.sum() < MIN_TEMPLATE_STARS and context.rings:  # a ring the Gaussian fits within its noise
         template = bright
         if bright.sum() < MIN_TEMPLATE_STARS:  # faint rings: the profile pools more of them
@@ -151,12 +152,14 @@ def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, mis
             template = fit.converged[:, 0] & (snr >= RING_TEMPLATE_MIN_SNR)
             if template.sum() < RING_TEMPLATE_MIN_STARS:
                 return empty
+            smoothing, faint = max(SMOOTHING_PX, FAINT_RING_SMOOTHING_SIGMAS * context.sigma), True
     if template.sum() < MIN_TEMPLATE_STARS:
         return empty
     start_x = np.where(fit.converged[:, 0], fit.x[:, 0], x)
     start_y = np.where(fit.converged[:, 0], fit.y[:, 0], y)
     m = np.flatnonzero(template)
-    psf = build_empirical_psf(win[m], valid[m], col0[m], row0[m], start_x[m], start_y[m], context.noise, context.gain)
+    psf = build_empirical_psf(win[m], valid[m], col0[m], row0[m], start_x[m], start_y[m], context.noise, context.gain,
+                              smoothing, round_=faint)
     if psf is None:
         return empty
     flux0 = np.where(valid, win, 0.0).sum(axis=(1, 2))
@@ -171,8 +174,13 @@ MISFIT_MIN_SNR = 30.0  # fainter spots' residuals are noise whatever the PSF
 MISFIT_CHI2 = 4.0  # reduced chi^2 of a fit the model does not describe ...
 MISFIT_RESIDUAL = 0.1  # ... with a residual this large a fraction of the model (norm): not PRNU's 1 %
 MISFIT_MAX_ELONGATION = 1.2  # ... and a spot no more elongated than this (axis ratio of its moments)
-RING_TEMPLATE_MIN_SNR = 10.0  # faint ring frames: a profile from this many stars of this SNR ...
+# Faint ring frames: a profile from RING_TEMPLATE_MIN_STARS stars whose Gaussian fit reads this
+# SNR (below a ring's own: SNR-11 rings of sigma 3 px read 6-12) ...
+RING_TEMPLATE_MIN_SNR = 7.0
 RING_TEMPLATE_MIN_STARS = 15  # ... (noise pooled over their pixels)
+# ... smoothed over this x the PSF sigma (over 0.3 px, as bright frames' profiles: 1.2-1.6x the
+# bound on SNR-11 rings of sigma 3 px; over 0.25 sigma 1.0-1.2x: their edges are as soft)
+FAINT_RING_SMOOTHING_SIGMAS = 0.25
 TEMPLATE_MIN_SHARE = 0.25  # the empirical PSF replaces the Gaussian when this share of the bright stars misfit
 
 
