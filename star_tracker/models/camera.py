@@ -83,23 +83,7 @@ class CameraModel:
         """Apply Brown-Conrady distortion to normalized image coordinates (x=X/Z, y=Y/Z)."""
         if not self.has_distortion:
             return x, y
-        k1, k2, p1, p2, k3 = self.distortion
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        return xd, yd
-
-    def distortion_jacobian(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """(N, 2, 2) derivative of distort_normalized's (xd, yd) by the undistorted (x, y) [-]."""
-        k1, k2, p1, p2, k3 = self.distortion
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        slope = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3))  # d radial / d r2, times 2 (d r2 = 2x dx + 2y dy)
-        cross = slope * x * y + 2.0 * p1 * x + 2.0 * p2 * y
-        return np.stack([np.stack([radial + slope * x * x + 2.0 * p1 * y + 6.0 * p2 * x, cross], axis=-1),
-                         np.stack([cross, radial + slope * y * y + 6.0 * p1 * y + 2.0 * p2 * x], axis=-1)],
-                        axis=-2)
+        return brown_conrady(x, y, self.distortion)
 
     def project(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
@@ -144,3 +128,24 @@ class CameraModel:
         cov_px = np.asarray(cov_px, dtype=float).reshape(-1, 2, 2)
         var_px = 0.5 * (cov_px[:, 0, 0] + cov_px[:, 1, 1])
         return np.sqrt(np.maximum(var_px, 0.0)) * self.pixel_scale_rad
+
+
+def brown_conrady(x: np.ndarray, y: np.ndarray, distortion) -> tuple[np.ndarray, np.ndarray]:
+    """Distorted normalized coordinates (xd, yd) of the undistorted (x, y) [-]; distortion (k1, k2, p1, p2, k3)."""
+    k1, k2, p1, p2, k3 = distortion
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return xd, yd
+
+
+def brown_conrady_derivatives(x: np.ndarray, y: np.ndarray, distortion) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """d(xd, yd)/d(x, y) of brown_conrady as its elements (d xd/dx, d xd/dy = d yd/dx, d yd/dy) [-]."""
+    k1, k2, p1, p2, k3 = distortion
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    slope = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3))  # d radial / d r2, times 2 (d r2 = 2x dx + 2y dy)
+    cross = slope * x * y + 2.0 * p1 * x + 2.0 * p2 * y
+    return (radial + slope * x * x + 2.0 * p1 * y + 6.0 * p2 * x, cross,
+            radial + slope * y * y + 6.0 * p1 * y + 2.0 * p2 * x)

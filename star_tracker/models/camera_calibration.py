@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .attitude import rotation_vector_to_matrix, skew
-from .camera import CameraModel
+from .camera import CameraModel, brown_conrady, brown_conrady_derivatives
 
 # Nested models, smallest first: each group's parameter names (CameraCalibration.sigma keys).
 PARAMETER_GROUPS = (("f",), ("k1",), ("k2",), ("cx", "cy"))
@@ -314,8 +314,14 @@ def _whitened_model(frames, camera: CameraModel, names: tuple[str, ...], whiten:
         key = params.tobytes()
         if last.get("key") == key:
             return last["value"]
-        trial = _camera_with(camera, names, params[3 * count:])
-        fx, fy = trial.fx, trial.fy
+        # The camera of _camera_with, as plain numbers (a CameraModel per call cost as much as the
+        # arithmetic on ~100 stars).
+        values = dict(zip(names, params[3 * count:].tolist()))
+        scale = math.exp(values.get("f", 0.0))
+        fx, fy = camera.fx * scale, camera.fy * scale
+        cx, cy = camera.cx + values.get("cx", 0.0), camera.cy + values.get("cy", 0.0)
+        k1, k2, p1, p2, k3 = camera.distortion
+        distortion = (values.get("k1", k1), values.get("k2", k2), p1, p2, k3)
         pixel = np.empty((size, 2))
         by_rotation = np.empty((size, 2, 3))
         by_camera = np.empty((size, 2, len(names)))
@@ -324,20 +330,30 @@ def _whitened_model(frames, camera: CameraModel, names: tuple[str, ...], whiten:
             rays = frame.stars @ (frame.rotation @ rotation_vector_to_matrix(theta))
             z = rays[:, 2]
             z = np.where(np.abs(z) > 1e-9, z, 1e-9)
-            x, y = rays[:, 0] / z, rays[:, 1] / z
-            xd, yd = trial.distort_normalized(x, y)
-            rows = slice(int(bounds[k]), int(bounds[k + 1]))
-            pixel[rows, 0] = fx * xd + trial.cx
-            pixel[rows, 1] = fy * yd + trial.cy
-            # d pixel / d ray = diag(fx, fy) · d distorted / d normalized · d normalized / d ray
-            by_normalized = trial.distortion_jacobian(x, y) * np.array([fx, fy])[None, :, None]
-            by_ray = np.zeros((x.size, 2, 3))
-            by_ray[:, 0, 0] = by_ray[:, 1, 1] = 1.0 / z
-            by_ray[:, 0, 2], by_ray[:, 1, 2] = -x / z, -y / z
-            by_ray = by_normalized @ by_ray
-            # d ray / d theta = [ray]x J_r(theta) (right Jacobian of the rotation vector)
-            by_rotation[rows] = by_ray @ _skew_rows(rays) @ _right_jacobian(theta)
+            inv_z = 1.0 / z
+            x, y = rays[:, 0] * inv_z, rays[:, 1] * inv_z
+            xd, yd = brown_conrady(x, y, distortion)
+            a11, cross, a22 = brown_conrady_derivatives(x, y, distortion)
             r2 = x * x + y * y
+            rows = slice(int(bounds[k]), int(bounds[k + 1]))
+            pixel[rows, 0] = fx * xd + cx
+            pixel[rows, 1] = fy * yd + cy
+            # d pixel / d ray = diag(fx, fy) · d distorted / d normalized · d normalized / d ray, whose
+            # rows are (1/z, 0, -x/z) and (0, 1/z, -y/z).
+            by_ray = np.empty((x.size, 2, 3))
+            by_ray[:, 0, 0], by_ray[:, 0, 1] = fx * a11 * inv_z, fx * cross * inv_z
+            by_ray[:, 0, 2] = -fx * (a11 * x + cross * y) * inv_z
+            by_ray[:, 1, 0], by_ray[:, 1, 1] = fy * cross * inv_z, fy * a22 * inv_z
+            by_ray[:, 1, 2] = -fy * (cross * x + a22 * y) * inv_z
+            # d ray / d theta = [ray]x J_r(theta) (right Jacobian of the rotation vector); a row b
+            # times [ray]x is b x ray (by components: numpy's cross costs more than the rest).
+            r0, r1, r2_ = rays[:, None, 0], rays[:, None, 1], rays[:, None, 2]
+            b0, b1, b2 = by_ray[:, :, 0], by_ray[:, :, 1], by_ray[:, :, 2]
+            turned = np.empty_like(by_ray)
+            turned[:, :, 0] = b1 * r2_ - b2 * r1
+            turned[:, :, 1] = b2 * r0 - b0 * r2_
+            turned[:, :, 2] = b0 * r1 - b1 * r0
+            by_rotation[rows] = turned @ _right_jacobian(theta)
             columns = {"f": (fx * xd, fy * yd), "cx": (1.0, 0.0), "cy": (0.0, 1.0),
                        "k1": (fx * x * r2, fy * y * r2), "k2": (fx * x * r2 * r2, fy * y * r2 * r2)}
             for j, name in enumerate(names):
@@ -359,14 +375,6 @@ def _whitened_model(frames, camera: CameraModel, names: tuple[str, ...], whiten:
         return residual, jac
 
     return evaluate
-
-
-def _skew_rows(v: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) cross-product matrices [v]x of the rows of v (N, 3)."""
-    out = np.zeros((v.shape[0], 3, 3))
-    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-    return out
 
 
 def _right_jacobian(theta: np.ndarray) -> np.ndarray:
