@@ -33,15 +33,17 @@ def warm_identifier() -> None:
     Compile and load what IdentifierNode needs before its first frame.
 
     The default database (built and cached when missing) and its deep catalog, the default
-    algorithm inside a Tracker (Tracker.warm_up).
+    algorithm inside a Tracker (Tracker.warm_up), the camera calibration's kernel.
     """
     from .identify import DEFAULT_ALGORITHM, DatabaseConfig, load_or_build_database, make_identifier
+    from .models.calibration_kernel import warm_up as calibration_warm_up
     from .models.camera import CameraModel
     from .track.tracking import Tracker
 
     identifier = make_identifier(DEFAULT_ALGORITHM, load_or_build_database(DatabaseConfig()))
     identifier.deep_catalog()  # built at the first solve otherwise
     Tracker(identifier).warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
+    calibration_warm_up()  # the online camera refinement (and the CLI's solve --fov)
 
 
 def warm_everything() -> None:

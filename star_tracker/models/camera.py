@@ -138,14 +138,3 @@ def brown_conrady(x: np.ndarray, y: np.ndarray, distortion) -> tuple[np.ndarray,
     xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
     yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
     return xd, yd
-
-
-def brown_conrady_derivatives(x: np.ndarray, y: np.ndarray, distortion) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """d(xd, yd)/d(x, y) of brown_conrady as its elements (d xd/dx, d xd/dy = d yd/dx, d yd/dy) [-]."""
-    k1, k2, p1, p2, k3 = distortion
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    slope = 2.0 * (k1 + r2 * (2.0 * k2 + 3.0 * r2 * k3))  # d radial / d r2, times 2 (d r2 = 2x dx + 2y dy)
-    cross = slope * x * y + 2.0 * p1 * x + 2.0 * p2 * y
-    return (radial + slope * x * x + 2.0 * p1 * y + 6.0 * p2 * x, cross,
-            radial + slope * y * y + 6.0 * p1 * y + 2.0 * p2 * x)

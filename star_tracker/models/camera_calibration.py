@@ -31,7 +31,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .attitude import rotation_vector_to_matrix, skew
-from .camera import CameraModel, brown_conrady, brown_conrady_derivatives
+from .calibration_kernel import PARAMETER_CODES, frame_rows
+from .camera import CameraModel
 
 # Nested models, smallest first: each group's parameter names (CameraCalibration.sigma keys).
 PARAMETER_GROUPS = (("f",), ("k1",), ("k2",), ("cx", "cy"))
@@ -310,6 +311,11 @@ def _whitened_model(frames, camera: CameraModel, names: tuple[str, ...], whiten:
     size = int(bounds[-1])
     last: dict = {}
 
+    codes = np.array([PARAMETER_CODES[name] for name in names], np.int64)
+    stars = [np.ascontiguousarray(frame.stars, np.float64) for frame in frames]
+    whiten = np.ascontiguousarray(whiten, np.float64)
+    measured = np.ascontiguousarray(measured, np.float64)
+
     def evaluate(params):
         key = params.tobytes()
         if last.get("key") == key:
@@ -318,49 +324,21 @@ def _whitened_model(frames, camera: CameraModel, names: tuple[str, ...], whiten:
         # arithmetic on ~100 stars).
         values = dict(zip(names, params[3 * count:].tolist()))
         scale = math.exp(values.get("f", 0.0))
-        fx, fy = camera.fx * scale, camera.fy * scale
-        cx, cy = camera.cx + values.get("cx", 0.0), camera.cy + values.get("cy", 0.0)
+        intrinsics = np.array([camera.fx * scale, camera.fy * scale, camera.cx + values.get("cx", 0.0),
+                               camera.cy + values.get("cy", 0.0)])
         k1, k2, p1, p2, k3 = camera.distortion
-        distortion = (values.get("k1", k1), values.get("k2", k2), p1, p2, k3)
-        pixel = np.empty((size, 2))
-        by_rotation = np.empty((size, 2, 3))
-        by_camera = np.empty((size, 2, len(names)))
+        distortion = np.array([values.get("k1", k1), values.get("k2", k2), p1, p2, k3], np.float64)
+        residual = np.empty((size, 2))
+        rotation_block = np.empty((size, 2, 3))
+        camera_block = np.empty((size, 2, len(names)))
         for k, frame in enumerate(frames):
             theta = params[3 * k:3 * k + 3]
-            rays = frame.stars @ (frame.rotation @ rotation_vector_to_matrix(theta))
-            z = rays[:, 2]
-            z = np.where(np.abs(z) > 1e-9, z, 1e-9)
-            inv_z = 1.0 / z
-            x, y = rays[:, 0] * inv_z, rays[:, 1] * inv_z
-            xd, yd = brown_conrady(x, y, distortion)
-            a11, cross, a22 = brown_conrady_derivatives(x, y, distortion)
-            r2 = x * x + y * y
             rows = slice(int(bounds[k]), int(bounds[k + 1]))
-            pixel[rows, 0] = fx * xd + cx
-            pixel[rows, 1] = fy * yd + cy
-            # d pixel / d ray = diag(fx, fy) · d distorted / d normalized · d normalized / d ray, whose
-            # rows are (1/z, 0, -x/z) and (0, 1/z, -y/z).
-            by_ray = np.empty((x.size, 2, 3))
-            by_ray[:, 0, 0], by_ray[:, 0, 1] = fx * a11 * inv_z, fx * cross * inv_z
-            by_ray[:, 0, 2] = -fx * (a11 * x + cross * y) * inv_z
-            by_ray[:, 1, 0], by_ray[:, 1, 1] = fy * cross * inv_z, fy * a22 * inv_z
-            by_ray[:, 1, 2] = -fy * (cross * x + a22 * y) * inv_z
-            # d ray / d theta = [ray]x J_r(theta) (right Jacobian of the rotation vector); a row b
-            # times [ray]x is b x ray (by components: numpy's cross costs more than the rest).
-            r0, r1, r2_ = rays[:, None, 0], rays[:, None, 1], rays[:, None, 2]
-            b0, b1, b2 = by_ray[:, :, 0], by_ray[:, :, 1], by_ray[:, :, 2]
-            turned = np.empty_like(by_ray)
-            turned[:, :, 0] = b1 * r2_ - b2 * r1
-            turned[:, :, 1] = b2 * r0 - b0 * r2_
-            turned[:, :, 2] = b0 * r1 - b1 * r0
-            by_rotation[rows] = turned @ _right_jacobian(theta)
-            columns = {"f": (fx * xd, fy * yd), "cx": (1.0, 0.0), "cy": (0.0, 1.0),
-                       "k1": (fx * x * r2, fy * y * r2), "k2": (fx * x * r2 * r2, fy * y * r2 * r2)}
-            for j, name in enumerate(names):
-                by_camera[rows, 0, j], by_camera[rows, 1, j] = columns[name]
-        residual = np.einsum("nij,nj->ni", whiten, pixel - measured).ravel()
-        rotation_block = whiten @ by_rotation  # (N, 2, 3)
-        camera_block = (whiten @ by_camera).reshape(2 * size, len(names))
+            frame_rows(stars[k], frame.rotation @ rotation_vector_to_matrix(theta), _right_jacobian(theta), intrinsics,
+                       distortion, codes, whiten[rows], measured[rows], residual[rows], rotation_block[rows],
+                       camera_block[rows])
+        residual = residual.ravel()
+        camera_block = camera_block.reshape(2 * size, len(names))
         if count == 1:
             jac = np.concatenate([rotation_block.reshape(2 * size, 3), camera_block], axis=1)
         else:

@@ -46,6 +46,7 @@ from std_srvs.srv import Trigger
 
 from ..models.attitude import ARCSEC
 from ..models.camera import CameraModel
+from ..models.calibration_kernel import warm_up as calibration_warm_up
 from ..models.online_calibration import OnlineCalibration, OnlineCalibrationConfig
 from ..identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from ..track.tracking import MODE_LOST, TrackedFrame, Tracker, TrackingConfig
@@ -138,6 +139,8 @@ class IdentifierNode(ManagedNode):
         self.tracker = Tracker(self.identifier, self.tracking_config)
         # Compiled kernels: ~50 s the first time, then loaded from numba's cache.
         self.tracker.warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
+        if self.online_calibration is not None:
+            calibration_warm_up()  # the online refinement's kernel, not at its first estimate
         self.diag.count("database_loads")
         self.get_logger().info(
             f"algorithm {self.algorithm}: {self.database.star_count} guide stars to Hp "
