@@ -43,7 +43,7 @@ def warm_identifier() -> None:
     identifier = make_identifier(DEFAULT_ALGORITHM, load_or_build_database(DatabaseConfig()))
     identifier.deep_catalog()  # built at the first solve otherwise
     Tracker(identifier).warm_up(CameraModel.from_fov(1024, 1024, np.radians(15.0)))
-    calibration_warm_up()  # the online camera refinement (and the CLI's solve --fov)
+    calibration_warm_up()  # the online camera refinement (and solve --fov's)
 
 
 def warm_everything() -> None:

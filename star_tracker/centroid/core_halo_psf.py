@@ -68,15 +68,11 @@ class CoreHaloPsf:
 
     def window_shares(self, col0, row0, x, y, size: int) -> np.ndarray:
         """(n, size, size) shares of the flux of stars at (x, y) [px] in windows with top-left pixel (col0, row0)."""
-        steps = np.arange(size) - 0.5
-        out = 0.0
-        for sigma, share in self.components():
-            px, _ = pixel_integrated_profile(np.asarray(col0, float)[:, None] + steps, np.asarray(x, float)[:, None],
-                                             sigma)
-            py, _ = pixel_integrated_profile(np.asarray(row0, float)[:, None] + steps, np.asarray(y, float)[:, None],
-                                             sigma)
-            out = out + share * py[:, :, None] * px[:, None, :]
-        return out
+        return self.shares_in(_ProfileCache(col0, row0, x, y, size))
+
+    def shares_in(self, profiles: "_ProfileCache") -> np.ndarray:
+        """Return the window shares of the stars `profiles` holds: each component's pixel shares times its share."""
+        return sum(share * profiles(sigma) for sigma, share in self.components())
 
     def fit(self, windows: PsfWindows, start: PsfStart, noise: float, gain: float, iterations: int = 10) -> PsfFit:
         """Fit one star of this shape per window (x, y, flux; kernels.fit_single_psf); start (n,) arrays."""
@@ -146,12 +142,11 @@ def estimate_core_halo(windows: PsfWindows, x, y, sigma_px: float, noise: float,
                             np.full(HALO_COMPONENTS, np.log(start_ratio / (1.0 - start_ratio))),
                             np.full(HALO_COMPONENTS, START_SHARE_LOGIT)])
 
-    psf = None
     for _ in range(SHAPE_PASSES):
         products = _ProfileCache(windows.col0, windows.row0, x, y, size)
 
         def residuals(p):
-            share = sum(weight_k * products(sigma) for sigma, weight_k in _shape(p).components())
+            share = _shape(p).shares_in(products)
             flux = (weight * share * data).sum(axis=(1, 2)) / np.maximum((weight * share * share).sum(axis=(1, 2)),
                                                                          1e-300)
             return (np.sqrt(weight) * (data - flux[:, None, None] * share)).ravel()
@@ -167,8 +162,6 @@ def estimate_core_halo(windows: PsfWindows, x, y, sigma_px: float, noise: float,
         refit = psf.fit(windows, start, noise, gain)
         ok = refit.converged[:, 0]
         x, y = np.where(ok, refit.x[:, 0], x), np.where(ok, refit.y[:, 0], y)
-    if psf is None:
-        return None
     if not (0.02 <= sum(psf.halo_share) <= 0.98) or psf.halo_px[-1] < 1.1 * psf.core_px:
         return None
     return psf

@@ -205,10 +205,6 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
     identifier = make_identifier(options.algorithm, database, config)
     if hasattr(identifier, "warm_up"):
         identifier.warm_up(nominal)  # compile/load the kernels outside the time budget
-    if camera is None and options.refine_focal:
-        from ..models.calibration_kernel import warm_up as calibration_warm_up
-
-        calibration_warm_up()  # the focal refinement's kernel, likewise
     result = SolveResult(None, nominal, database)
     candidates = [(nominal, False, None)] if camera is not None else field_candidates(
         spots, nominal, database, fov_deg, options, result.attempts)

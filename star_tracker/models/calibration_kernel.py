@@ -49,7 +49,8 @@ def _frame_rows(stars, rotation, right_jacobian, intrinsics, distortion, codes, 
         z = ray2 if abs(ray2) > 1e-9 else 1e-9
         inv_z = 1.0 / z
         x, y = ray0 * inv_z, ray1 * inv_z
-        # Brown-Conrady (camera.brown_conrady) and its derivatives by (x, y).
+        # Brown-Conrady as CameraModel.distort_normalized (test_calibration_kernel holds them equal), and its
+        # derivatives by (x, y).
         r2 = x * x + y * y
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
         xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)

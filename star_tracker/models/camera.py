@@ -83,7 +83,12 @@ class CameraModel:
         """Apply Brown-Conrady distortion to normalized image coordinates (x=X/Z, y=Y/Z)."""
         if not self.has_distortion:
             return x, y
-        return brown_conrady(x, y, self.distortion)
+        k1, k2, p1, p2, k3 = self.distortion
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return xd, yd
 
     def project(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
@@ -128,13 +133,3 @@ class CameraModel:
         cov_px = np.asarray(cov_px, dtype=float).reshape(-1, 2, 2)
         var_px = 0.5 * (cov_px[:, 0, 0] + cov_px[:, 1, 1])
         return np.sqrt(np.maximum(var_px, 0.0)) * self.pixel_scale_rad
-
-
-def brown_conrady(x: np.ndarray, y: np.ndarray, distortion) -> tuple[np.ndarray, np.ndarray]:
-    """Distorted normalized coordinates (xd, yd) of the undistorted (x, y) [-]; distortion (k1, k2, p1, p2, k3)."""
-    k1, k2, p1, p2, k3 = distortion
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return xd, yd
