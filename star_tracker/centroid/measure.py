@@ -69,9 +69,17 @@ def clean_hot_pixels(windows: np.ndarray, valid: np.ndarray, noise: float, ratio
     n, rows, cols = windows.shape
     if not np.isfinite(ratio_limit):
         return windows, np.zeros(windows.shape, bool)
-    stacked = (windows if valid.all() else np.where(valid, windows, 0.0)).astype(np.float32).reshape(n * rows, cols)
+    all_valid = bool(valid.all())
+    stacked = (windows if all_valid else np.where(valid, windows, 0.0)).astype(np.float32, copy=False)
+    stacked = stacked.reshape(n * rows, cols)
     brightest = cv2.dilate(stacked, _CROSS, borderType=cv2.BORDER_REPLICATE).reshape(n, rows, cols)
-    hit = valid & (windows > ratio_limit * np.maximum(brightest, 0.0) + 5.0 * noise)
+    # ratio_limit x max(brightest, 0) + 5 noise, in place where the dtypes allow (a frame-sized call).
+    limit = np.multiply(np.maximum(brightest, 0.0, out=brightest), ratio_limit)
+    floor = 5.0 * noise
+    limit = np.add(limit, floor, out=limit) if np.result_type(limit, floor) == limit.dtype else limit + floor
+    hit = windows > limit
+    if not all_valid:
+        hit &= valid
     hit[:, 0, :] = hit[:, -1, :] = False  # stacked windows: their first/last rows see a neighbour window
     if not hit.any():
         return windows, hit

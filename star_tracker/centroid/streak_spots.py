@@ -228,7 +228,7 @@ def streak_residual(context: FitContext, x, y, reach) -> np.ndarray:
         residual[h:, :] -= det.background[-1, -1]  # odd sizes: the last row/column
         residual[:h, w:] -= det.background[-1, -1]
         cleaned, _ = clean_hot_pixels(residual[None], np.ones((1,) + residual.shape, bool), noise, ratio_limit)
-        return cleaned[0].astype(np.float32)
+        return cleaned[0].astype(np.float32, copy=False)
     residual = np.zeros((height, width), np.float32)
     grid_h, grid_w = det.background.shape
     for cx, cy, r in zip(x, y, reach):

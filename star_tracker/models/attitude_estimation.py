@@ -256,11 +256,14 @@ def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolu
     # optimal rotation is near pi, so evaluate the reference frame rotated by pi about each
     # axis as well and keep the one with the largest unnormalized |gamma|.
     best = None
+    # B of the reference frame turned by pi about an axis: B with the other two columns negated
+    # (exactly: each term's sign flips).
+    b_unturned = (unit_weights[:, None] * body).T @ ref
     for axis in (None, 0, 1, 2):
-        ref_rot = ref if axis is None else _rotate_pi(ref, axis)
-        k, b_matrix = _davenport_k(body, ref_rot, unit_weights)
+        b_matrix = b_unturned if axis is None else b_unturned * np.where(np.arange(3) == axis, 1.0, -1.0)
         s = b_matrix + b_matrix.T
-        z = k[:3, 3]
+        z = np.array([b_matrix[1, 2] - b_matrix[2, 1], b_matrix[2, 0] - b_matrix[0, 2],
+                      b_matrix[0, 1] - b_matrix[1, 0]])
         sigma = np.trace(b_matrix)
         kappa = np.trace(_adjugate(s))
         delta = np.linalg.det(s)
@@ -325,12 +328,6 @@ def _adjugate(m: np.ndarray) -> np.ndarray:
         [m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0], m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1],
          m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]],
     ])
-
-
-def _rotate_pi(vectors: np.ndarray, axis: int) -> np.ndarray:
-    out = -vectors.copy()
-    out[:, axis] = vectors[:, axis]
-    return out
 
 
 def _solution(a_matrix: np.ndarray, body, ref, weights, sigmas) -> AttitudeSolution:
