@@ -38,8 +38,9 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     """
     Gaussian PSF fit of point-like spots `which`.
 
-    Those whose window shows a second peak get a joint 2-PSF fit (flag BLENDED), the second
-    star returned as an added spot unless it is a spot already or below min_snr. Pixels
+    Those whose window shows a second peak get a joint 2-PSF fit (flag BLENDED; kept when it
+    determines both stars, _determined, and the brighter has min_snr), the second star
+    returned as an added spot unless it is a spot already or below min_snr. Pixels
     `excluded` (a neighbour's clipped core; None = none) are left out of the fits.
     """
     config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
@@ -86,7 +87,7 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
             # Two stars only if the brighter one stands out on its own: a split that leaves both
             # below min_snr is one non-Gaussian star (a defocused ring's two sides), not a pair.
             brighter = np.max(fit.flux / np.sqrt(np.abs(fit.flux_var)), axis=1)
-            both = fit.converged.all(axis=1) & (brighter >= config.min_snr)
+            both = fit.converged.all(axis=1) & _determined(fit, size) & (brighter >= config.min_snr)
             blended[b[~both]] = False
             j, k = np.flatnonzero(both), b[both]
             t = which[k]
@@ -221,7 +222,8 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     Joint fit of one PSF per peak over the footprint window of each blended spot `which`.
 
     The brightest star replaces the spot, the others above min_snr are added spots. A blend
-    whose fit fails keeps its centre of gravity. track_peaks: blend index -> ((K,) bool, its
+    whose fit fails (not converged, or a star undetermined: _determined) keeps its centre of
+    gravity. track_peaks: blend index -> ((K,) bool, its
     peaks that are cosmic-ray tracks; their peak_shape.PeakShapes):
     tracks are fitted with the stars, never a star; a star fitted more than TRACK_PULL_SIGMAS
     x sigma (>= 1 px) from its own pixels' centre of gravity, or every star when the fit fails,
@@ -243,7 +245,7 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         flux0 = np.maximum(amplitude * 2.0 * np.pi * sigma ** 2, 1.0)
         fit = fit_psf_windows(PsfWindows(win, valid, np.array([left]), np.array([top])),
                               PsfStart(peaks[None, :, 0], peaks[None, :, 1], flux0[None]), sigma, noise, gain)
-        converged = bool(fit.converged[0].all())
+        converged = bool(fit.converged[0].all() and _determined(fit, size)[0])
         if not converged and t not in track_peaks:
             continue  # keep the centre of gravity, flagged as a blend
         if t in track_peaks:
@@ -268,6 +270,19 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         return FitOutcome(spots, no_spots())
     return FitOutcome(spots, SpotRows.split_off(FittedStars.concatenate(others), np.concatenate(other_peaks),
                                                 FLAG_BLENDED))
+
+
+def _determined(fit: PsfFit, size: int) -> np.ndarray:
+    """
+    Whether each window's joint fit determined every star (n,): light > 0, position variances finite and <= size^2.
+
+    A star fitted with no light leaves its position to nothing and the joint covariance
+    singular: its neighbour's position variance came out at 1e23 px^2 on a real frame, and
+    that one spot's match gate took in every star of the image.
+    """
+    variance = np.concatenate([fit.cov[..., 0, 0], fit.cov[..., 1, 1]], axis=1)
+    return (np.all(fit.flux > 0, axis=1) & np.all(np.isfinite(fit.cov), axis=(1, 2, 3))
+            & np.all(variance <= size * size, axis=1))
 
 
 def _stars_beside_track(fit: PsfFit, converged: bool, track: np.ndarray, shapes, pull_px: float):
