@@ -16,8 +16,8 @@ limit), and a pair is added only when it is unambiguous:
   this view's density on average (a chance star in the gate of an uncatalogued spot is the
   way a deep match goes wrong);
 - one spot <-> one star: no second star within AMBIGUITY_FACTOR x the gate of the spot, and
-  no second spot (matched or not) within that of the star; a spot whose only star is already
-  matched to another spot (a ghost, a split blend) gets none;
+  no second spot (matched or not, its gate narrow enough) within that of the star; a spot
+  whose only star is already matched to another spot (a ghost, a split blend) gets none;
 - brightness: with the zero point of the guide matches (median of instrumental minus catalog
   magnitude) the spot's magnitude is within MAGNITUDE_SIGMA robust sigmas of the guide
   matches' scatter of the star's (at least MAGNITUDE_TOLERANCE_FLOOR); skipped when
@@ -177,16 +177,21 @@ def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraMod
     """
     star, u, v = catalog.stars_in_view(rotation, camera)
     spot_xy = np.stack([geometry.x, geometry.y], axis=1)
-    spot, star_j, d2 = _candidate_pairs(spot_xy, np.stack([u, v], axis=1), spot_cov_px, AMBIGUITY_FACTOR * GATE_SIGMA)
     n, m = spot_xy.shape[0], star.size
+    density_px = m / float(camera.width * camera.height)  # deep stars per pixel in this view
+    det = spot_cov_px[:, 0, 0] * spot_cov_px[:, 1, 1] - spot_cov_px[:, 0, 1] * spot_cov_px[:, 1, 0]
+    narrow = density_px * np.pi * GATE_SIGMA ** 2 * np.sqrt(np.maximum(det, 0.0)) <= MAX_CHANCE_STARS_IN_GATE
+    # A spot too uncertain to be named claims no star either (nor makes one ambiguous): one spot
+    # with a runaway covariance would otherwise reach every star in the image.
+    claimant = np.flatnonzero(narrow)
+    spot, star_j, d2 = _candidate_pairs(spot_xy[claimant], np.stack([u, v], axis=1), spot_cov_px[claimant],
+                                        AMBIGUITY_FACTOR * GATE_SIGMA)
+    spot = claimant[spot]
     stars_near_spot = np.bincount(spot, minlength=n)
     spots_near_star = np.bincount(star_j, minlength=m)
     taken = np.isin(catalog.hip[star], guide_hip)
     free = np.ones(n, bool)
     free[guide_spots] = False
-    density_px = m / float(camera.width * camera.height)  # deep stars per pixel in this view
-    det = spot_cov_px[:, 0, 0] * spot_cov_px[:, 1, 1] - spot_cov_px[:, 0, 1] * spot_cov_px[:, 1, 0]
-    narrow = density_px * np.pi * GATE_SIGMA ** 2 * np.sqrt(np.maximum(det, 0.0)) <= MAX_CHANCE_STARS_IN_GATE
     too_uncertain = int(np.count_nonzero(free & ~narrow))
     free &= narrow
     inside = (d2 <= GATE_SIGMA ** 2) & free[spot]

@@ -8,6 +8,7 @@ our own solve.
 """
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +93,29 @@ def test_uncatalogued_spots_get_no_deep_identity(database, nominal_camera, catal
         assert result.solved, result.reason
         np.testing.assert_array_equal(result.hip, truth_hip[result.spot_index])
         assert result.deep_count > 0
+
+
+def test_one_spot_with_a_runaway_covariance_leaves_the_deep_matches(database, nominal_camera, catalog):
+    """
+    A spot whose covariance ran away (1e23 px^2, as a singular blend fit once gave) claims no star.
+
+    Its gate would reach every star in the image and make each ambiguous: the deep matches
+    with it must be those without it, every id the truth's.
+    """
+    rng = np.random.default_rng(33)
+    for _ in range(4):
+        truth = random_rotation(rng)
+        spots, hip = synthetic_scene(catalog, nominal_camera, truth, rng, noise_px=0.1, magnitude_limit=8.5)
+        clean = make_identifier("hybrid", database, IdentifyConfig(max_time_s=5.0)).identify(spots, nominal_camera)
+        cov = spots.cov.copy()
+        faint = int(np.argsort(spots.flux)[spots.flux.size // 3])  # no guide star: a deep one or none
+        cov[faint] = 1e23 * np.eye(2)
+        bad = replace(spots, cov=cov)
+        result = make_identifier("hybrid", database, IdentifyConfig(max_time_s=5.0)).identify(bad, nominal_camera)
+        assert clean.solved and result.solved, (clean.reason, result.reason)
+        np.testing.assert_array_equal(result.hip, hip[result.spot_index])
+        assert result.deep_count >= clean.deep_count - 1, (result.deep_count, clean.deep_count, result.stats)
+        assert clean.deep_count >= 5
 
 
 def test_deep_rematch_on_rendered_frames(database, nominal_camera, catalog):
