@@ -8,8 +8,9 @@ matched by shape alone: the six angles between four stars, sorted, divided by th
 not depend on the focal length (to first order: the spots' rays are computed with the nominal
 one). Each match of an image pattern to a catalog pattern gives the focal length (image angle /
 catalog angle) and an attitude; a quick count of the spots that land on projected guide stars
-ranks them. The caller then identifies the frame with the algorithm's full verification at
-that focal length.
+judges them, and a match is refitted over those spots (its four centroids fix the scale of
+their own part of the image only: a lens' distortion, trailed stars). The caller then
+identifies the frame with the algorithm's full verification at that focal length.
 
 Catalog patterns: for circles spread evenly over the sky (radius = half the field's shorter
 side), all four-star subsets of the circle's CIRCLE_STARS brightest guide stars. Image
@@ -41,6 +42,10 @@ VERIFY_SPOTS = 40  # brightest spots counted on projected guide stars to rank a 
 CIRCLE_SPACING = 0.75  # circle centres this fraction of the circle radius apart
 RATIO_BIN = 0.01  # hash bin of each angle ratio
 SCAN_AFTER_MATCH = 50  # image patterns looked up after the last match before the scan ends
+REFINE_ROUNDS = 3  # scale and attitude refits of a pattern match over all its matched spots (_refined)
+REFINE_RADIUS_FACTOR = 3.0  # the refits' match radius over the verification's
+CONCLUSIVE_SHARE = 0.5  # a refined field on which this share of the VERIFY_SPOTS land ends the scan
+REFIT_SHORTFALL = 2  # a pattern match this many spots short of `need` is refitted (_refined) before it is judged
 RATIO_BASE = int(round(1.0 / RATIO_BIN)) + 2
 _PAIRS = np.array(list(itertools.combinations(range(4), 2)))  # the six pairs of a pattern
 
@@ -189,16 +194,52 @@ def scaled_camera(camera: CameraModel, scale: float) -> CameraModel:
                        tuple(camera.distortion))
 
 
+def _refined(estimate: FieldEstimate, spots, check: np.ndarray, database: StarDatabase, radius_px: float,
+             rounds: int = REFINE_ROUNDS) -> FieldEstimate:
+    """
+    Return the estimate with its scale and attitude fitted to all the spots `check` it matched.
+
+    A four-star pattern's scale is as good as its four centroids (trailed stars: 1 % off on a
+    real 27 deg frame, so that its edge stars miss their radius and the attitude fails
+    verification): the scale is refitted by least squares over every pair of matched stars'
+    angles (image angle at the estimate's focal length over catalog angle, as for the
+    pattern), the attitude by SVD, and the spots matched again, while the matches grow.
+    """
+    for _ in range(rounds):
+        # Matched within REFINE_RADIUS_FACTOR x the radius: a scale 1 % off puts the edge stars
+        # beyond the radius itself, and a fit to the centre's stars alone keeps the error.
+        matches = verify(estimate.rotation, spots.x[check], spots.y[check], database, estimate.camera,
+                         REFINE_RADIUS_FACTOR * radius_px)
+        if matches.spot_index.size < max(estimate.matched, 3):
+            break
+        stars = database.vectors[matches.star_index]
+        rays = estimate.camera.pixel_to_ray(spots.x[check[matches.spot_index]], spots.y[check[matches.spot_index]])
+        upper = np.triu_indices(stars.shape[0], 1)
+        catalog_angle = np.arccos(np.clip((stars @ stars.T)[upper], -1.0, 1.0))
+        image_angle = np.arccos(np.clip((rays @ rays.T)[upper], -1.0, 1.0))
+        scale = float(image_angle @ catalog_angle / (catalog_angle @ catalog_angle))
+        camera = scaled_camera(estimate.camera, scale)
+        rays = camera.pixel_to_ray(spots.x[check[matches.spot_index]], spots.y[check[matches.spot_index]])
+        rotation = svd_rotation(rays, stars)
+        matched = verify(rotation, spots.x[check], spots.y[check], database, camera, radius_px).spot_index.size
+        if matched <= estimate.matched:
+            break
+        estimate = FieldEstimate(camera, rotation, int(matched))
+    return estimate
+
+
 def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns: PatternDatabase,
                     tolerance: float, deadline: Deadline, ratio_tolerance: float = 0.01,
                     radius_px: float = 3.0, max_estimates: int = 3) -> list[FieldEstimate]:
     """
     Return focal lengths within +-tolerance (fraction) of `camera`'s at which brightest-spot patterns match.
 
-    Matching catalog patterns, best first (most spots on guide stars), distinct to 0.2 %, at
-    most max_estimates; the scan ends SCAN_AFTER_MATCH image patterns after the last match
-    (a better match comes within ~40 on the real corpus; the rest of the 210 only cost time).
-    Empty when nothing matched before `deadline`.
+    Matching catalog patterns, each refitted over the spots it matched (_refined; those within
+    REFIT_SHORTFALL of `need` too), best first (most spots on guide stars), distinct to 0.2 %,
+    at most max_estimates; the scan ends SCAN_AFTER_MATCH image patterns after the last new
+    field (a better match comes within ~40 on the real corpus; the rest of the 210 only cost
+    time), or at a field that CONCLUSIVE_SHARE of the VERIFY_SPOTS confirm. Empty when nothing
+    matched before `deadline`.
     """
     n = min(len(spots), IMAGE_SPOTS)
     if n < 4:
@@ -211,6 +252,7 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
     check = np.argsort(-spots.flux, kind="stable")[:VERIFY_SPOTS]
     need = min(7, len(spots))  # the pattern's four and at least three more
     found: list[FieldEstimate] = []
+    known_fx: list[float] = []  # focal lengths [px] of the matches so far, as patterns gave them and refined
     last_match = 0
     lo_scale, hi_scale = 1.0 / (1.0 + tolerance), 1.0 / (1.0 - tolerance)
     # Hash keys of an image pattern: its own bin and, per ratio within ratio_tolerance of a bin
@@ -240,16 +282,28 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
         keep = close & (scale >= lo_scale) & (scale <= hi_scale)
         cand, scale = cand[keep], scale[keep]
         for c, s in zip(cand, scale):
-            if any(abs(s * camera.fx / e.camera.fx - 1.0) < 2e-3 for e in found):
+            # Near a field found (its refined focal length, or the pattern scale that led to it): nothing new.
+            if any(abs(s * camera.fx / fx - 1.0) < 2e-3 for fx in known_fx):
                 continue
             trial = scaled_camera(camera, float(s))
             spot_idx = brightest[subsets[p]]
             body = trial.pixel_to_ray(spots.x[spot_idx], spots.y[spot_idx])
             rotation = svd_rotation(body, database.vectors[patterns.stars[c]])
             matched = verify(rotation, spots.x[check], spots.y[check], database, trial, radius_px).spot_index.size
-            if matched >= need:
-                found.append(FieldEstimate(trial, rotation, int(matched)))
-                last_match = p
-        if len(found) >= max_estimates:
+            # A pattern in a distorted part of the image has the scale of that part: its attitude
+            # puts only the spots around it within the radius; refitted over those, the rest follow.
+            if matched >= need - REFIT_SHORTFALL:
+                refined = _refined(FieldEstimate(trial, rotation, int(matched)), spots, check, database, radius_px)
+                if refined.matched < need:
+                    continue
+                known_fx += [trial.fx, refined.camera.fx]
+                same = [i for i, e in enumerate(found) if abs(refined.camera.fx / e.camera.fx - 1.0) < 2e-3]
+                if not same:
+                    found.append(refined)
+                    last_match = p
+                elif refined.matched > found[same[0]].matched:  # two patterns, one field: the better fit
+                    found[same[0]] = refined
+        # Enough fields, or one that most of the brightest spots confirm: the scan is over.
+        if len(found) >= max_estimates or any(e.matched >= CONCLUSIVE_SHARE * check.size for e in found):
             break
     return sorted(found, key=lambda e: -e.matched)
