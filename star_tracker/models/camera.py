@@ -79,6 +79,21 @@ class CameraModel:
         rays = self.pixel_to_ray(corners[:, 0], corners[:, 1])
         return float(np.max(np.arccos(np.clip(rays[:, 2], -1.0, 1.0))))
 
+    @cached_property
+    def max_imaged_radius2(self) -> float:
+        """
+        Squared normalized radius (x^2 + y^2, x = X/Z) beyond which the radial distortion stops growing [-].
+
+        Where d(r (1 + k1 r^2 + k2 r^4 + k3 r^6))/dr first falls to 0 (inf when it never
+        does): beyond it the polynomial folds directions far off-axis back into the image, a
+        place no lens images them (two directions would share a pixel).
+        """
+        k1, k2, _, _, k3 = self.distortion
+        # 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 = 0, s = r^2: its smallest positive real root.
+        roots = np.roots(np.trim_zeros([7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0], "f")) if (k1, k2, k3) != (0, 0, 0) else []
+        positive = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and r.real > 0.0]
+        return float(min(positive)) if positive else math.inf
+
     def distort_normalized(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Apply Brown-Conrady distortion to normalized image coordinates (x=X/Z, y=Y/Z)."""
         if not self.has_distortion:
@@ -92,15 +107,19 @@ class CameraModel:
 
     def project(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
-        Sensor-frame directions (N, 3) -> pixel u, v [px] and a mask of rays in front of the camera (Z > 0).
+        Sensor-frame directions (N, 3) -> pixel u, v [px] and a mask of the rays the camera images.
 
-        Matches cv2.projectPoints with K, D.
+        In front of it (Z > 0) and, with radial distortion, within max_imaged_radius2 (beyond
+        it u, v are the polynomial's fold-back, no image). Matches cv2.projectPoints with K, D.
         """
         rays = np.asarray(rays, dtype=float)
         z = rays[..., 2]
         in_front = z > 1e-9
         safe_z = np.where(in_front, z, 1.0)
-        x, y = self.distort_normalized(rays[..., 0] / safe_z, rays[..., 1] / safe_z)
+        x, y = rays[..., 0] / safe_z, rays[..., 1] / safe_z
+        if self.has_distortion and math.isfinite(self.max_imaged_radius2):
+            in_front = in_front & (x * x + y * y <= self.max_imaged_radius2)
+        x, y = self.distort_normalized(x, y)
         return self.fx * x + self.cx, self.fy * y + self.cy, in_front
 
     def in_image(self, u: np.ndarray, v: np.ndarray, margin: float = 0.0) -> np.ndarray:

@@ -29,6 +29,28 @@ def test_projection_matches_opencv():
     assert np.max(np.hypot(ref[:, 0, 0] - u, ref[:, 0, 1] - v)) < 1e-9
 
 
+def test_directions_beyond_the_distortion_fold_are_not_imaged():
+    """
+    Barrel k1 -0.1 (20 deg field): r (1 + k1 r^2) peaks at r^2 = 1/(3 |k1|), 61 deg off-axis.
+
+    Farther directions fold back onto the chip under the polynomial; no lens images them there.
+    Every bright star of the sky projected through such a camera put stars from 61-90 deg
+    off-axis among the brightest "in the image".
+    """
+    camera = CameraModel.from_fov(1024, 1024, np.radians(20.0), (-0.1, 0.0, 0.0, 0.0, 0.0))
+    assert camera.max_imaged_radius2 == pytest.approx(1.0 / 0.3)
+    off_axis = np.radians(np.array([5.0, 30.0, 60.0, 62.0, 75.0, 89.0]))
+    rays = np.column_stack([np.sin(off_axis), np.zeros(6), np.cos(off_axis)])
+    u, v, imaged = camera.project(rays)
+    assert imaged.tolist() == [True, True, True, False, False, False]
+    # 72.4 deg off-axis the polynomial puts a star ~60 px from the image centre: what the mask keeps out.
+    fold = np.radians(72.4)
+    u, v, imaged = camera.project(np.array([[np.sin(fold), 0.0, np.cos(fold)]]))
+    assert camera.in_image(u, v).all() and not imaged.any()
+    for monotonic in [(0.0,) * 5, (0.1, 0.0, 0.0, 0.0, 0.0), DISTORTED.distortion]:
+        assert CameraModel.from_fov(1024, 1024, np.radians(20.0), monotonic).max_imaged_radius2 == np.inf
+
+
 def test_optical_frame_axes(nominal_camera):
     # +X right (columns grow), +Y down (rows grow), +Z boresight at the principal point.
     u, v, _ = nominal_camera.project(np.array([[0.0, 0.0, 1.0], [0.01, 0.0, 1.0], [0.0, 0.01, 1.0]]))
