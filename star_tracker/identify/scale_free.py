@@ -44,7 +44,7 @@ RATIO_BIN = 0.01  # hash bin of each angle ratio
 SCAN_AFTER_MATCH = 50  # image patterns looked up after the last match before the scan ends
 REFINE_ROUNDS = 3  # scale and attitude refits of a pattern match over all its matched spots (_refined)
 REFINE_RADIUS_FACTOR = 3.0  # the refits' match radius over the verification's
-CONCLUSIVE_SHARE = 0.5  # a refined field on which this share of the VERIFY_SPOTS land ends the scan
+CONCLUSIVE_SHARE = 0.5  # a field this share of the VERIFY_SPOTS (or of its guide stars in view) confirm ends the scan
 REFIT_SHORTFALL = 2  # a pattern match this many spots short of `need` is refitted (_refined) before it is judged
 RATIO_BASE = int(round(1.0 / RATIO_BIN)) + 2
 _PAIRS = np.array(list(itertools.combinations(range(4), 2)))  # the six pairs of a pattern
@@ -180,13 +180,14 @@ class FieldEstimate:
     """
     A focal length found by a pattern match.
 
-    Camera (nominal with fx, fy scaled), the attitude (sensor -> ICRS) of the match, and the
-    spots that landed on guide stars.
+    Camera (nominal with fx, fy scaled), the attitude (sensor -> ICRS) of the match, the
+    spots that landed on guide stars, and the guide stars it projects into the image.
     """
 
     camera: CameraModel
     rotation: np.ndarray
     matched: int
+    stars_in_view: int = 0  # guide stars projected into the image at that field and attitude
 
 
 def scaled_camera(camera: CameraModel, scale: float) -> CameraModel:
@@ -221,10 +222,10 @@ def _refined(estimate: FieldEstimate, spots, check: np.ndarray, database: StarDa
         camera = scaled_camera(estimate.camera, scale)
         rays = camera.pixel_to_ray(spots.x[check[matches.spot_index]], spots.y[check[matches.spot_index]])
         rotation = svd_rotation(rays, stars)
-        matched = verify(rotation, spots.x[check], spots.y[check], database, camera, radius_px).spot_index.size
-        if matched <= estimate.matched:
+        result = verify(rotation, spots.x[check], spots.y[check], database, camera, radius_px)
+        if result.spot_index.size <= estimate.matched:
             break
-        estimate = FieldEstimate(camera, rotation, int(matched))
+        estimate = FieldEstimate(camera, rotation, int(result.spot_index.size), result.stars_in_view)
     return estimate
 
 
@@ -238,7 +239,8 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
     REFIT_SHORTFALL of `need` too), best first (most spots on guide stars), distinct to 0.2 %,
     at most max_estimates; the scan ends SCAN_AFTER_MATCH image patterns after the last new
     field (a better match comes within ~40 on the real corpus; the rest of the 210 only cost
-    time), or at a field that CONCLUSIVE_SHARE of the VERIFY_SPOTS confirm. Empty when nothing
+    time), or at a field that CONCLUSIVE_SHARE of the VERIFY_SPOTS (or of the guide stars in
+    view, if fewer) confirm. Empty when nothing
     matched before `deadline`.
     """
     n = min(len(spots), IMAGE_SPOTS)
@@ -289,11 +291,13 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
             spot_idx = brightest[subsets[p]]
             body = trial.pixel_to_ray(spots.x[spot_idx], spots.y[spot_idx])
             rotation = svd_rotation(body, database.vectors[patterns.stars[c]])
-            matched = verify(rotation, spots.x[check], spots.y[check], database, trial, radius_px).spot_index.size
+            result = verify(rotation, spots.x[check], spots.y[check], database, trial, radius_px)
+            matched = result.spot_index.size
             # A pattern in a distorted part of the image has the scale of that part: its attitude
             # puts only the spots around it within the radius; refitted over those, the rest follow.
             if matched >= need - REFIT_SHORTFALL:
-                refined = _refined(FieldEstimate(trial, rotation, int(matched)), spots, check, database, radius_px)
+                refined = _refined(FieldEstimate(trial, rotation, int(matched), result.stars_in_view), spots, check,
+                                   database, radius_px)
                 if refined.matched < need:
                     continue
                 known_fx += [trial.fx, refined.camera.fx]
@@ -303,7 +307,8 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
                     last_match = p
                 elif refined.matched > found[same[0]].matched:  # two patterns, one field: the better fit
                     found[same[0]] = refined
-        # Enough fields, or one that most of the brightest spots confirm: the scan is over.
-        if len(found) >= max_estimates or any(e.matched >= CONCLUSIVE_SHARE * check.size for e in found):
+        # Enough fields, or one that most of the brightest spots (or guide stars in view) confirm: the scan is over.
+        if len(found) >= max_estimates or any(e.matched >= CONCLUSIVE_SHARE * min(check.size, e.stars_in_view)
+                                              for e in found):
             break
     return sorted(found, key=lambda e: -e.matched)
