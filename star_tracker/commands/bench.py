@@ -96,6 +96,9 @@ BENCHES = (
     Bench("realdata", "bench.bench_realdata", ("--output", "{out}"),
           ("--only", "gran_vega_05sec,openstartracker_img0", "--output", "{out}"),
           "real sky images (../shared/realdata) against their references, peers", peers=True),
+    Bench("psf_sensitivity", "bench.bench_psf_sensitivity", ("--output", "{out}"),
+          ("--only", "gran_vega_05sec,unh_DSC_0060", "--output", "{out}"),
+          "real sky images solved with the PSF width fixed 5-15 % off its estimate: no cliffs"),
     Bench("cold_start", "bench.bench_cold_start", ("--output", "{out}"), ("--only", "colcon", "--output", "{out}"),
           "process start -> first identified frame on a fresh clone and install (colcon, pip)"),
 )
