@@ -88,11 +88,19 @@ class CameraModel:
         does): beyond it the polynomial folds directions far off-axis back into the image, a
         place no lens images them (two directions would share a pixel).
         """
-        k1, k2, _, _, k3 = self.distortion
-        # 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 = 0, s = r^2: its smallest positive real root.
-        roots = np.roots(np.trim_zeros([7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0], "f")) if (k1, k2, k3) != (0, 0, 0) else []
-        positive = [r.real for r in np.atleast_1d(roots) if abs(r.imag) < 1e-12 and r.real > 0.0]
-        return float(min(positive)) if positive else math.inf
+        k1, k2, _, _, k3 = (float(d) for d in self.distortion)
+        # 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 = 0, s = r^2: its smallest positive real root (plain
+        # floats without k3: calibration makes a camera per evaluation).
+        if k3 != 0.0:
+            roots = [r.real for r in np.roots([7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0]) if abs(r.imag) < 1e-12]
+        elif k2 != 0.0:
+            discriminant = 9.0 * k1 * k1 - 20.0 * k2
+            root = math.sqrt(discriminant) if discriminant >= 0.0 else math.nan
+            roots = [(-3.0 * k1 - root) / (10.0 * k2), (-3.0 * k1 + root) / (10.0 * k2)]
+        else:
+            roots = [-1.0 / (3.0 * k1)] if k1 != 0.0 else []
+        positive = [r for r in roots if r > 0.0]  # NaN (no real root) is not > 0
+        return min(positive) if positive else math.inf
 
     def distort_normalized(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Apply Brown-Conrady distortion to normalized image coordinates (x=X/Z, y=Y/Z)."""
