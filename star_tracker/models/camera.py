@@ -89,18 +89,22 @@ class CameraModel:
         place no lens images them (two directions would share a pixel).
         """
         k1, k2, _, _, k3 = (float(d) for d in self.distortion)
-        # 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 = 0, s = r^2: its smallest positive real root (plain
-        # floats without k3: calibration makes a camera per evaluation).
-        if k3 != 0.0:
-            roots = [r.real for r in np.roots([7.0 * k3, 5.0 * k2, 3.0 * k1, 1.0]) if abs(r.imag) < 1e-12]
-        elif k2 != 0.0:
-            discriminant = 9.0 * k1 * k1 - 20.0 * k2
-            root = math.sqrt(discriminant) if discriminant >= 0.0 else math.nan
-            roots = [(-3.0 * k1 - root) / (10.0 * k2), (-3.0 * k1 + root) / (10.0 * k2)]
-        else:
-            roots = [-1.0 / (3.0 * k1)] if k1 != 0.0 else []
-        positive = [r for r in roots if r > 0.0]  # NaN (no real root) is not > 0
-        return min(positive) if positive else math.inf
+        # 1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3 = 0, s = r^2; with t = 1/s the monic t^3 + 3 k1 t^2 +
+        # 5 k2 t + 7 k3 = 0 (no division by a tiny k3): s = 1 / the largest positive real t.
+        # Plain floats without k3: calibration makes a camera per evaluation.
+        with np.errstate(all="ignore"):
+            if k3 != 0.0:
+                try:
+                    roots = np.roots([1.0, 3.0 * k1, 5.0 * k2, 7.0 * k3])
+                except np.linalg.LinAlgError:  # coefficients overflowing to inf
+                    return math.inf
+                ts = [r.real for r in roots if abs(r.imag) <= 1e-7 * abs(r)]
+            else:  # t (t^2 + 3 k1 t + 5 k2) = 0
+                discriminant = 9.0 * k1 * k1 - 20.0 * k2
+                root = math.sqrt(discriminant) if discriminant >= 0.0 else math.nan
+                ts = [0.5 * (-3.0 * k1 - root), 0.5 * (-3.0 * k1 + root)]
+        positive = [t for t in ts if math.isfinite(t) and t > 0.0]  # NaN (no real root) is not > 0
+        return 1.0 / max(positive) if positive else math.inf
 
     def distort_normalized(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Apply Brown-Conrady distortion to normalized image coordinates (x=X/Z, y=Y/Z)."""

@@ -47,8 +47,12 @@ def test_directions_beyond_the_distortion_fold_are_not_imaged():
     fold = np.radians(72.4)
     u, v, imaged = camera.project(np.array([[np.sin(fold), 0.0, np.cos(fold)]]))
     assert camera.in_image(u, v).all() and not imaged.any()
-    for monotonic in [(0.0,) * 5, (0.1, 0.0, 0.0, 0.0, 0.0), DISTORTED.distortion]:
+    # A subnormal k3 (as a fuzzed CameraInfo gave): no division by it, and no fold.
+    for monotonic in [(0.0,) * 5, (0.1, 0.0, 0.0, 0.0, 0.0), DISTORTED.distortion, (0.0, 0.0, 0.0, 0.0, 2.2e-311)]:
         assert CameraModel.from_fov(1024, 1024, np.radians(20.0), monotonic).max_imaged_radius2 == np.inf
+    # With k3 the cubic's smallest positive root: the derivative vanishes there.
+    s = CameraModel.from_fov(1024, 1024, np.radians(20.0), (-0.3, 0.05, 0.0, 0.0, -0.01)).max_imaged_radius2
+    assert 1.0 - 0.9 * s + 0.25 * s ** 2 - 0.07 * s ** 3 == pytest.approx(0.0, abs=1e-12)
 
 
 def test_optical_frame_axes(nominal_camera):
