@@ -170,9 +170,14 @@ class NodeProcesses:
             paths = {self.node_path(n): n for n in names if self.expected_state(n) == state}
             wait_for_state(self.env, list(paths), state, timeout_s, check=lambda path: self.check_alive(paths[path]))
 
-    def get_state(self, name: str) -> str | None:
-        """Return a node's lifecycle state label (None: no answer)."""
-        return self.lifecycle.get_state(self.node_path(name))
+    def get_state(self, name: str, timeout_s: float = 30.0) -> str | None:
+        """
+        Return a node's lifecycle state label (None: no answer within timeout_s [s]).
+
+        The client finds the node's service by discovery: on a loaded 2-core host it once took
+        longer than 5 s for a node that had answered another client already.
+        """
+        return self.lifecycle.get_state(self.node_path(name), timeout_s=timeout_s)
 
     def change_state(self, name: str, transition: str, timeout_s: float = 120.0) -> bool:
         """
