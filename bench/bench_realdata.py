@@ -74,6 +74,8 @@ FOV_HINT_TOLERANCE = 0.05  # our `solve --fov-tolerance` default (5 %), given to
 EPOCH_JYEAR = 2026.0  # our `solve --epoch` default
 FIELD_GROUP_GAP = 1.10  # fields more than 10 % apart get separate peer databases
 PEERS = ("tetra3rs", "cedar-solve")
+TIMED_RUNS = 3  # runs timed per solver and image, the median reported ...
+REPEAT_BELOW_S = 1.0  # ... when a run takes less than this [s] (a failing peer's 5 s searches once)
 
 
 # ----------------------------------------------------------------------------------------
@@ -212,6 +214,28 @@ def pairs_database_cached(image: CorpusImage) -> bool:
     return (cache_dir() / f"pairs_{config.cache_key()}.npz").is_file()
 
 
+def _pixels_time(record: dict | None) -> float | None:
+    """
+    From decoded pixels to the solution [s], as cedar-solve's solve_from_image is timed.
+
+    The command's own timing_s total less its file read and decode (and less printing the JSON).
+    """
+    timing = (record or {}).get("timing_s") or {}
+    return timing["total"] - timing["read"] if {"total", "read"} <= set(timing) else None
+
+
+def _timed(call) -> tuple[object, float, int]:
+    """Run `call` and return (its result, the median time [s] of TIMED_RUNS runs when quick, else of one, runs)."""
+    started = time.perf_counter()
+    result = call()
+    times = [time.perf_counter() - started]
+    while times[-1] < REPEAT_BELOW_S and len(times) < TIMED_RUNS:
+        started = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - started)
+    return result, float(np.median(times)), len(times)
+
+
 def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
     """Our result for one image (the solve command; see the module docstring)."""
     from star_tracker.models.attitude import quaternion_to_matrix
@@ -227,21 +251,27 @@ def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
         forget_all()
         first_run_s = run_solve_command(argv)[2]
     code, record, elapsed, err = run_solve_command(argv)  # its databases held in memory, as the peers' are
+    # A quick solve is timed TIMED_RUNS times (the same result each time): one run's time moved 1.2 -> 2.0x a
+    # peer's between two benchmark runs on a shared host.
+    times = [elapsed]
+    pixel_times = [_pixels_time(record)]
+    while elapsed < REPEAT_BELOW_S and len(times) < TIMED_RUNS:
+        _, again, elapsed, _ = run_solve_command(argv)
+        times.append(elapsed)
+        pixel_times.append(_pixels_time(again))
     solved = code == 0 and bool(record and record.get("solved"))
     rotation = quaternion_to_matrix(np.asarray(record["quaternion_xyzw"], float)) if solved else None
     attempts = (record or {}).get("attempts") or [{}]
     status = (record or {}).get("status") or attempts[-1].get("status") or f"exit code {code}"
     result = {"solved": solved, "status": status,
-              "matched": len(record["matched"]) if solved else 0, "time_s": elapsed, "first_run_s": first_run_s,
+              "matched": len(record["matched"]) if solved else 0, "time_s": float(np.median(times)),
+              "timed_runs": len(times), "first_run_s": first_run_s,
               "spots": (record or {}).get("spots"),
               "fov_x_deg": (record or {}).get("camera", {}).get("fov_x_deg") if solved else None,
               "attempts": len((record or {}).get("attempts", [])),
               "quat_xyzw_sensor_to_icrs": record["quaternion_xyzw"] if solved else None,
               "error": err.strip()[-300:] if code == 2 else None}
-    timing = (record or {}).get("timing_s") or {}
-    # From decoded pixels to the solution, as cedar-solve's solve_from_image is timed: the
-    # command's own total less its file read and decode (and less printing the JSON).
-    result["pixels_time_s"] = timing["total"] - timing["read"] if {"total", "read"} <= set(timing) else None
+    result["pixels_time_s"] = None if None in pixel_times else float(np.median(pixel_times))
     # Each matched star's residual after the attitude and camera fit [arcsec], by HIP: two runs'
     # centroids compared on the stars both match (bench/compare_residuals.py).
     result["residual_rms_arcsec"] = record.get("residual_rms_arcsec") if solved else None
@@ -340,14 +370,16 @@ def solve_tetra3rs(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
     import tetra3rs
 
     height, width = pixels.shape
-    started = time.perf_counter()
-    extraction = tetra3rs.extract_centroids(pixels)
-    result = solver._db.solve_from_centroids(extraction.centroids, fov_estimate_deg=image.hint_deg,
-                                             image_width=width, image_height=height,
-                                             fov_max_error_deg=FOV_HINT_TOLERANCE * image.hint_deg)
-    elapsed = time.perf_counter() - started
+
+    def run():
+        extraction = tetra3rs.extract_centroids(pixels)
+        return extraction, solver._db.solve_from_centroids(extraction.centroids, fov_estimate_deg=image.hint_deg,
+                                                           image_width=width, image_height=height,
+                                                           fov_max_error_deg=FOV_HINT_TOLERANCE * image.hint_deg)
+
+    (extraction, result), elapsed, runs = _timed(run)
     out = {"solved": False, "status": str(getattr(result, "status", "failed")), "matched": 0, "time_s": elapsed,
-           "spots": len(extraction.centroids)}
+           "timed_runs": runs, "spots": len(extraction.centroids)}
     rotation = None
     if result:
         if bool(result.parity_flip):
@@ -372,12 +404,11 @@ def solve_cedar(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
     picture = Image.fromarray(pixels)
     centre = (height / 2.0, width / 2.0)  # (y, x) from the top-left pixel corner
     targets = np.array([centre, (centre[0], centre[1] + width / 4.0)])
-    started = time.perf_counter()
-    result = solver._t3.solve_from_image(picture, fov_estimate=image.hint_deg,
-                                         fov_max_error=FOV_HINT_TOLERANCE * image.hint_deg, target_pixel=targets)
-    elapsed = time.perf_counter() - started
+    result, elapsed, runs = _timed(lambda: solver._t3.solve_from_image(
+        picture, fov_estimate=image.hint_deg, fov_max_error=FOV_HINT_TOLERANCE * image.hint_deg,
+        target_pixel=targets))
     out = {"solved": False, "status": peer_adapters._cedar_status(result.get("status")), "matched": 0,
-           "time_s": elapsed, "spots": None}
+           "time_s": elapsed, "timed_runs": runs, "spots": None}
     rotation = None
     if result.get("RA") is not None:
         ra, dec = np.radians(result["RA_target"]), np.radians(result["Dec_target"])
@@ -536,7 +567,9 @@ def render_markdown(results: dict) -> str:
         "refinement; databases already built, cached and held in memory by an untimed first run of the same "
         "image, as the peers' solver objects hold theirs; that first run's time is in the summary; in brackets "
         "the command's own `timing_s` total less its file read and decode: from decoded pixels to the solution, "
-        "as cedar-solve's call is timed). **tetra3rs**: "
+        "as cedar-solve's call is timed). Every solver's time is the median of "
+        f"{TIMED_RUNS} runs when one takes under {REPEAT_BELOW_S:g} s (the same result each time), else of one. "
+        "**tetra3rs**: "
         "`extract_centroids` + "
         "`solve_from_centroids` (it has no image-level solve), **cedar-solve**: `solve_from_image`; both at their "
         "defaults with the same field hint (fov_h_deg, max error 5 % as our `--fov-tolerance`) and the same grey "

@@ -113,3 +113,14 @@ def test_time_goal_counted_both_ways():
     text = bench.render_markdown(results)
     assert "faster on 0 of the 1 images cedar-solve solves" in text and "from decoded pixels on 1 of 1" in text
     assert "| 0.50 (0.30) |" in text and results["summary"]["ours"]["median_pixels_time_s"] == pytest.approx(0.3)
+
+
+def test_quick_solves_are_timed_three_times_slow_ones_once(monkeypatch):
+    """A solver's time is the median of TIMED_RUNS runs under REPEAT_BELOW_S, else one run's (a peer's 5 s failures)."""
+    calls = []
+    assert bench._timed(lambda: calls.append(1) or "result")[::2] == ("result", bench.TIMED_RUNS)
+    assert len(calls) == bench.TIMED_RUNS
+    monkeypatch.setattr(bench, "REPEAT_BELOW_S", 0.0)
+    calls.clear()
+    result, seconds, runs = bench._timed(lambda: calls.append(1) or "slow")
+    assert (result, runs, len(calls)) == ("slow", 1, 1) and seconds >= 0.0
