@@ -17,7 +17,6 @@ same time line (the frames of the inactive time are skipped and counted).
 """
 from __future__ import annotations
 
-import sys
 import time
 from collections import deque
 from dataclasses import dataclass, replace
@@ -37,7 +36,7 @@ from ..parameter_spec import field_values
 from .camera_simulator_parameters import (CAMERA_SIMULATOR_PARAMETERS, SENSOR_PARAMETERS, attitude_from, camera_from,
                                           false_objects_from, sensor_from, sky_from)
 from .managed_node import ManagedNode
-from .node_process import run_node
+from .node_process import exit_node_process, run_node
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, TRUTH_INPUT_QOS, overridable
 from .throttled_log import ThrottledLog
@@ -452,7 +451,7 @@ class CameraSimulatorNode(ManagedNode):
 
 
 def main(argv: list[str] | None = None) -> None:
-    sys.exit(run_node(CameraSimulatorNode, argv))
+    exit_node_process(run_node(CameraSimulatorNode, argv))
 
 
 if __name__ == "__main__":

@@ -26,7 +26,6 @@ A managed node (managed_node.py): `configure` compiles the kernels and creates t
 """
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import replace
 
@@ -44,7 +43,7 @@ from .camera_info_input import CameraInfoInput
 from .diagnostics import Rejections
 from .frame_queue import NewestFrame
 from .managed_node import ManagedNode
-from .node_process import run_node
+from .node_process import exit_node_process, run_node
 from ..parameter_spec import field_values
 from .centroider_parameters import CENTROIDER_PARAMETERS, RATE_SOURCES
 from .parameters import declare_parameters, guard_parameter_changes
@@ -259,7 +258,7 @@ def psf_values(psf) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    sys.exit(run_node(CentroiderNode, argv))
+    exit_node_process(run_node(CentroiderNode, argv))
 
 
 if __name__ == "__main__":

@@ -32,7 +32,6 @@ lost-in-space.
 """
 from __future__ import annotations
 
-import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -55,7 +54,7 @@ from .camera_info_input import CameraInfoInput
 from .diagnostics import Rejections
 from .frame_queue import NewestFrame
 from .managed_node import ManagedNode
-from .node_process import run_node
+from .node_process import exit_node_process, run_node
 from ..parameter_spec import field_values
 from .identifier_parameters import (CALIBRATION_PARAMETERS, DATABASE_PARAMETERS, IDENTIFIER_PARAMETERS,
                                     IDENTIFY_PARAMETERS, TRACKING_PARAMETERS)
@@ -432,7 +431,7 @@ class IdentifierNode(ManagedNode):
 
 
 def main(argv: list[str] | None = None) -> None:
-    sys.exit(run_node(IdentifierNode, argv))
+    exit_node_process(run_node(IdentifierNode, argv))
 
 
 if __name__ == "__main__":

@@ -8,12 +8,13 @@ exit codes 0 (normal stop), 1 (hung clean-up), 2 (could not start).
 from __future__ import annotations
 
 import faulthandler
+import logging
 import os
 import signal
 import sys
 import threading
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NoReturn
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -141,6 +142,25 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
             node.destroy_node()
         rclpy.try_shutdown()
     return code
+
+
+def exit_node_process(code: int) -> NoReturn:
+    """
+    End a node's own process with `code`, once run_node has cleaned up (a node module's main).
+
+    Logging and the standard streams are flushed, then os._exit: the interpreter's and the C
+    library's exit are skipped. In CI a centroider outlived its SIGINT by 15 s after
+    rclpy's shutdown (exit -10: the harness's SIGUSR1 stack dump met no handler, faulthandler
+    was already finalized, so was the watchdog): past Python, in the middleware's static
+    destructors, where no watchdog reaches (a known class of DDS exit hangs).
+    """
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # closed or broken pipe: nothing more to say
+            pass
+    os._exit(code)
 
 
 def spin_until_stopped(node: Node, stop_requested: threading.Event) -> None:
