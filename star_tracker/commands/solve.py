@@ -566,7 +566,10 @@ def run(args: argparse.Namespace) -> int:
             report(f"{_matched(result)} of {len(spots)} spots matched, elongated spots point every way: "
                    "centroiding again with them ranked last")
         started_again = time.perf_counter()
-        texture_spots = extract_spots(pixels, replace(config, texture_last=True))
+        # The same pixels: the PSF estimated for them is the prior (no second estimate from a
+        # measurement at the configured width).
+        prior = spots.psf.applied_sigma_px if spots.psf is not None and spots.psf.estimated else None
+        texture_spots = extract_spots(pixels, replace(config, texture_last=True), psf_prior=prior)
         solve_again = time.perf_counter()
         second = solve_spots(texture_spots, width, height, fov_deg=args.fov, camera=camera, options=options,
                              report=report)
