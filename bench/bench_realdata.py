@@ -224,16 +224,25 @@ def _pixels_time(record: dict | None) -> float | None:
     return timing["total"] - timing["read"] if {"total", "read"} <= set(timing) else None
 
 
-def _timed(call) -> tuple[object, float, int]:
-    """Run `call` and return (its result, the median time [s] of TIMED_RUNS runs when quick, else of one, runs)."""
-    started = time.perf_counter()
-    result = call()
-    times = [time.perf_counter() - started]
-    while times[-1] < REPEAT_BELOW_S and len(times) < TIMED_RUNS:
+def _timed_runs(call, seconds_of=None) -> list:
+    """
+    Run `call` once, and again while a run took under REPEAT_BELOW_S, TIMED_RUNS times at most.
+
+    Returns [(result, seconds)] per run; seconds_of(result) gives a run's time when the call
+    times itself (our solve command), else the wall time around it.
+    """
+    runs = []
+    while not runs or (runs[-1][1] < REPEAT_BELOW_S and len(runs) < TIMED_RUNS):
         started = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - started)
-    return result, float(np.median(times)), len(times)
+        result = call()
+        runs.append((result, time.perf_counter() - started if seconds_of is None else seconds_of(result)))
+    return runs
+
+
+def _timed(call) -> tuple[object, float, int]:
+    """Run `call` (_timed_runs) and return (its first result, the median time [s], runs)."""
+    runs = _timed_runs(call)
+    return runs[0][0], float(np.median([seconds for _, seconds in runs])), len(runs)
 
 
 def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
@@ -250,15 +259,12 @@ def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
         # Reported as first_run_s, not as the time.
         forget_all()
         first_run_s = run_solve_command(argv)[2]
-    code, record, elapsed, err = run_solve_command(argv)  # its databases held in memory, as the peers' are
-    # A quick solve is timed TIMED_RUNS times (the same result each time): one run's time moved 1.2 -> 2.0x a
-    # peer's between two benchmark runs on a shared host.
-    times = [elapsed]
-    pixel_times = [_pixels_time(record)]
-    while elapsed < REPEAT_BELOW_S and len(times) < TIMED_RUNS:
-        _, again, elapsed, _ = run_solve_command(argv)
-        times.append(elapsed)
-        pixel_times.append(_pixels_time(again))
+    # Its databases held in memory, as the peers' are. A quick solve is timed TIMED_RUNS times (the same
+    # result each time): one run's time moved 1.2 -> 2.0x a peer's between two benchmark runs on a shared host.
+    runs = _timed_runs(lambda: run_solve_command(argv), seconds_of=lambda run: run[2])
+    code, record, _, err = runs[0][0]
+    times = [seconds for _, seconds in runs]
+    pixel_times = [_pixels_time(run[1]) for run, _ in runs]
     solved = code == 0 and bool(record and record.get("solved"))
     rotation = quaternion_to_matrix(np.asarray(record["quaternion_xyzw"], float)) if solved else None
     attempts = (record or {}).get("attempts") or [{}]

@@ -240,8 +240,7 @@ def estimate_fields(spots, camera: CameraModel, database: StarDatabase, patterns
     at most max_estimates; the scan ends SCAN_AFTER_MATCH image patterns after the last new
     field (a better match comes within ~40 on the real corpus; the rest of the 210 only cost
     time), or at a field that CONCLUSIVE_SHARE of the VERIFY_SPOTS (or of the guide stars in
-    view, if fewer) confirm. Empty when nothing
-    matched before `deadline`.
+    view, if fewer) confirm. Empty when nothing matched before `deadline`.
     """
     n = min(len(spots), IMAGE_SPOTS)
     if n < 4:

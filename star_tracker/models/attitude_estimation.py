@@ -33,12 +33,17 @@ class AttitudeSolution:
     loss: float
 
 
+def _profile_z(b_matrix: np.ndarray) -> np.ndarray:
+    """Return the vector z of Davenport's K from the attitude profile matrix B (its antisymmetric part)."""
+    return np.array([b_matrix[1, 2] - b_matrix[2, 1], b_matrix[2, 0] - b_matrix[0, 2],
+                     b_matrix[0, 1] - b_matrix[1, 0]])
+
+
 def _davenport_k(body: np.ndarray, ref: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # Attitude profile matrix B = sum_i w_i b_i r_i^T (Shuster's convention: A maps ref -> body).
     b_matrix = (weights[:, None] * body).T @ ref
     s = b_matrix + b_matrix.T
-    z = np.array([b_matrix[1, 2] - b_matrix[2, 1], b_matrix[2, 0] - b_matrix[0, 2],
-                  b_matrix[0, 1] - b_matrix[1, 0]])
+    z = _profile_z(b_matrix)
     k = np.zeros((4, 4))
     k[:3, :3] = s - np.trace(b_matrix) * np.eye(3)
     k[:3, 3] = z
@@ -262,8 +267,7 @@ def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolu
     for axis in (None, 0, 1, 2):
         b_matrix = b_unturned if axis is None else b_unturned * np.where(np.arange(3) == axis, 1.0, -1.0)
         s = b_matrix + b_matrix.T
-        z = np.array([b_matrix[1, 2] - b_matrix[2, 1], b_matrix[2, 0] - b_matrix[0, 2],
-                      b_matrix[0, 1] - b_matrix[1, 0]])
+        z = _profile_z(b_matrix)
         sigma = np.trace(b_matrix)
         kappa = np.trace(_adjugate(s))
         delta = np.linalg.det(s)
