@@ -124,13 +124,15 @@ def estimate_background(image: np.ndarray, block: int) -> np.ndarray:
     return background_and_noise(image, block)[0]
 
 
-def background_and_noise(image: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+def background_and_noise(image: np.ndarray, block: int, smooth_tiles: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """
     Smooth background and pixel-noise maps [same units].
 
     The median and the robust sigma (MAD) of each block x block tile (at most 8x8 samples on
     a regular sub-grid), bilinearly interpolated back to full size. Robust to stars; follow
-    stray-light gradients (whose shot noise raises the local noise).
+    stray-light gradients (whose shot noise raises the local noise). smooth_tiles 3: each
+    tile's background is the median over its 3x3 tiles (background_tiles: stars as wide as a
+    tile).
     """
     h, w = image.shape
     block = max(2, min(block, h, w))
@@ -148,9 +150,26 @@ def background_and_noise(image: np.ndarray, block: int) -> tuple[np.ndarray, np.
     spread = np.partition(np.abs(tiles.astype(np.float32) - medians[:, None]), mid, axis=1)[:, mid]
     spread = cv2.blur((MAD_TO_SIGMA * spread).reshape(ty, tx).astype(np.float32), (3, 3),
                       borderType=cv2.BORDER_REPLICATE)
-    full = cv2.resize(medians.reshape(ty, tx), (tx * block, ty * block), interpolation=cv2.INTER_LINEAR)
+    grid = medians.reshape(ty, tx)
+    if smooth_tiles > 1 and min(ty, tx) >= smooth_tiles:
+        grid = cv2.medianBlur(grid, smooth_tiles)
+    full = cv2.resize(grid, (tx * block, ty * block), interpolation=cv2.INTER_LINEAR)
     noise = cv2.resize(spread, (tx * block, ty * block), interpolation=cv2.INTER_LINEAR)
     return full[:h, :w], noise[:h, :w]
+
+
+# A star whose aperture (radius 3 sigma) covers at least this share of a background tile biases
+# its flux and centre by the tile median's noise, summed coherently over the aperture: its
+# background is smoothed over 3x3 tiles (measured on defocused annulus stars, sigma 3 px, 32 px
+# tiles: 2 of 189 SNR >= 10 stars lost to it). Real cameras' backgrounds vary on the tile scale,
+# so narrower PSFs keep single tiles.
+WIDE_STAR_TILE_SHARE = 0.25
+
+
+def background_tiles(psf_sigma_px: float, block_px: int) -> int:
+    """Return how many tiles across (1 or 3) stars of 1-sigma psf_sigma_px [px] take their background over."""
+    aperture = np.pi * (3.0 * psf_sigma_px) ** 2
+    return 3 if aperture >= WIDE_STAR_TILE_SHARE * block_px ** 2 else 1
 
 
 @dataclass(frozen=True)
@@ -170,10 +189,15 @@ class DetectionGround:
     binning: int
 
 
-def detection_ground(image: np.ndarray, binning: int, background_block_px: int) -> DetectionGround:
-    """Bin `image`, estimate its background and noise (background_and_noise, robust_sigma): DetectionGround."""
+def detection_ground(image: np.ndarray, binning: int, background_block_px: int,
+                     smooth_tiles: int = 1) -> DetectionGround:
+    """
+    Bin `image`, estimate its background and noise: DetectionGround.
+
+    background_and_noise (smooth_tiles: see there; background_tiles) and robust_sigma.
+    """
     binned = bin_image(image, binning)
-    background, local_noise = background_and_noise(binned, max(2, background_block_px // binning))
+    background, local_noise = background_and_noise(binned, max(2, background_block_px // binning), smooth_tiles)
     residual = cv2.subtract(binned, background, dtype=cv2.CV_32F) if binned.dtype != np.float32 else binned - background
     sample = residual[::3, ::3] if residual.size > 40000 else residual
     sigma_binned = robust_sigma(sample)

@@ -19,7 +19,7 @@ import numpy as np
 from .beside_tracks import refit_beside_tracks
 from .candidates import STREAK_COUNT_MIN_SIGMA_PX, Candidates, measure_candidates
 from .config import CentroidConfig, elongation_limit, peak_fraction_limit
-from .detect import DetectionGround, Detections, detect, detection_ground
+from .detect import DetectionGround, Detections, background_tiles, detect, detection_ground
 from .elliptical_psf import EllipticalGaussianPsf
 from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
@@ -89,16 +89,15 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         raise ValueError(f"expected a non-empty 2-D image, got shape {image.shape}")
     if image.dtype.kind not in "uif":
         raise ValueError(f"expected a numeric image, got dtype {image.dtype}")
-    # The background and noise do not depend on the PSF: computed once for every measurement below.
-    ground = detection_ground(image, _binning(image, config), config.background_block_px)
+    grounds = _Grounds(image, config)
     if config.psf_mode == "fixed" or config.psf_sigma_px <= 0:
-        return replace(_finish(_measure_frame(image, config, smear, ground)),
+        return replace(_finish(_measure_frame(image, config, smear, grounds.at(config.psf_sigma_px))),
                        psf=PsfEstimate.assumed(config.psf_sigma_px, "configured"))
     prior = config.psf_sigma_px
     if psf_prior is not None and np.isfinite(psf_prior) and MIN_SIGMA_PX <= psf_prior <= MAX_SIGMA_PX:
         prior = float(psf_prior)
     first = config if prior == config.psf_sigma_px else replace(config, psf_sigma_px=prior)
-    measured = _measure_frame(image, first, smear, ground)
+    measured = _measure_frame(image, first, smear, grounds.at(prior))
     frame = measured.frame
     if frame is None:
         return replace(_finish(measured), psf=PsfEstimate.assumed(prior, "prior", "no detections"))
@@ -116,7 +115,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
             wider = prior * factor
             if wider > MAX_SIGMA_PX:
                 break
-            wide = _measure_frame(image, replace(config, psf_sigma_px=wider), smear, ground)
+            wide = _measure_frame(image, replace(config, psf_sigma_px=wider), smear, grounds.at(wider))
             if wide.frame is None:
                 break
             again = estimate_psf(image, wide.frame.det, wide.frame.cand, wide.frame.saturation, wider,
@@ -144,14 +143,36 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         if elongated and width < (1.0 - RERUN_TOLERANCE) * prior:
             # Astigmatic stars are narrower across than the prior: measured again with the width
             # test at their minor axis, which the prior's rejected some of them at.
-            measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, ground, narrowest_px=width,
+            measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, grounds.at(prior),
+                                      narrowest_px=width,
                                       elliptical=elliptical)
         elif elliptical is not None:
             measured = replace(measured, context=replace(measured.context, elliptical=elliptical))
         return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
-    spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, ground, rings=estimate.annular,
+    spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, grounds.at(width),
+                                   rings=estimate.annular,
                                    elliptical=elliptical))
     return replace(spots, psf=replace(estimate, applied_sigma_px=width))
+
+
+class _Grounds:
+    """
+    A frame's detection grounds (background, noise), computed once per background smoothing.
+
+    The background does not depend on the PSF, except that stars as wide as a background tile
+    take it over 3x3 tiles (detect.background_tiles).
+    """
+
+    def __init__(self, image: np.ndarray, config: CentroidConfig):
+        self.image, self.config, self.by_tiles = image, config, {}
+
+    def at(self, psf_sigma_px: float) -> DetectionGround:
+        """Return the ground for stars of 1-sigma psf_sigma_px [px]."""
+        block = self.config.background_block_px
+        tiles = background_tiles(psf_sigma_px, block)
+        if tiles not in self.by_tiles:
+            self.by_tiles[tiles] = detection_ground(self.image, _binning(self.image, self.config), block, tiles)
+        return self.by_tiles[tiles]
 
 
 @dataclass(frozen=True)
@@ -222,7 +243,7 @@ def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel
     """
     Measure the frame once with config's PSF width, up to the fits (`_finish` runs them).
 
-    ground: the frame's detection_ground (the same at every width); rings: the stars are rings
+    ground: the frame's detection_ground (_Grounds.at the width); rings: the stars are rings
     (PsfEstimate.annular; config.blend_separation_px); narrowest_px: an elongated PSF's
     minor-axis 1-sigma [px] for the width test (None: the PSF width); elliptical: an
     astigmatic PSF, the single stars' fit model (FitContext).
@@ -312,6 +333,10 @@ def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narro
 
 
 KEPT_BLEND_TRACK_FRACTION = 0.5  # cosmic rays 0.15x the limit, real stars' cores >= 0.77x (see _stars_beside_tracks)
+# Ring stars (a defocused PSF, rings=True): a ring's peaks read >= 1.2x the limit, a cosmic-ray track
+# 13-16 px from the ring's centre 0.2-0.62x (its disk takes in ring light): measured on the alt
+# renderer's annulus frames (sigma 3.4-3.5 px, 180 tracks).
+RING_BLEND_TRACK_FRACTION = 0.8
 
 
 def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.ndarray, thin: np.ndarray,
@@ -322,13 +347,15 @@ def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.nda
     A peak is a star when its second moment is >= min_width_fraction x TRUNCATED_MOMENT x
     narrowest^2 [px^2] (the limit) at an SNR >= shape_min_snr. A blend the width test rejected
     whole is kept when a peak is a star (its other peaks count as tracks); in a kept blend a
-    peak below KEPT_BLEND_TRACK_FRACTION x the limit at that SNR is a track (a cosmic ray merged
-    with a star, which the footprint's moments did not show). Returns the rejections and, per
+    peak below KEPT_BLEND_TRACK_FRACTION (ring stars: RING_BLEND_TRACK_FRACTION) x the limit at
+    that SNR is a track (a cosmic ray merged with a star, which the footprint's moments did not
+    show). Returns the rejections and, per
     blend with tracks, the mask of its track peaks and the peaks' PeakShapes.
     """
     config = context.config
     rejected, tracks = rejected.copy(), {}
     limit = config.min_width_fraction * TRUNCATED_MOMENT * narrowest ** 2
+    track_fraction = RING_BLEND_TRACK_FRACTION if context.rings else KEPT_BLEND_TRACK_FRACTION
     # A peak's SNR is at most its footprint's: fainter footprints have no measured peak.
     for i in np.flatnonzero((thin | ~rejected) & (cand.snr >= config.shape_min_snr)):
         peaks = cand.peaks[i]
@@ -342,7 +369,7 @@ def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.nda
             continue
         # In a blend the footprint test kept, only a peak far thinner than a star is a track: a
         # star's core without its wings (cut at 2.5 sigma) can read ~0.8x the limit on a real lens.
-        track = ~star if rejected[i] else measured & (minor < KEPT_BLEND_TRACK_FRACTION * limit)
+        track = ~star if rejected[i] else measured & (minor < track_fraction * limit)
         rejected[i] = False
         if track.any():  # their centres only where a fit may need the fallback
             tracks[int(i)] = (track, peak_minor_moments(context.image, context.det, peaks, context.sigma, context.gain))
