@@ -371,18 +371,17 @@ def solution_record(result: SolveResult, spots, image_path: str, description: st
     sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0)) * ARCSEC_PER_RAD
     magnitude = ident.magnitude  # guide or deep catalog Hp
     predicted_x, predicted_y, _ = cam.project(ident.star_vectors @ rotation)
-    matched = []
-    for k in range(ident.hip.size):
-        spot = int(ident.spot_index[k])
-        matched.append({"hip": int(ident.hip[k]), "magnitude": round(float(magnitude[k]), 3),
-                        "x": round(float(spots.x[spot]), 3), "y": round(float(spots.y[spot]), 3),
-                        "predicted_x": round(float(predicted_x[k]), 3), "predicted_y": round(float(predicted_y[k]), 3),
-                        "residual_arcsec": round(float(ident.residual_rad[k]) * ARCSEC_PER_RAD, 3),
-                        "flux": round(float(spots.flux[spot]), 2), "deep": bool(ident.deep[k]),
-                        # The spot's own 1-sigma (largest axis of its covariance) and flags
-                        # (msg_docs/spots.md: 1 saturated, 4 streak, 8 blended, ...).
-                        "sigma_px": round(float(np.sqrt(np.linalg.eigvalsh(spots.cov[spot])[-1])), 4),
-                        "flags": int(spots.flags[spot])})
+    spot = ident.spot_index
+    # The spot's own 1-sigma (largest axis of its covariance) and flags (msg_docs/spots.md: 1
+    # saturated, 4 streak, 8 blended, ...).
+    sigma_px = np.sqrt(np.linalg.eigvalsh(spots.cov[spot])[:, -1]) if spot.size else np.zeros(0)
+    columns = zip(ident.hip.tolist(), magnitude.tolist(), spots.x[spot].tolist(), spots.y[spot].tolist(),
+                  predicted_x.tolist(), predicted_y.tolist(), (ident.residual_rad * ARCSEC_PER_RAD).tolist(),
+                  spots.flux[spot].tolist(), ident.deep.tolist(), sigma_px.tolist(), spots.flags[spot].tolist())
+    matched = [{"hip": int(hip), "magnitude": round(mag, 3), "x": round(x, 3), "y": round(y, 3),
+                "predicted_x": round(px, 3), "predicted_y": round(py, 3), "residual_arcsec": round(res, 3),
+                "flux": round(flux, 2), "deep": bool(deep), "sigma_px": round(sig, 4), "flags": int(flags)}
+               for hip, mag, x, y, px, py, res, flux, deep, sig, flags in columns]
     matched.sort(key=lambda m: m["magnitude"])
     record.update({
         "ra_deg": ra, "dec_deg": dec, "roll_deg": roll,
