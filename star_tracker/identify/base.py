@@ -19,7 +19,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..models.attitude_estimation import AttitudeSolution, quest, refine_with_covariances
+from ..models.attitude_estimation import AttitudeSolution, quest_rotation, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from ..parameter_spec import parameter, range_problems
@@ -418,11 +418,11 @@ class StarIdentifier:
                 return self._timed_out(tested)
             tested += 1
             try:
-                candidate = quest(geometry.rays[pattern_spots], self.database.vectors[stars],
-                                  geometry.sigma[pattern_spots])
+                rotation = quest_rotation(geometry.rays[pattern_spots], self.database.vectors[stars],
+                                          geometry.sigma[pattern_spots])
             except (ValueError, np.linalg.LinAlgError):
                 continue
-            match = self.verify_hypothesis(geometry, camera, candidate.rotation)
+            match = self.verify_hypothesis(geometry, camera, rotation)
             if match is not None:
                 return SearchOutcome(match, tested)
         if deadline.passed():
@@ -459,8 +459,7 @@ class StarIdentifier:
                     and np.array_equal(check.star_index, star_index):
                 break  # the same matches: the refit, and every pass after it, would repeat the last
             spot_index, star_index = check.spot_index, check.star_index
-            solution = quest(geometry.rays[spot_index], vectors[star_index], geometry.sigma[spot_index])
-            rotation = solution.rotation
+            rotation = quest_rotation(geometry.rays[spot_index], vectors[star_index], geometry.sigma[spot_index])
         body = geometry.rays[spot_index]
         normalized = np.linalg.norm(body - vectors[star_index] @ rotation, axis=1) / geometry.sigma[spot_index]
         keep = normalized <= 5.0
@@ -468,8 +467,8 @@ class StarIdentifier:
             spot_index, star_index, body = spot_index[keep], star_index[keep], body[keep]
             if spot_index.size < MIN_STARS:
                 return None
-            solution = quest(body, vectors[star_index], geometry.sigma[spot_index])
-            normalized = (np.linalg.norm(body - vectors[star_index] @ solution.rotation, axis=1)
+            rotation = quest_rotation(body, vectors[star_index], geometry.sigma[spot_index])
+            normalized = (np.linalg.norm(body - vectors[star_index] @ rotation, axis=1)
                           / geometry.sigma[spot_index])
         sigma = geometry.sigma[spot_index]
         chi2 = float(np.sum(normalized**2))
@@ -481,7 +480,7 @@ class StarIdentifier:
         fp = false_positive_bound(log_t, geometry.x.size, spot_index.size)
         if fp > self.config.false_positive_bound:
             return None
-        return AcceptedMatch(spot_index, star_index, solution.rotation, fp)
+        return AcceptedMatch(spot_index, star_index, rotation, fp)
 
     def solved(self, geometry: SpotGeometry, order: np.ndarray, match: AcceptedMatch, tested: int,
                started: float, algorithm: str | None = None, deep_match: bool = True) -> Identification:

@@ -255,6 +255,26 @@ def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolu
     direction errors [rad]. N >= 2 non-parallel vectors are needed.
     """
     body, ref, sigmas = _as_inputs(body, ref, sigmas)
+    a_matrix = _quest_attitude_matrix(body, ref, sigmas)
+    if a_matrix is None:
+        return davenport_q_method(body, ref, sigmas)
+    return _solution(a_matrix, body, ref, 1.0 / sigmas**2, sigmas)
+
+
+def quest_rotation(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
+    """
+    Sensor -> ICRS rotation of `quest` alone (the same matrix), without its covariance and loss.
+
+    For the attitudes a match is refitted with before it is accepted (verification), where
+    the covariance would be computed and dropped.
+    """
+    body, ref, sigmas = _as_inputs(body, ref, sigmas)
+    a_matrix = _quest_attitude_matrix(body, ref, sigmas)
+    return davenport_q_method(body, ref, sigmas).rotation if a_matrix is None else a_matrix.T
+
+
+def _quest_attitude_matrix(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> np.ndarray | None:
+    """Shuster's attitude matrix A (ICRS -> sensor) of quest's inputs (checked); None where the q-method must decide."""
     weights = 1.0 / sigmas**2
     unit_weights = weights / weights.sum()  # sum to 1: keeps the adjugate terms well scaled
     # Sequential rotations: QUEST's adjugate form degenerates (X and gamma -> 0) when the
@@ -287,7 +307,7 @@ def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolu
         # A tiny slope at the root means a nearly double largest eigenvalue (two close stars,
         # unequal weights): the root's rounding error would mix in the second eigenvector.
         if abs(fp) < 1e-3:
-            return davenport_q_method(body, ref, sigmas)
+            return None
         alpha = lam * lam - sigma * sigma + kappa
         beta = lam - sigma
         gamma = (lam + sigma) * alpha - delta
@@ -299,11 +319,11 @@ def quest(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolu
     x, gamma, axis = best
     norm = np.hypot(gamma, np.linalg.norm(x))
     if not np.isfinite(norm) or norm == 0.0:
-        return davenport_q_method(body, ref, sigmas)
+        return None
     a_matrix = _shuster_attitude_matrix(np.append(x, gamma) / norm)
     if axis is not None:  # b = A' R_pi r, so A = A' R_pi
         a_matrix = a_matrix @ np.diag(np.where(np.arange(3) == axis, 1.0, -1.0))
-    return _solution(a_matrix, body, ref, weights, sigmas)
+    return a_matrix
 
 
 def _as_inputs(body, ref, sigmas):

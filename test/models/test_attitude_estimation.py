@@ -11,7 +11,7 @@ import pytest
 
 from star_tracker.models.attitude import (attitude_error, matrix_to_rotation_vector, quaternion_to_matrix,
                                           rotation_vector_to_matrix)
-from star_tracker.models.attitude_estimation import davenport_q_method, quest, refine_with_covariances
+from star_tracker.models.attitude_estimation import davenport_q_method, quest, quest_rotation, refine_with_covariances
 
 
 def random_rotation(rng):
@@ -47,6 +47,23 @@ def test_quest_near_pi_rotation_and_two_stars_agree_with_q_method():
             d = davenport_q_method(body, ref, np.full(2, 1e-4)).rotation
             assert attitude_error(q, truth)[2] < 1e-9
             assert attitude_error(q, d)[2] < 1e-9
+
+
+def test_quest_rotation_is_quests_matrix_exactly():
+    # Random attitudes, attitudes within 1e-7 rad of a pi turn (the sequential rotations) and
+    # two nearly parallel stars of unequal weight (the q-method fallback).
+    rng = np.random.default_rng(6)
+    cases = []
+    for _ in range(100):
+        body = unit_vectors(rng, int(rng.integers(2, 30)))
+        cases.append((body, body @ random_rotation(rng).T, rng.uniform(1e-5, 1e-4, len(body))))
+    for axis in np.eye(3):
+        body = unit_vectors(rng, 5)
+        cases.append((body, body @ rotation_vector_to_matrix(axis * (np.pi - 1e-7)).T, np.full(5, 1e-4)))
+    close = np.array([[0.0, 0.0, 1.0], [1e-9, 0.0, 1.0]])
+    cases.append((close, close, np.array([1e-4, 3e-4])))
+    for body, ref, sigmas in cases:
+        assert np.array_equal(quest_rotation(body, ref, sigmas), quest(body, ref, sigmas).rotation)
 
 
 def test_quest_covariance_is_consistent_with_monte_carlo_errors():
