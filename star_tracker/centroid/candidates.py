@@ -18,6 +18,7 @@ from .config import CentroidConfig, blend_separation_px, elongation_limit, hot_p
 from .detect import Detections
 from .kernels import PointWindowSettings, SmallSpots, brightest_box, measure_small
 from .measure import Moments, aperture_moments, box_sums, clean_hot_pixels, major_moment_noise, two_peaks
+from .peak_shape import RING_BLEND_TRACK_FRACTION, TRUNCATED_MOMENT, peak_minor_moments
 from .psf_fit import gather_windows
 from .smear import segment_length
 
@@ -115,6 +116,10 @@ class _FootprintWindows(NamedTuple):
         return _FootprintWindows(*(a[index] for a in self))
 
 
+# A ring star's track: a maximum this many PSF sigmas from the spot's centre of light (_ring_track_peaks).
+RING_TRACK_SIGMAS = 3.0
+
+
 def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float,
                        find_blends: bool = True, rings: bool = False, streaks_expected: bool = False) -> Candidates:
     """
@@ -177,7 +182,7 @@ def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings
         footprint = det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[idx[wide]][:, None, None]
         windows = _FootprintWindows(win[wide], footprint & valid[wide], valid[wide], footprint & valid[wide],
                                     c0[wide], r0[wide])
-        _footprint_shape(windows, idx[wide], out, det, config, sigma, find_blends, rings, streaks_expected)
+        _footprint_shape(image, windows, idx[wide], out, det, config, sigma, find_blends, rings, streaks_expected)
 
 
 def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False,
@@ -236,8 +241,8 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings
         out["edge"][members] = ((det.left[members] <= 0) | (det.top[members] <= 0) | (det.right[members] >= width)
                                 | (det.bottom[members] >= height))
         out["cleaned"][members] = hit.any(axis=(1, 2))
-        _footprint_shape(_FootprintWindows(win, labels & valid, valid, use, col0, row0), members, out, det, config,
-                         sigma, find_blends, rings, streaks_expected)
+        _footprint_shape(image, _FootprintWindows(win, labels & valid, valid, use, col0, row0), members, out, det,
+                         config, sigma, find_blends, rings, streaks_expected)
 
 
 def _brightest_disk(windows: np.ndarray, use: np.ndarray, sigma: float, noise: float, gain: float):
@@ -262,7 +267,7 @@ def _brightest_disk(windows: np.ndarray, use: np.ndarray, sigma: float, noise: f
     return moments.x, moments.y, np.where(moments.flux > 0, moments.snr, np.nan)
 
 
-def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False,
+def _footprint_shape(image, windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False,
                      streaks_expected=False) -> None:
     """
     Refine the shape of spots `members` from their detection footprint (the matched-filter mask, not grown).
@@ -273,7 +278,7 @@ def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigm
     aperture's is APERTURE_WIDER x the limit, or FOOTPRINT_NOISE_SIGMAS of its noise,
     major_moment_noise, past the limit); elongated spots get the cross-track width test
     (_streak_width) and, with find_blends, a search for two stars (two_peaks over
-    windows.blend_use).
+    windows.blend_use; ring stars: _ring_track_peaks too).
     """
     noise, gain = det.noise_adu, config.gain_e_per_adu
     col0, row0 = windows.col0, windows.row0
@@ -306,9 +311,55 @@ def _footprint_shape(windows: _FootprintWindows, members, out, det, config, sigm
         box, box_var, maxima = box_sums(long.data, long.blend_use, gain, noise)
         found, rows, cols = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
                                       blend_separation_px(sigma, rings))
+        if rings:
+            found, rows, cols = _ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, rows, cols,
+                                                  long.col0, long.row0)
         for j in np.flatnonzero(found):
             k = stretched[j]
             out["peaks"][members[k]] = np.column_stack([cols[j] + col0[k], rows[j] + row0[k]]).astype(float)
+
+
+def _ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, rows, cols, col0, row0):
+    """
+    Add a cosmic-ray track merged with a ring star to two_peaks' finds (found, rows, cols; window pixels).
+
+    Ring stars' peaks are searched RING_BLEND_SIGMAS apart from the brightest (the ring's own
+    maxima lie up to ~2.7 sigma apart), but a track just outside the ring lies nearer than that
+    to the ring's brightest maximum when that is on the track's side. Where no pair was found:
+    the brightest maximum at least RING_TRACK_SIGMAS from the spot's centre of light (the
+    ring's maxima lie ~1.35 sigma from its centre, the track's light pulls the centre a little),
+    with a dip between it and the brightest (two_peaks), counts when it is a track: its own
+    pixels' narrowest second moment (peak_shape) under RING_BLEND_TRACK_FRACTION x the width
+    limit at an SNR >= shape_min_snr, the brightest peak a star (at least the limit).
+    """
+    threshold = 3.0 * config.detection_sigma * det.noise_adu
+    limit = config.min_width_fraction * TRUNCATED_MOMENT * sigma ** 2
+    found, rows, cols = found.copy(), rows.copy(), cols.copy()
+    n, height, width = box.shape
+    grid_r, grid_c = np.mgrid[0:height, 0:width]
+    for k in np.flatnonzero(~found):
+        bright = maxima[k] & (box[k] > threshold)
+        light = np.maximum(box[k], 0.0)
+        total = light.sum()
+        if not bright.any() or total <= 0:
+            continue
+        centre_r, centre_c = (light * grid_r).sum() / total, (light * grid_c).sum() / total
+        far = bright & (np.hypot(grid_r - centre_r, grid_c - centre_c) >= RING_TRACK_SIGMAS * sigma)
+        if not far.any():
+            continue
+        first = int(np.argmax(np.where(bright, box[k], -np.inf)))
+        second = int(np.argmax(np.where(far, box[k], -np.inf)))
+        pair = np.zeros((1, height, width), bool)
+        pair.flat[first] = pair.flat[second] = True
+        ok, pair_rows, pair_cols = two_peaks(box[k:k + 1], box_var[k:k + 1], pair, threshold, 0.0)
+        if not ok[0]:
+            continue
+        peaks = np.column_stack([pair_cols[0] + col0[k], pair_rows[0] + row0[k]]).astype(float)
+        shapes = peak_minor_moments(image, det, peaks, sigma, config.gain_e_per_adu, centres=False)
+        if shapes.minor[0] >= limit and shapes.snr[1] >= config.shape_min_snr \
+                and shapes.minor[1] < RING_BLEND_TRACK_FRACTION * limit:
+            found[k], rows[k], cols[k] = True, pair_rows[0], pair_cols[0]
+    return found, rows, cols
 
 
 def _streak_width(windows: _FootprintWindows, major, noise, sigma, binning) -> np.ndarray:

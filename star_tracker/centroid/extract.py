@@ -23,7 +23,7 @@ from .detect import DetectionGround, Detections, background_tiles, detect, detec
 from .elliptical_psf import EllipticalGaussianPsf
 from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
-from .peak_shape import TRUNCATED_MOMENT, peak_minor_moments
+from .peak_shape import RING_BLEND_TRACK_FRACTION, TRUNCATED_MOMENT, peak_minor_moments
 from .point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
 from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
@@ -333,10 +333,6 @@ def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narro
 
 
 KEPT_BLEND_TRACK_FRACTION = 0.5  # cosmic rays 0.15x the limit, real stars' cores >= 0.77x (see _stars_beside_tracks)
-# Ring stars (a defocused PSF, rings=True): a ring's peaks read >= 1.2x the limit, a cosmic-ray track
-# 13-16 px from the ring's centre 0.2-0.62x (its disk takes in ring light): measured on the alt
-# renderer's annulus frames (sigma 3.4-3.5 px, 180 tracks).
-RING_BLEND_TRACK_FRACTION = 0.8
 
 
 def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.ndarray, thin: np.ndarray,
