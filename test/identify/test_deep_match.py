@@ -257,7 +257,8 @@ def test_candidate_pairs_are_every_pair_inside_the_ellipse():
         stars[:5] = spots[:1] + rng.normal(0, 1.0, (5, 2))  # a crowded spot
         angle = rng.uniform(0, np.pi, spots.shape[0])
         major, minor = rng.uniform(0.05, 3.0, spots.shape[0]), rng.uniform(0.05, 1.0, spots.shape[0])
-        turn = np.stack([np.stack([np.cos(angle), -np.sin(angle)], -1), np.stack([np.sin(angle), np.cos(angle)], -1)], 1)
+        cos, sin = np.cos(angle), np.sin(angle)
+        turn = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], 1)
         cov = turn @ (np.stack([major, minor], -1)[:, :, None] ** 2 * np.eye(2)[None]) @ np.transpose(turn, (0, 2, 1))
         if trial % 4 == 0:
             cov[-1] = np.nan
