@@ -23,7 +23,7 @@ from .detect import DetectionGround, Detections, background_tiles, detect, detec
 from .elliptical_psf import EllipticalGaussianPsf
 from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
-from .peak_shape import RING_BLEND_TRACK_FRACTION, TRUNCATED_MOMENT, peak_minor_moments
+from .peak_shape import KEPT_BLEND_TRACK_FRACTION, RING_BLEND_TRACK_FRACTION, TRUNCATED_MOMENT, peak_minor_moments
 from .point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
 from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
@@ -330,9 +330,6 @@ def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narro
         rejected = (other | thin) & finite
         thin &= ~other & finite
     return rejected, thin
-
-
-KEPT_BLEND_TRACK_FRACTION = 0.5  # cosmic rays 0.15x the limit, real stars' cores >= 0.77x (see _stars_beside_tracks)
 
 
 def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.ndarray, thin: np.ndarray,

@@ -25,6 +25,9 @@ PEAK_RADIUS_SIGMAS = 2.5  # pixels within this many PSF sigmas of a peak are its
 MIN_PEAK_RADIUS_PX = 2.0
 # A Gaussian cut at 2.5 sigma keeps 0.86 of its second moment: the width limit is scaled by it.
 TRUNCATED_MOMENT = 1.0 - 3.125 * math.exp(-3.125) / (1.0 - math.exp(-3.125))
+# A peak under this share of the width limit is a cosmic-ray track: tracks read 0.15x, real stars'
+# cores beside a neighbour >= 0.77x (unh_DSC_0059; extract._stars_beside_tracks).
+KEPT_BLEND_TRACK_FRACTION = 0.5
 # Ring stars (a defocused PSF, rings=True): a ring's peaks read >= 1.2x the limit, a cosmic-ray track
 # 13-16 px from the ring's centre 0.2-0.62x (its disk takes in ring light): measured on the alt
 # renderer's annulus frames (sigma 3.4-3.5 px, 180 tracks).

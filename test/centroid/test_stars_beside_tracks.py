@@ -62,17 +62,19 @@ def _scene(psf, seed: int):
 @pytest.mark.parametrize("psf", [alt.AnnulusPsf(1.71, 0.85, 0.30), alt.GaussianPsf(1.0)], ids=["annulus", "gaussian"])
 def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf):
     """
-    Three frames of 16 paired stars and 8 stars beside a track (SNR ~60).
+    Ten frames of 16 paired stars and 8 stars beside a track (SNR ~60).
 
     Before the width test per peak, 6 (annulus) and 0 (Gaussian) of the 48 paired stars and 24
-    and 23 of the 24 beside a track were lost (their footprint rejected whole as a track); now
-    every paired star and >= 60 % beside a track are found (within 1 px; 6 and 9 lost: the
-    footprint's two brightest peaks both on the track, or the star pulled > 1 px by it and not
-    kept), at RMS < 0.1 px, and the tracks make at most one false spot per frame (the goal for
-    star-free frames).
+    and 23 of the 24 beside a track (3 frames) were lost (their footprint rejected whole as a
+    track). With it, 19 and 34 of the 80 beside a track (10 frames) were still lost: the track,
+    brighter per pixel than the star, held the footprint's brightest maxima, and the star's
+    peak was never tried (candidates._star_beside_track_peaks); now 1 and 1. Every paired star
+    and >= 95 % beside a track are found (within 1 px), at RMS < 0.1 px, and the tracks make at
+    most one false spot per frame (the goal for star-free frames).
     """
+    frames = 10
     missed_paired, missed_beside, errors, on_tracks = 0, 0, [], 0
-    for seed in range(3):
+    for seed in range(frames):
         image, x, y, track_x, track_y, beside = _scene(psf, seed)
         spots = extract_spots(image, CentroidConfig())
         distance = np.hypot(spots.x[:, None] - x[None], spots.y[:, None] - y[None])
@@ -84,8 +86,8 @@ def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf):
         to_track = np.hypot(spots.x[:, None] - track_x[None], spots.y[:, None] - track_y[None]).min(axis=1)
         on_tracks += int(np.sum(unmatched & (to_track < 2.0)))
     assert missed_paired == 0, missed_paired
-    assert missed_beside <= 0.4 * 24, missed_beside
-    assert on_tracks <= 3, on_tracks
+    assert missed_beside <= 0.05 * 8 * frames, missed_beside
+    assert on_tracks <= frames, on_tracks
     assert np.sqrt(np.mean(np.square(errors))) < 0.1, np.sqrt(np.mean(np.square(errors)))
 
 
