@@ -8,7 +8,6 @@ and blend peaks, after hot-pixel cleaning. The result is the table of candidate 
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields, replace
 from typing import NamedTuple
 
@@ -19,10 +18,9 @@ from .config import CentroidConfig, blend_separation_px, elongation_limit, hot_p
 from .detect import Detections
 from .kernels import PointWindowSettings, SmallSpots, brightest_box, measure_small
 from .measure import Moments, aperture_moments, box_sums, clean_hot_pixels, major_moment_noise, two_peaks
-from .peak_shape import (KEPT_BLEND_TRACK_FRACTION, MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS, RING_BLEND_TRACK_FRACTION,
-                         TRUNCATED_MOMENT, peak_minor_moments)
 from .psf_fit import gather_windows
 from .smear import segment_length
+from .track_peaks import ring_track_peaks, star_beside_track_peaks, track_screen
 
 FOOTPRINT_NOISE_SIGMAS = 3.0  # the footprint alone makes a streak only this many moment-noise sigmas past the limit
 STREAK_COUNT_MIN_SIGMA_PX = 1.0  # _streak_width's count tells a streak from a cosmic-ray track from this PSF sigma
@@ -116,14 +114,6 @@ class _FootprintWindows(NamedTuple):
 
     def take(self, index) -> "_FootprintWindows":
         return _FootprintWindows(*(a[index] for a in self))
-
-
-# A ring star's track: a maximum this many PSF sigmas from the spot's centre of light (_ring_track_peaks).
-RING_TRACK_SIGMAS = 3.0
-# A star beside a track holding a footprint's two brightest maxima: searched among this many others.
-STAR_SEARCH_MAXIMA = 8
-# The window screen lets a brightest peak up to this multiple of the width limit through to peak_shape's test.
-TRACK_PEAK_MARGIN = 1.5
 
 
 def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfig, sigma: float,
@@ -284,7 +274,7 @@ def _footprint_shape(image, windows: _FootprintWindows, members, out, det, confi
     aperture's is APERTURE_WIDER x the limit, or FOOTPRINT_NOISE_SIGMAS of its noise,
     major_moment_noise, past the limit); elongated spots get the cross-track width test
     (_streak_width) and, with find_blends, a search for two stars (two_peaks over
-    windows.blend_use; ring stars: _ring_track_peaks too).
+    windows.blend_use; tracks beside stars: track_peaks.py).
     """
     noise, gain = det.noise_adu, config.gain_e_per_adu
     col0, row0 = windows.col0, windows.row0
@@ -318,137 +308,15 @@ def _footprint_shape(image, windows: _FootprintWindows, members, out, det, confi
         found, rows, cols = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
                                       blend_separation_px(sigma, rings))
         if rings:
-            found, rows, cols = _ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, rows, cols,
-                                                  long.col0, long.row0)
+            found, rows, cols = ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, rows, cols,
+                                                 long.col0, long.row0)
         thin = out["minor"][members[stretched]] < config.min_width_fraction * sigma ** 2
-        # Only where the brightest peak itself may be a track (its moments on the window, with margin).
-        thin[thin] = _peak_minor_on_windows(long.data[thin], long.valid[thin], rows[thin, 0], cols[thin, 0], sigma) \
-            < TRACK_PEAK_MARGIN * KEPT_BLEND_TRACK_FRACTION * config.min_width_fraction * TRUNCATED_MOMENT * sigma ** 2
-        found, rows, cols = _star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, found,
-                                                     rows, cols, long.col0, long.row0, thin)
+        thin[thin] = track_screen(long.data[thin], long.valid[thin], rows[thin, 0], cols[thin, 0], sigma, config)
+        found, rows, cols = star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, found,
+                                                    rows, cols, long.col0, long.row0, thin)
         for j in np.flatnonzero(found):
             k = stretched[j]
             out["peaks"][members[k]] = np.column_stack([cols[j] + col0[k], rows[j] + row0[k]]).astype(float)
-
-
-def _ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, rows, cols, col0, row0):
-    """
-    Add a cosmic-ray track merged with a ring star to two_peaks' finds (found, rows, cols; window pixels).
-
-    Ring stars' peaks are searched RING_BLEND_SIGMAS apart from the brightest (the ring's own
-    maxima lie up to ~2.7 sigma apart), but a track just outside the ring lies nearer than that
-    to the ring's brightest maximum when that is on the track's side. Where no pair was found:
-    the brightest maximum at least RING_TRACK_SIGMAS from the spot's centre of light (the
-    ring's maxima lie ~1.35 sigma from its centre, the track's light pulls the centre a little),
-    with a dip between it and the brightest (two_peaks), counts when it is a track: its own
-    pixels' narrowest second moment (peak_shape) under RING_BLEND_TRACK_FRACTION x the width
-    limit at an SNR >= shape_min_snr, the brightest peak a star (at least the limit).
-    """
-    threshold = 3.0 * config.detection_sigma * det.noise_adu
-    limit = config.min_width_fraction * TRUNCATED_MOMENT * sigma ** 2
-    found, rows, cols = found.copy(), rows.copy(), cols.copy()
-    n, height, width = box.shape
-    grid_r, grid_c = np.mgrid[0:height, 0:width]
-    for k in np.flatnonzero(~found):
-        bright = maxima[k] & (box[k] > threshold)
-        light = np.maximum(box[k], 0.0)
-        total = light.sum()
-        if not bright.any() or total <= 0:
-            continue
-        centre_r, centre_c = (light * grid_r).sum() / total, (light * grid_c).sum() / total
-        far = bright & (np.hypot(grid_r - centre_r, grid_c - centre_c) >= RING_TRACK_SIGMAS * sigma)
-        if not far.any():
-            continue
-        first = int(np.argmax(np.where(bright, box[k], -np.inf)))
-        second = int(np.argmax(np.where(far, box[k], -np.inf)))
-        pair = np.zeros((1, height, width), bool)
-        pair.flat[first] = pair.flat[second] = True
-        ok, pair_rows, pair_cols = two_peaks(box[k:k + 1], box_var[k:k + 1], pair, threshold, 0.0)
-        if not ok[0]:
-            continue
-        peaks = np.column_stack([pair_cols[0] + col0[k], pair_rows[0] + row0[k]]).astype(float)
-        shapes = peak_minor_moments(image, det, peaks, sigma, config.gain_e_per_adu, centres=False)
-        if shapes.minor[0] >= limit and shapes.snr[1] >= config.shape_min_snr \
-                and shapes.minor[1] < RING_BLEND_TRACK_FRACTION * limit:
-            found[k], rows[k], cols[k] = True, pair_rows[0], pair_cols[0]
-    return found, rows, cols
-
-
-def _peak_minor_on_windows(data: np.ndarray, valid: np.ndarray, row: np.ndarray, col: np.ndarray,
-                           sigma: float) -> np.ndarray:
-    """
-    Narrowest second moment [px^2] of each window's pixels (n, R, C) within peak_shape's disk of its pixel (row, col).
-
-    All windows at once, on the cleaned window data (peak_shape measures the raw image less the
-    background at the peak: a screen, not its replacement). No positive light: +inf.
-    """
-    radius = max(MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS * sigma)
-    half = int(math.ceil(radius))
-    if data.shape[0] == 0:
-        return np.zeros(0)
-    offset = np.arange(-half, half + 1)
-    dy, dx = np.meshgrid(offset, offset, indexing="ij")
-    disk = (dx * dx + dy * dy <= radius * radius).ravel()
-    dy, dx = dy.ravel()[disk], dx.ravel()[disk]
-    rr, cc = row[:, None] + dy[None], col[:, None] + dx[None]
-    inside = (rr >= 0) & (rr < data.shape[1]) & (cc >= 0) & (cc < data.shape[2])
-    index = np.arange(data.shape[0])[:, None]
-    rr, cc = np.clip(rr, 0, data.shape[1] - 1), np.clip(cc, 0, data.shape[2] - 1)
-    values = np.where(inside & valid[index, rr, cc], data[index, rr, cc], 0.0)
-    flux = values.sum(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mx, my = (values * dx).sum(axis=1) / flux, (values * dy).sum(axis=1) / flux
-        ex, ey = dx[None] - mx[:, None], dy[None] - my[:, None]
-        sxx, syy = (values * ex * ex).sum(axis=1) / flux, (values * ey * ey).sum(axis=1) / flux
-        sxy = (values * ex * ey).sum(axis=1) / flux
-        minor = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
-    return np.where(flux > 0, minor, np.inf)
-
-
-def _star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, found, rows, cols, col0, row0,
-                             thin):
-    """
-    Find the star beside a cosmic-ray track that holds a footprint's brightest maxima (found, rows, cols).
-
-    A track brighter per pixel than the star beside it holds the footprint's brightest maximum,
-    and the second two_peaks found (a rasterised track has dips along it) or none: the footprint
-    reads thinner than a star (`thin`, the width test's). Where its peaks found (or the brightest
-    alone) are all tracks (peak_shape: under KEPT_BLEND_TRACK_FRACTION x the width limit; a star
-    measured at too wide a prior reads 0.5-1x), the brightest maximum at least
-    blend_separation_px from them whose own pixels are a star's (narrowest second moment at
-    least the width limit, SNR >= shape_min_snr), with a dip between it and the first, becomes
-    the second peak (of the STAR_SEARCH_MAXIMA brightest such maxima).
-    """
-    threshold = 3.0 * config.detection_sigma * det.noise_adu
-    limit = config.min_width_fraction * TRUNCATED_MOMENT * sigma ** 2
-    separation = blend_separation_px(sigma, rings)
-    found, rows, cols = found.copy(), rows.copy(), cols.copy()
-    n, height, width = box.shape
-    grid_r, grid_c = np.mgrid[0:height, 0:width]
-    for k in np.flatnonzero(thin):
-        taken = slice(None) if found[k] else slice(0, 1)
-        peaks = np.column_stack([cols[k][taken] + col0[k], rows[k][taken] + row0[k]]).astype(float)
-        if not np.isfinite(box[k, rows[k][0], cols[k][0]]) or box[k, rows[k][0], cols[k][0]] <= threshold:
-            continue  # no maximum above the threshold: nothing was found
-        shapes = peak_minor_moments(image, det, peaks, sigma, config.gain_e_per_adu, centres=False)
-        if (shapes.minor >= KEPT_BLEND_TRACK_FRACTION * limit).any():
-            continue  # not every peak a track
-        apart = np.min(np.hypot(grid_r[None] - rows[k][taken, None, None], grid_c[None] - cols[k][taken, None, None]),
-                       axis=0)
-        others = np.flatnonzero((maxima[k] & (box[k] > threshold) & (apart >= separation)).ravel())
-        first = rows[k][0] * width + cols[k][0]
-        for other in others[np.argsort(-box[k].ravel()[others], kind="stable")][:STAR_SEARCH_MAXIMA]:
-            pair = np.zeros((1, height, width), bool)
-            pair.flat[first] = pair.flat[other] = True
-            ok, pair_rows, pair_cols = two_peaks(box[k:k + 1], box_var[k:k + 1], pair, threshold, 0.0)
-            if not ok[0]:
-                continue
-            candidate = np.column_stack([pair_cols[0] + col0[k], pair_rows[0] + row0[k]]).astype(float)
-            shapes = peak_minor_moments(image, det, candidate, sigma, config.gain_e_per_adu, centres=False)
-            if shapes.minor[1] >= limit and shapes.snr[1] >= config.shape_min_snr:
-                found[k], rows[k], cols[k] = True, pair_rows[0], pair_cols[0]
-                break
-    return found, rows, cols
 
 
 def _streak_width(windows: _FootprintWindows, major, noise, sigma, binning) -> np.ndarray:

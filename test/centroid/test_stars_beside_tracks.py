@@ -68,7 +68,7 @@ def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf):
     and 23 of the 24 beside a track (3 frames) were lost (their footprint rejected whole as a
     track). With it, 19 and 34 of the 80 beside a track (10 frames) were still lost: the track,
     brighter per pixel than the star, held the footprint's brightest maxima, and the star's
-    peak was never tried (candidates._star_beside_track_peaks); now 1 and 1. Every paired star
+    peak was never tried (track_peaks.star_beside_track_peaks); now 1 and 1. Every paired star
     and >= 95 % beside a track are found (within 1 px), at RMS < 0.1 px, and the tracks make at
     most one false spot per frame (the goal for star-free frames).
     """

@@ -5,7 +5,7 @@ Ring stars (a defocused camera) whose footprint merged with a cosmic-ray track k
 The blend with the track was fitted with the round Gaussian: a ring star of SNR ~150 came out
 0.03-0.1 px off, 2-7x its Cramer-Rao bound, while its neighbours were fitted with the frame's
 template (centroid/beside_tracks.py). A track merged with the ring's footprint must be split off
-first (candidates._ring_track_peaks). Frames from bench/alt_renderer.py (not our simulator):
+first (track_peaks.ring_track_peaks). Frames from bench/alt_renderer.py (not our simulator):
 its annulus PSF, its noise, tracks drawn here.
 """
 from __future__ import annotations
@@ -56,7 +56,7 @@ def _frame(seed: int):
 def test_ring_stars_beside_tracks_are_fitted_with_the_frames_model():
     # 15 frames, 180 stars with a track: a track whose footprint merged with the ring's, nearer
     # to the ring's brightest maximum than ring maxima may lie apart, was not split off (the
-    # spot fitted as a streak: lost, or 5 px off) in 5 of them (candidates._ring_track_peaks).
+    # spot fitted as a streak: lost, or 5 px off) in 5 of them (track_peaks.ring_track_peaks).
     err2, bound, fitted_with = [], [], set()
     for seed in range(15):
         image, field_, tracked = _frame(seed)
