@@ -73,16 +73,13 @@ def ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, row
             continue
         first = int(np.argmax(np.where(bright, box[k], -np.inf)))
         second = int(np.argmax(np.where(far, box[k], -np.inf)))
-        pair = np.zeros((1, height, width), bool)
-        pair.flat[first] = pair.flat[second] = True
-        ok, pair_rows, pair_cols = two_peaks(box[k:k + 1], box_var[k:k + 1], pair, threshold, 0.0)
-        if not ok[0]:
+        pair = _pair(image, det, config, sigma, box, box_var, k, first, second, threshold, col0, row0)
+        if pair is None:
             continue
-        peaks = np.column_stack([pair_cols[0] + col0[k], pair_rows[0] + row0[k]]).astype(float)
-        shapes = peak_minor_moments(image, det, peaks, sigma, config.gain_e_per_adu, centres=False)
+        pair_rows, pair_cols, shapes = pair
         if shapes.minor[0] >= limit and shapes.snr[1] >= config.shape_min_snr \
                 and shapes.minor[1] < RING_BLEND_TRACK_FRACTION * limit:
-            found[k], rows[k], cols[k] = True, pair_rows[0], pair_cols[0]
+            found[k], rows[k], cols[k] = True, pair_rows, pair_cols
     return found, rows, cols
 
 
@@ -150,14 +147,27 @@ def star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxi
         others = np.flatnonzero((maxima[k] & (box[k] > threshold) & (apart >= separation)).ravel())
         first = rows[k][0] * width + cols[k][0]
         for other in others[np.argsort(-box[k].ravel()[others], kind="stable")][:STAR_SEARCH_MAXIMA]:
-            pair = np.zeros((1, height, width), bool)
-            pair.flat[first] = pair.flat[other] = True
-            ok, pair_rows, pair_cols = two_peaks(box[k:k + 1], box_var[k:k + 1], pair, threshold, 0.0)
-            if not ok[0]:
+            pair = _pair(image, det, config, sigma, box, box_var, k, first, int(other), threshold, col0, row0)
+            if pair is None:
                 continue
-            candidate = np.column_stack([pair_cols[0] + col0[k], pair_rows[0] + row0[k]]).astype(float)
-            shapes = peak_minor_moments(image, det, candidate, sigma, config.gain_e_per_adu, centres=False)
+            pair_rows, pair_cols, shapes = pair
             if shapes.minor[1] >= limit and shapes.snr[1] >= config.shape_min_snr:
-                found[k], rows[k], cols[k] = True, pair_rows[0], pair_cols[0]
+                found[k], rows[k], cols[k] = True, pair_rows, pair_cols
                 break
     return found, rows, cols
+
+
+def _pair(image, det, config, sigma, box, box_var, k, first: int, other: int, threshold: float, col0, row0):
+    """
+    Window k's maxima `first` and `other` (flat indices) as a pair of peaks, or None without a dip between them.
+
+    Returns their rows and columns (window pixels, the brighter first: two_peaks) and each
+    peak's own pixels' PeakShapes (peak_shape, no centres).
+    """
+    pair = np.zeros((1,) + box.shape[1:], bool)
+    pair.flat[first] = pair.flat[other] = True
+    ok, rows, cols = two_peaks(box[k:k + 1], box_var[k:k + 1], pair, threshold, 0.0)
+    if not ok[0]:
+        return None
+    peaks = np.column_stack([cols[0] + col0[k], rows[0] + row0[k]]).astype(float)
+    return rows[0], cols[0], peak_minor_moments(image, det, peaks, sigma, config.gain_e_per_adu, centres=False)
