@@ -305,15 +305,15 @@ def _footprint_shape(image, windows: _FootprintWindows, members, out, det, confi
         long, out["major"][members[stretched]], noise, sigma, det.binning))
     if find_blends:
         box, box_var, maxima = box_sums(long.data, long.blend_use, gain, noise)
-        found, rows, cols = two_peaks(box, box_var, maxima, 3.0 * config.detection_sigma * noise,
-                                      blend_separation_px(sigma, rings))
+        threshold = 3.0 * config.detection_sigma * noise
+        found, rows, cols = two_peaks(box, box_var, maxima, threshold, blend_separation_px(sigma, rings))
         if rings:
-            found, rows, cols = ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, rows, cols,
-                                                 long.col0, long.row0)
+            found, rows, cols = ring_track_peaks(image, det, config, sigma, box, box_var, maxima, threshold, found,
+                                                 rows, cols, long.col0, long.row0)
         thin = out["minor"][members[stretched]] < config.min_width_fraction * sigma ** 2
         thin[thin] = track_screen(long.data[thin], long.valid[thin], rows[thin, 0], cols[thin, 0], sigma, config)
-        found, rows, cols = star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, found,
-                                                    rows, cols, long.col0, long.row0, thin)
+        found, rows, cols = star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, threshold,
+                                                    found, rows, cols, long.col0, long.row0, thin)
         for j in np.flatnonzero(found):
             k = stretched[j]
             out["peaks"][members[k]] = np.column_stack([cols[j] + col0[k], rows[j] + row0[k]]).astype(float)

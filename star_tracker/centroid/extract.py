@@ -23,7 +23,7 @@ from .detect import DetectionGround, Detections, background_tiles, detect, detec
 from .elliptical_psf import EllipticalGaussianPsf
 from .extended_objects import extended_candidates
 from .measure import cog_phase_bias_rms
-from .peak_shape import KEPT_BLEND_TRACK_FRACTION, RING_BLEND_TRACK_FRACTION, TRUNCATED_MOMENT, peak_minor_moments
+from .peak_shape import KEPT_BLEND_TRACK_FRACTION, RING_BLEND_TRACK_FRACTION, peak_minor_moments, peak_width_limit
 from .point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
 from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
@@ -347,7 +347,7 @@ def _stars_beside_tracks(context: FitContext, cand: Candidates, rejected: np.nda
     """
     config = context.config
     rejected, tracks = rejected.copy(), {}
-    limit = config.min_width_fraction * TRUNCATED_MOMENT * narrowest ** 2
+    limit = peak_width_limit(config.min_width_fraction, narrowest)
     track_fraction = RING_BLEND_TRACK_FRACTION if context.rings else KEPT_BLEND_TRACK_FRACTION
     # A peak's SNR is at most its footprint's: fainter footprints have no measured peak.
     for i in np.flatnonzero((thin | ~rejected) & (cand.snr >= config.shape_min_snr)):

@@ -38,6 +38,16 @@ CENTRE_PASSES = 3  # the centre of gravity: the disk re-centred on it this many 
 CENTRE_SYSTEMATIC_SIGMAS = 0.1
 
 
+def peak_width_limit(min_width_fraction: float, sigma: float) -> float:
+    """
+    Return the least narrowest second moment [px^2] of a star's peak on its own pixels.
+
+    min_width_fraction x TRUNCATED_MOMENT x sigma^2; min_width_fraction: CentroidConfig's; sigma:
+    the PSF's (narrowest) 1-sigma [px].
+    """
+    return min_width_fraction * TRUNCATED_MOMENT * sigma ** 2
+
+
 class PeakShapes(NamedTuple):
     """
     Each peak's own pixels (K peaks).

@@ -14,14 +14,12 @@ Measured on bench/alt_renderer.py frames with tracks drawn on them
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .config import blend_separation_px
-from .measure import two_peaks
+from .measure import aperture_moments, two_peaks
 from .peak_shape import (KEPT_BLEND_TRACK_FRACTION, MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS, RING_BLEND_TRACK_FRACTION,
-                         TRUNCATED_MOMENT, peak_minor_moments)
+                         peak_minor_moments, peak_width_limit)
 
 # A ring star's track: a maximum this many PSF sigmas from the spot's centre of light (ring_track_peaks).
 RING_TRACK_SIGMAS = 3.0
@@ -39,13 +37,15 @@ def track_screen(data: np.ndarray, valid: np.ndarray, row: np.ndarray, col: np.n
     Its narrowest second moment (peak_minor_on_windows) under TRACK_PEAK_MARGIN x
     KEPT_BLEND_TRACK_FRACTION x the width limit (config: CentroidConfig; sigma [px]).
     """
-    limit = config.min_width_fraction * TRUNCATED_MOMENT * sigma ** 2
+    limit = peak_width_limit(config.min_width_fraction, sigma)
     return peak_minor_on_windows(data, valid, row, col, sigma) < TRACK_PEAK_MARGIN * KEPT_BLEND_TRACK_FRACTION * limit
 
 
-def ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, rows, cols, col0, row0):
+def ring_track_peaks(image, det, config, sigma, box, box_var, maxima, threshold, found, rows, cols, col0, row0):
     """
     Add a cosmic-ray track merged with a ring star to two_peaks' finds (found, rows, cols; window pixels).
+
+    box, box_var, maxima: measure.box_sums of the windows; threshold: two_peaks' [ADU, box sum].
 
     Ring stars' peaks are searched RING_BLEND_SIGMAS apart from the brightest (the ring's own
     maxima lie up to ~2.7 sigma apart), but a track just outside the ring lies nearer than that
@@ -56,8 +56,7 @@ def ring_track_peaks(image, det, config, sigma, box, box_var, maxima, found, row
     pixels' narrowest second moment (peak_shape) under RING_BLEND_TRACK_FRACTION x the width
     limit at an SNR >= shape_min_snr, the brightest peak a star (at least the limit).
     """
-    threshold = 3.0 * config.detection_sigma * det.noise_adu
-    limit = config.min_width_fraction * TRUNCATED_MOMENT * sigma ** 2
+    limit = peak_width_limit(config.min_width_fraction, sigma)
     found, rows, cols = found.copy(), rows.copy(), cols.copy()
     n, height, width = box.shape
     grid_r, grid_c = np.mgrid[0:height, 0:width]
@@ -88,34 +87,22 @@ def peak_minor_on_windows(data: np.ndarray, valid: np.ndarray, row: np.ndarray, 
     """
     Narrowest second moment [px^2] of each window's pixels (n, R, C) within peak_shape's disk of its pixel (row, col).
 
-    All windows at once, on the cleaned window data (peak_shape measures the raw image less the
-    background at the peak: a screen, not its replacement). No positive light: +inf.
+    measure.aperture_moments (signed, as peak_shape weighs) over the disk, all windows at once, on the
+    cleaned window data (peak_shape measures the raw image less the background at the peak: a
+    screen, not its replacement). No positive light: NaN.
     """
-    radius = max(MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS * sigma)
-    half = int(math.ceil(radius))
-    if data.shape[0] == 0:
+    n, height, width = data.shape
+    if n == 0:
         return np.zeros(0)
-    offset = np.arange(-half, half + 1)
-    dy, dx = np.meshgrid(offset, offset, indexing="ij")
-    disk = (dx * dx + dy * dy <= radius * radius).ravel()
-    dy, dx = dy.ravel()[disk], dx.ravel()[disk]
-    rr, cc = row[:, None] + dy[None], col[:, None] + dx[None]
-    inside = (rr >= 0) & (rr < data.shape[1]) & (cc >= 0) & (cc < data.shape[2])
-    index = np.arange(data.shape[0])[:, None]
-    rr, cc = np.clip(rr, 0, data.shape[1] - 1), np.clip(cc, 0, data.shape[2] - 1)
-    values = np.where(inside & valid[index, rr, cc], data[index, rr, cc], 0.0)
-    flux = values.sum(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mx, my = (values * dx).sum(axis=1) / flux, (values * dy).sum(axis=1) / flux
-        ex, ey = dx[None] - mx[:, None], dy[None] - my[:, None]
-        sxx, syy = (values * ex * ex).sum(axis=1) / flux, (values * ey * ey).sum(axis=1) / flux
-        sxy = (values * ex * ey).sum(axis=1) / flux
-        minor = 0.5 * (sxx + syy) - np.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
-    return np.where(flux > 0, minor, np.inf)
+    radius = max(MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS * sigma)
+    grid_r, grid_c = np.mgrid[0:height, 0:width]
+    disk = (grid_r[None] - row[:, None, None]) ** 2 + (grid_c[None] - col[:, None, None]) ** 2 <= radius * radius
+    zero = np.zeros(n)
+    return aperture_moments(data, disk & valid, zero, zero, 1.0, 1.0, signed_shape=True).minor
 
 
-def star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, found, rows, cols, col0, row0,
-                            thin):
+def star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, threshold, found, rows, cols,
+                            col0, row0, thin):
     """
     Find the star beside a cosmic-ray track that holds a footprint's brightest maxima (found, rows, cols).
 
@@ -128,8 +115,7 @@ def star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxi
     least the width limit, SNR >= shape_min_snr), with a dip between it and the first, becomes
     the second peak (of the STAR_SEARCH_MAXIMA brightest such maxima).
     """
-    threshold = 3.0 * config.detection_sigma * det.noise_adu
-    limit = config.min_width_fraction * TRUNCATED_MOMENT * sigma ** 2
+    limit = peak_width_limit(config.min_width_fraction, sigma)
     separation = blend_separation_px(sigma, rings)
     found, rows, cols = found.copy(), rows.copy(), cols.copy()
     n, height, width = box.shape
