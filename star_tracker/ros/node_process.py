@@ -24,7 +24,7 @@ from ..process_memory import keep_freed_memory
 from .managed_node import ManagedNode
 from .middleware import configure_middleware
 from .parameters import report_unknown_parameters
-from .shared_memory import remove_stale_shared_memory
+from .shared_memory import remove_own_segments, remove_stale_shared_memory
 
 
 def check_params_files(args: list[str]) -> None:
@@ -154,8 +154,11 @@ def exit_node_process(code: int) -> NoReturn:
     library's exit are skipped. In CI a centroider outlived its SIGINT by 15 s after
     rclpy's shutdown (exit -10: the harness's SIGUSR1 stack dump met no handler, faulthandler
     was already finalized, so was the watchdog): past Python, in the middleware's static
-    destructors, where no watchdog reaches (a known class of DDS exit hangs).
+    destructors, where no watchdog reaches (a known class of DDS exit hangs). The participant's
+    shared-memory segments, which those destructors would have removed, are removed here
+    (shared_memory.remove_own_segments).
     """
+    remove_own_segments()
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
         try:

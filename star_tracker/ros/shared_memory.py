@@ -9,10 +9,17 @@ middleware's own exit clean-up -- killed, or a node process ending with os._exit
 (node_process.exit_node_process) -- leaves them: 35 MB per node process, 22 GB of RAM on this
 machine after a day of tests, until the test workers were killed for memory.
 
+remove_own_segments deletes a node process's own segments (those whose lock files it holds open)
+just before its os._exit: the 35 MB no longer outlive a normal stop. Its port files stay: other
+participants on the host share them (52 KB each). The participant's own destruction would
+remove them all, but rclpy's LifecycleNode keeps the participant alive past destroy_node (its
+state machine holds the node), and destroying that state machine hung a node's exit in 1 of 3
+parallel test runs (docs/RELIABILITY.md, "a rare abort at exit").
+
 remove_stale_shared_memory deletes the files of segments and ports whose lock file nobody holds
 (the test of eProsima's `fastdds shm clean`), leaving alone those changed in the last
-MIN_AGE_S (a participant starting now creates its files before it locks them). Node, player and
-recorder processes run it before rclpy starts.
+MIN_AGE_S (a participant starting now creates its files before it locks them): what killed
+processes left. Node, player and recorder processes run it before rclpy starts.
 """
 from __future__ import annotations
 
@@ -56,6 +63,36 @@ def remove_stale_shared_memory(directory: Path = SHM_DIRECTORY, environ=os.envir
         except (OSError, ValueError):  # gone meanwhile
             continue
         for f in files:
+            try:
+                f.unlink()
+                removed += 1
+            except OSError:
+                pass
+    return removed
+
+
+def remove_own_segments(fd_directory: Path = Path("/proc/self/fd"), directory: Path = SHM_DIRECTORY) -> int:
+    """
+    Delete this process's own Fast DDS segments and their lock files; return how many files went.
+
+    Its own: the segments whose lock file it holds open (`fd_directory`: the process's open files).
+    For a process that is about to end without the middleware's clean-up (os._exit): the memory
+    is freed when its mappings go with the process; a peer that still maps a segment keeps its
+    mapping. Never raises.
+    """
+    removed = 0
+    try:
+        descriptors = os.listdir(fd_directory)
+    except OSError:
+        return 0
+    for descriptor in descriptors:
+        try:
+            target = Path(os.readlink(fd_directory / descriptor))
+        except OSError:
+            continue
+        if target.parent != directory or not _SEGMENT_LOCK.match(target.name):
+            continue
+        for f in (directory / target.name[:-3], target):
             try:
                 f.unlink()
                 removed += 1
