@@ -68,7 +68,7 @@ def test_own_segments_are_removed_and_shared_ports_kept(tmp_path):
 
 
 def _start_node():
-    """A centroider node process, once it is ready, and its own Fast DDS files (segments, ports, their locks)."""
+    """Start a centroider node process; return it once ready, with its own Fast DDS files (segments, ports, locks)."""
     import subprocess
     import sys
 
