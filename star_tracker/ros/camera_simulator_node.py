@@ -131,14 +131,22 @@ class CameraSimulatorNode(ManagedNode):
 
         Reliable truth still unacknowledged when the process exits is lost, while its
         best-effort image has gone out: an attitude downstream without its truth. Waits up to
-        TRUTH_FLUSH_TIMEOUT_S for every truth subscriber to acknowledge.
+        TRUTH_FLUSH_TIMEOUT_S for every truth subscriber to acknowledge, and logs the outcome.
         """
-        deadline = time.monotonic() + TRUTH_FLUSH_TIMEOUT_S
-        for name in ("pub_truth", "pub_truth_rate", "pub_truth_objects"):
-            pub = getattr(self, name, None)
-            if pub is not None and self.context.ok():
-                left = max(0.0, deadline - time.monotonic())
-                pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+        started = time.monotonic()
+        publishers = [getattr(self, name, None) for name in ("pub_truth", "pub_truth_rate", "pub_truth_objects")]
+        publishers = [pub for pub in publishers if pub is not None]
+        if publishers and self.context.ok():
+            acknowledged = all([pub.wait_for_all_acked(Duration(nanoseconds=int(
+                max(0.0, started + TRUTH_FLUSH_TIMEOUT_S - time.monotonic()) * 1e9))) for pub in publishers])
+            if acknowledged:
+                self.get_logger().info(f"truth flushed: every subscriber acknowledged every truth message "
+                                       f"(waited {(time.monotonic() - started) * 1e3:.0f} ms)")
+            else:
+                self.get_logger().warning(f"truth not acknowledged by every subscriber within "
+                                          f"{TRUTH_FLUSH_TIMEOUT_S:.1f} s: its last messages may be lost")
+        elif publishers:
+            self.get_logger().warning("truth not flushed: the context was shut down first")
         super().destroy_node()
 
     def release(self) -> None:

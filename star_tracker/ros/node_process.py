@@ -19,6 +19,7 @@ from typing import Callable, NoReturn
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from ..process_memory import keep_freed_memory
 from .managed_node import ManagedNode
@@ -65,9 +66,11 @@ STOP_POLL_S = 0.5  # [s] longest wait of the spin between checks of a requested 
 
 def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     """
-    Init rclpy (SIGINT/SIGTERM shut it down), build the node, spin, clean up.
+    Init rclpy, build the node, spin until SIGINT/SIGTERM (or a shutdown transition), clean up.
 
-    Returns the process exit code: 0 on a normal shutdown, 2 when the node could not start
+    A stop signal ends the spin (within STOP_POLL_S) but leaves the context up until the node is
+    destroyed: its clean-up still talks DDS (the camera's truth flush, a frame in progress
+    published). Returns the process exit code: 0 on a normal shutdown, 2 when the node could not start
     (bad arguments or parameters: one `fatal:` line on stderr, no traceback). A clean-up
     that hangs ends the process after SHUTDOWN_WATCHDOG_S with code 1 and every thread's
     stack on stderr; SIGUSR1 prints those stacks at any time. Once stopping, further
@@ -85,9 +88,10 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     stop_requested = threading.Event()
 
     def on_stop_signal(signum, frame):
-        # rclpy's own handler (which chains to this one) normally shuts the context down and
-        # wakes the spin. Once a replayed node in CI went on waiting after SIGINT (its stacks:
-        # the main thread in the executor's wait), so the spin also polls this flag. A
+        # The only handler in a node's own process: rclpy's (SignalHandlerOptions.NO below)
+        # would shut the context down at once, before destroy_node, and the camera's truth
+        # flush was skipped. The spin polls this flag (also where rclpy's wake-up of the
+        # executor was lost: a replayed node in CI once went on waiting after SIGINT). A
         # KeyboardInterrupt would land in whatever Python code the main thread runs, and
         # inside a __del__ it is only printed ("Exception ignored ... Traceback").
         if not spinning:
@@ -106,7 +110,8 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     try:
         check_params_files(args)
         check_cache_directory()
-        rclpy.init(args=args)
+        # Off the main thread this process's handlers are not ours to set: rclpy's stay.
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if main_thread else None)
         initialized = True
         node = factory()
         report_unknown_parameters(node)

@@ -152,3 +152,29 @@ def test_cmos_camera_profile_loads_over_the_defaults(driver, tmp_path):
     assert codes == {"camera_simulator": 0}
     assert infos and infos[-1].width == 2048 and infos[-1].height == 2048
     assert list(infos[-1].d)[:2] == [-0.05, 0.01]
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_stop_signal_flushes_the_truth_before_the_camera_exits(driver, tmp_path, sig):
+    # A stop signal used to shut rclpy's context down before destroy_node, so the truth flush
+    # (wait_for_all_acked) was skipped: the last truth could be lost while its image had gone
+    # out. Now the context lives until the node is destroyed (node_process.run_node).
+    import signal
+
+    env, node, received, spin = driver
+    cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": {
+        "max_frames": 0, "wait_for_subscribers": True, "start_delay_s": 1.0, "rate_hz": 10.0}},
+        nodes=("camera_simulator",)).start()
+    try:
+        cam.wait_ready()
+        spin(30.0, until=lambda: len(received["truth"]) >= 5)  # running, mid-stream
+    finally:
+        codes = cam.stop(sig=getattr(signal, sig))
+    spin(1.0)  # what was acknowledged before the exit is in this reader's queue
+    log = (tmp_path / "logs" / "camera_simulator.log").read_text()
+    assert codes == {"camera_simulator": 0}, log
+    assert "truth flushed: every subscriber acknowledged" in log, log
+    truth_stamps = {convert.stamp_to_ns(m.header.stamp) for m in received["truth"]}
+    assert len(truth_stamps) >= 5
+    assert received["image_stamps"] <= truth_stamps, "an image arrived whose truth did not"
