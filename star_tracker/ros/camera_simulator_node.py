@@ -23,7 +23,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from rclpy.duration import Duration
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
@@ -37,11 +36,10 @@ from .camera_simulator_parameters import (CAMERA_SIMULATOR_PARAMETERS, SENSOR_PA
                                           false_objects_from, sensor_from, sky_from)
 from .managed_node import ManagedNode
 from .node_process import exit_node_process, run_node
+from .output_flush import flush_publishers
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, TRUTH_INPUT_QOS, overridable
 from .throttled_log import ThrottledLog
-
-TRUTH_FLUSH_TIMEOUT_S = 1.0  # on exit: how long truth subscribers get to acknowledge the last frames
 
 
 @dataclass
@@ -130,23 +128,12 @@ class CameraSimulatorNode(ManagedNode):
         Flush the truth topics, then destroy the node.
 
         Reliable truth still unacknowledged when the process exits is lost, while its
-        best-effort image has gone out: an attitude downstream without its truth. Waits up to
-        TRUTH_FLUSH_TIMEOUT_S for every truth subscriber to acknowledge, and logs the outcome.
+        best-effort image has gone out: an attitude downstream without its truth
+        (output_flush.flush_publishers: bounded, the outcome logged).
         """
-        started = time.monotonic()
-        publishers = [getattr(self, name, None) for name in ("pub_truth", "pub_truth_rate", "pub_truth_objects")]
-        publishers = [pub for pub in publishers if pub is not None]
-        if publishers and self.context.ok():
-            acknowledged = all([pub.wait_for_all_acked(Duration(nanoseconds=int(
-                max(0.0, started + TRUTH_FLUSH_TIMEOUT_S - time.monotonic()) * 1e9))) for pub in publishers])
-            if acknowledged:
-                self.get_logger().info(f"truth flushed: every subscriber acknowledged every truth message "
-                                       f"(waited {(time.monotonic() - started) * 1e3:.0f} ms)")
-            else:
-                self.get_logger().warning(f"truth not acknowledged by every subscriber within "
-                                          f"{TRUTH_FLUSH_TIMEOUT_S:.1f} s: its last messages may be lost")
-        elif publishers:
-            self.get_logger().warning("truth not flushed: the context was shut down first")
+        flush_publishers(self, {"truth/attitude": getattr(self, "pub_truth", None),
+                                "truth/angular_velocity": getattr(self, "pub_truth_rate", None),
+                                "truth/objects": getattr(self, "pub_truth_objects", None)})
         super().destroy_node()
 
     def release(self) -> None:

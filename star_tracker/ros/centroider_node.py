@@ -44,6 +44,7 @@ from .diagnostics import Rejections
 from .frame_queue import NewestFrame
 from .managed_node import ManagedNode
 from .node_process import exit_node_process, run_node
+from .output_flush import flush_publishers
 from ..parameter_spec import field_values
 from .centroider_parameters import CENTROIDER_PARAMETERS, RATE_SOURCES
 from .parameters import declare_parameters, guard_parameter_changes
@@ -110,8 +111,9 @@ class CentroiderNode(ManagedNode):
         Forget the camera model, the latest rate and the PSF estimate.
         """
         if self.frames is not None:
-            self.frames.stop()
+            self.frames.stop()  # the frame in progress is finished and published
             self.frames = None
+        flush_publishers(self, {"spots": getattr(self, "pub", None)})
         for name in ("sub", "sub_info", "sub_rate", "sub_imu"):
             if getattr(self, name, None) is not None:
                 self.destroy_subscription(getattr(self, name))

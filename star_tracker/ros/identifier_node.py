@@ -55,6 +55,7 @@ from .diagnostics import Rejections
 from .frame_queue import NewestFrame
 from .managed_node import ManagedNode
 from .node_process import exit_node_process, run_node
+from .output_flush import flush_publishers
 from ..parameter_spec import field_values
 from .identifier_parameters import (CALIBRATION_PARAMETERS, DATABASE_PARAMETERS, IDENTIFIER_PARAMETERS,
                                     IDENTIFY_PARAMETERS, TRACKING_PARAMETERS)
@@ -66,6 +67,9 @@ from .throttled_log import ThrottledLog
 # Tunable while running (`ros2 param set`, the specs marked dynamic); the rest is fixed at
 # startup (database, algorithm).
 RUNTIME_PARAMETERS = {spec.name for spec in IDENTIFIER_PARAMETERS if spec.dynamic}
+# The reliable outputs (topic -> attribute), flushed before they go (output_flush.py).
+OUTPUT_PUBLISHERS = {"attitude": "pub_attitude", "attitude_with_covariance": "pub_pose", "matched_stars": "pub_matches",
+                     "angular_velocity": "pub_rate", "angular_velocity_with_covariance": "pub_rate_cov"}
 
 
 @dataclass
@@ -178,7 +182,8 @@ class IdentifierNode(ManagedNode):
             if getattr(self, name, None) is not None:
                 self.destroy_subscription(getattr(self, name))
                 setattr(self, name, None)
-        for name in ("pub_attitude", "pub_pose", "pub_matches", "pub_rate", "pub_rate_cov"):
+        flush_publishers(self, {topic: getattr(self, name, None) for topic, name in OUTPUT_PUBLISHERS.items()})
+        for name in OUTPUT_PUBLISHERS.values():
             if getattr(self, name, None) is not None:
                 self.destroy_lifecycle_publisher(getattr(self, name))
                 setattr(self, name, None)

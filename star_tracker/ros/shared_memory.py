@@ -62,12 +62,7 @@ def remove_stale_shared_memory(directory: Path = SHM_DIRECTORY, environ=os.envir
                 continue
         except (OSError, ValueError):  # gone meanwhile
             continue
-        for f in files:
-            try:
-                f.unlink()
-                removed += 1
-            except OSError:
-                pass
+        removed += _unlink(files)
     return removed
 
 
@@ -92,12 +87,19 @@ def remove_own_segments(fd_directory: Path = Path("/proc/self/fd"), directory: P
             continue
         if target.parent != directory or not _SEGMENT_LOCK.match(target.name):
             continue
-        for f in (directory / target.name[:-3], target):
-            try:
-                f.unlink()
-                removed += 1
-            except OSError:
-                pass
+        removed += _unlink([directory / target.name[:-3], target])
+    return removed
+
+
+def _unlink(files: list[Path]) -> int:
+    """Delete `files`; return how many went (one another process removed first is skipped)."""
+    removed = 0
+    for f in files:
+        try:
+            f.unlink()
+            removed += 1
+        except OSError:
+            pass
     return removed
 
 

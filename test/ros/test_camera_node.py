@@ -174,7 +174,7 @@ def test_a_stop_signal_flushes_the_truth_before_the_camera_exits(driver, tmp_pat
     spin(1.0)  # what was acknowledged before the exit is in this reader's queue
     log = (tmp_path / "logs" / "camera_simulator.log").read_text()
     assert codes == {"camera_simulator": 0}, log
-    assert "truth flushed: every subscriber acknowledged" in log, log
+    assert "outputs flushed: every subscriber acknowledged truth/attitude" in log, log
     truth_stamps = {convert.stamp_to_ns(m.header.stamp) for m in received["truth"]}
     assert len(truth_stamps) >= 5
     assert received["image_stamps"] <= truth_stamps, "an image arrived whose truth did not"

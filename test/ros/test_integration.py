@@ -102,6 +102,10 @@ def test_three_nodes_track_truth(ros_graph, tmp_path, rate_deg_s):
                                                diagnostics)
     assert codes == {"camera_simulator": 0, "centroider": 0, "identifier": 0}, logs
     assert not any("Traceback" in text for text in logs.values()), logs
+    # Stopped by SIGINT, the nodes with reliable outputs waited for their acknowledgements
+    # (output_flush.py; the centroider's spots are best effort).
+    for name in ("camera_simulator", "identifier"):
+        assert "outputs flushed: every subscriber acknowledged" in logs[f"{name}.log"], logs[f"{name}.log"]
 
     truth_frames = [f for f in frames if f.truth is not None]
     # A host too slow for the schedule makes the camera skip frames (counted and logged; CI
