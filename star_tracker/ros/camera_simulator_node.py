@@ -131,18 +131,22 @@ class CameraSimulatorNode(ManagedNode):
         best-effort image has gone out: an attitude downstream without its truth
         (output_flush.flush_publishers: bounded, the outcome logged).
         """
+        self._flush_truth()
+        super().destroy_node()
+
+    def _flush_truth(self) -> None:
         flush_publishers(self, {"truth/attitude": getattr(self, "pub_truth", None),
                                 "truth/angular_velocity": getattr(self, "pub_truth_rate", None),
                                 "truth/objects": getattr(self, "pub_truth_objects", None)})
-        super().destroy_node()
 
     def release(self) -> None:
         """
-        Undo configure: timers, topics, renderer and catalog.
+        Undo configure: timers, topics (the truth flushed first), renderer and catalog.
 
         The next activation starts a new time line from frame 0.
         """
         self.deactivate()
+        self._flush_truth()
         for name in ("pub_image", "pub_info", "pub_truth", "pub_truth_rate", "pub_truth_objects"):
             if getattr(self, name, None) is not None:
                 self.destroy_lifecycle_publisher(getattr(self, name))

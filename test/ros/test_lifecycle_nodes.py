@@ -249,11 +249,16 @@ def test_pipeline_driven_through_the_lifecycle_services(monkeypatch, tmp_path):
         assert int(camera.get("frames_skipped_inactive", "0")) >= 1, camera
         stamps = sorted(monitor.frames)
         assert all(b > a for a, b in zip(stamps, stamps[1:]))
+        # The shutdown transition releases the truth publishers: their last messages are
+        # acknowledged first (output_flush.py), the monitor being a reliable truth subscriber.
+        assert nodes.change_state("camera_simulator", "shutdown") is True
     finally:
         codes = nodes.stop()
         monitor.destroy_node()
         rclpy.try_shutdown()
     assert codes == dict.fromkeys(params, 0), {name: nodes.log_paths[name].read_text() for name in params}
+    camera_log = nodes.log_paths["camera_simulator"].read_text()
+    assert "outputs flushed: every subscriber acknowledged truth/attitude" in camera_log, camera_log
 
 
 @pytest.mark.integration
