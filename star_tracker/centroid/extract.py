@@ -496,6 +496,13 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
         spots, more = fit_streak_spots(context, kept, spots, np.flatnonzero(as_streak), aid, clipping.excluded)[:2]
         added.append(more)
         fitted |= as_streak & ((spots.flags & FLAG_STREAK) != 0)
+        # In a frame of round stars, an elongated spot the streak model failed on may be a star
+        # whose footprint merged with a cosmic-ray track's (its moments stretched by the track's
+        # footprint): measured as a point, kept where the point fit converges and describes it.
+        failed = np.flatnonzero(as_streak & (spots.snr <= 0) & ~saturated)
+        if failed.size and aid is None and _round_frame(kept, elongated, saturated, multi):
+            outcome = fit_points(context, kept, spots, failed, clipping.excluded)
+            spots = outcome.spots
     path_fitted = (spots.flags & FLAG_RATE_AIDED) != 0
     probe = np.flatnonzero(~saturated & ~multi & ((as_point & (spots.snr > 0)) | path_fitted))
     spots, more, clipping = _refit_undershot(context, kept, spots, replace(clipping, fitted=fitted), probe, aid)

@@ -59,8 +59,9 @@ def _scene(psf, seed: int):
     return image, np.array(x), np.array(y), np.concatenate(track_x), np.concatenate(track_y), np.array(beside)
 
 
-@pytest.mark.parametrize("psf", [alt.AnnulusPsf(1.71, 0.85, 0.30), alt.GaussianPsf(1.0)], ids=["annulus", "gaussian"])
-def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf):
+@pytest.mark.parametrize("psf, max_missed_beside", [(alt.AnnulusPsf(1.71, 0.85, 0.30), 1), (alt.GaussianPsf(1.0), 0)],
+                         ids=["annulus", "gaussian"])
+def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf, max_missed_beside):
     """
     Ten frames of 16 paired stars and 8 stars beside a track (SNR ~60).
 
@@ -68,9 +69,12 @@ def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf):
     and 23 of the 24 beside a track (3 frames) were lost (their footprint rejected whole as a
     track). With it, 19 and 34 of the 80 beside a track (10 frames) were still lost: the track,
     brighter per pixel than the star, held the footprint's brightest maxima, and the star's
-    peak was never tried (track_peaks.star_beside_track_peaks); now 1 and 1. Every paired star
-    and >= 95 % beside a track are found (within 1 px), at RMS < 0.1 px, and the tracks make at
-    most one false spot per frame (the goal for star-free frames).
+    peak was never tried (track_peaks.star_beside_track_peaks); then 1 and 1. The Gaussian one
+    (seed 8) was a round star whose footprint the track stretched: its streak fit failed and it
+    was dropped; now a failed streak in a round frame is measured as a point (extract._fit_spots):
+    1 and 0. Every paired star is found (within 1 px), at most max_missed_beside of the 80 beside
+    a track are missed, at RMS < 0.1 px, and the tracks make at most one false spot per frame
+    (the goal for star-free frames).
     """
     frames = 10
     missed_paired, missed_beside, errors, on_tracks = 0, 0, [], 0
@@ -86,7 +90,7 @@ def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf):
         to_track = np.hypot(spots.x[:, None] - track_x[None], spots.y[:, None] - track_y[None]).min(axis=1)
         on_tracks += int(np.sum(unmatched & (to_track < 2.0)))
     assert missed_paired == 0, missed_paired
-    assert missed_beside <= 0.05 * 8 * frames, missed_beside
+    assert missed_beside <= max_missed_beside, missed_beside
     assert on_tracks <= frames, on_tracks
     assert np.sqrt(np.mean(np.square(errors))) < 0.1, np.sqrt(np.mean(np.square(errors)))
 
