@@ -498,7 +498,7 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
         fitted |= as_streak & ((spots.flags & FLAG_STREAK) != 0)
         # In a frame of round stars, an elongated spot the streak model failed on may be a star
         # whose footprint merged with a cosmic-ray track's (its moments stretched by the track's
-        # footprint): measured as a point, kept where the point fit converges and describes it.
+        # footprint): measured as a point, kept where the point fit converges.
         failed = np.flatnonzero(as_streak & (spots.snr <= 0) & ~saturated)
         if failed.size and aid is None and _round_frame(kept, elongated, saturated, multi):
             outcome = fit_points(context, kept, spots, failed, clipping.excluded)
