@@ -434,9 +434,10 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     Return the fits the method calls for.
 
     Blends (their track peaks, `track_peaks` (_stars_beside_tracks), fitted and dropped),
-    point PSFs (clipped ones without their clipped pixels), streaks (on the predicted path
-    with `aid`), then the refit of spots whose fit shows a clipped core. Returns the spot
-    table, the stars split off, the clipping state.
+    streaks (on the predicted path with `aid`; in a frame of round stars those the streak
+    model failed on join the points), point PSFs (clipped ones without their clipped pixels),
+    then the refit of spots whose fit shows a clipped core. Returns the spot table, the stars
+    split off, the clipping state.
     """
     track_peaks = track_peaks or {}
     # Saturated, it is not fitted as a blend: no fit would measure the star without the track.
@@ -456,7 +457,8 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     # measured as a streak it gains the flux of the noise along the fitted segment and outranks
     # real stars (real photographs' dark frames). Such spots are measured as points.
     noise_elongated = np.zeros(n, bool)
-    if aid is None and config.method == "auto" and _round_frame(kept, elongated, saturated, multi):
+    round_frame = aid is None and _round_frame(kept, elongated, saturated, multi)
+    if round_frame and config.method == "auto":
         noise_elongated = elongated & ~multi & ~saturated & (kept.snr < STATIC_STREAK_MIN_SNR)
         as_streak &= ~noise_elongated
     as_point = ~as_streak & (~elongated | noise_elongated) & ~multi
@@ -481,6 +483,15 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
         spots, more = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)[:2]
         added.append(more)
         fitted_blends = True
+    if as_streak.any():
+        spots, more = fit_streak_spots(context, kept, spots, np.flatnonzero(as_streak), aid, clipping.excluded)[:2]
+        added.append(more)
+        fitted |= as_streak & ((spots.flags & FLAG_STREAK) != 0)
+        if round_frame:
+            # An elongated spot the streak model failed on, in a frame of round stars, may be a star
+            # whose footprint merged with a cosmic-ray track's (its moments stretched by the track's
+            # footprint): measured with the point spots, in the frame's point model.
+            as_point |= as_streak & (spots.snr <= 0) & ~saturated
     fit_model = ""
     if as_point.any():
         outcome = fit_points(context, kept, spots, np.flatnonzero(as_point), clipping.excluded)
@@ -492,17 +503,6 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     if clipped_point.any():
         outcome = fit_clipped_points(context, spots, np.flatnonzero(clipped_point), clipping.excluded)
         spots, fitted[clipped_point] = outcome.spots, outcome.converged
-    if as_streak.any():
-        spots, more = fit_streak_spots(context, kept, spots, np.flatnonzero(as_streak), aid, clipping.excluded)[:2]
-        added.append(more)
-        fitted |= as_streak & ((spots.flags & FLAG_STREAK) != 0)
-        # In a frame of round stars, an elongated spot the streak model failed on may be a star
-        # whose footprint merged with a cosmic-ray track's (its moments stretched by the track's
-        # footprint): measured as a point, kept where the point fit converges.
-        failed = np.flatnonzero(as_streak & (spots.snr <= 0) & ~saturated)
-        if failed.size and aid is None and _round_frame(kept, elongated, saturated, multi):
-            outcome = fit_points(context, kept, spots, failed, clipping.excluded)
-            spots = outcome.spots
     path_fitted = (spots.flags & FLAG_RATE_AIDED) != 0
     probe = np.flatnonzero(~saturated & ~multi & ((as_point & (spots.snr > 0)) | path_fitted))
     spots, more, clipping = _refit_undershot(context, kept, spots, replace(clipping, fitted=fitted), probe, aid)
