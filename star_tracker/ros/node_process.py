@@ -25,7 +25,7 @@ from ..process_memory import keep_freed_memory
 from .managed_node import ManagedNode
 from .middleware import configure_middleware
 from .parameters import report_unknown_parameters
-from .shared_memory import remove_own_segments, remove_stale_shared_memory
+from .shared_memory import remove_own_segments
 
 
 def check_params_files(args: list[str]) -> None:
@@ -80,7 +80,6 @@ def run_node(factory: Callable[[], Node], argv: list[str] | None = None) -> int:
     args = sys.argv if argv is None else argv
     keep_freed_memory()  # a node's own process: freed frame buffers are reused (process_memory.py)
     configure_middleware()
-    remove_stale_shared_memory()  # what ended processes left in /dev/shm (shared_memory.py)
     node = None
     code = 0
     initialized = spinning = False

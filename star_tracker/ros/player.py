@@ -28,7 +28,6 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ..bags import IMAGE_TYPE, BagError, BagReader, absolute_topic, header_stamp_ns, image_problem
 from .bag_ros import message_class, playback_qos, qos_text
 from .middleware import configure_middleware
-from .shared_memory import remove_stale_shared_memory
 
 DEFAULT_ACK_TOPICS = ("spots", "attitude")
 ACK_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)  # matches any publisher
@@ -409,7 +408,6 @@ def describe(report: PlayReport, lockstep: bool) -> tuple[int, str]:
 def play(path: str, options: PlayOptions) -> int:
     """Validate, then play; print the report. Exit code 0 played, 1 images skipped, 2 error."""
     configure_middleware()
-    remove_stale_shared_memory()  # what ended processes left in /dev/shm (shared_memory.py)
     try:
         bag = BagReader(path).open()
     except BagError as exc:

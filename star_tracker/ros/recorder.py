@@ -33,7 +33,6 @@ from rclpy.parameter import Parameter
 from ..bags import BagError, BagInfo, BagWriter, absolute_topic, message_definition
 from .bag_ros import RECORD_QUEUE_DEPTH, message_class, offered_qos, qos_text, subscription_qos
 from .middleware import configure_middleware
-from .shared_memory import remove_stale_shared_memory
 
 _STOP = object()
 _INTERNAL_TOPICS = ("/rosout", "/parameter_events")
@@ -267,7 +266,6 @@ def record(output: str | Path, topics: list[str] | None = None, storage: str = "
     not start.
     """
     configure_middleware()
-    remove_stale_shared_memory()  # what ended processes left in /dev/shm (shared_memory.py)
     path = Path(output)
     if path.exists():
         print(f"star-tracker record: error: {path} exists already; choose a new --output", flush=True)

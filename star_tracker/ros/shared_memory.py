@@ -19,7 +19,7 @@ parallel test runs (docs/RELIABILITY.md, "a rare abort at exit").
 remove_stale_shared_memory deletes the files of segments and ports whose lock file nobody holds
 (the test of eProsima's `fastdds shm clean`), leaving alone those changed in the last
 MIN_AGE_S (a participant starting now creates its files before it locks them): what killed
-processes left. Node, player and recorder processes run it before rclpy starts.
+processes left. middleware.configure_middleware runs it (node, player and recorder processes, before rclpy starts).
 """
 from __future__ import annotations
 
