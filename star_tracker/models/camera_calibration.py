@@ -6,7 +6,7 @@ Given, for one or several frames, the matched stars (spot pixel positions with t
 covariances and the catalog unit vectors in ICRS), `calibrate_camera` fits the focal length
 (fx and fy scaled together: the aspect ratio is kept), the radial distortion k1, k2 and the
 principal point cx, cy of a `CameraModel`, together with every frame's attitude, by weighted
-least squares on the pixel residuals (scipy.optimize.least_squares; a soft-L1 loss first so a
+least squares on the pixel residuals (damped_least_squares.py; a soft-L1 loss first so a
 wrong match cannot drag the fit, then a plain least-squares pass over the inliers for the
 covariance). Tangential distortion p1, p2 and k3 are kept as given.
 
@@ -33,6 +33,7 @@ import numpy as np
 from .attitude import rotation_vector_to_matrix, skew
 from .calibration_kernel import PARAMETER_CODES, frame_rows
 from .camera import CameraModel
+from .damped_least_squares import damped_least_squares
 
 # Nested models, smallest first: each group's parameter names (CameraCalibration.sigma keys).
 PARAMETER_GROUPS = (("f",), ("k1",), ("k2",), ("cx", "cy"))
@@ -215,12 +216,10 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
     """
     Fit one model: the camera parameters `names` and every frame's rotation.
 
-    The rotation is a rotation vector applied to the frame's starting attitude; soft-L1 least
-    squares, then plain least squares over the inliers; covariance = (JᵀJ)⁻¹ scaled by the
-    inliers' reduced χ². radius: corner_radius [-].
+    The rotation is a rotation vector applied to the frame's starting attitude; plain least
+    squares, then soft-L1, then plain least squares over the inliers; covariance = (JᵀJ)⁻¹
+    scaled by the inliers' reduced χ². radius: corner_radius [-].
     """
-    from scipy.optimize import least_squares
-
     count = len(frames)
     start = dict(zip(("f", "cx", "cy", "k1", "k2"), (0.0, 0.0, 0.0, camera.distortion[0], camera.distortion[1])))
     x0 = np.concatenate([np.zeros(3 * count), [start[n] for n in names]])
@@ -229,37 +228,20 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
     sizes = np.array([frame.size for frame in frames])
     bounds = np.concatenate([[0], np.cumsum(sizes)])
 
-    residual_and_jacobian = _whitened_model(frames, camera, names, whiten, measured, bounds)
-
-    def whitened(params, keep=None):
-        residual, _ = residual_and_jacobian(params)  # copies: least_squares scales its arrays in place
-        return residual.copy() if keep is None else residual * np.repeat(keep, 2)
-
-    def jacobian(params, keep=None):
-        _, jac = residual_and_jacobian(params)
-        if keep is None:
-            return jac.copy()
-        rows = np.repeat(keep, 2)
-        return jac.multiply(rows[:, None]).tocsr() if hasattr(jac, "multiply") else jac * rows[:, None]
-
-    # Analytic derivatives (finite differences took most of a solve's refinement time). One frame
-    # (solve) is a small dense problem with an exact trust-region step; several frames (calibrate)
-    # a sparse one: a frame's rotation moves only its own stars.
-    # One frame: MINPACK's Levenberg-Marquardt (plain least squares, dense only) brings the start
-    # near the minimum in a few steps; trf's trust region, sized from the start (~0 here), takes
-    # ~8 steps to grow to it (the robust fit 13-16 evaluations -> 4; same minimum to 1e-8 px).
-    plain = least_squares(whitened, x0, jac=jacobian, method="lm", x_scale="jac") if count == 1 else None
-    robust = least_squares(whitened, x0 if plain is None else plain.x, jac=jacobian, loss="soft_l1",
-                           f_scale=config.robust_scale, x_scale="jac", method="trf")
+    whitened = _whitened_model(frames, camera, names, whiten, measured, bounds)
+    # Plain least squares first: from the start it reaches the minimum's neighbourhood in a few
+    # steps, where the robust pass then needs only a few more.
+    plain = damped_least_squares(whitened, x0)
+    robust = damped_least_squares(whitened, plain.x, robust_scale=config.robust_scale)
     norms = np.linalg.norm(robust.fun.reshape(-1, 2), axis=1)
     # Robust spread of the whitened residuals (the median norm of a 2-D unit normal is sqrt(2 ln 2)),
     # at least the stated one: noise-free or overestimated covariances must not make the cut tighter.
     spread = max(float(np.median(norms)) / math.sqrt(2.0 * math.log(2.0)), 1.0)
     keep = (norms <= config.outlier_sigma * spread).astype(float)
-    if plain is not None and keep.all():
+    if keep.all():
         final = plain  # every star an inlier: the final pass's problem is the plain fit's, solved already
     else:
-        final = least_squares(whitened, robust.x, jac=jacobian, args=(keep,), x_scale="jac", method="trf")
+        final = damped_least_squares(whitened, robust.x, rows=np.repeat(keep, 2))
     inlier_count = int(keep.sum())
     dof = max(2 * inlier_count - final.x.size, 1)
     reduced_chi2 = float(np.sum(final.fun ** 2)) / dof
