@@ -245,13 +245,8 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
     inlier_count = int(keep.sum())
     dof = max(2 * inlier_count - final.x.size, 1)
     reduced_chi2 = float(np.sum(final.fun ** 2)) / dof
-    jac = final.jac.toarray() if hasattr(final.jac, "toarray") else final.jac
-    try:
-        covariance_all = np.linalg.inv(jac.T @ jac) * max(reduced_chi2, 1e-12)
-    except np.linalg.LinAlgError:
-        covariance_all = np.full((x0.size, x0.size), np.inf)
+    block = _camera_covariance(final.jac, count) * max(reduced_chi2, 1e-12)
     fitted_camera = _camera_with(camera, names, final.x[3 * count:])
-    block = covariance_all[3 * count:, 3 * count:].copy()
     # f is fitted as a log scale: its covariance rows/columns scale by f.
     jacobian = np.diag([fitted_camera.fx if n == "f" else 1.0 for n in names])
     covariance = jacobian @ block @ jacobian
@@ -276,6 +271,36 @@ def _fit(frames, camera: CameraModel, names: tuple[str, ...], config: Calibratio
     return CameraCalibration(fitted_camera, names, (), value, sigma, covariance, corner, rotations, tuple(inliers),
                              tuple(frame_rms), math.sqrt(float(np.mean(all_inliers ** 2))) if all_inliers.size
                              else float("nan"), inlier_count)
+
+
+def _camera_covariance(jac, count: int) -> np.ndarray:
+    """
+    Camera block of (JᵀJ)⁻¹ for a Jacobian of `count` frames' rotations (3 columns each) then the camera's.
+
+    The rotations are eliminated frame by frame (Schur complement: each frame's rotation couples
+    only with itself and the camera), so neither the dense Jacobian nor the full inverse is formed
+    (thousands of frames: gigabytes and most of the fit's time). Singular: inf.
+    """
+    normal = jac.T @ jac
+    rotations = 3 * count
+    if hasattr(normal, "tocsr"):
+        normal = normal.tocsr()
+        coupling = normal[:rotations, rotations:].toarray()
+        camera_block = normal[rotations:, rotations:].toarray()
+        diagonal = normal[:rotations, :rotations].tocoo()
+        blocks = np.zeros((count, 3, 3))
+        same = diagonal.row // 3 == diagonal.col // 3
+        blocks[diagonal.row[same] // 3, diagonal.row[same] % 3, diagonal.col[same] % 3] = diagonal.data[same]
+    else:
+        coupling, camera_block = normal[:rotations, rotations:], normal[rotations:, rotations:]
+        blocks = np.stack([normal[3 * k:3 * k + 3, 3 * k:3 * k + 3] for k in range(count)])
+    size = camera_block.shape[0]
+    try:
+        coupling = coupling.reshape(count, 3, size)
+        schur = camera_block - np.einsum("kip,kiq->pq", coupling, np.linalg.solve(blocks, coupling))
+        return np.linalg.inv(schur)
+    except np.linalg.LinAlgError:
+        return np.full((size, size), np.inf)
 
 
 def _whitened_model(frames, camera: CameraModel, names: tuple[str, ...], whiten: np.ndarray, measured: np.ndarray,

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from typing import Callable, NamedTuple
 
+import warnings
+
 import numpy as np
 
 # Stop when the Gauss-Newton step would lower the cost by less than this [cost units: half a
@@ -65,21 +67,19 @@ def damped_least_squares(evaluate: Callable, x0: np.ndarray, robust_scale: float
         curved = slope ** 3
         weighted = jac.multiply(curved[:, None]).tocsr() if hasattr(jac, "multiply") else jac * curved[:, None]
         normal = jac.T @ weighted
-        normal = normal.toarray() if hasattr(normal, "toarray") else np.asarray(normal)
         gradient = np.asarray(jac.T @ (slope * r)).ravel()
-        curvature = np.maximum(np.diagonal(normal), 1e-12 * max(float(np.max(np.diagonal(normal))), 1e-300))
-        try:
-            newton = np.linalg.solve(normal + 1e-12 * np.diag(curvature), -gradient)
-        except np.linalg.LinAlgError:
-            newton = None
-        if newton is not None and np.all(np.isfinite(newton)) and -0.5 * float(gradient @ newton) < COST_TOLERANCE:
+        diagonal = np.asarray(normal.diagonal()).ravel()
+        curvature = np.maximum(diagonal, 1e-12 * max(float(np.max(diagonal)), 1e-300))
+        newton = _damped_step(normal, curvature, 1e-12, gradient)
+        if newton is not None and -0.5 * float(gradient @ newton) < COST_TOLERANCE:
             break  # at the minimum: the undamped step would gain nothing
         accepted = False
         while evaluations < MAX_EVALUATIONS:
-            try:
-                step = np.linalg.solve(normal + damping * np.diag(curvature), -gradient)
-            except np.linalg.LinAlgError:
+            step = _damped_step(normal, curvature, damping, gradient)
+            if step is None:
                 damping *= _DAMPING_UP
+                if damping > 1e12:
+                    break
                 continue
             trial = x + step
             r_trial, jac_trial = residual_and_jacobian(trial)
@@ -96,3 +96,25 @@ def damped_least_squares(evaluate: Callable, x0: np.ndarray, robust_scale: float
         if not accepted:
             break  # no damping lowers the cost: as close to the minimum as the arithmetic gets
     return LeastSquaresFit(x, r, jac, evaluations)
+
+
+def _damped_step(normal, curvature: np.ndarray, damping: float, gradient: np.ndarray) -> np.ndarray | None:
+    """
+    Solve (normal + damping diag(curvature)) step = -gradient; None if singular or not finite.
+
+    A sparse normal matrix (several frames: each frame's rotation couples only with itself and
+    the camera) is solved sparse, its cost growing with the frames rather than their cube.
+    """
+    if hasattr(normal, "tocsc"):
+        from scipy import sparse
+        from scipy.sparse import linalg as sparse_linalg
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", sparse_linalg.MatrixRankWarning)
+            step = sparse_linalg.spsolve((normal + sparse.diags(damping * curvature)).tocsc(), -gradient)
+    else:
+        try:
+            step = np.linalg.solve(normal + np.diag(damping * curvature), -gradient)
+        except np.linalg.LinAlgError:
+            return None
+    return step if np.all(np.isfinite(step)) else None

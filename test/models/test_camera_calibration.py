@@ -180,3 +180,48 @@ def test_analytic_jacobian_matches_finite_differences(frame_count):
         step[i] = 1e-6
         numeric[:, i] = (model(params + step)[0] - model(params - step)[0]) / 2e-6
     assert np.max(np.abs(jacobian - numeric)) < 1e-6 * np.max(np.abs(numeric))
+
+
+def test_hundreds_of_frames_recover_the_camera_with_the_full_inverse_s_covariance(catalog):
+    """
+    400 frames (a long bag): the camera within 3 sigma of the truth, sigma shrinking as 1/sqrt(frames).
+
+    The camera block of the covariance, computed without the full inverse (rotations eliminated
+    per frame), equals the full inverse's on a smaller set.
+    """
+    from star_tracker.models import camera_calibration as calibration
+
+    rng = np.random.default_rng(11)
+    camera, vectors = true_camera(), catalog.brighter_than(6.0).unit_vectors()
+
+    def frames_of(count):
+        frames = []
+        for _ in range(count):
+            rotation = rotation_vector_to_matrix(rng.normal(size=3))
+            u, v, front = camera.project(vectors @ rotation)
+            seen = np.flatnonzero(front & camera.in_image(u, v, margin=5.0))[:40]
+            n = seen.size
+            frames.append(CalibrationFrame(u[seen] + rng.normal(0, 0.2, n), v[seen] + rng.normal(0, 0.2, n),
+                                           np.tile(0.04 * np.eye(2), (n, 1, 1)), vectors[seen],
+                                           rotation @ rotation_vector_to_matrix(rng.normal(0, 1e-3, 3))))
+        return [f for f in frames if f.size >= 3]
+
+    config = CalibrationConfig(sigma_floor_px=0.0)
+    few, many = frames_of(20), frames_of(400)
+    assert len(many) > 350
+    small, large = calibrate_camera(few, starting_camera(), config), calibrate_camera(many, starting_camera(), config)
+    for result in (small, large):
+        assert set(result.fitted) == {"f", "k1", "k2", "cx", "cy"}
+        assert_within_3_sigma(result, ["f", "k1", "k2", "cx", "cy"])
+    ratio = math.sqrt(large.stars / small.stars)
+    for name in ("f", "k1", "cx"):
+        assert 0.6 * ratio < small.sigma[name] / large.sigma[name] < 1.6 * ratio, (name, small.sigma, large.sigma)
+
+    names = ("f", "k1", "k2", "cx", "cy")
+    bounds = np.concatenate([[0], np.cumsum([f.size for f in few])])
+    measured = np.concatenate([np.stack([f.x, f.y], axis=-1) for f in few])
+    model = calibration._whitened_model(few, camera, names, calibration._whitening(few, 0.0), measured, bounds)
+    params = np.concatenate([rng.normal(scale=1e-3, size=3 * len(few)), [0.0, 0.18, 0.0, 0.0, 0.0]])
+    jacobian = model(params)[1]
+    full = np.linalg.inv((jacobian.T @ jacobian).toarray())[3 * len(few):, 3 * len(few):]
+    np.testing.assert_allclose(calibration._camera_covariance(jacobian, len(few)), full, rtol=1e-6)
