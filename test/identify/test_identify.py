@@ -1,5 +1,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Lost-in-space identification on synthetic spot lists with known truth."""
+import time
+
 import numpy as np
 import pytest
 
@@ -109,15 +111,18 @@ def test_every_algorithm_respects_its_time_budget(algorithm, database, catalog):
     """
     140 spots, 4 of them real.
 
-    Unsolvable under the bound, so every algorithm must give up near its budget (1 s slack
-    for a loaded CI host; the point is "bounded").
+    Unsolvable under the bound, so every algorithm must give up near its budget (1 s slack;
+    the point is "bounded"). Budget and check in CPU time: other load on the host stretches
+    the wall time (1.07 s once, with two benchmarks running beside the suite), not the work.
     """
-    identifier = make_identifier(algorithm, database, IdentifyConfig(max_time_s=0.05, max_pattern_spots=100))
+    identifier = make_identifier(algorithm, database, IdentifyConfig(max_time_s=0.05, max_pattern_spots=100,
+                                                                     budget_clock="cpu"))
     if hasattr(identifier, "warm_up"):
         identifier.warm_up(SETUPS["toloei_4_136"].camera)
     scene = make_scene(SETUPS["toloei_4_136"], catalog.at_epoch(2026.0), np.random.default_rng(15))
+    started = time.process_time()
     result = identifier.identify(scene.spots, SETUPS["toloei_4_136"].camera)
-    assert result.elapsed_s < 0.05 + 1.0
+    assert time.process_time() - started < 0.05 + 1.0
     if result.solved:
         assert np.all(result.hip == scene.hip[result.spot_index])
 

@@ -4,6 +4,7 @@ The false-positive bound, its compiled twin, the sky grid and the default identi
 
 The identifier's behaviour on the seed setups, against simulator truth.
 """
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -123,13 +124,15 @@ def test_default_identifier_on_seed_setups(setup_name, sky):
 
 def test_time_bound_is_respected(sky, database):
     """140 spots with 4 real stars cannot be solved in 50 ms; the call must stop near then."""
-    identifier = make_identifier(DEFAULT_ALGORITHM, database, IdentifyConfig(max_time_s=0.05))
+    # CPU time: other load on the host stretches only the wall time; the point is "bounded".
+    identifier = make_identifier(DEFAULT_ALGORITHM, database, IdentifyConfig(max_time_s=0.05, budget_clock="cpu"))
     setup = SETUPS["toloei_4_136"]
     identifier.warm_up(setup.camera)
     scene = make_scene(setup, sky, np.random.default_rng(5))
+    started = time.process_time()
     result = identifier.identify(scene.spots, setup.camera)
     if result.solved:  # allowed, but then it must be right
         assert np.all(result.hip == scene.hip[result.spot_index])
     else:
         assert result.status == TIMEOUT
-    assert result.elapsed_s < 0.05 + 1.0  # slack for a loaded 2-core CI host; the point is "bounded"
+    assert time.process_time() - started < 0.05 + 1.0

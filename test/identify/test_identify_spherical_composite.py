@@ -4,6 +4,8 @@ Cole & Crassidis' spherical triangle and Toloei's composite pyramid / planar tri
 
 On seed-paper scenes with known truth.
 """
+import time
+
 import numpy as np
 import pytest
 
@@ -111,19 +113,21 @@ def mirror(spots, width):
 
 @pytest.mark.parametrize("cls", ALGORITHMS)
 def test_mirror_images_are_never_solved(cls, database, sky):
-    identifier = cls(database, IdentifyConfig())
+    config = IdentifyConfig(budget_clock="cpu")  # CPU time: other load on the host stretches only the wall time
+    identifier = cls(database, config)
     setup = SETUPS["nominal"]
     rng = np.random.default_rng(25)
     for _ in range(8):
         scene = make_scene(setup, sky, rng)
+        started = time.process_time()
         result = identifier.identify(mirror(scene.spots, setup.camera.width), setup.camera)
         assert not result.solved
-        assert result.elapsed_s < IdentifyConfig().max_time_s + 1.0  # slack for a loaded CI host
+        assert time.process_time() - started < config.max_time_s + 1.0
 
 
 @pytest.mark.parametrize("cls", ALGORITHMS)
 def test_random_spots_are_never_solved_and_time_is_bounded(cls, database, nominal_camera):
-    config = IdentifyConfig(max_time_s=0.3)
+    config = IdentifyConfig(max_time_s=0.3, budget_clock="cpu")
     identifier = cls(database, config)
     rng = np.random.default_rng(26)
     for n in (5, 15, 40, 140):
@@ -131,18 +135,20 @@ def test_random_spots_are_never_solved_and_time_is_bounded(cls, database, nomina
         cov = np.tile(np.eye(2) * 0.09, (n, 1, 1))
         spots = Spots(x, y, rng.uniform(1, 100, n), np.full(n, 30.0), cov, np.zeros(n, np.uint32),
                       np.ones(n, np.int32), np.ones(n), 1024, 1024)
+        started = time.process_time()
         result = identifier.identify(spots, nominal_camera)
         assert not result.solved and result.status in (NO_MATCH, TIMEOUT)
-        assert result.elapsed_s < config.max_time_s + 1.0  # slack for a loaded CI host
+        assert time.process_time() - started < config.max_time_s + 1.0
 
 
 def test_many_false_stars_stay_within_the_time_bound(database, sky):
-    config = IdentifyConfig(max_time_s=0.3)
+    config = IdentifyConfig(max_time_s=0.3, budget_clock="cpu")
     setup = SETUPS["toloei_4_136"]
     scene = make_scene(setup, sky, np.random.default_rng(27))
     for cls in ALGORITHMS:
+        started = time.process_time()
         result = cls(database, config).identify(scene.spots, setup.camera)
-        assert result.elapsed_s < config.max_time_s + 1.0  # slack for a loaded CI host
+        assert time.process_time() - started < config.max_time_s + 1.0
         assert not result.solved or np.all(result.hip == scene.hip[result.spot_index])
 
 
