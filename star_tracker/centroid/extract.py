@@ -473,12 +473,9 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     fitted_blends = False  # blends fitted star by star (fit_blends), not left at their centres of gravity
     if multi.any() and (smeared_frame or not config.split_blends):
         spots = spots.with_values(np.flatnonzero(multi), cov=kept.moment_covariance(np.flatnonzero(multi)))
-        for t, (track, shapes) in track_peaks.items():  # the footprint's centre would hold the track
-            stars, _ = own_centres(track, shapes)
-            if stars.x.size:  # its brightest star, model-free (no point fit in a smeared frame)
-                spots = spots.with_stars(np.array([t]), stars.take(slice(0, 1)))
-            else:
-                spots = spots.with_values(np.array([t]), snr=0.0)
+        # The footprint's centre would hold the track: its brightest star, model-free (no point
+        # fit in a smeared frame).
+        spots = _own_brightest_stars(spots, np.array(list(track_peaks), np.int64), track_peaks)
     elif multi.any():
         spots, more = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)[:2]
         added.append(more)
@@ -506,9 +503,20 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     path_fitted = (spots.flags & FLAG_RATE_AIDED) != 0
     probe = np.flatnonzero(~saturated & ~multi & ((as_point & (spots.snr > 0)) | path_fitted))
     spots, more, clipping = _refit_undershot(context, kept, spots, replace(clipping, fitted=fitted), probe, aid)
-    if beside_track.size:
-        spots = spots.with_values(beside_track, snr=0.0)
+    # A clipped blend with a track: its star's own pixels (nearer its peak than the track's)
+    # measure it. A track's charge can read as a clipped flat top (several pixels tied at its
+    # maximum), so the star beside it is often not saturated at all.
+    spots = _own_brightest_stars(spots, beside_track, track_peaks)
     return spots, added + [more], clipping, fit_model
+
+
+def _own_brightest_stars(spots: SpotRows, rows: np.ndarray, track_peaks: dict) -> SpotRows:
+    """Spots `rows` (blends with tracks) replaced by their brightest star's own-pixel centre; none: dropped."""
+    for t in rows.tolist():
+        stars, _ = own_centres(*track_peaks[t])
+        spots = (spots.with_stars(np.array([t]), stars.take(slice(0, 1))) if stars.x.size
+                 else spots.with_values(np.array([t]), snr=0.0))
+    return spots
 
 
 # A frame is judged static (its stars round) from at least ROUND_FRAME_MIN_SPOTS spots of SNR >=
