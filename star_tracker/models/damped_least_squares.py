@@ -14,9 +14,8 @@ that curvature (Gauss-Newton in the model), damped until they lower the robust c
 """
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
-
 import warnings
+from typing import Callable, NamedTuple
 
 import numpy as np
 
