@@ -310,7 +310,9 @@ def _footprint_shape(image, windows: _FootprintWindows, members, out, det, confi
         if rings:
             found, rows, cols = ring_track_peaks(image, det, config, sigma, box, box_var, maxima, threshold, found,
                                                  rows, cols, long.col0, long.row0)
-        thin = out["minor"][members[stretched]] < config.min_width_fraction * sigma ** 2
+        # Thinner than a star, or two peaks found: the brightest peak may be a track's, and the
+        # peaks found may all be on it (a rasterised track has dips) with the star not among them.
+        thin = (out["minor"][members[stretched]] < config.min_width_fraction * sigma ** 2) | found
         thin[thin] = track_screen(long.data[thin], long.valid[thin], rows[thin, 0], cols[thin, 0], sigma, config)
         found, rows, cols = star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, threshold,
                                                     found, rows, cols, long.col0, long.row0, thin)
