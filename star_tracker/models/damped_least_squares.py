@@ -43,7 +43,8 @@ def damped_least_squares(evaluate: Callable, x0: np.ndarray, robust_scale: float
 
     evaluate(x) -> (r (M,), J (M, P) dense or scipy.sparse): residuals and their Jacobian;
     robust_scale: s of the soft-L1 loss (None: plain least squares); rows: (M,) factors
-    applied to the residual rows (0 leaves a row out), or None.
+    applied to the residual rows (0 leaves a row out), or None. ValueError when the residuals
+    at x0 are not finite.
     """
     def residual_and_jacobian(x):
         r, jac = evaluate(x)
@@ -60,6 +61,8 @@ def damped_least_squares(evaluate: Callable, x0: np.ndarray, robust_scale: float
     x = np.asarray(x0, dtype=float).copy()
     r, jac = residual_and_jacobian(x)
     cost = cost_of(r)
+    if not np.isfinite(cost):
+        raise ValueError("residuals are not finite at the starting point")  # as scipy's least_squares
     evaluations, damping = 1, _DAMPING_START
     while evaluations < MAX_EVALUATIONS:
         slope = np.ones_like(r) if robust_scale is None else 1.0 / np.sqrt(1.0 + (r / robust_scale) ** 2)

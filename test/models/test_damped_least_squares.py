@@ -75,3 +75,15 @@ def test_rows_leave_residuals_out_and_sparse_jacobians_work():
     _assert_same_minimum(dense.x, theirs.x, _sigmas(evaluate, theirs.x))
     np.testing.assert_allclose(sparse_fit.x, dense.x, rtol=1e-8)
     assert np.all(dense.fun[~inliers] == 0.0)
+
+
+def test_non_finite_start_is_refused_like_scipy():
+    evaluate, _ = _exponential_problem(0, outliers=0)
+
+    def broken(p):
+        r, jac = evaluate(p)
+        r[3] = np.nan
+        return r, jac
+
+    with pytest.raises(ValueError, match="not finite"):
+        damped_least_squares(broken, np.array([30.0, 0.3, 0.0]))
