@@ -33,14 +33,15 @@ def cole_database():
 
 
 def score(identifier, setup, sky, count, seed):
-    """(solved, wrong, elapsed list) over `count` scenes; 'wrong' counts any wrong HIP id."""
+    """(solved, wrong, CPU seconds per call) over `count` scenes; 'wrong' counts any wrong HIP id."""
     rng = np.random.default_rng(seed)
     solved = wrong = 0
     elapsed = []
     for _ in range(count):
         scene = make_scene(setup, sky, rng)
+        started = time.process_time()
         result = identifier.identify(scene.spots, setup.camera)
-        elapsed.append(result.elapsed_s)
+        elapsed.append(time.process_time() - started)
         if result.solved:
             solved += 1
             wrong += int(np.any(result.hip != scene.hip[result.spot_index]))
@@ -49,11 +50,13 @@ def score(identifier, setup, sky, count, seed):
 
 @pytest.mark.parametrize("cls", ALGORITHMS)
 def test_exact_hip_ids_on_nominal_scenes(cls, database, sky):
-    identifier = cls(database, IdentifyConfig())
+    # CPU-time budget: other load on the host must not turn solves into timeouts.
+    config = IdentifyConfig(budget_clock="cpu")
+    identifier = cls(database, config)
     solved, wrong, elapsed = score(identifier, SETUPS["nominal"], sky, 15, seed=21)
     assert wrong == 0
     assert solved >= 14
-    assert max(elapsed) < IdentifyConfig().max_time_s + 1.0  # slack for a loaded CI host
+    assert max(elapsed) < config.max_time_s + 1.0
 
 
 @pytest.mark.parametrize("cls", ALGORITHMS)
@@ -100,10 +103,10 @@ def test_paper_mode_pivots_on_area_and_moment_alone(cole_database, sky):
 
 
 def test_composite_finds_six_stars_among_fifty_false_ones(database, sky):
-    identifier = CompositeIdentifier(database, IdentifyConfig(max_time_s=1.0))
+    identifier = CompositeIdentifier(database, IdentifyConfig(max_time_s=1.0, budget_clock="cpu"))
     solved, wrong, elapsed = score(identifier, SETUPS["toloei_6_50"], sky, 5, seed=24)
     assert wrong == 0 and solved >= 3
-    assert max(elapsed) < 1.0 + 1.0  # slack for a loaded CI host
+    assert max(elapsed) < 1.0 + 1.0
 
 
 def mirror(spots, width):
