@@ -440,7 +440,8 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
     split off, the clipping state.
     """
     track_peaks = track_peaks or {}
-    # Saturated, it is not fitted as a blend: no fit would measure the star without the track.
+    # Saturated (clipped), a blend with a track is not fitted: its star is measured by its own
+    # pixels at the end (_own_brightest_stars).
     beside_track = np.array([t for t in track_peaks if not multi[t]], np.int64)
     config, sigma = context.config, context.sigma
     n = len(spots)
@@ -475,7 +476,7 @@ def _fit_spots(context: FitContext, kept: Candidates, spots: SpotRows, clipping:
         spots = spots.with_values(np.flatnonzero(multi), cov=kept.moment_covariance(np.flatnonzero(multi)))
         # The footprint's centre would hold the track: its brightest star, model-free (no point
         # fit in a smeared frame).
-        spots = _own_brightest_stars(spots, np.array(list(track_peaks), np.int64), track_peaks)
+        spots = _own_brightest_stars(spots, np.array([t for t in track_peaks if multi[t]], np.int64), track_peaks)
     elif multi.any():
         spots, more = fit_blends(context, kept, spots, np.flatnonzero(multi), track_peaks)[:2]
         added.append(more)

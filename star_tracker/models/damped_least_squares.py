@@ -50,7 +50,7 @@ def damped_least_squares(evaluate: Callable, x0: np.ndarray, robust_scale: float
         r, jac = evaluate(x)
         if rows is None:
             return r, jac
-        return r * rows, (jac.multiply(rows[:, None]).tocsr() if hasattr(jac, "multiply") else jac * rows[:, None])
+        return r * rows, _scale_rows(jac, rows)
 
     def cost_of(r):
         if robust_scale is None:
@@ -67,7 +67,7 @@ def damped_least_squares(evaluate: Callable, x0: np.ndarray, robust_scale: float
     while evaluations < MAX_EVALUATIONS:
         slope = np.ones_like(r) if robust_scale is None else 1.0 / np.sqrt(1.0 + (r / robust_scale) ** 2)
         curved = slope ** 3
-        weighted = jac.multiply(curved[:, None]).tocsr() if hasattr(jac, "multiply") else jac * curved[:, None]
+        weighted = _scale_rows(jac, curved)
         normal = jac.T @ weighted
         gradient = np.asarray(jac.T @ (slope * r)).ravel()
         diagonal = np.asarray(normal.diagonal()).ravel()
@@ -98,6 +98,11 @@ def damped_least_squares(evaluate: Callable, x0: np.ndarray, robust_scale: float
         if not accepted:
             break  # no damping lowers the cost: as close to the minimum as the arithmetic gets
     return LeastSquaresFit(x, r, jac, evaluations)
+
+
+def _scale_rows(jac, factors: np.ndarray):
+    """Return `jac` (dense or scipy.sparse) with row i multiplied by factors[i]."""
+    return jac.multiply(factors[:, None]).tocsr() if hasattr(jac, "multiply") else jac * factors[:, None]
 
 
 def _damped_step(normal, curvature: np.ndarray, damping: float, gradient: np.ndarray) -> np.ndarray | None:
