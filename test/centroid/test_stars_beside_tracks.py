@@ -18,49 +18,10 @@ from star_tracker.centroid import CentroidConfig, extract_spots
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
 from bench import alt_renderer as alt  # noqa: E402
-
-SIZE = 512
-DETECTOR = alt.Detector(sky_e=40.0, read_noise_e=5.0, gain_e_per_adu=1.0)
-TRACK_E = 15000.0  # a cosmic ray's charge [e-] along its TRACK_PX pixels
-TRACK_PX = 10
+from bench.beside_tracks import DETECTOR, PSFS, SIZE, count  # noqa: E402
 
 
-def _scene(psf, seed: int):
-    """
-    Eight pairs of stars 7-16 px apart and eight stars with a track starting 4-5 px from them, 5000 e- each.
-
-    Returns (image [ADU], star x, y, track pixel x, y, whether each star has a track beside it).
-    """
-    rng = np.random.default_rng(seed)
-    cells = [(64 + 128 * (k % 4), 64 + 128 * (k // 4)) for k in range(16)]
-    x, y, beside, track_x, track_y = [], [], [], [], []
-    for k, (cx, cy) in enumerate(cells):
-        x0, y0 = cx + rng.uniform(-5, 5), cy + rng.uniform(-5, 5)
-        angle = rng.uniform(0, np.pi)
-        direction = np.array([np.cos(angle), np.sin(angle)])
-        if k < 8:  # a pair of stars
-            separation = rng.uniform(7.0, 16.0)
-            x += [x0, x0 + separation * direction[0]]
-            y += [y0, y0 + separation * direction[1]]
-            beside += [False, False]
-        else:  # a star and a straight track along `direction`, 1 px wide
-            x.append(x0)
-            y.append(y0)
-            beside.append(True)
-            start = rng.uniform(4.0, 5.0)
-            steps = start + np.arange(TRACK_PX)
-            track_x.append(np.rint(x0 + steps * direction[0]).astype(int))
-            track_y.append(np.rint(y0 + steps * direction[1]).astype(int))
-    frame = alt.render(alt.StarField.build(psf, np.array(x), np.array(y)), 5000.0, DETECTOR, SIZE, SIZE, rng)
-    image = frame.image.astype(np.float64)
-    for tx, ty in zip(track_x, track_y):
-        image[ty, tx] += TRACK_E / TRACK_PX / DETECTOR.gain_e_per_adu
-    image = np.clip(image, 0, 65535).astype(np.uint16)
-    return image, np.array(x), np.array(y), np.concatenate(track_x), np.concatenate(track_y), np.array(beside)
-
-
-@pytest.mark.parametrize("psf, max_missed_beside", [(alt.AnnulusPsf(1.71, 0.85, 0.30), 2), (alt.GaussianPsf(1.0), 0)],
-                         ids=["annulus", "gaussian"])
+@pytest.mark.parametrize("psf, max_missed_beside", [("annulus", 2), ("gaussian", 0)])
 def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf, max_missed_beside):
     """
     Forty frames of 16 paired stars and 8 stars beside a track (SNR ~60).
@@ -75,27 +36,17 @@ def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf, max_miss
     1 and 0. The annulus one (seed 1) sat beside a track whose pixels tied at its maximum (this
     scene's deposit carries no shot noise), a clipped flat top to saturation.clip_levels, and a
     clipped blend with a track was dropped whole; now its star's own pixels measure it: 0 and 0
-    (over 80 frames 7 -> 2 and 7 -> 1). The last Gaussian one (seed 34): two_peaks found two
-    maxima both on the track, and a footprint the star widened past the width test was never
-    searched for a star beside it; now every footprint with two peaks found is (track_screen
-    first): over 80 frames 1 -> 0, and no spot on a track (2 -> 0). Over these 40 frames: 2 and 0
-    of 320 (annulus seeds 19 and 28). Every paired star is found (within 1 px), at most
-    max_missed_beside of the 320 beside a track are missed, at RMS < 0.1 px, and the tracks make
-    at most one false spot per frame (the goal for star-free frames).
+    (over 80 frames, `python -m bench.beside_tracks 80`: 7 -> 2 and 7 -> 1). The last Gaussian
+    one (seed 34): two_peaks found two maxima both on the track, and a footprint the star
+    widened past the width test was never searched for a star beside it; now every footprint
+    with two peaks found is (track_screen first): over 80 frames 1 -> 0, and no spot on a track
+    (2 -> 0). Over these 40 frames: 2 and 0 of 320 (annulus seeds 19 and 28). Every paired star
+    is found (within 1 px), at most max_missed_beside of the 320 beside a track are missed, at
+    RMS < 0.1 px, and the tracks make at most one false spot per frame (the goal for star-free
+    frames).
     """
     frames = 40
-    missed_paired, missed_beside, errors, on_tracks = 0, 0, [], 0
-    for seed in range(frames):
-        image, x, y, track_x, track_y, beside = _scene(psf, seed)
-        spots = extract_spots(image, CentroidConfig())
-        distance = np.hypot(spots.x[:, None] - x[None], spots.y[:, None] - y[None])
-        nearest = distance.min(axis=0)
-        missed_paired += int(np.sum(nearest[~beside] > 1.0))
-        missed_beside += int(np.sum(nearest[beside] > 1.0))
-        errors += nearest[nearest <= 1.0].tolist()
-        unmatched = distance.min(axis=1) > 2.0
-        to_track = np.hypot(spots.x[:, None] - track_x[None], spots.y[:, None] - track_y[None]).min(axis=1)
-        on_tracks += int(np.sum(unmatched & (to_track < 2.0)))
+    missed_paired, missed_beside, errors, on_tracks = count(PSFS[psf], range(frames))  # bench/beside_tracks.py
     assert missed_paired == 0, missed_paired
     assert missed_beside <= max_missed_beside, missed_beside
     assert on_tracks <= frames, on_tracks
