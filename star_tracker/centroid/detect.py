@@ -8,7 +8,7 @@ whole-frame work 4x cheaper. Positions are measured later on the full-resolution
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -45,6 +45,12 @@ class Detections:
     noise_adu: float
     binning: int
     noise_scale: np.ndarray | None = None
+
+    def take(self, index: np.ndarray) -> "Detections":
+        """Return the detections `index` (their labels unchanged; the frame's grids shared)."""
+        return replace(self, label=self.label[index], left=self.left[index], top=self.top[index],
+                       right=self.right[index], bottom=self.bottom[index], x=self.x[index], y=self.y[index],
+                       area=self.area[index])
 
     def noise_scale_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Local pixel noise / noise_adu [-] at full-resolution positions (1 where unknown)."""

@@ -26,7 +26,10 @@ from .measure import cog_phase_bias_rms
 from .peak_shape import KEPT_BLEND_TRACK_FRACTION, RING_BLEND_TRACK_FRACTION, peak_minor_moments, peak_width_limit
 from .point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
+from .psf_estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
+from .psf_estimate import usable_stars
+from .psf_pilot import neighbour_positions, pilot_detections
 from .rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
 from .records import FitContext, SpotRows, no_spots
 from .saturation import clip_levels, clipped_pixels, undershot_peaks
@@ -97,14 +100,34 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     if psf_prior is not None and np.isfinite(psf_prior) and MIN_SIGMA_PX <= psf_prior <= MAX_SIGMA_PX:
         prior = float(psf_prior)
     first = config if prior == config.psf_sigma_px else replace(config, psf_sigma_px=prior)
-    measured = _measure_frame(image, first, smear, grounds.at(prior))
+    guess = None  # the pilot's estimate, from a full set of stars
+    if smear is None:
+        det = _detect(image, first, None, grounds.at(prior))
+        pilot = pilot_detections(image, det, prior)
+        if pilot is not None:
+            # Measured at the prior only to estimate the PSF: its brightest detections first. An
+            # estimate from a full set of stars is the frame's; if it calls for another width, the
+            # measurement at the prior is not needed. Too few stars: as without a pilot.
+            trial = _measure_frame(image, first, None, grounds.at(prior), det=det.take(pilot)).frame
+            if trial is not None:
+                neighbours = neighbour_positions(trial.cand, det, pilot)
+                full = usable_stars(trial.cand, trial.det, trial.saturation, prior,
+                                    neighbours=neighbours).size == MAX_ESTIMATE_STARS
+                guess = estimate_psf(image, trial.det, trial.cand, trial.saturation, prior, config.gain_e_per_adu,
+                                     neighbours=neighbours) if full else None
+                if guess is not None and guess.estimated and _remeasured(guess, prior):
+                    return _at_estimate(image, config, None, grounds, guess)
+        measured = _measure_frame(image, first, None, grounds.at(prior), det=det)
+    else:
+        measured = _measure_frame(image, first, smear, grounds.at(prior))
     frame = measured.frame
     if frame is None:
         return replace(_finish(measured), psf=PsfEstimate.assumed(prior, "prior", "no detections"))
     if frame.smeared:
         return replace(_finish(measured),
                        psf=PsfEstimate.assumed(prior, "prior", "rate-aided frame: the stars are smeared"))
-    estimate = estimate_psf(image, frame.det, frame.cand, frame.saturation, prior, config.gain_e_per_adu)
+    estimate = guess if guess is not None and guess.estimated else \
+        estimate_psf(image, frame.det, frame.cand, frame.saturation, prior, config.gain_e_per_adu)
     if not estimate.estimated and estimate.stars < MIN_ESTIMATE_STARS \
             and frame.cand.x.size >= WIDER_PRIOR_MIN_CANDIDATES:
         # Many detections but too few usable stars (not: usable ones all elongated, a smear): a
@@ -125,33 +148,64 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
                 break
     if not estimate.estimated:
         return replace(_finish(measured), psf=estimate)
-    # Stars elongated alike are smeared (an unknown body rate) or astigmatic: their minor axis is
-    # the PSF, and a round width would hide the smear from the streak fits.
-    # Their minor width is only approximate (the round fit over the axis ratio): it overrides the
-    # prior only when clearly different.
+    if _remeasured(estimate, prior):
+        return _at_estimate(image, config, smear, grounds, estimate)
+    width, elongated = _estimated_width(estimate)
+    elliptical = _elliptical(image, config, smear, estimate)
+    if elongated and width < (1.0 - RERUN_TOLERANCE) * prior:
+        # Astigmatic stars are narrower across than the prior: measured again with the width
+        # test at their minor axis, which the prior's rejected some of them at.
+        measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, grounds.at(prior),
+                                  narrowest_px=width,
+                                  elliptical=elliptical)
+    elif elliptical is not None:
+        measured = replace(measured, context=replace(measured.context, elliptical=elliptical))
+    return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
+
+
+def _estimated_width(estimate: PsfEstimate) -> tuple[float, bool]:
+    """
+    Return the width [px] a frame is measured with at its estimated PSF, and whether its stars are elongated.
+
+    Stars elongated alike are smeared (an unknown body rate) or astigmatic: their minor axis is
+    the PSF, and a round width would hide the smear from the streak fits.
+    """
     elongated = estimate.elongation > SMEARED_ELONGATION
-    width = estimate.sigma_minor_px if elongated else estimate.sigma_px
-    # Astigmatic stars (elongated with no known rate that smears them): their single stars are
-    # fitted with the estimate's elliptical shape (a round Gaussian's centre is pulled with the
-    # sub-pixel phase). Under a known rate the elongation is motion, not the optics' shape.
+    return (estimate.sigma_minor_px if elongated else estimate.sigma_px), elongated
+
+
+def _remeasured(estimate: PsfEstimate, prior: float) -> bool:
+    """
+    Return whether a frame measured at `prior` [px] is measured again at its estimate's width.
+
+    An elongated PSF's minor width is only approximate (the round fit over the axis ratio): it
+    overrides the prior only when clearly different. Ring stars (a defocused PSF) always are: a
+    ring's maxima are one star, split as a blend only farther apart.
+    """
+    width, elongated = _estimated_width(estimate)
+    return abs(width - prior) > (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior or estimate.annular
+
+
+def _elliptical(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None",
+                estimate: PsfEstimate) -> EllipticalGaussianPsf | None:
+    """
+    Return the astigmatic stars' fit model (elongated with no known rate that smears them), else None.
+
+    A round Gaussian's centre is pulled with the sub-pixel phase. Under a known rate the
+    elongation is motion, not the optics' shape.
+    """
     still = smear is None or typical_smear_px(smear, image.shape[1], image.shape[0]) < config.min_smear_px
-    elliptical = EllipticalGaussianPsf(estimate.sigma_major_px, estimate.sigma_minor_px,
-                                       estimate.angle_rad) if elongated and still else None
-    # Ring stars (a defocused PSF): a ring's maxima are one star; measured again with blends
-    # split only farther apart.
-    if abs(width - prior) <= (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior and not estimate.annular:
-        if elongated and width < (1.0 - RERUN_TOLERANCE) * prior:
-            # Astigmatic stars are narrower across than the prior: measured again with the width
-            # test at their minor axis, which the prior's rejected some of them at.
-            measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, grounds.at(prior),
-                                      narrowest_px=width,
-                                      elliptical=elliptical)
-        elif elliptical is not None:
-            measured = replace(measured, context=replace(measured.context, elliptical=elliptical))
-        return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
+    if estimate.elongation <= SMEARED_ELONGATION or not still:
+        return None
+    return EllipticalGaussianPsf(estimate.sigma_major_px, estimate.sigma_minor_px, estimate.angle_rad)
+
+
+def _at_estimate(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", grounds: "_Grounds",
+                 estimate: PsfEstimate) -> Spots:
+    """Measure and fit the frame at its estimated PSF (_estimated_width; rings, astigmatism)."""
+    width, _ = _estimated_width(estimate)
     spots = _finish(_measure_frame(image, replace(config, psf_sigma_px=width), smear, grounds.at(width),
-                                   rings=estimate.annular,
-                                   elliptical=elliptical))
+                                   rings=estimate.annular, elliptical=_elliptical(image, config, smear, estimate)))
     return replace(spots, psf=replace(estimate, applied_sigma_px=width))
 
 
@@ -237,27 +291,36 @@ def _binning(image: np.ndarray, config: CentroidConfig) -> int:
     return config.binning if min(image.shape) >= 16 * config.binning else 1
 
 
+def _detect(image: np.ndarray, config: CentroidConfig, aid: "SmearModel | None", ground: DetectionGround
+            ) -> Detections:
+    """Detect the frame's spots at config's PSF width (with a rate aid: its streak kernel)."""
+    height, width = image.shape
+    sigma = max(config.psf_sigma_px, MIN_SIGMA_PX) if config.psf_sigma_px > 0 else 0.5
+    return detect(image, binning=ground.binning, background_block_px=config.background_block_px,
+                  detection_sigma=config.detection_sigma, psf_sigma_px=config.psf_sigma_px,
+                  min_area=config.min_area, max_area=config.max_area,
+                  smear_kernel=smear_kernel(aid, width, height, sigma, ground.binning) if aid is not None else None,
+                  ground=ground)
+
+
 def _measure_frame(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None", ground: DetectionGround,
                    rings: bool = False, narrowest_px: float | None = None,
-                   elliptical: EllipticalGaussianPsf | None = None) -> _Measurement:
+                   elliptical: EllipticalGaussianPsf | None = None, det: Detections | None = None) -> _Measurement:
     """
     Measure the frame once with config's PSF width, up to the fits (`_finish` runs them).
 
     ground: the frame's detection_ground (_Grounds.at the width); rings: the stars are rings
     (PsfEstimate.annular; config.blend_separation_px); narrowest_px: an elongated PSF's
     minor-axis 1-sigma [px] for the width test (None: the PSF width); elliptical: an
-    astigmatic PSF, the single stars' fit model (FitContext).
+    astigmatic PSF, the single stars' fit model (FitContext); det: the detections at this width
+    without a rate aid, when already found (all, or psf_pilot's), else None.
     """
     height, width = image.shape
-    binning = ground.binning
     saturation = config.saturation_adu or (np.iinfo(image.dtype).max if image.dtype.kind in "ui" else np.inf)
     sigma = max(config.psf_sigma_px, MIN_SIGMA_PX) if config.psf_sigma_px > 0 else 0.5
     aid = smear if smear is not None and typical_smear_px(smear, width, height) >= config.min_smear_px else None
-    det = detect(image, binning=binning, background_block_px=config.background_block_px,
-                 detection_sigma=config.detection_sigma, psf_sigma_px=config.psf_sigma_px,
-                 min_area=config.min_area, max_area=config.max_area,
-                 smear_kernel=smear_kernel(aid, width, height, sigma, binning) if aid is not None else None,
-                 ground=ground)
+    if det is None or aid is not None:
+        det = _detect(image, config, aid, ground)
     frame_values = dict(background_adu=float(np.median(det.background[::8, ::8])), noise_adu=det.noise_adu)
     if det.x.size == 0:
         return _Measurement(None, empty=Spots.empty(width, height, **frame_values))

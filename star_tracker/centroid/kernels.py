@@ -169,11 +169,35 @@ def warm_up() -> None:
     for dtype in WARM_IMAGE_DTYPES:  # measure_small passes every image read-only: one variant per dtype
         measure_small(np.zeros((32, 32), dtype), SmallSpots(one, one, np.zeros(1), index, index + 4, index, index + 4),
                       PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
+        footprint_peaks(np.zeros((32, 32), dtype), np.zeros((16, 16), np.int32), 2, np.ones(1, np.int64), index,
+                        index, index + 4, index + 4)
     from .streak_free_fit import fit_streaks
 
     streak = np.zeros((24, 24), np.float32)  # fit_streaks hands the kernel float32 windows whatever the image
     streak[12, 8:16] = 100.0
     fit_streaks(streak, [12.0], [12.0], [800.0], [8.0], [0.0], 1.0, 1.0, 1.0, iterations=2)
+
+
+@njit(cache=True)
+def footprint_peaks(image: np.ndarray, labels: np.ndarray, binning: int, label: np.ndarray, left: np.ndarray,
+                    top: np.ndarray, right: np.ndarray, bottom: np.ndarray) -> np.ndarray:
+    """
+    Highest raw value [ADU] of each detection's footprint pixels (-inf: none).
+
+    labels: the component label image on the binning x binning grid; label, left, top, right,
+    bottom: each detection's label and full-resolution bounding box (right/bottom exclusive).
+    """
+    rows, cols = labels.shape
+    out = np.full(label.size, -np.inf)
+    for k in range(label.size):
+        best = -np.inf
+        for r in range(top[k], bottom[k]):
+            lr = min(r // binning, rows - 1)
+            for c in range(left[k], right[k]):
+                if labels[lr, min(c // binning, cols - 1)] == label[k] and image[r, c] > best:
+                    best = image[r, c]
+        out[k] = best
+    return out
 
 
 @njit(cache=True)

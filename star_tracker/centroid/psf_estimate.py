@@ -101,8 +101,8 @@ class PsfEstimate:
         return PsfEstimate(float(sigma_px), float(sigma_px), float(sigma_px), 0.0, float("nan"), stars, source, reason)
 
 
-def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sigma: float, faint: bool = False
-                 ) -> np.ndarray:
+def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sigma: float, faint: bool = False,
+                 neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """
     Return indices of the candidates fit to measure the PSF on, brightest first (at most MAX_STARS).
 
@@ -113,7 +113,8 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     light in one pixel once cleaned (hot pixels), not a long track (second moments within 8x of
     each other), and no other candidate within ISOLATION_SIGMAS PSF widths. Candidates the shape
     test rejected with the prior are included: with a prior too wide, that is where sharp stars
-    end up.
+    end up. neighbours: (x, y, slack) [px] of every candidate for that isolation test when `cand`
+    holds only some (psf_pilot: a neighbour counts within reach + slack; None: cand's measured ones).
     """
     finite = np.isfinite(cand.x) & np.isfinite(cand.y) & np.isfinite(cand.peak_raw)
     amplitude = cand.peak_raw - det.background_at(np.where(finite, cand.x, 0.0), np.where(finite, cand.y, 0.0))
@@ -133,15 +134,17 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     if chosen.size == 0:
         return chosen
     chosen = chosen[np.argsort(-amplitude[chosen], kind="stable")][: 3 * MAX_STARS]
-    all_x, all_y = cand.x[finite], cand.y[finite]
+    all_x, all_y, slack = (cand.x[finite], cand.y[finite], 0.0) if neighbours is None else neighbours
     distance = np.hypot(cand.x[chosen, None] - all_x[None, :], cand.y[chosen, None] - all_y[None, :])
     distance[distance == 0.0] = np.inf  # itself
+    distance -= np.atleast_1d(slack)[None, :]
     reach = ISOLATION_SIGMAS * max(prior_sigma, 1.0)
     return chosen[distance.min(axis=1, initial=np.inf) > reach][:MAX_STARS]
 
 
 def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturation: float, prior_sigma: float,
-                 gain: float, faint: bool = False) -> PsfEstimate:
+                 gain: float, faint: bool = False,
+                 neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> PsfEstimate:
     """
     Return the frame's PSF from its usable stars (usable_stars), or the prior.
 
@@ -150,9 +153,9 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     returned when fewer than MIN_STARS remain or the width is outside [MIN_SIGMA_PX,
     MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
     saturation [ADU]; prior_sigma: the width the candidates were measured with [px]; gain
-    [e-/ADU]; faint: fainter stars are usable (usable_stars).
+    [e-/ADU]; faint, neighbours: see usable_stars.
     """
-    chosen = usable_stars(cand, det, saturation, prior_sigma, faint)
+    chosen = usable_stars(cand, det, saturation, prior_sigma, faint, neighbours)
     if chosen.size < MIN_STARS:
         min_snr = FAINT_STAR_SNR if faint else MIN_STAR_SNR
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
