@@ -103,7 +103,8 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     guess = None  # the pilot's estimate, from a full set of stars
     if smear is None:
         det = _detect(image, first, None, grounds.at(prior))
-        pilot = pilot_detections(image, det, prior)
+        # A running prior (the node's last estimates) is expected to hold: no pilot to waste.
+        pilot = pilot_detections(image, det, prior) if psf_prior is None else None
         if pilot is not None:
             # Measured at the prior only to estimate the PSF: its brightest detections first. An
             # estimate from a full set of stars is the frame's; if it calls for another width, the

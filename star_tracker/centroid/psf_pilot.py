@@ -6,9 +6,10 @@ A frame whose PSF differs from the prior width is measured twice: at the prior, 
 estimate its PSF, then at the estimate. The estimate uses at most psf_estimate.MAX_STARS
 bright isolated stars, yet a defocused photograph's thousands of detections (its rings'
 fragments at the prior) were all measured at the prior. A frame with at least
-PILOT_MIN_DETECTIONS detections measures its PILOT_DETECTIONS brightest first (highest pixel
-of each footprint), with their neighbours; the rest count only as neighbours for the
-isolation test, at their footprint centroids.
+PILOT_MIN_DETECTIONS detections and no running prior (extract_spots' psf_prior: a single
+image, a node's first frame) measures its PILOT_DETECTIONS brightest first (highest pixel of
+each footprint), with their neighbours; the rest count only as neighbours for the isolation
+test, at their footprint centroids.
 """
 from __future__ import annotations
 

@@ -69,6 +69,12 @@ def test_the_pilot_measures_few_detections_and_changes_nothing(monkeypatch):
     assert with_pilot.psf == without.psf
     assert np.array_equal(with_pilot.x, without.x) and np.array_equal(with_pilot.y, without.y)
 
+    # With a running prior (the node's) there is no pilot: the frame is measured whole.
+    monkeypatch.setattr(psf_pilot, "PILOT_MIN_DETECTIONS", crowded)
+    measured.clear()
+    extract_spots(image, config, psf_prior=1.0)
+    assert measured[0] == detections_at_prior, measured
+
 
 def test_footprint_peaks_are_each_footprints_highest_pixel():
     rng = np.random.default_rng(5)
