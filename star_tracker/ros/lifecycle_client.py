@@ -28,6 +28,10 @@ _DDS_VARIABLES = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "FASTRTPS
 
 TRANSITIONS = {"configure": Transition.TRANSITION_CONFIGURE, "cleanup": Transition.TRANSITION_CLEANUP,
                "activate": Transition.TRANSITION_ACTIVATE, "deactivate": Transition.TRANSITION_DEACTIVATE}
+GOAL_STATES = {"configure": "inactive", "cleanup": "unconfigured", "activate": "active", "deactivate": "inactive",
+               "shutdown": "finalized"}
+PRIMARY_STATES = ("unconfigured", "inactive", "active", "finalized")  # a managed node's resting states
+ANSWER_WAIT_S = 20.0  # a transition unanswered this long is judged by the node's state (change_state)
 
 
 class LifecycleClient:
@@ -105,15 +109,39 @@ class LifecycleClient:
 
         True if it succeeded, False if refused or failed. Raises TimeoutError if the service is
         absent or did not answer within timeout_s.
+
+        An answer can be lost: Fast DDS sends it after a bounded wait for this client's response
+        reader (ros2/rmw_fastrtps#390), which a loaded host can outlast. A request unanswered for
+        ANSWER_WAIT_S is judged by the state the node then reports: the transition's goal state
+        (when the node was elsewhere before) means it succeeded; another primary state, that it
+        never ran (it is requested again); no answer or a transition state, that it is still
+        running (waited for). From the goal state itself a transition is refused: requested
+        again until answered.
         """
         request = ChangeState.Request()
         request.transition.label = transition
         if transition in TRANSITIONS:
             request.transition.id = TRANSITIONS[transition]
-        response = self._call(node_name, ChangeState, "change_state", request, timeout_s, discovery_s=timeout_s)
-        if response is None:
-            raise TimeoutError(f"{node_name}: no answer to {transition!r} within {timeout_s} s")
-        return bool(response.success)
+        deadline = time.monotonic() + timeout_s
+        goal = GOAL_STATES.get(transition)
+        if goal is not None and self.get_state(node_name, timeout_s=min(ANSWER_WAIT_S, timeout_s)) == goal:
+            goal = None  # refused: only its answer tells
+        discovery_s = timeout_s
+        while True:
+            wait_s = min(ANSWER_WAIT_S, max(deadline - time.monotonic(), 0.1))
+            response = self._call(node_name, ChangeState, "change_state", request, wait_s, discovery_s=discovery_s)
+            if response is not None:
+                return bool(response.success)
+            discovery_s = 0.1  # found once: only the answer is missing now
+            while time.monotonic() < deadline:
+                state = self.get_state(node_name, timeout_s=min(5.0, max(deadline - time.monotonic(), 0.1)))
+                if goal is not None and state == goal:
+                    return True
+                if state in PRIMARY_STATES:
+                    break  # not run: requested again
+                time.sleep(0.2)
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"{node_name}: no answer to {transition!r} within {timeout_s} s")
 
     def wait_for_state(self, node_names, state: str = "active", timeout_s: float = 120.0,
                        check: Callable[[str], None] | None = None) -> None:
