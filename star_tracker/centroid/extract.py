@@ -85,8 +85,10 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     PSF (config.psf_mode "auto"): the frame is measured with the prior width (`psf_prior` [px]
     when given, e.g. the last frames' estimate, else config.psf_sigma_px), its PSF estimated
     from the stars found (psf_estimate.estimate_psf), and, when the estimate differs from the
-    prior by more than RERUN_TOLERANCE (relative), measured again with the estimate. The
-    returned Spots carry the estimate (`Spots.psf`, applied_sigma_px = the width used).
+    prior by more than RERUN_TOLERANCE (relative), measured again with the estimate. A crowded
+    frame without `psf_prior` is first measured at the prior for its brightest detections only
+    (psf_pilot). The returned Spots carry the estimate (`Spots.psf`, applied_sigma_px = the
+    width used).
     """
     if image.ndim != 2 or image.size == 0:
         raise ValueError(f"expected a non-empty 2-D image, got shape {image.shape}")
