@@ -74,7 +74,8 @@ class _Clipping:
 
 
 def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
-                  smear: "SmearModel | None" = None, psf_prior: float | None = None) -> Spots:
+                  smear: "SmearModel | None" = None, psf_prior: float | None = None, prior_rings: bool = False
+                  ) -> Spots:
     """
     Detect spots and measure them (see CentroidConfig).
 
@@ -87,7 +88,9 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     from the stars found (psf_estimate.estimate_psf), and, when the estimate differs from the
     prior by more than RERUN_TOLERANCE (relative), measured again with the estimate. A crowded
     frame without `psf_prior` is first measured at the prior for its brightest detections only
-    (psf_pilot). The returned Spots carry the estimate (`Spots.psf`, applied_sigma_px = the
+    (psf_pilot). `prior_rings` with `psf_prior`: the last frames' stars were rings (a defocused
+    camera), so the first measurement already treats them so and, when the estimate agrees, is
+    the only one. The returned Spots carry the estimate (`Spots.psf`, applied_sigma_px = the
     width used).
     """
     if image.ndim != 2 or image.size == 0:
@@ -98,9 +101,9 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     if config.psf_mode == "fixed" or config.psf_sigma_px <= 0:
         return replace(_finish(_measure_frame(image, config, smear, grounds.at(config.psf_sigma_px))),
                        psf=PsfEstimate.assumed(config.psf_sigma_px, "configured"))
-    prior = config.psf_sigma_px
+    prior, rings = config.psf_sigma_px, False
     if psf_prior is not None and np.isfinite(psf_prior) and MIN_SIGMA_PX <= psf_prior <= MAX_SIGMA_PX:
-        prior = float(psf_prior)
+        prior, rings = float(psf_prior), bool(prior_rings)
     first = config if prior == config.psf_sigma_px else replace(config, psf_sigma_px=prior)
     guess = None  # the pilot's estimate, from a full set of stars
     if smear is None:
@@ -120,9 +123,9 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
                                      neighbours=neighbours) if full else None
                 if guess is not None and guess.estimated and _remeasured(guess, prior):
                     return _at_estimate(image, config, None, grounds, guess)
-        measured = _measure_frame(image, first, None, grounds.at(prior), det=det)
+        measured = _measure_frame(image, first, None, grounds.at(prior), det=det, rings=rings)
     else:
-        measured = _measure_frame(image, first, smear, grounds.at(prior))
+        measured = _measure_frame(image, first, smear, grounds.at(prior), rings=rings)
     frame = measured.frame
     if frame is None:
         return replace(_finish(measured), psf=PsfEstimate.assumed(prior, "prior", "no detections"))
@@ -147,11 +150,11 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
             again = estimate_psf(image, wide.frame.det, wide.frame.cand, wide.frame.saturation, wider,
                                  config.gain_e_per_adu, faint=True)
             if again.estimated:
-                measured, prior, estimate = wide, wider, again
+                measured, prior, estimate, rings = wide, wider, again, False
                 break
     if not estimate.estimated:
         return replace(_finish(measured), psf=estimate)
-    if _remeasured(estimate, prior):
+    if _remeasured(estimate, prior, rings):
         return _at_estimate(image, config, smear, grounds, estimate)
     width, elongated = _estimated_width(estimate)
     elliptical = _elliptical(image, config, smear, estimate)
@@ -159,8 +162,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
         # Astigmatic stars are narrower across than the prior: measured again with the width
         # test at their minor axis, which the prior's rejected some of them at.
         measured = _measure_frame(image, replace(config, psf_sigma_px=prior), smear, grounds.at(prior),
-                                  narrowest_px=width,
-                                  elliptical=elliptical)
+                                  rings=rings, narrowest_px=width, elliptical=elliptical)
     elif elliptical is not None:
         measured = replace(measured, context=replace(measured.context, elliptical=elliptical))
     return replace(_finish(measured), psf=replace(estimate, applied_sigma_px=prior))
@@ -177,16 +179,17 @@ def _estimated_width(estimate: PsfEstimate) -> tuple[float, bool]:
     return (estimate.sigma_minor_px if elongated else estimate.sigma_px), elongated
 
 
-def _remeasured(estimate: PsfEstimate, prior: float) -> bool:
+def _remeasured(estimate: PsfEstimate, prior: float, rings: bool = False) -> bool:
     """
-    Return whether a frame measured at `prior` [px] is measured again at its estimate's width.
+    Return whether a frame measured at `prior` [px] (`rings`: as ring stars) is measured again at its estimate's width.
 
     An elongated PSF's minor width is only approximate (the round fit over the axis ratio): it
-    overrides the prior only when clearly different. Ring stars (a defocused PSF) always are: a
-    ring's maxima are one star, split as a blend only farther apart.
+    overrides the prior only when clearly different. Ring stars (a defocused PSF) are, unless
+    measured as rings already: a ring's maxima are one star, split as a blend only farther
+    apart; and stars measured as rings that are not.
     """
     width, elongated = _estimated_width(estimate)
-    return abs(width - prior) > (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior or estimate.annular
+    return abs(width - prior) > (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior or estimate.annular != rings
 
 
 def _elliptical(image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None",

@@ -567,8 +567,10 @@ def run(args: argparse.Namespace) -> int:
         started_again = time.perf_counter()
         # The same pixels: the PSF estimated for them is the prior (no second estimate from a
         # measurement at the configured width).
-        prior = spots.psf.applied_sigma_px if spots.psf is not None and spots.psf.estimated else None
-        texture_spots = extract_spots(pixels, replace(config, texture_last=True), psf_prior=prior)
+        estimated = spots.psf is not None and spots.psf.estimated
+        prior = spots.psf.applied_sigma_px if estimated else None
+        texture_spots = extract_spots(pixels, replace(config, texture_last=True), psf_prior=prior,
+                                      prior_rings=estimated and spots.psf.annular)
         solve_again = time.perf_counter()
         second = solve_spots(texture_spots, width, height, fov_deg=args.fov, camera=camera, options=options,
                              report=report)

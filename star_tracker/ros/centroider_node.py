@@ -189,7 +189,7 @@ class CentroiderNode(ManagedNode):
         started = time.perf_counter()
         try:
             smear = self.smear_for(stamp_ns, image.shape[1], image.shape[0])
-            spots = extract_spots(image, self.config, smear, psf_prior=self.psf.prior)
+            spots = extract_spots(image, self.config, smear, psf_prior=self.psf.prior, prior_rings=self.psf.rings)
             self.psf.update(spots.psf)
         except ValueError as exc:
             self.diag.count("frames_rejected")

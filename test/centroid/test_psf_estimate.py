@@ -286,8 +286,37 @@ def test_running_psf_carries_the_median_and_resets_on_a_failed_estimate():
     for sigma in (0.50, 0.52, 0.90, 0.51):
         running.update(PsfEstimate(sigma, sigma, sigma, 0.0, 0.01, 10, "estimated"))
     assert running.prior == pytest.approx(0.52)  # the median of the last 3: one outlier does not move it
+    assert not running.rings
+    for _ in range(2):
+        running.update(PsfEstimate(2.0, 2.0, 2.0, 0.0, 0.01, 10, "estimated", annular=True))
+    assert running.rings  # 2 of the last 3 frames' stars were rings
     running.update(PsfEstimate.assumed(1.0, "prior", "too few stars"))
-    assert running.prior is None
+    assert running.prior is None and not running.rings
+
+
+def test_a_running_prior_of_rings_saves_a_defocused_frames_second_pass(monkeypatch):
+    """
+    Check that a ring-star frame measured from the last frame's width and ring shape needs one pass.
+
+    Its spots are those of the cold two-pass measurement (the same width, blends split as rings).
+    """
+    from star_tracker.centroid import extract as extract_module
+
+    image, xy, snr, _ = render(annulus(2.5), seed=4)
+    cold = extract_spots(image, CONFIG)
+    assert cold.psf.annular, cold.psf
+    passes = []
+    measure = extract_module.measure_candidates
+    monkeypatch.setattr(extract_module, "measure_candidates",
+                        lambda *args, **kwargs: passes.append(kwargs.get("rings")) or measure(*args, **kwargs))
+    warm = extract_spots(image, CONFIG, psf_prior=cold.psf.applied_sigma_px, prior_rings=True)
+    assert passes == [True], passes
+    assert warm.psf.applied_sigma_px == cold.psf.applied_sigma_px and warm.psf.annular
+    assert np.array_equal(warm.x, cold.x) and np.array_equal(warm.y, cold.y)
+    assert _found(warm, xy[snr >= 15.0], 1.0).mean() == 1.0  # the truth: every star of SNR >= 15
+    passes.clear()
+    extract_spots(image, CONFIG, psf_prior=cold.psf.applied_sigma_px)  # the width alone: measured twice
+    assert passes == [False, True], passes
 
 
 def test_the_running_prior_saves_the_second_pass():
