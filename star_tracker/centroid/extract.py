@@ -28,7 +28,6 @@ from .point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
 from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
 from .psf_estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
-from .psf_estimate import usable_stars
 from .psf_pilot import neighbour_positions, pilot_detections
 from .rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
 from .records import FitContext, SpotRows, no_spots
@@ -105,7 +104,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     if psf_prior is not None and np.isfinite(psf_prior) and MIN_SIGMA_PX <= psf_prior <= MAX_SIGMA_PX:
         prior, rings = float(psf_prior), bool(prior_rings)
     first = config if prior == config.psf_sigma_px else replace(config, psf_sigma_px=prior)
-    guess = None  # the pilot's estimate, from a full set of stars
+    guess = None  # the pilot's estimate (from a full set of stars when estimated)
     if smear is None:
         det = _detect(image, first, None, grounds.at(prior))
         # A running prior (the node's last estimates) is expected to hold: no pilot to waste.
@@ -116,12 +115,10 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
             # measurement at the prior is not needed. Too few stars: as without a pilot.
             trial = _measure_frame(image, first, None, grounds.at(prior), det=det.take(pilot)).frame
             if trial is not None:
-                neighbours = neighbour_positions(trial.cand, det, pilot)
-                full = usable_stars(trial.cand, trial.det, trial.saturation, prior,
-                                    neighbours=neighbours).size == MAX_ESTIMATE_STARS
                 guess = estimate_psf(image, trial.det, trial.cand, trial.saturation, prior, config.gain_e_per_adu,
-                                     neighbours=neighbours) if full else None
-                if guess is not None and guess.estimated and _remeasured(guess, prior):
+                                     neighbours=neighbour_positions(trial.cand, det, pilot),
+                                     min_usable=MAX_ESTIMATE_STARS)
+                if guess.estimated and _remeasured(guess, prior):
                     return _at_estimate(image, config, None, grounds, guess)
         measured = _measure_frame(image, first, None, grounds.at(prior), det=det, rings=rings)
     else:

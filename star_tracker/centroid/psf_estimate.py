@@ -144,22 +144,25 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
 
 def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturation: float, prior_sigma: float,
                  gain: float, faint: bool = False,
-                 neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> PsfEstimate:
+                 neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                 min_usable: int = MIN_STARS) -> PsfEstimate:
     """
     Return the frame's PSF from its usable stars (usable_stars), or the prior.
 
     The stars used are those whose fit converged to a width of at least SHARPEST_STAR_PX and
     whose axis ratio is below MAX_AXIS_RATIO; the prior (source "prior", with the reason) is
-    returned when fewer than MIN_STARS remain or the width is outside [MIN_SIGMA_PX,
-    MAX_SIGMA_PX]. image [ADU]; det, cand: the frame's detections and measured candidates;
-    saturation [ADU]; prior_sigma: the width the candidates were measured with [px]; gain
-    [e-/ADU]; faint, neighbours: see usable_stars.
+    returned when fewer than MIN_STARS remain (or fewer than `min_usable` usable stars: psf_pilot
+    asks for a full MAX_STARS) or the width is outside [MIN_SIGMA_PX, MAX_SIGMA_PX]. image [ADU];
+    det, cand: the frame's detections and measured candidates; saturation [ADU]; prior_sigma:
+    the width the candidates were measured with [px]; gain [e-/ADU]; faint, neighbours: see
+    usable_stars.
     """
     chosen = usable_stars(cand, det, saturation, prior_sigma, faint, neighbours)
-    if chosen.size < MIN_STARS:
+    need = max(MIN_STARS, min_usable)
+    if chosen.size < need:
         min_snr = FAINT_STAR_SNR if faint else MIN_STAR_SNR
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
-                                   f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {min_snr:g} (need {MIN_STARS})",
+                                   f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {min_snr:g} (need {need})",
                                    int(chosen.size))
     x, y = cand.x[chosen], cand.y[chosen]
     background = det.background_at(x, y)
