@@ -171,7 +171,10 @@ def warm_up() -> None:
                       PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
         footprint_peaks(np.zeros((32, 32), dtype), np.zeros((16, 16), np.int32), 2, np.ones(1, np.int64), index,
                         index, index + 4, index + 4)
+    from .hot_pixel_kernel import warm_up as warm_hot_pixel_test
     from .streak_free_fit import fit_streaks
+
+    warm_hot_pixel_test()
 
     streak = np.zeros((24, 24), np.float32)  # fit_streaks hands the kernel float32 windows whatever the image
     streak[12, 8:16] = 100.0

@@ -14,6 +14,8 @@ import cv2
 import numpy as np
 from scipy.special import erf
 
+from .hot_pixel_kernel import hot_pixel_hits, replace_hits
+
 
 def star_peak_to_neighbour_ratio(psf_sigma_px: float) -> float:
     """
@@ -55,36 +57,26 @@ def cog_phase_bias_rms(psf_sigma_px: float, radius_px: float, power: int = 1) ->
     return float(np.sqrt(np.mean(np.square(bias))))
 
 
-_CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
-
-
 def clean_hot_pixels(windows: np.ndarray, valid: np.ndarray, noise: float, ratio_limit: float):
     """
     Replace isolated hot pixels / cosmic-ray hits in background-subtracted windows (n, S, S) [ADU].
 
     Each is replaced by the mean of its 4 neighbours: a pixel brighter than ratio_limit x its
-    brightest neighbour + 5 noise sigmas cannot come from a PSF that wide. Returns (cleaned,
-    hit mask).
+    brightest neighbour + 5 noise sigmas cannot come from a PSF that wide. Neighbours outside
+    `valid` read 0; a window's first and last rows are not tested. Returns (cleaned, hit mask);
+    cleaned is `windows` itself when nothing was hit (compiled: hot_pixel_kernel.py).
     """
-    n, rows, cols = windows.shape
     if not np.isfinite(ratio_limit):
         return windows, np.zeros(windows.shape, bool)
+    stack = np.ascontiguousarray(windows if windows.dtype in (np.float32, np.float64) else windows.astype(float))
+    valid = np.ascontiguousarray(valid, np.bool_)
     all_valid = bool(valid.all())
-    stacked = (windows if all_valid else np.where(valid, windows, 0.0)).astype(np.float32, copy=False)
-    stacked = stacked.reshape(n * rows, cols)
-    brightest = cv2.dilate(stacked, _CROSS, borderType=cv2.BORDER_REPLICATE).reshape(n, rows, cols)
-    # ratio_limit x max(brightest, 0) + 5 noise, in place where the dtypes allow (a frame-sized call).
-    limit = np.multiply(np.maximum(brightest, 0.0, out=brightest), ratio_limit)
-    floor = 5.0 * noise
-    limit = np.add(limit, floor, out=limit) if np.result_type(limit, floor) == limit.dtype else limit + floor
-    hit = windows > limit
-    if not all_valid:
-        hit &= valid
-    hit[:, 0, :] = hit[:, -1, :] = False  # stacked windows: their first/last rows see a neighbour window
-    if not hit.any():
+    hit, count = hot_pixel_hits(stack, valid, all_valid, float(noise), float(ratio_limit))
+    if count == 0:
         return windows, hit
-    mean4 = cv2.filter2D(stacked, -1, _CROSS.astype(np.float32) * 0.25, borderType=cv2.BORDER_REPLICATE)
-    return np.where(hit, mean4.reshape(n, rows, cols), windows), hit
+    cleaned = stack.copy()
+    replace_hits(stack, valid, all_valid, hit, cleaned)
+    return cleaned, hit
 
 
 @dataclass(frozen=True)
