@@ -21,7 +21,6 @@ rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
-from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data as SENSOR_QOS  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
 
@@ -35,6 +34,7 @@ from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
 from conftest import spots_at  # noqa: E402  one star-spot builder for the tests
+from parameter_calls import answered, primed_parameter_client  # noqa: E402
 from test_integration import ros_graph  # noqa: E402,F401  the isolated-domain fixture
 
 ARCSEC = np.radians(1 / 3600)
@@ -48,6 +48,7 @@ class Driver:
         self.node = rclpy.create_node(f"{watched}_driver")
         self.watched = watched
         self.counters: dict[str, str] = {}
+        self.clients: dict = {}  # node name -> its primed parameter client
         self.messages: list[str] = []
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
 
@@ -68,19 +69,22 @@ class Driver:
                 return True
         return until()
 
+    def parameter_client(self, node_name: str):
+        """Return this driver's parameter client on `node_name`, each service answered once (no answer lost)."""
+        if node_name not in self.clients:
+            self.clients[node_name] = primed_parameter_client(self.node, node_name)
+        return self.clients[node_name]
+
     def set_parameters(self, node_name: str, **values):
         """set_parameters on the node under test: list of (successful, reason)."""
-        client = AsyncParameterClient(self.node, node_name)
-        assert client.wait_for_services(timeout_sec=10.0)
-        future = client.set_parameters([Parameter(k.replace("__", "."), value=v) for k, v in values.items()])
-        self.spin(10.0, until=future.done)
+        future = self.parameter_client(node_name).set_parameters(
+            [Parameter(k.replace("__", "."), value=v) for k, v in values.items()])
+        assert self.spin(20.0, until=future.done), f"{node_name} did not answer set_parameters"
         return [(r.successful, r.reason) for r in future.result().results]
 
     def get_parameter(self, node_name: str, name: str):
-        client = AsyncParameterClient(self.node, node_name)
-        future = client.get_parameters([name])
-        self.spin(10.0, until=future.done)
-        return parameter_value_to_python(future.result().values[0])
+        client = self.parameter_client(node_name)
+        return parameter_value_to_python(answered(self.node, lambda: client.get_parameters([name])).values[0])
 
 
 def now_ns() -> int:

@@ -22,7 +22,6 @@ rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
-from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import Imu, PointCloud2  # noqa: E402
 
@@ -31,6 +30,7 @@ from star_tracker.models.attitude import quaternion_to_matrix  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
 from conftest import join_isolated_ros_domain  # noqa: E402
+from parameter_calls import primed_parameter_client  # noqa: E402
 from star_tracker.ros.qos import RESULT_QOS, SPOTS_QOS  # noqa: E402
 from test_centroider_node import RATE_DEG_S, streak_errors  # noqa: E402  (same camera, same checks)
 
@@ -105,9 +105,8 @@ class Probe:
         return until()
 
     def parameters(self, node_name: str):
-        client = AsyncParameterClient(self.node, node_name)
-        assert client.wait_for_services(timeout_sec=20.0)
-        return client
+        """Return a parameter client on `node_name`, each service answered once (no answer lost)."""
+        return primed_parameter_client(self.node, node_name)
 
     def set_parameter(self, node_name: str, name: str, value):
         future = self.parameters(node_name).set_parameters([Parameter(name, value=value)])
@@ -216,8 +215,7 @@ def test_qos_override_parameter_changes_a_subscriptions_reliability(tmp_path, mo
         assert spin_until(lambda: reliable_imu.get_subscription_count() == 1
                           and best_effort_rate.get_subscription_count() == 1)
         best_effort_matches = best_effort_imu.get_subscription_count()
-        client = AsyncParameterClient(probe, "centroider")
-        assert client.wait_for_services(timeout_sec=20.0)
+        client = primed_parameter_client(probe, "centroider")
         names = ["qos_overrides./imu.subscription.reliability",
                  "qos_overrides./angular_velocity.subscription.reliability", "qos_overrides./spots.publisher.depth"]
         values = client.get_parameters(names)

@@ -22,7 +22,7 @@ rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rcl_interfaces.srv import ListParameters  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
-from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from parameter_calls import answered, primed_parameter_client  # noqa: E402
 
 from star_tracker.parameter_spec import dotted_names  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
@@ -43,7 +43,7 @@ class Probe:
     def __init__(self, target: str):
         self.node = rclpy.create_node(f"{target}_parameter_probe")
         self.target = target
-        self.client = AsyncParameterClient(self.node, target)
+        self.client = primed_parameter_client(self.node, target, timeout_s=30.0)  # no answer lost
         self.diagnostics: dict[str, str] = {}
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
 
@@ -67,17 +67,21 @@ class Probe:
                 return True
         return condition()
 
+    def read(self, send):
+        """Answer to a request that changes nothing (sent again if its answer is lost)."""
+        return answered(self.node, send)
+
     def all_values(self) -> dict:
-        names = self.wait(self.client.list_parameters([], ListParameters.Request.DEPTH_RECURSIVE)).result.names
+        names = self.read(lambda: self.client.list_parameters([], ListParameters.Request.DEPTH_RECURSIVE)).result.names
         names = [n for n in names if not n.startswith(IGNORED)]
-        values = self.wait(self.client.get_parameters(names)).values
+        values = self.read(lambda: self.client.get_parameters(names)).values
         return {name: parameter_value_to_python(value) for name, value in zip(names, values)}
 
     def get(self, *names: str) -> list:
-        return [parameter_value_to_python(v) for v in self.wait(self.client.get_parameters(list(names))).values]
+        return [parameter_value_to_python(v) for v in self.read(lambda: self.client.get_parameters(list(names))).values]
 
     def describe(self, name: str):
-        return self.wait(self.client.describe_parameters([name])).descriptors[0]
+        return self.read(lambda: self.client.describe_parameters([name])).descriptors[0]
 
     def set(self, **values) -> list:
         """set_parameters_atomically (all or none): [(successful, reason)]."""
@@ -101,7 +105,6 @@ def started(request, monkeypatch, tmp_path):
         processes.start()
         processes.wait_ready(timeout_s=300)
         probe = Probe(node)
-        assert probe.client.wait_for_services(timeout_sec=30.0)
         yield probe, processes
     finally:
         if probe is not None:
