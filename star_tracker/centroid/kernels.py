@@ -158,6 +158,11 @@ def warm_up() -> None:
                    PsfStart(np.full(1, 3.0), np.full(1, 3.0), np.full(1, 100.0)),
                    PsfSettings(1.0, 1.0, 1.0, 5))
     component_stats(np.zeros((4, 4), np.int32), 1)
+    from .blend_fit_kernel import fit_multi_psf
+
+    pair = np.full((1, 2), 3.0)
+    fit_multi_psf(data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1), pair, pair, pair * 30.0, 1.0, 1.0,
+                  1.0, 2)
     from .elliptical_psf import EllipticalGaussianPsf, fit_elliptical
 
     fit_elliptical(EllipticalGaussianPsf(1.5, 1.0, 0.3), data, np.ones((1, 7, 7), np.bool_), np.zeros(1), np.zeros(1),

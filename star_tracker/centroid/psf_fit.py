@@ -12,7 +12,7 @@ import numpy as np
 from scipy.special import erf
 
 _ROOT2 = np.sqrt(2.0)
-USE_COMPILED = True  # single-PSF fits through kernels.fit_single_psf (False: the numpy path)
+USE_COMPILED = True  # fits through kernels.fit_single_psf and blend_fit_kernel.fit_multi_psf (False: numpy)
 _INV_ROOT_2PI = 1.0 / np.sqrt(2.0 * np.pi)
 
 
@@ -147,6 +147,15 @@ def fit_psf_windows(windows: PsfWindows, start: PsfStart, sigma: float, noise: f
         x, y, flux, cov, flux_var, ok = fit_single_psf(compiled, PsfStart(x0[:, 0].copy(), y0[:, 0].copy(),
                                                                           flux0[:, 0].copy()), settings)
         return PsfFit(x[:, None], y[:, None], flux[:, None], cov[:, None], ok[:, None], flux_var[:, None])
+    if USE_COMPILED:  # blends: one window per call, so numpy's per-call overhead would dominate
+        from .blend_fit_kernel import fit_multi_psf
+
+        x, y, flux, cov, flux_var, ok = fit_multi_psf(
+            np.ascontiguousarray(windows.data, np.float64), np.ascontiguousarray(windows.valid, np.bool_),
+            np.asarray(windows.col0, np.float64), np.asarray(windows.row0, np.float64),
+            np.ascontiguousarray(x0), np.ascontiguousarray(y0), np.ascontiguousarray(flux0),
+            settings.sigma, settings.noise, settings.gain, settings.iterations)
+        return PsfFit(x, y, flux, cov, ok, flux_var)
     return _fit_psf_numpy(windows, PsfStart(x0, y0, flux0), sigma, noise, gain, iterations)
 
 
