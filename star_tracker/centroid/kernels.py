@@ -171,7 +171,11 @@ def warm_up() -> None:
                   np.full(1, 100.0), np.full(1, 1.0), 1.0, 1.0, 5)
     one = np.full(1, 16.0)
     index = np.full(1, 14, np.int64)
+    from .peak_shape_kernel import own_pixel_moments
+
+    two_peaks = np.array([[3.0, 3.0], [5.0, 4.0]])
     for dtype in WARM_IMAGE_DTYPES:  # measure_small passes every image read-only: one variant per dtype
+        own_pixel_moments(read_only(np.zeros((8, 8), dtype)), np.zeros(2), two_peaks, 2.0, 2, 1.0, 1.0, 1)
         measure_small(np.zeros((32, 32), dtype), SmallSpots(one, one, np.zeros(1), index, index + 4, index, index + 4),
                       PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
         footprint_peaks(np.zeros((32, 32), dtype), np.zeros((16, 16), np.int32), 2, np.ones(1, np.int64), index,

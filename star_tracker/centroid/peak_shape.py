@@ -20,6 +20,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .detect import Detections
+from .kernels import read_only
+from .peak_shape_kernel import own_pixel_moments
 
 PEAK_RADIUS_SIGMAS = 2.5  # pixels within this many PSF sigmas of a peak are its own
 MIN_PEAK_RADIUS_PX = 2.0
@@ -77,57 +79,11 @@ def peak_minor_moments(image: np.ndarray, det: Detections, peaks: np.ndarray, si
     centre of gravity CENTRE_PASSES times (centres False: not measured, flux 0, centre the
     peak, covariance inf). A peak with no positive flux gets minor 0, SNR 0 and flux 0.
     """
-    height, width = image.shape
     radius = max(MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS * sigma)
-    half = int(math.ceil(radius))
-    peaks = np.asarray(peaks, float)
-    minor, snr, flux_of = np.zeros(len(peaks)), np.zeros(len(peaks)), np.zeros(len(peaks))
-    centre = peaks.copy()
-    centre_cov = np.full((len(peaks), 2, 2), np.inf)
-    noise2 = det.noise_adu ** 2
-    background = det.background_at(peaks[:, 0], peaks[:, 1])
-
-    def own_pixels(k: int, cx: float, cy: float):
-        """Return the peak's pixels in the disk about (cx, cy): columns, rows, background-subtracted values, mask."""
-        col, row = int(round(cx)), int(round(cy))
-        c0, c1 = max(col - half, 0), min(col + half + 1, width)
-        r0, r1 = max(row - half, 0), min(row + half + 1, height)
-        xx = np.arange(c0, c1, dtype=float)[None, :]
-        yy = np.arange(r0, r1, dtype=float)[:, None]
-        distance2 = (xx - cx) ** 2 + (yy - cy) ** 2
-        inside = distance2 <= radius * radius
-        for j, (qx, qy) in enumerate(peaks):
-            if j != k:
-                inside &= distance2 < (xx - qx) ** 2 + (yy - qy) ** 2
-        return xx, yy, np.where(inside, image[r0:r1, c0:c1] - background[k], 0.0), inside
-
-    for k, (px, py) in enumerate(peaks):
-        xx, yy, values, inside = own_pixels(k, px, py)
-        flux = float(values.sum())
-        if flux <= 0.0:
-            continue
-        snr[k] = flux / math.sqrt(np.count_nonzero(inside) * noise2 + flux / gain)
-        mx, my = float((values * xx).sum()) / flux, float((values * yy).sum()) / flux
-        dx, dy = xx - mx, yy - my
-        sxx, syy, sxy = ((values * dx * dx).sum() / flux, (values * dy * dy).sum() / flux,
-                         (values * dx * dy).sum() / flux)
-        minor[k] = 0.5 * (sxx + syy) - math.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
-        if not centres:
-            continue
-        # The centre: the disk moved onto the centre of gravity (a disk about the peak pixel cuts the
-        # star unevenly, pulling the centre toward that pixel).
-        for _ in range(CENTRE_PASSES):
-            xx, yy, values, inside = own_pixels(k, mx, my)
-            flux = float(values.sum())
-            if flux <= 0.0:
-                break
-            mx, my = float((values * xx).sum()) / flux, float((values * yy).sum()) / flux
-        if flux <= 0.0:
-            continue
-        centre[k], flux_of[k] = (mx, my), flux
-        dx, dy = xx - mx, yy - my
-        variance = np.where(inside, np.maximum(values, 0.0) / gain + noise2, 0.0)
-        centre_cov[k] = (np.array([[(variance * dx * dx).sum(), (variance * dx * dy).sum()],
-                                   [(variance * dx * dy).sum(), (variance * dy * dy).sum()]]) / flux ** 2
-                         + (CENTRE_SYSTEMATIC_SIGMAS * sigma) ** 2 * np.eye(2))
+    peaks = np.ascontiguousarray(peaks, float)
+    background = np.asarray(det.background_at(peaks[:, 0], peaks[:, 1]), float)
+    minor, snr, flux_of, centre, centre_cov = own_pixel_moments(
+        read_only(image), background, peaks, radius, int(math.ceil(radius)), det.noise_adu ** 2, gain,
+        CENTRE_PASSES if centres else -1)
+    centre_cov += (CENTRE_SYSTEMATIC_SIGMAS * sigma) ** 2 * np.eye(2)  # inf stays inf: not measured
     return PeakShapes(minor, snr, flux_of, centre, centre_cov)
