@@ -3,10 +3,11 @@
 Compiled 4-neighbour hot-pixel test of measure.clean_hot_pixels (numba).
 
 One pass over a stack of windows (n, rows, cols), float32 or float64: a frame-sized window
-cost OpenCV and numpy five full-frame passes and temporaries (~10 ms on a 1280x960 frame),
-this ~1.5 ms. The arithmetic is the OpenCV pass's, in float32, so the results are the same
-to the bit: neighbours outside `valid` read 0, columns replicate at the window's edges, and
-a window's first and last rows are never tested (the stacked pass saw the next window there).
+cost OpenCV and numpy five full-frame passes and their temporaries (2.8-10 ms on a 1280x960
+frame, depending on whether those pages were fresh), this 1.4-2 ms. The arithmetic is the
+OpenCV pass's, in float32, so the results are the same to the bit: neighbours outside
+`valid` read 0, columns replicate at the window's edges, and a window's first and last rows
+are never tested (the stacked pass saw the next window there).
 """
 from __future__ import annotations
 

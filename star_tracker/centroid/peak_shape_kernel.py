@@ -84,6 +84,8 @@ def own_pixel_moments(image, background, peaks, radius, half, noise2, gain, cent
         minor[k] = 0.5 * (sxx + syy) - math.sqrt(0.25 * (sxx - syy) ** 2 + sxy ** 2)
         if centre_passes < 0:
             continue
+        # The centre: the disk moved onto the centre of gravity (a disk about the peak pixel cuts the
+        # star unevenly, pulling the centre toward that pixel).
         for _ in range(centre_passes):
             c0, r0, cols, rows = _own(image, background, peaks, k, mx, my, radius, half, values, inside)
             flux, sum_x, sum_y = 0.0, 0.0, 0.0

@@ -152,7 +152,7 @@ def fit_psf_windows(windows: PsfWindows, start: PsfStart, sigma: float, noise: f
 
         x, y, flux, cov, flux_var, ok = fit_multi_psf(
             np.ascontiguousarray(windows.data, np.float64), np.ascontiguousarray(windows.valid, np.bool_),
-            np.asarray(windows.col0, np.float64), np.asarray(windows.row0, np.float64),
+            np.ascontiguousarray(windows.col0, np.float64), np.ascontiguousarray(windows.row0, np.float64),
             np.ascontiguousarray(x0), np.ascontiguousarray(y0), np.ascontiguousarray(flux0),
             settings.sigma, settings.noise, settings.gain, settings.iterations)
         return PsfFit(x, y, flux, cov, ok, flux_var)
