@@ -66,7 +66,10 @@ def test_compiled_blend_fit_is_the_numpy_fit_and_finds_the_stars(monkeypatch, st
         assert np.all(np.abs(compiled.x - reference.x) <= tolerance * np.maximum(sigma_x, 1.0))
         assert np.all(np.abs(compiled.y - reference.y) <= tolerance * np.maximum(sigma_y, 1.0))
         assert np.all(np.abs(compiled.flux - reference.flux) <= tolerance * np.sqrt(reference.flux_var))
-        determined += tolerance < 1e-2
+        if tolerance < 1e-2:  # and the same information matrix at the solution
+            assert np.allclose(compiled.cov, reference.cov, rtol=1e-6, atol=0.0)
+            assert np.allclose(compiled.flux_var, reference.flux_var, rtol=1e-6)
+            determined += 1
         separation = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :]) + np.eye(stars) * size
         if separation.min() < 3.0 * sigma:
             continue  # stars closer than that can be fitted as fewer (either path): no truth to judge by
