@@ -34,7 +34,7 @@ from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402
 from conftest import spots_at  # noqa: E402  one star-spot builder for the tests
-from parameter_calls import answered, primed_parameter_client  # noqa: E402
+from service_calls import answered, primed_parameter_client  # noqa: E402
 from test_integration import ros_graph  # noqa: E402,F401  the isolated-domain fixture
 
 ARCSEC = np.radians(1 / 3600)

@@ -30,7 +30,7 @@ from star_tracker.models.attitude import quaternion_to_matrix  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
 from conftest import join_isolated_ros_domain  # noqa: E402
-from parameter_calls import primed_parameter_client  # noqa: E402
+from service_calls import primed_parameter_client  # noqa: E402
 from star_tracker.ros.qos import RESULT_QOS, SPOTS_QOS  # noqa: E402
 from test_centroider_node import RATE_DEG_S, streak_errors  # noqa: E402  (same camera, same checks)
 

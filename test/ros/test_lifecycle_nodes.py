@@ -23,6 +23,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from conftest import join_isolated_ros_domain, spots_at  # noqa: E402
+from service_calls import answered  # noqa: E402
 from star_tracker.models.attitude import radec_roll_to_matrix  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor  # noqa: E402
@@ -102,20 +103,9 @@ class IdentifierDriver:
         return stamps
 
     def reset(self) -> Trigger.Response:
-        """
-        Call ~/reset; a call unanswered in 10 s is sent again (up to 3 calls; a reset is idempotent).
-
-        A response can be lost right after discovery: Fast DDS sends it after a bounded wait for
-        this client's response reader (ros2/rmw_fastrtps#390), which a loaded host can outlast.
-        """
+        """Call ~/reset, sent again if its answer is lost (service_calls.answered; a reset is idempotent)."""
         assert self.reset_client.wait_for_service(timeout_sec=10.0)
-        for _ in range(3):
-            future = self.reset_client.call_async(Trigger.Request())
-            rclpy.spin_until_future_complete(self.node, future, timeout_sec=10.0)
-            if future.done():
-                return future.result()
-            self.reset_client.remove_pending_request(future)
-        pytest.fail("~/reset did not answer 3 calls")
+        return answered(self.node, lambda: self.reset_client.call_async(Trigger.Request()))
 
 
 DOMAIN = 206  # 206-209: this file's private ROS domains

@@ -22,7 +22,7 @@ rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rcl_interfaces.srv import ListParameters  # noqa: E402
 from rclpy.parameter import Parameter, parameter_value_to_python  # noqa: E402
-from parameter_calls import answered, primed_parameter_client  # noqa: E402
+from service_calls import answered, primed_parameter_client  # noqa: E402
 
 from star_tracker.parameter_spec import dotted_names  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, isolated_ros_environment  # noqa: E402

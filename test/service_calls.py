@@ -1,14 +1,16 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Parameter clients whose answers cannot be lost (for the integration tests).
+Service calls whose answers cannot be lost (for the integration tests).
 
 A Fast DDS service sends its answer after a bounded wait for the caller's response reader
 (ros2/rmw_fastrtps#390); on a loaded host the first call of a fresh client can outlast that
-wait, and the answer is lost although the call was served. A change cannot simply be sent
-again: the node would count a refused one twice (`parameter_changes_rejected`). So every
-service of the client is first asked something that changes nothing (an empty request: no
-parameter callback runs), again until answered; once one answer has arrived, the server has
-matched this client's reader and later answers reach it.
+wait, and the answer is lost although the call was served. A request that changes nothing
+(or changes nothing more when repeated, such as ~/reset) is simply sent again: `answered`. A
+parameter change cannot be: the node would count a refused one twice
+(`parameter_changes_rejected`). So every service of a parameter client is first asked
+something that changes nothing (an empty request: no parameter callback runs), again until
+answered; once one answer has arrived, the server has matched this client's reader and later
+answers reach it: `primed_parameter_client`.
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ def answered(node: Node, send, wait_s: float = ANSWER_WAIT_S, attempts: int = AT
     Return the answer to `send()` (which sends one request and returns its future).
 
     Sent again when unanswered after wait_s [s], up to `attempts` times: only for requests that
-    change nothing. AssertionError when none is answered.
+    change nothing, or nothing more when repeated. AssertionError when none is answered.
     """
     for _ in range(attempts):
         future = send()

@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The integration tests' resend of unanswered no-op requests (test/parameter_calls.py), on scripted futures."""
+"""The integration tests' resend of unanswered no-op requests (test/service_calls.py), on scripted futures."""
 from __future__ import annotations
 
 import pytest
@@ -8,13 +8,13 @@ rclpy = pytest.importorskip("rclpy")
 
 from rclpy.task import Future  # noqa: E402
 
-from parameter_calls import answered  # noqa: E402
+from service_calls import answered  # noqa: E402
 
 
 @pytest.fixture
 def node():
     rclpy.init(args=[])
-    node = rclpy.create_node("parameter_calls_probe")
+    node = rclpy.create_node("service_calls_probe")
     yield node
     node.destroy_node()
     rclpy.try_shutdown()
