@@ -31,6 +31,23 @@ def _neighbours(windows, valid, all_valid, k, i, j):
             np.float32(windows[k, i + 1, j]) if valid[k, i + 1, j] else zero)
 
 
+@njit(cache=True, inline="always")
+def is_hot(value, up, left, right, down, ratio, floor) -> bool:
+    """
+    Whether a pixel of `value` [ADU] beside float32 neighbours (up, left, right, down) is hot.
+
+    Brighter than ratio x its brightest neighbour (at least 0) + floor, in float32 (ratio and
+    floor float32 [ADU]).
+    """
+    return value > max(max(max(up, down), max(left, right)), np.float32(0.0)) * ratio + floor
+
+
+@njit(cache=True, inline="always")
+def neighbour_mean(up, left, right, down):
+    """Return the float32 mean of the 4 neighbours, summed in OpenCV's order (the same bits as its filter)."""
+    return np.float32(0.25) * (((up + left) + right) + down)
+
+
 @njit(cache=True)
 def hot_pixel_hits(windows, valid, all_valid, noise, ratio_limit):
     """
@@ -42,7 +59,6 @@ def hot_pixel_hits(windows, valid, all_valid, noise, ratio_limit):
     hit = np.zeros(windows.shape, np.bool_)
     ratio = np.float32(ratio_limit)
     floor = np.float32(5.0 * noise)
-    zero = np.float32(0.0)
     count = 0
     for k in range(n):
         for i in range(1, rows - 1):
@@ -50,7 +66,7 @@ def hot_pixel_hits(windows, valid, all_valid, noise, ratio_limit):
                 if not all_valid and not valid[k, i, j]:
                     continue
                 up, left, right, down = _neighbours(windows, valid, all_valid, k, i, j)
-                if windows[k, i, j] > max(max(max(up, down), max(left, right)), zero) * ratio + floor:
+                if is_hot(windows[k, i, j], up, left, right, down, ratio, floor):
                     hit[k, i, j] = True
                     count += 1
     return hit, count
@@ -60,13 +76,12 @@ def hot_pixel_hits(windows, valid, all_valid, noise, ratio_limit):
 def replace_hits(windows, valid, all_valid, hit, out):
     """Write the mean of its 4 neighbours (float32) into `out` at each hit of `windows`."""
     n, rows, cols = windows.shape
-    quarter = np.float32(0.25)
     for k in range(n):
         for i in range(1, rows - 1):
             for j in range(cols):
                 if hit[k, i, j]:
                     up, left, right, down = _neighbours(windows, valid, all_valid, k, i, j)
-                    out[k, i, j] = quarter * (((up + left) + right) + down)  # OpenCV's order: the same bits
+                    out[k, i, j] = neighbour_mean(up, left, right, down)
 
 
 def warm_up() -> None:

@@ -13,6 +13,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .hot_pixel_kernel import is_hot, neighbour_mean
+from .hot_pixel_kernel import warm_up as warm_hot_pixel_test
+
 _INV_ROOT2 = 1.0 / math.sqrt(2.0)
 _INV_ROOT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
@@ -180,7 +183,6 @@ def warm_up() -> None:
                       PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
         footprint_peaks(np.zeros((32, 32), dtype), np.zeros((16, 16), np.int32), 2, np.ones(1, np.int64), index,
                         index, index + 4, index + 4)
-    from .hot_pixel_kernel import warm_up as warm_hot_pixel_test
     from .streak_free_fit import fit_streaks
 
     warm_hot_pixel_test()
@@ -365,8 +367,8 @@ def _clean_search_window(image, c0, r0, bg, ratio_limit, noise, raw, win, valid)
     Fill the search window (top-left pixel (c0, r0)) from `image` less `bg`, hot pixels cleaned.
 
     raw, win, valid (big, big) are overwritten; returns whether a hot pixel was cleaned. The
-    4-neighbour test of measure.clean_hot_pixels: interior rows only (as the stacked OpenCV pass),
-    replicate at the columns.
+    4-neighbour test of measure.clean_hot_pixels (hot_pixel_kernel.is_hot, neighbour_mean):
+    interior rows only (as the stacked OpenCV pass), replicate at the columns.
     """
     height, width = image.shape
     big = win.shape[0]
@@ -379,18 +381,18 @@ def _clean_search_window(image, c0, r0, bg, ratio_limit, noise, raw, win, valid)
             win[i, j] = raw[i, j] - bg if inside else 0.0
     hit_any = False
     cleaned = win.copy()
+    ratio, floor = np.float32(ratio_limit), np.float32(5.0 * noise)
     for i in range(1, big - 1):
         for j in range(big):
             if not valid[i, j]:
                 continue
             up = np.float32(win[i - 1, j])
             down = np.float32(win[i + 1, j])
-            lft = np.float32(win[i, j - 1] if j > 0 else win[i, j])
-            rgt = np.float32(win[i, j + 1] if j < big - 1 else win[i, j])
-            brightest = max(max(up, down), max(lft, rgt))
-            if win[i, j] > ratio_limit * max(float(brightest), 0.0) + 5.0 * noise:
+            left = np.float32(win[i, j - 1] if j > 0 else win[i, j])
+            right = np.float32(win[i, j + 1] if j < big - 1 else win[i, j])
+            if is_hot(win[i, j], up, left, right, down, ratio, floor):
                 hit_any = True
-                cleaned[i, j] = float(np.float32(0.25) * (up + down + lft + rgt))
+                cleaned[i, j] = float(neighbour_mean(up, left, right, down))
     win[:, :] = cleaned
     return hit_any
 
