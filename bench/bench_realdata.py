@@ -76,6 +76,7 @@ FIELD_GROUP_GAP = 1.10  # fields more than 10 % apart get separate peer database
 PEERS = ("tetra3rs", "cedar-solve")
 TIMED_RUNS = 3  # runs timed per solver and image, the median reported ...
 REPEAT_BELOW_S = 1.0  # ... when a run takes less than this [s] (a failing peer's 5 s searches once)
+STAGES = ("centroid", "solve")  # the solve command's timing_s stages from decoded pixels
 
 
 # ----------------------------------------------------------------------------------------
@@ -278,6 +279,11 @@ def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
               "quat_xyzw_sensor_to_icrs": record["quaternion_xyzw"] if solved else None,
               "error": err.strip()[-300:] if code == 2 else None}
     result["pixels_time_s"] = None if None in pixel_times else float(np.median(pixel_times))
+    # Where the time from decoded pixels goes (each stage's median over the same runs): the
+    # centroiding, and the field search + identification + camera refinement.
+    stage_times = [(run[1] or {}).get("timing_s") or {} for run, _ in runs]
+    result["stage_times_s"] = ({stage: float(np.median([t[stage] for t in stage_times])) for stage in STAGES}
+                               if all(set(STAGES) <= set(t) for t in stage_times) else None)
     # Each matched star's residual after the attitude and camera fit [arcsec], by HIP: two runs'
     # centroids compared on the stars both match (bench/compare_residuals.py).
     result["residual_rms_arcsec"] = record.get("residual_rms_arcsec") if solved else None
@@ -516,6 +522,37 @@ def _faster_on(images: list[dict], peer: str) -> str:
     return text
 
 
+def stage_table(images: list[dict], peer: str) -> list[str]:
+    """
+    Markdown rows: on each image `peer` solves, its time against ours from decoded pixels and our stages.
+
+    The per-image time goal (issue 17) with where ours goes: centroiding and solve [ms], and the
+    other peers' times beside them.
+    """
+    solved = [row for row in images if row["solvers"][peer]["solved"]
+              and row["solvers"]["ours"].get("pixels_time_s") is not None]
+    if not solved:
+        return []
+    others = [name for name in images[0]["solvers"] if name not in ("ours", peer)]
+    lines = [f"| image | {peer} ms | " + "".join(f"{name} ms | " for name in others)
+             + "ours from pixels ms | ours: centroiding ms | ours: solve ms | ours / " + peer + " |",
+             "|---|---:|" + "---:|" * len(others) + "---:|---:|---:|---:|"]
+    for row in solved:
+        s = row["solvers"]
+        stages = s["ours"].get("stage_times_s") or {}
+        other = "".join((f"{1000 * s[name]['time_s']:.1f}" if s[name]["solved"] else "not solved") + " | "
+                        for name in others)
+        ratio = s["ours"]["pixels_time_s"] / s[peer]["time_s"]
+        lines.append(f"| {row['id']} | {1000 * s[peer]['time_s']:.1f} | {other}{1000 * s['ours']['pixels_time_s']:.1f}"
+                     f" | {_ms(stages.get('centroid'))} | {_ms(stages.get('solve'))} | "
+                     + (f"**{ratio:.2f}**" if ratio < 1.0 else f"{ratio:.2f}") + " |")
+    return lines
+
+
+def _ms(seconds: float | None) -> str:
+    return "–" if seconds is None else f"{1000 * seconds:.1f}"
+
+
 def _median(values: list) -> float | None:
     return float(np.median(values)) if values else None
 
@@ -622,6 +659,14 @@ def render_markdown(results: dict) -> str:
             f"{_ratio(ours['total_time_s'], theirs['total_time_s'])}×; matched stars on the {len(both)} images both "
             f"solve within 1′: median ratio {'–' if star_ratio is None else f'{star_ratio:.2f}'}; "
             f"{_faster_on(results['images'], peer)}.")
+    if "cedar-solve" in meta["peers"]:
+        rows = stage_table(results["images"], "cedar-solve")
+        if rows:
+            lines += ["", "The time goal (issue 17: less time than cedar-solve on each image) on the images "
+                      "cedar-solve solves: its time, the other peer's (where it solves the image), ours from "
+                      "decoded pixels, and where ours goes (the command's `timing_s`: centroiding; field search, "
+                      "identification and camera refinement), each the median of the same runs; **bold**: ours "
+                      "faster.", "", *rows, ""]
     if ours.get("median_first_run_s") is not None:
         lines.append(f"- Ours, each image's first run (its pair and pattern databases read from disk, as by a "
                      f"one-image `solve` process; the deep catalog and kernels already loaded; the time above holds "

@@ -115,6 +115,29 @@ def test_time_goal_counted_both_ways():
     assert "| 0.50 (0.30) |" in text and results["summary"]["ours"]["median_pixels_time_s"] == pytest.approx(0.3)
 
 
+def test_stage_table_names_where_our_time_goes():
+    """The time-goal table: cedar-solve's time, the other peer's, ours from pixels split into its stages."""
+    image = fake_image()
+    solved = bench.score(rotated(REFERENCE, (1, 0, 0), 20.0 * ARCSEC), image)
+    fast = {"solved": True, "status": "solved", "matched": 12, "time_s": 0.5, "pixels_time_s": 0.03,
+            "stage_times_s": {"centroid": 0.02, "solve": 0.009}, **solved}
+    slow = dict(fast, pixels_time_s=0.06, stage_times_s={"centroid": 0.045, "solve": 0.012})
+    cedar = {"solved": True, "status": "solved", "matched": 10, "time_s": 0.04, **solved}
+    failed = {"solved": False, "status": "no_match", "matched": 0, "time_s": 5.0, **bench.score(None, image)}
+    rows = [{"id": name, "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
+             "solvers": {"ours": ours, "tetra3rs": failed, "cedar-solve": cedar}}
+            for name, ours in (("quick", fast), ("slow", slow))]
+    rows.append({"id": "unsolved-by-cedar", "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
+                 "solvers": {"ours": fast, "tetra3rs": failed, "cedar-solve": failed}})
+    results = {"images": rows, "summary": bench.summarize(rows, ["ours", "tetra3rs", "cedar-solve"]),
+               "peer_databases": {}, "meta": {"elapsed_s": 1.0, "peers": ["tetra3rs", "cedar-solve"],
+                                              "command": "test"}}
+    text = bench.render_markdown(results)
+    assert "| quick | 40.0 | not solved | 30.0 | 20.0 | 9.0 | **0.75** |" in text
+    assert "| slow | 40.0 | not solved | 60.0 | 45.0 | 12.0 | 1.50 |" in text
+    assert "| unsolved-by-cedar | 40.0" not in text  # the goal counts the images cedar-solve solves
+
+
 def test_quick_solves_are_timed_three_times_slow_ones_once(monkeypatch):
     """A solver's time is the median of TIMED_RUNS runs under REPEAT_BELOW_S, else one run's (a peer's 5 s failures)."""
     calls = []
