@@ -21,6 +21,7 @@ within 60 arcsec of the simulator's truth. Then it does the same again on the no
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
 import math
 import os
@@ -270,7 +271,8 @@ def main(argv=None) -> None:
         write_section(args.output, text)
         (args.output.parent / "bench_cold_start.json").write_text(json.dumps(
             {"meta": {"elapsed_s": time.perf_counter() - started, "quick": cases != list(CASES), "cpu": cpu_model(),
-                      "cores": os.cpu_count()},
+                      "cores": os.cpu_count(), "command": command,
+                      "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")},
              "results": results}, indent=2))
 
 

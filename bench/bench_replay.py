@@ -128,8 +128,9 @@ def through_nodes(bag: Path, env: dict, log_dir: Path, *args: str) -> dict:
         nodes.start()
         nodes.wait_ready()
         monitor.spin_for(1.0)
+        # Both nodes read camera_info: the identifier skips (and counts) spots that come before its first one.
         player = subprocess.Popen(CLI + ["play", str(bag), "--topics", "image_raw", "camera_info", "--rate", "0",
-                                         "--wait-for-subscribers", "1", *args],
+                                         "--wait-for-subscribers", "1", "camera_info=2", *args],
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         monitor.spin_for(3600, until=lambda: player.poll() is not None)
         monitor.spin_for(3.0)  # stragglers
