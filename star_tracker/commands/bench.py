@@ -106,6 +106,10 @@ BENCHES = (
 # run after them; `python -m bench.plots` alone redraws them without rerunning anything.
 PLOTS = Bench("plots", "bench.plots", ("--results-dir", "{results}"), ("--results-dir", "{results}"),
               "benchmark figures from the JSON results")
+# Not a benchmark either: the datasheet (DATASHEET.md beside the Markdown file) drawn from the
+# same results by bench/datasheet.py, last.
+DATASHEET = Bench("datasheet", "bench.datasheet", ("--results-dir", "{results}"), ("--results-dir", "{results}"),
+                  "the datasheet from the JSON results")
 NAME = "bench"
 
 
@@ -117,13 +121,14 @@ def register(subparsers) -> None:
         + ". Each replaces its own section of the Markdown file (--output) and writes its figures under "
         "images/ beside it; then bench/plots.py draws the benchmark plots (centroid error / Cramer-Rao "
         "bound, identification success vs false stars, solve and centroiding time distributions vs the "
-        "peers) into images/ from the JSON results beside the Markdown file. A progress bar on stderr shows "
+        "peers) into images/ from the JSON results beside the Markdown file, and bench/datasheet.py writes "
+        "DATASHEET.md beside it from the same results. A progress bar on stderr shows "
         "which benchmark runs and how far it is (scenes or measurement points done, for those that report "
         "it; else its latest output line); each one's full output goes to a log file (--log-dir). --quick "
         "runs each with its smoke-run options and, unless --output is given, writes to a temporary "
         "directory instead of docs/. Peers (tetra3rs, cedar-solve) are optional: `pip install -r "
-        "requirements-bench.txt` (see the Makefile). Exit code 0 if every benchmark and the plots succeeded, 1 "
-        "otherwise.",
+        "requirements-bench.txt` (see the Makefile). Exit code 0 if every benchmark, the plots and the datasheet "
+        "succeeded, 1 otherwise.",
         "star-tracker bench                         # everything, into docs/BENCHMARKS.md (hours)\n"
         "star-tracker bench --only identify --quick\n"
         "star-tracker bench --only render,centroid --output /tmp/B.md --dry-run\n"
@@ -202,6 +207,7 @@ def run(args: argparse.Namespace) -> int:
     commands = [(b, command_for(b, args.quick, out, args.no_peers, repo)) for b in benches]
     if not args.no_plots:
         commands.append((PLOTS, command_for(PLOTS, args.quick, out, args.no_peers, repo)))
+    commands.append((DATASHEET, command_for(DATASHEET, args.quick, out, args.no_peers, repo)))
     if args.dry_run:
         print(f"cd {shlex.quote(str(repo))}")
         for _, cmd in commands:
@@ -212,7 +218,8 @@ def run(args: argparse.Namespace) -> int:
     env = dict(os.environ)
     env["PYTHONPATH"] = str(repo) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     env[PROGRESS_ENV] = "1"
-    print(f"{len(benches)} benchmark(s){' (quick)' if args.quick else ''}{'' if args.no_plots else ' and the plots'} "
+    plots = "" if args.no_plots else ", the plots"
+    print(f"{len(benches)} benchmark(s){' (quick)' if args.quick else ''}{plots} and the datasheet "
           f"in {repo}; writing {out}; logs in {log_dir}", flush=True)
     failed = []
     total_started = time.perf_counter()

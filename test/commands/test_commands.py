@@ -414,10 +414,13 @@ def test_bench_runs_one_benchmark_quick_and_writes_its_section_json_and_plots(tm
     out = tmp_path / "B.md"
     code, out_text, err = cli("bench", "--only", "centroid", "--quick", "--output", out, "--log-dir", tmp_path / "logs")
     assert code == 0, out_text + err
-    assert re.search(r"\[1/2\] centroid\s+done in \d+\.\d s", out_text) and "2/2 step(s) succeeded" in out_text
-    assert re.search(r"\[2/2\] plots\s+done in", out_text)
+    assert re.search(r"\[1/3\] centroid\s+done in \d+\.\d s", out_text) and "3/3 step(s) succeeded" in out_text
+    assert re.search(r"\[2/3\] plots\s+done in", out_text) and re.search(r"\[3/3\] datasheet\s+done in", out_text)
+    # The datasheet beside it, from the one benchmark run: its figure, the others named as not measured.
+    sheet = (tmp_path / "DATASHEET.md").read_text()
+    assert "| Centroiding time |" in sheet and "| Lost-in-space identification | not measured |" in sheet
     # The bar on stderr: the benchmark reported every point it measured, and ended full.
-    final = re.search(r"\[1/2\] centroid\s+\[(#+)\] (\d+)/(\d+) 100 %", err)
+    final = re.search(r"\[1/3\] centroid\s+\[(#+)\] (\d+)/(\d+) 100 %", err)
     assert final and final.group(2) == final.group(3) and len(final.group(1)) == 24, err
     log = (tmp_path / "logs" / "centroid.log").read_text()
     assert "bench_centroid" in log and "@bench-progress" not in log  # progress lines go to the bar only
@@ -438,10 +441,12 @@ def test_bench_runs_one_benchmark_quick_and_writes_its_section_json_and_plots(tm
         assert f"wrote {tmp_path / 'images' / name}" in out_text
     code, out_text, _ = cli("bench", "--only", "identify,tracking", "--quick", "--no-peers", "--dry-run")
     commands = [line for line in out_text.splitlines() if line.startswith("python -m bench.")]
-    assert [c.split()[2] for c in commands] == ["bench.bench_identify", "bench.bench_tracking", "bench.plots"]
+    assert [c.split()[2] for c in commands] == ["bench.bench_identify", "bench.bench_tracking", "bench.plots",
+                                                "bench.datasheet"]
     assert all("--no-peers" in c for c in commands[:2]) and "--quick" in commands[1]
     code, out_text, _ = cli("bench", "--only", "render", "--no-plots", "--dry-run")
-    assert [line.split()[2] for line in out_text.splitlines() if line.startswith("python")] == ["bench.bench_render"]
+    assert [line.split()[2] for line in out_text.splitlines()
+            if line.startswith("python")] == ["bench.bench_render", "bench.datasheet"]
     code, _, err = cli("bench", "--only", "nothing")
     assert code == 2 and "unknown benchmark(s) nothing" in err
     # `make bench` runs this command: the benchmarks are listed once (BENCHES), and a full run
