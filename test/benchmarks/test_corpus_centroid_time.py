@@ -33,17 +33,18 @@ def test_stages_are_parts_of_the_centroiding(corpus, capsys, monkeypatch):
     for _, module_name, name in script.STAGES:  # the wrappers are undone after the test
         module = sys.modules.get(module_name) or __import__(module_name, fromlist=[name])
         monkeypatch.setattr(module, name, getattr(module, name))
-    script.main(["--corpus", str(corpus), "--repeat", "3", "--stages", IMAGE])
+    # One run: each stage's time lies inside that run's total (medians over runs need not add up).
+    script.main(["--corpus", str(corpus), "--repeat", "1", "--stages", IMAGE])
     result = json.loads(capsys.readouterr().out)[IMAGE]
     stages = result["stages"]
     assert set(stages) == {label for label, _, _ in script.STAGES}
     for label in ("detection", "candidate measurement", "PSF estimate", "point fits", "streak fits"):
         assert stages[label] > 0.0, label  # this frame has point-like and elongated spots
-    # The free streak fit and the streak residual run inside the streak fits. Medians over runs
-    # need not add exactly: a quarter of slack (a stage counted twice would be twice over).
-    assert stages["free streak fit (compiled)"] + stages["streak residual"] <= 1.25 * stages["streak fits"]
+    # The free streak fit and the streak residual run inside the streak fits, the rest one after
+    # another inside the total (0.01 ms a value of rounding).
+    assert stages["free streak fit (compiled)"] + stages["streak residual"] <= stages["streak fits"] + 0.02
     top_level = [label for label in stages if label not in ("free streak fit (compiled)", "streak residual")]
-    assert sum(stages[label] for label in top_level) <= 1.25 * result["total"]
+    assert sum(stages[label] for label in top_level) <= result["total"] + 0.06
 
 
 def test_plain_output_is_one_time_per_image(corpus, capsys):
