@@ -292,6 +292,12 @@ def speed_table(timing: dict, reference_ms: float) -> list[str]:
     return lines
 
 
+def worst_ratio(rows: list[dict], method: str, smear_px: float, snr_min: float) -> float:
+    """Return the largest RMS / CRB ratio of `method`'s rows at smear_px [px] and SNR >= snr_min (NaN: none)."""
+    points = [r for r in rows if r["method"] == method and r["smear_px"] == smear_px and r["snr"] >= snr_min]
+    return max(r["ratio"] for r in points) if points else float("nan")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer points and frames (smoke run)")
@@ -334,8 +340,7 @@ def main(argv=None) -> None:
                      f"{r['crb_px']:.4f} | {r['ratio']:.2f} | {100 * r['detected']:.1f} % |")
 
     def worst(method, smear, snr_min):
-        pts = [r for r in rows if r["method"] == method and r["smear_px"] == smear and r["snr"] >= snr_min]
-        return max(r["ratio"] for r in pts) if pts else float("nan")
+        return worst_ratio(rows, method, smear, snr_min)
 
     detected_10 = min(r["detected"] for r in rows if r["snr"] >= 10 and r["smear_px"] == 0 and r["method"] == "auto")
     ours_ms = timing["star_tracker (auto)"]["median_ms"]

@@ -1053,6 +1053,11 @@ def _jsonable(value):
     return str(value)
 
 
+def fresh_delay_trials(rows: list[dict]) -> int:
+    """Return how many delay-compensation trials published a correct attitude under the newest frame's stamp."""
+    return sum(bool(r["published"] and r.get("published_stamp_is_newest") and r.get("correct")) for r in rows)
+
+
 def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias, figures_written,
            output: Path | None) -> str:
     m = meta["machine"]
@@ -1060,9 +1065,8 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
     goal_ok = goal["correct"] >= GOAL_SUCCESS * goal["frames"] and goal["incorrect"] == 0
     track_ok = goal["track_ms_median"] is not None and goal["track_ms_median"] <= GOAL_TRACK_MS
     reacq_ok = all(r["frames_to_correct"] == 1 for r in reacq_rows)
-    delay_ok = all(r["published"] and r.get("published_stamp_is_newest") and r.get("correct") for r in delay_rows)
-    delay_fresh = sum(bool(r["published"] and r.get("published_stamp_is_newest") and r.get("correct"))
-                      for r in delay_rows)
+    delay_fresh = fresh_delay_trials(delay_rows)
+    delay_ok = delay_fresh == len(delay_rows)
     lines = ["## Tracking", "",
              f"Command: `{meta['command']}` — {meta['date']}, {m['cpu']}, {m['cores']} cores, Python {m['python']}, "
              f"{m['platform']}; {meta['elapsed_s']:.0f} s; core at commit {meta['commit']}. "
