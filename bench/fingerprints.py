@@ -124,8 +124,9 @@ ALT_FRAMES = {
     "moffat": (alt.MoffatPsf(1.0 / alt.SIGMA_PER_FWHM, beta=3.0), ALT_DETECTOR, 5000.0, 40),
     "moffat_template": (alt.MoffatPsf(1.0 / alt.SIGMA_PER_FWHM, beta=2.5), ALT_DETECTOR, 30000.0, 40),
     "moffat_core_halo": (alt.MoffatPsf(1.5 / alt.SIGMA_PER_FWHM, beta=3.0), ALT_DETECTOR, 60000.0, 40),
-    "tracks": (alt.GaussianPsf(1.0), alt.Detector(sky_e=40.0, read_noise_e=5.0, hot_pixel_fraction=1e-3,
-                                                 cosmic_rays_per_frame=60.0), 5000.0, 40),
+    "tracks": (alt.GaussianPsf(1.0),
+               alt.Detector(sky_e=40.0, read_noise_e=5.0, hot_pixel_fraction=1e-3, cosmic_rays_per_frame=60.0),
+               5000.0, 40),
     "wide": (alt.GaussianPsf(3.0), ALT_DETECTOR, 30000.0, 40),
     "narrow": (alt.GaussianPsf(0.5), ALT_DETECTOR, 1000.0, 40),
 }
@@ -143,8 +144,8 @@ def alt_frames() -> dict[str, str]:
         cold = extract_spots(frame.image)
         measured(out, f"alt/{name}", cold)
         if cold.psf is not None and cold.psf.estimated:
-            measured(out, f"alt/{name}/prior", extract_spots(frame.image, psf_prior=cold.psf.applied_sigma_px,
-                                                              prior_rings=cold.psf.annular))
+            again = extract_spots(frame.image, psf_prior=cold.psf.applied_sigma_px, prior_rings=cold.psf.annular)
+            measured(out, f"alt/{name}/prior", again)
     return out
 
 
