@@ -22,8 +22,8 @@ PARTS = ("all", "nodes", "centroider", "identifier")
 
 
 def warm_centroider() -> None:
-    """Compile the kernels CentroiderNode needs before its first frame (centroid.kernels.warm_up)."""
-    from .centroid.kernels import warm_up
+    """Compile the kernels CentroiderNode needs before its first frame (centroid.warm_up)."""
+    from .centroid.warm_up import warm_up
 
     warm_up()
 

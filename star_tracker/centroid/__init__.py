@@ -9,11 +9,11 @@ stars: smear, streak_free_fit (compiled: streak_free_kernel), streak_path_fit, s
 streak_model and levenberg_marquardt) -> `Spots` (spots). config holds CentroidConfig, rate_aid the body-rate
 aid's check, records the records passed between the steps.
 """
-from .detect import estimate_background, robust_sigma
+from .detection.detect import estimate_background, robust_sigma
 from .config import CENTROID_METHODS, CentroidConfig
 from .extract import extract_spots
-from .psf_fit import fit_gaussian_psf
-from .smear import SmearModel
+from .psf.gaussian_fit import fit_gaussian_psf
+from .streak.smear import SmearModel
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, FLUX_AT_MAGNITUDE_0, Spots
 
 __all__ = ["CENTROID_METHODS", "FLAG_BLENDED", "FLAG_EDGE", "FLAG_RATE_AIDED", "FLAG_SATURATED", "FLAG_STREAK",

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.special import erf
 
 from ..parameter_spec import parameter, range_problems
-from .measure import star_peak_to_neighbour_ratio
+from .detection.measure import star_peak_to_neighbour_ratio
 
 CENTROID_METHODS = ("auto", "cog", "wcog", "gaussian", "streak")
 PSF_MODES = ("auto", "fixed")

@@ -16,28 +16,28 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .beside_tracks import refit_beside_tracks
-from .candidates import STREAK_COUNT_MIN_SIGMA_PX, Candidates, measure_candidates
+from .tracks.beside_tracks import refit_beside_tracks
+from .detection.candidates import STREAK_COUNT_MIN_SIGMA_PX, Candidates, measure_candidates
 from .config import CentroidConfig, elongation_limit, peak_fraction_limit
-from .detect import DetectionGround, Detections, background_tiles, detect, detection_ground
-from .elliptical_psf import EllipticalGaussianPsf
-from .extended_objects import extended_candidates
-from .measure import cog_phase_bias_rms
-from .peak_shape import KEPT_BLEND_TRACK_FRACTION, RING_BLEND_TRACK_FRACTION, peak_minor_moments, peak_width_limit
-from .point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
-from .psf_estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
-from .psf_estimate import MAX_STARS as MAX_ESTIMATE_STARS
-from .psf_estimate import MIN_STARS as MIN_ESTIMATE_STARS
-from .psf_pilot import neighbour_positions, pilot_detections
-from .rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
+from .detection.detect import DetectionGround, Detections, background_tiles, detect, detection_ground
+from .psf.elliptical import EllipticalGaussianPsf
+from .detection.extended_objects import extended_candidates
+from .detection.measure import cog_phase_bias_rms
+from .tracks.peak_shape import KEPT_BLEND_TRACK_FRACTION, RING_BLEND_TRACK_FRACTION, peak_minor_moments, peak_width_limit
+from .psf.point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
+from .psf.estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
+from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
+from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
+from .psf.pilot import neighbour_positions, pilot_detections
+from .streak.rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
 from .records import FitContext, SpotRows, no_spots
-from .saturation import clip_levels, clipped_pixels, undershot_peaks
+from .detection.saturation import clip_levels, clipped_pixels, undershot_peaks
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
-from .streak_spots import fit_streak_spots
-from .texture import point_every_way, rank_last, texture_streaks
+from .streak.streak_spots import fit_streak_spots
+from .detection.texture import point_every_way, rank_last, texture_streaks
 
 if TYPE_CHECKING:
-    from .smear import SmearModel
+    from .streak.smear import SmearModel
 
 
 # A frame with WIDER_PRIOR_MIN_CANDIDATES detections whose PSF could not be estimated for too

@@ -13,8 +13,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .config import CentroidConfig
-from .detect import Detections
-from .elliptical_psf import EllipticalGaussianPsf
+from .detection.detect import Detections
+from .psf.elliptical import EllipticalGaussianPsf
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .psf_estimate import PsfEstimate
+    from .psf.estimate import PsfEstimate
 
 FLAG_SATURATED = 1 << 0  # a pixel of the spot reached the saturation level
 FLAG_EDGE = 1 << 1  # the spot's window touches the image border: position biased inward

@@ -514,7 +514,7 @@ def _matched(result: SolveResult) -> int:
 
 def texture_crowds_stars(spots, result: SolveResult) -> bool:
     """Whether texture (elongated spots pointing every way) may have crowded the stars out of `spots`."""
-    from ..centroid.texture import texture_streaks
+    from ..centroid.detection.texture import texture_streaks
 
     return bool(texture_streaks(spots.flags, spots.streak_angle).any()) and \
         _matched(result) < TEXTURE_RETRY_MATCHED_SHARE * len(spots)

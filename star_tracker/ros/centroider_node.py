@@ -35,9 +35,9 @@ from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
 from ..centroid import CentroidConfig, extract_spots
-from ..centroid.psf_prior import RunningPsf
-from ..centroid.kernels import warm_up
-from ..centroid.smear import SmearModel
+from ..centroid.psf.running_prior import RunningPsf
+from ..centroid.warm_up import warm_up
+from ..centroid.streak.smear import SmearModel
 from . import convert
 from .camera_info_input import CameraInfoInput
 from .diagnostics import Rejections

@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an
 from bench import alt_renderer as alt  # noqa: E402
 from bench import bench_psf_range as bench  # noqa: E402
 from star_tracker.centroid import CentroidConfig, extract_spots  # noqa: E402
-from star_tracker.centroid.detect import background_and_noise, background_tiles  # noqa: E402
+from star_tracker.centroid.detection.detect import background_and_noise, background_tiles  # noqa: E402
 
 
 def test_only_stars_whose_aperture_covers_a_quarter_tile_take_3x3_tiles():

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The compiled blend fit (centroid/blend_fit_kernel.py) against the numpy fit and the truth.
+The compiled blend fit (centroid/psf/blend_fit_kernel.py) against the numpy reference (gaussian_fit_reference.py) and the truth.
 
 Blends of 2-4 stars rendered here (pixel-integrated Gaussians by erf, Gaussian read noise):
 the compiled fit must converge where the numpy fit does and agree with it (to 1e-6 px where
@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from star_tracker.centroid import psf_fit
-from star_tracker.centroid.psf_fit import PsfStart, PsfWindows, fit_psf_windows
+from star_tracker.centroid.psf.gaussian_fit import fit_psf_windows
+from star_tracker.centroid.windows import PsfStart, PsfWindows
+
+from gaussian_fit_reference import fit_psf_numpy
 
 NOISE = 3.0  # [ADU], gain 1
 
@@ -31,12 +33,8 @@ def blend(rng: np.random.Generator, stars: int, size: int, sigma: float):
     return light + rng.normal(0.0, NOISE, light.shape), x, y, flux
 
 
-def both_fits(monkeypatch, windows: PsfWindows, start: PsfStart, sigma: float):
-    compiled = fit_psf_windows(windows, start, sigma, NOISE, 1.0)
-    monkeypatch.setattr(psf_fit, "USE_COMPILED", False)
-    reference = fit_psf_windows(windows, start, sigma, NOISE, 1.0)
-    monkeypatch.setattr(psf_fit, "USE_COMPILED", True)
-    return compiled, reference
+def both_fits(windows: PsfWindows, start: PsfStart, sigma: float):
+    return fit_psf_windows(windows, start, sigma, NOISE, 1.0), fit_psf_numpy(windows, start, sigma, NOISE, 1.0, 10)
 
 
 @pytest.mark.parametrize("stars", [2, 3, 4])
@@ -52,7 +50,7 @@ def test_compiled_blend_fit_is_the_numpy_fit_and_finds_the_stars(monkeypatch, st
         windows = PsfWindows(np.where(valid, window[None], 0.0), valid, np.array([left]), np.array([top]))
         start = PsfStart((left + x + rng.normal(0.0, 0.5, stars))[None], (top + y + rng.normal(0.0, 0.5, stars))[None],
                          (flux * rng.uniform(0.5, 2.0, stars))[None])
-        compiled, reference = both_fits(monkeypatch, windows, start, sigma)
+        compiled, reference = both_fits(windows, start, sigma)
         assert np.array_equal(compiled.converged, reference.converged)
         if not compiled.converged.all():
             continue
@@ -88,6 +86,6 @@ def test_a_star_without_signal_ends_unconverged_without_raising(monkeypatch):
     windows = PsfWindows(window[None], np.ones((1, 15, 15), bool), np.zeros(1), np.zeros(1))
     # The second star is started in a corner where there is only noise, with no flux.
     start = PsfStart(np.array([[x[0], 2.0]]), np.array([[y[0], 2.0]]), np.array([[2e4, 0.0]]))
-    compiled, _ = both_fits(monkeypatch, windows, start, 1.2)
+    compiled, _ = both_fits(windows, start, 1.2)
     assert compiled.converged[0, 0] and abs(compiled.x[0, 0] - x[0]) < 0.05
     assert not compiled.converged[0, 1] or compiled.cov[0, 1, 0, 0] > 1.0

@@ -8,7 +8,7 @@ in row-major order), for small boxes gathered together and large ones read one b
 import numpy as np
 import pytest
 
-from star_tracker.centroid.saturation import BOX_WINDOW_PX, box_maxima
+from star_tracker.centroid.detection.saturation import BOX_WINDOW_PX, box_maxima
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])

@@ -25,8 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an
 from bench import alt_renderer as alt  # noqa: E402
 
 from star_tracker.centroid import CentroidConfig, extract_spots  # noqa: E402
-from star_tracker.centroid.candidates import measure_candidates  # noqa: E402
-from star_tracker.centroid.detect import detect  # noqa: E402
+from star_tracker.centroid.detection.candidates import measure_candidates  # noqa: E402
+from star_tracker.centroid.detection.detect import detect  # noqa: E402
 
 DETECTOR = alt.Detector(sky_e=40.0, read_noise_e=5.0, gain_e_per_adu=1.0)
 SIZE = 512

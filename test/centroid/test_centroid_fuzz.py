@@ -20,7 +20,7 @@ from hypothesis import strategies as st  # noqa: E402
 
 from star_tracker.models.camera import CameraModel  # noqa: E402
 from star_tracker.centroid import CENTROID_METHODS, CentroidConfig, extract_spots  # noqa: E402
-from star_tracker.centroid.smear import SmearModel  # noqa: E402
+from star_tracker.centroid.streak.smear import SmearModel  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
 
 from fuzz_support import examples, valid_or_value_error  # noqa: E402

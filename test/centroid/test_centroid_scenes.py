@@ -15,8 +15,11 @@ from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid import (FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, CENTROID_METHODS,
                                    CentroidConfig, extract_spots)
-from star_tracker.centroid import point_fits, rate_aid, saturation, streak_spots
-from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.psf import point_fits
+from star_tracker.centroid.streak import rate_aid
+from star_tracker.centroid.detection import saturation
+from star_tracker.centroid.streak import streak_spots
+from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion, SlewMotion
 from star_tracker.sim.render import KIND_HOT_PIXEL, StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel

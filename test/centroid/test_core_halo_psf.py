@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid import single_star_model
-from star_tracker.centroid.core_halo_psf import CoreHaloPsf, estimate_core_halo
-from star_tracker.centroid.empirical_psf import fit_empirical
-from star_tracker.centroid.psf_fit import PsfStart, PsfWindows
+from star_tracker.centroid.psf import single_star_model
+from star_tracker.centroid.psf.core_halo import CoreHaloPsf, estimate_core_halo
+from star_tracker.centroid.psf.empirical import fit_empirical
+from star_tracker.centroid.windows import PsfStart, PsfWindows
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
 from bench import alt_renderer as alt  # noqa: E402
@@ -96,7 +96,7 @@ def test_a_gaussian_frame_keeps_the_gaussian(monkeypatch):
         chosen.append(model)
         return model, fit
 
-    monkeypatch.setattr("star_tracker.centroid.point_fits.fit_frame_model", recording)
+    monkeypatch.setattr("star_tracker.centroid.psf.point_fits.fit_frame_model", recording)
     for seed in range(3):
         rng = np.random.default_rng([23, seed])
         x, y = alt.place_stars(SIZE, SIZE, 50, 12.0, 12.0, rng)

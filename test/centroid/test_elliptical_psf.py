@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from star_tracker.centroid.elliptical_psf import EllipticalGaussianPsf, fit_elliptical
-from star_tracker.centroid.empirical_psf import fit_empirical
+from star_tracker.centroid.psf.elliptical import EllipticalGaussianPsf, fit_elliptical
+from star_tracker.centroid.psf.empirical import fit_empirical
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
 from bench import alt_renderer as alt  # noqa: E402

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an
 from bench import alt_renderer as alt  # noqa: E402
 
 from star_tracker.centroid import CentroidConfig, extract_spots  # noqa: E402
-from star_tracker.centroid.empirical_psf import EmpiricalPsf, build_empirical_psf, fit_empirical  # noqa: E402
+from star_tracker.centroid.psf.empirical import EmpiricalPsf, build_empirical_psf, fit_empirical  # noqa: E402
 
 DETECTOR = alt.Detector(sky_e=40.0, read_noise_e=5.0, hot_pixel_fraction=1e-4, cosmic_rays_per_frame=3.0)
 SIZE = 512
@@ -120,7 +120,7 @@ def test_gaussian_frames_keep_the_gaussian_fit(monkeypatch):
     (A first pass at a wrong prior width may build a profile; the frame is then measured
     again at the estimated width, where no star misfits.)
     """
-    import star_tracker.centroid.point_fits as point_fits
+    import star_tracker.centroid.psf.point_fits as point_fits
 
     rng = np.random.default_rng(5)
     x, y = alt.place_stars(SIZE, SIZE, 50, 12.0, 12.0, rng)

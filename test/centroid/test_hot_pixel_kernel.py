@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from star_tracker.centroid.measure import clean_hot_pixels, star_peak_to_neighbour_ratio
+from star_tracker.centroid.detection.measure import clean_hot_pixels, star_peak_to_neighbour_ratio
 
 _CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.uint8)
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from star_tracker.centroid.peak_shape import (CENTRE_PASSES, CENTRE_SYSTEMATIC_SIGMAS, MIN_PEAK_RADIUS_PX,
+from star_tracker.centroid.tracks.peak_shape import (CENTRE_PASSES, CENTRE_SYSTEMATIC_SIGMAS, MIN_PEAK_RADIUS_PX,
                                               PEAK_RADIUS_SIGMAS, TRUNCATED_MOMENT, peak_minor_moments)
 
 

@@ -15,7 +15,7 @@ import pytest
 from scipy.special import erf
 
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.psf_estimate import PsfEstimate
+from star_tracker.centroid.psf.estimate import PsfEstimate
 
 READ_NOISE_E = 5.0
 SKY_E = 50.0  # background per pixel [e-]
@@ -279,7 +279,7 @@ def test_psf_estimate_record_checks_its_source():
 
 
 def test_running_psf_carries_the_median_and_resets_on_a_failed_estimate():
-    from star_tracker.centroid.psf_prior import RunningPsf
+    from star_tracker.centroid.psf.running_prior import RunningPsf
 
     running = RunningPsf(frames=3)
     assert running.prior is None

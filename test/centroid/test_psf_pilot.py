@@ -14,8 +14,8 @@ from scipy.special import erf
 
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid import extract as extract_module
-from star_tracker.centroid import psf_pilot
-from star_tracker.centroid.kernels import footprint_peaks
+from star_tracker.centroid.psf import pilot as psf_pilot
+from star_tracker.centroid.detection.components_kernel import footprint_peaks
 
 SIZE = 2048
 STARS = 3000

@@ -9,7 +9,7 @@ and no star was detected. Frames made here, not by our simulator.
 import numpy as np
 
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.detect import robust_sigma
+from star_tracker.centroid.detection.detect import robust_sigma
 
 GAIN_E_PER_ADU, READ_E, SKY_E, BIAS_ADU = 16.0, 5.0, 20.0, 10.0
 

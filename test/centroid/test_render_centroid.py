@@ -172,11 +172,11 @@ def test_gaussian_fit_survives_a_degenerate_spot_in_the_batch():
 
 
 def test_compiled_psf_fit_is_the_numpy_fit(catalog, nominal_camera, monkeypatch):
-    import star_tracker.centroid.psf_fit as psf_fit
+    from gaussian_fit_reference import use_numpy_fits
 
     frame = render(catalog, nominal_camera, seed=41)
     compiled = extract_spots(frame.image, CentroidConfig())
-    monkeypatch.setattr(psf_fit, "USE_COMPILED", False)
+    use_numpy_fits(monkeypatch)
     reference = extract_spots(frame.image, CentroidConfig())
     assert len(compiled) == len(reference) >= 50
     assert np.allclose(compiled.x, reference.x, atol=1e-9) and np.allclose(compiled.y, reference.y, atol=1e-9)

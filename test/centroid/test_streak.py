@@ -16,10 +16,10 @@ from scipy.special import erf
 from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import StarCatalog, unit_to_radec
-from star_tracker.centroid.smear import SmearModel
-from star_tracker.centroid.streak_fit import StreakFit
-from star_tracker.centroid.streak_free_fit import fit_streaks
-from star_tracker.centroid.streak_path_fit import fit_streaks_on_path
+from star_tracker.centroid.streak.smear import SmearModel
+from star_tracker.centroid.streak.fit_common import StreakFit
+from star_tracker.centroid.streak.free_fit import fit_streaks
+from star_tracker.centroid.streak.path_fit import fit_streaks_on_path
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel

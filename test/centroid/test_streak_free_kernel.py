@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The compiled free streak fit's model (star_tracker.centroid.streak_free_kernel) against direct evaluation.
+The compiled free streak fit's model (star_tracker.centroid.streak.free_fit_kernel) against direct evaluation.
 
 Its profiles avoid exp per pixel and its jacobian is computed apart from the model: both are
 checked here against the formulas they stand for (the fit's accuracy is test_streak.py's).
@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from star_tracker.centroid import streak_free_kernel as kernel
+from star_tracker.centroid.streak import free_fit_kernel as kernel
 
 SIGMA = 1.2
 VAR_EFF = SIGMA ** 2 + 1.0 / 12.0

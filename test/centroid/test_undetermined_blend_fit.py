@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from star_tracker.centroid.point_fits import _determined
-from star_tracker.centroid.psf_fit import PsfFit
+from star_tracker.centroid.psf.point_fits import _determined
+from star_tracker.centroid.psf.gaussian_fit import PsfFit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
 from bench import bench_realdata as bench  # noqa: E402

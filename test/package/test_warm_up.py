@@ -27,8 +27,8 @@ SCRIPT = textwrap.dedent("""
     from star_tracker.models.attitude import attitude_error
     from star_tracker.models.catalog import load_hipparcos
     from star_tracker.centroid import CentroidConfig, extract_spots
-    from star_tracker.centroid.kernels import warm_up
-    from star_tracker.centroid.smear import SmearModel
+    from star_tracker.centroid.warm_up import warm_up
+    from star_tracker.centroid.streak.smear import SmearModel
     from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
     from star_tracker.track.tracking import Tracker
     from star_tracker.sim.motion import ConstantRateMotion

@@ -17,7 +17,7 @@ from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.spots import FLAG_STREAK
-from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel

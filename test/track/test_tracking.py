@@ -11,7 +11,7 @@ import pytest
 
 from star_tracker.models.attitude import attitude_error, radec_roll_to_matrix, rotation_vector_to_matrix
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
-from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.identify import make_identifier
 from star_tracker.track.tracking import (MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Prediction, Tracker,
                                          TrackingConfig, log_chance_tuples_in_region)

@@ -1,0 +1,329 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The PSF measured on the frame itself.
+
+The width [px] of the pixel-integrated Gaussian the centroider's fit model, windows, shape
+test and blend splitting use, from the frame's bright, isolated, unsaturated point-like stars
+(PsfEstimate, estimate_psf).
+
+Each chosen star gets a small fit of a pixel-integrated Gaussian with a free width (and a
+background offset) on a window 4 of its widths wide (width_fit_kernel.fit_psf_width): not the raw
+second moment, which a pixelated PSF inflates by 1/12 px^2 and a window cuts short. The
+frame's width is the median over the stars (a star that is not one, a hot pixel or a blend,
+does not move it), its uncertainty the median's spread / sqrt(n). For a non-Gaussian PSF (a
+Moffat's wings, a defocused annulus) it is the Gaussian that fits the core best: what the
+windows and tests need. Elongation and orientation come from the stars' Gaussian-weighted
+second moments (corrected for the weight and the pixel), the median over the chosen stars.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..detection.candidates import Candidates
+from ..detection.detect import Detections
+from .width_fit_kernel import fit_psf_width
+from ..detection.measure import clean_hot_pixels, star_peak_to_neighbour_ratio
+from ..windows import gather_windows
+
+SOURCES = ("estimated", "prior", "configured")
+MIN_SIGMA_PX, MAX_SIGMA_PX = 0.3, 5.0  # the supported range of the estimate [px]
+SHARPEST_STAR_PX = 0.25  # a fit narrower than this is a hot pixel (or an undersampled PSF we cannot tell from one)
+MIN_STARS = 5  # fewer usable stars: no estimate (a few cosmic-ray hits must not set the PSF)
+MAX_STARS = 12  # the brightest usable stars fitted: the median of 12 is good to ~1-3 % (and cheap)
+MIN_PEAK_SNR = 7.0  # brightest pixel above the background [noise sigmas]: enough to fit a width
+# A wide PSF spreads a star's light: at SNR 12 a sigma-2 px star's brightest pixel is ~3 sigmas.
+# Such a star is usable on its footprint SNR (>= MIN_STAR_SNR) with a peak of MIN_WIDE_PEAK_SNR.
+MIN_STAR_SNR = 10.0
+MIN_WIDE_PEAK_SNR = 3.0
+# A frame re-measured at a wider prior (extract.WIDER_PRIOR_FACTORS) whose stars are all faint
+# (a defocused camera's stars at SNR ~10 have peaks of ~2 noise sigmas and, in an aperture
+# still narrower than the PSF, a footprint SNR of ~6-8): stars from these levels count.
+FAINT_STAR_SNR = 6.0
+FAINT_WIDE_PEAK_SNR = 1.5
+ISOLATION_SIGMAS = 8.0  # no other candidate closer than this many (rough) PSF widths
+MAX_AXIS_RATIO = 3.0  # a star more elongated than this (noise included) is smeared or blended, not the optics' PSF
+WIDER_START = 1.2  # stars' moment width beyond this x the prior: the fit starts from the moment (an aperture cuts it)
+RERUN_TOLERANCE = 0.1  # relative difference from the prior beyond which a frame is measured again
+SMEARED_ELONGATION = 1.2  # stars more elongated than this are measured with the minor-axis width
+RING_CENTRE_RATIO = 0.6  # centre-to-ring light below this x a Gaussian's of the same width: a ring PSF
+
+
+@dataclass(frozen=True)
+class PsfEstimate:
+    """
+    The PSF of one frame as the centroider saw it.
+
+    sigma_px: the equivalent Gaussian 1-sigma [px] (estimated, or the prior / configured value
+    when not estimated); sigma_major_px, sigma_minor_px: 1-sigma along the PSF's major and
+    minor axes [px] (sigma_px times and over the square root of the pixelated shape's axis
+    ratio; both sigma_px when not measured); angle_rad: the major axis' direction
+    [rad] from +x toward +y, in (-pi/2, pi/2]; sigma_uncertainty_px: 1-sigma of sigma_px [px]
+    (nan when not estimated); stars: stars the estimate used; source: "estimated" (from this
+    frame), "prior" (too few usable stars or out of range: the prior was used) or "configured"
+    (psf_mode "fixed" or no PSF: nothing estimated); reason: why it fell back ("" when
+    estimated); applied_sigma_px: the width the frame was measured with [px] (the prior when
+    the estimate agreed with it within its tolerance, see extract.extract_spots); annular:
+    the stars are rings (a defocused PSF: less light at the centre than RING_CENTRE_RATIO x
+    a Gaussian's), so that a spot's several maxima are one star, not a blend.
+    """
+
+    sigma_px: float
+    sigma_major_px: float
+    sigma_minor_px: float
+    angle_rad: float
+    sigma_uncertainty_px: float
+    stars: int
+    source: str
+    reason: str = ""
+    applied_sigma_px: float = float("nan")
+    annular: bool = False
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"PsfEstimate.source={self.source!r} must be one of {SOURCES}")
+        if np.isnan(self.applied_sigma_px):
+            object.__setattr__(self, "applied_sigma_px", float(self.sigma_px))
+
+    @property
+    def estimated(self) -> bool:
+        return self.source == "estimated"
+
+    @property
+    def elongation(self) -> float:
+        """sigma_major / sigma_minor [-] (1 for a round PSF)."""
+        return float(self.sigma_major_px / self.sigma_minor_px) if self.sigma_minor_px > 0 else 1.0
+
+    @staticmethod
+    def assumed(sigma_px: float, source: str, reason: str = "", stars: int = 0) -> "PsfEstimate":
+        """Return a round PSF of sigma_px [px] that was not estimated (source "prior" or "configured")."""
+        return PsfEstimate(float(sigma_px), float(sigma_px), float(sigma_px), 0.0, float("nan"), stars, source, reason)
+
+
+def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sigma: float, faint: bool = False,
+                 neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """
+    Return indices of the candidates fit to measure the PSF on, brightest first (at most MAX_STARS).
+
+    Measured, off the image border, peak >= MIN_PEAK_SNR noise sigmas (or footprint SNR >=
+    MIN_STAR_SNR with a peak >= MIN_WIDE_PEAK_SNR sigmas: a wide PSF's star; with `faint`,
+    FAINT_STAR_SNR and FAINT_WIDE_PEAK_SNR) and 2 % below the clip
+    level (`saturation` [ADU]) and the frame's brightest candidate's peak, not most of their
+    light in one pixel once cleaned (hot pixels), not a long track (second moments within 8x of
+    each other), and no other candidate within ISOLATION_SIGMAS PSF widths. Candidates the shape
+    test rejected with the prior are included: with a prior too wide, that is where sharp stars
+    end up. neighbours: (x, y, slack) [px] of every candidate for that isolation test when `cand`
+    holds only some (psf_pilot: a neighbour counts within reach + slack; None: cand's measured ones).
+    """
+    finite = np.isfinite(cand.x) & np.isfinite(cand.y) & np.isfinite(cand.peak_raw)
+    amplitude = cand.peak_raw - det.background_at(np.where(finite, cand.x, 0.0), np.where(finite, cand.y, 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # Long streaks and cosmic-ray tracks out now; the fine roundness test is estimate_psf's,
+        # on the fit windows (these moments mix an aperture's and a footprint's).
+        not_track = (cand.major < 8.0 * cand.minor) & (cand.minor > 0)
+        one_pixel = cand.flux < 0.2 * amplitude  # a hot pixel cleaned away leaves almost nothing
+    # Clipped: at the clip level (configured or seen as a flat top), or at the frame's brightest
+    # value (a clip level no flat top showed; in a frame without one it costs the brightest star).
+    ceiling = min(saturation, float(np.max(cand.peak_raw[finite]))) if finite.any() else saturation
+    min_snr, min_wide_peak = (FAINT_STAR_SNR, FAINT_WIDE_PEAK_SNR) if faint else (MIN_STAR_SNR, MIN_WIDE_PEAK_SNR)
+    bright = (amplitude >= MIN_PEAK_SNR * det.noise_adu) | (
+        (cand.snr >= min_snr) & (amplitude >= min_wide_peak * det.noise_adu))
+    ok = finite & ~cand.edge & bright & (cand.peak_raw < 0.98 * ceiling) & not_track & ~one_pixel
+    chosen = np.flatnonzero(ok)
+    if chosen.size == 0:
+        return chosen
+    chosen = chosen[np.argsort(-amplitude[chosen], kind="stable")][: 3 * MAX_STARS]
+    all_x, all_y, slack = (cand.x[finite], cand.y[finite], 0.0) if neighbours is None else neighbours
+    distance = np.hypot(cand.x[chosen, None] - all_x[None, :], cand.y[chosen, None] - all_y[None, :])
+    distance[distance == 0.0] = np.inf  # itself
+    distance -= np.atleast_1d(slack)[None, :]
+    reach = ISOLATION_SIGMAS * max(prior_sigma, 1.0)
+    return chosen[distance.min(axis=1, initial=np.inf) > reach][:MAX_STARS]
+
+
+def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturation: float, prior_sigma: float,
+                 gain: float, faint: bool = False,
+                 neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                 min_usable: int = MIN_STARS) -> PsfEstimate:
+    """
+    Return the frame's PSF from its usable stars (usable_stars), or the prior.
+
+    The stars used are those whose fit converged to a width of at least SHARPEST_STAR_PX and
+    whose axis ratio is below MAX_AXIS_RATIO; the prior (source "prior", with the reason) is
+    returned when fewer than MIN_STARS remain (or fewer than `min_usable` usable stars: psf_pilot
+    asks for a full MAX_STARS) or the width is outside [MIN_SIGMA_PX, MAX_SIGMA_PX]. image [ADU];
+    det, cand: the frame's detections and measured candidates; saturation [ADU]; prior_sigma:
+    the width the candidates were measured with [px]; gain [e-/ADU]; faint, neighbours: see
+    usable_stars.
+    """
+    chosen = usable_stars(cand, det, saturation, prior_sigma, faint, neighbours)
+    need = max(MIN_STARS, min_usable)
+    if chosen.size < need:
+        min_snr = FAINT_STAR_SNR if faint else MIN_STAR_SNR
+        return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
+                                   f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {min_snr:g} (need {need})",
+                                   int(chosen.size))
+    x, y = cand.x[chosen], cand.y[chosen]
+    background = det.background_at(x, y)
+    # A window cut to the prior would shrink a wider PSF's fit: start from the candidates' moments
+    # (pixel term removed), and widen the window when the fit says the PSF is wider.
+    moment = np.sqrt(max(_median(0.5 * (cand.major[chosen] + cand.minor[chosen])) - 1.0 / 12.0, 0.04))
+    start, fit = (float(moment) if moment > WIDER_START * prior_sigma else prior_sigma), None
+    for _ in range(3):
+        half = int(np.clip(np.ceil(4.0 * start), 3, int(np.ceil(4.0 * MAX_SIGMA_PX))))
+        wider = _fit_widths(image, x, y, background, half, start, det.noise_adu, gain)
+        if wider is None:
+            break
+        fit = wider
+        if 4.0 * _median(fit[3]) <= half + 0.5:
+            break
+        start = _median(fit[3])
+    if fit is None:
+        return PsfEstimate.assumed(prior_sigma, "prior", "no PSF fit converged", 0)
+    fx, fy, flux, width, windows = fit
+    # Round enough to be the optics' PSF (axis ratio < MAX_AXIS_RATIO): smeared stars, blends
+    # in one footprint and cosmic-ray tracks out. Judged on the pixelated shape (C + I/12): with
+    # the pixel term removed, a faint undersampled star's noisy minor axis goes to ~0 and any
+    # such star looked elongated (sigma 0.4 px at SNR ~11: 4 of 11 "round").
+    # Faint stars (`faint`) weighed over their own width, not twice it: a weight 2 sigma wide takes
+    # in 4x the sky of their footprint, whose noise left 0-4 of 5-12 faint rings (SNR ~11, sigma
+    # 3 px) rounder than MAX_AXIS_RATIO: too few for an estimate on three of four bench frames.
+    weight_sigma = max((1.0 if faint else 2.0) * _median(width), 1.5)
+    moments = _weighted_moments(windows, fx, fy, weight_sigma)
+    ratio, _ = _axes(moments, weight_sigma)
+    round_ = ratio < MAX_AXIS_RATIO
+    if round_.sum() < MIN_STARS:
+        return PsfEstimate.assumed(prior_sigma, "prior", f"{int(round_.sum())} of {width.size} stars round (axis "
+                                   f"ratio < {MAX_AXIS_RATIO:g}; need {MIN_STARS}): smeared or blended",
+                                   int(round_.sum()))
+    width = width[round_]
+    sigma = _median(width)
+    spread = 1.4826 * _median(np.abs(width - sigma))
+    uncertainty = 1.2533 * spread / np.sqrt(width.size)  # a median's 1-sigma: sqrt(pi/2) x the mean's
+    if not MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX:
+        return PsfEstimate.assumed(prior_sigma, "prior", f"estimated PSF sigma {sigma:.2f} px is outside the "
+                                   f"supported [{MIN_SIGMA_PX}, {MAX_SIGMA_PX}] px", int(width.size))
+    # The median star's moments (element-wise): their flux-weighted sum, which one odd star can
+    # pull, made a round Moffat PSF 1.46x elongated on one of four bench frames (1.02-1.07 so).
+    total = np.median(moments[round_], axis=0)
+    ratio, angle = _axes(total[None], weight_sigma)
+    ratio = float(ratio[0]) if np.isfinite(ratio[0]) else 1.0
+    annular = _is_ring(windows, fx, fy, round_, sigma)
+    return PsfEstimate(sigma, float(sigma * np.sqrt(ratio)), float(sigma / np.sqrt(ratio)), float(angle[0]),
+                       float(uncertainty), int(width.size), "estimated", annular=annular)
+
+
+def _is_ring(windows, x, y, use: np.ndarray, sigma: float) -> bool:
+    """
+    Whether the stars `use` of the fit windows are rings (see RING_CENTRE_RATIO).
+
+    Light within 0.5 sigma of each fitted centre over light at 1-1.5 sigma, the median over
+    the stars, against the same ratio of a Gaussian of width sigma [px] (exp(-r^2 / 2 sigma^2)
+    averaged over each zone). Needs a PSF of at least 1 px (an undersampled ring is not told
+    from a Gaussian) and both zones holding pixels.
+    """
+    if sigma < 1.0:
+        return False
+    data, valid, col0, row0 = windows
+    size = data.shape[1]
+    dx = (col0[use, None] + np.arange(size)) - x[use, None]
+    dy = (row0[use, None] + np.arange(size)) - y[use, None]
+    r = np.hypot(dy[:, :, None], dx[:, None, :]) / sigma
+    ok = valid[use]
+    centre, ring = ok & (r < 0.5), ok & (r >= 1.0) & (r < 1.5)
+    if not centre.any() or not ring.any():
+        return False
+    light = np.where(ok, data[use], 0.0)
+    # Per star, then the median: a hot pixel or cosmic ray in one window must not decide.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        centre_mean = (light * centre).sum(axis=(1, 2)) / centre.sum(axis=(1, 2))
+        ring_mean = (light * ring).sum(axis=(1, 2)) / ring.sum(axis=(1, 2))
+    judged = (centre.sum(axis=(1, 2)) > 0) & (ring_mean > 0)
+    if not judged.any():
+        return False
+    measured = float(np.median(centre_mean[judged] / ring_mean[judged]))
+    gaussian = np.exp(-0.5 * r[centre] ** 2).mean() / np.exp(-0.5 * r[ring] ** 2).mean()
+    return bool(measured < RING_CENTRE_RATIO * gaussian)
+
+
+def _median(values: np.ndarray) -> float:
+    """Return the median of a few values (np.median's overhead is most of the cost at this size)."""
+    ordered = np.sort(values)
+    n = ordered.size
+    return float(0.5 * (ordered[(n - 1) // 2] + ordered[n // 2]))
+
+
+def _fit_widths(image, x, y, background, half: int, start: float, noise: float, gain: float):
+    """
+    Free-width fits of the stars at (x, y) [px] on (2 half + 1)^2 windows.
+
+    The converged stars' x, y, flux, width (sigma [px]) and their windows (data, valid, col0,
+    row0), keeping widths of at least SHARPEST_STAR_PX; None when fewer than MIN_STARS remain.
+    """
+    size = 2 * half + 1
+    col0, row0 = np.rint(x).astype(np.int64) - half, np.rint(y).astype(np.int64) - half
+    # Hot pixels out (one in a star's window would narrow its fit), judged against the sharpest
+    # PSF supported, so that no star the estimate could report is touched; cleaned on windows a
+    # pixel larger, so that the border pixels are judged against their true neighbours.
+    raw, valid = gather_windows(image, col0 - 1, row0 - 1, size + 2)
+    data, _ = clean_hot_pixels(np.where(valid, raw - background[:, None, None], 0.0), valid, noise,
+                               2.0 * star_peak_to_neighbour_ratio(MIN_SIGMA_PX))
+    data, valid = np.ascontiguousarray(data[:, 1:-1, 1:-1]), np.ascontiguousarray(valid[:, 1:-1, 1:-1])
+    flux0 = np.maximum(data.sum(axis=(1, 2)), 1.0)
+    fx, fy, flux, width, _, _, ok = fit_psf_width(data, valid, col0.astype(float), row0.astype(float), x.copy(),
+                                                  y.copy(), flux0, np.full(x.size, start), float(noise), float(gain),
+                                                  30)
+    keep = ok & (width >= SHARPEST_STAR_PX) & (flux > 0)
+    if keep.sum() < MIN_STARS:
+        return None
+    return fx[keep], fy[keep], flux[keep], width[keep], (data[keep], valid[keep], col0[keep], row0[keep])
+
+
+def _weighted_moments(windows, x, y, weight_sigma: float) -> np.ndarray:
+    """
+    Return each star's Gaussian-weighted second moments M (k, 2, 2) [px^2].
+
+    The moments are about its fitted centre (x, y) [px] (weight 1-sigma weight_sigma [px], wider
+    than the PSF so that the product is well sampled by the pixels).
+    """
+    data, valid, col0, row0 = windows
+    size = data.shape[1]
+    dx = (col0[:, None] + np.arange(size)) - x[:, None]  # (k, S) columns
+    dy = (row0[:, None] + np.arange(size)) - y[:, None]  # (k, S) rows
+    gx, gy = np.exp(-0.5 * dx * dx / weight_sigma ** 2), np.exp(-0.5 * dy * dy / weight_sigma ** 2)
+    weight = np.where(valid, data, 0.0) * gy[:, :, None] * gx[:, None, :]
+    row_sums, col_sums = weight.sum(axis=2), weight.sum(axis=1)  # (k, S) each
+    total = row_sums.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mxx = np.sum(col_sums * dx * dx, axis=1) / total
+        myy = np.sum(row_sums * dy * dy, axis=1) / total
+        mxy = np.einsum("ki,kij,kj->k", dy, weight, dx) / total
+    moments = np.empty((x.size, 2, 2))
+    moments[:, 0, 0], moments[:, 1, 1] = mxx, myy
+    moments[:, 0, 1] = moments[:, 1, 0] = mxy
+    return moments
+
+
+def _axes(moments: np.ndarray, weight_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return the axis ratio sigma_major / sigma_minor [-] and major axis angle [rad] of the pixelated PSF.
+
+    The ratio is inf when not measurable, the angle in (-pi/2, pi/2], from Gaussian-weighted
+    moments (k, 2, 2): for a Gaussian of covariance C, pixelated (C + I/12), such moments are
+    M = ((C + I/12)^-1 + I/w^2)^-1, so C + I/12 = (M^-1 - I/w^2)^-1 (w = weight_sigma [px]).
+    The axes are those of C + I/12: with the pixel term taken off, a faint undersampled star's
+    noisy minor axis goes to ~0 and any such star looks elongated.
+    """
+    def inverse(a, b, c):  # of the symmetric [[a, c], [c, b]], and whether it is positive definite
+        det = a * b - c * c
+        return b / det, a / det, -c / det, np.isfinite(det) & (det > 0) & (a > 0)
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a, b, c, ok = inverse(moments[:, 0, 0], moments[:, 1, 1], moments[:, 0, 1])
+        a, b, c, ok2 = inverse(a - weight_sigma ** -2, b - weight_sigma ** -2, c)
+        spread = np.sqrt(0.25 * (a - b) ** 2 + c * c)
+        major, minor = 0.5 * (a + b) + spread, 0.5 * (a + b) - spread
+        ratio = np.where(ok & ok2 & (minor > 0), np.sqrt(major / minor), np.inf)
+        angle = 0.5 * np.arctan2(2.0 * c, a - b)
+    return ratio, np.where(np.isfinite(angle), angle, 0.0)

@@ -1,0 +1,116 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Smear geometry: where a fixed star's image moves on the detector during one exposure.
+
+Under a constant body rate (SmearModel); and the length of a straight streak from its second
+moment.
+
+Image convention: pixel (0, 0) is the centre of the top-left pixel; x = column, y = row [px].
+Angles are measured from +x toward +y (clockwise on the displayed image, y down) [rad].
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ...models.camera import CameraModel
+
+PATH_SPACING_PX = 0.5  # SmearModel.path's default: samples at most this far apart [px]
+
+
+def segment_length(major, sigma: float) -> np.ndarray:
+    """
+    Return the length [px] of a straight streak from its second moment `major` [px^2] along it.
+
+    The streak's image is a segment swept by a Gaussian PSF of 1-sigma `sigma` [px]: a uniform
+    segment of length L adds L^2 / 12. 0 where `major` is below sigma^2 (NaN stays NaN).
+    """
+    return np.sqrt(np.maximum(12.0 * (np.asarray(major, dtype=float) - sigma * sigma), 0.0))
+
+
+@dataclass(frozen=True, eq=False)
+class SmearModel:
+    """
+    Image motion of fixed stars during one exposure under a constant body rate.
+
+    camera: sensor geometry (distortion included); angular_velocity_rad_s: (3,) body rate
+    omega in the sensor frame [rad/s] (+Z boresight, +X right, +Y down); exposure_s: exposure
+    time [s]. A star's sensor-frame direction at time t from mid-exposure is
+    s(t) = exp(-[omega x] t) s(0), the attitude being R(t) = R_mid exp([omega x] t).
+    """
+
+    camera: CameraModel
+    angular_velocity_rad_s: np.ndarray
+    exposure_s: float
+
+    def __post_init__(self) -> None:
+        if not all(callable(getattr(self.camera, m, None)) for m in ("project", "pixel_to_ray")):
+            raise ValueError(f"camera must be a CameraModel (project, pixel_to_ray), got {self.camera!r}")
+        try:
+            omega = np.array(self.angular_velocity_rad_s, dtype=float)
+            exposure = float(self.exposure_s)
+        except (TypeError, ValueError):
+            raise ValueError("angular_velocity_rad_s must be 3 numbers [rad/s] and exposure_s a number [s]") from None
+        if omega.shape != (3,) or not np.all(np.isfinite(omega)):
+            raise ValueError("angular_velocity_rad_s must be 3 finite values [rad/s], "
+                             f"got {self.angular_velocity_rad_s!r}")
+        if not (np.isfinite(exposure) and exposure >= 0):
+            raise ValueError(f"exposure_s must be finite and >= 0 [s], got {self.exposure_s!r}")
+        omega.flags.writeable = False
+        object.__setattr__(self, "angular_velocity_rad_s", omega)
+        object.__setattr__(self, "exposure_s", exposure)
+
+    def sample_times(self, samples: int) -> np.ndarray:
+        """Mid-points of `samples` equal slices of the exposure, from mid-exposure [s]."""
+        return ((np.arange(samples) + 0.5) / samples - 0.5) * self.exposure_s
+
+    def _positions(self, x, y, times: np.ndarray) -> np.ndarray:
+        """Offsets (N, K, 2) [px] at `times` [s] from the stars' mid-exposure pixels (x, y)."""
+        x, y = _pixels(x, y)
+        rays = self.camera.pixel_to_ray(x, y)  # (N, 3) directions at mid-exposure
+        u0, v0, _ = self.camera.project(rays)  # reference: cancels the undistortion round trip
+        turns = Rotation.from_rotvec(-np.multiply.outer(times, self.angular_velocity_rad_s)).as_matrix()  # (K, 3, 3)
+        u, v, in_front = self.camera.project(np.einsum("kij,nj->nki", turns, rays))
+        offsets = np.stack([u - u0[:, None], v - v0[:, None]], axis=-1)
+        return np.where(in_front[..., None], offsets, np.nan)  # behind the camera: no image
+
+    def path(self, x, y, samples: int | None = None) -> np.ndarray:
+        """
+        Pixel offsets (N, K, 2) [px] of the star images whose mid-exposure positions are (x, y) [px].
+
+        At the K times t_k = ((k + 0.5) / K - 0.5) exposure_s, relative to (x, y) (zero at t =
+        0, antisymmetric for straight constant-speed smear). samples: K; default the fewest
+        giving <= PATH_SPACING_PX between samples along the longest path (>= 1). NaN where the
+        direction is behind the camera.
+        """
+        if samples is None:
+            probe = self._positions(x, y, self.sample_times(16))
+            longest = np.nan_to_num(np.sum(np.linalg.norm(np.diff(probe, axis=1), axis=2), axis=1)) * 16 / 15
+            samples = max(1, int(np.ceil(float(np.max(longest, initial=0.0)) / PATH_SPACING_PX)))
+        elif not (isinstance(samples, (int, np.integer)) and samples >= 1):
+            raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
+        return self._positions(x, y, self.sample_times(int(samples)))
+
+    def smear_vectors(self, x, y) -> np.ndarray:
+        """
+        Return the end minus start image position (N, 2) [px] over the exposure (t = +T/2 and -T/2).
+
+        Of the stars at mid-exposure pixels (x, y) [px].
+        """
+        ends = self._positions(x, y, np.array([-0.5, 0.5]) * self.exposure_s)
+        return ends[:, 1] - ends[:, 0]
+
+
+def _pixels(x, y) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        x = np.asarray(x, dtype=float).ravel()
+        y = np.asarray(y, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise ValueError("pixel coordinates x, y must be numeric") from None
+    if x.shape != y.shape:
+        raise ValueError(f"x and y must have the same number of values, got {x.size} and {y.size}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ValueError("pixel coordinates x, y must be finite")
+    return x, y
