@@ -51,7 +51,7 @@ from star_tracker.models.attitude_estimation import quest, refine_with_covarianc
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import FLAG_BLENDED, FLAG_EDGE, FLAG_SATURATED, CentroidConfig, extract_spots
-from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.identify import DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from star_tracker.identify.base import direction_covariance
 from star_tracker.sim.motion import ConstantRateMotion

@@ -34,7 +34,7 @@ from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.commands.bench import report_progress
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed

@@ -389,8 +389,8 @@ def stages_in_process(exposure_s: float, frames: int = 40) -> dict:
     from star_tracker.models.camera import CameraModel
     from star_tracker.models.catalog import load_hipparcos
     from star_tracker.centroid import CentroidConfig, extract_spots
-    from star_tracker.centroid.kernels import warm_up
-    from star_tracker.centroid.smear import SmearModel
+    from star_tracker.centroid.warm_up import warm_up
+    from star_tracker.centroid.streak.smear import SmearModel
     from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
     from star_tracker.track.tracking import Tracker
     from star_tracker.sim.motion import ConstantRateMotion

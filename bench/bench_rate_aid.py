@@ -26,7 +26,7 @@ import star_tracker.centroid.extract as extract_module
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer
 from star_tracker.sim.sensor import SensorModel

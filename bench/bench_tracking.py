@@ -49,7 +49,7 @@ from star_tracker.models.attitude import (attitude_error, matrix_to_rotation_vec
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import cache_dir, load_hipparcos
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
-from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
 from star_tracker.track.tracking import MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Tracker, TrackingConfig
 from star_tracker.sim.motion import ConstantRateMotion, MotionProfile, SlewMotion

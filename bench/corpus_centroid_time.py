@@ -34,8 +34,8 @@ STAGES = (
     ("point fits", "star_tracker.centroid.extract", "fit_points"),
     ("blend fits", "star_tracker.centroid.extract", "fit_blends"),
     ("streak fits", "star_tracker.centroid.extract", "fit_streak_spots"),
-    ("streak residual", "star_tracker.centroid.streak_spots", "streak_residual"),
-    ("free streak fit (compiled)", "star_tracker.centroid.streak_spots", "fit_streaks"),
+    ("streak residual", "star_tracker.centroid.streak.streak_spots", "streak_residual"),
+    ("free streak fit (compiled)", "star_tracker.centroid.streak.streak_spots", "fit_streaks"),
 )
 
 

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from star_tracker.centroid import extract_spots
-from star_tracker.centroid.smear import SmearModel
+from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.identify import ALGORITHMS, DatabaseConfig, IdentifyConfig, load_or_build_database, make_identifier
 from star_tracker.track.tracking import Tracker
 from star_tracker.models.attitude import radec_roll_to_matrix
@@ -72,7 +72,7 @@ def spots_digest(spots) -> str:
 
 
 def psf_digest(spots) -> str:
-    """The frame's PSF record (every field, in order) and its single stars' fit model."""
+    """Hash the frame's PSF record (every field, in order) and its single stars' fit model."""
     psf = spots.psf
     values = [] if psf is None else [repr(getattr(psf, f)) for f in psf.__dataclass_fields__]
     return digest(np.frombuffer("|".join(values + [spots.fit_model]).encode(), np.uint8))

@@ -21,7 +21,7 @@ ARCSEC = np.radians(1.0 / 3600.0)
 
 def main() -> int:
     from star_tracker.centroid import CentroidConfig, extract_spots
-    from star_tracker.centroid.smear import SmearModel
+    from star_tracker.centroid.streak.smear import SmearModel
     from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
     from star_tracker.models.attitude import matrix_to_rotation_vector, radec_roll_to_matrix
     from star_tracker.models.camera import CameraModel

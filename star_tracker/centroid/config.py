@@ -90,14 +90,14 @@ class CentroidConfig:
         if bad:
             raise ValueError("invalid centroid config: " + "; ".join(bad))
 
-    @property
-    def window_half(self) -> int:
-        """
-        Half size of a point-spot window [px].
 
-        The PSF to 3 sigma (beyond, a pixel carries < 1 % of the position information).
-        """
-        return int(max(3, np.ceil(3.0 * max(self.psf_sigma_px, 1.0))))
+def window_half(sigma: float) -> int:
+    """
+    Half size of a point-spot window [px] for a PSF of 1-sigma `sigma` [px].
+
+    The PSF to 3 sigma (beyond, a pixel carries < 1 % of the position information), at least 3.
+    """
+    return int(max(3, np.ceil(3.0 * max(sigma, 1.0))))
 
 
 def elongation_limit(sigma: float) -> float:

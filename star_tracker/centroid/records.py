@@ -12,9 +12,32 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .config import CentroidConfig
+from .config import CentroidConfig, window_half
 from .detection.detect import Detections
 from .psf.elliptical import EllipticalGaussianPsf
+from .psf.estimate import MIN_SIGMA_PX
+
+
+@dataclass(frozen=True)
+class PsfTrial:
+    """
+    A PSF a frame is measured with (psf_loop.PsfLoop tries one or more per frame).
+
+    sigma_px: its 1-sigma width [px] (0: no PSF); rings: the stars are rings
+    (PsfEstimate.annular: a spot's maxima are one star, split as a blend only farther apart);
+    narrowest_px: an elongated PSF's minor-axis 1-sigma [px], the width test's (None: sigma_px);
+    elliptical: an astigmatic PSF, the single stars' fit model (None: the round Gaussian).
+    """
+
+    sigma_px: float
+    rings: bool = False
+    narrowest_px: float | None = None
+    elliptical: "EllipticalGaussianPsf | None" = None
+
+    @property
+    def model_sigma_px(self) -> float:
+        """The width the detection kernel and the fits use [px]: sigma_px, at least MIN_SIGMA_PX; 0.5 without a PSF."""
+        return max(self.sigma_px, MIN_SIGMA_PX) if self.sigma_px > 0 else 0.5
 
 
 @dataclass(frozen=True)
@@ -23,12 +46,12 @@ class FitContext:
     One frame as the fits see it.
 
     Image [ADU] (2-D), its detections (background [ADU] on the detection grid, pixel noise
-    [ADU]), the stage's config and the PSF 1-sigma the fits use [px] (config.psf_sigma_px,
-    at least psf_estimate.MIN_SIGMA_PX; 0.5 without a PSF); rings: the stars are rings
-    (psf_estimate.PsfEstimate.annular: blends split farther apart, config.blend_separation_px);
-    own_psf: the frame's empirical PSF may replace the Gaussian (point_fits; not when a known
-    body rate smears the stars: their shapes then differ across the field); elliptical: an
-    astigmatic frame's PSF (elliptical_psf.EllipticalGaussianPsf, from the PSF estimate), the
+    [ADU]), the stage's config and the PSF 1-sigma the fits use [px] (PsfTrial.model_sigma_px
+    of the width tried); rings: the stars are rings (estimate.PsfEstimate.annular: blends split
+    farther apart, config.blend_separation_px); own_psf: the frame's empirical PSF may replace
+    the Gaussian (point_fits; not when a known body rate smears the stars: their shapes then
+    differ across the field); elliptical: an astigmatic frame's PSF
+    (elliptical.EllipticalGaussianPsf, from the PSF estimate), the
     single stars' fit model unless their bright stars fit it worse than the round Gaussian
     (single_star_model; None: round).
     """
@@ -50,6 +73,24 @@ class FitContext:
     def gain(self) -> float:
         """Gain [e-/ADU] of the shot-noise term."""
         return self.config.gain_e_per_adu
+
+    @property
+    def window_half(self) -> int:
+        """Half size of a point-spot window [px] at this PSF (config.window_half)."""
+        return window_half(self.sigma)
+
+    def local_noise_factor(self, x, y, flux) -> np.ndarray:
+        """
+        Variance ratio of a spot's measurement under the local pixel noise vs the frame's typical one.
+
+        (F/g + N s_local^2) / (F/g + N s^2), N = 4 pi sigma^2 the PSF's effective pixels; x, y
+        [px], flux [ADU] per spot.
+        """
+        det = self.det
+        scale = det.noise_scale_at(np.nan_to_num(x), np.nan_to_num(y))
+        shot = np.maximum(np.nan_to_num(flux), 0.0) / self.gain
+        pixels = 4.0 * np.pi * self.sigma ** 2 * det.noise_adu ** 2
+        return (shot + pixels * scale ** 2) / (shot + pixels)
 
 
 class FittedStars(NamedTuple):

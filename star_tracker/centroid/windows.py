@@ -1,7 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""
-Pixel windows around spots, as the PSF fits take them: gather_windows, PsfWindows, PsfStart.
-"""
+"""Pixel windows around spots, as the PSF fits take them: gather_windows, PsfWindows, PsfStart."""
 from __future__ import annotations
 
 from typing import NamedTuple

@@ -34,7 +34,6 @@ def inverse_3x3(a: np.ndarray) -> np.ndarray:
         return out / det[:, None, None]
 
 
-
 def fit_psf_numpy(windows: PsfWindows, start: PsfStart, sigma, noise, gain, iterations) -> PsfFit:
     """gaussian_fit.fit_psf_windows in numpy, any M; start (n, M)."""
     data, valid, col0, row0 = windows
@@ -103,7 +102,7 @@ def fit_psf_numpy(windows: PsfWindows, start: PsfStart, sigma, noise, gain, iter
 
 
 def use_numpy_fits(monkeypatch) -> None:
-    """Make gaussian_fit.fit_psf_windows fit with fit_psf_numpy instead of its compiled kernels (single stars and blends)."""
+    """Make gaussian_fit.fit_psf_windows fit with fit_psf_numpy, not its compiled kernels (single stars, blends)."""
     def single(windows, start, settings):
         fit = fit_psf_numpy(windows, PsfStart(start.x[:, None], start.y[:, None], start.flux[:, None]),
                             settings.sigma, settings.noise, settings.gain, settings.iterations)

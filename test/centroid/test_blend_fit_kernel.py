@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The compiled blend fit (centroid/psf/blend_fit_kernel.py) against the numpy reference (gaussian_fit_reference.py) and the truth.
+The compiled blend fit (centroid/psf/blend_fit_kernel.py) against the numpy reference and the truth.
 
 Blends of 2-4 stars rendered here (pixel-integrated Gaussians by erf, Gaussian read noise):
 the compiled fit must converge where the numpy fit does and agree with it (to 1e-6 px where

@@ -2,7 +2,7 @@
 """
 The pre-fit measurement of a faint, wide star is made where the star is.
 
-The first cut (extract._first_cut) keeps a candidate for the fits by its aperture SNR; the
+The first cut (frame_measurement._first_cut) keeps a candidate for the fits by its aperture SNR; the
 aperture is centred on the candidate's seed. A wide (defocused) faint star's brightest 3x3 pixel
 sum is noise a pixel or two off its centre: the aperture then missed part of the star and the
 cut dropped stars of SNR 10 (bench_psf_range: alt Gaussian sigma 3 @ 1000 e-, 98.95 % detected).

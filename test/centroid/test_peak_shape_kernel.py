@@ -17,7 +17,7 @@ import pytest
 from scipy.special import erf
 
 from star_tracker.centroid.tracks.peak_shape import (CENTRE_PASSES, CENTRE_SYSTEMATIC_SIGMAS, MIN_PEAK_RADIUS_PX,
-                                              PEAK_RADIUS_SIGMAS, TRUNCATED_MOMENT, peak_minor_moments)
+                                                     PEAK_RADIUS_SIGMAS, TRUNCATED_MOMENT, peak_minor_moments)
 
 
 class FlatGround:

@@ -300,14 +300,14 @@ def test_a_running_prior_of_rings_saves_a_defocused_frames_second_pass(monkeypat
 
     Its spots are those of the cold two-pass measurement (the same width, blends split as rings).
     """
-    from star_tracker.centroid import extract as extract_module
+    from star_tracker.centroid import frame_measurement
 
     image, xy, snr, _ = render(annulus(2.5), seed=4)
     cold = extract_spots(image, CONFIG)
     assert cold.psf.annular, cold.psf
     passes = []
-    measure = extract_module.measure_candidates
-    monkeypatch.setattr(extract_module, "measure_candidates",
+    measure = frame_measurement.measure_candidates
+    monkeypatch.setattr(frame_measurement, "measure_candidates",
                         lambda *args, **kwargs: passes.append(kwargs.get("rings")) or measure(*args, **kwargs))
     warm = extract_spots(image, CONFIG, psf_prior=cold.psf.applied_sigma_px, prior_rings=True)
     assert passes == [True], passes

@@ -13,7 +13,7 @@ from scipy import ndimage
 from scipy.special import erf
 
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid import extract as extract_module
+from star_tracker.centroid import frame_measurement
 from star_tracker.centroid.psf import pilot as psf_pilot
 from star_tracker.centroid.detection.components_kernel import footprint_peaks
 
@@ -48,13 +48,13 @@ def test_the_pilot_measures_few_detections_and_changes_nothing(monkeypatch):
     image = crowded_frame()
     config = CentroidConfig(saturation_adu=60000.0)
     measured: list[int] = []
-    measure = extract_module.measure_candidates
+    measure = frame_measurement.measure_candidates
 
     def counting(image, det, *args, **kwargs):
         measured.append(det.x.size)
         return measure(image, det, *args, **kwargs)
 
-    monkeypatch.setattr(extract_module, "measure_candidates", counting)
+    monkeypatch.setattr(frame_measurement, "measure_candidates", counting)
     crowded = psf_pilot.PILOT_MIN_DETECTIONS
     with_pilot = extract_spots(image, config)
     pilot_sizes = list(measured)

@@ -32,7 +32,7 @@ def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf, max_miss
     brighter per pixel than the star, held the footprint's brightest maxima, and the star's
     peak was never tried (track_peaks.star_beside_track_peaks); then 1 and 1. The Gaussian one
     (seed 8) was a round star whose footprint the track stretched: its streak fit failed and it
-    was dropped; now a failed streak in a round frame is measured as a point (extract._fit_spots):
+    was dropped; now a failed streak in a round frame is measured as a point (frame_fits._fit_spots):
     1 and 0. The annulus one (seed 1) sat beside a track whose pixels tied at its maximum (this
     scene's deposit carries no shot noise), a clipped flat top to saturation.clip_levels, and a
     clipped blend with a track was dropped whole; now its star's own pixels measure it: 0 and 0

@@ -14,7 +14,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from ..config import CentroidConfig, blend_separation_px, elongation_limit, hot_pixel_ratio
+from ..config import CentroidConfig, blend_separation_px, elongation_limit, hot_pixel_ratio, window_half
 from .detect import Detections
 from .point_window_kernel import PointWindowSettings, SmallSpots, brightest_box, measure_small
 from .measure import Moments, aperture_moments, box_sums, clean_hot_pixels, major_moment_noise, two_peaks
@@ -126,7 +126,7 @@ def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfi
     streaks_expected: a body rate predicts streaks (the detection footprints are the matched
     streak filter's), so a footprint longer than the aperture's measure is taken as it is.
     """
-    half = config.window_half + 1  # measuring window: the fit window plus a pixel of room
+    half = window_half(sigma) + 1  # measuring window: the fit window plus a pixel of room
     size = 2 * half + 1
     big = size + SEARCH_MARGIN  # search window: the spot window is re-centred on the brightest 3x3 sum in it
     m = det.x.size
@@ -156,7 +156,7 @@ def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings
 
     Footprints wider than the aperture get their shape from the footprint too.
     """
-    half = config.window_half + 1
+    half = window_half(sigma) + 1
     big = 2 * half + 1 + SEARCH_MARGIN
     bg = det.background_at(det.x[idx], det.y[idx])
     spots = SmallSpots(det.x[idx], det.y[idx], bg, det.top[idx], det.bottom[idx], det.left[idx], det.right[idx])

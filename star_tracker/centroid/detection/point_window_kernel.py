@@ -325,7 +325,7 @@ def _measure_small(image, spots, settings):
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) the measurement for every image dtype (each passed read-only), and the seed box."""
+    """Compile (or load from the cache) the measurement for every image dtype (passed read-only), and the seed box."""
     one = np.full(1, 16.0)
     index = np.full(1, 14, np.int64)
     for dtype in WARM_IMAGE_DTYPES:

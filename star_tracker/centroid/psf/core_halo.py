@@ -78,7 +78,6 @@ class CoreHaloPsf:
 
     def fit(self, windows: PsfWindows, start: PsfStart, noise: float, gain: float, iterations: int = 10) -> PsfFit:
         """Fit one star of this shape per window (x, y, flux; gaussian_fit_kernel.fit_single_psf); start (n,) arrays."""
-
         compiled = PsfWindows(np.ascontiguousarray(windows.data, np.float64),
                               np.ascontiguousarray(windows.valid, np.bool_),
                               np.asarray(windows.col0, np.float64), np.asarray(windows.row0, np.float64))

@@ -1,7 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""
-Small dense systems of the compiled PSF fits (numba): a 3x3 inverse by cofactors, an SPD solve by Cholesky.
-"""
+"""Small dense systems of the compiled PSF fits (numba): a 3x3 inverse by cofactors, an SPD solve by Cholesky."""
 from __future__ import annotations
 
 import math

@@ -45,7 +45,7 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     `excluded` (a neighbour's clipped core; None = none) are left out of the fits.
     """
     config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
-    half = config.window_half
+    half = context.window_half
     size = 2 * half + 1
     x, y, flux = spots.x, spots.y, spots.flux
     # Windows measured already (small spots, centred on their peak) are reused, cropped to the
@@ -341,14 +341,14 @@ def fit_clipped_points(context: FitContext, spots: SpotRows, which: np.ndarray, 
     covariance. The window is the point window grown by the clipped core's radius. converged:
     which of them the fit describes (the others keep their centre of gravity).
     """
-    config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
+    sigma, noise, gain = context.sigma, context.noise, context.gain
     x, y, flux = spots.x, spots.y, spots.flux
     cx, cy = np.rint(x[which]).astype(np.int64), np.rint(y[which]).astype(np.int64)
     ok = np.zeros(which.size, bool)
-    probe = config.window_half
+    probe = context.window_half
     core, _ = gather_windows(excluded, cx - probe, cy - probe, 2 * probe + 1)
     radius = np.ceil(np.sqrt(core.sum(axis=(1, 2)) / np.pi)).astype(np.int64)
-    half_all = config.window_half + radius
+    half_all = context.window_half + radius
     fitted = spots
     for half in np.unique(half_all):
         k = np.flatnonzero(half_all == half)

@@ -31,8 +31,8 @@ def gaussian_profile(lo: float, centre: float, sigma: float, size: int, prob: np
 
 
 @njit(cache=True, fastmath=False)
-def gaussian_profile_with_width(lo: float, centre: float, sigma: float, size: int, prob: np.ndarray, d_centre: np.ndarray,
-                        d_sigma: np.ndarray) -> None:
+def gaussian_profile_with_width(lo: float, centre: float, sigma: float, size: int, prob: np.ndarray,
+                                d_centre: np.ndarray, d_sigma: np.ndarray) -> None:
     """gaussian_profile plus the derivative of each pixel's fraction with respect to sigma [1/px]."""
     for k in range(size):
         a = (lo + k - centre) / sigma

@@ -1,7 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""
-One pixel-integrated circular Gaussian per window with a free width, compiled (numba): the PSF estimate's fit.
-"""
+"""One pixel-integrated circular Gaussian per window with a free width, compiled (numba): the PSF estimate's fit."""
 from __future__ import annotations
 
 import math

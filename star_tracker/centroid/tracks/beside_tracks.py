@@ -35,7 +35,7 @@ def refit_beside_tracks(context: FitContext, peaks: dict, spots: SpotRows, psf, 
     rows = np.array([t for t in peaks if spots.snr[t] > 0], np.int64)
     if rows.size == 0:
         return spots
-    half = context.config.window_half
+    half = context.window_half
     size = 2 * half + 1
     x0, y0 = spots.x[rows], spots.y[rows]
     col0, row0 = np.rint(x0).astype(np.int64) - half, np.rint(y0).astype(np.int64) - half

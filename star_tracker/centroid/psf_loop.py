@@ -1,0 +1,228 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The PSF loop: measure the frame, estimate its PSF from the stars found, measure again at the estimate.
+
+`PsfLoop` owns it: the prior (the width the frame is first measured with), the estimate and
+the PSF being tried (`records.PsfTrial`), and runs measure -> estimate -> measure again as one
+loop with one exit. `CentroidConfig` stays the user's configuration (psf_sigma_px is the prior,
+or the width in psf_mode "fixed"); the width under trial never travels in it.
+
+The steps, each a trial measured and then judged (`_Step.then`):
+- psf_mode "fixed" (or no PSF): the configured width, kept.
+- A crowded frame without a running prior first measures its brightest detections alone
+  (psf.pilot): an estimate from a full set of stars that calls for another width skips the
+  measurement at the prior.
+- The prior: measured, its PSF estimated (psf.estimate). Too few usable stars among many
+  detections (a defocused camera's faint rings, fragments at a narrow width): measured again
+  at WIDER_PRIOR_FACTORS x the prior, until one gives an estimate.
+- An estimate that differs from the width measured with (by more than RERUN_TOLERANCE, or
+  ring stars measured as points or points as rings): measured at the estimate, kept.
+  Astigmatic stars narrower across than the prior: measured again at the prior with the width
+  test at their minor axis, kept.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+from .config import CentroidConfig
+from .frame_fits import fitted_spots
+from .frame_measurement import DetectionGrounds, FrameMeasurement, detect_at, measure_frame
+from .psf.elliptical import EllipticalGaussianPsf
+from .psf.estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
+from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
+from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
+from .psf.pilot import neighbour_positions, pilot_detections
+from .records import PsfTrial
+from .spots import Spots
+from .streak.rate_aid import typical_smear_px
+
+if TYPE_CHECKING:
+    from .detection.detect import Detections
+    from .streak.smear import SmearModel
+
+# A frame with WIDER_PRIOR_MIN_CANDIDATES detections whose PSF could not be estimated for too
+# few usable stars is measured again at these multiples of the prior width (up to MAX_SIGMA_PX),
+# until one gives an estimate.
+WIDER_PRIOR_FACTORS = (2.0, 3.0)
+WIDER_PRIOR_MIN_CANDIDATES = 20
+
+
+@dataclass(frozen=True)
+class _Step:
+    """A trial to measure, what judges its measurement (returns the next step, None: done), and its detections."""
+
+    trial: PsfTrial
+    then: Callable[[PsfTrial, FrameMeasurement], "_Step | None"]
+    detections: "Detections | None" = None
+
+
+class PsfLoop:
+    """
+    One frame's PSF loop (module docstring): `run()` returns its spots with the PSF they were measured with.
+
+    image [ADU] (2-D); config: the user's CentroidConfig; smear: the body rate's smear model
+    (None: unknown); psf_prior [px]: the last frames' width (the centroider node's running
+    prior; None or out of [MIN_SIGMA_PX, MAX_SIGMA_PX]: config.psf_sigma_px); prior_rings: the
+    last frames' stars were rings. After run(): `estimate`, the frame's PSF as estimated or
+    assumed, and `kept`, the trial and measurement whose spots are returned.
+    """
+
+    def __init__(self, image: np.ndarray, config: CentroidConfig, smear: "SmearModel | None" = None,
+                 psf_prior: float | None = None, prior_rings: bool = False):
+        self.image, self.config, self.smear = image, config, smear
+        self.grounds = DetectionGrounds(image, config)
+        self.prior_given = psf_prior is not None
+        usable = self.prior_given and bool(np.isfinite(psf_prior)) and MIN_SIGMA_PX <= psf_prior <= MAX_SIGMA_PX
+        self.prior = PsfTrial(float(psf_prior), bool(prior_rings)) if usable else PsfTrial(config.psf_sigma_px)
+        self.estimate: PsfEstimate | None = None
+        self.kept: tuple[PsfTrial, FrameMeasurement] | None = None
+        self._pilot_estimate: PsfEstimate | None = None
+
+    def run(self) -> Spots:
+        """Measure until a step keeps its measurement; return the kept measurement's spots, fitted, with their PSF."""
+        step = self._first_step()
+        while step is not None:
+            measurement = measure_frame(self.image, self.config, step.trial, self.smear,
+                                        self.grounds.at(step.trial.sigma_px), det=step.detections)
+            step = step.then(step.trial, measurement)
+        trial, measurement = self.kept
+        psf = replace(self.estimate, applied_sigma_px=trial.sigma_px) if self.estimate.estimated else self.estimate
+        return replace(fitted_spots(measurement), psf=psf)
+
+    def _first_step(self) -> _Step:
+        config = self.config
+        if config.psf_mode == "fixed" or config.psf_sigma_px <= 0:
+            self.estimate = PsfEstimate.assumed(config.psf_sigma_px, "configured")
+            return _Step(PsfTrial(config.psf_sigma_px), self._keep)
+        if self.smear is not None:
+            return _Step(self.prior, self._after_prior)
+        det = detect_at(self.image, config, self.prior, None, self.grounds.at(self.prior.sigma_px))
+        # A running prior (the node's last estimates) is expected to hold: no pilot to waste.
+        pilot = None if self.prior_given else pilot_detections(self.image, det, self.prior.sigma_px)
+        if pilot is not None:
+            return _Step(self.prior, lambda trial, measured: self._after_pilot(measured, det, pilot), det.take(pilot))
+        return _Step(self.prior, self._after_prior, det)
+
+    def _keep(self, trial: PsfTrial, measured: FrameMeasurement) -> None:
+        self.kept = (trial, measured)
+        return None
+
+    def _after_pilot(self, measured: FrameMeasurement, det: "Detections", pilot: np.ndarray) -> _Step:
+        """
+        Judge the pilot's measurement (the brightest detections, at the prior).
+
+        An estimate from a full set of stars is the frame's: one that calls for another width
+        skips the measurement at the prior. Otherwise the whole frame is measured at the prior
+        (too few stars: as without a pilot).
+        """
+        frame = measured.frame
+        if frame is not None:
+            guess = estimate_psf(self.image, frame.det, frame.cand, frame.saturation, self.prior.sigma_px,
+                                 self.config.gain_e_per_adu, neighbours=neighbour_positions(frame.cand, det, pilot),
+                                 min_usable=MAX_ESTIMATE_STARS)
+            if guess.estimated and _remeasured(guess, self.prior.sigma_px):
+                self.estimate = guess
+                return _Step(self._at_estimate(), self._keep)
+            self._pilot_estimate = guess
+        return _Step(self.prior, self._after_prior, det)
+
+    def _after_prior(self, trial: PsfTrial, measured: FrameMeasurement) -> _Step | None:
+        """Judge the measurement at the prior: estimate its PSF, then as _settle (or the wider-prior search)."""
+        self.kept = (trial, measured)
+        frame = measured.frame
+        if frame is None:
+            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "no detections")
+            return None
+        if frame.smeared:
+            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "rate-aided frame: the stars are smeared")
+            return None
+        guess = self._pilot_estimate
+        self.estimate = guess if guess is not None and guess.estimated else \
+            estimate_psf(self.image, frame.det, frame.cand, frame.saturation, trial.sigma_px,
+                         self.config.gain_e_per_adu)
+        if not self.estimate.estimated:
+            # Many detections but too few usable stars (not: usable ones all elongated, a smear):
+            # a PSF much wider than the prior (a defocused camera's faint rings are fragments
+            # and streaks at a narrow width, their light outside its apertures).
+            many = frame.cand.x.size >= WIDER_PRIOR_MIN_CANDIDATES
+            return self._wider(0) if many and self.estimate.stars < MIN_ESTIMATE_STARS else None
+        return self._settle(trial, measured)
+
+    def _wider(self, index: int) -> _Step | None:
+        """Return the next wider width's step (WIDER_PRIOR_FACTORS[index] x the prior); None past MAX_SIGMA_PX."""
+        if index >= len(WIDER_PRIOR_FACTORS) or self.prior.sigma_px * WIDER_PRIOR_FACTORS[index] > MAX_SIGMA_PX:
+            return None
+        return _Step(PsfTrial(self.prior.sigma_px * WIDER_PRIOR_FACTORS[index]),
+                     lambda trial, measured: self._after_wider(trial, measured, index))
+
+    def _after_wider(self, trial: PsfTrial, measured: FrameMeasurement, index: int) -> _Step | None:
+        """Estimate at the wider width (fainter stars too: estimate.FAINT_STAR_SNR); one replaces the prior's."""
+        frame = measured.frame
+        if frame is None:
+            return None
+        again = estimate_psf(self.image, frame.det, frame.cand, frame.saturation, trial.sigma_px,
+                             self.config.gain_e_per_adu, faint=True)
+        if not again.estimated:
+            return self._wider(index + 1)
+        self.kept, self.estimate = (trial, measured), again
+        return self._settle(trial, measured)
+
+    def _settle(self, trial: PsfTrial, measured: FrameMeasurement) -> _Step | None:
+        """With an estimate of the frame measured at `trial`: measure again where it calls for it, else keep."""
+        estimate = self.estimate
+        if _remeasured(estimate, trial.sigma_px, trial.rings):
+            return _Step(self._at_estimate(), self._keep)
+        width, elongated = _estimated_width(estimate)
+        elliptical = self._elliptical()
+        if elongated and width < (1.0 - RERUN_TOLERANCE) * trial.sigma_px:
+            # Astigmatic stars are narrower across than the prior: measured again with the width
+            # test at their minor axis, which the prior's rejected some of them at.
+            return _Step(PsfTrial(trial.sigma_px, trial.rings, narrowest_px=width, elliptical=elliptical), self._keep)
+        if elliptical is not None:
+            self.kept = (trial, replace(measured, context=replace(measured.context, elliptical=elliptical)))
+        return None
+
+    def _at_estimate(self) -> PsfTrial:
+        """Return the trial at the estimated PSF (_estimated_width; rings, astigmatism)."""
+        width, _ = _estimated_width(self.estimate)
+        return PsfTrial(width, self.estimate.annular, elliptical=self._elliptical())
+
+    def _elliptical(self) -> EllipticalGaussianPsf | None:
+        """
+        Return the astigmatic stars' fit model (elongated with no known rate that smears them), else None.
+
+        A round Gaussian's centre is pulled with the sub-pixel phase. Under a known rate the
+        elongation is motion, not the optics' shape.
+        """
+        estimate, smear, (height, width) = self.estimate, self.smear, self.image.shape
+        still = smear is None or typical_smear_px(smear, width, height) < self.config.min_smear_px
+        if estimate.elongation <= SMEARED_ELONGATION or not still:
+            return None
+        return EllipticalGaussianPsf(estimate.sigma_major_px, estimate.sigma_minor_px, estimate.angle_rad)
+
+
+def _estimated_width(estimate: PsfEstimate) -> tuple[float, bool]:
+    """
+    Return the width [px] a frame is measured with at its estimated PSF, and whether its stars are elongated.
+
+    Stars elongated alike are smeared (an unknown body rate) or astigmatic: their minor axis is
+    the PSF, and a round width would hide the smear from the streak fits.
+    """
+    elongated = estimate.elongation > SMEARED_ELONGATION
+    return (estimate.sigma_minor_px if elongated else estimate.sigma_px), elongated
+
+
+def _remeasured(estimate: PsfEstimate, prior: float, rings: bool = False) -> bool:
+    """
+    Return whether a frame measured at `prior` [px] (`rings`: as ring stars) is measured again at its estimate's width.
+
+    An elongated PSF's minor width is only approximate (the round fit over the axis ratio): it
+    overrides the prior only when clearly different. Ring stars (a defocused PSF) are, unless
+    measured as rings already: a ring's maxima are one star, split as a blend only farther
+    apart; and stars measured as rings that are not.
+    """
+    width, elongated = _estimated_width(estimate)
+    return abs(width - prior) > (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior or estimate.annular != rings
