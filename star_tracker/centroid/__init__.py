@@ -2,20 +2,26 @@
 """
 Centroiding stage: image [ADU] -> `Spots` (sub-pixel positions at mid-exposure with covariance).
 
-extract.extract_spots runs the stage: detect (background, noise, threshold, components) ->
-candidates (hot-pixel cleaning, centre of gravity, shape; measure's primitives) -> saturation
-(clipped spots) -> point_fits (Gaussian PSF: psf_fit, kernels; blends) / streak_spots (smeared
-stars: smear, streak_free_fit (compiled: streak_free_kernel), streak_path_fit, streak_groups on
-streak_model and levenberg_marquardt) -> `Spots` (spots). config holds CentroidConfig, rate_aid the body-rate
-aid's check, records the records passed between the steps.
+The package reads as the data flow:
+- extract.extract_spots runs the stage; psf_loop.PsfLoop owns the PSF loop (measure at the
+  prior, estimate the PSF, measure again at the estimate);
+- frame_measurement measures a frame at one PSF up to its fits: detection/ (background, noise,
+  threshold, components; every detection measured as a candidate; hot pixels, clipped stars,
+  extended objects, texture), tracks/ (cosmic-ray tracks merged with stars);
+- frame_fits fits what the measurement kept: psf/ (the PSF estimate and the point-like stars'
+  models and fits), streak/ (smeared stars: the smear a body rate predicts, the streak fits);
+- records and windows hold the records passed between the steps, config the user's
+  CentroidConfig, spots the `Spots` record the stage returns.
+Compiled kernels (numba) sit beside the idea they serve, in *_kernel.py; warm_up compiles them.
 """
-from .detection.detect import estimate_background, robust_sigma
 from .config import CENTROID_METHODS, CentroidConfig
+from .detection.detect import estimate_background, robust_sigma
 from .extract import extract_spots
 from .psf.gaussian_fit import fit_gaussian_psf
-from .streak.smear import SmearModel
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, FLUX_AT_MAGNITUDE_0, Spots
+from .streak.smear import SmearModel
+from .windows import PsfStart
 
 __all__ = ["CENTROID_METHODS", "FLAG_BLENDED", "FLAG_EDGE", "FLAG_RATE_AIDED", "FLAG_SATURATED", "FLAG_STREAK",
-           "FLUX_AT_MAGNITUDE_0", "CentroidConfig", "SmearModel", "Spots", "estimate_background", "extract_spots",
-           "fit_gaussian_psf", "robust_sigma"]
+           "FLUX_AT_MAGNITUDE_0", "CentroidConfig", "PsfStart", "SmearModel", "Spots", "estimate_background",
+           "extract_spots", "fit_gaussian_psf", "robust_sigma"]

@@ -16,11 +16,13 @@ import numpy as np
 
 from .config import CentroidConfig, elongation_limit, peak_fraction_limit, window_half
 from .detection.candidates import STREAK_COUNT_MIN_SIGMA_PX, Candidates, measure_candidates
-from .detection.detect import DetectionGround, Detections, background_tiles, detect, detection_ground
+from .detection.detect import (DetectionGround, Detections, DetectionSettings, background_tiles, detect,
+                               detection_ground)
 from .detection.extended_objects import extended_candidates
 from .detection.measure import cog_phase_bias_rms
 from .detection.saturation import clip_levels, clipped_pixels
 from .detection.texture import point_every_way, rank_last
+from .psf.estimate import MeasuredFrame
 from .records import FitContext, PsfTrial, SpotRows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_SATURATED, Spots
 from .streak.rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
@@ -83,22 +85,6 @@ class Clipping:
 
 
 @dataclass(frozen=True)
-class MeasuredFrame:
-    """
-    What a measurement of a frame leaves for the PSF estimate.
-
-    Its detections, every measured candidate (shape-test rejects included), the saturation
-    level [ADU] and whether a body rate predicted smears (then no star shows the optics'
-    PSF).
-    """
-
-    det: Detections
-    cand: Candidates
-    saturation: float
-    smeared: bool = False
-
-
-@dataclass(frozen=True)
 class FrameMeasurement:
     """
     A frame measured with one PSF width up to its sub-pixel fits.
@@ -134,9 +120,9 @@ def detect_at(image: np.ndarray, config: CentroidConfig, trial: PsfTrial, aid: "
     """Detect the frame's spots at the trial's PSF width (with a rate aid: its streak kernel)."""
     height, width = image.shape
     sigma = trial.model_sigma_px
-    return detect(image, binning=ground.binning, background_block_px=config.background_block_px,
-                  detection_sigma=config.detection_sigma, psf_sigma_px=trial.sigma_px,
-                  min_area=config.min_area, max_area=config.max_area,
+    settings = DetectionSettings(ground.binning, config.background_block_px, config.detection_sigma, trial.sigma_px,
+                                 config.min_area, config.max_area)
+    return detect(image, settings,
                   smear_kernel=smear_kernel(aid, width, height, sigma, ground.binning) if aid is not None else None,
                   ground=ground)
 

@@ -120,9 +120,8 @@ class PsfLoop:
         """
         frame = measured.frame
         if frame is not None:
-            guess = estimate_psf(self.image, frame.det, frame.cand, frame.saturation, self.prior.sigma_px,
-                                 self.config.gain_e_per_adu, neighbours=neighbour_positions(frame.cand, det, pilot),
-                                 min_usable=MAX_ESTIMATE_STARS)
+            guess = estimate_psf(self.image, frame, self.prior.sigma_px, self.config.gain_e_per_adu,
+                                 neighbours=neighbour_positions(frame.cand, det, pilot), min_usable=MAX_ESTIMATE_STARS)
             if guess.estimated and _remeasured(guess, self.prior.sigma_px):
                 self.estimate = guess
                 return _Step(self._at_estimate(), self._keep)
@@ -141,8 +140,7 @@ class PsfLoop:
             return None
         guess = self._pilot_estimate
         self.estimate = guess if guess is not None and guess.estimated else \
-            estimate_psf(self.image, frame.det, frame.cand, frame.saturation, trial.sigma_px,
-                         self.config.gain_e_per_adu)
+            estimate_psf(self.image, frame, trial.sigma_px, self.config.gain_e_per_adu)
         if not self.estimate.estimated:
             # Many detections but too few usable stars (not: usable ones all elongated, a smear):
             # a PSF much wider than the prior (a defocused camera's faint rings are fragments
@@ -163,8 +161,7 @@ class PsfLoop:
         frame = measured.frame
         if frame is None:
             return None
-        again = estimate_psf(self.image, frame.det, frame.cand, frame.saturation, trial.sigma_px,
-                             self.config.gain_e_per_adu, faint=True)
+        again = estimate_psf(self.image, frame, trial.sigma_px, self.config.gain_e_per_adu, faint=True)
         if not again.estimated:
             return self._wider(index + 1)
         self.kept, self.estimate = (trial, measured), again

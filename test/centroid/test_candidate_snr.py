@@ -26,7 +26,7 @@ from bench import alt_renderer as alt  # noqa: E402
 
 from star_tracker.centroid import CentroidConfig, extract_spots  # noqa: E402
 from star_tracker.centroid.detection.candidates import measure_candidates  # noqa: E402
-from star_tracker.centroid.detection.detect import detect  # noqa: E402
+from star_tracker.centroid.detection.detect import DetectionSettings, detect  # noqa: E402
 
 DETECTOR = alt.Detector(sky_e=40.0, read_noise_e=5.0, gain_e_per_adu=1.0)
 SIZE = 512
@@ -41,9 +41,8 @@ def _snr_ratios(sigma: float, flux_e: float, seeds) -> np.ndarray:
         rng = np.random.default_rng([42, seed])
         x, y = alt.place_stars(SIZE, SIZE, 50, 8.0 * sigma, 4.0 * sigma + 8.0, rng)
         frame = alt.render(alt.StarField.build(alt.GaussianPsf(sigma), x, y), flux_e, DETECTOR, SIZE, SIZE, rng)
-        det = detect(frame.image, binning=config.binning, background_block_px=config.background_block_px,
-                     detection_sigma=config.detection_sigma, psf_sigma_px=sigma, min_area=config.min_area,
-                     max_area=config.max_area)
+        det = detect(frame.image, DetectionSettings(config.binning, config.background_block_px, config.detection_sigma,
+                                                    sigma, config.min_area, config.max_area))
         cand = measure_candidates(frame.image, det, config, sigma)
         background = det.background_at(x, y)
         for k in range(x.size):

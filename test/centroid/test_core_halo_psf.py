@@ -63,7 +63,7 @@ def test_the_compiled_fit_is_the_reference_gauss_newton():
     valid &= rng.random(valid.shape) > 0.03
     start = (x + 0.3, y - 0.2, np.full(x.size, 3000.0))
     compiled = psf.fit(PsfWindows(data, valid, col0, row0), PsfStart(*start), 5.0, 1.0)
-    reference = fit_empirical(psf, data, valid, col0, row0, *start, 5.0, 1.0, iterations=12)
+    reference = fit_empirical(psf, PsfWindows(data, valid, col0, row0), PsfStart(*start), 5.0, 1.0, iterations=12)
     assert compiled.converged.all() and reference[5].all()
     assert np.max(np.abs(compiled.x[:, 0] - reference[0])) < 1e-4
     assert np.max(np.abs(compiled.y[:, 0] - reference[1])) < 1e-4

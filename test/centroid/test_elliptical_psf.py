@@ -15,6 +15,7 @@ import pytest
 
 from star_tracker.centroid.psf.elliptical import EllipticalGaussianPsf, fit_elliptical
 from star_tracker.centroid.psf.empirical import fit_empirical
+from star_tracker.centroid.windows import PsfStart, PsfWindows
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
 from bench import alt_renderer as alt  # noqa: E402
@@ -53,8 +54,8 @@ def test_the_compiled_fit_is_the_reference_gauss_newton():
     win = 3000.0 * share + rng.normal(0.0, 5.0, share.shape)
     valid = rng.random(win.shape) > 0.03
     start = (x + 0.3, y - 0.2, np.full(n, 2000.0))
-    compiled = fit_elliptical(psf, win, valid, col0, row0, *start, 5.0, 1.0)
-    reference = fit_empirical(psf, win, valid, col0, row0, *start, 5.0, 1.0)
+    compiled = fit_elliptical(psf, PsfWindows(win, valid, col0, row0), PsfStart(*start), 5.0, 1.0)
+    reference = fit_empirical(psf, PsfWindows(win, valid, col0, row0), PsfStart(*start), 5.0, 1.0)
     assert compiled[5].all() and reference[5].all()
     assert np.max(np.abs(compiled[0] - reference[0])) < 1e-4 and np.max(np.abs(compiled[1] - reference[1])) < 1e-4
     assert np.allclose(compiled[3], reference[3], rtol=1e-3)

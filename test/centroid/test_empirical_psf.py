@@ -21,6 +21,7 @@ from bench import alt_renderer as alt  # noqa: E402
 
 from star_tracker.centroid import CentroidConfig, extract_spots  # noqa: E402
 from star_tracker.centroid.psf.empirical import EmpiricalPsf, build_empirical_psf, fit_empirical  # noqa: E402
+from star_tracker.centroid.windows import PsfStart, PsfWindows  # noqa: E402
 
 DETECTOR = alt.Detector(sky_e=40.0, read_noise_e=5.0, hot_pixel_fraction=1e-4, cosmic_rays_per_frame=3.0)
 SIZE = 512
@@ -81,13 +82,13 @@ def test_profile_of_a_ring_recovers_its_shape_and_the_stars():
     x0, y0 = rng.uniform(20, 21, 12), rng.uniform(20, 21, 12)
     win, col0, row0 = _noiseless_windows(psf, x0, y0, 8, 1000.0)
     valid = np.ones_like(win, bool)
-    model = build_empirical_psf(win, valid, col0, row0, x0 + 0.2, y0 - 0.2, noise=1.0, gain=1.0)
+    model = build_empirical_psf(PsfWindows(win, valid, col0, row0), x0 + 0.2, y0 - 0.2, noise=1.0, gain=1.0)
     assert isinstance(model, EmpiricalPsf)
     centres = (np.arange(model.profile.size) + 0.5) * 0.1
     peak_radius = centres[np.argmax(model.profile)]
     assert 0.3 * psf.outer_radius_px < peak_radius < psf.outer_radius_px  # light on the ring, not the centre
-    x, y, flux, cov, _, ok = fit_empirical(model, win, valid, col0, row0, x0 + 0.3, y0 - 0.3,
-                                           win.sum(axis=(1, 2)), noise=1.0, gain=1.0)
+    x, y, flux, cov, _, ok = fit_empirical(model, PsfWindows(win, valid, col0, row0),
+                                           PsfStart(x0 + 0.3, y0 - 0.3, win.sum(axis=(1, 2))), noise=1.0, gain=1.0)
     assert ok.all()
     assert np.abs(x - x0).max() < 0.02 and np.abs(y - y0).max() < 0.02
     assert np.allclose(flux, 1000.0, rtol=0.05)
@@ -104,9 +105,10 @@ def test_a_cosmic_ray_in_one_template_star_does_not_shape_the_profile():
     valid = np.ones_like(clean, bool)
     errors = []
     for win in (clean, hit):
-        model = build_empirical_psf(win, valid, col0, row0, x0 + 0.1, y0 - 0.1, noise=1.0, gain=1.0)
-        x, y, _, _, _, ok = fit_empirical(model, clean[1:], valid[1:], col0[1:], row0[1:], x0[1:] + 0.2,
-                                          y0[1:] - 0.2, clean[1:].sum(axis=(1, 2)), noise=1.0, gain=1.0)
+        model = build_empirical_psf(PsfWindows(win, valid, col0, row0), x0 + 0.1, y0 - 0.1, noise=1.0, gain=1.0)
+        x, y, _, _, _, ok = fit_empirical(model, PsfWindows(clean[1:], valid[1:], col0[1:], row0[1:]),
+                                          PsfStart(x0[1:] + 0.2, y0[1:] - 0.2, clean[1:].sum(axis=(1, 2))),
+                                          noise=1.0, gain=1.0)
         assert ok.all()
         errors.append(np.hypot(x - x0[1:], y - y0[1:]))
     # The plain mean per radial bin let the track through (its 20x peak in a few bins): 0.04 px.

@@ -160,13 +160,13 @@ def test_gaussian_fit_reaches_its_covariance_and_beats_cog(catalog, nominal_came
 
 
 def test_gaussian_fit_survives_a_degenerate_spot_in_the_batch():
-    from star_tracker.centroid import fit_gaussian_psf
+    from star_tracker.centroid import PsfStart, fit_gaussian_psf
 
     yy, xx = np.mgrid[0:64, 0:64]
     image = 1000 * np.exp(-((xx - 20.3) ** 2 + (yy - 30.7) ** 2) / 2) / (2 * np.pi)
     # Second spot: no signal at all (singular information for its position).
-    x, y, _, cov, ok = fit_gaussian_psf(image, np.array([20.0, 45.0]), np.array([31.0, 10.0]),
-                                        np.array([900.0, 0.0]), 1.0, 1.0, 1.0)
+    x, y, _, cov, ok = fit_gaussian_psf(image, PsfStart(np.array([20.0, 45.0]), np.array([31.0, 10.0]),
+                                                        np.array([900.0, 0.0])), 1.0, 1.0, 1.0)
     assert abs(x[0] - 20.3) < 1e-3 and abs(y[0] - 30.7) < 1e-3 and ok[0]
     assert not ok[1] or cov[1, 0, 0] > 1e6  # flagged, or honestly uninformative
 

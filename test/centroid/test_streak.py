@@ -17,7 +17,7 @@ from star_tracker.models.attitude import radec_roll_to_matrix
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid.streak.smear import SmearModel
-from star_tracker.centroid.streak.fit_common import StreakFit
+from star_tracker.centroid.streak.fit_common import StreakFit, StreakImage
 from star_tracker.centroid.streak.free_fit import fit_streaks
 from star_tracker.centroid.streak.path_fit import fit_streaks_on_path
 from star_tracker.sim.motion import ConstantRateMotion
@@ -222,7 +222,7 @@ def test_free_fit_reaches_the_cramer_rao_bound(smear_px, snr):
     tx, ty = t.x[star], t.y[star]
     x0, y0, f0, l0, a0 = moment_guesses(residual, tx + rng.uniform(-1, 1, tx.size), ty + rng.uniform(-1, 1, tx.size),
                                         int(smear_px / 2 + 8))
-    fit = fit_streaks(residual, x0, y0, f0, l0, a0, SIGMA, NOISE, GAIN)
+    fit = fit_streaks(StreakImage(residual, SIGMA, NOISE, GAIN), x0, y0, f0, l0, a0)
     assert tx.size >= 40 and fit.converged.all()
     rms = np.sqrt(np.mean((fit.x - tx) ** 2 + (fit.y - ty) ** 2))
     # Measured 0.84-1.21x over seeds (0.95-1.01 pooled); the bound is for x and y alone
@@ -244,7 +244,7 @@ def test_free_fit_length_and_angle_at_high_snr():
     t = frame.truth
     star = stars_inside(t, 25)
     tx, ty = t.x[star], t.y[star]
-    fit = fit_streaks(residual, *moment_guesses(residual, tx, ty, 22), SIGMA, NOISE, GAIN)
+    fit = fit_streaks(StreakImage(residual, SIGMA, NOISE, GAIN), *moment_guesses(residual, tx, ty, 22))
     vectors = SmearModel(CAMERA, omega, EXPOSURE).smear_vectors(tx, ty)
     assert fit.converged.all()
     assert np.max(np.abs(fit.length / np.linalg.norm(vectors, axis=1) - 1)) < 0.01  # measured 0.1 %
@@ -263,9 +263,9 @@ def test_free_fit_covariance_describes_its_errors():
         t = frame.truth
         star = stars_inside(t, 10 + smear_px / 2)
         tx, ty = t.x[star], t.y[star]
-        fit = fit_streaks(residual, *moment_guesses(residual, tx + rng.uniform(-1, 1, tx.size),
-                                                    ty + rng.uniform(-1, 1, tx.size), int(smear_px / 2 + 8)),
-                          SIGMA, NOISE, GAIN)
+        guesses = moment_guesses(residual, tx + rng.uniform(-1, 1, tx.size), ty + rng.uniform(-1, 1, tx.size),
+                                 int(smear_px / 2 + 8))
+        fit = fit_streaks(StreakImage(residual, SIGMA, NOISE, GAIN), *guesses)
         ok = fit.converged
         assert ok.mean() > 0.95
         normalized += [(fit.x - tx)[ok] / np.sqrt(fit.cov[ok, 0, 0]), (fit.y - ty)[ok] / np.sqrt(fit.cov[ok, 1, 1])]
@@ -293,10 +293,11 @@ def test_path_fit_follows_roll_arcs():
     length = np.linalg.norm(smear.smear_vectors(tx, ty), axis=1)
     assert tx.size >= 20 and length.min() > 15
     x0, y0, f0, l0, a0 = moment_guesses(residual, tx, ty, int(length.max() / 2 + 8))
-    fit = fit_streaks_on_path(residual, x0, y0, f0, smear.path(x0, y0), SIGMA, NOISE, GAIN)
+    fit = fit_streaks_on_path(StreakImage(residual, SIGMA, NOISE, GAIN), x0, y0, f0, smear.path(x0, y0))
     # The path's shape depends a little on where it is: refit on the path at the estimate.
-    fit = fit_streaks_on_path(residual, fit.x, fit.y, fit.flux, smear.path(fit.x, fit.y), SIGMA, NOISE, GAIN)
-    free = fit_streaks(residual, x0, y0, f0, l0, a0, SIGMA, NOISE, GAIN)
+    fit = fit_streaks_on_path(StreakImage(residual, SIGMA, NOISE, GAIN), fit.x, fit.y, fit.flux,
+                              smear.path(fit.x, fit.y))
+    free = fit_streaks(StreakImage(residual, SIGMA, NOISE, GAIN), x0, y0, f0, l0, a0)
     assert fit.converged.all()
 
     def rms(px, py):
@@ -322,8 +323,8 @@ def test_path_fit_equals_free_fit_on_straight_streaks():
     tx, ty = t.x[star], t.y[star]
     x0, y0, f0, l0, a0 = moment_guesses(residual, tx, ty, 18)
     smear = SmearModel(CAMERA, omega, EXPOSURE)
-    on_path = fit_streaks_on_path(residual, x0, y0, f0, smear.path(x0, y0), SIGMA, NOISE, GAIN)
-    free = fit_streaks(residual, x0, y0, f0, l0, a0, SIGMA, NOISE, GAIN)
+    on_path = fit_streaks_on_path(StreakImage(residual, SIGMA, NOISE, GAIN), x0, y0, f0, smear.path(x0, y0))
+    free = fit_streaks(StreakImage(residual, SIGMA, NOISE, GAIN), x0, y0, f0, l0, a0)
     assert on_path.converged.all() and free.converged.all()
     err_path = np.hypot(on_path.x - tx, on_path.y - ty)
     err_free = np.hypot(free.x - tx, free.y - ty)
@@ -360,8 +361,8 @@ def test_degenerate_spots_do_not_break_the_batch():
         (60.0, 41.0, 18000.0, 0.0, 0.0),  # the first streak, L0 = 0: a window too small for it
         (60.0, 41.0, 18000.0, np.nan, np.nan),  # no length or angle guess: the same window
     ]).T
-    fit = fit_streaks(noisy, *spots, SIGMA, NOISE, GAIN)
-    alone = fit_streaks(noisy, *spots[:, :1], SIGMA, NOISE, GAIN)
+    fit = fit_streaks(StreakImage(noisy, SIGMA, NOISE, GAIN), *spots)
+    alone = fit_streaks(StreakImage(noisy, SIGMA, NOISE, GAIN), *spots[:, :1])
     # The same result as alone, to the fit's stopping tolerance (3 % of a sigma).
     assert abs(fit.x[0] - alone.x[0]) < 0.05 * np.sqrt(alone.cov[0, 0, 0])
     assert abs(fit.y[0] - alone.y[0]) < 0.05 * np.sqrt(alone.cov[0, 1, 1])
@@ -389,21 +390,21 @@ def test_degenerate_spots_do_not_break_the_batch():
 
 def test_empty_and_flat_windows():
     zeros = np.zeros((64, 64))
-    fit = fit_streaks(zeros, [30.0], [30.0], [0.0], [10.0], [0.0], SIGMA, NOISE, GAIN)
+    fit = fit_streaks(StreakImage(zeros, SIGMA, NOISE, GAIN), [30.0], [30.0], [0.0], [10.0], [0.0])
     assert not fit.converged[0]
     path = SmearModel(CAMERA, cross_rate(10, 0.0), EXPOSURE).path([30.0], [30.0])
-    assert not fit_streaks_on_path(zeros, [30.0], [30.0], [0.0], path, SIGMA, NOISE, GAIN).converged[0]
+    assert not fit_streaks_on_path(StreakImage(zeros, SIGMA, NOISE, GAIN), [30.0], [30.0], [0.0], path).converged[0]
     # Pure noise: the fit must not claim a streak in more than a few windows (measured 3 %).
     rng = np.random.default_rng(9)
     noise = rng.normal(0.0, NOISE, (400, 400))
     centres = np.arange(30.0, 380.0, 40.0)
     gx, gy = np.meshgrid(centres, centres)
     n = gx.size
-    fit = fit_streaks(noise, gx.ravel(), gy.ravel(), np.full(n, 50 * NOISE), np.full(n, 10.0), np.zeros(n),
-                      SIGMA, NOISE, GAIN)
+    fit = fit_streaks(StreakImage(noise, SIGMA, NOISE, GAIN), gx.ravel(), gy.ravel(), np.full(n, 50 * NOISE),
+                      np.full(n, 10.0), np.zeros(n))
     assert fit.converged.mean() < 0.1
-    assert len(fit_streaks(zeros, [], [], [], [], [], SIGMA, NOISE, GAIN)) == 0
-    assert len(fit_streaks_on_path(zeros, [], [], [], np.zeros((0, 3, 2)), SIGMA, NOISE, GAIN)) == 0
+    assert len(fit_streaks(StreakImage(zeros, SIGMA, NOISE, GAIN), [], [], [], [], [])) == 0
+    assert len(fit_streaks_on_path(StreakImage(zeros, SIGMA, NOISE, GAIN), [], [], [], np.zeros((0, 3, 2)))) == 0
 
 
 def test_path_fit_flags_bad_paths_only():
@@ -412,7 +413,8 @@ def test_path_fit_flags_bad_paths_only():
     path = np.zeros((2, 25, 2))
     path[:, :, 0] = ((np.arange(25) + 0.5) / 25 - 0.5) * 12.0
     path[1, 3, 1] = np.nan
-    fit = fit_streaks_on_path(image, [50.0, 50.0], [50.0, 50.0], [9000.0, 9000.0], path, SIGMA, NOISE, GAIN)
+    fit = fit_streaks_on_path(StreakImage(image, SIGMA, NOISE, GAIN), [50.0, 50.0], [50.0, 50.0], [9000.0, 9000.0],
+                              path)
     assert fit.converged.tolist() == [True, False]
     assert abs(fit.x[0] - 50.2) < 0.01 and abs(fit.y[0] - 49.7) < 0.01
     assert fit.length[0] == pytest.approx(12.0) and fit.angle[0] == pytest.approx(0.0)
@@ -422,12 +424,12 @@ def test_path_fit_flags_bad_paths_only():
 def test_bad_arguments_are_rejected_clearly():
     image = np.zeros((32, 32))
     with pytest.raises(ValueError, match="2-D"):
-        fit_streaks(np.zeros((4, 4, 3)), [1.0], [1.0], [1.0], [1.0], [0.0], SIGMA, NOISE, GAIN)
+        fit_streaks(StreakImage(np.zeros((4, 4, 3)), SIGMA, NOISE, GAIN), [1.0], [1.0], [1.0], [1.0], [0.0])
     with pytest.raises(ValueError, match="sigma"):
-        fit_streaks(image, [1.0], [1.0], [1.0], [1.0], [0.0], 0.0, NOISE, GAIN)
+        fit_streaks(StreakImage(image, 0.0, NOISE, GAIN), [1.0], [1.0], [1.0], [1.0], [0.0])
     with pytest.raises(ValueError, match="noise"):
-        fit_streaks(image, [1.0], [1.0], [1.0], [1.0], [0.0], SIGMA, np.nan, GAIN)
+        fit_streaks(StreakImage(image, SIGMA, np.nan, GAIN), [1.0], [1.0], [1.0], [1.0], [0.0])
     with pytest.raises(ValueError, match="one length"):
-        fit_streaks(image, [1.0, 2.0], [1.0], [1.0], [1.0], [0.0], SIGMA, NOISE, GAIN)
+        fit_streaks(StreakImage(image, SIGMA, NOISE, GAIN), [1.0, 2.0], [1.0], [1.0], [1.0], [0.0])
     with pytest.raises(ValueError, match="path"):
-        fit_streaks_on_path(image, [1.0], [1.0], [1.0], np.zeros((2, 3, 2)), SIGMA, NOISE, GAIN)
+        fit_streaks_on_path(StreakImage(image, SIGMA, NOISE, GAIN), [1.0], [1.0], [1.0], np.zeros((2, 3, 2)))

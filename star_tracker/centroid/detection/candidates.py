@@ -20,7 +20,7 @@ from .point_window_kernel import PointWindowSettings, SmallSpots, brightest_box,
 from .measure import Moments, aperture_moments, box_sums, clean_hot_pixels, major_moment_noise, two_peaks
 from ..windows import gather_windows
 from ..streak.smear import segment_length
-from ..tracks.track_peaks import ring_track_peaks, star_beside_track_peaks, track_screen
+from ..tracks.track_peaks import FoundPeaks, PeakSearch, ring_track_peaks, star_beside_track_peaks, track_screen
 
 FOOTPRINT_NOISE_SIGMAS = 3.0  # the footprint alone makes a streak only this many moment-noise sigmas past the limit
 STREAK_COUNT_MIN_SIGMA_PX = 1.0  # _streak_width's count tells a streak from a cosmic-ray track from this PSF sigma
@@ -97,6 +97,26 @@ class Candidates:
         return cov
 
 
+class CandidateFrame(NamedTuple):
+    """
+    One frame as the measurement of its candidates reads it.
+
+    image [ADU]; det: its detections; config: the stage's CentroidConfig; sigma: the PSF
+    1-sigma measured with [px]; find_blends: search elongated footprints for two stars; rings:
+    the stars are rings (blend peaks farther apart, config.blend_separation_px);
+    streaks_expected: a body rate predicts streaks (the footprints are the matched streak
+    filter's, taken as they are).
+    """
+
+    image: np.ndarray
+    det: Detections
+    config: CentroidConfig
+    sigma: float
+    find_blends: bool
+    rings: bool
+    streaks_expected: bool
+
+
 class _FootprintWindows(NamedTuple):
     """
     Windows (n, R, C) of spots with top-left pixel (col0, row0) [px].
@@ -140,22 +160,23 @@ def measure_candidates(image: np.ndarray, det: Detections, config: CentroidConfi
     idx = np.flatnonzero(small)
     out["has_window"] = small.copy()
     out["peaks"] = [np.zeros((0, 2))] * m
+    frame = CandidateFrame(image, det, config, sigma, find_blends, rings, streaks_expected)
     if idx.size:
-        _measure_small(image, det, config, sigma, idx, out, find_blends, rings, streaks_expected)
+        _measure_small(frame, idx, out)
     large = np.flatnonzero(~small)
     if large.size:
-        _measure_large(image, det, config, sigma, large, out, find_blends, rings, streaks_expected)
+        _measure_large(frame, large, out)
     cut_snr = np.fmax(out["snr"], out.pop("disk_snr"))  # disk_snr: NaN but where _measure_large set it
     return Candidates(area=det.area.astype(np.int64), detection=np.arange(m), cut_snr=cut_snr, **out)
 
 
-def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False,
-                   streaks_expected: bool = False) -> None:
+def _measure_small(frame: CandidateFrame, idx: np.ndarray, out: dict) -> None:
     """
     Point-window measurements (point_window_kernel.measure_small) of the detections `idx`, written to `out`.
 
     Footprints wider than the aperture get their shape from the footprint too.
     """
+    image, det, config, sigma = frame.image, frame.det, frame.config, frame.sigma
     half = window_half(sigma) + 1
     big = 2 * half + 1 + SEARCH_MARGIN
     bg = det.background_at(det.x[idx], det.y[idx])
@@ -178,17 +199,17 @@ def _measure_small(image, det, config, sigma, idx, out, find_blends: bool, rings
         footprint = det.labels[grid_r[:, :, None], grid_c[:, None, :]] == det.label[idx[wide]][:, None, None]
         windows = _FootprintWindows(win[wide], footprint & valid[wide], valid[wide], footprint & valid[wide],
                                     c0[wide], r0[wide])
-        _footprint_shape(image, windows, idx[wide], out, det, config, sigma, find_blends, rings, streaks_expected)
+        _footprint_shape(frame, windows, idx[wide], out)
 
 
-def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings: bool = False,
-                   streaks_expected: bool = False) -> None:
+def _measure_large(frame: CandidateFrame, idx: np.ndarray, out: dict) -> None:
     """
     Footprint measurements of the spots too large for a point window (streaks, bright or blended stars).
 
     Batched by window size: the footprint (grown by one detection-grid pixel) gives flux,
     centre of gravity and SNR; its pixels 2 sigma above the noise give the shape.
     """
+    image, det, config, sigma = frame.image, frame.det, frame.config, frame.sigma
     height, width = image.shape
     noise, gain, b = det.noise_adu, config.gain_e_per_adu, det.binning
     ratio_limit = hot_pixel_ratio(config, sigma)
@@ -237,8 +258,7 @@ def _measure_large(image, det, config, sigma, idx, out, find_blends: bool, rings
         out["edge"][members] = ((det.left[members] <= 0) | (det.top[members] <= 0) | (det.right[members] >= width)
                                 | (det.bottom[members] >= height))
         out["cleaned"][members] = hit.any(axis=(1, 2))
-        _footprint_shape(image, _FootprintWindows(win, labels & valid, valid, use, col0, row0), members, out, det,
-                         config, sigma, find_blends, rings, streaks_expected)
+        _footprint_shape(frame, _FootprintWindows(win, labels & valid, valid, use, col0, row0), members, out)
 
 
 def _brightest_disk(windows: np.ndarray, use: np.ndarray, sigma: float, noise: float, gain: float):
@@ -263,8 +283,7 @@ def _brightest_disk(windows: np.ndarray, use: np.ndarray, sigma: float, noise: f
     return moments.x, moments.y, np.where(moments.flux > 0, moments.snr, np.nan)
 
 
-def _footprint_shape(image, windows: _FootprintWindows, members, out, det, config, sigma, find_blends, rings=False,
-                     streaks_expected=False) -> None:
+def _footprint_shape(frame: CandidateFrame, windows: _FootprintWindows, members: np.ndarray, out: dict) -> None:
     """
     Refine the shape of spots `members` from their detection footprint (the matched-filter mask, not grown).
 
@@ -276,6 +295,7 @@ def _footprint_shape(image, windows: _FootprintWindows, members, out, det, confi
     (_streak_width) and, with find_blends, a search for two stars (two_peaks over
     windows.blend_use; tracks beside stars: track_peaks.py).
     """
+    det, config, sigma = frame.det, frame.config, frame.sigma
     noise, gain = det.noise_adu, config.gain_e_per_adu
     col0, row0 = windows.col0, windows.row0
     ridge = aperture_moments(windows.data, windows.footprint, col0, row0, noise, gain, signed_shape=True)
@@ -287,7 +307,7 @@ def _footprint_shape(image, windows: _FootprintWindows, members, out, det, confi
     # predicted streaks, take the footprint as it is (faint smeared stars need it).
     limit = elongation_limit(sigma)
     aperture = out["major"][members]
-    trusted = streaks_expected or sigma >= STREAK_COUNT_MIN_SIGMA_PX
+    trusted = frame.streaks_expected or sigma >= STREAK_COUNT_MIN_SIGMA_PX
     longer = (ridge.major > aperture) & (trusted | (aperture > APERTURE_WIDER * limit))
     doubt = np.flatnonzero((ridge.major > aperture) & ~longer & (ridge.major > limit))
     if doubt.size:  # the moment noise only where it decides
@@ -303,22 +323,32 @@ def _footprint_shape(image, windows: _FootprintWindows, members, out, det, confi
     long = windows.take(stretched)
     out["minor"][members[stretched]] = np.minimum(out["minor"][members[stretched]], _streak_width(
         long, out["major"][members[stretched]], noise, sigma, det.binning))
-    if find_blends:
-        box, box_var, maxima = box_sums(long.data, long.blend_use, gain, noise)
-        threshold = 3.0 * config.detection_sigma * noise
-        found, rows, cols = two_peaks(box, box_var, maxima, threshold, blend_separation_px(sigma, rings))
-        if rings:
-            found, rows, cols = ring_track_peaks(image, det, config, sigma, box, box_var, maxima, threshold, found,
-                                                 rows, cols, long.col0, long.row0)
-        # Thinner than a star, or two peaks found: the brightest peak may be a track's, and the
-        # peaks found may all be on it (a rasterised track has dips) with the star not among them.
-        thin = (out["minor"][members[stretched]] < config.min_width_fraction * sigma ** 2) | found
-        thin[thin] = track_screen(long.data[thin], long.valid[thin], rows[thin, 0], cols[thin, 0], sigma, config)
-        found, rows, cols = star_beside_track_peaks(image, det, config, sigma, rings, box, box_var, maxima, threshold,
-                                                    found, rows, cols, long.col0, long.row0, thin)
+    if frame.find_blends:
+        found, rows, cols = _blend_peaks(frame, long, out["minor"][members[stretched]])
         for j in np.flatnonzero(found):
             k = stretched[j]
             out["peaks"][members[k]] = np.column_stack([cols[j] + col0[k], rows[j] + row0[k]]).astype(float)
+
+
+def _blend_peaks(frame: CandidateFrame, long: _FootprintWindows, minor: np.ndarray) -> FoundPeaks:
+    """
+    Search elongated spots' windows for two stars (two_peaks over blend_use), and for stars beside tracks.
+
+    minor (n,): their narrowest second moments [px^2] (the width test's); tracks beside stars:
+    track_peaks.py. Returns per window whether two peaks were found and their window pixels.
+    """
+    config, sigma, noise = frame.config, frame.sigma, frame.det.noise_adu
+    box, box_var, maxima = box_sums(long.data, long.blend_use, config.gain_e_per_adu, noise)
+    search = PeakSearch(box, box_var, maxima, 3.0 * config.detection_sigma * noise, long.col0, long.row0)
+    found = FoundPeaks(*two_peaks(box, box_var, maxima, search.threshold, blend_separation_px(sigma, frame.rings)))
+    if frame.rings:
+        found = ring_track_peaks(frame, search, found)
+    # Thinner than a star, or two peaks found: the brightest peak may be a track's, and the
+    # peaks found may all be on it (a rasterised track has dips) with the star not among them.
+    thin = (minor < config.min_width_fraction * sigma ** 2) | found.found
+    thin[thin] = track_screen(long.data[thin], long.valid[thin], found.rows[thin, 0], found.cols[thin, 0], sigma,
+                              config)
+    return star_beside_track_peaks(frame, search, found, thin)
 
 
 def _streak_width(windows: _FootprintWindows, major, noise, sigma, binning) -> np.ndarray:

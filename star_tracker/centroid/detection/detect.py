@@ -9,6 +9,7 @@ whole-frame work 4x cheaper. Positions are measured later on the full-resolution
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -215,8 +216,24 @@ def detection_ground(image: np.ndarray, binning: int, background_block_px: int,
     return DetectionGround(residual, background, local_noise, noise, binning)
 
 
-def detect(image: np.ndarray, *, binning: int, background_block_px: int, detection_sigma: float,
-           psf_sigma_px: float, min_area: int, max_area: int, smear_kernel: np.ndarray | None = None,
+class DetectionSettings(NamedTuple):
+    """
+    How a frame is detected.
+
+    binning: the detection grid's bin factor; background_block_px: the background mesh [px];
+    detection_sigma: the threshold [noise sigmas]; psf_sigma_px: the PSF 1-sigma of the matched
+    filter [px] (0: 1 px); min_area, max_area: a detection's footprint [px].
+    """
+
+    binning: int
+    background_block_px: int
+    detection_sigma: float
+    psf_sigma_px: float
+    min_area: int
+    max_area: int
+
+
+def detect(image: np.ndarray, settings: DetectionSettings, smear_kernel: np.ndarray | None = None,
            ground: DetectionGround | None = None) -> Detections:
     """
     Threshold the PSF-matched residual at detection_sigma x its own robust noise.
@@ -226,6 +243,7 @@ def detect(image: np.ndarray, *, binning: int, background_block_px: int, detecti
     ground: detection_ground(image, binning, background_block_px) when already computed (a
     frame measured at several PSF widths), else computed here.
     """
+    binning, background_block_px, detection_sigma, psf_sigma_px, min_area, max_area = settings
     if ground is None:
         ground = detection_ground(image, binning, background_block_px)
     residual, background, local_noise, noise = ground.residual, ground.background, ground.local_noise, ground.noise

@@ -77,19 +77,21 @@ class EllipticalGaussianPsf:
         return value, grad_x, grad_y
 
 
-def fit_elliptical(psf: EllipticalGaussianPsf, win, valid, col0, row0, x0, y0, flux0, noise: float, gain: float,
+def fit_elliptical(psf: EllipticalGaussianPsf, windows: PsfWindows, start: PsfStart, noise: float, gain: float,
                    iterations: int = 8):
     """
-    Fit `psf` to n windows: (x, y, flux, cov (n, 2, 2), flux_var, converged), as empirical_psf.fit_empirical.
+    Fit `psf` to n windows: (x, y, flux, cov (n, 2, 2), flux_var, converged), as empirical.fit_empirical.
 
-    Windows: background-subtracted data [ADU] (n, S, S) with their valid masks, top-left
-    pixel (col0, row0) [px]; starts x0, y0 [px], flux0 [ADU]; pixel noise [ADU], gain [e-/ADU].
+    windows: background-subtracted data [ADU] (n, S, S) with their valid masks, top-left
+    pixel (col0, row0) [px]; start: x, y [px], flux [ADU] (n,); pixel noise [ADU], gain [e-/ADU].
     """
     cxx, cxy, cyy = psf._covariance
-    n = np.asarray(x0).size
-    windows = PsfWindows(np.ascontiguousarray(win, np.float64), np.ascontiguousarray(valid, np.bool_),
-                         np.asarray(col0, np.float64).reshape(n), np.asarray(row0, np.float64).reshape(n))
-    start = PsfStart(np.asarray(x0, np.float64).reshape(n), np.asarray(y0, np.float64).reshape(n),
-                     np.asarray(flux0, np.float64).reshape(n))
+    n = np.asarray(start.x).size
+    windows = PsfWindows(np.ascontiguousarray(windows.data, np.float64),
+                         np.ascontiguousarray(windows.valid, np.bool_),
+                         np.asarray(windows.col0, np.float64).reshape(n),
+                         np.asarray(windows.row0, np.float64).reshape(n))
+    start = PsfStart(np.asarray(start.x, np.float64).reshape(n), np.asarray(start.y, np.float64).reshape(n),
+                     np.asarray(start.flux, np.float64).reshape(n))
     return fit_windows(windows, start, EllipseShape(float(cxx), float(cxy), float(cyy), _NODES, _WEIGHTS),
                        EllipticalFitSettings(float(noise), float(gain), int(iterations), float(STEP_DONE_PX)))

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..windows import PsfStart, PsfWindows
+
 BIN_PX = 0.1  # radial bin [px]
 SMOOTHING_PX = 0.3  # the profile's running mean over this radius span [px]: the bins are far finer than the pixels
 MIN_TEMPLATE_STARS = 5  # fewer bright stars give too noisy a profile
@@ -136,18 +138,20 @@ def _template(win, valid, col0, row0, x, y, smoothing_px: float, round_: bool) -
     return EmpiricalPsf(profile / norm, psf.slope / norm, angle, stretch_u, stretch_v)
 
 
-def fit_empirical(psf, win, valid, col0, row0, x0, y0, flux0, noise: float, gain: float,
-                  iterations: int = 8):
+def fit_empirical(psf, windows: PsfWindows, start: PsfStart, noise: float, gain: float, iterations: int = 8):
     """
     Fit a PSF model to n windows: (x, y, flux, cov (n, 2, 2), flux_var, converged).
 
     `psf`: any model with sample(dx, dy) -> (value, d/ddx, d/ddy) of unit flux (EmpiricalPsf,
-    elliptical_psf.EllipticalGaussianPsf). Windows: background-subtracted data [ADU] with
-    their valid masks, top-left pixel (col0, row0). Model F * psf(pixel - (x, y)); weights 1 /
+    elliptical.EllipticalGaussianPsf). windows: background-subtracted data [ADU] with their
+    valid masks, top-left pixel (col0, row0); start: x, y [px], flux [ADU] (n,). Model
+    F * psf(pixel - (x, y)); weights 1 /
     (model / gain + noise^2); Gauss-Newton with steps clipped to 0.5 px, a window done once
     its step is below STEP_DONE_PX (the covariance is at its last position); converged when
     finite, within 2 px of the start, flux > 0.
     """
+    win, valid, col0, row0 = windows
+    x0, y0, flux0 = start
     size = win.shape[1]
     x, y = np.asarray(x0, float).copy(), np.asarray(y0, float).copy()
     flux = np.maximum(np.asarray(flux0, float).copy(), 1e-9)
@@ -192,23 +196,25 @@ def fit_empirical(psf, win, valid, col0, row0, x0, y0, flux0, noise: float, gain
     return x, y, flux, cov, flux_var, converged
 
 
-def build_empirical_psf(win, valid, col0, row0, x, y, noise: float, gain: float,
-                        smoothing_px: float = SMOOTHING_PX, round_: bool = False) -> EmpiricalPsf | None:
+def build_empirical_psf(windows: PsfWindows, x, y, noise: float, gain: float, smoothing_px: float = SMOOTHING_PX,
+                        round_: bool = False) -> EmpiricalPsf | None:
     """
     Return the profile built from bright stars' windows (see the module docstring); None with too few stars.
 
+    windows: background-subtracted data [ADU], valid masks, top-left pixels (PsfWindows).
     Positions x, y [px] start the build (a Gaussian fit's: unbiased for a symmetric PSF);
     each further pass refits them with the last profile. smoothing_px: the profile's running
     mean [px] (wider for faint stars: less noise, softer edges); round_: a round profile (the
     stacked moments of faint stars are noise: they read 1.03-1.13:1 on round rings of SNR 11).
     """
+    win, valid, col0, row0 = windows
     x, y = np.asarray(x, float), np.asarray(y, float)
     psf = _template(win, valid, col0, row0, x, y, smoothing_px, round_)
     for _ in range(BUILD_PASSES - 1):
         if psf is None:
             return None
         flux0 = np.where(valid, win, 0.0).sum(axis=(1, 2))
-        fx, fy, _, _, _, ok = fit_empirical(psf, win, valid, col0, row0, x, y, flux0, noise, gain)
+        fx, fy, _, _, _, ok = fit_empirical(psf, windows, PsfStart(x, y, flux0), noise, gain)
         if ok.sum() < MIN_TEMPLATE_STARS:
             return psf
         x, y = np.where(ok, fx, x), np.where(ok, fy, y)

@@ -142,8 +142,23 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     return chosen[distance.min(axis=1, initial=np.inf) > reach][:MAX_STARS]
 
 
-def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturation: float, prior_sigma: float,
-                 gain: float, faint: bool = False,
+@dataclass(frozen=True)
+class MeasuredFrame:
+    """
+    What a measurement of a frame leaves for the PSF estimate.
+
+    Its detections, every measured candidate (shape-test rejects included), the saturation
+    level [ADU] and whether a body rate predicted smears (then no star shows the optics'
+    PSF).
+    """
+
+    det: Detections
+    cand: Candidates
+    saturation: float
+    smeared: bool = False
+
+
+def estimate_psf(image: np.ndarray, frame: MeasuredFrame, prior_sigma: float, gain: float, faint: bool = False,
                  neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                  min_usable: int = MIN_STARS) -> PsfEstimate:
     """
@@ -153,17 +168,29 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
     whose axis ratio is below MAX_AXIS_RATIO; the prior (source "prior", with the reason) is
     returned when fewer than MIN_STARS remain (or fewer than `min_usable` usable stars: psf_pilot
     asks for a full MAX_STARS) or the width is outside [MIN_SIGMA_PX, MAX_SIGMA_PX]. image [ADU];
-    det, cand: the frame's detections and measured candidates; saturation [ADU]; prior_sigma:
-    the width the candidates were measured with [px]; gain [e-/ADU]; faint, neighbours: see
-    usable_stars.
+    frame: its detections, measured candidates and clip level; prior_sigma: the width the
+    candidates were measured with [px]; gain [e-/ADU]; faint, neighbours: see usable_stars.
     """
-    chosen = usable_stars(cand, det, saturation, prior_sigma, faint, neighbours)
+    chosen = usable_stars(frame.cand, frame.det, frame.saturation, prior_sigma, faint, neighbours)
     need = max(MIN_STARS, min_usable)
     if chosen.size < need:
         min_snr = FAINT_STAR_SNR if faint else MIN_STAR_SNR
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
                                    f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {min_snr:g} (need {need})",
                                    int(chosen.size))
+    fit = _fit_stars(image, frame, chosen, prior_sigma, gain)
+    if fit is None:
+        return PsfEstimate.assumed(prior_sigma, "prior", "no PSF fit converged", 0)
+    return _estimate_from_fits(fit, prior_sigma, faint)
+
+
+def _fit_stars(image: np.ndarray, frame: MeasuredFrame, chosen: np.ndarray, prior_sigma: float, gain: float):
+    """
+    Fit a free-width Gaussian to each of the stars `chosen`, on a window 4 of its widths wide.
+
+    Returns _fit_widths' (x, y, flux, width, windows) of the converged fits, None when none converged.
+    """
+    cand, det = frame.cand, frame.det
     x, y = cand.x[chosen], cand.y[chosen]
     background = det.background_at(x, y)
     # A window cut to the prior would shrink a wider PSF's fit: start from the candidates' moments
@@ -179,8 +206,11 @@ def estimate_psf(image: np.ndarray, det: Detections, cand: Candidates, saturatio
         if 4.0 * _median(fit[3]) <= half + 0.5:
             break
         start = _median(fit[3])
-    if fit is None:
-        return PsfEstimate.assumed(prior_sigma, "prior", "no PSF fit converged", 0)
+    return fit
+
+
+def _estimate_from_fits(fit, prior_sigma: float, faint: bool) -> PsfEstimate:
+    """Return the PSF of the round stars among the fitted ones (_fit_stars' result), or the prior with the reason."""
     fx, fy, flux, width, windows = fit
     # Round enough to be the optics' PSF (axis ratio < MAX_AXIS_RATIO): smeared stars, blends
     # in one footprint and cosmic-ray tracks out. Judged on the pixelated shape (C + I/12): with

@@ -86,15 +86,16 @@ def fit_psf_windows(windows: PsfWindows, start: PsfStart, sigma: float, noise: f
     return PsfFit(x, y, flux, cov, ok, flux_var)
 
 
-def fit_gaussian_psf(residual: np.ndarray, x0: np.ndarray, y0: np.ndarray, flux0: np.ndarray, sigma: float,
-                     noise: float, gain: float, half: int = 4, iterations: int = 10):
+def fit_gaussian_psf(residual: np.ndarray, start: PsfStart, sigma: float, noise: float, gain: float, half: int = 4,
+                     iterations: int = 10):
     """
     Fit one PSF per spot on (2 half + 1)^2 windows of a background-subtracted image [ADU].
 
-    The windows are centred on the rounded initial positions. Returns x, y, flux (N,), cov (N, 2,
-    2), converged.
+    start: x, y [px] and flux [ADU] (N,) to start from; the windows are centred on the rounded
+    initial positions. sigma: the PSF 1-sigma [px]; noise: the pixel noise [ADU]; gain
+    [e-/ADU]. Returns x, y, flux (N,), cov (N, 2, 2), converged.
     """
-    x0, y0 = np.asarray(x0, float), np.asarray(y0, float)
+    x0, y0, flux0 = np.asarray(start.x, float), np.asarray(start.y, float), start.flux
     col0, row0 = np.rint(x0).astype(np.int64) - half, np.rint(y0).astype(np.int64) - half
     data, valid = gather_windows(residual, col0, row0, 2 * half + 1)
     fit = fit_psf_windows(PsfWindows(data, valid, col0, row0),

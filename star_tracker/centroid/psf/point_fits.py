@@ -42,14 +42,54 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     Those whose window shows a second peak get a joint 2-PSF fit (flag BLENDED; kept when it
     determines both stars, _determined, and the brighter has min_snr), the second star
     returned as an added spot unless it is a spot already or below min_snr. Pixels
-    `excluded` (a neighbour's clipped core; None = none) are left out of the fits.
+    `excluded` (a neighbour's clipped core; None = none) are left out of the fits. The single
+    stars are fitted with the frame's model (single_star_model), or its empirical PSF where
+    the Gaussian does not describe the frame (_template_fits).
     """
-    config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
+    windows = _point_windows(context, kept, spots, which, excluded)
+    blended = np.zeros(which.size, bool)
+    added = no_spots()
+    if context.config.split_blends:
+        spots, added, blended = _fit_second_stars(context, spots, which, windows)
+    single = np.flatnonzero(~blended)
+    if single.size == 0:
+        return FitOutcome(spots, added)
+    sigma, noise, gain = context.sigma, context.noise, context.gain
+    alone = PsfWindows(*(a[single] for a in windows))
+    start = PsfStart(spots.x[which[single]][:, None], spots.y[which[single]][:, None],
+                     spots.flux[which[single]][:, None])
+    fit = fit_psf_windows(alone, start, sigma, noise, gain)
+    # Only round spots: an elongated one is smeared (no body rate known) or a blend, which the
+    # symmetric Gaussian centres better than a centre of gravity.
+    round_ = kept.major[which[single]] <= MISFIT_MAX_ELONGATION ** 2 * kept.minor[which[single]]
+    model, fit = fit_frame_model(context, alone, fit, start, round_)
+    not_gaussian = _misfits(*alone, fit, context, model)
+    misfit = not_gaussian & round_
+    converged = fit.converged[:, 0] & ~misfit
+    good = np.flatnonzero(converged)
+    spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
+    # Enough bright stars the Gaussian does not describe (round or elongated alike: an
+    # astigmatic PSF): the frame's own PSF fits every one.
+    rows, stars, template = _template_fits(context, alone, fit, not_gaussian, spots.x[which[single]],
+                                           spots.y[which[single]])
+    label = "gaussian" if model is None else model.label
+    if rows.size:
+        spots = spots.with_stars(which[single[rows]], stars)
+        label, model = "template", template
+    return FitOutcome(spots, added, None, label, model)
+
+
+def _point_windows(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray,
+                   excluded: np.ndarray | None) -> PsfWindows:
+    """
+    Return the fit windows of the spots `which`, hot pixels cleaned, `excluded` pixels not valid.
+
+    Windows measured already (small spots, centred on their peak) are reused, cropped to the
+    fit window around the same centre pixel; the others are cut around the spot.
+    """
     half = context.window_half
     size = 2 * half + 1
-    x, y, flux = spots.x, spots.y, spots.flux
-    # Windows measured already (small spots, centred on their peak) are reused, cropped to the
-    # fit window around the same centre pixel.
+    x, y = spots.x, spots.y
     crop = (kept.window.shape[1] - size) // 2
     win = kept.window[which][:, crop:crop + size, crop:crop + size].copy()
     valid = kept.window_valid[which][:, crop:crop + size, crop:crop + size].copy()
@@ -63,69 +103,53 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     if excluded is not None:
         clipped, _ = gather_windows(excluded, col0, row0, size)
         valid &= clipped == 0
-    blended = np.zeros(which.size, bool)
+    return PsfWindows(win, valid, col0, row0)
+
+
+def _fit_second_stars(context: FitContext, spots: SpotRows, which: np.ndarray, windows: PsfWindows
+                      ) -> tuple[SpotRows, SpotRows, np.ndarray]:
+    """Fit two PSFs where a spot's window shows a second peak; return the spots, the stars added, which blended."""
+    config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
+    win, valid, col0, row0 = windows
+    half = context.window_half
+    size = 2 * half + 1
+    x, y, flux = spots.x, spots.y, spots.flux
     added = no_spots()
-    if config.split_blends:
-        found, pr, pc = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
-                                        min_separation=blend_separation_px(sigma, context.rings), radius=half - 1.5,
-                                        gain=gain, noise=noise)
-        px, py = col0 + pc, row0 + pr
-        blended = found
-        if blended.any():
-            b = np.flatnonzero(blended)
-            # A second peak that is another detected spot is fitted jointly but not reported
-            # twice (distances from the second peaks only: all pairs cost seconds on big frames).
-            duplicate = np.zeros(which.size, bool)
-            if x.size > 1:
-                others = np.hypot(px[b, None] - x[None, :], py[b, None] - y[None, :])
-                others[np.arange(b.size), which[b]] = np.inf
-                duplicate[b] = others.min(axis=1) < 2.0
-            bx0 = np.column_stack([x[which[b]], px[b].astype(float)])
-            by0 = np.column_stack([y[which[b]], py[b].astype(float)])
-            bf0 = np.column_stack([flux[which[b]], np.maximum(win[b, pr[b], pc[b]] * 2 * np.pi * sigma ** 2, 1.0)])
-            fit = fit_psf_windows(PsfWindows(win[b], valid[b], col0[b], row0[b]), PsfStart(bx0, by0, bf0), sigma,
-                                  noise, gain)
-            # Two stars only if the brighter one stands out on its own: a split that leaves both
-            # below min_snr is one non-Gaussian star (a defocused ring's two sides), not a pair.
-            brighter = np.max(fit.flux / np.sqrt(np.abs(fit.flux_var)), axis=1)
-            both = fit.converged.all(axis=1) & _determined(fit, size) & (brighter >= config.min_snr)
-            blended[b[~both]] = False
-            j, k = np.flatnonzero(both), b[both]
-            t = which[k]
-            spots = spots.with_stars(t, psf_stars(fit, j, 0), flags=spots.flags[t] | FLAG_BLENDED)
-            second = psf_stars(fit, j, 1)
-            new = ~duplicate[k] & (second.snr >= config.min_snr)
-            k = k[new]
-            added = SpotRows.split_off(second.take(new), win[k, pr[k], pc[k]], FLAG_BLENDED)
-    single = np.flatnonzero(~blended)
-    if single.size:
-        start = PsfStart(spots.x[which[single]][:, None], spots.y[which[single]][:, None],
-                         spots.flux[which[single]][:, None])
-        fit = fit_psf_windows(PsfWindows(win[single], valid[single], col0[single], row0[single]), start, sigma, noise,
-                              gain)
-        # Only round spots: an elongated one is smeared (no body rate known) or a blend, which the
-        # symmetric Gaussian centres better than a centre of gravity.
-        round_ = kept.major[which[single]] <= MISFIT_MAX_ELONGATION ** 2 * kept.minor[which[single]]
-        model, fit = fit_frame_model(context, PsfWindows(win[single], valid[single], col0[single], row0[single]),
-                                     fit, start, round_)
-        not_gaussian = _misfits(win[single], valid[single], col0[single], row0[single], fit, context, model)
-        misfit = not_gaussian & round_
-        converged = fit.converged[:, 0] & ~misfit
-        good = np.flatnonzero(converged)
-        spots = spots.with_stars(which[single[good]], psf_stars(fit, good, 0))
-        # Enough bright stars the Gaussian does not describe (round or elongated alike: an
-        # astigmatic PSF): the frame's own PSF fits every one.
-        rows, stars, template = _template_fits(context, win[single], valid[single], col0[single], row0[single], fit,
-                                               not_gaussian, spots.x[which[single]], spots.y[which[single]])
-        label = "gaussian" if model is None else model.label
-        if rows.size:
-            spots = spots.with_stars(which[single[rows]], stars)
-            label, model = "template", template
-        return FitOutcome(spots, added, None, label, model)
-    return FitOutcome(spots, added)
+    found, pr, pc = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
+                                    min_separation=blend_separation_px(sigma, context.rings), radius=half - 1.5,
+                                    gain=gain, noise=noise)
+    px, py = col0 + pc, row0 + pr
+    blended = found
+    if blended.any():
+        b = np.flatnonzero(blended)
+        # A second peak that is another detected spot is fitted jointly but not reported
+        # twice (distances from the second peaks only: all pairs cost seconds on big frames).
+        duplicate = np.zeros(which.size, bool)
+        if x.size > 1:
+            others = np.hypot(px[b, None] - x[None, :], py[b, None] - y[None, :])
+            others[np.arange(b.size), which[b]] = np.inf
+            duplicate[b] = others.min(axis=1) < 2.0
+        bx0 = np.column_stack([x[which[b]], px[b].astype(float)])
+        by0 = np.column_stack([y[which[b]], py[b].astype(float)])
+        bf0 = np.column_stack([flux[which[b]], np.maximum(win[b, pr[b], pc[b]] * 2 * np.pi * sigma ** 2, 1.0)])
+        fit = fit_psf_windows(PsfWindows(win[b], valid[b], col0[b], row0[b]), PsfStart(bx0, by0, bf0), sigma,
+                              noise, gain)
+        # Two stars only if the brighter one stands out on its own: a split that leaves both
+        # below min_snr is one non-Gaussian star (a defocused ring's two sides), not a pair.
+        brighter = np.max(fit.flux / np.sqrt(np.abs(fit.flux_var)), axis=1)
+        both = fit.converged.all(axis=1) & _determined(fit, size) & (brighter >= config.min_snr)
+        blended[b[~both]] = False
+        j, k = np.flatnonzero(both), b[both]
+        t = which[k]
+        spots = spots.with_stars(t, psf_stars(fit, j, 0), flags=spots.flags[t] | FLAG_BLENDED)
+        second = psf_stars(fit, j, 1)
+        new = ~duplicate[k] & (second.snr >= config.min_snr)
+        k = k[new]
+        added = SpotRows.split_off(second.take(new), win[k, pr[k], pc[k]], FLAG_BLENDED)
+    return spots, added, blended
 
 
-def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, misfit: np.ndarray, x, y
+def _template_fits(context: FitContext, windows: PsfWindows, fit: PsfFit, misfit: np.ndarray, x, y
                    ) -> tuple[np.ndarray, FittedStars, "EmpiricalPsf | None"]:
     """
     Fit the single-star windows with the frame's empirical PSF, where the Gaussian does not describe the frame.
@@ -137,6 +161,7 @@ def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, mis
     with it, from the Gaussian fit's position where it converged, else from (x, y). Returns
     the windows fitted (indices), their stars and the profile (None when none was built).
     """
+    win, valid, col0, row0 = windows
     empty = np.zeros(0, np.int64), FittedStars(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 2, 2)),
                                                np.zeros(0)), None
     if not context.own_psf:
@@ -160,14 +185,13 @@ def _template_fits(context: FitContext, win, valid, col0, row0, fit: PsfFit, mis
     start_x = np.where(fit.converged[:, 0], fit.x[:, 0], x)
     start_y = np.where(fit.converged[:, 0], fit.y[:, 0], y)
     m = np.flatnonzero(template)
-    psf = build_empirical_psf(win[m], valid[m], col0[m], row0[m], start_x[m], start_y[m], context.noise, context.gain,
-                              smoothing, round_=faint)
+    psf = build_empirical_psf(PsfWindows(win[m], valid[m], col0[m], row0[m]), start_x[m], start_y[m], context.noise,
+                              context.gain, smoothing, round_=faint)
     if psf is None:
         return empty
     flux0 = np.where(valid, win, 0.0).sum(axis=(1, 2))
-    fx, fy, flux, cov, flux_var, ok = fit_empirical(psf, win, valid, col0, row0, start_x, start_y,
-                                                    np.where(fit.converged[:, 0], fit.flux[:, 0], flux0),
-                                                    context.noise, context.gain)
+    start = PsfStart(start_x, start_y, np.where(fit.converged[:, 0], fit.flux[:, 0], flux0))
+    fx, fy, flux, cov, flux_var, ok = fit_empirical(psf, windows, start, context.noise, context.gain)
     rows = np.flatnonzero(ok)
     return rows, FittedStars(fx[rows], fy[rows], flux[rows], cov[rows], flux[rows] / np.sqrt(flux_var[rows])), psf
 

@@ -79,8 +79,7 @@ def _refit(context: FitContext, psf, windows: PsfWindows, fit: PsfFit, start: Ps
     flux0 = np.where(converged, fit.flux[:, 0], np.maximum(start.flux[:, 0], 1.0))
     if isinstance(psf, CoreHaloPsf):
         return psf.fit(windows, PsfStart(x0, y0, flux0), context.noise, context.gain)
-    x, y, flux, cov, flux_var, ok = fit_elliptical(psf, windows.data, windows.valid, windows.col0, windows.row0, x0,
-                                                   y0, flux0, context.noise, context.gain)
+    x, y, flux, cov, flux_var, ok = fit_elliptical(psf, windows, PsfStart(x0, y0, flux0), context.noise, context.gain)
     return PsfFit(x[:, None], y[:, None], flux[:, None], cov[:, None], ok[:, None], flux_var[:, None])
 
 

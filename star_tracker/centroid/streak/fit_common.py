@@ -34,6 +34,22 @@ _MAX_PADDING = 2.0  # padded window pixels per own window pixel in a batch
 _PADDING_FREE_PIXELS = 20_000
 
 
+class StreakImage(NamedTuple):
+    """
+    The image a streak fit reads, and its noise.
+
+    residual (H, W) image minus background [ADU]; sigma the PSF 1-sigma [px]; noise the
+    1-sigma pixel noise [ADU]; gain [e-/ADU]; excluded (H, W) bool pixels no fit may use
+    (clipped at the full well: they carry no shape information), or None.
+    """
+
+    residual: np.ndarray
+    sigma: float
+    noise: float
+    gain: float
+    excluded: np.ndarray | None = None
+
+
 class StreakFitSetup(NamedTuple):
     """
     What every batch of a streak fit reads.

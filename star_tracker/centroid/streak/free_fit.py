@@ -14,27 +14,25 @@ import numpy as np
 
 from .levenberg_marquardt import DECREMENT_TOLERANCE, REWEIGHT_STEPS, inverse_fisher
 from .smear import segment_length
-from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, batches, check_common_inputs, check_excluded,
-                         flux_scaled_units, flux_start, store_batch, window_bounds)
+from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, StreakImage, batches, check_common_inputs,
+                         check_excluded, flux_scaled_units, flux_start, store_batch, window_bounds)
 from .free_fit_kernel import FreeFitSettings, fit_segments
 from .model import StreakWindows, cut_windows
 
 
-def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: float, gain: float,
-                iterations: int = 30, excluded: np.ndarray | None = None) -> StreakFit:
+def fit_streaks(image: StreakImage, x0, y0, flux0, length0, angle0, iterations: int = 30) -> StreakFit:
     """
     Fit straight streaks (the PSF swept uniformly along a segment) to a background- subtracted image.
 
     All spots at once.
 
-    residual: (H, W) image minus background [ADU]. x0, y0: (N,) initial streak centres [px];
+    image: the residual (H, W) image minus background [ADU], the PSF sigma [px], the pixel noise
+    and gain, the excluded pixels (StreakImage). x0, y0: (N,) initial streak centres [px];
     flux0: (N,) initial total fluxes [ADU] (<= 0 or NaN: the window sum); length0: (N,)
     initial lengths [px], e.g. sqrt(max(12 (major moment - sigma^2), 0)); angle0: (N,)
     initial directions [rad] from +x toward +y (the moments' major axis). NaN length0 or
-    angle0: a window for a point-like spot and a start from its moments. sigma: PSF 1-sigma
-    [px]; noise: 1-sigma pixel noise [ADU]; gain [e-/ADU]; iterations: at most this many
-    Levenberg-Marquardt steps per spot; excluded: (H, W) bool, pixels no fit may use (clipped
-    at the full well: they carry no shape information), or None.
+    angle0: a window for a point-like spot and a start from its moments. iterations: at most
+    this many Levenberg-Marquardt steps per spot.
 
     Model: F times the PSF (module docstring) averaged along the segment of length L at angle
     theta centred on (x, y): parameters (x, y, F, L, theta). The centre is the mid-exposure
@@ -51,9 +49,10 @@ def fit_streaks(residual, x0, y0, flux0, length0, angle0, sigma: float, noise: f
     NaN when L < 2 length_sigma and (x, y) is the PSF fit. A spot with unusable inputs or
     data is returned unconverged (NaN where nothing could be fitted); others are unaffected.
     """
-    residual, (x0, y0, flux0, length0, angle0) = check_common_inputs(residual, sigma, noise, gain, iterations,
+    sigma, noise, gain = image.sigma, image.noise, image.gain
+    residual, (x0, y0, flux0, length0, angle0) = check_common_inputs(image.residual, sigma, noise, gain, iterations,
                                                                      x0, y0, flux0, length0, angle0)
-    excluded = check_excluded(excluded, residual)
+    excluded = check_excluded(image.excluded, residual)
     n = x0.size
     result = StreakFit.failed(n)
     valid = np.isfinite(x0) & np.isfinite(y0) & (np.abs(x0) < 1e7) & (np.abs(y0) < 1e7)

@@ -12,8 +12,9 @@ from functools import partial
 import numpy as np
 
 from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, levenberg_marquardt
-from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, batches, check_excluded, flux_scaled_units,
-                         position_flux_max_step, set_path_extent, store_batch, unconstrained, window_bounds)
+from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, StreakImage, batches, check_excluded,
+                         flux_scaled_units, position_flux_max_step, set_path_extent, store_batch, unconstrained,
+                         window_bounds)
 from .model import StreakWindows, cut_windows, sample_sums
 
 
@@ -41,8 +42,7 @@ def _path_model(win: StreakWindows, x, y, flux, offsets, sigma: float) -> np.nda
     return shape * (flux / (2.0 * np.pi * var_eff))[:, None]
 
 
-def second_source_on_path(residual, x, y, flux, path, sigma: float, noise: float, gain: float,
-                          excluded: np.ndarray | None = None):
+def second_source_on_path(image: StreakImage, x, y, flux, path):
     """
     Find where one more star on the same path shape would best explain what a fit of M stars leaves.
 
@@ -54,8 +54,9 @@ def second_source_on_path(residual, x, y, flux, path, sigma: float, noise: float
     matched-filter SNR of the best extra star), each (N,); NaN where nothing is usable. All
     windows at once (padded to one size, correlations by FFT).
     """
-    residual = np.asarray(residual)
-    excluded = check_excluded(excluded, residual)
+    sigma, noise, gain = image.sigma, image.noise, image.gain
+    residual = np.asarray(image.residual)
+    excluded = check_excluded(image.excluded, residual)
     x, y, flux = (np.asarray(v, dtype=float).reshape(np.shape(v)[0], -1) for v in (x, y, flux))
     path = np.asarray(path, dtype=float)
     n = x.shape[0]
@@ -73,19 +74,10 @@ def second_source_on_path(residual, x, y, flux, path, sigma: float, noise: float
     shape = (use.size, win.n_rows, win.n_cols)
     left = ((win.data - model) * win.mask).reshape(shape)
     variance = ((np.maximum(win.data, 0.0) / gain + noise * noise) * win.mask).reshape(shape)
-    # Templates: each path's unit-flux profile (the fits' PSF model) on a grid centred on its
-    # mid-exposure point, one size for all: separable sums over the path samples.
-    var_eff = sigma * sigma + 1.0 / 12.0
-    half = np.ceil(np.max(np.abs(offsets), axis=(0, 1)) + 3.0 * np.sqrt(var_eff)).astype(int)
-    gx = np.arange(-half[0], half[0] + 1, dtype=float)
-    gy = np.arange(-half[1], half[1] + 1, dtype=float)
-    px = np.exp(-0.5 * (gx[None, None, :] - offsets[:, :, 0, None]) ** 2 / var_eff)  # (n, K, TC)
-    py = np.exp(-0.5 * (gy[None, None, :] - offsets[:, :, 1, None]) ** 2 / var_eff)  # (n, K, TR)
-    template = np.matmul(np.transpose(py, (0, 2, 1)), px)  # (n, TR, TC)
-    template /= template.sum(axis=(1, 2), keepdims=True)
+    template, half = _path_templates(offsets, sigma)
     # Correlation with the template centred: score[c] = sum_u left[c + u - h] t[u], i.e. the
     # full convolution with the flipped template, cropped at (h, h).
-    size = (win.n_rows + gy.size - 1, win.n_cols + gx.size - 1)
+    size = (win.n_rows + template.shape[1] - 1, win.n_cols + template.shape[2] - 1)
 
     def correlate(image, kernel):
         full = np.fft.irfft2(np.fft.rfft2(image, size) * np.fft.rfft2(kernel[:, ::-1, ::-1], size), size)
@@ -108,8 +100,25 @@ def second_source_on_path(residual, x, y, flux, path, sigma: float, noise: float
     return out[0], out[1], out[2], out[3]
 
 
-def fit_star_groups_on_path(residual, x0, y0, flux0, path, sigma: float, noise: float, gain: float,
-                            iterations: int = 30, excluded: np.ndarray | None = None) -> list[StreakFit]:
+def _path_templates(offsets: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return each path's unit-flux profile (n, TR, TC) and its half size (x, y) [px].
+
+    The fits' PSF model (variance sigma^2 + 1/12 px^2) on a grid centred on the mid-exposure
+    point, one size for all: separable sums over the path samples `offsets` (n, K, 2) [px].
+    """
+    var_eff = sigma * sigma + 1.0 / 12.0
+    half = np.ceil(np.max(np.abs(offsets), axis=(0, 1)) + 3.0 * np.sqrt(var_eff)).astype(int)
+    gx = np.arange(-half[0], half[0] + 1, dtype=float)
+    gy = np.arange(-half[1], half[1] + 1, dtype=float)
+    px = np.exp(-0.5 * (gx[None, None, :] - offsets[:, :, 0, None]) ** 2 / var_eff)  # (n, K, TC)
+    py = np.exp(-0.5 * (gy[None, None, :] - offsets[:, :, 1, None]) ** 2 / var_eff)  # (n, K, TR)
+    template = np.matmul(np.transpose(py, (0, 2, 1)), px)  # (n, TR, TC)
+    template /= template.sum(axis=(1, 2), keepdims=True)
+    return template, half
+
+
+def fit_star_groups_on_path(image: StreakImage, x0, y0, flux0, path, iterations: int = 30) -> list[StreakFit]:
     """
     Fit M stars moving on the same path shape jointly.
 
@@ -123,8 +132,9 @@ def fit_star_groups_on_path(residual, x0, y0, flux0, path, sigma: float, noise: 
     values for the others (whose centres may lie outside the window: only their light inside
     it is used).
     """
-    residual = np.asarray(residual)
-    excluded = check_excluded(excluded, residual)
+    sigma, noise, gain = image.sigma, image.noise, image.gain
+    residual = np.asarray(image.residual)
+    excluded = check_excluded(image.excluded, residual)
     x0, y0, flux0 = (np.asarray(v, dtype=float) for v in (x0, y0, flux0))
     n, m_stars = x0.shape
     path = np.asarray(path, dtype=float)

@@ -13,22 +13,21 @@ from typing import NamedTuple
 import numpy as np
 
 from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, levenberg_marquardt
-from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, batches, check_common_inputs, check_excluded,
-                         flux_scaled_units, flux_start, position_flux_max_step, set_path_extent, store_batch,
-                         unconstrained, window_bounds)
+from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, StreakImage, batches, check_common_inputs,
+                         check_excluded, flux_scaled_units, flux_start, position_flux_max_step, set_path_extent,
+                         store_batch, unconstrained, window_bounds)
 from .model import StreakWindows, cut_windows, sample_sums
 
 
-def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: float, gain: float,
-                        iterations: int = 20, excluded: np.ndarray | None = None) -> StreakFit:
+def fit_streaks_on_path(image: StreakImage, x0, y0, flux0, path, iterations: int = 20) -> StreakFit:
     """
     Fit streaks whose shape is known from the body rate (e.g. SmearModel.path); all spots at once.
 
-    residual: (H, W) image minus background [ADU]; x0, y0, flux0: (N,) initial mid-exposure
-    positions [px] and total fluxes [ADU] (<= 0 or NaN: the window sum); path: (N, K, 2)
-    offsets [px] of each star's image at K equally spaced times across the exposure from its
-    mid-exposure position (a straight line, or an arc under roll); sigma, noise, gain,
-    iterations, excluded as fit_streaks.
+    image: the residual image, PSF, noise and excluded pixels (StreakImage); x0, y0, flux0: (N,)
+    initial mid-exposure positions [px] and total fluxes [ADU] (<= 0 or NaN: the window sum);
+    path: (N, K, 2) offsets [px] of each star's image at K equally spaced times across the
+    exposure from its mid-exposure position (a straight line, or an arc under roll);
+    iterations as fit_streaks.
 
     Model: F mean_k PSF(pixel - (c + path[n, k])); only c = (x, y) and F are fitted, so
     curved paths and uneven speed are modelled exactly. The path's shape changes slowly with
@@ -42,8 +41,9 @@ def fit_streaks_on_path(residual, x0, y0, flux0, path, sigma: float, noise: floa
     length_sigma and angle_sigma are 0 (given, not fitted). A spot whose inputs or path are
     not finite is returned unconverged; others are unaffected.
     """
-    residual, (x0, y0, flux0) = check_common_inputs(residual, sigma, noise, gain, iterations, x0, y0, flux0)
-    excluded = check_excluded(excluded, residual)
+    sigma, noise, gain = image.sigma, image.noise, image.gain
+    residual, (x0, y0, flux0) = check_common_inputs(image.residual, sigma, noise, gain, iterations, x0, y0, flux0)
+    excluded = check_excluded(image.excluded, residual)
     n = x0.size
     try:
         path = np.asarray(path, dtype=float)

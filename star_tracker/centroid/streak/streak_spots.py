@@ -18,7 +18,7 @@ from ..detection.measure import clean_hot_pixels, star_peak_to_neighbour_ratio
 from ..records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
 from .smear import segment_length
 from ..spots import FLAG_BLENDED, FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK
-from .fit_common import StreakFit
+from .fit_common import StreakFit, StreakImage
 from .free_fit import fit_streaks
 from .groups import fit_star_groups_on_path, second_source_on_path
 from .path_fit import fit_streaks_on_path
@@ -58,12 +58,12 @@ def fit_streak_spots(context: FitContext, kept: Candidates, spots: SpotRows, whi
     x, y, flux = spots.x[which], spots.y[which], spots.flux[which]
     if smear is not None:
         path = smear.path(x, y)
-        fit = fit_streaks_on_path(residual, x, y, flux, path, sigma, context.noise, context.gain, excluded=excluded)
+        fit = fit_streaks_on_path(StreakImage(residual, sigma, context.noise, context.gain, excluded), x, y, flux, path)
         fit_flag = FLAG_STREAK | FLAG_RATE_AIDED
     else:
         length0 = segment_length(kept.major[which], sigma)
-        fit = fit_streaks(residual, x, y, flux, length0, kept.angle[which], sigma, context.noise, context.gain,
-                          excluded=excluded)
+        fit = fit_streaks(StreakImage(residual, sigma, context.noise, context.gain, excluded), x, y, flux, length0,
+                          kept.angle[which])
         fit_flag = FLAG_STREAK
     good = fit.converged
     t = which[good]
@@ -162,8 +162,9 @@ def _grow_star_groups(context: FitContext, residual, fit: "StreakFit", path, exc
         tried = np.flatnonzero(growing)
         if tried.size == 0:
             break
-        sx, sy, sf, found = second_source_on_path(residual, gx[tried, :stars], gy[tried, :stars],
-                                                  gf[tried, :stars], path[tried], sigma, noise, gain, excluded)
+        image = StreakImage(residual, sigma, noise, gain, excluded)
+        sx, sy, sf, found = second_source_on_path(image, gx[tried, :stars], gy[tried, :stars], gf[tried, :stars],
+                                                  path[tried])
         # Only a star whose image overlaps the spot's own (its path within MERGED_OVERLAP_SIGMA
         # PSF sigmas of the spot's path somewhere) can pull the fit; others merely share the window.
         offset = np.stack([sx - gx[tried, 0], sy - gy[tried, 0]], axis=1)
@@ -174,10 +175,9 @@ def _grow_star_groups(context: FitContext, residual, fit: "StreakFit", path, exc
         growing[:] = False
         if tried.size == 0:
             break
-        fits = fit_star_groups_on_path(residual, np.column_stack([gx[tried, :stars], sx]),
+        fits = fit_star_groups_on_path(image, np.column_stack([gx[tried, :stars], sx]),
                                        np.column_stack([gy[tried, :stars], sy]),
-                                       np.column_stack([gf[tried, :stars], sf]), path[tried], sigma, noise, gain,
-                                       excluded=excluded)
+                                       np.column_stack([gf[tried, :stars], sf]), path[tried])
         better = fits[0].converged & (chi2[tried] - fits[0].chi2 > MERGED_MIN_DCHI2)
         if not better.any():
             break

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..psf.empirical import fit_empirical
 from ..psf.point_fits import cleaned_windows
-from ..windows import gather_windows
+from ..windows import PsfStart, PsfWindows, gather_windows
 from ..records import FitContext, SpotRows
 
 MAX_SHIFT_PX = 1.0  # a refit moving the star farther than this from the blend fit is not taken
@@ -50,8 +50,8 @@ def refit_beside_tracks(context: FitContext, peaks: dict, spots: SpotRows, psf, 
         star_d2 = (cols[k] - x0[k]) ** 2 + (lines[k] - y0[k]) ** 2
         for px, py in positions[track]:
             valid[k] &= star_d2 <= (cols[k] - px) ** 2 + (lines[k] - py) ** 2
-    x, y, flux, cov, flux_var, ok = fit_empirical(psf, win, valid, col0, row0, x0, y0, spots.flux[rows],
-                                                  context.noise, context.gain)
+    x, y, flux, cov, flux_var, ok = fit_empirical(psf, PsfWindows(win, valid, col0, row0),
+                                                  PsfStart(x0, y0, spots.flux[rows]), context.noise, context.gain)
     ok &= np.hypot(x - x0, y - y0) <= MAX_SHIFT_PX
     take = np.flatnonzero(ok)
     if take.size == 0:
