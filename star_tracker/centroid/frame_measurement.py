@@ -26,7 +26,7 @@ from .psf.estimate import MeasuredFrame
 from .records import FitContext, PsfTrial, SpotRows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_SATURATED, Spots
 from .streak.rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
-from .tracks.peak_shape import blends_beside_tracks
+from .tracks.blend_screen import blends_beside_tracks
 
 if TYPE_CHECKING:
     from .streak.smear import SmearModel

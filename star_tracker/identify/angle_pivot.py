@@ -38,7 +38,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .base import SpotGeometry, StarIdentifier
+from .base import StarIdentifier
+from .spot_geometry import SpotGeometry
 from .database import StarDatabase
 from .geometry import chord_angle, triple_products
 from .deadline import Deadline

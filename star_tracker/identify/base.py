@@ -28,6 +28,7 @@ from .kernel_records import Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
 from .deep_catalog import DeepCatalog, load_or_build_deep_catalog
 from .deep_match import error_scale, deep_bound, match_deep, spot_pixel_covariance
+from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 from .deadline import BUDGET_CLOCKS, Deadline
 
@@ -134,33 +135,6 @@ class Identification:
         verification.
         """
         return int(np.count_nonzero(self.deep))
-
-
-@dataclass
-class SpotGeometry:
-    """
-    Per-frame quantities algorithms share, for the flux-sorted spots.
-
-    rays (N, 3) unit vectors in the sensor frame; sigma (N,) 1-sigma direction error [rad]
-    for matching (floored at centroid_sigma_floor_px: pattern tolerances, verification
-    radius); pattern_count: how many of the brightest spots may form patterns; magnitude (N,)
-    instrumental magnitude -2.5 log10(flux) [mag] with an unknown zero point (NaN where flux
-    <= 0); x, y (N,) pixel positions [px]; pixel_cov (N, 2, 2) each spot's own covariance
-    [px^2] (the centroider's, not floored; unknown counts as 1 px^2) and jacobian (N, 3, 2) d
-    ray / d pixel [rad/px] (ray_jacobian): the weights of the final attitude fit and its
-    published covariance (None: isotropic, sigma); camera: the camera the rays are of (the
-    deep re-match projects stars with it; None: no deep re-match).
-    """
-
-    rays: np.ndarray
-    sigma: np.ndarray
-    pattern_count: int
-    magnitude: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    pixel_cov: np.ndarray | None = None
-    jacobian: np.ndarray | None = None
-    camera: CameraModel | None = None
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,8 @@ from typing import Iterator, NamedTuple
 import numpy as np
 from numba import njit
 
-from .base import IdentifyConfig, SpotGeometry, StarIdentifier
+from .base import IdentifyConfig, StarIdentifier
+from .spot_geometry import SpotGeometry
 from .database import StarDatabase
 from .geometry import angle_between, chord_angle, pyramid_triangles, triple_product
 from .spherical_triangle import fitting_triples

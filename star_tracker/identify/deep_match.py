@@ -29,16 +29,14 @@ the deep catalog's density (`deep_bound`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..models.camera import CameraModel
 from .deep_catalog import DeepCatalog
+from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement
 
-if TYPE_CHECKING:
-    from .base import SpotGeometry
 
 # A spot and a star pair up within this many sigmas (2-D Mahalanobis; chi^2_2 > 16 has
 # probability e^-8 ~ 3e-4 for a true pair).
@@ -80,7 +78,7 @@ class DeepMatches:
     too_uncertain: int = 0
 
 
-def error_scale(geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndarray, spot_index: np.ndarray,
+def error_scale(geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray, spot_index: np.ndarray,
                 star_vectors: np.ndarray, cov_px: np.ndarray) -> float:
     """
     Variance scale (>= 1) of the match gate.
@@ -99,7 +97,7 @@ def error_scale(geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndar
     return 1.0 if d2.size < MIN_STARS else max(1.0, float(np.median(d2)) / MEDIAN_CHI2_2DOF)
 
 
-def spot_pixel_covariance(geometry: "SpotGeometry", camera: CameraModel, attitude_covariance: np.ndarray,
+def spot_pixel_covariance(geometry: SpotGeometry, camera: CameraModel, attitude_covariance: np.ndarray,
                           floor_px: float) -> np.ndarray:
     """
     (N, 2, 2) covariance [px^2] of each spot's offset from its star's predicted pixel.
@@ -178,7 +176,7 @@ def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tu
     return zero, max(MAGNITUDE_SIGMA * robust_sigma, MAGNITUDE_TOLERANCE_FLOOR)
 
 
-def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraModel, rotation: np.ndarray,
+def match_deep(catalog: DeepCatalog, geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray,
                spot_cov_px: np.ndarray, guide_spots: np.ndarray, guide_hip: np.ndarray,
                guide_magnitude: np.ndarray) -> DeepMatches:
     """
@@ -223,7 +221,7 @@ def match_deep(catalog: DeepCatalog, geometry: "SpotGeometry", camera: CameraMod
                        too_uncertain)
 
 
-def deep_bound(geometry: "SpotGeometry", spot_index: np.ndarray, star_vectors: np.ndarray, star_magnitude: np.ndarray,
+def deep_bound(geometry: SpotGeometry, spot_index: np.ndarray, star_vectors: np.ndarray, star_magnitude: np.ndarray,
                rotation: np.ndarray, catalog: DeepCatalog, stars_in_view: int, camera: CameraModel,
                magnitude_floor: float) -> float:
     """

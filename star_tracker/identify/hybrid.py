@@ -29,8 +29,8 @@ from ..models.camera import CameraModel
 from ..centroid import Spots
 from . import kernels
 from .kernel_records import CatalogArrays, PairIndex, SearchScratch, SpotArrays, TriangleTolerances, VerifySettings
-from .base import (NO_MATCH, TIMEOUT, AcceptedMatch, IdentifyConfig, SearchOutcome, SpotGeometry,
-                   StarIdentifier)
+from .base import NO_MATCH, TIMEOUT, AcceptedMatch, IdentifyConfig, SearchOutcome, StarIdentifier
+from .spot_geometry import SpotGeometry
 from .database import StarDatabase
 from .geometry import pyramid_triangles
 from .skygrid import SkyGrid

@@ -42,7 +42,8 @@ import numpy as np
 from numba import njit
 
 from .angle_pivot import pair_angle_sigma
-from .base import SpotGeometry, StarIdentifier
+from .base import StarIdentifier
+from .spot_geometry import SpotGeometry
 from .database import StarDatabase
 from .geometry import angle_between, chord2_rows, chord_angle, triple_product
 from .deadline import Deadline

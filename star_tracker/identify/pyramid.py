@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import SpotGeometry, StarIdentifier
+from .base import StarIdentifier
+from .spot_geometry import SpotGeometry
 from .geometry import chord_angle, pyramid_order, triple_products
 from .deadline import Deadline
 

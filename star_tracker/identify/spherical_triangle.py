@@ -30,7 +30,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .base import IdentifyConfig, SpotGeometry, StarIdentifier
+from .base import IdentifyConfig, StarIdentifier
+from .spot_geometry import SpotGeometry
 from .database import StarDatabase
 from .triangle_database import TriangleConfig, load_or_build_triangles
 from .triangle_features import measured_features, spherical_area, triangle_sides

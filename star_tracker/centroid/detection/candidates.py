@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from ..config import CentroidConfig, blend_separation_px, elongation_limit, hot_pixel_ratio, window_half
+from .candidate_frame import CandidateFrame
 from .detect import Detections
 from .point_window_kernel import PointWindowSettings, SmallSpots, brightest_box, measure_small
 from .measure import Moments, aperture_moments, box_sums, clean_hot_pixels, major_moment_noise, two_peaks
@@ -95,26 +96,6 @@ class Candidates:
         cov[:, 1, 1] = major * s * s + minor * c * c
         cov[:, 0, 1] = cov[:, 1, 0] = (major - minor) * c * s
         return cov
-
-
-class CandidateFrame(NamedTuple):
-    """
-    One frame as the measurement of its candidates reads it.
-
-    image [ADU]; det: its detections; config: the stage's CentroidConfig; sigma: the PSF
-    1-sigma measured with [px]; find_blends: search elongated footprints for two stars; rings:
-    the stars are rings (blend peaks farther apart, config.blend_separation_px);
-    streaks_expected: a body rate predicts streaks (the footprints are the matched streak
-    filter's, taken as they are).
-    """
-
-    image: np.ndarray
-    det: Detections
-    config: CentroidConfig
-    sigma: float
-    find_blends: bool
-    rings: bool
-    streaks_expected: bool
 
 
 class _FootprintWindows(NamedTuple):

@@ -15,7 +15,7 @@ gravity measures it, model-free.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -23,16 +23,12 @@ from ..detection.detect import Detections
 from ..kernel_image import read_only
 from .peak_shape_kernel import own_pixel_moments
 
-if TYPE_CHECKING:
-    from ..detection.candidates import Candidates
-    from ..records import FitContext
-
 PEAK_RADIUS_SIGMAS = 2.5  # pixels within this many PSF sigmas of a peak are its own
 MIN_PEAK_RADIUS_PX = 2.0
 # A Gaussian cut at 2.5 sigma keeps 0.86 of its second moment: the width limit is scaled by it.
 TRUNCATED_MOMENT = 1.0 - 3.125 * math.exp(-3.125) / (1.0 - math.exp(-3.125))
 # A peak under this share of the width limit is a cosmic-ray track: tracks read 0.15x, real stars'
-# cores beside a neighbour >= 0.77x (unh_DSC_0059; blends_beside_tracks).
+# cores beside a neighbour >= 0.77x (unh_DSC_0059; blend_screen.blends_beside_tracks).
 KEPT_BLEND_TRACK_FRACTION = 0.5
 # Ring stars (a defocused PSF, rings=True): a ring's peaks read >= 1.2x the limit, a cosmic-ray track
 # 13-16 px from the ring's centre 0.2-0.62x (its disk takes in ring light): measured on the alt
@@ -91,40 +87,3 @@ def peak_minor_moments(image: np.ndarray, det: Detections, peaks: np.ndarray, si
         CENTRE_PASSES if centres else -1)
     centre_cov += (CENTRE_SYSTEMATIC_SIGMAS * sigma) ** 2 * np.eye(2)  # inf stays inf: not measured
     return PeakShapes(minor, snr, flux_of, centre, centre_cov)
-
-
-def blends_beside_tracks(context: "FitContext", cand: "Candidates", rejected: np.ndarray, thin: np.ndarray,
-                         narrowest: float) -> tuple[np.ndarray, dict]:
-    """
-    Apply the width test per peak to every blend kept or rejected only by it.
-
-    A peak is a star when its second moment is >= min_width_fraction x TRUNCATED_MOMENT x
-    narrowest^2 [px^2] (the limit) at an SNR >= shape_min_snr. A blend the width test rejected
-    whole is kept when a peak is a star (its other peaks count as tracks); in a kept blend a
-    peak below KEPT_BLEND_TRACK_FRACTION (ring stars: RING_BLEND_TRACK_FRACTION) x the limit at
-    that SNR is a track (a cosmic ray merged with a star, which the footprint's moments did not
-    show). Returns the rejections and, per
-    blend with tracks, the mask of its track peaks and the peaks' PeakShapes.
-    """
-    config = context.config
-    rejected, tracks = rejected.copy(), {}
-    limit = peak_width_limit(config.min_width_fraction, narrowest)
-    track_fraction = RING_BLEND_TRACK_FRACTION if context.rings else KEPT_BLEND_TRACK_FRACTION
-    # A peak's SNR is at most its footprint's: fainter footprints have no measured peak.
-    for i in np.flatnonzero((thin | ~rejected) & (cand.snr >= config.shape_min_snr)):
-        peaks = cand.peaks[i]
-        if len(peaks) < 2:
-            continue
-        shapes = peak_minor_moments(context.image, context.det, peaks, context.sigma, context.gain, centres=False)
-        minor = shapes.minor
-        measured = shapes.snr >= config.shape_min_snr
-        star = measured & (minor >= limit)
-        if not star.any():
-            continue
-        # In a blend the footprint test kept, only a peak far thinner than a star is a track: a
-        # star's core without its wings (cut at 2.5 sigma) can read ~0.8x the limit on a real lens.
-        track = ~star if rejected[i] else measured & (minor < track_fraction * limit)
-        rejected[i] = False
-        if track.any():  # their centres only where a fit may need the fallback
-            tracks[int(i)] = (track, peak_minor_moments(context.image, context.det, peaks, context.sigma, context.gain))
-    return rejected, tracks

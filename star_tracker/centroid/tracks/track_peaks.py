@@ -2,8 +2,8 @@
 """
 Cosmic-ray tracks merged with stars in one footprint: finding the star's peak and the track's.
 
-candidates._blend_peaks searches an elongated footprint for two peaks (measure.two_peaks)
-and peak_shape.blends_beside_tracks judges each peak on its own pixels. Two
+The candidates' measurement searches an elongated footprint for two peaks (measure.two_peaks)
+and blend_screen.blends_beside_tracks judges each peak on its own pixels. Two
 arrangements defeat the plain search, and are looked for here (window pixels, all of a batch):
 - a track just outside a ring star (a defocused PSF) lies nearer to the ring's brightest
   maximum than the ring's own maxima may lie apart (config.RING_BLEND_SIGMAS): ring_track_peaks;
@@ -14,17 +14,15 @@ Measured on bench/alt_renderer.py frames with tracks drawn on them
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from ..config import blend_separation_px
+from ..detection.candidate_frame import CandidateFrame
 from ..detection.measure import aperture_moments, two_peaks
 from .peak_shape import (KEPT_BLEND_TRACK_FRACTION, MIN_PEAK_RADIUS_PX, PEAK_RADIUS_SIGMAS, RING_BLEND_TRACK_FRACTION,
                          peak_minor_moments, peak_width_limit)
-
-if TYPE_CHECKING:
-    from ..detection.candidates import CandidateFrame
 
 # A ring star's track: a maximum this many PSF sigmas from the spot's centre of light (ring_track_peaks).
 RING_TRACK_SIGMAS = 3.0
@@ -71,7 +69,7 @@ def track_screen(data: np.ndarray, valid: np.ndarray, row: np.ndarray, col: np.n
     return peak_minor_on_windows(data, valid, row, col, sigma) < TRACK_PEAK_MARGIN * KEPT_BLEND_TRACK_FRACTION * limit
 
 
-def ring_track_peaks(frame: "CandidateFrame", search: PeakSearch, found: FoundPeaks) -> FoundPeaks:
+def ring_track_peaks(frame: CandidateFrame, search: PeakSearch, found: FoundPeaks) -> FoundPeaks:
     """
     Add a cosmic-ray track merged with a ring star to two_peaks' finds (window pixels).
 
@@ -131,7 +129,7 @@ def peak_minor_on_windows(data: np.ndarray, valid: np.ndarray, row: np.ndarray, 
     return aperture_moments(data, disk & valid, zero, zero, 1.0, 1.0, signed_shape=True).minor
 
 
-def star_beside_track_peaks(frame: "CandidateFrame", search: PeakSearch, found: FoundPeaks,
+def star_beside_track_peaks(frame: CandidateFrame, search: PeakSearch, found: FoundPeaks,
                             thin: np.ndarray) -> FoundPeaks:
     """
     Find the star beside a cosmic-ray track that holds a footprint's brightest maxima (window pixels).
@@ -175,7 +173,7 @@ def star_beside_track_peaks(frame: "CandidateFrame", search: PeakSearch, found: 
     return FoundPeaks(found, rows, cols)
 
 
-def _pair(frame: "CandidateFrame", search: PeakSearch, k: int, first: int, other: int):
+def _pair(frame: CandidateFrame, search: PeakSearch, k: int, first: int, other: int):
     """
     Window k's maxima `first` and `other` (flat indices) as a pair of peaks, or None without a dip between them.
 
