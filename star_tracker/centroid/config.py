@@ -30,7 +30,7 @@ class CentroidConfig:
     flagged (0 = the image dtype's maximum); max_spots: keep at most this many (brightest).
     psf_sigma_px: the optics' PSF 1-sigma [px]; sets the fit model, windows, hot-pixel test.
     With psf_mode "auto" (default) it is the prior: each frame's PSF is estimated from its
-    bright isolated stars (psf_estimate.py) and the frame measured with that width when it
+    bright isolated stars (psf/estimate.py) and the frame measured with that width when it
     differs from the prior by more than 10 %; "fixed" uses psf_sigma_px as given. 0 means no
     PSF (no shape test, no estimate: centre of gravity methods only).
     Shape test (hot pixels, cosmic rays; psf_sigma_px > 0): isolated pixels brighter than a
@@ -118,7 +118,7 @@ def blend_separation_px(sigma: float, rings: bool = False) -> float:
     """
     Smallest separation [px] of a second star split from a spot.
 
-    2 PSF sigmas (at least 2 px); RING_BLEND_SIGMAS for ring stars (psf_estimate.PsfEstimate.annular).
+    2 PSF sigmas (at least 2 px); RING_BLEND_SIGMAS for ring stars (psf.estimate.PsfEstimate.annular).
     """
     return max(2.0, (RING_BLEND_SIGMAS if rings else 2.0) * sigma)
 

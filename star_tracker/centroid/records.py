@@ -184,7 +184,7 @@ class FitOutcome(NamedTuple):
     fit describes (None when the step does not tell); `model`, the single stars' fit model
     (fit_points: "gaussian", "elliptical", "core_halo" or "template"; "" from other steps);
     `psf`, that model itself where it is not the round Gaussian (any object with
-    sample(dx, dy), e.g. empirical_psf.EmpiricalPsf; None otherwise).
+    sample(dx, dy), e.g. psf.empirical.EmpiricalPsf; None otherwise).
     """
 
     spots: SpotRows

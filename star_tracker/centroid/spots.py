@@ -42,7 +42,7 @@ class Spots:
     stray-light structure; extended_objects.py);
     rate_aid_rejected: a body rate was given but the streaks in the image disagreed with it, so
     the frame was measured without it (rate_aid.AID_* rules); psf: the frame's PSF as the
-    centroider estimated or assumed it (psf_estimate.PsfEstimate; None for spots that did not
+    centroider estimated or assumed it (psf.estimate.PsfEstimate; None for spots that did not
     come from an image, e.g. Spots.from_xy or a decoded message); fit_model: what the single
     point-like stars were fitted with (centroid/single_star_model.py): "gaussian" (round),
     "elliptical" (the estimate's astigmatic shape), "core_halo" (a core and up to two wider Gaussians on one

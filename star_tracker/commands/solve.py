@@ -504,7 +504,7 @@ def centroid_config(pixels: np.ndarray, description: str, args: argparse.Namespa
 
 
 # A frame whose solve explains fewer than this share of its spots, while its elongated spots point
-# every way (centroid/texture.py), is centroided again with those ranked last.
+# every way (centroid/detection/texture.py), is centroided again with those ranked last.
 TEXTURE_RETRY_MATCHED_SHARE = 1.0 / 3.0
 
 
@@ -558,7 +558,7 @@ def run(args: argparse.Namespace) -> int:
     solve_s = time.perf_counter() - solve_started
     texture_last = False
     if texture_crowds_stars(spots, result):
-        # centroid/texture.py: spots pointing every way fill the list and most are no star; the
+        # centroid/detection/texture.py: spots pointing every way fill the list and most are no star; the
         # point-like ones ranked first may be the stars (or the bloated stars were the streaks:
         # the solution matching more stars is kept).
         if report:

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Non-Gaussian PSFs fitted with the frame's own profile (centroid/empirical_psf.py).
+Non-Gaussian PSFs fitted with the frame's own profile (centroid/psf/empirical.py).
 
 Truth: bench/alt_renderer.py, a renderer written independently of star_tracker.sim (its own
 PSFs, supersampled pixel integration, Poisson and read noise, hot pixels, cosmic rays), and

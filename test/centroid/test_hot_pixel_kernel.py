@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The compiled hot-pixel test (centroid/hot_pixel_kernel.py, through measure.clean_hot_pixels).
+The compiled hot-pixel test (centroid/detection/hot_pixel_kernel.py, through measure.clean_hot_pixels).
 
 Two checks: on a star frame rendered here with hot pixels injected, the test finds exactly
 the injected pixels and leaves every star pixel alone; on random stacks, it gives the same

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The centroider's PSF estimate (centroid/psf_estimate.py) and the automatic PSF mode.
+The centroider's PSF estimate (centroid/psf/estimate.py) and the automatic PSF mode.
 
 Tested on our simulator AND on frames from a renderer written here, independently of it
 (pixel-integrated Gaussian by erf, a Moffat, a defocused annulus; Poisson + read noise; own

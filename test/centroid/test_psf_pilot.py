@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The PSF estimate's pilot (centroid/psf_pilot.py): a crowded frame's brightest detections measured alone.
+The PSF estimate's pilot (centroid/psf/pilot.py): a crowded frame's brightest detections measured alone.
 
 On a crowded frame rendered here (not by sim/: pixel-integrated Gaussians by erf, Poisson and
 read noise) whose PSF is twice the prior: the pilot must engage, measure a small part of the

@@ -4,7 +4,7 @@ Ring stars (a defocused camera) whose footprint merged with a cosmic-ray track k
 
 The blend with the track was fitted with the round Gaussian: a ring star of SNR ~150 came out
 0.03-0.1 px off, 2-7x its Cramer-Rao bound, while its neighbours were fitted with the frame's
-template (centroid/beside_tracks.py). A track merged with the ring's footprint must be split off
+template (centroid/tracks/beside_tracks.py). A track merged with the ring's footprint must be split off
 first (track_peaks.ring_track_peaks). Frames from bench/alt_renderer.py (not our simulator):
 its annulus PSF, its noise, tracks drawn here.
 """

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Streak centroiding (star_tracker.centroid: smear, streak_free_fit, streak_path_fit) against the simulator's truth.
+Streak centroiding (star_tracker.centroid.streak: smear, free_fit, path_fit) against the simulator's truth.
 
 Frames come from StarFieldRenderer with a constant body rate, so every star is smeared into a
 streak whose mid-exposure position is in frame.truth. The accuracy bound is a Cramer-Rao

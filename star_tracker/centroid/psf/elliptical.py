@@ -5,10 +5,10 @@ Pixel-integrated elliptical Gaussian: the fit model of an astigmatic (elongated,
 The round Gaussian at the minor axis, fitted to a star elongated 1.5:1 at an angle to the
 pixel grid, pulls its centre toward the pixel centre by an amount that depends on the
 sub-pixel phase: an elliptical PSF of sigma 0.78 x 0.46 px at 30 degrees came out at 1.2-1.3x
-the Cramer-Rao bound. With the frame's estimated shape (psf_estimate: the stars' median
+the Cramer-Rao bound. With the frame's estimated shape (psf.estimate: the stars' median
 moments) as the model, the same stars are at 1.0-1.04x. The shape is fixed per frame; each
 star's fit is x, y and flux (`fit_elliptical`: compiled in elliptical_fit_kernel; the same Gauss-Newton as
-empirical_psf.fit_empirical, which takes any model with `sample` and is its reference).
+psf.empirical.fit_empirical, which takes any model with `sample` and is its reference).
 
 Pixel integral: across x analytic (given y, x is Gaussian with the conditional mean and
 variance), along y by Gauss-Legendre nodes (Y_NODES).

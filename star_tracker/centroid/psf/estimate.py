@@ -114,7 +114,7 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     each other), and no other candidate within ISOLATION_SIGMAS PSF widths. Candidates the shape
     test rejected with the prior are included: with a prior too wide, that is where sharp stars
     end up. neighbours: (x, y, slack) [px] of every candidate for that isolation test when `cand`
-    holds only some (psf_pilot: a neighbour counts within reach + slack; None: cand's measured ones).
+    holds only some (psf.pilot: a neighbour counts within reach + slack; None: cand's measured ones).
     """
     finite = np.isfinite(cand.x) & np.isfinite(cand.y) & np.isfinite(cand.peak_raw)
     amplitude = cand.peak_raw - det.background_at(np.where(finite, cand.x, 0.0), np.where(finite, cand.y, 0.0))
@@ -166,7 +166,7 @@ def estimate_psf(image: np.ndarray, frame: MeasuredFrame, prior_sigma: float, ga
 
     The stars used are those whose fit converged to a width of at least SHARPEST_STAR_PX and
     whose axis ratio is below MAX_AXIS_RATIO; the prior (source "prior", with the reason) is
-    returned when fewer than MIN_STARS remain (or fewer than `min_usable` usable stars: psf_pilot
+    returned when fewer than MIN_STARS remain (or fewer than `min_usable` usable stars: psf.pilot
     asks for a full MAX_STARS) or the width is outside [MIN_SIGMA_PX, MAX_SIGMA_PX]. image [ADU];
     frame: its detections, measured candidates and clip level; prior_sigma: the width the
     candidates were measured with [px]; gain [e-/ADU]; faint, neighbours: see usable_stars.

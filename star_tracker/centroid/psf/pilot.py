@@ -3,7 +3,7 @@
 The PSF estimate's pilot: a crowded frame's brightest detections, measured alone.
 
 A frame whose PSF differs from the prior width is measured twice: at the prior, only to
-estimate its PSF, then at the estimate. The estimate uses at most psf_estimate.MAX_STARS
+estimate its PSF, then at the estimate. The estimate uses at most psf.estimate.MAX_STARS
 bright isolated stars, yet a defocused photograph's thousands of detections (its rings'
 fragments at the prior) were all measured at the prior. A frame with at least
 PILOT_MIN_DETECTIONS detections and no running prior (extract_spots' psf_prior: a single
@@ -20,7 +20,7 @@ from ..detection.detect import Detections
 from ..detection.components_kernel import footprint_peaks
 from .estimate import ISOLATION_SIGMAS
 
-PILOT_DETECTIONS = 64  # 5x psf_estimate.MAX_STARS: room for clipped stars, hot pixels and close pairs
+PILOT_DETECTIONS = 64  # 5x psf.estimate.MAX_STARS: room for clipped stars, hot pixels and close pairs
 PILOT_MIN_DETECTIONS = 1500  # fewer: the large footprints the pilot measures anyway are most of the cost
 CENTROID_SLACK_PX = 1.0  # a footprint centroid's distance from the measured centre, at most (about)
 
@@ -32,7 +32,7 @@ def pilot_detections(image: np.ndarray, det: Detections, prior_sigma: float) -> 
     The PILOT_DETECTIONS brightest by the highest raw value [ADU] of each footprint (the order
     of the measured peaks the estimate ranks its stars by; a centroid's neighbourhood is not: a
     ring's, or a footprint's with a neighbour in it, misses the peak), and every detection that
-    may be within the isolation test's reach of one (psf_estimate.usable_stars, at prior_sigma
+    may be within the isolation test's reach of one (psf.estimate.usable_stars, at prior_sigma
     [px]), so that the test sees the neighbours' measured centres, as without a pilot.
     """
     if det.x.size < PILOT_MIN_DETECTIONS:

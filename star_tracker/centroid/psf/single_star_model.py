@@ -9,11 +9,11 @@ The frame's bright stars judge (median reduced chi^2 of those of flux SNR >= BRI
   chi^2 2.56 vs 2.44, residuals against the catalogue 2-28 % larger); with fewer than
   MIN_JUDGED bright stars (faint frames) the estimate's shape is kept;
 - a round-model frame with WINGS_MIN_STARS or more bright round stars whose chi^2 exceeds
-  WINGS_MIN_CHI2 is refitted with the core/halo shape fitted to them (core_halo_psf)
+  WINGS_MIN_CHI2 is refitted with the core/halo shape fitted to them (psf.core_halo)
   when that lowers the chi^2 below WINGS_GAIN x the Gaussian's (judged on 6 stars, a real
   frame's shape lowered their chi^2 1.58 -> 1.06 and raised the residuals of its 100
   matched stars against the catalogue by 9 %).
-Never in a frame of ring stars (their own profile, empirical_psf) or where a known rate
+Never in a frame of ring stars (their own profile, psf.empirical) or where a known rate
 smears the stars (FitContext.own_psf False).
 """
 from __future__ import annotations

@@ -8,7 +8,7 @@ solution is stored.
 Fitting: weighted least squares by Levenberg-Marquardt, each spot in its own window (padded
 to one size per batch, pixels outside the window, off the image or non-finite masked), all
 spots of a batch at once (levenberg_marquardt) or, for the free fit, one at a time compiled
-(streak_free_kernel); one spot's failure never affects another's. Noise model as fit_gaussian_psf: pixel
+(streak.free_fit_kernel); one spot's failure never affects another's. Noise model as fit_gaussian_psf: pixel
 variance = max(model, 0) / gain + noise^2 [ADU^2]; residual images are background-
 subtracted [ADU]. The covariance reported is the (x, y) block of the inverse Fisher matrix
 of all fitted parameters at the solution.

@@ -4,7 +4,7 @@ Free fit of straight streaks.
 
 The PSF swept uniformly along a segment of fitted centre, flux, length and direction, seeded
 from the spots' moments (no body rate needed). Windows are cut here; the fit itself is
-compiled (streak_free_kernel), one spot at a time.
+compiled (streak.free_fit_kernel), one spot at a time.
 """
 from __future__ import annotations
 

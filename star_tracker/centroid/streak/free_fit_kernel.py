@@ -4,13 +4,13 @@ The free straight-streak fit, compiled (numba): Levenberg-Marquardt on the segme
 
 The algorithm of levenberg_marquardt.levenberg_marquardt (weights, secant correction,
 Nielsen damping, damping floor, Gauss-Newton decrement stop, trust region, acceptance test)
-with streak_free_fit's segment model, in float64. Why compiled: a spot's step costs tens of
+with streak.free_fit's segment model, in float64. Why compiled: a spot's step costs tens of
 microseconds, while the batched numpy solver paid ~0.5 ms of fixed overhead per step
 whatever the batch size (~16 ms for 19 elongated spots over 30 steps).
 
 Model of a spot (parameters x, y [px, image frame], F [ADU], L [px], theta [rad from +x
 toward +y]): F times the Gaussian of variance sigma^2 + 1/12 px^2 (the pixel-integrated PSF to
-second order; streak_model's docstring) averaged along the segment of length L at angle
+second order; streak.model's docstring) averaged along the segment of length L at angle
 theta centred on (x, y), by Simpson's rule on nodes about 1 PSF sigma apart, evaluated at
 the pixel centres of the spot's window. Pixel (0, 0) is the centre of the top-left pixel.
 """
@@ -24,7 +24,7 @@ from numba import njit
 
 NODE_SPACING_SIGMA = 1.0  # Simpson nodes along the segment this far apart [PSF sigma]
 N_PAR = 5  # x, y, F, L, theta
-_EXPONENT_FLOOR = 30.0  # exp(-30) ~ 1e-13: the profiles' floor, as streak_model._profiles
+_EXPONENT_FLOOR = 30.0  # exp(-30) ~ 1e-13: the profiles' floor, as streak.model._profiles
 _FLOOR = math.exp(-_EXPONENT_FLOOR)
 # The pixel loops may sum in any order and fuse multiply-adds (so they vectorize), with no
 # assumption on NaN or inf (a failed model must still come out NaN).
@@ -74,7 +74,7 @@ def fit_segments(data: np.ndarray, mask: np.ndarray, origin: np.ndarray, size: n
     """
     Fit the segment model (module docstring) to each spot's window.
 
-    data, mask: (n, R, C) float32 windows padded to one size (streak_model.cut_windows:
+    data, mask: (n, R, C) float32 windows padded to one size (streak.model.cut_windows:
     data [ADU], 0 where masked; mask 1 = use); origin (n, 2) float64 the image pixel (col, row) of
     each window's first element [px]; size (n, 2) int64 the rows and columns of each spot's own
     window (the rest is padding); start (n, 5) float64 the starting parameters; max_length (n,)
@@ -297,7 +297,7 @@ def _segment_model(p, col0, row0, rows, cols, intervals, scale, work):
     Over the rows x cols pixels of the window whose top-left pixel is (col0, row0) [px];
     Simpson's rule with `intervals` (even) intervals; scale = 1 / sqrt(2 var_eff) [1/px].
     Each node's PSF copy is separable: a pixel's sums over nodes are of g_y g_x products
-    (streak_model.sample_sums), with g = exp(-min(v^2, 30)), v = (pixel - node) scale. The
+    (streak.model.sample_sums), with g = exp(-min(v^2, 30)), v = (pixel - node) scale. The
     nodes' profiles stay in work for _segment_jacobian.
     """
     gx, gy, lever, aug = work.gx, work.gy, work.lever, work.aug
@@ -367,7 +367,7 @@ def _profile(centre, scale, weight, count, table, g, vg):
     Write a node's Gaussian profile over the pixel centres 0..count-1 of a window row or column.
 
     g = weight exp(-min(v^2, 30)) and vg = v g with v = (pixel - centre) scale; the floor
-    exp(-30) ~ 1e-13 as streak_model._profiles. table: _gaussian_table(scale). Why not exp
+    exp(-30) ~ 1e-13 as streak.model._profiles. table: _gaussian_table(scale). Why not exp
     per pixel: that was half the model's cost. With m the pixel nearest the centre, f =
     centre - m and d = pixel - m, exp(-v^2) = table[|d|] b^d exp(-f^2 scale^2), b = exp(2 f
     scale^2): two exp per node, the powers of b by products (~1e-14 off at most).

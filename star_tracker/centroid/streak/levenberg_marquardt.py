@@ -5,7 +5,7 @@ Weighted least squares by Levenberg-Marquardt on batches of windows.
 Every spot of a batch fitted at once, each in its own window, one spot's failure never
 affecting another's (the path and group streak fits' solver; generic in the model, which
 the caller evaluates). The free streak fit runs the same algorithm compiled, one spot at a
-time (streak_free_kernel).
+time (streak.free_fit_kernel).
 """
 from __future__ import annotations
 

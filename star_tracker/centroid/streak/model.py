@@ -13,7 +13,7 @@ centre; the fits reach the Cramer-Rao bound of the exact model, see test/centroi
 and it needs exp only, ~5x cheaper than erf. A streak is a weighted sum of PSF copies along
 its path: Simpson's rule with nodes <= 1 PSF sigma apart for a straight segment (< 1 % of
 the peak from the continuous segment, at its ends; symmetric, so no position error, and
-lengths come out within 0.01 px; the free fit's, compiled in streak_free_kernel), the given
+lengths come out within 0.01 px; the free fit's, compiled in streak.free_fit_kernel), the given
 samples for a known path. Each copy is separable in x and y, so a window's model and its
 derivatives are batched matrix products sum_k w_k py_k px_k^T, as in the renderer; the
 profiles are float32 in window coordinates.
