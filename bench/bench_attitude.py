@@ -57,7 +57,8 @@ from star_tracker.identify.base import direction_covariance
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import KIND_STAR, StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 SECTION = "## Attitude accuracy and covariance"
 SEED = 2026

@@ -40,7 +40,8 @@ from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
 
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 # Name in the tables -> (CentroidConfig.method, rate aid on).
 ROUNDS = 3  # speed: best of this many rounds

@@ -34,7 +34,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 REPO = Path(__file__).resolve().parents[1]
 NODES = ("camera_simulator", "centroider", "identifier")

@@ -54,7 +54,8 @@ from star_tracker.identify import (ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig
 from star_tracker.sim.scenes import SETUPS, Scene, SceneSetup, make_scene
 
 from . import peers as peer_adapters
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 EPOCH_JYEAR = 2026.0
 DEFAULT_SEED = 2026

@@ -43,7 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config" / "star_tracker.yaml"

@@ -38,7 +38,8 @@ from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.commands.bench import report_progress
 
 from . import alt_renderer as alt
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 SIGMAS = (0.4, 0.6, 1.0, 2.0, 3.0)
 FLUXES = (300.0, 1000.0, 5000.0, 30000.0)

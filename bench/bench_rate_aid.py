@@ -31,7 +31,8 @@ from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer
 from star_tracker.sim.sensor import SensorModel
 from .bench_attitude import random_rotation
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 SECTION = "## Rate-aid check"
 RATES_DEG_S = (0.3, 1.0, 2.0, 3.0, 5.0)

@@ -40,7 +40,8 @@ import numpy as np
 
 from .bench_pipeline import (BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu,
                              host_usage, rss_mib)
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 BEGIN, END = "<!-- bench_soak -->", "<!-- /bench_soak -->"
 

@@ -40,7 +40,8 @@ from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
 
 from .bench_realdata import find_corpus, run_solve_command
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 REPO = Path(__file__).resolve().parents[1]
 IMAGE_SET = "openstartracker"  # UBNanosatLab/openstartracker tests/science_cam_may8_0.05sec_gain40 (MIT)
