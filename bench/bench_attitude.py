@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from star_tracker.models.attitude import ARCSEC, matrix_to_rotation_vector, quaternion_to_matrix
+from star_tracker.models.attitude import ARCSEC, matrix_to_rotation_vector
 from star_tracker.models.attitude_estimation import quest, refine_with_covariances
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
@@ -59,6 +59,7 @@ from star_tracker.sim.render import KIND_STAR, StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
 from .machine import cpu_model
 from .report import write_section
+from .scenes import random_rotation
 
 SECTION = "## Attitude accuracy and covariance"
 SEED = 2026
@@ -86,11 +87,6 @@ CATEGORIES = {"saturated": "a saturated spot", "blended": "a blended spot", "cro
               "clean": "none of these"}
 # Before the fixes of the NEES goal (commit f0cd3ad, same bench, 1000 / 200 frames).
 BEFORE = "NEES 1.07 at rest, 1.70-2.55 under rate; accuracy at rest 0.37\" cross-boresight, 2.6\" roll"
-
-
-def random_rotation(rng: np.random.Generator) -> np.ndarray:
-    """Uniform over SO(3): a normalized 4-D Gaussian quaternion."""
-    return quaternion_to_matrix(rng.normal(size=4))
 
 
 def body_rate(kind: str, rate_deg_s: float, rng: np.random.Generator) -> np.ndarray:

@@ -191,7 +191,7 @@ def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
     """
     Rows of a simulator case.
 
-    Grids of 64 stars (bench_centroid.grid_scene, random sub-pixel phase) rendered by
+    Grids of 64 stars (bench/scenes.py grid_scene, random sub-pixel phase) rendered by
     StarFieldRenderer with SensorModel(psf_sigma_px=sigma) and hot pixels and cosmic rays on.
     SNR and CRB from alt_renderer's Gaussian at the simulator's noise levels (sky + dark, read
     noise, gain).
@@ -199,7 +199,7 @@ def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_STAR, StarFieldRenderer, frame_seed
 
-    from .bench_centroid import CAMERA, POINTING, grid_scene, static_level
+    from .scenes import CAMERA, POINTING, grid_scene, static_level
 
     sigma = case.sigma_px
     sensor = simulator_sensor(sigma)
@@ -238,7 +238,7 @@ def false_detections(frames: int) -> dict:
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import StarFieldRenderer, frame_seed
 
-    from .bench_centroid import CAMERA, POINTING
+    from .scenes import CAMERA, POINTING
 
     empty = StarCatalog(*(np.zeros(0) for _ in range(7)))
     sensor = simulator_sensor(1.0, dsnu_fraction=0.1, prnu_fraction=0.01)

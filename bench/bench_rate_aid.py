@@ -30,9 +30,9 @@ from star_tracker.centroid.smear import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer
 from star_tracker.sim.sensor import SensorModel
-from .bench_attitude import random_rotation
 from .machine import cpu_model
 from .report import write_section
+from .scenes import random_rotation
 
 SECTION = "## Rate-aid check"
 RATES_DEG_S = (0.3, 1.0, 2.0, 3.0, 5.0)

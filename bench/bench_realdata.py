@@ -725,21 +725,29 @@ def _command(argv) -> str:
 
 def _corpus_name(corpus: Path) -> str:
     """The corpus as the results name it: relative to the repository's parent where it lies there."""
-    try:
-        return str(Path("..") / corpus.relative_to(REPO.parent.resolve()))
-    except ValueError:
-        return corpus.name
+    from .corpus import CORPUS_RELATIVE
+
+    if (REPO.parent / CORPUS_RELATIVE).resolve() == corpus.resolve():
+        return str(Path("..") / CORPUS_RELATIVE)
+    return corpus.name
+
+
+def _verdicts(results: dict) -> list:
+    return [(row["id"], name, s.get("boresight_error_rad"), s.get("roll_error_rad"))
+            for row in results["images"] for name, s in row["solvers"].items()]
 
 
 def from_json(path: Path, corpus: Path, output: Path | None, json_path: Path | None, argv) -> int:
     """--from-json: judge a results file's stored solutions again; rewrite it and the section."""
     results = json.loads(path.read_text())
+    before = _verdicts(results)
     try:
         rejudge(results, load_corpus(corpus))
     except ValueError as exc:
         print(f"bench_realdata: {exc}", file=sys.stderr)
         return 1
-    results["meta"].update(judged=utc_now(), judged_by=_command(argv))
+    if _verdicts(results) != before:  # else only the section is written again
+        results["meta"].update(judged=utc_now(), judged_by=_command(argv))
     text = render_markdown(results)
     print(text)
     if output:

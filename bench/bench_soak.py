@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench_pipeline import (BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu,
-                             host_usage, rss_mib)
+from .nodes import (BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu, host_usage,
+                    rss_mib)
 from .machine import cpu_model
 from .report import write_section
 

@@ -39,7 +39,7 @@ from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
 
-from .bench_realdata import find_corpus, run_solve_command
+from .corpus import find_corpus, run_solve_command
 from .machine import cpu_model
 from .report import write_section
 
