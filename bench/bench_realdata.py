@@ -195,7 +195,7 @@ def solve_ours(image: CorpusImage, warm_up: bool) -> dict:
     result["stage_times_s"] = ({stage: float(np.median([t[stage] for t in stage_times])) for stage in STAGES}
                                if all(set(STAGES) <= set(t) for t in stage_times) else None)
     # Each matched star's residual after the attitude and camera fit [arcsec], by HIP: two runs'
-    # centroids compared on the stars both match (bench/compare_residuals.py).
+    # centroids can be compared on the stars both match.
     result["residual_rms_arcsec"] = record.get("residual_rms_arcsec") if solved else None
     result["residual_arcsec_by_hip"] = ({str(m["hip"]): m["residual_arcsec"] for m in record["matched"]}
                                         if solved else {})
