@@ -85,8 +85,6 @@ VARIANTS = {"nees_floored": "with the floor", "nees_isotropic": "isotropic", "ne
 # Frame categories of the published NEES: key -> label (a frame may be in several).
 CATEGORIES = {"saturated": "a saturated spot", "blended": "a blended spot", "crowded": "a crowded star",
               "clean": "none of these"}
-# Before the fixes of the NEES goal (commit f0cd3ad, same bench, 1000 / 200 frames).
-BEFORE = "NEES 1.07 at rest, 1.70-2.55 under rate; accuracy at rest 0.37\" cross-boresight, 2.6\" roll"
 
 
 def body_rate(kind: str, rate_deg_s: float, rng: np.random.Generator) -> np.ndarray:
@@ -463,7 +461,7 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
     nees_ok = [c for c in solved if abs(c["nees_mean"] - GOAL_NEES) <= GOAL_NEES_TOLERANCE]
     rest_ok = abs(rest["nees_mean"] - GOAL_NEES) <= GOAL_NEES_TOLERANCE
     lines += [
-        "", "Goals (issue 6):", "",
+        "", "Goals:", "",
         f"- At rest, cross-boresight <= {GOAL_CROSS_ARCSEC:g}\" (1-sigma): {rest['cross_rms_arcsec']:.2f}\" (2-D RMS; "
         f"{rest['cross_per_axis_rms_arcsec']:.2f}\" per axis) "
         f"{verdict(rest['cross_rms_arcsec'] <= GOAL_CROSS_ARCSEC)}.",
@@ -475,7 +473,6 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
         f"{rest['nees_cross_mean']:.2f}, roll {rest['nees_roll_mean']:.2f}); {len(nees_ok)} of {len(solved)} cases "
         f"within the band; all {pooled['frames']} frames under rate together: {pooled['nees_mean']:.2f} +- "
         f"{pooled['nees_mean_stderr']:.2f}.",
-        f"- Before the fixes (same bench): {BEFORE}.",
         "", f"![attitude error and NEES vs rate]({os.path.relpath(images[0], output.parent)})", "",
         "### Where the NEES comes from", "",
         "The published NEES by frame category (mean, frames, tail share; a frame may be in several): a matched spot "

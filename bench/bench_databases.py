@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Pattern-database build and load times and sizes (issue goal: build <= 10 s, load < 1 s).
+Pattern-database build and load times and sizes (goal: build <= 10 s, load < 1 s).
 
 Each database is built into an empty temporary cache (so nothing is reused), then loaded
 back from it in a fresh call, best of 3 loads. Writes the "## Pattern databases" table to

@@ -8,7 +8,7 @@ Pipeline throughput, latency and overload: the three nodes as separate processes
 1. Rate sweep: camera_simulator -> centroider -> identifier (config/star_tracker.yaml, the demo
    body rate (0.3, 0.4, 0.05) deg/s, `--exposure` for camera and rate aid) at each rate. The
    centroider and identifier run through the whole sweep; only the camera restarts per rate.
-   Latency is defined as the issue does: mid-exposure stamp -> attitude received by this
+   Latency: mid-exposure stamp -> attitude received by this
    benchmark's subscriber (receive wall time - stamp; every process on this host's clock).
    The camera renders each frame ahead and publishes it when its exposure ends, as a camera
    with an instant readout (`sensor.readout_s` 0) delivers it.
@@ -444,7 +444,7 @@ def reliability_figures(data: dict) -> str:
         cam, cen, ide = (goal["stages_ms"][n] for n in ("camera_simulator", "centroider", "identifier"))
         throughput = goal["sustainable"]
         latency = goal["latency_ms"]["median"] <= 50.0
-        rows.append(f"- issue goal, ≥ 20 Hz end to end: **{'met' if throughput else 'not met'}** "
+        rows.append(f"- goal, ≥ 20 Hz end to end: **{'met' if throughput else 'not met'}** "
                     f"({goal['identified']} / {goal['frames']} frames at 20 Hz); median latency ≤ 50 ms: "
                     f"**{'met' if latency else 'not met'}** ({goal['latency_ms']['median']:.1f} ms). Of that, "
                     f"{cam.get('image_age', float('nan')):.0f} ms pass before the image is published (half the "

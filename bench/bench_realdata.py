@@ -469,7 +469,7 @@ def stage_table(images: list[dict], peer: str) -> list[str]:
     """
     Markdown rows: on each image `peer` solves, its time against ours from decoded pixels and our stages.
 
-    The per-image time goal (issue 17) with where ours goes: centroiding and solve [ms], and the
+    The per-image time against the peer with where ours goes: centroiding and solve [ms], and the
     other peers' times beside them.
     """
     solved = [row for row in images if row["solvers"][peer]["solved"]
@@ -544,7 +544,8 @@ def misses(results: dict) -> list[str]:
 
     With the cause where it is known (KNOWN_CAUSES).
     """
-    rows = [row for row in results["images"] if not row["solvers"]["ours"]["within_1arcmin"]]
+    rows = [row for row in results["images"]
+            if not row["solvers"]["ours"]["solved"] or row["solvers"]["ours"]["within_1arcmin"] is False]
     if not rows:
         return []
     lines = ["", "### Images ours does not solve within 1′", ""]
@@ -573,7 +574,8 @@ def render_markdown(results: dict) -> str:
         "## Real images" + (f", field hint {error_pct:+g} % off" if error_pct else ""),
         "",
         f"Command: `{meta.get('command', 'python -m bench.bench_realdata')}`. Measured {meta.get('date', '?')} in "
-        f"{meta['elapsed_s']:.0f} s. Machine: {meta.get('cpu', '?')}, `nproc` = {meta.get('cores', '?')}; "
+        f"{meta['elapsed_s']:.0f} s on a shared host (compare times within one run). Machine: "
+        f"{meta.get('cpu', '?')}, `nproc` = {meta.get('cores', '?')}; "
         f"Python {meta.get('python', '?')}; tetra3rs {versions.get('tetra3rs') or 'not installed'}, cedar-solve "
         f"{versions.get('cedar-solve') or 'not installed'}. Raw results: "
         f"`docs/{meta.get('json_name', 'bench_realdata.json')}`."
