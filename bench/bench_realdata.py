@@ -88,12 +88,12 @@ KNOWN_CAUSES = {
 # Where our time goes against cedar-solve's (the table's stage columns; bench_corpus_centroid splits the centroiding).
 TIME_NOTE = (
     "Where the difference comes from: cedar-solve's centroids are moments of thresholded blobs; ours fit each spot "
-    "with a PSF or streak model (the accuracy of § Centroiding and § Centroiding across PSFs: its centroids are 1.9× "
-    "our RMS error on the nominal frames, tetra3rs's 2.5×). On the frames with long streaks or cloud texture the "
-    "streak fits and the candidate measurement take most of the centroiding (§ Real images: centroiding time by "
-    "stage); the solve stage (a pattern search, three verified identifications near an attitude with the deep "
-    "re-match, two camera fits) takes 7-18 ms on every image in Python-level orchestration around compiled kernels. "
-    "tetra3rs, compiled end to end, takes 3-10× less than cedar-solve.")
+    "with a PSF or streak model, for the accuracy that § Centroiding and § Centroiding across PSFs measure (§ Speed, "
+    "side by side with the peers: the peers' centroid errors against ours). On the frames with long streaks or cloud "
+    "texture the streak fits and the candidate measurement take most of our centroiding (§ Real images: centroiding "
+    "time by stage); the solve stage is a pattern search, three verified identifications near an attitude with the "
+    "deep re-match and two camera fits, Python orchestration around compiled kernels. tetra3rs, compiled end to end, "
+    "is faster than both where it solves.")
 
 
 # ----------------------------------------------------------------------------------------
@@ -681,7 +681,8 @@ def main(argv=None) -> int:
                         help="tell every solver a field PCT percent off the manifest's (default 0; within +-5)")
     parser.add_argument("--from-json", type=Path, metavar="JSON",
                         help="solve nothing: judge the solutions stored in this results file again against the "
-                             "manifest's references, rewrite it (or --json) and the section of --output")
+                             "manifest's references and write the section of --output; the file is rewritten (or "
+                             "--json written) when a verdict changed")
     args = parser.parse_args(argv)
     if not -5.0 <= args.field_error <= 5.0:
         parser.error(f"--field-error {args.field_error} must be within the solvers' 5 % tolerance")
@@ -735,7 +736,11 @@ def _corpus_name(corpus: Path) -> str:
 
 
 def _verdicts(results: dict) -> list:
-    return [(row["id"], name, s.get("boresight_error_rad"), s.get("roll_error_rad"))
+    """Every solver's errors, to 1e-9 rad (a stored rotation read back differs from it by ~1e-16)."""
+    def rounded(value):
+        return None if value is None else round(value, 9)
+
+    return [(row["id"], name, rounded(s.get("boresight_error_rad")), rounded(s.get("roll_error_rad")))
             for row in results["images"] for name, s in row["solvers"].items()]
 
 
@@ -748,13 +753,15 @@ def from_json(path: Path, corpus: Path, output: Path | None, json_path: Path | N
     except ValueError as exc:
         print(f"bench_realdata: {exc}", file=sys.stderr)
         return 1
-    if _verdicts(results) != before:  # else only the section is written again
+    changed = _verdicts(results) != before  # else only the section is written again
+    if changed:
         results["meta"].update(judged=utc_now(), judged_by=_command(argv))
     text = render_markdown(results)
     print(text)
     if output:
         write_section(output, text)
-    (json_path or path).write_text(json.dumps(results, indent=1, default=float) + "\n")
+    if changed or json_path:
+        (json_path or path).write_text(json.dumps(results, indent=1, default=float) + "\n")
     return 0
 
 
