@@ -610,7 +610,16 @@ def main(argv=None) -> None:
                         help="worker processes (default: every core; 1 = in this process)")
     parser.add_argument("--output", type=Path, help=f"write the '{SECTION}' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_attitude.json beside --output)")
+    parser.add_argument("--from-json", type=Path, metavar="JSON",
+                        help="measure nothing: draw the figures and write the section of --output from these saved "
+                             "results")
     args = parser.parse_args(argv)
+    if args.from_json:
+        results = json.loads(args.from_json.read_text())
+        if args.output:
+            images = figures(results, args.output.parent / "images")
+            write_section(args.output, render_markdown(results, images, args.output))
+        return
     started = time.perf_counter()
     sensor, identify_config = SensorModel(), IdentifyConfig()
     floor_px = identify_config.centroid_sigma_floor_px

@@ -200,7 +200,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-peers", action="store_true", help="our centroider only")
     parser.add_argument("--output", type=Path, help=f"write the '{HEADER[3:]}' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw results (default: bench_beside_tracks.json beside --output)")
+    parser.add_argument("--from-json", type=Path, metavar="JSON",
+                        help="measure nothing: write the section of --output from these saved results")
     args = parser.parse_args(argv)
+    if args.from_json:
+        text = render_markdown(json.loads(args.from_json.read_text()))
+        print(text)
+        if args.output:
+            write_section(args.output, text)
+        return 0
     frames = QUICK_FRAMES if args.quick else args.frames
     started, date = time.perf_counter(), utc_now()
     rows = run(frames, peers=not args.no_peers)

@@ -159,7 +159,15 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"two images ({', '.join(QUICK_IMAGES)}), 2 timed calls each (smoke run)")
     parser.add_argument("--output", type=Path, help=f"write the '{HEADER[3:]}' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw results (default: bench_corpus_centroid.json beside --output)")
+    parser.add_argument("--from-json", type=Path, metavar="JSON",
+                        help="measure nothing: write the section of --output from these saved results")
     args = parser.parse_args(argv)
+    if args.from_json:
+        text = render_markdown(json.loads(args.from_json.read_text()))
+        print(text)
+        if args.output:
+            write_section(args.output, text)
+        return 0
     try:
         corpus = find_corpus(args.corpus)
     except CorpusMissing as exc:

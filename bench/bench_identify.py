@@ -699,7 +699,15 @@ def main(argv=None) -> None:
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
     parser.add_argument("--output", type=Path, help="write the '## Identification' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_identify.json beside --output)")
+    parser.add_argument("--from-json", type=Path, metavar="JSON",
+                        help="measure nothing: write the section of --output from these saved results")
     args = parser.parse_args(argv)
+    if args.from_json:
+        text = render_markdown(json.loads(args.from_json.read_text()))
+        print(text)
+        if args.output:
+            write_section(args.output, text)
+        return
     setups = _names(args.setups, SETUPS, "setups")
     algorithms = _names(args.algorithms, ALGORITHMS, "algorithms")
     peers = [] if args.no_peers else peer_adapters.usable_peers()

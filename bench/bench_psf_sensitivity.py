@@ -121,7 +121,16 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, help="raw results (default: bench_psf_sensitivity.json beside --output)")
     parser.add_argument("--only", help="comma-separated image ids of the manifest (default: all)")
     parser.add_argument("--corpus", type=Path, help="corpus folder holding MANIFEST.json")
+    parser.add_argument("--from-json", type=Path, metavar="JSON",
+                        help="solve nothing: write the section of --output from these saved results")
     args = parser.parse_args(argv)
+    if args.from_json:
+        saved = json.loads(args.from_json.read_text())
+        text = render_markdown(saved["images"], saved["meta"])
+        print(text)
+        if args.output:
+            write_section(args.output, text)
+        return 0
     try:
         corpus = find_corpus(args.corpus)
     except CorpusMissing as exc:
