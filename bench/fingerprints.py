@@ -72,7 +72,7 @@ def spots_digest(spots) -> str:
 
 
 def psf_digest(spots) -> str:
-    """The frame's PSF record (every field, in order) and its single stars' fit model."""
+    """Return the frame's PSF record (every field, in order) and its single stars' fit model."""
     psf = spots.psf
     values = [] if psf is None else [repr(getattr(psf, f)) for f in psf.__dataclass_fields__]
     return digest(np.frombuffer("|".join(values + [spots.fit_model]).encode(), np.uint8))
