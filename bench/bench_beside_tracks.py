@@ -121,7 +121,7 @@ def count(psf, seeds, centroids: Callable[[np.ndarray], np.ndarray] = ours, time
 
 
 def centroiders(peers: bool) -> dict[str, Callable[[np.ndarray], np.ndarray]]:
-    """Ours, and the usable peers' centroiders (bench/peers.py) with `peers`."""
+    """Return our centroider and, with `peers`, the usable peers' (bench/peers.py), by name."""
     out = {"ours": ours}
     if peers:
         from . import peers as peer_adapters

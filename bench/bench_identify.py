@@ -525,7 +525,7 @@ GOAL_NOTES = {
 
 
 def goals_lines(results: dict) -> list[str]:
-    """The goal rows of the default algorithm (meta.reference_algorithm), judged from this run, peers beside."""
+    """Return the goal rows of the default algorithm (meta.reference_algorithm), judged from this run, peers beside."""
     reference = results["meta"]["reference_algorithm"]
     setups = results["setups"]
 

@@ -316,7 +316,7 @@ def solve_tetra3rs(solver, pixels: np.ndarray, image: CorpusImage) -> dict:
 
 
 def _quaternion(rotation: np.ndarray | None) -> list[float] | None:
-    """A solution's rotation sensor -> ICRS as stored in the results: quaternion [x, y, z, w], or None."""
+    """Return a solution's rotation sensor -> ICRS as the results store it: quaternion [x, y, z, w], or None."""
     from star_tracker.models.attitude import matrix_to_quaternion
 
     return None if rotation is None else [float(v) for v in matrix_to_quaternion(rotation)]
@@ -530,7 +530,7 @@ def _ratio(a: float | None, b: float | None, digits: int = 2) -> str:
 
 
 def _reference_cell(row: dict) -> str:
-    """What an image's boresight is judged against: the dense re-fit (its stars), the astrometry.net solve, none."""
+    """Name what an image's boresight is judged against: the dense re-fit (its stars), astrometry.net, none."""
     if not row.get("has_reference"):
         return "none"
     if row.get("dense_stars"):
@@ -727,7 +727,7 @@ def _command(argv) -> str:
 
 
 def _corpus_name(corpus: Path) -> str:
-    """The corpus as the results name it: relative to the repository's parent where it lies there."""
+    """Return the corpus as the results name it: relative to the repository's parent where it lies there."""
     from .corpus import CORPUS_RELATIVE
 
     if (REPO.parent / CORPUS_RELATIVE).resolve() == corpus.resolve():

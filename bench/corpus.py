@@ -52,7 +52,7 @@ def find_corpus(explicit: Path | None = None, repo: Path = REPO) -> Path:
 
 
 def manifest_entries(corpus: Path) -> list[dict]:
-    """The manifest's image entries, in manifest order."""
+    """Return the manifest's image entries, in manifest order."""
     return json.loads((corpus / "MANIFEST.json").read_text())["images"]
 
 
@@ -93,7 +93,7 @@ class CorpusImage:
 
 
 def unit_vector(ra_deg: float, dec_deg: float) -> np.ndarray:
-    """The ICRS unit vector of a sky position [deg]."""
+    """Return the ICRS unit vector of a sky position [deg]."""
     ra, dec = math.radians(ra_deg), math.radians(dec_deg)
     return np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
 

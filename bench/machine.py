@@ -44,7 +44,7 @@ def machine_info(peers: bool = False) -> dict:
 
 
 def utc_now() -> str:
-    """The date stamp of a measurement: 'YYYY-MM-DD HH:MM UTC'."""
+    """Return the date stamp of a measurement: 'YYYY-MM-DD HH:MM UTC'."""
     return dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
 
 

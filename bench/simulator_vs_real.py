@@ -522,7 +522,7 @@ What it shows, and what the simulator lacks (no knob for any of these):
 
 
 def figures(profile: CameraProfile, result: dict) -> dict:
-    """The section's figures as the results file stores them (the profile's fits as [value, sigma])."""
+    """Return the section's figures as the results file stores them (the profile's fits as [value, sigma])."""
     def measured(value):
         return [float(value.value), float(value.sigma)]
 
