@@ -466,7 +466,7 @@ def reliability_figures(data: dict) -> str:
 
 
 def write_reliability(path: Path, text: str) -> None:
-    doc = path.read_text()
+    doc = path.read_text() if path.is_file() else ""  # a --output elsewhere (star-tracker bench --quick): none
     if RELIABILITY_BEGIN not in doc:
         print(f"{path}: no {RELIABILITY_BEGIN} marker; figures not written", file=sys.stderr)
         return
