@@ -30,8 +30,6 @@ from pathlib import Path
 import numpy as np
 from scipy.special import erf
 
-from star_tracker.models.attitude import radec_roll_to_matrix
-from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import StarCatalog, unit_to_radec
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.streak.smear import SmearModel
@@ -40,26 +38,14 @@ from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
 
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
+from .scenes import CAMERA, POINTING, grid_scene, static_level
 
 # Name in the tables -> (CentroidConfig.method, rate aid on).
 ROUNDS = 3  # speed: best of this many rounds
 VARIANTS = {"cog": ("cog", False), "wcog": ("wcog", False), "auto": ("auto", False), "auto + rate": ("auto", True)}
-CAMERA = CameraModel.from_fov(1024, 1024, np.radians(15.0))
-POINTING = radec_roll_to_matrix(np.radians(80.0), np.radians(20.0), 0.0)
 EXPOSURE = 0.1
-
-
-def grid_scene(sensor: SensorModel, flux_e: float, rng: np.random.Generator, spacing: int = 110):
-    """Return a catalog of stars on a pixel grid (random sub-pixel phase) of flux `flux_e` [e-]."""
-    cols, rows = np.meshgrid(np.arange(80, 1024 - 80, spacing), np.arange(80, 1024 - 80, spacing))
-    x = cols.ravel() + rng.uniform(-0.5, 0.5, cols.size)
-    y = rows.ravel() + rng.uniform(-0.5, 0.5, rows.size)
-    ra, dec = unit_to_radec(CAMERA.pixel_to_ray(x, y) @ POINTING.T)
-    hp = -2.5 * np.log10(flux_e / (sensor.zero_point_e_per_s * sensor.exposure_s))
-    n = x.size
-    return StarCatalog(hip=np.arange(1, n + 1, dtype=np.int32), ra=ra, dec=dec, pm_ra=np.zeros(n), pm_dec=np.zeros(n),
-                       hp=np.full(n, hp), b_v=np.zeros(n), epoch_jyear=2026.0)
 
 
 def expected_counts(x0, y0, flux, sigma, smear_px, half=8, steps=64):
@@ -98,10 +84,6 @@ def flux_for_snr(snr, sensor: SensorModel):
     """Solve SNR = F / sqrt(F + N_eff (B + r^2)) for F."""
     noise = 4 * np.pi * sensor.psf_sigma_px ** 2 * (static_level(sensor) + sensor.read_noise_e ** 2)
     return 0.5 * (snr ** 2 + np.sqrt(snr ** 4 + 4 * snr ** 2 * noise))
-
-
-def static_level(sensor: SensorModel) -> float:
-    return (sensor.background_e_per_px_s + sensor.dark_e_per_px_s_at_temperature) * sensor.exposure_s
 
 
 def measure_accuracy(snr, smear_px, frames, sensor, rng, config=CentroidConfig(), rate_aided=False):

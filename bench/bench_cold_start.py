@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Cold start: process start -> first identified frame on a fresh install (issue 18 part 6).
+Cold start: process start -> first identified frame on a fresh install.
 
 Each case starts from a fresh clone (`git clone` of the repository's HEAD) and empty caches
 (STAR_TRACKER_CACHE and XDG_CACHE_HOME in a temp dir, no NUMBA_CACHE_DIR: numba's default,
@@ -12,7 +12,7 @@ within 60 arcsec of the simulator's truth. Then it does the same again on the no
 
 * colcon: `python -m colcon build` (the running interpreter, as test_colcon_install does);
 * colcon, no install compile: the same with STAR_TRACKER_SKIP_INSTALL_COMPILE=1, i.e. the
-  kernels compile at the first start (the behaviour before issue 18);
+  kernels compile at the first start (the install step skipped);
 * pip: a fresh venv, `pip install -r requirements.txt` (not timed: the dependencies), then
   `pip install <clone>` (timed).
 
@@ -34,14 +34,15 @@ import tempfile
 import time
 from pathlib import Path
 
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 REPO = Path(__file__).resolve().parents[1]
 NODES = ("camera_simulator", "centroider", "identifier")
 CASES = ("colcon", "colcon-no-install-compile", "pip")
 FIRST_DOMAIN_ID = 223  # 223-226: this benchmark's private DDS domains
 CORRECT_RAD = math.radians(60.0 / 3600.0)  # an identified frame: attitude within 60 arcsec of truth
-GOAL_S = 10.0  # [s] issue 18: process start -> first identified frame
+GOAL_S = 10.0  # [s] goal: process start -> first identified frame
 SITE = f"lib/python{sys.version_info.major}.{sys.version_info.minor}/site-packages"
 # "[INFO] [1764650000.123456789] [centroider]: ready" -> the wall time of the ready line
 READY_RE = re.compile(r"\[(\d+\.\d+)\] \[[^\]]*\]: ready\b")

@@ -54,7 +54,8 @@ from star_tracker.identify import (ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig
 from star_tracker.sim.scenes import SETUPS, Scene, SceneSetup, make_scene
 
 from . import peers as peer_adapters
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 EPOCH_JYEAR = 2026.0
 DEFAULT_SEED = 2026
@@ -511,6 +512,87 @@ def peer_settings_lines(results: dict) -> list[str]:
     return lines
 
 
+# Why a goal row is not met where that follows from the method, not from this run (docs/IDENTIFICATION.md).
+GOAL_NOTES = {
+    "cole": "A third of the Cole scenes hold fewer than 4 true stars: a 3-star solution cannot reach the 1e-6 "
+            "false-positive bound at 87 µrad (λ₃ ≈ 1e-2, docs/IDENTIFICATION.md).",
+    "cole_false": "With one more spot the look-elsewhere factor C(n, m) grows, so more 4-star fields with a poor fit "
+                  "miss the bound.",
+    "toloei_4_136": "Cannot be met under a 1e-6 bound: C(140, 4) ≈ 1.6e7 four-spot subsets, each matching some "
+                    "catalog 4-tuple by chance with probability ~1e-10 at 0.1 px, so four true stars among 136 false "
+                    "ones are never distinguishable from chance.",
+}
+
+
+def goals_lines(results: dict) -> list[str]:
+    """Return the goal rows of the default algorithm (meta.reference_algorithm), judged from this run, peers beside."""
+    reference = results["meta"]["reference_algorithm"]
+    setups = results["setups"]
+
+    def solver(name: str, who: str = reference) -> dict | None:
+        return setups.get(name, {}).get("solvers", {}).get(who)
+
+    def peers_text(name: str, key: str = "correct_pct") -> str:
+        parts = [f"{peer} {_pct(s[key])} %" + (f", {s['incorrect']} incorrect" if s["incorrect"] else "")
+                 for peer in ("tetra3rs", "cedar-solve") if (s := solver(name, peer)) is not None]
+        return f" (peers: {'; '.join(parts)})" if parts else ""
+
+    def ge4_pct(s: dict) -> float | None:
+        return 100.0 * s["ge4"][CORRECT] / s["ge4"]["scenes"] if s["ge4"]["scenes"] else None
+
+    def met(ok: bool) -> str:
+        return "met" if ok else "**not met**"
+
+    rows = []
+    if (s := solver("nominal")) is not None:
+        rows.append(("nominal: 100 % correct", f"{_pct(s['correct_pct'])} % ({s['scenes']} scenes)",
+                     met(s["correct"] == s["scenes"])))
+        t, peer = s["time_ms"], solver("nominal", "tetra3rs")
+        if t and peer and peer["time_ms"]:
+            ratio = t["median"] / peer["time_ms"]["median"]
+            rows.append(("nominal: median ≤ 2× tetra3rs, max ≤ 5 ms",
+                         f"{t['median']:.2f} ms median = {ratio:.1f}× tetra3rs ({peer['time_ms']['median']:.2f} ms); "
+                         f"p99 {t['p99']:.1f} ms, max {t['max']:.1f} ms", met(ratio <= 2.0 and t["max"] <= 5.0)))
+    if (s := solver("cole")) is not None:
+        rows.append(("Cole: ≥ 75 % of all scenes", f"{_pct(s['correct_pct'])} %{peers_text('cole')}",
+                     met(s["correct_pct"] >= 75.0)))
+        value = ge4_pct(s)
+        rows.append(("Cole: ≥ 98 % of scenes with ≥ 4 true stars, 0 incorrect",
+                     f"{_pct(value)} % of {s['ge4']['scenes']}, {s['incorrect']} incorrect",
+                     met(value is not None and value >= 98.0 and s["incorrect"] == 0)))
+    if (s := solver("cole_false")) is not None:
+        value = ge4_pct(s)
+        rows.append(("Cole + 1 false star: the same", f"{_pct(s['correct_pct'])} % of all, {_pct(value)} % of ≥ 4-star "
+                     f"scenes, {s['incorrect']} incorrect{peers_text('cole_false')}",
+                     met(s["correct_pct"] >= 75.0 and value is not None and value >= 98.0 and s["incorrect"] == 0)))
+    for name, label, goal in (("toloei_6_50", "6 real + 50 false: ≥ 95 %", 95.0),
+                              ("toloei_4_136", "4 real + 136 false: ≥ 50 %", 50.0)):
+        if (s := solver(name)) is not None:
+            rows.append((label, f"{_pct(s['correct_pct'])} % ({s['scenes']} scenes){peers_text(name)}",
+                         met(s["correct_pct"] >= goal)))
+    if (s := solver("fast")) is not None:
+        rows.append(("FAST: ≥ 99.9 %, 0 incorrect", f"{_pct(s['correct_pct'])} %, {s['incorrect']} incorrect"
+                     f"{peers_text('fast')}", met(s["correct_pct"] >= 99.9 and s["incorrect"] == 0)))
+    totals = results["totals"]["ours"]
+    rows.append(("≤ 1 incorrect in 10,000 scenes", f"{totals['incorrect']} in {totals['calls']:,} (all our "
+                 "algorithms, all setups)", met(totals["incorrect"] <= max(1, totals["calls"] // 10_000))))
+    lines = [f"### Goals (default algorithm `{reference}`)", "", "| goal | this run | met |", "|---|---|---|",
+             *[f"| {goal} | {value} | {verdict} |" for goal, value, verdict in rows], ""]
+    notes = [f"- {name}: {GOAL_NOTES[name]}" for name in GOAL_NOTES
+             if (s := solver(name)) is not None and not s["correct"] == s["scenes"]]
+    if notes:
+        lines += ["Where a row falls short by the method itself:", "", *notes, ""]
+    percentiles = all(s.get("time_ms_percentiles") for e in setups.values() for s in e["solvers"].values())
+    lines += ["The same run as plots (`python -m bench.plots` from `bench_identify.json`). Success against the "
+              "number of false stars per scene (red ring: an incorrect solution); on the 15° camera the Toloei setups "
+              "add 50 and 136 false stars *and* keep only 6 and 4 real ones, so their drop is both effects:", "",
+              "![identification success vs false stars](images/identify_false_stars.png)", "",
+              "Solve time per call of every algorithm and peer ("
+              + ("boxes p25-p75, whiskers p1-p99" if percentiles else "median, 99th percentile and maximum") + "):",
+              "", "![solve-time distributions vs the peers](images/identify_times.png)", ""]
+    return lines
+
+
 def _short(value) -> str:
     return f"{value:.4g}" if isinstance(value, float) else str(value)
 
@@ -568,6 +650,7 @@ def render_markdown(results: dict) -> str:
         "",
         *overview_table(results),
         "",
+        *goals_lines(results),
     ]
     for name, entry in results["setups"].items():
         db = entry["database"]
@@ -616,7 +699,15 @@ def main(argv=None) -> None:
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
     parser.add_argument("--output", type=Path, help="write the '## Identification' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_identify.json beside --output)")
+    parser.add_argument("--from-json", type=Path, metavar="JSON",
+                        help="measure nothing: write the section of --output from these saved results")
     args = parser.parse_args(argv)
+    if args.from_json:
+        text = render_markdown(json.loads(args.from_json.read_text()))
+        print(text)
+        if args.output:
+            write_section(args.output, text)
+        return
     setups = _names(args.setups, SETUPS, "setups")
     algorithms = _names(args.algorithms, ALGORITHMS, "algorithms")
     peers = [] if args.no_peers else peer_adapters.usable_peers()

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Centroiding across PSFs (issue 17).
+Centroiding across PSFs: the centroider at its defaults, the PSF width unknown to it.
 
 The centroider at its defaults (`CentroidConfig()`, PSF width unknown to it) on stars of PSF sigma 0.4-3 px, from our
 simulator and from a second, independently written renderer (bench/alt_renderer.py: Gaussian, Moffat, defocused annulus,
@@ -8,7 +8,7 @@ elliptical Gaussian; its own noise, hot pixels and cosmic rays).
 
     python -m bench.bench_psf_range [--quick] [--output docs/BENCHMARKS.md]
 
-Goals (issue 17), judged per row: >= 99 % of the stars with SNR >= 10 detected; RMS position
+Goals, judged per row: >= 99 % of the stars with SNR >= 10 detected; RMS position
 error <= 1.2x the Cramér–Rao bound (over the matched stars with SNR >= 10, in rows whose median
 SNR is >= 10, with at least MIN_MATCHED stars matched); <= 1 false detection per star-free frame
 with hot pixels and cosmic rays.
@@ -38,7 +38,8 @@ from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.commands.bench import report_progress
 
 from . import alt_renderer as alt
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 SIGMAS = (0.4, 0.6, 1.0, 2.0, 3.0)
 FLUXES = (300.0, 1000.0, 5000.0, 30000.0)
@@ -190,7 +191,7 @@ def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
     """
     Rows of a simulator case.
 
-    Grids of 64 stars (bench_centroid.grid_scene, random sub-pixel phase) rendered by
+    Grids of 64 stars (bench/scenes.py grid_scene, random sub-pixel phase) rendered by
     StarFieldRenderer with SensorModel(psf_sigma_px=sigma) and hot pixels and cosmic rays on.
     SNR and CRB from alt_renderer's Gaussian at the simulator's noise levels (sky + dark, read
     noise, gain).
@@ -198,7 +199,7 @@ def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_STAR, StarFieldRenderer, frame_seed
 
-    from .bench_centroid import CAMERA, POINTING, grid_scene, static_level
+    from .scenes import CAMERA, POINTING, grid_scene, static_level
 
     sigma = case.sigma_px
     sensor = simulator_sensor(sigma)
@@ -237,7 +238,7 @@ def false_detections(frames: int) -> dict:
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import StarFieldRenderer, frame_seed
 
-    from .bench_centroid import CAMERA, POINTING
+    from .scenes import CAMERA, POINTING
 
     empty = StarCatalog(*(np.zeros(0) for _ in range(7)))
     sensor = simulator_sensor(1.0, dsnu_fraction=0.1, prnu_fraction=0.01)
@@ -319,7 +320,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--quick", action="store_true",
                         help="3 sigmas, 3 PSF kinds, 2 fluxes, 1 frame each (smoke run)")
     parser.add_argument("--output", type=Path,
-                        help="write the '## Centroiding across PSFs (issue 17)' section of this Markdown file")
+                        help="write the '## Centroiding across PSFs' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_psf_range.json beside --output)")
     args = parser.parse_args(argv)
     fluxes = (1000.0, 5000.0) if args.quick else FLUXES
@@ -344,7 +345,7 @@ def main(argv=None) -> dict:
     command = "python -m bench.bench_psf_range" + (" --quick" if args.quick else "") + " --output docs/BENCHMARKS.md"
     cpu = cpu_model()
     text = "\n".join([
-        "## Centroiding across PSFs (issue 17)",
+        "## Centroiding across PSFs",
         "",
         f"Command: `{command}` (part of `make bench`). Measured {date} in {elapsed:.0f} s. Machine: `nproc` = "
         f"{os.cpu_count()}, {cpu}; Python {platform.python_version()}, numpy {np.__version__}.",
@@ -368,7 +369,7 @@ def main(argv=None) -> dict:
         "when none has it). A star is matched to the nearest spot within 2σ + 1 px; stars within 3σ + 3 px of "
         "a hot pixel or cosmic ray are not scored. `extra spots` are spots matched to no star (false "
         "detections, split stars). `ms / frame`: `extract_spots` time, informational (1024² simulator, 512² "
-        "alt frames). Goals (issue 17): ≥ 99 % of the SNR ≥ 10 stars detected; RMS ≤ 1.2× CRB in rows of "
+        "alt frames). Goals: ≥ 99 % of the SNR ≥ 10 stars detected; RMS ≤ 1.2× CRB in rows of "
         f"median SNR ≥ 10 (with at least {MIN_MATCHED} stars matched); ≤ 1 false detection per star-free frame "
         "(simulator: 1024² with hot pixels, cosmic rays, DSNU, PRNU; alt: 1024² with 105 hot pixels and 5 cosmic rays "
         "per frame). `–`: not judged (no star with SNR ≥ 10).",

@@ -6,17 +6,16 @@ Each image of the real corpus (../shared/realdata) is solved by `star-tracker so
 at its defaults (the PSF estimated from the image), then with the PSF fixed (`--psf-sigma`) at
 the estimate times each FACTORS value: the widths a frame's estimate can land on when it is
 made from other stars (its own 1-sigma is 2-10 %). Per image and width: solved, matched stars,
-boresight error against the image's astrometry.net reference. A cliff (a solve lost, or
-fewer than CLIFF_SHARE of the default's stars, or a solve within 1' at the default moved
-beyond it) is a fault of the pipeline, not of the image: session 25's sweep found two (a
-singular blend fit's runaway covariance, pattern scales 1 % off on a trailed frame).
+boresight error against the image's reference (bench/corpus.py: the dense re-fit where the
+manifest has one). A cliff (a solve lost, or fewer than CLIFF_SHARE of the default's stars, or a
+solve within 1' at the default moved beyond it) is a fault of the pipeline, not of the image
+(such as a singular blend fit's runaway covariance, or pattern scales 1 % off on a trailed frame).
 
 `python -m bench.bench_psf_sensitivity --output docs/BENCHMARKS.md` (about 2 min on 2 cores).
 """
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
 import math
 import shlex
@@ -26,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_realdata import CorpusMissing, attitude_errors, find_corpus, load_corpus, machine_info, \
-    run_solve_command, solve_argv
+from bench.corpus import CorpusMissing, attitude_errors, find_corpus, load_corpus, run_solve_command, solve_argv
+from bench.machine import machine_info, utc_now
 from bench.report import write_section
 
 FACTORS = (0.85, 0.9, 0.95, 1.05, 1.1, 1.15)
@@ -48,7 +47,7 @@ def _solve(argv: list[str], image) -> dict:
         rotation = quaternion_to_matrix(np.asarray(record["quaternion_xyzw"], float))
         boresight = math.degrees(attitude_errors(rotation, image.reference)[0]) * 3600.0
     return {"solved": True, "stars": len(record["matched"]), "boresight_arcsec": boresight,
-            "sigma_px": record["psf"]["sigma_px"]}
+            "sigma_px": record["psf"]["sigma_px"], "quat_xyzw_sensor_to_icrs": record["quaternion_xyzw"]}
 
 
 def cliff(default: dict, at_width: dict) -> bool:
@@ -98,7 +97,8 @@ def render_markdown(rows: list[dict], meta: dict) -> str:
              "Each image of `../shared/realdata` solved by `star-tracker solve IMG --fov <fov_h_deg>` at its "
              "defaults (the PSF σ estimated from the image), then with `--psf-sigma` fixed at that estimate times "
              "each factor: the widths an estimate made from other stars could give. Cell: matched stars / boresight "
-             f"error against the astrometry.net reference. **Bold**: a cliff (not solved, fewer than {CLIFF_SHARE:.0%} "
+             "error against the image's reference (the dense re-fit where the manifest has one, else the "
+             f"astrometry.net solve: § Real images). **Bold**: a cliff (not solved, fewer than {CLIFF_SHARE:.0%} "
              "of the default's stars, or a default within 1′ moved beyond it).", "",
              "| image | estimated σ px | defaults | " + " | ".join(f"σ × {f:g}" for f in FACTORS) + " |",
              "|---|---:|---:|" + "---:|" * len(FACTORS)]
@@ -121,7 +121,16 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, help="raw results (default: bench_psf_sensitivity.json beside --output)")
     parser.add_argument("--only", help="comma-separated image ids of the manifest (default: all)")
     parser.add_argument("--corpus", type=Path, help="corpus folder holding MANIFEST.json")
+    parser.add_argument("--from-json", type=Path, metavar="JSON",
+                        help="solve nothing: write the section of --output from these saved results")
     args = parser.parse_args(argv)
+    if args.from_json:
+        saved = json.loads(args.from_json.read_text())
+        text = render_markdown(saved["images"], saved["meta"])
+        print(text)
+        if args.output:
+            write_section(args.output, text)
+        return 0
     try:
         corpus = find_corpus(args.corpus)
     except CorpusMissing as exc:
@@ -132,7 +141,7 @@ def main(argv=None) -> int:
     keep_freed_memory()
     only = [name.strip() for name in args.only.split(",") if name.strip()] if args.only else None
     started = time.perf_counter()
-    date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    date = utc_now()
     rows = run(load_corpus(corpus, only), log=lambda text: print(text, file=sys.stderr, flush=True))
     info = machine_info()
     meta = {"command": "python -m bench.bench_psf_sensitivity" + "".join(

@@ -9,7 +9,7 @@ Hp 7.5, random attitudes (fixed seed). For each motion (cross-boresight, roll ab
 boresight, a random axis) and rate, `--frames` frames are rendered under that constant rate and
 measured by extract_spots with the rate aid set to the true rate times 1.0, 0.85, 0.8 and 0.7:
 the share of frames whose aid the check rejected (Spots.rate_aid_rejected; rules in
-star_tracker/centroid/rate_aid.py, AID_*), and the time of the check itself.
+star_tracker/centroid/streak/rate_aid.py, AID_*), and the time of the check itself.
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-import star_tracker.centroid.extract as extract_module
+import star_tracker.centroid.frame_measurement as measurement_module
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.centroid import CentroidConfig, extract_spots
@@ -30,8 +30,9 @@ from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer
 from star_tracker.sim.sensor import SensorModel
-from .bench_attitude import random_rotation
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
+from .scenes import random_rotation
 
 SECTION = "## Rate-aid check"
 RATES_DEG_S = (0.3, 1.0, 2.0, 3.0, 5.0)
@@ -42,7 +43,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
     camera = CameraModel.from_fov(1024, 1024, np.radians(15.0))
     renderer = StarFieldRenderer(camera, SensorModel(), load_hipparcos().at_epoch(2026.0), magnitude_limit=7.5)
     rng = np.random.default_rng(11)
-    check = extract_module.rate_aid_disagrees
+    check = measurement_module.rate_aid_disagrees
     spent: list[float] = []
 
     def timed(*args):
@@ -51,7 +52,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
         spent.append(time.perf_counter() - t0)
         return verdict
 
-    extract_module.rate_aid_disagrees = timed
+    measurement_module.rate_aid_disagrees = timed
     rejected = {}
     try:
         for kind in ("cross-boresight", "roll", "random axis"):
@@ -68,7 +69,7 @@ def run(frames: int) -> tuple[dict, list[float]]:
                 rejected[(kind, rate)] = counts
                 print(kind, rate, counts, flush=True)
     finally:
-        extract_module.rate_aid_disagrees = check
+        measurement_module.rate_aid_disagrees = check
     return rejected, spent
 
 

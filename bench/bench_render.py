@@ -43,7 +43,8 @@ from star_tracker.models.catalog import load_hipparcos
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import KIND_STAR, FalseObjectModel, StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 SECTION_HEADER = "## Camera simulator render time"
 GOAL_MS = 20.0

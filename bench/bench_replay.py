@@ -40,7 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 REPO = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-m", "star_tracker.cli"]

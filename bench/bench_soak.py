@@ -38,9 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench_pipeline import (BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu,
-                             host_usage, rss_mib)
-from .report import cpu_model, write_section
+from .nodes import (BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu, host_usage,
+                    rss_mib)
+from .machine import cpu_model
+from .report import write_section
 
 BEGIN, END = "<!-- bench_soak -->", "<!-- /bench_soak -->"
 
@@ -250,7 +251,7 @@ def write(data: dict, output: Path | None) -> None:
         write_section(output, text)
         (output.parent / "bench_soak.json").write_text(json.dumps(data, indent=1, default=str) + "\n")
         reliability = output.parent / "RELIABILITY.md"
-        doc = reliability.read_text()
+        doc = reliability.read_text() if reliability.is_file() else ""  # none beside a --output elsewhere
         if BEGIN in doc:
             head, rest = doc.split(BEGIN, 1)
             body = "\n".join(text.splitlines()[2:])  # without the section header

@@ -58,7 +58,8 @@ from star_tracker.sim.sensor import SensorModel
 from star_tracker.track.streak_rate import rate_from_streaks
 
 from . import peers as peer_adapters
-from .report import cpu_model, write_section
+from .machine import cpu_model
+from .report import write_section
 
 SEED = 2026
 EPOCH_JYEAR = 2026.0

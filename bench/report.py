@@ -25,12 +25,3 @@ def write_section(path: Path, text: str, header: str | None = None) -> None:
         new = "".join(lines[:start]) + body + ("\n" + tail if tail else "")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(new)
-
-
-def cpu_model() -> str:
-    """Return the CPU's model name from /proc/cpuinfo ("?" when unknown)."""
-    try:
-        with open("/proc/cpuinfo") as info:
-            return next((line.split(":", 1)[1].strip() for line in info if line.startswith("model name")), "?")
-    except OSError:
-        return "?"

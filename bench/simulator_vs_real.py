@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The simulator checked against a real camera (issue 17, part 5).
+The simulator checked against a real camera: a profile fitted to real frames, the same sky rendered with it.
 
-    python -m bench.simulator_vs_real [--output docs/SIMULATOR.md] [--images-dir docs/images]
+    python -m bench.simulator_vs_real [--output docs/BENCHMARKS.md] [--images-dir docs/images]
                                       [--write-profile config/camera_openstartracker.yaml] [--corpus DIR]
 
 Fits a camera profile (star_tracker.sim.camera_profile) to the openstartracker science-camera
@@ -11,8 +11,9 @@ green channel as stored: 8-bit), renders each frame's sky at its reference attit
 simulator and that profile, fits the same stars in both, and compares star by star (flux vs
 Hp, PSF width) and pixel by pixel (background level, noise histograms, KS distance). Writes
 docs/images/simulator_vs_real.png (real | simulated, same crop and stretch),
-docs/images/simulator_vs_real_stats.png (the comparison plots) and the section
-"## 15. The simulator against a real camera" of --output. --write-profile writes the fitted
+docs/images/simulator_vs_real_stats.png (the comparison plots), the section
+"## The simulator against a real camera" of --output and bench_simulator_vs_real.json beside it
+(the fitted profile, the comparison's figures, the solves). --write-profile writes the fitted
 profile as a camera_simulator parameter file. The real images are read in place, never copied.
 """
 from __future__ import annotations
@@ -21,9 +22,9 @@ import argparse
 import datetime as dt
 import json
 import math
-import os
-import platform
+import shlex
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,8 +40,9 @@ from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
 
-from .bench_realdata import find_corpus, run_solve_command
-from .report import cpu_model, write_section
+from .corpus import find_corpus, run_solve_command
+from .machine import machine_info, machine_text, utc_now
+from .report import write_section
 
 REPO = Path(__file__).resolve().parents[1]
 IMAGE_SET = "openstartracker"  # UBNanosatLab/openstartracker tests/science_cam_may8_0.05sec_gain40 (MIT)
@@ -48,7 +50,7 @@ EXPOSURE_S = 0.05  # the set's calibration.txt: EXPOSURE_TIME=0.05
 GREEN = 1  # OpenCV channel order B, G, R
 EPOCH_JYEAR = 2018.0  # the frames' year is not recorded; proper motion over +-5 yr is < 0.1 px here
 MAGNITUDE_LIMIT = 9.5  # catalog for matching and rendering: fainter than every detected star
-SECTION = "## 15. The simulator against a real camera"
+SECTION = "## The simulator against a real camera"
 
 
 @dataclass(frozen=True)
@@ -200,7 +202,7 @@ def profile_yaml(profile: CameraProfile, camera: CameraModel, image_ids: list[st
 # {", ".join(i.removeprefix(IMAGE_SET + "_") for i in image_ids)} of the shared real-image corpus, green channel, 8-bit PNG,
 # 0.05 s exposure; attitudes and pixel scale from their astrometry.net references).
 # Written by `python -m bench.simulator_vs_real --write-profile config/camera_openstartracker.yaml` on {dt.date.today().isoformat()};
-# method: star_tracker/sim/camera_profile.py, comparison: docs/SIMULATOR.md section 15.
+# method: star_tracker/sim/camera_profile.py, comparison: docs/BENCHMARKS.md, The simulator against a real camera.
 # Fitted values (1 sigma):
 #   PSF sigma            {p.psf_sigma_px:.3f} px (Gaussian; aperture/Gaussian flux - 1 = {p.psf_wing_excess:.3f})
 #   photon transfer      1/g = {p.inverse_gain_adu_per_e:.3f} ADU/e- on star pixels (8-bit, demosaiced frames:
@@ -399,7 +401,7 @@ def read_text(p: CameraProfile) -> str:
     return f"{p.read_noise_e:.2f} e⁻"
 
 
-def section(profile: CameraProfile, real: list[RealFrame], result: dict, command: str) -> str:
+def section(profile: CameraProfile, real: list[RealFrame], result: dict, meta: dict) -> str:
     p, sp = profile, result["sim_profile"]
     mu_r, s_r, mu_s, s_s = result["background"]
     fr, wr = result["flux_ratio"], result["width_ratio"]
@@ -415,6 +417,9 @@ def section(profile: CameraProfile, real: list[RealFrame], result: dict, command
 
     corr_r, corr_s = result["neighbour_correlation"]
     return f"""{SECTION}
+
+Command: `{meta['command']}`. Measured {meta['date']} in {meta['elapsed_s']:.0f} s on a shared host. Machine:
+{machine_text(meta)}, OpenCV {cv2_version()}. Raw results: `docs/bench_simulator_vs_real.json`.
 
 A camera profile fitted to real frames, the same sky rendered with it, and the two compared
 star by star. Image set: the openstartracker science camera
@@ -513,13 +518,35 @@ What it shows, and what the simulator lacks (no knob for any of these):
 - Not measurable from these frames and set to 0: dark current and DSNU (no dark frames),
   PRNU (no flats), cosmic rays; bias 0 (the product is black-level subtracted).
 
-Reproduce (about 3 min of wall time on the machine below):
-
-    {command}
-
-Measured on {dt.date.today().isoformat()}, {cpu_model()} ({os.cpu_count()} cores, shared), Python
-{platform.python_version()}, numpy {np.__version__}, OpenCV {cv2_version()}.
 """  # noqa: E501 (a template: Markdown table rows and paragraphs stay one line each)
+
+
+def figures(profile: CameraProfile, result: dict) -> dict:
+    """Return the section's figures as the results file stores them (the profile's fits as [value, sigma])."""
+    def measured(value):
+        return [float(value.value), float(value.sigma)]
+
+    def fitted(p: CameraProfile) -> dict:
+        out = {name: measured(getattr(p, name)) for name in (
+            "psf_sigma_px", "psf_wing_excess", "inverse_gain_adu_per_e", "gain_e_per_adu", "read_noise_e",
+            "background_adu", "background_noise_adu", "vignetting_at_corner", "log10_zero_point_adu_per_s",
+            "zero_point_free_slope", "color_coefficient")}
+        out.update(gain_is_lower_limit=bool(p.gain_is_lower_limit), hot_pixel_fraction=float(p.hot_pixel_fraction),
+                   stars_used=int(p.used.sum()), stars_fitted=int(p.stars.flux.size))
+        return out
+
+    mu_r, s_r, mu_s, s_s = result["background"]
+    fr = result["flux_ratio"]
+    return {"profile_real": fitted(profile), "profile_simulated": fitted(result["sim_profile"]),
+            "flux_ratio_median": float(np.median(fr)), "stars_compared": int(len(fr)),
+            "width_ratio_median": float(np.median(result["width_ratio"])),
+            "background_adu": {"real": float(mu_r), "simulated": float(mu_s)},
+            "background_noise_adu": {"real": float(s_r), "simulated": float(s_s)}, "ks_distance": result["ks"],
+            "neighbour_correlation": dict(zip(("real", "simulated"), result["neighbour_correlation"])),
+            "spots_per_frame": {"real": float(np.mean(result["spots"][0])),
+                                "simulated": float(np.mean(result["spots"][1]))},
+            "solves": {kind: {"solved": int(sum(r[0] for r in rows)), "frames": len(rows),
+                              "stars": [int(r[1]) for r in rows]} for kind, rows in result["solves"].items()}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -528,7 +555,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--images-dir", type=Path, default=REPO / "docs" / "images")
     parser.add_argument("--write-profile", type=Path, default=None, help="write the fitted profile YAML here")
     parser.add_argument("--corpus", type=Path, default=None)
+    parser.add_argument("--json", type=Path, help="raw results (default: bench_simulator_vs_real.json beside --output)")
     args = parser.parse_args(argv)
+    started, date = time.perf_counter(), utc_now()
     corpus = find_corpus(args.corpus)
     real = load_real_frames(corpus)
     stars = catalog()
@@ -556,11 +585,15 @@ def main(argv: list[str] | None = None) -> int:
           f"{np.mean(result['spots'][0]):.1f} vs {np.mean(result['spots'][1]):.1f}")
     for path in pictures(profile, real, result, args.images_dir):
         print(f"wrote {path} ({path.stat().st_size / 1e3:.0f} kB)")
+    meta = {"command": "python -m bench.simulator_vs_real" + "".join(
+        f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:])), "date": date,
+        "elapsed_s": time.perf_counter() - started, "frames": [r.id for r in real], **machine_info()}
     if args.output:
-        command = ("python -m bench.simulator_vs_real --output docs/SIMULATOR.md "
-                   "--write-profile config/camera_openstartracker.yaml")
-        write_section(args.output, section(profile, real, result, command))
+        write_section(args.output, section(profile, real, result, meta))
         print(f"wrote {SECTION!r} into {args.output}")
+    json_path = args.json or (args.output.parent / "bench_simulator_vs_real.json" if args.output else None)
+    if json_path:
+        json_path.write_text(json.dumps({"meta": meta, **figures(profile, result)}, indent=1, default=float) + "\n")
     return 0
 
 

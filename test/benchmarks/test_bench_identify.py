@@ -58,12 +58,28 @@ def test_report_has_tables(small_run, tmp_path):
     assert "### cole" in text and "paper: spherical triangle" in text
     assert "Incorrect over all scenes:" in text
     doc = tmp_path / "BENCHMARKS.md"
-    doc.write_text("# Benchmarks\n\n## Centroiding\n\nkeep me\n\n## Identification\n\nold\n\n## Later\n\nkeep too\n")
+    doc.write_text("# Benchmarks\n\n## Centroiding\n\nkeep me\n\n## Identification\n\nstale text\n\n## Later\n\n"
+                   "keep too\n")
     bench.write_section(doc, text)
     body = doc.read_text()
-    assert "old" not in body and "keep me" in body and "keep too" in body and body.count("## Identification") == 1
+    assert "stale text" not in body and "keep me" in body and "keep too" in body
+    assert body.count("## Identification") == 1
     bench.write_section(doc, text)  # idempotent
     assert doc.read_text() == body
+
+
+def test_goal_rows_are_judged_from_the_run(small_run):
+    """The goal table under Identification: each row's verdict from this run's figures, the peers beside."""
+    lines = bench.goals_lines(small_run)
+    assert lines[0] == f"### Goals (default algorithm `{small_run['meta']['reference_algorithm']}`)"
+    text = "\n".join(lines)
+    nominal = small_run["setups"]["nominal"]["solvers"][small_run["meta"]["reference_algorithm"]]
+    verdict = "met" if nominal["correct"] == nominal["scenes"] else "**not met**"
+    assert f"| nominal: 100 % correct | {nominal['correct_pct']:.1f} % (3 scenes) | {verdict} |" in text
+    assert "| ≤ 1 incorrect in 10,000 scenes | 0 in 6 (all our algorithms, all setups) | met |" in text
+    assert "toloei" not in text  # setups not run are not judged
+    failing = {**small_run, "totals": {**small_run["totals"], "ours": {"incorrect": 2, "calls": 6}}}
+    assert "| 2 in 6 (all our algorithms, all setups) | **not met** |" in "\n".join(bench.goals_lines(failing))
 
 
 def test_scoring_against_truth(catalog_now, database):

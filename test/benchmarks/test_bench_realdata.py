@@ -1,12 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The real-image benchmark (bench/bench_realdata.py).
+The real-image benchmark (bench/bench_realdata.py) and the corpus it reads (bench/corpus.py).
 
-Its scoring against known rotations (no corpus needed) and its report. The corpus itself is
-solved in test_realdata_corpus.py.
+Its scoring against known rotations, the dense references, the re-judging of stored solutions
+and its report (no corpus needed). The corpus itself is solved in test_realdata_corpus.py.
 """
 from __future__ import annotations
 
+import json
 import math
 import sys
 from pathlib import Path
@@ -16,7 +17,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
 from bench import bench_realdata as bench  # noqa: E402
-from star_tracker.models.attitude import radec_roll_to_matrix, rotation_vector_to_matrix  # noqa: E402
+from bench import corpus  # noqa: E402
+from star_tracker.models.attitude import (matrix_to_quaternion, radec_roll_to_matrix,  # noqa: E402
+                                          rotation_vector_to_matrix)
 
 ARCSEC = math.radians(1.0 / 3600.0)
 REFERENCE = radec_roll_to_matrix(math.radians(181.2), math.radians(16.8), math.radians(-4.4))  # sensor -> ICRS
@@ -85,13 +88,15 @@ def test_report_rows_and_summary(tmp_path):
     miss = {"solved": False, "status": "no_match", "matched": 0, "time_s": 5.0,
             **bench.score(None, image)}
     rows = [{"id": "fake", "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
+             "reference_confidence": "high",
              "solvers": {"ours": good, "tetra3rs": miss}}]
     results = {"images": rows, "summary": bench.summarize(rows, ["ours", "tetra3rs"]), "peer_databases": {},
                "meta": {"elapsed_s": 1.0, "peers": ["tetra3rs"], "command": "test"}}
     assert results["summary"]["ours"]["within_1arcmin"] == 1 and results["summary"]["tetra3rs"]["solved"] == 0
     assert results["summary"]["ours"]["median_boresight_error_rad"] == pytest.approx(20.0 * ARCSEC)
     text = bench.render_markdown(results)
-    assert text.startswith("## Real images") and "| fake | nobody/fake | 10.00 | yes / **yes** | 12 | 20.0 |" in text
+    assert text.startswith("## Real images")
+    assert "| fake | nobody/fake | 10.00 | astrometry.net (high) | yes / **yes** | 12 | 20.0 |" in text
     doc = tmp_path / "BENCHMARKS.md"
     doc.write_text("# Benchmarks\n\n## Soak\n\nkeep me\n")
     bench.write_section(doc, text)
@@ -107,6 +112,7 @@ def test_time_goal_counted_both_ways():
     ours = {"solved": True, "status": "solved", "matched": 12, "time_s": 0.5, "pixels_time_s": 0.3, **solved}
     peer = {"solved": True, "status": "solved", "matched": 10, "time_s": 0.4, **solved}
     rows = [{"id": "fake", "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
+             "reference_confidence": "high",
              "solvers": {"ours": ours, "cedar-solve": peer}}]
     results = {"images": rows, "summary": bench.summarize(rows, ["ours", "cedar-solve"]), "peer_databases": {},
                "meta": {"elapsed_s": 1.0, "peers": ["cedar-solve"], "command": "test"}}
@@ -125,10 +131,11 @@ def test_stage_table_names_where_our_time_goes():
     cedar = {"solved": True, "status": "solved", "matched": 10, "time_s": 0.04, **solved}
     failed = {"solved": False, "status": "no_match", "matched": 0, "time_s": 5.0, **bench.score(None, image)}
     rows = [{"id": name, "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
+             "reference_confidence": "high",
              "solvers": {"ours": ours, "tetra3rs": failed, "cedar-solve": cedar}}
             for name, ours in (("quick", fast), ("slow", slow))]
     rows.append({"id": "unsolved-by-cedar", "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
-                 "solvers": {"ours": fast, "tetra3rs": failed, "cedar-solve": failed}})
+                 "reference_confidence": "high", "solvers": {"ours": fast, "tetra3rs": failed, "cedar-solve": failed}})
     results = {"images": rows, "summary": bench.summarize(rows, ["ours", "tetra3rs", "cedar-solve"]),
                "peer_databases": {}, "meta": {"elapsed_s": 1.0, "peers": ["tetra3rs", "cedar-solve"],
                                               "command": "test"}}
@@ -147,3 +154,104 @@ def test_quick_solves_are_timed_three_times_slow_ones_once(monkeypatch):
     calls.clear()
     result, seconds, runs = bench._timed(lambda: calls.append(1) or "slow")
     assert (result, runs, len(calls)) == ("slow", 1, 1) and seconds >= 0.0
+
+
+def _manifest(tmp_path: Path, entry: dict) -> Path:
+    folder = tmp_path / "realdata"
+    folder.mkdir(parents=True)
+    base = {"id": "fake", "file": "fake.png", "source_repo": "nobody/fake", "width": 1024, "height": 768,
+            "fov_h_deg": 10.0}
+    (folder / "MANIFEST.json").write_text(json.dumps({"images": [dict(base, **entry)]}))
+    return folder
+
+
+def _sky(rotation: np.ndarray) -> tuple[float, float]:
+    """RA, Dec [deg] of a rotation's boresight."""
+    z = rotation[:, 2]
+    return math.degrees(math.atan2(z[1], z[0])) % 360.0, math.degrees(math.asin(z[2]))
+
+
+def test_dense_reference_moves_the_boresight_and_keeps_the_roll(tmp_path):
+    """Where the manifest has a dense re-fit, the boresight is judged against its centre, the roll as before."""
+    dense_truth = rotated(REFERENCE, (0.6, 0.8, 0.0), 90.0 * ARCSEC)  # the dense centre, 1.5' from the old one
+    ra, dec = _sky(dense_truth)
+    reference = {"quat_xyzw_sensor_to_icrs": matrix_to_quaternion(REFERENCE).tolist(), "confidence": "high"}
+    folder = _manifest(tmp_path, {"reference": reference,
+                                  "reference_dense": {"ra_deg": ra, "dec_deg": dec, "matched_stars": 2023}})
+    image = corpus.load_corpus(folder)[0]
+    assert image.dense_stars == 2023 and image.reference_kind == "dense re-fit"
+    boresight, roll = corpus.attitude_errors(dense_truth, image.reference)
+    assert boresight < 0.01 * ARCSEC and roll < 0.01 * ARCSEC  # the dense centre itself: no error
+    old_boresight, _ = corpus.attitude_errors(dense_truth, REFERENCE)
+    assert old_boresight == pytest.approx(90.0 * ARCSEC, rel=1e-6)  # against the few-star reference: 1.5' off
+    # A solve rolled about its boresight keeps that roll against the moved reference.
+    _, rolled = corpus.attitude_errors(rotated(dense_truth, (0, 0, 1), 40.0 * ARCSEC), image.reference)
+    assert rolled == pytest.approx(40.0 * ARCSEC, rel=1e-3)
+    # Inside `reference`, as the manifest's conventions also allow, it counts the same.
+    inside = dict(reference, reference_dense={"ra_deg": ra, "dec_deg": dec, "matched_stars": 485})
+    assert corpus.load_corpus(_manifest(tmp_path / "inside", {"reference": inside}))[0].dense_stars == 485
+
+
+def test_without_a_dense_block_the_astrometry_net_reference_is_kept(tmp_path):
+    reference = {"quat_xyzw_sensor_to_icrs": matrix_to_quaternion(REFERENCE).tolist(), "confidence": "low"}
+    image = corpus.load_corpus(_manifest(tmp_path, {"reference": reference}))[0]
+    assert image.dense_stars is None and image.reference_kind == "astrometry.net"
+    assert np.allclose(image.reference, REFERENCE)
+    assert corpus.load_corpus(_manifest(tmp_path / "none", {"reference": None}))[0].reference_kind is None
+
+
+def test_stored_solutions_are_judged_again(tmp_path):
+    """--from-json: a solution 1.5' from the old reference, at the dense centre, becomes within 1'."""
+    dense_truth = rotated(REFERENCE, (1.0, 0.0, 0.0), 90.0 * ARCSEC)
+    ra, dec = _sky(dense_truth)
+    reference = {"quat_xyzw_sensor_to_icrs": matrix_to_quaternion(REFERENCE).tolist(), "confidence": "high"}
+    old = bench.CorpusImage("fake", Path("/nowhere/fake.png"), "nobody/fake", 1024, 768, 10.0, REFERENCE, "high")
+    stored = {"solved": True, "status": "solved", "matched": 40, "time_s": 0.1,
+              "quat_xyzw_sensor_to_icrs": matrix_to_quaternion(dense_truth).tolist(), **bench.score(dense_truth, old)}
+    unsolved = {"solved": False, "status": "no_match", "matched": 0, "time_s": 5.0,
+                "quat_xyzw_sensor_to_icrs": None, **bench.score(None, old)}
+    assert stored["within_1arcmin"] is False
+    rows = [{"id": "fake", "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
+             "reference_confidence": "high",
+             "solvers": {"ours": stored, "tetra3rs": unsolved}}]
+    results = {"images": rows, "summary": bench.summarize(rows, ["ours", "tetra3rs"]), "peer_databases": {},
+               "meta": {"elapsed_s": 1.0, "peers": ["tetra3rs"], "command": "test"}}
+    path = tmp_path / "bench_realdata.json"
+    path.write_text(json.dumps(results))
+    folder = _manifest(tmp_path, {"reference": reference,
+                                  "reference_dense": {"ra_deg": ra, "dec_deg": dec, "matched_stars": 600}})
+    doc = tmp_path / "BENCHMARKS.md"
+    assert bench.main(["--corpus", str(folder), "--from-json", str(path), "--output", str(doc)]) == 0
+    judged = json.loads(path.read_text())
+    ours = judged["images"][0]["solvers"]["ours"]
+    assert ours["within_1arcmin"] is True and ours["boresight_error_rad"] < 0.01 * ARCSEC
+    assert judged["summary"]["ours"]["within_1arcmin"] == 1 and judged["images"][0]["dense_stars"] == 600
+    text = doc.read_text()
+    assert "| fake | nobody/fake | 10.00 | dense re-fit, 600 stars | yes / **yes** |" in text
+    assert "judged again" in text
+
+
+def test_a_solution_not_stored_cannot_be_judged_again(tmp_path):
+    reference = {"quat_xyzw_sensor_to_icrs": matrix_to_quaternion(REFERENCE).tolist(), "confidence": "high"}
+    solved = {"solved": True, "status": "solved", "matched": 40, "time_s": 0.1,
+              **bench.score(REFERENCE, fake_image())}  # an older results file: no quaternion
+    rows = [{"id": "fake", "source": "nobody/fake", "fov_h_deg": 10.0, "has_reference": True,
+             "reference_confidence": "high",
+             "solvers": {"ours": solved}}]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps({"images": rows, "summary": {}, "peer_databases": {},
+                                "meta": {"elapsed_s": 1.0, "peers": [], "command": "test"}}))
+    folder = _manifest(tmp_path, {"reference": reference})
+    assert bench.main(["--corpus", str(folder), "--from-json", str(path)]) == 1
+
+
+def test_misses_are_listed_with_every_solver_and_the_known_cause():
+    image = fake_image()
+    off = {"solved": True, "status": "solved", "matched": 24, "time_s": 0.1,
+           **bench.score(rotated(REFERENCE, (1, 0, 0), 138.0 * ARCSEC), image)}
+    peer = {"solved": False, "status": "no_match", "matched": 0, "time_s": 0.1, **bench.score(None, image)}
+    rows = [{"id": "ubst_webcam_w1", "source": "s", "fov_h_deg": 36.8, "has_reference": True,
+             "reference_confidence": "high",
+             "solvers": {"ours": off, "tetra3rs": peer}}]
+    lines = bench.misses({"images": rows})
+    assert "- ubst_webcam_w1: ours 2.3′ off with 24 stars, tetra3rs not solved. A 37° webcam field" in "\n".join(lines)

@@ -438,7 +438,7 @@ def test_faint_undersampled_stars_give_an_estimate_and_are_kept():
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
-    from bench.bench_centroid import CAMERA, POINTING, grid_scene
+    from bench.scenes import CAMERA, POINTING, grid_scene
     from bench.bench_psf_range import simulator_sensor
     from star_tracker.sim.motion import ConstantRateMotion
     from star_tracker.sim.render import KIND_STAR, StarFieldRenderer, frame_seed

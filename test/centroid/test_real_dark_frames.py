@@ -27,7 +27,7 @@ STAR_RADIUS_PX = 2.0  # a spot this close to a catalog star's reference position
 
 
 def _corpus() -> Path:
-    from bench import bench_realdata as bench
+    from bench import corpus as bench
 
     try:
         return bench.find_corpus()

@@ -18,7 +18,7 @@ from star_tracker.centroid import CentroidConfig, extract_spots
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
 from bench import alt_renderer as alt  # noqa: E402
-from bench.beside_tracks import DETECTOR, PSFS, SIZE, count  # noqa: E402
+from bench.bench_beside_tracks import DETECTOR, PSFS, SIZE, count  # noqa: E402
 
 
 @pytest.mark.parametrize("psf, max_missed_beside", [("annulus", 2), ("gaussian", 0)])

@@ -22,7 +22,7 @@ from star_tracker.centroid.psf.point_fits import _determined
 from star_tracker.centroid.psf.gaussian_fit import PsfFit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
-from bench import bench_realdata as bench  # noqa: E402
+from bench import corpus as bench  # noqa: E402
 
 IMAGE_ID = "unh_DSC_0060"
 ARCMIN = math.radians(1.0 / 60.0)

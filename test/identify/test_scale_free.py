@@ -124,7 +124,7 @@ def test_trailed_real_frame_solves_at_the_field_its_patterns_give():
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # bench/ is not an installed package
-    from bench import bench_realdata as bench
+    from bench import corpus as bench
     from star_tracker.models.attitude import quaternion_to_matrix
 
     try:

@@ -115,7 +115,7 @@ def test_shipped_profile_loads_through_the_camera_simulator_parameters():
 
 @pytest.mark.slow
 def test_real_set_fit_is_consistent_with_the_shipped_profile():
-    from bench.bench_realdata import CorpusMissing, find_corpus
+    from bench.corpus import CorpusMissing, find_corpus
     from bench.simulator_vs_real import catalog, load_real_frames
     from star_tracker.commands.camera_files import load_camera_file
 
