@@ -157,6 +157,15 @@ def summarize(run: dict, sample_s: float) -> dict:
     }
 
 
+def _drop_clusters(s: dict) -> str:
+    """Where the drops fell: how many sample intervals had any, and the CPU the hypervisor took then and otherwise."""
+    if s["intervals_with_drops"] == 0:
+        return f"No interval had a drop (the hypervisor took {s['steal_percent_without_drops']:.1f} % of the CPU)"
+    return (f"The drops cluster: {s['intervals_with_drops']} of {s['intervals']} intervals had any, and the "
+            f"hypervisor took {s['steal_percent_with_drops']:.1f} % of the CPU during those against "
+            f"{s['steal_percent_without_drops']:.1f} % during the others")
+
+
 def render(data: dict) -> str:
     s = data["summary"]
     mem = s["memory"]
@@ -178,9 +187,7 @@ def render(data: dict) -> str:
         f"- frames: {s['frames']} published, {s['identified']} identified "
         f"({100 * s['identified'] / max(s['frames'], 1):.2f} %), {s['wrong']} wrong (> 60″); dropped by overload: "
         f"centroider {s['dropped_overload']['centroider']}, identifier {s['dropped_overload']['identifier']}; camera "
-        f"overruns {s['camera_overrun']} (all counted on /diagnostics). The drops cluster: {s['intervals_with_drops']} "
-        f"of {s['intervals']} intervals had any, and the hypervisor took {s['steal_percent_with_drops']:.1f} % of the "
-        f"CPU during those against {s['steal_percent_without_drops']:.1f} % during the others",
+        f"overruns {s['camera_overrun']} (all counted on /diagnostics). " + _drop_clusters(s),
         f"- latency (median per {data['sample_s']:g} s interval): first minute {s['latency_first_minute_ms']:.1f} ms, "
         f"last minute {s['latency_last_minute_ms']:.1f} ms, trend {s['latency_slope_ms_per_min']:+.2f} ms/min; worst "
         f"interval p95 {s['latency_p95_max_ms']:.1f} ms",

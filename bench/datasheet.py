@@ -316,7 +316,7 @@ def render(config: dict, results: Path) -> str:
         cite = row.source.cite() if row.source is not None else f"run `{row.conditions}` (`make bench`)"
         conditions = "" if row.source is None else row.conditions
         lines.append(f"| {row.quantity} | {row.value} | {conditions} | {cite} |")
-    lines += ["", "Known limits: [USER_GUIDE.md](USER_GUIDE.md) § 3, Known limits; the goals not met: identification "
+    lines += ["", "Known limits: [USER_GUIDE.md § 6](USER_GUIDE.md#6-known-limits); the goals not met: identification "
               "([BENCHMARKS.md](BENCHMARKS.md#goals-default-algorithm-hybrid)), real images "
               "([within 1′](BENCHMARKS.md#images-ours-does-not-solve-within-1), "
               "[time against cedar-solve](BENCHMARKS.md#time-against-cedar-solve))."]

@@ -6,8 +6,8 @@ Every frame allocates and frees image-sized arrays (a 10 MP frame: tens of MB ea
 returns large freed blocks to the kernel (mmap'ed blocks at once, the heap's top beyond
 M_TRIM_THRESHOLD), so the next frame page-faults them in again. On a virtual machine whose
 host reclaims freed guest pages, that is slow and erratic: centroiding one 10 MP real image
-took 0.39-3.2 s over 11 repeats here (median 0.47 s), 0.35-0.36 s once freed memory is kept
-and the heap has grown (bench/solve_repeat.py, docs/BENCHMARKS.md). Keeping it is the usual
+took 0.39-3.2 s over 11 repeats of one solve here (median 0.47 s), 0.35-0.36 s once freed
+memory is kept and the heap has grown. Keeping it is the usual
 real-time setting (ROS 2's real-time demos do the same): no trimming, no mmap'ed blocks; the
 process keeps its peak resident size.
 

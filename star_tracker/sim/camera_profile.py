@@ -6,7 +6,7 @@ PSF width and shape, conversion gain and read noise from the image statistics, b
 and vignetting, hot pixels, and the photometric zero point against the Hipparcos Hp magnitudes
 of the identified stars, each with a 1-sigma uncertainty.
 
-Methods and their assumptions (docs/SIMULATOR.md, "The simulator against a real camera"):
+Methods and their assumptions (the comparison: docs/BENCHMARKS.md, "The simulator against a real camera"):
 
 - Background and noise: every image is cut into tiles; in each tile the pixels away from
   detected spots and catalog stars are modelled as a Gaussian N(mu, s^2) that the camera

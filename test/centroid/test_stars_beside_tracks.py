@@ -3,8 +3,8 @@
 Stars that share a detection footprint with a neighbour star or a cosmic-ray track (the width test per peak).
 
 Frames from bench/alt_renderer.py (not our renderer: its own PSFs and noise), tracks drawn
-here: a footprint holding two stars, or a star and a track, is long and was rejected whole
-as a track; each peak is now judged on its own.
+here: a footprint holding two stars, or a star and a track, is long; each of its peaks is
+judged on its own.
 """
 from __future__ import annotations
 
@@ -26,27 +26,20 @@ def test_stars_sharing_a_footprint_with_a_star_or_a_track_are_kept(psf, max_miss
     """
     Forty frames of 16 paired stars and 8 stars beside a track (SNR ~60).
 
-    Before the width test per peak, 6 (annulus) and 0 (Gaussian) of the 48 paired stars and 24
-    and 23 of the 24 beside a track (3 frames) were lost (their footprint rejected whole as a
-    track). With it, 19 and 34 of the 80 beside a track (10 frames) were still lost: the track,
-    brighter per pixel than the star, held the footprint's brightest maxima, and the star's
-    peak was never tried (track_peaks.star_beside_track_peaks); then 1 and 1. The Gaussian one
-    (seed 8) was a round star whose footprint the track stretched: its streak fit failed and it
-    was dropped; now a failed streak in a round frame is measured as a point (frame_fits._fit_spots):
-    1 and 0. The annulus one (seed 1) sat beside a track whose pixels tied at its maximum (this
-    scene's deposit carries no shot noise), a clipped flat top to saturation.clip_levels, and a
-    clipped blend with a track was dropped whole; now its star's own pixels measure it: 0 and 0
-    (over 80 frames, `python -m bench.beside_tracks 80`: 7 -> 2 and 7 -> 1). The last Gaussian
-    one (seed 34): two_peaks found two maxima both on the track, and a footprint the star
-    widened past the width test was never searched for a star beside it; now every footprint
-    with two peaks found is (track_screen first): over 80 frames 1 -> 0, and no spot on a track
-    (2 -> 0). Over these 40 frames: 2 and 0 of 320 (annulus seeds 19 and 28). Every paired star
-    is found (within 1 px), at most max_missed_beside of the 320 beside a track are missed, at
-    RMS < 0.1 px, and the tracks make at most one false spot per frame (the goal for star-free
-    frames).
+    A footprint holding two stars, or a star and a track, is long and thin as a whole; each of
+    its peaks is judged on its own (tracks.blend_screen). The arrangements that defeat a plain
+    search are among these frames: a track brighter per pixel than the star beside it, holding
+    the footprint's brightest maxima (track_peaks.star_beside_track_peaks); a round star whose
+    footprint a track stretched, whose streak fit fails (measured as a point: frame_fits); a
+    track whose pixels tie at its maximum, a clipped flat top (its blend's star measured by its
+    own pixels); two maxima both on the track (track_screen). Every paired star is found (within
+    1 px), at most max_missed_beside of the 320 beside a track are missed (today 2 annulus
+    stars, seeds 19 and 28), at RMS < 0.1 px, and the tracks make at most one false spot per
+    frame (the goal for star-free frames). `python -m bench.bench_beside_tracks` counts the
+    same over more frames.
     """
     frames = 40
-    missed_paired, missed_beside, errors, on_tracks = count(PSFS[psf], range(frames))  # bench/beside_tracks.py
+    missed_paired, missed_beside, errors, on_tracks = count(PSFS[psf], range(frames))  # bench/bench_beside_tracks.py
     assert missed_paired == 0, missed_paired
     assert missed_beside <= max_missed_beside, missed_beside
     assert on_tracks <= frames, on_tracks
