@@ -20,7 +20,7 @@ def documents() -> list[Path]:
 
 
 def anchor(heading: str) -> str:
-    """GitHub's anchor of a Markdown heading's text."""
+    """Return the anchor GitHub makes of a Markdown heading's text."""
     text = re.sub(r"[`*]", "", heading.strip().lower())
     text = re.sub(r"[^\w\- ]", "", text)
     return text.replace(" ", "-")

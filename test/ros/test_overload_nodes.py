@@ -161,7 +161,17 @@ def test_flooded_nodes_count_dropped_frames_and_answer_the_newest(ros_graph,  # 
             if received > 5:  # more than the 3 waiting places and the frame in progress
                 break
             baseline_c = {k: v for k, v in centroider_counters.items() if k != "burst_s"}
-        identifier_counters, spot_stamps = flood_identifier(rig, star_spots, stamps[-1] + 10**9, baseline_i, base)
+        # A burst the publisher could only send slowly (a loaded host) may reach the identifier no
+        # faster than it tracks: nothing to drop. Sent again (at most 3 times), each judged from its
+        # own baseline.
+        for attempt in range(3):
+            identifier_counters, spot_stamps = flood_identifier(rig, star_spots, stamps[-1] + (1 + attempt) * 10**9,
+                                                                baseline_i, base)
+            dropped = int(identifier_counters.get("frames_dropped_overload", 0)) \
+                - int(baseline_i.get("frames_dropped_overload", 0))
+            if dropped > 0:
+                break
+            baseline_i = {k: v for k, v in identifier_counters.items() if k != "burst_s"}
     finally:
         codes = nodes.stop(sig=signal.SIGINT)
         rig.destroy()
