@@ -213,9 +213,8 @@ def nearest_lit_earth(boresight: np.ndarray, spacecraft_m: np.ndarray, sun_m: np
     if points.shape[0] == 0:
         return math.inf, np.full(3, np.nan)
     directions = unit(points - r)
-    angles = angle_between(directions, b)
-    best = int(np.argmin(angles))
-    return float(angles[best]), directions[best]
+    best = int(np.argmax(directions @ b))  # the smallest angle
+    return float(angle_between(directions[best], b)), directions[best]
 
 
 def head_geometry(boresight: np.ndarray, half_fov_rad: float, bodies: BodyPositions,

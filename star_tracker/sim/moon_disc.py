@@ -3,11 +3,12 @@
 The Moon in the field: an extended disc of its apparent size and phase, as sky-fixed sample points.
 
 The disc (angular radius asin(R_moon / d), d: spacecraft-Moon distance) is sampled on a
-square grid in the tangent plane about the Moon's centre, one sample per min(1, sigma_PSF)
-px; a sample is lit when the Moon's surface normal under it faces the Sun (the terminator
-follows the Sun's direction from the Moon); the lit samples share the Moon's electrons
-equally (a uniformly bright lit surface). The renderer smears and integrates them like stars.
-Samples the Earth's occulting sphere hides are dropped with their share.
+square grid in the tangent plane about the Moon's centre, one sample per 1.5 min(1, sigma_PSF)
+px (the PSF smooths the grid's ripple to exp(-2 pi^2 / 1.5^2) ~ 1e-4); a sample is lit when
+the Moon's surface normal under it faces the Sun (the terminator follows the Sun's direction
+from the Moon); the lit samples share the Moon's electrons equally (a uniformly bright lit
+surface). The renderer smears and integrates them like stars. Samples the Earth's occulting
+sphere hides are dropped with their share.
 """
 from __future__ import annotations
 
@@ -23,6 +24,8 @@ from .body_brightness import MOON_B_V, moon_magnitude
 from .environment import Environment, EnvironmentModel
 from .sensor import SensorModel
 from .stray_light import moon_lit_fraction
+
+SAMPLE_SPACING_SIGMA = 1.5  # disc samples' spacing in PSF sigmas (at most 1.5 px)
 
 
 class MoonDisc(NamedTuple):
@@ -67,7 +70,7 @@ def moon_disc(view: DiscView, head: HeadGeometry, environment: Environment) -> M
     centre = head.moon_direction
     east = unit(rot_mid[:, 0] - (rot_mid[:, 0] @ centre) * centre)  # image +X in the tangent plane
     south = np.cross(centre, east)  # image +Y
-    step = min(1.0, sensor.psf_sigma_px) * camera.pixel_scale_rad
+    step = SAMPLE_SPACING_SIGMA * min(1.0, sensor.psf_sigma_px) * camera.pixel_scale_rad
     n = int(math.ceil(radius / step))
     xi, eta = np.meshgrid(np.arange(-n, n + 1) * step, np.arange(-n, n + 1) * step)
     inside = xi * xi + eta * eta <= radius * radius

@@ -535,15 +535,18 @@ class StarFieldRenderer:
         per frame.
         """
         sensor = self.sensor
-        static_e, static_sigma = self.static_e, self.static_sigma
-        if stray is not None:
-            static_e = static_e + stray
-            static_sigma = np.sqrt(static_e + np.float32(sensor.read_noise_e ** 2))
+        static_e = self.static_e if stray is None else self.static_e + stray
         if not sensor.noise:
             return static_e + signal
         cv2.setRNGSeed(seed & 0x7FFFFFFF)
         cv2.randn(self._noise, 0.0, 1.0)
-        electrons = static_e + static_sigma * self._noise
+        if stray is None:
+            electrons = static_e + self.static_sigma * self._noise
+        else:  # the sigma of this frame's static level, in place (the full frame, once more)
+            electrons = static_e + np.float32(sensor.read_noise_e ** 2)
+            np.sqrt(electrons, out=electrons)
+            electrons *= self._noise
+            electrons += static_e
         lit = np.flatnonzero(signal > 0.05)
         flat = electrons.reshape(-1)
         lam = signal.reshape(-1)[lit] + static_e.reshape(-1)[lit]
