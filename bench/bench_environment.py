@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shlex
 import sys
 import time
@@ -125,7 +126,9 @@ def render_markdown(results: dict) -> str:
     verdict = "met" if far["added_pct"] <= GOAL_PCT else "not met"
     lines = [SECTION_HEADER, "",
              f"Command: `{meta['command']}` from the repository root. Measured {meta['date']} in "
-             f"{meta['elapsed_s']:.0f} s. Machine: {machine_text(meta)}. Raw results: `docs/bench_environment.json`.",
+             f"{meta['elapsed_s']:.0f} s. Machine: {machine_text(meta)}; load average {meta['load'][0]:.2f} before, "
+             f"{meta['load'][1]:.2f} after. Raw results: "
+             "`docs/bench_environment.json`.",
              "",
              f"Method: `StarFieldRenderer.render()` wall time of bench_render's headline frame ({HEADLINE_SIZE}², "
              f"{meta['stars']} stars, {HEADLINE_SMEAR_PX:g} px smear, {meta['substeps']} sub-steps, every detector "
@@ -145,8 +148,8 @@ def render_markdown(results: dict) -> str:
     lines += ["", "With the bodies far the environment costs its geometry (the head's angles, the nearest sunlit "
               "point of the Earth on 2 × 1440 samples), the occultation test of the stars near the field, their "
               "aberration and a maximum over the frame for blooming. A source's stray light adds a full-frame "
-              "plane and the per-pixel noise sigma recomputed from it. The Moon adds its disc as ~1000 sky-fixed "
-              "samples smeared like stars and the columns it blooms."]
+              "plane and the per-pixel noise sigma recomputed from it. The Moon adds its disc as ~450 sky-fixed "
+              "samples (1.5 px apart) smeared like stars, and the columns it blooms."]
     return "\n".join(lines) + "\n"
 
 
@@ -162,12 +165,12 @@ def main(argv: list[str] | None = None) -> int:
     warmup = 1 if args.quick else 3
     if frames < 1:
         parser.error("--frames must be >= 1")
-    started, date = time.perf_counter(), utc_now()
+    started, date, load_before = time.perf_counter(), utc_now(), os.getloadavg()[0]
     chosen, times, stars, substeps = measure(frames, warmup)
     meta = {"command": "python -m bench.bench_environment" + "".join(
         f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:])), "date": date,
-        "elapsed_s": time.perf_counter() - started, "stars": stars, "substeps": substeps, "warmup": warmup,
-        **machine_info()}
+        "elapsed_s": time.perf_counter() - started, "load": [load_before, os.getloadavg()[0]], "stars": stars,
+        "substeps": substeps, "warmup": warmup, **machine_info()}
     results = {"meta": meta, "goal_pct": GOAL_PCT, "rows": summarize(chosen, times)}
     text = render_markdown(results)
     print(text)
