@@ -23,16 +23,13 @@ from scipy.special import erf
 from ..parameter_spec import parameter, range_problems
 from ..models.camera import CameraModel
 from ..models.catalog import StarCatalog
-from .apparent_directions import SPEED_OF_LIGHT_M_S, apparent_directions
+from .apparent_directions import SPEED_OF_LIGHT_M_S, apparent_directions  # noqa: F401 (re-exported)
 from .blooming import bloom_columns
 from .environment import Environment, EnvironmentModel, EnvironmentTruth
 from .environment_scene import EnvironmentScene, environment_scene, hidden_stars
 from .moon_disc import DiscView
 from .sensor import SensorModel
 from .stray_light import half_diagonal_px
-
-__all__ = ["SPEED_OF_LIGHT_M_S", "FalseObjectModel", "FrameTruth", "RenderedFrame", "StarFieldRenderer",
-           "frame_seed", "KIND_STAR", "KIND_PLANET", "KIND_DEBRIS", "KIND_COSMIC_RAY", "KIND_HOT_PIXEL", "KIND_MOON"]
 
 KIND_STAR, KIND_PLANET, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_MOON = 0, 1, 2, 3, 4, 5
 
