@@ -4,7 +4,9 @@ Star-field rendering.
 
 Radiometry, pixel-integrated Gaussian PSF, motion smear over the exposure (global or rolling
 shutter), frame-transfer smear, detector effects and noise, with the parameters of
-sensor.SensorModel and FalseObjectModel; every frame comes with its truth.
+sensor.SensorModel and FalseObjectModel; every frame comes with its truth. Given a per-frame
+environment.Environment, the frame also shows what the Sun, the Earth, the Moon and the
+planets do to it (environment.EnvironmentModel); without one it is as it always was.
 
 Units: electrons [e-] inside, ADU on output; angles in radians; times in seconds. Equations
 are in docs/SIMULATOR.md. A frame is reproducible from (fixed-pattern seed, frame seed).
@@ -21,11 +23,15 @@ from scipy.special import erf
 from ..parameter_spec import parameter, range_problems
 from ..models.camera import CameraModel
 from ..models.catalog import StarCatalog
+from .apparent_directions import SPEED_OF_LIGHT_M_S, apparent_directions  # noqa: F401 (re-exported)
+from .blooming import bloom_columns
+from .environment import Environment, EnvironmentModel, EnvironmentTruth
+from .environment_scene import EnvironmentScene, environment_scene, hidden_stars
+from .moon_disc import DiscView
 from .sensor import SensorModel
+from .stray_light import half_diagonal_px
 
-SPEED_OF_LIGHT_M_S = 299_792_458.0
-
-KIND_STAR, KIND_PLANET, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL = 0, 1, 2, 3, 4
+KIND_STAR, KIND_PLANET, KIND_DEBRIS, KIND_COSMIC_RAY, KIND_HOT_PIXEL, KIND_MOON = 0, 1, 2, 3, 4, 5
 
 
 @dataclass(frozen=True)
@@ -69,11 +75,12 @@ class FrameTruth:
 
     stamp_s: mid-exposure time [s]; rotation: sensor -> ICRS at mid-exposure; body_rate:
     [rad/s] in the sensor frame at mid-exposure. Per object (stars, then planets, debris,
-    cosmic rays, hot pixels) that can put light on the chip: kind (KIND_*), hip (0 for
-    non-stars), x, y: pixel position at its own mid-exposure (the row's, under a rolling
-    shutter; may lie just off the chip) [px]; electrons: expected signal
+    cosmic rays, hot pixels, the Moon) that can put light on the chip: kind (KIND_*), hip (0
+    for non-stars), x, y: pixel position at its own mid-exposure (the row's, under a rolling
+    shutter; may lie just off the chip; the Moon's centre) [px]; electrons: expected signal
     including vignetting [e-] (a hot pixel's dark charge); extent_px: length of its track in
-    the image over the exposure [px].
+    the image over the exposure [px] (the Moon: its diameter plus its track). environment:
+    what the Environment did (None when the frame was rendered without one).
     """
 
     stamp_s: float
@@ -85,6 +92,7 @@ class FrameTruth:
     y: np.ndarray
     electrons: np.ndarray
     extent_px: np.ndarray
+    environment: EnvironmentTruth | None = None
 
     def stars(self) -> np.ndarray:
         return self.kind == KIND_STAR
@@ -121,13 +129,15 @@ class _SkyObjects(NamedTuple):
     Objects fixed on the sky in one frame.
 
     Vectors (N, 3) apparent ICRS unit vectors, electrons (N,) expected per exposure [e-],
-    kind (KIND_STAR / KIND_PLANET), hip (0 for planets).
+    kind (KIND_STAR / KIND_PLANET), hip (0 for planets); occulted_hip: catalog stars near
+    the field that the Earth or the Moon hide (none without an environment).
     """
 
     vectors: np.ndarray
     electrons: np.ndarray
     kind: np.ndarray
     hip: np.ndarray
+    occulted_hip: np.ndarray
 
 
 class _Debris(NamedTuple):
@@ -154,21 +164,20 @@ class StarFieldRenderer:
     Renders frames for a camera, sensor, catalog (stars to a magnitude limit) and false objects.
 
     The fixed pattern (PRNU, DSNU, hot pixels) is drawn once from `fixed_pattern_seed`.
-    observer_velocity_m_s: ICRS velocity of the spacecraft for stellar aberration [m/s].
+    observer_velocity_m_s: ICRS velocity of the spacecraft for stellar aberration [m/s] in
+    frames rendered without an environment (an Environment brings its own per frame);
+    environment_model: what a frame's Environment does (its effects' switches and parameters).
     """
 
     def __init__(self, camera: CameraModel, sensor: SensorModel, catalog: StarCatalog,
                  magnitude_limit: float = 7.5, false_objects: FalseObjectModel = FalseObjectModel(),
-                 fixed_pattern_seed: int = 0, observer_velocity_m_s=(0.0, 0.0, 0.0), max_substep_px: float = 0.5):
+                 fixed_pattern_seed: int = 0, observer_velocity_m_s=(0.0, 0.0, 0.0), max_substep_px: float = 0.5,
+                 environment_model: EnvironmentModel = EnvironmentModel()):
         self.camera, self.sensor, self.false_objects = camera, sensor, false_objects
+        self.environment_model = environment_model
         self.catalog = catalog.brighter_than(magnitude_limit)
-        vectors = self.catalog.unit_vectors()
-        beta = np.asarray(observer_velocity_m_s, dtype=float) / SPEED_OF_LIGHT_M_S
-        if beta.shape != (3,) or not np.all(np.isfinite(beta)) or np.linalg.norm(beta) >= 1e-3:
-            raise ValueError(f"observer_velocity_m_s={observer_velocity_m_s} must be 3 finite values below 300 km/s")
-        # First-order stellar aberration: apparent direction tilts toward the velocity.
-        vectors = vectors + beta
-        self.star_vectors = vectors / np.linalg.norm(vectors, axis=1, keepdims=True)
+        self.catalog_vectors = self.catalog.unit_vectors()  # geometric (ICRS) directions
+        self.star_vectors = apparent_directions(self.catalog_vectors, observer_velocity_m_s)
         self.star_electrons = sensor.star_electrons(self.catalog.hp, self.catalog.b_v)
         self.max_substep_px = max_substep_px
         self._half = int(np.ceil(4.0 * sensor.psf_sigma_px)) + 1
@@ -202,53 +211,108 @@ class StarFieldRenderer:
                                           self.static_e.reshape(-1)[self.hot_pixels].astype(float), np.zeros(n_hot))
         self.static_sigma = np.sqrt(self.static_e + sensor.read_noise_e ** 2).astype(np.float32)
         self._noise = np.empty((cam.height, cam.width), np.float32)
+        scale = half_diagonal_px(cam)  # stray-light planes' coordinates: offsets over the half diagonal
+        self._x_norm = ((np.arange(cam.width) - cam.cx) / scale).astype(np.float32)
+        self._y_norm = ((np.arange(cam.height) - cam.cy) / scale).astype(np.float32)
 
     # ------------------------------------------------------------------ rendering
-    def render(self, motion, stamp_s: float, seed: int) -> RenderedFrame:
+    def render(self, motion, stamp_s: float, seed: int, environment: Environment | None = None) -> RenderedFrame:
         """
         Render the exposure centred on stamp_s [s] (the middle row's mid-exposure).
 
         motion: provides rotations_at(times) -> (K, 3, 3) sensor->ICRS and
         angular_velocity_at(t) -> (3,) [rad/s]; seed: frame seed (see frame_seed). The random
         draws come in a fixed order (planets, debris, detector noise, cosmic rays), so a frame
-        is reproducible from its seed.
+        is reproducible from its seed. environment: the bodies at mid-exposure (None: no
+        environment, the frame as without one, bit for bit).
         """
         rng = np.random.default_rng(seed)
         rot_mid = motion.rotations_at(np.array([stamp_s]))[0]
         body_rate = np.asarray(motion.angular_velocity_at(stamp_s), dtype=float)
+        scene = None
+        if environment is not None:
+            scene = environment_scene(DiscView(self.camera, self.sensor, rot_mid, self.environment_model), environment)
 
-        sky = self._sky_objects(rot_mid, rng)
+        sky = self._sky_objects(rot_mid, rng, environment, scene)
+        vectors, step_electrons = self._with_moon(sky, scene)
         offsets = self._substep_offsets(motion, stamp_s, rot_mid)
         substeps = offsets.size
-        u, v, u_mid, v_mid = self._sky_tracks(motion, rot_mid, sky.vectors, stamp_s, offsets,
+        u, v, u_mid, v_mid = self._sky_tracks(motion, rot_mid, vectors, stamp_s, offsets,
                                               self.sensor.rolling_shutter_row_time_s)
-        sky_extent = (np.nan_to_num(np.hypot(u[:, -1] - u[:, 0], v[:, -1] - v[:, 0]), nan=0.0)
-                      * substeps / max(substeps - 1, 1))
-        listed = [_Listed(sky.kind, sky.hip, u_mid, v_mid, sky.electrons, sky_extent)]
+        extent = (np.nan_to_num(np.hypot(u[:, -1] - u[:, 0], v[:, -1] - v[:, 0]), nan=0.0)
+                  * substeps / max(substeps - 1, 1))
+        n = sky.electrons.size
+        listed = [_Listed(sky.kind, sky.hip, u_mid[:n], v_mid[:n], sky.electrons, extent[:n])]
         debris = self._debris(rng, substeps) if self.false_objects.debris_per_frame else None
         if debris is not None:
             listed.append(debris.listed)
 
-        signal = self._collected_light(u, v, sky.electrons / substeps, debris)
-        image_e = self._detector(signal, rng, seed)
+        signal = self._collected_light(u, v, step_electrons / substeps, debris)
+        stray = self._stray_map(scene)
+        image_e = self._detector(signal, rng, seed, stray)
         listed.append(self._cosmic_rays(image_e, rng))
         listed.append(self._hot_pixels_listed)
-        truth = self._frame_truth(stamp_s, rot_mid, body_rate, listed)
+        environment_truth = None
+        if scene is not None:
+            if scene.moon is not None:  # its centre is the last sky track
+                listed.append(_Listed(np.array([KIND_MOON]), np.zeros(1, np.int32), u_mid[-1:], v_mid[-1:],
+                                      np.array([scene.moon.total_e]), 2.0 * scene.moon.radius_px + extent[-1:]))
+            if self.environment_model.blooming:
+                bloom_columns(image_e, self.sensor.full_well_e)
+            environment_truth = self._environment_truth(scene, sky)
+        truth = self._frame_truth(stamp_s, rot_mid, body_rate, listed, environment_truth)
         return RenderedFrame(image=self._digitize(image_e), truth=truth, substeps=substeps)
 
-    def _sky_objects(self, rot_mid: np.ndarray, rng: np.random.Generator) -> _SkyObjects:
+    @staticmethod
+    def _with_moon(sky: _SkyObjects, scene: EnvironmentScene | None) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Return the directions (N, 3) and electrons per exposure (N,) [e-] of everything fixed on the sky.
+
+        The sky objects, then the Moon's disc samples and its centre (no light of its own: the
+        truth's position) when the Moon is in the frame.
+        """
+        if scene is None or scene.moon is None:
+            return sky.vectors, sky.electrons
+        moon = scene.moon
+        return (np.concatenate([sky.vectors, moon.vectors, moon.centre[None, :]]),
+                np.concatenate([sky.electrons, moon.electrons, np.zeros(1)]))
+
+    def _environment_truth(self, scene: EnvironmentScene, sky: _SkyObjects) -> EnvironmentTruth:
+        """Return what the environment did: geometry, stray light, blinding, the Moon's size, hidden stars."""
+        stray = scene.stray
+        return EnvironmentTruth(
+            head=scene.head, stray_light_e=stray.levels_e,
+            blinded=bool(stray.level_e > 0.0 and stray.level_e - stray.swing_e(self.camera) >= self.sensor.full_well_e),
+            moon_radius_px=np.nan if scene.moon is None else scene.moon.radius_px, occulted_hip=sky.occulted_hip)
+
+    def _stray_map(self, scene: EnvironmentScene | None) -> np.ndarray | None:
+        """Return the stray-light electrons per pixel (H, W) float32 of this frame [e-], or None when there is none."""
+        if scene is None or scene.stray.level_e <= 0.0:
+            return None
+        plane = scene.stray
+        row = np.float32(plane.level_e) + np.float32(plane.gradient_x_e) * self._x_norm
+        return row[None, :] + (np.float32(plane.gradient_y_e) * self._y_norm)[:, None]
+
+    def _sky_objects(self, rot_mid: np.ndarray, rng: np.random.Generator, environment: Environment | None = None,
+                     scene: EnvironmentScene | None = None) -> _SkyObjects:
         """
         Objects fixed on the sky.
 
-        Catalog stars near the boresight, then this frame's planets (drawn uniformly over the
+        Catalog stars near the boresight (less those the Earth or the Moon hide), then the
+        environment's planets, then this frame's random planets (drawn uniformly over the
         image at mid-exposure).
         """
         cam, sensor, fo = self.camera, self.sensor, self.false_objects
-        near = np.flatnonzero(self.star_vectors @ rot_mid[:, 2] > self._cos_search)
-        vectors = [self.star_vectors[near]]
-        electrons = [self.star_electrons[near]]
-        kinds = [np.full(near.size, KIND_STAR)]
-        hips = [self.catalog.hip[near]]
+        vectors, hip, occulted_hip = self._catalog_stars(rot_mid, environment, scene)
+        electrons = [self.star_electrons[hip]]
+        kinds = [np.full(hip.size, KIND_STAR)]
+        hips = [self.catalog.hip[hip]]
+        vectors = [vectors]
+        if scene is not None:
+            vectors.append(scene.planet_vectors)
+            electrons.append(scene.planet_electrons)
+            kinds.append(np.full(scene.planet_electrons.size, KIND_PLANET))
+            hips.append(np.zeros(scene.planet_electrons.size, np.int32))
         if fo.planets_per_frame:
             px = rng.uniform(0, cam.width - 1, fo.planets_per_frame)
             py = rng.uniform(0, cam.height - 1, fo.planets_per_frame)
@@ -257,7 +321,28 @@ class StarFieldRenderer:
             kinds.append(np.full(fo.planets_per_frame, KIND_PLANET))
             hips.append(np.zeros(fo.planets_per_frame, np.int32))
         return _SkyObjects(np.concatenate(vectors), np.concatenate(electrons), np.concatenate(kinds),
-                           np.concatenate(hips))
+                           np.concatenate(hips), occulted_hip)
+
+    def _catalog_stars(self, rot_mid: np.ndarray, environment: Environment | None,
+                       scene: EnvironmentScene | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """
+        Return the apparent directions (N, 3) and catalog indices (N,) of the stars near the boresight, and hidden HIPs.
+
+        Without an environment: the directions aberrated once with the constructor's velocity.
+        With one: the stars the Earth (+ atmosphere) or the Moon hide (tested on geometric
+        directions) are left out, the rest aberrated with the Environment's velocity.
+        """
+        if environment is None:
+            near = np.flatnonzero(self.star_vectors @ rot_mid[:, 2] > self._cos_search)
+            return self.star_vectors[near], near, np.zeros(0, np.int32)
+        near = np.flatnonzero(self.catalog_vectors @ rot_mid[:, 2] > self._cos_search)
+        view = DiscView(self.camera, self.sensor, rot_mid, self.environment_model)
+        hidden = hidden_stars(scene, self.catalog_vectors[near], environment, view)
+        shown = near[~hidden]
+        vectors = self.catalog_vectors[shown]
+        if self.environment_model.aberration:
+            vectors = apparent_directions(vectors, environment.observer_velocity_m_s)
+        return vectors, shown, self.catalog.hip[near[hidden]].astype(np.int32)
 
     def _substep_offsets(self, motion, stamp_s: float, rot_mid: np.ndarray) -> np.ndarray:
         """
@@ -319,7 +404,7 @@ class StarFieldRenderer:
         return signal
 
     def _frame_truth(self, stamp_s: float, rot_mid: np.ndarray, body_rate: np.ndarray,
-                     listed: list[_Listed]) -> FrameTruth:
+                     listed: list[_Listed], environment: EnvironmentTruth | None = None) -> FrameTruth:
         """
         Return the FrameTruth of the objects that can put light on the chip (PSF wings and streaks included).
 
@@ -340,7 +425,7 @@ class StarFieldRenderer:
         vign[kind >= KIND_COSMIC_RAY] = 1.0  # deposited in the silicon, not collected light
         return FrameTruth(stamp_s=stamp_s, rotation=rot_mid, body_rate=body_rate, kind=kind[on_chip], hip=hip[on_chip],
                           x=u_all[on_chip], y=v_all[on_chip], electrons=(expected * vign)[on_chip],
-                          extent_px=extent[on_chip])
+                          extent_px=extent[on_chip], environment=environment)
 
     def _probe_paths(self, rotations: np.ndarray, rot_mid: np.ndarray):
         """
@@ -436,23 +521,32 @@ class StarFieldRenderer:
             flat = (rows[:, :, None] * cam.width + cols[:, None, :])[valid]
             np.add.at(flat_signal, flat, blocks[valid].astype(np.float32))  # no full-frame pass
 
-    def _detector(self, signal: np.ndarray, rng: np.random.Generator, seed: int) -> np.ndarray:
+    def _detector(self, signal: np.ndarray, rng: np.random.Generator, seed: int,
+                  stray: np.ndarray | None = None) -> np.ndarray:
         """
-        Electrons read out: expected static level + signal with shot and read noise.
+        Electrons read out: expected static level (+ stray light) + signal with shot and read noise.
 
         Pixels with object signal get exact Poisson draws of (signal + static level). Elsewhere
-        shot noise of the static level (sky + dark, tens of e- or more) and read noise are one
-        Gaussian of the exact variance, drawn with OpenCV's fast generator seeded per frame.
+        shot noise of the static level (sky + dark + stray light, tens of e- or more) and read
+        noise are one Gaussian of the exact variance, drawn with OpenCV's fast generator seeded
+        per frame.
         """
         sensor = self.sensor
+        static_e = self.static_e if stray is None else self.static_e + stray
         if not sensor.noise:
-            return self.static_e + signal
+            return static_e + signal
         cv2.setRNGSeed(seed & 0x7FFFFFFF)
         cv2.randn(self._noise, 0.0, 1.0)
-        electrons = self.static_e + self.static_sigma * self._noise
+        if stray is None:
+            electrons = static_e + self.static_sigma * self._noise
+        else:  # the sigma of this frame's static level, in place (the full frame, once more)
+            electrons = static_e + np.float32(sensor.read_noise_e ** 2)
+            np.sqrt(electrons, out=electrons)
+            electrons *= self._noise
+            electrons += static_e
         lit = np.flatnonzero(signal > 0.05)
         flat = electrons.reshape(-1)
-        lam = signal.reshape(-1)[lit] + self.static_e.reshape(-1)[lit]
+        lam = signal.reshape(-1)[lit] + static_e.reshape(-1)[lit]
         flat[lit] = rng.poisson(lam) + sensor.read_noise_e * self._noise.reshape(-1)[lit]
         return electrons
 
@@ -481,7 +575,7 @@ class StarFieldRenderer:
 
     def _digitize(self, electrons: np.ndarray) -> np.ndarray:
         """
-        Full-well clip (no blooming), gain, bias, rounding, ADC range -> uint16 [ADU].
+        Full-well clip (blooming, when on, has spilled the excess before), gain, bias, rounding, ADC range -> uint16.
 
         `electrons` already holds read noise, which comes from the output amplifier and may
         be negative (that is what the bias is for): only the ADC range clips the low end.
