@@ -14,10 +14,10 @@ and z ~ N(0, Z) are errors shared by several heads through S_h (3 x K): the body
 times each head's stamp offset, or correlated alignment corrections. Per head the stars give
 the information I_h = sum_i s_i^-2 (I - p_i p_i^T) and gradient g_h = sum_i s_i^-2 b_i x p_i;
 e_h is marginalised in closed form (I_h (I + Q_h I_h)^-1 and (I + I_h Q_h)^-1 g_h, no inverse
-of a possibly weak I_h), z by stacking it with d under its prior. Gauss-Newton from the QUEST
-solution of all rays; the covariance of d is the d block of the inverse information, in the
-body frame [rad^2]. Without common errors this is Wahba's problem over all stars, whose
-optimum QUEST finds, and the covariance is Shuster & Oh's.
+of a possibly weak I_h), z by stacking it with d under its prior. Gauss-Newton from the Wahba
+solution of all rays (Markley's SVD: the optimum QUEST also finds); the covariance of d is the
+d block of the inverse information, in the body frame [rad^2]. Without common errors this is
+Wahba's problem over all stars, whose optimum is the start, and the covariance is Shuster & Oh's.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from ..models.attitude import rotation_vector_to_matrix
-from ..models.attitude_estimation import quest
+from ..models.attitude_estimation import svd_rotation
 from .records import HeadResidual
 
 
@@ -69,8 +69,9 @@ def fit_heads(heads: Sequence[HeadRays], shared_error_covariance: np.ndarray | N
     if not heads:
         raise ValueError("no head to fit")
     shared_factor = _covariance_factor(shared_error_covariance, heads[0].shared_error_map.shape[1])
-    rotation = quest(np.concatenate([h.body_rays for h in heads]), np.concatenate([h.catalog_vectors for h in heads]),
-                     np.concatenate([h.sigmas for h in heads])).rotation
+    rotation = svd_rotation(np.concatenate([h.body_rays for h in heads]),
+                            np.concatenate([h.catalog_vectors for h in heads]),
+                            np.concatenate([1.0 / h.sigmas ** 2 for h in heads]))
     for _ in range(iterations):
         step, _ = _joint_step(rotation, heads, shared_factor)
         rotation = rotation @ rotation_vector_to_matrix(step)

@@ -28,7 +28,7 @@ class HeadObservation:
     each ray [rad] (the same in every direction perpendicular to the ray);
     head_rotation: optional (3, 3) head -> ICRS attitude the head solved itself;
     head_covariance: optional (3, 3) its small-angle error covariance, head frame [rad^2].
-    Without a head attitude, the inter-head alignment solves one from the stars (QUEST).
+    Without a head attitude, the inter-head alignment solves one from the stars (Wahba, as QUEST).
     """
 
     head: str

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..models.attitude import matrix_to_quaternion
-from ..models.attitude_estimation import quest
+from ..models.attitude_estimation import attitude_covariance, svd_rotation
 from .alignment import AlignmentFilter, AlignmentSample
 from .joint_fit import HeadRays, fit_heads
 from .mounting import corrected_mounting, implied_body_attitude
@@ -41,7 +41,7 @@ class FusionConfig:
     head); stale_after_s: largest |fused stamp - observation stamp| used [s];
     min_stars_per_head: fewest usable stars of an accepted observation; max_angular_acceleration:
     bound on the body's angular acceleration [rad/s^2] (time alignment's error);
-    iterations: Gauss-Newton steps after the QUEST start.
+    iterations: Gauss-Newton steps after the Wahba start.
     """
 
     heads: tuple[str, ...]
@@ -220,9 +220,9 @@ class FusionState:
         samples = []
         for head in unused:
             observation = fresh[head]
-            if observation.head_rotation is None:
-                solution = quest(observation.rays, observation.catalog_vectors, observation.ray_sigmas)
-                rotation, covariance = solution.rotation, solution.covariance
+            if observation.head_rotation is None:  # the Wahba solution of its stars (as QUEST), Shuster's covariance
+                rotation = svd_rotation(observation.rays, observation.catalog_vectors, observation.ray_sigmas ** -2.0)
+                covariance = attitude_covariance(observation.rays, observation.ray_sigmas)
             else:
                 rotation, covariance = observation.head_rotation, observation.head_covariance
             body_rotation, body_covariance = implied_body_attitude(rotation, covariance, observation.mounting)
