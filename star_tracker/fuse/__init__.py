@@ -7,7 +7,8 @@ attitude at a stamp (FusionState.fused_at); see docs/FUSION.md.
 """
 from .alignment import AlignmentConfig, AlignmentEstimate, AlignmentFilter, AlignmentSample
 from .joint_fit import HeadRays, JointFit, fit_heads
-from .mounting import corrected_mounting, implied_body_attitude, rotation_problem
+from .checks import rotation_problem
+from .mounting import corrected_mounting, implied_body_attitude
 from .records import BodyRate, FusedAttitude, HeadObservation, HeadResidual
 from .state import Admission, FusionConfig, FusionCounters, FusionState, FusionUnavailable
 

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..models.attitude import ARCSEC, matrix_to_rotation_vector, rotation_vector_to_matrix
+from .checks import covariance_problem, rate_problem, rotation_problem
 from .records import BodyRate
 from .time_alignment import acceleration_covariance, propagate_attitude, stamp_difference_s
 
@@ -136,18 +137,15 @@ class AlignmentFilter:
 
         Returns True when applied; False (and counted) when the stamp is not after the last
         update's or the chi^2 gate rejects the innovation. Raises ValueError for fewer than two
-        distinct heads or an unknown head.
+        distinct heads, an unknown head, a sample that is not a rotation with a positive
+        definite covariance, or an unusable rate.
         """
-        heads = [s.head for s in samples]
-        if len(samples) < 2 or len(set(heads)) != len(heads):
-            raise ValueError(f"an alignment update needs two or more distinct heads, got {heads}")
-        for head in heads:
-            self._block(head)
+        body_rate = BodyRate.at_rest() if body_rate is None else body_rate
+        self._check(samples, body_rate)
         if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns:
             self.counters.out_of_order += 1
             return False
         self._predict(stamp_ns)
-        body_rate = BodyRate.at_rest() if body_rate is None else body_rate
         ordered = sorted(samples, key=lambda s: self._index[s.head])  # reference (if present) first: the anchor
         innovation, design, noise = self._measurement(stamp_ns, ordered, body_rate)
         innovation_covariance = design @ self._covariance @ design.T + noise
@@ -161,6 +159,23 @@ class AlignmentFilter:
         self._covariance = keep @ self._covariance @ keep.T + gain @ noise @ gain.T
         self.counters.updates += 1
         return True
+
+    def _check(self, samples: Sequence[AlignmentSample], body_rate: BodyRate) -> None:
+        """Raise ValueError naming what makes the update's input unusable."""
+        heads = [s.head for s in samples]
+        if len(samples) < 2 or len(set(heads)) != len(heads):
+            raise ValueError(f"an alignment update needs two or more distinct heads, got {heads}")
+        for sample in samples:
+            self._block(sample.head)
+            problem = rotation_problem(sample.body_rotation)
+            if problem:
+                raise ValueError(f"head {sample.head!r}: body_rotation is {problem}")
+            problem = covariance_problem(sample.covariance)
+            if problem:
+                raise ValueError(f"head {sample.head!r}: covariance is {problem}")
+        problem = rate_problem(body_rate.rate, body_rate.covariance)
+        if problem:
+            raise ValueError(f"body_rate: {problem}")
 
     def _predict(self, stamp_ns: int) -> None:
         if self._last_stamp_ns is not None:

@@ -15,23 +15,6 @@ import numpy as np
 
 from ..models.attitude import rotation_vector_to_matrix
 
-ROTATION_TOLERANCE = 1e-6  # largest |R^T R - I| entry and |det R - 1| of an accepted rotation
-
-
-def rotation_problem(matrix: np.ndarray) -> str | None:
-    """Return why `matrix` is not a proper 3x3 rotation (shape, NaN, not orthonormal, a reflection), None if it is."""
-    matrix = np.asarray(matrix, dtype=float)
-    if matrix.shape != (3, 3):
-        return f"shape {matrix.shape}, not (3, 3)"
-    if not np.all(np.isfinite(matrix)):
-        return "not finite"
-    orthogonality = float(np.max(np.abs(matrix.T @ matrix - np.eye(3))))
-    if orthogonality > ROTATION_TOLERANCE:
-        return f"not orthonormal (max |R^T R - I| = {orthogonality:.2e})"
-    if abs(np.linalg.det(matrix) - 1.0) > ROTATION_TOLERANCE:
-        return "a reflection (det = -1)"
-    return None
-
 
 def corrected_mounting(mounting: np.ndarray, correction: np.ndarray) -> np.ndarray:
     """Return the body -> head rotation M exp(-[c]x) of a nominal mounting M and a body-frame correction c [rad]."""

@@ -15,7 +15,7 @@ from typing import Iterable, NamedTuple
 
 import numpy as np
 
-from .mounting import rotation_problem
+from .checks import covariance_problem, rotation_problem
 from .records import HeadObservation
 
 UNIT_TOLERANCE = 1e-3  # largest | |v| - 1 | of a usable unit vector (float32 messages are good to 1e-7)
@@ -82,9 +82,7 @@ def _record_problem(observation: HeadObservation) -> str:
         problem = rotation_problem(observation.head_rotation)
         if problem:
             return f"head_rotation is not a rotation: {problem}"
-        covariance = np.asarray(observation.head_covariance, dtype=float)
-        if (covariance.shape != (3, 3) or not np.all(np.isfinite(covariance))
-                or not np.allclose(covariance, covariance.T, rtol=1e-6, atol=0.0)
-                or np.linalg.eigvalsh(covariance).min() <= 0.0):
-            return "head_covariance must be a finite symmetric positive definite (3, 3) [rad^2]"
+        problem = covariance_problem(observation.head_covariance)
+        if problem:
+            return f"head_covariance [rad^2] is {problem}"
     return ""

@@ -23,6 +23,7 @@ import numpy as np
 from ..models.attitude import matrix_to_quaternion
 from ..models.attitude_estimation import attitude_covariance, svd_rotation
 from .alignment import AlignmentFilter, AlignmentSample
+from .checks import rate_problem
 from .joint_fit import HeadRays, fit_heads
 from .mounting import corrected_mounting, implied_body_attitude
 from .records import BodyRate, FusedAttitude, HeadObservation
@@ -66,8 +67,9 @@ class FusionCounters:
     accepted; rejected by kind (unknown_head, invalid, too_few_stars, out_of_order: a stamp
     not after the head's last accepted one); excluded_stars: stars left out of accepted or
     rejected observations (NaN, not unit, bad sigma); per fusion: stale (a head's latest
-    observation outside the window), missing (no observation yet), readmitted (used again
-    after being left out); fused: attitudes returned; unavailable: fusions that failed.
+    observation outside the window), missing (no observation yet), readmitted (a head used
+    before, left out, and used again); fused: attitudes returned; unavailable: fusions that
+    failed.
     """
 
     accepted: int = 0
@@ -110,7 +112,8 @@ class FusionState:
         self.counters = FusionCounters()
         self._latest: dict[str, HeadObservation] = {}
         self._last_rejection: dict[str, str] = {}
-        self._left_out: set[str] = set()
+        self._contributed: set[str] = set()  # heads used in a fusion at least once
+        self._left_out: set[str] = set()  # of those, the ones left out of the last fusion
         self._unused_for_alignment: set[str] = set()
 
     def latest(self, head: str) -> HeadObservation | None:
@@ -146,12 +149,18 @@ class FusionState:
 
         body_rate: the body's rate and its covariance (body frame), None for a body at rest.
         Raises FusionUnavailable (counted) when no head is fresh or the stars do not determine
-        the attitude.
+        the attitude; ValueError for a stamp that is not an integer or an unusable rate.
         """
         body_rate = BodyRate.at_rest() if body_rate is None else body_rate
+        if not isinstance(stamp_ns, (int, np.integer)):
+            raise ValueError(f"stamp_ns must be an integer [ns], got {type(stamp_ns).__name__}")
+        problem = rate_problem(body_rate.rate, body_rate.covariance)
+        if problem:
+            raise ValueError(f"body_rate: {problem}")
         fresh, dropped = self._select(stamp_ns)
         self.counters.readmitted += len(self._left_out.intersection(fresh))
-        self._left_out = set(dropped)
+        self._left_out = self._left_out.union(dropped).intersection(self._contributed).difference(fresh)
+        self._contributed.update(fresh)
         if not fresh:
             self.counters.unavailable += 1
             raise FusionUnavailable(f"no fresh head at {stamp_ns} ns: {dropped}", dropped)

@@ -104,6 +104,19 @@ def test_an_update_needs_two_known_distinct_heads(heads):
         alignment.update(0, [AlignmentSample(h, 0, np.eye(3), np.eye(3)) for h in heads])
 
 
+@pytest.mark.parametrize("rotation, covariance, words", [
+    (np.full((3, 3), np.nan), np.eye(3), "body_rotation is not finite"),
+    (np.eye(3), np.zeros((3, 3)), "covariance is not positive definite"),
+    (np.eye(3), np.full((3, 3), np.inf), "covariance is not a finite"),
+])
+def test_an_unusable_head_solution_is_an_error_and_changes_nothing(rotation, covariance, words):
+    alignment = AlignmentFilter(AlignmentConfig(("a", "b"), drift_psd=0.0))
+    samples = [AlignmentSample("a", 0, np.eye(3), np.eye(3) * 1e-10), AlignmentSample("b", 0, rotation, covariance)]
+    with pytest.raises(ValueError, match=words):
+        alignment.update(0, samples)
+    assert alignment.counters.updates == 0 and np.all(alignment.estimate("b").correction == 0.0)
+
+
 @pytest.mark.parametrize("settings", [dict(heads=("a",)), dict(heads=("a", "a")),
                                       dict(heads=("a", "b"), drift_psd=-1.0),
                                       dict(heads=("a", "b"), initial_sigma_rad=0.0)])

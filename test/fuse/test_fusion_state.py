@@ -12,7 +12,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from star_tracker.fuse import AlignmentConfig, AlignmentFilter, FusionConfig, FusionState, FusionUnavailable
+from star_tracker.fuse import (AlignmentConfig, AlignmentFilter, BodyRate, FusionConfig, FusionState,
+                               FusionUnavailable)
 from star_tracker.models.attitude import ARCSEC
 
 from fuse_spacecraft import MOUNT_A, MOUNT_B, Sky, error_vector, observe, random_rotation
@@ -106,6 +107,7 @@ def test_a_stale_head_is_dropped_reported_and_readmitted_when_it_returns(scene):
     state = two_heads(stale_after_s=0.3)
     state.add(a)
     state.add(b)
+    assert state.fused_at(0).heads == ("a", "b")
     state.add(replace(a, stamp_ns=500 * MS))
     fused = state.fused_at(500 * MS)
     assert fused.heads == ("a",) and "stale: latest observation +0.500 s" in fused.dropped["b"]
@@ -114,6 +116,7 @@ def test_a_stale_head_is_dropped_reported_and_readmitted_when_it_returns(scene):
     state.add(replace(a, stamp_ns=600 * MS))
     fused = state.fused_at(600 * MS)
     assert fused.heads == ("a", "b") and fused.dropped == {} and state.counters.readmitted == 1
+    assert np.max(np.abs(error_vector(fused.rotation, body))) < 5 * ARCSEC
 
 
 def test_a_head_whose_frames_fail_is_reported_with_its_last_rejection(scene):
@@ -127,6 +130,29 @@ def test_a_head_whose_frames_fail_is_reported_with_its_last_rejection(scene):
     assert fused.dropped["b"].startswith("no observation yet; last one rejected")
     assert "2 usable stars" in fused.dropped["b"]
     assert state.counters.missing == 1
+
+
+def test_a_head_seen_for_the_first_time_is_not_a_readmission(scene):
+    _, a, b = scene
+    state = two_heads()
+    state.add(a)
+    assert state.fused_at(0).heads == ("a",)
+    state.add(b)
+    assert state.fused_at(0).heads == ("a", "b") and state.counters.readmitted == 0
+
+
+@pytest.mark.parametrize("rate, words", [
+    (BodyRate(np.array([0.0, np.nan, 0.0]), np.zeros((3, 3))), "rate must be 3 finite values"),
+    (BodyRate(np.zeros(3), -np.eye(3)), "rate covariance is not positive semi-definite"),
+    (BodyRate(np.zeros(2), np.zeros((3, 3))), "rate must be 3 finite values"),
+])
+def test_an_unusable_rate_is_an_error(scene, rate, words):
+    state = two_heads()
+    state.add(scene[1])
+    with pytest.raises(ValueError, match=words):
+        state.fused_at(0, rate)
+    with pytest.raises(ValueError, match="integer"):
+        state.fused_at(0.0)
 
 
 def test_no_fresh_head_is_an_error_with_the_reasons(scene):
