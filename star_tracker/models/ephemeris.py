@@ -169,7 +169,7 @@ class Ephemeris:
 
         Mallama & Hilton (2018), the Astronomical Almanac's formulas, via skyfield's
         magnitudelib.planetary_magnitude: Saturn includes its rings; Mars omits the +-0.06 mag of
-        its rotation. From low Earth orbit the distance changes by < 1e-4 mag. Shape np.shape(times).
+        its rotation. From low Earth orbit the distance changes it by < 0.001 mag. Shape np.shape(times).
         """
         if body not in PLANETS:
             raise ValueError(f"body must be one of {PLANETS}, got {body!r}")
