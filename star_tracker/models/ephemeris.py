@@ -15,8 +15,8 @@ Times are UNIX seconds (UTC, float, as ROS stamps), converted to TT inside with 
 leap-second table. Every time-dependent method takes a scalar or an array of times and returns
 shape np.shape(times) + (3,) for vectors, np.shape(times) for scalars. Outside the file's span
 (1899-07-30 .. 2053-10-07 UTC: DE421's own limits less a day for the light time, rounded inward
-to whole days) a ValueError
-names the span. Nothing is downloaded: the kernel and the timescale come from installed packages.
+to whole days) a ValueError names the span. Nothing is downloaded: the kernel and the timescale
+come from installed packages.
 
 Jupiter and Saturn are their system barycentres (DE421 has no planet-centre segments for them:
 < 1000 km off the planet, < 0.1 arcsec at their distances). Use load_ephemeris() for the shared,
@@ -30,8 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-SPEED_OF_LIGHT_M_S = 299_792_458.0
-ASTRONOMICAL_UNIT_M = 149_597_870_700.0
 SUN_RADIUS_M = 6.957e8  # IAU 2015 Resolution B3 nominal solar radius
 MOON_RADIUS_M = 1.7374e6  # mean radius (IAU WGCCRE)
 EPHEMERIS_FILE = "de421.bsp"
