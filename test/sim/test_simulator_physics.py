@@ -325,3 +325,21 @@ def test_background_vignetting_gradient_dark_and_adc_levels(nominal_camera, cata
     image = StarFieldRenderer(cam, sensor, catalog, magnitude_limit=-5.0).render(
         ConstantRateMotion(POINTING, np.zeros(3)), 1.0, 0).image
     assert image.max() == 4095 and np.all(image == 4095)
+
+
+def test_rendered_star_directions_are_erfas_apparent_places(catalog, nominal_camera):
+    """The renderer's star directions for an observer at LEO + Earth speed are ERFA's eraAb places to < 0.05"."""
+    import erfa
+
+    velocity = np.array([-29_800.0, 7_600.0, 2_100.0])  # the Earth's barycentric velocity + an orbit's, ICRS
+    moving = renderer(catalog, nominal_camera, QUIET, limit=5.0, observer_velocity_m_s=velocity)
+    astrometric = catalog.brighter_than(5.0).unit_vectors()
+    speed = np.linalg.norm(velocity)
+    # eraAb(pnat, v [c], s [au], bm1): s = 1 au and sqrt(1 - |v|^2) as for an Earth-bound observer.
+    beta = velocity / SPEED_OF_LIGHT_M_S
+    reference = erfa.ab(astrometric, beta, 1.0, np.sqrt(1.0 - (speed / SPEED_OF_LIGHT_M_S) ** 2))
+    reference /= np.linalg.norm(reference, axis=1, keepdims=True)
+    error = np.degrees(np.arccos(np.clip(np.sum(moving.star_vectors * reference, axis=1), -1, 1))) * 3600.0
+    shift = np.degrees(np.arccos(np.clip(np.sum(astrometric * reference, axis=1), -1, 1))) * 3600.0
+    assert shift.max() > 20.0  # the aberration itself is ~31"
+    assert error.max() < 0.05, error.max()
