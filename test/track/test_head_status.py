@@ -29,7 +29,7 @@ MAX_RATE = math.radians(3.0)
 
 
 def tilted(axis: np.ndarray, towards: np.ndarray, angle_deg: float) -> np.ndarray:
-    """A unit vector `angle_deg` from `axis` toward `towards`."""
+    """Return the unit vector `angle_deg` from `axis` toward `towards`."""
     axis = axis / np.linalg.norm(axis)
     other = towards - axis * (towards @ axis)
     other /= np.linalg.norm(other)
