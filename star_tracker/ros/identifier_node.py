@@ -53,6 +53,7 @@ from . import convert
 from .camera_info_input import CameraInfoInput
 from .diagnostics import Rejections
 from .frame_queue import NewestFrame
+from .in_orbit import InOrbit
 from .managed_node import ManagedNode
 from .node_process import exit_node_process, run_node
 from .output_flush import flush_publishers
@@ -125,6 +126,8 @@ class IdentifierNode(ManagedNode):
         self.shutdown_extra_s = 2.0 * self.config.max_time_s
         self.log = ThrottledLog(self)
         self.reject = Rejections(self.diag, self.log)
+        self.in_orbit = InOrbit(self, values, self.diag, self.reject)  # observer, aberration, status (in_orbit.py)
+        self.sensor_frame = ""  # the newest spots' frame_id: the status messages' frame
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
         self.srv_reset = self.create_service(Trigger, "~/reset", self.on_reset)
@@ -163,6 +166,7 @@ class IdentifierNode(ManagedNode):
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
                                                  **overridable(IMAGE_QOS))
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, **overridable(SPOTS_QOS))
+        self.in_orbit.configure()
 
     def release(self) -> None:
         """
@@ -182,6 +186,7 @@ class IdentifierNode(ManagedNode):
             if getattr(self, name, None) is not None:
                 self.destroy_subscription(getattr(self, name))
                 setattr(self, name, None)
+        self.in_orbit.release()
         flush_publishers(self, {topic: getattr(self, name, None) for topic, name in OUTPUT_PUBLISHERS.items()})
         for name in OUTPUT_PUBLISHERS.values():
             if getattr(self, name, None) is not None:
@@ -287,6 +292,7 @@ class IdentifierNode(ManagedNode):
     def identify_frame(self, frame: SpotsFrame) -> None:
         """Worker thread: track or identify the newest frame and publish its attitude."""
         with self._lock:
+            self.sensor_frame = frame.sensor_frame
             if frame.time_reset:
                 self.tracker.reset()
                 self._acquisition = None  # a solve still running for the old time line is ignored
@@ -372,6 +378,25 @@ class IdentifierNode(ManagedNode):
         self.diag.value("mode", MODE_LOST)
         self.diag.set(DiagnosticStatus.WARN, f"not identified: {reason}", last_spot_count=len(spots))
         self.log.warn("unsolved", f"frame {stamp_ns * 1e-9:.3f} not identified: {reason}")
+        self.publish_status(stamp_ns, None, None, 0)
+
+    def publish_status(self, stamp_ns: int, mode: str | None, rotation: np.ndarray | None, stars: int,
+                       state=None) -> None:
+        """
+        Publish the frame's head status (in_orbit.py).
+
+        mode None: no attitude (then the last one, propagated, tells what the head faced); state:
+        the observer at the frame (looked up when None).
+        """
+        tracker, camera = self.tracker, self.camera_info.camera
+        if state is None:
+            state = self.in_orbit.observer_at(stamp_ns)
+        if rotation is None and tracker is not None:
+            rotation = tracker.attitude_guess(stamp_ns)
+        rate = tracker.rate.angular_velocity if tracker is not None and tracker.rate is not None else None
+        report = self.in_orbit.status(stamp_ns, mode, state, rotation, rate,
+                                      camera.half_diagonal_fov_rad if camera is not None else None)
+        self.in_orbit.publish_status(stamp_ns, report, self.sensor_frame or convert.OPTICAL_FRAME, stars)
 
     def internal_error(self, stamp_ns: int, exc: Exception) -> None:
         self.diag.count("frames_failed")
@@ -381,7 +406,8 @@ class IdentifierNode(ManagedNode):
 
     def publish(self, tracked: TrackedFrame, spots, sensor_frame: str, received: float) -> None:
         result, stamp_ns = tracked.identification, tracked.stamp_ns
-        solution = result.attitude
+        state = self.in_orbit.observer_at(stamp_ns)
+        solution = self.in_orbit.corrected(result.attitude, result.star_vectors, state)
         self.pub_attitude.publish(convert.quaternion_msg(solution.quaternion, stamp_ns, self.frame_id))
         self.pub_pose.publish(convert.pose_with_covariance_msg(solution, stamp_ns, self.frame_id))
         self.pub_matches.publish(convert.identification_to_cloud(result, spots, result.magnitude, stamp_ns,
@@ -396,6 +422,7 @@ class IdentifierNode(ManagedNode):
             self.refine_camera(spots, result)
         self.diag.count("frames_identified")
         self.diag.count(f"frames_{tracked.mode}")
+        self.publish_status(stamp_ns, tracked.mode, solution.rotation, int(result.hip.size), state)
         self.diag.value("mode", tracked.mode)
         latency_s = time.perf_counter() - received
         self.diag.time("processing", latency_s)

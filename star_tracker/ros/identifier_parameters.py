@@ -13,6 +13,7 @@ stamp checks; read-only: what is built at startup (database, algorithm, deep cat
 from __future__ import annotations
 
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig
+from ..models.sky_geometry import ExclusionModel
 from ..models.online_calibration import OnlineCalibrationConfig
 from ..parameter_spec import ParameterSpec, field_specs
 from .autostart_parameter import AUTOSTART
@@ -27,6 +28,25 @@ DATABASE_PARAMETERS = [
 
 IDENTIFY_PARAMETERS = field_specs(IdentifyConfig, names={"deep_match": "deep_match.enabled",
                                                          "deep_magnitude_margin": "deep_match.magnitude_margin"})
+
+OBSERVER_SOURCES = ("none", "fixed", "odometry")
+EXCLUSION_PARAMETERS = field_specs(ExclusionModel, prefix="exclusion.")
+# In orbit (ros/in_orbit.py): the observer's velocity (aberration) and position (exclusion prediction),
+# the head's per-frame status.
+IN_ORBIT_PARAMETERS = [
+    ParameterSpec("observer.source", "none", "where the spacecraft's velocity (and position) come from: none = no "
+                  "aberration correction or exclusion prediction; fixed = observer.velocity_m_s; odometry = the "
+                  "odometry topic (GCRS) with the shipped ephemeris", choices=OBSERVER_SOURCES),
+    ParameterSpec("observer.velocity_m_s", (0.0, 0.0, 0.0), "the observer's barycentric velocity on ICRS axes "
+                  "(observer.source fixed)", "m/s"),
+    ParameterSpec("observer.max_age_s", 5.0, "odometry older than this at a frame's stamp is not used", "s",
+                  0.001, 1e6),
+    ParameterSpec("observer.correct_aberration", True, "publish the attitude corrected for the observer's velocity "
+                  "(stellar aberration, up to ~25\"); false = fitted to the catalog's astrometric directions"),
+    ParameterSpec("status.max_rate_deg_s", 6.0, "a head without an attitude whose last rate estimate exceeds this "
+                  "reports rate_too_high", "deg/s", 0.0, 1e3),
+    *EXCLUSION_PARAMETERS,
+]
 
 IDENTIFIER_PARAMETERS = [
     ParameterSpec("algorithm", DEFAULT_ALGORITHM, "identification algorithm", choices=tuple(sorted(ALGORITHMS))),
@@ -49,6 +69,7 @@ IDENTIFIER_PARAMETERS = [
     ParameterSpec("tracking.enabled", True, "track from the previous attitude; false = lost-in-space on every frame",
                   dynamic=True),
     *field_specs(TrackingConfig, prefix="tracking."),
+    *IN_ORBIT_PARAMETERS,
     AUTOSTART,
 ]
 

@@ -223,6 +223,19 @@ class Tracker:
             return None
         return self._propagate(stamp_ns, rotation, covariance, dt)
 
+    def attitude_guess(self, stamp_ns: int) -> np.ndarray | None:
+        """
+        Return the last solution propagated to `stamp_ns` by the last rate, however old (None: no solution yet).
+
+        For what the head can see (its status: blinded or occulted while it has no attitude),
+        not for tracking: beyond max_coast_s its error is unbounded by the tracker's standards,
+        but a steady body rate (inertial, nadir or Sun pointing) keeps it within degrees.
+        """
+        if self._last is None:
+            return None
+        last_ns, rotation, covariance = self._last
+        return self._propagate(stamp_ns, rotation, covariance, (stamp_ns - last_ns) * 1e-9).rotation
+
     def _propagate(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray, dt: float) -> Prediction:
         if self.rate is not None:
             omega, rate_cov = self.rate.angular_velocity, self.rate.covariance
