@@ -24,16 +24,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import QuaternionStamped, Vector3Stamped
+from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..models.attitude import matrix_to_quaternion
 from ..models.catalog import julian_year_from_unix, load_hipparcos
-from ..sim.motion import SampledMotion, motion_from_parameters
+from ..sim.motion import SampledMotion
 from ..sim.render import StarFieldRenderer, frame_seed
 from . import convert
 from ..parameter_spec import field_values
+from .camera_simulator_orbit import orbit_setup_from
 from .camera_simulator_parameters import (CAMERA_SIMULATOR_PARAMETERS, SENSOR_PARAMETERS, attitude_from, camera_from,
                                           false_objects_from, sensor_from, sky_from)
+from .camera_simulator_world import CameraWorld
 from .managed_node import ManagedNode
 from .node_process import exit_node_process, run_node
 from .output_flush import flush_publishers
@@ -53,6 +56,7 @@ class PreparedFrame:
     truth: QuaternionStamped
     truth_rate: Vector3Stamped
     truth_objects: PointCloud2
+    truth_odometry: Odometry | None
     objects_in_view: int
     substeps: int
     ready_ns: int
@@ -73,6 +77,8 @@ class CameraSimulatorNode(ManagedNode):
             attitude.motion_kwargs
         self.t0_ns: int | None = None  # exposures start at t0 + period; set in start()
         self.sky, self.false_objects = sky, false_objects
+        # The orbit, the head's mounting and the environment (checked at configure).
+        self.world = CameraWorld(orbit_setup_from(values), self.profile)
         self._set_up_schedule(readout_s)
         blank = values["faults.blank_frames"]
         self.blank_frames = {int(k) for k in blank if int(k) >= 0}
@@ -91,15 +97,18 @@ class CameraSimulatorNode(ManagedNode):
         sky, sensor = self.sky, self.sensor
         epoch = sky.epoch_jyear or julian_year_from_unix(self.get_clock().now().nanoseconds * 1e-9)
         catalog = load_hipparcos().at_epoch(epoch)
+        self.world.configure(self.get_clock().now().nanoseconds * 1e-9)  # a bad orbit/mounting: refused here
         self.renderer = StarFieldRenderer(self.camera, sensor, catalog, sky.magnitude_limit, self.false_objects,
-                                          sky.fixed_pattern_seed, sky.observer_velocity_m_s)
+                                          sky.fixed_pattern_seed, sky.observer_velocity_m_s,
+                                          environment_model=self.world.environment_model)
         self._create_interfaces()
         self.get_logger().info(
             f"{self.camera.width}x{self.camera.height} px, FOV {self.fov_x_deg:.2f} deg, {self.rate_hz:g} Hz, "
             f"exposure {sensor.exposure_s * 1e3:g} ms, "
             f"frames delivered {self.delivery_offset_ns * 1e-6:g} ms after the exposure's nominal end "
             f"({'rendered ahead' if self.render_ahead else 'rendered at delivery'}), "
-            f"{len(self.renderer.catalog)} stars to Hp {sky.magnitude_limit}, attitude profile {self.profile}")
+            f"{len(self.renderer.catalog)} stars to Hp {sky.magnitude_limit}, attitude profile {self.profile}"
+            f"{self.world.describe()}")
 
     def activate(self) -> None:
         """
@@ -137,7 +146,8 @@ class CameraSimulatorNode(ManagedNode):
     def _flush_truth(self) -> None:
         flush_publishers(self, {"truth/attitude": getattr(self, "pub_truth", None),
                                 "truth/angular_velocity": getattr(self, "pub_truth_rate", None),
-                                "truth/objects": getattr(self, "pub_truth_objects", None)})
+                                "truth/objects": getattr(self, "pub_truth_objects", None),
+                                "truth/odometry": getattr(self, "pub_truth_odometry", None)})
 
     def release(self) -> None:
         """
@@ -147,15 +157,16 @@ class CameraSimulatorNode(ManagedNode):
         """
         self.deactivate()
         self._flush_truth()
-        for name in ("pub_image", "pub_info", "pub_truth", "pub_truth_rate", "pub_truth_objects"):
+        for name in ("pub_image", "pub_info", "pub_truth", "pub_truth_rate", "pub_truth_objects", "pub_truth_odometry"):
             if getattr(self, name, None) is not None:
                 self.destroy_lifecycle_publisher(getattr(self, name))
                 setattr(self, name, None)
-        for name in ("sub_truth_attitude", "sub_truth_rate"):
+        for name in ("sub_truth_attitude", "sub_truth_rate", "sub_truth_odometry"):
             if getattr(self, name, None) is not None:
                 self.destroy_subscription(getattr(self, name))
                 setattr(self, name, None)
         self.renderer = None
+        self.world.release()
         self.t0_ns, self.frame_index = None, 0
         self.render_times.clear()
 
@@ -182,7 +193,8 @@ class CameraSimulatorNode(ManagedNode):
         if renderer is not None:  # (not yet built: it will be with self.sensor)
             self.renderer = StarFieldRenderer(self.camera, sensor, renderer.catalog, self.sky.magnitude_limit,
                                               renderer.false_objects, self.sky.fixed_pattern_seed,
-                                              self.sky.observer_velocity_m_s, renderer.max_substep_px)
+                                              self.sky.observer_velocity_m_s, renderer.max_substep_px,
+                                              environment_model=self.world.environment_model)
         self.sensor = sensor
         self.pending = None
         return None
@@ -211,6 +223,11 @@ class CameraSimulatorNode(ManagedNode):
         self.pub_truth = publisher(QuaternionStamped, "truth/attitude", **overridable(RESULT_QOS))
         self.pub_truth_rate = publisher(Vector3Stamped, "truth/angular_velocity", **overridable(RESULT_QOS))
         self.pub_truth_objects = publisher(PointCloud2, "truth/objects", **overridable(RESULT_QOS))
+        self.pub_truth_odometry = publisher(Odometry, "truth/odometry", **overridable(RESULT_QOS)) \
+            if self.world.orbiting else None
+        if self.world.external_orbit:  # the spacecraft's state from a user's own propagator
+            self.sub_truth_odometry = self.create_subscription(Odometry, "truth_in/odometry", self.on_external_odometry,
+                                                               **overridable(TRUTH_INPUT_QOS))
         if self.profile == "external":
             # Truth from a dynamics simulator, on this node's clock (use_sim_time for sim time).
             # Taken in every configured state: it is the world's motion, needed when frames resume.
@@ -233,8 +250,8 @@ class CameraSimulatorNode(ManagedNode):
         delay_ticks = int(np.ceil((self.start_delay_s * 1e9 + self.delivery_offset_ns) / self.period_ns))
         self.t0_ns = now_ns + delay_ticks * self.period_ns - self.delivery_offset_ns
         if self.profile != "external":
-            self.motion = motion_from_parameters(self.profile, self.initial_rotation, t0=self.t0_ns * 1e-9,
-                                                 **self.motion_kwargs[self.profile])
+            self.motion = self.world.body_motion(self.profile, self.initial_rotation, self.t0_ns * 1e-9,
+                                                 self.motion_kwargs)
         self._start_timer(now_ns)
 
     def resume(self) -> None:
@@ -293,6 +310,15 @@ class CameraSimulatorNode(ManagedNode):
         except ValueError as exc:
             self.diag.count("external_samples_rejected")
             self.log.warn("external", f"rejected external truth sample at {t:.6f} s: {exc}")
+
+    def on_external_odometry(self, msg: Odometry) -> None:
+        """Keep the spacecraft's state from truth_in/odometry (GCRS position and velocity), counting bad ones."""
+        try:
+            self.world.add_state(msg)
+            self.diag.count("external_states")
+        except ValueError as exc:
+            self.diag.count("external_states_rejected")
+            self.log.warn("external_odometry", f"rejected truth_in/odometry: {exc}")
 
     def start_when_subscribed(self) -> None:
         publishers = (self.pub_image, self.pub_info, self.pub_truth)
@@ -390,7 +416,9 @@ class CameraSimulatorNode(ManagedNode):
         try:
             if self.motion is None:
                 raise ValueError("no external truth received yet")
-            frame = self.renderer.render(self.motion, stamp_ns * 1e-9, frame_seed(self.seed, k))
+            environment, state = self.world.environment(stamp_ns)
+            frame = self.renderer.render(self.world.head_motion(self.motion), stamp_ns * 1e-9, frame_seed(self.seed, k),
+                                         environment=environment)
         except ValueError as exc:  # external truth does not cover this exposure
             self.diag.count("frames_skipped_no_attitude")
             self.diag.set(DiagnosticStatus.WARN, f"frame skipped: {exc}")
@@ -412,7 +440,11 @@ class CameraSimulatorNode(ManagedNode):
             truth=convert.quaternion_msg(matrix_to_quaternion(truth.rotation), stamp_ns),
             truth_rate=convert.vector3_msg(truth.body_rate, stamp_ns, self.frame_id),
             truth_objects=convert.records_to_cloud(objects, convert.TRUTH_OBJECT_FIELDS, stamp_ns, self.frame_id),
+            truth_odometry=None if state is None else convert.odometry_msg(state[0], state[1], stamp_ns),
             ready_ns=self.get_clock().now().nanoseconds)
+        if truth.environment is not None:
+            self.diag.value("head_geometry", truth.environment.head.status.value)
+            self.diag.count(f"frames_{truth.environment.head.status.value}")
         self.diag.time("render", rendered - started)
         self.diag.time("convert", time.perf_counter() - rendered)
         return prepared
@@ -424,6 +456,8 @@ class CameraSimulatorNode(ManagedNode):
         self.pub_truth.publish(frame.truth)
         self.pub_truth_rate.publish(frame.truth_rate)
         self.pub_truth_objects.publish(frame.truth_objects)
+        if frame.truth_odometry is not None and self.pub_truth_odometry is not None:
+            self.pub_truth_odometry.publish(frame.truth_odometry)
         self.pub_image.publish(frame.image)
         now_ns = self.get_clock().now().nanoseconds
         self.diag.time("image_age", (now_ns - frame.stamp_ns) * 1e-9)

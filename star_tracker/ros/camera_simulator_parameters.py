@@ -26,6 +26,7 @@ from .autostart_parameter import AUTOSTART
 from ..sim.motion import motion_from_parameters
 from ..sim.render import FalseObjectModel
 from ..sim.sensor import SensorModel
+from .camera_simulator_orbit import ORBIT_PARAMETERS, ORBIT_PROFILES
 
 Declare = Callable[..., Any]  # (name, default, description, low, high) -> value: a parameter source
 
@@ -87,15 +88,16 @@ SKY_PARAMETERS = [
     ParameterSpec("sky.observer_velocity_m_s", (0.0, 0.0, 0.0), "spacecraft velocity in ICRS, for stellar "
                   "aberration (Earth orbit ~ 30 km/s)", "m/s"),
 ]
-PROFILES = ("fixed", "constant_rate", "slew", "tumble", "jitter", "external")
+PROFILES = ("fixed", "constant_rate", "slew", "tumble", "jitter", "external", *ORBIT_PROFILES)
 ATTITUDE_PARAMETERS = [
     ParameterSpec("attitude.ra_deg", 80.0, "initial boresight right ascension", "deg", -360.0, 360.0),
     ParameterSpec("attitude.dec_deg", 20.0, "initial boresight declination", "deg", -90.0, 90.0),
     ParameterSpec("attitude.roll_deg", 0.0, "initial roll about the boresight", "deg", -360.0, 360.0),
     ParameterSpec("attitude.quaternion", (0.0, 0.0, 0.0, 0.0), "initial sensor->ICRS quaternion x, y, z, w; all "
                   "zero = use ra_deg, dec_deg, roll_deg"),
-    ParameterSpec("attitude.profile", "constant_rate", "motion (external: follow truth_in/attitude + "
-                  "truth_in/angular_velocity, same stamps, this clock)", choices=PROFILES),
+    ParameterSpec("attitude.profile", "constant_rate", "motion of the body (the camera, with the default "
+                  "head.mounting_quaternion); external: follow truth_in/attitude + truth_in/angular_velocity, same "
+                  "stamps, this clock; nadir, sun_pointing: with an orbit (orbit.model)", choices=PROFILES),
     ParameterSpec("attitude.body_rate_deg_s", (0.0, 0.0, 0.0), "constant body rate in the sensor frame x, y, z "
                   "(constant_rate, and the jitter base)", "deg/s"),
     ParameterSpec("attitude.slew.axis", (1.0, 0.0, 0.0), "slew axis in the sensor frame"),
@@ -119,7 +121,7 @@ _PLACED = {spec.name for spec in CAMERA_PARAMETERS + SKY_PARAMETERS}
 CAMERA_SIMULATOR_PARAMETERS = [
     *OUTPUT_PARAMETERS, *CAMERA_PARAMETERS,
     *(spec for spec in SENSOR_PARAMETERS if spec.name not in _PLACED), READOUT_PARAMETER,
-    *SKY_PARAMETERS, *FALSE_OBJECT_PARAMETERS, *ATTITUDE_PARAMETERS, *FAULT_PARAMETERS, AUTOSTART,
+    *SKY_PARAMETERS, *FALSE_OBJECT_PARAMETERS, *ATTITUDE_PARAMETERS, *ORBIT_PARAMETERS, *FAULT_PARAMETERS, AUTOSTART,
 ]
 
 
@@ -211,8 +213,8 @@ def attitude_from(values: dict) -> AttitudeSetup:
     ra, dec, roll = (np.radians(values[f"attitude.{k}"]) for k in ("ra_deg", "dec_deg", "roll_deg"))
     profile = values["attitude.profile"]
     motion_kwargs = motion_kwargs_from(values)
-    if profile not in (*motion_kwargs, "external"):
-        raise ValueError(f"attitude.profile={profile!r}: expected one of {sorted([*motion_kwargs, 'external'])}")
+    if profile not in (*motion_kwargs, "external", *ORBIT_PROFILES):
+        raise ValueError(f"attitude.profile={profile!r}: expected one of {sorted(PROFILES)}")
     if len(quaternion) != 4:  # (the camera model has refused a distortion of other than 5 values)
         raise ValueError("optics.distortion needs 5 values, attitude.quaternion 4")
     if not np.all(np.isfinite(quaternion)):  # NaN would fall through to RA/Dec/roll unnoticed
@@ -221,6 +223,6 @@ def attitude_from(values: dict) -> AttitudeSetup:
         initial = quaternion_to_matrix(np.asarray(quaternion, dtype=float))
     else:
         initial = radec_roll_to_matrix(ra, dec, roll)
-    if profile != "external":
+    if profile not in ("external", *ORBIT_PROFILES):  # (the orbit profiles are checked with the orbit)
         motion_from_parameters(profile, initial, **motion_kwargs[profile])
     return AttitudeSetup(profile, initial, motion_kwargs)

@@ -11,6 +11,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from scipy.spatial import cKDTree
 from geometry_msgs.msg import PoseWithCovarianceStamped, QuaternionStamped, TwistWithCovarianceStamped, Vector3Stamped
+from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
@@ -250,6 +251,26 @@ def identification_to_cloud(result: Identification, spots: Spots, magnitudes: np
     rec["residual"] = result.residual_rad
     rec["magnitude"] = magnitudes
     return records_to_cloud(rec, MATCH_FIELDS, stamp_ns, frame_id)
+
+
+# ----------------------------------------------------------------------------- orbit
+def odometry_msg(position_m, velocity_m_s, stamp_ns: int, frame_id: str = "gcrs") -> Odometry:
+    """
+    Return the spacecraft's state as nav_msgs/Odometry (msg_docs/odometry.md).
+
+    Geocentric position [m] and velocity [m/s] on GCRS axes: header and child frame `frame_id`
+    (so the twist is on those axes too); orientation identity; covariances unknown (-1).
+    """
+    msg = Odometry()
+    msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+    msg.child_frame_id = frame_id
+    msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = (float(x) for x in position_m)
+    msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z = (float(x) for x in velocity_m_s)
+    unknown = np.zeros(36)
+    unknown[[0, 7, 14, 21, 28, 35]] = -1.0
+    msg.pose.covariance = unknown.tolist()
+    msg.twist.covariance = unknown.tolist()
+    return msg
 
 
 # ----------------------------------------------------------------------------- attitude

@@ -143,5 +143,5 @@ class InOrbit:
 
 
 def _number(value: float) -> str:
-    """A float for a KeyValue: 6 significant digits, "" when unknown (nan)."""
+    """Format a float for a KeyValue: 6 significant digits, "" when unknown (nan)."""
     return "" if math.isnan(value) else f"{value:.6g}"

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..models.attitude import matrix_to_quaternion, quaternion_to_matrix
-from .motion import ConstantRateMotion, MotionProfile, _array, _rotation, _times
+from .motion import ConstantRateMotion, MotionProfile, as_times, checked_array, checked_rotation
 
 # Ecliptic north pole in ICRS: the J2000 obliquity (IAU 2006, 84381.406 arcsec) about +X.
 _OBLIQUITY_RAD = np.radians(84381.406 / 3600.0)
@@ -46,11 +46,11 @@ _STENCIL = np.array([1.0, -8.0, 0.0, 8.0, -1.0]) / 12.0  # d/dt at the middle of
 
 def inertial_attitude(rotation) -> MotionProfile:
     """Return a fixed attitude: rotation (3, 3) body -> ICRS at every time, zero rate."""
-    return ConstantRateMotion(_rotation(rotation, "rotation"), np.zeros(3))
+    return ConstantRateMotion(checked_rotation(rotation, "rotation"), np.zeros(3))
 
 
 def _time(t) -> float:
-    times = _times(t)
+    times = as_times(t)
     if times.size != 1:
         raise ValueError(f"t must be one time [s], got {t!r}")
     return float(times[0])
@@ -94,7 +94,7 @@ class NadirPointingMotion(MotionProfile):
         return np.stack([np.cross(y, z), y, z], axis=-1)
 
     def rotations_at(self, times) -> np.ndarray:
-        r, v = (np.asarray(x, dtype=float).reshape(-1, 3) for x in self.orbit.state(_times(times)))
+        r, v = (np.asarray(x, dtype=float).reshape(-1, 3) for x in self.orbit.state(as_times(times)))
         return self._axes(r, v)
 
     def angular_velocity_at(self, t: float) -> np.ndarray:
@@ -139,7 +139,8 @@ class SunPointingMotion(MotionProfile):
         _check_orbit(self.orbit)
         if not callable(getattr(self.ephemeris, "sun_position", None)):
             raise ValueError(f"ephemeris must have sun_position(times) -> GCRS [m], got {self.ephemeris!r}")
-        a, b, n = (_array(getattr(self, name), name, (3,)) for name in ("sun_axis", "reference_axis", "reference_icrs"))
+        a, b, n = (checked_array(getattr(self, name), name, (3,))
+                   for name in ("sun_axis", "reference_axis", "reference_icrs"))
         for name, value in (("sun_axis", a), ("reference_axis", b), ("reference_icrs", n)):
             if np.linalg.norm(value) == 0:
                 raise ValueError(f"{name} must be a non-zero vector")
@@ -169,7 +170,7 @@ class SunPointingMotion(MotionProfile):
         return s, p / norm, norm
 
     def rotations_at(self, times) -> np.ndarray:
-        s, m, _ = self._target(self._sun_vector(_times(times)))
+        s, m, _ = self._target(self._sun_vector(as_times(times)))
         return np.stack([s, m, np.cross(s, m)], axis=-1) @ self._body_triad.T
 
     def angular_velocity_at(self, t: float) -> np.ndarray:
@@ -200,7 +201,7 @@ class HeadMounting:
     head_to_body: np.ndarray
 
     def __post_init__(self) -> None:
-        m = _array(self.head_to_body, "head_to_body", (3, 3))
+        m = checked_array(self.head_to_body, "head_to_body", (3, 3))
         if not np.allclose(m.T @ m, np.eye(3), atol=1e-6):
             raise ValueError("head_to_body must be orthonormal (a rotation matrix)")
         if np.linalg.det(m) < 0:
@@ -210,7 +211,7 @@ class HeadMounting:
     @classmethod
     def from_quaternion(cls, q_xyzw) -> "HeadMounting":
         """Mounting from the head -> body rotation as a unit quaternion (x, y, z, w)."""
-        q = _array(q_xyzw, "q_xyzw", (4,))
+        q = checked_array(q_xyzw, "q_xyzw", (4,))
         if abs(np.linalg.norm(q) - 1.0) > 1e-6:
             raise ValueError(f"q_xyzw must be a unit quaternion (x, y, z, w), got norm {np.linalg.norm(q)}")
         return cls(quaternion_to_matrix(q))
@@ -235,7 +236,7 @@ class MountedHeadMotion(MotionProfile):
             raise ValueError(f"mounting must be a HeadMounting, got {type(self.mounting).__name__}")
 
     def rotations_at(self, times) -> np.ndarray:
-        return np.asarray(self.body.rotations_at(_times(times))) @ self.mounting.head_to_body
+        return np.asarray(self.body.rotations_at(as_times(times))) @ self.mounting.head_to_body
 
     def angular_velocity_at(self, t: float) -> np.ndarray:
         return self.mounting.head_to_body.T @ np.asarray(self.body.angular_velocity_at(t), dtype=float)

@@ -42,7 +42,7 @@ class MotionProfile(ABC):
 # attitude.py's helpers convert one rotation at a time; scipy's Rotation (same conventions:
 # xyzw Hamilton quaternions, active rotations) does the stacked (K, ...) conversions.
 
-def _times(times) -> np.ndarray:
+def as_times(times) -> np.ndarray:
     t = np.asarray(times, dtype=float).reshape(-1)
     if not np.all(np.isfinite(t)):
         raise ValueError("times must be finite")
@@ -66,7 +66,7 @@ def _right_jacobian(theta: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------- validation helpers
 
-def _array(value, name: str, shape: tuple | None = None) -> np.ndarray:
+def checked_array(value, name: str, shape: tuple | None = None) -> np.ndarray:
     try:
         a = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -79,14 +79,14 @@ def _array(value, name: str, shape: tuple | None = None) -> np.ndarray:
 
 
 def _float(value, name: str, positive: bool = False) -> float:
-    x = _array(value, name, ())
+    x = checked_array(value, name, ())
     if positive and x <= 0:
         raise ValueError(f"{name} must be > 0, got {float(x)}")
     return float(x)
 
 
-def _rotation(value, name: str = "initial_rotation") -> np.ndarray:
-    r = _array(value, name, (3, 3))
+def checked_rotation(value, name: str = "initial_rotation") -> np.ndarray:
+    r = checked_array(value, name, (3, 3))
     if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
         raise ValueError(f"{name} must be a rotation matrix (orthonormal, det +1)")
     return r
@@ -116,7 +116,7 @@ class ConstantRateMotion(MotionProfile):
 
     def rotations_at(self, times: np.ndarray) -> np.ndarray:
         """Stacked rotations (K, 3, 3) at each time (vectorized Rodrigues)."""
-        dt = _times(times) - self.t0
+        dt = as_times(times) - self.t0
         return self.initial_rotation @ _exp_so3(np.multiply.outer(dt, np.asarray(self.body_rate, dtype=float)))
 
     def angular_velocity_at(self, t: float) -> np.ndarray:
@@ -149,7 +149,7 @@ class SlewMotion(MotionProfile):
     peak_rate_rad_s: float = field(init=False)
 
     def __post_init__(self) -> None:
-        axis = _array(self.axis, "axis", (3,))
+        axis = checked_array(self.axis, "axis", (3,))
         if np.linalg.norm(axis) == 0:
             raise ValueError("axis must be a non-zero vector")
         angle = _float(self.angle_rad, "angle_rad")
@@ -158,7 +158,7 @@ class SlewMotion(MotionProfile):
         # Triangular profile when ramping up to max rate and back down would overshoot the angle.
         peak = min(max_rate, np.sqrt(abs(angle) * accel))
         coast = max(0.0, (abs(angle) - peak**2 / accel) / peak) if peak > 0 else 0.0
-        _set(self, initial_rotation=_rotation(self.initial_rotation), axis=axis / np.linalg.norm(axis),
+        _set(self, initial_rotation=checked_rotation(self.initial_rotation), axis=axis / np.linalg.norm(axis),
              angle_rad=angle, accel_rad_s2=accel, max_rate_rad_s=max_rate,
              t0=_float(self.t0, "t0"), t_start=_float(self.t_start, "t_start"),
              duration_s=2 * peak / accel + coast, peak_rate_rad_s=float(peak))
@@ -169,7 +169,7 @@ class SlewMotion(MotionProfile):
 
     def _angle_and_rate(self, times) -> tuple[np.ndarray, np.ndarray]:
         """Signed angle turned [rad] and signed rate [rad/s] about the axis at each time."""
-        tau = _times(times) - self.t0 - self.t_start
+        tau = as_times(times) - self.t0 - self.t_start
         a, peak = self.accel_rad_s2, self.peak_rate_rad_s
         t_acc = peak / a
         t_coast = self.duration_s - 2 * t_acc
@@ -211,15 +211,15 @@ class JitterMotion(MotionProfile):
     def __post_init__(self) -> None:
         if not all(callable(getattr(self.base, m, None)) for m in ("rotations_at", "angular_velocity_at")):
             raise ValueError(f"base must be a motion profile (rotations_at, angular_velocity_at), got {self.base!r}")
-        amp = _array(self.amplitudes_rad, "amplitudes_rad")
+        amp = checked_array(self.amplitudes_rad, "amplitudes_rad")
         if amp.size == 0 or amp.size % 3 or amp.ndim > 2 or (amp.ndim == 2 and amp.shape[1] != 3):
             raise ValueError(f"amplitudes_rad must be (N, 3) or N*3 flat values, got shape {amp.shape}")
         amp = amp.reshape(-1, 3)
         n = len(amp)
-        freq = _array(self.frequencies_hz, "frequencies_hz").reshape(-1)
+        freq = checked_array(self.frequencies_hz, "frequencies_hz").reshape(-1)
         if freq.size != n or np.any(freq <= 0):
             raise ValueError(f"frequencies_hz must be {n} value(s) > 0 (one per amplitude row), got {freq.tolist()}")
-        phase = _array(self.phases_rad, "phases_rad")
+        phase = checked_array(self.phases_rad, "phases_rad")
         if phase.size in (1, n) and phase.ndim <= 1:
             phase = np.broadcast_to(phase.reshape(-1, 1), (n, 3)).copy()
         elif phase.size == 3 * n and (phase.ndim == 1 or phase.shape == (n, 3)):
@@ -231,12 +231,12 @@ class JitterMotion(MotionProfile):
     def _theta(self, times) -> tuple[np.ndarray, np.ndarray]:
         """Return theta (K, 3) [rad] and dtheta/dt (K, 3) [rad/s]."""
         omega = 2 * np.pi * self.frequencies_hz[:, None]  # (N, 1)
-        arg = omega * (_times(times) - getattr(self.base, "t0", 0.0))[:, None, None] + self.phases_rad
+        arg = omega * (as_times(times) - getattr(self.base, "t0", 0.0))[:, None, None] + self.phases_rad
         return (np.sum(self.amplitudes_rad * np.sin(arg), axis=1),
                 np.sum(self.amplitudes_rad * omega * np.cos(arg), axis=1))
 
     def rotations_at(self, times: np.ndarray) -> np.ndarray:
-        return self.base.rotations_at(_times(times)) @ _exp_so3(self._theta(times)[0])
+        return self.base.rotations_at(as_times(times)) @ _exp_so3(self._theta(times)[0])
 
     def angular_velocity_at(self, t: float) -> np.ndarray:
         theta, theta_dot = (x[0] for x in self._theta(t))
@@ -273,11 +273,12 @@ class TumbleMotion(MotionProfile):
     _cache: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        inertia = _array(self.inertia_kg_m2, "inertia_kg_m2", (3,))
+        inertia = checked_array(self.inertia_kg_m2, "inertia_kg_m2", (3,))
         if np.any(inertia <= 0) or np.any(2 * inertia > inertia.sum() * (1 + 1e-12)):
             raise ValueError(f"inertia_kg_m2 must be > 0 and each at most the sum of the other two, "
                              f"got {inertia.tolist()}")
-        rotation, rate = _rotation(self.initial_rotation), _array(self.initial_rate_rad_s, "initial_rate_rad_s", (3,))
+        rotation = checked_rotation(self.initial_rotation)
+        rate = checked_array(self.initial_rate_rad_s, "initial_rate_rad_s", (3,))
         _set(self, initial_rotation=rotation, initial_rate_rad_s=rate, inertia_kg_m2=inertia,
              t0=_float(self.t0, "t0"), max_span_s=_float(self.max_span_s, "max_span_s", positive=True))
         y0 = np.concatenate([matrix_to_quaternion(rotation), rate])
@@ -303,7 +304,7 @@ class TumbleMotion(MotionProfile):
 
     def _states(self, times) -> np.ndarray:
         """States (7, K): quaternion xyzw and body rate, at each time."""
-        tau = _times(times) - self.t0
+        tau = as_times(times) - self.t0
         if tau.size == 0:
             return np.empty((7, 0))
         if np.max(np.abs(tau)) > self.max_span_s:
@@ -354,14 +355,14 @@ class SampledMotion(MotionProfile):
     _buffer: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        times = _array(self.times, "times").reshape(-1)
+        times = checked_array(self.times, "times").reshape(-1)
         m = times.size
         if m == 0 or np.any(np.diff(times) <= 0):
             raise ValueError("times must be at least one strictly increasing value")
-        quats = _array(self.quaternions, "quaternions", (m, 4))
+        quats = checked_array(self.quaternions, "quaternions", (m, 4))
         if np.any(np.linalg.norm(quats, axis=1) == 0):
             raise ValueError("quaternions must be non-zero")
-        rates = None if self.rates is None else _array(self.rates, "rates", (m, 3))
+        rates = None if self.rates is None else checked_array(self.rates, "rates", (m, 3))
         limit = _float(self.max_extrapolation_s, "max_extrapolation_s")
         if limit < 0:
             raise ValueError(f"max_extrapolation_s must be >= 0, got {limit}")
@@ -392,14 +393,14 @@ class SampledMotion(MotionProfile):
     def append(self, t: float, q: np.ndarray, rate: np.ndarray | None = None) -> None:
         """Add a sample: t [s] after the last sample, q xyzw, rate [rad/s] iff built with rates."""
         t = _float(t, "t")
-        q = _array(q, "q", (4,))
+        q = checked_array(q, "q", (4,))
         if t <= self.times[-1]:
             raise ValueError(f"t={t} must be after the last sample time {self.times[-1]}")
         if np.linalg.norm(q) == 0:
             raise ValueError("q must be non-zero")
         if (rate is None) != (self.rates is None):
             raise ValueError("rate must be given if and only if the motion was built with rates")
-        rate = None if rate is None else _array(rate, "rate", (3,))[None]
+        rate = None if rate is None else checked_array(rate, "rate", (3,))[None]
         b, m = self._buffer, self.times.size
         if m == b["t"].size:  # full: double the buffers
             for key, value in b.items():
@@ -431,7 +432,7 @@ class SampledMotion(MotionProfile):
         return i, t - self.times[i]
 
     def rotations_at(self, times: np.ndarray) -> np.ndarray:
-        t = _times(times)
+        t = as_times(times)
         self._check_range(t)
         b, last = self._buffer, self.times.size - 1
         i, elapsed = self._interval(t)
@@ -442,7 +443,7 @@ class SampledMotion(MotionProfile):
         return b["r"][i] @ _exp_so3(step)
 
     def angular_velocity_at(self, t: float) -> np.ndarray:
-        t = _times(t)
+        t = as_times(t)
         self._check_range(t)
         (i,), (elapsed,) = self._interval(t)
         if i == self.times.size - 1:
@@ -494,14 +495,14 @@ def motion_from_parameters(kind: str, initial_rotation, **kwargs) -> MotionProfi
             ([f"unknown parameter(s) {unknown}"] if unknown else [])) +
             f" (accepts {list(required) + list(optional)})")
     p = {**optional, **kwargs}
-    rotation, t0 = _rotation(initial_rotation), _float(p.pop("t0"), "t0")
+    rotation, t0 = checked_rotation(initial_rotation), _float(p.pop("t0"), "t0")
     if kind == "fixed":
         return ConstantRateMotion(rotation, np.zeros(3), t0)
     if kind == "constant_rate":
-        return ConstantRateMotion(rotation, _array(p["body_rate_rad_s"], "body_rate_rad_s", (3,)), t0)
+        return ConstantRateMotion(rotation, checked_array(p["body_rate_rad_s"], "body_rate_rad_s", (3,)), t0)
     if kind == "slew":
         return SlewMotion(rotation, t0=t0, **p)
     if kind == "tumble":
         return TumbleMotion(rotation, t0=t0, **p)
-    base = ConstantRateMotion(rotation, _array(p.pop("body_rate_rad_s"), "body_rate_rad_s", (3,)), t0)
+    base = ConstantRateMotion(rotation, checked_array(p.pop("body_rate_rad_s"), "body_rate_rad_s", (3,)), t0)
     return JitterMotion(base, **p)

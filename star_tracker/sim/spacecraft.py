@@ -127,12 +127,21 @@ class Spacecraft:
     def environment(self, unix_s: float) -> Environment:
         """Return what surrounds the spacecraft at unix_s: the frame's Environment (geocentric GCRS, SI units)."""
         r, v = self.state(unix_s)
-        eph = self.ephemeris
-        planets = [np.asarray(eph.position(p, unix_s), float) for p in self.planets]
-        magnitudes = [float(eph.planet_magnitude(p, unix_s)) for p in self.planets]
-        return Environment(spacecraft_position_m=r, spacecraft_velocity_m_s=v,
-                           sun_position_m=np.asarray(eph.sun_position(unix_s), float),
-                           moon_position_m=np.asarray(eph.moon_position(unix_s), float),
-                           observer_velocity_m_s=np.asarray(eph.earth_velocity(unix_s), float) + v,
-                           planet_positions_m=np.array(planets).reshape(-1, 3),
-                           planet_magnitudes=np.array(magnitudes))
+        return environment_at(self.ephemeris, unix_s, r, v, self.planets)
+
+
+def environment_at(ephemeris, unix_s: float, position_m, velocity_m_s, planets=PLANETS) -> Environment:
+    """
+    Return the Environment of a spacecraft at position_m [m], velocity_m_s [m/s] (geocentric GCRS) at unix_s.
+
+    The Sun, the Moon and `planets` from the ephemeris (geocentric, astrometric), the planets'
+    magnitudes, and the observer's barycentric velocity (the Earth's + velocity_m_s).
+    """
+    r, v = np.asarray(position_m, float), np.asarray(velocity_m_s, float)
+    positions = [np.asarray(ephemeris.position(p, unix_s), float) for p in planets]
+    magnitudes = [float(ephemeris.planet_magnitude(p, unix_s)) for p in planets]
+    return Environment(spacecraft_position_m=r, spacecraft_velocity_m_s=v,
+                       sun_position_m=np.asarray(ephemeris.sun_position(unix_s), float),
+                       moon_position_m=np.asarray(ephemeris.moon_position(unix_s), float),
+                       observer_velocity_m_s=np.asarray(ephemeris.earth_velocity(unix_s), float) + v,
+                       planet_positions_m=np.array(positions).reshape(-1, 3), planet_magnitudes=np.array(magnitudes))
