@@ -198,6 +198,8 @@ def head_state(head: HeadInput, used: bool, dropped_reason: str) -> HeadState:
     if head.refusal_kind == MISSING_CAMERA_INFO_KIND:
         return HeadState(MISSING_CAMERA_INFO, head.refusal)
     if head.refusal_kind:
+        if head.refusal in dropped_reason:  # the core's reason names its own rejections
+            return HeadState(EXCLUDED, dropped_reason)
         return HeadState(EXCLUDED, f"{head.refusal}; {dropped_reason}" if dropped_reason else head.refusal)
     if dropped_reason.startswith("no observation"):
         return HeadState(NO_SOLUTION, dropped_reason)
@@ -397,9 +399,9 @@ class AttitudeFusionNode(ManagedNode):
         if settings.rate_source == "none":
             return BodyRate.at_rest(), "none: a body at rest"
         if self.rate is not None:
-            offset = (self.rate[0] - stamp_ns) * 1e-9
-            if abs(offset) <= settings.rate_max_age_s:
-                return self.rate[1], f"{self.rate[2]} {offset:+.3f} s"
+            dt = (stamp_ns - self.rate[0]) * 1e-9  # positive: the rate is older than the stamp
+            if abs(dt) <= settings.rate_max_age_s:
+                return self.rate[1], f"{self.rate[2]}, dt {dt:+.3f} s"
         self.diag.count("fusions_without_rate")
         sigma = settings.unknown_rate_sigma
         return BodyRate(np.zeros(3), np.eye(3) * sigma ** 2), f"unknown: none within {settings.rate_max_age_s} s " \
@@ -452,7 +454,7 @@ class AttitudeFusionNode(ManagedNode):
                     self.diag.count(f"{name}.readmitted")
                     self.get_logger().info(f"{name}: contributing again")
                 head.contributed = True
-            elif state.state == STALE:
+            elif dropped.get(name, "").startswith("stale"):  # excluded or not, its latest accepted one is stale
                 self.diag.count(f"{name}.stale")
             head.contributing = used
             self.diag.value(f"{name}.state", state.state)
@@ -471,7 +473,7 @@ class AttitudeFusionNode(ManagedNode):
         latest = self.state.latest(head.name)
         if latest is not None:
             values["solution_stamp_ns"] = str(latest.stamp_ns)
-            values["offset_s"] = f"{(latest.stamp_ns - stamp_ns) * 1e-9:+.6f}"
+            values["offset_s"] = f"{(stamp_ns - latest.stamp_ns) * 1e-9:+.6f}"  # dt: positive when older
         residual = fused.residuals.get(head.name) if fused is not None else None
         if residual is not None:
             values.update(stars=str(residual.stars), rms_residual_arcsec=f"{residual.rms_residual_rad / ARCSEC:.3f}",

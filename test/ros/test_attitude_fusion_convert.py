@@ -194,9 +194,9 @@ def test_the_alignment_message_is_the_correction_as_a_body_frame_rotation():
 @pytest.mark.parametrize("used, refusal_kind, dropped, state", [
     (True, "", "", "contributing"),
     (False, "", "no observation yet", "no solution"),
-    (False, "", "stale: latest observation -0.500 s from the stamp (window 0.3 s)", "stale"),
+    (False, "", "stale: latest observation +0.500 s from the stamp (window 0.3 s)", "stale"),
     (False, "missing_camera_info", "no observation yet", "missing camera_info"),
-    (False, "too_few_stars", "stale: latest observation -0.500 s from the stamp (window 0.3 s)", "excluded"),
+    (False, "too_few_stars", "stale: latest observation +0.500 s from the stamp (window 0.3 s)", "excluded"),
     (False, "out_of_order", "", "excluded"),
 ])
 def test_each_heads_state_in_the_fusion_status(used, refusal_kind, dropped, state):

@@ -273,3 +273,90 @@ def test_bad_parameters_are_refused_at_configure_and_the_node_stays_unconfigured
     assert codes == {"attitude_fusion": 0}, log
     assert f"configure failed: ValueError: {message}" in log, log
     assert "Traceback" not in log
+
+
+def synthetic_stars(camera, rotation: np.ndarray, count: int = 20, seed: int = 0) -> np.ndarray:
+    """Return matched_stars records of `count` stars a head at `rotation` (head -> ICRS) sees exactly (sigma 1")."""
+    rng = np.random.default_rng(seed)
+    u, v = rng.uniform(20, camera.width - 20, count), rng.uniform(20, camera.height - 20, count)
+    stars = np.zeros(count, convert.MATCH_DTYPE)
+    stars["x"], stars["y"], stars["z"] = (camera.pixel_to_ray(u, v) @ rotation.T).T
+    stars["pixel_x"], stars["pixel_y"], stars["sigma"] = u, v, ARCSEC
+    stars["hip_id"] = np.arange(count)
+    return stars
+
+
+def test_bad_head_input_is_counted_reported_and_left_out(ros_graph, tmp_path, monkeypatch, nominal_camera):
+    """
+    The fusion node fed by this test: every kind of unusable head solution, and the fusion going on.
+
+    head2 before its camera_info, head2 out of order, head1 malformed, head2 stale: each counted
+    per head and its state in fusion_status, while the other head is still fused.
+    """
+    from sensor_msgs.msg import CameraInfo, PointCloud2
+    from star_tracker.ros.qos import RESULT_QOS
+
+    monkeypatch.setitem(pipeline.NODE_MODULES, "attitude_fusion", "star_tracker.ros.attitude_fusion_node")
+    fusion = NodeProcesses(ros_graph, tmp_path / "logs", {"attitude_fusion": {"body_rate.source": "none",
+                                                                              "alignment.enabled": False}},
+                           nodes=("attitude_fusion",))
+    monitor = FusionMonitor()
+    info = {h: monitor.create_publisher(CameraInfo, f"{h}/camera_info", RESULT_QOS) for h in HEADS}
+    matched = {h: monitor.create_publisher(PointCloud2, f"{h}/matched_stars", RESULT_QOS) for h in HEADS}
+    stars = {h: synthetic_stars(nominal_camera, head_attitude(h), seed=i) for i, h in enumerate(HEADS)}
+    t0 = 1_000_000_000_000
+
+    def send(head: str, stamp_ns: int, records=None) -> None:
+        matched[head].publish(convert.records_to_cloud(stars[head] if records is None else records,
+                                                       convert.MATCH_FIELDS, stamp_ns, "icrs"))
+
+    def fused_count() -> int:
+        return len([s for _, s in monitor.status if s["fused"].get("heads_used")])
+
+    try:
+        fusion.start()
+        fusion.wait_ready(START_TIMEOUT_S)
+        monitor.spin_until(lambda: all(p.get_subscription_count() for p in [*info.values(), *matched.values()]),
+                           PHASE_TIMEOUT_S, "the fusion node subscribed")
+        send("head2", t0)  # before any head2 camera_info
+        monitor.spin_until(lambda: monitor.fusion_counter("head2.missing_camera_info") == 1, PHASE_TIMEOUT_S,
+                           "head2's solution without camera_info counted")
+        for _ in range(5):  # a best-effort subscription: sent a few times
+            for head in HEADS:
+                info[head].publish(convert.camera_to_info(nominal_camera, t0, f"{head}_optical"))
+            end = time.monotonic() + 0.2
+            while time.monotonic() < end:
+                rclpy.spin_once(monitor, timeout_sec=0.05)
+        send("head1", t0 + 100_000_000)
+        monitor.spin_until(lambda: fused_count() == 1, PHASE_TIMEOUT_S, "head1 fused")
+        first = monitor.status[-1][1]
+        send("head2", t0 + 110_000_000)  # fused with head1's, 10 ms older
+        monitor.spin_until(lambda: fused_count() == 2, PHASE_TIMEOUT_S, "both heads fused")
+        both = monitor.status[-1][1]
+        send("head2", t0 + 105_000_000)  # older than head2's last: out of order
+        malformed = PointCloud2(height=1, width=1, point_step=8, row_step=8, data=bytes(8))
+        malformed.header.stamp = convert.ns_to_stamp(t0 + 300_000_000)
+        matched["head1"].publish(malformed)
+        send("head1", t0 + 900_000_000)  # head2's latest is 0.79 s older: stale
+        monitor.spin_until(lambda: monitor.fusion_counter("head1.malformed") == 1
+                           and monitor.fusion_counter("head2.out_of_order") == 1
+                           and monitor.fusion_counter("head2.stale") >= 1, PHASE_TIMEOUT_S, "the refusals counted")
+    finally:
+        codes = fusion.stop()
+        monitor.destroy_node()
+    log = fusion.log_paths["attitude_fusion"].read_text()
+    assert codes == {"attitude_fusion": 0} and "Traceback" not in log, log
+    assert first["head/head2"]["state"] == "missing camera_info" and first["fused"]["heads_used"] == "head1"
+    assert both["fused"]["heads_used"] == "head1,head2" and both["head/head1"]["offset_s"] == "+0.010000"
+    last = monitor.status[-1][1]  # head2's latest solution refused, its accepted one stale
+    assert last["head/head2"]["state"] == "excluded" and last["fused"]["heads_used"] == "head1", last
+    reason = last["head/head2"]["reason"]
+    assert reason.count("is not after") == 1 and "latest observation +0.790 s from the stamp" in reason, reason
+    # Exact inputs: the fused attitude is the truth to float32 precision, with both heads and alone.
+    for stamp in monitor.fused:
+        assert np.linalg.norm(error_body(monitor.fused[stamp][0], BODY)) < 0.05 * ARCSEC
+    counters = monitor.diagnostics["star_tracker/attitude_fusion"]
+    # Per head: received = accepted + refused.
+    assert counters["head1.solutions_received"] == "3" and counters["head1.solutions_accepted"] == "2", counters
+    assert counters["head2.solutions_received"] == "3" and counters["head2.solutions_accepted"] == "1", counters
+    assert counters["fusions_published"] == "3", counters
