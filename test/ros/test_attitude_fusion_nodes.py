@@ -235,6 +235,7 @@ def test_two_heads_fuse_to_the_truth_and_survive_a_lost_head(ros_graph, tmp_path
         assert status["head/head1"]["state"] == "contributing"
         assert status["fused"]["level"] == DiagnosticStatus.WARN
     alone_error = np.array([error_body(monitor.fused[stamp][0], BODY) for stamp, _ in alone]) / ARCSEC
+    print(f"a fusion_status of head1 alone: {alone[-1]}")
     print(f"head1 alone: {len(alone)} fusions, max |error| per body axis [\"] "
           f"{np.round(np.abs(alone_error).max(0), 2)}; counters: head2.stale {monitor.fusion_counter('head2.stale')}, "
           f"head2.readmitted {monitor.fusion_counter('head2.readmitted')}")
