@@ -292,7 +292,9 @@ def test_bad_head_input_is_counted_reported_and_left_out(ros_graph, tmp_path, mo
     The fusion node fed by this test: every kind of unusable head solution, and the fusion going on.
 
     head2 before its camera_info, head2 out of order, head1 malformed, head2 stale: each counted
-    per head and its state in fusion_status, while the other head is still fused.
+    per head and its state in fusion_status, while the other head is still fused. Then the
+    lifecycle: a solution while inactive is counted and ignored; after cleanup and configure the
+    node starts afresh.
     """
     from sensor_msgs.msg import CameraInfo, PointCloud2
     from star_tracker.ros.qos import RESULT_QOS
@@ -314,6 +316,11 @@ def test_bad_head_input_is_counted_reported_and_left_out(ros_graph, tmp_path, mo
     def fused_count() -> int:
         return len([s for _, s in monitor.status if s["fused"].get("heads_used")])
 
+    def spin(seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            rclpy.spin_once(monitor, timeout_sec=0.05)
+
     try:
         fusion.start()
         fusion.wait_ready(START_TIMEOUT_S)
@@ -325,9 +332,7 @@ def test_bad_head_input_is_counted_reported_and_left_out(ros_graph, tmp_path, mo
         for _ in range(5):  # a best-effort subscription: sent a few times
             for head in HEADS:
                 info[head].publish(convert.camera_to_info(nominal_camera, t0, f"{head}_optical"))
-            end = time.monotonic() + 0.2
-            while time.monotonic() < end:
-                rclpy.spin_once(monitor, timeout_sec=0.05)
+            spin(0.2)
         send("head1", t0 + 100_000_000)
         monitor.spin_until(lambda: fused_count() == 1, PHASE_TIMEOUT_S, "head1 fused")
         first = monitor.status[-1][1]
@@ -342,6 +347,27 @@ def test_bad_head_input_is_counted_reported_and_left_out(ros_graph, tmp_path, mo
         monitor.spin_until(lambda: monitor.fusion_counter("head1.malformed") == 1
                            and monitor.fusion_counter("head2.out_of_order") == 1
                            and monitor.fusion_counter("head2.stale") >= 1, PHASE_TIMEOUT_S, "the refusals counted")
+        last = monitor.status[-1][1]
+        counters = dict(monitor.diagnostics["star_tracker/attitude_fusion"])
+        # The lifecycle: inactive, a solution is counted and ignored; cleaned up and configured
+        # again, the node fuses from a fresh start.
+        assert fusion.change_state("attitude_fusion", "deactivate")
+        send("head1", t0 + 1_000_000_000)
+        monitor.spin_until(lambda: monitor.fusion_counter("solutions_ignored_inactive") == 1, PHASE_TIMEOUT_S,
+                           "a solution ignored while inactive")
+        for transition in ("cleanup", "configure", "activate"):
+            assert fusion.change_state("attitude_fusion", transition), transition
+        fused_before, stamp = fused_count(), t0 + 2_000_000_000
+        end = time.monotonic() + PHASE_TIMEOUT_S
+        while fused_count() == fused_before:  # camera_info is best effort: until one got through
+            assert time.monotonic() < end, "no fusion after cleanup, configure and activate"
+            for head in HEADS:
+                info[head].publish(convert.camera_to_info(nominal_camera, t0, f"{head}_optical"))
+            spin(0.3)
+            send("head2", stamp)
+            stamp += 100_000_000
+            spin(0.5)
+        after_restart = monitor.status[-1][1]
     finally:
         codes = fusion.stop()
         monitor.destroy_node()
@@ -349,15 +375,17 @@ def test_bad_head_input_is_counted_reported_and_left_out(ros_graph, tmp_path, mo
     assert codes == {"attitude_fusion": 0} and "Traceback" not in log, log
     assert first["head/head2"]["state"] == "missing camera_info" and first["fused"]["heads_used"] == "head1"
     assert both["fused"]["heads_used"] == "head1,head2" and both["head/head1"]["offset_s"] == "+0.010000"
-    last = monitor.status[-1][1]  # head2's latest solution refused, its accepted one stale
+    # head2's latest solution refused, its accepted one stale
     assert last["head/head2"]["state"] == "excluded" and last["fused"]["heads_used"] == "head1", last
     reason = last["head/head2"]["reason"]
     assert reason.count("is not after") == 1 and "latest observation +0.790 s from the stamp" in reason, reason
     # Exact inputs: the fused attitude is the truth to float32 precision, with both heads and alone.
     for stamp in monitor.fused:
         assert np.linalg.norm(error_body(monitor.fused[stamp][0], BODY)) < 0.05 * ARCSEC
-    counters = monitor.diagnostics["star_tracker/attitude_fusion"]
     # Per head: received = accepted + refused.
     assert counters["head1.solutions_received"] == "3" and counters["head1.solutions_accepted"] == "2", counters
     assert counters["head2.solutions_received"] == "3" and counters["head2.solutions_accepted"] == "1", counters
     assert counters["fusions_published"] == "3", counters
+    # After cleanup and configure: head2 fused alone, head1 never seen since (no solution).
+    assert after_restart["fused"]["heads_used"] == "head2", after_restart
+    assert after_restart["head/head1"]["state"] == "no solution", after_restart
