@@ -91,6 +91,7 @@ setup(
     python_requires=">=3.10",
     entry_points={
         "console_scripts": [
+            "attitude_fusion = star_tracker.ros.attitude_fusion_node:main",
             "camera_simulator = star_tracker.ros.camera_simulator_node:main",
             "centroider = star_tracker.ros.centroider_node:main",
             "identifier = star_tracker.ros.identifier_node:main",

@@ -217,7 +217,11 @@ def make_monitor_node(status: TrackerStatus, namespace: str):
         status.rate = np.array([msg.vector.x, msg.vector.y, msg.vector.z])
 
     def on_matched(msg) -> None:
-        records = convert.cloud_to_records(msg, convert.MATCH_FIELDS, convert.MATCH_DTYPE)
+        try:
+            records = convert.cloud_to_records(msg, convert.MATCH_FIELDS, convert.MATCH_DTYPE)
+        except ValueError:  # another layout (an older identifier's): not this monitor's to read
+            status.matched = None
+            return
         residual = np.asarray(records["residual"], dtype=float) * ARCSEC_PER_RAD
         status.matched = (int(records.size), float(np.sqrt(np.mean(residual ** 2))) if residual.size else None)
 

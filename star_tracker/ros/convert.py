@@ -18,7 +18,7 @@ from std_msgs.msg import Header
 from ..models.attitude_estimation import AttitudeSolution
 from ..models.camera import CameraModel
 from ..centroid import Spots
-from ..identify.base import Identification
+from ..identify.base import Identification, direction_covariance
 
 ICRS_FRAME = "icrs"
 OPTICAL_FRAME = "star_tracker_optical"
@@ -146,7 +146,7 @@ SPOT_FIELDS, SPOT_DTYPE = _fields([
 MATCH_FIELDS, MATCH_DTYPE = _fields([
     ("x", PointField.FLOAT32), ("y", PointField.FLOAT32), ("z", PointField.FLOAT32),
     ("hip_id", PointField.UINT32), ("pixel_x", PointField.FLOAT32), ("pixel_y", PointField.FLOAT32),
-    ("residual", PointField.FLOAT32), ("magnitude", PointField.FLOAT32)])
+    ("residual", PointField.FLOAT32), ("magnitude", PointField.FLOAT32), ("sigma", PointField.FLOAT32)])
 
 TRUTH_OBJECT_FIELDS, TRUTH_OBJECT_DTYPE = _fields([
     ("hip_id", PointField.UINT32), ("pixel_x", PointField.FLOAT32), ("pixel_y", PointField.FLOAT32),
@@ -242,7 +242,13 @@ def drop_invalid_spots(spots: Spots) -> tuple[Spots, int]:
 
 
 def identification_to_cloud(result: Identification, spots: Spots, magnitudes: np.ndarray,
-                            stamp_ns: int, frame_id: str) -> PointCloud2:
+                            stamp_ns: int, frame_id: str, camera: CameraModel) -> PointCloud2:
+    """
+    Return the `matched_stars` cloud of a solved identification (msg_docs/matched_stars.md).
+
+    `spots` are the identified ones (result.spot_index points into them) and `camera` the model
+    that turned them into rays; each star's `sigma` is matched_star_sigma's.
+    """
     rec = np.zeros(result.hip.size, MATCH_DTYPE)
     rec["x"], rec["y"], rec["z"] = result.star_vectors.T
     rec["hip_id"] = result.hip
@@ -250,7 +256,23 @@ def identification_to_cloud(result: Identification, spots: Spots, magnitudes: np
     rec["pixel_y"] = spots.y[result.spot_index]
     rec["residual"] = result.residual_rad
     rec["magnitude"] = magnitudes
+    rec["sigma"] = matched_star_sigma(camera, rec["pixel_x"], rec["pixel_y"], spots.cov[result.spot_index])
     return records_to_cloud(rec, MATCH_FIELDS, stamp_ns, frame_id)
+
+
+def matched_star_sigma(camera: CameraModel, x: np.ndarray, y: np.ndarray, cov_px: np.ndarray) -> np.ndarray:
+    """
+    Return the 1-sigma direction error [rad] of the rays of spots at (x, y) [px], each along its worst direction.
+
+    sqrt of the largest eigenvalue of J C J^T: C the spot's pixel covariance cov_px (N, 2, 2)
+    [px^2] as the identifier's final fit weights it (identify.base.sanitized_covariance), J the
+    camera's d ray / d pixel there. One number per star, conservative for a streak (its error
+    along the smear).
+    """
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    if x.size == 0:
+        return np.zeros(0)
+    return np.sqrt(np.linalg.eigvalsh(direction_covariance(camera, x, y, cov_px))[:, -1])
 
 
 # ----------------------------------------------------------------------------- orbit

@@ -411,7 +411,7 @@ class IdentifierNode(ManagedNode):
         self.pub_attitude.publish(convert.quaternion_msg(solution.quaternion, stamp_ns, self.frame_id))
         self.pub_pose.publish(convert.pose_with_covariance_msg(solution, stamp_ns, self.frame_id))
         self.pub_matches.publish(convert.identification_to_cloud(result, spots, result.magnitude, stamp_ns,
-                                                                 self.frame_id))
+                                                                 self.frame_id, self.camera_info.camera))
         if tracked.rate is not None:
             frame = sensor_frame or convert.OPTICAL_FRAME
             self.pub_rate.publish(convert.vector3_msg(tracked.rate.angular_velocity, stamp_ns, frame))

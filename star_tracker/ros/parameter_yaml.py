@@ -40,12 +40,13 @@ HEADER = """\
 
 def node_parameters() -> dict[str, list[ParameterSpec]]:
     """Each node's parameter specs, in declaration order."""
+    from .attitude_fusion_parameters import ATTITUDE_FUSION_PARAMETERS
     from .camera_simulator_parameters import CAMERA_SIMULATOR_PARAMETERS
     from .centroider_parameters import CENTROIDER_PARAMETERS
     from .identifier_parameters import IDENTIFIER_PARAMETERS
 
     return {"camera_simulator": CAMERA_SIMULATOR_PARAMETERS, "centroider": CENTROIDER_PARAMETERS,
-            "identifier": IDENTIFIER_PARAMETERS}
+            "identifier": IDENTIFIER_PARAMETERS, "attitude_fusion": ATTITUDE_FUSION_PARAMETERS}
 
 
 def yaml_value(value) -> str:

@@ -38,7 +38,9 @@ NODE_MODULES = {
     "camera_simulator": "star_tracker.ros.camera_simulator_node",
     "centroider": "star_tracker.ros.centroider_node",
     "identifier": "star_tracker.ros.identifier_node",
+    "attitude_fusion": "star_tracker.ros.attitude_fusion_node",
 }
+HEAD_NODES = ("camera_simulator", "centroider", "identifier")  # one head's chain: what NodeProcesses starts by default
 
 
 def isolated_ros_environment(domain_id: int | None = None) -> dict[str, str]:
@@ -76,7 +78,7 @@ class NodeProcesses:
     """The three nodes as child processes (own process groups), logs in `log_dir`."""
 
     def __init__(self, env: dict[str, str], log_dir: Path, params: dict[str, dict] | None = None,
-                 params_files: Path | list[Path] | None = None, nodes: tuple[str, ...] = tuple(NODE_MODULES),
+                 params_files: Path | list[Path] | None = None, nodes: tuple[str, ...] = HEAD_NODES,
                  remaps: dict[str, dict[str, str]] | None = None):
         """
         Describe the node processes to start on the private graph of `env`.
