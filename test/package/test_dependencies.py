@@ -50,6 +50,7 @@ RUNTIME = {
     "std_msgs": ("std_msgs", "ros-jazzy-common-interfaces"),
     "std_srvs": ("std_srvs", "ros-jazzy-common-interfaces"),
     "diagnostic_msgs": ("diagnostic_msgs", "ros-jazzy-common-interfaces"),
+    "nav_msgs": ("nav_msgs", "ros-jazzy-common-interfaces"),
     # launch/star_tracker.launch.py: a ROS 2 install's (or ../shared/ros2cli's), not on PyPI.
     "launch": ("launch", None),
     "launch_ros": ("launch_ros", None),
