@@ -69,13 +69,19 @@ def test_launch_mountings_come_from_the_params_file_else_built_in_ones():
 
 
 def test_each_launched_camera_sees_the_body_through_its_mounting():
-    """R_head = R_body R(q_mount): the head's boresight in ICRS is the body's mounted axis."""
-    from star_tracker.models.attitude import quaternion_to_matrix, radec_roll_to_matrix
+    """A camera given the body attitude and head.mounting_quaternion renders R_body R(q): the body's mounted axis."""
+    from star_tracker.models.attitude import radec_roll_to_matrix
+    from star_tracker.ros.camera_simulator_orbit import ORBIT_PARAMETERS, orbit_setup_from
+    from star_tracker.ros.camera_simulator_world import CameraWorld
+    from star_tracker.sim.motion import ConstantRateMotion
 
-    launch = launch_module()
     body = radec_roll_to_matrix(*np.radians(BODY_DEG))
     for mounting, body_axis in (([0.0, 0.0, 0.0, 1.0], [0, 0, 1]), ([0.5, 0.5, 0.5, 0.5], [1, 0, 0])):
-        head = quaternion_to_matrix(np.array(launch.camera_quaternion(body, mounting)))
+        values = {spec.name: spec.default for spec in ORBIT_PARAMETERS}
+        values["head.mounting_quaternion"] = mounting
+        world = CameraWorld(orbit_setup_from(values), "fixed")
+        world.configure(0.0)
+        head = world.head_motion(ConstantRateMotion(body, np.zeros(3))).rotation_at(0.0)
         assert np.allclose(head[:, 2], body @ body_axis)
 
 

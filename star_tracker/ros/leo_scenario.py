@@ -1,0 +1,73 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The LEO scenario's node parameters: N heads on a nadir-pointing spacecraft and their fusion (ROS-free).
+
+A 550 km sun-synchronous circular orbit (orbit.* defaults, one epoch for every head: their
+cameras expose on their own schedules, and each body attitude is the orbit's at that instant),
+the body nadir-pointing (LVLH), and heads on the zenith side: two by default, 45 deg off
+zenith toward the body's -Y and +Y (90 deg apart; a sun-synchronous orbit's Sun lies near the
+orbit normal, so it comes near one head at a time), a third along zenith. Each identifier
+reads its camera's truth/odometry (aberration corrected, exclusions predicted); its tracker is
+told the body turns slowly and smoothly (the orbital rate, ~0.06 deg/s) so that frames seconds
+apart in a fast scenario are tracked: a rate window and a coast of 10 s, an acceleration bound of
+1e-4 rad/s^2. The fusion takes the body rate from the heads. `launch/multi_head.launch.py
+scenario:=leo` and `star-tracker demo --scenario leo --heads N` use it.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..models.attitude import matrix_to_quaternion, rotation_vector_to_matrix
+
+ZENITH_TILT_DEG = 45.0  # the heads' boresights from zenith (body -Z on a nadir-pointing body)
+
+
+def _mounting(axis_angle_deg: tuple[float, float, float]) -> tuple[float, ...]:
+    """Return the head frame's orientation in the body frame (x, y, z, w) for a rotation vector [deg]."""
+    return tuple(float(v) for v in matrix_to_quaternion(rotation_vector_to_matrix(np.radians(axis_angle_deg))))
+
+
+# Head sensor frame in the body frame: +Z (boresight) from body +Z (nadir) turned 180 -/+ 45 deg about
+# body X, i.e. 45 deg off zenith toward body -Y / +Y; head3 at zenith.
+LEO_MOUNTINGS = {"head1": _mounting((180.0 - ZENITH_TILT_DEG, 0.0, 0.0)),
+                 "head2": _mounting((-(180.0 - ZENITH_TILT_DEG), 0.0, 0.0)),
+                 "head3": _mounting((180.0, 0.0, 0.0))}
+IDENTIFIER = {"observer.source": "odometry", "tracking.max_coast_s": 10.0, "tracking.rate_window_s": 10.0,
+              "tracking.max_angular_acceleration_rad_s2": 1e-4}
+REMAPS = {"identifier": {"odometry": "truth/odometry"}}
+
+
+def head_names(count: int) -> list[str]:
+    if not 1 <= count <= len(LEO_MOUNTINGS):
+        raise ValueError(f"{count} heads: the LEO scenario has mountings for 1 to {len(LEO_MOUNTINGS)}")
+    return [f"head{i}" for i in range(1, count + 1)]
+
+
+def camera_parameters(head: str, index: int, rate_hz: float, epoch_utc: str) -> dict:
+    """Return one head's camera_simulator parameters: the orbit (epoch_utc: ISO 8601), the body, its mounting, noise."""
+    return {"orbit.model": "kepler", "orbit.epoch_utc": epoch_utc, "attitude.profile": "nadir",
+            "head.mounting_quaternion": list(LEO_MOUNTINGS[head]), "rate_hz": float(rate_hz),
+            "frame_id": f"{head}_optical", "seed": index, "fixed_pattern_seed": index}
+
+
+def epoch_utc(unix_s: float) -> str:
+    """Return unix_s [s] as an ISO 8601 UTC string (orbit.epoch_utc)."""
+    import datetime
+
+    return datetime.datetime.fromtimestamp(unix_s, tz=datetime.timezone.utc).isoformat()
+
+
+def fusion_parameters(heads: list[str]) -> dict:
+    """Return the attitude_fusion parameters: the heads, their mountings, the body rate from the heads."""
+    return {"heads": list(heads), **{f"mounting.{h}": list(LEO_MOUNTINGS[h]) for h in heads},
+            "body_rate.source": "heads", "body_rate.max_age_s": 10.0, "fusion.stale_after_s": 10.0}
+
+
+def boresight_from_zenith_deg(head: str) -> float:
+    """Return the angle [deg] of a head's boresight from zenith (body -Z) on the nadir-pointing body."""
+    from ..models.attitude import quaternion_to_matrix
+
+    boresight = quaternion_to_matrix(np.asarray(LEO_MOUNTINGS[head])) @ np.array([0.0, 0.0, 1.0])
+    return math.degrees(math.acos(float(np.clip(-boresight[2], -1.0, 1.0))))
