@@ -108,8 +108,9 @@ def make_nodes(context, *args, **kwargs):
               "body_rate.source": value("body_rate_source"), "autostart": autostart}
     if leo:
         fusion = {**leo_scenario.fusion_parameters(heads), "autostart": autostart}
+    remaps = list(leo_scenario.REMAPS["attitude_fusion"].items()) if leo else []
     nodes.append(Node(package=PACKAGE, executable="attitude_fusion", name="attitude_fusion", namespace=namespace,
-                      parameters=[params_file, fusion], output="screen", emulate_tty=True))
+                      remappings=remaps, parameters=[params_file, fusion], output="screen", emulate_tty=True))
     return nodes
 
 

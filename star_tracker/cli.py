@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .commands.demo_setup import default_params_file, prepare_catalog_and_database
+
 SCENARIOS = {
     # camera_simulator parameter overrides; everything else is the default configuration.
     "default": {"attitude.profile": "constant_rate", "attitude.body_rate_deg_s": [0.3, 0.4, 0.05]},
@@ -32,31 +34,21 @@ SCENARIOS = {
 }
 
 
-def default_params_file() -> Path | None:
-    """config/star_tracker.yaml from the source tree, or from the colcon install share dir."""
-    source = Path(__file__).resolve().parents[1] / "config" / "star_tracker.yaml"
-    if source.is_file():
-        return source
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        installed = Path(get_package_share_directory("star_tracker")) / "config" / "star_tracker.yaml"
-        return installed if installed.is_file() else None
-    except Exception:  # no ament index: the nodes' built-in defaults are the same values
-        return None
-
-
 def cmd_demo(args: argparse.Namespace) -> int:
     """
     `star-tracker demo`: the three nodes on a scenario, one status line per frame, then a summary and the output files.
 
     Exit code 0 when every node exited cleanly, frames arrived and a picture was written.
     """
+    if args.scenario == "leo":  # N heads in orbit and their fusion: commands/orbit_demo.py
+        from .commands.orbit_demo import run_orbit_demo
+
+        return run_orbit_demo(args)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     print(f"star_tracker demo: scenario '{args.scenario}', {args.duration:g} s at {args.rate:g} Hz"
           + (", centroider rate-aided by the true body rate (--gyro)" if args.gyro else ""), flush=True)
-    _prepare_catalog_and_database()
+    prepare_catalog_and_database()
     frames, codes = _run_demo_nodes(args, out)
     summary = _summarize_demo(frames, args.scenario, codes)
     picture = write_picture(frames, out / "frame.png")
@@ -68,17 +60,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
           f"{out / 'summary.json'}, {out / 'frames.csv'}")
     healthy = all(code == 0 for code in codes.values()) and summary["frames"] > 0 and picture is not None
     return 0 if healthy else 1
-
-
-def _prepare_catalog_and_database() -> None:
-    """Parse the catalog and build (or load) the pattern database before the nodes start, so they find both cached."""
-    from .identify import DatabaseConfig, load_or_build_database
-    from .models.catalog import load_hipparcos
-
-    started = time.perf_counter()
-    load_hipparcos()
-    load_or_build_database(DatabaseConfig())
-    print(f"catalog and pattern database ready ({time.perf_counter() - started:.1f} s)", flush=True)
 
 
 def _run_demo_nodes(args: argparse.Namespace, out: Path):
@@ -282,10 +263,13 @@ def build_parser() -> argparse.ArgumentParser:
                                       "stars, attitude error vs truth, latency), then a summary; write "
                                       "OUTPUT/frame.png, run.png (attitude error and rate vs time), summary.json and "
                                       "frames.csv.")
-    demo.add_argument("--scenario", choices=sorted(SCENARIOS), default="default",
+    demo.add_argument("--scenario", choices=sorted([*SCENARIOS, "leo"]), default="default",
                       help="attitude motion: default = 0.5 deg/s cross-boresight + slow roll; rest; fast ~1.5 deg/s; "
                            "slew = 20 deg at up to 2 deg/s from t = 3 s; tumble = torque-free tumble ~1.1 deg/s; "
-                           "jitter = 0.1 deg/s + 10\" sinusoidal jitter at 3 Hz")
+                           "jitter = 0.1 deg/s + 10\" sinusoidal jitter at 3 Hz; leo = --heads heads on a "
+                           "nadir-pointing spacecraft over a 550 km sun-synchronous orbit, fused (a full orbit in "
+                           "minutes: --speed, --orbits, --frame-interval; writes summary.json, availability.png, "
+                           "fused_error.png, sky.png)")
     demo.add_argument("--duration", type=float, default=30.0, help="seconds of frames to simulate (default 30)")
     demo.add_argument("--rate", type=float, default=10.0, help="frame rate [Hz] (default 10)")
     demo.add_argument("--output", default="demo_output", help="output directory (default demo_output)")
@@ -293,6 +277,12 @@ def build_parser() -> argparse.ArgumentParser:
                       help="feed the simulator's true body rate to the centroider's angular_velocity input "
                            "(as a gyro would): streaks are detected with a matched filter and fitted on their "
                            "predicted path")
+    demo.add_argument("--heads", type=int, default=2, help="--scenario leo: heads (1-3, default 2)")
+    demo.add_argument("--speed", type=float, default=30.0,
+                      help="--scenario leo: orbit time per wall time (ROS sim time, default 30)")
+    demo.add_argument("--orbits", type=float, default=1.0, help="--scenario leo: orbits to simulate (default 1)")
+    demo.add_argument("--frame-interval", type=float, default=3.0,
+                      help="--scenario leo: orbit time between a head's frames [s] (default 3)")
     demo.add_argument("--record", metavar="DIR",
                       help="also record the run (camera, truth and output topics) to the rosbag2 bag DIR "
                            "with `star-tracker record`; replay it with `star-tracker play DIR`")
@@ -309,11 +299,16 @@ def main(argv: list[str] | None = None) -> None:
 
     keep_freed_memory()  # our own process: freed frame buffers are reused, not page-faulted in again
     args = build_parser().parse_args(argv)
-    if args.command == "demo" and (args.duration <= 0 or args.rate <= 0):
-        from .commands.common import error
+    if args.command == "demo":
+        bad = [f"--{name.replace('_', '-')} {getattr(args, name):g} must be > 0"
+               for name in ("duration", "rate", "speed", "orbits", "frame_interval") if not getattr(args, name) > 0]
+        if not 1 <= args.heads <= 3:
+            bad.append(f"--heads {args.heads} must be 1 to 3")
+        if bad:
+            from .commands.common import error
 
-        error("demo", "--duration and --rate must be > 0")
-        sys.exit(2)
+            error("demo", "; ".join(bad))
+            sys.exit(2)
     sys.exit(args.func(args))
 
 

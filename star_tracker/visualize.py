@@ -57,7 +57,8 @@ def annotate_frame(image: np.ndarray, pixel_x: np.ndarray, pixel_y: np.ndarray, 
 # ---------------------------------------------------------------- matplotlib figures
 # matplotlib (Agg, no display) is imported inside each function: the nodes never need it.
 
-def _pyplot():
+def pyplot():
+    """Return matplotlib.pyplot on the Agg backend (no display); ValueError naming the package when it is absent."""
     try:
         import matplotlib
     except ImportError:
@@ -69,7 +70,7 @@ def _pyplot():
 
 
 def _save(fig, path) -> str:
-    plt = _pyplot()
+    plt = pyplot()
     fig.savefig(str(path), dpi=fig.dpi)
     plt.close(fig)
     return str(path)
@@ -86,7 +87,7 @@ def solution_figure(image: np.ndarray, matched: list[dict], unmatched_xy: np.nda
     ~15 px); unmatched spots as small grey squares. matched: dicts with x, y, predicted_x,
     predicted_y [px], hip, magnitude (solve's records).
     """
-    plt = _pyplot()
+    plt = pyplot()
     height, width = image.shape
     size_in = 9.0
     fig = plt.figure(figsize=(size_in, size_in * height / width + 0.5), dpi=max(100, int(min(width, 1400) / size_in)))
@@ -155,7 +156,7 @@ def sky_chart(catalog, rotation: np.ndarray, camera, identified_hip=(), magnitud
     circled, and the image outline. rotation: sensor -> ICRS. Axes in degrees from the
     boresight (x right, y up = -image y).
     """
-    plt = _pyplot()
+    plt = pyplot()
     rotation = np.asarray(rotation, dtype=float)
     half = np.degrees(camera.half_diagonal_fov_rad) * 1.25
     reach = np.tan(np.radians(min(half, 60.0)))
@@ -243,7 +244,7 @@ def run_figure(time_s: np.ndarray, cross_boresight_arcsec: np.ndarray, roll_arcs
     true body rate (N, 3) [deg/s, sensor frame] and the published 1-sigma [arcsec] (drawn as
     3-sigma bands). Unidentified frames are marked along the bottom of the error panel.
     """
-    plt = _pyplot()
+    plt = pyplot()
     t = np.asarray(time_s, dtype=float)
     cross = np.asarray(cross_boresight_arcsec, dtype=float)
     roll = np.asarray(roll_arcsec, dtype=float)

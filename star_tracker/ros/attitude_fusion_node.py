@@ -8,7 +8,10 @@ in the body frame. Per head the node subscribes to `<head>/camera_info` (the mod
 the matched stars' pixels into head-frame rays), `<head>/attitude_with_covariance` (the head's
 own solution, paired with its matched stars by exact stamp: the alignment filter's input),
 `<head>/matched_stars` and, with `body_rate.source: heads`, `<head>/angular_velocity_with_covariance`
-(turned to the body frame); with `body_rate.source: topic` it subscribes to `body_rate`.
+(turned to the body frame); with `body_rate.source: topic` it subscribes to `body_rate`. With
+`observer.source: odometry` it subscribes to `odometry` (observer_input.py) and fits the rays to
+the stars' apparent places (aberrated by the spacecraft's velocity), as the identifiers correct
+theirs.
 
 When a head's solution is accepted it fuses, at that solution's stamp (the head's mid-exposure
 stamp), every head whose latest solution lies within `fusion.stale_after_s`, each brought to
@@ -39,6 +42,7 @@ from std_msgs.msg import Header
 
 from ..fuse import AlignmentFilter, BodyRate, FusedAttitude, FusionState, FusionUnavailable, HeadObservation
 from ..fuse.checks import covariance_problem, rate_problem
+from ..models.aberration import aberrate
 from ..models.attitude import ARCSEC, matrix_to_quaternion, normalize_quaternion, quaternion_to_matrix, \
     rotation_vector_to_matrix
 from ..models.camera import CameraModel
@@ -47,6 +51,7 @@ from .attitude_fusion_parameters import HEADS, FusionSettings, fusion_parameters
 from .diagnostics import Rejections
 from .managed_node import ManagedNode
 from .node_process import exit_node_process, run_node
+from .observer_input import ObserverInput
 from .output_flush import flush_publishers
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RATE_INPUT_QOS, RESULT_QOS, overridable
@@ -77,23 +82,42 @@ class HeadSolution(NamedTuple):
     outliers: int
 
 
+def apparent_catalog(catalog: np.ndarray, velocity_m_s: np.ndarray | None) -> np.ndarray:
+    """
+    Return the stars' apparent directions for an observer at velocity_m_s [m/s] (barycentric, ICRS axes).
+
+    catalog: (N, 3) astrometric unit vectors (matched_stars x, y, z). velocity None: unchanged.
+    Rows that are not finite unit vectors are left as they are (the fusion's screening counts them).
+    """
+    if velocity_m_s is None or not np.any(velocity_m_s):
+        return catalog
+    with np.errstate(invalid="ignore"):
+        good = np.all(np.isfinite(catalog), axis=1) & (np.abs(np.linalg.norm(catalog, axis=1) - 1.0) <= 1e-6)
+    apparent = catalog.copy()
+    if np.any(good):
+        apparent[good] = aberrate(catalog[good], velocity_m_s)
+    return apparent
+
+
 def head_solution(head: str, stamp_ns: int, mounting: np.ndarray, stars: np.ndarray, camera: CameraModel,
-                  max_residual_sigma: float,
-                  head_attitude: tuple[np.ndarray, np.ndarray] | None = None) -> HeadSolution:
+                  max_residual_sigma: float, head_attitude: tuple[np.ndarray, np.ndarray] | None = None,
+                  velocity_m_s: np.ndarray | None = None) -> HeadSolution:
     """
     Return one head's observation from its matched_stars records, camera model and own attitude.
 
-    Rays from the pixels (head_rays), catalog vectors from x, y, z, each ray's sigma from
-    `sigma`; a star whose residual exceeds max_residual_sigma of its sigma is left out (the
-    identifier's fit left it out as an outlier). head_attitude: (head -> ICRS rotation, its
-    head-frame covariance [rad^2]) of the same frame, or None. Stars with non-finite or bad
-    values stay in: the fusion's screening leaves them out and counts them.
+    Rays from the pixels (head_rays), catalog vectors from x, y, z (moved to their apparent
+    places when the observer's barycentric velocity_m_s [m/s, ICRS axes] is given, so the fused
+    attitude is the true one), each ray's sigma from `sigma`; a star whose residual exceeds
+    max_residual_sigma of its sigma is left out (the identifier's fit left it out as an outlier).
+    head_attitude: (head -> ICRS rotation, its head-frame covariance [rad^2]) of the same frame,
+    or None. Stars with non-finite or bad values stay in: the fusion's screening leaves them out
+    and counts them.
     """
     sigma = stars["sigma"].astype(float)
     with np.errstate(invalid="ignore"):
         outlier = stars["residual"].astype(float) > max_residual_sigma * sigma
     keep = ~outlier
-    catalog = np.column_stack([stars["x"], stars["y"], stars["z"]]).astype(float)
+    catalog = apparent_catalog(np.column_stack([stars["x"], stars["y"], stars["z"]]).astype(float), velocity_m_s)
     rotation, covariance = head_attitude if head_attitude is not None else (None, None)
     observation = HeadObservation(head, int(stamp_ns), mounting, catalog[keep], head_rays(stars[keep], camera),
                                   sigma[keep], rotation, covariance)
@@ -222,6 +246,7 @@ class AttitudeFusionNode(ManagedNode):
         self.diag = self.start_diagnostics()
         self.log = ThrottledLog(self)
         self.reject = Rejections(self.diag, self.log)
+        self.observer = ObserverInput(self, self.values, self.diag, self.reject)
         guard_parameter_changes(self, lambda changes: None, self.diag, self.log)  # all read-only: rclpy refuses
 
     # --- lifecycle ---
@@ -232,6 +257,7 @@ class AttitudeFusionNode(ManagedNode):
                                  AlignmentFilter(settings.alignment) if settings.alignment is not None else None)
         self.heads = {name: HeadInput(name, settings.mountings[name]) for name in settings.heads}
         self.rate, self.last_fused_ns = None, None
+        self.observer.configure()
         publisher = self.create_lifecycle_publisher
         self.publishers_made = {
             "attitude": publisher(QuaternionStamped, "attitude", **overridable(RESULT_QOS)),
@@ -276,6 +302,7 @@ class AttitudeFusionNode(ManagedNode):
         for subscription in self.subscriptions_made:
             self.destroy_subscription(subscription)
         self.subscriptions_made = []
+        self.observer.release()
         flush_publishers(self, self.publishers_made)
         for publisher in self.publishers_made.values():
             self.destroy_lifecycle_publisher(publisher)
@@ -360,8 +387,9 @@ class AttitudeFusionNode(ManagedNode):
             self.refuse(head, MISSING_CAMERA_INFO_KIND, "no valid camera_info yet: its pixels cannot be turned "
                         "into rays")
             return
+        velocity = self.observer.velocity(self.observer.state_at(stamp_ns))
         solution = head_solution(head.name, stamp_ns, head.mounting, stars, head.camera,
-                                 self.settings.max_residual_sigma, attitude)
+                                 self.settings.max_residual_sigma, attitude, velocity)
         if solution.outliers:
             self.diag.count("stars_left_out_outlier", solution.outliers)
         if attitude is None:

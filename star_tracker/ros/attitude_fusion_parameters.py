@@ -20,6 +20,7 @@ from ..fuse import AlignmentConfig, FusionConfig
 from ..models.attitude import quaternion_to_matrix
 from ..parameter_spec import ParameterSpec, field_values
 from .autostart_parameter import AUTOSTART
+from .observer_parameters import OBSERVER_PARAMETERS
 
 DEFAULT_HEADS = ("head1", "head2")
 # Orientation of each default head's sensor frame in the body frame (x, y, z, w): head1's
@@ -83,7 +84,8 @@ RATE_PARAMETERS = [
     ParameterSpec("body_rate.unknown_sigma_rad_s", 0.0175, "without a usable rate (heads, topic): 1-sigma per axis "
                   "of the unknown rate about zero, which the fit marginalises", "rad/s", 0.0, 10.0, low_open=True),
 ]
-OTHER_PARAMETERS = [*FRAME_PARAMETERS, *FUSION_PARAMETERS, *ALIGNMENT_PARAMETERS, *RATE_PARAMETERS, AUTOSTART]
+OTHER_PARAMETERS = [*FRAME_PARAMETERS, *FUSION_PARAMETERS, *ALIGNMENT_PARAMETERS, *RATE_PARAMETERS,
+                    *OBSERVER_PARAMETERS, AUTOSTART]
 
 
 def fusion_parameters(heads) -> list[ParameterSpec]:

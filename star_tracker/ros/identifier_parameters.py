@@ -17,6 +17,7 @@ from ..models.sky_geometry import ExclusionModel
 from ..models.online_calibration import OnlineCalibrationConfig
 from ..parameter_spec import ParameterSpec, field_specs
 from .autostart_parameter import AUTOSTART
+from .observer_parameters import OBSERVER_PARAMETERS
 from ..track.tracking import TrackingConfig
 
 DATABASE_PARAMETERS = [
@@ -29,18 +30,11 @@ DATABASE_PARAMETERS = [
 IDENTIFY_PARAMETERS = field_specs(IdentifyConfig, names={"deep_match": "deep_match.enabled",
                                                          "deep_magnitude_margin": "deep_match.magnitude_margin"})
 
-OBSERVER_SOURCES = ("none", "fixed", "odometry")
 EXCLUSION_PARAMETERS = field_specs(ExclusionModel, prefix="exclusion.")
 # In orbit (ros/in_orbit.py): the observer's velocity (aberration) and position (exclusion prediction),
 # the head's per-frame status.
 IN_ORBIT_PARAMETERS = [
-    ParameterSpec("observer.source", "none", "where the spacecraft's velocity (and position) come from: none = no "
-                  "aberration correction or exclusion prediction; fixed = observer.velocity_m_s; odometry = the "
-                  "odometry topic (GCRS) with the shipped ephemeris", choices=OBSERVER_SOURCES),
-    ParameterSpec("observer.velocity_m_s", (0.0, 0.0, 0.0), "the observer's barycentric velocity on ICRS axes "
-                  "(observer.source fixed)", "m/s"),
-    ParameterSpec("observer.max_age_s", 5.0, "odometry older than this at a frame's stamp is not used", "s",
-                  0.001, 1e6),
+    *OBSERVER_PARAMETERS,
     ParameterSpec("observer.correct_aberration", True, "publish the attitude corrected for the observer's velocity "
                   "(stellar aberration, up to ~25\"); false = fitted to the catalog's astrometric directions"),
     ParameterSpec("status.max_rate_deg_s", 6.0, "a head without an attitude whose last rate estimate exceeds this "

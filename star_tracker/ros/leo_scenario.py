@@ -36,7 +36,9 @@ LEO_MOUNTINGS = {"head1": _mounting((180.0 - ZENITH_TILT_DEG, 0.0, 0.0)),
                  "head3": _mounting((180.0, 0.0, 0.0))}
 IDENTIFIER = {"observer.source": "odometry", "tracking.max_coast_s": 10.0, "tracking.rate_window_s": 10.0,
               "tracking.max_angular_acceleration_rad_s2": 1e-4}
-REMAPS = {"identifier": {"odometry": "truth/odometry"}}
+# The navigation input: each identifier reads its own camera's truth/odometry; the fusion head1's
+# (every camera flies the same orbit).
+REMAPS = {"identifier": {"odometry": "truth/odometry"}, "attitude_fusion": {"odometry": "head1/truth/odometry"}}
 
 
 def head_names(count: int) -> list[str]:
@@ -60,9 +62,10 @@ def epoch_utc(unix_s: float) -> str:
 
 
 def fusion_parameters(heads: list[str]) -> dict:
-    """Return the attitude_fusion parameters: the heads, their mountings, the body rate from the heads."""
+    """Return the attitude_fusion parameters: the heads, their mountings, the body rate from the heads, the orbit."""
     return {"heads": list(heads), **{f"mounting.{h}": list(LEO_MOUNTINGS[h]) for h in heads},
-            "body_rate.source": "heads", "body_rate.max_age_s": 10.0, "fusion.stale_after_s": 10.0}
+            "body_rate.source": "heads", "body_rate.max_age_s": 10.0, "fusion.stale_after_s": 10.0,
+            "observer.source": "odometry"}
 
 
 def boresight_from_zenith_deg(head: str) -> float:

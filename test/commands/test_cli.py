@@ -28,7 +28,9 @@ def test_help_lists_every_subcommand_and_option():
 
 def test_bad_arguments_give_a_clear_error():
     result = run(["demo", "--duration", "-1"])
-    assert result.returncode == 2 and "--duration and --rate must be > 0" in result.stderr
+    assert result.returncode == 2 and "--duration -1 must be > 0" in result.stderr
+    result = run(["demo", "--scenario", "leo", "--heads", "4"])
+    assert result.returncode == 2 and "--heads 4 must be 1 to 3" in result.stderr
     result = run(["demo", "--scenario", "nowhere"])
     assert result.returncode == 2 and "invalid choice" in result.stderr
 
