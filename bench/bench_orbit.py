@@ -22,8 +22,9 @@ aberration with the Earth's + the orbital velocity; Earth occultation and stray 
 exposure smeared by the true body rate. Per head: extract_spots (rate-aided by the tracker's
 rate), Tracker(make_identifier("hybrid")) with TRACKING (the defaults but for a frame every
 3 s: coast and rate window 10 s, angular acceleration bound 0.01 deg/s^2, a held nadir
-attitude), the published attitude corrected for the observer's velocity
-(identify.aberration_correction), and the head status track.head_status would publish (the
+attitude), the attitude corrected for the observer's velocity (identify.aberration_correction,
+given the matched rays and covariances: refitted against the apparent directions with the
+fit's weights), and the head status track.head_status would publish (the
 geometry from the ephemeris, the true position and the tracker's attitude guess). Fusion:
 fuse.FusionState with an AlignmentFilter (reference head a), each solved head's matched stars
 (head-frame rays, their apparent ICRS directions, the isotropic ray sigma of the centroid
@@ -78,7 +79,7 @@ from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import load_hipparcos
 from star_tracker.models.ephemeris import load_ephemeris
 from star_tracker.models.orbit import KeplerianOrbit, OrbitElements, sun_synchronous_inclination
-from star_tracker.models.sky_geometry import ExclusionModel, HeadStatus, head_geometry
+from star_tracker.models.sky_geometry import ExclusionModel, HeadStatus, earth_occults, head_geometry
 from star_tracker.sim.attitude_modes import HeadMounting, NadirPointingMotion, inertial_attitude
 from star_tracker.sim.render import KIND_MOON, KIND_PLANET, StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
@@ -216,7 +217,9 @@ def _frame_record(frame, environment, tracked, spots, tracker: Tracker, stamp_ns
     rotation = None
     if tracked.solved:
         velocity = environment.observer_velocity_m_s
-        corrected = corrected_solution(ident.attitude, ident.star_vectors, velocity)
+        si = ident.spot_index
+        ray_cov = direction_covariance(CAMERA, spots.x[si], spots.y[si], spots.cov[si])
+        corrected = corrected_solution(ident.attitude, ident.star_vectors, velocity, ident.body_vectors, ray_cov)
         rotation = corrected.rotation
         error = matrix_to_rotation_vector(truth.rotation.T @ corrected.rotation)
         record.update(stars=int(ident.hip.size), error=error,
@@ -224,8 +227,6 @@ def _frame_record(frame, environment, tracked, spots, tracker: Tracker, stamp_ns
                       nees=float(error @ np.linalg.solve(corrected.covariance, error)),
                       saturated=int(np.count_nonzero(spots.flags[ident.spot_index] & FLAG_SATURATED)))
         if fusion:
-            si = ident.spot_index
-            ray_cov = direction_covariance(CAMERA, spots.x[si], spots.y[si], spots.cov[si])
             record.update(rotation=corrected.rotation, covariance=corrected.covariance, rays=ident.body_vectors,
                           apparent=aberrate(ident.star_vectors, velocity),
                           sigmas=np.sqrt(0.5 * np.trace(ray_cov, axis1=1, axis2=2)))
@@ -285,14 +286,20 @@ def run_rest(job: dict) -> dict:
         record = {"k": int(k), "t": float(t)}
         for name, env in (("moving", environment), ("rest", replace(environment, observer_velocity_m_s=np.zeros(3)))):
             frame = renderer.render(motion, t, frame_seed(job["seed"], int(k)), environment=env)
-            result = lis.identify(extract_spots(frame.image, CentroidConfig()), CAMERA)
+            spots = extract_spots(frame.image, CentroidConfig())
+            result = lis.identify(spots, CAMERA)
             if not result.solved:
                 continue
             truth = frame.truth.rotation
             record[f"{name}_raw"] = matrix_to_rotation_vector(truth.T @ result.attitude.rotation)
             if name == "moving":
-                corrected = corrected_solution(result.attitude, result.star_vectors, velocity)
+                si = result.spot_index
+                ray_cov = direction_covariance(CAMERA, spots.x[si], spots.y[si], spots.cov[si])
+                corrected = corrected_solution(result.attitude, result.star_vectors, velocity, result.body_vectors,
+                                               ray_cov)
                 record["moving_corrected"] = matrix_to_rotation_vector(truth.T @ corrected.rotation)
+                composed = corrected_solution(result.attitude, result.star_vectors, velocity)  # C alone
+                record["moving_composed"] = matrix_to_rotation_vector(truth.T @ composed.rotation)
                 boresight = truth[:, 2]
                 record["predicted_rad"] = float(np.arccos(np.clip(aberrate(boresight, velocity) @ boresight, -1, 1)))
         records.append(record)
@@ -336,8 +343,9 @@ def arc_jobs(quick: bool) -> list[dict]:
 
     For each target and roll: the date (_arc_date), a random attitude with the target in the
     field (at the date's midnight, seen from the spacecraft), and frames every FRAME_S starting
-    ARC_LEAD frames before the head (by sky_geometry) first comes out from behind the Earth
-    into a status other than occulted or blinded by the lit Earth.
+    ARC_LEAD frames before the head and the target (by sky_geometry) first come out from behind
+    the Earth: the head's status no longer occulted or blinded by the lit Earth, the target no
+    longer behind the Earth.
     """
     ephemeris, path = load_ephemeris(), orbit()
     rng = np.random.default_rng(SEED + 4)
@@ -351,13 +359,16 @@ def arc_jobs(quick: bool) -> list[dict]:
         r, _ = path.state(day)
         rotation = _pointing(_unit(ephemeris.position(target, day, observer_m=r)), rng)
         scan = day + np.arange(0.0, path.period_s, FRAME_S)
-        statuses = []
+        statuses, behind = [], []
         for t in scan:
             r, _ = path.state(t)
             bodies = (r, ephemeris.sun_position(t), ephemeris.moon_position(t))
             statuses.append(head_geometry(rotation[:, 2], CAMERA.half_diagonal_fov_rad, _bodies(*bodies),
                                           EXCLUSION).status.value)
-        hidden = np.isin(statuses, ("occulted", "blinded_earth"))
+            target_m = ephemeris.position(target, t, observer_m=r)
+            behind.append(bool(earth_occults(_unit(target_m), r, EXCLUSION.limb_radius_m,
+                                             np.linalg.norm(target_m))[0]))
+        hidden = np.isin(statuses, ("occulted", "blinded_earth")) | np.array(behind)
         out = np.flatnonzero(hidden[:-1] & ~hidden[1:])
         first = int(out[0]) + 1 if out.size else lead
         start = scan[first] - lead * FRAME_S
@@ -610,7 +621,7 @@ def per_axis_cross(records: list[dict]) -> float:
 
 def aberration_summary(rest: list[dict]) -> dict:
     """Mean cross-boresight and roll errors as rendered (uncorrected, corrected) and at rest, same frames."""
-    keys = ("moving_raw", "moving_corrected", "rest_raw")
+    keys = ("moving_raw", "moving_composed", "moving_corrected", "rest_raw")
     both = [r for r in rest if all(key in r for key in keys)]
     out = {"frames": len(rest), "solved_all": len(both)}
     for key in keys:
@@ -832,7 +843,8 @@ def render_markdown(results: dict) -> str:
         "Earth occultation, aberration with the Earth's + the orbital velocity). Per head: `extract_spots` "
         "(rate-aided by the tracker), `Tracker(make_identifier(\"hybrid\"))` with coast and rate window 10 s and "
         "an angular-acceleration bound of 0.01°/s² (a frame every 3 s), the attitude corrected for the "
-        "observer's velocity, and the status the identifier publishes (`track.head_status`). Fusion: "
+        "observer's velocity (refitted against the apparent directions with the fit's weights), and the status the "
+        "identifier publishes (`track.head_status`). Fusion: "
         "`FusionState` with an `AlignmentFilter` (head a the reference, drift PSD "
         f"{DRIFT_PSD / ARCSEC ** 2:.1e} arcsec²/s), the gyro rate 1 µrad/s off. Head b is truly mounted "
         f"{OFFSET_ARCSEC:.0f}\" off nominal plus a {DRIFT_ARCSEC:.0f}\" sinusoid over the orbital period. Wrong: "
@@ -844,9 +856,11 @@ def render_markdown(results: dict) -> str:
         f"fused {fusion['wrong']} | {_met(goals['availability'])} |",
         f"| 1. blinded/occulted intervals = astropy's within one frame | orbit: {goals['interval_text']['orbit']}; "
         f"arcs: {goals['interval_text']['arcs']} | {_met(goals['intervals'])} |",
-        f"| 2. fused ≤ 1.5 × a single head's cross-boresight error, per body axis (two heads fused) | fused RMS "
-        f"{_axes(fusion['rms_two_heads_arcsec'])}\" (x, y, z) vs 1.5 × {_f(goals['single_cross_arcsec'])}\" = "
-        f"{_f(1.5 * goals['single_cross_arcsec'])}\" | {_met(goals['fused_error'])} |",
+        f"| 2. fused ≤ 1.5 × a single head's cross-boresight error, per body axis (two heads fused; judged "
+        f"against head a, the better head) | fused RMS {_axes(fusion['rms_two_heads_arcsec'])}\" (x, y, z) vs "
+        f"1.5 × head a's {_f(goals['cross_per_axis']['a'])}\" = {_f(1.5 * goals['cross_per_axis']['a'])}\" (head b: "
+        f"1.5 × {_f(goals['cross_per_axis']['b'])}\" = {_f(1.5 * goals['cross_per_axis']['b'])}\") | "
+        f"{_met(goals['fused_error'])} |",
         f"| 3. corrected error within 10 % of the error at rest | mean cross-boresight: corrected "
         f"{_f(aber['moving_corrected']['cross_mean_arcsec'])}\", at rest {_f(aber['rest_raw']['cross_mean_arcsec'])}\" "
         f"(ratio {_f(aber['ratio'], 3)}); uncorrected {_f(aber['moving_raw']['cross_mean_arcsec'])}\" | "
@@ -903,31 +917,43 @@ def render_markdown(results: dict) -> str:
     nees, fused_nees = {h: heads[h]["nees"] for h in HEADS}, fusion["nees_two_heads"]
     lines += [f"| fused, two heads, no saturated star matched ({fusion['two_heads_unsaturated']} frames) | "
               + " | ".join(_f(v) for v in fusion["rms_two_heads_unsaturated_arcsec"]) + " |", "",
-              "Body y is across both boresights; body x and z each lie 45° from both boresights, so each head's "
-              "roll weakens them when the other head is out. NEES (3 when consistent), frames with a matched "
+              "Body x is across both boresights; body y and z each lie 45° from both, so with one head they "
+              "carry its roll error times cos 45°, and with two they rest on both heads' cross-boresight errors "
+              "and on head b's alignment estimate (part 5). NEES (3 when consistent), frames with a matched "
               "saturated star / without / all: "
               + "; ".join(f"head {h} {_f(nees[h]['saturated']['mean'], 1)} ({nees[h]['saturated']['frames']}) / "
                           f"{_f(nees[h]['unsaturated']['mean'], 1)} ({nees[h]['unsaturated']['frames']}) / "
                           f"{_f(nees[h]['all']['mean'], 1)}" for h in HEADS)
               + f"; fused (two heads) {_f(fused_nees['saturated']['mean'], 1)} ({fused_nees['saturated']['frames']}) / "
               f"{_f(fused_nees['unsaturated']['mean'], 1)} ({fused_nees['unsaturated']['frames']}) / "
-              f"{_f(fused_nees['all']['mean'], 1)}.", "", "![fused error](images/orbit_fused_error.png)", "",
-              f"**3. Aberration** ({aber['solved_all']} of head a's frames, every {REST_EVERY}th, each solved "
+              f"{_f(fused_nees['all']['mean'], 1)}. Saturated stars bloom in these frames "
+              "(`EnvironmentModel.blooming`, on with every environment): the centroider leaves each clipped pixel "
+              "and the spill above and below it out of the star's fit (`centroid/detection/saturation.py`).", "",
+              "![fused error](images/orbit_fused_error.png)", "",
+              f"**3. Aberration** ({aber['solved_all']} of head a's frames, "
+              + ("spread over the windows" if meta["quick"] else f"every {REST_EVERY}th") + ", each solved "
               "lost-in-space as rendered and rendered again at zero velocity with the same seed; mean error, "
               "arcsec):", "",
               "| | cross-boresight | roll | total |", "|---|---:|---:|---:|"]
     for key, label in (("moving_raw", "LEO + Earth velocity, uncorrected"),
-                       ("moving_corrected", "LEO + Earth velocity, corrected"), ("rest_raw", "at rest")):
+                       ("moving_composed", "LEO + Earth velocity, C R_fit alone (no rays given)"),
+                       ("moving_corrected", "LEO + Earth velocity, corrected (refit with the fit's weights)"),
+                       ("rest_raw", "at rest")):
         a = aber[key]
         lines.append(f"| {label} | {_f(a['cross_mean_arcsec'])} | {_f(a['roll_mean_arcsec'])} | "
                      f"{_f(a['total_mean_arcsec'])} |")
     lines += ["", f"The aberration predicted at the boresight (|aberrate(b, v) − b|, v the Earth's + the orbital "
-              f"velocity) averages {_f(aber['predicted_mean_arcsec'])}\" over the same frames.", "",
+              f"velocity) averages {_f(aber['predicted_mean_arcsec'])}\" over the same frames. Corrected: "
+              "`corrected_solution` given the matched rays and their covariances refits against the apparent "
+              "directions with the identifier's weights. Composing the fit with C alone (the unweighted Wahba "
+              "rotation of the matched stars onto their apparent places; what it does without the rays) leaves the "
+              "aberration's scale about the boresight (~|v|/c) weighted differently from the fit, which matters "
+              "whenever a bright, precisely measured star sits off the field's centre.", "",
               "**4. The Moon and the bright planets in the field**: inertial pointings (a random place within 6° "
               "of the boresight, random roll), each a tracked sequence of frames 3 s apart that starts "
-              f"{ARC_LEAD if not meta['quick'] else QUICK_ARC_LEAD} frames before the head comes out from behind "
-              "the Earth (so the arcs also cross Earth occultation and Earth blinding). In field: the target on the "
-              "chip, the frame neither occulted nor flooded.", "",
+              f"{ARC_LEAD if not meta['quick'] else QUICK_ARC_LEAD} frames before the head and its target come out "
+              "from behind the Earth (so the arcs also cross Earth occultation and Earth blinding). In field: the "
+              "target on the chip, the frame neither occulted nor flooded.", "",
               "| target | date | roll | frames | in field | solved | wrong | intervals = astropy |",
               "|---|---|---:|---:|---:|---:|---:|---|"]
     for row in arcs["arcs"]:
@@ -973,21 +999,31 @@ def _jsonable(value):
     return value
 
 
-def _timeline(records: dict, predicted: dict, fused: list[dict]) -> list[dict]:
-    """Return the orbit's per-frame summary for the JSON: each head's mode, statuses and error, the fused error."""
-    rows = []
-    for i, f in enumerate(fused):
-        row = {"t": f["t"], "fused_heads": f["heads"], "fused_error_arcsec": _arcsec(f.get("error", [np.nan] * 3)),
-               "alignment_error_arcsec": _arcsec(f["alignment_error"])}
-        for head in HEADS:
-            r = records[head][i]
-            row[head] = {"mode": r["mode"], "spots": r["spots"], "simulator": r["truth_status"],
-                         "astropy": predicted[head][i], "reported": r["status"], "flooded": r["flooded"],
-                         "moon_in_field": r["moon_in_field"],
-                         "error_arcsec": _arcsec(r["error"]) if r["solved"] else None,
-                         "raw_error_arcsec": _arcsec(r["error_raw"]) if r["solved"] else None}
-        rows.append(row)
-    return rows
+def _timeline(records: dict, predicted: dict, fused: list[dict]) -> dict:
+    """
+    Return the orbit's per-frame columns for the JSON.
+
+    t [s, UNIX]; the fused heads; the fused and alignment errors (body frame, arcsec; null
+    without a fused attitude); per head its mode, spots, statuses (simulator, astropy, published),
+    flooded, Moon in the field, saturated matched stars, and errors (sensor frame, arcsec;
+    corrected and raw).
+    """
+    def arcsec(value):
+        return None if value is None else [round(float(x), 3) for x in _arcsec(value)]
+
+    columns = {"t": [round(f["t"], 1) for f in fused], "fused_heads": ["".join(f["heads"]) for f in fused],
+               "fused_error_arcsec": [arcsec(f.get("error")) for f in fused],
+               "alignment_error_arcsec": [arcsec(f["alignment_error"]) for f in fused]}
+    for head in HEADS:
+        rs = records[head]
+        columns[head] = {"mode": [r["mode"] for r in rs], "spots": [r["spots"] for r in rs],
+                         "simulator": [r["truth_status"] for r in rs], "astropy": list(predicted[head]),
+                         "published": [r["status"] for r in rs], "flooded": [r["flooded"] for r in rs],
+                         "moon_in_field": [r["moon_in_field"] for r in rs],
+                         "saturated": [r.get("saturated") for r in rs],
+                         "error_arcsec": [arcsec(r["error"]) if r["solved"] else None for r in rs],
+                         "raw_error_arcsec": [arcsec(r["error_raw"]) if r["solved"] else None for r in rs]}
+    return columns
 
 
 def _interval_text(summaries: list[dict]) -> tuple[str, bool]:
@@ -996,6 +1032,16 @@ def _interval_text(summaries: list[dict]) -> tuple[str, bool]:
     count = sum(c["simulated"] for s in summaries for c in s["truth_vs_astropy"].values())
     ok = unpaired == 0 and worst <= 1
     return f"{count} intervals, largest offset {worst} frame{'s' if worst != 1 else ''}, {unpaired} unpaired", ok
+
+
+def dump_json(results: dict) -> str:
+    """Return the results as JSON text: indented, the per-frame timeline's columns one a line."""
+    marker = "@timeline@"
+    text = json.dumps({**results, "timeline": marker}, indent=1)
+    timeline = results.get("timeline", {})
+    lines = [f"  {json.dumps(key)}: {json.dumps(value, separators=(',', ':'))}" for key, value in timeline.items()]
+    columns = ",\n".join(lines)
+    return text.replace(json.dumps(marker), "{\n" + columns + "\n }") + "\n"
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -1078,7 +1124,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(text)
     if args.output is not None:
         write_section(args.output, text)
-        (args.output.parent / "bench_orbit.json").write_text(json.dumps(results, indent=1) + "\n")
+        (args.output.parent / "bench_orbit.json").write_text(dump_json(results))
     return results
 
 
