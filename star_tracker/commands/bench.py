@@ -89,6 +89,8 @@ BENCHES = (
           "centroider rate-aid check: false alarms, wrong rates caught"),
     Bench("tracking", "bench.bench_tracking", ("--output", "{out}"), ("--quick", "--output", "{out}"),
           "tracking, re-acquisition, delay compensation, peers", peers=True),
+    Bench("orbit", "bench.bench_orbit", ("--output", "{out}"), ("--quick", "--output", "{out}"),
+          "two heads over a LEO orbit: availability, blinding against astropy, fusion, aberration, Moon, alignment"),
     Bench("replay", "bench.bench_replay", ("--output", "{out}"), ("--quick", "--output", "{out}"),
           "rosbag2 replay throughput through the nodes"),
     Bench("pipeline", "bench.bench_pipeline", ("--output", "{out}"), ("--quick", "--output", "{out}"),

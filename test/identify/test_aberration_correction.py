@@ -67,3 +67,28 @@ def test_composing_the_correction_is_a_refit_against_the_apparent_directions(cat
     composed = aberration_rotation(stars, VELOCITY) @ fitted
     assert total_error(composed, direct) < 1e-3 * ARCSEC
     assert total_error(fitted, direct) > 15 * ARCSEC
+
+
+def test_with_the_fits_weights_the_correction_is_a_refit_when_one_star_outweighs_the_rest(catalog):
+    """
+    A fit weighted by each star's covariance: one bright star off the centre measured 50x better than the rest.
+
+    Composing C (unweighted) leaves the aberration's scale about the boresight weighted differently
+    from the fit: 1.6" here; given the rays and their covariances the correction is the weighted
+    refit against the apparent directions (noise-free: the truth).
+    """
+    from star_tracker.models.attitude_estimation import refine_with_covariances
+
+    truth = radec_roll_to_matrix(np.radians(200.0), np.radians(-10.0), 0.4)
+    stars = catalog.brighter_than(6.0).unit_vectors()
+    stars = stars[stars @ truth[:, 2] > np.cos(np.radians(7.5))]
+    rays = (truth.T @ aberrate(stars, VELOCITY).T).T  # exact: the error is the correction's alone
+    sigma = np.full(len(stars), 2 * ARCSEC)
+    sigma[np.argmin(rays[:, 2])] = 0.04 * ARCSEC  # the star farthest from the boresight
+    ray_cov = sigma[:, None, None] ** 2 * (np.eye(3)[None] - rays[:, :, None] * rays[:, None, :])
+    fitted, _, _ = refine_with_covariances(svd_rotation(rays, stars), rays, stars, ray_cov)  # as the identifier
+    composed = corrected_solution(fitted, stars, VELOCITY)
+    refitted = corrected_solution(fitted, stars, VELOCITY, rays, ray_cov)
+    assert total_error(composed.rotation, truth) > 0.3 * ARCSEC
+    assert total_error(refitted.rotation, truth) < 1e-3 * ARCSEC
+    assert np.allclose(refitted.covariance, fitted.covariance, rtol=1e-3)

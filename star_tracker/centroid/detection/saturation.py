@@ -163,10 +163,13 @@ def undershot_peaks(context: FitContext, detection: np.ndarray, fits: SpotRows, 
 
 def clipped_pixels(context: FitContext, detection: np.ndarray, level: np.ndarray) -> np.ndarray:
     """
-    Return an (H, W) bool mask of the pixels at or above their spot's clip level `level` [ADU].
+    Return an (H, W) bool mask of the pixels at or above their spot's clip level `level` [ADU], and their spill.
 
     Within the detection boxes `detection` (indices in the Detections), grown by the PSF's reach
-    (any fit reading them leaves them out).
+    (any fit reading them leaves them out). The pixels just above and below a clipped one are
+    left out too: a sensor that blooms (sim.blooming) spills the excess along the column, and
+    the last pixel it reaches reads more than the PSF puts there; a sensor that does not loses
+    only their information.
     """
     image, det = context.image, context.det
     height, width = image.shape
@@ -175,5 +178,11 @@ def clipped_pixels(context: FitContext, detection: np.ndarray, level: np.ndarray
     for d, value in zip(detection, level):
         rows = slice(max(det.top[d] - grow, 0), min(det.bottom[d] + grow, height))
         cols = slice(max(det.left[d] - grow, 0), min(det.right[d] + grow, width))
-        out[rows, cols] |= image[rows, cols] >= value
+        clipped = image[rows, cols] >= value
+        # Blooming spills a clipped pixel's excess along its column: the first pixel past either
+        # end of a clipped run holds spilled charge no PSF explains.
+        spill = clipped.copy()
+        spill[1:] |= clipped[:-1]
+        spill[:-1] |= clipped[1:]
+        out[rows, cols] |= spill
     return out
