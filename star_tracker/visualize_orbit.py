@@ -67,12 +67,16 @@ def fused_error_figure(fused: dict, start_s: float, path: Path) -> Path | None:
     return path
 
 
+HEAD_COLOURS = ("tab:purple", "tab:green", "tab:brown")
+
+
 def sky_figure(frames: dict, heads: list[str], start_s: float, end_s: float, path: Path) -> Path | None:
     """
-    Draw the heads' boresights over the orbit on the sky (Mollweide, RA/Dec) with the bodies' exclusion cones.
+    Draw the heads' boresights over the orbit on the sky (Mollweide, RA/Dec) with the Sun's and the Moon's cones.
 
-    The Sun's (30 deg) and the Moon's (25 deg) cones at the start, and the Earth's limb + 20 deg
-    exclusion from the spacecraft at the start.
+    Each head's true boresight per frame, crossed in black where it had no attitude; the Sun's
+    (30 deg) and the Moon's (25 deg) exclusion cones at the run's middle (they move < 1 deg per
+    orbit). The Earth's cone turns with the spacecraft once per orbit and is not drawn.
     """
     from .models.ephemeris import load_ephemeris
     from .models.sky_geometry import ExclusionModel
@@ -81,28 +85,29 @@ def sky_figure(frames: dict, heads: list[str], start_s: float, end_s: float, pat
     fig = plt.figure(figsize=(11, 6))
     ax = fig.add_subplot(111, projection="mollweide")
     drawn = False
-    for head in heads:
-        rotations = [r["truth"] for _, r in sorted(frames[head].items()) if r.get("truth") is not None]
-        if not rotations:
+    for index, head in enumerate(heads):
+        rows = [r for _, r in sorted(frames[head].items()) if r.get("truth") is not None]
+        if not rows:
             continue
-        ra, dec = _radec(np.array([rot[:, 2] for rot in rotations]))
-        ax.plot(ra, dec, ".", ms=1.5, label=f"{head} boresight")
+        ra, dec = _radec(np.array([r["truth"][:, 2] for r in rows]))
+        ax.plot(ra, dec, ".", ms=1.5, color=HEAD_COLOURS[index % len(HEAD_COLOURS)], label=f"{head} boresight")
+        lost = np.array([r.get("attitude") is None for r in rows])
+        if np.any(lost):
+            ax.plot(ra[lost], dec[lost], "x", ms=3, color="black", label="no attitude" if not drawn else None)
         drawn = True
     if not drawn:
         plt.close(fig)
         return None
     model, ephemeris = ExclusionModel(), load_ephemeris()
-    sun, moon = ephemeris.sun_position(start_s), ephemeris.moon_position(start_s)
-    _cone(ax, sun / np.linalg.norm(sun), model.sun_exclusion_rad, "Sun (30 deg)", "#ff7f0e")
-    _cone(ax, moon / np.linalg.norm(moon), model.moon_exclusion_rad, "Moon (25 deg)", "#7f7f7f")
-    position = next((r["position"] for h in heads for _, r in sorted(frames[h].items()) if "position" in r), None)
-    if position is not None:
-        radius = math.asin(min(1.0, model.limb_radius_m / np.linalg.norm(position)))
-        _cone(ax, -position / np.linalg.norm(position), radius + model.earth_limb_exclusion_rad,
-              "Earth limb + 20 deg (start)", "#1f77b4")
+    middle = 0.5 * (start_s + end_s)
+    sun, moon = ephemeris.sun_position(middle), ephemeris.moon_position(middle)
+    _cone(ax, sun / np.linalg.norm(sun), model.sun_exclusion_rad,
+          f"Sun ({math.degrees(model.sun_exclusion_rad):.0f} deg)", "#f0a000")
+    _cone(ax, moon / np.linalg.norm(moon), model.moon_exclusion_rad,
+          f"Moon ({math.degrees(model.moon_exclusion_rad):.0f} deg)", "#7f7f7f")
     ax.grid(True, alpha=0.3)
-    ax.set_title(f"boresights over {(end_s - start_s) / 60:.0f} min of orbit, exclusion cones at the start")
-    ax.legend(loc="lower right", fontsize=8, markerscale=6)
+    ax.set_title(f"true boresights over {(end_s - start_s) / 60:.0f} min of orbit; Sun and Moon exclusion cones")
+    ax.legend(loc="lower right", fontsize=8, markerscale=4)
     save_figure(fig, path)
     return path
 

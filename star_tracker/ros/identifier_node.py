@@ -321,7 +321,7 @@ class IdentifierNode(ManagedNode):
             if prediction is not None:
                 tracked = self.tracker.accept_tracked(stamp_ns, spots, camera, prediction)
                 if tracked.solved:
-                    self.publish(tracked, spots, sensor_frame, received)
+                    self.publish(tracked, spots, camera, sensor_frame, received)
                     return
                 self.diag.count("tracking_failed")
         else:
@@ -371,7 +371,7 @@ class IdentifierNode(ManagedNode):
             self.log.warn("bridge_failed", "lost-in-space solved an older frame but the bridged attitude was "
                           "not verified on the newest frame")
             return
-        self.publish(tracked, newest_spots if tracked.bridged_frames else spots, sensor_frame, received)
+        self.publish(tracked, newest_spots if tracked.bridged_frames else spots, camera, sensor_frame, received)
 
     def not_identified(self, stamp_ns: int, status: str, reason: str, spots) -> None:
         self.diag.count(f"not_identified_{status}")
@@ -404,10 +404,10 @@ class IdentifierNode(ManagedNode):
         self.diag.set(DiagnosticStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}")
         self.log.error("internal", f"frame {stamp_ns * 1e-9:.6f} failed: {type(exc).__name__}: {exc}")
 
-    def publish(self, tracked: TrackedFrame, spots, sensor_frame: str, received: float) -> None:
+    def publish(self, tracked: TrackedFrame, spots, camera: CameraModel, sensor_frame: str, received: float) -> None:
         result, stamp_ns = tracked.identification, tracked.stamp_ns
         state = self.in_orbit.observer_at(stamp_ns)
-        solution = self.in_orbit.corrected(result.attitude, result.star_vectors, state)
+        solution = self.in_orbit.corrected(result, spots, camera, state)
         self.pub_attitude.publish(convert.quaternion_msg(solution.quaternion, stamp_ns, self.frame_id))
         self.pub_pose.publish(convert.pose_with_covariance_msg(solution, stamp_ns, self.frame_id))
         self.pub_matches.publish(convert.identification_to_cloud(result, spots, result.magnitude, stamp_ns,

@@ -21,7 +21,10 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
+from ..centroid import Spots
 from ..identify.aberration_correction import corrected_solution
+from ..identify.base import Identification, direction_covariance
+from ..models.camera import CameraModel
 from ..models.observer_state import ObserverSample
 from ..models.sky_geometry import ExclusionModel, head_geometry
 from ..parameter_spec import field_values
@@ -61,13 +64,21 @@ class InOrbit:
         """Return the spacecraft's state at a frame's stamp (None: no odometry source, or none recent enough)."""
         return self.observer.state_at(stamp_ns)
 
-    def corrected(self, solution, star_vectors: np.ndarray, state: ObserverSample | None):
-        """Return the attitude to publish: corrected for the observer's velocity when known and asked for."""
+    def corrected(self, result: Identification, spots: Spots, camera: CameraModel, state: ObserverSample | None):
+        """
+        Return the attitude to publish: corrected for the observer's velocity when known and asked for.
+
+        Refitted against the matched stars' apparent places with the identifier's own weights (the
+        rays' covariances from the spots' pixel covariances through the camera model).
+        """
+        solution = result.attitude
         velocity = self.observer.velocity(state) if self.correct_aberration else None
         if velocity is None or not np.any(velocity):
             return solution
         self.diag.value("last_aberration_velocity_m_s", f"{np.linalg.norm(velocity):.1f}")
-        return corrected_solution(solution, star_vectors, velocity)
+        index = result.spot_index
+        ray_cov = direction_covariance(camera, spots.x[index], spots.y[index], spots.cov[index])
+        return corrected_solution(solution, result.star_vectors, velocity, result.body_vectors, ray_cov)
 
     def status(self, stamp_ns: int, mode: str | None, state: ObserverSample | None, rotation: np.ndarray | None,
                rate: np.ndarray | None, half_fov_rad: float | None) -> HeadFrameStatus:

@@ -85,7 +85,7 @@ def test_summary_counts_errors_bias_and_the_fused_gaps(tmp_path):
 
 def test_the_pictures_are_written(tmp_path):
     pytest.importorskip("matplotlib")
-    from star_tracker.visualize_orbit import availability_figure, fused_error_figure
+    from star_tracker.visualize_orbit import availability_figure, fused_error_figure, sky_figure
 
     statuses = ["tracking", "blinded_sun", "tracking"]
     error = np.array([1.0, 1.0, 3.0]) * ARCSEC
@@ -94,5 +94,6 @@ def test_the_pictures_are_written(tmp_path):
              for i in (0, 2)}
     start_s = T0_NS * 1e-9
     for path in (availability_figure(frames, fused, ["head1"], start_s, tmp_path / "availability.png"),
-                 fused_error_figure(fused, start_s, tmp_path / "fused_error.png")):
+                 fused_error_figure(fused, start_s, tmp_path / "fused_error.png"),
+                 sky_figure(frames, ["head1"], start_s, start_s + 9.0, tmp_path / "sky.png")):
         assert path is not None and path.stat().st_size > 5000
