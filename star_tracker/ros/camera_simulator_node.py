@@ -44,6 +44,10 @@ from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, TRUTH_INPUT_QOS, overridable
 from .throttled_log import ThrottledLog
 
+# A catalog propagated this close to the first exposure's date is kept (proper motions of ~1"/yr
+# move a star by < 3 mas a day); further, start() propagates it again.
+CATALOG_EPOCH_TOLERANCE_JYEAR = 1.0 / 365.25
+
 
 @dataclass
 class PreparedFrame:
@@ -95,20 +99,32 @@ class CameraSimulatorNode(ManagedNode):
     def configure(self) -> None:
         """Load the catalog and build the renderer, then create the topics."""
         sky, sensor = self.sky, self.sensor
-        epoch = sky.epoch_jyear or julian_year_from_unix(self.get_clock().now().nanoseconds * 1e-9)
-        catalog = load_hipparcos().at_epoch(epoch)
-        self.world.configure(self.get_clock().now().nanoseconds * 1e-9)  # a bad orbit/mounting: refused here
-        self.renderer = StarFieldRenderer(self.camera, sensor, catalog, sky.magnitude_limit, self.false_objects,
-                                          sky.fixed_pattern_seed, sky.observer_velocity_m_s,
-                                          environment_model=self.world.environment_model)
+        now_s = self.clock_s()
+        self.world.configure(now_s)  # a bad orbit/mounting: refused here
+        # The catalog's epoch: sky.epoch_jyear, else the clock's date now, made the first exposure's
+        # by start() (a sim clock may not have ticked yet, or may run at another date).
+        self.renderer = self._renderer(sky.epoch_jyear or julian_year_from_unix(now_s or time.time()))
         self._create_interfaces()
         self.get_logger().info(
             f"{self.camera.width}x{self.camera.height} px, FOV {self.fov_x_deg:.2f} deg, {self.rate_hz:g} Hz, "
             f"exposure {sensor.exposure_s * 1e3:g} ms, "
             f"frames delivered {self.delivery_offset_ns * 1e-6:g} ms after the exposure's nominal end "
             f"({'rendered ahead' if self.render_ahead else 'rendered at delivery'}), "
-            f"{len(self.renderer.catalog)} stars to Hp {sky.magnitude_limit}, attitude profile {self.profile}"
+            f"{len(self.renderer.catalog)} stars to Hp {sky.magnitude_limit} at epoch "
+            f"{self.renderer.catalog.epoch_jyear:.4f}, attitude profile {self.profile}"
             f"{self.world.describe()}")
+
+    def clock_s(self) -> float | None:
+        """Return the node's clock [s] (UNIX time), None while a sim clock (use_sim_time) has not ticked yet."""
+        now_ns = self.get_clock().now().nanoseconds
+        return now_ns * 1e-9 if now_ns > 0 else None
+
+    def _renderer(self, epoch_jyear: float) -> StarFieldRenderer:
+        """Return the renderer with the catalog propagated to epoch_jyear [Julian year]."""
+        sky = self.sky
+        return StarFieldRenderer(self.camera, self.sensor, load_hipparcos().at_epoch(epoch_jyear), sky.magnitude_limit,
+                                 self.false_objects, sky.fixed_pattern_seed, sky.observer_velocity_m_s,
+                                 environment_model=self.world.environment_model)
 
     def activate(self) -> None:
         """
@@ -249,6 +265,10 @@ class CameraSimulatorNode(ManagedNode):
         now_ns = self.get_clock().now().nanoseconds
         delay_ticks = int(np.ceil((self.start_delay_s * 1e9 + self.delivery_offset_ns) / self.period_ns))
         self.t0_ns = now_ns + delay_ticks * self.period_ns - self.delivery_offset_ns
+        epoch = julian_year_from_unix(self.t0_ns * 1e-9)
+        if not self.sky.epoch_jyear and abs(epoch - self.renderer.catalog.epoch_jyear) > CATALOG_EPOCH_TOLERANCE_JYEAR:
+            self.renderer = self._renderer(epoch)  # the stars' proper motions to the first exposure's date
+            self.get_logger().info(f"catalog propagated to the first exposure's epoch {epoch:.4f}")
         if self.profile != "external":
             self.motion = self.world.body_motion(self.profile, self.initial_rotation, self.t0_ns * 1e-9,
                                                  self.motion_kwargs)

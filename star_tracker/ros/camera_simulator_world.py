@@ -10,6 +10,8 @@ frame has an environment: today's frames, unchanged.
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from nav_msgs.msg import Odometry
 
@@ -33,8 +35,13 @@ class CameraWorld:
         self.environment_model = EnvironmentModel()
         self.orbit = self.ephemeris = self.mounting = self.misalignment = self.spacecraft = self.states = None
 
-    def configure(self, now_s: float) -> None:
-        """Check everything the first exposure will need (ValueError naming the parameter) and load the ephemeris."""
+    def configure(self, now_s: float | None) -> None:
+        """
+        Check everything the first exposure will need (ValueError naming the parameter) and load the ephemeris.
+
+        now_s: the node's clock [s, UNIX]; None while a sim clock has not ticked (the orbit and the
+        ephemeris are then checked against the time only at the first exposure).
+        """
         if self.profile in ORBIT_PROFILES and self.setup.model not in ("kepler", "tle"):
             raise ValueError(f"attitude.profile={self.profile!r} needs an orbit: orbit.model kepler or tle "
                              f"(is {self.setup.model!r})")
@@ -42,13 +49,14 @@ class CameraWorld:
         if not self.orbiting:
             return
         self.environment_model = environment_model_from(self.setup)
-        self.orbit = orbit_from(self.setup, now_s)
-        if self.orbit is not None:
-            self.orbit.state(now_s)  # a TLE SGP4 cannot propagate to now fails here, not at the first frame
+        self.orbit = orbit_from(self.setup, now_s if now_s is not None else time.time())  # the elements checked
         from ..models.ephemeris import load_ephemeris
 
         self.ephemeris = load_ephemeris()
-        self.ephemeris.sun_position(now_s)  # a clock outside the ephemeris' span fails here, naming the span
+        if now_s is not None:
+            if self.orbit is not None:
+                self.orbit.state(now_s)  # a TLE SGP4 cannot propagate to now fails here, not at the first frame
+            self.ephemeris.sun_position(now_s)  # a clock outside the ephemeris' span fails here, naming the span
         if self.external_orbit:
             self.states = ObserverTrack(EXTERNAL_STATE_MAX_AGE_S)
 

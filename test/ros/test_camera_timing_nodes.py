@@ -29,7 +29,7 @@ from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
 from star_tracker.models.attitude import quaternion_to_matrix  # noqa: E402
 from star_tracker.models.camera import CameraModel  # noqa: E402
-from star_tracker.models.catalog import load_hipparcos  # noqa: E402
+from star_tracker.models.catalog import julian_year_from_unix, load_hipparcos  # noqa: E402
 from star_tracker.sim.motion import motion_from_parameters  # noqa: E402
 from star_tracker.sim.render import FalseObjectModel, StarFieldRenderer, frame_seed  # noqa: E402
 from star_tracker.sim.sensor import SensorModel  # noqa: E402
@@ -221,3 +221,48 @@ def test_a_stalled_camera_skips_only_the_backlog_beyond_its_limit(driver, tmp_pa
     assert np.all(np.diff(stamps) % period_ns == 0) and np.all(gaps >= 1), "stamps on the frame grid, increasing"
     assert int(np.sum(gaps - 1)) == skipped, gaps  # the skipped frames are missing from the grid, nothing else
     assert_frames_are_the_rendered_ones(images, truth, period_ns)
+
+
+@pytest.mark.integration
+def test_on_sim_time_the_stars_are_at_the_sim_clocks_date(driver, tmp_path):
+    """
+    sky.epoch_jyear 0 (the clock's date) on a sim clock that starts after the node configured, in 2037.
+
+    Each image equals a render of the catalog propagated to its stamp's date, not to the wall
+    clock's or to 1970's (the node's clock before the first /clock).
+    """
+    env, node = driver
+    start_ns = 2_127_600_000 * 1_000_000_000  # 2037-06-01 00:00 UTC (ROS time's int32 seconds end in 2038)
+    clock = {"ns": start_ns}
+    images, truth = subscribe(node, lambda: clock["ns"])
+    pub_clock = node.create_publisher(Clock, "/clock", 10)
+    frames = 4
+    params = {**PARAMS, "sky.epoch_jyear": 0.0, "max_frames": frames, "use_sim_time": True}
+    cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": params}, nodes=("camera_simulator",)).start()
+    try:
+        cam.wait_ready()  # configured before any /clock: the node's clock still reads 0
+        end = time.monotonic() + 40.0
+        while time.monotonic() < end and (len(truth) < frames or len(images) < frames - 1):
+            clock["ns"] += 5_000_000
+            pub_clock.publish(Clock(clock=convert.ns_to_stamp(clock["ns"])))
+            rclpy.spin_once(node, timeout_sec=0.005)
+    finally:
+        codes = cam.stop()
+    log = (tmp_path / "logs" / "camera_simulator.log").read_text()
+    assert codes == {"camera_simulator": 0}, log
+    assert images, log
+    motion = motion_from_parameters("fixed", quaternion_to_matrix(np.asarray(QUATERNION)))
+    frame0 = convert.stamp_to_ns(truth[0].header.stamp)
+    catalog = load_hipparcos()
+    for stamp, _, image in images:
+        k = (stamp - frame0) // 100_000_000
+        renders = {}
+        for epoch in (julian_year_from_unix(stamp * 1e-9), 2026.0):
+            renderer = StarFieldRenderer(CameraModel.from_fov(SIZE, SIZE, np.radians(15.0)),
+                                         SensorModel(exposure_s=EXPOSURE_S, rolling_shutter_row_time_s=ROW_TIME_S,
+                                                     frame_transfer_time_s=TRANSFER_S, **SENSOR),
+                                         catalog.at_epoch(epoch), 7.5, FalseObjectModel())
+            renders[epoch] = renderer.render(motion, stamp * 1e-9, frame_seed(7, k)).image
+        at_stamp, today = renders.values()
+        assert np.array_equal(at_stamp, image), k
+        assert not np.array_equal(today, image), k  # the test can tell the epochs apart
