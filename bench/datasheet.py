@@ -280,6 +280,49 @@ def realdata_rows(data: dict | None) -> list[Row]:
                 src)]
 
 
+def orbit_rows(data: dict | None, environment: dict | None) -> list[Row]:
+    """The tracker in orbit (bench_orbit: two heads over a LEO orbit) and the environment's render cost."""
+    rows = []
+    if data is None:
+        rows.append(_missing("In orbit, two heads", "bench_orbit"))
+    else:
+        src = source(data, "In orbit: two heads over a LEO orbit")
+        fusion, heads, aberration, arcs = data["fusion"], data["heads"], data["aberration"], data["arcs"]
+        scenario = ("550 km sun-synchronous orbit, nadir-pointing body, two heads 45° from the zenith and 90° apart, "
+                    f"a frame every 3 s over one orbit ({fusion['frames']} per head), the Sun within 23° of one head")
+        wrong = sum(heads[h]["wrong"] for h in heads) + fusion["wrong"]
+        rows.append(Row("Fused attitude available (two heads)",
+                        f"{fusion['available_pct']:.1f} % of frames, {wrong} wrong (> 60″)", scenario, src))
+        rms = ", ".join(f"{v:.2f}" for v in fusion["rms_two_heads_arcsec"])
+        singles = "; ".join(f"head {h}: {heads[h]['cross_rms_arcsec']:.2f}″ per cross axis, "
+                            f"{heads[h]['roll_rms_arcsec']:.2f}″ roll" for h in sorted(heads))
+        rows.append(Row("Fused error per body axis (RMS, x, y, z)", f"{rms}″",
+                        f"frames with both heads; single heads: {singles}; alignment of the second head estimated "
+                        "online (RMS " + ", ".join(f"{v:.2f}" for v in fusion["alignment_rms_arcsec"])
+                        + "″ over the last half orbit)", src))
+        rows.append(Row("Aberration corrected (LEO + the Earth's velocity)",
+                        f"{aberration['moving_corrected']['cross_mean_arcsec']:.2f}″ mean cross-boresight error "
+                        f"(uncorrected {aberration['moving_raw']['cross_mean_arcsec']:.1f}″, at rest "
+                        f"{aberration['rest_raw']['cross_mean_arcsec']:.2f}″)",
+                        f"{aberration['solved_all']} frames solved lost-in-space, the observer's velocity given",
+                        src))
+        rows.append(Row("The Moon or a bright planet in the field",
+                        f"{arcs['solved']} of {arcs['in_field']} frames solved, {arcs['wrong']} wrong",
+                        "inertial pointings at the Moon (40-97 % lit), Venus, Mars, Jupiter and Saturn", src))
+    if environment is None:
+        rows.append(_missing("Environment render cost", "bench_environment"))
+    else:
+        src = source(environment, "Environment render cost")
+        by_case = {row["case"]: row for row in environment["rows"]}
+        far, moon = by_case.get("bodies far"), by_case.get("Moon in the field")
+        if far is not None:
+            rows.append(Row("Render time added by the Sun, Earth and Moon model", f"+{far['added_pct']:.0f} %"
+                            + (f" (+{moon['added_pct']:.0f} % with the Moon in the field)" if moon else ""),
+                            "bodies far from the field, against no environment; median of "
+                            f"{far['frames']} frames", src))
+    return rows
+
+
 def render(config: dict, results: Path) -> str:
     """Return the datasheet's Markdown."""
     lines = [
@@ -311,7 +354,8 @@ def render(config: dict, results: Path) -> str:
             *tracking_rows(load(results, "tracking")),
             *centroid_rows(load(results, "centroid"), load(results, "psf_range")),
             *node_rows(load(results, "pipeline"), load(results, "soak"), load(results, "cold_start")),
-            *realdata_rows(load(results, "realdata"))]
+            *realdata_rows(load(results, "realdata")),
+            *orbit_rows(load(results, "orbit"), load(results, "environment"))]
     for row in rows:
         cite = row.source.cite() if row.source is not None else f"run `{row.conditions}` (`make bench`)"
         conditions = "" if row.source is None else row.conditions
@@ -319,7 +363,8 @@ def render(config: dict, results: Path) -> str:
     lines += ["", "Known limits: [USER_GUIDE.md § 6](USER_GUIDE.md#6-known-limits); the goals not met: identification "
               "([BENCHMARKS.md](BENCHMARKS.md#goals-default-algorithm-hybrid)), real images "
               "([within 1′](BENCHMARKS.md#images-ours-does-not-solve-within-1), "
-              "[time against cedar-solve](BENCHMARKS.md#time-against-cedar-solve))."]
+              "[time against cedar-solve](BENCHMARKS.md#time-against-cedar-solve)), in orbit "
+              "([fused against a single head](BENCHMARKS.md#in-orbit-two-heads-over-a-leo-orbit))."]
     return "\n".join(lines) + "\n"
 
 

@@ -90,7 +90,7 @@ class CameraSimulatorNode(ManagedNode):
 
         self.fov_x_deg = fov_x_deg
         self.renderer = None  # made by configure, released by cleanup
-        self.timer = self.waiting_timer = None
+        self.timer = self.waiting_timer = self._sync_timer = None
         self.diag = self.start_diagnostics()
         self.log = ThrottledLog(self)
         # Only the sensor settings are dynamic (apply_parameters); a change to a read-only one is refused.
@@ -141,7 +141,7 @@ class CameraSimulatorNode(ManagedNode):
 
     def deactivate(self) -> None:
         """Stop the frame timers; nothing is rendered or published until activate."""
-        for name in ("timer", "waiting_timer"):
+        for name in ("timer", "waiting_timer", "_sync_timer"):
             if getattr(self, name) is not None:
                 self.destroy_timer(getattr(self, name))
                 setattr(self, name, None)
@@ -191,6 +191,7 @@ class CameraSimulatorNode(ManagedNode):
         self.rate_hz, self.max_frames, self.frame_id = values["rate_hz"], values["max_frames"], values["frame_id"]
         self.start_delay_s, self.max_backlog_frames = values["start_delay_s"], values["max_backlog_frames"]
         self.wait_for_subscribers, self.seed = values["wait_for_subscribers"], values["seed"]
+        self.sync_exposures = values["sync_exposures"]
 
     def apply_parameters(self, changes: dict) -> str | None:
         """
@@ -260,11 +261,16 @@ class CameraSimulatorNode(ManagedNode):
         Fix the time origin and start the frame timer.
 
         Its ticks fall at now + n*period and are never early; frame k is delivered on a tick, t0
-        + (k+1) period + delivery_offset_ns, and t0 is at least start_delay_s after now.
+        + (k+1) period + delivery_offset_ns, and t0 is at least start_delay_s after now. With
+        sync_exposures every stamp (mid-exposure) is a multiple of the period: the ticks start that much later.
         """
         now_ns = self.get_clock().now().nanoseconds
         delay_ticks = int(np.ceil((self.start_delay_s * 1e9 + self.delivery_offset_ns) / self.period_ns))
         self.t0_ns = now_ns + delay_ticks * self.period_ns - self.delivery_offset_ns
+        # Synchronised: the stamps (mid-exposure, t0 + (k+1) period - exposure/2) on the period grid.
+        half_exposure_ns = int(round(self.sensor.exposure_s * 0.5e9))
+        shift_ns = (half_exposure_ns - self.t0_ns) % self.period_ns if self.sync_exposures else 0
+        self.t0_ns += shift_ns
         epoch = julian_year_from_unix(self.t0_ns * 1e-9)
         if not self.sky.epoch_jyear and abs(epoch - self.renderer.catalog.epoch_jyear) > CATALOG_EPOCH_TOLERANCE_JYEAR:
             self.renderer = self._renderer(epoch)  # the stars' proper motions to the first exposure's date
@@ -272,7 +278,16 @@ class CameraSimulatorNode(ManagedNode):
         if self.profile != "external":
             self.motion = self.world.body_motion(self.profile, self.initial_rotation, self.t0_ns * 1e-9,
                                                  self.motion_kwargs)
-        self._start_timer(now_ns)
+        if shift_ns:
+            self._sync_timer = self.create_timer(shift_ns * 1e-9, self._start_synced)
+        else:
+            self._start_timer(now_ns)
+
+    def _start_synced(self) -> None:
+        """The first tick on the synchronised grid (sync_exposures): start the periodic timer from here."""
+        self.destroy_timer(self._sync_timer)
+        self._sync_timer = None
+        self._start_timer(self.get_clock().now().nanoseconds)
 
     def resume(self) -> None:
         """

@@ -55,6 +55,9 @@ OUTPUT_PARAMETERS = [
     ParameterSpec("rate_hz", 10.0, "frame rate", "Hz", 0.01, 1000.0),
     ParameterSpec("max_frames", 0, "stop publishing after this many frames; 0 = never", "", 0, 10**9),
     ParameterSpec("start_delay_s", 0.0, "wait before the first exposure", "s", 0.0, 3600.0),
+    ParameterSpec("sync_exposures", False, "put every frame's stamp (mid-exposure) on a multiple of the frame "
+                  "period of the node's clock (UNIX time): cameras with the same rate_hz and exposure expose together, "
+                  "as heads on one sync pulse"),
     ParameterSpec("wait_for_subscribers", False, "begin exposures only once image_raw, camera_info and "
                   "truth/attitude each have a subscriber (then start_delay_s more): no frame lost to DDS discovery"),
     ParameterSpec("max_backlog_frames", 5, "frames delivered late before older ones are skipped (counted)", "", 0,

@@ -48,10 +48,11 @@ def head_names(count: int) -> list[str]:
 
 
 def camera_parameters(head: str, index: int, rate_hz: float, epoch_utc: str) -> dict:
-    """Return one head's camera_simulator parameters: the orbit (epoch_utc: ISO 8601), the body, its mounting, noise."""
+    """Return one head's camera_simulator parameters: the orbit (epoch_utc: ISO 8601), the body, its mounting, noise, sync."""
     return {"orbit.model": "kepler", "orbit.epoch_utc": epoch_utc, "attitude.profile": "nadir",
             "head.mounting_quaternion": list(LEO_MOUNTINGS[head]), "rate_hz": float(rate_hz),
-            "frame_id": f"{head}_optical", "seed": index, "fixed_pattern_seed": index}
+            "frame_id": f"{head}_optical", "seed": index, "fixed_pattern_seed": index,
+            "sync_exposures": True}  # every head exposes at the same stamps, as on one sync pulse
 
 
 def epoch_utc(unix_s: float) -> str:

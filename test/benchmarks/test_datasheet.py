@@ -35,6 +35,10 @@ def test_figures_are_the_results_figures():
     realdata = json.loads((DOCS / "bench_realdata.json").read_text())["summary"]["ours"]
     row = next(line for line in text.splitlines() if line.startswith("| Real sky images"))
     assert f"{realdata['solved']} of {realdata['images']} solved" in row
+    orbit = json.loads((DOCS / "bench_orbit.json").read_text())
+    row = next(line for line in text.splitlines() if line.startswith("| Fused error per body axis"))
+    assert ", ".join(f"{v:.2f}" for v in orbit["fusion"]["rms_two_heads_arcsec"]) + "″" in row
+    assert orbit["meta"]["date"] in row
     assert datasheet.NOT_MEASURED not in text  # every benchmark has committed results
     # The default camera's pixel scale from the parameter file: 15 deg over 1024 px.
     focal = 512.0 / math.tan(math.radians(7.5))
@@ -47,5 +51,5 @@ def test_a_benchmark_not_run_is_named_not_invented(tmp_path):
     assert "| Attitude error at rest" in text
     lost = next(line for line in text.splitlines() if line.startswith("| Lost-in-space identification"))
     assert datasheet.NOT_MEASURED in lost and "bench_identify" in lost
-    assert text.count(datasheet.NOT_MEASURED) == 8  # identify, tracking, centroid, psf range, pipeline, soak,
-    # cold start, real images
+    assert text.count(datasheet.NOT_MEASURED) == 10  # identify, tracking, centroid, psf range, pipeline, soak,
+    # cold start, real images, orbit, environment

@@ -266,3 +266,32 @@ def test_on_sim_time_the_stars_are_at_the_sim_clocks_date(driver, tmp_path):
         at_stamp, today = renders.values()
         assert np.array_equal(at_stamp, image), k
         assert not np.array_equal(today, image), k  # the test can tell the epochs apart
+
+
+@pytest.mark.integration
+def test_synchronised_exposures_are_stamped_on_the_clocks_period_grid(driver, tmp_path):
+    """sync_exposures: every stamp (mid-exposure) is a multiple of the period (wall clock), never published early."""
+    env, node = driver
+    images, truth = subscribe(node, time.time_ns)
+    frames = 8
+    params = {**PARAMS, "max_frames": frames, "sync_exposures": True, "start_delay_s": 0.0123}
+    cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": params}, nodes=("camera_simulator",)).start()
+    try:
+        cam.wait_ready()
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and len(truth) < frames:
+            rclpy.spin_once(node, timeout_sec=0.02)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.02)
+    finally:
+        codes = cam.stop()
+    log = (tmp_path / "logs" / "camera_simulator.log").read_text()
+    assert codes == {"camera_simulator": 0}, log
+    assert len(truth) == frames and len(images) >= frames - 2, log
+    period_ns = 100_000_000
+    stamps = [convert.stamp_to_ns(m.header.stamp) for m in truth]
+    assert all(stamp % period_ns == 0 for stamp in stamps), stamps
+    early = [(stamp, received) for stamp, received, _ in images if received < stamp + DELIVERY_AFTER_STAMP_NS]
+    assert not early, f"published before exposure + transfer + readout ended: {early}"
+    assert_frames_are_the_rendered_ones(images, truth, period_ns)
