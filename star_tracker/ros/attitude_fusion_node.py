@@ -13,12 +13,15 @@ own solution, paired with its matched stars by exact stamp: the alignment filter
 the stars' apparent places (aberrated by the spacecraft's velocity), as the identifiers correct
 theirs.
 
-When a head's solution is accepted it fuses, at that solution's stamp (the head's mid-exposure
-stamp), every head whose latest solution lies within `fusion.stale_after_s`, each brought to
-the stamp with the body rate (FusionState.fused_at), and publishes `attitude`,
-`attitude_with_covariance` and `fusion_status` with that stamp, and `alignment/<head>` after
-each alignment update. A solution stamped at or before the last fused stamp joins the next
-fusion instead (counted: fusions_skipped_older), so the outputs' stamps increase.
+When a head's solution is accepted the node fuses at that solution's stamp (the head's
+mid-exposure stamp) once the heads of the last fusion have reported that stamp too, or a newer
+one, or `fusion.max_wait_s` has passed (fuse/schedule.py: synchronised heads are fused at their
+own exposures, not a frame period apart). It fuses every head whose latest solution lies
+within `fusion.stale_after_s`, each brought to the stamp with the body rate
+(FusionState.fused_at), and publishes `attitude`, `attitude_with_covariance` and
+`fusion_status` with that stamp, and `alignment/<head>` after each alignment update. A
+solution stamped at or before the last fused stamp joins the next fusion instead (counted:
+fusions_skipped_older), so the outputs' stamps increase.
 
 A head's solution that cannot be used is counted per head on /diagnostics, logged (throttled),
 reported in the next fusion_status and left out, and the fusion goes on with the other heads:
@@ -42,6 +45,7 @@ from std_msgs.msg import Header
 
 from ..fuse import AlignmentFilter, BodyRate, FusedAttitude, FusionState, FusionUnavailable, HeadObservation
 from ..fuse.checks import covariance_problem, rate_problem
+from ..fuse.schedule import FusionSchedule
 from ..models.aberration import aberrate
 from ..models.attitude import ARCSEC, matrix_to_quaternion, normalize_quaternion, quaternion_to_matrix, \
     rotation_vector_to_matrix
@@ -240,7 +244,8 @@ class AttitudeFusionNode(ManagedNode):
         self.state: FusionState | None = None
         self.heads: dict[str, HeadInput] = {}
         self.rate: tuple[int, BodyRate, str] | None = None  # (stamp [ns], body rate, where from)
-        self.last_fused_ns: int | None = None
+        self.schedule = FusionSchedule()
+        self.wait_timer = None  # runs while a fusion waits for the other heads' solutions of its stamp
         self.subscriptions_made: list = []
         self.publishers_made: dict[str, object] = {}
         self.diag = self.start_diagnostics()
@@ -256,7 +261,8 @@ class AttitudeFusionNode(ManagedNode):
         self.state = FusionState(settings.fusion,
                                  AlignmentFilter(settings.alignment) if settings.alignment is not None else None)
         self.heads = {name: HeadInput(name, settings.mountings[name]) for name in settings.heads}
-        self.rate, self.last_fused_ns = None, None
+        self.rate = None
+        self.schedule.reset()
         self.observer.configure()
         publisher = self.create_lifecycle_publisher
         self.publishers_made = {
@@ -299,6 +305,8 @@ class AttitudeFusionNode(ManagedNode):
 
     def release(self) -> None:
         """Undo configure: remove the topics (outputs flushed first), drop the fusion and the heads."""
+        self.cancel_wait()
+        self.schedule.reset()
         for subscription in self.subscriptions_made:
             self.destroy_subscription(subscription)
         self.subscriptions_made = []
@@ -394,6 +402,8 @@ class AttitudeFusionNode(ManagedNode):
             self.diag.count("stars_left_out_outlier", solution.outliers)
         if attitude is None:
             self.diag.count(f"{head.name}.without_head_attitude")
+        if self.schedule.pending_ns is not None and stamp_ns > self.schedule.pending_ns:
+            self.fuse_now(self.schedule.expire())  # a newer solution: the waiting one is as complete as it gets
         excluded_before = self.state.counters.excluded_stars
         admission = self.state.add(solution.observation)
         if self.state.counters.excluded_stars > excluded_before:
@@ -403,17 +413,44 @@ class AttitudeFusionNode(ManagedNode):
             return
         head.refusal_kind = head.refusal = ""
         self.diag.count(f"{head.name}.solutions_accepted")
-        if self.last_fused_ns is not None and stamp_ns <= self.last_fused_ns:
+        if self.schedule.is_old(stamp_ns):
             self.diag.count("fusions_skipped_older")  # it joins the next fusion
             return
+        latest = {name: obs.stamp_ns for name in self.heads if (obs := self.state.latest(name)) is not None}
+        awaited = [h.name for h in self.heads.values() if h.contributing] if self.settings.max_wait_s > 0 else []
+        for stamp in self.schedule.add(stamp_ns, latest, awaited):
+            self.fuse_now(stamp)
+        self.arm_wait()
+        self.diag.time("fusion", time.perf_counter() - started)
+
+    def fuse_now(self, stamp_ns: int) -> None:
+        """Fuse at stamp_ns; a failure is a defect, reported, and the next solution is fused."""
         try:
             self.fuse(stamp_ns)
-        except Exception as exc:  # a defect, not bad input: reported, and the next solution is fused
+        except Exception as exc:  # a defect, not bad input
             self.diag.count("fusions_failed")
             self.diag.set(DiagnosticStatus.ERROR, f"internal error: {type(exc).__name__}: {exc}")
             self.log.error("internal", f"fusion at {stamp_ns * 1e-9:.6f} s failed: {type(exc).__name__}: {exc}")
-            return
-        self.diag.time("fusion", time.perf_counter() - started)
+
+    def arm_wait(self) -> None:
+        """Run the wait timer while a fusion is pending (fusion.max_wait_s), stop it otherwise."""
+        if self.schedule.pending_ns is None:
+            self.cancel_wait()
+        elif self.wait_timer is None:
+            self.wait_timer = self.create_timer(self.settings.max_wait_s, self.on_wait_over)
+
+    def cancel_wait(self) -> None:
+        if self.wait_timer is not None:
+            self.destroy_timer(self.wait_timer)
+            self.wait_timer = None
+
+    def on_wait_over(self) -> None:
+        """fusion.max_wait_s passed without every awaited head's solution: fuse with what came (counted)."""
+        self.cancel_wait()
+        stamp = self.schedule.expire()
+        if stamp is not None and self.active:
+            self.diag.count("fusions_after_wait")
+            self.fuse_now(stamp)
 
     def refuse(self, head: HeadInput, kind: str, detail: str) -> None:
         """Count, log and remember why a head's solution did not reach the fusion (reported in fusion_status)."""
@@ -447,7 +484,6 @@ class AttitudeFusionNode(ManagedNode):
             self.publish_status(stamp_ns, None, exc.dropped, rate_origin)
             self.mirror_core_counters()
             return
-        self.last_fused_ns = stamp_ns
         frame_id = self.settings.frame_id
         self.publishers_made["attitude"].publish(convert.quaternion_msg(fused.quaternion, stamp_ns, frame_id))
         self.publishers_made["attitude_with_covariance"].publish(

@@ -59,6 +59,9 @@ FUSION_PARAMETERS = [
                   field="max_angular_acceleration"),
     ParameterSpec("fusion.iterations", 2, "Gauss-Newton steps of the joint fit after its Wahba start", "", 0, 20,
                   field="iterations"),
+    ParameterSpec("fusion.max_wait_s", 0.1, "after a head's solution, wait at most this long (node clock) for the "
+                  "solutions of the same stamp from the heads of the last fusion before fusing; 0 = fuse at once",
+                  "s", 0.0, 3600.0),
     ParameterSpec("fusion.max_residual_sigma", 5.0, "a matched star whose residual exceeds this many of its sigma is "
                   "left out (the identifier's fit left it out as an outlier)", "-", 1.0, 1000.0),
 ]
@@ -104,7 +107,7 @@ class FusionSettings:
     heads: the heads' names (configured order); mountings: head -> (3, 3) rotation body ->
     head (M, v_head = M v_body); fusion: the FusionConfig; alignment: its AlignmentConfig (the
     reference first) or None; frame_id, body_frame_id; rate_source: one of RATE_SOURCES;
-    rate_max_age_s [s]; unknown_rate_sigma [rad/s]; max_residual_sigma [-].
+    rate_max_age_s [s]; unknown_rate_sigma [rad/s]; max_residual_sigma [-]; max_wait_s [s].
     """
 
     heads: tuple[str, ...]
@@ -117,6 +120,7 @@ class FusionSettings:
     rate_max_age_s: float
     unknown_rate_sigma: float
     max_residual_sigma: float
+    max_wait_s: float
 
 
 def mounting_matrix(head: str, quaternion) -> np.ndarray:
@@ -167,4 +171,5 @@ def fusion_settings(values: dict) -> FusionSettings:
             raise ValueError(f"{name} is empty")
     return FusionSettings(heads, mountings, fusion, alignment, values["frame_id"], values["body_frame_id"],
                           values["body_rate.source"], values["body_rate.max_age_s"],
-                          values["body_rate.unknown_sigma_rad_s"], values["fusion.max_residual_sigma"])
+                          values["body_rate.unknown_sigma_rad_s"], values["fusion.max_residual_sigma"],
+                          values["fusion.max_wait_s"])

@@ -48,7 +48,7 @@ def head_names(count: int) -> list[str]:
 
 
 def camera_parameters(head: str, index: int, rate_hz: float, epoch_utc: str) -> dict:
-    """Return one head's camera_simulator parameters: the orbit (epoch_utc: ISO 8601), the body, its mounting, noise, sync."""
+    """Return one head's camera_simulator parameters: the orbit (epoch_utc: ISO 8601), body, mounting, noise, sync."""
     return {"orbit.model": "kepler", "orbit.epoch_utc": epoch_utc, "attitude.profile": "nadir",
             "head.mounting_quaternion": list(LEO_MOUNTINGS[head]), "rate_hz": float(rate_hz),
             "frame_id": f"{head}_optical", "seed": index, "fixed_pattern_seed": index,
@@ -66,7 +66,8 @@ def fusion_parameters(heads: list[str]) -> dict:
     """Return the attitude_fusion parameters: the heads, their mountings, the body rate from the heads, the orbit."""
     return {"heads": list(heads), **{f"mounting.{h}": list(LEO_MOUNTINGS[h]) for h in heads},
             "body_rate.source": "heads", "body_rate.max_age_s": 10.0, "fusion.stale_after_s": 10.0,
-            "observer.source": "odometry"}
+            "observer.source": "odometry",
+            "fusion.max_wait_s": 2.0}  # on a 30x sim clock a head's solution comes ~1-3 s of its time after the other's
 
 
 def boresight_from_zenith_deg(head: str) -> float:
