@@ -178,10 +178,18 @@ def summarize(frames: dict, fused: dict, heads: list[str], interval_s: float) ->
     fused_rows = [fused[k] for k in sorted(fused) if fused[k].get("truth") is not None]
     covered = {int(r["stamp_ns"] * 1e-9 // interval_s) for r in fused_rows}
     axes = np.array([r["axis_error"] for r in fused_rows]) if fused_rows else np.zeros((0, 3))
+    # Per fusion: how many heads had an attitude of that stamp (the fused error differs: one head's
+    # roll axis lies 45 deg from body y and z).
+    solved_heads = np.array([sum(frames[h].get(r["stamp_ns"], {}).get("attitude") is not None for h in heads)
+                             for r in fused_rows], dtype=int)
+    by_heads = {str(n): {"fusions": int(np.count_nonzero(solved_heads == n)),
+                         "error_arcsec_rms_xyz": [_rms(axes[solved_heads == n, k]) for k in range(3)]}
+                for n in sorted(set(solved_heads.tolist()))}
     summary["fused"] = {"frames": len(slots), "available": len(slots & covered), "fusions": len(fused_rows),
                         "wrong": int(sum(np.linalg.norm(a) > WRONG_RAD for a in axes)),
                         "error_arcsec_rms_xyz": [_rms(axes[:, k]) for k in range(3)] if len(axes) else None,
                         "error_arcsec_mean_xyz": _mean_arcsec(axes),
+                        "by_heads_with_attitude": by_heads,
                         "unavailable_intervals": _gaps(sorted(slots), covered, interval_s)}
     return summary
 
@@ -255,4 +263,8 @@ def print_summary(summary: dict) -> None:
         elif s["error_arcsec_rms_xyz"]:
             line += f"; error RMS per body axis {', '.join(f'{v:.2f}' for v in s['error_arcsec_rms_xyz'])}\""
         print(line)
+        if name == "fused":
+            for count, part in s["by_heads_with_attitude"].items():
+                print(f"        {part['fusions']} fusions with {count} head(s) solved: error RMS per body axis "
+                      + ", ".join(f"{v:.2f}" for v in part["error_arcsec_rms_xyz"]) + '"')
     print(f"node exit codes: {summary['node_exit_codes']}")

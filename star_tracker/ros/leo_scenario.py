@@ -65,7 +65,8 @@ def epoch_utc(unix_s: float) -> str:
 def fusion_parameters(heads: list[str]) -> dict:
     """Return the attitude_fusion parameters: the heads, their mountings, the body rate from the heads, the orbit."""
     return {"heads": list(heads), **{f"mounting.{h}": list(LEO_MOUNTINGS[h]) for h in heads},
-            "body_rate.source": "heads", "body_rate.max_age_s": 10.0, "fusion.stale_after_s": 10.0,
+            "body_rate.source": "heads", "body_rate.max_age_s": 10.0,
+            "fusion.stale_after_s": 1.0,  # synchronised heads: a head that missed the stamp is left out, not propagated
             "observer.source": "odometry",
             "fusion.max_wait_s": 2.0}  # on a 30x sim clock a head's solution comes ~1-3 s of its time after the other's
 

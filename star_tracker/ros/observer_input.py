@@ -77,7 +77,9 @@ class ObserverInput:
             return None
         state = self.track.at(stamp_ns)
         if state is None:
-            self.diag.count("frames_without_observer")
+            self.reject("frames_without_observer", f"no odometry within observer.max_age_s="
+                        f"{self.values['observer.max_age_s']:g} s of {stamp_ns * 1e-9:.3f} s: the aberration is not "
+                        "corrected (up to ~25\" off) and no cause is predicted")
         return state
 
     def velocity(self, state: ObserverSample | None) -> np.ndarray | None:

@@ -11,6 +11,7 @@ OBSERVER_PARAMETERS = [
                   "odometry topic (GCRS) with the shipped ephemeris", choices=OBSERVER_SOURCES),
     ParameterSpec("observer.velocity_m_s", (0.0, 0.0, 0.0), "the observer's barycentric velocity on ICRS axes "
                   "(observer.source fixed)", "m/s"),
-    ParameterSpec("observer.max_age_s", 5.0, "odometry older than this at a frame's stamp is not used", "s",
+    ParameterSpec("observer.max_age_s", 60.0, "odometry older than this at a frame's stamp is not used (younger "
+                  "is extrapolated along the orbit)", "s",
                   0.001, 1e6),
 ]

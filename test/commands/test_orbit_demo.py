@@ -70,6 +70,9 @@ def test_summary_counts_errors_bias_and_the_fused_gaps(tmp_path):
     fused_summary = summary["fused"]
     assert (fused_summary["frames"], fused_summary["available"], fused_summary["wrong"]) == (7, 5, 0)
     assert fused_summary["error_arcsec_rms_xyz"] == pytest.approx([1.0, 2.0, 5.0], rel=1e-6)
+    assert list(fused_summary["by_heads_with_attitude"]) == ["2"]  # both heads solved every fused stamp
+    assert fused_summary["by_heads_with_attitude"]["2"]["fusions"] == 5
+    assert fused_summary["by_heads_with_attitude"]["2"]["error_arcsec_rms_xyz"] == pytest.approx([1, 2, 5], rel=1e-6)
     gaps = fused_summary["unavailable_intervals"]
     assert [g["frames"] for g in gaps] == [2]
     assert gaps[0]["start_s"] == pytest.approx(stamp(3) * 1e-9, abs=INTERVAL_S)
