@@ -281,7 +281,7 @@ def realdata_rows(data: dict | None) -> list[Row]:
 
 
 def orbit_rows(data: dict | None, environment: dict | None) -> list[Row]:
-    """The tracker in orbit (bench_orbit: two heads over a LEO orbit) and the environment's render cost."""
+    """Build the rows of the tracker in orbit (bench_orbit: two heads in LEO) and the environment's render cost."""
     rows = []
     if data is None:
         rows.append(_missing("In orbit, two heads", "bench_orbit"))

@@ -97,7 +97,8 @@ def make_nodes(context, *args, **kwargs):
                       "attitude.quaternion": [float(v) for v in matrix_to_quaternion(body)],
                       "head.mounting_quaternion": mountings[head], "frame_id": f"{head}_optical",
                       "seed": index, "fixed_pattern_seed": index}
-        own = {"camera_simulator": camera, "identifier": leo_scenario.IDENTIFIER if leo else {}}
+        own = {"camera_simulator": camera, "centroider": leo_scenario.CENTROIDER if leo else {},
+               "identifier": leo_scenario.IDENTIFIER if leo else {}}
         for name in HEAD_NODES:
             remaps = list(leo_scenario.REMAPS.get(name, {}).items()) if leo else []
             nodes.append(Node(package=PACKAGE, executable=name, name=name,

@@ -48,6 +48,8 @@ class CentroidConfig:
     min_smear_px: with a known body rate, predicted smears shorter than this are point-like.
     texture_last: elongated spots pointing every way (texture.py) ranked after the point-like
     ones for the fits and max_spots (default off: bloated stars can point every way too).
+    sensor_blooms: the sensor spills the charge above its full well along its columns, so
+    the pixel past each end of a clipped run is no PSF's (detection/saturation.py).
     """
 
     detection_sigma: float = parameter(4.5, "detection threshold on the PSF-matched, binned image", "noise sigmas",
@@ -80,6 +82,9 @@ class CentroidConfig:
     texture_last: bool = parameter(False, "where >= 30 elongated spots (no known rate) point every way (texture such "
                                    "as a lit cloud, not smear), keep the point-like ones first for the fits and "
                                    "max_spots", dynamic=True)
+    sensor_blooms: bool = parameter(False, "the sensor spills charge above its full well along its columns (a CCD "
+                                    "without anti-blooming; the simulator in orbit): the pixel past each end of a "
+                                    "clipped run is left out of the fits", dynamic=True)
 
     def __post_init__(self) -> None:
         bad = range_problems(self)

@@ -71,6 +71,7 @@ def _node_sets(args, heads, out: Path, env, epoch: str):
                   "max_frames": frames, "start_delay_s": 2.0 * args.speed, "wait_for_subscribers": True}
         params = {name: {"use_sim_time": True} for name in ("camera_simulator", "centroider", "identifier")}
         params["camera_simulator"].update(camera)
+        params["centroider"].update(leo_scenario.CENTROIDER)
         params["identifier"].update(leo_scenario.IDENTIFIER)
         remaps = {name: {"__ns": f"/{head}", **leo_scenario.REMAPS.get(name, {})}
                   for name in ("camera_simulator", "centroider", "identifier")}

@@ -284,7 +284,7 @@ class CameraSimulatorNode(ManagedNode):
             self._start_timer(now_ns)
 
     def _start_synced(self) -> None:
-        """The first tick on the synchronised grid (sync_exposures): start the periodic timer from here."""
+        """Start the periodic timer at the first tick on the synchronised grid (sync_exposures)."""
         self.destroy_timer(self._sync_timer)
         self._sync_timer = None
         self._start_timer(self.get_clock().now().nanoseconds)

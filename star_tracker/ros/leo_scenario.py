@@ -34,6 +34,8 @@ def _mounting(axis_angle_deg: tuple[float, float, float]) -> tuple[float, ...]:
 LEO_MOUNTINGS = {"head1": _mounting((180.0 - ZENITH_TILT_DEG, 0.0, 0.0)),
                  "head2": _mounting((-(180.0 - ZENITH_TILT_DEG), 0.0, 0.0)),
                  "head3": _mounting((180.0, 0.0, 0.0))}
+# The simulator in orbit renders blooming (sim.blooming): the centroider leaves the spill out of its fits.
+CENTROIDER = {"sensor_blooms": True}
 IDENTIFIER = {"observer.source": "odometry", "tracking.max_coast_s": 10.0, "tracking.rate_window_s": 10.0,
               "tracking.max_angular_acceleration_rad_s2": 1e-4}
 # The navigation input: each identifier reads its own camera's truth/odometry; the fusion head1's

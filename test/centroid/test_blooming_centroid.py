@@ -4,8 +4,9 @@ Saturated stars that bloom: their centroids stay within the covariance the centr
 
 Blooming (sim.blooming, on in every frame rendered with an environment) spills a clipped
 pixel's excess along its column; the first pixel past each end of the clipped run holds
-spilled charge that no PSF explains. The fit of a clipped star leaves those pixels out with
-the clipped ones (detection/saturation.clipped_pixels). Measured (pytest -s): 22 of these 48
+spilled charge that no PSF explains. With centroid.sensor_blooms the fit of a clipped
+star leaves those pixels out with the clipped ones (detection/saturation.clipped_pixels).
+Measured (pytest -s): 22 of these 48
 stars clipped, chi^2 of the centroid errors mean 1.87, max 7.4; with the spill pixels fitted,
 mean 958, max ~10^4 (a 0th-magnitude star moved along its column by up to ~0.05 px against a
 stated ~0.0015 px, and outweighed every other star of an attitude fit).
@@ -49,7 +50,7 @@ def test_blooming_stars_are_measured_within_their_stated_covariance():
         renderer = StarFieldRenderer(CAMERA, SensorModel(), bright_stars(np.random.default_rng(seed)), 7.5)
         frame = renderer.render(ConstantRateMotion(POINTING, np.zeros(3)), 0.0, frame_seed(7, seed),
                                 environment=environment)
-        spots = extract_spots(frame.image, CentroidConfig())
+        spots = extract_spots(frame.image, CentroidConfig(sensor_blooms=True))
         truth = frame.truth
         star = truth.kind == KIND_STAR
         for x, y in zip(truth.x[star], truth.y[star]):

@@ -166,10 +166,10 @@ def clipped_pixels(context: FitContext, detection: np.ndarray, level: np.ndarray
     Return an (H, W) bool mask of the pixels at or above their spot's clip level `level` [ADU], and their spill.
 
     Within the detection boxes `detection` (indices in the Detections), grown by the PSF's reach
-    (any fit reading them leaves them out). The pixels just above and below a clipped one are
-    left out too: a sensor that blooms (sim.blooming) spills the excess along the column, and
-    the last pixel it reaches reads more than the PSF puts there; a sensor that does not loses
-    only their information.
+    (any fit reading them leaves them out). On a sensor that blooms (config.sensor_blooms, as
+    sim.blooming renders in orbit) the pixels just above and below each clipped run are left
+    out too: the last pixel the spill reaches reads more than the PSF puts there. On a sensor
+    without blooming they are the PSF's and are fitted.
     """
     image, det = context.image, context.det
     height, width = image.shape
@@ -179,10 +179,10 @@ def clipped_pixels(context: FitContext, detection: np.ndarray, level: np.ndarray
         rows = slice(max(det.top[d] - grow, 0), min(det.bottom[d] + grow, height))
         cols = slice(max(det.left[d] - grow, 0), min(det.right[d] + grow, width))
         clipped = image[rows, cols] >= value
-        # Blooming spills a clipped pixel's excess along its column: the first pixel past either
-        # end of a clipped run holds spilled charge no PSF explains.
-        spill = clipped.copy()
-        spill[1:] |= clipped[:-1]
-        spill[:-1] |= clipped[1:]
-        out[rows, cols] |= spill
+        out[rows, cols] |= clipped
+        if context.config.sensor_blooms:
+            # Blooming spills a clipped pixel's excess along its column: the first pixel past
+            # either end of a clipped run holds spilled charge no PSF explains.
+            out[rows.start + 1:rows.stop, cols] |= clipped[:-1]
+            out[rows.start:rows.stop - 1, cols] |= clipped[1:]
     return out
