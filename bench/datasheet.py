@@ -299,7 +299,8 @@ def orbit_rows(data: dict | None, environment: dict | None) -> list[Row]:
         rows.append(Row("Fused error per body axis (RMS, x, y, z)", f"{rms}″",
                         f"frames with both heads; single heads: {singles}; alignment of the second head estimated "
                         "online (RMS " + ", ".join(f"{v:.2f}" for v in fusion["alignment_rms_arcsec"])
-                        + "″ over the last half orbit)", src))
+                        + "″ over the last half orbit); with its true mounting given: "
+                        + ", ".join(f"{v:.2f}" for v in fusion["rms_two_heads_known_alignment_arcsec"]) + "″", src))
         rows.append(Row("Aberration corrected (LEO + the Earth's velocity)",
                         f"{aberration['moving_corrected']['cross_mean_arcsec']:.2f}″ mean cross-boresight error "
                         f"(uncorrected {aberration['moving_raw']['cross_mean_arcsec']:.1f}″, at rest "

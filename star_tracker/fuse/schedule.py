@@ -13,8 +13,10 @@ its own exposure. The schedule keeps one pending stamp:
 - the pending stamp is due as soon as every awaited head's latest solution is at or after it,
   or when the caller's wait runs out (expire).
 
-The awaited heads are the caller's choice (the node's: the heads of the last fusion); none
-awaited means fuse at once.
+The awaited heads (`awaited`): those of the last fusion, and any head whose latest solution
+is at or after the last fused stamp: a head whose solution came just after a fusion had closed
+is alive and in step, and waiting for it at the next stamp keeps it in (not awaiting it would
+close every next fusion before it, again and again). None awaited means fuse at once.
 """
 from __future__ import annotations
 
@@ -49,6 +51,18 @@ class FusionSchedule:
         if all(latest_ns.get(head, -1) >= self.pending_ns for head in awaited):
             due.append(self._close())
         return due
+
+    def awaited(self, latest_ns: Mapping[str, int], contributing: Iterable[str]) -> list[str]:
+        """
+        Return the heads to wait for at the next stamp (module docstring).
+
+        latest_ns: each head's latest accepted solution's stamp [ns]; contributing: the heads
+        fused last time.
+        """
+        wait = set(contributing)
+        if self.last_fused_ns is not None:
+            wait |= {head for head, stamp in latest_ns.items() if stamp >= self.last_fused_ns}
+        return sorted(wait)
 
     def expire(self) -> int | None:
         """Return the pending stamp to fuse now, the wait having run out (None when nothing is pending)."""

@@ -14,8 +14,9 @@ the stars' apparent places (aberrated by the spacecraft's velocity), as the iden
 theirs.
 
 When a head's solution is accepted the node fuses at that solution's stamp (the head's
-mid-exposure stamp) once the heads of the last fusion have reported that stamp too, or a newer
-one, or `fusion.max_wait_s` has passed (fuse/schedule.py: synchronised heads are fused at their
+mid-exposure stamp) once the heads in step (those of the last fusion, and any whose solution
+of the last fused stamp came late) have reported that stamp too, or a newer one, or
+`fusion.max_wait_s` has passed (fuse/schedule.py: synchronised heads are fused at their
 own exposures, not a frame period apart). It fuses every head whose latest solution lies
 within `fusion.stale_after_s`, each brought to the stamp with the body rate
 (FusionState.fused_at), and publishes `attitude`, `attitude_with_covariance` and
@@ -417,7 +418,8 @@ class AttitudeFusionNode(ManagedNode):
             self.diag.count("fusions_skipped_older")  # it joins the next fusion
             return
         latest = {name: obs.stamp_ns for name in self.heads if (obs := self.state.latest(name)) is not None}
-        awaited = [h.name for h in self.heads.values() if h.contributing] if self.settings.max_wait_s > 0 else []
+        awaited = (self.schedule.awaited(latest, [h.name for h in self.heads.values() if h.contributing])
+                   if self.settings.max_wait_s > 0 else [])
         for stamp in self.schedule.add(stamp_ns, latest, awaited):
             self.fuse_now(stamp)
         self.arm_wait()

@@ -37,3 +37,14 @@ def test_the_wait_runs_out_and_nothing_awaited_fuses_at_once():
     assert schedule.add(2 * S, {"a": 2 * S}, awaited=[]) == [2 * S]
     schedule.reset()
     assert not schedule.is_old(S)
+
+
+def test_a_head_late_for_one_fusion_is_awaited_at_the_next():
+    """Head b's solution of S came after S was fused without it: b is in step, so 2S waits for it."""
+    schedule = FusionSchedule()
+    schedule.add(S, {"a": S, "b": 0}, awaited=["a"])  # b not awaited (left out of the fusion before)
+    assert schedule.is_old(S)
+    assert schedule.awaited({"a": S, "b": S}, contributing=["a"]) == ["a", "b"]  # b's S arrived late
+    assert schedule.awaited({"a": S, "b": 0}, contributing=["a"]) == ["a"]  # b silent (blinded): not awaited
+    assert schedule.add(2 * S, {"a": 2 * S, "b": S}, awaited=["a", "b"]) == []
+    assert schedule.add(2 * S, {"a": 2 * S, "b": 2 * S}, awaited=["a", "b"]) == [2 * S]
