@@ -67,6 +67,12 @@ INSTALL_REQUIRES = [
     "sgp4>=2.27,<3",
     "jplephem>=2.24,<3",
     "matplotlib>=3.11,<4",
+    # Campaigns (`star-tracker characterize`): Dask distributed (a LocalCluster or a
+    # scheduler), results in Parquet, HEALPix sky grids.
+    "dask[distributed]>=2026.8,<2027",
+    "distributed>=2026.8,<2027",
+    "pyarrow>=26.0,<27",
+    "astropy-healpix>=2.0,<3",
 ]
 
 setup(

@@ -13,9 +13,9 @@ cli.py: their --help predates the example epilogs of COMMANDS and keeps its form
 """
 from __future__ import annotations
 
-from . import bench, calibrate, database, monitor, render, solve
+from . import bench, calibrate, characterize, database, monitor, render, solve
 
-COMMANDS = [render, solve, calibrate, database, monitor, bench]
+COMMANDS = [render, solve, calibrate, database, monitor, bench, characterize]
 
 
 def add_commands(subparsers) -> None:

@@ -114,15 +114,22 @@ def _random_field_points(setup: SceneSetup, count: int, rng: np.random.Generator
 
 
 def make_scene(setup: SceneSetup, catalog: StarCatalog, rng: np.random.Generator,
-               rotation: np.ndarray | None = None, max_redraws: int = 1000) -> Scene:
+               rotation: np.ndarray | None = None, max_redraws: int = 1000,
+               vectors: np.ndarray | None = None) -> Scene:
     """
     One scene for a random (or the given) attitude.
 
     `catalog` is at the scene epoch. When `real_stars` is set and the field holds fewer
-    stars, a new attitude is drawn.
+    stars, a new attitude is drawn. vectors: the unit vectors of a catalog already cut to
+    the setup's magnitude limit (a caller making many scenes computes them once).
     """
-    stars = catalog.brighter_than(setup.magnitude_limit)
-    vectors = stars.unit_vectors()
+    if vectors is None:
+        stars = catalog.brighter_than(setup.magnitude_limit)
+        vectors = stars.unit_vectors()
+    elif len(vectors) != len(catalog) or catalog.hp.max(initial=-np.inf) > setup.magnitude_limit:
+        raise ValueError("vectors must be those of a catalog cut to the setup's magnitude limit")
+    else:
+        stars = catalog
     camera = setup.camera
     for _ in range(max_redraws):
         truth = random_rotation(rng) if rotation is None else rotation

@@ -1,0 +1,136 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+`false-id`: lost-in-space trials on independent scenes, counting wrong identifications.
+
+Each trial is a scene as the identification benchmark makes them (sim/scenes.py: a random
+attitude uniform over the sphere, the catalog's stars projected through the camera with
+position and magnitude noise, false stars among them) identified lost-in-space by the
+default identifier (no prior, no tracking), and scored (scoring.py: wrong = a star named
+wrongly, a boresight more than `wrong_arcsec` off, or an error outside 5 sigma of the stated
+covariance). The summary gives the empirical false-identification rate with
+its one-sided 95 % upper bound (Clopper-Pearson; 3/n with none wrong) beside the bound the
+verification states (IdentifyConfig.false_positive_bound, and what each solve reported).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+
+from ...parameter_spec import parameter, range_problems
+from ..bounds import rate_upper_bound
+from ..kind import CampaignKind
+from .scoring import NEES_5_SIGMA, SCORE_COLUMNS, UNSOLVED, score
+
+
+@dataclass(frozen=True)
+class FalseIdOptions:
+    """The scenes and the identifier of a false-id campaign (each a `parameter`)."""
+
+    setup: str = parameter("nominal", "scene setup of sim/scenes.SETUPS (camera, magnitude limit, noise)")
+    false_stars: int = parameter(2, "false objects added to every scene (uniform over the field)", "", 0, 1000)
+    algorithm: str = parameter("hybrid", "identification algorithm (identify.ALGORITHMS)")
+    wrong_arcsec: float = parameter(60.0, "a boresight this far from the truth is wrong", "arcsec", 0.0, 1e6,
+                                    low_open=True)
+
+    def __post_init__(self) -> None:
+        from ...identify import ALGORITHMS
+        from ...sim.scenes import SETUPS
+
+        bad = range_problems(self)
+        if self.setup not in SETUPS:
+            bad.append(f"setup={self.setup!r}: expected one of {sorted(SETUPS)}")
+        if self.algorithm not in ALGORITHMS:
+            bad.append(f"algorithm={self.algorithm!r}: expected one of {sorted(ALGORITHMS)}")
+        if bad:
+            raise ValueError("false-id options: " + "; ".join(bad))
+
+
+@dataclass
+class _Shared:
+    setup: object
+    catalog: object  # cut to the setup's magnitude limit
+    vectors: np.ndarray  # its unit vectors, once
+    identifier: object
+
+
+class FalseIdentification(CampaignKind):
+    """Lost-in-space trials counting wrong identifications (module docstring)."""
+
+    name = "false-id"
+    description = "lost-in-space trials on random scenes with noise and false stars: the false-identification bound"
+    options_type = FalseIdOptions
+    default_trials = 3_000_000
+    default_batch = 1000
+    columns = (pa.field("solved", pa.bool_()), *SCORE_COLUMNS, pa.field("matched", pa.int32()),
+               pa.field("real_spots", pa.int32()), pa.field("stated_probability", pa.float64()),
+               pa.field("identify_s", pa.float64()))
+
+    def prepare(self, options: FalseIdOptions) -> _Shared:
+        from ...identify import DatabaseConfig, load_or_build_database, make_identifier
+        from ...models.catalog import load_hipparcos
+        from ...sim.scenes import SETUPS
+
+        setup = dataclasses.replace(SETUPS[options.setup], false_stars=options.false_stars)
+        database = load_or_build_database(DatabaseConfig())
+        # The stars a scene can show and their directions, once (make_scene would on every call).
+        catalog = load_hipparcos().at_epoch(database.config.epoch_jyear).brighter_than(setup.magnitude_limit)
+        return _Shared(setup, catalog, catalog.unit_vectors(), make_identifier(options.algorithm, database))
+
+    def trial(self, shared: _Shared, options: FalseIdOptions, task: int, rng: np.random.Generator) -> dict:
+        from ...sim.scenes import make_scene
+
+        scene = make_scene(shared.setup, shared.catalog, rng, vectors=shared.vectors)
+        started = time.perf_counter()
+        result = shared.identifier.identify(scene.spots, shared.setup.camera)
+        elapsed = time.perf_counter() - started
+        record = {"solved": result.solved, **UNSOLVED,
+                  "matched": int(result.hip.size) if result.solved else 0, "real_spots": scene.real_count,
+                  "stated_probability": float(result.false_positive_probability) if result.solved else None,
+                  "identify_s": elapsed}
+        if result.solved:
+            record.update(score(result, scene.hip, scene.rotation, options.wrong_arcsec))
+        return record
+
+    def summarize(self, table: pa.Table, options: FalseIdOptions) -> dict:
+        from ...identify import IdentifyConfig
+
+        ok = np.asarray(table.column("error").to_pylist(), object) == ""
+        solved = np.asarray(table.column("solved").fill_null(False), bool) & ok
+        wrong = np.asarray(table.column("wrong").fill_null(False), bool) & ok
+        trials = int(ok.sum())
+        correct = int((solved & ~wrong).sum())
+        stated = np.asarray(table.column("stated_probability").fill_null(np.nan), float)[solved]
+        times = np.asarray(table.column("identify_s").fill_null(np.nan), float)[ok]
+        right = solved & ~wrong
+        cross = np.asarray(table.column("cross_arcsec").fill_null(np.nan), float)[right]
+        roll = np.asarray(table.column("roll_arcsec").fill_null(np.nan), float)[right]
+        nees = np.asarray(table.column("nees").fill_null(np.nan), float)[solved]
+        return {
+            "trials": trials, "correct": correct, "wrong": int(wrong.sum()), "unsolved": int(trials - solved.sum()),
+            "failed_tasks": int((~ok).sum()),
+            **{name: int(np.asarray(table.column(name).fill_null(False), bool)[ok].sum())
+               for name in ("wrong_star", "wrong_attitude", "wrong_deep_star", "false_identification")},
+            "false_identification_upper_95": rate_upper_bound(
+                int(np.asarray(table.column("false_identification").fill_null(False), bool)[ok].sum()), trials, 0.95)
+            if trials else None,
+            "wrong_deep_star_rate": float(np.asarray(table.column("wrong_deep_star").fill_null(False), bool)[ok].mean())
+            if trials else None,
+            "wrong_rate": float(wrong.sum() / trials) if trials else None,
+            "wrong_rate_upper_95": rate_upper_bound(int(wrong.sum()), trials, 0.95) if trials else None,
+            "wrong_per_solved_upper_95": rate_upper_bound(int(wrong.sum()), int(solved.sum()), 0.95)
+            if solved.any() else None,
+            "availability": float(solved.sum() / trials) if trials else None,
+            "stated_bound": IdentifyConfig().false_positive_bound,
+            "stated_probability_median": float(np.median(stated)) if stated.size else None,
+            "stated_probability_max": float(np.max(stated)) if stated.size else None,
+            "cross_arcsec_rms": float(np.sqrt(np.mean(cross ** 2))) if cross.size else None,
+            "roll_arcsec_rms": float(np.sqrt(np.mean(roll ** 2))) if roll.size else None,
+            "nees_mean": float(np.mean(nees)) if nees.size else None,
+            "nees_beyond_5_sigma": int(np.sum(nees > NEES_5_SIGMA)),
+            "identify_ms_median": float(np.median(times) * 1e3) if times.size else None,
+            "identify_ms_p99": float(np.quantile(times, 0.99) * 1e3) if times.size else None,
+        }

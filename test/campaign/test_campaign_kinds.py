@@ -1,0 +1,147 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Campaign kinds, their scoring and the bound on a counted rate, without a Dask cluster of processes.
+
+A trial that raises is a record with its seed and error; the presets are scored against their
+scenes' truth; the sky-coverage grid points the boresight at each HEALPix pixel's centre.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from scipy.stats import binom
+
+from star_tracker.campaign import CampaignKind, CampaignSpec, run_campaign
+from star_tracker.campaign.bounds import rate_upper_bound
+from star_tracker.campaign.engine import run_batch
+from star_tracker.campaign.presets import KINDS
+from star_tracker.campaign.results import ResultStore
+from star_tracker.parameter_spec import parameter
+
+
+@dataclass(frozen=True)
+class _Options:
+    fail_every: int = parameter(4, "trial t raises when t % fail_every == 3", "", 1, 100)
+
+
+class _Flaky(CampaignKind):
+    """A kind whose every fourth trial raises: the engine records it and goes on."""
+
+    name = "flaky"
+    description = "test kind"
+    options_type = _Options
+    columns = (pa.field("value", pa.float64()),)
+    default_trials = 10
+    default_batch = 5
+
+    def prepare(self, options):
+        return None
+
+    def trial(self, shared, options, task, rng):
+        if task % options.fail_every == 3:
+            raise RuntimeError(f"trial {task} broke")
+        return {"value": float(rng.uniform())}
+
+    def summarize(self, table, options):
+        return {"trials": table.num_rows}
+
+
+@pytest.mark.parametrize("events, trials", [(0, 3_000_000), (0, 1000), (3, 1000), (40, 200)])
+def test_the_rate_bound_is_the_binomial_one_sided_95_percent_bound(events, trials):
+    bound = rate_upper_bound(events, trials)
+    assert binom.cdf(events, trials, bound) == pytest.approx(0.05, rel=1e-6)  # the rate at which k or fewer is 5 %
+    if events == 0:
+        assert bound == pytest.approx(1.0 - 0.05 ** (1.0 / trials), rel=1e-9)
+    assert rate_upper_bound(0, 3_000_000) < 1e-6 < rate_upper_bound(0, 2_990_000)
+
+
+def test_a_trial_that_raises_is_recorded_with_its_seed_and_the_campaign_goes_on(tmp_path):
+    kind, spec = _Flaky(), CampaignSpec("flaky", trials=10, seed=5, batch=5)
+    table = pa.concat_tables([run_batch(kind, spec, b).table for b in range(spec.batches)])
+    errors = dict(zip(table.column("task").to_pylist(), table.column("error").to_pylist()))
+    assert [t for t, e in errors.items() if e] == [3, 7]
+    assert errors[3].startswith("RuntimeError: trial 3 broke") and table.column("seed").to_pylist() == [5] * 10
+    values = table.column("value").to_pylist()
+    assert values[3] is None and values[0] == np.random.default_rng(np.random.SeedSequence([5, 0])).uniform()
+    # The same through the engine, on an in-process Dask cluster.
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as cluster, \
+            Client(cluster) as client:
+        run = run_campaign(kind, spec, tmp_path, client=client)
+    assert run.batches_run == 2 and run.trials_run == 10
+    stored = ResultStore(tmp_path, spec, kind.schema()).read()
+    assert stored.to_pydict() == table.to_pydict()
+
+
+def test_a_kind_without_its_declarations_is_refused_when_defined():
+    with pytest.raises(TypeError, match="lacks"):
+        class _Incomplete(CampaignKind):  # noqa: F841 - defining it is the test
+            def prepare(self, options):
+                return None
+
+            def trial(self, shared, options, task, rng):
+                return {}
+
+            def summarize(self, table, options):
+                return {}
+
+
+def test_the_command_lists_every_preset():
+    from star_tracker.commands.characterize import PRESETS
+
+    assert set(PRESETS) == set(KINDS)
+
+
+@pytest.mark.slow
+def test_sky_coverage_points_each_boresight_at_its_pixel_and_scores_against_the_truth(database, tmp_path):
+    kind = KINDS["sky-coverage"]()
+    spec = CampaignSpec("sky-coverage", trials=24, seed=3, batch=24, options={"nside": 1, "rolls": 2})
+    table = run_batch(kind, spec, 0).table
+    assert not any(table.column("error").to_pylist())
+    ra, dec = np.asarray(table.column("ra_rad")), np.asarray(table.column("dec_rad"))
+    centres = np.unique(np.column_stack([np.cos(dec) * np.cos(ra), np.cos(dec) * np.sin(ra), np.sin(dec)]), axis=0)
+    assert len(centres) == 12 and np.allclose(centres.sum(axis=0), 0.0, atol=1e-12)  # 12 equal-area pixels
+    # nside 1's pixel centres: dec +-41.8 deg (4 each) and 0 (4), as HEALPix defines them.
+    assert sorted(np.round(np.degrees(np.unique(np.round(dec, 9))), 2)) == [-41.81, 0.0, 41.81]
+    solved = np.asarray(table.column("solved"))
+    assert solved.sum() >= 22 and not np.asarray(table.column("wrong")).any()
+    cross = np.asarray(table.column("cross_arcsec"))[solved]
+    assert np.all(cross < 20.0)  # the identified boresight is the pixel's centre, by the scene's truth
+    summary = kind.summarize(table, kind.options(spec.options))
+    assert summary["trials"] == 24 and summary["pixels_tried"] == 12
+    assert summary["pixels_failing"] == len(summary["failing"]) == sum(
+        1 for p in range(12) if not all(np.asarray(table.column("solved"))[np.asarray(table.column("pixel")) == p]))
+    files = kind.report(table, summary, kind.options(spec.options), tmp_path)
+    assert all(f.exists() and f.stat().st_size > 0 for f in files)
+
+
+@pytest.mark.slow
+def test_false_id_scores_a_wrongly_named_star_and_an_overconfident_attitude(database):
+    """The scoring itself: a correct result perturbed into each kind of wrong is counted wrong."""
+    from dataclasses import replace
+
+    from star_tracker.campaign.presets.scoring import NEES_5_SIGMA, score
+    from star_tracker.models.attitude import rotation_vector_to_matrix
+
+    kind = KINDS["false-id"]()
+    options = kind.options({})
+    shared = kind.prepare(options)
+    from star_tracker.sim.scenes import make_scene
+
+    scene = make_scene(shared.setup, shared.catalog, np.random.default_rng(8))
+    result = shared.identifier.identify(scene.spots, shared.setup.camera)
+    assert result.solved
+    right = score(result, scene.hip, scene.rotation, 60.0)
+    assert not right["wrong"] and right["nees"] < NEES_5_SIGMA
+    renamed = replace(result, hip=np.where(np.arange(result.hip.size) == 0, result.hip[1], result.hip))
+    named_wrong = score(renamed, scene.hip, scene.rotation, 60.0)
+    assert named_wrong["wrong_star"] and named_wrong["wrong"] and not named_wrong["wrong_attitude"]
+    assert named_wrong["false_identification"] != bool(result.deep[0])  # a guide star named wrongly is one
+    turned = scene.rotation @ rotation_vector_to_matrix([0.0, 0.0, 20.0 * math.sqrt(result.attitude.covariance[2, 2])])
+    moved = score(result, scene.hip, turned, 60.0)
+    assert moved["wrong"] and moved["false_identification"] and not moved["wrong_star"] and moved["nees"] > NEES_5_SIGMA
