@@ -34,10 +34,11 @@ class Source:
     command: str
     date: str
     machine: str
+    page: str = "BENCHMARKS.md"
 
     def cite(self) -> str:
         anchor = "".join(c for c in self.section.lower() if c.isalnum() or c in " -").replace(" ", "-")
-        return f"[{self.section}](BENCHMARKS.md#{anchor}), {self.date}, {self.machine}"
+        return f"[{self.section}]({self.page}#{anchor}), {self.date}, {self.machine}"
 
 
 @dataclass(frozen=True)
@@ -324,6 +325,65 @@ def orbit_rows(data: dict | None, environment: dict | None) -> list[Row]:
     return rows
 
 
+def load_campaign(results: Path, preset: str) -> dict | None:
+    """Return characterize_<preset>.json of `results` (a campaign's summary.json), or None."""
+    path = results / f"characterize_{preset.replace('-', '_')}.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _campaign_source(data: dict) -> Source:
+    engine = data.get("engine", {})
+    machine = f"{data.get('machine', {}).get('processor', '?')}, {engine.get('threads', '?')} workers"
+    return Source("Measured", data.get("command", "?"), data.get("date_utc", "date not recorded"), machine,
+                  "CHARACTERIZE.md")
+
+
+def campaign_rows(false_id: dict | None, sky: dict | None, accuracy: dict | None) -> list[Row]:
+    """Build the rows of the Monte-Carlo campaigns (star-tracker characterize; docs/characterize_*.json)."""
+    rows = []
+    if false_id is None:
+        rows.append(_missing("False identification (lost-in-space)", "star-tracker characterize false-id"))
+    else:
+        f = false_id
+        rows.append(Row(
+            "False identification (lost-in-space)",
+            f"{f['false_identification']} of {f['trials']:,} trials; rate ≤ {f['false_identification_upper_95']:.2g} "
+            f"(95 %); the verification states ≤ {f['stated_bound']:g}",
+            f"random attitudes, scenes with {f['options']['false_stars']} false objects "
+            f"({f['options']['setup']} setup), algorithm `{f['options']['algorithm']}`; false identification: a wrong "
+            f"attitude or guide star. Besides: {f['wrong_deep_star']} trials ({f['wrong_deep_star_rate']:.1e}) "
+            "named one false object as a faint star in the deep re-match (the attitude right); "
+            f"{f['unsolved']} unsolved; {f['engine']['trials_per_s_per_core']:.0f} trials/s/core",
+            _campaign_source(f)))
+    if sky is None:
+        rows.append(_missing("Lost-in-space over the sky", "star-tracker characterize sky-coverage"))
+    else:
+        rows.append(Row(
+            "Lost-in-space over the sky",
+            f"{100 * sky['success']:.2f} % of {sky['trials']:,} solved right ({sky['wrong']} wrong); "
+            f"{sky['pixels_failing']} of {sky['pixels_tried']} directions with a failure; "
+            f"{sky['identify_ms_median']:.2f} ms median, {sky['identify_ms_p99']:.2f} ms p99",
+            f"boresight on every HEALPix pixel (nside {sky['nside']}), {sky['rolls']} rolls each, scenes as above",
+            _campaign_source(sky)))
+    if accuracy is None:
+        rows.append(_missing("Error terms (ECSS-E-ST-60-20C)", "star-tracker characterize accuracy"))
+    else:
+        axes = accuracy["axes"]
+        terms = (("bias", "bias"), ("temporal_noise", "temporal noise"), ("pixel_spatial", "pixel spatial error"),
+                 ("fov_spatial", "FOV spatial error"))
+        value = "; ".join(f"{label} " + ", ".join(f"{abs(axes[a][key]):.2f}" for a in ("x", "y", "roll")) + "″"
+                          for key, label in terms)
+        rows.append(Row(
+            "Error terms per axis (x, y, roll; 1σ; 3σ = 99.7 %)", value,
+            f"{accuracy['trials']} rendered frames at rest: {accuracy['options']['pointings']} pointings × "
+            f"{accuracy['options']['offsets']} sub-pixel offsets × {accuracy['options']['repeats']} noise draws; total "
+            "RMS " + ", ".join(f"{axes[a]['rms']:.2f}" for a in ("x", "y", "roll")) + "″, 99.7 % of |error| ≤ "
+            + ", ".join(f"{axes[a]['p997']:.2f}" for a in ("x", "y", "roll")) + "″; bias: no source in the "
+            "simulator (catalog, camera model and epoch are the identifier's), the figure is the terms' residue",
+            _campaign_source(accuracy)))
+    return rows
+
+
 def render(config: dict, results: Path) -> str:
     """Return the datasheet's Markdown."""
     lines = [
@@ -356,7 +416,9 @@ def render(config: dict, results: Path) -> str:
             *centroid_rows(load(results, "centroid"), load(results, "psf_range")),
             *node_rows(load(results, "pipeline"), load(results, "soak"), load(results, "cold_start")),
             *realdata_rows(load(results, "realdata")),
-            *orbit_rows(load(results, "orbit"), load(results, "environment"))]
+            *orbit_rows(load(results, "orbit"), load(results, "environment")),
+            *campaign_rows(load_campaign(results, "false-id"), load_campaign(results, "sky-coverage"),
+                           load_campaign(results, "accuracy"))]
     for row in rows:
         cite = row.source.cite() if row.source is not None else f"run `{row.conditions}` (`make bench`)"
         conditions = "" if row.source is None else row.conditions

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -21,12 +22,13 @@ from pathlib import Path
 from .common import CommandError, Progress, add_parser, guarded, positive_int
 
 NAME = "characterize"
-PRESETS = ("false-id", "sky-coverage")  # campaign.presets.KINDS without importing Dask at --help; a test compares
+# campaign.presets.KINDS without importing Dask at --help; a test compares the two.
+PRESETS = ("false-id", "sky-coverage", "accuracy")
 
 
 def register(subparsers) -> None:
     parser = add_parser(
-        subparsers, NAME, "Monte-Carlo campaigns (false-identification bound, sky coverage) on Dask",
+        subparsers, NAME, "Monte-Carlo campaigns (false-identification bound, sky coverage, accuracy) on Dask",
         "Run a campaign of independent seeded trials on a Dask cluster: a LocalCluster on this machine's cores by "
         "default, or an existing scheduler (--scheduler, or DASK_SCHEDULER_ADDRESS; start one with `dask "
         "scheduler` and `dask worker ADDRESS`). Results stream into OUTPUT/results/*.parquet; the same command "
@@ -47,7 +49,7 @@ def register(subparsers) -> None:
     parser.add_argument("--batch", type=positive_int, help="trials per Dask task (default: the preset's)")
     parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                         help="a preset option (repeatable; YAML values: --option false_stars=5)")
-    parser.set_defaults(func=run)
+    parser.set_defaults(func=run, argv=None)
 
 
 def campaign_from_args(args: argparse.Namespace):
@@ -95,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
     from ..campaign.results import ResultStore
 
     kind, spec = campaign_from_args(args)
+    if args.argv is None:
+        args.argv = [NAME, *sys.argv[sys.argv.index(NAME) + 1:]] if NAME in sys.argv else [NAME, args.campaign]
     output = Path(args.output or Path("characterize_output") / kind.name)
     progress = Progress(spec.trials, f"{kind.name}:")
     print(f"star-tracker characterize: {kind.name}, {spec.trials} trials in batches of {spec.batch}, seed "
@@ -105,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
     progress.update(spec.trials)
     options = kind.options(spec.options)
     table = ResultStore(output, spec, kind.schema()).read()
-    summary = {"preset": kind.name, **kind.summarize(table, options), "campaign": spec.to_dict(),
+    command = "star-tracker " + " ".join(shlex.quote(a) for a in (args.argv or []))
+    summary = {"preset": kind.name, **kind.summarize(table, options), "command": command, "campaign": spec.to_dict(),
                "options": {k: getattr(options, k) for k in options.__dataclass_fields__},
                "engine": campaign.to_dict(), "elapsed_s": time.perf_counter() - started,
                "software": {"star_tracker": software_version(), "python": platform.python_version()},
@@ -132,4 +137,8 @@ def _headline(summary: dict) -> str:
     if summary["preset"] == "sky-coverage":
         return (f"{100 * (summary['success'] or 0):.3f} % solved right, {summary['wrong']} wrong, "
                 f"{summary['pixels_failing']} of {summary['pixels_tried']} pixels with a failure")
+    if summary["preset"] == "accuracy":
+        axes = summary["axes"]
+        return (f"{summary['solved']} solved, {summary['wrong']} wrong; RMS x, y, roll " + ", ".join(
+            f"{axes[a]['rms']:.2f}" if axes[a]["rms"] is not None else "-" for a in ("x", "y", "roll")) + '"')
     return ""

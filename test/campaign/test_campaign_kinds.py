@@ -145,3 +145,47 @@ def test_false_id_scores_a_wrongly_named_star_and_an_overconfident_attitude(data
     turned = scene.rotation @ rotation_vector_to_matrix([0.0, 0.0, 20.0 * math.sqrt(result.attitude.covariance[2, 2])])
     moved = score(result, scene.hip, turned, 60.0)
     assert moved["wrong"] and moved["false_identification"] and not moved["wrong_star"] and moved["nees"] > NEES_5_SIGMA
+
+
+def test_the_nested_split_recovers_known_error_terms():
+    """Errors built as bias + pointing + offset + frame terms of known sigmas come back as those terms."""
+    from star_tracker.campaign.presets.accuracy import error_terms
+
+    rng = np.random.default_rng(4)
+    pointings, offsets, repeats = 400, 6, 8
+    fov, pixel, temporal, bias = 0.30, 0.20, 0.50, 0.05
+    p = np.repeat(np.arange(pointings), offsets * repeats)
+    o = np.tile(np.repeat(np.arange(offsets), repeats), pointings)
+    error = (bias + rng.normal(0, fov, pointings)[p] + rng.normal(0, pixel, (pointings, offsets))[p, o]
+             + rng.normal(0, temporal, p.size))
+    terms = error_terms(error, p, o)
+    assert terms["temporal_noise"] == pytest.approx(temporal, rel=0.03)
+    assert terms["pixel_spatial"] == pytest.approx(pixel, rel=0.1)
+    assert terms["fov_spatial"] == pytest.approx(fov, rel=0.1)
+    assert terms["bias"] == pytest.approx(bias, abs=0.05)
+    # No pixel or FOV term in the data: they come out (near) zero, never negative.
+    flat = error_terms(rng.normal(0, temporal, p.size), p, o)
+    assert flat["pixel_spatial"] < 0.05 and flat["fov_spatial"] < 0.05
+
+
+@pytest.mark.slow
+def test_accuracy_trials_nest_their_attitudes_and_measure_rendered_frames(database):
+    from star_tracker.campaign.presets.accuracy import trial_attitude
+
+    kind = KINDS["accuracy"]()
+    spec = CampaignSpec("accuracy", trials=8, seed=1, batch=8,
+                        options={"pointings": 2, "offsets": 2, "repeats": 2})
+    options = kind.options(spec.options)
+    attitudes = [trial_attitude(options, t) for t in range(8)]
+    assert [a[:3] for a in attitudes] == [(p, o, r) for p in range(2) for o in range(2) for r in range(2)]
+    assert np.allclose(attitudes[0][3], attitudes[1][3]) and not np.allclose(attitudes[0][3], attitudes[2][3])
+    pixel = math.radians(15.0) / 1024
+    turn = np.arccos(np.clip((np.trace(attitudes[0][3].T @ attitudes[2][3]) - 1) / 2, -1, 1))
+    assert 0 < turn <= math.sqrt(2) * 0.5 * pixel * 1.01  # a sub-pixel offset of the same pointing
+    table = run_batch(kind, spec, 0).table
+    assert not any(table.column("error").to_pylist()) and all(table.column("solved").to_pylist())
+    assert not any(table.column("wrong").to_pylist())
+    cross = np.hypot(np.asarray(table.column("error_x_arcsec")), np.asarray(table.column("error_y_arcsec")))
+    assert np.all(cross < 2.0)  # the rendered truth, to the accuracy the datasheet states (~0.2")
+    summary = kind.summarize(table, options)
+    assert set(summary["axes"]) == {"x", "y", "roll"} and summary["axes"]["x"]["temporal_noise"] > 0

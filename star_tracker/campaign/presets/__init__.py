@@ -2,9 +2,10 @@
 """The campaign kinds `star-tracker characterize` knows, by preset name."""
 from __future__ import annotations
 
+from .accuracy import Accuracy
 from .false_id import FalseIdentification
 from .sky_coverage import SkyCoverage
 
-KINDS = {kind.name: kind for kind in (FalseIdentification, SkyCoverage)}
+KINDS = {kind.name: kind for kind in (FalseIdentification, SkyCoverage, Accuracy)}
 
-__all__ = ["KINDS", "FalseIdentification", "SkyCoverage"]
+__all__ = ["KINDS", "Accuracy", "FalseIdentification", "SkyCoverage"]
