@@ -176,6 +176,10 @@ MIN_FIT_SIGMA_PX = 1e-4
 FIT_OUTLIER_SIGMA = 5.0
 
 
+# An accepted match whose fit's chi^2 (matching sigmas) is less likely than this is examined
+# for one wrong star on a long lever arm (StarIdentifier.without_lever_outlier).
+LEVER_TEST_PROBABILITY = 1e-6
+
 # Deep re-match rounds: match at the guide fit, refit, match again at the refined attitude.
 DEEP_PASSES = 2
 
@@ -357,7 +361,52 @@ class StarIdentifier:
         outcome = self.search(geometry, camera, deadline)
         if outcome.match is None:
             return self._fail(outcome.status, outcome.reason, started, outcome.tested)
-        return self.solved(geometry, order, outcome.match, outcome.tested, started)
+        match = self.without_lever_outlier(geometry, camera, outcome.match)
+        if match is None:
+            self.stats["lever_outlier_rejected"] = 1
+            return self._fail(NO_MATCH, "the accepted match's fit held a lever-arm outlier, and without it the frame "
+                              "did not verify", started, outcome.tested)
+        return self.solved(geometry, order, match, outcome.tested, started)
+
+    def without_lever_outlier(self, geometry: SpotGeometry, camera: CameraModel,
+                              match: AcceptedMatch) -> AcceptedMatch | None:
+        """
+        Return the match, or the frame re-verified without one wrong star that a short lever arm let in.
+
+        A wrong star far from a tight cluster of right ones sets the roll about the cluster: its
+        own residual stays small (the fit follows it), the other stars' grow but stay within the
+        5-sigma cut, and stars farther out fall outside the radius, so the match is consistent
+        with itself and passes its false-positive bound at a wrong attitude (found by
+        `star-tracker characterize sky-coverage`: 213" and 0.7 deg of roll off with 13 right
+        stars and a false object). Its fit's chi^2 (matching sigmas) is then improbable. When it
+        is (below LEVER_TEST_PROBABILITY) and leaving out one star makes the rest consistent
+        while that star lies beyond FIT_OUTLIER_SIGMA of the rest's fit, the frame is verified
+        again from the rest's attitude (verify_hypothesis: every spot matched anew); None when
+        that fails. Otherwise the match unchanged.
+        """
+        from scipy.stats import chi2 as chi2_distribution
+
+        spot_index, star_index = match.spot_index, match.star_index
+        n = spot_index.size
+        if n <= MIN_STARS:
+            return match
+        body, stars, sigma = geometry.rays[spot_index], self.database.vectors[star_index], geometry.sigma[spot_index]
+        rotation = quest_rotation(body, stars, sigma)
+        normalized = np.linalg.norm(body - stars @ rotation, axis=1) / sigma
+        if chi2_distribution.sf(float(normalized @ normalized), 2 * n - 3) >= LEVER_TEST_PROBABILITY:
+            return match
+        best, best_chi2, best_rotation = -1, np.inf, None
+        for i in range(n):
+            rest = np.arange(n) != i
+            turned = quest_rotation(body[rest], stars[rest], sigma[rest])
+            others = np.linalg.norm(body[rest] - stars[rest] @ turned, axis=1) / sigma[rest]
+            if others @ others < best_chi2:
+                best, best_chi2, best_rotation = i, float(others @ others), turned
+        deleted = np.linalg.norm(body[best] - stars[best] @ best_rotation) / sigma[best]
+        if chi2_distribution.sf(best_chi2, 2 * (n - 1) - 3) < LEVER_TEST_PROBABILITY or deleted <= FIT_OUTLIER_SIGMA:
+            return match  # no single star explains it (e.g. a lens distortion the camera model lacks)
+        self.stats["lever_outliers"] = self.stats.get("lever_outliers", 0) + 1
+        return self.verify_hypothesis(geometry, camera, best_rotation)
 
     def identify_near(self, spots: Spots, camera: CameraModel, rotation: np.ndarray) -> Identification:
         """
