@@ -333,7 +333,8 @@ def load_campaign(results: Path, preset: str) -> dict | None:
 
 def _campaign_source(data: dict) -> Source:
     engine = data.get("engine", {})
-    machine = f"{data.get('machine', {}).get('processor', '?')}, {engine.get('threads', '?')} workers"
+    machine = data.get("machine", {})
+    machine = f"{machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, {engine.get('threads', '?')} workers"
     return Source("Measured", data.get("command", "?"), data.get("date_utc", "date not recorded"), machine,
                   "CHARACTERIZE.md")
 
@@ -374,10 +375,10 @@ def campaign_rows(false_id: dict | None, sky: dict | None, accuracy: dict | None
         value = "; ".join(f"{label} " + ", ".join(f"{abs(axes[a][key]):.2f}" for a in ("x", "y", "roll")) + "″"
                           for key, label in terms)
         rows.append(Row(
-            "Error terms per axis (x, y, roll; 1σ; 3σ = 99.7 %)", value,
+            "Error terms per axis (x, y, roll; 1σ, ECSS-E-ST-60-20C)", value,
             f"{accuracy['trials']} rendered frames at rest: {accuracy['options']['pointings']} pointings × "
             f"{accuracy['options']['offsets']} sub-pixel offsets × {accuracy['options']['repeats']} noise draws; total "
-            "RMS " + ", ".join(f"{axes[a]['rms']:.2f}" for a in ("x", "y", "roll")) + "″, 99.7 % of |error| ≤ "
+            "RMS " + ", ".join(f"{axes[a]['rms']:.2f}" for a in ("x", "y", "roll")) + "″; 99.7 % of the errors within "
             + ", ".join(f"{axes[a]['p997']:.2f}" for a in ("x", "y", "roll")) + "″; bias: no source in the "
             "simulator (catalog, camera model and epoch are the identifier's), the figure is the terms' residue",
             _campaign_source(accuracy)))

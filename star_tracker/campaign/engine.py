@@ -180,5 +180,24 @@ def run_campaign(kind: CampaignKind, spec: CampaignSpec, output: Path | str, wor
             client.close()
             if cluster is not None:
                 cluster.close()
-    return CampaignRun(spec.trials, len(pending), len(done), wall, busy, cpu, threads, address, run_trials,
-                       sorted(seen))
+    run = CampaignRun(spec.trials, len(pending), len(done), wall, busy, cpu, threads, address, run_trials,
+                      sorted(seen))
+    store.add_run({**run.to_dict(), "finished_utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())})
+    return run
+
+
+def engine_totals(runs: list[dict]) -> dict:
+    """Return the engine's figures over every run of a campaign (runs.jsonl): a resumed one's work added up."""
+    worked = [r for r in runs if r.get("trials_run")]
+    wall = sum(r["wall_s"] for r in worked)
+    thread_time = sum(r["wall_s"] * r["threads"] for r in worked)
+    cpu = sum(r["cpu_s"] for r in worked)
+    trials = sum(r["trials_run"] for r in worked)
+    return {"runs": len(runs), "runs_with_work": len(worked), "trials_run": trials, "wall_s": wall,
+            "busy_s": sum(r["busy_s"] for r in worked), "cpu_s": cpu,
+            "threads": max((r["threads"] for r in worked), default=0),
+            "utilization": sum(r["busy_s"] for r in worked) / thread_time if thread_time > 0 else None,
+            "trials_per_s": trials / wall if wall > 0 else None,
+            "trials_per_s_per_core": trials / cpu if cpu > 0 else None,
+            "scheduler": worked[-1]["scheduler"] if worked else None,
+            "last_work_utc": worked[-1].get("finished_utc") if worked else None}

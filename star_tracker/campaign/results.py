@@ -7,6 +7,7 @@ holding another campaign's is refused, one holding the same one is resumed. Each
 batch is written to OUTPUT/results/batch-NNNNNNNN.parquet through a temporary name and a
 rename, so a file present is a batch complete: an interrupted run resumes with the batches
 that have none, and no task is ever written twice. Memory holds one batch at a time.
+OUTPUT/runs.jsonl records what the engine did in each run of the command.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from .spec import CampaignSpec
 
 RESULTS = "results"
 DEFINITION = "campaign.json"
+RUNS = "runs.jsonl"  # one line per run of the command: what the engine did (a resumed campaign has several)
 
 
 class ResultStore:
@@ -62,6 +64,16 @@ class ResultStore:
         temporary = path.with_suffix(".tmp")
         pq.write_table(table.cast(self.schema), temporary)
         os.replace(temporary, path)
+
+    def add_run(self, run: dict) -> None:
+        """Append one run's engine record (CampaignRun.to_dict) to OUTPUT/runs.jsonl."""
+        with (self.output / RUNS).open("a") as f:
+            f.write(json.dumps(run) + "\n")
+
+    def runs(self) -> list[dict]:
+        """Return every run's engine record, oldest first."""
+        path = self.output / RUNS
+        return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
 
     def read(self, columns: list[str] | None = None) -> pa.Table:
         """Return every finished batch's records, in task order."""

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import shlex
 import sys
@@ -82,6 +83,17 @@ def campaign_from_args(args: argparse.Namespace):
     return kind, spec
 
 
+def cpu_model() -> str:
+    """Return the CPU's model name (Linux /proc/cpuinfo), else the architecture."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.machine()
+
+
 def software_version() -> str:
     try:
         from importlib.metadata import version
@@ -94,6 +106,7 @@ def software_version() -> str:
 @guarded(NAME)
 def run(args: argparse.Namespace) -> int:
     from ..campaign import run_campaign
+    from ..campaign.engine import engine_totals
     from ..campaign.results import ResultStore
 
     kind, spec = campaign_from_args(args)
@@ -108,21 +121,23 @@ def run(args: argparse.Namespace) -> int:
                             on_batch=lambda done, total, batch: progress.update(done))
     progress.update(spec.trials)
     options = kind.options(spec.options)
-    table = ResultStore(output, spec, kind.schema()).read()
+    store = ResultStore(output, spec, kind.schema())
+    table = store.read()
+    engine = engine_totals(store.runs())
     command = "star-tracker " + " ".join(shlex.quote(a) for a in (args.argv or []))
     summary = {"preset": kind.name, **kind.summarize(table, options), "command": command, "campaign": spec.to_dict(),
                "options": {k: getattr(options, k) for k in options.__dataclass_fields__},
-               "engine": campaign.to_dict(), "elapsed_s": time.perf_counter() - started,
+               "engine": engine, "elapsed_s": time.perf_counter() - started,
                "software": {"star_tracker": software_version(), "python": platform.python_version()},
-               "machine": {"node": platform.node(), "processor": platform.processor() or platform.machine()},
-               "date_utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+               "machine": {"cpu": cpu_model(), "cores": os.cpu_count(), "node": platform.node()},
+               "date_utc": engine["last_work_utc"] or time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     files = kind.report(table, summary, options, output)
     (output / "summary.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
-    engine = campaign.to_dict()
+    now = campaign.to_dict()
     print(f"{kind.name}: {summary.get('trials')} trials; {_headline(summary)}; {campaign.batches_run} batches run now "
-          f"({campaign.batches_resumed} resumed) on {engine['threads']} worker threads in {campaign.wall_s:.1f} s, "
-          + (f"{engine['trials_per_s_per_core']:.0f} trials/s/core, {100 * engine['utilization']:.0f} % busy"
-             if engine["utilization"] else "nothing left to run"), file=sys.stderr)
+          f"({campaign.batches_resumed} resumed) on {now['threads']} worker threads in {campaign.wall_s:.1f} s, "
+          + (f"{now['trials_per_s_per_core']:.0f} trials/s/core, {100 * now['utilization']:.0f} % busy"
+             if now["utilization"] else "nothing left to run"), file=sys.stderr)
     print(f"wrote {output / 'summary.json'}" + "".join(f", {f}" for f in files), file=sys.stderr)
     return 0
 

@@ -37,7 +37,7 @@ import pyarrow as pa
 
 from ...parameter_spec import parameter, range_problems
 from ..kind import CampaignKind
-from .scoring import ARCSEC, SCORE_COLUMNS, UNSOLVED, score
+from .scoring import campaign_identify_config, ARCSEC, SCORE_COLUMNS, UNSOLVED, score
 
 MAGNITUDE_LIMIT = 7.5
 AXES = ("x", "y", "roll")
@@ -124,7 +124,7 @@ class Accuracy(CampaignKind):
         sensor = SensorModel()
         database = load_or_build_database(DatabaseConfig())
         catalog = load_hipparcos().at_epoch(database.config.epoch_jyear)
-        identifier = make_identifier("hybrid", database)
+        identifier = make_identifier("hybrid", database, campaign_identify_config())
         identifier.warm_up(camera)
         return _Shared(camera, StarFieldRenderer(lens, sensor, catalog, magnitude_limit=MAGNITUDE_LIMIT), identifier,
                        CentroidConfig(), sensor.exposure_s)

@@ -23,7 +23,7 @@ import pyarrow as pa
 from ...parameter_spec import parameter, range_problems
 from ..bounds import rate_upper_bound
 from ..kind import CampaignKind
-from .scoring import NEES_5_SIGMA, SCORE_COLUMNS, UNSOLVED, score
+from .scoring import campaign_identify_config, NEES_5_SIGMA, SCORE_COLUMNS, UNSOLVED, score
 
 
 @dataclass(frozen=True)
@@ -78,7 +78,8 @@ class FalseIdentification(CampaignKind):
         database = load_or_build_database(DatabaseConfig())
         # The stars a scene can show and their directions, once (make_scene would on every call).
         catalog = load_hipparcos().at_epoch(database.config.epoch_jyear).brighter_than(setup.magnitude_limit)
-        return _Shared(setup, catalog, catalog.unit_vectors(), make_identifier(options.algorithm, database))
+        identifier = make_identifier(options.algorithm, database, campaign_identify_config())
+        return _Shared(setup, catalog, catalog.unit_vectors(), identifier)
 
     def trial(self, shared: _Shared, options: FalseIdOptions, task: int, rng: np.random.Generator) -> dict:
         from ...sim.scenes import make_scene

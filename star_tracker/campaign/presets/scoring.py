@@ -52,3 +52,15 @@ def score(result, hip_truth: np.ndarray, rotation_truth: np.ndarray, wrong_arcse
             "false_identification": wrong_attitude or wrong_guide, "wrong_attitude": wrong_attitude,
             "wrong_deep_star": bool(np.any(mislabeled & deep)), "cross_arcsec": cross / ARCSEC,
             "roll_arcsec": abs(error[2]) / ARCSEC, "nees": nees}
+
+
+def campaign_identify_config():
+    """
+    Return the identifier's configuration in a campaign: the defaults, the time budget on the CPU clock.
+
+    A campaign's outcome must not depend on what else the machine runs: on the default wall
+    clock a loaded host times out solves that an idle one finishes.
+    """
+    from ...identify import IdentifyConfig
+
+    return IdentifyConfig(budget_clock="cpu")

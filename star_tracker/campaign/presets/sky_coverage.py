@@ -23,7 +23,7 @@ import pyarrow as pa
 
 from ...parameter_spec import parameter, range_problems
 from ..kind import CampaignKind
-from .scoring import SCORE_COLUMNS, UNSOLVED, score
+from .scoring import campaign_identify_config, SCORE_COLUMNS, UNSOLVED, score
 
 MAP_FILE = "sky_coverage.png"
 FAILING_FILE = "failing_pixels.csv"
@@ -98,7 +98,8 @@ class SkyCoverage(CampaignKind):
         setup = dataclasses.replace(SETUPS[options.setup], false_stars=options.false_stars)
         database = load_or_build_database(DatabaseConfig())
         catalog = load_hipparcos().at_epoch(database.config.epoch_jyear).brighter_than(setup.magnitude_limit)
-        return _Shared(setup, catalog, catalog.unit_vectors(), make_identifier(options.algorithm, database))
+        identifier = make_identifier(options.algorithm, database, campaign_identify_config())
+        return _Shared(setup, catalog, catalog.unit_vectors(), identifier)
 
     def trial(self, shared: _Shared, options: SkyCoverageOptions, task: int, rng: np.random.Generator) -> dict:
         from ...models.attitude import radec_roll_to_matrix
@@ -187,7 +188,7 @@ def sky_map(per_pixel: list[dict], nside: int, summary: dict, path: Path) -> Pat
     lon = -np.angle(np.exp(1j * ra))  # RA to [-pi, pi], increasing to the left (sky as seen from inside)
     fig = plt.figure(figsize=(10, 5.6))
     ax = fig.add_subplot(111, projection="mollweide")
-    size = max(2.0, 4000.0 / (12 * nside ** 2) * 12)
+    size = max(2.0, 100000.0 / (12 * nside ** 2))  # squares that about tile the sky at 10 x 5.6 in
     points = ax.scatter(lon, dec, c=share, s=size, cmap="viridis", vmin=0.0, vmax=1.0, marker="s", linewidths=0)
     bad = share < 1.0
     if bad.any():
