@@ -13,48 +13,26 @@ verification states (IdentifyConfig.false_positive_bound, and what each solve re
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass
 
 import numpy as np
 import pyarrow as pa
 
-from ...parameter_spec import parameter, range_problems
 from ..bounds import rate_upper_bound
 from ..kind import CampaignKind
-from .scoring import campaign_identify_config, NEES_5_SIGMA, SCORE_COLUMNS, UNSOLVED, score
+from .lost_in_space import SceneOptions, SceneShared, prepare_scenes
+from .scoring import NEES_5_SIGMA, SCORE_COLUMNS, UNSOLVED, score
 
 
 @dataclass(frozen=True)
-class FalseIdOptions:
-    """The scenes and the identifier of a false-id campaign (each a `parameter`)."""
-
-    setup: str = parameter("nominal", "scene setup of sim/scenes.SETUPS (camera, magnitude limit, noise)")
-    false_stars: int = parameter(2, "false objects added to every scene (uniform over the field)", "", 0, 1000)
-    algorithm: str = parameter("hybrid", "identification algorithm (identify.ALGORITHMS)")
-    wrong_arcsec: float = parameter(60.0, "a boresight this far from the truth is wrong", "arcsec", 0.0, 1e6,
-                                    low_open=True)
+class FalseIdOptions(SceneOptions):
+    """The scenes and the identifier of a false-id campaign (lost_in_space.SceneOptions)."""
 
     def __post_init__(self) -> None:
-        from ...identify import ALGORITHMS
-        from ...sim.scenes import SETUPS
-
-        bad = range_problems(self)
-        if self.setup not in SETUPS:
-            bad.append(f"setup={self.setup!r}: expected one of {sorted(SETUPS)}")
-        if self.algorithm not in ALGORITHMS:
-            bad.append(f"algorithm={self.algorithm!r}: expected one of {sorted(ALGORITHMS)}")
+        bad = self.problems()
         if bad:
             raise ValueError("false-id options: " + "; ".join(bad))
-
-
-@dataclass
-class _Shared:
-    setup: object
-    catalog: object  # cut to the setup's magnitude limit
-    vectors: np.ndarray  # its unit vectors, once
-    identifier: object
 
 
 class FalseIdentification(CampaignKind):
@@ -69,19 +47,10 @@ class FalseIdentification(CampaignKind):
                pa.field("real_spots", pa.int32()), pa.field("stated_probability", pa.float64()),
                pa.field("identify_s", pa.float64()))
 
-    def prepare(self, options: FalseIdOptions) -> _Shared:
-        from ...identify import DatabaseConfig, load_or_build_database, make_identifier
-        from ...models.catalog import load_hipparcos
-        from ...sim.scenes import SETUPS
+    def prepare(self, options: FalseIdOptions) -> SceneShared:
+        return prepare_scenes(options)
 
-        setup = dataclasses.replace(SETUPS[options.setup], false_stars=options.false_stars)
-        database = load_or_build_database(DatabaseConfig())
-        # The stars a scene can show and their directions, once (make_scene would on every call).
-        catalog = load_hipparcos().at_epoch(database.config.epoch_jyear).brighter_than(setup.magnitude_limit)
-        identifier = make_identifier(options.algorithm, database, campaign_identify_config())
-        return _Shared(setup, catalog, catalog.unit_vectors(), identifier)
-
-    def trial(self, shared: _Shared, options: FalseIdOptions, task: int, rng: np.random.Generator) -> dict:
+    def trial(self, shared: SceneShared, options: FalseIdOptions, task: int, rng: np.random.Generator) -> dict:
         from ...sim.scenes import make_scene
 
         scene = make_scene(shared.setup, shared.catalog, rng, vectors=shared.vectors)

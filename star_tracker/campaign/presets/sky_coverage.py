@@ -12,7 +12,6 @@ pixels where a trial failed (unsolved or wrong) and draws the sky map of the sha
 from __future__ import annotations
 
 import csv
-import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -21,37 +20,26 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from ...parameter_spec import parameter, range_problems
+from ...parameter_spec import parameter
 from ..kind import CampaignKind
-from .scoring import campaign_identify_config, SCORE_COLUMNS, UNSOLVED, score
+from .lost_in_space import SceneOptions, SceneShared, prepare_scenes
+from .scoring import SCORE_COLUMNS, UNSOLVED, score
 
 MAP_FILE = "sky_coverage.png"
 FAILING_FILE = "failing_pixels.csv"
 
 
 @dataclass(frozen=True)
-class SkyCoverageOptions:
-    """The sky grid, the scenes and the identifier of a sky-coverage campaign (each a `parameter`)."""
+class SkyCoverageOptions(SceneOptions):
+    """The sky grid (and lost_in_space.SceneOptions) of a sky-coverage campaign (each a `parameter`)."""
 
     nside: int = parameter(16, "HEALPix resolution: 12 nside^2 boresights (16: 3072, ~3.7 deg apart)", "", 1, 1024)
     rolls: int = parameter(4, "rolls per boresight, spread over the turn", "", 1, 360)
-    setup: str = parameter("nominal", "scene setup of sim/scenes.SETUPS (camera, magnitude limit, noise)")
-    false_stars: int = parameter(2, "false objects added to every scene (uniform over the field)", "", 0, 1000)
-    algorithm: str = parameter("hybrid", "identification algorithm (identify.ALGORITHMS)")
-    wrong_arcsec: float = parameter(60.0, "a boresight this far from the truth is wrong", "arcsec", 0.0, 1e6,
-                                    low_open=True)
 
     def __post_init__(self) -> None:
-        from ...identify import ALGORITHMS
-        from ...sim.scenes import SETUPS
-
-        bad = range_problems(self)
+        bad = self.problems()
         if self.nside & (self.nside - 1):
             bad.append(f"nside={self.nside} must be a power of 2")
-        if self.setup not in SETUPS:
-            bad.append(f"setup={self.setup!r}: expected one of {sorted(SETUPS)}")
-        if self.algorithm not in ALGORITHMS:
-            bad.append(f"algorithm={self.algorithm!r}: expected one of {sorted(ALGORITHMS)}")
         if bad:
             raise ValueError("sky-coverage options: " + "; ".join(bad))
 
@@ -69,14 +57,6 @@ def pixel_centres(nside: int, pixels) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(lon.to_value("rad"), float), np.asarray(lat.to_value("rad"), float)
 
 
-@dataclass
-class _Shared:
-    setup: object
-    catalog: object  # cut to the setup's magnitude limit
-    vectors: np.ndarray  # its unit vectors, once
-    identifier: object
-
-
 class SkyCoverage(CampaignKind):
     """Lost-in-space over the whole sky on a HEALPix grid (module docstring)."""
 
@@ -90,18 +70,10 @@ class SkyCoverage(CampaignKind):
                pa.field("matched", pa.int32()),
                pa.field("spots", pa.int32()), pa.field("identify_s", pa.float64()))
 
-    def prepare(self, options: SkyCoverageOptions) -> _Shared:
-        from ...identify import DatabaseConfig, load_or_build_database, make_identifier
-        from ...models.catalog import load_hipparcos
-        from ...sim.scenes import SETUPS
+    def prepare(self, options: SkyCoverageOptions) -> SceneShared:
+        return prepare_scenes(options)
 
-        setup = dataclasses.replace(SETUPS[options.setup], false_stars=options.false_stars)
-        database = load_or_build_database(DatabaseConfig())
-        catalog = load_hipparcos().at_epoch(database.config.epoch_jyear).brighter_than(setup.magnitude_limit)
-        identifier = make_identifier(options.algorithm, database, campaign_identify_config())
-        return _Shared(setup, catalog, catalog.unit_vectors(), identifier)
-
-    def trial(self, shared: _Shared, options: SkyCoverageOptions, task: int, rng: np.random.Generator) -> dict:
+    def trial(self, shared: SceneShared, options: SkyCoverageOptions, task: int, rng: np.random.Generator) -> dict:
         from ...models.attitude import radec_roll_to_matrix
         from ...sim.scenes import make_scene
 
