@@ -339,7 +339,8 @@ def _campaign_source(data: dict) -> Source:
                   "CHARACTERIZE.md")
 
 
-def campaign_rows(false_id: dict | None, sky: dict | None, accuracy: dict | None) -> list[Row]:
+def campaign_rows(false_id: dict | None, sky: dict | None, accuracy: dict | None,
+                  tracking: dict | None = None) -> list[Row]:
     """Build the rows of the Monte-Carlo campaigns (star-tracker characterize; docs/characterize_*.json)."""
     rows = []
     if false_id is None:
@@ -382,6 +383,19 @@ def campaign_rows(false_id: dict | None, sky: dict | None, accuracy: dict | None
             + ", ".join(f"{axes[a]['p997']:.2f}" for a in ("x", "y", "roll")) + "″; bias: no source in the "
             "simulator (catalog, camera model and epoch are the identifier's), the figure is the terms' residue",
             _campaign_source(accuracy)))
+    if tracking is None:
+        rows.append(_missing("Tracking envelope", "star-tracker characterize tracking"))
+    else:
+        envelope = "; ".join(f"{a}°/s²: " + (f"{r:g}°/s" if r is not None else "none")
+                             for a, r in tracking["envelope_rate_deg_s_by_acceleration"].items())
+        options = tracking["options"]
+        rows.append(Row(
+            "Tracking envelope (fastest rate reached with every frame tracked right, by acceleration)", envelope,
+            f"slews from rest at each acceleration toward each rate of {options['rates_deg_s']}°/s, "
+            f"{options['runs']} sequences of {options['frames']} frames at 10 Hz each, rendered, rate-aided by the "
+            f"tracker; {tracking['frames']:,} frames, {tracking['wrong_frames']} wrong; "
+            f"{tracking['overconfident_frames']:,} with the error outside 5σ of the stated covariance (angular "
+            "acceleration, a known limit)", _campaign_source(tracking)))
     return rows
 
 
@@ -419,7 +433,7 @@ def render(config: dict, results: Path) -> str:
             *realdata_rows(load(results, "realdata")),
             *orbit_rows(load(results, "orbit"), load(results, "environment")),
             *campaign_rows(load_campaign(results, "false-id"), load_campaign(results, "sky-coverage"),
-                           load_campaign(results, "accuracy"))]
+                           load_campaign(results, "accuracy"), load_campaign(results, "tracking"))]
     for row in rows:
         cite = row.source.cite() if row.source is not None else f"run `{row.conditions}` (`make bench`)"
         conditions = "" if row.source is None else row.conditions

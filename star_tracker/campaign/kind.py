@@ -97,6 +97,8 @@ def _typed(name: str, value: Any, default: Any) -> tuple[Any, str]:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
         value = float(value) if ok else value
     elif isinstance(default, str):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = f"{value:g}"  # YAML read a one-number list ("2") as a number
         ok = isinstance(value, str)
     else:
         ok = True

@@ -24,12 +24,12 @@ from .common import CommandError, Progress, add_parser, guarded, positive_int
 
 NAME = "characterize"
 # campaign.presets.KINDS without importing Dask at --help; a test compares the two.
-PRESETS = ("false-id", "sky-coverage", "accuracy")
+PRESETS = ("false-id", "sky-coverage", "accuracy", "tracking")
 
 
 def register(subparsers) -> None:
     parser = add_parser(
-        subparsers, NAME, "Monte-Carlo campaigns (false-identification bound, sky coverage, accuracy) on Dask",
+        subparsers, NAME, "Monte-Carlo campaigns on Dask: false-id bound, sky coverage, accuracy, tracking",
         "Run a campaign of independent seeded trials on a Dask cluster: a LocalCluster on this machine's cores by "
         "default, or an existing scheduler (--scheduler, or DASK_SCHEDULER_ADDRESS; start one with `dask "
         "scheduler` and `dask worker ADDRESS`). Results stream into OUTPUT/results/*.parquet; the same command "
@@ -136,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
     now = campaign.to_dict()
     print(f"{kind.name}: {summary.get('trials')} trials; {_headline(summary)}; {campaign.batches_run} batches run now "
           f"({campaign.batches_resumed} resumed) on {now['threads']} worker threads in {campaign.wall_s:.1f} s, "
-          + (f"{now['trials_per_s_per_core']:.0f} trials/s/core, {100 * now['utilization']:.0f} % busy"
+          + (f"{now['trials_per_s_per_core']:.3g} trials/s/core, {100 * now['utilization']:.0f} % busy"
              if now["utilization"] else "nothing left to run"), file=sys.stderr)
     print(f"wrote {output / 'summary.json'}" + "".join(f", {f}" for f in files), file=sys.stderr)
     return 0
@@ -156,4 +156,9 @@ def _headline(summary: dict) -> str:
         axes = summary["axes"]
         return (f"{summary['solved']} solved, {summary['wrong']} wrong; RMS x, y, roll " + ", ".join(
             f"{axes[a]['rms']:.2f}" if axes[a]["rms"] is not None else "-" for a in ("x", "y", "roll")) + '"')
+    if summary["preset"] == "tracking":
+        envelope = ", ".join(f"{a} deg/s^2: {r if r is not None else '-'}"
+                             for a, r in summary["envelope_rate_deg_s_by_acceleration"].items())
+        return (f"{summary['frames']} frames, {summary['wrong_frames']} wrong, {summary['overconfident_frames']} "
+                f"overconfident; fastest rate [deg/s] tracked right in every frame by acceleration: {envelope}")
     return ""

@@ -189,3 +189,27 @@ def test_accuracy_trials_nest_their_attitudes_and_measure_rendered_frames(databa
     assert np.all(cross < 2.0)  # the rendered truth, to the accuracy the datasheet states (~0.2")
     summary = kind.summarize(table, options)
     assert set(summary["axes"]) == {"x", "y", "roll"} and summary["axes"]["x"]["temporal_noise"] > 0
+
+
+def test_tracking_options_parse_their_grid_and_refuse_a_bad_one():
+    kind = KINDS["tracking"]()
+    options = kind.options({"rates_deg_s": "1, 2.5", "accelerations_deg_s2": 2, "runs": 3})
+    assert options.rates == (1.0, 2.5) and options.accelerations == (2.0,) and options.trials == 6
+    for bad in ({"rates_deg_s": "1,fast"}, {"accelerations_deg_s2": "0,1"}, {"runs": 0}):
+        with pytest.raises(ValueError):
+            kind.options(bad)
+
+
+@pytest.mark.slow
+def test_tracking_sequences_follow_a_slew_against_the_rendered_truth(database):
+    kind = KINDS["tracking"]()
+    spec = CampaignSpec("tracking", trials=2, seed=4, batch=1,
+                        options={"rates_deg_s": "1", "accelerations_deg_s2": "2", "runs": 2, "frames": 12})
+    table = pa.concat_tables([run_batch(kind, spec, b).table for b in range(2)])
+    assert not any(table.column("error").to_pylist())
+    rows = table.to_pylist()
+    assert all(r["first_solved"] == 0 and r["wrong"] == 0 and r["lost"] == 0 for r in rows)
+    assert all(r["right"] == 12 and r["tracked"] >= 10 for r in rows)  # tracked after the first solve
+    assert all(r["cross_arcsec_max"] < 10.0 for r in rows)
+    summary = kind.summarize(table, kind.options(spec.options))
+    assert summary["envelope_rate_deg_s_by_acceleration"] == {"2": 1.0} and summary["cases"][0]["right_share"] == 1.0

@@ -5,7 +5,8 @@ from __future__ import annotations
 from .accuracy import Accuracy
 from .false_id import FalseIdentification
 from .sky_coverage import SkyCoverage
+from .tracking import Tracking
 
-KINDS = {kind.name: kind for kind in (FalseIdentification, SkyCoverage, Accuracy)}
+KINDS = {kind.name: kind for kind in (FalseIdentification, SkyCoverage, Accuracy, Tracking)}
 
-__all__ = ["KINDS", "Accuracy", "FalseIdentification", "SkyCoverage"]
+__all__ = ["KINDS", "Accuracy", "FalseIdentification", "SkyCoverage", "Tracking"]

@@ -1,0 +1,205 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+`tracking`: frame sequences through render -> centroid -> track over a grid of rate and acceleration: the envelope.
+
+Case c of the grid is (rate, acceleration) = (rates_deg_s[c // A], accelerations_deg_s2[c % A]),
+A accelerations; trial t runs case t // runs. A trial is an eigen-axis slew (sim/motion.py
+SlewMotion: a random pointing, an axis across the boresight with a little roll) that rests
+0.5 s, accelerates at the case's acceleration to the case's rate and coasts, rendered at 10 Hz
+for `frames` frames (the default camera and sensor, 0.1 s exposures, stars to Hp 7.5). Each
+frame is centroided with the tracker's own rate as its smear model (the node's rate aid) and
+handed to `Tracker.process` (tracking, lost-in-space when it fails). A frame is right when
+solved with every star right and its boresight within `wrong_arcsec` (60") of the truth; a
+solved frame whose error lies outside 5 sigma of its stated covariance is counted
+overconfident beside (scoring.py; the covariance under angular acceleration is a known
+limit). The trial records its frames right, wrong, overconfident and lost after the first
+solve, the errors, the NEES and the rate at the first loss. The summary is the envelope: per
+case the share of frames right, and per acceleration the fastest rate reached (a sequence
+may end before its coast rate) with every frame tracked right.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+
+from ...parameter_spec import parameter, range_problems
+from ..kind import CampaignKind
+from .accuracy import MAGNITUDE_LIMIT, _truth_hip
+from .scoring import NEES_5_SIGMA, campaign_identify_config, score
+
+PERIOD_S = 0.1
+REST_S = 0.5
+
+
+def _numbers(text: str, name: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise ValueError(f"{name}={text!r}: expected numbers separated by commas") from None
+    if not values or any(not v > 0 for v in values):
+        raise ValueError(f"{name}={text!r}: expected positive numbers separated by commas")
+    return values
+
+
+@dataclass(frozen=True)
+class TrackingOptions:
+    """The grid and the sequences of a tracking campaign (each a `parameter`)."""
+
+    rates_deg_s: str = parameter("1,2,3,4,5,6", "coast rates of the grid, comma-separated", "deg/s")
+    accelerations_deg_s2: str = parameter("1,2,4", "accelerations of the grid, comma-separated", "deg/s^2")
+    runs: int = parameter(3, "sequences per case", "", 1, 100000)
+    frames: int = parameter(60, "frames per sequence (10 Hz; the rate reached is reported)", "", 5, 100000)
+    wrong_arcsec: float = parameter(60.0, "a boresight this far from the truth is wrong", "arcsec", 0.0, 1e6,
+                                    low_open=True)
+
+    def __post_init__(self) -> None:
+        bad = range_problems(self)
+        for name in ("rates_deg_s", "accelerations_deg_s2"):
+            try:
+                _numbers(getattr(self, name), name)
+            except ValueError as exc:
+                bad.append(str(exc))
+        if bad:
+            raise ValueError("tracking options: " + "; ".join(bad))
+
+    @property
+    def rates(self) -> tuple[float, ...]:
+        return _numbers(self.rates_deg_s, "rates_deg_s")
+
+    @property
+    def accelerations(self) -> tuple[float, ...]:
+        return _numbers(self.accelerations_deg_s2, "accelerations_deg_s2")
+
+    @property
+    def trials(self) -> int:
+        return len(self.rates) * len(self.accelerations) * self.runs
+
+
+@dataclass
+class _Shared:
+    camera: object
+    renderer: object
+    lost_in_space: object
+    exposure_s: float
+
+
+class Tracking(CampaignKind):
+    """Sequences over a grid of rate and acceleration (module docstring)."""
+
+    name = "tracking"
+    description = "frame sequences over a grid of rate and acceleration: the tracking envelope"
+    options_type = TrackingOptions
+    default_trials = 0  # the grid: rates x accelerations x runs
+    default_batch = 1
+    columns = (pa.field("rate_deg_s", pa.float64()), pa.field("acceleration_deg_s2", pa.float64()),
+               pa.field("frames", pa.int32()), pa.field("first_solved", pa.int32()), pa.field("right", pa.int32()),
+               pa.field("wrong", pa.int32()), pa.field("lost", pa.int32()), pa.field("overconfident", pa.int32()),
+               pa.field("tracked", pa.int32()), pa.field("cross_arcsec_rms", pa.float64()),
+               pa.field("cross_arcsec_max", pa.float64()), pa.field("nees_mean", pa.float64()),
+               pa.field("first_loss_rate_deg_s", pa.float64()), pa.field("reached_rate_deg_s", pa.float64()),
+               pa.field("frame_s", pa.float64()))
+
+    def prepare(self, options: TrackingOptions) -> _Shared:
+        from ...identify import DatabaseConfig, load_or_build_database, make_identifier
+        from ...models.camera import CameraModel
+        from ...models.catalog import load_hipparcos
+        from ...sim.render import StarFieldRenderer
+        from ...sim.sensor import SensorModel
+        from ...track.tracking import Tracker
+
+        camera = CameraModel.from_fov(1024, 1024, math.radians(15.0))
+        sensor = SensorModel()
+        database = load_or_build_database(DatabaseConfig())
+        catalog = load_hipparcos().at_epoch(database.config.epoch_jyear)
+        lost_in_space = make_identifier("hybrid", database, campaign_identify_config())
+        Tracker(lost_in_space).warm_up(camera)
+        return _Shared(camera, StarFieldRenderer(camera, sensor, catalog, magnitude_limit=MAGNITUDE_LIMIT),
+                       lost_in_space, sensor.exposure_s)
+
+    def trial(self, shared: _Shared, options: TrackingOptions, task: int, rng: np.random.Generator) -> dict:
+        from ...centroid import CentroidConfig, extract_spots
+        from ...centroid.streak.smear import SmearModel
+        from ...models.attitude import quaternion_to_matrix
+        from ...sim.motion import SlewMotion
+        from ...track.tracking import MODE_TRACKING, Tracker
+
+        case = task // options.runs
+        accelerations = options.accelerations
+        rate, acceleration = options.rates[case // len(accelerations)], accelerations[case % len(accelerations)]
+        azimuth = rng.uniform(0.0, 2.0 * math.pi)
+        axis = np.array([math.cos(azimuth), math.sin(azimuth), rng.uniform(-0.3, 0.3)])
+        motion = SlewMotion(quaternion_to_matrix(rng.normal(size=4)), axis, angle_rad=math.radians(360.0),
+                            max_rate_rad_s=math.radians(rate), accel_rad_s2=math.radians(acceleration),
+                            t_start=REST_S)
+        tracker = Tracker(shared.lost_in_space)
+        started = time.perf_counter()
+        right = wrong = lost = overconfident = tracked = 0
+        first_solved, first_loss_rate, cross, nees, reached = -1, None, [], [], 0.0
+        for k in range(options.frames):
+            t = 0.05 + PERIOD_S * k
+            frame = shared.renderer.render(motion, t, int(rng.integers(2 ** 31)))
+            reached = max(reached, math.degrees(float(np.linalg.norm(frame.truth.body_rate))))
+            aid = tracker.rate
+            smear = None if aid is None else SmearModel(shared.camera, aid.angular_velocity, shared.exposure_s)
+            spots = extract_spots(frame.image, CentroidConfig(), smear)
+            result = tracker.process(int(round(t * 1e9)), spots, shared.camera)
+            ident = result.identification
+            if ident.solved:
+                scored = score(ident, _truth_hip(frame.truth, spots, ident), frame.truth.rotation,
+                               options.wrong_arcsec)
+                first_solved = k if first_solved < 0 else first_solved
+                bad = scored["wrong_star"] or scored["cross_arcsec"] > options.wrong_arcsec
+                wrong += bad
+                right += not bad
+                overconfident += scored["nees"] > NEES_5_SIGMA
+                tracked += result.mode == MODE_TRACKING
+                cross.append(scored["cross_arcsec"])
+                nees.append(scored["nees"])
+            elif first_solved >= 0:
+                lost += 1
+                if first_loss_rate is None:
+                    first_loss_rate = math.degrees(float(np.linalg.norm(frame.truth.body_rate)))
+        cross_a, nees_a = np.asarray(cross), np.asarray(nees)
+        return {"rate_deg_s": rate, "acceleration_deg_s2": acceleration, "frames": options.frames,
+                "first_solved": first_solved, "right": right, "wrong": wrong, "lost": lost,
+                "overconfident": overconfident, "tracked": tracked,
+                "cross_arcsec_rms": float(np.sqrt(np.mean(cross_a ** 2))) if cross_a.size else None,
+                "cross_arcsec_max": float(cross_a.max()) if cross_a.size else None,
+                "nees_mean": float(nees_a.mean()) if nees_a.size else None,
+                "first_loss_rate_deg_s": first_loss_rate, "reached_rate_deg_s": reached,
+                "frame_s": (time.perf_counter() - started) / options.frames}
+
+    def summarize(self, table: pa.Table, options: TrackingOptions) -> dict:
+        ok = np.asarray(table.column("error").to_pylist(), object) == ""
+        col = {name: np.asarray(table.column(name).fill_null(0), float)[ok]
+               for name in ("rate_deg_s", "acceleration_deg_s2", "frames", "first_solved", "right", "wrong", "lost",
+                            "overconfident", "tracked")}
+        nees = np.asarray(table.column("nees_mean").fill_null(np.nan), float)[ok]
+        cases = []
+        for rate in options.rates:
+            for acceleration in options.accelerations:
+                mine = (col["rate_deg_s"] == rate) & (col["acceleration_deg_s2"] == acceleration)
+                reached = np.asarray(table.column("reached_rate_deg_s").fill_null(0.0), float)[ok][mine]
+                after = np.maximum(col["frames"][mine] - np.maximum(col["first_solved"][mine], 0), 0)
+                judged = float(after.sum())
+                cases.append({"rate_deg_s": rate, "acceleration_deg_s2": acceleration, "runs": int(mine.sum()),
+                              "reached_rate_deg_s": float(reached.min()) if reached.size else None,
+                              "frames_after_acquisition": int(judged),
+                              "right_share": float(col["right"][mine].sum() / judged) if judged else None,
+                              "wrong": int(col["wrong"][mine].sum()), "lost": int(col["lost"][mine].sum()),
+                              "overconfident": int(col["overconfident"][mine].sum()),
+                              "tracked_share": float(col["tracked"][mine].sum() / judged) if judged else None,
+                              "nees_mean": float(np.nanmean(nees[mine])) if np.isfinite(nees[mine]).any() else None})
+        envelope = {}
+        for acceleration in options.accelerations:
+            held = [c["reached_rate_deg_s"] for c in cases if c["acceleration_deg_s2"] == acceleration
+                    and c["right_share"] == 1.0 and c["wrong"] == 0]
+            envelope[f"{acceleration:g}"] = round(max(held), 2) if held else None
+        return {"trials": int(ok.sum()), "failed_tasks": int((~ok).sum()),
+                "frames": int(col["frames"].sum()), "wrong_frames": int(col["wrong"].sum()),
+                "overconfident_frames": int(col["overconfident"].sum()),
+                "cases": cases, "envelope_rate_deg_s_by_acceleration": envelope}
