@@ -49,7 +49,8 @@ def register(subparsers) -> None:
     parser.add_argument("--seed", type=int, help="the campaign's seed (default: 2026 or the file's)")
     parser.add_argument("--batch", type=positive_int, help="trials per Dask task (default: the preset's)")
     parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
-                        help="a preset option (repeatable; YAML values: --option false_stars=5)")
+                        help="a preset option (repeatable; YAML values: --option false_stars=5; default: the "
+                        "preset's options)")
     parser.set_defaults(func=run, argv=None)
 
 
