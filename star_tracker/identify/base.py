@@ -13,6 +13,7 @@ bound, and enforces the per-frame time budget.
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Iterator
@@ -179,6 +180,15 @@ FIT_OUTLIER_SIGMA = 5.0
 # An accepted match whose fit's chi^2 (matching sigmas) is less likely than this is examined
 # for one wrong star on a long lever arm (StarIdentifier.without_lever_outlier).
 LEVER_TEST_PROBABILITY = 1e-6
+
+
+@functools.lru_cache(maxsize=None)
+def _chi2_limit(dof: int) -> float:
+    """Return the chi^2 (dof degrees of freedom) exceeded with probability LEVER_TEST_PROBABILITY."""
+    from scipy.stats import chi2
+
+    return float(chi2.isf(LEVER_TEST_PROBABILITY, dof))
+
 
 # Deep re-match rounds: match at the guide fit, refit, match again at the refined attitude.
 DEEP_PASSES = 2
@@ -384,16 +394,13 @@ class StarIdentifier:
         again from the rest's attitude (verify_hypothesis: every spot matched anew); None when
         that fails. Otherwise the match unchanged.
         """
-        from scipy.stats import chi2 as chi2_distribution
-
         spot_index, star_index = match.spot_index, match.star_index
         n = spot_index.size
         if n <= MIN_STARS:
             return match
         body, stars, sigma = geometry.rays[spot_index], self.database.vectors[star_index], geometry.sigma[spot_index]
-        rotation = quest_rotation(body, stars, sigma)
-        normalized = np.linalg.norm(body - stars @ rotation, axis=1) / sigma
-        if chi2_distribution.sf(float(normalized @ normalized), 2 * n - 3) >= LEVER_TEST_PROBABILITY:
+        normalized = np.linalg.norm(body - stars @ match.rotation, axis=1) / sigma  # the match's own fit
+        if float(normalized @ normalized) <= _chi2_limit(2 * n - 3):
             return match
         best, best_chi2, best_rotation = -1, np.inf, None
         for i in range(n):
@@ -403,7 +410,7 @@ class StarIdentifier:
             if others @ others < best_chi2:
                 best, best_chi2, best_rotation = i, float(others @ others), turned
         deleted = np.linalg.norm(body[best] - stars[best] @ best_rotation) / sigma[best]
-        if chi2_distribution.sf(best_chi2, 2 * (n - 1) - 3) < LEVER_TEST_PROBABILITY or deleted <= FIT_OUTLIER_SIGMA:
+        if best_chi2 > _chi2_limit(2 * (n - 1) - 3) or deleted <= FIT_OUTLIER_SIGMA:
             return match  # no single star explains it (e.g. a lens distortion the camera model lacks)
         self.stats["lever_outliers"] = self.stats.get("lever_outliers", 0) + 1
         return self.verify_hypothesis(geometry, camera, best_rotation)

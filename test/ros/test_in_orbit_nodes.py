@@ -107,7 +107,8 @@ def slew_toward_the_sun(start_off_deg: float, end_off_deg: float) -> dict:
 
     The spacecraft starts above the subsolar point (its orbit's node at the Sun's right
     ascension, its argument of latitude at the Sun's declination): the Earth, ~67 deg wide
-    from 550 km, lies opposite the Sun, far from the field.
+    from 550 km, lies opposite the Sun, far from the field. The boresight comes from the side
+    of the Sun away from the Moon, at least start_off_deg + the Sun-Moon angle from it.
     """
     sun = load_ephemeris().sun_position(time.time())
     sun /= np.linalg.norm(sun)
@@ -116,8 +117,10 @@ def slew_toward_the_sun(start_off_deg: float, end_off_deg: float) -> dict:
     orbit = {"orbit.model": "kepler", "orbit.sun_synchronous": False, "orbit.inclination_deg": 97.6,
              "orbit.raan_deg": math.degrees(sun_ra),
              "orbit.true_anomaly_deg": math.degrees(math.asin(math.sin(sun_dec) / math.sin(inclination)))}
-    pole = np.array([0.0, 0.0, 1.0])
-    side = np.cross(sun, pole)
+    # The slew comes from the side away from the Moon: around new moon the Moon lies within ~40 deg
+    # of the Sun, and a path across it reported the Moon (blinded_moon) before the Sun.
+    moon = load_ephemeris().moon_position(time.time())
+    side = -(moon - (moon @ sun) * sun)
     side /= np.linalg.norm(side)
     boresight = math.cos(math.radians(start_off_deg)) * sun + math.sin(math.radians(start_off_deg)) * side
     ra, dec = math.atan2(boresight[1], boresight[0]), math.asin(boresight[2])

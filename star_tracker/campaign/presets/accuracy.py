@@ -146,7 +146,7 @@ class Accuracy(CampaignKind):
                   "frame_s": time.perf_counter() - started}
         if result.solved:
             truth = frame.truth.rotation
-            record.update(score(result, _truth_hip(frame.truth, spots, result), truth, options.wrong_arcsec))
+            record.update(score(result, truth_hip(frame.truth, spots, result), truth, options.wrong_arcsec))
             error = matrix_to_rotation_vector(truth.T @ result.attitude.rotation) / ARCSEC
             record.update(error_x_arcsec=float(error[0]), error_y_arcsec=float(error[1]),
                           error_roll_arcsec=float(error[2]))
@@ -172,7 +172,7 @@ class Accuracy(CampaignKind):
                 if ok.any() else None}
 
 
-def _truth_hip(truth, spots, result) -> np.ndarray:
+def truth_hip(truth, spots, result) -> np.ndarray:
     """Return the HIP id of the rendered star within 3 px of each spot (0: none), for the scoring."""
     from ...sim.render import KIND_STAR
 

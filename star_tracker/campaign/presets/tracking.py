@@ -28,7 +28,7 @@ import pyarrow as pa
 
 from ...parameter_spec import parameter, range_problems
 from ..kind import CampaignKind
-from .accuracy import MAGNITUDE_LIMIT, _truth_hip
+from .accuracy import MAGNITUDE_LIMIT, truth_hip
 from .scoring import NEES_5_SIGMA, campaign_identify_config, score
 
 PERIOD_S = 0.1
@@ -149,7 +149,7 @@ class Tracking(CampaignKind):
             result = tracker.process(int(round(t * 1e9)), spots, shared.camera)
             ident = result.identification
             if ident.solved:
-                scored = score(ident, _truth_hip(frame.truth, spots, ident), frame.truth.rotation,
+                scored = score(ident, truth_hip(frame.truth, spots, ident), frame.truth.rotation,
                                options.wrong_arcsec)
                 first_solved = k if first_solved < 0 else first_solved
                 bad = scored["wrong_star"] or scored["cross_arcsec"] > options.wrong_arcsec
