@@ -164,3 +164,27 @@ def colcon_workspace(tmp_path_factory) -> Path:
     assert "Finished <<< star_tracker" in result.stdout, (
         f"colcon did not build star_tracker from {COLCON_REPO}:\n{result.stdout[-8000:]}")
     return ws
+
+
+def sourced_ros_environment(ros2_exe, colcon_workspace) -> dict[str, str]:
+    """
+    Return the environment after `source install/setup.bash` of a colcon workspace, the venv on PATH.
+
+    As a user's shell has it: this process's ROS variables dropped first, localhost discovery.
+    """
+    import sys
+
+    install = colcon_workspace / "install"
+    setup = install / "setup.bash"
+    if not setup.is_file():  # colcon-bash not installed: colcon's POSIX script is the same
+        setup = install / "setup.sh"
+    base = {k: v for k, v in os.environ.items()
+            if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "ROS_LOCALHOST_ONLY",
+                         "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")}
+    base["PATH"] = os.pathsep.join([str(ros2_exe.parent), base.get("PATH", "")])
+    base["VIRTUAL_ENV"] = sys.prefix
+    out = subprocess.run(["bash", "-c", 'source "$1" >/dev/null && env -0', "bash", str(setup)], env=base,
+                         cwd=colcon_workspace, capture_output=True, timeout=60, check=True).stdout
+    env = dict(item.split("=", 1) for item in out.decode().split("\0") if "=" in item)
+    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", RCUTILS_COLORIZED_OUTPUT="0", PYTHONUNBUFFERED="1")
+    return env

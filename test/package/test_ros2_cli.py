@@ -41,6 +41,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from conftest import sourced_ros_environment
+
 # pytest.ini gives each test 600 s; a first start (cold kernels, database build) under load needs more.
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(1200)]
 
@@ -168,20 +170,9 @@ def ros2_exe() -> Path:
 @pytest.fixture(scope="module")
 def user_env(ros2_exe, colcon_workspace) -> dict[str, str]:
     """Return the environment after `source install/setup.bash`, the venv on PATH (as activated)."""
-    install = colcon_workspace / "install"
-    setup = install / "setup.bash"
-    if not setup.is_file():  # colcon-bash not installed: colcon's POSIX script is the same
-        setup = install / "setup.sh"
-    base = {k: v for k, v in os.environ.items()
-            if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "ROS_LOCALHOST_ONLY",
-                         "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")}
-    base["PATH"] = os.pathsep.join([str(ros2_exe.parent), base.get("PATH", "")])
-    base["VIRTUAL_ENV"] = sys.prefix
-    out = subprocess.run(["bash", "-c", 'source "$1" >/dev/null && env -0', "bash", str(setup)], env=base,
-                         cwd=colcon_workspace, capture_output=True, timeout=60, check=True).stdout
-    env = dict(item.split("=", 1) for item in out.decode().split("\0") if "=" in item)
-    assert str(install / PACKAGE) in env.get("AMENT_PREFIX_PATH", ""), f"{setup} did not set AMENT_PREFIX_PATH"
-    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", RCUTILS_COLORIZED_OUTPUT="0", PYTHONUNBUFFERED="1")
+    env = sourced_ros_environment(ros2_exe, colcon_workspace)
+    assert str(colcon_workspace / "install" / PACKAGE) in env.get("AMENT_PREFIX_PATH", ""), \
+        "install/setup.bash did not set AMENT_PREFIX_PATH"
     return env
 
 

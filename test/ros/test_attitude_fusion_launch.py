@@ -24,6 +24,8 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import sourced_ros_environment
+
 REPO = Path(__file__).resolve().parents[2]
 ROS2CLI = REPO.parent / "shared" / "ros2cli"
 LAUNCH_FILE = REPO / "launch" / "multi_head.launch.py"
@@ -100,21 +102,8 @@ def ros2_exe() -> Path:
 
 @pytest.fixture(scope="module")
 def user_env(ros2_exe, colcon_workspace) -> dict[str, str]:
-    """Return the environment after `source install/setup.bash`, the venv on PATH (as test_ros2_cli.py has it)."""
-    install = colcon_workspace / "install"
-    setup = install / "setup.bash"
-    if not setup.is_file():
-        setup = install / "setup.sh"
-    base = {k: v for k, v in os.environ.items()
-            if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "COLCON_PREFIX_PATH", "ROS_LOCALHOST_ONLY",
-                         "FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")}
-    base["PATH"] = os.pathsep.join([str(ros2_exe.parent), base.get("PATH", "")])
-    base["VIRTUAL_ENV"] = sys.prefix
-    out = subprocess.run(["bash", "-c", 'source "$1" >/dev/null && env -0', "bash", str(setup)], env=base,
-                         cwd=colcon_workspace, capture_output=True, timeout=60, check=True).stdout
-    env = dict(item.split("=", 1) for item in out.decode().split("\0") if "=" in item)
-    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", RCUTILS_COLORIZED_OUTPUT="0", PYTHONUNBUFFERED="1")
-    return env
+    """Return the environment after `source install/setup.bash`, the venv on PATH (conftest)."""
+    return sourced_ros_environment(ros2_exe, colcon_workspace)
 
 
 def _default_signals() -> None:

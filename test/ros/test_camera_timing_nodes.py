@@ -104,17 +104,13 @@ def assert_frames_are_the_rendered_ones(images, truth, period_ns: int) -> None:
         assert np.array_equal(renderer.render(motion, stamp * 1e-9, frame_seed(7, k)).image, image), k
 
 
-@pytest.mark.integration
-def test_frames_are_published_after_exposure_and_readout_wall_clock(driver, tmp_path):
-    env, node = driver
-    images, truth = subscribe(node, time.time_ns)  # the nodes' clock: this host's wall clock
-    frames = 12
-    cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": {**PARAMS, "max_frames": frames}},
-                        nodes=("camera_simulator",)).start()
+def run_wall_clock_camera(env, node, tmp_path, params: dict, truth: list) -> str:
+    """Run a camera_simulator with `params` (max_frames set) until its truth is in, and 1 s more; return its log."""
+    cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": params}, nodes=("camera_simulator",)).start()
     try:
         cam.wait_ready()
-        end = time.monotonic() + 30.0  # 12 frames at 10 Hz take ~1.3 s; generous for a loaded host
-        while time.monotonic() < end and len(truth) < frames:
+        end = time.monotonic() + 30.0  # ~1 s of frames at 10 Hz; generous for a loaded host
+        while time.monotonic() < end and len(truth) < params["max_frames"]:
             rclpy.spin_once(node, timeout_sec=0.02)
         end = time.monotonic() + 1.0
         while time.monotonic() < end:
@@ -123,6 +119,15 @@ def test_frames_are_published_after_exposure_and_readout_wall_clock(driver, tmp_
         codes = cam.stop()
     log = (tmp_path / "logs" / "camera_simulator.log").read_text()
     assert codes == {"camera_simulator": 0}, log
+    return log
+
+
+@pytest.mark.integration
+def test_frames_are_published_after_exposure_and_readout_wall_clock(driver, tmp_path):
+    env, node = driver
+    images, truth = subscribe(node, time.time_ns)  # the nodes' clock: this host's wall clock
+    frames = 12
+    log = run_wall_clock_camera(env, node, tmp_path, {**PARAMS, "max_frames": frames}, truth)
     assert len(truth) == frames and len(images) >= frames - 2, log  # best-effort images may lose a couple
     early = [(stamp, received) for stamp, received, _ in images if received < stamp + DELIVERY_AFTER_STAMP_NS]
     assert not early, f"published before exposure + transfer + readout ended: {early}"
@@ -275,19 +280,7 @@ def test_synchronised_exposures_are_stamped_on_the_clocks_period_grid(driver, tm
     images, truth = subscribe(node, time.time_ns)
     frames = 8
     params = {**PARAMS, "max_frames": frames, "sync_exposures": True, "start_delay_s": 0.0123}
-    cam = NodeProcesses(env, tmp_path / "logs", {"camera_simulator": params}, nodes=("camera_simulator",)).start()
-    try:
-        cam.wait_ready()
-        end = time.monotonic() + 30.0
-        while time.monotonic() < end and len(truth) < frames:
-            rclpy.spin_once(node, timeout_sec=0.02)
-        end = time.monotonic() + 1.0
-        while time.monotonic() < end:
-            rclpy.spin_once(node, timeout_sec=0.02)
-    finally:
-        codes = cam.stop()
-    log = (tmp_path / "logs" / "camera_simulator.log").read_text()
-    assert codes == {"camera_simulator": 0}, log
+    log = run_wall_clock_camera(env, node, tmp_path, params, truth)
     assert len(truth) == frames and len(images) >= frames - 2, log
     period_ns = 100_000_000
     stamps = [convert.stamp_to_ns(m.header.stamp) for m in truth]
