@@ -160,8 +160,9 @@ def _measure_small(frame: CandidateFrame, idx: np.ndarray, out: dict) -> None:
     image, det, config, sigma = frame.image, frame.det, frame.config, frame.sigma
     half = window_half(sigma) + 1
     big = 2 * half + 1 + SEARCH_MARGIN
-    bg = det.background_at(det.x[idx], det.y[idx])
-    spots = SmallSpots(det.x[idx], det.y[idx], bg, det.top[idx], det.bottom[idx], det.left[idx], det.right[idx])
+    plane = det.background_plane_at(det.x[idx], det.y[idx], config.background_block_px)
+    spots = SmallSpots(det.x[idx], det.y[idx], plane.level, plane.slope_x, plane.slope_y, det.top[idx],
+                       det.bottom[idx], det.left[idx], det.right[idx])
     settings = PointWindowSettings(half, SEARCH_MARGIN, float(sigma), float(det.noise_adu),
                                    float(config.gain_e_per_adu), float(hot_pixel_ratio(config, sigma)),
                                    config.method == "wcog")

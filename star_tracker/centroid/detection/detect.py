@@ -19,6 +19,81 @@ from .components_kernel import component_stats
 MAD_TO_SIGMA = 1.4826
 
 
+class BackgroundPlane(NamedTuple):
+    """
+    The background near each of n spots as a plane: level [ADU] at (x, y) [px] and slopes [ADU/px].
+
+    A stray-light ramp left in a spot's window (its background taken as one level) pulls the
+    centroid toward the bright side: 0.014 px for a 30,000 e- star on a 20,000 e- background
+    that changes by half of itself across the half diagonal, 0.07 px at 6,000 e-. Windows
+    subtract the plane instead (over_window).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    level: np.ndarray
+    slope_x: np.ndarray
+    slope_y: np.ndarray
+
+    def over_window(self, col0: np.ndarray, row0: np.ndarray, size: int) -> np.ndarray:
+        """Return the plane over (n, size, size) windows whose top-left pixels are (col0, row0) [ADU]."""
+        steps = np.arange(size, dtype=float)
+        dx = np.asarray(col0, float)[:, None] + steps - self.x[:, None]
+        dy = np.asarray(row0, float)[:, None] + steps - self.y[:, None]
+        return (self.level[:, None, None] + self.slope_x[:, None, None] * dx[:, None, :]
+                + self.slope_y[:, None, None] * dy[:, :, None])
+
+
+# Half the span [binned px] of the central differences that give the background's slopes: within
+# one piece of the bilinear tile map (tiles are background_block_px / binning wide).
+SLOPE_HALF_SPAN = 2.0
+# A slope is kept when it exceeds this many of its standard errors (slope_noise). Without the
+# test the tile medians' noise tilts every window a little: on flat backgrounds the centroids
+# scattered up to ~3 % more (bench_psf_range).
+SLOPE_SIGNIFICANCE = 3.0
+TILE_SAMPLES = 64  # background_and_noise's samples per tile (at most 8 x 8)
+
+
+def slope_noise(pixel_noise: np.ndarray, block_px: int) -> np.ndarray:
+    """Return the standard error [ADU/px] of a slope between two neighbouring tiles' medians of pixel_noise [ADU]."""
+    median_noise = 1.2533 * np.asarray(pixel_noise, float) / np.sqrt(TILE_SAMPLES)  # the median's efficiency
+    return np.sqrt(2.0) * median_noise / float(block_px)
+
+
+def background_plane(background: np.ndarray, binning: int, x: np.ndarray, y: np.ndarray,
+                     slope_floor: np.ndarray | float = 0.0) -> BackgroundPlane:
+    """
+    Return the binned background map [ADU] as a plane at each full-resolution position (x, y) [px].
+
+    Level: the map bilinearly interpolated there (binned pixel j's centre is full-resolution
+    j binning + (binning - 1) / 2). Slopes [ADU/px]: central differences of that interpolation
+    over +-SLOPE_HALF_SPAN binned pixels; a slope whose size is below slope_floor [ADU/px] is 0.
+    """
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    u = (x - 0.5 * (binning - 1)) / binning
+    v = (y - 0.5 * (binning - 1)) / binning
+    d = SLOPE_HALF_SPAN
+    level = _bilinear(background, u, v)
+    slope_x = (_bilinear(background, u + d, v) - _bilinear(background, u - d, v)) / (2.0 * d * binning)
+    slope_y = (_bilinear(background, u, v + d) - _bilinear(background, u, v - d)) / (2.0 * d * binning)
+    slope_x = np.where(np.abs(slope_x) > slope_floor, slope_x, 0.0)
+    slope_y = np.where(np.abs(slope_y) > slope_floor, slope_y, 0.0)
+    return BackgroundPlane(x, y, level, slope_x, slope_y)
+
+
+def _bilinear(grid: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear interpolation of grid at column u, row v (clamped to the grid)."""
+    h, w = grid.shape
+    u, v = np.clip(u, 0.0, w - 1.0), np.clip(v, 0.0, h - 1.0)
+    c, r = np.minimum(u.astype(np.int64), max(w - 2, 0)), np.minimum(v.astype(np.int64), max(h - 2, 0))
+    fu, fv = u - c, v - r
+    c1, r1 = np.minimum(c + 1, w - 1), np.minimum(r + 1, h - 1)
+    g = grid.astype(float, copy=False)
+    top = g[r, c] * (1.0 - fu) + g[r, c1] * fu
+    bottom = g[r1, c] * (1.0 - fu) + g[r1, c1] * fu
+    return top * (1.0 - fv) + bottom * fv
+
+
 @dataclass(frozen=True)
 class Detections:
     """
@@ -68,6 +143,16 @@ class Detections:
         col = np.clip((np.asarray(x) / self.binning).astype(np.int64), 0, w - 1)
         row = np.clip((np.asarray(y) / self.binning).astype(np.int64), 0, h - 1)
         return self.background[row, col].astype(float)
+
+    def background_plane_at(self, x: np.ndarray, y: np.ndarray, block_px: int) -> "BackgroundPlane":
+        """
+        Return the background's level and slopes at full-resolution positions (background_plane).
+
+        block_px: the background tiles' size [px]. A slope within SLOPE_SIGNIFICANCE standard
+        errors of zero is the tile medians' noise, not a gradient: it is taken as 0.
+        """
+        noise = self.noise_adu * self.noise_scale_at(x, y)
+        return background_plane(self.background, self.binning, x, y, SLOPE_SIGNIFICANCE * slope_noise(noise, block_px))
 
 
 def bin_image(image: np.ndarray, binning: int) -> np.ndarray:

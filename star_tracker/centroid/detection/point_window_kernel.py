@@ -42,13 +42,16 @@ class SmallSpots(NamedTuple):
     """
     Detections to measure in a point window, per spot (n,).
 
-    cx, cy the footprint centroid [px]; bg the background there [ADU]; top, bottom, left,
+    cx, cy the footprint centroid [px]; bg the background there [ADU] and bg_dx, bg_dy its
+    slopes [ADU/px] (detect.BackgroundPlane: the windows subtract the plane); top, bottom, left,
     right its bounding box (full-resolution px, bottom/right exclusive; int64).
     """
 
     cx: np.ndarray
     cy: np.ndarray
     bg: np.ndarray
+    bg_dx: np.ndarray
+    bg_dy: np.ndarray
     top: np.ndarray
     bottom: np.ndarray
     left: np.ndarray
@@ -116,9 +119,11 @@ def measure_small(image: np.ndarray, spots: SmallSpots, settings: PointWindowSet
 
 
 @njit(cache=True)
-def _clean_search_window(image, c0, r0, bg, ratio_limit, noise, raw, win, valid):
+def _clean_search_window(image, c0, r0, plane, ratio_limit, noise, raw, win, valid):
     """
-    Fill the search window (top-left pixel (c0, r0)) from `image` less `bg`, hot pixels cleaned.
+    Fill the search window (top-left pixel (c0, r0)) from `image` less the background plane, hot pixels cleaned.
+
+    plane: (level [ADU] at (x, y), x, y [px], slope_x, slope_y [ADU/px]).
 
     raw, win, valid (big, big) are overwritten; returns whether a hot pixel was cleaned. The
     4-neighbour test of measure.clean_hot_pixels (hot_pixel_kernel.is_hot, neighbour_mean):
@@ -126,13 +131,14 @@ def _clean_search_window(image, c0, r0, bg, ratio_limit, noise, raw, win, valid)
     """
     height, width = image.shape
     big = win.shape[0]
+    level, px, py, slope_x, slope_y = plane
     for i in range(big):
         for j in range(big):
             rr, cc = r0 + i, c0 + j
             inside = 0 <= rr < height and 0 <= cc < width
             valid[i, j] = inside
             raw[i, j] = float(image[min(max(rr, 0), height - 1), min(max(cc, 0), width - 1)]) if inside else 0.0
-            win[i, j] = raw[i, j] - bg if inside else 0.0
+            win[i, j] = raw[i, j] - (level + slope_x * (cc - px) + slope_y * (rr - py)) if inside else 0.0
     hit_any = False
     cleaned = win.copy()
     ratio, floor = np.float32(ratio_limit), np.float32(5.0 * noise)
@@ -187,6 +193,7 @@ def _measure_small(image, spots, settings):
     """
     cx, cy, bg, top, bottom, left, right = (spots.cx, spots.cy, spots.bg, spots.top, spots.bottom, spots.left,
                                             spots.right)
+    bg_dx, bg_dy = spots.bg_dx, spots.bg_dy
     half, search_margin, sigma = settings.half, settings.search_margin, settings.sigma
     noise, gain, ratio_limit, weighted = settings.noise, settings.gain, settings.ratio_limit, settings.weighted
     height, width = image.shape
@@ -230,7 +237,8 @@ def _measure_small(image, spots, settings):
     for s in range(n):
         c0 = int(np.rint(cx[s])) - big // 2
         r0 = int(np.rint(cy[s])) - big // 2
-        hit_any = _clean_search_window(image, c0, r0, bg[s], ratio_limit, noise, raw, win, valid)
+        plane = (bg[s], cx[s], cy[s], bg_dx[s], bg_dy[s])
+        hit_any = _clean_search_window(image, c0, r0, plane, ratio_limit, noise, raw, win, valid)
         # Seed: brightest box sum in the footprint box. The search window is centred on the
         # footprint's centroid; a star at one end of a long footprint (a faint wide star merged
         # with a hot pixel) can lie beyond the seeds kept half a window from its border: the window
@@ -239,7 +247,7 @@ def _measure_small(image, spots, settings):
                                      max(left[s] - c0, seed_half), min(right[s] - c0, big - seed_half))
         if br >= 0 and not (lo <= br <= hi and lo <= bc <= hi):
             c0, r0 = c0 + bc - big // 2, r0 + br - big // 2
-            hit_any = _clean_search_window(image, c0, r0, bg[s], ratio_limit, noise, raw, win, valid)
+            hit_any = _clean_search_window(image, c0, r0, plane, ratio_limit, noise, raw, win, valid)
             best, br, bc = brightest_box(win, seed_half, min(max(top[s] - r0, lo), hi),
                                          min(max(bottom[s] - r0, lo + 1), hi + 1), min(max(left[s] - c0, lo), hi),
                                          min(max(right[s] - c0, lo + 1), hi + 1))
@@ -329,6 +337,8 @@ def warm_up() -> None:
     one = np.full(1, 16.0)
     index = np.full(1, 14, np.int64)
     for dtype in WARM_IMAGE_DTYPES:
-        measure_small(np.zeros((32, 32), dtype), SmallSpots(one, one, np.zeros(1), index, index + 4, index, index + 4),
+        flat = np.zeros(1)
+        spots = SmallSpots(one, one, flat, flat, flat, index, index + 4, index, index + 4)
+        measure_small(np.zeros((32, 32), dtype), spots,
                       PointWindowSettings(4, 8, 1.0, 1.0, 1.0, 3.0, False))
     brightest_box(np.zeros((9, 9)), 1, 1, 8, 1, 8)  # candidates' wide spots call it on float64 windows

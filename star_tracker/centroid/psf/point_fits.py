@@ -21,15 +21,19 @@ from .single_star_model import fit_frame_model, window_shares
 from ..spots import FLAG_BLENDED
 
 
-def cleaned_windows(context: FitContext, col0, row0, size: int, background):
+def cleaned_windows(context: FitContext, col0, row0, size: int, x, y):
     """
     Background-subtracted (n, size, size) windows with hot pixels cleaned, top-left pixel (col0, row0) [px].
 
-    Background (n,) [ADU]; cleaned on windows one pixel larger, so that a hot pixel on the
+    The background is the plane of the map at the spots' positions x, y (n,) [px]
+    (detect.BackgroundPlane); cleaned on windows one pixel larger, so that a hot pixel on the
     border is judged against its true neighbours. Returns data and mask.
     """
-    raw, valid = gather_windows(context.image, np.asarray(col0) - 1, np.asarray(row0) - 1, size + 2)
-    win, _ = clean_hot_pixels(np.where(valid, raw - np.asarray(background)[:, None, None], 0.0), valid,
+    col0, row0 = np.asarray(col0) - 1, np.asarray(row0) - 1
+    raw, valid = gather_windows(context.image, col0, row0, size + 2)
+    plane = context.det.background_plane_at(x, y, context.config.background_block_px)
+    background = plane.over_window(col0, row0, size + 2)
+    win, _ = clean_hot_pixels(np.where(valid, raw - background, 0.0), valid,
                               context.noise, 2.0 * star_peak_to_neighbour_ratio(context.sigma))
     return win[:, 1:-1, 1:-1], valid[:, 1:-1, 1:-1]
 
@@ -98,8 +102,8 @@ def _point_windows(context: FitContext, kept: Candidates, spots: SpotRows, which
     if fresh.size:
         col0[fresh] = np.rint(x[which[fresh]]).astype(np.int64) - half
         row0[fresh] = np.rint(y[which[fresh]]).astype(np.int64) - half
-        bg = context.det.background_at(x[which[fresh]], y[which[fresh]])
-        win[fresh], valid[fresh] = cleaned_windows(context, col0[fresh], row0[fresh], size, bg)
+        win[fresh], valid[fresh] = cleaned_windows(context, col0[fresh], row0[fresh], size, x[which[fresh]],
+                                                   y[which[fresh]])
     if excluded is not None:
         clipped, _ = gather_windows(excluded, col0, row0, size)
         valid &= clipped == 0
@@ -264,8 +268,7 @@ def fit_blends(context: FitContext, kept: Candidates, spots: SpotRows, which: np
         left = int(np.floor(peaks[:, 0].min())) - margin
         top = int(np.floor(peaks[:, 1].min())) - margin
         size = int(max(np.ptp(peaks[:, 0]), np.ptp(peaks[:, 1]))) + 2 * margin + 1
-        bg = context.det.background_at(np.array([peaks[0, 0]]), np.array([peaks[0, 1]]))
-        win, valid = cleaned_windows(context, np.array([left]), np.array([top]), size, bg)
+        win, valid = cleaned_windows(context, np.array([left]), np.array([top]), size, peaks[:1, 0], peaks[:1, 1])
         amplitude = win[0, (peaks[:, 1] - top).astype(int), (peaks[:, 0] - left).astype(int)]
         flux0 = np.maximum(amplitude * 2.0 * np.pi * sigma ** 2, 1.0)
         fit = fit_psf_windows(PsfWindows(win, valid, np.array([left]), np.array([top])),
@@ -378,7 +381,7 @@ def fit_clipped_points(context: FitContext, spots: SpotRows, which: np.ndarray, 
         k = np.flatnonzero(half_all == half)
         size = 2 * int(half) + 1
         col0, row0 = cx[k] - half, cy[k] - half
-        win, valid = cleaned_windows(context, col0, row0, size, context.det.background_at(x[which[k]], y[which[k]]))
+        win, valid = cleaned_windows(context, col0, row0, size, x[which[k]], y[which[k]])
         clipped, _ = gather_windows(excluded, col0, row0, size)
         valid &= clipped == 0
         # The flux is linear in the model: start from the window's sum (the clipped core short).

@@ -39,7 +39,7 @@ def refit_beside_tracks(context: FitContext, peaks: dict, spots: SpotRows, psf, 
     size = 2 * half + 1
     x0, y0 = spots.x[rows], spots.y[rows]
     col0, row0 = np.rint(x0).astype(np.int64) - half, np.rint(y0).astype(np.int64) - half
-    win, valid = cleaned_windows(context, col0, row0, size, context.det.background_at(x0, y0))
+    win, valid = cleaned_windows(context, col0, row0, size, x0, y0)
     if excluded is not None:
         clipped, _ = gather_windows(excluded, col0, row0, size)
         valid &= clipped == 0
