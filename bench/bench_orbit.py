@@ -26,7 +26,8 @@ attitude), the attitude corrected for the observer's velocity (identify.aberrati
 given the matched rays and covariances: refitted against the apparent directions with the
 fit's weights), and the head status track.head_status would publish (the
 geometry from the ephemeris, the true position and the tracker's attitude guess). Fusion:
-fuse.FusionState with an AlignmentFilter (reference head a), each solved head's matched stars
+fuse.FusionState with an AlignmentFilter (reference head a; the drift modelled as one harmonic of
+the orbital period beside a random walk of DRIFT_PSD), each solved head's matched stars
 (head-frame rays, their apparent ICRS directions, the isotropic ray sigma of the centroid
 covariance) and its corrected attitude; the body rate is the true one plus a gyro's 1 urad/s
 noise. Head b is truly mounted 10" off its nominal mounting plus a 3" sinusoidal drift over the
@@ -111,9 +112,10 @@ DRIFT_AXIS = np.array([1.0, 1.0, 1.0]) / math.sqrt(3.0)
 OFFSET_ARCSEC, DRIFT_ARCSEC = 10.0, 3.0
 WRONG_ARCSEC = 60.0
 GYRO_SIGMA_RAD_S = 1e-6
-# docs/FUSION.md's rule: a 3"/sqrt(3) sinusoid per axis over 96 min, ~9" per frame on the weak
-# axes, an update every 3 s: drift_psd ~ (1.9e-3 "/s)^(4/3) (81 "^2 * 3 s)^(1/3) = 1.5e-3 "^2/s.
-DRIFT_PSD = 1.5e-3 * ARCSEC ** 2
+# The alignment filter models the drift as periodic over the orbit (one harmonic of the orbital
+# period, docs/FUSION.md § Orbit-periodic drift); its random walk is left for what is not periodic:
+# 1e-5 "^2/s lets the estimate wander ~0.24" over an orbit.
+DRIFT_PSD = 1e-5 * ARCSEC ** 2
 TRACKING = TrackingConfig(max_coast_s=10.0, rate_window_s=10.0, max_angular_acceleration_rad_s2=math.radians(0.01))
 REST_EVERY = 10
 # Part 4: (target, Moon illuminated fraction wanted or None) x ARC_ROLLS attitudes each.
@@ -508,7 +510,7 @@ def fuse(records: dict[str, list[dict]], period_s: float) -> tuple[list[dict], d
     """
     craft = spacecraft()
     body = craft.body
-    alignment = AlignmentFilter(AlignmentConfig(HEADS, drift_psd=DRIFT_PSD))
+    alignment = AlignmentFilter(AlignmentConfig(HEADS, drift_psd=DRIFT_PSD, harmonic_period_s=period_s))
     state = FusionState(FusionConfig(HEADS), alignment)
     # The same fusion with head b's true mounting given (no alignment estimate): the geometry's share.
     known = FusionState(FusionConfig(HEADS))
@@ -543,7 +545,7 @@ def fuse(records: dict[str, list[dict]], period_s: float) -> tuple[list[dict], d
             row["error_known_alignment"] = matrix_to_rotation_vector(truth.T @ known_fused.rotation)
         except FusionUnavailable:
             pass
-        estimate = alignment.estimate(MISALIGNED)
+        estimate = alignment.estimate(MISALIGNED, stamp_ns)
         alignment_error = estimate.correction - true_alignment(t, period_s)
         row.update(alignment_error=alignment_error,
                    alignment_nees=float(alignment_error @ np.linalg.solve(estimate.covariance, alignment_error)))
@@ -862,8 +864,9 @@ def render_markdown(results: dict) -> str:
         "an angular-acceleration bound of 0.01°/s² (a frame every 3 s), the attitude corrected for the "
         "observer's velocity (refitted against the apparent directions with the fit's weights), and the status the "
         "identifier publishes (`track.head_status`). Fusion: "
-        "`FusionState` with an `AlignmentFilter` (head a the reference, drift PSD "
-        f"{DRIFT_PSD / ARCSEC ** 2:.1e} arcsec²/s), the gyro rate 1 µrad/s off. Head b is truly mounted "
+        "`FusionState` with an `AlignmentFilter` (head a the reference; the drift modelled as one harmonic of the "
+        f"orbital period beside a random walk of {DRIFT_PSD / ARCSEC ** 2:.1e} arcsec²/s), the gyro rate 1 µrad/s "
+        "off. Head b is truly mounted "
         f"{OFFSET_ARCSEC:.0f}\" off nominal plus a {DRIFT_ARCSEC:.0f}\" sinusoid over the orbital period. Wrong: "
         f"more than {WRONG_ARCSEC:.0f}\" from the truth (a head's own true attitude; the true body attitude for "
         "the fused one).", "",

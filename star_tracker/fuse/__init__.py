@@ -5,7 +5,7 @@ Multi-head fusion: several optical heads' matched stars in one body attitude, an
 ROS-free. A node adds each head's observation (FusionState.add) and asks for the body
 attitude at a stamp (FusionState.fused_at); see docs/FUSION.md.
 """
-from .alignment import AlignmentConfig, AlignmentEstimate, AlignmentFilter, AlignmentSample
+from .alignment import AlignmentConfig, AlignmentEstimate, AlignmentFilter, AlignmentSample, PeriodicDrift
 from .joint_fit import HeadRays, JointFit, fit_heads
 from .checks import rotation_problem
 from .mounting import corrected_mounting, implied_body_attitude
@@ -15,6 +15,6 @@ from .state import Admission, FusionConfig, FusionCounters, FusionState, FusionU
 __all__ = [
     "Admission", "AlignmentConfig", "AlignmentEstimate", "AlignmentFilter", "AlignmentSample", "BodyRate",
     "FusedAttitude", "FusionConfig", "FusionCounters", "FusionState", "FusionUnavailable", "HeadObservation",
-    "HeadResidual", "HeadRays", "JointFit", "corrected_mounting", "fit_heads", "implied_body_attitude",
+    "HeadResidual", "PeriodicDrift", "HeadRays", "JointFit", "corrected_mounting", "fit_heads", "implied_body_attitude",
     "rotation_problem",
 ]

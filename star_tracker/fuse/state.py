@@ -203,7 +203,7 @@ class FusionState:
         shared_covariance = np.zeros((size, size))
         shared_covariance[:3, :3] = body_rate.covariance
         if aligned:
-            shared_covariance[3:, 3:] = self.alignment.joint_covariance(aligned)
+            shared_covariance[3:, 3:] = self.alignment.joint_covariance(aligned, stamp_ns)
         heads = []
         for head, observation in fresh.items():
             offset = stamp_difference_s(stamp_ns, observation.stamp_ns)
@@ -211,7 +211,7 @@ class FusionState:
             shared_map = np.zeros((3, size))
             shared_map[:, :3] = np.eye(3) * offset
             if head in aligned:
-                mounting = corrected_mounting(mounting, self.alignment.estimate(head).correction)
+                mounting = corrected_mounting(mounting, self.alignment.estimate(head, stamp_ns).correction)
                 k = 3 + 3 * aligned.index(head)
                 shared_map[:, k:k + 3] = np.eye(3)
             body_rays = propagate_rays(observation.rays @ mounting, offset, body_rate.rate)  # rows M^T b

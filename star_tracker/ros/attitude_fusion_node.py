@@ -547,7 +547,7 @@ class AttitudeFusionNode(ManagedNode):
                           offset_sigma_arcsec_xyz=arcsec_xyz(np.sqrt(np.diag(residual.offset_covariance))))
         alignment = self.state.alignment
         if alignment is not None:
-            estimate = alignment.estimate(head.name)
+            estimate = alignment.estimate(head.name, stamp_ns)
             values.update(alignment_arcsec_xyz=arcsec_xyz(estimate.correction),
                           alignment_sigma_arcsec_xyz=arcsec_xyz(np.sqrt(np.diag(estimate.covariance))))
         level = DiagnosticStatus.OK if state.state == CONTRIBUTING else DiagnosticStatus.WARN

@@ -77,6 +77,13 @@ ALIGNMENT_PARAMETERS = [
                   field="initial_sigma_rad"),
     ParameterSpec("alignment.gate_probability", 1e-6, "chance that a consistent alignment update is rejected by its "
                   "chi^2 gate", "-", 0.0, 1.0, low_open=True, high_open=True, field="gate_probability"),
+    ParameterSpec("alignment.harmonic_period_s", 0.0, "period of the heads' periodic thermo-elastic drift, modelled as "
+                  "a Fourier series beside the random walk (the orbital period); 0 = no periodic term "
+                  "(docs/FUSION.md, Orbit-periodic drift)", "s", 0.0, 1e9, field="harmonic_period_s"),
+    ParameterSpec("alignment.harmonics", 1, "harmonics of harmonic_period_s in the periodic term", "", 1, 8,
+                  field="harmonics"),
+    ParameterSpec("alignment.harmonic_sigma_rad", 4.85e-5, "prior 1-sigma of each periodic amplitude per axis "
+                  "(4.85e-5 = 10 arcsec)", "rad", 0.0, 1.0, low_open=True, field="harmonic_sigma_rad"),
 ]
 RATE_PARAMETERS = [
     ParameterSpec("body_rate.source", "heads", "the body rate that brings heads to the fused stamp: heads = the "

@@ -10,7 +10,8 @@ orbit normal, so it comes near one head at a time), a third along zenith. Each i
 reads its camera's truth/odometry (aberration corrected, exclusions predicted); its tracker is
 told the body turns slowly and smoothly (the orbital rate, ~0.06 deg/s) so that frames seconds
 apart in a fast scenario are tracked: a rate window and a coast of 10 s, an acceleration bound of
-1e-4 rad/s^2. The fusion takes the body rate from the heads. `launch/multi_head.launch.py
+1e-4 rad/s^2. The fusion takes the body rate from the heads and models the heads' thermo-elastic
+drift as periodic over the orbit (alignment.harmonic_period_s). `launch/multi_head.launch.py
 scenario:=leo` and `star-tracker demo --scenario leo --heads N` use it.
 """
 from __future__ import annotations
@@ -64,10 +65,21 @@ def epoch_utc(unix_s: float) -> str:
     return datetime.datetime.fromtimestamp(unix_s, tz=datetime.timezone.utc).isoformat()
 
 
+def orbital_period_s() -> float:
+    """Return the period [s] of the camera_simulator's default orbit (orbit.altitude_m, J2 included)."""
+    from ..models.orbit import KeplerianOrbit, OrbitElements, sun_synchronous_inclination
+    from .camera_simulator_orbit import ORBIT_PARAMETERS
+
+    altitude = next(spec.default for spec in ORBIT_PARAMETERS if spec.name == "orbit.altitude_m")
+    return KeplerianOrbit(OrbitElements.circular(altitude, sun_synchronous_inclination(altitude), 0.0, 0.0,
+                                                 0.0)).period_s
+
+
 def fusion_parameters(heads: list[str]) -> dict:
     """Return the attitude_fusion parameters: the heads, their mountings, the body rate from the heads, the orbit."""
     return {"heads": list(heads), **{f"mounting.{h}": list(LEO_MOUNTINGS[h]) for h in heads},
             "body_rate.source": "heads", "body_rate.max_age_s": 10.0,
+            "alignment.harmonic_period_s": orbital_period_s(), "alignment.drift_psd_rad2_s": 2.4e-16,
             "fusion.stale_after_s": 1.0,  # synchronised heads: a head that missed the stamp is left out, not propagated
             "observer.source": "odometry",
             "fusion.max_wait_s": 2.0}  # on a 30x sim clock a head's solution comes ~1-3 s of its time after the other's
