@@ -180,6 +180,7 @@ FIT_OUTLIER_SIGMA = 5.0
 # An accepted match whose fit's chi^2 (matching sigmas) is less likely than this is examined
 # for one wrong star on a long lever arm (StarIdentifier.without_lever_outlier).
 LEVER_TEST_PROBABILITY = 1e-6
+MAX_LEVER_OUTLIERS = 2  # wrong stars the examination may leave out
 
 
 @functools.lru_cache(maxsize=None)
@@ -381,18 +382,21 @@ class StarIdentifier:
     def without_lever_outlier(self, geometry: SpotGeometry, camera: CameraModel,
                               match: AcceptedMatch) -> AcceptedMatch | None:
         """
-        Return the match, or the frame re-verified without one wrong star that a short lever arm let in.
+        Return the match, or the frame re-verified without the wrong stars (one or two) that a short lever arm let in.
 
         A wrong star far from a tight cluster of right ones sets the roll about the cluster: its
         own residual stays small (the fit follows it), the other stars' grow but stay within the
         5-sigma cut, and stars farther out fall outside the radius, so the match is consistent
         with itself and passes its false-positive bound at a wrong attitude (found by
         `star-tracker characterize sky-coverage`: 213" and 0.7 deg of roll off with 13 right
-        stars and a false object). Its fit's chi^2 (matching sigmas) is then improbable. When it
-        is (below LEVER_TEST_PROBABILITY) and leaving out one star makes the rest consistent
-        while that star lies beyond FIT_OUTLIER_SIGMA of the rest's fit, the frame is verified
-        again from the rest's attitude (verify_hypothesis: every spot matched anew); None when
-        that fails. Otherwise the match unchanged.
+        stars and a false object); two stars of close pairs named crosswise do the same (the
+        false-id campaign: HIP 50954/50976 and 52633/52595, 233" and 264" apart, 0.3 deg off
+        with 11 right stars). Its fit's chi^2 (matching sigmas) is then improbable. When it is
+        (below LEVER_TEST_PROBABILITY) and leaving out up to MAX_LEVER_OUTLIERS stars, one at a
+        time the one whose absence fits the rest best, makes the rest consistent while each
+        lies beyond FIT_OUTLIER_SIGMA of the rest's final fit, the frame is verified again from the
+        rest's attitude (verify_hypothesis: every spot matched anew); None when that fails.
+        Otherwise the match unchanged.
         """
         spot_index, star_index = match.spot_index, match.star_index
         n = spot_index.size
@@ -402,18 +406,26 @@ class StarIdentifier:
         normalized = np.linalg.norm(body - stars @ match.rotation, axis=1) / sigma  # the match's own fit
         if float(normalized @ normalized) <= _chi2_limit(2 * n - 3):
             return match
-        best, best_chi2, best_rotation = -1, np.inf, None
-        for i in range(n):
-            rest = np.arange(n) != i
-            turned = quest_rotation(body[rest], stars[rest], sigma[rest])
-            others = np.linalg.norm(body[rest] - stars[rest] @ turned, axis=1) / sigma[rest]
-            if others @ others < best_chi2:
-                best, best_chi2, best_rotation = i, float(others @ others), turned
-        deleted = np.linalg.norm(body[best] - stars[best] @ best_rotation) / sigma[best]
-        if best_chi2 > _chi2_limit(2 * (n - 1) - 3) or deleted <= FIT_OUTLIER_SIGMA:
-            return match  # no single star explains it (e.g. a lens distortion the camera model lacks)
-        self.stats["lever_outliers"] = self.stats.get("lever_outliers", 0) + 1
-        return self.verify_hypothesis(geometry, camera, best_rotation)
+        kept = np.ones(n, bool)
+        for _ in range(MAX_LEVER_OUTLIERS):
+            if kept.sum() <= MIN_STARS:
+                return match
+            best, best_chi2, best_rotation = -1, np.inf, None
+            for i in np.flatnonzero(kept):
+                rest = kept.copy()
+                rest[i] = False
+                turned = quest_rotation(body[rest], stars[rest], sigma[rest])
+                others = np.linalg.norm(body[rest] - stars[rest] @ turned, axis=1) / sigma[rest]
+                if others @ others < best_chi2:
+                    best, best_chi2, best_rotation = i, float(others @ others), turned
+            kept[best] = False
+            if best_chi2 <= _chi2_limit(2 * int(kept.sum()) - 3):
+                deleted = np.linalg.norm(body[~kept] - stars[~kept] @ best_rotation, axis=1) / sigma[~kept]
+                if np.any(deleted <= FIT_OUTLIER_SIGMA):
+                    return match  # no star stands out (e.g. a lens distortion the camera model lacks)
+                self.stats["lever_outliers"] = self.stats.get("lever_outliers", 0) + int(n - kept.sum())
+                return self.verify_hypothesis(geometry, camera, best_rotation)
+        return match  # more wrong stars than MAX_LEVER_OUTLIERS explain
 
     def identify_near(self, spots: Spots, camera: CameraModel, rotation: np.ndarray) -> Identification:
         """
@@ -513,14 +525,18 @@ class StarIdentifier:
         return AcceptedMatch(spot_index, star_index, rotation, fp)
 
     def solved(self, geometry: SpotGeometry, order: np.ndarray, match: AcceptedMatch, tested: int,
-               started: float, algorithm: str | None = None, deep_match: bool = True) -> Identification:
+               started: float, algorithm: str | None = None, deep_match: bool = True,
+               renamed: bool = False) -> Identification:
         """
         Return the Identification of an accepted match.
 
         Refitted with the final weights (final_fit), then, with config.deep_match and `deep_match` (False: a tracked
         frame), extended by the deep re-match (deep_rematch) when its bound holds; match.spot_index refers to the
         flux-sorted spots of `geometry` and is mapped back to the input spots through `order` (prepare). `started`: the
-        call's time.perf_counter() [s]; `algorithm`: the name reported (default: this one's).
+        call's time.perf_counter() [s]; `algorithm`: the name reported (default: this one's). When a
+        guide star lies beyond FIT_OUTLIER_SIGMA of the published attitude, the frame is verified
+        again at that attitude (verify_hypothesis) and, when that names as many stars as the
+        rest, solved from it (`renamed`: already done once).
         """
         guide = _Matches(match.spot_index, self.database.vectors[match.star_index], self.database.hip[match.star_index],
                          self.database.magnitude[match.star_index], np.zeros(match.spot_index.size, bool))
@@ -530,6 +546,16 @@ class StarIdentifier:
             extended = self.deep_rematch(geometry, guide, solution)
             if extended is not None:
                 matches, solution, residual, fp = extended
+        if not renamed and geometry.camera is not None:
+            # A guide star beyond FIT_OUTLIER_SIGMA of the published attitude was named at a
+            # hypothesis the fit moved away from (two stars of close pairs named crosswise, the
+            # deep stars pulling the attitude right): name the stars again there, once.
+            off = residual[:guide.spot_index.size] / geometry.sigma[guide.spot_index] > FIT_OUTLIER_SIGMA
+            if off.any():
+                again = self.verify_hypothesis(geometry, geometry.camera, solution.rotation)
+                if again is not None and again.spot_index.size >= guide.spot_index.size - int(off.sum()):
+                    self.stats["guide_renamed"] = int(off.sum())
+                    return self.solved(geometry, order, again, tested, started, algorithm, deep_match, renamed=True)
         by_spot = np.argsort(matches.spot_index)
         spot_index = matches.spot_index[by_spot]
         deep = matches.deep[by_spot]

@@ -81,13 +81,15 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
     return radec_roll_to_matrix(rng.uniform(0, 2 * np.pi), np.arcsin(rng.uniform(-1, 1)), rng.uniform(-np.pi, np.pi))
 
 
-def _inside_field(setup: SceneSetup, u: np.ndarray, v: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
+def _inside_field(setup: SceneSetup, u: np.ndarray, v: np.ndarray, rays: np.ndarray | None = None,
+                  beyond_px: float = 0.0) -> np.ndarray:
+    """Return True where (u, v) [px] lies in the field (2 px inside the image; the circle) or beyond_px outside it."""
     camera = setup.camera
-    inside = camera.in_image(u, v, margin=2.0)
+    inside = camera.in_image(u, v, margin=2.0 - beyond_px)
     if setup.fov_radius_rad is not None:
         if rays is None:
             rays = camera.pixel_to_ray(u, v)
-        inside &= rays[..., 2] >= np.cos(setup.fov_radius_rad)
+        inside &= rays[..., 2] >= np.cos(setup.fov_radius_rad + beyond_px * camera.pixel_scale_rad)
     return inside
 
 
@@ -136,15 +138,20 @@ def make_scene(setup: SceneSetup, catalog: StarCatalog, rng: np.random.Generator
         body = vectors @ truth  # ICRS -> sensor, as row vectors
         near = np.flatnonzero(body[:, 2] > np.cos(setup.camera.half_diagonal_fov_rad + 0.01))
         u, v, front = camera.project(body[near])
-        inside = front & _inside_field(setup, u, v, body[near] / np.linalg.norm(body[near], axis=1, keepdims=True))
-        idx, u, v = near[inside], u[inside], v[inside]
+        rays = body[near] / np.linalg.norm(body[near], axis=1, keepdims=True)
+        # Stars closer than min_separation_px blend: the brighter one's spot survives, also when
+        # the brighter lies just outside the field (a faint star 0.4 px from a bright one at the
+        # edge is that star's light, not a spot of its own), so the blends come before the cut.
+        around = front & _inside_field(setup, u, v, rays, beyond_px=setup.min_separation_px)
+        idx, u, v, rays = near[around], u[around], v[around], rays[around]
         order = np.argsort(stars.hp[idx], kind="stable")
-        idx, u, v = idx[order], u[order], v[order]
-        # Stars closer than min_separation_px blend: the brighter one's spot survives.
+        idx, u, v, rays = idx[order], u[order], v[order], rays[order]
         if idx.size > 1:
             close = np.hypot(u[:, None] - u[None], v[:, None] - v[None]) < setup.min_separation_px
             keep = ~np.any(np.tril(close, k=-1), axis=1)
-            idx, u, v = idx[keep], u[keep], v[keep]
+            idx, u, v, rays = idx[keep], u[keep], v[keep], rays[keep]
+        inside = _inside_field(setup, u, v, rays)
+        idx, u, v = idx[inside], u[inside], v[inside]
         if setup.real_stars is not None:
             if idx.size < setup.real_stars:
                 if rotation is not None:

@@ -22,7 +22,7 @@ import pyarrow as pa
 from ..bounds import rate_upper_bound
 from ..kind import CampaignKind
 from .lost_in_space import SceneOptions, SceneShared, prepare_scenes
-from .scoring import NEES_5_SIGMA, SCORE_COLUMNS, UNSOLVED, score
+from .scoring import NEES_5_SIGMA, OUTSIDE_5_SIGMA_CHANCE, SCORE_COLUMNS, UNSOLVED, score
 
 
 @dataclass(frozen=True)
@@ -83,7 +83,9 @@ class FalseIdentification(CampaignKind):
             "trials": trials, "correct": correct, "wrong": int(wrong.sum()), "unsolved": int(trials - solved.sum()),
             "failed_tasks": int((~ok).sum()),
             **{name: int(np.asarray(table.column(name).fill_null(False), bool)[ok].sum())
-               for name in ("wrong_star", "wrong_attitude", "wrong_deep_star", "false_identification")},
+               for name in ("wrong_star", "wrong_attitude", "wrong_deep_star", "false_identification",
+                            "outside_5_sigma")},
+            "outside_5_sigma_expected": float(solved.sum() * OUTSIDE_5_SIGMA_CHANCE),
             "false_identification_upper_95": rate_upper_bound(
                 int(np.asarray(table.column("false_identification").fill_null(False), bool)[ok].sum()), trials, 0.95)
             if trials else None,
