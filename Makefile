@@ -63,9 +63,15 @@ $(BENCH_STAMP): requirements-bench.txt $(STAMP)
 	$(PY) -m pip install --quiet --no-deps cedar-solve==0.5.1
 	touch $(BENCH_STAMP)
 
-.PHONY: bench
+.PHONY: bench datasheet
 # The list of benchmarks, their order and options is star_tracker/commands/bench.py's BENCHES
 # (`star-tracker bench --dry-run` prints the commands); BENCH_ARGS passes options, e.g.
 # `make bench BENCH_ARGS="--only identify --no-peers"`.
 bench: $(BENCH_STAMP)
 	$(VENV)/bin/star-tracker bench $(BENCH_ARGS)
+
+# The datasheet (docs/DATASHEET.md): the characterization campaigns on every local core (~20 min on
+# two; resumable: run it again after an interruption), their figures copied into docs/, then the page.
+datasheet: $(STAMP)
+	$(VENV)/bin/star-tracker characterize datasheet --output characterize_output/datasheet --docs docs
+	$(PY) -m bench.datasheet

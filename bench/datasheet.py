@@ -7,7 +7,9 @@ The datasheet: one page of the figures a design review asks for, drawn from the 
 Reads the default configuration (config/star_tracker.yaml, generated from the parameter specs)
 and the benchmarks' JSON results (bench_*.json in --results-dir, written by `make bench`), and
 writes DATASHEET.md there: every figure with its conditions and the benchmark, date and machine
-that measured it. It measures nothing itself, so it is only as current as those results;
+that measured it; then the characterization report of `star-tracker characterize datasheet`
+(datasheet.json and images/datasheet_*.png in --results-dir, copied there by its --docs; `make
+datasheet` runs both). It measures nothing itself, so it is only as current as those results;
 `star-tracker bench` runs it last. A benchmark whose results are missing shows as "not measured".
 """
 from __future__ import annotations
@@ -443,6 +445,13 @@ def render(config: dict, results: Path) -> str:
               "([within 1′](BENCHMARKS.md#images-ours-does-not-solve-within-1), "
               "[time against cedar-solve](BENCHMARKS.md#time-against-cedar-solve)), in orbit "
               "([fused against a single head](BENCHMARKS.md#in-orbit-two-heads-over-a-leo-orbit))."]
+    characterization = results / "datasheet.json"
+    if characterization.is_file():
+        from star_tracker.campaign.datasheet import render_report
+
+        lines += ["", render_report(json.loads(characterization.read_text()), "images").rstrip()]
+    else:
+        lines += ["", "## Characterization", "", f"{NOT_MEASURED}: run `make datasheet`."]
     return "\n".join(lines) + "\n"
 
 

@@ -2,9 +2,9 @@
 """
 `star-tracker characterize PRESET|CAMPAIGN.yaml`: a Monte-Carlo campaign on Dask (docs/CHARACTERIZE.md).
 
-The preset (campaign/presets: false-id, sky-coverage) or the YAML campaign runs its trials on
-a Dask LocalCluster of --workers processes (default: every core) or on the scheduler at
---scheduler / $DASK_SCHEDULER_ADDRESS, streaming the records to OUTPUT/results/*.parquet.
+The preset (campaign/presets: false-id, sky-coverage, accuracy, tracking, robustness) or the
+YAML campaign runs its trials on a Dask LocalCluster of --workers processes (default: every
+core) or on the scheduler at --scheduler / $DASK_SCHEDULER_ADDRESS, streaming the records to OUTPUT/results/*.parquet.
 Run again with the same options and output, it resumes; finished, it writes
 OUTPUT/summary.json (the preset's figures, the campaign, the engine's throughput and the
 software version) beside the preset's tables and figures.
@@ -24,7 +24,8 @@ from .common import CommandError, Progress, add_parser, guarded, positive_int
 
 NAME = "characterize"
 # campaign.presets.KINDS without importing Dask at --help; a test compares the two.
-PRESETS = ("false-id", "sky-coverage", "accuracy", "tracking")
+PRESETS = ("false-id", "sky-coverage", "accuracy", "tracking", "robustness")
+DATASHEET = "datasheet"  # not a preset: every campaign of the datasheet, then its report
 
 
 def register(subparsers) -> None:
@@ -34,12 +35,13 @@ def register(subparsers) -> None:
         "default, or an existing scheduler (--scheduler, or DASK_SCHEDULER_ADDRESS; start one with `dask "
         "scheduler` and `dask worker ADDRESS`). Results stream into OUTPUT/results/*.parquet; the same command "
         "again resumes an interrupted run. Writes OUTPUT/summary.json and the preset's tables and figures. "
-        f"Presets: {', '.join(PRESETS)}; or a YAML file with preset, trials, seed, batch and options.",
+        f"Presets: {', '.join(PRESETS)}; or a YAML file with preset, trials, seed, batch and options; or "
+        f"`{DATASHEET}`: the datasheet's campaigns (~20 min on two cores) and its report OUTPUT/DATASHEET.md.",
         "star-tracker characterize false-id --trials 100000 --output /tmp/false_id\n"
         "star-tracker characterize sky-coverage --option nside=8 --output /tmp/sky\n"
         "star-tracker characterize campaign.yaml --scheduler tcp://10.0.0.5:8786")
-    parser.add_argument("campaign", metavar="PRESET|CAMPAIGN.yaml", help=f"a preset ({', '.join(PRESETS)}) or a "
-                        "campaign file")
+    parser.add_argument("campaign", metavar="PRESET|CAMPAIGN.yaml|datasheet", help=f"a preset ({', '.join(PRESETS)}), "
+                        f"a campaign file, or {DATASHEET}")
     parser.add_argument("--trials", "--frames", dest="trials", type=positive_int,
                         help="trials (frames) to run (default: the preset's or the file's)")
     parser.add_argument("--workers", type=positive_int, help="local worker processes (default: every core)")
@@ -48,6 +50,10 @@ def register(subparsers) -> None:
     parser.add_argument("--output", metavar="DIR", help="output directory (default characterize_output/PRESET)")
     parser.add_argument("--seed", type=int, help="the campaign's seed (default: 2026 or the file's)")
     parser.add_argument("--batch", type=positive_int, help="trials per Dask task (default: the preset's)")
+    parser.add_argument("--docs", metavar="DIR", help=f"{DATASHEET} only: also copy datasheet.json and the figures "
+                        "into DIR (and DIR/images), where `python -m bench.datasheet` puts them in DATASHEET.md")
+    parser.add_argument("--quick", action="store_true", help=f"{DATASHEET} only: a few trials per campaign (a "
+                        "minute; to try the command, the figures meaningless)")
     parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                         help="a preset option (repeatable; YAML values: --option false_stars=5; default: the "
                         "preset's options)")
@@ -106,26 +112,37 @@ def software_version() -> str:
 
 @guarded(NAME)
 def run(args: argparse.Namespace) -> int:
+    if args.argv is None:
+        args.argv = [NAME, *sys.argv[sys.argv.index(NAME) + 1:]] if NAME in sys.argv else [NAME, args.campaign]
+    if args.campaign == DATASHEET:
+        return run_datasheet(args)
+    if args.quick or args.docs:
+        raise CommandError(f"--quick and --docs are for {DATASHEET} only")
+    kind, spec = campaign_from_args(args)
+    output = Path(args.output or Path("characterize_output") / kind.name)
+    command = "star-tracker " + " ".join(shlex.quote(a) for a in (args.argv or []))
+    summary, _, files = run_one(kind, spec, output, args.workers, args.scheduler, command)
+    print(f"wrote {output / 'summary.json'}" + "".join(f", {f}" for f in files), file=sys.stderr)
+    return 0
+
+
+def run_one(kind, spec, output: Path, workers: int | None, scheduler: str | None, command: str):
+    """Run (or resume) one campaign into output; write its summary.json and report; return (summary, table, files)."""
     from ..campaign import run_campaign
     from ..campaign.engine import engine_totals
     from ..campaign.results import ResultStore
 
-    kind, spec = campaign_from_args(args)
-    if args.argv is None:
-        args.argv = [NAME, *sys.argv[sys.argv.index(NAME) + 1:]] if NAME in sys.argv else [NAME, args.campaign]
-    output = Path(args.output or Path("characterize_output") / kind.name)
     progress = Progress(spec.trials, f"{kind.name}:")
     print(f"star-tracker characterize: {kind.name}, {spec.trials} trials in batches of {spec.batch}, seed "
           f"{spec.seed}, output {output}", file=sys.stderr)
     started = time.perf_counter()
-    campaign = run_campaign(kind, spec, output, workers=args.workers, scheduler=args.scheduler,
+    campaign = run_campaign(kind, spec, output, workers=workers, scheduler=scheduler,
                             on_batch=lambda done, total, batch: progress.update(done))
     progress.update(spec.trials)
     options = kind.options(spec.options)
     store = ResultStore(output, spec, kind.schema())
     table = store.read()
     engine = engine_totals(store.runs())
-    command = "star-tracker " + " ".join(shlex.quote(a) for a in (args.argv or []))
     summary = {"preset": kind.name, **kind.summarize(table, options), "command": command, "campaign": spec.to_dict(),
                "options": {k: getattr(options, k) for k in options.__dataclass_fields__},
                "engine": engine, "elapsed_s": time.perf_counter() - started,
@@ -139,7 +156,55 @@ def run(args: argparse.Namespace) -> int:
           f"({campaign.batches_resumed} resumed) on {now['threads']} worker threads in {campaign.wall_s:.1f} s, "
           + (f"{now['trials_per_s_per_core']:.3g} trials/s/core, {100 * now['utilization']:.0f} % busy"
              if now["utilization"] else "nothing left to run"), file=sys.stderr)
-    print(f"wrote {output / 'summary.json'}" + "".join(f", {f}" for f in files), file=sys.stderr)
+    return summary, table, files
+
+
+def run_datasheet(args: argparse.Namespace) -> int:
+    """Run the datasheet's campaigns into OUTPUT/<name>/ and write OUTPUT/DATASHEET.md, datasheet.json, images/."""
+    import shutil
+
+    from ..campaign import CampaignSpec
+    from ..campaign import datasheet_figures as figures
+    from ..campaign.datasheet import FALSE_ID_TRIALS, datasheet_campaigns, datasheet_data, render_report
+    from ..campaign.presets import KINDS
+
+    if args.option:
+        raise CommandError("the datasheet's campaigns take no --option (their sizes are fixed; --trials sets the "
+                           "false-id trials)")
+    output = Path(args.output or Path("characterize_output") / DATASHEET)
+    command = "star-tracker " + " ".join(shlex.quote(a) for a in (args.argv or []))
+    seed = args.seed if args.seed is not None else 2026
+    started = time.perf_counter()
+    summaries, tables = {}, {}
+    for item in datasheet_campaigns(args.trials or FALSE_ID_TRIALS, quick=args.quick):
+        kind = KINDS[item.preset]()
+        options = kind.options(item.options)
+        trials = item.trials or getattr(options, "trials", None) or kind.default_trials
+        spec = CampaignSpec(preset=kind.name, trials=trials, seed=seed, batch=args.batch or kind.default_batch,
+                            options=item.options)
+        summaries[item.name], tables[item.name], _ = run_one(kind, spec, output / item.name, args.workers,
+                                                             args.scheduler, f"{command} ({item.name})")
+    meta = {"command": command, "date_utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "software": software_version(), "machine": f"{cpu_model()}, {os.cpu_count()} cores",
+            "wall_s": time.perf_counter() - started}
+    data = datasheet_data(summaries, tables, meta)
+    images = output / "images"
+    images.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(output / "sky_coverage" / "sky_coverage.png", images / "datasheet_sky_coverage.png")
+    figures.error_histograms(data, images / "datasheet_error_histograms.png")
+    figures.error_vs_rate(data, images / "datasheet_error_vs_rate.png")
+    figures.tracking_envelope(data, images / "datasheet_tracking_envelope.png")
+    figures.robustness(data, images / "datasheet_robustness.png")
+    (output / "datasheet.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
+    (output / "DATASHEET.md").write_text("# star_tracker datasheet\n\n" + render_report(data))
+    if args.docs:
+        docs = Path(args.docs)
+        (docs / "images").mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(output / "datasheet.json", docs / "datasheet.json")
+        for png in sorted(images.glob("datasheet_*.png")):
+            shutil.copyfile(png, docs / "images" / png.name)
+    print(f"wrote {output / 'DATASHEET.md'}, {output / 'datasheet.json'} and {images} in "
+          f"{meta['wall_s'] / 60:.1f} min", file=sys.stderr)
     return 0
 
 
@@ -147,7 +212,9 @@ def _headline(summary: dict) -> str:
     if summary["preset"] == "false-id":
         bound = summary["wrong_rate_upper_95"]
         return (f"{summary['correct']} correct, {summary['wrong']} wrong ({summary['false_identification']} false "
-                f"identifications, {summary['wrong_deep_star']} with a wrong deep star alone), {summary['unsolved']} "
+                f"identifications, {summary['wrong_deep_star']} with a wrong deep star alone, "
+                f"{summary['outside_5_sigma']} outside 5 sigma (a consistent covariance: "
+                f"{summary['outside_5_sigma_expected']:.1f})), {summary['unsolved']} "
                 f"unsolved; wrong rate <= {bound:.2e}, false identification <= "
                 f"{summary['false_identification_upper_95']:.2e} (95 %)" if bound is not None else "no trial")
     if summary["preset"] == "sky-coverage":
@@ -162,4 +229,8 @@ def _headline(summary: dict) -> str:
                              for a, r in summary["envelope_rate_deg_s_by_acceleration"].items())
         return (f"{summary['frames']} frames, {summary['wrong_frames']} wrong, {summary['overconfident_frames']} "
                 f"overconfident; fastest rate [deg/s] tracked right in every frame by acceleration: {envelope}")
+    if summary["preset"] == "robustness":
+        worst = ", ".join(f"{name} {cells[-1]['level']:g}: {100 * (cells[-1]['availability'] or 0):.0f} %"
+                          for name, cells in summary["sweeps"].items())
+        return f"{summary['solved']} solved, {summary['wrong']} wrong; solved right at the strongest level: {worst}"
     return ""

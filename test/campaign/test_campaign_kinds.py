@@ -213,3 +213,52 @@ def test_tracking_sequences_follow_a_slew_against_the_rendered_truth(database):
     assert all(r["cross_arcsec_max"] < 10.0 for r in rows)
     summary = kind.summarize(table, kind.options(spec.options))
     assert summary["envelope_rate_deg_s_by_acceleration"] == {"2": 1.0} and summary["cases"][0]["right_share"] == 1.0
+
+
+def test_robustness_options_lay_out_the_sweeps_and_refuse_an_unknown_one():
+    from star_tracker.campaign.presets.robustness import STRESS_LEVELS
+
+    kind = KINDS["robustness"]()
+    options = kind.options({"sweeps": "cosmic_rays, temperature", "frames": 3})
+    assert options.cases == tuple(("cosmic_rays", v) for v in STRESS_LEVELS["cosmic_rays"]) + tuple(
+        ("temperature", v) for v in STRESS_LEVELS["temperature"])
+    assert options.trials == 3 * len(options.cases)
+    for bad in ({"sweeps": "cosmic_rays,sunburn"}, {"sweeps": ""}, {"frames": 0}):
+        with pytest.raises(ValueError):
+            kind.options(bad)
+
+
+@pytest.mark.slow
+def test_robustness_frames_carry_their_stress_and_are_scored_against_the_truth(database):
+    """The strongest false-object and stray-light levels are in the rendered frames; every level solves right."""
+    from star_tracker.campaign.presets.robustness import STRESS_LEVELS
+    from star_tracker.sim.render import KIND_PLANET
+
+    kind = KINDS["robustness"]()
+    spec = CampaignSpec("robustness", trials=10, seed=5, batch=10,
+                        options={"sweeps": "false_objects,stray_light", "frames": 1})
+    options = kind.options(spec.options)
+    shared = kind.prepare(options)
+    most = kind._renderer(shared, "false_objects", STRESS_LEVELS["false_objects"][-1])
+    frame = most.render(_at_rest(), 0.0, 7)
+    assert int(np.sum(frame.truth.kind == KIND_PLANET)) == STRESS_LEVELS["false_objects"][-1]
+    bright = kind._renderer(shared, "stray_light", STRESS_LEVELS["stray_light"][-1])
+    image = bright.render(_at_rest(), 0.0, 7).image.astype(float)
+    exposure_s, level = shared.sensor.exposure_s, STRESS_LEVELS["stray_light"][-1]
+    centre = np.median(image[480:544, 480:544]) - shared.sensor.bias_adu
+    assert centre == pytest.approx(level * exposure_s, rel=0.1)  # plus dark current: 2 e-
+    rise = (np.median(image[480:544, -64:]) - np.median(image[480:544, :64])) / 2.0 / centre
+    assert rise == pytest.approx(0.5 * (512 - 32) / math.hypot(512, 512), rel=0.15)
+    table = run_batch(kind, spec, 0).table
+    assert not any(table.column("error").to_pylist()) and table.num_rows == 10
+    summary = kind.summarize(table, options)
+    assert summary["wrong"] == 0 and [c["level"] for c in summary["sweeps"]["false_objects"]] == list(
+        STRESS_LEVELS["false_objects"])
+    assert summary["sweeps"]["stray_light"][0]["availability"] == 1.0  # the default sky
+
+
+def _at_rest():
+    from star_tracker.models.attitude import quaternion_to_matrix
+    from star_tracker.sim.motion import ConstantRateMotion
+
+    return ConstantRateMotion(quaternion_to_matrix(np.array([0.1, -0.4, 0.3, 0.85])), np.zeros(3))

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from .accuracy import Accuracy
 from .false_id import FalseIdentification
+from .robustness import Robustness
 from .sky_coverage import SkyCoverage
 from .tracking import Tracking
 
-KINDS = {kind.name: kind for kind in (FalseIdentification, SkyCoverage, Accuracy, Tracking)}
+KINDS = {kind.name: kind for kind in (FalseIdentification, SkyCoverage, Accuracy, Tracking, Robustness)}
 
-__all__ = ["KINDS", "Accuracy", "FalseIdentification", "SkyCoverage", "Tracking"]
+__all__ = ["KINDS", "Accuracy", "FalseIdentification", "Robustness", "SkyCoverage", "Tracking"]

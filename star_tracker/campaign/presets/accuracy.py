@@ -165,7 +165,9 @@ class Accuracy(CampaignKind):
             error = np.asarray(table.column(f"error_{axis}_arcsec").fill_null(np.nan), float)[right]
             axes[axis] = {**error_terms(error, *groups), "rms": _rms(error),
                           "p997": float(np.quantile(np.abs(error), 0.997)) if error.size else None}
-        return {"trials": int(ok.sum()), "solved": int(solved.sum()), "wrong": int(wrong.sum()),
+        flags = {name: int((np.asarray(table.column(name).fill_null(False), bool) & ok).sum())
+                 for name in ("false_identification", "wrong_deep_star")}
+        return {"trials": int(ok.sum()), "solved": int(solved.sum()), "wrong": int(wrong.sum()), **flags,
                 "failed_tasks": int((~ok).sum()), "nees_mean": float(np.mean(nees)) if nees.size else None,
                 "axes": axes, "rate_deg_s": options.rate_deg_s, "distortion_k1": options.distortion_k1,
                 "frame_ms_median": float(np.median(np.asarray(table.column("frame_s").fill_null(np.nan))[ok]) * 1e3)
