@@ -88,9 +88,8 @@ def _bilinear(grid: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     c, r = np.minimum(u.astype(np.int64), max(w - 2, 0)), np.minimum(v.astype(np.int64), max(h - 2, 0))
     fu, fv = u - c, v - r
     c1, r1 = np.minimum(c + 1, w - 1), np.minimum(r + 1, h - 1)
-    g = grid.astype(float, copy=False)
-    top = g[r, c] * (1.0 - fu) + g[r, c1] * fu
-    bottom = g[r1, c] * (1.0 - fu) + g[r1, c1] * fu
+    top = grid[r, c] * (1.0 - fu) + grid[r, c1] * fu  # float64: fu is (gathering first, not the map converted)
+    bottom = grid[r1, c] * (1.0 - fu) + grid[r1, c1] * fu
     return top * (1.0 - fv) + bottom * fv
 
 
