@@ -208,12 +208,14 @@ def render_report(data: dict, images: str = "images") -> str:
         f"![tracking envelope]({images}/datasheet_tracking_envelope.png)", "",
         "### Robustness", "",
         "Lost-in-space on rendered frames while one stress rises, the rest at the defaults "
-        "(`campaign/presets/robustness.py`): the share solved right (wrong ones in brackets).", "",
+        "(`campaign/presets/robustness.py`): the share solved right; in brackets the wrong ones: false "
+        "identifications / errors beyond 5σ of the stated covariance.", "",
     ]
     robust = data["robustness"]
     for sweep, cells in robust["sweeps"].items():
         lines.append(f"- **{sweep.replace('_', ' ')}** ({robust['units'][sweep]}): " + ", ".join(
-            f"{c['level']:g}: {100 * (c['availability'] or 0):.0f} %" + (f" ({c['wrong']} wrong)" if c["wrong"] else "")
+            f"{c['level']:g}: {100 * (c['availability'] or 0):.0f} %"
+            + (f" ({c['false_identification']} / {c['outside_5_sigma']})" if c["wrong"] else "")
             for c in cells))
     fid = data["false_id"]
     lines += [

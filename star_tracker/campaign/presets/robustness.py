@@ -21,7 +21,8 @@ Each trial: a random attitude uniform over the sphere, `frames` frames per level
 identifier, scored (scoring.py: wrong = a star named wrongly, a boresight more than
 `wrong_arcsec` off, or an error outside 5 sigma of the stated covariance). The summary gives,
 per sweep and level, the trials, the share solved right, the wrong ones with their 95 % upper
-bound, and the median cross-boresight and roll errors.
+bound (of them the false identifications, and the errors beyond 5 sigma of the stated
+covariance), and the median cross-boresight and roll errors.
 """
 from __future__ import annotations
 
@@ -176,6 +177,7 @@ class Robustness(CampaignKind):
         cross = np.asarray(table.column("cross_arcsec").fill_null(np.nan), float)
         roll = np.asarray(table.column("roll_arcsec").fill_null(np.nan), float)
         nees = np.asarray(table.column("nees").fill_null(np.nan), float)
+        false_id = np.asarray(table.column("false_identification").fill_null(False), bool) & ok
         sweeps: dict[str, list[dict]] = {}
         for name, value in options.cases:
             cell = ok & (sweep == name) & (level == float(value))
@@ -187,6 +189,7 @@ class Robustness(CampaignKind):
                 "wrong_upper_95": rate_upper_bound(bad, n) if n else None,
                 "cross_arcsec_median": float(np.median(cross[right])) if right.any() else None,
                 "roll_arcsec_median": float(np.median(roll[right])) if right.any() else None,
-                "outside_5_sigma": int(np.sum(nees[right] > NEES_5_SIGMA))})
+                "false_identification": int((cell & false_id).sum()),
+                "outside_5_sigma": int(np.sum(nees[cell & solved] > NEES_5_SIGMA))})
         return {"trials": int(ok.sum()), "solved": int(solved.sum()), "wrong": int(wrong.sum()),
                 "failed_tasks": int((~ok).sum()), "units": {s: STRESS_UNITS[s] for s in sweeps}, "sweeps": sweeps}
