@@ -262,3 +262,21 @@ def _at_rest():
     from star_tracker.sim.motion import ConstantRateMotion
 
     return ConstantRateMotion(quaternion_to_matrix(np.array([0.1, -0.4, 0.3, 0.85])), np.zeros(3))
+
+
+def test_the_tracking_envelope_ends_at_the_slowest_case_that_failed():
+    """A case that held above one that failed does not extend the envelope (2 deg/s failed: 1 deg/s at 4 deg/s^2)."""
+    kind = KINDS["tracking"]()
+    options = kind.options({"rates_deg_s": "1,2,3", "accelerations_deg_s2": "1,4", "runs": 1})
+    rows = []
+    for acceleration in (1.0, 4.0):
+        for rate in (1.0, 2.0, 3.0):
+            failed = acceleration == 4.0 and rate == 2.0
+            rows.append({"task": len(rows), "seed": 0, "error": "", "rate_deg_s": rate,
+                         "acceleration_deg_s2": acceleration, "frames": 10, "first_solved": 0,
+                         "right": 9 if failed else 10, "wrong": 1 if failed else 0, "lost": 0, "overconfident": 0,
+                         "tracked": 9, "cross_arcsec_rms": 1.0, "cross_arcsec_max": 2.0, "nees_mean": 3.0,
+                         "first_loss_rate_deg_s": None, "reached_rate_deg_s": rate, "frame_s": 0.01})
+    table = pa.Table.from_pylist(rows, schema=kind.schema())
+    summary = kind.summarize(table, options)
+    assert summary["envelope_rate_deg_s_by_acceleration"] == {"1": 3.0, "4": 1.0}

@@ -15,7 +15,7 @@ overconfident beside (scoring.py; the covariance under angular acceleration is a
 limit). The trial records its frames right, wrong, overconfident and lost after the first
 solve, the errors, the NEES and the rate at the first loss. The summary is the envelope: per
 case the share of frames right, and per acceleration the fastest rate reached (a sequence
-may end before its coast rate) with every frame tracked right.
+may end before its coast rate) with every frame tracked right in it and in every slower case.
 """
 from __future__ import annotations
 
@@ -196,9 +196,14 @@ class Tracking(CampaignKind):
                               "nees_mean": float(np.nanmean(nees[mine])) if np.isfinite(nees[mine]).any() else None})
         envelope = {}
         for acceleration in options.accelerations:
-            held = [c["reached_rate_deg_s"] for c in cases if c["acceleration_deg_s2"] == acceleration
-                    and c["right_share"] == 1.0 and c["wrong"] == 0]
-            envelope[f"{acceleration:g}"] = round(max(held), 2) if held else None
+            # The envelope ends at the slowest case that failed: a faster one that held does not extend it.
+            held = None
+            for case in sorted((c for c in cases if c["acceleration_deg_s2"] == acceleration),
+                               key=lambda c: c["rate_deg_s"]):
+                if case["right_share"] != 1.0 or case["wrong"] or case["reached_rate_deg_s"] is None:
+                    break
+                held = case["reached_rate_deg_s"]
+            envelope[f"{acceleration:g}"] = round(held, 2) if held is not None else None
         return {"trials": int(ok.sum()), "failed_tasks": int((~ok).sum()),
                 "frames": int(col["frames"].sum()), "wrong_frames": int(col["wrong"].sum()),
                 "overconfident_frames": int(col["overconfident"].sum()),
