@@ -280,3 +280,31 @@ def test_the_tracking_envelope_ends_at_the_slowest_case_that_failed():
     table = pa.Table.from_pylist(rows, schema=kind.schema())
     summary = kind.summarize(table, options)
     assert summary["envelope_rate_deg_s_by_acceleration"] == {"1": 3.0, "4": 1.0}
+
+
+def test_a_streak_spot_is_its_star_within_its_own_covariance_and_no_further():
+    """4 px along a streak whose along-track sigma is 1.5 px: its star (5 sigma holds); across it: no star."""
+    from types import SimpleNamespace
+
+    from star_tracker.campaign.presets.accuracy import truth_hip
+    from star_tracker.sim.render import KIND_STAR
+
+    truth = SimpleNamespace(kind=np.full(3, KIND_STAR), x=np.array([100.0, 300.0, 500.0]),
+                            y=np.array([100.0, 300.0, 500.0]), hip=np.array([11, 22, 33]))
+    along = np.diag([1.5 ** 2, 0.1 ** 2])  # a streak along x
+    spots = SimpleNamespace(x=np.array([104.0, 300.0, 500.2]), y=np.array([100.0, 304.0, 500.1]),
+                            cov=np.array([along, along, along]))
+    result = SimpleNamespace(spot_index=np.array([0, 1, 2]), hip=np.array([11, 22, 33]))
+    hip = truth_hip(truth, _Sized(spots, 3), result)
+    assert hip.tolist() == [11, 0, 33]  # 4 px along: its star; 4 px across (40 sigma): none; 0.2 px: its star
+
+
+class _Sized:
+    """A namespace with a length, as Spots has."""
+
+    def __init__(self, inner, n):
+        self.__dict__.update(vars(inner))
+        self._n = n
+
+    def __len__(self):
+        return self._n
