@@ -203,7 +203,8 @@ def render_report(data: dict, images: str = "images") -> str:
         "### Tracking envelope", "",
         f"Slews from rest at each acceleration toward each coast rate, rendered at 10 Hz, rate-aided by the tracker: "
         f"{track['frames']:,} frames, {track['wrong_frames']} wrong, {track['overconfident_frames']:,} with the error "
-        f"outside 5σ of the stated covariance. The fastest rate reached with every frame tracked right: "
+        f"outside 5σ of the stated covariance. The fastest rate reached with every frame tracked right, in "
+        f"its slew and in every slower one: "
         f"**{envelope}**.", "",
         f"![tracking envelope]({images}/datasheet_tracking_envelope.png)", "",
         "### Robustness", "",

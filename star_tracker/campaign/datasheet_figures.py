@@ -18,6 +18,12 @@ def _pyplot():
     return plt
 
 
+def _save(plt, fig, path: Path) -> Path:
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
 def error_histograms(data: dict, path: Path) -> Path:
     """Draw the at-rest error per axis as histograms [arcsec], with the 1-sigma and 99.7 % levels."""
     plt = _pyplot()
@@ -33,9 +39,7 @@ def error_histograms(data: dict, path: Path) -> Path:
         ax.legend(fontsize=7)
     axes[0].set_ylabel("frames")
     fig.suptitle(f"Attitude error at rest, {data['accuracy']['frames']} rendered frames", fontsize=10)
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def error_vs_rate(data: dict, path: Path) -> Path:
@@ -52,9 +56,7 @@ def error_vs_rate(data: dict, path: Path) -> Path:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title("Error against rate (rendered frames, lost-in-space)", fontsize=10)
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def tracking_envelope(data: dict, path: Path) -> Path:
@@ -79,9 +81,7 @@ def tracking_envelope(data: dict, path: Path) -> Path:
     ax.set_ylabel("acceleration [deg/s²]")
     fig.colorbar(image, ax=ax, label="share tracked right")
     ax.set_title("Tracking envelope (✓: every frame right)", fontsize=10)
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def robustness(data: dict, path: Path) -> Path:
@@ -102,6 +102,4 @@ def robustness(data: dict, path: Path) -> Path:
         ax.grid(True, alpha=0.3)
     axes[0][0].set_ylabel("solved right [%]")
     fig.tight_layout()
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)

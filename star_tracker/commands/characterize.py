@@ -126,8 +126,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_one(kind, spec, output: Path, workers: int | None, scheduler: str | None, command: str):
-    """Run (or resume) one campaign into output; write its summary.json and report; return (summary, table, files)."""
+def run_one(kind, spec, output: Path, workers: int | None, scheduler: str | None, command: str,
+            campaign_name: str | None = None):
+    """
+    Run (or resume) one campaign into output; write its summary.json and report; return (summary, table, files).
+
+    campaign_name: the datasheet campaign it is (summary's `datasheet_campaign`), None for a lone one.
+    """
     from ..campaign import run_campaign
     from ..campaign.engine import engine_totals
     from ..campaign.results import ResultStore
@@ -143,7 +148,8 @@ def run_one(kind, spec, output: Path, workers: int | None, scheduler: str | None
     store = ResultStore(output, spec, kind.schema())
     table = store.read()
     engine = engine_totals(store.runs())
-    summary = {"preset": kind.name, **kind.summarize(table, options), "command": command, "campaign": spec.to_dict(),
+    summary = {"preset": kind.name, **kind.summarize(table, options), "command": command,
+               **({"datasheet_campaign": campaign_name} if campaign_name else {}), "campaign": spec.to_dict(),
                "options": {k: getattr(options, k) for k in options.__dataclass_fields__},
                "engine": engine, "elapsed_s": time.perf_counter() - started,
                "software": {"star_tracker": software_version(), "python": platform.python_version()},
@@ -183,7 +189,7 @@ def run_datasheet(args: argparse.Namespace) -> int:
         spec = CampaignSpec(preset=kind.name, trials=trials, seed=seed, batch=args.batch or kind.default_batch,
                             options=item.options)
         summaries[item.name], tables[item.name], _ = run_one(kind, spec, output / item.name, args.workers,
-                                                             args.scheduler, f"{command} ({item.name})")
+                                                             args.scheduler, command, campaign_name=item.name)
     # The campaigns' own work (added up over resumed runs), not this call's: a finished datasheet
     # run again only rewrites the report.
     meta = {"command": command, "date_utc": max(s["date_utc"] for s in summaries.values()),

@@ -37,9 +37,9 @@ import pyarrow as pa
 
 from ...parameter_spec import parameter, range_problems
 from ..kind import CampaignKind
-from .scoring import campaign_identify_config, ARCSEC, SCORE_COLUMNS, UNSOLVED, score
+from .default_chain import MAGNITUDE_LIMIT, default_chain
+from .scoring import ARCSEC, SCORE_COLUMNS, UNSOLVED, score
 
-MAGNITUDE_LIMIT = 7.5
 AXES = ("x", "y", "roll")
 TERMS = ("bias", "temporal_noise", "pixel_spatial", "fov_spatial")
 
@@ -113,21 +113,14 @@ class Accuracy(CampaignKind):
 
     def prepare(self, options: AccuracyOptions) -> _Shared:
         from ...centroid import CentroidConfig
-        from ...identify import DatabaseConfig, load_or_build_database, make_identifier
         from ...models.camera import CameraModel
-        from ...models.catalog import load_hipparcos
         from ...sim.render import StarFieldRenderer
-        from ...sim.sensor import SensorModel
 
-        camera = CameraModel.from_fov(1024, 1024, math.radians(15.0))
+        chain = default_chain()
         lens = CameraModel.from_fov(1024, 1024, math.radians(15.0), (options.distortion_k1, 0.0, 0.0, 0.0, 0.0))
-        sensor = SensorModel()
-        database = load_or_build_database(DatabaseConfig())
-        catalog = load_hipparcos().at_epoch(database.config.epoch_jyear)
-        identifier = make_identifier("hybrid", database, campaign_identify_config())
-        identifier.warm_up(camera)
-        return _Shared(camera, StarFieldRenderer(lens, sensor, catalog, magnitude_limit=MAGNITUDE_LIMIT), identifier,
-                       CentroidConfig(), sensor.exposure_s)
+        chain.identifier.warm_up(chain.camera)
+        renderer = StarFieldRenderer(lens, chain.sensor, chain.catalog, magnitude_limit=MAGNITUDE_LIMIT)
+        return _Shared(chain.camera, renderer, chain.identifier, CentroidConfig(), chain.sensor.exposure_s)
 
     def trial(self, shared: _Shared, options: AccuracyOptions, task: int, rng: np.random.Generator) -> dict:
         from ...centroid import extract_spots

@@ -36,8 +36,9 @@ import pyarrow as pa
 from ...parameter_spec import parameter, range_problems
 from ..bounds import rate_upper_bound
 from ..kind import CampaignKind
-from .accuracy import MAGNITUDE_LIMIT, truth_hip
-from .scoring import NEES_5_SIGMA, SCORE_COLUMNS, UNSOLVED, campaign_identify_config, score
+from .accuracy import truth_hip
+from .default_chain import MAGNITUDE_LIMIT, default_chain
+from .scoring import NEES_5_SIGMA, SCORE_COLUMNS, UNSOLVED, score
 
 # Each sweep's levels; the first is the simulator's default (no stress).
 STRESS_LEVELS = {
@@ -126,17 +127,10 @@ class Robustness(CampaignKind):
 
     def prepare(self, options: RobustnessOptions) -> _Shared:
         from ...centroid import CentroidConfig
-        from ...identify import DatabaseConfig, load_or_build_database, make_identifier
-        from ...models.camera import CameraModel
-        from ...models.catalog import load_hipparcos
-        from ...sim.sensor import SensorModel
 
-        camera = CameraModel.from_fov(1024, 1024, math.radians(15.0))
-        database = load_or_build_database(DatabaseConfig())
-        catalog = load_hipparcos().at_epoch(database.config.epoch_jyear)
-        identifier = make_identifier("hybrid", database, campaign_identify_config())
-        identifier.warm_up(camera)
-        return _Shared(camera, SensorModel(), catalog, identifier, CentroidConfig(), {})
+        chain = default_chain()
+        chain.identifier.warm_up(chain.camera)
+        return _Shared(chain.camera, chain.sensor, chain.catalog, chain.identifier, CentroidConfig(), {})
 
     def _renderer(self, shared: _Shared, sweep: str, level: float):
         from ...sim.render import StarFieldRenderer

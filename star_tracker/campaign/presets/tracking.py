@@ -28,8 +28,9 @@ import pyarrow as pa
 
 from ...parameter_spec import parameter, range_problems
 from ..kind import CampaignKind
-from .accuracy import MAGNITUDE_LIMIT, truth_hip
-from .scoring import NEES_5_SIGMA, campaign_identify_config, score
+from .accuracy import truth_hip
+from .default_chain import MAGNITUDE_LIMIT, default_chain
+from .scoring import NEES_5_SIGMA, score
 
 PERIOD_S = 0.1
 REST_S = 0.5
@@ -104,21 +105,13 @@ class Tracking(CampaignKind):
                pa.field("frame_s", pa.float64()))
 
     def prepare(self, options: TrackingOptions) -> _Shared:
-        from ...identify import DatabaseConfig, load_or_build_database, make_identifier
-        from ...models.camera import CameraModel
-        from ...models.catalog import load_hipparcos
         from ...sim.render import StarFieldRenderer
-        from ...sim.sensor import SensorModel
         from ...track.tracking import Tracker
 
-        camera = CameraModel.from_fov(1024, 1024, math.radians(15.0))
-        sensor = SensorModel()
-        database = load_or_build_database(DatabaseConfig())
-        catalog = load_hipparcos().at_epoch(database.config.epoch_jyear)
-        lost_in_space = make_identifier("hybrid", database, campaign_identify_config())
-        Tracker(lost_in_space).warm_up(camera)
-        return _Shared(camera, StarFieldRenderer(camera, sensor, catalog, magnitude_limit=MAGNITUDE_LIMIT),
-                       lost_in_space, sensor.exposure_s)
+        chain = default_chain()
+        Tracker(chain.identifier).warm_up(chain.camera)
+        renderer = StarFieldRenderer(chain.camera, chain.sensor, chain.catalog, magnitude_limit=MAGNITUDE_LIMIT)
+        return _Shared(chain.camera, renderer, chain.identifier, chain.sensor.exposure_s)
 
     def trial(self, shared: _Shared, options: TrackingOptions, task: int, rng: np.random.Generator) -> dict:
         from ...centroid import CentroidConfig, extract_spots
