@@ -1,21 +1,20 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Trials of the 3,000,000-trial false-id campaign that identified wrongly, replayed from their seeds.
+Trials of `star-tracker characterize false-id --trials 3000000` (seed 2026) that identify wrongly without these fixes.
 
-`star-tracker characterize false-id --trials 3000000` (seed 2026) found 18 false
-identifications (docs/CHARACTERIZE.md). Each trial replays exactly: CampaignSpec.rng(task).
+Each trial replays exactly from its seed: CampaignSpec("false-id", 3000000).rng(task).
 
 - Close pairs named crosswise: HIP 50954/50976 (233" apart) and 52633/52595 (264") near the
   south pole make a hypothesis 0.3 deg off verify with both pairs' stars swapped. The fit's
   chi^2 is then improbable; leaving out the two swapped stars makes the rest consistent, and
   the frame is verified again from there (StarIdentifier.without_lever_outlier). Where the deep
   stars pull the attitude right first, the guide stars are named again at the published
-  attitude (StarIdentifier.solved). Before: 664518 published a wrong attitude (158"), the
-  others one or two wrong guide stars.
+  attitude (StarIdentifier.solved). Without either, 664518 publishes a wrong attitude (158")
+  and the others one or two wrong guide stars.
 - A bright star just outside the field: Cor Caroli (HIP 63125, Hp 2.85) 0.4 px from its faint
   companion HIP 63121 (Hp 6.2) at the image edge. The scene generator kept the companion's spot
   when the bright star fell beyond its 2 px margin, and the identifier (rightly) named the spot
-  after the bright star: the truth was wrong. The blends now come before the field's cut.
+  after the bright star: the truth was the scene's error. Scenes blend before the field's cut.
 """
 from __future__ import annotations
 
