@@ -12,6 +12,10 @@ once, so a 3-million-trial campaign holds one batch in memory. A worker that die
 nothing: the scheduler runs its batches again elsewhere, and a batch's file is written once.
 A trial that raises is a record with its task, seed and error; the campaign goes on.
 
+A kind defined outside this package (a benchmark's, bench/) has its top-level package zipped
+and uploaded to the cluster's workers (`ship_kind_code`), so a cluster whose workers have
+only star_tracker installed runs it too.
+
 In a worker, `run_batch` builds the kind's shared state once per process (`prepare`), then
 each trial with its own generator (spec.rng): the records do not depend on the number of
 workers, the batching's order or the machine (tested).
@@ -20,8 +24,11 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
+import tempfile
 import time
 import traceback
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -128,6 +135,28 @@ def connect(workers: int | None, scheduler: str | None):
     return Client(cluster)
 
 
+def ship_kind_code(client, kind: CampaignKind) -> str | None:
+    """
+    Upload the top-level package of a kind defined outside star_tracker to every worker; return its name.
+
+    The package's .py files are zipped (client.upload_file puts the zip on the workers' path
+    and imports it); None when the kind is star_tracker's own (installed on every worker).
+    """
+    top = type(kind).__module__.split(".")[0]
+    if top == __name__.split(".")[0]:
+        return None
+    module = sys.modules[top]
+    root = Path(module.__file__).parent if module.__file__.endswith("__init__.py") else Path(module.__file__)
+    with tempfile.TemporaryDirectory() as scratch:
+        archive = Path(scratch) / f"{top}.zip"
+        with zipfile.ZipFile(archive, "w") as out:
+            files = sorted(root.rglob("*.py")) if root.is_dir() else [root]
+            for path in files:
+                out.write(path, path.relative_to(root.parent).as_posix())
+        client.upload_file(str(archive))
+    return top
+
+
 def run_campaign(kind: CampaignKind, spec: CampaignSpec, output: Path | str, workers: int | None = None,
                  scheduler: str | None = None, on_batch: Callable[[int, int, int], None] | None = None,
                  client=None) -> CampaignRun:
@@ -145,6 +174,7 @@ def run_campaign(kind: CampaignKind, spec: CampaignSpec, output: Path | str, wor
     own = client is None
     client = client or connect(workers, scheduler)  # an unreachable scheduler: before anything is written
     try:
+        ship_kind_code(client, kind)
         done = store.open()
         pending = [b for b in range(spec.batches) if b not in done]
         done_trials = sum(len(spec.batch_tasks(b)) for b in done)

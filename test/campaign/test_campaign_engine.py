@@ -13,13 +13,14 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pytest
 
-from star_tracker.campaign import CampaignSpec, run_campaign
+from star_tracker.campaign import CampaignKind, CampaignSpec, run_campaign
 from star_tracker.campaign.engine import run_batch
 from star_tracker.campaign.presets import KINDS
 from star_tracker.campaign.results import ResultStore
@@ -50,6 +51,32 @@ def _once_each(table: pa.Table, spec: CampaignSpec) -> bool:
 
 def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "star_tracker.cli", "characterize", *args]
+
+
+@dataclass(frozen=True)
+class _DrawOptions:
+    scale: float = 1.0
+
+
+class OutsideKind(CampaignKind):
+    """A kind defined outside star_tracker, as a benchmark's is (bench/): the engine ships its module to the workers."""
+
+    name = "outside-draw"
+    description = "normal draws, a number and a list per trial"
+    options_type = _DrawOptions
+    columns = (pa.field("total", pa.float64()), pa.field("draws", pa.list_(pa.float64())))
+    default_trials = 40
+    default_batch = 7
+
+    def prepare(self, options):
+        return None
+
+    def trial(self, shared, options, task, rng):
+        draws = options.scale * rng.normal(size=1 + task % 4)
+        return {"total": float(draws.sum()), "draws": draws.tolist()}
+
+    def summarize(self, table, options):
+        return {}
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +116,8 @@ def dask_cluster(tmp_path):
         address = json.loads(scheduler_file.read_text())["address"]
         workers = [subprocess.Popen([sys.executable, "-m", "dask", "worker", "--scheduler-file", str(scheduler_file),
                                      "--nthreads", "1", "--no-dashboard", "--no-nanny", "--host", "127.0.0.1"],
-                                    env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                    env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                    cwd=tmp_path)  # where neither bench/ nor this file is importable
                    for _ in range(2)]
         procs += workers
         from distributed import Client
@@ -117,6 +145,18 @@ def test_a_campaign_on_a_scheduler_equals_the_local_run(spec, reference, dask_cl
     table = _stored(out, spec)
     assert _once_each(table, spec) and _comparable(table) == reference
     assert (out / "summary.json").exists()
+
+
+def test_a_kind_from_outside_the_package_runs_on_workers_that_cannot_import_it(dask_cluster, tmp_path):
+    """Its module is shipped (engine.ship_kind_code); the list column arrives intact and equal to a local run."""
+    address, _ = dask_cluster
+    kind, spec = OutsideKind(), CampaignSpec("outside-draw", 40, seed=5, batch=7, options={"scale": 2.0})
+    run = run_campaign(kind, spec, tmp_path / "remote", scheduler=address)
+    table = ResultStore(tmp_path / "remote", spec, kind.schema()).read().sort_by("task")
+    here = pa.concat_tables([run_batch(kind, spec, b).table for b in range(spec.batches)])
+    assert run.threads == 2 and table.column("error").to_pylist() == [""] * 40
+    assert table.to_pydict() == here.to_pydict()
+    assert [len(d) for d in table.column("draws").to_pylist()] == [1 + t % 4 for t in range(40)]
 
 
 def test_a_worker_killed_mid_run_loses_no_task(dask_cluster, tmp_path):

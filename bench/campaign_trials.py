@@ -1,0 +1,111 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+A benchmark's trials through the campaign engine (star_tracker/campaign): local cores or a Dask cluster.
+
+A benchmark whose trials are independent defines them as a `CampaignKind` (its module, bench/)
+and runs them with `run_trials`: on a `LocalCluster` of `--workers` processes (default: every
+core), or on the scheduler at `--scheduler tcp://HOST:8786` (or $DASK_SCHEDULER_ADDRESS) whose
+workers have star_tracker installed (the engine ships bench/ to them). The records come back in
+task order, so the figures do not depend on how many workers ran them or where. With
+`--campaign-output DIR` each benchmark's records stay in DIR/<kind> (Parquet) and an
+interrupted run resumes there; without it they live in a temporary directory.
+
+Timing columns a kind records (e.g. ms per solve) are measured on the worker that ran the
+trial: on a cluster, on its machine, which the section's machine line then does not describe
+(`engine_line` says where the trials ran).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from star_tracker.campaign import CampaignKind, CampaignSpec, run_campaign
+from star_tracker.campaign.engine import SCHEDULER_ENV
+
+
+def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add --workers, --scheduler and --campaign-output (module docstring)."""
+    group = parser.add_argument_group("campaign engine")
+    group.add_argument("--workers", type=int, default=None,
+                       help="local worker processes (default: every core)")
+    group.add_argument("--scheduler", metavar="ADDR", default=None,
+                       help=f"run the trials on this Dask scheduler (tcp://HOST:8786; default ${SCHEDULER_ENV}, "
+                            "else a local cluster)")
+    group.add_argument("--campaign-output", type=Path, metavar="DIR", default=None,
+                       help="keep the trials' records in DIR/<kind> (Parquet; resumes an interrupted run); default: "
+                            "a temporary directory")
+
+
+def engine_arguments_text(args: argparse.Namespace) -> str:
+    """Return the engine options as typed, for a section's command line ("" when defaults)."""
+    parts = []
+    if getattr(args, "workers", None):
+        parts.append(f" --workers {args.workers}")
+    if getattr(args, "scheduler", None):
+        parts.append(f" --scheduler {args.scheduler}")
+    if getattr(args, "campaign_output", None):
+        parts.append(f" --campaign-output {args.campaign_output}")
+    return "".join(parts)
+
+
+def run_trials(kind: CampaignKind, trials: int, options: dict, args: argparse.Namespace | None = None,
+               seed: int = 2026, batch: int | None = None, log=None) -> tuple[pa.Table, dict]:
+    """
+    Run `trials` trials of `kind` through the engine; return their records (task order) and what the engine did.
+
+    args: the parsed engine arguments (add_engine_arguments; None = a local cluster on every
+    core, records in a temporary directory). log(text): progress, about every tenth of the trials.
+    A trial that raised is a record with its error: the caller counts and reports them.
+    """
+    spec = CampaignSpec(kind.name, trials, seed, batch or kind.default_batch, options)
+    workers = getattr(args, "workers", None)
+    scheduler = getattr(args, "scheduler", None)
+    keep = getattr(args, "campaign_output", None)
+    step = [max(trials // 10, 1), 0]
+
+    def progress(done: int, total: int, _batch: int) -> None:
+        if log is not None and (done - step[1] >= step[0] or done == total):
+            step[1] = done
+            log(f"  {kind.name}: {done}/{total} trials")
+
+    with tempfile.TemporaryDirectory(prefix=f"bench-{kind.name}-") as scratch:
+        output = Path(keep) / kind.name if keep else Path(scratch)
+        run = run_campaign(kind, spec, output, workers=workers, scheduler=scheduler, on_batch=progress)
+        from star_tracker.campaign.results import ResultStore
+
+        table = ResultStore(output, spec, kind.schema()).read()
+    table = table.sort_by("task")
+    return table, run.to_dict()
+
+
+def records(table: pa.Table) -> list[dict]:
+    """Return the table's rows as dicts; list columns become float or int numpy arrays."""
+    rows = table.to_pylist()
+    lists = [f.name for f in table.schema if pa.types.is_list(f.type)]
+    for row in rows:
+        for name in lists:
+            if row[name] is not None:
+                row[name] = np.asarray(row[name])
+    return rows
+
+
+def errors(table: pa.Table) -> list[str]:
+    """Return the errors of the trials that raised (task: error)."""
+    task, error = table.column("task").to_pylist(), table.column("error").to_pylist()
+    return [f"task {t}: {e}" for t, e in zip(task, error) if e]
+
+
+def engine_line(run: dict) -> str:
+    """One line for a section: where the trials ran, on how many workers, how busy."""
+    share = run.get("utilization")
+    return (f"trials on the campaign engine: {run.get('trials_run', 0)} on {run.get('threads', '?')} worker(s) at "
+            f"{run.get('scheduler', '?')}" + (f", {100 * share:.0f} % busy" if share is not None else ""))
+
+
+def log_stderr(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
