@@ -17,6 +17,7 @@ trial: on a cluster, on its machine, which the section's machine line then does 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 import tempfile
 from pathlib import Path
@@ -62,6 +63,7 @@ def run_trials(kind: CampaignKind, trials: int, options: dict, args: argparse.Na
     core, records in a temporary directory). log(text): progress, about every tenth of the trials.
     A trial that raised is a record with its error: the caller counts and reports them.
     """
+    kind = importable(kind)
     spec = CampaignSpec(kind.name, trials, seed, batch or kind.default_batch, options)
     workers = getattr(args, "workers", None)
     scheduler = getattr(args, "scheduler", None)
@@ -81,6 +83,22 @@ def run_trials(kind: CampaignKind, trials: int, options: dict, args: argparse.Na
         table = ResultStore(output, spec, kind.schema()).read()
     table = table.sort_by("task")
     return table, run.to_dict()
+
+
+def importable(kind: CampaignKind) -> CampaignKind:
+    """
+    Return the kind as its module's real name knows it.
+
+    A benchmark run as `python -m bench.NAME` defines its kind in `__main__`, which a worker
+    process cannot import: the same class is taken from bench.NAME instead.
+    """
+    cls = type(kind)
+    if cls.__module__ != "__main__":
+        return kind
+    spec = getattr(sys.modules["__main__"], "__spec__", None)
+    if spec is None:
+        raise ValueError(f"campaign kind {cls.__name__} is defined in a script: run it as `python -m bench.<name>`")
+    return getattr(importlib.import_module(spec.name), cls.__name__)()
 
 
 def records(table: pa.Table) -> list[dict]:

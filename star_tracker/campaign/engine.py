@@ -130,7 +130,7 @@ def connect(workers: int | None, scheduler: str | None):
         except (OSError, TimeoutError) as exc:
             raise OSError(f"no Dask scheduler answered at {address} within {CONNECT_TIMEOUT_S:g} s ({exc})") from None
     count = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = LocalCluster(n_workers=count, threads_per_worker=1, processes=True, dashboard_address=":0",
                            silence_logs=logging.ERROR)
     return Client(cluster)
 
@@ -153,8 +153,20 @@ def ship_kind_code(client, kind: CampaignKind) -> str | None:
             files = sorted(root.rglob("*.py")) if root.is_dir() else [root]
             for path in files:
                 out.write(path, path.relative_to(root.parent).as_posix())
-        client.upload_file(str(archive))
+        if client.run_on_scheduler(_this_process) == _this_process():
+            # A LocalCluster's scheduler runs in this process, which imports the package already: the
+            # scheduler's copy of an upload would re-import it here from the zip (deleted with the
+            # cluster), breaking the next campaign. The workers only.
+            from distributed.diagnostics.plugin import UploadFile
+
+            client.register_plugin(UploadFile(str(archive)), name=f"ship-{top}")
+        else:
+            client.upload_file(str(archive))
     return top
+
+
+def _this_process() -> tuple[str, int]:
+    return os.uname().nodename, os.getpid()
 
 
 def run_campaign(kind: CampaignKind, spec: CampaignSpec, output: Path | str, workers: int | None = None,

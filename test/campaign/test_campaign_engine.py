@@ -159,6 +159,16 @@ def test_a_kind_from_outside_the_package_runs_on_workers_that_cannot_import_it(d
     assert [len(d) for d in table.column("draws").to_pylist()] == [1 + t % 4 for t in range(40)]
 
 
+def test_two_campaigns_of_a_shipped_kind_run_one_after_the_other_in_one_process(tmp_path):
+    """A LocalCluster's scheduler is this process: the shipped code goes to the workers only, never replacing ours."""
+    kind = OutsideKind()
+    for run in ("first", "second"):
+        spec = CampaignSpec("outside-draw", 14, seed=3, batch=7)
+        run_campaign(kind, spec, tmp_path / run, workers=1)
+        assert ResultStore(tmp_path / run, spec, kind.schema()).read().num_rows == 14
+    assert Path(sys.modules[OutsideKind.__module__].__file__).exists()
+
+
 def test_a_worker_killed_mid_run_loses_no_task(dask_cluster, tmp_path):
     address, workers = dask_cluster
     spec = CampaignSpec("false-id", trials=400, seed=12, batch=10)
