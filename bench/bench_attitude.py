@@ -4,14 +4,26 @@ Attitude accuracy and covariance consistency of render -> extract_spots -> hybri
 
 The in-process chain, at rest and under body rates.
 
-    python -m bench.bench_attitude [--frames N] [--jobs J] [--output docs/BENCHMARKS.md]
+    python -m bench.bench_attitude [--frames N] [--workers W] [--scheduler ADDR] [--campaign-output DIR]
+                                   [--output docs/BENCHMARKS.md]
 
 Default camera (1024 x 1024, 15 deg), SensorModel() defaults (0.1 s exposure), Hipparcos to
 Hp 7.5 at the database epoch, default CentroidConfig (saturation_adu = 0: clipped stars must be
 found by their flat tops), default database and IdentifyConfig, algorithm "hybrid". Attitudes
 uniform over SO(3) (pointings all over the sky, any roll), a fixed seed. Under a rate,
 extract_spots gets the true rate as its smear model (what the live centroider does once the
-tracker publishes its rate). Frames run in J worker processes (default: every core).
+tracker publishes its rate).
+
+The frames run on the campaign engine (bench/campaign_trials.py) as the kind `bench-attitude`
+(AttitudeFrames): one trial = one frame of one case, the tasks numbered over CASES in order
+(the rest case's --frames frames first, then each rate case's half of it). A frame's attitude,
+body rate and noise seed are drawn as they always were (case_frames: per case, in frame order,
+from SEED), so the figures do not depend on --workers (local worker processes, default every
+core), on --scheduler tcp://HOST:8786 (a Dask cluster; $DASK_SCHEDULER_ADDRESS too) or on the
+batching. --campaign-output DIR keeps the records (Parquet, DIR/bench-attitude) and resumes an
+interrupted run. The per-stage times are measured on the worker that ran the frame, beside the
+other frames in flight: contended figures, not latency (the section's engine line says where).
+--jobs is a deprecated alias of --workers.
 
 Errors: d = rotation vector of R_true^T R_est in the sensor frame (R_est = R_true exp([d]x),
 the convention of the published covariance P). cross-boresight = |(d_x, d_y)|, roll = |d_z|.
@@ -35,17 +47,19 @@ spots that have a pixel at the sensor's full-well clip level (found in the image
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import datetime as dt
 import json
 import os
 import platform
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 
+from star_tracker.campaign import CampaignKind
 from star_tracker.models.attitude import ARCSEC, matrix_to_rotation_vector
 from star_tracker.models.attitude_estimation import quest, refine_with_covariances
 from star_tracker.models.camera import CameraModel
@@ -57,6 +71,9 @@ from star_tracker.identify.base import direction_covariance
 from star_tracker.sim.motion import ConstantRateMotion
 from star_tracker.sim.render import KIND_STAR, StarFieldRenderer, frame_seed
 from star_tracker.sim.sensor import SensorModel
+from .campaign_trials import add_engine_arguments, engine_arguments_text, engine_line, errors, log_stderr
+from .campaign_trials import records as table_records
+from .campaign_trials import run_trials
 from .machine import cpu_model
 from .report import write_section
 from .scenes import random_rotation
@@ -214,23 +231,156 @@ def case_frames(case_index: int, kind: str, rate_deg_s: float, frames: int) -> l
     return out
 
 
-_WORKER_CHAIN: Chain | None = None
+def case_frame_counts(frames: int) -> list[int]:
+    """Frames of each case in CASES: `frames` at rest, half of it (at least 1) under each rate."""
+    return [frames if kind == "rest" else max(frames // 2, 1) for _, kind, _ in CASES]
 
 
-def _run_frames(frames: list[tuple]) -> list[dict]:
-    """Worker: run frames through this process's chain (built once per process)."""
-    global _WORKER_CHAIN
-    if _WORKER_CHAIN is None:
-        _WORKER_CHAIN = Chain()
-    return [_WORKER_CHAIN.run_frame(rotation, omega, seed) for rotation, omega, seed in frames]
+@dataclass(frozen=True)
+class AttitudeOptions:
+    """The size of a run: frames at rest; each rate case gets half of it (at least 1)."""
+
+    frames: int = 1000
+
+    def __post_init__(self) -> None:
+        if isinstance(self.frames, bool) or not isinstance(self.frames, int) or self.frames < 1:
+            raise ValueError(f"bench-attitude options: frames={self.frames!r} must be a whole number >= 1")
+
+    @property
+    def trials(self) -> int:
+        return sum(case_frame_counts(self.frames))
+
+    def locate(self, task: int) -> tuple[int, int]:
+        """Return (case index in CASES, frame within the case) of trial `task` (tasks numbered over CASES in order)."""
+        for case, count in enumerate(case_frame_counts(self.frames)):
+            if task < count:
+                return case, task
+            task -= count
+        raise IndexError(f"task beyond the {self.trials} frames of --frames {self.frames}")
 
 
-def run_case(pool, case_index: int, kind: str, rate_deg_s: float, frames: int, chunk: int = 20) -> list[dict]:
-    """Every frame of a case, in chunks over the worker pool (None: in this process)."""
-    todo = case_frames(case_index, kind, rate_deg_s, frames)
-    chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
-    done = map(_run_frames, chunks) if pool is None else pool.map(_run_frames, chunks)
-    return [record for part in done for record in part]
+@dataclass
+class _Shared:
+    chain: Chain
+    frames: list[list[tuple]]  # per case: (rotation, body rate [rad/s], noise seed) of each frame
+
+
+# The record's columns. Chain.run_frame's dict is flattened into them (frame_columns) and rebuilt
+# from them (frame_record): its 3-vector error and its tuples become one column each component,
+# its category dict one bool column each, its per-star arrays list columns. A column is null where
+# the dict has no key (an unsolved frame; a refit left out with fewer than 4 stars).
+NEES_PARTS = ("", "_cross", "_roll")  # nees_parts' (3-DOF, x/y 2-DOF, roll 1-DOF)
+STAR_COLUMNS = {"star_chi2": pa.float64(), "star_snr": pa.float64(), "star_flags": pa.int64(),
+                "star_clipped": pa.bool_(), "star_hp": pa.float64(), "star_neighbour_px": pa.float64(),
+                "star_sigma_px": pa.float64()}
+STAR_DTYPES = {"star_flags": np.uint32, "star_clipped": bool}  # as extract_spots gives them (others float64)
+ERROR_COLUMNS = ("error_x_rad", "error_y_rad", "error_z_rad")  # "error" is the engine's column (a trial that raised)
+PREDICTED_COLUMNS = ("predicted_cross_var_rad2", "predicted_roll_var_rad2")
+
+
+class AttitudeFrames(CampaignKind):
+    """
+    One frame of one case through render -> extract_spots -> hybrid identify, scored against the truth.
+
+    Trial `task` is frame k of case c (AttitudeOptions.locate); its attitude, body rate and noise
+    seed are case_frames' (drawn per case from SEED, in frame order, precomputed in `prepare`):
+    the engine's rng is not used, so the frames are the ones this benchmark always ran.
+    """
+
+    name = "bench-attitude"
+    description = "bench_attitude: a rendered frame at rest or under a body rate, its error and NEES diagnostics"
+    options_type = AttitudeOptions
+    default_trials = 0  # the options': --frames at rest, half of it per rate case
+    default_batch = 20  # frames of 20-80 ms: 0.4-1.6 s a Dask task
+    columns = (pa.field("case", pa.int32()), pa.field("frame", pa.int32()),
+               pa.field("render_ms", pa.float64()), pa.field("centroid_ms", pa.float64()),
+               pa.field("identify_ms", pa.float64()), pa.field("spots", pa.int32()), pa.field("solved", pa.bool_()),
+               pa.field("stars", pa.int32()), pa.field("wrong_ids", pa.int32()), pa.field("clipped_frame", pa.bool_()),
+               *(pa.field(name, pa.float64()) for name in ERROR_COLUMNS),
+               *(pa.field(name, pa.float64()) for name in PREDICTED_COLUMNS),
+               *(pa.field(key + part, pa.float64()) for key in ("nees", *VARIANTS) for part in NEES_PARTS),
+               *(pa.field(f"category_{key}", pa.bool_()) for key in CATEGORIES),
+               *(pa.field(name, pa.list_(kind)) for name, kind in STAR_COLUMNS.items()))
+
+    def prepare(self, options: AttitudeOptions) -> _Shared:
+        frames = [case_frames(index, kind, rate, count)
+                  for index, ((_, kind, rate), count) in enumerate(zip(CASES, case_frame_counts(options.frames)))]
+        return _Shared(Chain(), frames)
+
+    def trial(self, shared: _Shared, options: AttitudeOptions, task: int, rng: np.random.Generator) -> dict:
+        case, frame = options.locate(task)
+        rotation, omega, seed = shared.frames[case][frame]
+        return {"case": case, "frame": frame, **frame_columns(shared.chain.run_frame(rotation, omega, seed))}
+
+    def summarize(self, table: pa.Table, options: AttitudeOptions) -> dict:
+        return {}  # the benchmark's summarize() makes the figures from frame_record()s
+
+
+def frame_columns(record: dict) -> dict:
+    """Return Chain.run_frame's record as the kind's columns (nulls where it has no key)."""
+    out = {name: None for name in (f.name for f in AttitudeFrames.columns)}
+    out.update({key: record[key] for key in ("render_ms", "centroid_ms", "identify_ms", "spots", "solved")})
+    if not record["solved"]:
+        return out
+    out.update(stars=record["stars"], wrong_ids=record["wrong_ids"], clipped_frame=record["clipped_frame"])
+    out.update(zip(ERROR_COLUMNS, map(float, record["error"])))
+    out.update(zip(PREDICTED_COLUMNS, record["predicted_var"]))
+    for key in ("nees", *VARIANTS):
+        if key in record:
+            out.update({key + part: value for part, value in zip(NEES_PARTS, record[key])})
+    out.update({f"category_{key}": value for key, value in record["category"].items()})
+    out.update({name: record[name].tolist() for name in STAR_COLUMNS})
+    return out
+
+
+def frame_record(row: dict) -> dict:
+    """Return the dict Chain.run_frame made (what summarize reads) from a row of the kind's table (records())."""
+    out = {key: row[key] for key in ("render_ms", "centroid_ms", "identify_ms", "spots", "solved")}
+    if not row["solved"]:
+        return out
+    out.update(error=np.array([row[name] for name in ERROR_COLUMNS]), stars=row["stars"],
+               wrong_ids=row["wrong_ids"], clipped_frame=row["clipped_frame"],
+               predicted_var=tuple(row[name] for name in PREDICTED_COLUMNS),
+               category={key: row[f"category_{key}"] for key in CATEGORIES})
+    for key in ("nees", *VARIANTS):
+        if row[key] is not None:
+            out[key] = tuple(row[key + part] for part in NEES_PARTS)
+    for name in STAR_COLUMNS:
+        out[name] = np.asarray(row[name], dtype=STAR_DTYPES.get(name, np.float64))
+    return out
+
+
+def run_cases(frames: int, args: argparse.Namespace | None = None) -> tuple[list[list[dict]], list[str], dict]:
+    """
+    Run every frame of every case on the campaign engine.
+
+    Return case_records() of the frames' table and what the engine did (its run dict). args:
+    the engine arguments (None = a local cluster on every core, records in a temporary directory).
+    """
+    kind = AttitudeFrames()  # run_trials takes it from bench.bench_attitude when this module is __main__
+    options = AttitudeOptions(frames)
+    table, run = run_trials(kind, options.trials, {"frames": frames}, args, seed=SEED, log=log_stderr)
+    return (*case_records(table, frames), run)
+
+
+def case_records(table: pa.Table, frames: int) -> tuple[list[list[dict]], list[str]]:
+    """
+    Return each case's frame records from the kind's table (task order) of a --frames run.
+
+    The records are Chain.run_frame's dicts in frame order, frames that raised left out; beside
+    them the errors of those ("case c frame k, task t: ...").
+    """
+    options = AttitudeOptions(frames)
+    per_case: list[list[dict]] = [[] for _ in CASES]
+    failed = []
+    raised = iter(errors(table))  # "task t: error" of the rows that raised, in the table's order
+    for row in table_records(table):
+        case, frame = options.locate(row["task"])
+        if row["error"]:
+            failed.append(f"case {case} frame {frame}, {next(raised)}")
+            continue
+        per_case[case].append(frame_record(row))
+    return per_case, failed
 
 
 def binned_mean(values: np.ndarray, keys: np.ndarray, edges: list[float]) -> list[dict]:
@@ -421,10 +571,14 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
     m = meta["machine"]
     solved = [c for c in cases if "cross_rms_arcsec" in c]
     rest = next(c for c in cases if c["kind"] == "rest")
+    where = meta.get("engine") or f"{meta['jobs']} worker processes"  # "jobs": a run before the campaign engine
+    failed = meta.get("failed_trials", [])
     lines = [
         SECTION, "",
-        f"Command: `{meta['command']}`. Measured {meta['date']} in {meta['elapsed_s']:.0f} s ({meta['jobs']} worker "
-        f"processes). Machine: {m['cpu']}, `nproc` = {m['cores']}; Python {m['python']}, numpy {m['numpy']}.", "",
+        f"Command: `{meta['command']}`. Measured {meta['date']} in {meta['elapsed_s']:.0f} s ({where}). "
+        f"Machine: {m['cpu']}, `nproc` = {m['cores']}; Python {m['python']}, numpy {m['numpy']}.", "",
+        *([f"**{len(failed)} frame(s) raised** and are left out of the figures: " + "; ".join(failed[:5])
+           + (" ..." if len(failed) > 5 else ""), ""] if failed else []),
         "- Chain, in process: `StarFieldRenderer` (default camera 1024 x 1024 px, 15 deg; `SensorModel()` defaults, "
         f"exposure {meta['exposure_s']} s, full well clipped at {meta['clip_level_adu']:.0f} ADU; Hipparcos to Hp "
         f"{MAGNITUDE_LIMIT} at epoch {meta['epoch']}; no aberration, no false objects) -> `extract_spots` (default "
@@ -530,13 +684,14 @@ def render_markdown(results: dict, images: list[Path], output: Path) -> str:
                                                   else "-" for r in bins) + " |")
     lines += ["", f"![NEES diagnostics]({os.path.relpath(images[1], output.parent)})", ""]
     lines += results.get("findings", [])
-    lines += ["", f"Median time per frame [ms] and wall time per case [s] ({meta['jobs']} worker processes on a shared "
-              f"{m['cores']}-core VM: contended, not a latency figure):", "",
-              "| case | render | extract_spots | identify | case [s] |", "|---|---:|---:|---:|---:|"]
+    threads = meta.get("engine_run", {}).get("threads", meta.get("jobs"))
+    lines += ["", f"Median time per frame [ms] and the case's frame times summed [s] (measured on the workers that ran "
+              f"them, {threads} at once on a shared {m['cores']}-core VM: contended, not a latency figure):", "",
+              "| case | render | extract_spots | identify | frames [s] |", "|---|---:|---:|---:|---:|"]
     for c in cases:
         t = c["timing_ms"]
         lines.append(f"| {c['name']} | {t['render']:.1f} | {t['centroid']:.1f} | {t['identify']:.2f} | "
-                     f"{c['elapsed_s']:.0f} |")
+                     f"{c.get('frames_s', c.get('elapsed_s', np.nan)):.0f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -606,13 +761,13 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--frames", type=int, default=1000,
                         help="frames at rest (default 1000); each rate case gets half of it (at least 1)")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                        help="worker processes (default: every core; 1 = in this process)")
+    parser.add_argument("--jobs", type=int, dest="workers", metavar="J", help="deprecated alias of --workers")
     parser.add_argument("--output", type=Path, help=f"write the '{SECTION}' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_attitude.json beside --output)")
     parser.add_argument("--from-json", type=Path, metavar="JSON",
                         help="measure nothing: draw the figures and write the section of --output from these saved "
                              "results")
+    add_engine_arguments(parser)
     args = parser.parse_args(argv)
     if args.from_json:
         results = json.loads(args.from_json.read_text())
@@ -623,33 +778,29 @@ def main(argv=None) -> None:
     started = time.perf_counter()
     sensor, identify_config = SensorModel(), IdentifyConfig()
     floor_px = identify_config.centroid_sigma_floor_px
-    pool = concurrent.futures.ProcessPoolExecutor(args.jobs) if args.jobs > 1 else None
+    per_case, failed, run = run_cases(args.frames, args)
     cases, moving_records = [], []
-    try:
-        for index, (name, kind, rate) in enumerate(CASES):
-            frames = args.frames if kind == "rest" else max(args.frames // 2, 1)
-            case_started = time.perf_counter()
-            records = run_case(pool, index, kind, rate, frames)
-            if kind != "rest":
-                moving_records += records
-            summary = {"name": name, "kind": kind, "rate_deg_s": rate, **summarize(records, floor_px),
-                       "elapsed_s": time.perf_counter() - case_started}
-            cases.append(summary)
-            print(f"{name:>15}: {summary['frames']} frames, {summary['identified_pct']:.1f} % identified, "
-                  f"cross {summary.get('cross_rms_arcsec', np.nan):.2f}\" roll "
-                  f"{summary.get('roll_rms_arcsec', np.nan):.1f}\" NEES {summary.get('nees_mean', np.nan):.2f} ("
-                  + ", ".join(f"{label} {summary.get(key + '_mean', np.nan):.2f}" for key, label in VARIANTS.items())
-                  + f") in {summary['elapsed_s']:.0f} s", flush=True)
-    finally:
-        if pool is not None:
-            pool.shutdown()
+    for index, ((name, kind, rate), records) in enumerate(zip(CASES, per_case)):
+        if kind != "rest":
+            moving_records += records
+        summary = {"name": name, "kind": kind, "rate_deg_s": rate, **summarize(records, floor_px),
+                   "failed_frames": sum(f.startswith(f"case {index} ") for f in failed),
+                   "frames_s": 1e-3 * sum(r["render_ms"] + r["centroid_ms"] + r["identify_ms"] for r in records)}
+        cases.append(summary)
+        print(f"{name:>15}: {summary['frames']} frames, {summary['identified_pct']:.1f} % identified, "
+              f"cross {summary.get('cross_rms_arcsec', np.nan):.2f}\" roll "
+              f"{summary.get('roll_rms_arcsec', np.nan):.1f}\" NEES {summary.get('nees_mean', np.nan):.2f} ("
+              + ", ".join(f"{label} {summary.get(key + '_mean', np.nan):.2f}" for key, label in VARIANTS.items())
+              + f"); frames {summary['frames_s']:.0f} s", flush=True)
+    for line in failed:
+        print(f"frame raised: {line}", file=sys.stderr)
     pooled = summarize(moving_records, floor_px)
     command = ("python -m bench.bench_attitude" + (f" --frames {args.frames}" if args.frames != 1000 else "")
-               + (f" --jobs {args.jobs}" if args.jobs != (os.cpu_count() or 1) else "")
-               + (f" --output {args.output}" if args.output else ""))
+               + engine_arguments_text(args) + (f" --output {args.output}" if args.output else ""))
     results = {
         "meta": {"command": command, "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-                 "elapsed_s": time.perf_counter() - started, "machine": machine_info(), "jobs": args.jobs,
+                 "elapsed_s": time.perf_counter() - started, "machine": machine_info(), "engine": engine_line(run),
+                 "engine_run": run, "failed_trials": failed,
                  "seed": SEED, "exposure_s": sensor.exposure_s, "epoch": DatabaseConfig().epoch_jyear,
                  "centroid_sigma_floor_px": floor_px, "chi2_3_997": CHI2_3_997,
                  "clip_level_adu": float(np.floor(sensor.full_well_e / sensor.gain_e_per_adu + sensor.bias_adu + 0.5))},
@@ -660,6 +811,7 @@ def main(argv=None) -> None:
     results["findings"] = findings(cases, floor_px, results["meta"]["clip_level_adu"])
     print("\n".join(results["findings"]))
     print(f"all rate cases: NEES {pooled.get('nees_mean', np.nan):.2f} +- {pooled.get('nees_mean_stderr', np.nan):.2f}")
+    print(engine_line(run) + (f"; {len(failed)} frame(s) raised" if failed else ""))
     json_path = args.json or (args.output.parent / "bench_attitude.json" if args.output else None)
     if json_path:
         json_path.write_text(json.dumps(results, indent=1, default=float) + "\n")
