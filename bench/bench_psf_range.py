@@ -7,6 +7,16 @@ simulator and from a second, independently written renderer (bench/alt_renderer.
 elliptical Gaussian; its own noise, hot pixels and cosmic rays).
 
     python -m bench.bench_psf_range [--quick] [--output docs/BENCHMARKS.md]
+        [--workers N] [--scheduler tcp://HOST:8786] [--campaign-output DIR]
+
+Each case (one PSF on one renderer, every flux: an alt case's fields are rendered at each flux
+in turn from one generator, so its fluxes cannot be split) and each star-free frame is a trial
+of the `bench-psf-range` campaign kind (`PsfRangeTrials`), run by the campaign engine
+(bench/campaign_trials.py): on `--workers` local processes (default: every core), or on the
+Dask scheduler at `--scheduler` (or $DASK_SCHEDULER_ADDRESS); `--campaign-output DIR` keeps
+their records in DIR/bench-psf-range and resumes an interrupted run there. A case is seeded
+by its number as the loop did (1700 + case), a star-free frame by its own, so the figures do
+not depend on the workers; `ms / frame` is measured on the worker that ran the case.
 
 Goals, judged per row: >= 99 % of the stars with SNR >= 10 detected; RMS position
 error <= 1.2x the Cramér–Rao bound (over the matched stars with SNR >= 10, in rows whose median
@@ -24,20 +34,26 @@ not scored.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as dt
 import json
 import os
 import platform
+import re
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 
+from star_tracker.campaign import CampaignKind
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.commands.bench import report_progress
 
 from . import alt_renderer as alt
+from .campaign_trials import add_engine_arguments, engine_arguments_text, engine_line, errors, records, run_trials
 from .machine import cpu_model
 from .report import write_section
 
@@ -81,6 +97,9 @@ class Case:
     @property
     def name(self) -> str:
         return f"{self.psf.label()}{' ' + self.note if self.note else ''}"
+
+
+QUICK_FLUXES = (1000.0, 5000.0)
 
 
 def cases(quick: bool) -> list[Case]:
@@ -127,6 +146,20 @@ class Scored:
         self.extra.append(int((~assigned).sum()))
         self.ms.append(1e3 * elapsed_s)
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Return the tallies as arrays: per star snr, hit (0/1), err2 [px^2], crb [px^2]; per frame extra, ms."""
+        return {"snr": np.asarray(self.snr, float), "hit": np.asarray(self.hit, np.int64),
+                "err2": np.asarray(self.err2, float), "crb": np.asarray(self.crb, float),
+                "extra": np.asarray(self.extra, np.int64), "ms": np.asarray(self.ms, float)}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> "Scored":
+        """Return the tallies of `arrays` (Scored.arrays), in their order."""
+        scored = cls()
+        for name in ("snr", "hit", "err2", "crb", "extra", "ms"):
+            setattr(scored, name, list(arrays[name]))
+        return scored
+
     def row(self) -> dict:
         snr, hit = np.asarray(self.snr), np.asarray(self.hit, bool)
         err2, crb = np.asarray(self.err2), np.asarray(self.crb)
@@ -155,12 +188,18 @@ def alt_star_field(psf, rng: np.random.Generator) -> "alt.StarField":
     return alt.StarField.build(psf, x, y)
 
 
-def measure_alt(case: Case, fluxes, fields: int, seed: int) -> list[dict]:
+def case_rows(case: Case, scores: dict[float, Scored]) -> list[dict]:
+    """Rows (one per flux, in the order of `scores`) of a case from its tallies."""
+    return [{"renderer": case.renderer, "kind": case.kind, "psf": case.name, "sigma_px": round(case.sigma_px, 3),
+             "flux_e": flux, **scored.row()} for flux, scored in scores.items()]
+
+
+def score_alt(case: Case, fluxes, fields: int, seed: int) -> dict[float, Scored]:
     """
-    Rows (one per flux) of an alt-renderer case.
+    Tallies (per flux) of an alt-renderer case.
 
     `fields` star fields of ALT_STARS stars, each rendered once at every flux (independent
-    noise).
+    noise, drawn in turn from the field's generator).
     """
     sigma = case.sigma_px
     scores = {flux: Scored() for flux in fluxes}
@@ -176,9 +215,12 @@ def measure_alt(case: Case, fluxes, fields: int, seed: int) -> list[dict]:
             t = frame.truth
             scores[flux].add(spots, t.x, t.y, t.snr, crb[:, 0, 0] + crb[:, 1, 1], t.defect_x, t.defect_y,
                              t.defect_extent_px, sigma, elapsed)
-    return [{"renderer": case.renderer, "kind": case.kind, "psf": case.name, "sigma_px": round(sigma, 3),
-             "flux_e": flux,
-             **scores[flux].row()} for flux in fluxes]
+    return scores
+
+
+def measure_alt(case: Case, fluxes, fields: int, seed: int) -> list[dict]:
+    """Rows (one per flux) of an alt-renderer case (score_alt)."""
+    return case_rows(case, score_alt(case, fluxes, fields, seed))
 
 
 def simulator_sensor(sigma: float, **defects):
@@ -188,8 +230,13 @@ def simulator_sensor(sigma: float, **defects):
 
 
 def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
+    """Rows (one per flux) of a simulator case (score_simulator)."""
+    return case_rows(case, score_simulator(case, fluxes, frames, seed))
+
+
+def score_simulator(case: Case, fluxes, frames: int, seed: int) -> dict[float, Scored]:
     """
-    Rows of a simulator case.
+    Tallies (per flux) of a simulator case.
 
     Grids of 64 stars (bench/scenes.py grid_scene, random sub-pixel phase) rendered by
     StarFieldRenderer with SensorModel(psf_sigma_px=sigma) and hot pixels and cosmic rays on.
@@ -223,40 +270,165 @@ def measure_simulator(case: Case, fluxes, frames: int, seed: int) -> list[dict]:
             defects = (t.kind == KIND_COSMIC_RAY) | (t.kind == KIND_HOT_PIXEL)
             scores[flux].add(spots, t.x[stars], t.y[stars], snr, crb[:, 0, 0] + crb[:, 1, 1], t.x[defects],
                              t.y[defects], np.maximum(t.extent_px[defects], 1.0), sigma, elapsed)
-    return [{"renderer": case.renderer, "kind": case.kind, "psf": case.name, "sigma_px": round(sigma, 3),
-             "flux_e": flux,
-             **scores[flux].row()} for flux in fluxes]
+    return scores
 
 
-def false_detections(frames: int) -> dict:
+def star_free_spots(renderer: str, k: int) -> int:
     """
-    Spots per star-free frame at the defaults.
+    Spots at the defaults on star-free frame `k` of `renderer` ("simulator" or "alt").
 
-    For each renderer with hot pixels and cosmic rays (simulator: also DSNU and PRNU).
+    Hot pixels and cosmic rays on (simulator: also DSNU and PRNU), each frame its own fixed
+    pattern and noise.
     """
-    from star_tracker.models.catalog import StarCatalog
-    from star_tracker.sim.motion import ConstantRateMotion
-    from star_tracker.sim.render import StarFieldRenderer, frame_seed
+    if renderer == "simulator":
+        from star_tracker.models.catalog import StarCatalog
+        from star_tracker.sim.motion import ConstantRateMotion
+        from star_tracker.sim.render import StarFieldRenderer, frame_seed
 
-    from .scenes import CAMERA, POINTING
+        from .scenes import CAMERA, POINTING
 
-    empty = StarCatalog(*(np.zeros(0) for _ in range(7)))
-    sensor = simulator_sensor(1.0, dsnu_fraction=0.1, prnu_fraction=0.01)
-    sim_counts = []
-    for k in range(frames):
+        empty = StarCatalog(*(np.zeros(0) for _ in range(7)))
+        sensor = simulator_sensor(1.0, dsnu_fraction=0.1, prnu_fraction=0.01)
         frame = StarFieldRenderer(CAMERA, sensor, empty, fixed_pattern_seed=k).render(
             ConstantRateMotion(POINTING, np.zeros(3)), 1.0, frame_seed(177, k))
-        sim_counts.append(len(extract_spots(frame.image, CentroidConfig())))
-    alt_counts = []
+        return len(extract_spots(frame.image, CentroidConfig()))
     nobody = alt.StarField.build(alt.GaussianPsf(1.0), np.zeros(0), np.zeros(0))
-    for k in range(frames):
-        detector = alt.Detector(sky_e=40.0, read_noise_e=5.0, hot_pixel_fraction=1e-4, hot_pixel_seed=k,
-                                cosmic_rays_per_frame=5.0)
-        frame = alt.render(nobody, 0.0, detector, 1024, 1024, np.random.default_rng([277, k]))
-        alt_counts.append(len(extract_spots(frame.image, CentroidConfig())))
-    return {name: {"mean": float(np.mean(c)), "max": int(np.max(c)), "frames": frames,
-                   "met": bool(np.mean(c) <= FALSE_GOAL)}
-            for name, c in (("simulator", sim_counts), ("alt", alt_counts))}
+    detector = alt.Detector(sky_e=40.0, read_noise_e=5.0, hot_pixel_fraction=1e-4, hot_pixel_seed=k,
+                            cosmic_rays_per_frame=5.0)
+    frame = alt.render(nobody, 0.0, detector, 1024, 1024, np.random.default_rng([277, k]))
+    return len(extract_spots(frame.image, CentroidConfig()))
+
+
+def false_detections(counts: dict[str, list[int]]) -> dict:
+    """Spots per star-free frame per renderer (star_free_spots of its frames) against the goal."""
+    return {name: {"mean": float(np.mean(c)) if c else float("nan"), "max": int(np.max(c)) if c else -1,
+                   "frames": len(c), "met": bool(np.mean(c) <= FALSE_GOAL) if c else False}
+            for name, c in counts.items()}
+
+
+@dataclass(frozen=True)
+class PsfRangeOptions:
+    """The sizes of bench_psf_range's trials (the defaults: the full run)."""
+
+    quick: bool = False  # the quick run's cases (cases(True)) and fluxes (QUICK_FLUXES)
+    frames: int = 4  # alt frames per row; the simulator's: one fewer (at least 1)
+    false_frames: int = 10  # star-free frames per renderer
+
+    def __post_init__(self) -> None:
+        bad = [f"{name} must be >= 1" for name in ("frames", "false_frames") if getattr(self, name) < 1]
+        if bad:
+            raise ValueError("bench-psf-range options: " + "; ".join(bad))
+
+    @property
+    def fluxes(self) -> tuple[float, ...]:
+        return QUICK_FLUXES if self.quick else FLUXES
+
+    @property
+    def trials(self) -> int:
+        return len(cases(self.quick)) + 2 * self.false_frames
+
+    def unit(self, task: int) -> tuple[str, str | None, int]:
+        """Return trial `task`'s part ("case" or "false"), renderer of a star-free frame, and index in its part."""
+        count = len(cases(self.quick))
+        if task < count:
+            return "case", None, task
+        task -= count
+        if task < 2 * self.false_frames:
+            return "false", ("simulator", "alt")[task // self.false_frames], task % self.false_frames
+        raise ValueError(f"bench-psf-range: no trial {count + task}, the last is {self.trials - 1}")
+
+
+TALLIES = {"star_flux_e": "flux", "star_snr": "snr", "star_hit": "hit", "star_err2_px2": "err2",
+           "star_crb_px2": "crb", "frame_flux_e": "flux", "frame_extra_spots": "extra", "frame_ms": "ms"}
+
+
+class PsfRangeTrials(CampaignKind):
+    """
+    bench_psf_range's trials: tasks 0.. are the cases, then the simulator's and the alt renderer's star-free frames.
+
+    A case's record holds its tallies (Scored.arrays) for every flux, flattened in flux order
+    with each star's and frame's flux beside it; main() makes the rows from them. Case c is
+    seeded 1700 + c and a star-free frame by its number, as the benchmark's loop always did:
+    the engine's rng is not used.
+    """
+
+    name = "bench-psf-range"
+    description = "bench_psf_range: the centroider at its defaults on PSFs of sigma 0.4-3 px, two renderers"
+    options_type = PsfRangeOptions
+    default_trials = 0  # the options' sizes: PsfRangeOptions.trials
+    default_batch = 1  # a case is ~1-10 s (its fluxes x frames)
+    columns = (pa.field("part", pa.string()), pa.field("renderer", pa.string()), pa.field("index", pa.int64()),
+               *(pa.field(column, pa.list_(pa.int64() if tally in ("hit", "extra") else pa.float64()))
+                 for column, tally in TALLIES.items()),
+               pa.field("spots", pa.int64()))
+
+    def prepare(self, options: PsfRangeOptions) -> list[Case]:
+        # Compile the centroider's kernels here, so that no case's ms / frame includes it.
+        extract_spots(alt.render(alt.StarField.build(alt.GaussianPsf(1.0), [64.5], [64.5]), 5000.0, ALT_DETECTOR,
+                                 128, 128, np.random.default_rng(0)).image, CentroidConfig())
+        return cases(options.quick)
+
+    def trial(self, shared: list[Case], options: PsfRangeOptions, task: int, rng: np.random.Generator) -> dict:
+        part, renderer, index = options.unit(task)
+        if part == "false":
+            return {"part": part, "renderer": renderer, "index": index, "spots": star_free_spots(renderer, index)}
+        case = shared[index]
+        seed = 1700 + index
+        if case.renderer == "simulator":
+            scores = score_simulator(case, options.fluxes, max(options.frames - 1, 1), seed)
+        else:
+            scores = score_alt(case, options.fluxes, options.frames, seed)
+        return {"part": part, "renderer": case.renderer, "index": index, **scores_columns(scores)}
+
+    def summarize(self, table: pa.Table, options: PsfRangeOptions) -> dict:
+        return {}  # main() makes the figures
+
+
+def scores_columns(scores: dict[float, Scored]) -> dict[str, list]:
+    """Return a case's tallies (per flux) as the TALLIES columns: flattened in flux order, each flux beside."""
+    tallies = {flux: scored.arrays() for flux, scored in scores.items()}
+    columns = {}
+    for column, tally in TALLIES.items():
+        per = "snr" if column.startswith("star_") else "ms"  # an array as long as the stars' or the frames'
+        if tally == "flux":
+            columns[column] = np.concatenate([np.full(a[per].size, flux) for flux, a in tallies.items()]).tolist()
+        else:
+            columns[column] = np.concatenate([a[tally] for a in tallies.values()]).tolist()
+    return columns
+
+
+def record_scores(record: dict, fluxes) -> dict[float, Scored]:
+    """Return a case's tallies per flux from its record (scores_columns, read back by campaign_trials.records)."""
+    scores = {}
+    for flux in fluxes:
+        star, frame = record["star_flux_e"] == flux, record["frame_flux_e"] == flux
+        arrays = {tally: record[column][star if column.startswith("star_") else frame]
+                  for column, tally in TALLIES.items() if tally != "flux"}
+        scores[flux] = Scored.from_arrays(arrays)
+    return scores
+
+
+def trials_kind() -> PsfRangeTrials:
+    """
+    Return the kind as bench.bench_psf_range's class, also when this file runs as __main__.
+
+    The engine ships the package of the kind's module to its workers, and a class of __main__
+    names no package.
+    """
+    from bench.bench_psf_range import PsfRangeTrials as Kind
+
+    return Kind()
+
+
+def progress_log(steps: int):
+    """Return a run_trials log that moves the `star-tracker bench` bar (trials done of `steps`)."""
+
+    def log(text: str) -> None:
+        done = re.search(r"(\d+)/(\d+) trials", text)
+        if done:
+            report_progress(int(done.group(1)), steps, "trials on the campaign engine")
+
+    return log
 
 
 def verdict(flag) -> str:
@@ -322,33 +494,42 @@ def main(argv=None) -> dict:
     parser.add_argument("--output", type=Path,
                         help="write the '## Centroiding across PSFs' section of this Markdown file")
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_psf_range.json beside --output)")
+    add_engine_arguments(parser)
     args = parser.parse_args(argv)
-    fluxes = (1000.0, 5000.0) if args.quick else FLUXES
-    frames = 1 if args.quick else 4
+    options = PsfRangeOptions(quick=args.quick, frames=1 if args.quick else 4, false_frames=2 if args.quick else 10)
+    frames = options.frames
     started = time.perf_counter()
-    extract_spots(alt.render(alt.StarField.build(alt.GaussianPsf(1.0), [64.5], [64.5]), 5000.0, ALT_DETECTOR, 128, 128,
-                             np.random.default_rng(0)).image, CentroidConfig())  # compile before timing
     todo = cases(args.quick)
+    report_progress(0, options.trials, "cases and star-free frames on the campaign engine")
+    stored, run = run_trials(trials_kind(), options.trials, dataclasses.asdict(options), args,
+                             log=progress_log(options.trials))
+    failed, trials = errors(stored), records(stored)
+    for error in failed:
+        print(f"bench-psf-range trial raised: {error}", file=sys.stderr)
     rows = []
-    for done, case in enumerate(todo):
-        report_progress(done, len(todo) + 1, f"{case.renderer}: {case.name}")
-        seed = 1700 + done
-        if case.renderer == "simulator":
-            rows += measure_simulator(case, fluxes, max(frames - 1, 1), seed)
-        else:
-            rows += measure_alt(case, fluxes, frames, seed)
-    report_progress(len(todo), len(todo) + 1, "star-free frames")
-    false = false_detections(2 if args.quick else 10)
-    report_progress(len(todo) + 1, len(todo) + 1, "done")
+    for r in trials:
+        if r["part"] == "case" and not r["error"]:
+            rows += case_rows(todo[r["index"]], record_scores(r, options.fluxes))
+    false = false_detections({renderer: [r["spots"] for r in trials if r["part"] == "false"
+                                         and r["renderer"] == renderer and not r["error"]]
+                              for renderer in ("simulator", "alt")})
+    report_progress(options.trials, options.trials, "done")
     elapsed = time.perf_counter() - started
     date = f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC"
-    command = "python -m bench.bench_psf_range" + (" --quick" if args.quick else "") + " --output docs/BENCHMARKS.md"
+    command = ("python -m bench.bench_psf_range" + (" --quick" if args.quick else "") + engine_arguments_text(args)
+               + " --output docs/BENCHMARKS.md")
+    raised = [r["task"] for r in trials if r["error"]]
+    where = (f"Cases and star-free frames: {engine_line(run)}"
+             + (f"; {len(failed)} of {options.trials} trials raised (tasks {raised}, the errors in the JSON's "
+                "meta.trial_errors), their rows missing below" if failed else "; none raised") + ".")
     cpu = cpu_model()
     text = "\n".join([
         "## Centroiding across PSFs",
         "",
         f"Command: `{command}` (part of `make bench`). Measured {date} in {elapsed:.0f} s. Machine: `nproc` = "
         f"{os.cpu_count()}, {cpu}; Python {platform.python_version()}, numpy {np.__version__}.",
+        "",
+        where,
         "",
         "The centroider at its defaults (`CentroidConfig()`: the PSF width is not told to it) on isolated stars of "
         "one flux per row, PSF equivalent Gaussian σ 0.4-3 px, from two renderers: `simulator` (our "
@@ -385,6 +566,7 @@ def main(argv=None) -> dict:
     ])
     print(text)
     results = {"meta": {"command": command, "date": date, "elapsed_s": elapsed, "quick": args.quick,
+                        "engine": engine_line(run), "engine_run": run, "trial_errors": failed,
                         "machine": {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
                                     "numpy": np.__version__}},
                "goals": {"snr": SNR_GOAL, "detected": DETECTED_GOAL, "ratio": RATIO_GOAL,
