@@ -4,6 +4,7 @@ Star-identification benchmark: our algorithms and two peer solvers on identical 
 
     python -m bench.bench_identify [--scenes N] [--setups a,b] [--algorithms a,b] [--no-peers]
                                    [--output docs/BENCHMARKS.md] [--seed S]
+                                   [--workers N | --scheduler tcp://HOST:8786] [--campaign-output DIR]
 
 Scenes: for every setup of `star_tracker.sim.scenes.SETUPS` (the seed papers' test cases) N scenes
 with random attitudes are drawn from a fixed seed (numpy Generator seeded with (seed, setup
@@ -27,16 +28,37 @@ identification is off by degrees, while the roll of a correct sparse-field solut
 by arcminutes); the star ids it returns are checked against the truth as well (column "wrong
 id"). Time: the solve call alone, same time limit as ours.
 
+How the calls run: the peers' tuning is a loop in this process (it picks the settings before
+anything is measured). Every measured call is then one trial of the campaign engine
+(bench/campaign_trials.py; kind `bench-identify`, IdentifyTrials): a trial is one (setup,
+solver, scene) call, in the order of the old loop (per setup: each algorithm, then each peer
+with the settings tuning kept, over the setup's scenes). The trials run on a local Dask cluster
+of --workers processes (default: every core), or on the cluster at --scheduler; with
+--campaign-output DIR their records stay in DIR/bench-identify (Parquet) and an interrupted run
+resumes there, with the peer settings and tuning table of the interrupted run (kept in
+DIR/bench-identify-tuning.json: a tuning's tie goes to the faster candidate, so a second tuning
+could choose otherwise). A worker process builds each setup's scenes (the same seed), our
+database and identifier or the peer's solver once, and makes untimed warm-up calls on the first
+scene before its first timed call (until one ends within the time limit: a first call that loads
+the compiled kernels on a busy host can run out of time and leave later code cold), so every
+timed call is warm; each call is timed on the worker that ran it (the local workers run side by
+side). The records come back in task order, so the figures other than the times do not depend on
+the workers; a trial that raised is counted (inconclusive, status "error") and reported.
+
 Output: the "## Identification" section of --output (the rest of the file is kept) and the raw
 numbers as JSON (bench_identify.json beside it, or --json).
 """
 from __future__ import annotations
 
 import argparse
+import bisect
+import dataclasses
 import datetime as dt
+import importlib
 import json
 import os
 import platform
+import re
 import shlex
 import sys
 import time
@@ -46,14 +68,17 @@ from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 
 from star_tracker.models.catalog import StarCatalog, cache_dir, load_hipparcos
 from star_tracker.commands.bench import report_progress
 from star_tracker.identify import (ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, Identification, IdentifyConfig,
                                    load_or_build_database, make_identifier)
+from star_tracker.campaign import CampaignKind
 from star_tracker.sim.scenes import SETUPS, Scene, SceneSetup, make_scene
 
 from . import peers as peer_adapters
+from .campaign_trials import add_engine_arguments, engine_line, errors, records, run_trials
 from .machine import cpu_model
 from .report import write_section
 
@@ -191,7 +216,64 @@ def peer_ids_wrong(solution: peer_adapters.PeerSolution, scene: Scene) -> bool:
     return not np.array_equal(solution.ids, scene.hip[solution.spot_index])
 
 
-# ----------------------------------------------------------------------------- running
+# ----------------------------------------------------------------------------- one call
+
+
+def call_record(outcome: str, elapsed_s: float, stars: int, status: str, stats: dict | None = None,
+                wrong_id: bool = False, raised: str = "") -> dict:
+    """
+    Return one solver call as a record (the kind's columns after setup, solver, scene and true_stars).
+
+    elapsed_s: the call's wall time [s] (NaN when a peer raised); stats: the identifier's numeric
+    counters (booleans and non-numbers left out), as parallel name and value lists; raised: the
+    exception text of a call that raised ("" otherwise).
+    """
+    numeric = {k: float(v) for k, v in (stats or {}).items()
+               if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)}
+    return {"outcome": outcome, "time_s": float(elapsed_s), "stars": int(stars), "status": status,
+            "stat_names": list(numeric), "stat_values": list(numeric.values()), "wrong_id": bool(wrong_id),
+            "raised": raised}
+
+
+def identify_call(identifier, scene: Scene) -> dict:
+    """Run ours on one scene: time.perf_counter() around identify(); a call that raises is inconclusive."""
+    started = time.perf_counter()
+    try:
+        result = identifier.identify(scene.spots, scene.setup.camera)
+    except Exception as exc:  # noqa: BLE001 - one failing call must not end a long run; it is reported
+        return call_record(INCONCLUSIVE, time.perf_counter() - started, 0, "error",
+                           raised=f"{type(exc).__name__}: {exc}")
+    elapsed = time.perf_counter() - started
+    outcome = score_identification(result, scene)
+    return call_record(outcome, elapsed, int(result.hip.size) if result.solved else 0, result.status, result.stats,
+                       wrong_id=outcome == INCORRECT)
+
+
+def peer_call(solver, scene: Scene) -> dict:
+    """Run a peer on one scene: the adapter times the solve call alone; a call that raises is inconclusive."""
+    try:
+        solution = solver.solve(scene.spots.x, scene.spots.y)
+    except Exception as exc:  # noqa: BLE001 - as in identify_call
+        return call_record(INCONCLUSIVE, float("nan"), 0, "error", raised=f"{type(exc).__name__}: {exc}")
+    return call_record(score_attitude(solution, scene), solution.elapsed_s,
+                       int(solution.ids.size) if solution.solved else 0, solution.status,
+                       wrong_id=peer_ids_wrong(solution, scene))
+
+
+# Untimed calls before the timed ones: compiled kernels load from numba's cache on first use, in
+# each process. On a busy host that loading can take the first call past its time limit, and the
+# code after the point where it stopped stays cold: so call again until a call ends in time.
+WARM_UP_CALLS = 3
+
+
+def warm_up(call, solver, scenes: list[Scene]) -> None:
+    """Make untimed calls on the first scene until one ends within the time limit (at most WARM_UP_CALLS)."""
+    for _ in range(WARM_UP_CALLS if scenes else 0):
+        if "timeout" not in call(solver, scenes[0])["status"].lower():  # never raises: a failing call is a record
+            break
+
+
+# ----------------------------------------------------------------------------- running in this process (the tuning)
 
 
 @dataclass
@@ -206,61 +288,29 @@ class Outcomes:
     wrong_ids: int = 0
     errors: list[str] = field(default_factory=list)
 
-    def add(self, outcome: str, elapsed: float, stars: int, status: str, stats: dict | None = None) -> None:
-        self.outcome.append(outcome)
-        self.time_s.append(elapsed)
-        self.stars.append(stars)
-        self.status[status] = self.status.get(status, 0) + 1
-        for key, value in (stats or {}).items():
-            if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
-                self.stats.setdefault(key, []).append(float(value))
-
-
-def run_ours(name: str, database, scenes: list[Scene], config: IdentifyConfig, on_scene=None) -> Outcomes:
-    """on_scene(): called after each timed call (progress reporting)."""
-    identifier = make_identifier(name, database, config)
-    out = Outcomes()
-    if scenes:  # one untimed call first: compiled kernels load from numba's cache on first use
-        identifier.identify(scenes[0].spots, scenes[0].setup.camera)
-    for scene in scenes:
-        started = time.perf_counter()
-        try:
-            result = identifier.identify(scene.spots, scene.setup.camera)
-        except Exception as exc:  # noqa: BLE001 - one failing call must not end a long run; it is reported
-            out.add(INCONCLUSIVE, time.perf_counter() - started, 0, "error")
-            out.errors.append(f"{type(exc).__name__}: {exc}")
-            if on_scene is not None:
-                on_scene()
-            continue
-        elapsed = time.perf_counter() - started
-        outcome = score_identification(result, scene)
-        out.add(outcome, elapsed, int(result.hip.size) if result.solved else 0, result.status, result.stats)
-        out.wrong_ids += outcome == INCORRECT
-        if on_scene is not None:
-            on_scene()
-    return out
+    def add(self, record: dict) -> None:
+        """Add one call's record (call_record's keys; list columns as lists or numpy arrays)."""
+        self.outcome.append(record["outcome"])
+        self.time_s.append(record["time_s"])
+        self.stars.append(record["stars"])
+        self.status[record["status"]] = self.status.get(record["status"], 0) + 1
+        for key, value in zip(record["stat_names"], record["stat_values"]):
+            self.stats.setdefault(str(key), []).append(float(value))
+        self.wrong_ids += bool(record["wrong_id"])
+        if record["raised"]:
+            self.errors.append(record["raised"])
 
 
 def run_peer(solver, scenes: list[Scene], on_scene=None) -> Outcomes:
-    """on_scene(): called after each call (progress reporting)."""
+    """
+    Run a peer over scenes in this process, after untimed warm-up calls (the tuning, tune_peer).
+
+    on_scene(): called after each call (progress reporting).
+    """
     out = Outcomes()
-    if scenes:  # one untimed call first, as for ours
-        try:
-            solver.solve(scenes[0].spots.x, scenes[0].spots.y)
-        except Exception:  # noqa: BLE001 - the timed loop reports it
-            pass
+    warm_up(peer_call, solver, scenes)
     for scene in scenes:
-        try:
-            solution = solver.solve(scene.spots.x, scene.spots.y)
-        except Exception as exc:  # noqa: BLE001 - as in run_ours
-            out.add(INCONCLUSIVE, float("nan"), 0, "error")
-            out.errors.append(f"{type(exc).__name__}: {exc}")
-            if on_scene is not None:
-                on_scene()
-            continue
-        out.add(score_attitude(solution, scene), solution.elapsed_s, int(solution.ids.size) if solution.solved else 0,
-                solution.status)
-        out.wrong_ids += peer_ids_wrong(solution, scene)
+        out.add(peer_call(solver, scene))
         if on_scene is not None:
             on_scene()
     return out
@@ -352,25 +402,281 @@ def tune_peer(peer: str, setup: SceneSetup, db_config: DatabaseConfig, catalog: 
     return best[1], best[2], best[3], best[4], trials
 
 
+# ----------------------------------------------------------------------------- the measured calls: campaign engine
+
+
+def setup_scene_count(name: str, scenes: int, hard_scenes: int) -> int:
+    """Return the scenes of setup `name`: --scenes, at most --hard-scenes on HARD_SETUPS."""
+    return min(scenes, hard_scenes) if name in HARD_SETUPS else scenes
+
+
+def _split(text: str) -> list[str]:
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def peer_settings_text(chosen: dict[tuple[str, str], str]) -> str:
+    """Return the settings tuning kept as an option: "setup:peer=label;..." (labels of PEER_CANDIDATES)."""
+    return ";".join(f"{setup}:{peer}={label}" for (setup, peer), label in chosen.items())
+
+
+def parse_peer_settings(text: str) -> dict[tuple[str, str], str]:
+    """Return {(setup, peer): candidate label} from peer_settings_text's form; malformed text raises ValueError."""
+    chosen = {}
+    for part in filter(None, (p.strip() for p in text.split(";"))):
+        key, sep, label = part.partition("=")
+        setup, colon, peer = key.partition(":")
+        if not sep or not colon:
+            raise ValueError(f"peer setting {part!r}: expected setup:peer=label")
+        chosen[(setup.strip(), peer.strip())] = label.strip()
+    return chosen
+
+
+@dataclass(frozen=True)
+class IdentifyTrialOptions:
+    """
+    What the trials of one benchmark run are (plain scalars, so the engine can ship and compare them).
+
+    setups, algorithms, peers: comma-separated names (SETUPS, ALGORITHMS, PEER_CANDIDATES), in
+    the report's order; peer_settings: the candidate tuning kept per setup and peer
+    (peer_settings_text); scenes, hard_scenes: scenes per setup (setup_scene_count); seed: the
+    scenes' seed (make_scenes); identify_config: the IdentifyConfig as JSON ("" = the
+    default); peer_cache: the peers' database cache ("" = <cache>/bench_peers of the worker).
+    """
+
+    setups: str = "nominal"
+    algorithms: str = DEFAULT_ALGORITHM
+    peers: str = ""
+    peer_settings: str = ""
+    scenes: int = 1000
+    hard_scenes: int = 100
+    seed: int = DEFAULT_SEED
+    identify_config: str = ""
+    peer_cache: str = ""
+
+    def __post_init__(self) -> None:
+        bad = [f"{what} {name!r} unknown; choose from {', '.join(known)}"
+               for what, text, known in (("setup", self.setups, SETUPS), ("algorithm", self.algorithms, ALGORITHMS),
+                                         ("peer", self.peers, PEER_CANDIDATES))
+               for name in _split(text) if name not in known]
+        if self.scenes < 0 or self.hard_scenes < 0:
+            bad.append(f"scenes ({self.scenes}) and hard_scenes ({self.hard_scenes}) must be >= 0")
+        try:
+            chosen = parse_peer_settings(self.peer_settings)
+            self.config()
+        except (ValueError, TypeError) as exc:
+            bad.append(str(exc))
+            chosen = {}
+        for setup in _split(self.setups):
+            for peer in _split(self.peers):
+                label = chosen.get((setup, peer))
+                if label not in [c.label for c in PEER_CANDIDATES.get(peer, [])]:
+                    bad.append(f"peer_settings: {setup}:{peer} is {label!r}, not a label of PEER_CANDIDATES[{peer!r}]")
+        if bad:
+            raise ValueError("bench-identify options: " + "; ".join(bad))
+
+    def config(self) -> IdentifyConfig:
+        return IdentifyConfig(**json.loads(self.identify_config)) if self.identify_config else IdentifyConfig()
+
+    def blocks(self) -> list["TrialBlock"]:
+        """Return the trials in task order: per setup, each algorithm then each peer, over the setup's scenes."""
+        blocks, first = [], 0
+        for setup in _split(self.setups):
+            count = setup_scene_count(setup, self.scenes, self.hard_scenes)
+            for solver, peer in [(a, False) for a in _split(self.algorithms)] + [(p, True) for p in _split(self.peers)]:
+                blocks.append(TrialBlock(setup, solver, peer, first, count))
+                first += count
+        return blocks
+
+
+@dataclass(frozen=True)
+class TrialBlock:
+    """One solver's calls on one setup: tasks first_task .. first_task + count - 1, scene i = task - first_task."""
+
+    setup: str
+    solver: str
+    peer: bool
+    first_task: int
+    count: int
+
+
+def locate(blocks: list[TrialBlock], task: int, starts: list[int] | None = None) -> TrialBlock:
+    """Return the block that holds trial `task` (starts: the blocks' first tasks, when at hand)."""
+    starts = starts if starts is not None else [b.first_task for b in blocks]
+    index = bisect.bisect_right(starts, task) - 1
+    if task < 0 or index < 0 or task - blocks[index].first_task >= blocks[index].count:
+        total = blocks[-1].first_task + blocks[-1].count if blocks else 0
+        raise IndexError(f"task {task} is not one of the {total} trials")
+    return blocks[index]
+
+
+class IdentifyWorker:
+    """
+    Per worker process: the catalog, each setup's scenes, and each (setup, solver) ready and warm.
+
+    Built on a block's first trial in this process, then kept for the process's life (a worker
+    may run any block): our database per setup (shared by the algorithms) and identifier, or
+    the peer's solver with the settings tuning chose; each followed by untimed warm-up calls
+    on the setup's first scene (warm_up), so every timed call is warm.
+    """
+
+    def __init__(self, options: IdentifyTrialOptions):
+        self.options = options
+        self.config = options.config()
+        self.catalog = load_hipparcos().at_epoch(EPOCH_JYEAR)
+        self.cache = Path(options.peer_cache) if options.peer_cache else cache_dir() / "bench_peers"
+        self.chosen = parse_peer_settings(options.peer_settings)
+        self.blocks = options.blocks()
+        self.starts = [b.first_task for b in self.blocks]
+        self._scenes: dict[str, list[Scene]] = {}
+        self._databases: dict[str, object] = {}  # repr(DatabaseConfig) -> database
+        self._solvers: dict[tuple[str, str], object] = {}
+
+    def block(self, task: int) -> TrialBlock:
+        return locate(self.blocks, task, self.starts)
+
+    def scenes(self, setup: str) -> list[Scene]:
+        """Return the setup's benchmark scenes, drawn as the in-process run drew them (make_scenes, stream 0)."""
+        if setup not in self._scenes:
+            count = setup_scene_count(setup, self.options.scenes, self.options.hard_scenes)
+            self._scenes[setup] = make_scenes(SETUPS[setup], self.catalog, count, self.options.seed)
+        return self._scenes[setup]
+
+    def solver(self, block: TrialBlock):
+        """Return the block's identifier or peer solver, built and warmed up on first use."""
+        key = (block.setup, block.solver)
+        if key not in self._solvers:
+            setup, db_config = SETUPS[block.setup], database_config(block.setup)
+            if block.peer:
+                label = self.chosen[key]
+                candidate = next(c for c in PEER_CANDIDATES[block.solver] if c.label == label)
+                solver = make_peer(block.solver, setup, db_config, candidate, self.catalog, self.config.max_time_s,
+                                   self.cache)[0]
+            else:
+                if repr(db_config) not in self._databases:
+                    self._databases[repr(db_config)] = load_or_build_database(db_config)
+                setup_config = replace(self.config, **SETUP_IDENTIFY_OVERRIDES.get(block.setup, {}))
+                solver = make_identifier(block.solver, self._databases[repr(db_config)], setup_config)
+            warm_up(peer_call if block.peer else identify_call, solver, self.scenes(block.setup))
+            self._solvers[key] = solver
+        return self._solvers[key]
+
+
+class IdentifyTrials(CampaignKind):
+    """
+    One trial = one solver call: (setup, solver, scene) of the benchmark's loop, in its order (TrialBlock).
+
+    The scene is the one the in-process benchmark drew (make_scenes from the options' seed), so
+    the engine's per-trial generator is not used. The call is timed on the worker that ran it,
+    warm (IdentifyWorker).
+    """
+
+    name = "bench-identify"
+    description = "bench_identify: our algorithms and the peers on the seed papers' setups, one call per trial"
+    options_type = IdentifyTrialOptions
+    default_trials = 1000  # the default options: nominal, the default algorithm
+    # ~2 ms a call on most setups (0.1 s a batch), up to the 0.5 s time limit on HARD_SETUPS (25 s)
+    default_batch = 50
+    columns = (pa.field("setup", pa.string()), pa.field("solver", pa.string()), pa.field("scene", pa.int64()),
+               pa.field("true_stars", pa.int64()), pa.field("outcome", pa.string()), pa.field("time_s", pa.float64()),
+               pa.field("stars", pa.int64()), pa.field("status", pa.string()),
+               pa.field("stat_names", pa.list_(pa.string())), pa.field("stat_values", pa.list_(pa.float64())),
+               pa.field("wrong_id", pa.bool_()), pa.field("raised", pa.string()))
+
+    def prepare(self, options: IdentifyTrialOptions) -> IdentifyWorker:
+        return IdentifyWorker(options)
+
+    def trial(self, shared: IdentifyWorker, options: IdentifyTrialOptions, task: int,
+              rng: np.random.Generator) -> dict:
+        block = shared.block(task)
+        solver = shared.solver(block)
+        scene = shared.scenes(block.setup)[task - block.first_task]
+        record = (peer_call if block.peer else identify_call)(solver, scene)
+        return {"setup": block.setup, "solver": block.solver, "scene": task - block.first_task,
+                "true_stars": scene.real_count, **record}
+
+    def summarize(self, table: pa.Table, options: IdentifyTrialOptions) -> dict:
+        return {}  # the benchmark's own summarize() makes the figures
+
+
+def trials_kind() -> IdentifyTrials:
+    """
+    Return the kind as its importable module defines it.
+
+    Run as `python -m bench.bench_identify`, this module is __main__, a name the engine cannot
+    ship to the workers (it zips the kind's top-level package): the kind then comes from the
+    module imported under its package name.
+    """
+    if __name__ == "__main__" and __spec__ is not None:
+        return importlib.import_module(__spec__.name).IdentifyTrials()
+    return IdentifyTrials()
+
+
+def block_outcomes(block: TrialBlock, rows: list[dict], scenes: list[Scene]) -> Outcomes:
+    """
+    Return one block's Outcomes from its records (task order).
+
+    A trial that raised in the engine (its columns empty) is an inconclusive call with status
+    "error" and the engine's error text, as a call that raised; a record of another scene than
+    this process drew (a worker with another catalog) raises.
+    """
+    out = Outcomes()
+    for index, row in enumerate(rows):
+        if row["error"]:
+            out.add(call_record(INCONCLUSIVE, float("nan"), 0, "error", raised=f"trial raised: {row['error']}"))
+            continue
+        if (row["setup"], row["solver"], row["scene"], row["true_stars"]) != (
+                block.setup, block.solver, index, scenes[index].real_count):
+            raise RuntimeError(f"task {row['task']}: record of {row['setup']}/{row['solver']} scene {row['scene']} "
+                               f"({row['true_stars']} true stars), expected {block.setup}/{block.solver} scene "
+                               f"{index} ({scenes[index].real_count}): the workers drew other scenes")
+        out.add(row)
+    return out
+
+
+TUNING_FILE = "bench-identify-tuning.json"  # in --campaign-output: the peers' tuning, for a resumed run
+
+
+def saved_tuning(path: Path | None, key: dict) -> dict[tuple[str, str], dict]:
+    """Return the peers' tuning a run with the same key saved at path ({} when none or another run's)."""
+    if path is None or not path.is_file():
+        return {}
+    saved = json.loads(path.read_text())
+    if saved.get("key") != key:
+        return {}
+    return {tuple(name.split(":", 1)): entry for name, entry in saved["tuned"].items()}
+
+
+def save_tuning(path: Path, key: dict, tuned: dict[tuple[str, str], dict]) -> None:
+    """Keep the peers' tuning (settings kept, table, database figures) beside the records, for a resumed run."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"key": key, "tuned": {f"{setup}:{peer}": entry for (setup, peer), entry
+                                                      in tuned.items()}}, indent=1, default=float) + "\n")
+
+
 def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, seed: int = DEFAULT_SEED,
                   peers: list[str] = (), tune_scenes: int = 100, hard_scenes: int = 100,
                   catalog: StarCatalog | None = None, cache: Path | None = None,
-                  config: IdentifyConfig | None = None, log=print, progress=None) -> dict:
+                  config: IdentifyConfig | None = None, log=print, progress=None,
+                  engine: argparse.Namespace | None = None) -> dict:
     """
     Run every solver on every setup; returns the JSON-ready results (see module docstring).
 
-    progress(done, total, note): called after every solver call (scenes solved so far of all).
+    The peers' tuning runs here, in this process (it chooses the settings before the measured
+    calls); then every measured call is one trial on the campaign engine (IdentifyTrials;
+    engine: the parsed --workers/--scheduler/--campaign-output, None = a local cluster on
+    every core). catalog: Hipparcos at EPOCH_JYEAR (the workers load that one themselves);
+    cache: the peers' databases (default <cache>/bench_peers, the workers' own when None).
+    progress(done, total, note): after every tuning call, and as the engine reports trials.
     """
     run_started = time.perf_counter()
     catalog = catalog if catalog is not None else load_hipparcos().at_epoch(EPOCH_JYEAR)
-    cache = cache if cache is not None else cache_dir() / "bench_peers"
+    peer_cache = cache if cache is not None else cache_dir() / "bench_peers"
     config = config or IdentifyConfig()
-    results: dict = {"setups": {}}
-    calls_total = 0
-    for name in setup_names:
-        count = min(scenes, hard_scenes) if name in HARD_SETUPS else scenes
-        tune_count = min(tune_scenes, count, HARD_TUNE_SCENES if name in HARD_SETUPS else count)
-        calls_total += len(algorithms) * count + sum(len(PEER_CANDIDATES[p]) * tune_count + count for p in peers)
+    counts = {name: setup_scene_count(name, scenes, hard_scenes) for name in setup_names}
+    tune_counts = {name: min(tune_scenes, count, HARD_TUNE_SCENES if name in HARD_SETUPS else count)
+                   for name, count in counts.items()}
+    calls_total = sum(len(PEER_CANDIDATES[p]) * tune_counts[name] for name in setup_names for p in peers)
+    calls_total += sum(counts.values()) * (len(algorithms) + len(peers))
     calls = [0, ""]
 
     def tick() -> None:
@@ -378,14 +684,15 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
         if progress is not None:
             progress(calls[0], calls_total, calls[1])
 
+    entries, scene_lists, tuned = {}, {}, {}
     for name in setup_names:
         setup = SETUPS[name]
-        count = min(scenes, hard_scenes) if name in HARD_SETUPS else scenes
-        scene_list = make_scenes(setup, catalog, count, seed)
+        scene_list = scene_lists[name] = make_scenes(setup, catalog, counts[name], seed)
         real = np.array([s.real_count for s in scene_list])
         db_config = database_config(name)
-        database = load_or_build_database(db_config)
-        entry = {
+        database = load_or_build_database(db_config)  # built here once, so the workers load it from the cache
+        count = counts[name]
+        entries[name] = {
             "description": setup.description, "scenes": count,
             "true_stars_mean": float(real.mean()) if count else None,
             "scenes_ge4_true_stars": int(np.sum(real >= 4)),
@@ -396,36 +703,77 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
                          "stars": database.star_count, "pairs": int(database.pair_a.size),
                          "build_seconds": float(database.build_seconds)},
             "solvers": {},
+            "identify_overrides": SETUP_IDENTIFY_OVERRIDES.get(name, {}),
         }
-        setup_config = replace(config, **SETUP_IDENTIFY_OVERRIDES.get(name, {}))
-        entry["identify_overrides"] = SETUP_IDENTIFY_OVERRIDES.get(name, {})
-        for algorithm in algorithms:
-            started = time.perf_counter()
-            calls[1] = f"{name}: {algorithm}"
-            summary = summarize(run_ours(algorithm, database, scene_list, setup_config, tick), scene_list)
-            entry["solvers"][algorithm] = {"kind": "ours", **summary}
-            log(f"{name} {algorithm}: {summary['correct']}/{summary['inconclusive']}/{summary['incorrect']} "
-                f"(correct/inconclusive/incorrect) in {time.perf_counter() - started:.1f} s")
-        tune_count = min(tune_scenes, count, HARD_TUNE_SCENES if name in HARD_SETUPS else count)
-        tuning = make_scenes(setup, catalog, tune_count, seed, stream=1) if peers else []
-        for peer in peers:
-            started = time.perf_counter()
-            calls[1] = f"{name}: {peer} (tuning)"
-            solver, candidate, database_kw, solve_kw, trials = tune_peer(peer, setup, db_config, catalog, tuning,
-                                                                         config.max_time_s, cache, log, tick)
-            calls[0] += (len(PEER_CANDIDATES[peer]) - len(trials)) * len(tuning)  # candidates not tried
-            calls[1] = f"{name}: {peer}"
-            summary = summarize(run_peer(solver, scene_list, tick), scene_list)
-            entry["solvers"][peer] = {
-                "kind": "peer", "version": metadata.version(peer), "settings": candidate.label,
-                "database_settings": database_kw, "solve_settings": solve_kw, "tuning": trials,
-                "database": {"build_seconds": solver.build_seconds, "load_seconds": solver.load_seconds,
-                             "bytes": solver.database_bytes, "patterns": solver.pattern_count,
-                             "from_cache": solver.from_cache},
-                **summary}
-            log(f"{name} {peer} [{candidate.label}]: {summary['correct']}/{summary['inconclusive']}/"
-                f"{summary['incorrect']} in {time.perf_counter() - started:.1f} s")
-        results["setups"][name] = entry
+        del database
+
+    # The peers' tuning stays a loop in this process: it picks the settings the measured trials then use
+    # (a tie goes to the faster, so two tunings may differ). A resumed run takes the interrupted one's.
+    identify_config = "" if config == IdentifyConfig() else json.dumps(dataclasses.asdict(config))
+    tuning_key = {"setups": list(setup_names), "peers": list(peers), "scenes": scenes, "hard_scenes": hard_scenes,
+                  "tune_scenes": tune_scenes, "seed": seed, "identify_config": identify_config,
+                  "versions": {peer: metadata.version(peer) for peer in peers}}
+    tuning_file = Path(engine.campaign_output) / TUNING_FILE if getattr(engine, "campaign_output", None) else None
+    tuned = saved_tuning(tuning_file, tuning_key) if peers else {}
+    if tuned:
+        log(f"peer settings and tuning table from {tuning_file} (the run resumed)")
+        calls[0] += sum(len(PEER_CANDIDATES[p]) * tune_counts[name] for name in setup_names for p in peers)
+    elif peers:
+        for name in setup_names:
+            setup, db_config = SETUPS[name], database_config(name)
+            tuning = make_scenes(setup, catalog, tune_counts[name], seed, stream=1)
+            for peer in peers:
+                calls[1] = f"{name}: {peer} (tuning)"
+                solver, candidate, database_kw, solve_kw, trials = tune_peer(
+                    peer, setup, db_config, catalog, tuning, config.max_time_s, peer_cache, log, tick)
+                calls[0] += (len(PEER_CANDIDATES[peer]) - len(trials)) * len(tuning)  # candidates not tried
+                tuned[(name, peer)] = {
+                    "kind": "peer", "version": metadata.version(peer), "settings": candidate.label,
+                    "database_settings": database_kw, "solve_settings": solve_kw, "tuning": trials,
+                    "database": {"build_seconds": solver.build_seconds, "load_seconds": solver.load_seconds,
+                                 "bytes": solver.database_bytes, "patterns": solver.pattern_count,
+                                 "from_cache": solver.from_cache}}
+        # Saved unless the records there are another run's (the engine refuses to mix them; keep its tuning).
+        if tuning_file is not None and not (tuning_file.parent / IdentifyTrials.name).exists():
+            save_tuning(tuning_file, tuning_key, tuned)
+
+    options = IdentifyTrialOptions(
+        setups=",".join(setup_names), algorithms=",".join(algorithms), peers=",".join(peers),
+        peer_settings=peer_settings_text({key: s["settings"] for key, s in tuned.items()}), scenes=scenes,
+        hard_scenes=hard_scenes, seed=seed, identify_config=identify_config,
+        peer_cache=str(cache) if cache is not None else "")
+    blocks = options.blocks()
+    trial_count = sum(b.count for b in blocks)
+    tuning_calls = calls[0]
+
+    def engine_log(text: str) -> None:
+        log(text)
+        done = re.search(r"(\d+)/(\d+) trials", text)  # run_trials' progress line: "<kind>: done/total trials"
+        if done and progress is not None:
+            progress(tuning_calls + int(done[1]), calls_total, "campaign engine")
+
+    rows, run = [], {}
+    if trial_count:
+        table, run = run_trials(trials_kind(), trial_count, dataclasses.asdict(options), engine,
+                                seed=seed, log=engine_log)
+        rows = records(table)
+        failed = errors(table)
+        for line in failed[:10]:
+            log(f"trial raised: {line}")
+        if failed:
+            log(f"{len(failed)} of {trial_count} trials raised; counted inconclusive with status 'error'")
+    for block in blocks:
+        scene_list = scene_lists[block.setup]
+        out = block_outcomes(block, rows[block.first_task:block.first_task + block.count], scene_list)
+        summary = summarize(out, scene_list)
+        entry = entries[block.setup]["solvers"]
+        entry[block.solver] = {**tuned[(block.setup, block.solver)], **summary} if block.peer else \
+            {"kind": "ours", **summary}
+        log(f"{block.setup} {block.solver}"
+            + (f" [{entry[block.solver]['settings']}]" if block.peer else "")
+            + f": {summary['correct']}/{summary['inconclusive']}/{summary['incorrect']} "
+              "(correct/inconclusive/incorrect)")
+    results: dict = {"setups": entries}
     ours = [s for e in results["setups"].values() for s in e["solvers"].values() if s["kind"] == "ours"]
     theirs = [s for e in results["setups"].values() for s in e["solvers"].values() if s["kind"] == "peer"]
     results["totals"] = {
@@ -438,6 +786,8 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
         "tune_scenes": tune_scenes, "max_time_s": config.max_time_s, "algorithms": list(algorithms),
         "peers": list(peers), "machine": machine_info(),
         "reference_algorithm": DEFAULT_ALGORITHM if DEFAULT_ALGORITHM in algorithms else algorithms[0],
+        "engine": engine_line(run) if run else None, "engine_run": run or None,
+        "failed_trials": sum(1 for row in rows if row["error"]),
     }
     return results
 
@@ -620,6 +970,9 @@ def render_markdown(results: dict) -> str:
         f"{machine['cpu']}, `nproc` = {machine['cores']}; `python -VV`: Python {machine['python']}; numpy "
         f"{machine['versions']['numpy']}; tetra3rs {machine['versions']['tetra3rs'] or 'not installed'}, cedar-solve "
         f"{machine['versions']['cedar-solve'] or 'not installed'}.",
+        *([f"{meta['engine'][:1].upper()}{meta['engine'][1:]} (a trial = one solver call on one scene)"
+           + (f"; {meta['failed_trials']} trials raised (counted inconclusive, status error)."
+              if meta.get("failed_trials") else ".")] if meta.get("engine") else []),
         "",
         f"- Scenes: `star_tracker.sim.scenes.SETUPS`, seed {meta['seed']}, the same centroid lists for every solver; "
         f"{meta['scenes']} per setup ({', '.join(HARD_SETUPS)}: at most the first {meta['hard_scenes']}, since most "
@@ -638,8 +991,14 @@ def render_markdown(results: dict) -> str:
         "the faster (table at the end). Both peers solve single-threaded (tetra3rs: compiled Rust; cedar-solve: "
         "numpy/Python). A peer's wrong ids with a correct attitude are mostly close doubles (e.g. the 5.6 mag "
         "companion 19\" from a 2.9 mag star, which the scenes merge into the brighter star's spot).",
-        "- Times: wall clock around the call (`time.perf_counter`), one process, one call at a time, after one untimed "
-        "warm-up call per solver and setup. Per-call stats: the algorithms' own counters (e.g. pivots) averaged over "
+        ("- Times: wall clock around the call (`time.perf_counter`) on the worker process that ran it, one call at a "
+         "time per worker (the local workers run side by side, ours and the peers' alike), after untimed warm-up "
+         "calls per solver and setup in each worker process (on the first scene, until one ends within the time "
+         "limit, at most 3); the peers' tuning ran in the main process. "
+         if meta.get("engine") else
+         "- Times: wall clock around the call (`time.perf_counter`), one process, one call at a time, after one "
+         "untimed warm-up call per solver and setup. ")
+        + "Per-call stats: the algorithms' own counters (e.g. pivots) averaged over "
         "the calls that report them. The machine is a shared 2-core VM: absolute times vary between runs; compare "
         "within one run.",
         "",
@@ -701,6 +1060,7 @@ def main(argv=None) -> None:
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_identify.json beside --output)")
     parser.add_argument("--from-json", type=Path, metavar="JSON",
                         help="measure nothing: write the section of --output from these saved results")
+    add_engine_arguments(parser)
     args = parser.parse_args(argv)
     if args.from_json:
         text = render_markdown(json.loads(args.from_json.read_text()))
@@ -713,7 +1073,9 @@ def main(argv=None) -> None:
     peers = [] if args.no_peers else peer_adapters.usable_peers()
 
     results = run_benchmark(setups, algorithms, args.scenes, args.seed, peers, args.tune_scenes, args.hard_scenes,
-                            log=lambda text: print(text, file=sys.stderr, flush=True), progress=report_progress)
+                            log=lambda text: print(text, file=sys.stderr, flush=True), progress=report_progress,
+                            engine=args)
+    # The command as typed: it holds the engine options (--workers, --scheduler, --campaign-output) given.
     results["meta"]["command"] = "python -m bench.bench_identify" + "".join(
         f" {shlex.quote(a)}" for a in (argv if argv is not None else sys.argv[1:]))
     text = render_markdown(results)
