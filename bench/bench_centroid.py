@@ -36,7 +36,6 @@ import datetime as dt
 import json
 import os
 import platform
-import re
 import sys
 import time
 from dataclasses import dataclass
@@ -408,15 +407,9 @@ def trials_kind() -> CentroidTrials:
     return Kind()
 
 
-def progress_log(steps: int):
-    """Return a run_trials log that moves the `star-tracker bench` bar (trials done of `steps`)."""
-
-    def log(text: str) -> None:
-        done = re.search(r"(\d+)/(\d+) trials", text)
-        if done:
-            report_progress(int(done.group(1)), steps, "trials on the campaign engine")
-
-    return log
+def progress_bar(steps: int):
+    """Return a run_trials progress callback that moves the `star-tracker bench` bar (trials done of `steps`)."""
+    return lambda done, _total: report_progress(done, steps, "trials on the campaign engine")
 
 
 def speed_table(timing: dict, reference_ms: float) -> list[str]:
@@ -448,7 +441,8 @@ def main(argv=None) -> None:
     started = time.perf_counter()
     steps = options.trials + 2  # + speed at rest, speed slewing
     report_progress(0, steps, "accuracy, purity and roll on the campaign engine")
-    table, run = run_trials(trials_kind(), options.trials, dataclasses.asdict(options), args, log=progress_log(steps))
+    table, run = run_trials(trials_kind(), options.trials, dataclasses.asdict(options), args,
+                            progress=progress_bar(steps))
     failed, trials = errors(table), records(table)
     done = [r for r in trials if not r["error"]]
     rows = [{name: r[name] for name in ACCURACY_FIELDS} for r in done if r["part"] == "accuracy"]

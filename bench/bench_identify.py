@@ -58,7 +58,6 @@ import importlib
 import json
 import os
 import platform
-import re
 import shlex
 import sys
 import time
@@ -746,16 +745,14 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
     trial_count = sum(b.count for b in blocks)
     tuning_calls = calls[0]
 
-    def engine_log(text: str) -> None:
-        log(text)
-        done = re.search(r"(\d+)/(\d+) trials", text)  # run_trials' progress line: "<kind>: done/total trials"
-        if done and progress is not None:
-            progress(tuning_calls + int(done[1]), calls_total, "campaign engine")
+    def engine_progress(done: int, _total: int) -> None:
+        if progress is not None:
+            progress(tuning_calls + done, calls_total, "campaign engine")
 
     rows, run = [], {}
     if trial_count:
         table, run = run_trials(trials_kind(), trial_count, dataclasses.asdict(options), engine,
-                                seed=seed, log=engine_log)
+                                seed=seed, log=log, progress=engine_progress)
         rows = records(table)
         failed = errors(table)
         for line in failed[:10]:

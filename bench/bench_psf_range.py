@@ -39,7 +39,6 @@ import datetime as dt
 import json
 import os
 import platform
-import re
 import sys
 import time
 from dataclasses import dataclass
@@ -420,15 +419,9 @@ def trials_kind() -> PsfRangeTrials:
     return Kind()
 
 
-def progress_log(steps: int):
-    """Return a run_trials log that moves the `star-tracker bench` bar (trials done of `steps`)."""
-
-    def log(text: str) -> None:
-        done = re.search(r"(\d+)/(\d+) trials", text)
-        if done:
-            report_progress(int(done.group(1)), steps, "trials on the campaign engine")
-
-    return log
+def progress_bar(steps: int):
+    """Return a run_trials progress callback that moves the `star-tracker bench` bar (trials done of `steps`)."""
+    return lambda done, _total: report_progress(done, steps, "trials on the campaign engine")
 
 
 def verdict(flag) -> str:
@@ -502,7 +495,7 @@ def main(argv=None) -> dict:
     todo = cases(args.quick)
     report_progress(0, options.trials, "cases and star-free frames on the campaign engine")
     stored, run = run_trials(trials_kind(), options.trials, dataclasses.asdict(options), args,
-                             log=progress_log(options.trials))
+                             progress=progress_bar(options.trials))
     failed, trials = errors(stored), records(stored)
     for error in failed:
         print(f"bench-psf-range trial raised: {error}", file=sys.stderr)

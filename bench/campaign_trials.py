@@ -55,12 +55,13 @@ def engine_arguments_text(args: argparse.Namespace) -> str:
 
 
 def run_trials(kind: CampaignKind, trials: int, options: dict, args: argparse.Namespace | None = None,
-               seed: int = 2026, batch: int | None = None, log=None) -> tuple[pa.Table, dict]:
+               seed: int = 2026, batch: int | None = None, log=None, progress=None) -> tuple[pa.Table, dict]:
     """
     Run `trials` trials of `kind` through the engine; return their records (task order) and what the engine did.
 
     args: the parsed engine arguments (add_engine_arguments; None = a local cluster on every
-    core, records in a temporary directory). log(text): progress, about every tenth of the trials.
+    core, records in a temporary directory). log(text): progress, about every tenth of the trials;
+    progress(done, total): after every batch (trials done, resumed ones included, of the campaign's).
     A trial that raised is a record with its error: the caller counts and reports them.
     """
     kind = importable(kind)
@@ -70,14 +71,16 @@ def run_trials(kind: CampaignKind, trials: int, options: dict, args: argparse.Na
     keep = getattr(args, "campaign_output", None)
     step = [max(trials // 10, 1), 0]
 
-    def progress(done: int, total: int, _batch: int) -> None:
+    def on_batch(done: int, total: int, _batch: int) -> None:
+        if progress is not None:
+            progress(done, total)
         if log is not None and (done - step[1] >= step[0] or done == total):
             step[1] = done
             log(f"  {kind.name}: {done}/{total} trials")
 
     with tempfile.TemporaryDirectory(prefix=f"bench-{kind.name}-") as scratch:
         output = Path(keep) / kind.name if keep else Path(scratch)
-        run = run_campaign(kind, spec, output, workers=workers, scheduler=scheduler, on_batch=progress)
+        run = run_campaign(kind, spec, output, workers=workers, scheduler=scheduler, on_batch=on_batch)
         from star_tracker.campaign.results import ResultStore
 
         table = ResultStore(output, spec, kind.schema()).read()
