@@ -57,9 +57,10 @@ class IdentifyConfig:
     projected-star radius for verification [px]; false_positive_bound: largest accepted
     probability that a published solution is a chance match (all hypotheses of the frame);
     second_opinion_bound: a solve whose final bound (deep stars included) exceeds this gets a
-    second opinion (StarIdentifier.second_opinion); max_time_s: time budget of one identify() call [s], counted on budget_clock: "wall" (elapsed
-    time, a node's real-time budget) or "cpu" (this process's CPU time: the same search on an idle
-    and on a loaded host; identify/deadline.py); max_candidates_per_pattern: cap on hypotheses
+    second opinion (StarIdentifier.second_opinion); max_time_s: time budget of one identify()
+    call [s], counted on budget_clock: "wall" (elapsed time, a node's real-time budget) or "cpu"
+    (this process's CPU time: the same search on an idle and on a loaded host;
+    identify/deadline.py); max_candidates_per_pattern: cap on hypotheses
     taken from one pattern (a pattern with more is ambiguous); deep_match: after a match is
     accepted, add the unambiguous matches of the remaining spots to the deep catalog's stars
     (every Hipparcos star to the guide limit + deep_magnitude_margin [mag]; deep_match.py) before
