@@ -6,12 +6,16 @@ Tracking success and time against body rate, re-acquisition after a loss, the ra
 compensation, and tetra3rs's tracking mode on the same centroids.
 
     python -m bench.bench_tracking [--quick] [--no-peers] [--output docs/BENCHMARKS.md]
+                                   [--workers N] [--scheduler tcp://HOST:8786] [--campaign-output DIR]
 
 Pipeline (as test/track/test_tracking.py and the live nodes): the simulator renders 1024^2 / 15 deg
 frames (SensorModel defaults, 0.1 s exposure, stars to Hp 7.5) at mid-exposure stamps
 0.05 + 0.1 k s; the centroider is rate-aided by the tracker's own current rate estimate
 (SmearModel(camera, tracker.rate.angular_velocity, 0.1)); the tracker is
-Tracker(make_identifier("hybrid", db), TrackingConfig()) on the default DatabaseConfig.
+Tracker(make_identifier("hybrid", db), TrackingConfig()) on the default DatabaseConfig; the
+identifier's time budget (IdentifyConfig.max_time_s) is counted on the CPU clock, as in the
+campaigns (campaign_identify_config): on the wall clock a loaded host, or a worker sharing its
+cores with others, times out lost-in-space solves an idle one finishes.
 Per frame: when a prediction exists, `accept_tracked` is called alone and timed (the
 "tracking time"); when it fails or there is no prediction, `process` runs (it re-runs the same,
 stateless, failed tracking step and then lost-in-space). A frame is a success when it is solved
@@ -23,6 +27,19 @@ rate directions (cross-boresight plus a roll component of up to 30 % of it); sle
 (SlewMotion, eigen-axis in the image plane with a little roll, up to 2 deg/s).
 Everything is seeded (SEED); --quick runs fewer and shorter sequences.
 
+How the trials run: every sequence (a constant-rate, slew or re-acquisition run: one case and
+run) and every delay-compensation trial is one task of the campaign engine's kind
+`bench-tracking` (`TrackingTrials`; bench/campaign_trials.py): on a local cluster of
+`--workers` processes (default: every core), or on the Dask scheduler `--scheduler`
+($DASK_SCHEDULER_ADDRESS); `--campaign-output DIR` keeps the records (Parquet, DIR/bench-tracking)
+and resumes an interrupted run. Task t is the t-th unit of `plan_units(plan)` (the order the
+benchmark always ran them in), its motion and noise seeded from SEED, the part, the rate and
+the run as before, so the figures do not depend on the workers. A sequence's per-frame records
+travel as list columns (one entry per frame) and come back as `Sequence`s; a trial that raised
+is counted and reported. The tracking times (ours and tetra3rs's, side by side in each frame)
+are measured on the worker that ran the sequence: with every core busy they are noisier than
+on one quiet core (`--workers 1` leaves the other core to the rest of the machine).
+
 Output: the "## Tracking" section of --output (the rest of the file is kept), the raw numbers
 in docs/bench_tracking.json and the figures docs/images/tracking_rate.png and
 docs/images/tracking_slew.png.
@@ -30,6 +47,7 @@ docs/images/tracking_slew.png.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as dt
 import json
 import math
@@ -43,12 +61,15 @@ from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 
 from star_tracker.models.attitude import (attitude_error, matrix_to_rotation_vector, radec_roll_to_matrix,
                                           rotation_vector_to_matrix)
 from star_tracker.models.camera import CameraModel
 from star_tracker.models.catalog import cache_dir, load_hipparcos
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
+from star_tracker.campaign import CampaignKind
+from star_tracker.campaign.presets.scoring import campaign_identify_config
 from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
 from star_tracker.track.tracking import MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Tracker, TrackingConfig
@@ -58,6 +79,7 @@ from star_tracker.sim.sensor import SensorModel
 from star_tracker.track.streak_rate import rate_from_streaks
 
 from . import peers as peer_adapters
+from .campaign_trials import add_engine_arguments, engine_line, errors, log_stderr, run_trials
 from .machine import cpu_model
 from .report import write_section
 
@@ -190,7 +212,7 @@ class TrackingBench:
         self.log = log
         catalog = load_hipparcos().at_epoch(EPOCH_JYEAR)
         self.database = load_or_build_database(DatabaseConfig())
-        self.lis = make_identifier("hybrid", self.database)
+        self.lis = make_identifier("hybrid", self.database, campaign_identify_config())
         Tracker(self.lis).warm_up(CAMERA)
         self.renderer = StarFieldRenderer(CAMERA, SENSOR, catalog, magnitude_limit=RENDER_MAGNITUDE_LIMIT)
         self.peer, self.peer_info = None, None
@@ -615,22 +637,51 @@ def failures(sequences: list[Sequence]) -> list[dict]:
 
 # ----------------------------------------------------------------------------- experiments
 
-def constant_rate_runs(bench: TrackingBench, plan: Plan, log) -> dict[str, list[Sequence]]:
-    cases: dict[str, list[Sequence]] = {}
+GAP_KINDS = {"1 blank": ["blank"], "2 blank": ["blank"] * 2, "5 blank": ["blank"] * 5, "2 spots": ["two_spots"]}
+# name, acceleration [deg/s^2], the Plan's field with its number of runs
+SLEW_CASES = (("slew 0.5 deg/s^2", 0.5, "slew_runs"), ("slew 2 deg/s^2", 2.0, "fast_slew_runs"))
+REACQUISITION_RATES_DEG_S = (0.5, 2.0)
+DELAY_RATES_DEG_S = (1.0, 2.0)
+DELAY_SOLVE_S = (0.25, 0.5, 1.0)
+PART_SEED = {"constant": 1, "slew": 2, "reacquisition": 3, "delay": 4}  # the part's word in the run's seed
+
+
+@dataclass(frozen=True)
+class Unit:
+    """
+    One task of the benchmark: a sequence (part constant, slew or reacquisition) or a delay trial.
+
+    rate_deg_s: the constant rate (constant, reacquisition, delay); accel_deg_s2: the slew's
+    acceleration; gap: the GAP_KINDS entry (reacquisition); solve_s: the simulated solve time
+    [s] (delay). run: the run (the delay trial's number).
+    """
+
+    part: str
+    case: str
+    run: int
+    rate_deg_s: float = 0.0
+    accel_deg_s2: float = 0.0
+    gap: str = ""
+    solve_s: float = 0.0
+
+
+def plan_units(plan: Plan) -> list[Unit]:
+    """Return the benchmark's units in the order it has always run them (task t = unit t)."""
+    units = []
     for rate in plan.constant_rates_deg_s:
         runs = plan.runs_per_rate if rate <= GOAL_RATE_DEG_S else plan.runs_beyond_goal
-        name = f"{rate:g} deg/s"
-        cases[name] = []
-        for run in range(runs):
-            rng = np.random.default_rng([SEED, 1, int(rate * 1000), run])
-            motion = ConstantRateMotion(random_pointing(rng), rate * DEG * random_direction(rng))
-            streaks = rate in (1.0, 2.0, 3.0) and run < plan.streak_runs
-            seq = bench.run(name, run, motion, plan.frames_per_run, seed=int(rng.integers(2**31)), streaks=streaks)
-            cases[name].append(seq)
-            s = summarize_case(seq.records)
-            log(f"  {name} run {run}: {s['correct']}/{s['frames']} correct, {s['tracked']} tracked, "
-                f"track median {_fmt(s['track_ms_median'], 2)} ms")
-    return cases
+        units += [Unit("constant", f"{rate:g} deg/s", run, rate_deg_s=rate) for run in range(runs)]
+    for name, accel, runs in SLEW_CASES:
+        units += [Unit("slew", name, run, accel_deg_s2=accel) for run in range(getattr(plan, runs))]
+    for rate in REACQUISITION_RATES_DEG_S:
+        for kind in GAP_KINDS:
+            units += [Unit("reacquisition", f"reacquire {rate:g} deg/s {kind}", run, rate_deg_s=rate, gap=kind)
+                      for run in range(plan.reacquisition_runs)]
+    for rate in DELAY_RATES_DEG_S:
+        for solve_s in DELAY_SOLVE_S:
+            units += [Unit("delay", f"delay {rate:g} deg/s {solve_s:g} s", trial, rate_deg_s=rate, solve_s=solve_s)
+                      for trial in range(plan.delay_trials)]
+    return units
 
 
 def slew_motion(rng: np.random.Generator, accel_deg_s2: float) -> tuple[SlewMotion, int]:
@@ -643,68 +694,259 @@ def slew_motion(rng: np.random.Generator, accel_deg_s2: float) -> tuple[SlewMoti
     return motion, frames
 
 
-def slew_runs(bench: TrackingBench, plan: Plan, log) -> dict[str, list[Sequence]]:
-    cases: dict[str, list[Sequence]] = {}
-    for name, accel, runs in (("slew 0.5 deg/s^2", 0.5, plan.slew_runs), ("slew 2 deg/s^2", 2.0, plan.fast_slew_runs)):
-        cases[name] = []
-        for run in range(runs):
-            rng = np.random.default_rng([SEED, 2, int(accel * 1000), run])
-            motion, frames = slew_motion(rng, accel)
-            seq = bench.run(name, run, motion, frames, seed=int(rng.integers(2**31)))
-            ramp = motion.peak_rate_rad_s / motion.accel_rad_s2
-            start = motion.t0 + motion.t_start
-            seq.accel_steps = [start, start + ramp, motion.end_time - ramp, motion.end_time]
-            seq.slew_axis, seq.accel_rad_s2 = motion.axis * np.sign(motion.angle_rad), motion.accel_rad_s2
-            cases[name].append(seq)
-            s = summarize_case(seq.records)
-            log(f"  {name} run {run}: {s['correct']}/{s['frames']} correct, {s['tracked']} tracked")
-    return cases
+def run_unit(bench: TrackingBench, plan: Plan, unit: Unit) -> Sequence | dict:
+    """
+    Run one unit: its Sequence, or a delay trial's row.
+
+    The motion and the frames' noise come from np.random.default_rng([SEED, part, rate or
+    acceleration in milli-units, run]), as the benchmark's loops always drew them (a
+    re-acquisition run shares its motion across the gap kinds, a delay trial across solve times).
+    """
+    rate = unit.accel_deg_s2 if unit.part == "slew" else unit.rate_deg_s
+    rng = np.random.default_rng([SEED, PART_SEED[unit.part], int(rate * 1000), unit.run])
+    if unit.part == "slew":
+        motion, frames = slew_motion(rng, unit.accel_deg_s2)
+        seq = bench.run(unit.case, unit.run, motion, frames, seed=int(rng.integers(2**31)))
+        ramp = motion.peak_rate_rad_s / motion.accel_rad_s2
+        start = motion.t0 + motion.t_start
+        seq.accel_steps = [start, start + ramp, motion.end_time - ramp, motion.end_time]
+        seq.slew_axis, seq.accel_rad_s2 = motion.axis * np.sign(motion.angle_rad), motion.accel_rad_s2
+        return seq
+    motion = ConstantRateMotion(random_pointing(rng), rate * DEG * random_direction(rng))
+    seed = int(rng.integers(2**31))
+    if unit.part == "constant":
+        streaks = rate in (1.0, 2.0, 3.0) and unit.run < plan.streak_runs
+        return bench.run(unit.case, unit.run, motion, plan.frames_per_run, seed=seed, streaks=streaks)
+    if unit.part == "reacquisition":
+        gap = GAP_KINDS[unit.gap]
+        first = plan.reacquisition_before
+        gaps = {first + i: g for i, g in enumerate(gap)}
+        frames = first + len(gap) + plan.reacquisition_after
+        return bench.run(unit.case, unit.run, motion, frames, seed=seed, gaps=gaps, peer=False)
+    rec = bench.delay_trial(motion, unit.solve_s, seed=seed)
+    rec.update(rate_deg_s=rate, trial=unit.run)
+    return rec
 
 
-GAP_KINDS = {"1 blank": ["blank"], "2 blank": ["blank"] * 2, "5 blank": ["blank"] * 5, "2 spots": ["two_spots"]}
+def reacquisition_row(unit: Unit, seq: Sequence, plan: Plan) -> dict:
+    """Return a re-acquisition run's row: the gap unsolved? frames to the next correct solution, its mode."""
+    first, gap = plan.reacquisition_before, GAP_KINDS[unit.gap]
+    after = seq.records[first + len(gap):]
+    good = [i for i, r in enumerate(after) if r["correct"]]
+    during = seq.records[first:first + len(gap)]
+    return {"rate_deg_s": unit.rate_deg_s, "gap": unit.gap, "run": unit.run,
+            "before_correct": all(r["correct"] for r in seq.records[:first]),
+            "gap_unsolved": all(not r["solved"] for r in during),
+            "gap_modes": [r["mode"] for r in during],
+            "frames_to_correct": good[0] + 1 if good else None,
+            "mode": after[good[0]]["mode"] if good else None,
+            "after_correct": sum(r["correct"] for r in after), "after_frames": len(after),
+            "first_track_failure": after[0].get("track_failure"),
+            "first_gate_px": after[0].get("gate_px")}
 
 
-def reacquisition_runs(bench: TrackingBench, plan: Plan, log) -> tuple[list[dict], list[Sequence]]:
-    rows, sequences = [], []
-    for rate in (0.5, 2.0):
-        for kind, gap in GAP_KINDS.items():
-            for run in range(plan.reacquisition_runs):
-                rng = np.random.default_rng([SEED, 3, int(rate * 1000), run])
-                motion = ConstantRateMotion(random_pointing(rng), rate * DEG * random_direction(rng))
-                first = plan.reacquisition_before
-                gaps = {first + i: g for i, g in enumerate(gap)}
-                frames = first + len(gap) + plan.reacquisition_after
-                seq = bench.run(f"reacquire {rate:g} deg/s {kind}", run, motion, frames,
-                                seed=int(rng.integers(2**31)), gaps=gaps, peer=False)
-                sequences.append(seq)
-                after = seq.records[first + len(gap):]
-                good = [i for i, r in enumerate(after) if r["correct"]]
-                during = seq.records[first:first + len(gap)]
-                rows.append({"rate_deg_s": rate, "gap": kind, "run": run,
-                             "before_correct": all(r["correct"] for r in seq.records[:first]),
-                             "gap_unsolved": all(not r["solved"] for r in during),
-                             "gap_modes": [r["mode"] for r in during],
-                             "frames_to_correct": good[0] + 1 if good else None,
-                             "mode": after[good[0]]["mode"] if good else None,
-                             "after_correct": sum(r["correct"] for r in after), "after_frames": len(after),
-                             "first_track_failure": after[0].get("track_failure"),
-                             "first_gate_px": after[0].get("gate_px")})
-        log(f"  re-acquisition at {rate:g} deg/s done")
-    return rows, sequences
+# ----------------------------------------------------------------------------- the trials on the engine
+#
+# A sequence's per-frame records become list columns, one entry per frame; a key a frame's record
+# lacks is a null there. Its "streak" and "peer" sub-records are flattened (streak_*, peer_*,
+# peer_propagated_*); a delay trial's row is the delay_* columns.
+
+VECTOR = pa.list_(pa.float64())  # a 3-vector [rad, rad/s]
+FRAME_KEYS = (("mode", pa.string()), ("solved", pa.bool_()), ("correct", pa.bool_()), ("incorrect", pa.bool_()),
+              ("reason", pa.string()), ("spots", pa.int64()), ("true_spots", pa.int64()), ("matched", pa.int64()),
+              ("wrong_ids", pa.int64()), ("blend_partner_ids", pa.int64()), ("error_vector", VECTOR),
+              ("stated_sigma", VECTOR), ("lis_ms", pa.float64()), ("rate_error", VECTOR), ("rate_sigma", VECTOR),
+              ("rate_nees", pa.float64()), ("rate_frames", pa.int64()), ("k", pa.int64()), ("t", pa.float64()),
+              ("gap", pa.string()), ("true_rate", VECTOR), ("aided", pa.bool_()), ("track_ms", pa.float64()),
+              ("track_core_ms", pa.float64()), ("track_failure", pa.string()), ("gate_px", pa.float64()))
+ALWAYS_KEYS = ("gap",)  # every frame has it, None when the frame is not a gap
+WITH_KEY = {"gate_px": "track_failure"}  # present (None too) exactly when that key is
+STREAK_KEYS = (("error", VECTOR), ("nees", pa.float64()), ("sign_known", pa.bool_()), ("streaks", pa.int64()),
+               ("hinted", pa.bool_()))
+PEER_KEYS = (("mode", pa.string()), ("track_ms", pa.float64()), ("track_status", pa.string()),
+             ("lis_ms", pa.float64()), ("solved", pa.bool_()), ("correct", pa.bool_()), ("incorrect", pa.bool_()),
+             ("wrong_ids", pa.int64()), ("blend_partner_ids", pa.int64()), ("matched", pa.int64()),
+             ("cross_arcsec", pa.float64()), ("roll_arcsec", pa.float64()))
+PROPAGATED_KEYS = (("solved", pa.bool_()), ("correct", pa.bool_()), ("ms", pa.float64()))
+DELAY_KEYS = (("solve_s", pa.float64()), ("newest", pa.int64()), ("bridged_ok", pa.int64()),
+              ("lis_solved", pa.bool_()), ("lis_ms", pa.float64()), ("published", pa.bool_()),
+              ("stale_cross_arcsec", pa.float64()), ("stale_roll_arcsec", pa.float64()),
+              ("frame0_cross_arcsec", pa.float64()), ("frame0_roll_arcsec", pa.float64()),
+              ("published_stamp_is_newest", pa.bool_()), ("bridged_frames", pa.int64()), ("correct", pa.bool_()),
+              ("cross_arcsec", pa.float64()), ("roll_arcsec", pa.float64()), ("mode", pa.string()),
+              ("rate_deg_s", pa.float64()), ("trial", pa.int64()))
+# Columns holding times (measured on the worker): they differ between runs, the rest does not.
+TIMING_COLUMNS = ("lis_ms", "track_ms", "track_core_ms", "peer_track_ms", "peer_lis_ms", "peer_propagated_ms",
+                  "delay_lis_ms")
 
 
-def delay_runs(bench: TrackingBench, plan: Plan, log) -> list[dict]:
-    rows = []
-    for rate in (1.0, 2.0):
-        for solve_s in (0.25, 0.5, 1.0):
-            for trial in range(plan.delay_trials):
-                rng = np.random.default_rng([SEED, 4, int(rate * 1000), trial])
-                motion = ConstantRateMotion(random_pointing(rng), rate * DEG * random_direction(rng))
-                rec = bench.delay_trial(motion, solve_s, seed=int(rng.integers(2**31)))
-                rec.update(rate_deg_s=rate, trial=trial)
-                rows.append(rec)
-        log(f"  delay compensation at {rate:g} deg/s done")
-    return rows
+def _per_frame(prefix: str, keys) -> list[pa.Field]:
+    return [pa.field(prefix + key, pa.list_(kind)) for key, kind in keys]
+
+
+UNIT_COLUMNS = (pa.field("part", pa.string()), pa.field("case", pa.string()), pa.field("run", pa.int64()),
+                pa.field("peer_version", pa.string()), pa.field("peer_patterns", pa.int64()))
+SEQUENCE_COLUMNS = (pa.field("frames", pa.int64()), pa.field("accel_steps", VECTOR), pa.field("slew_axis", VECTOR),
+                    pa.field("accel_rad_s2", pa.float64()), pa.field("streaks", pa.bool_()),
+                    *_per_frame("", FRAME_KEYS), *_per_frame("streak_", STREAK_KEYS), *_per_frame("peer_", PEER_KEYS),
+                    *_per_frame("peer_propagated_", PROPAGATED_KEYS))
+DELAY_COLUMNS = tuple(pa.field("delay_" + key, kind) for key, kind in DELAY_KEYS)
+
+
+def sequence_columns(seq: Sequence) -> dict:
+    """Return a Sequence as the record's sequence columns (per-frame lists; module docstring)."""
+    frames = seq.records
+    out = {"frames": len(frames), "accel_steps": [float(s) for s in seq.accel_steps],
+           "slew_axis": None if seq.slew_axis is None else np.asarray(seq.slew_axis, float).tolist(),
+           "accel_rad_s2": float(seq.accel_rad_s2), "streaks": any("streak" in r for r in frames)}
+    for key, _ in FRAME_KEYS:
+        out[key] = [r.get(key) for r in frames]
+    for key, _ in STREAK_KEYS:
+        out["streak_" + key] = [(r.get("streak") or {}).get(key) for r in frames]
+    for key, _ in PEER_KEYS:
+        out["peer_" + key] = [r["peer"].get(key) if "peer" in r else None for r in frames]
+    for key, _ in PROPAGATED_KEYS:
+        out["peer_propagated_" + key] = [r["peer"]["propagated"][key] if "propagated" in r.get("peer", {}) else None
+                                         for r in frames]
+    return out
+
+
+def _present(values: dict, keys, prefix: str, i: int) -> dict:
+    """Return frame i's sub-record of `keys` from the lists values[prefix + key], absent keys (null) left out."""
+    return {key: values[prefix + key][i] for key, _ in keys if values[prefix + key][i] is not None}
+
+
+def sequence_from_record(row: dict) -> Sequence:
+    """Return the Sequence a record holds (a table.to_pylist() row; the inverse of sequence_columns)."""
+    names = ([key for key, _ in FRAME_KEYS] + ["streak_" + key for key, _ in STREAK_KEYS]
+             + ["peer_" + key for key, _ in PEER_KEYS] + ["peer_propagated_" + key for key, _ in PROPAGATED_KEYS])
+    values = {name: _pylist(row[name]) for name in names}
+    frames = []
+    for i in range(row["frames"]):
+        rec = {}
+        for key, _ in FRAME_KEYS:
+            value = values[key][i]
+            if key in WITH_KEY:
+                if values[WITH_KEY[key]][i] is not None:
+                    rec[key] = value
+            elif value is not None or key in ALWAYS_KEYS:
+                rec[key] = value
+        if row["streaks"]:
+            rec["streak"] = _present(values, STREAK_KEYS, "streak_", i) if values["streak_error"][i] is not None \
+                else None
+        if values["peer_mode"][i] is not None:
+            peer = _present(values, PEER_KEYS, "peer_", i)
+            if values["peer_propagated_solved"][i] is not None:
+                peer["propagated"] = _present(values, PROPAGATED_KEYS, "peer_propagated_", i)
+            rec["peer"] = peer
+        frames.append(rec)
+    slew_axis = row["slew_axis"]
+    return Sequence(row["case"], int(row["run"]), frames, _pylist(row["accel_steps"]),
+                    None if slew_axis is None else np.asarray(_pylist(slew_axis), float), float(row["accel_rad_s2"]))
+
+
+def delay_from_record(row: dict) -> dict:
+    """Return a delay trial's row (the keys its trial set, in its order) from a record."""
+    return {key: row["delay_" + key] for key, _ in DELAY_KEYS if row["delay_" + key] is not None}
+
+
+def _pylist(values) -> list:
+    """Return a list column's value (a numpy array from records(), or a list) as plain Python values."""
+    return values.tolist() if isinstance(values, np.ndarray) else list(values)
+
+
+@dataclass(frozen=True)
+class TrackingOptions:
+    """The benchmark's plan (QUICK or the default Plan) and whether tetra3rs runs beside ours."""
+
+    quick: bool = False
+    peers: bool = True
+
+
+@dataclass
+class TrackingShared:
+    """A worker's bench (database, identifier, renderer, tetra3rs), the plan and its units."""
+
+    bench: TrackingBench
+    plan: Plan
+    units: list
+
+
+class TrackingTrials(CampaignKind):
+    """
+    The tracking benchmark's units on the campaign engine: task t = plan_units(plan)[t] (module docstring).
+
+    A sequence's record: its part, case and run, per-frame list columns (FRAME_KEYS, streak_*,
+    peer_*), its slew's acceleration steps and axis; a delay trial's: the delay_* columns. The
+    engine's generator is not used: each unit is seeded as the benchmark always seeded it
+    (run_unit), so the records equal those of the single-process loops the benchmark had.
+    """
+
+    name = "bench-tracking"
+    description = "tracking benchmark: one tracked sequence (or a delay-compensation trial) per task"
+    options_type = TrackingOptions
+    default_trials = len(plan_units(Plan()))
+    default_batch = 1  # a sequence: 20-110 frames, ~1-10 s
+    columns = (*UNIT_COLUMNS, *SEQUENCE_COLUMNS, *DELAY_COLUMNS)
+
+    def prepare(self, options: TrackingOptions) -> TrackingShared:
+        plan = QUICK if options.quick else Plan()
+        return TrackingShared(TrackingBench(use_peer=options.peers, log=log_stderr), plan, plan_units(plan))
+
+    def trial(self, shared: TrackingShared, options: TrackingOptions, task: int, rng: np.random.Generator) -> dict:
+        unit = shared.units[task]
+        peer = shared.bench.peer_info or {}
+        record = {"part": unit.part, "case": unit.case, "run": unit.run, "peer_version": peer.get("version"),
+                  "peer_patterns": peer.get("patterns")}
+        result = run_unit(shared.bench, shared.plan, unit)
+        if unit.part == "delay":
+            record.update({"delay_" + key: result.get(key) for key, _ in DELAY_KEYS})
+        else:
+            record.update(sequence_columns(result))
+        return record
+
+    def summarize(self, table: pa.Table, options: TrackingOptions) -> dict:
+        """Count the sequences, frames, correct and incorrect ones (the benchmark's own code makes the figures)."""
+        rows = [r for r in table.to_pylist() if not r["error"]]
+        sequences = [r for r in rows if r["part"] != "delay"]
+        return {"trials": table.num_rows, "failed_tasks": table.num_rows - len(rows), "sequences": len(sequences),
+                "frames": sum(r["frames"] for r in sequences),
+                "correct": sum(sum(r["correct"]) for r in sequences),
+                "incorrect": sum(sum(r["incorrect"]) for r in sequences),
+                "delay_trials": len(rows) - len(sequences)}
+
+
+def tracking_kind() -> TrackingTrials:
+    """
+    Return the kind as defined in bench.bench_tracking (not in __main__).
+
+    The engine pickles the kind and ships its package (bench/) to the workers: a class of
+    `python -m bench.bench_tracking`'s __main__ would not be found there.
+    """
+    from bench.bench_tracking import TrackingTrials as kind
+
+    return kind()
+
+
+def run_units(options: TrackingOptions, args: argparse.Namespace | None, log) -> tuple[list, pa.Table, dict]:
+    """
+    Run the plan's units through the engine: [(unit, its Sequence or delay row, None if it raised)] in task order.
+
+    Also the records' table (errors(table): the trials that raised) and the engine's run.
+    """
+    units = plan_units(QUICK if options.quick else Plan())
+    table, run = run_trials(tracking_kind(), len(units), dataclasses.asdict(options), args, seed=SEED, log=log)
+    out = []
+    # Plain Python rows, not campaign_trials.records(): its numpy arrays cannot hold a frame list of
+    # 3-vectors with nulls in it (a frame without an attitude), and Sequence records are lists anyway.
+    for unit, row in zip(units, table.to_pylist()):
+        if row["error"]:
+            out.append((unit, None))
+        elif unit.part == "delay":
+            out.append((unit, delay_from_record(row)))
+        else:
+            out.append((unit, sequence_from_record(row)))
+    return out, table, run
 
 
 # ----------------------------------------------------------------------------- report
@@ -980,6 +1222,7 @@ def main(argv=None) -> None:
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_tracking.json beside --output)")
     parser.add_argument("--images", type=Path, help="figure directory (default: images/ beside --output; "
                         "without either, no figures)")
+    add_engine_arguments(parser)
     args = parser.parse_args(argv)
     plan = QUICK if args.quick else Plan()
     started = time.perf_counter()
@@ -987,15 +1230,38 @@ def main(argv=None) -> None:
     def log(text: str) -> None:
         print(f"[{time.perf_counter() - started:6.1f} s] {text}", flush=True)
 
-    bench = TrackingBench(use_peer=not args.no_peers, log=log)
-    log("1. constant rates")
-    constant = constant_rate_runs(bench, plan, log)
-    log("1. slews")
-    slews = slew_runs(bench, plan, log)
-    log("2. re-acquisition")
-    reacq_rows, reacq_sequences = reacquisition_runs(bench, plan, log)
-    log("4. delay compensation")
-    delay_rows = delay_runs(bench, plan, log)
+    if not args.no_peers:
+        why = peer_adapters.available().get("tetra3rs")
+        if why is not None:
+            log(f"tetra3rs not usable here: {why}")
+    log(f"{len(plan_units(plan))} sequences and delay trials on the campaign engine")
+    done, table, engine = run_units(TrackingOptions(quick=args.quick, peers=not args.no_peers), args, log)
+    log(engine_line(engine))
+    failed = errors(table)
+    for line in failed:
+        log(f"trial raised: {line}")
+    constant: dict[str, list[Sequence]] = {}
+    slews: dict[str, list[Sequence]] = {}
+    reacq_rows, delay_rows = [], []
+    for unit, result in done:
+        if result is None:
+            continue  # counted in `failed`, reported in the log, the JSON and the section
+        if unit.part == "delay":
+            delay_rows.append(result)
+            continue
+        s = summarize_case(result.records)
+        log(f"  {unit.case} run {unit.run}: {s['correct']}/{s['frames']} correct, {s['tracked']} tracked"
+            + (f", track median {_fmt(s['track_ms_median'], 2)} ms" if unit.part == "constant" else ""))
+        if unit.part == "constant":
+            constant.setdefault(unit.case, []).append(result)
+        elif unit.part == "slew":
+            slews.setdefault(unit.case, []).append(result)
+        else:
+            reacq_rows.append(reacquisition_row(unit, result, plan))
+    peer_info = next(({"version": r["peer_version"], "database": PEER_DATABASE, "solve": PEER_SOLVE,
+                       "hint_uncertainty": "default (1 deg)", "patterns": r["peer_patterns"]}
+                      for r in table.select(["peer_version", "peer_patterns"]).to_pylist()
+                      if r["peer_patterns"] is not None), None)
 
     all_cases = {**constant, **slews}
     summaries = {}
@@ -1014,11 +1280,14 @@ def main(argv=None) -> None:
     elapsed = time.perf_counter() - started
     log(f"done in {elapsed:.0f} s")
 
+    # argv as typed: the engine's options (engine_arguments_text) are among them, so not added again.
     command = "python -m bench.bench_tracking" + (" " + shlex.join(argv if argv is not None else sys.argv[1:])
                                                   if (argv if argv is not None else sys.argv[1:]) else "")
     meta = {"command": command, "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "elapsed_s": elapsed, "seed": SEED, "quick": args.quick, "plan": plan.__dict__, "machine": machine(),
-            "peer": bench.peer_info, "tracking_config": TrackingConfig().__dict__, "commit": core_commit()}
+            "peer": peer_info, "tracking_config": TrackingConfig().__dict__, "commit": core_commit(),
+            "identify_budget_clock": campaign_identify_config().budget_clock, "engine": engine_line(engine),
+            "engine_run": engine, "trial_errors": failed}
     images = args.images or ((args.output.parent / "images") if args.output else None)
     first_slew = slews.get("slew 0.5 deg/s^2")
     written = figures(summaries, constant, first_slew, images) if images else []  # none on a bare smoke run
@@ -1059,6 +1328,15 @@ def fresh_delay_trials(rows: list[dict]) -> int:
     return sum(bool(r["published"] and r.get("published_stamp_is_newest") and r.get("correct")) for r in rows)
 
 
+def trial_errors_text(failed: list[str]) -> str:
+    """Return the section's words on the trials that raised (none, or how many and the first few)."""
+    if not failed:
+        return "no trial raised."
+    shown = "; ".join(f"`{line[:200]}`" for line in failed[:3])
+    more = " (all in bench_tracking.json)." if len(failed) > 3 else "."
+    return f"**{len(failed)} trial(s) raised** and are left out of the figures below: {shown}{more}"
+
+
 def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias, figures_written,
            output: Path | None) -> str:
     m = meta["machine"]
@@ -1072,10 +1350,15 @@ def report(meta, summaries, goal, reacq_rows, delay_rows, fails, outliers, bias,
              f"Command: `{meta['command']}` — {meta['date']}, {m['cpu']}, {m['cores']} cores, Python {m['python']}, "
              f"{m['platform']}; {meta['elapsed_s']:.0f} s; core at commit {meta['commit']}. "
              "Raw numbers: `docs/bench_tracking.json`.", "",
+             f"Each sequence and delay trial is one task (kind `bench-tracking`), {meta.get('engine', '–')}; "
+             + trial_errors_text(meta.get("trial_errors", [])) + " The tracking times are measured on the worker "
+             "that ran the sequence.", "",
              "Pipeline as the live nodes: the simulator renders 1024² / 15° frames (SensorModel defaults, 0.1 s "
              "exposure, stars to Hp 7.5) at 10 Hz, stamps at mid-exposure 0.05 + 0.1 k s; the centroider is rate-aided "
              "by the tracker's own current rate estimate; `Tracker(make_identifier(\"hybrid\", db), TrackingConfig())` "
-             "on the default database (Hp ≤ 6.5). Pointings uniform on the sky, random roll; rate axes random, "
+             "on the default database (Hp ≤ 6.5), the identifier's time budget counted on the CPU clock (as in the "
+             "campaigns: a loaded host or worker does not time out solves an idle one finishes). "
+             "Pointings uniform on the sky, random roll; rate axes random, "
              "cross-boresight plus a roll part up to 30 % of it. A frame is **solved correct** when it is solved and "
              f"every returned HIP id is the truth star nearest its spot (within {TRUTH_RADIUS_PX:g} px, or within "
              f"chi2 {TRUTH_CHI2:g} of the spot's covariance: a faint long streak's along-track error); **incorrect** "
