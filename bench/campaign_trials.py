@@ -105,13 +105,23 @@ def importable(kind: CampaignKind) -> CampaignKind:
 
 
 def records(table: pa.Table) -> list[dict]:
-    """Return the table's rows as dicts; list columns become float or int numpy arrays."""
+    """
+    Return the table's rows as dicts; list columns become numpy arrays.
+
+    Numbers, or nested lists of one shape, become a numeric array; lists holding nulls inside
+    nested ones (a frame without a 3-vector) an object array of their items.
+    """
     rows = table.to_pylist()
     lists = [f.name for f in table.schema if pa.types.is_list(f.type)]
     for row in rows:
         for name in lists:
             if row[name] is not None:
-                row[name] = np.asarray(row[name])
+                try:
+                    row[name] = np.asarray(row[name])
+                except ValueError:  # ragged: [[x, y, z], None, ...]
+                    items = np.empty(len(row[name]), object)
+                    items[:] = row[name]
+                    row[name] = items
     return rows
 
 
