@@ -23,6 +23,8 @@ from pathlib import Path
 
 import yaml
 
+from star_tracker.campaign.datasheet import phase_text
+
 REPO = Path(__file__).resolve().parents[1]
 ARCSEC_PER_RAD = 180.0 * 3600.0 / math.pi
 NOT_MEASURED = "not measured"
@@ -396,8 +398,9 @@ def campaign_rows(false_id: dict | None, sky: dict | None, accuracy: dict | None
             f"slews from rest at each acceleration toward each rate of {options['rates_deg_s']}°/s, "
             f"{options['runs']} sequences of {options['frames']} frames at 10 Hz each, rendered, rate-aided by the "
             f"tracker; {tracking['frames']:,} frames, {tracking['wrong_frames']} wrong; "
-            f"{tracking['overconfident_frames']:,} with the error outside 5σ of the stated covariance (angular "
-            "acceleration, a known limit)", _campaign_source(tracking)))
+            f"{tracking['overconfident_frames']:,} with the error outside 5σ of the stated covariance"
+            + (phase_text(tracking.get("phases")) or " (angular acceleration, a known limit)"),
+            _campaign_source(tracking)))
     return rows
 
 

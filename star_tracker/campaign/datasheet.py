@@ -126,6 +126,7 @@ def datasheet_data(summaries: dict[str, dict], tables: dict[str, pa.Table], meta
                                              "identify_ms_p99", "wrong_attitude", "wrong_deep_star")},
         "tracking": {"frames": tracking["frames"], "wrong_frames": tracking["wrong_frames"],
                      "overconfident_frames": tracking["overconfident_frames"], "cases": tracking["cases"],
+                     "phases": tracking.get("phases"),
                      "envelope_rate_deg_s_by_acceleration": tracking["envelope_rate_deg_s_by_acceleration"]},
         "robustness": {"units": robustness["units"], "sweeps": robustness["sweeps"], "wrong": robustness["wrong"],
                        "trials": robustness["trials"]},
@@ -203,7 +204,8 @@ def render_report(data: dict, images: str = "images") -> str:
         "### Tracking envelope", "",
         f"Slews from rest at each acceleration toward each coast rate, rendered at 10 Hz, rate-aided by the tracker: "
         f"{track['frames']:,} frames, {track['wrong_frames']} wrong, {track['overconfident_frames']:,} with the error "
-        f"outside 5σ of the stated covariance. The fastest rate reached with every frame tracked right, in "
+        f"outside 5σ of the stated covariance{phase_text(track.get('phases'))}. The fastest rate reached with "
+        f"every frame tracked right, in "
         f"its slew and in every slower one: "
         f"**{envelope}**.", "",
         f"![tracking envelope]({images}/datasheet_tracking_envelope.png)", "",
@@ -231,3 +233,12 @@ def render_report(data: dict, images: str = "images") -> str:
         "heads over an orbit, are measured in orbit ([ORBIT.md](ORBIT.md), bench_orbit).", "",
     ]
     return "\n".join(lines) + "\n"
+
+
+def phase_text(phases: dict | None) -> str:
+    """Return ' (N of them accelerating: NEES mean ...; steady ...)' from a tracking summary's phases ("" without)."""
+    if not phases:
+        return ""
+    parts = [f"{name} {p['overconfident']:,} of {p['frames']:,}, NEES mean {p['nees_mean']:.1f}"
+             for name, p in phases.items() if p["frames"]]
+    return " (while accelerating within the exposure vs steady: " + "; ".join(parts) + ")"

@@ -211,8 +211,13 @@ def test_tracking_sequences_follow_a_slew_against_the_rendered_truth(database):
     assert all(r["first_solved"] == 0 and r["wrong"] == 0 and r["lost"] == 0 for r in rows)
     assert all(r["right"] == 12 and r["tracked"] >= 10 for r in rows)  # tracked after the first solve
     assert all(r["cross_arcsec_max"] < 10.0 for r in rows)
+    # 0.5 s at rest, then 2 deg/s^2 to 1 deg/s: the exposures of frames 5-9 (0.5-1.0 s) see the rate change.
+    assert all(r["accelerating_frames"] == 5 and r["steady_frames"] == 7 for r in rows)
     summary = kind.summarize(table, kind.options(spec.options))
     assert summary["envelope_rate_deg_s_by_acceleration"] == {"2": 1.0} and summary["cases"][0]["right_share"] == 1.0
+    phases = summary["phases"]
+    assert phases["accelerating"]["frames"] == 10 and phases["steady"]["frames"] == 14
+    assert sum(p["overconfident"] for p in phases.values()) == sum(r["overconfident"] for r in rows)
 
 
 def test_robustness_options_lay_out_the_sweeps_and_refuse_an_unknown_one():

@@ -13,7 +13,10 @@ solved with every star right and its boresight within `wrong_arcsec` (60") of th
 solved frame whose error lies outside 5 sigma of its stated covariance is counted
 overconfident beside (scoring.py; the covariance under angular acceleration is a known
 limit). The trial records its frames right, wrong, overconfident and lost after the first
-solve, the errors, the NEES and the rate at the first loss. The summary is the envelope: per
+solve, the errors, the NEES and the rate at the first loss; beside, the solved frames split by
+phase: accelerating (the body's rate changes within the exposure, in the truth) or steady (at
+rest or coasting), each with its count, its overconfident frames and its NEES sum, so the
+summary says where an overconfident covariance comes from. The summary is the envelope: per
 case the share of frames right, and per acceleration the fastest rate reached (a sequence
 may end before its coast rate) with every frame tracked right in it and in every slower case.
 """
@@ -34,6 +37,8 @@ from .scoring import NEES_5_SIGMA, score
 
 PERIOD_S = 0.1
 REST_S = 0.5
+PHASES = ("accelerating", "steady")
+STEADY_RATE_CHANGE_RAD_S = 1e-9  # a rate change within the exposure below this is steady motion
 
 
 def _numbers(text: str, name: str) -> tuple[float, ...]:
@@ -102,7 +107,9 @@ class Tracking(CampaignKind):
                pa.field("tracked", pa.int32()), pa.field("cross_arcsec_rms", pa.float64()),
                pa.field("cross_arcsec_max", pa.float64()), pa.field("nees_mean", pa.float64()),
                pa.field("first_loss_rate_deg_s", pa.float64()), pa.field("reached_rate_deg_s", pa.float64()),
-               pa.field("frame_s", pa.float64()))
+               pa.field("frame_s", pa.float64()),
+               *(pa.field(f"{phase}_{what}", kind) for phase in PHASES
+                 for what, kind in (("frames", pa.int32()), ("overconfident", pa.int32()), ("nees_sum", pa.float64()))))
 
     def prepare(self, options: TrackingOptions) -> _Shared:
         from ...sim.render import StarFieldRenderer
@@ -132,6 +139,7 @@ class Tracking(CampaignKind):
         started = time.perf_counter()
         right = wrong = lost = overconfident = tracked = 0
         first_solved, first_loss_rate, cross, nees, reached = -1, None, [], [], 0.0
+        by_phase = {phase: [0, 0, 0.0] for phase in PHASES}  # frames, overconfident, NEES sum
         for k in range(options.frames):
             t = 0.05 + PERIOD_S * k
             frame = shared.renderer.render(motion, t, int(rng.integers(2 ** 31)))
@@ -152,6 +160,12 @@ class Tracking(CampaignKind):
                 tracked += result.mode == MODE_TRACKING
                 cross.append(scored["cross_arcsec"])
                 nees.append(scored["nees"])
+                change = motion.angular_velocity_at(t + 0.5 * shared.exposure_s) \
+                    - motion.angular_velocity_at(t - 0.5 * shared.exposure_s)
+                tally = by_phase[PHASES[0] if np.linalg.norm(change) > STEADY_RATE_CHANGE_RAD_S else PHASES[1]]
+                tally[0] += 1
+                tally[1] += scored["nees"] > NEES_5_SIGMA
+                tally[2] += scored["nees"]
             elif first_solved >= 0:
                 lost += 1
                 if first_loss_rate is None:
@@ -164,7 +178,9 @@ class Tracking(CampaignKind):
                 "cross_arcsec_max": float(cross_a.max()) if cross_a.size else None,
                 "nees_mean": float(nees_a.mean()) if nees_a.size else None,
                 "first_loss_rate_deg_s": first_loss_rate, "reached_rate_deg_s": reached,
-                "frame_s": (time.perf_counter() - started) / options.frames}
+                "frame_s": (time.perf_counter() - started) / options.frames,
+                **{f"{phase}_{what}": value for phase, tally in by_phase.items()
+                   for what, value in zip(("frames", "overconfident", "nees_sum"), tally)}}
 
     def summarize(self, table: pa.Table, options: TrackingOptions) -> dict:
         ok = np.asarray(table.column("error").to_pylist(), object) == ""
@@ -197,7 +213,15 @@ class Tracking(CampaignKind):
                     break
                 held = case["reached_rate_deg_s"]
             envelope[f"{acceleration:g}"] = round(held, 2) if held is not None else None
-        return {"trials": int(ok.sum()), "failed_tasks": int((~ok).sum()),
+        phases = {}
+        for phase in PHASES:
+            frames = int(np.asarray(table.column(f"{phase}_frames").fill_null(0), float)[ok].sum())
+            nees_sum = float(np.asarray(table.column(f"{phase}_nees_sum").fill_null(0.0), float)[ok].sum())
+            phases[phase] = {"frames": frames,
+                             "overconfident": int(np.asarray(table.column(f"{phase}_overconfident").fill_null(0),
+                                                             float)[ok].sum()),
+                             "nees_mean": nees_sum / frames if frames else None}
+        return {"trials": int(ok.sum()), "failed_tasks": int((~ok).sum()), "phases": phases,
                 "frames": int(col["frames"].sum()), "wrong_frames": int(col["wrong"].sum()),
                 "overconfident_frames": int(col["overconfident"].sum()),
                 "cases": cases, "envelope_rate_deg_s_by_acceleration": envelope}
