@@ -169,6 +169,20 @@ def test_two_campaigns_of_a_shipped_kind_run_one_after_the_other_in_one_process(
     assert Path(sys.modules[OutsideKind.__module__].__file__).exists()
 
 
+def test_local_workers_keep_glibcs_own_memory_trimming():
+    """Dask's MALLOC_TRIM_THRESHOLD_ would map and fault every frame-sized array anew (engine.connect)."""
+    from star_tracker.campaign.engine import MALLOC_TRIM, connect
+
+    client = connect(1, None)
+    try:
+        environment = client.run(lambda: os.environ.get(MALLOC_TRIM, "unset"))
+    finally:
+        cluster = client.cluster
+        client.close()
+        cluster.close()
+    assert list(environment.values()) == ["unset"]
+
+
 def test_a_worker_killed_mid_run_loses_no_task(dask_cluster, tmp_path):
     address, workers = dask_cluster
     spec = CampaignSpec("false-id", trials=400, seed=12, batch=10)
