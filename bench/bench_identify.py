@@ -989,7 +989,8 @@ def render_markdown(results: dict) -> str:
         "numpy/Python). A peer's wrong ids with a correct attitude are mostly close doubles (e.g. the 5.6 mag "
         "companion 19\" from a 2.9 mag star, which the scenes merge into the brighter star's spot).",
         ("- Times: wall clock around the call (`time.perf_counter`) on the worker process that ran it, one call at a "
-         "time per worker (the local workers run side by side, ours and the peers' alike), after untimed warm-up "
+         f"time per worker ({meta.get('engine_run', {}).get('threads', '?')} worker(s) side by side, ours and the "
+         "peers' alike; one by default, so a time is a quiet core's), after untimed warm-up "
          "calls per solver and setup in each worker process (on the first scene, until one ends within the time "
          "limit, at most 3); the peers' tuning ran in the main process. "
          if meta.get("engine") else
@@ -1057,7 +1058,7 @@ def main(argv=None) -> None:
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_identify.json beside --output)")
     parser.add_argument("--from-json", type=Path, metavar="JSON",
                         help="measure nothing: write the section of --output from these saved results")
-    add_engine_arguments(parser)
+    add_engine_arguments(parser, timed=True)
     args = parser.parse_args(argv)
     if args.from_json:
         text = render_markdown(json.loads(args.from_json.read_text()))

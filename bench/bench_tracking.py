@@ -1222,7 +1222,7 @@ def main(argv=None) -> None:
     parser.add_argument("--json", type=Path, help="raw numbers (default: bench_tracking.json beside --output)")
     parser.add_argument("--images", type=Path, help="figure directory (default: images/ beside --output; "
                         "without either, no figures)")
-    add_engine_arguments(parser)
+    add_engine_arguments(parser, timed=True)
     args = parser.parse_args(argv)
     plan = QUICK if args.quick else Plan()
     started = time.perf_counter()

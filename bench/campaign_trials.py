@@ -29,11 +29,19 @@ from star_tracker.campaign import CampaignKind, CampaignSpec, run_campaign
 from star_tracker.campaign.engine import SCHEDULER_ENV
 
 
-def add_engine_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add --workers, --scheduler and --campaign-output (module docstring)."""
+def add_engine_arguments(parser: argparse.ArgumentParser, timed: bool = False) -> None:
+    """
+    Add --workers, --scheduler and --campaign-output (module docstring).
+
+    timed: the benchmark's figures include times per call compared with peers, so by default
+    one local worker runs the trials, one call at a time on an otherwise idle core, as a latency
+    is measured (a second worker shares the host's caches and memory bandwidth with it);
+    --workers N or --scheduler when only the counts matter.
+    """
     group = parser.add_argument_group("campaign engine")
-    group.add_argument("--workers", type=int, default=None,
-                       help="local worker processes (default: every core)")
+    default_text = "1, the times measured on one quiet core" if timed else "every core"
+    group.add_argument("--workers", type=int, default=1 if timed else None,
+                       help=f"local worker processes (default: {default_text})")
     group.add_argument("--scheduler", metavar="ADDR", default=None,
                        help=f"run the trials on this Dask scheduler (tcp://HOST:8786; default ${SCHEDULER_ENV}, "
                             "else a local cluster)")

@@ -353,7 +353,7 @@ def campaign_rows(false_id: dict | None, sky: dict | None, accuracy: dict | None
         f = false_id
         rows.append(Row(
             "False identification (lost-in-space)",
-            f"{f['false_identification']} of {f['trials']:,} trials; rate ≤ {f['false_identification_upper_95']:.2g} "
+            f"{f['false_identification']} of {f['trials']:,} trials; rate ≤ {f['false_identification_upper_95']:.3g} "
             f"(95 %); the verification states ≤ {f['stated_bound']:g}",
             f"random attitudes, scenes with {f['options']['false_stars']} false objects "
             f"({f['options']['setup']} setup), algorithm `{f['options']['algorithm']}`; false identification: a wrong "

@@ -225,7 +225,7 @@ def render_report(data: dict, images: str = "images") -> str:
         "", f"![robustness]({images}/datasheet_robustness.png)", "",
         "### False identification", "",
         f"{fid['trials']:,} lost-in-space scenes: **{fid['false_identification']} false identifications** (a wrong "
-        f"attitude or guide star), a rate ≤ {fid['false_identification_upper_95']:.2g} at 95 % (Clopper-Pearson), "
+        f"attitude or guide star), a rate ≤ {fid['false_identification_upper_95']:.3g} at 95 % (Clopper-Pearson), "
         f"against the verification's stated {fid['stated_bound']:g}; {fid['wrong_deep_star']} scenes named a false "
         f"object as a faint star (the attitude right); {fid['unsolved']} unsolved.", "",
         "### Availability", "",
