@@ -70,7 +70,7 @@ $(BENCH_STAMP): requirements-bench.txt $(STAMP)
 bench: $(BENCH_STAMP)
 	$(VENV)/bin/star-tracker bench $(BENCH_ARGS)
 
-# The datasheet (docs/DATASHEET.md): the characterization campaigns on every local core (~20 min on
+# The datasheet (docs/DATASHEET.md): the characterization campaigns on every local core (~10 min on
 # two; resumable: run it again after an interruption), their figures copied into docs/, then the page.
 datasheet: $(STAMP)
 	$(VENV)/bin/star-tracker characterize datasheet --output characterize_output/datasheet --docs docs

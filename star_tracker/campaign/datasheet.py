@@ -38,7 +38,7 @@ class DatasheetCampaign:
 
 def datasheet_campaigns(false_id_trials: int = FALSE_ID_TRIALS, quick: bool = False) -> tuple[DatasheetCampaign, ...]:
     """
-    Return the datasheet's campaigns, sized for ~20 min on two cores (false_id_trials: the false-id run).
+    Return the datasheet's campaigns, sized for ~10 min on two cores (false_id_trials: the false-id run).
 
     quick: a few trials each (a minute; to try the command and in tests), the figures meaningless.
     """

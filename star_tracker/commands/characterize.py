@@ -26,6 +26,9 @@ NAME = "characterize"
 # campaign.presets.KINDS without importing Dask at --help; a test compares the two.
 PRESETS = ("false-id", "sky-coverage", "accuracy", "tracking", "robustness")
 DATASHEET = "datasheet"  # not a preset: every campaign of the datasheet, then its report
+# The datasheet's campaigns whose summaries --docs keeps as docs/characterize_<name>.json (DATASHEET.md's
+# and BENCHMARKS.md's sources); the false-id figure there comes from its own 3,000,000-trial campaign.
+DOCS_SUMMARIES = ("accuracy", "sky_coverage", "tracking", "robustness")
 
 
 def register(subparsers) -> None:
@@ -50,7 +53,8 @@ def register(subparsers) -> None:
     parser.add_argument("--output", metavar="DIR", help="output directory (default characterize_output/PRESET)")
     parser.add_argument("--seed", type=int, help="the campaign's seed (default: 2026 or the file's)")
     parser.add_argument("--batch", type=positive_int, help="trials per Dask task (default: the preset's)")
-    parser.add_argument("--docs", metavar="DIR", help=f"{DATASHEET} only: also copy datasheet.json and the figures "
+    parser.add_argument("--docs", metavar="DIR", help=f"{DATASHEET} only: also copy datasheet.json, the campaigns' "
+                        "summaries (characterize_<campaign>.json) and the figures "
                         "into DIR (and DIR/images), where `python -m bench.datasheet` puts them in DATASHEET.md")
     parser.add_argument("--quick", action="store_true", help=f"{DATASHEET} only: a few trials per campaign (a "
                         "minute; to try the command, the figures meaningless)")
@@ -211,6 +215,8 @@ def run_datasheet(args: argparse.Namespace) -> int:
         shutil.copyfile(output / "datasheet.json", docs / "datasheet.json")
         for png in sorted(images.glob("datasheet_*.png")):
             shutil.copyfile(png, docs / "images" / png.name)
+        for name in DOCS_SUMMARIES:
+            shutil.copyfile(output / name / "summary.json", docs / f"characterize_{name}.json")
     print(f"wrote {output / 'DATASHEET.md'}, {output / 'datasheet.json'} and {images}; the campaigns' work "
           f"{meta['wall_s'] / 60:.1f} min, this call {(time.perf_counter() - started) / 60:.1f} min", file=sys.stderr)
     return 0

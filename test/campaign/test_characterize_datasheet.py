@@ -40,6 +40,13 @@ def test_the_report_has_every_section_and_figure(datasheet):
         assert f"images/datasheet_{name}.png" in text
         assert (docs / "images" / f"datasheet_{name}.png").is_file()
     assert json.loads((docs / "datasheet.json").read_text()) == data
+    for name in ("accuracy", "sky_coverage", "tracking", "robustness"):  # DATASHEET.md's campaign rows read these
+        assert json.loads((docs / f"characterize_{name}.json").read_text()) == json.loads(
+            (out / name / "summary.json").read_text())
+    assert not (docs / "characterize_false_id.json").exists()  # that one is the 3,000,000-trial campaign's
+    phases = json.loads((docs / "characterize_tracking.json").read_text())["phases"]
+    assert set(phases) == {"accelerating", "steady"}
+    assert 0 < sum(p["frames"] for p in phases.values()) <= data["tracking"]["frames"]  # the solved frames
     assert data["meta"]["software"] and data["meta"]["command"].startswith("star-tracker characterize datasheet")
 
 
