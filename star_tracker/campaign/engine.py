@@ -149,10 +149,15 @@ def ship_kind_code(client, kind: CampaignKind) -> str | None:
     Upload the top-level package of a kind defined outside star_tracker to every worker; return its name.
 
     The package's .py files are zipped (client.upload_file puts the zip on the workers' path
-    and imports it); None when the kind is star_tracker's own (installed on every worker).
+    and imports it); None when the kind is star_tracker's own (installed on every worker) or the
+    cluster is a LocalCluster (its workers import what this process imports).
     """
+    from distributed import LocalCluster
+
     top = type(kind).__module__.split(".")[0]
-    if top == __name__.split(".")[0]:
+    if top == __name__.split(".")[0] or isinstance(getattr(client, "cluster", None), LocalCluster):
+        # A LocalCluster's workers run in this process or start from its sys.path (spawned):
+        # they import the kind as this process does; an upload would re-import it beside ours.
         return None
     module = sys.modules[top]
     root = Path(module.__file__).parent if module.__file__.endswith("__init__.py") else Path(module.__file__)

@@ -160,7 +160,7 @@ def test_a_kind_from_outside_the_package_runs_on_workers_that_cannot_import_it(d
 
 
 def test_two_campaigns_of_a_shipped_kind_run_one_after_the_other_in_one_process(tmp_path):
-    """A LocalCluster's scheduler is this process: the shipped code goes to the workers only, never replacing ours."""
+    """A LocalCluster's scheduler is this process: nothing is uploaded there to replace the code this process runs."""
     kind = OutsideKind()
     for run in ("first", "second"):
         spec = CampaignSpec("outside-draw", 14, seed=3, batch=7)

@@ -41,6 +41,9 @@ from star_tracker.ros.pipeline import NodeProcesses  # noqa: E402
 # The truth the tests count against, deeper than the node's queue (qos.RESULT_QOS, depth 10): on
 # a loaded host this process, decoding every image, fell behind a burst and its own reader
 # queue dropped truth (13 of 27 in a CI rehearsal); the tests judge the camera, not this queue.
+# The camera's best-effort images, kept in a history deep enough for every frame of a test: on a
+# loaded host this process can fall behind the 10 Hz stream (the sensor-data depth of 5 lost 7 of 12).
+IMAGE_QOS = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST)
 TRUTH_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 
 SIZE = 256  # small frames: cheap to render twice
@@ -75,7 +78,7 @@ def subscribe(node, received_at):
     """image_raw -> (stamp, receive time from received_at(), image); truth stamps."""
     images, truth = [], []
     node.create_subscription(Image, "image_raw", lambda m: images.append(
-        (convert.stamp_to_ns(m.header.stamp), received_at(), convert.image_to_array(m))), SENSOR_QOS)
+        (convert.stamp_to_ns(m.header.stamp), received_at(), convert.image_to_array(m))), IMAGE_QOS)
     node.create_subscription(QuaternionStamped, "truth/attitude", truth.append, TRUTH_QOS)
     node.create_subscription(CameraInfo, "camera_info", lambda _msg: None, SENSOR_QOS)  # wait_for_subscribers
     return images, truth
