@@ -395,18 +395,6 @@ class CentroidTrials(CampaignKind):
         return {}  # main() makes the figures
 
 
-def trials_kind() -> CentroidTrials:
-    """
-    Return the kind as bench.bench_centroid's class, also when this file runs as __main__.
-
-    The engine ships the package of the kind's module to its workers, and a class of __main__
-    names no package.
-    """
-    from bench.bench_centroid import CentroidTrials as Kind
-
-    return Kind()
-
-
 def progress_bar(steps: int):
     """Return a run_trials progress callback that moves the `star-tracker bench` bar (trials done of `steps`)."""
     return lambda done, _total: report_progress(done, steps, "trials on the campaign engine")
@@ -441,7 +429,7 @@ def main(argv=None) -> None:
     started = time.perf_counter()
     steps = options.trials + 2  # + speed at rest, speed slewing
     report_progress(0, steps, "accuracy, purity and roll on the campaign engine")
-    table, run = run_trials(trials_kind(), options.trials, dataclasses.asdict(options), args,
+    table, run = run_trials(CentroidTrials(), options.trials, dataclasses.asdict(options), args,
                             progress=progress_bar(steps))
     failed, trials = errors(table), records(table)
     done = [r for r in trials if not r["error"]]

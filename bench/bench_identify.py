@@ -54,7 +54,6 @@ import argparse
 import bisect
 import dataclasses
 import datetime as dt
-import importlib
 import json
 import os
 import platform
@@ -597,19 +596,6 @@ class IdentifyTrials(CampaignKind):
         return {}  # the benchmark's own summarize() makes the figures
 
 
-def trials_kind() -> IdentifyTrials:
-    """
-    Return the kind as its importable module defines it.
-
-    Run as `python -m bench.bench_identify`, this module is __main__, a name the engine cannot
-    ship to the workers (it zips the kind's top-level package): the kind then comes from the
-    module imported under its package name.
-    """
-    if __name__ == "__main__" and __spec__ is not None:
-        return importlib.import_module(__spec__.name).IdentifyTrials()
-    return IdentifyTrials()
-
-
 def block_outcomes(block: TrialBlock, rows: list[dict], scenes: list[Scene]) -> Outcomes:
     """
     Return one block's Outcomes from its records (task order).
@@ -751,7 +737,7 @@ def run_benchmark(setup_names: list[str], algorithms: list[str], scenes: int, se
 
     rows, run = [], {}
     if trial_count:
-        table, run = run_trials(trials_kind(), trial_count, dataclasses.asdict(options), engine,
+        table, run = run_trials(IdentifyTrials(), trial_count, dataclasses.asdict(options), engine,
                                 seed=seed, log=log, progress=engine_progress)
         rows = records(table)
         failed = errors(table)

@@ -407,18 +407,6 @@ def record_scores(record: dict, fluxes) -> dict[float, Scored]:
     return scores
 
 
-def trials_kind() -> PsfRangeTrials:
-    """
-    Return the kind as bench.bench_psf_range's class, also when this file runs as __main__.
-
-    The engine ships the package of the kind's module to its workers, and a class of __main__
-    names no package.
-    """
-    from bench.bench_psf_range import PsfRangeTrials as Kind
-
-    return Kind()
-
-
 def progress_bar(steps: int):
     """Return a run_trials progress callback that moves the `star-tracker bench` bar (trials done of `steps`)."""
     return lambda done, _total: report_progress(done, steps, "trials on the campaign engine")
@@ -494,7 +482,7 @@ def main(argv=None) -> dict:
     started = time.perf_counter()
     todo = cases(args.quick)
     report_progress(0, options.trials, "cases and star-free frames on the campaign engine")
-    stored, run = run_trials(trials_kind(), options.trials, dataclasses.asdict(options), args,
+    stored, run = run_trials(PsfRangeTrials(), options.trials, dataclasses.asdict(options), args,
                              progress=progress_bar(options.trials))
     failed, trials = errors(stored), records(stored)
     for error in failed:

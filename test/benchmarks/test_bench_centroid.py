@@ -49,7 +49,7 @@ def test_tasks_number_the_accuracy_points_then_the_star_free_then_the_roll_frame
 
 @pytest.mark.slow  # two local clusters and ten 1024² trials
 def test_trials_on_one_and_two_workers_are_the_loops_records_and_stand_against_the_truth():
-    (one, run_one), (two, run_two) = (engine_run(bench.trials_kind(), SMALL, workers, SMALL.trials)
+    (one, run_one), (two, run_two) = (engine_run(bench.CentroidTrials(), SMALL, workers, SMALL.trials)
                                       for workers in (1, 2))
     assert run_one["threads"] == 1 and run_two["threads"] == 2
     assert one.column("error").to_pylist() == [""] * SMALL.trials

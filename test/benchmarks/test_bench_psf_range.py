@@ -102,7 +102,7 @@ def test_trials_on_one_and_two_workers_are_the_loops_rows_and_meet_the_goals():
     options = bench.PsfRangeOptions(quick=True, frames=1, false_frames=1)
     runs = []
     for workers in (1, 2):
-        runs.append(run_trials(bench.trials_kind(), options.trials, dataclasses.asdict(options),
+        runs.append(run_trials(bench.PsfRangeTrials(), options.trials, dataclasses.asdict(options),
                                argparse.Namespace(workers=workers, scheduler=None, campaign_output=None)))
     (one, run_one), (two, run_two) = runs
     assert run_one["threads"] == 1 and run_two["threads"] == 2
