@@ -50,7 +50,7 @@ from .centroider_parameters import CENTROIDER_PARAMETERS, RATE_SOURCES
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RATE_INPUT_QOS, SPOTS_QOS, overridable
 from .rate_input import RateInput
-from .stamps import STAMP_OK, STAMP_RESET, StampOrder
+from ..track.stamp_order import STAMP_OK, STAMP_RESET, StampOrder
 from .throttled_log import ThrottledLog
 
 RATE_TOPICS = {"topic": "angular_velocity", "imu": "imu"}  # rate_source -> the input it reads
@@ -69,7 +69,8 @@ class CentroiderNode(ManagedNode):
         rate_param = values["angular_velocity_rad_s"]
         self.queue_depth = values["queue_depth"]
         self.max_rate_age_s = values["max_rate_age_s"]
-        self.stamps = StampOrder(self, values["stamp.max_future_s"], values["stamp.reset_after_s"])
+        self.stamps = StampOrder(lambda: self.get_clock().now().nanoseconds, values["stamp.max_future_s"],
+                                 values["stamp.reset_after_s"])
         # The gyro's mounting (read-only): its vectors are rotated into the sensor frame.
         self.rate_input = RateInput(lambda counter, text: self.reject(counter, text),
                                     list(values["gyro.mounting_quaternion"]), values["gyro.frame_id"])

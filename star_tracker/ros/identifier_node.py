@@ -62,7 +62,7 @@ from .identifier_parameters import (CALIBRATION_PARAMETERS, DATABASE_PARAMETERS,
                                     IDENTIFY_PARAMETERS, TRACKING_PARAMETERS)
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, overridable
-from .stamps import STAMP_OK, STAMP_RESET, StampOrder
+from ..track.stamp_order import STAMP_OK, STAMP_RESET, StampOrder
 from .throttled_log import ThrottledLog
 
 # Tunable while running (`ros2 param set`, the specs marked dynamic); the rest is fixed at
@@ -108,7 +108,8 @@ class IdentifierNode(ManagedNode):
         self.online_calibration = OnlineCalibration(online_config) if calibration_enabled else None
         self.queue_depth = values["queue_depth"]
         self.inline_wait_s = values["inline_wait_s"]
-        self.stamps = StampOrder(self, values["stamp.max_future_s"], values["stamp.reset_after_s"])
+        self.stamps = StampOrder(lambda: self.get_clock().now().nanoseconds, values["stamp.max_future_s"],
+                                 values["stamp.reset_after_s"])
         self.autostart = values["autostart"]
 
         self.algorithm, self.db_config, self.tracking_config = algorithm, db_config, tracking_config
