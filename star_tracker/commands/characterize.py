@@ -2,7 +2,7 @@
 """
 `star-tracker characterize PRESET|CAMPAIGN.yaml`: a Monte-Carlo campaign on Dask (docs/CHARACTERIZE.md).
 
-The preset (campaign/presets: false-id, sky-coverage, accuracy, tracking, robustness) or the
+The preset (campaign/presets: false-id, sky-coverage, accuracy, tracking, robustness, stress) or the
 YAML campaign runs its trials on a Dask LocalCluster of --workers processes (default: every
 core) or on the scheduler at --scheduler / $DASK_SCHEDULER_ADDRESS, streaming the records to OUTPUT/results/*.parquet.
 Run again with the same options and output, it resumes; finished, it writes
@@ -24,7 +24,7 @@ from .common import CommandError, Progress, add_parser, guarded, positive_int
 
 NAME = "characterize"
 # campaign.presets.KINDS without importing Dask at --help; a test compares the two.
-PRESETS = ("false-id", "sky-coverage", "accuracy", "tracking", "robustness")
+PRESETS = ("false-id", "sky-coverage", "accuracy", "tracking", "robustness", "stress")
 DATASHEET = "datasheet"  # not a preset: every campaign of the datasheet, then its report
 # The datasheet's campaigns whose summaries --docs keeps as docs/characterize_<name>.json (DATASHEET.md's
 # and BENCHMARKS.md's sources); the false-id figure there comes from its own 3,000,000-trial campaign.
@@ -58,6 +58,8 @@ def register(subparsers) -> None:
                         "into DIR (and DIR/images), where `python -m bench.datasheet` puts them in DATASHEET.md")
     parser.add_argument("--quick", action="store_true", help=f"{DATASHEET} only: a few trials per campaign (a "
                         "minute; to try the command, the figures meaningless)")
+    parser.add_argument("--replay", type=int, metavar="TASK", help="run trial TASK of the campaign (its --seed and "
+                        "options) in this process and print it frame by frame, for presets that can (stress)")
     parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                         help="a preset option (repeatable; YAML values: --option false_stars=5; default: the "
                         "preset's options)")
@@ -88,7 +90,10 @@ def campaign_from_args(args: argparse.Namespace):
         options[name.strip()] = yaml.safe_load(value)
     parsed = kind.options(options)
     default_trials = getattr(parsed, "trials", None) or kind.default_trials
-    spec = CampaignSpec(preset=kind.name, trials=args.trials or data.get("trials") or default_trials,
+    # A kind whose trial is a sequence of frames (stress: a mission) takes --frames as frames.
+    asked = kind.trials_for_frames(args.trials, parsed) if args.trials and hasattr(kind, "trials_for_frames") \
+        else args.trials
+    spec = CampaignSpec(preset=kind.name, trials=asked or data.get("trials") or default_trials,
                         seed=args.seed if args.seed is not None else data.get("seed", 2026),
                         batch=args.batch or data.get("batch") or kind.default_batch, options=options)
     return kind, spec
@@ -123,10 +128,23 @@ def run(args: argparse.Namespace) -> int:
     if args.quick or args.docs:
         raise CommandError(f"--quick and --docs are for {DATASHEET} only")
     kind, spec = campaign_from_args(args)
+    if args.replay is not None:
+        return replay(kind, spec, args.replay)
     output = Path(args.output or Path("characterize_output") / kind.name)
     command = "star-tracker " + " ".join(shlex.quote(a) for a in (args.argv or []))
     summary, _, files = run_one(kind, spec, output, args.workers, args.scheduler, command)
     print(f"wrote {output / 'summary.json'}" + "".join(f", {f}" for f in files), file=sys.stderr)
+    return 0
+
+
+def replay(kind, spec, task: int) -> int:
+    """Print trial `task` of the campaign, run here (its seed and options), as the kind tells it."""
+    if not hasattr(kind, "replay"):
+        raise CommandError(f"preset {kind.name} cannot replay a trial; --replay is for stress")
+    if task < 0:
+        raise CommandError(f"--replay {task}: a task number is >= 0")
+    options = kind.options(spec.options)
+    print(kind.replay(kind.prepare(options), options, spec.rng(task)))
     return 0
 
 
@@ -162,7 +180,8 @@ def run_one(kind, spec, output: Path, workers: int | None, scheduler: str | None
     files = kind.report(table, summary, options, output)
     (output / "summary.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
     now = campaign.to_dict()
-    print(f"{kind.name}: {summary.get('trials')} trials; {_headline(summary)}; {campaign.batches_run} batches run now "
+    print(f"{kind.name}: {summary.get('trials', spec.trials)} trials; {_headline(summary)}; "
+          f"{campaign.batches_run} batches run now "
           f"({campaign.batches_resumed} resumed) on {now['threads']} worker threads in {campaign.wall_s:.1f} s, "
           + (f"{now['trials_per_s_per_core']:.3g} trials/s/core, {100 * now['utilization']:.0f} % busy"
              if now["utilization"] else "nothing left to run"), file=sys.stderr)
@@ -247,4 +266,13 @@ def _headline(summary: dict) -> str:
         worst = ", ".join(f"{name} {cells[-1]['level']:g}: {100 * (cells[-1]['availability'] or 0):.0f} %"
                           for name, cells in summary["sweeps"].items())
         return f"{summary['solved']} solved, {summary['wrong']} wrong; solved right at the strongest level: {worst}"
+    if summary["preset"] == "stress":
+        nees = summary["nees_mean"]
+        worst = max(((name, value, cell["nees_mean"]) for name, cells in summary["strata"].items()
+                     for value, cell in cells.items() if cell["nees_mean"] is not None), key=lambda c: c[2],
+                    default=None)
+        return (f"{summary['missions']} missions, {summary['frames']} frames accepted, {summary['wrong']} wrong, "
+                f"{summary['wrong_star_frames']} with a wrong star; NEES mean "
+                + (f"{nees:.2f}" if nees is not None else "-")
+                + (f" (worst stratum {worst[0]} {worst[1]}: {worst[2]:.2f})" if worst else ""))
     return ""

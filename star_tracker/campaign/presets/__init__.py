@@ -6,8 +6,9 @@ from .accuracy import Accuracy
 from .false_id import FalseIdentification
 from .robustness import Robustness
 from .sky_coverage import SkyCoverage
+from .stress import Stress
 from .tracking import Tracking
 
-KINDS = {kind.name: kind for kind in (FalseIdentification, SkyCoverage, Accuracy, Tracking, Robustness)}
+KINDS = {kind.name: kind for kind in (FalseIdentification, SkyCoverage, Accuracy, Tracking, Robustness, Stress)}
 
-__all__ = ["KINDS", "Accuracy", "FalseIdentification", "Robustness", "SkyCoverage", "Tracking"]
+__all__ = ["KINDS", "Accuracy", "FalseIdentification", "Robustness", "SkyCoverage", "Stress", "Tracking"]

@@ -1,0 +1,139 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The stress campaign: its missions' draws, the frames' delivery (stamps, drops, duplicates), the bit
+flips, one mission run against the rendered truth, and the summary's strata and failures.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from star_tracker.campaign import CampaignSpec
+from star_tracker.campaign.engine import run_batch
+from star_tracker.campaign.presets import KINDS
+from star_tracker.campaign.presets import stress
+from star_tracker.sim.render import FalseObjectModel
+from star_tracker.sim.sensor import SensorModel
+
+
+def test_missions_are_drawn_from_their_seed_and_cover_every_stratum():
+    draws = [stress.draw_mission(np.random.default_rng([7, k]), 40, SensorModel()) for k in range(400)]
+    again = stress.draw_mission(np.random.default_rng([7, 5]), 40, SensorModel())
+    assert again.labels == draws[5].labels and again.schedule == draws[5].schedule
+    seen = {name: {d.labels[name] for d in draws} for name in stress.MISSION_STRATA}
+    assert seen["motion"] == set(stress.MOTIONS)
+    assert seen["false_objects"] == set(stress.FALSE_OBJECTS)
+    assert seen["detector"] == set(stress.DETECTOR)
+    assert seen["psf"] == {"nominal", "defocus"} and seen["rate_aid"] == {"gyro", "identifier"}
+    assert seen["temperature"] == {"nominal", "ramp"} and seen["stray_light"] == {"nominal", "high"}
+    faults = {f for d in draws for f in d.frame_faults}
+    assert faults == set(stress.FRAME_FAULTS)
+    psf = np.array([d.psf_sigma_px for d in draws if d.psf_sigma_px != 1.0])
+    assert 0.4 <= psf.min() < 0.6 and 2.8 < psf.max() <= 3.0
+    rays = np.array([d.sensor.cosmic_ray_rate_per_cm2_s for d in draws if d.detector == "cosmic_rays"])
+    assert 5.0 <= rays.min() and rays.max() <= 500.0  # up to 100x a quiet orbit's 5 /cm^2/s
+
+
+def test_the_deliveries_carry_each_fault_as_the_nodes_would_see_it():
+    rng = np.random.default_rng(3)
+    deliveries, events = stress._schedule(rng, 200, stress.FRAME_FAULTS)
+    frames = np.array([d[0] for d in deliveries])
+    tau, clock, stamp = (np.array([d[i] for d in deliveries]) for i in (1, 2, 3))
+    duplicate = np.array([d[4] for d in deliveries])
+    assert np.all(np.diff(clock) > 0)  # the receiving clock never goes back
+    assert set(range(200)) - set(frames.tolist())  # some frames dropped
+    assert duplicate.any() and all(stamp[i] == stamp[i - 1] for i in np.flatnonzero(duplicate))
+    jumps = np.diff(tau)
+    assert jumps.min() < -2.0  # the loop: more than reset_after_s back
+    assert jumps.max() > 1.0  # the gap
+    future = stamp - clock > stress.MAX_FUTURE_S
+    assert 1 <= future.sum() <= 2  # one frame (delivered twice when also duplicated)
+    # Stamps are the scene's time but for the one from the future.
+    assert np.count_nonzero(np.abs(stamp - stress.EPOCH_S - tau) > 1e-9) == future.sum()
+    assert events and all(0 < e < len(deliveries) for e in events)
+
+
+def test_bit_flips_change_exactly_the_bits_asked():
+    image = np.full((64, 64), 1000, np.uint16)
+    flipped = stress.flip_bits(image, 50, np.random.default_rng(1))
+    changed = np.unpackbits((image ^ flipped).view(np.uint8)).sum()
+    assert 40 <= changed <= 50 and changed % 2 == 50 % 2  # a bit flipped twice is back: pairs cancel
+    assert np.array_equal(image, np.full((64, 64), 1000, np.uint16))  # the input is left alone
+
+
+def _every_fault(frames: int):
+    """Return the first schedule (seeds 0, 1, ...) with a jump back, a gap, a duplicate and a stamp from the future."""
+    for seed in range(1000):
+        deliveries, events = stress._schedule(np.random.default_rng(seed), frames, stress.FRAME_FAULTS)
+        tau = np.array([d[1] for d in deliveries])
+        if (np.diff(tau).min() < -2.5 and np.diff(tau).max() > 1.0 and any(d[4] for d in deliveries)
+                and any(d[3] - d[2] > stress.MAX_FUTURE_S for d in deliveries) and len(events) >= 2):
+            return deliveries, events
+    raise AssertionError("no schedule with every fault")
+
+
+@pytest.mark.slow
+def test_a_mission_of_faults_at_rest_is_tracked_right_and_recovers_within_two_frames(database):
+    from star_tracker.models.attitude import quaternion_to_matrix
+    from star_tracker.sim.motion import ConstantRateMotion
+
+    kind = KINDS["stress"]()
+    options = kind.options({"frames_per_mission": 40})
+    shared = kind.prepare(options)
+    rng = np.random.default_rng(11)
+    mission = stress.draw_mission(rng, 40, shared.sensor)
+    rotation = quaternion_to_matrix(np.array([0.2, -0.4, 0.1, 0.88]))
+    mission = replace(mission, motion=ConstantRateMotion(rotation, np.radians([0.2, -0.1, 0.05])),
+                      motion_kind="rest", false_objects="none", objects=FalseObjectModel(), environment=None,
+                      detector="nominal", bit_flips=0, sensor=SensorModel(), psf_sigma_px=1.0,
+                      stray_light_e_px_s=0.0, temperature_k=(293.15, 293.15), rate_aid="identifier",
+                      frame_faults=stress.FRAME_FAULTS)
+    mission.schedule, mission.events = _every_fault(40)
+    record, frames = stress.run_mission(shared, options, rng, mission)
+    verdicts = [f["verdict"] for f in frames]
+    assert {"out_of_order", "from_future", "time_reset"} <= set(verdicts)
+    accepted = [f for f in frames if f["verdict"] in stress.DELIVERED_OK]
+    assert all(f["solved"] and not f["wrong"] for f in accepted), [(f["frame"], f["nees"]) for f in accepted]
+    assert all(f["cross_arcsec"] < 2.0 for f in accepted)
+    # The loop and the gap cut the track: lost-in-space on the first frame after, tracking on the next.
+    assert record["recoveries"] and all(1 <= r <= 2 for r in record["recoveries"])
+    assert max(record["recoveries"]) == 2
+
+
+@pytest.mark.slow
+def test_a_campaign_batch_scores_its_frames_and_the_summary_counts_them_by_stratum(database):
+    kind = KINDS["stress"]()
+    spec = CampaignSpec("stress", trials=2, seed=2026, batch=1, options={"frames_per_mission": 6})
+    table = pa.concat_tables([run_batch(kind, spec, b).table for b in range(2)])
+    assert not any(table.column("error").to_pylist())
+    summary = kind.summarize(table, kind.options(spec.options))
+    rows = table.to_pylist()
+    frames = sum(len(r["frame"]) for r in rows)
+    assert summary["deliveries"] == frames == sum(summary["verdicts"].values())
+    accepted = sum(v in stress.DELIVERED_OK for r in rows for v in r["verdict"])
+    assert summary["frames"] == accepted
+    assert sum(s["frames"] for s in summary["strata"]["phase"].values()) == accepted
+    assert sum(s["frames"] for s in summary["strata"]["motion"].values()) == accepted
+    wrong = sum(w for r in rows for w in r["wrong"])
+    assert summary["wrong"] == wrong
+    nees = [n for r in rows for n, ok in zip(r["nees"], r["solved"]) if ok]
+    assert summary["nees_mean"] == pytest.approx(np.mean(nees))
+    flagged = [(r["task"], f) for r in rows for f, w, n in zip(r["frame"], r["wrong"], r["nees"])
+               if w or (n is not None and n > stress.NEES_997)]
+    assert sorted((f["task"], f["frame"]) for f in summary["failures"]) == sorted(flagged)
+    assert all(math.isfinite(f["nees"]) for f in summary["failures"])
+
+
+def test_frames_on_the_command_line_are_missions_of_frames_per_mission():
+    import argparse
+
+    from star_tracker.commands.characterize import campaign_from_args
+
+    args = argparse.Namespace(campaign="stress", trials=1001, seed=None, batch=None,
+                              option=["frames_per_mission=25"])
+    kind, spec = campaign_from_args(args)
+    assert kind.name == "stress" and spec.trials == 41  # 41 x 25 >= 1001 frames
