@@ -1,0 +1,76 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The stress campaign through the real nodes: every fault kind once, the centroider and identifier processes over DDS.
+
+A short run (a few dozen frames, every kind of fault in stress_faults.FAULT_KINDS at least
+once) must account for every frame on /diagnostics, leave both nodes alive (exit code 0 after
+SIGINT, no traceback) and publish no wrong attitude and no wrong guide star. The plan itself
+(no ROS) is checked for what the run relies on: the same seed gives the same frames, and the
+stamp rule the harness predicts with is the nodes'. No ROS mocks.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from star_tracker.campaign.stress_faults import (FAULT_KINDS, FRAME_FAULTS, MALFORMED, StampRule, flip_bits,
+                                                 plan_stress)
+
+
+def test_a_plan_is_its_seed_and_places_every_required_fault():
+    a, b = plan_stress(40, 7, required=FAULT_KINDS), plan_stress(40, 7, required=FAULT_KINDS)
+    assert [(f.t_s, f.fault, f.bad_info, f.sent, f.seed) for f in a.frames] == \
+        [(f.t_s, f.fault, f.bad_info, f.sent, f.seed) for f in b.frames]
+    counts = a.fault_counts()
+    assert all(counts[kind] >= 1 for kind in FAULT_KINDS), counts
+    assert sum(f.sent for f in a.frames) >= 40
+    # Distinct stamps but for the duplicated frames' second copies.
+    stamps = [f.t_s for f in a.frames if f.sent and not f.copy and f.fault != "stamp_future"]
+    assert len(stamps) == len(set(stamps))
+
+
+def test_the_stamp_rule_follows_the_nodes_thresholds():
+    rule, now = StampRule(), 100 * 10**9
+    s = 10**9
+    verdicts = [rule.classify(stamp, now) for stamp in (50 * s, 51 * s, 51 * s, 50 * s, 47 * s, 48 * s, 0, now + 2 * s)]
+    assert verdicts == ["ok", "ok", "out_of_order", "out_of_order", "time_reset", "ok", "unstamped", "from_future"]
+
+
+def test_bit_flips_change_the_pixels_asked_for():
+    image = np.full((32, 32), 100, np.uint16)
+    flipped = flip_bits(image, 10, 3)
+    assert np.count_nonzero(flipped != image) == 10 and np.all(image == 100)
+
+
+@pytest.mark.slow
+@pytest.mark.integration
+def test_every_fault_through_the_nodes_is_accounted_for(tmp_path, database):  # database: built before the nodes
+    pytest.importorskip("rclpy")
+    from star_tracker.campaign.stress_nodes import run_stress_through_nodes
+
+    # Short missions: every kind in about 50 frames.
+    summary = run_stress_through_nodes(30, 3, tmp_path, required=FAULT_KINDS, mission_frames=(12, 20))
+    assert json.loads((tmp_path / "summary_nodes.json").read_text())["frames_sent"] == summary["frames_sent"]
+    assert all(summary["faults"][kind] >= 1 for kind in FAULT_KINDS), summary["faults"]
+    # Every frame sent has an outcome counted by each node it reached: nothing lost without a count.
+    accounting = summary["accounting"]
+    assert accounting["unaccounted"] == 0, accounting
+    assert accounting["frames_without_an_outcome_seen"] == 0, accounting
+    # The counters the faults must move moved by what was sent (malformed images, bad camera_info,
+    # stamps from the future, out of order, time resets at each node).
+    assert accounting["expected_counters_mismatched"] == {}, accounting
+    sent = summary["frames_sent"]
+    c, i = summary["centroider"]["counters"], summary["identifier"]["counters"]
+    assert c["frames_received"] == sent and c["frames_rejected"] == sum(summary["faults"][k] for k in MALFORMED)
+    assert summary["identifier"]["attitudes_seen"] == i["frames_identified"] >= sent // 2, summary["identifier"]
+    # Both nodes survived every fault.
+    nodes = summary["nodes"]
+    assert nodes["all_alive"], nodes
+    assert nodes["exit_codes"] == {"centroider": 0, "identifier": 0}, nodes
+    # No wrong attitude (60", 5 sigma), no wrong guide star.
+    assert summary["attitudes"]["wrong"] == 0, summary["attitudes"]["wrong_frames"]
+    assert summary["stars"]["wrong_guide"] == 0, summary["stars"]
+    assert summary["passed"]
+    assert set(FRAME_FAULTS) <= set(summary["faults"])
