@@ -382,25 +382,18 @@ def flip_bits(image: np.ndarray, count: int, seed: int) -> np.ndarray:
 
 class StampRule:
     """
-    What a node's StampOrder (ros/stamps.py) says of each stamp in turn, with the shipped thresholds.
+    What a node says of each stamp in turn: the nodes' own rule (track/stamp_order.py), shipped thresholds.
 
     classify(stamp, now): `now` is the node's clock at the time (the sending time: a run's
     stamps from the future are seconds ahead, far beyond any transport delay).
     """
 
     def __init__(self, max_future_s: float = MAX_FUTURE_S, reset_after_s: float = RESET_AFTER_S):
-        self.max_future_s, self.reset_after_s = max_future_s, reset_after_s
-        self.newest: int | None = None
+        from ..track.stamp_order import StampOrder
+
+        self._now = 0
+        self._order = StampOrder(lambda: self._now, max_future_s, reset_after_s)
 
     def classify(self, stamp: int, now: int) -> str:
-        if stamp == 0:
-            return "unstamped"
-        if self.max_future_s > 0 and stamp > now + self.max_future_s * 1e9:
-            return "from_future"
-        verdict = "ok"
-        if self.newest is not None and stamp <= self.newest:
-            if self.newest - stamp <= self.reset_after_s * 1e9:
-                return "out_of_order"
-            verdict = "time_reset"
-        self.newest = stamp
-        return verdict
+        self._now = now
+        return self._order.classify(stamp)
