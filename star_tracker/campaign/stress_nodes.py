@@ -310,6 +310,7 @@ def run_stress_through_nodes(frames: int, seed: int, output: Path, progress=None
     run["tracebacks"] = {name: text.count("Traceback") for name, text in logs.items()}
     summary = summarize(plan, records, run)
     summary["seed"], summary["frames_requested"] = int(seed), int(frames)
+    summary["mission_frames"] = list(mission_frames)
     summary["duration_s"] = round(time.monotonic() - started, 1)
     summary["timing_s"] = {**run.get("timing_s", {}), "frames": run.get("frames_s")}
     (output / "summary_nodes.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
@@ -642,6 +643,96 @@ def recovery(records: list[dict]) -> dict:
             "mission_ended_before_an_accepted_stamp": unjudged}
 
 
+# ------------------------------------------------------------------------------ the docs section
+BEGIN, END = "<!-- stress_nodes -->", "<!-- /stress_nodes -->"
+
+
+def render_section(summary: dict) -> str:
+    """Return the docs/RELIABILITY.md section of a run's summary (between BEGIN and END)."""
+    acc, att, stars, rec = summary["accounting"], summary["attitudes"], summary["stars"], summary["recovery"]
+    c, i = summary["centroider"]["counters"], summary["identifier"]["counters"]
+    nodes = summary["nodes"]
+    faults = ", ".join(f"{kind.replace('_', ' ')} {n}" for kind, n in summary["faults"].items())
+    phases = "; ".join(f"{phase} {p['nees_beyond_5_sigma']} of {p['scored']} (NEES mean {p['nees_mean']:.1f})"
+                       for phase, p in att["by_phase"].items())
+    parts = []
+    for kind, k in rec["by_event"].items():
+        missed = k["not_recovered_in_mission"]
+        late = f", {missed} not before the mission ended" if missed else ""
+        parts.append(f"{kind.replace('_', ' ')} {k['within_2']} of {k['events']} (max {k['max']}{late})")
+    events = "; ".join(parts)
+    beyond_60 = sum(p["beyond_60_arcsec"] for p in att["by_phase"].values())
+    unjudged = sum(rec.get("mission_ended_before_an_accepted_stamp", {}).values())
+    environments = "; ".join(f"{env.replace('_', ' ')} {v['identified']} of {v['frames']}"
+                             for env, v in summary["identified_by_environment"].items())
+    not_identified = ", ".join(f"{k.removeprefix('not_identified_').replace('_', ' ')} {v}"
+                               for k, v in summary["identifier"]["not_identified"].items()) or "none"
+    refused = " + ".join(f"{k.removeprefix('frames_').replace('_', ' ')} {i.get(k, 0)}" for k in IDENTIFIER_OUTCOMES
+                         if i.get(k, 0) and k != "frames_identified")
+    lines = [
+        "### Stress through the nodes",
+        "",
+        f"Command: `{summary.get('command', '')}` — {summary.get('date', '')}, {summary.get('machine', '')}; "
+        f"{summary['duration_s'] / 60:.1f} min. The summary is the run's `summary_nodes.json`, every frame's record "
+        "`frames_nodes.json`.",
+        "",
+        "The centroider and identifier as separate processes (`config/star_tracker.yaml` as shipped: the "
+        "identifier's own rate aids the centroider), fed by `star_tracker/campaign/stress_nodes.py`, which renders "
+        "each frame (1024², 15°, the simulated camera's sensor, Hipparcos to Hp 7.5) and sends it with its "
+        "CameraInfo, then waits for that frame's outcome before the next: no overload by design, and frames and "
+        f"stamps do not depend on the host's speed. {summary['missions']} missions of "
+        f"{'-'.join(str(n) for n in summary.get('mission_frames', MISSION_FRAMES))} frames at 10 Hz "
+        f"(rest, slews ≤ 2 °/s², tumbles ≤ 5 °/s, jitter ≤ 20″ to 20 Hz), seed {summary['seed']}.",
+        "",
+        f"- frames: **{summary['frames_sent']:,} sent** ({summary['frames_dropped_before_the_nodes']} more dropped "
+        f"before the nodes). Frames per fault: {faults}.",
+        f"- every frame accounted for: **{'yes' if acc['unaccounted'] == 0 else 'no'}** "
+        f"({acc['unaccounted']} unaccounted, {acc['frames_without_an_outcome_seen']} without an outcome within "
+        f"{OUTCOME_TIMEOUT_S:.0f} s). Centroider: {c.get('frames_received', 0):,} received = "
+        f"{c.get('frames_processed', 0):,} spots published + {c.get('frames_rejected', 0)} rejected (malformed) + "
+        f"{c.get('frames_failed', 0)} failed + {c.get('frames_dropped_overload', 0)} dropped by overload. "
+        f"Identifier: {i.get('frames_received', 0):,} received = {i.get('frames_identified', 0):,} attitudes + "
+        f"{sum(summary['identifier']['not_identified'].values())} not identified ({not_identified}) + {refused}. "
+        f"The counters the faults must move match the plan: "
+        f"{'all' if not acc['expected_counters_mismatched'] else acc['expected_counters_mismatched']} "
+        f"(camera_info_rejected {c.get('camera_info_rejected', 0)} and {i.get('camera_info_rejected', 0)} for "
+        f"{summary['bad_camera_info_sent']} bad CameraInfo; time_resets {i.get('time_resets', 0)}).",
+        f"- nodes alive at the end: **{'yes' if nodes['all_alive'] else 'no'}**; exit codes after SIGINT "
+        f"{nodes['exit_codes']}; tracebacks in the logs {sum(nodes['tracebacks_in_logs'].values())}.",
+        f"- attitudes: {att['scored']:,} scored against the truth (the exposure's mean attitude under jitter), "
+        f"**{att['wrong']} wrong** (boresight > 60″ or NEES > 31.8): {beyond_60} beyond 60″ (boresight error "
+        f"median {att['cross_arcsec_median']:.2f}″, max {att['cross_arcsec_max']:.2f}″), {att['nees_beyond_5_sigma']} "
+        f"with NEES beyond 31.8; NEES mean {att['nees_mean']:.2f}. NEES beyond 31.8 by motion phase (from the "
+        f"truth: the rate changing within the exposure is accelerating): {phases}.",
+        f"- star IDs: {stars['matched']:,} matched stars, **{stars['wrong_guide']} wrong guide stars**, "
+        f"{stars['wrong_deep']} wrong deep-catalog stars.",
+        f"- recovery (frames from the end of a stamp jump or dropped burst to the next attitude, goal ≤ 2): "
+        f"**{rec['within_2']} of {rec['events']}** within 2 ({events})"
+        + (f"; {unjudged} more ended their mission while the stamps were still out of order" if unjudged else "")
+        + ".",
+        f"- identified, frames with stars accepted by their stamp: {environments}.",
+        f"- spots the identifier dropped from frames as invalid or duplicate (`spots_dropped_invalid`): "
+        f"{i.get('spots_dropped_invalid', 0)}.",
+        "",
+        "This section: `python -m star_tracker.campaign.stress_nodes --render OUTPUT/summary_nodes.json --docs "
+        "docs/RELIABILITY.md`.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def write_section(path: Path, text: str) -> None:
+    """Put `text` between BEGIN and END in the Markdown file at `path` (appended when the markers are absent)."""
+    path = Path(path)
+    doc = path.read_text()
+    block = f"{BEGIN}\n{text.rstrip()}\n{END}"
+    if BEGIN in doc and END in doc:
+        head, rest = doc.split(BEGIN, 1)
+        doc = head + block + rest.split(END, 1)[1]
+    else:
+        doc = doc.rstrip("\n") + "\n\n" + block + "\n"
+    path.write_text(doc)
+
+
 # ------------------------------------------------------------------------------ command line
 def _machine() -> str:
     try:
@@ -656,10 +747,22 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     parser.add_argument("--frames", type=int, default=2000, help="image messages to send (at least)")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--output", type=Path, required=True, help="directory for summary_nodes.json, "
+    parser.add_argument("--output", type=Path, help="directory for summary_nodes.json, "
                         "frames_nodes.json and the nodes' logs")
     parser.add_argument("--every-fault", action="store_true", help="place every fault kind at least once")
+    parser.add_argument("--docs", type=Path, help="write the figures into this Markdown file (docs/RELIABILITY.md) "
+                        f"between {BEGIN} and {END}")
+    parser.add_argument("--render", type=Path, help="only write --docs from this summary_nodes.json (no run)")
     args = parser.parse_args(argv)
+    if args.render:
+        summary = json.loads(args.render.read_text())
+        text = render_section(summary)
+        print(text)
+        if args.docs:
+            write_section(args.docs, text)
+        return 0
+    if args.output is None:
+        parser.error("--output is required (unless --render)")
 
     def progress(done: int, total: int) -> None:
         if done % 100 == 0 or done == total:
@@ -672,6 +775,8 @@ def main(argv: list[str] | None = None) -> int:
     summary["date"] = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     summary["machine"] = _machine()
     (args.output / "summary_nodes.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
+    if args.docs and "accounting" in summary:
+        write_section(args.docs, render_section(summary))
     print(json.dumps({k: summary[k] for k in ("frames_sent", "accounting", "attitudes", "stars", "nodes", "passed")
                       if k in summary}, indent=1, default=_json_default))
     return 0 if summary.get("passed") else 1

@@ -44,14 +44,25 @@ def test_bit_flips_change_the_pixels_asked_for():
     assert np.count_nonzero(flipped != image) == 10 and np.all(image == 100)
 
 
+def test_the_docs_section_goes_between_its_markers(tmp_path):
+    from star_tracker.campaign.stress_nodes import BEGIN, END, write_section
+
+    doc = tmp_path / "RELIABILITY.md"
+    doc.write_text("# Reliability\n\ntext\n")
+    write_section(doc, "first\n")
+    write_section(doc, "second\n")
+    assert doc.read_text() == f"# Reliability\n\ntext\n\n{BEGIN}\nsecond\n{END}\n"
+
+
 @pytest.mark.slow
 @pytest.mark.integration
 def test_every_fault_through_the_nodes_is_accounted_for(tmp_path, database):  # database: built before the nodes
     pytest.importorskip("rclpy")
-    from star_tracker.campaign.stress_nodes import run_stress_through_nodes
+    from star_tracker.campaign.stress_nodes import render_section, run_stress_through_nodes
 
     # Short missions: every kind in about 50 frames.
     summary = run_stress_through_nodes(30, 3, tmp_path, required=FAULT_KINDS, mission_frames=(12, 20))
+    print("timing [s]:", summary["timing_s"], "in all", summary["duration_s"])
     assert json.loads((tmp_path / "summary_nodes.json").read_text())["frames_sent"] == summary["frames_sent"]
     assert all(summary["faults"][kind] >= 1 for kind in FAULT_KINDS), summary["faults"]
     # Every frame sent has an outcome counted by each node it reached: nothing lost without a count.
@@ -73,4 +84,5 @@ def test_every_fault_through_the_nodes_is_accounted_for(tmp_path, database):  # 
     assert summary["attitudes"]["wrong"] == 0, summary["attitudes"]["wrong_frames"]
     assert summary["stars"]["wrong_guide"] == 0, summary["stars"]
     assert summary["passed"]
+    assert "every frame accounted for: **yes**" in render_section(summary)
     assert set(FRAME_FAULTS) <= set(summary["faults"])
