@@ -25,7 +25,7 @@ import numpy as np
 from ..models.aberration import aberrate
 from ..models.attitude import matrix_to_quaternion
 from ..models.attitude_estimation import AttitudeSolution, refine_with_covariances, svd_rotation
-from .base import FIT_OUTLIER_SIGMA
+from .base import FIT_SCREEN_CHI2
 from .verify import MIN_STARS
 
 
@@ -50,7 +50,7 @@ def corrected_solution(solution: AttitudeSolution, star_vectors: np.ndarray, vel
     covariances as the fit weighted them (the identifier's: Identification.body_vectors and
     identify.base.direction_covariance of the matched spots). Given, the attitude is refitted
     against the apparent directions with those weights from C R (refine_with_covariances, stars
-    beyond FIT_OUTLIER_SIGMA of their covariance left out once, as the identifier's own fit), its
+    beyond FIT_SCREEN_CHI2 under their covariance left out once, as the identifier's own fit), its
     covariance the refit's; without, C R (module docstring).
     """
     rotation = aberration_rotation(star_vectors, velocity_m_s) @ solution.rotation
@@ -58,7 +58,7 @@ def corrected_solution(solution: AttitudeSolution, star_vectors: np.ndarray, vel
         return replace(solution, rotation=rotation, quaternion=matrix_to_quaternion(rotation))
     apparent = aberrate(star_vectors, velocity_m_s)
     refit, chi2, _ = refine_with_covariances(rotation, body_vectors, apparent, ray_cov)
-    inlier = chi2 <= FIT_OUTLIER_SIGMA ** 2
+    inlier = chi2 <= FIT_SCREEN_CHI2
     if not inlier.all() and inlier.sum() >= MIN_STARS:
         refit, _, _ = refine_with_covariances(refit.rotation, body_vectors, apparent, ray_cov, used=inlier)
     return refit
