@@ -680,12 +680,17 @@ def render_section(summary: dict) -> str:
         "identifier's own rate aids the centroider), fed by `star_tracker/campaign/stress_nodes.py`, which renders "
         "each frame (1024², 15°, the simulated camera's sensor, Hipparcos to Hp 7.5) and sends it with its "
         "CameraInfo, then waits for that frame's outcome before the next: no overload by design, and frames and "
-        f"stamps do not depend on the host's speed. {summary['missions']} missions of "
+        "stamps do not depend on the host's speed (the identifier's time budget, `max_time_s`, runs on the wall "
+        f"clock: a solve timed out is counted, `not_identified_timeout`: {i.get('not_identified_timeout', 0)} here). "
+        f"{summary['missions']} missions of "
         f"{'-'.join(str(n) for n in summary.get('mission_frames', MISSION_FRAMES))} frames at 10 Hz "
-        f"(rest, slews ≤ 2 °/s², tumbles ≤ 5 °/s, jitter ≤ 20″ to 20 Hz), seed {summary['seed']}.",
+        "(rest, slews ≤ 2 °/s², tumbles ≤ 5 °/s, jitter ≤ 20″ to 20 Hz; half of them under a hot-pixel storm or "
+        "cosmic rays at 10× or 100× the simulated camera's, or 1-5 bright false objects, planets and debris), "
+        f"seed {summary['seed']}; faults in stress_faults.py.",
         "",
         f"- frames: **{summary['frames_sent']:,} sent** ({summary['frames_dropped_before_the_nodes']} more dropped "
-        f"before the nodes). Frames per fault: {faults}.",
+        f"before the nodes). Frames per fault (a dropped burst counts its frames, a sensor storm or false "
+        f"objects every frame of their missions): {faults}.",
         f"- every frame accounted for: **{'yes' if acc['unaccounted'] == 0 else 'no'}** "
         f"({acc['unaccounted']} unaccounted, {acc['frames_without_an_outcome_seen']} without an outcome within "
         f"{OUTCOME_TIMEOUT_S:.0f} s). Centroider: {c.get('frames_received', 0):,} received = "
