@@ -308,11 +308,15 @@ class FrameSource:
                                                      objects)
         return self._renderers[key]
 
+    def motion(self, mission: Mission):
+        """Return the MotionProfile of a mission, kept for one mission at a time (a tumble caches its path)."""
+        if mission.index not in self._motions:
+            self._motions = {mission.index: mission.motion()}
+        return self._motions[mission.index]
+
     def render(self, mission: Mission, frame: PlannedFrame):
         """Return the RenderedFrame of a planned frame (a blank one: its median level and read noise, no objects)."""
-        if mission.index not in self._motions:
-            self._motions = {mission.index: mission.motion()}  # one mission at a time (a tumble caches its path)
-        rendered = self.renderer(mission.environment, mission.level).render(self._motions[mission.index], frame.t_s,
+        rendered = self.renderer(mission.environment, mission.level).render(self.motion(mission), frame.t_s,
                                                                             frame.seed)
         if frame.fault == "blank":
             rendered = blank(rendered, self.sensor, frame.seed)
@@ -328,7 +332,7 @@ class FrameSource:
         faster than a frame is unobservable in it (as the core stress campaign judges it). Phase:
         jitter, tumble, accelerating (the rate changes within the exposure), constant_rate or rest.
         """
-        motion = self._motions[mission.index]
+        motion = self.motion(mission)
         t, exposure = frame.t_s, self.sensor.exposure_s
         if mission.motion_kind.endswith("jitter"):
             from ..models.attitude import matrix_to_rotation_vector

@@ -55,6 +55,9 @@ STATUS_NAMES = {"centroider": "star_tracker/centroider", "identifier": "star_tra
 FRAME_ID = "star_tracker_optical"
 OUTCOME_TIMEOUT_S = 60.0  # a frame's outcome not seen within this: the node is stuck (counted; the run goes on)
 STUCK_FRAMES = 3  # this many frames in a row without an outcome end the run (a hung node)
+GYRO_SAMPLES = 5  # gyro samples per frame, across its exposure
+GYRO_BIAS_DEG_S = 0.02  # each axis's constant bias drawn within +- this [deg/s] (--gyro)
+GYRO_NOISE_DEG_S = 0.005  # white noise 1-sigma per sample [deg/s]
 VALUE_PREFIXES = ("last_", "psf_", "calibration_")  # /diagnostics values that are integers but not counters
 WRONG_ARCSEC = 60.0
 TRUTH_PX = 3.0  # a matched star is right when the star it is named after was rendered this close (as the campaigns)
@@ -79,11 +82,11 @@ class Harness:
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseWithCovarianceStamped
         from rclpy.executors import SingleThreadedExecutor
-        from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+        from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
         from ..ros import convert
         from ..ros.pipeline import MONITOR_RESULT_QOS, MONITOR_SENSOR_QOS
-        from ..ros.qos import IMAGE_QOS
+        from ..ros.qos import IMAGE_QOS, RATE_INPUT_QOS
 
         self.convert = convert
         self.node = rclpy.create_node("stress_harness", context=context)
@@ -97,6 +100,7 @@ class Harness:
         n = self.node
         self.pub_image = n.create_publisher(Image, "image_raw", IMAGE_QOS)
         self.pub_info = n.create_publisher(CameraInfo, "camera_info", IMAGE_QOS)
+        self.pub_imu = n.create_publisher(Imu, "imu", RATE_INPUT_QOS)
         n.create_subscription(PointCloud2, "spots", self._on_spots, MONITOR_SENSOR_QOS)
         n.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, MONITOR_RESULT_QOS)
         n.create_subscription(PointCloud2, "matched_stars", self._on_matches, MONITOR_RESULT_QOS)
@@ -191,6 +195,40 @@ def bad_camera_info(kind: str, camera, stamp_ns: int):
     return info
 
 
+class Gyro:
+    """
+    A rate gyro on the sensor axes: the truth's body rate plus a constant bias and white noise, as sensor_msgs/Imu.
+
+    bias [rad/s] (3,), drawn once per run; noise_rad_s: 1-sigma per sample.
+    """
+
+    def __init__(self, seed: int, bias_deg_s: float = GYRO_BIAS_DEG_S, noise_deg_s: float = GYRO_NOISE_DEG_S):
+        self.rng = np.random.default_rng([int(seed), 0x6E0])
+        self.bias = np.radians(self.rng.uniform(-bias_deg_s, bias_deg_s, 3))
+        self.noise = math.radians(noise_deg_s)
+
+    def messages(self, motion, t_s: float, stamp_ns: int, exposure_s: float) -> list:
+        """Return GYRO_SAMPLES Imu messages across the exposure centred on t_s [s] (stamped like the frame)."""
+        from sensor_msgs.msg import Imu
+
+        from ..ros import convert
+
+        out = []
+        for offset in (np.arange(GYRO_SAMPLES) + 0.5) / GYRO_SAMPLES - 0.5:
+            rate = (np.asarray(motion.angular_velocity_at(t_s + offset * exposure_s), float) + self.bias
+                    + self.rng.normal(0.0, self.noise, 3))
+            msg = Imu()
+            msg.header.stamp = convert.ns_to_stamp(stamp_ns + int(round(offset * exposure_s * 1e9)))
+            msg.header.frame_id = FRAME_ID
+            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in rate)
+            msg.angular_velocity_covariance = [self.noise ** 2, 0.0, 0.0, 0.0, self.noise ** 2, 0.0, 0.0, 0.0,
+                                               self.noise ** 2]
+            msg.orientation_covariance[0] = -1.0  # no orientation (REP 145)
+            msg.linear_acceleration_covariance[0] = -1.0
+            out.append(msg)
+        return out
+
+
 def image_message(image: np.ndarray, fault: str, stamp_ns: int):
     """Return the image_raw message of a frame: mono16, or malformed (MALFORMED) as its fault says."""
     from sensor_msgs.msg import Image
@@ -250,7 +288,7 @@ def score_matches(records: np.ndarray, truth) -> tuple[int, int, int]:
 
 # ------------------------------------------------------------------------------ the run
 def run_stress_through_nodes(frames: int, seed: int, output: Path, progress=None, *, required: tuple[str, ...] = (),
-                             mission_frames: tuple[int, int] = MISSION_FRAMES,
+                             mission_frames: tuple[int, int] = MISSION_FRAMES, gyro: bool = False,
                              node_params: dict | None = None) -> dict:
     """
     Run the stress plan of `frames` image messages (seed `seed`) through the centroider and identifier processes.
@@ -258,7 +296,8 @@ def run_stress_through_nodes(frames: int, seed: int, output: Path, progress=None
     Returns the summary (also written to OUTPUT/summary_nodes.json); progress(done, total) is called after
     every frame. required: fault kinds each placed at least once (a short run showing them all);
     mission_frames: (fewest, most) frames of a mission (stress_faults.plan_stress); node_params:
-    per node, parameters over config/star_tracker.yaml (none: the shipped ones).
+    per node, parameters over config/star_tracker.yaml (none: the shipped ones). gyro: the centroider's
+    rate aid from a biased, noisy gyro on `imu` (Gyro; `rate_source: imu`) instead of the identifier's rate.
     """
     import rclpy
     from rclpy.context import Context
@@ -279,7 +318,10 @@ def run_stress_through_nodes(frames: int, seed: int, output: Path, progress=None
     configure_middleware()
     context = Context()
     rclpy.init(args=[], context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
-    nodes = NodeProcesses(env, output / "logs", node_params or {}, CONFIG, nodes=NODES)
+    params = {name: dict(values) for name, values in (node_params or {}).items()}
+    if gyro:
+        params.setdefault("centroider", {})["rate_source"] = "imu"
+    nodes = NodeProcesses(env, output / "logs", params, CONFIG, nodes=NODES)
     harness = None
     records: list[dict] = []
     run: dict = {"crashed": {}, "alive_at_end": {}}
@@ -289,7 +331,7 @@ def run_stress_through_nodes(frames: int, seed: int, output: Path, progress=None
         run["timing_s"] = {"nodes_ready": round(time.monotonic() - started, 1)}
         harness = Harness(context)
         try:
-            run.update(_drive(plan, source, nodes, harness, records, progress))
+            run.update(_drive(plan, source, nodes, harness, records, progress, Gyro(seed) if gyro else None))
         except RuntimeError as exc:  # a node exited, or never answered: the summary says so
             run["error"] = str(exc)[-4000:]
         run["alive_at_end"] = {name: proc.poll() is None for name, proc in nodes.processes.items()}
@@ -311,6 +353,11 @@ def run_stress_through_nodes(frames: int, seed: int, output: Path, progress=None
     summary = summarize(plan, records, run)
     summary["seed"], summary["frames_requested"] = int(seed), int(frames)
     summary["mission_frames"] = list(mission_frames)
+    summary["rate_aid"] = "gyro" if gyro else "identifier"
+    if gyro:
+        summary["gyro"] = {"bias_deg_s": np.degrees(Gyro(seed).bias).tolist(), "noise_deg_s": GYRO_NOISE_DEG_S,
+                           "samples_per_frame": GYRO_SAMPLES}
+    summary["node_params"] = params
     summary["duration_s"] = round(time.monotonic() - started, 1)
     summary["timing_s"] = {**run.get("timing_s", {}), "frames": run.get("frames_s")}
     (output / "summary_nodes.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
@@ -328,7 +375,8 @@ def _json_default(value):
     raise TypeError(type(value).__name__)
 
 
-def _drive(plan: StressPlan, source: FrameSource, nodes, harness: Harness, records: list[dict], progress) -> dict:
+def _drive(plan: StressPlan, source: FrameSource, nodes, harness: Harness, records: list[dict], progress,
+           gyro: Gyro | None = None) -> dict:
     """Warm up, take the counters' baseline, send every planned frame and wait for its outcome, settle."""
     from ..ros import convert
 
@@ -383,6 +431,9 @@ def _drive(plan: StressPlan, source: FrameSource, nodes, harness: Harness, recor
             record.update(stamp_ns=stamp, c_verdict=c_rule.classify(stamp, now), malformed=malformed,
                           truth=rendered.truth, reference=reference, phase=phase, jitter_arcsec=jitter)
             record["i_verdict"] = "" if malformed else i_rule.classify(stamp, now)
+            if gyro is not None and not f.copy and f.fault != "stamp_future":
+                for msg in gyro.messages(source.motion(mission), f.t_s, stamp, source.sensor.exposure_s):
+                    h.pub_imu.publish(msg)
             h.pub_info.publish(bad_camera_info(f.bad_info, source.camera, stamp) if f.bad_info else good_info(stamp))
             h.pub_image.publish(image_message(rendered.image, f.fault, stamp))
             if malformed:
@@ -647,8 +698,8 @@ def recovery(records: list[dict]) -> dict:
 BEGIN, END = "<!-- stress_nodes -->", "<!-- /stress_nodes -->"
 
 
-def render_section(summary: dict) -> str:
-    """Return the docs/RELIABILITY.md section of a run's summary (between BEGIN and END)."""
+def render_section(summary: dict, heading: str = "### Stress through the nodes") -> str:
+    """Return the docs/RELIABILITY.md section of a run's summary (between BEGIN and END), under `heading`."""
     acc, att, stars, rec = summary["accounting"], summary["attitudes"], summary["stars"], summary["recovery"]
     c, i = summary["centroider"]["counters"], summary["identifier"]["counters"]
     nodes = summary["nodes"]
@@ -670,14 +721,19 @@ def render_section(summary: dict) -> str:
     refused = " + ".join(f"{k.removeprefix('frames_').replace('_', ' ')} {i.get(k, 0)}" for k in IDENTIFIER_OUTCOMES
                          if i.get(k, 0) and k != "frames_identified")
     lines = [
-        "### Stress through the nodes",
+        heading,
         "",
         f"Command: `{summary.get('command', '')}` — {summary.get('date', '')}, {summary.get('machine', '')}; "
         f"{summary['duration_s'] / 60:.1f} min. The summary is the run's `summary_nodes.json`, every frame's record "
         "`frames_nodes.json`.",
         "",
-        "The centroider and identifier as separate processes (`config/star_tracker.yaml` as shipped: the "
-        "identifier's own rate aids the centroider), fed by `star_tracker/campaign/stress_nodes.py`, which renders "
+        "The centroider and identifier as separate processes (`config/star_tracker.yaml`"
+        + (" but `rate_source: imu`: the centroider aided by a gyro on `imu`, bias ("
+           + ", ".join(f"{b:+.4f}" for b in summary["gyro"]["bias_deg_s"])
+           + f") °/s, noise {summary['gyro']['noise_deg_s']} °/s per sample, "
+           f"{summary['gyro']['samples_per_frame']} samples per exposure"
+           if summary.get("rate_aid") == "gyro" else " as shipped: the identifier's own rate aids the centroider")
+        + "), fed by `star_tracker/campaign/stress_nodes.py`, which renders "
         "each frame (1024², 15°, the simulated camera's sensor, Hipparcos to Hp 7.5) and sends it with its "
         "CameraInfo, then waits for that frame's outcome before the next: no overload by design, and frames and "
         "stamps do not depend on the host's speed (the identifier's time budget, `max_time_s`, runs on the wall "
@@ -718,9 +774,6 @@ def render_section(summary: dict) -> str:
         f"- identified, frames with stars accepted by their stamp: {environments}.",
         f"- spots the identifier dropped from frames as invalid or duplicate (`spots_dropped_invalid`): "
         f"{i.get('spots_dropped_invalid', 0)}.",
-        "",
-        "This section: `python -m star_tracker.campaign.stress_nodes --render OUTPUT/summary_nodes.json --docs "
-        "docs/RELIABILITY.md`.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -755,13 +808,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", type=Path, help="directory for summary_nodes.json, "
                         "frames_nodes.json and the nodes' logs")
     parser.add_argument("--every-fault", action="store_true", help="place every fault kind at least once")
+    parser.add_argument("--gyro", action="store_true", help="aid the centroider with a biased, noisy gyro on imu "
+                        "(rate_source imu) instead of the identifier's rate")
     parser.add_argument("--docs", type=Path, help="write the figures into this Markdown file (docs/RELIABILITY.md) "
                         f"between {BEGIN} and {END}")
-    parser.add_argument("--render", type=Path, help="only write --docs from this summary_nodes.json (no run)")
+    parser.add_argument("--render", type=Path, nargs="+", help="only write --docs from these summary_nodes.json "
+                        "(no run; a second one, a run with --gyro, goes under its own sub-heading)")
     args = parser.parse_args(argv)
     if args.render:
-        summary = json.loads(args.render.read_text())
-        text = render_section(summary)
+        summaries = [json.loads(path.read_text()) for path in args.render]
+        headings = ["### Stress through the nodes"] + ["#### The same plan, the centroider aided by a gyro"] * 9
+        text = "\n".join(render_section(summary, heading) for summary, heading in zip(summaries, headings))
+        text += ("\nThis section: `python -m star_tracker.campaign.stress_nodes --render OUTPUT/summary_nodes.json "
+                 "[a --gyro run's] --docs docs/RELIABILITY.md`.\n")
         print(text)
         if args.docs:
             write_section(args.docs, text)
@@ -774,7 +833,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{done}/{total} frames", flush=True)
 
     summary = run_stress_through_nodes(args.frames, args.seed, args.output, progress,
-                                       required=FAULT_KINDS if args.every_fault else ())
+                                       required=FAULT_KINDS if args.every_fault else (), gyro=args.gyro)
     summary["command"] = "python -m star_tracker.campaign.stress_nodes " + shlex.join(
         sys.argv[1:] if argv is None else argv)
     summary["date"] = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
