@@ -152,13 +152,16 @@ class CentroiderNode(ManagedNode):
             return None
         if (camera.width, camera.height) != (width, height):
             return None
+        alpha = None
         if source == "parameter":
             omega = self.rate_param
         else:
-            omega = self.rate_input.for_frame(RATE_TOPICS[source], stamp_ns, self.exposure_s, self.max_rate_age_s)
-            if omega is None:
+            motion = self.rate_input.motion_for_frame(RATE_TOPICS[source], stamp_ns, self.exposure_s,
+                                                      self.max_rate_age_s)
+            if motion is None:
                 return None
-        return SmearModel(camera, omega, self.exposure_s)
+            omega, alpha = motion  # the acceleration from successive samples (rate_input.motion_for_frame)
+        return SmearModel(camera, omega, self.exposure_s, alpha)
 
     def on_image(self, msg: Image) -> None:
         """Executor thread: count, check the stamp, decode; the worker measures (measure())."""

@@ -33,6 +33,11 @@ IDENTITY_MOUNTING = (0.0, 0.0, 0.0, 1.0)
 UNIT_NORM_TOLERANCE = 1e-3  # a quaternion typed with 4 decimals is accepted (and normalised)
 SAMPLES_KEPT = 2000  # per input: 2 s of a 1 kHz gyro
 TIME_RESET_S = 1.0  # a sample this much older than the newest: time restarted (replay, simulation reset)
+# The angular acceleration for the smear model: the slope of the newest rate samples (those
+# within ACCELERATION_SPAN_S of the newest: 3 of the identifier's estimates at 10 Hz, a gyro's
+# last 0.25 s), when they span at least ACCELERATION_MIN_SPAN_S.
+ACCELERATION_SPAN_S = 0.25
+ACCELERATION_MIN_SPAN_S = 0.05
 
 
 def stamp_ns(stamp) -> int:
@@ -98,6 +103,43 @@ class RateSamples:
             return None, "too_old"
         return rates[nearest], "ok"
 
+    def motion_for_frame(self, frame_stamp: int, exposure_s: float, max_age_s: float
+                         ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+        """
+        Return (rate [rad/s], angular acceleration [rad/s^2] or None, verdict) for a frame, as for_frame.
+
+        The acceleration is the slope of a straight line fitted to the samples stamped within
+        ACCELERATION_SPAN_S of the newest one up to the frame's end (at least two stamps
+        ACCELERATION_MIN_SPAN_S apart; else None): successive gyro samples, or the
+        identifier's successive estimates (which arrive a frame or two late).
+        With samples inside the exposure the rate is their mean (as for_frame); otherwise it is
+        the line's value at the frame's stamp (the newest estimate carried forward by the
+        acceleration, not the nearest sample's stale value).
+        """
+        omega, verdict = self.for_frame(frame_stamp, exposure_s, max_age_s)
+        if omega is None:
+            return None, None, verdict
+        end = frame_stamp + exposure_s * 0.5e9
+        with self._lock:
+            usable = [(s, r) for s, r in self._samples if s <= end]
+        if not usable:
+            return omega, None, verdict
+        # The newest samples (the identifier's arrive a frame or two after their stamps).
+        newest = max(s for s, _ in usable)
+        recent = [(s, r) for s, r in usable if s >= newest - ACCELERATION_SPAN_S * 1e9]
+        if len(recent) < 2:
+            return omega, None, verdict
+        t = np.array([(s - frame_stamp) * 1e-9 for s, _ in recent])
+        if t.max() - t.min() < ACCELERATION_MIN_SPAN_S:
+            return omega, None, verdict
+        rates = np.array([r for _, r in recent])
+        design = np.column_stack([np.ones_like(t), t])
+        (at_frame, alpha), *_ = np.linalg.lstsq(design, rates, rcond=None)
+        if not (np.all(np.isfinite(alpha)) and np.all(np.isfinite(at_frame))):
+            return omega, None, verdict
+        inside = np.abs(t) <= exposure_s * 0.5
+        return (omega if inside.any() else at_frame), alpha, verdict
+
 
 class RateInput:
     """Both rate topics' messages -> RateSamples in the sensor frame, with the checks above."""
@@ -153,3 +195,16 @@ class RateInput:
             self.reject("frames_without_rate", f"frame {frame_stamp * 1e-9:.6f}: no {topic} message received yet; "
                         "measured without the rate aid")
         return omega
+
+    def motion_for_frame(self, topic: str, frame_stamp: int, exposure_s: float, max_age_s: float
+                         ) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """
+        Return (body rate [rad/s], angular acceleration [rad/s^2] or None) from `topic` for a frame.
+
+        None when there is no rate (counted as for_frame).
+        """
+        omega, alpha, verdict = self.samples[topic].motion_for_frame(frame_stamp, exposure_s, max_age_s)
+        if omega is None:
+            self.for_frame(topic, frame_stamp, exposure_s, max_age_s)  # counts why
+            return None
+        return omega, alpha

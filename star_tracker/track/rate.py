@@ -15,6 +15,13 @@ assumption, `max_angular_acceleration_rad_s2`) that bias is at most alpha_max (t
 t_mean) per axis, and its variance, as a uniform error, is added to the covariance. A window
 whose residuals fail a chi^2 test (the acceleration changed inside it, or an attitude is
 biased) is shortened from the old end until the fit passes.
+
+The estimate carries the angular acceleration and its covariance (RateEstimate): the
+constant-acceleration fit's, or, when the window holds fewer than four attitudes but three are
+in it, the exact quadratic through the newest three (untested), which also carries the
+constant-rate slope over its lag to the newest frame. A rate-aided centroider needs it: under
+an acceleration the smear is uneven in time and a spot's centroid is the exposure average, not
+the mid-exposure position (centroid/streak/smear.py).
 """
 from __future__ import annotations
 
@@ -35,18 +42,39 @@ class RateEstimate:
     angular_velocity.
 
     (3,) body rate in the sensor frame [rad/s] at `stamp_ns`; covariance: (3, 3)
-    [rad^2/s^2]; frames: attitudes used.
+    [rad^2/s^2]; frames: attitudes used; angular_acceleration: (3,) d omega/dt in the sensor
+    frame [rad/s^2] and acceleration_covariance (3, 3) [rad^2/s^4], from the constant-
+    acceleration fit of the window, or of the newest three attitudes when the window is
+    shorter than four (then the constant-rate fit's slope, the rate at its weighted mean
+    time, is carried to stamp_ns by it: lag_s [s] is how far, and the lag's bound
+    (alpha_max lag_s)^2 / 3 per axis stays in covariance); None when fewer than three
+    attitudes are in the window.
     """
 
     stamp_ns: int
     angular_velocity: np.ndarray
     covariance: np.ndarray
     frames: int
+    angular_acceleration: np.ndarray | None = None
+    acceleration_covariance: np.ndarray | None = None
+    lag_s: float = 0.0
 
     @property
     def sigma(self) -> np.ndarray:
         """(3,) 1-sigma per sensor axis [rad/s]."""
         return np.sqrt(np.diag(self.covariance))
+
+    def at(self, stamp_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Return (rate [rad/s], acceleration [rad/s^2]) extrapolated to `stamp_ns`.
+
+        The rate moved on by the acceleration (zero when not estimated): what a smear model of
+        a later frame needs (SmearModel).
+        """
+        if self.angular_acceleration is None:
+            return self.angular_velocity.copy(), np.zeros(3)
+        dt = (int(stamp_ns) - self.stamp_ns) * 1e-9
+        return self.angular_velocity + self.angular_acceleration * dt, self.angular_acceleration.copy()
 
 
 class AttitudeRateEstimator:
@@ -115,11 +143,25 @@ class AttitudeRateEstimator:
         # Rotation vectors relative to the newest attitude, in the newest sensor frame.
         phi = _relative_rotation_vectors(self._rotations[:count])
         tau = (stamps - stamps[-1]) * 1e-9
-        ok, omega, covariance, frames = _window_fit(tau, phi, self._information[:count], self._covariances[count - 1],
-                                                    self.alpha_max, self._limits)
+        ok, omega, covariance, frames, alpha, alpha_cov, lag = _window_fit(
+            tau, phi, self._information[:count], self._covariances[count - 1], self.alpha_max, self._limits)
         if not ok:
             return None
-        return RateEstimate(int(stamps[-1]), omega, covariance, int(frames))
+        if frames < 4:
+            if count < 3:
+                return RateEstimate(int(stamps[-1]), omega, covariance, int(frames))
+            # The newest three attitudes fix a constant acceleration exactly (untested: a window
+            # that failed its tests mostly failed because the body accelerates). It carries the
+            # constant-rate slope over its lag to the newest frame; the lag's bound stays in the
+            # covariance (the acceleration may have changed inside the three frames).
+            ok3, _, _, _, _, alpha, alpha_cov = _gls(tau[-3:], phi[-3:], self._information[count - 3:count],
+                                                     self._covariances[count - 1], 3)
+            if not ok3:
+                return RateEstimate(int(stamps[-1]), omega, covariance, int(frames))
+            omega = omega + alpha * lag
+            covariance = covariance + lag * lag * alpha_cov
+        return RateEstimate(int(stamps[-1]), omega, covariance, int(frames), alpha, alpha_cov,
+                            float(lag) if frames < 4 else 0.0)
 
 
 @lru_cache(maxsize=8)
@@ -203,16 +245,19 @@ def _window_fit(tau, phi, weight, newest_covariance, alpha_max, limits):
     With 4+ attitudes the fit includes a constant acceleration, so the rate at the newest
     frame is unbiased while the body accelerates; with 2-3 it is the constant-rate fit, whose
     slope is the rate at the weighted mean time: its lag times alpha_max is added to the
-    covariance. Returns (ok, omega [rad/s], covariance, frames).
+    covariance. Returns (ok, omega [rad/s], covariance, frames, alpha [rad/s^2], its
+    covariance, lag [s]: how long before the newest frame the rate refers to); alpha and its
+    covariance are zero and lag > 0 when the fit had no acceleration term.
     """
     count = tau.size
     for first in range(count - 1):
         frames = count - first
         terms = 3 if frames >= 4 else 2
-        ok, omega, covariance, chi2, newest_chi2 = _gls(tau[first:], phi[first:], weight[first:],
-                                                        newest_covariance, terms)
+        lag = 0.0
+        ok, omega, covariance, chi2, newest_chi2, alpha, alpha_cov = _gls(tau[first:], phi[first:], weight[first:],
+                                                                          newest_covariance, terms)
         if not ok:
-            return False, omega, covariance, 0
+            return False, omega, covariance, 0, alpha, alpha_cov, 0.0
         if terms == 2:
             trace_sum = 0.0
             weighted = 0.0
@@ -225,8 +270,8 @@ def _window_fit(tau, phi, weight, newest_covariance, alpha_max, limits):
                 covariance[i, i] += (alpha_max * lag) ** 2 / 3.0
         dof = 3 * frames - 3 * terms
         if ((dof == 0 or chi2 <= limits[dof]) and newest_chi2 <= limits[3]) or frames == 2:
-            return True, omega, covariance, frames
-    return False, np.zeros(3), np.zeros((3, 3)), 0
+            return True, omega, covariance, frames, alpha, alpha_cov, lag
+    return False, np.zeros(3), np.zeros((3, 3)), 0, np.zeros(3), np.zeros((3, 3)), 0.0
 
 
 @njit(cache=True)
@@ -234,8 +279,9 @@ def _gls(tau, phi, weight, newest_covariance, terms):
     """
     phi_k = sum_a basis_a(tau_k) theta_a, basis = (1, tau, tau^2/2)[:terms], weights W_k.
 
-    (ok, omega = theta_1, its covariance, chi^2, chi^2 of the newest residual). Compiled: the
-    rate fit runs on every tracked frame.
+    (ok, omega = theta_1, its covariance, chi^2, chi^2 of the newest residual, alpha = theta_2
+    and its covariance (zero when terms == 2)). Compiled: the rate fit runs on every tracked
+    frame.
     """
     count = tau.size
     size = 3 * terms
@@ -257,7 +303,7 @@ def _gls(tau, phi, weight, newest_covariance, terms):
                         info[3 * a + i, 3 * b + j] += basis[k, a] * basis[k, b] * weight[k, i, j]
     empty = np.zeros((3, 3))
     if abs(np.linalg.det(info)) == 0.0:
-        return False, np.zeros(3), empty, 0.0, 0.0
+        return False, np.zeros(3), empty, 0.0, 0.0, np.zeros(3), np.zeros((3, 3))
     cov_full = np.linalg.inv(info)
     params = cov_full @ rhs
     chi2 = 0.0
@@ -275,4 +321,9 @@ def _gls(tau, phi, weight, newest_covariance, terms):
         if np.linalg.det(spread) > 0.0:
             newest_chi2 = residual @ np.linalg.solve(spread, residual)
     covariance = cov_full[3:6, 3:6]
-    return True, params[3:6].copy(), 0.5 * (covariance + covariance.T), chi2, newest_chi2
+    alpha = np.zeros(3)
+    alpha_cov = np.zeros((3, 3))
+    if terms == 3:
+        alpha = params[6:9].copy()
+        alpha_cov = 0.5 * (cov_full[6:9, 6:9] + cov_full[6:9, 6:9].T)
+    return True, params[3:6].copy(), 0.5 * (covariance + covariance.T), chi2, newest_chi2, alpha, alpha_cov

@@ -26,11 +26,11 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..models.attitude import rotation_vector_to_matrix
+from ..models.attitude import matrix_to_rotation_vector, rotation_vector_to_matrix
 from ..models.attitude_estimation import attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
@@ -45,6 +45,9 @@ from ..identify.skygrid import SkyGrid, cell_of
 MODE_TRACKING = "tracking"
 MODE_LOST_IN_SPACE = "lost_in_space"
 MODE_LOST = "lost"
+# An innovation beyond chi^2_3 at 1 % is taken for an acceleration step (Tracker._step_covariance);
+# scipy.stats.chi2.ppf(0.99, 3).
+STEP_CHI2 = 11.345
 
 
 @dataclass(frozen=True)
@@ -59,8 +62,9 @@ class TrackingConfig:
     max_angular_rate_rad_s: rate prior per axis before a rate estimate exists [rad/s];
     max_angular_acceleration_rad_s2: assumed bound on |d omega/dt| for the rate's model error
     and the prediction [rad/s^2]; rate_window_s: attitudes used for the rate estimate [s];
-    false_positive_bound: as for lost-in-space; max_pattern_spots: brightest spots used to
-    vote the displacement.
+    exposure_s: the frames' exposure [s], for what an uncertain angular acceleration does to
+    the measured attitude (0: nothing added); false_positive_bound: as for lost-in-space;
+    max_pattern_spots: brightest spots used to vote the displacement.
     """
 
     gate_sigma: float = parameter(5.0, "searched region around the predicted attitude", "sigmas", 1.0, 20.0)
@@ -74,6 +78,8 @@ class TrackingConfig:
                                                        "acceleration (rate model error, prediction; 2 deg/s^2)",
                                                        "rad/s^2", 0.0, 1.0)
     rate_window_s: float = parameter(0.45, "attitudes used for the rate estimate", "s", 0.01, 10.0)
+    exposure_s: float = parameter(0.1, "the frames' exposure: an uncertain angular acceleration's effect on the "
+                                  "attitude (0 = none added)", "s", 0.0, 10.0)
     false_positive_bound: float = 1.0e-6
     max_pattern_spots: int = 40
 
@@ -279,9 +285,83 @@ class Tracker:
         solution = result.attitude
         if self._last is not None and stamp_ns <= self._last[0]:
             self.rates.reset()  # time went backwards (replay restarted): a new window
+        step = self._step_covariance(stamp_ns, solution.rotation, solution.covariance)
+        aid = self.rate  # what a rate-aided centroider had for this frame (the last estimate)
         self.rate = self.rates.add(stamp_ns, solution.rotation, solution.covariance)
-        self._last = (stamp_ns, solution.rotation, solution.covariance)
+        self._last = (stamp_ns, solution.rotation, solution.covariance)  # the measurement's own covariance
+        added = self.acceleration_covariance(aid, step)
+        if added is not None:
+            result = replace(result, attitude=replace(solution, covariance=solution.covariance + added))
         return TrackedFrame(stamp_ns, mode, result, self.rate, gate_px, bridged, time.perf_counter() - started)
+
+    def _step_covariance(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray) -> np.ndarray | None:
+        """
+        Covariance [rad^2] for an acceleration the last rate estimate did not know, from this frame's innovation.
+
+        The innovation nu (sensor frame) of the new attitude against the last one carried by
+        the last rate and acceleration, with its expected covariance S (both attitudes', the
+        rate's and the acceleration's, or the max_angular_acceleration_rad_s2 bound's when none
+        was estimated). An acceleration that changed since (a slew starting or ending)
+        biases this frame by less than nu: when nu^T S^-1 nu exceeds STEP_CHI2 (chi^2_3 at 1 %:
+        noise alone rarely does), the fraction 1 - STEP_CHI2 / (nu^T S^-1 nu) of nu nu^T / 3
+        (a bias uniform within +-nu) is added. None when there is no previous attitude or no
+        rate, or the innovation is within the noise.
+        """
+        if self._last is None or self.rate is None or self.config.exposure_s <= 0.0:
+            return None
+        last_ns, last_rotation, last_covariance = self._last
+        dt = (stamp_ns - last_ns) * 1e-9
+        if not (0.0 < dt <= self.config.max_coast_s):
+            return None
+        rate = self.rate
+        turn = rate.angular_velocity * dt
+        rate_covariance = rate.covariance
+        if rate.angular_acceleration is not None:
+            turn = turn + 0.5 * dt * dt * rate.angular_acceleration
+            # The constant-rate lag's bound (rate.py) is for the acceleration the fit did not
+            # know; here it is known (its error is acceleration_covariance).
+            rate_covariance = rate_covariance - np.eye(3) * (self.rates.alpha_max * rate.lag_s) ** 2 / 3.0
+        spread = last_covariance + covariance + dt * dt * rate_covariance
+        if rate.angular_acceleration is not None:
+            spread = spread + (0.5 * dt * dt) ** 2 * rate.acceleration_covariance
+        else:
+            spread = spread + np.eye(3) * (0.5 * self.config.max_angular_acceleration_rad_s2 * dt * dt) ** 2 / 3.0
+        predicted = last_rotation @ rotation_vector_to_matrix(turn)
+        nu = matrix_to_rotation_vector(predicted.T @ rotation)
+        try:
+            m2 = float(nu @ np.linalg.solve(spread, nu))
+        except np.linalg.LinAlgError:
+            return None
+        if not m2 > STEP_CHI2:
+            return None
+        return (1.0 - STEP_CHI2 / m2) * np.outer(nu, nu) / 3.0
+
+    def acceleration_covariance(self, rate: RateEstimate | None, step: np.ndarray | None = None) -> np.ndarray | None:
+        """
+        Attitude covariance [rad^2] an uncertain angular acceleration adds to a frame's solution (None: nothing).
+
+        Within an exposure T the attitude moves by phi(t) = omega t + alpha t^2 / 2 about
+        mid-exposure. The spots are measured at mid-exposure when the centroider knows alpha
+        (SmearModel with the acceleration: path fits on the accelerated path, point-like spots
+        moved by the exposure-average offset alpha T^2 / 24); what it gets wrong by d alpha
+        moves the attitude by about d alpha T^2 / 24. `rate` is the estimate the centroider's
+        aid came from (the one before this frame). With an acceleration in it
+        (RateEstimate.angular_acceleration) d alpha is that estimate's error: its covariance
+        times (T^2 / 24)^2 is added; without one (fewer than three attitudes in the window,
+        the centroider had no acceleration) d alpha is taken uniform within
+        +-max_angular_acceleration_rad_s2 per axis, (alpha_max T^2 / 24)^2 / 3. An
+        acceleration that changed since that estimate shows in this frame's innovation:
+        `step` (_step_covariance) is added. exposure_s = 0 adds nothing.
+        """
+        exposure = self.config.exposure_s
+        if exposure <= 0.0:
+            return None
+        gain = exposure * exposure / 24.0
+        if rate is not None and rate.acceleration_covariance is not None:
+            added = gain * gain * rate.acceleration_covariance
+        else:
+            added = np.eye(3) * (gain * self.config.max_angular_acceleration_rad_s2) ** 2 / 3.0
+        return added if step is None else added + step
 
     def gate_px(self, camera: CameraModel, prediction: Prediction, tolerance_px: float) -> float:
         """

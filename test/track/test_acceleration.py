@@ -1,0 +1,144 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Angular acceleration within the exposure, against the simulator's truth.
+
+The rate estimate's acceleration, the smear model's accelerated path, the published covariance.
+
+Real renderer, real centroider, real database.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from star_tracker.centroid import CentroidConfig, extract_spots
+from star_tracker.centroid.streak.smear import SmearModel
+from star_tracker.identify import make_identifier
+from star_tracker.models.attitude import matrix_to_rotation_vector, radec_roll_to_matrix, rotation_vector_to_matrix
+from star_tracker.sim.motion import SlewMotion
+from star_tracker.sim.render import StarFieldRenderer, frame_seed
+from star_tracker.sim.sensor import SensorModel
+from star_tracker.track.rate import AttitudeRateEstimator
+from star_tracker.track.tracking import Tracker
+
+ARCSEC = math.pi / 180 / 3600
+EXPOSURE_S = 0.1
+ALPHA = math.radians(2.0)  # [rad/s^2]
+NEES_997 = 13.93  # chi^2_3(0.997)
+NEES_5_SIGMA = 31.8  # chi^2_3 at the two-sided 5-sigma probability
+
+
+def aid(tracker, stamp_ns, camera):
+    """The smear model a rate-aided centroider gets: the tracker's rate and acceleration carried to the frame."""
+    if tracker.rate is None:
+        return None
+    omega, alpha = tracker.rate.at(stamp_ns)
+    return SmearModel(camera, omega, EXPOSURE_S, alpha)
+
+
+def test_rate_estimate_carries_the_acceleration():
+    axis = np.array([0.6, -0.79, 0.1]) / np.linalg.norm([0.6, -0.79, 0.1])
+    omega0, alpha = np.radians(0.5) * axis, np.radians(1.5) * axis  # eigen-axis: phi(t) is exact
+    sigma = 0.5 * ARCSEC
+    start = radec_roll_to_matrix(0.3, 0.2, 0.1)
+    nees = {3: [], 4: []}
+    for seed in range(100):
+        rng = np.random.default_rng(seed)
+        rates = AttitudeRateEstimator(0.45, ALPHA)
+        for k in range(4):
+            t = 0.1 * k
+            truth = start @ rotation_vector_to_matrix(omega0 * t + 0.5 * alpha * t * t)
+            measured = truth @ rotation_vector_to_matrix(rng.normal(0.0, sigma, 3))
+            estimate = rates.add(int(round(t * 1e9)), measured, np.eye(3) * sigma ** 2)
+            if k < 2:  # fewer than three attitudes: no acceleration
+                assert estimate is None or estimate.angular_acceleration is None
+                continue
+            error = estimate.angular_acceleration - alpha
+            nees[k + 1].append(error @ np.linalg.solve(estimate.acceleration_covariance, error))
+        # The rate at the newest frame, carried one frame on by the acceleration.
+        omega_next, _ = estimate.at(int(round(0.4 * 1e9)))
+        assert np.linalg.norm(omega_next - (omega0 + alpha * 0.4)) < np.radians(0.02), np.degrees(omega_next)
+    # Its covariance is its error's: NEES mean 3 (100 draws: 3 +- 0.5 at 2 sigma).
+    for frames, values in nees.items():
+        assert 2.3 < np.mean(values) < 4.0, (frames, np.mean(values))
+
+
+def test_smear_model_exposure_mean_offset_is_alpha_t2_over_24(nominal_camera):
+    smear = SmearModel(nominal_camera, np.zeros(3), EXPOSURE_S, np.array([0.0, ALPHA, 0.0]))
+    offset = smear.exposure_mean_offset([nominal_camera.cx], [nominal_camera.cy])[0]
+    expected = ALPHA * EXPOSURE_S ** 2 / 24 / nominal_camera.pixel_scale_rad
+    assert abs(abs(offset[0]) - expected) < 0.01 * expected and abs(offset[1]) < 1e-6 * expected, offset
+    # The path is the accelerated one: zero at mid-exposure, uneven in time.
+    path = smear.path([nominal_camera.cx], [nominal_camera.cy], samples=5)[0]
+    assert np.allclose(path[2], 0.0) and abs(np.mean(path[:, 0])) > 0.5 * expected
+
+
+@pytest.fixture(scope="module")
+def parts(catalog, database, nominal_camera):
+    lis = make_identifier("hybrid", database)
+    Tracker(lis).warm_up(nominal_camera)
+    renderer = StarFieldRenderer(nominal_camera, SensorModel(), catalog, magnitude_limit=7.5)
+    return lis, renderer
+
+
+def slew():
+    """Rest 0.5 s, 2 deg/s^2 to 1.5 deg/s (0.75 s), coast: a slew across the boresight with a little roll."""
+    return SlewMotion(radec_roll_to_matrix(1.4, 0.35, 0.2), axis=np.array([0.6, 0.8, 0.1]), angle_rad=np.radians(20.0),
+                      max_rate_rad_s=np.radians(1.5), accel_rad_s2=ALPHA, t_start=0.5)
+
+
+def test_an_accelerated_frame_is_measured_at_mid_exposure(parts, nominal_camera):
+    _, renderer = parts
+    motion = slew()
+    t = 1.05  # 0.55 s into the ramp: 1.1 deg/s, stars smeared ~9 px
+    frame = renderer.render(motion, t, frame_seed(4, 0))
+    omega = frame.truth.body_rate
+    alpha = (motion.angular_velocity_at(t + 1e-3) - motion.angular_velocity_at(t - 1e-3)) / 2e-3
+    stars = np.flatnonzero(frame.truth.stars())
+    along = omega[[1, 0]] * [-1.0, 1.0]  # image motion of the boresight under (wx, wy): (-wy, wx) up to sign
+    bias = {}
+    for name, smear in (("constant rate", SmearModel(nominal_camera, omega, EXPOSURE_S)),
+                        ("accelerated", SmearModel(nominal_camera, omega, EXPOSURE_S, alpha))):
+        spots = extract_spots(frame.image, CentroidConfig(), smear)
+        bright = np.argsort(-spots.flux)[:30]
+        d = np.hypot(spots.x[bright, None] - frame.truth.x[stars], spots.y[bright, None] - frame.truth.y[stars])
+        near = d.min(axis=1) < 2.0
+        offsets = np.column_stack([spots.x[bright] - frame.truth.x[stars][d.argmin(axis=1)],
+                                   spots.y[bright] - frame.truth.y[stars][d.argmin(axis=1)]])[near]
+        assert near.sum() >= 15
+        bias[name] = np.median(offsets, axis=0)
+    scale = np.linalg.norm(alpha) * EXPOSURE_S ** 2 / 24 / nominal_camera.pixel_scale_rad  # alpha T^2 / 24 [px]
+    # With the constant-rate path the streaks lean toward the slow end by more than alpha T^2 / 24;
+    # on the accelerated path they sit at mid-exposure.
+    assert np.linalg.norm(bias["constant rate"]) > 0.8 * scale, (bias, scale, along)
+    assert np.linalg.norm(bias["accelerated"]) < 0.25 * scale, (bias, scale)
+
+
+def test_an_accelerating_slew_is_published_with_an_honest_covariance(parts, nominal_camera):
+    lis, renderer = parts
+    motion = slew()
+    tracker = Tracker(lis)
+    nees, ramp_errors = [], []
+    for k in range(22):
+        t = 0.05 + 0.1 * k
+        stamp_ns = int(round(t * 1e9))
+        frame = renderer.render(motion, t, frame_seed(5, k))
+        spots = extract_spots(frame.image, CentroidConfig(), aid(tracker, stamp_ns, nominal_camera))
+        result = tracker.process(stamp_ns, spots, nominal_camera)
+        ident = result.identification
+        assert ident.solved, (k, ident.reason)
+        error = matrix_to_rotation_vector(frame.truth.rotation.T @ ident.attitude.rotation)
+        nees.append(float(error @ np.linalg.solve(ident.attitude.covariance, error)))
+        change = motion.angular_velocity_at(t + 0.05) - motion.angular_velocity_at(t - 0.05)
+        if np.linalg.norm(change) > 1e-9 and result.rate is not None and result.rate.frames >= 4:
+            ramp_errors.append(error)
+    nees = np.array(nees)
+    # The mean of a consistent covariance is 3; no frame beyond 5 sigma, at most one beyond the
+    # 99.7 % ellipsoid (the frame whose exposure the ramp's end cuts, a step the innovation
+    # sees only in part).
+    assert nees.max() < NEES_5_SIGMA and np.sum(nees > NEES_997) <= 1, np.round(nees, 1)
+    assert 1.5 < nees.mean() < 4.5, np.round(nees, 1)
+    # The exposure-average bias (alpha T^2 / 24 = 3", more for streaks on a constant-rate path) is removed.
+    assert len(ramp_errors) >= 2
+    assert np.linalg.norm(np.mean(ramp_errors, axis=0)[:2]) < 0.3 * ALPHA * EXPOSURE_S ** 2 / 24, \
+        np.mean(ramp_errors, axis=0) / ARCSEC
