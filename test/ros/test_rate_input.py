@@ -119,6 +119,28 @@ def test_the_frame_gets_the_mean_rate_of_its_exposure_else_the_nearest_sample():
     assert samples.for_frame(T0 + 300 * MS, 0.02, 0.1)[1] == "too_old"
 
 
+def test_the_frame_gets_the_acceleration_of_the_newest_samples():
+    alpha = np.array([0.02, -0.01, 0.005])  # [rad/s^2]
+    omega0 = np.array([0.01, 0.02, 0.0])
+    # The identifier's estimates at 10 Hz, the newest stamped 100 ms before the frame (a frame late).
+    estimates = RateSamples()
+    for k in range(-5, 0):
+        estimates.add(T0 + k * 100 * MS, omega0 + alpha * k * 0.1)
+    omega, acceleration, verdict = estimates.motion_for_frame(T0, 0.1, 0.5)
+    assert verdict == "ok" and np.allclose(acceleration, alpha) and np.allclose(omega, omega0)  # carried to T0
+    # A 1 kHz gyro: the mean rate inside the exposure, the slope of the last 0.25 s.
+    gyro = RateSamples()
+    for k in range(-300, 51):
+        gyro.add(T0 + k * MS, omega0 + alpha * k * 1e-3)
+    omega, acceleration, verdict = gyro.motion_for_frame(T0, 0.1, 0.5)
+    assert np.allclose(acceleration, alpha) and np.allclose(omega, omega0)
+    # One sample: a rate, no acceleration.
+    single = RateSamples()
+    single.add(T0 - 100 * MS, omega0)
+    omega, acceleration, verdict = single.motion_for_frame(T0, 0.1, 0.5)
+    assert acceleration is None and np.allclose(omega, omega0)
+
+
 def test_samples_kept_are_bounded_and_forgotten_when_time_restarts():
     samples = RateSamples(kept=10)
     for k in range(100):
