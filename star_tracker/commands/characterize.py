@@ -60,6 +60,11 @@ def register(subparsers) -> None:
                         "minute; to try the command, the figures meaningless)")
     parser.add_argument("--replay", type=int, metavar="TASK", help="run trial TASK of the campaign (its --seed and "
                         "options) in this process and print it frame by frame, for presets that can (stress)")
+    parser.add_argument("--through-nodes", action="store_true", help="stress only: the campaign's DDS part: --frames "
+                        "image messages (default 2000) with faults through the centroider and identifier processes "
+                        "(campaign/stress_nodes.py), into OUTPUT/summary_nodes.json")
+    parser.add_argument("--gyro", action="store_true", help="with --through-nodes: the centroider aided by a biased, "
+                        "noisy gyro on imu instead of the identifier's rate")
     parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                         help="a preset option (repeatable; YAML values: --option false_stars=5; default: the "
                         "preset's options)")
@@ -127,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
         return run_datasheet(args)
     if args.quick or args.docs:
         raise CommandError(f"--quick and --docs are for {DATASHEET} only")
+    if args.through_nodes or args.gyro:
+        return run_through_nodes(args)
     kind, spec = campaign_from_args(args)
     if args.replay is not None:
         return replay(kind, spec, args.replay)
@@ -135,6 +142,25 @@ def run(args: argparse.Namespace) -> int:
     summary, _, files = run_one(kind, spec, output, args.workers, args.scheduler, command)
     print(f"wrote {output / 'summary.json'}" + "".join(f", {f}" for f in files), file=sys.stderr)
     return 0
+
+
+def run_through_nodes(args: argparse.Namespace) -> int:
+    """`characterize stress --through-nodes`: the stress plan through the real nodes (campaign/stress_nodes.py)."""
+    if args.campaign != "stress" or not args.through_nodes:
+        raise CommandError("--through-nodes (and --gyro with it) is for the stress preset only")
+    from ..campaign.stress_nodes import run_stress_through_nodes
+
+    frames = args.trials or 2000
+    seed = 1 if args.seed is None else args.seed
+    output = Path(args.output or Path("characterize_output") / "stress_nodes")
+    progress = Progress(frames, "stress through the nodes:")
+    summary = run_stress_through_nodes(frames, seed, output, lambda done, total: progress.update(done), gyro=args.gyro)
+    progress.update(frames)
+    nodes = summary.get("nodes", {})
+    print(f"stress through the nodes: {frames} frames; every frame accounted for: "
+          f"{summary['accounting']['unaccounted'] == 0}; nodes alive: {nodes.get('all_alive')}; "
+          f"passed: {summary.get('passed')}; wrote {output / 'summary_nodes.json'}", file=sys.stderr)
+    return 0 if nodes.get("all_alive") else 1
 
 
 def replay(kind, spec, task: int) -> int:

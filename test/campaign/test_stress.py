@@ -137,3 +137,17 @@ def test_frames_on_the_command_line_are_missions_of_frames_per_mission():
                               option=["frames_per_mission=25"])
     kind, spec = campaign_from_args(args)
     assert kind.name == "stress" and spec.trials == 41  # 41 x 25 >= 1001 frames
+
+
+def test_through_nodes_is_the_stress_presets_alone():
+    import argparse
+
+    from star_tracker.commands.characterize import run_through_nodes
+    from star_tracker.commands.common import CommandError
+
+    args = argparse.Namespace(campaign="accuracy", through_nodes=True, gyro=False, trials=None, seed=None, output=None)
+    with pytest.raises(CommandError, match="stress preset only"):
+        run_through_nodes(args)
+    with pytest.raises(CommandError, match="stress preset only"):
+        run_through_nodes(argparse.Namespace(**{**vars(args), "campaign": "stress", "through_nodes": False,
+                                                "gyro": True}))
