@@ -12,6 +12,8 @@ The steps, each a trial measured and then judged (`_Step.then`):
 - A crowded frame without a running prior first measures its brightest detections alone
   (psf.pilot): an estimate from a full set of stars that calls for another width skips the
   measurement at the prior.
+- A rate-aided frame (its stars smeared): measured at the prior, its PSF estimated across the
+  streaks (psf.streak_width) and, when that differs from the prior, measured there, kept.
 - The prior: measured, its PSF estimated (psf.estimate). Too few usable stars among many
   detections (a defocused camera's faint rings, fragments at a narrow width): measured again
   at WIDER_PRIOR_FACTORS x the prior, until one gives an estimate.
@@ -35,9 +37,12 @@ from .psf.estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_E
 from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .psf.pilot import neighbour_positions, pilot_detections
+from .psf.streak_width import streak_width
 from .records import PsfTrial
 from .spots import Spots
 from .streak.rate_aid import typical_smear_px
+
+CLIP_MARGIN = 0.98  # a streak peaking within 2 % of the clip level is left out of its width (as psf.estimate)
 
 if TYPE_CHECKING:
     from .detection.detect import Detections
@@ -136,8 +141,7 @@ class PsfLoop:
             self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "no detections")
             return None
         if frame.smeared:
-            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "rate-aided frame: the stars are smeared")
-            return None
+            return self._across_streaks(trial)
         guess = self._pilot_estimate
         self.estimate = guess if guess is not None and guess.estimated else \
             estimate_psf(self.image, frame, trial.sigma_px, self.config.gain_e_per_adu)
@@ -148,6 +152,26 @@ class PsfLoop:
             many = frame.cand.x.size >= WIDER_PRIOR_MIN_CANDIDATES
             return self._wider(0) if many and self.estimate.stars < MIN_ESTIMATE_STARS else None
         return self._settle(trial, measured)
+
+    def _across_streaks(self, trial: PsfTrial) -> _Step | None:
+        """
+        Estimate a rate-aided frame's PSF across its streaks (psf.streak_width); measure again there when it differs.
+
+        No star shows the round PSF under a known rate, but a streak's profile across its track does.
+        """
+        frame = self.kept[1].frame
+        cand = frame.cand
+        unclipped = np.asarray(cand.peak_raw, float) < CLIP_MARGIN * frame.saturation  # a flat top is no profile
+        sigma, uncertainty, used = streak_width(self.image, cand.x[unclipped], cand.y[unclipped],
+                                                cand.snr[unclipped], self.smear)
+        if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
+            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "rate-aided frame: too few streaks to "
+                                                "measure across", used)
+            return None
+        self.estimate = PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
+        if abs(sigma - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
+            return _Step(PsfTrial(sigma), self._keep)
+        return None
 
     def _wider(self, index: int) -> _Step | None:
         """Return the next wider width's step (WIDER_PRIOR_FACTORS[index] x the prior); None past MAX_SIGMA_PX."""

@@ -262,7 +262,10 @@ def test_stars_clipped_in_one_or_two_pixels_are_found_by_their_fits(rate_deg_s, 
 
 def test_merged_streaks_on_the_predicted_path_are_fitted_as_two_stars(monkeypatch):
     # Pairs 2.5 px apart across a 14 px smear (one detection each): a one-star fit sits between
-    # the two, many of its sigmas off; two stars on the predicted path recover both.
+    # the two, many of its sigmas off; two stars on the predicted path recover both. Every star
+    # of this field has such a companion, so the width across its streaks (psf.streak_width)
+    # would be the pairs' spread: the split is examined at the rendered PSF, fixed.
+    config = CentroidConfig(psf_mode="fixed", psf_sigma_px=1.0)
     rng = np.random.default_rng(16)
     cx, cy = grid(7, 130, 110, rng)
     rate = np.array([0.0, 14.0 / (EXPOSURE * CAMERA.fy), 0.0])  # image moves 14 px along x
@@ -273,7 +276,7 @@ def test_merged_streaks_on_the_predicted_path_are_fitted_as_two_stars(monkeypatc
     frame = render_stars(x, y, electrons, rate=rate, seed=17)
     tx, ty = star_truth(frame)
     smear = SmearModel(CAMERA, rate, EXPOSURE)
-    spots = extract_spots(frame.image, CentroidConfig(), smear)
+    spots = extract_spots(frame.image, config, smear)
     index, distance = nearest(spots, tx, ty)
     found = distance < 0.5
     assert found.mean() >= 0.95
@@ -282,7 +285,7 @@ def test_merged_streaks_on_the_predicted_path_are_fitted_as_two_stars(monkeypatc
     assert chi2.mean() < 3.0 and np.mean(chi2 > 16.0) < 0.03
     # Without the split, each pair is one spot between its stars.
     monkeypatch.setattr(streak_spots, "MERGED_MIN_SNR", np.inf)
-    single = extract_spots(frame.image, CentroidConfig(), smear)
+    single = extract_spots(frame.image, config, smear)
     index, distance = nearest(single, tx, ty)
     assert np.median(chi2_of(single, index, tx, ty)) > 25.0
 
