@@ -53,9 +53,10 @@ def register(subparsers) -> None:
     parser.add_argument("--output", metavar="DIR", help="output directory (default characterize_output/PRESET)")
     parser.add_argument("--seed", type=int, help="the campaign's seed (default: 2026 or the file's)")
     parser.add_argument("--batch", type=positive_int, help="trials per Dask task (default: the preset's)")
-    parser.add_argument("--docs", metavar="DIR", help=f"{DATASHEET} only: also copy datasheet.json, the campaigns' "
+    parser.add_argument("--docs", metavar="DIR", help=f"{DATASHEET}: also copy datasheet.json, the campaigns' "
                         "summaries (characterize_<campaign>.json) and the figures "
-                        "into DIR (and DIR/images), where `python -m bench.datasheet` puts them in DATASHEET.md")
+                        "into DIR (and DIR/images), where `python -m bench.datasheet` puts them in DATASHEET.md; "
+                        "stress: write its section of DIR/RELIABILITY.md and keep DIR/characterize_stress.json")
     parser.add_argument("--quick", action="store_true", help=f"{DATASHEET} only: a few trials per campaign (a "
                         "minute; to try the command, the figures meaningless)")
     parser.add_argument("--replay", type=int, metavar="TASK", help="run trial TASK of the campaign (its --seed and "
@@ -130,8 +131,8 @@ def run(args: argparse.Namespace) -> int:
         args.argv = [NAME, *sys.argv[sys.argv.index(NAME) + 1:]] if NAME in sys.argv else [NAME, args.campaign]
     if args.campaign == DATASHEET:
         return run_datasheet(args)
-    if args.quick or args.docs:
-        raise CommandError(f"--quick and --docs are for {DATASHEET} only")
+    if args.quick or (args.docs and args.campaign != "stress"):
+        raise CommandError(f"--quick is for {DATASHEET} only, --docs for {DATASHEET} and stress")
     if args.through_nodes or args.gyro:
         return run_through_nodes(args)
     kind, spec = campaign_from_args(args)
@@ -140,8 +141,23 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output or Path("characterize_output") / kind.name)
     command = "star-tracker " + " ".join(shlex.quote(a) for a in (args.argv or []))
     summary, _, files = run_one(kind, spec, output, args.workers, args.scheduler, command)
+    if args.docs:
+        files += stress_docs(summary, Path(args.docs))
     print(f"wrote {output / 'summary.json'}" + "".join(f", {f}" for f in files), file=sys.stderr)
     return 0
+
+
+def stress_docs(summary: dict, docs: Path) -> list[Path]:
+    """Write the stress section of DOCS/RELIABILITY.md; keep the summary as DOCS/characterize_stress.json."""
+    from ..campaign.presets.stress_report import reliability_section, write_section
+
+    reliability = docs / "RELIABILITY.md"
+    if not reliability.exists():
+        raise CommandError(f"--docs {docs}: no RELIABILITY.md there")
+    write_section(reliability, reliability_section(summary))
+    kept = docs / "characterize_stress.json"
+    kept.write_text(json.dumps(summary, indent=1, default=float) + "\n")
+    return [reliability, kept]
 
 
 def run_through_nodes(args: argparse.Namespace) -> int:

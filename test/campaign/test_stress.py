@@ -151,3 +151,41 @@ def test_through_nodes_is_the_stress_presets_alone():
     with pytest.raises(CommandError, match="stress preset only"):
         run_through_nodes(argparse.Namespace(**{**vars(args), "campaign": "stress", "through_nodes": False,
                                                 "gyro": True}))
+
+
+def _mission_row(task: int, labels: dict, frames: list[dict]) -> dict:
+    row = {"task": task, "seed": 2026, "error": "", **labels, "psf_sigma_px": 1.0, "bit_flips": 0,
+           "recoveries": [2] if task == 0 else [], "frame_s": 0.03}
+    for name, _ in stress.FRAME_COLUMNS:
+        row[name] = [f.get(name) for f in frames]
+    return row
+
+
+def test_the_summary_and_its_reliability_section_count_each_stratum(tmp_path):
+    from star_tracker.campaign.presets.stress_report import BEGIN, END, reliability_section, write_section
+
+    labels = {name: "nominal" for name in stress.MISSION_STRATA}
+    good = {"frame": 0, "verdict": "ok", "phase": "rest", "solved": True, "wrong": False, "wrong_star": False,
+            "nees": 3.0, "cross_arcsec": 0.2}
+    at_rest = [good, {**good, "frame": 1, "nees": 20.0}, {**good, "frame": 2, "verdict": "out_of_order"}]
+    slewing = [{**good, "phase": "accelerating", "nees": 40.0, "wrong": True, "wrong_star": True}]
+    rows = [_mission_row(0, {**labels, "motion": "rest"}, at_rest),
+            _mission_row(1, {**labels, "motion": "slew"}, slewing)]
+    table = pa.Table.from_pylist(rows, schema=KINDS["stress"].schema())
+    summary = KINDS["stress"]().summarize(table, stress.StressOptions())
+    assert summary["frames"] == 3 and summary["deliveries"] == 4 and summary["wrong"] == 1
+    assert summary["wrong_star_frames"] == 1 and summary["nees_mean"] == pytest.approx(21.0)
+    assert summary["strata"]["motion"]["rest"]["frames"] == 2 and summary["strata"]["motion"]["slew"]["wrong"] == 1
+    assert summary["strata"]["phase"]["accelerating"]["nees_above_5_sigma"] == 1
+    assert [(f["task"], f["frame"]) for f in summary["failures"]] == [(0, 1), (1, 0)]
+    assert summary["recoveries"] == {"events": 1, "max_frames": 2, "not_recovered": 0, "within_2_frames": 1}
+    summary.update(command="star-tracker characterize stress", machine={"cpu": "cpu", "cores": 2},
+                   engine={"wall_s": 60.0}, date_utc="now")
+    text = reliability_section(summary)
+    assert "| motion phase (each frame, from the truth): accelerating | 1 | 0.000 | 1 | 1 | 40.00 | 100.0 % | 1 |" \
+        in text
+    doc = tmp_path / "RELIABILITY.md"
+    doc.write_text("# Reliability\n")
+    write_section(doc, text)
+    write_section(doc, text)  # again: replaced, not appended twice
+    assert doc.read_text().count(BEGIN) == 1 and doc.read_text().count(END) == 1
