@@ -20,7 +20,7 @@ from .detection.detect import (DetectionGround, Detections, DetectionSettings, b
                                detection_ground)
 from .detection.extended_objects import extended_candidates
 from .detection.measure import cog_phase_bias_rms
-from .detection.saturation import clip_levels, clipped_pixels
+from .detection.saturation import CLIP_TOP_FRACTION, clip_levels, clipped_pixels
 from .detection.texture import point_every_way, rank_last
 from .psf.estimate import MeasuredFrame
 from .records import FitContext, PsfTrial, SpotRows
@@ -156,10 +156,7 @@ def measure_frame(image: np.ndarray, config: CentroidConfig, trial: PsfTrial, sm
     chosen = _choose_candidates(context, cand, trial, aid, saturation)
     kept, clip = chosen.kept, chosen.clip
     saturated = np.isfinite(clip)
-    # The sensor's clip level, where a flat top showed it below the configured one: every
-    # candidate that reaches it is clipped too, for the PSF estimate.
-    frame = MeasuredFrame(det, cand, float(min(saturation, clip[saturated].min() if saturated.any() else np.inf)),
-                          aid is not None)
+    frame = MeasuredFrame(det, cand, _frame_clip_level(kept, clip, saturation), aid is not None)
     # Several separate peaks with dips between them: stars blended into one footprint, not a streak.
     multi = np.array([len(p) >= 2 for p in kept.peaks], bool) & ~saturated
     if aid is not None and rate_aid_disagrees(kept, ~saturated & ~kept.edge & ~multi, sigma, aid):
@@ -174,6 +171,28 @@ def measure_frame(image: np.ndarray, config: CentroidConfig, trial: PsfTrial, sm
     return FrameMeasurement(frame, context=context, kept=kept, spots=spots, clipping=clipping, multi=multi, aid=aid,
                             rejected_shape=chosen.rejected_shape, frame_values=frame_values,
                             track_peaks=chosen.track_peaks)
+
+
+def _frame_clip_level(kept: Candidates, clip: np.ndarray, saturation: float) -> float:
+    """
+    Return the sensor's clip level [ADU] for the PSF estimate: every candidate that reaches it is clipped.
+
+    The configured `saturation`, or a flat top's level below it (clip: the kept candidates'
+    clip levels, inf: not clipped) when that level is the frame's ceiling: within
+    CLIP_TOP_FRACTION (of the range above the background) of the brightest candidate's peak.
+    A sensor clips every star at one level and none reads above it; a flat top well below
+    another star's peak is a chance tie of one star's top pixels (a wide star's top is nearly
+    flat: in a dark frame of equal σ 2.8 px stars one such tie, taken as the frame's clip
+    level, left 1 of 39 stars to the estimate, and the frame at the 1 px prior kept 3 spots).
+    """
+    flat = clip[np.isfinite(clip) & (clip < saturation)]
+    finite = np.isfinite(kept.peak_raw)
+    if flat.size == 0 or not finite.any():
+        return float(saturation)
+    top = float(kept.peak_raw[finite].max())
+    floor = float(np.median(kept.peak_raw[finite] - kept.peak[finite]))  # the background under the peaks
+    at_ceiling = flat[flat >= top - CLIP_TOP_FRACTION * max(top - floor, 0.0)]
+    return float(at_ceiling.min()) if at_ceiling.size else float(saturation)
 
 
 class _Chosen(NamedTuple):
