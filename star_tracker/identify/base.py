@@ -634,12 +634,16 @@ class StarIdentifier:
         """
         Extend the guide matches by the deep catalog (deep_match.match_deep) and refit.
 
-        At their fitted `solution` (their offsets scale the match gate: deep_match.error_scale),
-        refitted, matched again at the refined attitude and refitted (DEEP_PASSES); returns the matches,
-        solution, residuals [rad] and their false-positive bound (deep_match.deep_bound), or None
-        when no deep star was added or the bound exceeds config.false_positive_bound (the
-        guide solution stands). Counters in stats: deep_matches, deep_ambiguous,
-        deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view (deep_match.DeepMatches).
+        At their fitted `solution` (their offsets scale the match gate: deep_match.error_scale), the
+        candidates (every condition but the chance bound) refitted, matched again at the refined
+        attitude and refitted (DEEP_PASSES); at that attitude the pairs within the chance bound
+        (deep_match.MAX_CHANCE_MATCHES) are named and the attitude refitted to guide and named
+        matches. Returns the matches, solution, residuals [rad] and their false-positive bound
+        (deep_match.deep_bound), or None when no deep star was named or a bound (the candidates',
+        the named matches') exceeds config.false_positive_bound (the guide solution stands).
+        Counters in stats: deep_matches (named), deep_candidates, deep_chance_rejected,
+        deep_ambiguous, deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view
+        (deep_match.DeepMatches).
         """
         camera, catalog = geometry.camera, self.deep_catalog()
         floor_px = self.config.centroid_sigma_floor_px
@@ -651,7 +655,7 @@ class StarIdentifier:
                 cov = spot_pixel_covariance(geometry, camera, fitted.covariance, floor_px)
             cov = scale * cov
             latest = match_deep(catalog, geometry, camera, fitted.rotation, cov, guide.spot_index, guide.hip,
-                                guide.magnitude)
+                                guide.magnitude, max_chance=np.inf)
             if found is not None and np.array_equal(latest.spot_index, found.spot_index) \
                     and np.array_equal(latest.star_index, found.star_index):
                 break
@@ -668,6 +672,24 @@ class StarIdentifier:
             return None
         fp = deep_bound(geometry, matches.spot_index, matches.star_vectors, matches.magnitude, fitted.rotation, catalog,
                         found.stars_in_view, camera, self.magnitude_floor)
+        if fp > self.config.false_positive_bound:
+            self.stats["deep_matches"] = 0
+            self.stats["deep_bound_rejected"] = 1
+            return None
+        # Name only the pairs unlikely by chance (deep_match.MAX_CHANCE_MATCHES), at the attitude
+        # the candidates refined; the published attitude is fitted to what is named.
+        cov = scale * spot_pixel_covariance(geometry, camera, fitted.covariance, floor_px)
+        named = match_deep(catalog, geometry, camera, fitted.rotation, cov, guide.spot_index, guide.hip,
+                           guide.magnitude)
+        self.stats.update(deep_matches=int(named.spot_index.size), deep_candidates=int(found.spot_index.size),
+                          deep_chance_rejected=named.chance_rejected)
+        if named.spot_index.size == 0:
+            return None
+        matches = guide.extended(named.spot_index, catalog.vectors[named.star_index], catalog.hip[named.star_index],
+                                 catalog.magnitude[named.star_index])
+        fitted, _, residual = self._fit(geometry, matches.spot_index, matches.star_vectors, fitted.rotation)
+        fp = deep_bound(geometry, matches.spot_index, matches.star_vectors, matches.magnitude, fitted.rotation, catalog,
+                        named.stars_in_view, camera, self.magnitude_floor)
         if fp > self.config.false_positive_bound:
             self.stats["deep_matches"] = 0
             self.stats["deep_bound_rejected"] = 1

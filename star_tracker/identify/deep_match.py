@@ -21,14 +21,23 @@ limit), and a pair is added only when it is unambiguous:
 - brightness: with the zero point of the guide matches (median of instrumental minus catalog
   magnitude) the spot's magnitude is within MAGNITUDE_SIGMA robust sigmas of the guide
   matches' scatter of the star's (at least MAGNITUDE_TOLERANCE_FLOOR); skipped when
-  magnitudes are unknown.
-Base.solved refits the attitude over guide and deep matches, matches once more at the
-refined attitude, and computes the false-positive bound of verify.py over all matches with
-the deep catalog's density (`deep_bound`).
+  magnitudes are unknown;
+- chance: the frame's expected number of chance pairs as good, chance_pairs (the deep stars of
+  this view's density expected nearer than the candidate, times the catalog's share as close
+  in brightness, combined as the expected count under chance of stars at least as good on
+  both) x the uncatalogued spots (those tried with no deep star within reach: false objects,
+  stars beyond the catalog), is at most MAX_CHANCE_MATCHES. A false object is named only when
+  a chance star passes all of this: at most MAX_CHANCE_MATCHES per frame, whatever the number
+  of false objects.
+Base.deep_rematch refits the attitude over the guide matches and the candidates that pass
+all but the chance bound, matches once more at the refined attitude and refits, checks the
+false-positive bound of verify.py over them with the deep catalog's density (`deep_bound`),
+then names the pairs that pass the chance bound at that attitude (its covariance now the
+candidates', far smaller than the guide stars' alone) and refits over guide and named matches.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -52,6 +61,13 @@ MAGNITUDE_TOLERANCE_FLOOR = 1.0
 # view's density x the ellipse's area) is too uncertain to name (e.g. a saturated spot): a
 # spot of an uncatalogued source would take a chance star with about this probability.
 MAX_CHANCE_STARS_IN_GATE = 0.01
+# A pair is named only when the frame's expected number of chance pairs as good (chance_pairs
+# x the uncatalogued spots) is at most this. In the false-id scenes (false objects as bright as
+# the guide stars) false objects were named at ~0.13 x this per scene (20 in 3,000 scenes of 50
+# false objects with no bound, spread evenly over this frame chance from 0 to 0.06): 1e-5 leaves
+# ~0.3 expected in 200,000 scenes; it keeps ~20 % of the right deep stars of simulated frames
+# to Hp 8.5 (0.3 px) and ~15 % on the real corpus, where the wide JPEG fields' gates are wide.
+MAX_CHANCE_MATCHES = 1e-5
 # Fewest guide magnitudes for a zero point; below it the brightness test is skipped.
 MIN_ZERO_POINT_STARS = 3
 # Median chi^2 of a 2-D Gaussian residual (2 ln 2): the reduced-chi^2 scale is
@@ -67,7 +83,10 @@ class DeepMatches:
     star_index (K,) deep catalog indices; stars_in_view: deep stars projected inside the
     image; ambiguous: spots with a star inside the gate left unmatched as ambiguous;
     magnitude_rejected: spots left unmatched because their brightness disagreed;
-    too_uncertain: spots not tried because their gate was too wide (MAX_CHANCE_STARS_IN_GATE).
+    too_uncertain: spots not tried because their gate was too wide (MAX_CHANCE_STARS_IN_GATE);
+    chance (K,) each match's expected chance pairs as good in its spot (chance_pairs);
+    chance_rejected: pairs otherwise named left unmatched by the frame's chance bound
+    (MAX_CHANCE_MATCHES); uncatalogued: the spots counted as uncatalogued (at least 1).
     """
 
     spot_index: np.ndarray
@@ -76,6 +95,9 @@ class DeepMatches:
     ambiguous: int = 0
     magnitude_rejected: int = 0
     too_uncertain: int = 0
+    chance: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    chance_rejected: int = 0
+    uncatalogued: int = 1
 
 
 def error_scale(geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray, spot_index: np.ndarray,
@@ -178,13 +200,14 @@ def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tu
 
 def match_deep(catalog: DeepCatalog, geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray,
                spot_cov_px: np.ndarray, guide_spots: np.ndarray, guide_hip: np.ndarray,
-               guide_magnitude: np.ndarray) -> DeepMatches:
+               guide_magnitude: np.ndarray, max_chance: float | None = None) -> DeepMatches:
     """
     Return the unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices).
 
     Under `rotation` (sensor -> ICRS), with each spot's offset covariance spot_cov_px (N, 2, 2)
     [px^2] (spot_pixel_covariance); guide_hip and guide_magnitude (catalog Hp) of the guide
-    matches, in guide_spots' order (the zero point). See the module docstring.
+    matches, in guide_spots' order (the zero point); max_chance: the frame's chance bound (None:
+    MAX_CHANCE_MATCHES; inf: the candidates every other condition passes). See the module docstring.
     """
     star, u, v = catalog.stars_in_view(rotation, camera)
     spot_xy = np.stack([geometry.x, geometry.y], axis=1)
@@ -210,15 +233,62 @@ def match_deep(catalog: DeepCatalog, geometry: SpotGeometry, camera: CameraModel
     ambiguous = inside & ~unique
     spot_i, star_k = spot[inside & unique], star[star_j[inside & unique]]
     rejected = 0
+    fraction = np.full(spot_i.size, np.nan)  # share of deep stars as close in brightness (NaN: unknown)
     gate = magnitude_gate(geometry.magnitude[guide_spots], guide_magnitude)
     if gate is not None and spot_i.size:
         residual = geometry.magnitude[spot_i] - gate[0] - catalog.magnitude[star_k]
         agree = ~(np.abs(residual) > gate[1])  # an unknown (NaN) spot magnitude passes on geometry
         rejected = int(np.count_nonzero(~agree))
-        spot_i, star_k = spot_i[agree], star_k[agree]
+        fraction = magnitude_fraction(catalog.sorted_magnitudes, catalog.magnitude[star_k] + residual,
+                                      np.abs(residual))
+        fraction[~np.isfinite(residual)] = np.nan
+        spot_i, star_k, fraction = spot_i[agree], star_k[agree], fraction[agree]
+        d2_i = d2[inside & unique][agree]
+    else:
+        d2_i = d2[inside & unique]
+    gate_stars = density_px * np.pi * GATE_SIGMA ** 2 * np.sqrt(np.maximum(det[spot_i], 0.0))
+    chance = chance_pairs(gate_stars * d2_i / GATE_SIGMA ** 2, fraction, gate_stars)
+    # The uncatalogued spots (false objects, stars beyond the catalog): those tried without a
+    # deep star within reach (an uncatalogued spot has one with probability < 4 x
+    # MAX_CHANCE_STARS_IN_GATE), at least one.
+    uncatalogued = max(int(np.count_nonzero(free & (stars_near_spot == 0))), 1)
+    named = chance * uncatalogued <= (MAX_CHANCE_MATCHES if max_chance is None else max_chance)
+    chance_rejected = int(np.count_nonzero(~named))
+    spot_i, star_k, chance = spot_i[named], star_k[named], chance[named]
     order = np.argsort(spot_i, kind="stable")
     return DeepMatches(spot_i[order], star_k[order], int(m), int(np.unique(spot[ambiguous]).size), rejected,
-                       too_uncertain)
+                       too_uncertain, chance[order], chance_rejected, uncatalogued)
+
+
+def magnitude_fraction(sorted_magnitudes: np.ndarray, center: np.ndarray, half_width: np.ndarray) -> np.ndarray:
+    """
+    Return the share of catalog stars within half_width [mag] of center [mag] (sorted_magnitudes: the catalog's).
+
+    Under chance (a star unrelated to the spot, its magnitude drawn from the catalog's), the
+    share of stars at least as close in brightness: uniform on [0, 1].
+    """
+    n = max(sorted_magnitudes.size, 1)
+    low = np.searchsorted(sorted_magnitudes, center - half_width, side="left")
+    high = np.searchsorted(sorted_magnitudes, center + half_width, side="right")
+    return (high - low) / n
+
+
+def chance_pairs(near_stars: np.ndarray, fraction: np.ndarray, gate_stars: np.ndarray) -> np.ndarray:
+    """
+    Return the expected number of unrelated deep stars in a spot's gate as good as its candidate.
+
+    near_stars: the expected unrelated stars nearer than the candidate (density x its Mahalanobis
+    ellipse's area); fraction: the share as close in brightness (magnitude_fraction; NaN when
+    unknown: geometry alone); gate_stars: those expected in the whole gate. Unrelated stars
+    fall uniformly in the image (expected count `a` up to gate_stars) with a brightness share
+    `b` uniform on [0, 1]; the expected number with a b <= t = near_stars x fraction is
+    t (1 + ln(gate_stars / t)), or near_stars alone without magnitudes.
+    """
+    t = np.asarray(near_stars, float) * np.asarray(fraction, float)
+    known = np.isfinite(t)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        joint = np.where(t > 0.0, t * (1.0 + np.log(np.maximum(gate_stars / t, 1.0))), 0.0)
+    return np.where(known, joint, np.asarray(near_stars, float))
 
 
 def deep_bound(geometry: SpotGeometry, spot_index: np.ndarray, star_vectors: np.ndarray, star_magnitude: np.ndarray,

@@ -197,10 +197,13 @@ def real_frame(image_id):
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:The WCS transformation has more axes")  # a WCS file has no image
 @pytest.mark.skipif(not (REALDATA / "MANIFEST.json").is_file(), reason="real-image corpus absent")
-@pytest.mark.parametrize("image_id", ["gran_vega_05sec", "unh_DSC_0058"])
-def test_deep_rematch_on_real_images(image_id):
+@pytest.mark.parametrize("image_id,least", [("gran_vega_05sec", 3), ("unh_DSC_0058", 10)])
+def test_deep_rematch_on_real_images(image_id, least):
     """
     Check: more stars on a real photograph, the error against astrometry.net's reference does not grow.
+
+    `least`: the deep stars named at least; few on gran_vega_05sec, whose 25 deg JPEG field makes
+    wide gates (the frame's chance bound, deep_match.MAX_CHANCE_MATCHES).
 
     Also astrometry.net's own TAN-SIP solution puts every deep-matched star on its spot (and
     no other deep-catalog star nearer).
@@ -212,7 +215,7 @@ def test_deep_rematch_on_real_images(image_id):
     camera, database = solved.camera, solved.database
     guide, deep = solve_both(database, spots, camera, centroid_sigma_floor_px=0.3)
     assert guide.solved and deep.solved
-    assert deep.hip.size >= guide.hip.size + 10 and deep.deep_count >= 10
+    assert deep.hip.size >= guide.hip.size + least and deep.deep_count >= least
     reference = quaternion_to_matrix(np.array(entry["reference"]["quat_xyzw_sensor_to_icrs"]))
     assert error_rad(deep.attitude.rotation, reference) <= 1.05 * error_rad(guide.attitude.rotation, reference)
 

@@ -7,7 +7,9 @@ attitude uniform over the sphere, the catalog's stars projected through the came
 position and magnitude noise, false stars among them) identified lost-in-space by the
 default identifier (no prior, no tracking), and scored (scoring.py: wrong = a star named
 wrongly, a boresight more than `wrong_arcsec` off, or an error outside 5 sigma of the stated
-covariance). The summary gives the empirical false-identification rate with
+covariance); deep_matched and deep_wrong count each solve's deep re-match stars and the wrong
+ones among them (`magnitude_limit` beyond the guide stars' puts deep-catalog stars in the
+scenes). The summary gives the empirical false-identification rate with
 its one-sided 95 % upper bound (Clopper-Pearson; 3/n with none wrong) beside the bound the
 verification states (IdentifyConfig.false_positive_bound, and what each solve reported).
 """
@@ -20,6 +22,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..bounds import rate_upper_bound
+from ...parameter_spec import parameter
 from ..kind import CampaignKind
 from .lost_in_space import SceneOptions, SceneShared, prepare_scenes
 from .scoring import NEES_5_SIGMA, OUTSIDE_5_SIGMA_CHANCE, SCORE_COLUMNS, UNSOLVED, score
@@ -27,7 +30,10 @@ from .scoring import NEES_5_SIGMA, OUTSIDE_5_SIGMA_CHANCE, SCORE_COLUMNS, UNSOLV
 
 @dataclass(frozen=True)
 class FalseIdOptions(SceneOptions):
-    """The scenes and the identifier of a false-id campaign (lost_in_space.SceneOptions)."""
+    """The scenes and the identifier of a false-id campaign (lost_in_space.SceneOptions), and the scenes' star limit."""
+
+    magnitude_limit: float = parameter(0.0, "faintest star that makes a spot (0: the setup's; beyond the guide "
+                                            "stars' 6.5 the scenes hold deep-catalog stars)", "Hp mag", 0.0, 12.0)
 
     def __post_init__(self) -> None:
         bad = self.problems()
@@ -44,11 +50,12 @@ class FalseIdentification(CampaignKind):
     default_trials = 3_000_000
     default_batch = 1000
     columns = (pa.field("solved", pa.bool_()), *SCORE_COLUMNS, pa.field("matched", pa.int32()),
-               pa.field("real_spots", pa.int32()), pa.field("stated_probability", pa.float64()),
+               pa.field("real_spots", pa.int32()), pa.field("deep_matched", pa.int32()),
+               pa.field("deep_wrong", pa.int32()), pa.field("stated_probability", pa.float64()),
                pa.field("identify_s", pa.float64()))
 
     def prepare(self, options: FalseIdOptions) -> SceneShared:
-        return prepare_scenes(options)
+        return prepare_scenes(options, options.magnitude_limit or None)
 
     def trial(self, shared: SceneShared, options: FalseIdOptions, task: int, rng: np.random.Generator) -> dict:
         from ...sim.scenes import make_scene
@@ -61,8 +68,13 @@ class FalseIdentification(CampaignKind):
                   "matched": int(result.hip.size) if result.solved else 0, "real_spots": scene.real_count,
                   "stated_probability": float(result.false_positive_probability) if result.solved else None,
                   "identify_s": elapsed}
+        record["deep_matched"] = record["deep_wrong"] = 0
         if result.solved:
             record.update(score(result, scene.hip, scene.rotation, options.wrong_arcsec))
+            deep = np.asarray(result.deep, bool)
+            named = np.asarray(result.hip, np.int64) != scene.hip[np.asarray(result.spot_index, np.int64)]
+            record["deep_matched"] = int(np.count_nonzero(deep))
+            record["deep_wrong"] = int(np.count_nonzero(deep & named))
         return record
 
     def summarize(self, table: pa.Table, options: FalseIdOptions) -> dict:
@@ -89,6 +101,10 @@ class FalseIdentification(CampaignKind):
             "false_identification_upper_95": rate_upper_bound(
                 int(np.asarray(table.column("false_identification").fill_null(False), bool)[ok].sum()), trials, 0.95)
             if trials else None,
+            "deep_matched": int(np.asarray(table.column("deep_matched").fill_null(0), np.int64)[ok].sum())
+            if "deep_matched" in table.column_names else None,
+            "deep_wrong": int(np.asarray(table.column("deep_wrong").fill_null(0), np.int64)[ok].sum())
+            if "deep_wrong" in table.column_names else None,
             "wrong_deep_star_rate": float(np.asarray(table.column("wrong_deep_star").fill_null(False), bool)[ok].mean())
             if trials else None,
             "wrong_rate": float(wrong.sum() / trials) if trials else None,

@@ -50,13 +50,19 @@ class SceneShared:
     identifier: object
 
 
-def prepare_scenes(options: SceneOptions) -> SceneShared:
-    """Build what every trial of a worker shares (the stars and their directions once: make_scene would each call)."""
+def prepare_scenes(options: SceneOptions, magnitude_limit: float | None = None) -> SceneShared:
+    """
+    Build what every trial of a worker shares (the stars and their directions once: make_scene would each call).
+
+    magnitude_limit [Hp mag]: the faintest star making a spot, replacing the setup's (None: the setup's).
+    """
     from ...identify import DatabaseConfig, load_or_build_database, make_identifier
     from ...models.catalog import load_hipparcos
     from ...sim.scenes import SETUPS
 
     setup = dataclasses.replace(SETUPS[options.setup], false_stars=options.false_stars)
+    if magnitude_limit is not None:
+        setup = dataclasses.replace(setup, magnitude_limit=float(magnitude_limit))
     database = load_or_build_database(DatabaseConfig())
     catalog = load_hipparcos().at_epoch(database.config.epoch_jyear).brighter_than(setup.magnitude_limit)
     identifier = make_identifier(options.algorithm, database, campaign_identify_config())
