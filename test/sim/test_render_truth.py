@@ -58,3 +58,26 @@ def test_truth_lists_every_group_as_drawn(catalog, nominal_camera):
         assert np.array_equal(t.electrons[hot], r.static_e.reshape(-1)[r.hot_pixels].astype(float))
         assert np.all(t.extent_px[hot] == 0.0)
     assert cosmic_rays > 0
+
+
+def test_jitter_is_sampled_finely_enough_that_the_image_holds_the_exposures_mean(catalog, nominal_camera):
+    # 5" of jitter at 5 Hz on a slow drift moves a star < 1 px: sampled by its extent alone it
+    # got 2 sub-steps, whose mean missed the exposure's by ~0.1 px (5"), the NEES of its frames 11.
+    from star_tracker.sim.motion import JitterMotion
+    from star_tracker.sim.render import MAX_AVERAGE_ERROR_PX
+
+    r = StarFieldRenderer(nominal_camera, SensorModel(), catalog.at_epoch(2026.0), magnitude_limit=6.0)
+    arcsec = np.pi / (180.0 * 3600.0)
+    for amplitude, frequency in ((5.0, 5.0), (20.0, 20.0)):
+        motion = JitterMotion(ConstantRateMotion(POINTING, np.radians([0.1, -0.05, 0.0])),
+                              np.full((1, 3), amplitude * arcsec), np.array([frequency]), 0.7)
+        stamp = 1.03
+        rot_mid = motion.rotation_at(stamp)
+        offsets = r._substep_offsets(motion, stamp, rot_mid)
+        sampled = r._probe_paths(motion.rotations_at(stamp + offsets), rot_mid).mean(axis=1)
+        fine = r._probe_paths(motion.rotations_at(stamp + (np.arange(4000) + 0.5) / 4000 * 0.1 - 0.05),
+                              rot_mid).mean(axis=1)
+        assert offsets.size > 2
+        assert np.max(np.linalg.norm(sampled - fine, axis=1)) < 2 * MAX_AVERAGE_ERROR_PX
+    # At rest one sub-step, as before.
+    assert r._substep_offsets(ConstantRateMotion(POINTING, np.zeros(3)), 1.0, POINTING).size == 1
