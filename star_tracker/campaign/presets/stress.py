@@ -21,9 +21,10 @@ from the trial's seed (draw_mission):
   frames (5 %, delivered twice); a loop (the stamps and the scene jump back 2.5-3.5 s, a bag
   replayed with --loop); a gap (time jumps 1-10 s ahead: a pause); a stamp from the future
   (one frame stamped 2-30 s ahead of the clock);
-- rate aid: the tracker's own rate (the identifier's, as the node's `angular_velocity`), or a
-  gyro: 100 Hz samples of the true rate plus a bias (0.01 deg/s per axis, 1 sigma) and noise
-  (0.005 deg/s per sample), averaged over the exposure as the centroider does.
+- rate aid: the tracker's own rate (the identifier's, as the node's `angular_velocity`) carried
+  to the frame by its angular acceleration, or a gyro: 100 Hz samples of the true rate plus a
+  bias (0.01 deg/s per axis, 1 sigma) and noise (0.005 deg/s per sample), their mean over the
+  exposure the rate and their slope the acceleration, as the centroider takes them.
 
 Each delivered frame goes where the nodes send it: its stamp judged by the nodes' rule
 (track/stamp_order.py on the simulated clock: out of order and from the future refused and
@@ -416,15 +417,18 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
             continue  # refused and counted, as the identifier node does
         if verdict == STAMP_RESET:
             tracker.reset()
-        omega = None
+        omega = alpha = None
         if mission.rate_aid == "gyro":
-            # The centroider averages the gyro's samples inside the exposure (ros/rate_input.py).
-            times = tau + (np.arange(GYRO_SAMPLES) + 0.5 - 0.5 * GYRO_SAMPLES) * shared.exposure_s / GYRO_SAMPLES
-            omega = (np.mean([mission.motion.angular_velocity_at(t) for t in times], axis=0)
-                     + mission.gyro_bias_rad_s + rng.normal(0.0, GYRO_NOISE_RAD_S / math.sqrt(GYRO_SAMPLES), size=3))
+            # The centroider's aid from a gyro (ros/rate_input.py): the mean of the samples inside
+            # the exposure, the acceleration the slope of a line through them.
+            offsets = (np.arange(GYRO_SAMPLES) + 0.5 - 0.5 * GYRO_SAMPLES) * shared.exposure_s / GYRO_SAMPLES
+            samples = np.array([mission.motion.angular_velocity_at(tau + dt) for dt in offsets]) \
+                + mission.gyro_bias_rad_s + rng.normal(0.0, GYRO_NOISE_RAD_S, size=(GYRO_SAMPLES, 3))
+            omega, alpha = samples.mean(axis=0), np.polyfit(offsets, samples, 1)[0]
         elif tracker.rate is not None and abs(tracker.rate.stamp_ns - stamp_ns) <= MAX_RATE_AGE_S * 1e9:
-            omega = tracker.rate.angular_velocity
-        smear = None if omega is None else SmearModel(shared.camera, omega, shared.exposure_s)
+            # The identifier's estimate carried to the frame by its acceleration, as the centroider does.
+            omega, alpha = tracker.rate.at(stamp_ns)
+        smear = None if omega is None else SmearModel(shared.camera, omega, shared.exposure_s, alpha)
         row["aided"] = smear is not None
         spots = extract_spots(image, config, smear, psf_prior=psf.prior, prior_rings=psf.rings)
         psf.update(spots.psf)

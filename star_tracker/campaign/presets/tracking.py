@@ -7,7 +7,8 @@ A accelerations; trial t runs case t // runs. A trial is an eigen-axis slew (sim
 SlewMotion: a random pointing, an axis across the boresight with a little roll) that rests
 0.5 s, accelerates at the case's acceleration to the case's rate and coasts, rendered at 10 Hz
 for `frames` frames (the default camera and sensor, 0.1 s exposures, stars to Hp 7.5). Each
-frame is centroided with the tracker's own rate as its smear model (the node's rate aid) and
+frame is centroided with the tracker's own rate and angular acceleration, carried to the frame,
+as its smear model (the node's rate aid) and
 handed to `Tracker.process` (tracking, lost-in-space when it fails). A frame is right when
 solved with every star right and its boresight within `wrong_arcsec` (60") of the truth; a
 solved frame whose error lies outside 5 sigma of its stated covariance is counted
@@ -145,9 +146,14 @@ class Tracking(CampaignKind):
             frame = shared.renderer.render(motion, t, int(rng.integers(2 ** 31)))
             reached = max(reached, math.degrees(float(np.linalg.norm(frame.truth.body_rate))))
             aid = tracker.rate
-            smear = None if aid is None else SmearModel(shared.camera, aid.angular_velocity, shared.exposure_s)
+            stamp_ns = int(round(t * 1e9))
+            if aid is None:
+                smear = None
+            else:  # the tracker's rate and acceleration carried to the frame, as the centroider takes them
+                omega, alpha = aid.at(stamp_ns)
+                smear = SmearModel(shared.camera, omega, shared.exposure_s, alpha)
             spots = extract_spots(frame.image, CentroidConfig(), smear)
-            result = tracker.process(int(round(t * 1e9)), spots, shared.camera)
+            result = tracker.process(stamp_ns, spots, shared.camera)
             ident = result.identification
             if ident.solved:
                 scored = score(ident, truth_hip(frame.truth, spots, ident), frame.truth.rotation,
