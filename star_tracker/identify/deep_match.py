@@ -62,11 +62,11 @@ MAGNITUDE_TOLERANCE_FLOOR = 1.0
 # spot of an uncatalogued source would take a chance star with about this probability.
 MAX_CHANCE_STARS_IN_GATE = 0.01
 # A pair is named only when the frame's expected number of chance pairs as good (chance_pairs
-# x the uncatalogued spots) is at most this. In the false-id scenes (false objects as bright as
-# the guide stars) false objects were named at ~0.13 x this per scene (20 in 3,000 scenes of 50
-# false objects with no bound, spread evenly over this frame chance from 0 to 0.06): 1e-5 leaves
-# ~0.3 expected in 200,000 scenes; it keeps ~20 % of the right deep stars of simulated frames
-# to Hp 8.5 (0.3 px) and ~15 % on the real corpus, where the wide JPEG fields' gates are wide.
+# x the uncatalogued spots) is at most this: a false object is named at most this often per
+# frame on average, however many there are. Without it, `star-tracker characterize false-id
+# --option false_stars=50` named one in 137 of 20,000 scenes; with it, none in 10,000 (docs/
+# IDENTIFICATION.md). The price: wide gates name few stars (161 of the 979 named without it on
+# the real corpus, most of the wide JPEG fields' stars left unnamed).
 MAX_CHANCE_MATCHES = 1e-5
 # Fewest guide magnitudes for a zero point; below it the brightness test is skipped.
 MIN_ZERO_POINT_STARS = 3
