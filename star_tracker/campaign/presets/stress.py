@@ -24,7 +24,8 @@ from the trial's seed (draw_mission):
 - rate aid: the tracker's own rate (the identifier's, as the node's `angular_velocity`) carried
   to the frame by its angular acceleration, or a gyro: 100 Hz samples of the true rate plus a
   bias (0.01 deg/s per axis, 1 sigma) and noise (0.005 deg/s per sample), their mean over the
-  exposure the rate and their slope the acceleration, as the centroider takes them.
+  exposure the rate and the slope of the last 0.25 s of them the acceleration, as the centroider
+  takes them (an acceleration only when significant: track/aid_acceleration.py).
 
 Each delivered frame goes where the nodes send it: its stamp judged by the nodes' rule
 (track/stamp_order.py on the simulated clock: out of order and from the future refused and
@@ -70,7 +71,8 @@ STEADY_RATE_CHANGE_RAD_S = 1e-9
 ARCSEC = math.pi / (180.0 * 3600.0)
 DEG = math.pi / 180.0
 TEMPERATURE_STEP_K = 5.0
-GYRO_SAMPLES = 10  # a 100 Hz gyro's samples inside a 0.1 s exposure
+GYRO_RATE_HZ = 100.0  # the gyro's sample rate
+GYRO_SPAN_SAMPLES = 25  # its samples the centroider fits the acceleration to (ros/rate_input.ACCELERATION_SPAN_S)
 GYRO_NOISE_RAD_S = 0.005 * math.pi / 180.0  # per sample, 1 sigma  # a ramp is rendered in steps of this
 MOTIONS = ("rest", "slew", "tumble", "jitter")
 PHASES = ("rest", "accelerating", "constant_rate", "tumble", "jitter")
@@ -369,6 +371,7 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
     from ...centroid.streak.smear import SmearModel
     from ...models.attitude import matrix_to_rotation_vector
     from ...sim.render import StarFieldRenderer
+    from ...track.aid_acceleration import from_samples, significant
     from ...track.stamp_order import STAMP_RESET, StampOrder
     from ...track.tracking import MODE_TRACKING, Tracker
 
@@ -420,14 +423,17 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
         omega = alpha = None
         if mission.rate_aid == "gyro":
             # The centroider's aid from a gyro (ros/rate_input.py): the mean of the samples inside
-            # the exposure, the acceleration the slope of a line through them.
-            offsets = (np.arange(GYRO_SAMPLES) + 0.5 - 0.5 * GYRO_SAMPLES) * shared.exposure_s / GYRO_SAMPLES
+            # the exposure, the acceleration the slope of a line through the last
+            # ACCELERATION_SPAN_S of samples up to the exposure's end.
+            offsets = 0.5 * shared.exposure_s - (np.arange(GYRO_SPAN_SAMPLES) + 0.5) / GYRO_RATE_HZ
             samples = np.array([mission.motion.angular_velocity_at(tau + dt) for dt in offsets]) \
-                + mission.gyro_bias_rad_s + rng.normal(0.0, GYRO_NOISE_RAD_S, size=(GYRO_SAMPLES, 3))
-            omega, alpha = samples.mean(axis=0), np.polyfit(offsets, samples, 1)[0]
+                + mission.gyro_bias_rad_s + rng.normal(0.0, GYRO_NOISE_RAD_S, size=(offsets.size, 3))
+            inside = np.abs(offsets) <= 0.5 * shared.exposure_s
+            omega, alpha = samples[inside].mean(axis=0), significant(*from_samples(offsets, samples))
         elif tracker.rate is not None and abs(tracker.rate.stamp_ns - stamp_ns) <= MAX_RATE_AGE_S * 1e9:
             # The identifier's estimate carried to the frame by its acceleration, as the centroider does.
             omega, alpha = tracker.rate.at(stamp_ns)
+            alpha = significant(alpha, tracker.rate.acceleration_covariance)
         smear = None if omega is None else SmearModel(shared.camera, omega, shared.exposure_s, alpha)
         row["aided"] = smear is not None
         spots = extract_spots(image, config, smear, psf_prior=psf.prior, prior_rings=psf.rings)
