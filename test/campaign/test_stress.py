@@ -1,7 +1,9 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The stress campaign: its missions' draws, the frames' delivery (stamps, drops, duplicates), the bit
-flips, one mission run against the rendered truth, and the summary's strata and failures.
+The stress campaign, judged against the truth.
+
+Its missions' draws, the frames' delivery (stamps, drops, duplicates), the bit flips, one
+mission run against the rendered truth, and the summary's strata and failures.
 """
 from __future__ import annotations
 
