@@ -15,8 +15,12 @@ The steps, each a trial measured and then judged (`_Step.then`):
 - A rate-aided frame (its stars smeared): measured at the prior, its PSF estimated across the
   streaks (psf.streak_width) and, when that differs from the prior, measured there, kept.
 - The prior: measured, its PSF estimated (psf.estimate). Too few usable stars among many
-  detections (a defocused camera's faint rings, fragments at a narrow width): measured again
-  at WIDER_PRIOR_FACTORS x the prior, until one gives an estimate.
+  detections (a defocused camera's faint rings, fragments at a narrow width), or an estimate
+  from fewer than a full set of stars that most of the frame's detections contradict (far wider
+  than it: short cosmic-ray tracks taken for the stars of a frame of faint wide ones; not one
+  that agrees with a running prior): measured again at WIDER_PRIOR_FACTORS x the prior, until
+  one gives an estimate (for a contradicted one: from more stars, without its stars; else it
+  stands).
 - An estimate that differs from the width measured with (by more than RERUN_TOLERANCE, or
   ring stars measured as points or points as rings): measured at the estimate, kept.
   Astigmatic stars narrower across than the prior: measured again at the prior with the width
@@ -33,7 +37,8 @@ from .config import CentroidConfig
 from .frame_fits import fitted_spots
 from .frame_measurement import DetectionGrounds, FrameMeasurement, detect_at, measure_frame
 from .psf.elliptical import EllipticalGaussianPsf
-from .psf.estimate import MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate, estimate_psf
+from .psf.estimate import (FAINT_STAR_SNR, MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate,
+                           estimate_psf, usable_stars)
 from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .psf.pilot import neighbour_positions, pilot_detections
@@ -45,6 +50,7 @@ from .streak.rate_aid import typical_smear_px
 CLIP_MARGIN = 0.98  # a streak peaking within 2 % of the clip level is left out of its width (as psf.estimate)
 
 if TYPE_CHECKING:
+    from .detection.candidates import Candidates
     from .detection.detect import Detections
     from .streak.smear import SmearModel
 
@@ -53,6 +59,14 @@ if TYPE_CHECKING:
 # until one gives an estimate.
 WIDER_PRIOR_FACTORS = (2.0, 3.0)
 WIDER_PRIOR_MIN_CANDIDATES = 20
+# An estimate from fewer than MAX_ESTIMATE_STARS stars is contradicted by the frame (measured at
+# the wider priors too) when, of its >= WIDER_PRIOR_MIN_CANDIDATES detections, most of those at
+# SNR >= FAINT_STAR_SNR have a moment width beyond CONTRADICTING_WIDTH x the estimated width. A
+# frame of faint sigma-3 px stars (none usable at the 1 px prior) and 7 cosmic rays was estimated
+# at sigma 0.73 px (minor axis 0.58) from 5 short tracks: 80 % of those detections read beyond
+# 2x 0.58 px (its stars 1.3-2.0 px at the prior). In the other 475 cold frames of
+# bench/bench_psf_cold.py, at most 17 % do (sigma-0.4 px stars at 1,000 e-).
+CONTRADICTING_WIDTH = 2.0
 
 
 @dataclass(frozen=True)
@@ -85,6 +99,8 @@ class PsfLoop:
         self.estimate: PsfEstimate | None = None
         self.kept: tuple[PsfTrial, FrameMeasurement] | None = None
         self._pilot_estimate: PsfEstimate | None = None
+        self._contradicted: tuple[PsfTrial, FrameMeasurement, PsfEstimate] | None = None
+        self._not_stars: tuple[np.ndarray, np.ndarray] | None = None  # (x, y) [px] of a contradicted estimate's stars
 
     def run(self) -> Spots:
         """Measure until a step keeps its measurement; return the kept measurement's spots, fitted, with their PSF."""
@@ -151,6 +167,17 @@ class PsfLoop:
             # and streaks at a narrow width, their light outside its apertures).
             many = frame.cand.x.size >= WIDER_PRIOR_MIN_CANDIDATES
             return self._wider(0) if many and self.estimate.stars < MIN_ESTIMATE_STARS else None
+        corroborated = self.prior_given and not _remeasured(self.estimate, trial.sigma_px, trial.rings)
+        if not corroborated and _contradicted(self.estimate, frame.cand):
+            # Its few stars are not the frame's (short cosmic-ray tracks beside faint wide stars):
+            # searched for as for too few usable stars, without them; it stands unless a wider
+            # width gives an estimate from more stars. One that agrees with a running prior (the
+            # last frames' estimates) is corroborated: a cloud bank's wide detections beside a
+            # real photograph's 11 stars at 0.53 px (a 0.58 px running prior) are not stars.
+            self._contradicted = (trial, measured, self.estimate)
+            used = usable_stars(frame.cand, frame.det, frame.saturation, trial.sigma_px)
+            self._not_stars = (frame.cand.x[used], frame.cand.y[used])  # nor are they at the wider widths
+            return self._wider(0)
         return self._settle(trial, measured)
 
     def _across_streaks(self, trial: PsfTrial) -> _Step | None:
@@ -174,21 +201,36 @@ class PsfLoop:
         return None
 
     def _wider(self, index: int) -> _Step | None:
-        """Return the next wider width's step (WIDER_PRIOR_FACTORS[index] x the prior); None past MAX_SIGMA_PX."""
+        """Return the next wider width's step (WIDER_PRIOR_FACTORS[index] x the prior); past them: _unwidened."""
         if index >= len(WIDER_PRIOR_FACTORS) or self.prior.sigma_px * WIDER_PRIOR_FACTORS[index] > MAX_SIGMA_PX:
-            return None
+            return self._unwidened()
         return _Step(PsfTrial(self.prior.sigma_px * WIDER_PRIOR_FACTORS[index]),
                      lambda trial, measured: self._after_wider(trial, measured, index))
 
     def _after_wider(self, trial: PsfTrial, measured: FrameMeasurement, index: int) -> _Step | None:
-        """Estimate at the wider width (fainter stars too: estimate.FAINT_STAR_SNR); one replaces the prior's."""
+        """
+        Estimate at the wider width (fainter stars too: estimate.FAINT_STAR_SNR); one replaces the prior's.
+
+        A contradicted estimate (_contradicted) is replaced only by one from more stars.
+        """
         frame = measured.frame
         if frame is None:
-            return None
-        again = estimate_psf(self.image, frame, trial.sigma_px, self.config.gain_e_per_adu, faint=True)
+            return self._unwidened()
+        again = estimate_psf(self.image, frame, trial.sigma_px, self.config.gain_e_per_adu, faint=True,
+                             exclude=self._not_stars)
         if not again.estimated:
             return self._wider(index + 1)
+        if self._contradicted is not None and again.stars <= self._contradicted[2].stars:
+            return self._unwidened()  # no better supported than the contradicted estimate: that one stands
         self.kept, self.estimate = (trial, measured), again
+        return self._settle(trial, measured)
+
+    def _unwidened(self) -> _Step | None:
+        """No wider width gave a (better supported) estimate: a contradicted one stands (settled), else the prior."""
+        if self._contradicted is None:
+            return None
+        trial, measured, estimate = self._contradicted
+        self.kept, self.estimate, self._contradicted = (trial, measured), estimate, None
         return self._settle(trial, measured)
 
     def _settle(self, trial: PsfTrial, measured: FrameMeasurement) -> _Step | None:
@@ -234,6 +276,25 @@ def _estimated_width(estimate: PsfEstimate) -> tuple[float, bool]:
     """
     elongated = estimate.elongation > SMEARED_ELONGATION
     return (estimate.sigma_minor_px if elongated else estimate.sigma_px), elongated
+
+
+def _contradicted(estimate: PsfEstimate, cand: "Candidates") -> bool:
+    """
+    Return whether most of a frame's detections are far wider than its estimate from few stars (CONTRADICTING_WIDTH).
+
+    cand: the candidates measured at the prior. Moment widths as psf.estimate's (the pixel's
+    1/12 px^2 off); at a prior narrower than the PSF an aperture cuts them short, so wider
+    than CONTRADICTING_WIDTH x the estimate is wider still.
+    """
+    if estimate.stars >= MAX_ESTIMATE_STARS or cand.x.size < WIDER_PRIOR_MIN_CANDIDATES:
+        return False
+    measured = np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.snr >= FAINT_STAR_SNR)
+    if not measured.any():
+        return False
+    with np.errstate(invalid="ignore"):
+        width = np.sqrt(np.maximum(0.5 * (cand.major[measured] + cand.minor[measured]) - 1.0 / 12.0, 0.0))
+    wide = width > CONTRADICTING_WIDTH * _estimated_width(estimate)[0]
+    return 2 * int(wide.sum()) > int(measured.sum())
 
 
 def _remeasured(estimate: PsfEstimate, prior: float, rings: bool = False) -> bool:

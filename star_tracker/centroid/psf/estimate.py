@@ -47,6 +47,7 @@ MIN_WIDE_PEAK_SNR = 3.0
 FAINT_STAR_SNR = 6.0
 FAINT_WIDE_PEAK_SNR = 1.5
 ISOLATION_SIGMAS = 8.0  # no other candidate closer than this many (rough) PSF widths
+EXCLUDED_REACH_PX = 2.0  # a candidate this close to an excluded source [px] is that source (usable_stars' exclude)
 MAX_AXIS_RATIO = 3.0  # a star more elongated than this (noise included) is smeared or blended, not the optics' PSF
 WIDER_START = 1.2  # stars' moment width beyond this x the prior: the fit starts from the moment (an aperture cuts it)
 RERUN_TOLERANCE = 0.1  # relative difference from the prior beyond which a frame is measured again
@@ -106,7 +107,8 @@ class PsfEstimate:
 
 
 def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sigma: float, faint: bool = False,
-                 neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                 neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                 exclude: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """
     Return indices of the candidates fit to measure the PSF on, brightest first (at most MAX_STARS).
 
@@ -119,6 +121,8 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     test rejected with the prior are included: with a prior too wide, that is where sharp stars
     end up. neighbours: (x, y, slack) [px] of every candidate for that isolation test when `cand`
     holds only some (psf.pilot: a neighbour counts within reach + slack; None: cand's measured ones).
+    exclude: (x, y) [px] of sources that are not stars (psf_loop: those of an estimate the frame
+    contradicted); a candidate within EXCLUDED_REACH_PX of one is not usable (still a neighbour).
     """
     finite = np.isfinite(cand.x) & np.isfinite(cand.y) & np.isfinite(cand.peak_raw)
     amplitude = cand.peak_raw - det.background_at(np.where(finite, cand.x, 0.0), np.where(finite, cand.y, 0.0))
@@ -134,6 +138,9 @@ def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sig
     bright = (amplitude >= MIN_PEAK_SNR * det.noise_adu) | (
         (cand.snr >= min_snr) & (amplitude >= min_wide_peak * det.noise_adu))
     ok = finite & ~cand.edge & bright & (cand.peak_raw < 0.98 * ceiling) & not_track & ~one_pixel
+    if exclude is not None and np.size(exclude[0]):
+        near = np.hypot(cand.x[:, None] - exclude[0][None, :], cand.y[:, None] - exclude[1][None, :])
+        ok &= ~(near < EXCLUDED_REACH_PX).any(axis=1)
     chosen = np.flatnonzero(ok)
     if chosen.size == 0:
         return chosen
@@ -164,7 +171,7 @@ class MeasuredFrame:
 
 def estimate_psf(image: np.ndarray, frame: MeasuredFrame, prior_sigma: float, gain: float, faint: bool = False,
                  neighbours: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                 min_usable: int = MIN_STARS) -> PsfEstimate:
+                 min_usable: int = MIN_STARS, exclude: tuple[np.ndarray, np.ndarray] | None = None) -> PsfEstimate:
     """
     Return the frame's PSF from its usable stars (usable_stars), or the prior.
 
@@ -174,9 +181,9 @@ def estimate_psf(image: np.ndarray, frame: MeasuredFrame, prior_sigma: float, ga
     `min_usable` usable stars: psf.pilot asks for a full MAX_STARS) or the width is outside
     [MIN_SIGMA_PX, MAX_SIGMA_PX]. image [ADU];
     frame: its detections, measured candidates and clip level; prior_sigma: the width the
-    candidates were measured with [px]; gain [e-/ADU]; faint, neighbours: see usable_stars.
+    candidates were measured with [px]; gain [e-/ADU]; faint, neighbours, exclude: see usable_stars.
     """
-    chosen = usable_stars(frame.cand, frame.det, frame.saturation, prior_sigma, faint, neighbours)
+    chosen = usable_stars(frame.cand, frame.det, frame.saturation, prior_sigma, faint, neighbours, exclude)
     need = max(MIN_STARS, min_usable)
     if chosen.size < need:
         min_snr = FAINT_STAR_SNR if faint else MIN_STAR_SNR
