@@ -54,10 +54,15 @@ def _corpus_image():
 @pytest.mark.slow
 @pytest.mark.parametrize("psf_sigma", ["2.79", "2.89"])
 def test_real_frame_keeps_its_stars_at_either_psf_width(psf_sigma):
+    # Judged against the same image solved at its own PSF estimate: the defect kept 64 % of the
+    # stars (90 of ~140); how many faint stars the deep re-match may name is its own rule's.
     image = _corpus_image()
+    code, own, _, err = bench.run_solve_command(bench.solve_argv(image))
+    assert code == 0, err[-300:]
     code, record, _, err = bench.run_solve_command(bench.solve_argv(image) + ["--psf-sigma", psf_sigma])
     assert code == 0, err[-300:]
-    assert len(record["matched"]) >= 130, f"{len(record['matched'])} stars matched at sigma {psf_sigma} px"
+    assert len(record["matched"]) >= 0.9 * len(own["matched"]) >= 90, \
+        f"{len(record['matched'])} stars matched at sigma {psf_sigma} px, {len(own['matched'])} at its own estimate"
     boresight, _ = bench.attitude_errors(_rotation(record), image.reference)
     assert boresight < ARCMIN
 
