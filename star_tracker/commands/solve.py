@@ -255,10 +255,15 @@ def solve_spots(spots, width: int, height: int, fov_deg: float | None = None, ca
         # A camera fitted to more stars than the kept one's is kept too when its identification
         # lost only a marginal match or two: else a camera fitted to a first, smaller star set is
         # reported with the larger one found through it.
+        # So is one whose identification lost more when the kept camera was fitted to fewer stars
+        # than it is reported with (a first solve's, through which more were found): the new
+        # camera is fitted to those, and keeps at least as many.
         fitted_to_more = result.calibration is None or calibration.stars > result.calibration.stars
-        if final.solved and (final.hip.size >= result.identification.hip.size
-                             or fitted_to_more and final.hip.size >= result.identification.hip.size
-                             - max(1, round(MARGINAL_LOSS * result.identification.hip.size))):
+        kept = result.identification.hip.size
+        outgrown = result.calibration is not None and result.calibration.stars < kept
+        if final.solved and (final.hip.size >= kept
+                             or fitted_to_more and final.hip.size >= kept - max(1, round(MARGINAL_LOSS * kept))
+                             or fitted_to_more and outgrown and final.hip.size >= result.calibration.stars):
             result.identification, result.camera, result.calibration = final, refined, calibration
             result.focal_sigma_px = calibration.sigma["f"]
         if not grew:
