@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .markdown_section import write_between_markers
 from .stress_faults import (FAULT_KINDS, FRAME_PERIOD_S, MALFORMED, MISSION_FRAMES, FrameSource, StampRule,
                             StressPlan, plan_stress)
 
@@ -780,15 +781,7 @@ def render_section(summary: dict, heading: str = "### Stress through the nodes")
 
 def write_section(path: Path, text: str) -> None:
     """Put `text` between BEGIN and END in the Markdown file at `path` (appended when the markers are absent)."""
-    path = Path(path)
-    doc = path.read_text()
-    block = f"{BEGIN}\n{text.rstrip()}\n{END}"
-    if BEGIN in doc and END in doc:
-        head, rest = doc.split(BEGIN, 1)
-        doc = head + block + rest.split(END, 1)[1]
-    else:
-        doc = doc.rstrip("\n") + "\n\n" + block + "\n"
-    path.write_text(doc)
+    write_between_markers(path, text, BEGIN, END)
 
 
 # ------------------------------------------------------------------------------ command line

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..markdown_section import write_between_markers
+
 BEGIN, END = "<!-- stress -->", "<!-- /stress -->"
 STRATUM_TITLES = {"phase": "motion phase (each frame, from the truth)", "motion": "motion (the mission's)",
                   "false_objects": "false objects", "detector": "detector", "psf": "PSF",
@@ -65,12 +67,4 @@ def reliability_section(summary: dict) -> str:
 
 def write_section(path: Path, text: str) -> None:
     """Put `text` between BEGIN and END in the Markdown file at `path` (appended when the markers are absent)."""
-    path = Path(path)
-    doc = path.read_text()
-    block = f"{BEGIN}\n{text.rstrip()}\n{END}"
-    if BEGIN in doc and END in doc:
-        head, rest = doc.split(BEGIN, 1)
-        doc = head + block + rest.split(END, 1)[1]
-    else:
-        doc = doc.rstrip("\n") + "\n\n" + block + "\n"
-    path.write_text(doc)
+    write_between_markers(path, text, BEGIN, END)
