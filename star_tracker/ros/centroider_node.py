@@ -104,6 +104,9 @@ class CentroiderNode(ManagedNode):
         self.sub_rate = self.create_subscription(Vector3Stamped, "angular_velocity", self.rate_input.on_vector3,
                                                  **overridable(RATE_INPUT_QOS))
         self.sub_imu = self.create_subscription(Imu, "imu", self.rate_input.on_imu, **overridable(RATE_INPUT_QOS))
+        # The identifier's angular acceleration, stamped as its angular_velocity (rate_input.motion_for_frame).
+        self.sub_accel = self.create_subscription(Vector3Stamped, "angular_acceleration",
+                                                  self.rate_input.on_acceleration, **overridable(RATE_INPUT_QOS))
 
     def release(self) -> None:
         """
@@ -115,7 +118,7 @@ class CentroiderNode(ManagedNode):
             self.frames.stop()  # the frame in progress is finished and published
             self.frames = None
         flush_publishers(self, {"spots": getattr(self, "pub", None)})
-        for name in ("sub", "sub_info", "sub_rate", "sub_imu"):
+        for name in ("sub", "sub_info", "sub_rate", "sub_imu", "sub_accel"):
             if getattr(self, name, None) is not None:
                 self.destroy_subscription(getattr(self, name))
                 setattr(self, name, None)
@@ -160,7 +163,7 @@ class CentroiderNode(ManagedNode):
                                                       self.max_rate_age_s)
             if motion is None:
                 return None
-            omega, alpha = motion  # the acceleration from successive samples (rate_input.motion_for_frame)
+            omega, alpha = motion  # the identifier's acceleration, else successive samples' slope
         return SmearModel(camera, omega, self.exposure_s, alpha)
 
     def on_image(self, msg: Image) -> None:

@@ -70,7 +70,8 @@ from .throttled_log import ThrottledLog
 RUNTIME_PARAMETERS = {spec.name for spec in IDENTIFIER_PARAMETERS if spec.dynamic}
 # The reliable outputs (topic -> attribute), flushed before they go (output_flush.py).
 OUTPUT_PUBLISHERS = {"attitude": "pub_attitude", "attitude_with_covariance": "pub_pose", "matched_stars": "pub_matches",
-                     "angular_velocity": "pub_rate", "angular_velocity_with_covariance": "pub_rate_cov"}
+                     "angular_velocity": "pub_rate", "angular_velocity_with_covariance": "pub_rate_cov",
+                     "angular_acceleration": "pub_accel"}
 
 
 @dataclass
@@ -159,6 +160,7 @@ class IdentifierNode(ManagedNode):
         self.pub_pose = publisher(PoseWithCovarianceStamped, "attitude_with_covariance", **overridable(RESULT_QOS))
         self.pub_matches = publisher(PointCloud2, "matched_stars", **overridable(RESULT_QOS))
         self.pub_rate = publisher(Vector3Stamped, "angular_velocity", **overridable(RESULT_QOS))
+        self.pub_accel = publisher(Vector3Stamped, "angular_acceleration", **overridable(RESULT_QOS))
         self.pub_rate_cov = publisher(TwistWithCovarianceStamped, "angular_velocity_with_covariance",
                                       **overridable(RESULT_QOS))
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="lost_in_space")
@@ -415,6 +417,8 @@ class IdentifierNode(ManagedNode):
                                                                  self.frame_id, self.camera_info.camera))
         if tracked.rate is not None:
             frame = sensor_frame or convert.OPTICAL_FRAME
+            if tracked.rate.angular_acceleration is not None:  # before the rate: the centroider pairs them by stamp
+                self.pub_accel.publish(convert.vector3_msg(tracked.rate.angular_acceleration, stamp_ns, frame))
             self.pub_rate.publish(convert.vector3_msg(tracked.rate.angular_velocity, stamp_ns, frame))
             self.pub_rate_cov.publish(convert.rate_with_covariance_msg(tracked.rate, frame))
             sigma_rate = np.degrees(tracked.rate.sigma)

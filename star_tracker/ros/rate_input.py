@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from ..models.attitude import quaternion_to_matrix
+from ..track.rate import ACCELERATION_MAX_AGE_S
 
 IDENTITY_MOUNTING = (0.0, 0.0, 0.0, 1.0)
 UNIT_NORM_TOLERANCE = 1e-3  # a quaternion typed with 4 decimals is accepted (and normalised)
@@ -38,6 +39,7 @@ TIME_RESET_S = 1.0  # a sample this much older than the newest: time restarted (
 # last 0.25 s), when they span at least ACCELERATION_MIN_SPAN_S.
 ACCELERATION_SPAN_S = 0.25
 ACCELERATION_MIN_SPAN_S = 0.05
+ACCELERATIONS_KEPT = 50  # the identifier's, one per frame
 
 
 def stamp_ns(stamp) -> int:
@@ -69,13 +71,23 @@ class RateSamples:
 
     def __init__(self, kept: int = SAMPLES_KEPT):
         self._samples: deque[tuple[int, np.ndarray]] = deque(maxlen=kept)
+        # Angular accelerations stamped as rate samples (the identifier's estimate of both).
+        self._accelerations: deque[tuple[int, np.ndarray]] = deque(maxlen=ACCELERATIONS_KEPT)
         self._lock = threading.Lock()
 
     def add(self, stamp: int, omega: np.ndarray) -> None:
         with self._lock:
             if self._samples and stamp < self._samples[-1][0] - TIME_RESET_S * 1e9:
                 self._samples.clear()  # the old timeline's samples must not serve the new one's frames
+                self._accelerations.clear()
             self._samples.append((stamp, omega))
+
+    def add_acceleration(self, stamp: int, alpha: np.ndarray) -> None:
+        """The angular acceleration [rad/s^2] estimated with the rate sample of the same stamp."""
+        with self._lock:
+            if self._accelerations and stamp < self._accelerations[-1][0] - TIME_RESET_S * 1e9:
+                self._accelerations.clear()
+            self._accelerations.append((stamp, alpha))
 
     def __len__(self) -> int:
         with self._lock:
@@ -108,10 +120,18 @@ class RateSamples:
         """
         Return (rate [rad/s], angular acceleration [rad/s^2] or None, verdict) for a frame, as for_frame.
 
-        The acceleration is the slope of a straight line fitted to the samples stamped within
+        When accelerations came with the samples (the identifier's `angular_acceleration`,
+        stamped as its `angular_velocity`), the newest sample's is the frame's and the rate is
+        that sample carried to the frame by it (RateEstimate.at: what the tracker's covariance
+        assumes the aid was); the newest sample without one (the identifier had none, or it was
+        lost): no acceleration. Otherwise (a gyro) the acceleration is the slope of a straight
+        line fitted to the samples stamped within
         ACCELERATION_SPAN_S of the newest one up to the frame's end (at least two stamps
-        ACCELERATION_MIN_SPAN_S apart; else None): successive gyro samples, or the
-        identifier's successive estimates (which arrive a frame or two late).
+        ACCELERATION_MIN_SPAN_S apart; else None): successive gyro samples, or rate estimates
+        that came without accelerations (they arrive a frame or two late). None as well when
+        the newest of them is more than ACCELERATION_MAX_AGE_S before the frame's stamp (the
+        slope of stale samples is not the frame's: a slew may have stopped or started since; the
+        tracker assumes the same age for what the centroider had).
         With samples inside the exposure the rate is their mean (as for_frame); otherwise it is
         the line's value at the frame's stamp (the newest estimate carried forward by the
         acceleration, not the nearest sample's stale value).
@@ -122,10 +142,20 @@ class RateSamples:
         end = frame_stamp + exposure_s * 0.5e9
         with self._lock:
             usable = [(s, r) for s, r in self._samples if s <= end]
+            accelerations = list(self._accelerations)
         if not usable:
             return omega, None, verdict
         # The newest samples (the identifier's arrive a frame or two after their stamps).
-        newest = max(s for s, _ in usable)
+        newest, newest_rate = max(usable, key=lambda sample: sample[0])
+        if frame_stamp - newest > ACCELERATION_MAX_AGE_S * 1e9:
+            return omega, None, verdict
+        inside_exposure = any(abs(s - frame_stamp) <= exposure_s * 0.5e9 for s, _ in usable)
+        if accelerations:
+            alpha = next((a for s, a in reversed(accelerations) if s == newest), None)
+            if alpha is None:
+                return omega, None, verdict
+            carried = newest_rate + alpha * ((frame_stamp - newest) * 1e-9)
+            return (omega if inside_exposure else carried), alpha, verdict
         recent = [(s, r) for s, r in usable if s >= newest - ACCELERATION_SPAN_S * 1e9]
         if len(recent) < 2:
             return omega, None, verdict
@@ -161,6 +191,20 @@ class RateInput:
         v = msg.vector
         in_gyro_frame = bool(self.gyro_frame_id) and msg.header.frame_id == self.gyro_frame_id
         self._add("angular_velocity", msg.header, np.array([v.x, v.y, v.z], float), rotate=in_gyro_frame)
+
+    def on_acceleration(self, msg) -> None:
+        """geometry_msgs/Vector3Stamped angular_acceleration (the identifier's): kept with its input's rate samples."""
+        v = msg.vector
+        vector = np.array([v.x, v.y, v.z], float)
+        if not np.all(np.isfinite(vector)):
+            self.reject("rates_rejected", f"rejected angular_acceleration with non-finite values {vector}")
+            return
+        stamp = stamp_ns(msg.header.stamp)
+        if stamp == 0:
+            self.reject("rates_rejected", "rejected angular_acceleration: unstamped (stamp 0)")
+            return
+        in_gyro_frame = bool(self.gyro_frame_id) and msg.header.frame_id == self.gyro_frame_id
+        self.samples["angular_velocity"].add_acceleration(stamp, self.mounting @ vector if in_gyro_frame else vector)
 
     def on_imu(self, msg) -> None:
         """sensor_msgs/Imu: its angular_velocity, in the gyro frame (REP 145)."""

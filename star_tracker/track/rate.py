@@ -35,6 +35,13 @@ from scipy.special import gammaincinv
 
 from ..models.attitude import matrix_to_rotation_vector
 
+# A rate-aided centroider uses an angular acceleration only from an estimate (or rate samples)
+# no older than this before the frame: after a gap the motion may have changed unseen (a slew
+# stopping or starting). The tracker takes the same age for what the centroider had
+# (Tracker.acceleration_covariance), the centroider's rate input for its samples
+# (ros/rate_input.RateSamples.motion_for_frame).
+ACCELERATION_MAX_AGE_S = 0.5
+
 
 @dataclass(frozen=True)
 class RateEstimate:

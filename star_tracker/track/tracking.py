@@ -35,7 +35,7 @@ from ..models.attitude_estimation import attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from ..parameter_spec import parameter, range_problems
-from .rate import AttitudeRateEstimator, RateEstimate
+from .rate import ACCELERATION_MAX_AGE_S, AttitudeRateEstimator, RateEstimate
 from . import kernels as track_kernels
 from ..identify import kernels
 from ..identify.kernel_records import CatalogArrays, Pinhole, SpotArrays, VerifySettings
@@ -48,6 +48,9 @@ MODE_LOST = "lost"
 # An innovation beyond chi^2_3 at 1 % is taken for an acceleration step (Tracker._step_covariance);
 # scipy.stats.chi2.ppf(0.99, 3).
 STEP_CHI2 = 11.345
+# Streak length [px] at which a constant-rate path fit's bias under an unknown acceleration is
+# halfway from the point-like T^2 / 24 to the long streak's T^2 / 8 (Tracker.bias_gain).
+STREAK_BIAS_HALF_PX = 15.0
 
 
 @dataclass(frozen=True)
@@ -269,7 +272,7 @@ class Tracker:
             gate_px = tracked.gate_px
         result = self.lost_in_space.identify(spots, camera)
         if result.solved:
-            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, gate_px, 0, started)
+            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, gate_px, 0, started, camera.pixel_scale_rad)
         return TrackedFrame(stamp_ns, MODE_LOST, result, None, gate_px, 0, time.perf_counter() - started)
 
     def accept_tracked(self, stamp_ns: int, spots: Spots, camera: CameraModel, prediction: Prediction) -> TrackedFrame:
@@ -277,35 +280,71 @@ class Tracker:
         started = time.perf_counter()
         result, gate_px = self.track(spots, camera, prediction)
         if result.solved:
-            return self._accept(stamp_ns, result, MODE_TRACKING, gate_px, 0, started)
+            return self._accept(stamp_ns, result, MODE_TRACKING, gate_px, 0, started, camera.pixel_scale_rad)
         return TrackedFrame(stamp_ns, MODE_LOST, result, None, gate_px, 0, time.perf_counter() - started)
 
     def _accept(self, stamp_ns: int, result: Identification, mode: str, gate_px, bridged: int,
-                started: float) -> TrackedFrame:
+                started: float, pixel_scale_rad: float | None = None) -> TrackedFrame:
         solution = result.attitude
         if self._last is not None and stamp_ns <= self._last[0]:
             self.rates.reset()  # time went backwards (replay restarted): a new window
-        step = self._step_covariance(stamp_ns, solution.rotation, solution.covariance)
-        aid = self.rate  # what a rate-aided centroider had for this frame (the last estimate)
-        self.rate = self.rates.add(stamp_ns, solution.rotation, solution.covariance)
+        # What a rate-aided centroider had for this frame: the last estimate, while it is no older
+        # than ACCELERATION_MAX_AGE_S (the centroider ages its acceleration out by the same rule).
+        aid = self.rate
+        if aid is not None and not 0 <= stamp_ns - aid.stamp_ns <= ACCELERATION_MAX_AGE_S * 1e9:
+            aid = None
+        after = self.rates.add(stamp_ns, solution.rotation, solution.covariance)
+        known = after if after is not None else aid
+        gain = self.bias_gain(None if known is None else known.angular_velocity, pixel_scale_rad)
+        step = self._step_covariance(stamp_ns, solution.rotation, solution.covariance, gain) if aid is not None \
+            else None
+        self.rate = after
         self._last = (stamp_ns, solution.rotation, solution.covariance)  # the measurement's own covariance
-        added = self.acceleration_covariance(aid, step)
+        added = self.acceleration_covariance(aid, step, self.rate, gain)
         if added is not None:
             result = replace(result, attitude=replace(solution, covariance=solution.covariance + added))
         return TrackedFrame(stamp_ns, mode, result, self.rate, gate_px, bridged, time.perf_counter() - started)
 
-    def _step_covariance(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray) -> np.ndarray | None:
+    def bias_gain(self, omega: np.ndarray | None, pixel_scale_rad: float | None) -> float:
+        """
+        Return k [s^2]: an acceleration the centroider got wrong by d alpha moves a spot by about k d alpha.
+
+        A point-like spot (the exposure's mean position): T^2 / 24 (T = exposure_s). A streak
+        fitted with a constant-rate path when the body accelerates: more, up to T^2 / 8 for a
+        long one (the fit follows the streak's ends, whose middle is alpha T^2 / 8 from the
+        mid-exposure position; the exposure mean is alpha T^2 / 24). Measured on the default
+        chain's rendered frames (bias / (alpha T^2): 0.041 at 1.7 px streaks, 0.050 at 6.8 px,
+        0.078 at 13.6 px, 0.096 at 27 px), modelled as T^2 (1/24 + (1/12) L^2 / (L^2 + L0^2)),
+        L the cross-boresight streak length |omega_xy| T [px], L0 = STREAK_BIAS_HALF_PX (within
+        0.01 T^2 above those). Without a rate or a pixel scale: T^2 / 24.
+        """
+        exposure = self.config.exposure_s
+        k = 1.0 / 24.0
+        if omega is not None and pixel_scale_rad:
+            length = math.hypot(omega[0], omega[1]) * exposure / pixel_scale_rad
+            k += length * length / (length * length + STREAK_BIAS_HALF_PX ** 2) / 12.0
+        return k * exposure * exposure
+
+    def _step_covariance(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray,
+                         gain: float | None = None) -> np.ndarray | None:
         """
         Covariance [rad^2] for an acceleration the last rate estimate did not know, from this frame's innovation.
 
         The innovation nu (sensor frame) of the new attitude against the last one carried by
         the last rate and acceleration, with its expected covariance S (both attitudes', the
         rate's and the acceleration's, or the max_angular_acceleration_rad_s2 bound's when none
-        was estimated). An acceleration that changed since (a slew starting or ending)
-        biases this frame by less than nu: when nu^T S^-1 nu exceeds STEP_CHI2 (chi^2_3 at 1 %:
-        noise alone rarely does), the fraction 1 - STEP_CHI2 / (nu^T S^-1 nu) of nu nu^T / 3
-        (a bias uniform within +-nu) is added. None when there is no previous attitude or no
-        rate, or the innovation is within the noise.
+        was estimated). An acceleration that changed since by d alpha (a slew starting or
+        ending) biases this frame by the offset of the unexpected path within the exposure: at
+        most |d alpha| k (a point-like spot, k = T^2 / 24, exactly that for a change before the
+        exposure, whose innovation is larger by the path since the change), and never more than
+        the innovation; a streak fitted on a constant-rate path more (k = `gain`, bias_gain;
+        T^2 / 24 when None). When nu^T S^-1 nu = m2 exceeds STEP_CHI2 (chi^2_3 at 1 %: noise
+        alone rarely does), the part of nu noise does not explain, |nu| (1 - sqrt(STEP_CHI2 /
+        m2)), bounds the bias, capped at k d alpha_max, d alpha_max the larger of |alpha_last| +
+        alpha_max (any acceleration within the bound after the estimated one) and the least
+        change that explains that part over dt, 2 |nu_x| / (dt^2 + T^2 / 12). The bias is taken uniform
+        within +-B along nu: B^2 / 3 along its direction. None when there is no previous attitude
+        or no rate, or the innovation is within the noise.
         """
         if self._last is None or self.rate is None or self.config.exposure_s <= 0.0:
             return None
@@ -334,9 +373,18 @@ class Tracker:
             return None
         if not m2 > STEP_CHI2:
             return None
-        return (1.0 - STEP_CHI2 / m2) * np.outer(nu, nu) / 3.0
+        norm = float(np.linalg.norm(nu))
+        unexplained = norm * (1.0 - math.sqrt(STEP_CHI2 / m2))
+        exposure = self.config.exposure_s
+        known = 0.0 if rate.angular_acceleration is None else float(np.linalg.norm(rate.angular_acceleration))
+        change = max(known + self.config.max_angular_acceleration_rad_s2,
+                     2.0 * unexplained / (dt * dt + exposure * exposure / 12.0))
+        bound = min(unexplained, change * (exposure * exposure / 24.0 if gain is None else gain))
+        direction = nu / norm
+        return bound * bound / 3.0 * np.outer(direction, direction)
 
-    def acceleration_covariance(self, rate: RateEstimate | None, step: np.ndarray | None = None) -> np.ndarray | None:
+    def acceleration_covariance(self, rate: RateEstimate | None, step: np.ndarray | None = None,
+                                after: RateEstimate | None = None, gain: float | None = None) -> np.ndarray | None:
         """
         Attitude covariance [rad^2] an uncertain angular acceleration adds to a frame's solution (None: nothing).
 
@@ -344,24 +392,33 @@ class Tracker:
         mid-exposure. The spots are measured at mid-exposure when the centroider knows alpha
         (SmearModel with the acceleration: path fits on the accelerated path, point-like spots
         moved by the exposure-average offset alpha T^2 / 24); what it gets wrong by d alpha
-        moves the attitude by about d alpha T^2 / 24. `rate` is the estimate the centroider's
-        aid came from (the one before this frame). With an acceleration in it
-        (RateEstimate.angular_acceleration) d alpha is that estimate's error: its covariance
-        times (T^2 / 24)^2 is added; without one (fewer than three attitudes in the window,
-        the centroider had no acceleration) d alpha is taken uniform within
-        +-max_angular_acceleration_rad_s2 per axis, (alpha_max T^2 / 24)^2 / 3. An
-        acceleration that changed since that estimate shows in this frame's innovation:
-        `step` (_step_covariance) is added. exposure_s = 0 adds nothing.
+        moves the attitude by about k d alpha, k = `gain` (bias_gain: T^2 / 24 for point-like
+        spots, up to T^2 / 8 for long streaks; T^2 / 24 when None). `rate` is the estimate the
+        centroider's aid came from (the one before this frame, while no older than
+        ACCELERATION_MAX_AGE_S; else None). When this frame's innovation shows an acceleration
+        that changed since (`step`, _step_covariance): k^2 times that estimate's acceleration
+        covariance (the max_angular_acceleration_rad_s2 bound, uniform per axis, when it had
+        none) plus `step`. Otherwise, with `after` (the estimate that includes this frame)
+        holding an acceleration: k^2 (m m^T + its covariance), m = alpha_after - alpha_aid (the
+        aid's acceleration, zero when it had none: the centroider used none), the mean square
+        of what the centroider missed. Else k^2 times the aid's acceleration covariance, or the
+        bound, (k alpha_max)^2 / 3 per axis. exposure_s = 0 adds nothing.
         """
         exposure = self.config.exposure_s
         if exposure <= 0.0:
             return None
-        gain = exposure * exposure / 24.0
-        if rate is not None and rate.acceleration_covariance is not None:
-            added = gain * gain * rate.acceleration_covariance
-        else:
-            added = np.eye(3) * (gain * self.config.max_angular_acceleration_rad_s2) ** 2 / 3.0
-        return added if step is None else added + step
+        gain = exposure * exposure / 24.0 if gain is None else gain
+        known = rate is not None and rate.acceleration_covariance is not None
+        if step is not None:  # the aid's acceleration no longer holds: its bound, and the step's
+            base = gain * gain * rate.acceleration_covariance if known else \
+                np.eye(3) * (gain * self.config.max_angular_acceleration_rad_s2) ** 2 / 3.0
+            return base + step
+        if after is not None and after.acceleration_covariance is not None:
+            miss = after.angular_acceleration - (rate.angular_acceleration if known else 0.0)
+            return gain * gain * (np.outer(miss, miss) + after.acceleration_covariance)
+        if known:
+            return gain * gain * rate.acceleration_covariance
+        return np.eye(3) * (gain * self.config.max_angular_acceleration_rad_s2) ** 2 / 3.0
 
     def gate_px(self, camera: CameraModel, prediction: Prediction, tolerance_px: float) -> float:
         """
@@ -537,7 +594,7 @@ class Tracker:
             return None
         stamp_ns = pending[0][0]
         if not chain:
-            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, None, 0, started)
+            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, None, 0, started, pending[0][2].pixel_scale_rad)
         rotation, covariance = result.attitude.rotation, result.attitude.covariance
         for relative, relative_cov in chain:  # R_{j+1} = R_j dR_j; errors expressed in frame j+1
             rotation = rotation @ relative
@@ -551,7 +608,7 @@ class Tracker:
         # The rate window restarts: the bridged frames' attitudes were not verified one by one.
         self.rates.reset()
         self.rates.add(stamp_ns, result.attitude.rotation, result.attitude.covariance)
-        return self._accept(newest_ns, tracked, MODE_TRACKING, gate, len(chain), started)
+        return self._accept(newest_ns, tracked, MODE_TRACKING, gate, len(chain), started, camera.pixel_scale_rad)
 
     def relative_rotation(self, spots_a: Spots, camera_a: CameraModel, spots_b: Spots, camera_b: CameraModel,
                           dt: float) -> tuple[np.ndarray, np.ndarray] | None:

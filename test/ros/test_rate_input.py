@@ -141,6 +141,43 @@ def test_the_frame_gets_the_acceleration_of_the_newest_samples():
     assert acceleration is None and np.allclose(omega, omega0)
 
 
+def test_the_identifiers_acceleration_carries_its_newest_rate():
+    # The identifier's rate and acceleration, stamped alike, the newest 100 ms before the frame:
+    # the frame gets that acceleration and the rate carried by it (RateEstimate.at), not the
+    # slope of successive rates (which lags a step).
+    counted = Counted()
+    rates = RateInput(counted)
+    omega0 = np.array([0.03, 0.0, 0.0])
+    for k in range(-4, 0):
+        rates.on_vector3(vector3(omega0, T0 + k * 100 * MS))  # constant so far: a slope of zero
+    accel = vector3([-0.02, 0.0, 0.0], T0 - 100 * MS)
+    rates.on_acceleration(accel)
+    omega, alpha = rates.motion_for_frame("angular_velocity", T0, 0.1, 0.5)
+    assert np.allclose(alpha, [-0.02, 0.0, 0.0]) and np.allclose(omega, omega0 + np.array([-0.002, 0.0, 0.0]))
+    # A newer rate without its acceleration (the identifier had none: a new track): none.
+    rates.on_vector3(vector3(omega0, T0 - 50 * MS))
+    assert rates.motion_for_frame("angular_velocity", T0, 0.1, 0.5)[1] is None
+    # Bad acceleration messages are counted and ignored.
+    rates.on_acceleration(vector3([np.nan, 0.0, 0.0], T0))
+    rates.on_acceleration(vector3([0.0, 0.0, 0.0], 0))
+    assert counted.counts == {"rates_rejected": 2}
+
+
+def test_stale_samples_give_no_acceleration():
+    # A slew braking at 0.02 rad/s^2, seen by the identifier's estimates until 0.6 s before the
+    # frame (frames dropped since): their slope would carry the braking into a frame after the stop.
+    alpha = np.array([-0.02, 0.0, 0.0])
+    omega0 = np.array([0.03, 0.0, 0.0])
+    samples = RateSamples()
+    for k in range(-9, -5):
+        samples.add(T0 + k * 100 * MS, omega0 + alpha * k * 0.1)
+    omega, acceleration, verdict = samples.motion_for_frame(T0, 0.1, 1.0)
+    assert verdict == "ok" and acceleration is None and np.allclose(omega, omega0 + alpha * -0.6)  # newest sample
+    # The same samples 0.5 s before the frame (ACCELERATION_MAX_AGE_S): still the slope.
+    omega, acceleration, verdict = samples.motion_for_frame(T0 - 100 * MS, 0.1, 1.0)
+    assert np.allclose(acceleration, alpha)
+
+
 def test_samples_kept_are_bounded_and_forgotten_when_time_restarts():
     samples = RateSamples(kept=10)
     for k in range(100):

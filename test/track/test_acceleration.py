@@ -142,3 +142,54 @@ def test_an_accelerating_slew_is_published_with_an_honest_covariance(parts, nomi
     assert len(ramp_errors) >= 2
     assert np.linalg.norm(np.mean(ramp_errors, axis=0)[:2]) < 0.3 * ALPHA * EXPOSURE_S ** 2 / 24, \
         np.mean(ramp_errors, axis=0) / ARCSEC
+
+
+def solution(rotation, sigma_rad):
+    """A solved Identification with `rotation` and an isotropic covariance (no stars: the tracker's state only)."""
+    from star_tracker.identify.base import Identification
+    from star_tracker.models.attitude import matrix_to_quaternion
+    from star_tracker.models.attitude_estimation import AttitudeSolution
+    return Identification("solved", "synthetic", "tracking", 0.0,
+                          attitude=AttitudeSolution(matrix_to_quaternion(rotation), rotation,
+                                                    np.eye(3) * sigma_rad ** 2, 0.0))
+
+
+def accept_path(tracker, times, angle_of):
+    """Feed the tracker noiseless attitudes rotating about +X by angle_of(t); return each published covariance."""
+    base = radec_roll_to_matrix(1.4, 0.35, 0.2)
+    out = []
+    for t in times:
+        rotation = base @ rotation_vector_to_matrix(np.array([angle_of(t), 0.0, 0.0]))
+        frame = tracker._accept(int(round(t * 1e9)), solution(rotation, ARCSEC), "tracking", None, 0, 0.0)
+        out.append(frame.identification.attitude.covariance)
+    return out
+
+
+def test_the_added_covariance_is_what_the_acceleration_can_do_to_one_exposure(parts):
+    lis, _ = parts
+    alpha_max = math.radians(2.0)
+    gain = EXPOSURE_S ** 2 / 24
+    bound = (gain * alpha_max) ** 2 / 3  # uniform within +-alpha_max per axis [rad^2]
+    # 10 Hz at rest, then 1 deg/s^2 about +X from t = 0.95 s (a step the rate estimate did not know).
+    accel = math.radians(1.0)
+    times = 0.1 * np.arange(16)
+    angle = lambda t: 0.5 * accel * max(t - 0.95, 0.0) ** 2  # noqa: E731
+    added = [c - np.eye(3) * ARCSEC ** 2 for c in accept_path(Tracker(lis), times, angle)]
+    # First two frames: no acceleration known: the bound. From the third on, at rest, the estimate
+    # that includes the frame says ~0: next to nothing added.
+    assert np.allclose(added[0], np.eye(3) * bound) and np.allclose(added[1], np.eye(3) * bound)
+    assert all(np.max(np.diag(a)) < 0.01 * bound for a in added[2:11])
+    # The step shows in frame 11 (0.15 s into the slew; frame 10's exposure saw 0.05 s of it):
+    # along X, about (alpha_max T^2 / 24)^2 / 3 (the least acceleration change explaining an
+    # innovation of alpha (0.15 s)^2 / 2 = 40" over 0.1 s is 2.05 deg/s^2), not the innovation's
+    # 40"^2 / 3 (3,000x more).
+    step = added[11]
+    assert 0.5 * bound < step[0, 0] < (gain * math.radians(2.1)) ** 2 / 3
+    assert step[1, 1] < 0.01 * step[0, 0] and step[2, 2] < 0.01 * step[0, 0]
+    assert all(np.max(np.diag(a)) < 0.01 * bound for a in added[12:])
+    # A frame 0.6 s after the last (frames lost): the aid's estimate is stale (ACCELERATION_MAX_AGE_S),
+    # the window holds one attitude: the bound.
+    tracker = Tracker(lis)
+    accept_path(tracker, times[:6], angle)
+    gap = accept_path(tracker, [times[5] + 0.6], angle)[0] - np.eye(3) * ARCSEC ** 2
+    assert np.allclose(gap, np.eye(3) * bound)
