@@ -35,6 +35,7 @@ from .report import write_section
 
 NEES_997 = 13.93  # scipy.stats.chi2.ppf(0.997, 3)
 PERIOD_S = 0.1
+ASSUMED_BOUND_DEG_S2 = 2.0  # TrackingConfig.max_angular_acceleration_rad_s2's default
 
 
 def run(rates, accelerations, runs: int, frames: int, aid_acceleration: bool = True) -> list[dict]:
@@ -46,6 +47,7 @@ def run(rates, accelerations, runs: int, frames: int, aid_acceleration: bool = T
     from star_tracker.models.attitude import quaternion_to_matrix
     from star_tracker.sim.motion import SlewMotion
     from star_tracker.sim.render import StarFieldRenderer
+    from star_tracker.track.rate import ACCELERATION_MAX_AGE_S
     from star_tracker.track.tracking import Tracker
 
     chain = default_chain()
@@ -70,6 +72,8 @@ def run(rates, accelerations, runs: int, frames: int, aid_acceleration: bool = T
                     smear = None
                     if tracker.rate is not None:
                         omega, alpha = tracker.rate.at(stamp_ns)
+                        if stamp_ns - tracker.rate.stamp_ns > ACCELERATION_MAX_AGE_S * 1e9:
+                            alpha = None  # stale: as the nodes' centroider (rate_input.motion_for_frame)
                         smear = SmearModel(chain.camera, omega if aid_acceleration else tracker.rate.angular_velocity,
                                            exposure, alpha if aid_acceleration else None)
                     spots = extract_spots(frame.image, CentroidConfig(), smear)
@@ -90,7 +94,9 @@ def run(rates, accelerations, runs: int, frames: int, aid_acceleration: bool = T
 
 def summarize(records: list[dict]) -> dict:
     out = {}
-    groups = {"accelerating": lambda r: r["phase"] == "accelerating", "steady": lambda r: r["phase"] == "steady"}
+    groups = {"accelerating": lambda r: r["phase"] == "accelerating", "steady": lambda r: r["phase"] == "steady",
+              f"accelerating within the assumed {ASSUMED_BOUND_DEG_S2:g} deg/s^2":
+                  lambda r: r["phase"] == "accelerating" and r["acceleration_deg_s2"] <= ASSUMED_BOUND_DEG_S2}
     for a in sorted({r["acceleration_deg_s2"] for r in records}):
         groups[f"accelerating at {a:g} deg/s^2"] = lambda r, a=a: r["phase"] == "accelerating" and \
             r["acceleration_deg_s2"] == a
