@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from ..models.attitude import quaternion_to_matrix
+from ..track.aid_acceleration import from_samples, significant
 from ..track.rate import ACCELERATION_MAX_AGE_S
 
 IDENTITY_MOUNTING = (0.0, 0.0, 0.0, 1.0)
@@ -128,7 +129,9 @@ class RateSamples:
         line fitted to the samples stamped within
         ACCELERATION_SPAN_S of the newest one up to the frame's end (at least two stamps
         ACCELERATION_MIN_SPAN_S apart; else None): successive gyro samples, or rate estimates
-        that came without accelerations (they arrive a frame or two late). None as well when
+        that came without accelerations (they arrive a frame or two late), when significant
+        against the samples' scatter about the line (track/aid_acceleration.py: three samples at
+        least; jitter's slope is not an acceleration). None as well when
         the newest of them is more than ACCELERATION_MAX_AGE_S before the frame's stamp (the
         slope of stale samples is not the frame's: a slew may have stopped or started since; the
         tracker assumes the same age for what the centroider had).
@@ -168,7 +171,8 @@ class RateSamples:
         if not (np.all(np.isfinite(alpha)) and np.all(np.isfinite(at_frame))):
             return omega, None, verdict
         inside = np.abs(t) <= exposure_s * 0.5
-        return (omega if inside.any() else at_frame), alpha, verdict
+        # Only a slope the samples show beyond their scatter about it (jitter makes a spurious one).
+        return (omega if inside.any() else at_frame), significant(*from_samples(t, rates)), verdict
 
 
 class RateInput:

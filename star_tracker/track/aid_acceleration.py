@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 SIGNIFICANT_CHI2 = 11.344866730144373  # scipy.stats.chi2.ppf(0.99, 3)
-MIN_SAMPLES = 4  # a line through fewer leaves too little scatter to judge its slope by
+MIN_SAMPLES = 3  # a line through fewer leaves no scatter to judge its slope by
 
 
 def significant(alpha: np.ndarray | None, covariance: np.ndarray | None) -> np.ndarray | None:

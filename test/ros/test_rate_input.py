@@ -211,3 +211,16 @@ def test_overridable_copies_the_profile():
     kwargs["qos_profile"].depth = 1  # rclpy writes the overrides into it: the shared profile is untouched
     assert SPOTS_QOS.depth == 20 and RATE_INPUT_QOS.reliability.name == "BEST_EFFORT"
     assert is_qos_override("qos_overrides./imu.subscription.reliability") and not is_qos_override("rate_source")
+
+
+def test_a_gyros_slope_under_fast_jitter_is_no_acceleration():
+    # 20" of jitter at 20 Hz seen by a 1 kHz gyro: the rate swings by 0.7 deg/s, its 0.25 s slope
+    # is the swings' artefact, not the body's acceleration (track/aid_acceleration.py).
+    amplitude, frequency = np.radians(20.0 / 3600.0), 20.0
+    gyro = RateSamples()
+    for k in range(-300, 51):
+        t = k * 1e-3
+        gyro.add(T0 + k * MS, np.array([1.0, -0.5, 0.2]) * amplitude * 2 * np.pi * frequency
+                 * np.cos(2 * np.pi * frequency * t + 0.4))
+    omega, acceleration, verdict = gyro.motion_for_frame(T0, 0.1, 0.5)
+    assert verdict == "ok" and acceleration is None and omega is not None

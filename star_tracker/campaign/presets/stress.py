@@ -433,7 +433,7 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
         elif tracker.rate is not None and abs(tracker.rate.stamp_ns - stamp_ns) <= MAX_RATE_AGE_S * 1e9:
             # The identifier's estimate carried to the frame by its acceleration, as the centroider does.
             omega, alpha = tracker.rate.at(stamp_ns)
-            alpha = significant(alpha, tracker.rate.acceleration_covariance)
+            alpha = alpha if tracker.rate.angular_acceleration is not None else None
         smear = None if omega is None else SmearModel(shared.camera, omega, shared.exposure_s, alpha)
         row["aided"] = smear is not None
         spots = extract_spots(image, config, smear, psf_prior=psf.prior, prior_rings=psf.rings)
