@@ -41,7 +41,8 @@ strata too. Recovery: after a dropped-frame burst, a loop or a gap that interrup
 the frames delivered until the first tracked one (1: tracked at once).
 
 The summary: frames, wrong, wrong star IDs, NEES mean and the share above chi^2_3(0.997),
-availability (right / accepted frames), per stratum; recoveries; every wrong or overconfident
+availability (right / accepted frames), per stratum (a frame fault's stratum: the missions
+that had it, with others or not); recoveries; every wrong or overconfident
 frame with its task and seed (`failures` in summary.json; `star-tracker characterize stress
 --replay T --seed S` replays one mission frame by frame).
 """
@@ -513,6 +514,12 @@ def summarize_stress(table: pa.Table) -> dict:
                                          for p in PHASES if np.any(phase == p)}}
     for name in MISSION_STRATA:
         per_frame = np.repeat(np.asarray(rows.column(name).to_pylist(), object), counts)
+        if name == "frame_faults":  # a mission may have several: each fault's missions, and those without
+            has = {fault: np.array([fault in str(v).split("+") for v in per_frame], bool) for fault in FRAME_FAULTS}
+            has["none"] = per_frame == "none"
+            strata[name] = {fault: _stratum_figures(nees, solved, wrong, wrong_star, accepted & mask)
+                            for fault, mask in has.items() if mask.any()}
+            continue
         values = sorted(set(per_frame.tolist()))
         strata[name] = {v: _stratum_figures(nees, solved, wrong, wrong_star, accepted & (per_frame == v))
                         for v in values}
