@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-A slew through the three nodes over DDS: is the published attitude covariance honest under angular acceleration?
+A slew through the three nodes over DDS: the published attitude covariance under angular acceleration.
 
     python -m bench.bench_slew_nodes [--angle 40] [--rate 2] [--accel 1] [--hz 5] [--runs 1]
                                      [--output docs/BENCHMARKS.md]

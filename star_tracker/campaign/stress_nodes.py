@@ -785,6 +785,14 @@ def write_section(path: Path, text: str) -> None:
 
 
 # ------------------------------------------------------------------------------ command line
+def stamp_summary(summary: dict, command: str, output: Path) -> None:
+    """Add the command, the date and the machine to a run's summary and write it to OUTPUT/summary_nodes.json."""
+    summary["command"] = command
+    summary["date"] = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    summary["machine"] = _machine()
+    (Path(output) / "summary_nodes.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
+
+
 def _machine() -> str:
     try:
         model = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
@@ -827,11 +835,8 @@ def main(argv: list[str] | None = None) -> int:
 
     summary = run_stress_through_nodes(args.frames, args.seed, args.output, progress,
                                        required=FAULT_KINDS if args.every_fault else (), gyro=args.gyro)
-    summary["command"] = "python -m star_tracker.campaign.stress_nodes " + shlex.join(
-        sys.argv[1:] if argv is None else argv)
-    summary["date"] = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    summary["machine"] = _machine()
-    (args.output / "summary_nodes.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
+    stamp_summary(summary, "python -m star_tracker.campaign.stress_nodes " + shlex.join(
+        sys.argv[1:] if argv is None else argv), args.output)
     if args.docs and "accounting" in summary:
         write_section(args.docs, render_section(summary))
     print(json.dumps({k: summary[k] for k in ("frames_sent", "accounting", "attitudes", "stars", "nodes", "passed")

@@ -164,7 +164,7 @@ def run_through_nodes(args: argparse.Namespace) -> int:
     """`characterize stress --through-nodes`: the stress plan through the real nodes (campaign/stress_nodes.py)."""
     if args.campaign != "stress" or not args.through_nodes:
         raise CommandError("--through-nodes (and --gyro with it) is for the stress preset only")
-    from ..campaign.stress_nodes import run_stress_through_nodes
+    from ..campaign.stress_nodes import run_stress_through_nodes, stamp_summary
 
     frames = args.trials or 2000
     seed = 1 if args.seed is None else args.seed
@@ -172,6 +172,7 @@ def run_through_nodes(args: argparse.Namespace) -> int:
     progress = Progress(frames, "stress through the nodes:")
     summary = run_stress_through_nodes(frames, seed, output, lambda done, total: progress.update(done), gyro=args.gyro)
     progress.update(frames)
+    stamp_summary(summary, "star-tracker " + " ".join(shlex.quote(a) for a in (args.argv or [])), output)
     nodes = summary.get("nodes", {})
     print(f"stress through the nodes: {frames} frames; every frame accounted for: "
           f"{summary['accounting']['unaccounted'] == 0}; nodes alive: {nodes.get('all_alive')}; "

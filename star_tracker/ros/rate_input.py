@@ -84,7 +84,7 @@ class RateSamples:
             self._samples.append((stamp, omega))
 
     def add_acceleration(self, stamp: int, alpha: np.ndarray) -> None:
-        """The angular acceleration [rad/s^2] estimated with the rate sample of the same stamp."""
+        """Add the angular acceleration [rad/s^2] estimated with the rate sample of the same stamp."""
         with self._lock:
             if self._accelerations and stamp < self._accelerations[-1][0] - TIME_RESET_S * 1e9:
                 self._accelerations.clear()

@@ -29,7 +29,7 @@ NEES_5_SIGMA = 31.8  # chi^2_3 at the two-sided 5-sigma probability
 
 
 def aid(tracker, stamp_ns, camera):
-    """The smear model a rate-aided centroider gets: the tracker's rate and acceleration carried to the frame."""
+    """Return the smear model a rate-aided centroider gets: the tracker's rate and acceleration at the frame."""
     if tracker.rate is None:
         return None
     omega, alpha = tracker.rate.at(stamp_ns)
@@ -145,7 +145,7 @@ def test_an_accelerating_slew_is_published_with_an_honest_covariance(parts, nomi
 
 
 def solution(rotation, sigma_rad):
-    """A solved Identification with `rotation` and an isotropic covariance (no stars: the tracker's state only)."""
+    """Return a solved Identification with `rotation` and an isotropic covariance (no stars: the state only)."""
     from star_tracker.identify.base import Identification
     from star_tracker.models.attitude import matrix_to_quaternion
     from star_tracker.models.attitude_estimation import AttitudeSolution
