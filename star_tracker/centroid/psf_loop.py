@@ -13,7 +13,7 @@ The steps, each a trial measured and then judged (`_Step.then`):
   (psf.pilot): an estimate from a full set of stars that calls for another width skips the
   measurement at the prior.
 - A rate-aided frame (its stars smeared): measured at the prior, its PSF estimated across the
-  streaks (psf.streak_width) and, when that differs from the prior, measured there, kept.
+  streaks (streak.streak_width) and, when that differs from the prior, measured there, kept.
 - The prior: measured, its PSF estimated (psf.estimate). Too few usable stars among many
   detections (a defocused camera's faint rings, fragments at a narrow width), or an estimate
   from fewer than a full set of stars that most of the frame's detections contradict (far wider
@@ -42,7 +42,7 @@ from .psf.estimate import (FAINT_STAR_SNR, MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOL
 from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .psf.pilot import neighbour_positions, pilot_detections
-from .psf.streak_width import streak_width
+from .streak.streak_width import streak_width
 from .records import PsfTrial
 from .spots import Spots
 from .streak.rate_aid import typical_smear_px
@@ -182,7 +182,7 @@ class PsfLoop:
 
     def _across_streaks(self, trial: PsfTrial) -> _Step | None:
         """
-        Estimate a rate-aided frame's PSF across its streaks (psf.streak_width); measure again there when it differs.
+        Estimate a rate-aided frame's PSF across its streaks (streak.streak_width); measure again there when it differs.
 
         No star shows the round PSF under a known rate, but a streak's profile across its track does.
         """

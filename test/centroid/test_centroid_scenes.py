@@ -263,7 +263,7 @@ def test_stars_clipped_in_one_or_two_pixels_are_found_by_their_fits(rate_deg_s, 
 def test_merged_streaks_on_the_predicted_path_are_fitted_as_two_stars(monkeypatch):
     # Pairs 2.5 px apart across a 14 px smear (one detection each): a one-star fit sits between
     # the two, many of its sigmas off; two stars on the predicted path recover both. Every star
-    # of this field has such a companion, so the width across its streaks (psf.streak_width)
+    # of this field has such a companion, so the width across its streaks (streak.streak_width)
     # would be the pairs' spread: the split is examined at the rendered PSF, fixed.
     config = CentroidConfig(psf_mode="fixed", psf_sigma_px=1.0)
     rng = np.random.default_rng(16)

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The PSF width of a rate-aided frame, measured across its streaks (centroid/psf/streak_width.py).
+The PSF width of a rate-aided frame, measured across its streaks (centroid/streak/streak_width.py).
 
 On streaks of the independent renderer (bench/alt_renderer.py: each streak a line of
 pixel-integrated Gaussian stamps, its own noise), and end to end on the simulator's frame that
@@ -17,7 +17,7 @@ import pytest
 
 from bench.alt_renderer import Detector, GaussianPsf, StarField, render
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.psf.streak_width import streak_width
+from star_tracker.centroid.streak.streak_width import streak_width
 from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.models.camera import CameraModel
 

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from ..streak.smear import SmearModel
+    from .smear import SmearModel
 
 MIN_SNR = 15.0
 MIN_LENGTH_PX = 3.0
