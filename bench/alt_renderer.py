@@ -13,8 +13,9 @@ PSFs (each a normalised 2-D density integrated over every pixel's square):
 
 Detector (`Detector`, its own noise code): expected electrons = sky + stars + hot-pixel dark
 charge; Poisson draw of all of it; cosmic-ray charge (short 1-2 px wide tracks) added; Gaussian
-read noise; clipping at the full well; gain, bias, rounding, clipping to the ADC range (12 or
-16 bit).
+read noise; clipping at the full well (or, `blooms`, the charge above it moved along the column,
+half each way, into the nearest pixels with room); gain, bias, rounding, clipping to the ADC
+range (12 or 16 bit).
 
 Pixel convention: (x, y) = (column, row), (0, 0) = centre of the top-left pixel, so pixel
 (r, c) covers x in [c - 0.5, c + 0.5], y in [r - 0.5, r + 0.5]. Fluxes in electrons [e-].
@@ -236,6 +237,7 @@ class Detector:
     cosmic_rays_per_frame: float = 0.0
     cosmic_ray_length_px: tuple[float, float] = (2.0, 12.0)
     cosmic_ray_e: tuple[float, float] = (1000.0, 30000.0)
+    blooms: bool = False
 
     def __post_init__(self) -> None:
         if self.adc_bits not in (12, 16):
@@ -428,6 +430,8 @@ def render(field_: StarField, flux_e: float, detector: Detector, width: int, hei
     ray_charge, (ray_x, ray_y, ray_e, ray_length) = cosmic_rays(detector, width, height, rng)
     electrons += ray_charge
     electrons += rng.normal(0.0, detector.read_noise_e, electrons.shape)
+    if detector.blooms:
+        _bloom(electrons, detector.full_well_e)
     electrons = np.minimum(electrons, detector.full_well_e)
     adu = np.rint(electrons / detector.gain_e_per_adu + detector.bias_adu)
     image = np.clip(adu, 0, 2 ** detector.adc_bits - 1).astype(np.uint16)
@@ -436,6 +440,25 @@ def render(field_: StarField, flux_e: float, detector: Detector, width: int, hei
                   np.r_[hot_cols.astype(float), ray_x], np.r_[hot_rows.astype(float), ray_y], np.r_[hot_e, ray_e],
                   np.r_[np.ones(hot_e.size), ray_length], np.r_[np.zeros(hot_e.size, bool), np.ones(ray_e.size, bool)])
     return Frame(image, truth)
+
+
+def _bloom(electrons: np.ndarray, full_well_e: float) -> None:
+    """Move each pixel's charge above full_well_e [e-] along its column, half up and half down, pixel by pixel."""
+    height = electrons.shape[0]
+    for col in np.flatnonzero((electrons > full_well_e).any(axis=0)):
+        column = electrons[:, col]
+        for row in np.flatnonzero(column > full_well_e):
+            excess = column[row] - full_well_e
+            if excess <= 0.0:
+                continue
+            column[row] = full_well_e
+            for step in (-1, 1):
+                left, r = 0.5 * excess, row + step
+                while left > 0.0 and 0 <= r < height:
+                    take = min(max(full_well_e - column[r], 0.0), left)
+                    column[r] += take
+                    left -= take
+                    r += step
 
 
 def cramer_rao(field_: StarField, flux_e: float, detector: Detector) -> np.ndarray:

@@ -49,7 +49,8 @@ class CentroidConfig:
     texture_last: elongated spots pointing every way (texture.py) ranked after the point-like
     ones for the fits and max_spots (default off: bloated stars can point every way too).
     sensor_blooms: the sensor spills the charge above its full well along its columns, so
-    the pixel past each end of a clipped run is no PSF's (detection/saturation.py).
+    the pixel past each end of a clipped run is no PSF's (detection/saturation.py), and a
+    clipped star elongated along its column in a frame not smeared is a point (frame_fits).
     """
 
     detection_sigma: float = parameter(4.5, "detection threshold on the PSF-matched, binned image", "noise sigmas",

@@ -80,7 +80,16 @@ def _routes(m: FrameMeasurement) -> _Routes:
     if round_frame and config.method == "auto":
         noise_elongated = elongated & ~multi & ~saturated & (kept.snr < STATIC_STREAK_MIN_SNR)
         as_streak &= ~noise_elongated
-    as_point = ~as_streak & (~elongated | noise_elongated) & ~multi
+    # On a sensor that blooms, a clipped star's footprint runs along its column with the spill:
+    # in a frame not smeared it is a point, fitted without its clipped pixels and their spill
+    # (the streak model often fails on it, leaving the frame's brightest star a covariance as
+    # wide as its footprint).
+    bloom_elongated = np.zeros(n, bool)
+    if config.method == "auto" and config.sensor_blooms and saturated.any() and not _smeared_frame(m):
+        along_column = np.abs(np.sin(kept.angle)) > np.cos(BLOOM_ANGLE_RAD)
+        bloom_elongated = elongated & ~multi & saturated & along_column
+        as_streak &= ~bloom_elongated
+    as_point = ~as_streak & (~elongated | noise_elongated | bloom_elongated) & ~multi
     clipped_point = as_point & saturated
     as_point &= ~saturated
     return _Routes(as_streak, as_point, clipped_point, round_frame)
@@ -167,6 +176,10 @@ def _own_brightest_stars(spots: SpotRows, rows: np.ndarray, track_peaks: dict) -
                  else spots.with_values(np.array([t]), snr=0.0))
     return spots
 
+
+# A clipped star's footprint whose major axis lies within BLOOM_ANGLE_RAD of its column is
+# elongated by its bloom spill (config.sensor_blooms).
+BLOOM_ANGLE_RAD = np.radians(15.0)
 
 # A frame is judged static (its stars round) from at least ROUND_FRAME_MIN_SPOTS spots of SNR >=
 # ROUND_FRAME_MIN_SNR, unsaturated and single-peaked, of which fewer than half are elongated;
