@@ -44,8 +44,9 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     PSF (config.psf_mode "auto"; psf_loop.PsfLoop): the frame is measured with the prior width
     (`psf_prior` [px] when given, e.g. the last frames' estimate, else config.psf_sigma_px),
     its PSF estimated from the stars found (psf.estimate.estimate_psf), and, when the estimate
-    differs from the prior by more than RERUN_TOLERANCE (relative), measured again with the
-    estimate. A crowded frame without `psf_prior` is first measured at the prior for its
+    differs from the prior by more than RERUN_TOLERANCE (relative; a round one by more than
+    ROUND_RERUN_TOLERANCE when its uncertainty resolves that, psf_loop._remeasured), measured
+    again with the estimate. A crowded frame without `psf_prior` is first measured at the prior for its
     brightest detections only (psf.pilot). `prior_rings` with `psf_prior`: the last frames'
     stars were rings (a defocused camera), so the first measurement already treats them so
     and, when the estimate agrees, is the only one. The returned Spots carry the estimate

@@ -21,7 +21,8 @@ The steps, each a trial measured and then judged (`_Step.then`):
   that agrees with a running prior): measured again at WIDER_PRIOR_FACTORS x the prior, until
   one gives an estimate (for a contradicted one: from more stars, without its stars; else it
   stands).
-- An estimate that differs from the width measured with (by more than RERUN_TOLERANCE, or
+- An estimate that differs from the width measured with (by more than RERUN_TOLERANCE, a round one by
+  more than ROUND_RERUN_TOLERANCE when its uncertainty resolves it, or
   ring stars measured as points or points as rings): measured at the estimate, kept.
   Astigmatic stars narrower across than the prior: measured again at the prior with the width
   test at their minor axis, kept.
@@ -37,7 +38,8 @@ from .config import CentroidConfig
 from .frame_fits import fitted_spots
 from .frame_measurement import DetectionGrounds, FrameMeasurement, detect_at, measure_frame
 from .psf.elliptical import EllipticalGaussianPsf
-from .psf.estimate import (FAINT_STAR_SNR, MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate,
+from .psf.estimate import (FAINT_STAR_SNR, MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOLERANCE, ROUND_RERUN_SIGMAS,
+                           ROUND_RERUN_TOLERANCE, SMEARED_ELONGATION, PsfEstimate,
                            estimate_psf, usable_stars)
 from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
@@ -301,10 +303,21 @@ def _remeasured(estimate: PsfEstimate, prior: float, rings: bool = False) -> boo
     """
     Return whether a frame measured at `prior` [px] (`rings`: as ring stars) is measured again at its estimate's width.
 
-    An elongated PSF's minor width is only approximate (the round fit over the axis ratio): it
-    overrides the prior only when clearly different. Ring stars (a defocused PSF) are, unless
+    A round estimate beyond RERUN_TOLERANCE of the prior, or beyond ROUND_RERUN_TOLERANCE when
+    that difference exceeds ROUND_RERUN_SIGMAS of the estimate's own uncertainty (bright stars
+    fitted a few per cent too narrow lean, and their stated sigma is too small). An elongated
+    PSF's minor width is only approximate (the round fit over the axis ratio): it overrides the
+    prior only when clearly different (3 RERUN_TOLERANCE). Ring stars (a defocused PSF) are, unless
     measured as rings already: a ring's maxima are one star, split as a blend only farther
     apart; and stars measured as rings that are not.
     """
     width, elongated = _estimated_width(estimate)
-    return abs(width - prior) > (3.0 if elongated else 1.0) * RERUN_TOLERANCE * prior or estimate.annular != rings
+    if estimate.annular != rings:
+        return True
+    if elongated:
+        return abs(width - prior) > 3.0 * RERUN_TOLERANCE * prior
+    # A round estimate: beyond RERUN_TOLERANCE, or beyond ROUND_RERUN_TOLERANCE when its own
+    # uncertainty resolves the difference (bright stars fitted too narrow lean, psf.estimate).
+    resolved = not np.isfinite(estimate.sigma_uncertainty_px) \
+        or abs(width - prior) > ROUND_RERUN_SIGMAS * estimate.sigma_uncertainty_px
+    return abs(width - prior) > (ROUND_RERUN_TOLERANCE if resolved else RERUN_TOLERANCE) * prior
