@@ -371,6 +371,7 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
     from ...centroid.psf.running_prior import RunningPsf
     from ...centroid.streak.smear import SmearModel
     from ...models.attitude import matrix_to_rotation_vector
+    from ...sim.environment import EnvironmentModel
     from ...sim.render import StarFieldRenderer
     from ...track.aid_acceleration import from_samples, significant
     from ...track.stamp_order import STAMP_RESET, StampOrder
@@ -393,7 +394,9 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
     stamps = StampOrder(lambda: clock[0], MAX_FUTURE_S, RESET_AFTER_S)
     tracker = Tracker(shared.identifier)
     psf = RunningPsf()
-    config = CentroidConfig()
+    # The renderers (default EnvironmentModel) bloom whenever they render an environment (the
+    # Moon's missions); the centroider is told so, as a user of a blooming sensor sets sensor_blooms.
+    config = CentroidConfig(sensor_blooms=mission.environment is not None and EnvironmentModel().blooming)
     frames: list[dict] = []
     rendered: dict[int, tuple] = {}
     started = time.perf_counter()
@@ -470,7 +473,7 @@ def _recoveries(frames: list[dict], events: list[int], tracking: str) -> list[in
     """
     out = []
     for event in events:
-        if event == 0 or not frames[event - 1]["solved"] or event >= len(frames):
+        if event == 0 or event >= len(frames) or not frames[event - 1]["solved"]:
             continue
         count = -1
         for k in range(event, len(frames)):
