@@ -13,7 +13,10 @@ The steps, each a trial measured and then judged (`_Step.then`):
   (psf.pilot): an estimate from a full set of stars that calls for another width skips the
   measurement at the prior.
 - A rate-aided frame (its stars smeared): measured at the prior, its PSF estimated across the
-  streaks (streak.streak_width) and, when that differs from the prior, measured there, kept.
+  streaks (streak.streak_width) and, when that differs from the prior, measured there, kept;
+  too few streaks to measure across: the prior, held (PsfEstimate.holds_prior). A smear
+  shorter everywhere than a profile across needs (streak_width.MIN_LENGTH_PX) leaves the stars
+  nearly round: estimated as a frame without a rate (the steps below).
 - The prior: measured, its PSF estimated (psf.estimate). Too few usable stars among many
   detections (a defocused camera's faint rings, fragments at a narrow width), or an estimate
   from fewer than a full set of stars that most of the frame's detections contradict (far wider
@@ -44,6 +47,7 @@ from .psf.estimate import (FAINT_STAR_SNR, MAX_SIGMA_PX, MIN_SIGMA_PX, RERUN_TOL
 from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .psf.pilot import neighbour_positions, pilot_detections
+from .streak.streak_width import MIN_LENGTH_PX as MIN_STREAK_LENGTH_PX
 from .streak.streak_width import streak_width
 from .records import PsfTrial
 from .spots import Spots
@@ -156,9 +160,9 @@ class PsfLoop:
         self.kept = (trial, measured)
         frame = measured.frame
         if frame is None:
-            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "no detections")
+            self.estimate = replace(PsfEstimate.assumed(trial.sigma_px, "prior", "no detections"), holds_prior=True)
             return None
-        if frame.smeared:
+        if frame.smeared and not self._short_smear():
             return self._across_streaks(trial)
         guess = self._pilot_estimate
         self.estimate = guess if guess is not None and guess.estimated else \
@@ -182,6 +186,16 @@ class PsfLoop:
             return self._wider(0)
         return self._settle(trial, measured)
 
+    def _short_smear(self) -> bool:
+        """
+        Whether the aid's smear is too short to measure a profile across (below streak_width.MIN_LENGTH_PX everywhere).
+
+        Such stars are nearly round at any PSF the estimate supports (a smear L adds L^2/12 px^2
+        along the track: under 0.75 px^2), so their PSF is estimated as an unaided frame's.
+        """
+        height, width = self.image.shape
+        return typical_smear_px(self.smear, width, height) < MIN_STREAK_LENGTH_PX
+
     def _across_streaks(self, trial: PsfTrial) -> _Step | None:
         """
         Estimate a rate-aided frame's PSF across its streaks (streak.streak_width); measure again there when it differs.
@@ -194,8 +208,9 @@ class PsfLoop:
         sigma, uncertainty, used = streak_width(self.image, cand.x[unclipped], cand.y[unclipped],
                                                 cand.snr[unclipped], self.smear)
         if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
-            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "rate-aided frame: too few streaks to "
-                                                "measure across", used)
+            # Too few bright streaks says nothing against the prior: a running prior holds.
+            self.estimate = replace(PsfEstimate.assumed(trial.sigma_px, "prior", "rate-aided frame: too few streaks "
+                                                        "to measure across", used), holds_prior=True)
             return None
         self.estimate = PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
         if abs(sigma - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:

@@ -21,7 +21,7 @@ for the weight and the pixel), the median over the chosen stars.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -78,7 +78,10 @@ class PsfEstimate:
     estimated); applied_sigma_px: the width the frame was measured with [px] (the prior when
     the estimate agreed with it within its tolerance, see extract.extract_spots); annular:
     the stars are rings (a defocused PSF: less light at the centre than RING_CENTRE_RATIO x
-    a Gaussian's), so that a spot's several maxima are one star, not a blend.
+    a Gaussian's), so that a spot's several maxima are one star, not a blend; holds_prior: not
+    estimated for want of anything to measure the PSF on (no detections, a rate-aided frame's
+    streaks too few to measure across, usable stars mostly smeared): no evidence against the
+    prior, which a running prior (running_prior.RunningPsf) keeps.
     """
 
     sigma_px: float
@@ -91,6 +94,7 @@ class PsfEstimate:
     reason: str = ""
     applied_sigma_px: float = float("nan")
     annular: bool = False
+    holds_prior: bool = False
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -252,9 +256,11 @@ def _estimate_from_fits(fit, prior_sigma: float, faint: bool) -> PsfEstimate:
     # blends of streaks and short ones, not the optics' PSF.
     elongated = int((np.isfinite(shape) & ~round_).sum())
     if round_.sum() < MIN_STARS or round_.sum() <= elongated:
-        return PsfEstimate.assumed(prior_sigma, "prior", f"{int(round_.sum())} of {width.size} stars round (axis "
-                                   f"ratio < {MAX_AXIS_RATIO:g}; need {MIN_STARS}), {elongated} elongated: smeared "
-                                   f"or blended", int(round_.sum()))
+        # Mostly elongated: the stars show the motion (or tracks), no evidence against the prior.
+        return replace(PsfEstimate.assumed(prior_sigma, "prior", f"{int(round_.sum())} of {width.size} stars round "
+                                           f"(axis ratio < {MAX_AXIS_RATIO:g}; need {MIN_STARS}), {elongated} "
+                                           f"elongated: smeared or blended", int(round_.sum())),
+                       holds_prior=bool(round_.sum() <= elongated))
     width = width[round_]
     sigma = _median(width)
     spread = 1.4826 * _median(np.abs(width - sigma))

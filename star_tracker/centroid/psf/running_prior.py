@@ -20,7 +20,8 @@ class RunningPsf:
 
     A frame whose estimate failed (source not "estimated": too few stars, out of range)
     empties it, so the next frame starts again from the configured prior instead of a stale
-    width.
+    width; one that had nothing to measure its PSF on (PsfEstimate.holds_prior: no detections,
+    too few streaks to measure across, usable stars mostly elongated) leaves it as it is.
     """
 
     def __init__(self, frames: int = 5) -> None:
@@ -30,6 +31,8 @@ class RunningPsf:
         self._rings: deque[bool] = deque(maxlen=frames)
 
     def update(self, estimate: PsfEstimate | None) -> None:
+        if estimate is not None and estimate.holds_prior:
+            return  # no evidence against the widths held
         if estimate is None or not estimate.estimated:
             self.reset()
         else:
