@@ -4,7 +4,8 @@ The sub-pixel fits a measured frame calls for, and its spot table.
 
 Per spot the model its shape calls for (frame_fits routes): blends fitted jointly (their
 cosmic-ray track peaks fitted and dropped), streaks (free, or on the path a rate aid predicts),
-point PSFs (the frame's single-star model; clipped stars without their clipped pixels), then
+point PSFs (the frame's single-star model; clipped stars without their clipped pixels; point
+and streak fits without the pixels sharper than the PSF, detection.sharp_pixels), then
 the stars whose fit shows a clipped core refitted; the table scaled to the local noise, cut at
 min_snr and max_spots, brightest first.
 """
@@ -18,11 +19,13 @@ import numpy as np
 from .config import elongation_limit
 from .detection.candidates import Candidates
 from .detection.saturation import clipped_pixels, undershot_peaks
+from .detection.sharp_pixels import sharp_pixels
 from .detection.texture import rank_last, texture_streaks
 from .frame_measurement import Clipping, FrameMeasurement
 from .psf.point_fits import fit_blends, fit_clipped_points, fit_points, own_centres
 from .records import FitContext, SpotRows, no_spots
 from .spots import FLAG_RATE_AIDED, FLAG_SATURATED, FLAG_STREAK, Spots
+from .streak.smear import segment_length
 from .streak.streak_spots import fit_streak_spots
 from .tracks.beside_tracks import refit_beside_tracks
 
@@ -128,6 +131,8 @@ def _fit_spots(m: FrameMeasurement) -> tuple[SpotRows, list[SpotRows], Clipping,
     saturated = clipping.saturated
     as_streak, as_point, clipped_point, round_frame = _routes(m)
     added, fitted = [], clipping.fitted.copy()
+    # Point and streak fits leave out the clipped pixels and those sharper than the PSF (hot pixels on starlight).
+    excluded = _with_sharp_pixels(context, kept, spots, as_point | as_streak, clipping.excluded)
     fitted_blends = False  # blends fitted star by star (fit_blends), not left at their centres of gravity
     if multi.any() and (_smeared_frame(m) or not context.config.split_blends):
         spots = spots.with_values(np.flatnonzero(multi), cov=kept.moment_covariance(np.flatnonzero(multi)))
@@ -139,7 +144,7 @@ def _fit_spots(m: FrameMeasurement) -> tuple[SpotRows, list[SpotRows], Clipping,
         added.append(more)
         fitted_blends = True
     if as_streak.any():
-        spots, more = fit_streak_spots(context, kept, spots, np.flatnonzero(as_streak), aid, clipping.excluded)[:2]
+        spots, more = fit_streak_spots(context, kept, spots, np.flatnonzero(as_streak), aid, excluded)[:2]
         added.append(more)
         fitted |= as_streak & ((spots.flags & FLAG_STREAK) != 0)
         if round_frame:
@@ -149,12 +154,12 @@ def _fit_spots(m: FrameMeasurement) -> tuple[SpotRows, list[SpotRows], Clipping,
             as_point |= as_streak & (spots.snr <= 0) & ~saturated
     fit_model = ""
     if as_point.any():
-        outcome = fit_points(context, kept, spots, np.flatnonzero(as_point), clipping.excluded)
+        outcome = fit_points(context, kept, spots, np.flatnonzero(as_point), excluded)
         spots, more, fit_model = outcome.spots, outcome.added, outcome.model
         added.append(more)
         if outcome.psf is not None and fitted_blends:  # beside_tracks.py: the frame's model, not the Gaussian
             peaks = {t: (kept.peaks[t], track) for t, (track, _) in track_peaks.items() if multi[t]}
-            spots = refit_beside_tracks(context, peaks, spots, outcome.psf, clipping.excluded)
+            spots = refit_beside_tracks(context, peaks, spots, outcome.psf, excluded)
     if clipped_point.any():
         outcome = fit_clipped_points(context, spots, np.flatnonzero(clipped_point), clipping.excluded)
         spots, fitted[clipped_point] = outcome.spots, outcome.converged
@@ -168,6 +173,22 @@ def _fit_spots(m: FrameMeasurement) -> tuple[SpotRows, list[SpotRows], Clipping,
     return spots, added + [more], clipping, fit_model
 
 
+def _with_sharp_pixels(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray,
+                       excluded: np.ndarray | None) -> np.ndarray | None:
+    """
+    Return `excluded` (H, W) bool (None: none) with the pixels sharper than the PSF in the windows of spots `which`.
+
+    detection.sharp_pixels; a streak's window reaches half its length (from its second moments) along it.
+    """
+    which = np.flatnonzero(which)
+    length = np.minimum(segment_length(np.nan_to_num(kept.major[which]), context.sigma), MAX_SHARP_REACH_PX)
+    sharp = sharp_pixels(context, spots.x[which], spots.y[which],
+                         context.window_half + np.ceil(0.5 * length).astype(np.int64))
+    if sharp is None:
+        return excluded
+    return sharp if excluded is None else excluded | sharp
+
+
 def _own_brightest_stars(spots: SpotRows, rows: np.ndarray, track_peaks: dict) -> SpotRows:
     """Spots `rows` (blends with tracks) replaced by their brightest star's own-pixel centre; none: dropped."""
     for t in rows.tolist():
@@ -176,6 +197,8 @@ def _own_brightest_stars(spots: SpotRows, rows: np.ndarray, track_peaks: dict) -
                  else spots.with_values(np.array([t]), snr=0.0))
     return spots
 
+
+MAX_SHARP_REACH_PX = 128.0  # a streak's length searched for sharp pixels at most [px] (a track's moments can run away)
 
 # A clipped star's footprint whose major axis lies within BLOOM_ANGLE_RAD of its column is
 # elongated by its bloom spill (config.sensor_blooms).

@@ -36,7 +36,8 @@ class Candidates:
 
     x, y [px], flux [ADU], snr [-], cov (n, 2, 2) [px^2]: centre of gravity and its noise;
     minor, major [px^2], angle [rad]: second moments and the major axis; peak, peak_raw:
-    brightest pixel background-subtracted and raw [ADU]; edge: touches the image border;
+    brightest pixel background-subtracted and raw [ADU] (hot pixels as cleaned: a cleaned
+    pixel's raw value is its cleaned value plus the background); edge: touches the image border;
     area: footprint [px]; cleaned: hot pixels were replaced in it; wx, wy, wcov:
     intensity-weighted centre of gravity and its covariance; has_window: a small spot that
     keeps its cleaned fit window `window` (n, S, S) with mask `window_valid` and top-left pixel
@@ -236,7 +237,8 @@ def _measure_large(frame: CandidateFrame, idx: np.ndarray, out: dict) -> None:
         out["major"][members], out["angle"][members] = shape.major, shape.angle
         out["minor"][members] = np.where(shape.peak >= 10.0 * noise, shape.minor, np.inf)
         out["wx"][members], out["wy"][members], out["wcov"][members] = wmom.x, wmom.y, wmom.cov
-        out["peak_raw"][members] = np.where(use, raw, -np.inf).reshape(k.size, -1).max(axis=1)
+        # A cleaned hot pixel's raw value is its cleaned one: a defect's reading is no star's peak.
+        out["peak_raw"][members] = np.where(use, np.where(hit, win + bg, raw), -np.inf).reshape(k.size, -1).max(axis=1)
         out["edge"][members] = ((det.left[members] <= 0) | (det.top[members] <= 0) | (det.right[members] >= width)
                                 | (det.bottom[members] >= height))
         out["cleaned"][members] = hit.any(axis=(1, 2))

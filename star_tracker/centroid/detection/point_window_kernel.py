@@ -125,7 +125,8 @@ def _clean_search_window(image, c0, r0, plane, ratio_limit, noise, raw, win, val
 
     plane: (level [ADU] at (x, y), x, y [px], slope_x, slope_y [ADU/px]).
 
-    raw, win, valid (big, big) are overwritten; returns whether a hot pixel was cleaned. The
+    raw, win, valid (big, big) are overwritten (raw: the image's values, a hot pixel's replaced by
+    its cleaned value plus the background); returns whether a hot pixel was cleaned. The
     4-neighbour test of measure.clean_hot_pixels (hot_pixel_kernel.is_hot, neighbour_mean):
     interior rows only (as the stacked OpenCV pass), replicate at the columns.
     """
@@ -153,6 +154,9 @@ def _clean_search_window(image, c0, r0, plane, ratio_limit, noise, raw, win, val
             if is_hot(win[i, j], up, left, right, down, ratio, floor):
                 hit_any = True
                 cleaned[i, j] = float(neighbour_mean(up, left, right, down))
+                # The raw value too: a hot pixel's reading is no star's peak (it would outrank
+                # a wide star's in the PSF estimate's choice of stars, and pass for a clip level).
+                raw[i, j] += cleaned[i, j] - win[i, j]
     win[:, :] = cleaned
     return hit_any
 
