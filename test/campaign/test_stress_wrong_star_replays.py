@@ -22,32 +22,15 @@ spot after a star whose light made it, and the truth (accuracy.truth_hip) said o
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
-from star_tracker.campaign.presets import stress
-
-SEED = 2026
+from stress_replay import prepared, replay_to
 
 
 @pytest.fixture(scope="module")
 def campaign():
-    options = stress.StressOptions()
-    return options, stress.Stress().prepare(options)
-
-
-def replay_to(campaign, task: int, frame: int) -> list[dict]:
-    """Return the frames of mission `task` delivered up to and including `frame` (stress.run_mission)."""
-    options, shared = campaign
-    rng = np.random.default_rng(np.random.SeedSequence([SEED, task]))
-    mission = stress.draw_mission(rng, options.frames_per_mission, shared.sensor)
-    last = max(k for k, entry in enumerate(mission.schedule) if entry[0] == frame)
-    mission = replace(mission, schedule=mission.schedule[:last + 1],
-                      events=[event for event in mission.events if event <= last])
-    _, frames = stress.run_mission(shared, options, rng, mission)
-    return frames
+    return prepared()
 
 
 @pytest.mark.slow
