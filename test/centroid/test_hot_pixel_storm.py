@@ -30,7 +30,7 @@ SEED, TASK = 2026, 112
 
 
 def _squares(spots, x, y, hot_x, hot_y, min_snr: float = 0.0):
-    """Stars' (error / stated sigma)^2 per axis [-] for spots within 1.5 px of a star, split by a hot pixel in the window."""
+    """Stars' (error / stated sigma)^2 per axis [-] within 1.5 px of a star, split by a hot pixel in the window."""
     half = window_half(spots.psf.applied_sigma_px)
     distance = np.hypot(x[:, None] - spots.x[None], y[:, None] - spots.y[None])
     star, spot = np.nonzero((distance < 1.5) & (spots.snr[None] >= min_snr))
@@ -74,7 +74,8 @@ def test_stress_hot_pixel_storm_frame_is_fitted_at_its_own_width(monkeypatch):
     x, y, electrons = truth.x[star], truth.y[star], truth.electrons[star]
     # Stars alone: no other within 4 PSF sigmas holding 5 % of its light (a pair 2.8 px apart is one spot).
     apart = np.hypot(x[:, None] - x[None], y[:, None] - y[None])
-    crowded = ((apart > 0) & (apart < 4.0 * mission.psf_sigma_px) & (electrons[None] > 0.05 * electrons[:, None])).any(1)
+    crowded = ((apart > 0) & (apart < 4.0 * mission.psf_sigma_px)
+               & (electrons[None] > 0.05 * electrons[:, None])).any(1)
     square, _ = _squares(spots, x[~crowded], y[~crowded], truth.x[hot], truth.y[hot], min_snr=10.0)
     assert square.size >= 80
     assert 0.5 < float(np.mean(square)) < 1.6, float(np.mean(square))
@@ -101,7 +102,7 @@ def _alt_squares(psf_sigma: float, hot_e: tuple[float, float], seed: int):
 @pytest.mark.parametrize("psf_sigma, hot_e", [(2.0, (440.0, 441.0)), (2.5, (440.0, 441.0)), (2.0, (500.0, 5000.0)),
                                               (2.5, (500.0, 5000.0))])
 def test_a_hot_pixel_in_a_wide_stars_window_leaves_its_covariance_honest(psf_sigma, hot_e):
-    """Independent renderer: stars with a hot pixel in their window, mean (error / sigma)^2 within [0.6, 1.5] (1 expected)."""
+    """Independent renderer: stars with a hot pixel in their window, mean (error / sigma)^2 in [0.6, 1.5]."""
     square, near = _alt_squares(psf_sigma, hot_e, seed=int(psf_sigma * 100 + hot_e[1]))
     assert near.sum() >= 80 and (~near).sum() >= 80
     # Before: 2.7 / 2.4 (440 e-) and 5.0 / 5.0 (500-5000 e-).

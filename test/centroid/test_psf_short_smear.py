@@ -11,7 +11,6 @@ smear, cold): 4-11 of 40 stars found at 1 px; 40 of 40, 0.05 px RMS, at the esti
 """
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from bench import alt_renderer as alt

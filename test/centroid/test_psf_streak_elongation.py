@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-An unaided frame of long streaks of a wide PSF is estimated elongated, and measured at its minor axis, not as a wide round PSF.
+An unaided frame of long streaks of a wide PSF is estimated elongated and measured at its minor axis.
 
 A 2.5 px PSF smeared 18 px has an axis ratio of ~2.5 (round enough for the estimate's star
 test, MAX_AXIS_RATIO 3). The weighted moments (a weight twice the round fit's ~4.4 px) take in
