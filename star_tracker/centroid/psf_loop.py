@@ -160,7 +160,7 @@ class PsfLoop:
         self.kept = (trial, measured)
         frame = measured.frame
         if frame is None:
-            self.estimate = replace(PsfEstimate.assumed(trial.sigma_px, "prior", "no detections"), holds_prior=True)
+            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "no detections", holds_prior=True)
             return None
         if frame.smeared and not self._short_smear():
             return self._across_streaks(trial)
@@ -209,8 +209,8 @@ class PsfLoop:
                                                 cand.snr[unclipped], self.smear)
         if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
             # Too few bright streaks says nothing against the prior: a running prior holds.
-            self.estimate = replace(PsfEstimate.assumed(trial.sigma_px, "prior", "rate-aided frame: too few streaks "
-                                                        "to measure across", used), holds_prior=True)
+            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "rate-aided frame: too few streaks to "
+                                                "measure across", used, holds_prior=True)
             return None
         self.estimate = PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
         if abs(sigma - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:

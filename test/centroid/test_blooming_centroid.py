@@ -82,6 +82,17 @@ def _footprint_wide(spots, i: int) -> bool:
     return bool(np.sqrt(np.max(np.diagonal(spots.cov[i]))) > 0.1)
 
 
+def _score(spots, x: np.ndarray, y: np.ndarray, chi2: list, saturated: int, wide: int) -> tuple[int, int]:
+    """Append each true star's chi^2 (2 DOF) under its nearest spot's covariance; return the counts updated."""
+    for tx, ty in zip(x, y):
+        i = int(np.argmin(np.hypot(spots.x - tx, spots.y - ty)))
+        error = np.array([spots.x[i] - tx, spots.y[i] - ty])
+        chi2.append(float(error @ np.linalg.solve(spots.cov[i], error)))
+        saturated += bool(spots.flags[i] & FLAG_SATURATED)
+        wide += _footprint_wide(spots, i)
+    return saturated, wide
+
+
 def test_stars_elongated_by_their_bloom_are_fitted_as_points():
     boresight = POINTING[:, 2]
     environment = Environment(spacecraft_position_m=7.0e6 * boresight, spacecraft_velocity_m_s=np.zeros(3),
@@ -94,14 +105,8 @@ def test_stars_elongated_by_their_bloom_are_fitted_as_points():
         frame = StarFieldRenderer(CAMERA, SensorModel(), stars, 7.5).render(
             ConstantRateMotion(POINTING, np.zeros(3)), 0.0, frame_seed(7, seed), environment=environment)
         spots = extract_spots(frame.image, CentroidConfig(sensor_blooms=True))
-        truth = frame.truth
-        star = truth.kind == KIND_STAR
-        for x, y in zip(truth.x[star], truth.y[star]):
-            i = int(np.argmin(np.hypot(spots.x - x, spots.y - y)))
-            error = np.array([spots.x[i] - x, spots.y[i] - y])
-            chi2.append(float(error @ np.linalg.solve(spots.cov[i], error)))
-            saturated += bool(spots.flags[i] & FLAG_SATURATED)
-            wide += _footprint_wide(spots, i)
+        star = frame.truth.kind == KIND_STAR
+        saturated, wide = _score(spots, frame.truth.x[star], frame.truth.y[star], chi2, saturated, wide)
     print(f"\n{saturated} saturated of {len(chi2)}, {wide} footprint-wide; chi2 mean {np.mean(chi2):.2f}, "
           f"max {np.max(chi2):.1f}")
     assert saturated >= 80
@@ -122,12 +127,7 @@ def test_blooming_stars_of_the_second_renderer_are_fitted_within_their_covarianc
         frame = alt.render(alt.StarField.build(alt.GaussianPsf(1.0), x, y), flux, alt.Detector(blooms=True), 1024,
                            1024, rng)
         spots = extract_spots(frame.image, CentroidConfig(sensor_blooms=True))
-        for tx, ty in zip(x, y):
-            i = int(np.argmin(np.hypot(spots.x - tx, spots.y - ty)))
-            error = np.array([spots.x[i] - tx, spots.y[i] - ty])
-            chi2.append(float(error @ np.linalg.solve(spots.cov[i], error)))
-            saturated += bool(spots.flags[i] & FLAG_SATURATED)
-            wide += _footprint_wide(spots, i)
+        saturated, wide = _score(spots, x, y, chi2, saturated, wide)
     print(f"\n{saturated} saturated of {len(chi2)}, {wide} footprint-wide; chi2 mean {np.mean(chi2):.2f}, "
           f"max {np.max(chi2):.1f}")
     assert saturated == len(chi2)

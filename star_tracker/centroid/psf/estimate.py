@@ -24,7 +24,7 @@ axis ratios.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -115,9 +115,11 @@ class PsfEstimate:
         return float(self.sigma_major_px / self.sigma_minor_px) if self.sigma_minor_px > 0 else 1.0
 
     @staticmethod
-    def assumed(sigma_px: float, source: str, reason: str = "", stars: int = 0) -> "PsfEstimate":
+    def assumed(sigma_px: float, source: str, reason: str = "", stars: int = 0,
+                holds_prior: bool = False) -> "PsfEstimate":
         """Return a round PSF of sigma_px [px] that was not estimated (source "prior" or "configured")."""
-        return PsfEstimate(float(sigma_px), float(sigma_px), float(sigma_px), 0.0, float("nan"), stars, source, reason)
+        return PsfEstimate(float(sigma_px), float(sigma_px), float(sigma_px), 0.0, float("nan"), stars, source, reason,
+                           holds_prior=holds_prior)
 
 
 def usable_stars(cand: Candidates, det: Detections, saturation: float, prior_sigma: float, faint: bool = False,
@@ -260,10 +262,9 @@ def _estimate_from_fits(fit, prior_sigma: float, faint: bool) -> PsfEstimate:
     elongated = int((np.isfinite(shape) & ~round_).sum())
     if round_.sum() < MIN_STARS or round_.sum() <= elongated:
         # Mostly elongated: the stars show the motion (or tracks), no evidence against the prior.
-        return replace(PsfEstimate.assumed(prior_sigma, "prior", f"{int(round_.sum())} of {width.size} stars round "
-                                           f"(axis ratio < {MAX_AXIS_RATIO:g}; need {MIN_STARS}), {elongated} "
-                                           f"elongated: smeared or blended", int(round_.sum())),
-                       holds_prior=bool(round_.sum() <= elongated))
+        return PsfEstimate.assumed(prior_sigma, "prior", f"{int(round_.sum())} of {width.size} stars round (axis "
+                                   f"ratio < {MAX_AXIS_RATIO:g}; need {MIN_STARS}), {elongated} elongated: smeared "
+                                   f"or blended", int(round_.sum()), holds_prior=bool(round_.sum() <= elongated))
     width = width[round_]
     sigma = _median(width)
     spread = 1.4826 * _median(np.abs(width - sigma))
