@@ -67,7 +67,6 @@ from pathlib import Path
 import numpy as np
 
 from star_tracker.centroid import FLAG_SATURATED, CentroidConfig, extract_spots
-from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.commands.bench import report_progress
 from star_tracker.fuse import (AlignmentConfig, AlignmentFilter, BodyRate, FusionConfig, FusionState,
                                FusionUnavailable, HeadObservation)
@@ -262,7 +261,7 @@ def run_sequence(job: dict) -> dict:
         stamp_ns = _stamp(t)
         environment = environments.environment(t)
         frame = renderer.render(motion, t, frame_seed(job["seed"], int(k)), environment=environment)
-        smear = None if tracker.rate is None else SmearModel(CAMERA, tracker.rate.angular_velocity, SENSOR.exposure_s)
+        smear = tracker.centroider_aid(stamp_ns, CAMERA, SENSOR.exposure_s)
         spots = extract_spots(frame.image, CENTROID, smear)
         tracked = tracker.process(stamp_ns, spots, CAMERA)
         record = _frame_record(frame, environment, tracked, spots, tracker, stamp_ns, job["kind"] == "orbit")

@@ -11,7 +11,8 @@ compensation, and tetra3rs's tracking mode on the same centroids.
 Pipeline (as test/track/test_tracking.py and the live nodes): the simulator renders 1024^2 / 15 deg
 frames (SensorModel defaults, 0.1 s exposure, stars to Hp 7.5) at mid-exposure stamps
 0.05 + 0.1 k s; the centroider is rate-aided by the tracker's own current rate estimate
-(SmearModel(camera, tracker.rate.angular_velocity, 0.1)); the tracker is
+(Tracker.centroider_aid: its rate and acceleration carried to the frame, as the nodes' centroider
+takes the identifier's); the tracker is
 Tracker(make_identifier("hybrid", db), TrackingConfig()) on the default DatabaseConfig; the
 identifier's time budget (IdentifyConfig.max_time_s) is counted on the CPU clock, as in the
 campaigns (campaign_identify_config): on the wall clock a loaded host, or a worker sharing its
@@ -70,7 +71,6 @@ from star_tracker.models.catalog import cache_dir, load_hipparcos
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
 from star_tracker.campaign import CampaignKind
 from star_tracker.campaign.presets.scoring import campaign_identify_config
-from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.identify import DatabaseConfig, load_or_build_database, make_identifier
 from star_tracker.track.tracking import MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Tracker, TrackingConfig
 from star_tracker.sim.motion import ConstantRateMotion, MotionProfile, SlewMotion
@@ -340,7 +340,7 @@ class TrackingBench:
             t, stamp_ns = stamp_of(k)
             frame = self.renderer.render(motion, t, frame_seed(seed, k))
             aid = tracker.rate
-            smear = None if aid is None else SmearModel(CAMERA, aid.angular_velocity, EXPOSURE_S)
+            smear = tracker.centroider_aid(stamp_ns, CAMERA, EXPOSURE_S)
             spots = extract_spots(frame.image, CentroidConfig(), smear)
             gap = (gaps or {}).get(k)
             if gap == "blank":

@@ -16,12 +16,23 @@ t_mean) per axis, and its variance, as a uniform error, is added to the covarian
 whose residuals fail a chi^2 test (the acceleration changed inside it, or an attitude is
 biased) is shortened from the old end until the fit passes.
 
-The estimate carries the angular acceleration and its covariance (RateEstimate): the
-constant-acceleration fit's, or, when the window holds fewer than four attitudes but three are
-in it, the exact quadratic through the newest three (untested), which also carries the
-constant-rate slope over its lag to the newest frame. A rate-aided centroider needs it: under
-an acceleration the smear is uneven in time and a spot's centroid is the exposure average, not
-the mid-exposure position (centroid/streak/smear.py).
+The estimate carries the angular acceleration and its covariance (RateEstimate) only from a
+constant-acceleration fit whose chi^2 tests passed (four attitudes or more). A rate-aided
+centroider needs it: under an acceleration the smear is uneven in time and a spot's centroid is
+the exposure average, not the mid-exposure position (centroid/streak/smear.py), so a wrong
+acceleration moves every spot. When the window is shorter but three attitudes are in it, the
+exact quadratic through the newest three carries the constant-rate slope over its lag to the
+newest frame; its acceleration, untested, is not published: under jitter the window shortens
+every frame and that quadratic is the jitter's aliased curvature, whose alpha T^2 / 24 moved
+every spot of the next frame by several of its stated sigmas (stress campaign).
+
+Each attitude is what its frame measured: where the centroider's acceleration A_k (None: 0)
+missed the body's alpha, the spots, and so the attitude, moved by g_k (alpha - A_k), g_k the
+frame's bias gain [s^2] (Tracker.bias_gain: T^2 / 24 for point-like spots, more for streaks).
+The fit takes it in: the attitude turned back by g_k A_k, the acceleration's basis
+tau^2 / 2 + g_k. A window of frames measured with and without an acceleration (the first
+frames of a slew, before the rate estimate holds one) then fits one motion, where the bare
+model saw a step of g alpha (3" at 2 deg/s^2) and shortened the window every frame.
 """
 from __future__ import annotations
 
@@ -33,7 +44,7 @@ import numpy as np
 from numba import njit
 from scipy.special import gammaincinv
 
-from ..models.attitude import matrix_to_rotation_vector
+from ..models.attitude import matrix_to_rotation_vector, rotation_vector_to_matrix
 
 # A rate-aided centroider uses an angular acceleration only from an estimate (or rate samples)
 # no older than this before the frame: after a gap the motion may have changed unseen (a slew
@@ -51,11 +62,10 @@ class RateEstimate:
     (3,) body rate in the sensor frame [rad/s] at `stamp_ns`; covariance: (3, 3)
     [rad^2/s^2]; frames: attitudes used; angular_acceleration: (3,) d omega/dt in the sensor
     frame [rad/s^2] and acceleration_covariance (3, 3) [rad^2/s^4], from the constant-
-    acceleration fit of the window, or of the newest three attitudes when the window is
-    shorter than four (then the constant-rate fit's slope, the rate at its weighted mean
-    time, is carried to stamp_ns by it: lag_s [s] is how far, and the lag's bound
-    (alpha_max lag_s)^2 / 3 per axis stays in covariance); None when fewer than three
-    attitudes are in the window.
+    acceleration fit of a window of four attitudes or more that passed its tests; None
+    otherwise (a shorter window's rate, the constant-rate slope, is carried to stamp_ns by the
+    newest three's exact quadratic, and the lag's bound (alpha_max lag)^2 / 3 per axis stays in
+    covariance).
     """
 
     stamp_ns: int
@@ -64,7 +74,6 @@ class RateEstimate:
     frames: int
     angular_acceleration: np.ndarray | None = None
     acceleration_covariance: np.ndarray | None = None
-    lag_s: float = 0.0
 
     @property
     def sigma(self) -> np.ndarray:
@@ -102,16 +111,21 @@ class AttitudeRateEstimator:
         self._rotations = np.zeros((max_frames, 3, 3))
         self._information = np.zeros((max_frames, 3, 3))
         self._covariances = np.zeros((max_frames, 3, 3))
+        self._gains = np.zeros(max_frames)  # g_k [s^2] (module docstring)
         self._limits = _chi2_limits(3 * max_frames)
 
     def reset(self) -> None:
         self._count = 0
 
-    def add(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray) -> RateEstimate | None:
+    def add(self, stamp_ns: int, rotation: np.ndarray, covariance: np.ndarray, bias_gain_s2: float = 0.0,
+            applied_acceleration: np.ndarray | None = None) -> RateEstimate | None:
         """
         Add a verified attitude; return the rate at `stamp_ns` once two attitudes are in the window, else None.
 
-        Stamps must increase; an older one restarts the window.
+        Stamps must increase; an older one restarts the window. bias_gain_s2: g [s^2], how far
+        an acceleration the frame's centroider missed moved its attitude per rad/s^2;
+        applied_acceleration: the acceleration it used [rad/s^2, sensor frame] (None: none)
+        (module docstring).
         """
         stamp_ns = int(stamp_ns)
         if self._count and stamp_ns <= self._stamps[self._count - 1]:
@@ -120,17 +134,24 @@ class AttitudeRateEstimator:
         invertible, information = _inverse3(covariance)
         if not invertible:
             raise ValueError("attitude covariance must be invertible")
+        gain = float(bias_gain_s2)
+        if not (math.isfinite(gain) and gain >= 0.0):
+            raise ValueError(f"bias_gain_s2 must be finite and >= 0 [s^2], got {bias_gain_s2!r}")
+        if applied_acceleration is not None and gain > 0.0:
+            # Back to what the frame would have measured without it: R exp([g A x]).
+            rotation = np.asarray(rotation, float) @ rotation_vector_to_matrix(
+                gain * np.asarray(applied_acceleration, float).reshape(3))
         # Oldest out: beyond the window, or to make room.
         drop = int(np.count_nonzero(stamp_ns - self._stamps[:self._count] > self.window_ns))
         drop = max(drop, self._count + 1 - self._stamps.size)
         if drop:
             kept = slice(drop, self._count)
-            for array in (self._stamps, self._rotations, self._information, self._covariances):
+            for array in (self._stamps, self._rotations, self._information, self._covariances, self._gains):
                 array[:self._count - drop] = array[kept]
             self._count -= drop
         k = self._count
-        self._stamps[k], self._rotations[k], self._information[k], self._covariances[k] = (
-            stamp_ns, rotation, information, covariance)
+        self._stamps[k], self._rotations[k], self._information[k], self._covariances[k], self._gains[k] = (
+            stamp_ns, rotation, information, covariance, gain)
         self._count += 1
         return self.estimate()
 
@@ -150,25 +171,25 @@ class AttitudeRateEstimator:
         # Rotation vectors relative to the newest attitude, in the newest sensor frame.
         phi = _relative_rotation_vectors(self._rotations[:count])
         tau = (stamps - stamps[-1]) * 1e-9
+        gains = self._gains[:count]
         ok, omega, covariance, frames, alpha, alpha_cov, lag = _window_fit(
-            tau, phi, self._information[:count], self._covariances[count - 1], self.alpha_max, self._limits)
+            tau, phi, gains, self._information[:count], self._covariances[count - 1], self.alpha_max, self._limits)
         if not ok:
             return None
         if frames < 4:
             if count < 3:
                 return RateEstimate(int(stamps[-1]), omega, covariance, int(frames))
-            # The newest three attitudes fix a constant acceleration exactly (untested: a window
-            # that failed its tests mostly failed because the body accelerates). It carries the
+            # The newest three attitudes fix a constant acceleration exactly. It carries the
             # constant-rate slope over its lag to the newest frame; the lag's bound stays in the
-            # covariance (the acceleration may have changed inside the three frames).
-            ok3, _, _, _, _, alpha, alpha_cov = _gls(tau[-3:], phi[-3:], self._information[count - 3:count],
+            # covariance (the acceleration may have changed inside the three frames). Untested,
+            # the acceleration itself is not published (module docstring).
+            ok3, _, _, _, _, alpha, alpha_cov = _gls(tau[-3:], phi[-3:], gains[-3:], self._information[count - 3:count],
                                                      self._covariances[count - 1], 3)
-            if not ok3:
-                return RateEstimate(int(stamps[-1]), omega, covariance, int(frames))
-            omega = omega + alpha * lag
-            covariance = covariance + lag * lag * alpha_cov
-        return RateEstimate(int(stamps[-1]), omega, covariance, int(frames), alpha, alpha_cov,
-                            float(lag) if frames < 4 else 0.0)
+            if ok3:
+                omega = omega + alpha * lag
+                covariance = covariance + lag * lag * alpha_cov
+            return RateEstimate(int(stamps[-1]), omega, covariance, int(frames))
+        return RateEstimate(int(stamps[-1]), omega, covariance, int(frames), alpha, alpha_cov)
 
 
 @lru_cache(maxsize=8)
@@ -243,11 +264,11 @@ def _inverse3(matrix):
 
 
 @njit(cache=True)
-def _window_fit(tau, phi, weight, newest_covariance, alpha_max, limits):
+def _window_fit(tau, phi, gains, weight, newest_covariance, alpha_max, limits):
     """
     estimate()'s window loop.
 
-    GLS fits of phi(tau) [rad] at times tau [s] (newest last, tau = 0) with weights P^-1,
+    GLS fits of phi(tau) [rad] at times tau [s] (newest last, tau = 0), bias gains g [s^2], with weights P^-1,
     from the whole window down to the newest two until both chi^2 tests pass (limits[dof]).
     With 4+ attitudes the fit includes a constant acceleration, so the rate at the newest
     frame is unbiased while the body accelerates; with 2-3 it is the constant-rate fit, whose
@@ -261,8 +282,8 @@ def _window_fit(tau, phi, weight, newest_covariance, alpha_max, limits):
         frames = count - first
         terms = 3 if frames >= 4 else 2
         lag = 0.0
-        ok, omega, covariance, chi2, newest_chi2, alpha, alpha_cov = _gls(tau[first:], phi[first:], weight[first:],
-                                                                          newest_covariance, terms)
+        ok, omega, covariance, chi2, newest_chi2, alpha, alpha_cov = _gls(tau[first:], phi[first:], gains[first:],
+                                                                          weight[first:], newest_covariance, terms)
         if not ok:
             return False, omega, covariance, 0, alpha, alpha_cov, 0.0
         if terms == 2:
@@ -282,9 +303,9 @@ def _window_fit(tau, phi, weight, newest_covariance, alpha_max, limits):
 
 
 @njit(cache=True)
-def _gls(tau, phi, weight, newest_covariance, terms):
+def _gls(tau, phi, gains, weight, newest_covariance, terms):
     """
-    phi_k = sum_a basis_a(tau_k) theta_a, basis = (1, tau, tau^2/2)[:terms], weights W_k.
+    phi_k = sum_a basis_a(tau_k) theta_a, basis = (1, tau, tau^2/2 + g_k)[:terms], weights W_k.
 
     (ok, omega = theta_1, its covariance, chi^2, chi^2 of the newest residual, alpha = theta_2
     and its covariance (zero when terms == 2)). Compiled: the rate fit runs on every tracked
@@ -297,7 +318,7 @@ def _gls(tau, phi, weight, newest_covariance, terms):
         basis[k, 0] = 1.0
         basis[k, 1] = tau[k]
         if terms == 3:
-            basis[k, 2] = 0.5 * tau[k] * tau[k]
+            basis[k, 2] = 0.5 * tau[k] * tau[k] + gains[k]
     info = np.zeros((size, size))
     rhs = np.zeros(size)
     for k in range(count):

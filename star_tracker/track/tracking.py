@@ -34,6 +34,7 @@ from ..models.attitude import matrix_to_rotation_vector, rotation_vector_to_matr
 from ..models.attitude_estimation import attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
+from ..centroid.streak.smear import SmearModel
 from ..parameter_spec import parameter, range_problems
 from .rate import ACCELERATION_MAX_AGE_S, AttitudeRateEstimator, RateEstimate
 from . import kernels as track_kernels
@@ -293,7 +294,11 @@ class Tracker:
         aid = self.rate
         if aid is not None and not 0 <= stamp_ns - aid.stamp_ns <= ACCELERATION_MAX_AGE_S * 1e9:
             aid = None
-        after = self.rates.add(stamp_ns, solution.rotation, solution.covariance)
+        # What this frame measured: the exposure-average bias of the acceleration its aid missed (rate.py).
+        after = self.rates.add(stamp_ns, solution.rotation, solution.covariance,
+                               self.bias_gain(None if aid is None else aid.angular_velocity, pixel_scale_rad)
+                               if self.config.exposure_s > 0.0 else 0.0,
+                               None if aid is None else aid.angular_acceleration)
         known = after if after is not None else aid
         gain = self.bias_gain(None if known is None else known.angular_velocity, pixel_scale_rad)
         step = self._step_covariance(stamp_ns, solution.rotation, solution.covariance, gain) if aid is not None \
@@ -304,6 +309,25 @@ class Tracker:
         if added is not None:
             result = replace(result, attitude=replace(solution, covariance=solution.covariance + added))
         return TrackedFrame(stamp_ns, mode, result, self.rate, gate_px, bridged, time.perf_counter() - started)
+
+    def centroider_aid(self, stamp_ns: int, camera: CameraModel, exposure_s: float,
+                       max_rate_age_s: float = ACCELERATION_MAX_AGE_S) -> SmearModel | None:
+        """
+        Return the smear model a centroider aided by this tracker gets for the frame at `stamp_ns`, or None.
+
+        As the nodes' centroider takes the identifier's rate (ros/rate_input.motion_for_frame):
+        the rate carried to the frame by the acceleration, and the acceleration while the
+        estimate is no older than ACCELERATION_MAX_AGE_S before the frame: what this tracker
+        assumes a frame was measured with (_accept, rate.py). None without a rate within
+        max_rate_age_s [s] of the frame (the centroider's max_rate_age_s) or an exposure.
+        """
+        rate = self.rate
+        if rate is None or exposure_s <= 0.0 or abs(int(stamp_ns) - rate.stamp_ns) > max_rate_age_s * 1e9:
+            return None
+        omega, alpha = rate.at(stamp_ns)
+        current = rate.angular_acceleration is not None and 0 <= int(stamp_ns) - rate.stamp_ns \
+            <= ACCELERATION_MAX_AGE_S * 1e9
+        return SmearModel(camera, omega, exposure_s, alpha if current else None)
 
     def bias_gain(self, omega: np.ndarray | None, pixel_scale_rad: float | None) -> float:
         """
@@ -355,13 +379,9 @@ class Tracker:
             return None
         rate = self.rate
         turn = rate.angular_velocity * dt
-        rate_covariance = rate.covariance
         if rate.angular_acceleration is not None:
             turn = turn + 0.5 * dt * dt * rate.angular_acceleration
-            # The constant-rate lag's bound (rate.py) is for the acceleration the fit did not
-            # know; here it is known (its error is acceleration_covariance).
-            rate_covariance = rate_covariance - np.eye(3) * (self.rates.alpha_max * rate.lag_s) ** 2 / 3.0
-        spread = last_covariance + covariance + dt * dt * rate_covariance
+        spread = last_covariance + covariance + dt * dt * rate.covariance
         if rate.angular_acceleration is not None:
             spread = spread + (0.5 * dt * dt) ** 2 * rate.acceleration_covariance
         else:
@@ -608,7 +628,8 @@ class Tracker:
             return None
         # The rate window restarts: the bridged frames' attitudes were not verified one by one.
         self.rates.reset()
-        self.rates.add(stamp_ns, result.attitude.rotation, result.attitude.covariance)
+        self.rates.add(stamp_ns, result.attitude.rotation, result.attitude.covariance,
+                       self.bias_gain(None, camera.pixel_scale_rad))  # measured without a rate: no aid
         return self._accept(newest_ns, tracked, MODE_TRACKING, gate, len(chain), started, camera.pixel_scale_rad)
 
     def relative_rotation(self, spots_a: Spots, camera_a: CameraModel, spots_b: Spots, camera_b: CameraModel,

@@ -344,7 +344,10 @@ def _texture_corners(directory: Path) -> np.ndarray:
 
 @pytest.mark.slow  # ~10-30 s
 def test_solve_a_real_wide_field_photograph(sky_photo, tmp_path, catalog):
-    code, out, err = cli("solve", sky_photo / PHOTO, "--fov", "8", "--json", "--plot", tmp_path / "sh2.png")
+    # A generous CPU budget for the stepped fields: on two busy hyperthreads a field's share of the
+    # default 1.5 s (0.07 s) ran out on every field (CI under load); speed is the benchmarks' to judge.
+    code, out, err = cli("solve", sky_photo / PHOTO, "--fov", "8", "--step-search-time", "8", "--json",
+                         "--plot", tmp_path / "sh2.png")
     assert code == 0, err
     solution = json.loads(out)
     assert "PNG 8-bit colour 1024x1024" in solution["image_description"]

@@ -30,10 +30,7 @@ NEES_5_SIGMA = 31.8  # chi^2_3 at the two-sided 5-sigma probability
 
 def aid(tracker, stamp_ns, camera):
     """Return the smear model a rate-aided centroider gets: the tracker's rate and acceleration at the frame."""
-    if tracker.rate is None:
-        return None
-    omega, alpha = tracker.rate.at(stamp_ns)
-    return SmearModel(camera, omega, EXPOSURE_S, alpha)
+    return tracker.centroider_aid(stamp_ns, camera, EXPOSURE_S)
 
 
 def test_rate_estimate_carries_the_acceleration():
@@ -41,26 +38,99 @@ def test_rate_estimate_carries_the_acceleration():
     omega0, alpha = np.radians(0.5) * axis, np.radians(1.5) * axis  # eigen-axis: phi(t) is exact
     sigma = 0.5 * ARCSEC
     start = radec_roll_to_matrix(0.3, 0.2, 0.1)
-    nees = {3: [], 4: []}
+    nees = {4: [], 5: []}
     for seed in range(100):
         rng = np.random.default_rng(seed)
         rates = AttitudeRateEstimator(0.45, ALPHA)
-        for k in range(4):
+        for k in range(5):
             t = 0.1 * k
             truth = start @ rotation_vector_to_matrix(omega0 * t + 0.5 * alpha * t * t)
             measured = truth @ rotation_vector_to_matrix(rng.normal(0.0, sigma, 3))
             estimate = rates.add(int(round(t * 1e9)), measured, np.eye(3) * sigma ** 2)
-            if k < 2:  # fewer than three attitudes: no acceleration
+            if k < 3:  # fewer than four attitudes: no tested fit, no acceleration
                 assert estimate is None or estimate.angular_acceleration is None
+                continue
+            if estimate.angular_acceleration is None:  # the fit failed its 1 % test: none published
                 continue
             error = estimate.angular_acceleration - alpha
             nees[k + 1].append(error @ np.linalg.solve(estimate.acceleration_covariance, error))
         # The rate at the newest frame, carried one frame on by the acceleration.
-        omega_next, _ = estimate.at(int(round(0.4 * 1e9)))
-        assert np.linalg.norm(omega_next - (omega0 + alpha * 0.4)) < np.radians(0.02), np.degrees(omega_next)
+        if estimate.angular_acceleration is not None:
+            omega_next, _ = estimate.at(int(round(0.5 * 1e9)))
+            assert np.linalg.norm(omega_next - (omega0 + alpha * 0.5)) < np.radians(0.02), np.degrees(omega_next)
     # Its covariance is its error's: NEES mean 3 (100 draws: 3 +- 0.5 at 2 sigma).
     for frames, values in nees.items():
+        assert len(values) >= 95, (frames, len(values))
         assert 2.3 < np.mean(values) < 4.0, (frames, np.mean(values))
+
+
+def test_jitter_publishes_no_acceleration():
+    # 20" of jitter at 7 Hz about every axis, seen at 10 Hz with 0.2" noise: no window of four
+    # attitudes fits a constant acceleration, so none is published. The newest three's exact
+    # quadratic (the jitter's aliased curvature, ~0.2 deg/s^2 here) would move a rate-aided
+    # frame's spots by alpha T^2 / 24 ~ 0.4", twice the attitude's stated sigma, every frame.
+    from star_tracker.sim.motion import ConstantRateMotion, JitterMotion
+
+    sigma = 0.2 * ARCSEC
+    start = radec_roll_to_matrix(0.3, 0.2, 0.1)
+    motion = JitterMotion(ConstantRateMotion(start, np.radians([0.1, 0.0, 0.0])), np.full((1, 3), 20.0 * ARCSEC),
+                          [7.0], [0.0, 1.0, 2.0])
+    rng = np.random.default_rng(3)
+    rates = AttitudeRateEstimator(0.45, ALPHA)
+    times = 0.1 * np.arange(60)
+    published, curvature = 0, []
+    for t, truth in zip(times, motion.rotations_at(times)):
+        measured = truth @ rotation_vector_to_matrix(rng.normal(0.0, sigma, 3))
+        estimate = rates.add(int(round(t * 1e9)), measured, np.eye(3) * sigma ** 2)
+        if estimate is not None and estimate.angular_acceleration is not None:
+            published += 1
+        if t >= 0.2:  # what the newest three's exact quadratic says: the second difference
+            phi = [matrix_to_rotation_vector(start.T @ r) for r in motion.rotations_at([t - 0.2, t - 0.1, t])]
+            curvature.append(np.linalg.norm(phi[0] - 2 * phi[1] + phi[2]) / 0.01)
+    assert np.median(curvature) * EXPOSURE_S ** 2 / 24 > 2 * sigma, np.median(curvature)
+    assert published == 0, published
+
+
+def ramp_estimates(bias_gain_s2):
+    """
+    Feed a rate estimator a ramp's attitudes as a rate-aided centroider measures them; return each estimate.
+
+    Rest, then 2 deg/s^2 from t = 0.45 s. Each frame's attitude is the exposure average where the
+    acceleration its aid had (the previous estimate's) missed the body's: g (alpha - A) off the
+    mid-exposure one, g = T^2 / 24 (point-like spots), plus 0.2" of noise.
+    """
+    axis = np.array([0.6, 0.8, 0.0])
+    alpha = ALPHA * axis
+    gain = EXPOSURE_S ** 2 / 24
+    sigma = 0.2 * ARCSEC
+    start = radec_roll_to_matrix(0.3, 0.2, 0.1)
+    rng = np.random.default_rng(11)
+    rates = AttitudeRateEstimator(0.45, ALPHA)
+    estimates, applied = [], None
+    for k in range(14):
+        t = 0.05 + 0.1 * k
+        ramp = max(t - 0.45, 0.0)
+        truth = start @ rotation_vector_to_matrix(0.5 * alpha * ramp * ramp)
+        missed = (alpha if t > 0.45 else np.zeros(3)) - (np.zeros(3) if applied is None else applied)
+        measured = truth @ rotation_vector_to_matrix(gain * missed + rng.normal(0.0, sigma, 3))
+        estimate = rates.add(int(round(t * 1e9)), measured, np.eye(3) * sigma ** 2, bias_gain_s2, applied)
+        estimates.append((t, estimate))
+        applied = None if estimate is None else estimate.angular_acceleration
+    return alpha, estimates
+
+
+def test_a_ramp_measured_with_and_without_its_acceleration_is_one_motion():
+    # The first ramp frames are measured without the acceleration (none estimated yet), the
+    # later ones with it: 3" apart. Told each frame's bias gain, the estimator fits one motion
+    # and holds the acceleration from the fourth ramp frame on; without it, the window breaks.
+    alpha, estimates = ramp_estimates(EXPOSURE_S ** 2 / 24)
+    held = [e for t, e in estimates if t > 0.45 + 0.35]
+    assert all(e.angular_acceleration is not None for e in held), [e.frames for e in held]
+    for e in held:
+        error = e.angular_acceleration - alpha
+        assert error @ np.linalg.solve(e.acceleration_covariance, error) < 16.3, error  # chi^2_3, 0.1 %
+    _, bare = ramp_estimates(0.0)
+    assert sum(e.angular_acceleration is None for t, e in bare if t > 0.45 + 0.35) >= 2
 
 
 def test_smear_model_exposure_mean_offset_is_alpha_t2_over_24(nominal_camera):
@@ -123,14 +193,15 @@ def test_an_accelerating_slew_is_published_with_an_honest_covariance(parts, nomi
         t = 0.05 + 0.1 * k
         stamp_ns = int(round(t * 1e9))
         frame = renderer.render(motion, t, frame_seed(5, k))
-        spots = extract_spots(frame.image, CentroidConfig(), aid(tracker, stamp_ns, nominal_camera))
+        smear = aid(tracker, stamp_ns, nominal_camera)
+        spots = extract_spots(frame.image, CentroidConfig(), smear)
         result = tracker.process(stamp_ns, spots, nominal_camera)
         ident = result.identification
         assert ident.solved, (k, ident.reason)
         error = matrix_to_rotation_vector(frame.truth.rotation.T @ ident.attitude.rotation)
         nees.append(float(error @ np.linalg.solve(ident.attitude.covariance, error)))
         change = motion.angular_velocity_at(t + 0.05) - motion.angular_velocity_at(t - 0.05)
-        if np.linalg.norm(change) > 1e-9 and result.rate is not None and result.rate.frames >= 4:
+        if np.linalg.norm(change) > 1e-9 and smear is not None and smear.angular_acceleration_rad_s2 is not None:
             ramp_errors.append(error)
     nees = np.array(nees)
     # The mean of a consistent covariance is 3; no frame beyond 5 sigma, at most one beyond the
@@ -175,10 +246,10 @@ def test_the_added_covariance_is_what_the_acceleration_can_do_to_one_exposure(pa
     times = 0.1 * np.arange(16)
     angle = lambda t: 0.5 * accel * max(t - 0.95, 0.0) ** 2  # noqa: E731
     added = [c - np.eye(3) * ARCSEC ** 2 for c in accept_path(Tracker(lis), times, angle)]
-    # First two frames: no acceleration known: the bound. From the third on, at rest, the estimate
-    # that includes the frame says ~0: next to nothing added.
-    assert np.allclose(added[0], np.eye(3) * bound) and np.allclose(added[1], np.eye(3) * bound)
-    assert all(np.max(np.diag(a)) < 0.01 * bound for a in added[2:11])
+    # First three frames: no acceleration known (none tested): the bound. From the fourth on, at
+    # rest, the estimate that includes the frame says ~0: next to nothing added.
+    assert all(np.allclose(a, np.eye(3) * bound) for a in added[:3])
+    assert all(np.max(np.diag(a)) < 0.01 * bound for a in added[3:11])
     # The step shows in frame 11 (0.15 s into the slew; frame 10's exposure saw 0.05 s of it):
     # along X, about (alpha_max T^2 / 24)^2 / 3 (the least acceleration change explaining an
     # innovation of alpha (0.15 s)^2 / 2 = 40" over 0.1 s is 2.05 deg/s^2), not the innovation's
@@ -186,7 +257,11 @@ def test_the_added_covariance_is_what_the_acceleration_can_do_to_one_exposure(pa
     step = added[11]
     assert 0.5 * bound < step[0, 0] < (gain * math.radians(2.1)) ** 2 / 3
     assert step[1, 1] < 0.01 * step[0, 0] and step[2, 2] < 0.01 * step[0, 0]
-    assert all(np.max(np.diag(a)) < 0.01 * bound for a in added[12:])
+    # Frame 12: the estimate after it tests a window with the step inside and fails; the one
+    # including frame 13 (four attitudes on the ramp) passes. The centroider had no acceleration
+    # for frame 12, and the one it missed (1 deg/s^2 along X) is what is added, then nothing.
+    assert 0.5 < added[12][0, 0] / (gain * accel) ** 2 < 1.5, added[12][0, 0] / (gain * accel) ** 2
+    assert all(np.max(np.diag(a)) < 0.01 * bound for a in added[13:])
     # A frame 0.6 s after the last (frames lost): the aid's estimate is stale (ACCELERATION_MAX_AGE_S),
     # the window holds one attitude: the bound.
     tracker = Tracker(lis)

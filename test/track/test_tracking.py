@@ -11,7 +11,6 @@ import pytest
 
 from star_tracker.models.attitude import attitude_error, radec_roll_to_matrix, rotation_vector_to_matrix
 from star_tracker.centroid import CentroidConfig, Spots, extract_spots
-from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.identify import make_identifier
 from star_tracker.track.tracking import (MODE_LOST, MODE_LOST_IN_SPACE, MODE_TRACKING, Prediction, Tracker,
                                          TrackingConfig, log_chance_tuples_in_region)
@@ -41,9 +40,9 @@ def frames_of(renderer, motion, count, first=0, seed=0):
         yield int(round(t * 1e9)), renderer.render(motion, t, frame_seed(seed, k))
 
 
-def centroid(frame, camera, rate=None):
+def centroid(frame, camera, tracker=None, stamp_ns=None):
     """Return the centroider, rate-aided by the tracker's own estimate as in the node pipeline."""
-    smear = None if rate is None else SmearModel(camera, rate.angular_velocity, 0.1)
+    smear = None if tracker is None else tracker.centroider_aid(stamp_ns, camera, 0.1)
     return extract_spots(frame.image, CentroidConfig(), smear)
 
 
@@ -74,7 +73,7 @@ def test_slew_is_tracked_on_every_frame_with_an_honest_rate(tracker_parts, nomin
                         max_rate_rad_s=np.radians(2.0), accel_rad_s2=np.radians(2.0), t_start=0.3)
     modes, normalized = [], []
     for stamp_ns, frame in frames_of(renderer, motion, 30):
-        spots = centroid(frame, nominal_camera, tracker.rate)
+        spots = centroid(frame, nominal_camera, tracker, stamp_ns)
         result = tracker.process(stamp_ns, spots, nominal_camera)
         # Acceleration inside the exposure moves a streak's centroid off the mid-exposure
         # position by ~alpha T^2 / 24 (3" here), which the constant-rate smear model ignores.
@@ -99,7 +98,7 @@ def test_constant_rate_estimate_is_consistent(tracker_parts, nominal_camera):
     motion = ConstantRateMotion(radec_roll_to_matrix(3.0, -0.6, 1.0), true_rate)
     nees = []
     for stamp_ns, frame in frames_of(renderer, motion, 30, seed=3):
-        result = tracker.process(stamp_ns, centroid(frame, nominal_camera, tracker.rate), nominal_camera)
+        result = tracker.process(stamp_ns, centroid(frame, nominal_camera, tracker, stamp_ns), nominal_camera)
         assert result.solved
         if result.rate is not None and result.rate.frames >= 3:
             err = result.rate.angular_velocity - true_rate
@@ -113,7 +112,7 @@ def test_forced_loss_reacquires_on_the_next_frame(tracker_parts, nominal_camera)
     tracker.reset()
     motion = ConstantRateMotion(radec_roll_to_matrix(5.0, 0.9, -0.4), np.radians([0.5, 0.2, 0.1]))
     for k, (stamp_ns, frame) in enumerate(frames_of(renderer, motion, 8, seed=5)):
-        spots = centroid(frame, nominal_camera, tracker.rate)
+        spots = centroid(frame, nominal_camera, tracker, stamp_ns)
         if k == 4:  # a blinded frame (Sun or Earth in the field): no spots at all
             result = tracker.process(stamp_ns, Spots.empty(nominal_camera.width, nominal_camera.height), nominal_camera)
             assert result.mode == MODE_LOST and not result.solved

@@ -434,11 +434,10 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
                 + mission.gyro_bias_rad_s + rng.normal(0.0, GYRO_NOISE_RAD_S, size=(offsets.size, 3))
             inside = np.abs(offsets) <= 0.5 * shared.exposure_s
             omega, alpha = samples[inside].mean(axis=0), significant(*from_samples(offsets, samples))
-        elif tracker.rate is not None and abs(tracker.rate.stamp_ns - stamp_ns) <= MAX_RATE_AGE_S * 1e9:
-            # The identifier's estimate carried to the frame by its acceleration, as the centroider does.
-            omega, alpha = tracker.rate.at(stamp_ns)
-            alpha = alpha if tracker.rate.angular_acceleration is not None else None
         smear = None if omega is None else SmearModel(shared.camera, omega, shared.exposure_s, alpha)
+        if mission.rate_aid != "gyro":
+            # The identifier's estimate carried to the frame by its acceleration, as the centroider does.
+            smear = tracker.centroider_aid(stamp_ns, shared.camera, shared.exposure_s, MAX_RATE_AGE_S)
         row["aided"] = smear is not None
         spots = extract_spots(image, config, smear, psf_prior=psf.prior, prior_rings=psf.rings)
         psf.update(spots.psf)

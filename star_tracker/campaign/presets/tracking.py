@@ -123,7 +123,6 @@ class Tracking(CampaignKind):
 
     def trial(self, shared: _Shared, options: TrackingOptions, task: int, rng: np.random.Generator) -> dict:
         from ...centroid import CentroidConfig, extract_spots
-        from ...centroid.streak.smear import SmearModel
         from ...models.attitude import quaternion_to_matrix
         from ...sim.motion import SlewMotion
         from ...track.tracking import MODE_TRACKING, Tracker
@@ -145,13 +144,9 @@ class Tracking(CampaignKind):
             t = 0.05 + PERIOD_S * k
             frame = shared.renderer.render(motion, t, int(rng.integers(2 ** 31)))
             reached = max(reached, math.degrees(float(np.linalg.norm(frame.truth.body_rate))))
-            aid = tracker.rate
             stamp_ns = int(round(t * 1e9))
-            if aid is None:
-                smear = None
-            else:  # the tracker's rate and acceleration carried to the frame, as the centroider takes them
-                omega, alpha = aid.at(stamp_ns)
-                smear = SmearModel(shared.camera, omega, shared.exposure_s, alpha)
+            # The tracker's rate and acceleration carried to the frame, as the centroider takes them.
+            smear = tracker.centroider_aid(stamp_ns, shared.camera, shared.exposure_s)
             spots = extract_spots(frame.image, CentroidConfig(), smear)
             result = tracker.process(stamp_ns, spots, shared.camera)
             ident = result.identification
