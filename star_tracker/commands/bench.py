@@ -105,6 +105,8 @@ BENCHES = (
           "the same real images with every solver told a field 3 % off, peers", peers=True),
     Bench("corpus_centroid", "bench.bench_corpus_centroid", ("--output", "{out}"), ("--quick", "--output", "{out}"),
           "centroiding time per real image, split by stage, beside cedar-solve's whole solve"),
+    Bench("profile", "bench.bench_profile", ("--output", "{out}"), ("--quick", "--output", "{out}"),
+          "cProfile by stage: nominal and slewing frames, lost-in-space, a tracking update, three real images"),
     Bench("simulator_vs_real", "bench.simulator_vs_real", ("--output", "{out}", "--images-dir", "{images}"),
           ("--output", "{out}", "--images-dir", "{images}"),
           "the simulator against a real camera: a profile fitted to real frames, the same sky rendered"),
