@@ -263,8 +263,15 @@ def test_replay_into_fresh_nodes_reproduces_the_live_attitudes(ros_graph, tmp_pa
 
     # Default configuration: the same frames identified; a frame whose rate aid differed
     # (docs/RECORD_REPLAY.md) differs within the attitude's own noise.
+    # The live identifier, at the camera's pace, may bridge frames during a long lost-in-space
+    # solve (delay compensation: only the newest published) or drop them to overload, more on a
+    # loaded host (CI beside a campaign: 5 of 22); counted on its /diagnostics, they are not a
+    # replay's to reproduce. The lockstep replay answers every frame.
+    identifier = live_diagnostics.get("star_tracker/identifier", {})
+    unpublished = sum(int(identifier.get(key, "0")) for key in ("frames_bridged", "frames_dropped_overload"))
     common = sorted(set(live["/attitude"]) & set(replayed["/attitude"]))
-    assert len(common) >= max(len(live["/attitude"]), len(replayed["/attitude"])) - 4, play_log
+    assert len(common) >= max(len(live["/attitude"]), len(replayed["/attitude"]) - unpublished) - 4, \
+        (play_log, identifier)
     errors = np.array([attitude_error(quaternion_to_matrix(np.array(replayed["/attitude"][s])),
                                       quaternion_to_matrix(np.array(live["/attitude"][s])))[:2]
                        for s in common]) / ARCSEC
