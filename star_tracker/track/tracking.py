@@ -291,13 +291,10 @@ class Tracker:
             self.rates.reset()  # time went backwards (replay restarted): a new window
         # What a rate-aided centroider had for this frame: the last estimate, while it is no older
         # than ACCELERATION_MAX_AGE_S (the centroider ages its acceleration out by the same rule).
-        aid = self.rate
-        if aid is not None and not 0 <= stamp_ns - aid.stamp_ns <= ACCELERATION_MAX_AGE_S * 1e9:
-            aid = None
+        aid = self._acceleration_aid(stamp_ns)
         # What this frame measured: the exposure-average bias of the acceleration its aid missed (rate.py).
         after = self.rates.add(stamp_ns, solution.rotation, solution.covariance,
-                               self.bias_gain(None if aid is None else aid.angular_velocity, pixel_scale_rad)
-                               if self.config.exposure_s > 0.0 else 0.0,
+                               self.bias_gain(None if aid is None else aid.angular_velocity, pixel_scale_rad),
                                None if aid is None else aid.angular_acceleration)
         known = after if after is not None else aid
         gain = self.bias_gain(None if known is None else known.angular_velocity, pixel_scale_rad)
@@ -325,9 +322,15 @@ class Tracker:
         if rate is None or exposure_s <= 0.0 or abs(int(stamp_ns) - rate.stamp_ns) > max_rate_age_s * 1e9:
             return None
         omega, alpha = rate.at(stamp_ns)
-        current = rate.angular_acceleration is not None and 0 <= int(stamp_ns) - rate.stamp_ns \
-            <= ACCELERATION_MAX_AGE_S * 1e9
+        current = self._acceleration_aid(stamp_ns) is not None and rate.angular_acceleration is not None
         return SmearModel(camera, omega, exposure_s, alpha if current else None)
+
+    def _acceleration_aid(self, stamp_ns: int) -> RateEstimate | None:
+        """Return the estimate a centroider took the frame's acceleration from: the last, unless stale."""
+        aid = self.rate
+        if aid is None or not 0 <= int(stamp_ns) - aid.stamp_ns <= ACCELERATION_MAX_AGE_S * 1e9:
+            return None
+        return aid
 
     def bias_gain(self, omega: np.ndarray | None, pixel_scale_rad: float | None) -> float:
         """

@@ -424,7 +424,6 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
             continue  # refused and counted, as the identifier node does
         if verdict == STAMP_RESET:
             tracker.reset()
-        omega = alpha = None
         if mission.rate_aid == "gyro":
             # The centroider's aid from a gyro (ros/rate_input.py): the mean of the samples inside
             # the exposure, the acceleration the slope of a line through the last
@@ -433,9 +432,9 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
             samples = np.array([mission.motion.angular_velocity_at(tau + dt) for dt in offsets]) \
                 + mission.gyro_bias_rad_s + rng.normal(0.0, GYRO_NOISE_RAD_S, size=(offsets.size, 3))
             inside = np.abs(offsets) <= 0.5 * shared.exposure_s
-            omega, alpha = samples[inside].mean(axis=0), significant(*from_samples(offsets, samples))
-        smear = None if omega is None else SmearModel(shared.camera, omega, shared.exposure_s, alpha)
-        if mission.rate_aid != "gyro":
+            smear = SmearModel(shared.camera, samples[inside].mean(axis=0), shared.exposure_s,
+                               significant(*from_samples(offsets, samples)))
+        else:
             # The identifier's estimate carried to the frame by its acceleration, as the centroider does.
             smear = tracker.centroider_aid(stamp_ns, shared.camera, shared.exposure_s, MAX_RATE_AGE_S)
         row["aided"] = smear is not None
