@@ -49,8 +49,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f"star_tracker demo: scenario '{args.scenario}', {args.duration:g} s at {args.rate:g} Hz"
           + (", centroider rate-aided by the true body rate (--gyro)" if args.gyro else ""), flush=True)
     prepare_catalog_and_database()
-    frames, codes = _run_demo_nodes(args, out)
-    summary = _summarize_demo(frames, args.scenario, codes)
+    frames, codes, counters = _run_demo_nodes(args, out)
+    summary = _summarize_demo(frames, args.scenario, codes, counters)
     picture = write_picture(frames, out / "frame.png")
     history = write_run_figure(frames, out / "run.png")
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -92,6 +92,7 @@ def _run_demo_nodes(args: argparse.Namespace, out: Path):
         nodes.wait_ready()
         print(f"nodes running (ROS_DOMAIN_ID={env['ROS_DOMAIN_ID']}, logs in {out / 'logs'})", flush=True)
         _print_frame_status(monitor, args.duration, frames_wanted)
+        counters = _final_counters(monitor)
     finally:
         codes = nodes.stop()
         if recorder is not None:
@@ -99,7 +100,39 @@ def _run_demo_nodes(args: argparse.Namespace, out: Path):
         frames = [monitor.frames[ns] for ns in sorted(monitor.frames)]
         monitor.destroy_node()
         rclpy.try_shutdown()
-    return frames, codes
+    return frames, codes, counters
+
+
+NODES = ("camera_simulator", "centroider", "identifier")
+
+
+def _final_counters(monitor, timeout_s: float = 3.0) -> dict[str, dict[str, int]]:
+    """
+    Each node's frame counters from /diagnostics once they cover every frame seen.
+
+    The nodes publish /diagnostics at 1 Hz: wait (up to timeout_s) until each node's counters
+    cover every frame the monitor saw, so they explain every frame without an attitude
+    (bridged during a lost-in-space solve, dropped to overload, ...).
+    """
+    with_truth = sum(1 for f in monitor.frames.values() if f.truth is not None)
+    with_spots = sum(1 for f in monitor.frames.values() if f.spot_count is not None)
+
+    def counted(node: str, key: str) -> int:
+        return int(monitor.diagnostics.get(f"star_tracker/{node}", {}).get(key, "0"))
+
+    def every_frame_counted() -> bool:
+        return (counted("camera_simulator", "frames_published") >= with_truth
+                and counted("centroider", "frames_received") >= with_truth
+                and counted("identifier", "frames_received") >= with_spots)
+
+    monitor.spin_for(timeout_s, until=every_frame_counted)
+    counters = {}
+    for node in NODES:
+        values = monitor.diagnostics.get(f"star_tracker/{node}", {})
+        counters[node] = {key: int(value) for key, value in values.items()
+                          if key.startswith(("frames_", "not_identified_", "tracking_failed", "bridge_"))
+                          and value.lstrip("-").isdigit()}
+    return counters
 
 
 def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:
@@ -147,12 +180,33 @@ def _frame_status_line(index: int, ns: int, f) -> str:
             f"{f.attitude_latency_s * 1e3:6.0f}ms")
 
 
-def _summarize_demo(frames, scenario: str, codes: dict[str, int]) -> dict:
+# Identifier counters of frames it received but could not judge: spots that arrived during a
+# lost-in-space solve (only the newest of them is published when the solve ends: delay
+# compensation), dropped to overload, or before any camera_info.
+UNJUDGED = ("frames_bridged", "frames_dropped_overload", "frames_without_camera_info")
+
+
+def _summarize_demo(frames, scenario: str, codes: dict[str, int], counters: dict[str, dict[str, int]]) -> dict:
+    """
+    The pipeline summary (ros/pipeline.summarize) with the nodes' counters.
+
+    `judged` counts the frames the identifier had the chance to identify: every frame with truth
+    less those the centroider dropped (overload, rejected, failed) and those the identifier did not
+    judge (UNJUDGED); `identified_of_judged` is the tracker's rate on them, which does not depend
+    on the host's speed.
+    """
     from .ros.pipeline import summarize
 
     summary = summarize(frames)
+    centroider, identifier = counters.get("centroider", {}), counters.get("identifier", {})
+    lost_before = sum(centroider.get(key, 0) for key in ("frames_dropped_overload", "frames_rejected", "frames_failed"))
+    unjudged = sum(identifier.get(key, 0) for key in UNJUDGED)
+    judged = max(0, summary["frames"] - lost_before - unjudged)
+    summary["judged"] = judged
+    summary["identified_of_judged"] = summary["identified"] / judged if judged else 0.0
     summary["scenario"] = scenario
     summary["node_exit_codes"] = codes
+    summary["counters"] = counters
     return summary
 
 
@@ -184,6 +238,11 @@ def print_demo_summary(summary: dict, codes: dict[str, int]) -> None:
     print(f"attitude error vs truth: median {summary['cross_boresight_arcsec_median']:.2f}\" cross-boresight, "
           f"{summary['roll_arcsec_median']:.2f}\" roll; 95th percentile {summary['cross_boresight_arcsec_p95']:.2f}\" "
           f"/ {summary['roll_arcsec_p95']:.2f}\"")
+    centroider, identifier = summary["counters"].get("centroider", {}), summary["counters"].get("identifier", {})
+    print(f"judged by the identifier: {summary['judged']} frames, {100 * summary['identified_of_judged']:.1f} % "
+          f"identified; not judged: {identifier.get('frames_bridged', 0)} during lost-in-space solves (only the "
+          f"newest is published), {identifier.get('frames_dropped_overload', 0) + centroider.get('frames_dropped_overload', 0)} "
+          f"dropped to overload, {identifier.get('frames_without_camera_info', 0)} before camera_info")
     print(f"latency (mid-exposure stamp -> attitude received): median {summary['latency_ms_median']:.0f} ms, "
           f"max {summary['latency_ms_max']:.0f} ms")
     print(f"node exit codes: {codes}")
