@@ -188,7 +188,7 @@ UNJUDGED = ("frames_bridged", "frames_dropped_overload", "frames_without_camera_
 
 def _summarize_demo(frames, scenario: str, codes: dict[str, int], counters: dict[str, dict[str, int]]) -> dict:
     """
-    The pipeline summary (ros/pipeline.summarize) with the nodes' counters.
+    Return the pipeline summary (ros/pipeline.summarize) with the nodes' counters.
 
     `judged` counts the frames the identifier had the chance to identify: every frame with truth
     less those the centroider dropped (overload, rejected, failed) and those the identifier did not
@@ -239,10 +239,11 @@ def print_demo_summary(summary: dict, codes: dict[str, int]) -> None:
           f"{summary['roll_arcsec_median']:.2f}\" roll; 95th percentile {summary['cross_boresight_arcsec_p95']:.2f}\" "
           f"/ {summary['roll_arcsec_p95']:.2f}\"")
     centroider, identifier = summary["counters"].get("centroider", {}), summary["counters"].get("identifier", {})
+    overload = identifier.get("frames_dropped_overload", 0) + centroider.get("frames_dropped_overload", 0)
     print(f"judged by the identifier: {summary['judged']} frames, {100 * summary['identified_of_judged']:.1f} % "
           f"identified; not judged: {identifier.get('frames_bridged', 0)} during lost-in-space solves (only the "
-          f"newest is published), {identifier.get('frames_dropped_overload', 0) + centroider.get('frames_dropped_overload', 0)} "
-          f"dropped to overload, {identifier.get('frames_without_camera_info', 0)} before camera_info")
+          f"newest is published), {overload} dropped to overload, "
+          f"{identifier.get('frames_without_camera_info', 0)} before camera_info")
     print(f"latency (mid-exposure stamp -> attitude received): median {summary['latency_ms_median']:.0f} ms, "
           f"max {summary['latency_ms_max']:.0f} ms")
     print(f"node exit codes: {codes}")

@@ -24,7 +24,7 @@ def run(args, timeout=180):
 
 def assert_tracked(summary: dict, least_identified_of_judged: float = 0.9) -> None:
     """
-    The demo's frames, judged on the counted outcome, not on the host's pace.
+    Judge the demo's frames on their counted outcome, not on the host's pace.
 
     Every frame without an attitude is explained by a node's counter; of the frames the identifier
     judged (not bridged during a lost-in-space solve, not dropped to overload), at least the given
