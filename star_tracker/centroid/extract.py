@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .applied_motion import AppliedMotion
 from .config import CentroidConfig
 from .psf_loop import PsfLoop
 from .spots import FLAG_RATE_AIDED, Spots
@@ -50,7 +51,8 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     brightest detections only (psf.pilot). `prior_rings` with `psf_prior`: the last frames'
     stars were rings (a defocused camera), so the first measurement already treats them so
     and, when the estimate agrees, is the only one. The returned Spots carry the estimate
-    (`Spots.psf`, applied_sigma_px = the width used).
+    (`Spots.psf`, applied_sigma_px = the width used) and what was applied of `smear`
+    (`Spots.applied_motion`).
     """
     if image.ndim != 2 or image.size == 0:
         raise ValueError(f"expected a non-empty 2-D image, got shape {image.shape}")
@@ -59,7 +61,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     spots = PsfLoop(image, config, smear, psf_prior, prior_rings).run()
     if smear is not None and smear.angular_acceleration_rad_s2 is not None:
         spots = to_mid_exposure(spots, smear)
-    return spots
+    return replace(spots, applied_motion=AppliedMotion.of(smear, spots.rate_aid_rejected))
 
 
 def to_mid_exposure(spots: Spots, smear: "SmearModel") -> Spots:

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from .applied_motion import AppliedMotion
     from .psf.estimate import PsfEstimate
 
 FLAG_SATURATED = 1 << 0  # a pixel of the spot reached the saturation level
@@ -47,7 +48,9 @@ class Spots:
     point-like stars were fitted with (centroid/single_star_model.py): "gaussian" (round),
     "elliptical" (the estimate's astigmatic shape), "core_halo" (a core and up to two wider Gaussians on one
     centre, fitted to the frame's bright stars), "template" (the frame's own radial profile: rings, strong misfits);
-    "" when no point star was fitted.
+    "" when no point star was fitted; applied_motion: the rate and acceleration the spots were
+    measured with (applied_motion.AppliedMotion, set by extract_spots; None when not known:
+    spots from elsewhere, or a message without the centroider's smear_aid).
 
     The record checks its arrays when built (every frame, so only cheap checks): numpy arrays,
     x of shape (N,) and every other per-spot array of the same length, cov (N, 2, 2), float
@@ -74,6 +77,7 @@ class Spots:
     rate_aid_rejected: bool = False
     psf: "PsfEstimate | None" = None
     fit_model: str = ""
+    applied_motion: "AppliedMotion | None" = None
 
     def __post_init__(self) -> None:
         n = np.asarray(self.x).size

@@ -18,7 +18,11 @@ Rate aid (optional, never required): with `exposure_time_s` > 0, a camera model 
 topic (Vector3Stamped), the `imu` topic (sensor_msgs/Imu from a gyro, rotated by
 `gyro.mounting_quaternion`), or the `angular_velocity_rad_s` parameter; see rate_input.py),
 each star's smear over the exposure is predicted; detection uses the matched streak filter
-and positions come from a fit on the predicted (possibly curved) path.
+and positions come from a fit on the predicted (possibly curved) path. Each measured frame's
+aid, as applied, goes out before its spots, stamped as them: `smear_aid/angular_velocity`
+(aided frames) and `smear_aid/angular_acceleration` (every frame; zero when the positions
+are exposure averages), so the identifier knows what each frame measured even when the rate
+it sent arrived frames late (msg_docs/smear_aid.md).
 
 A managed node (managed_node.py): `configure` compiles the kernels and creates the topics,
 `activate` starts measuring; images arriving while inactive are counted
@@ -96,6 +100,10 @@ class CentroiderNode(ManagedNode):
         """Compile the kernels, then create the topics and the worker thread."""
         warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
         self.pub = self.create_lifecycle_publisher(PointCloud2, "spots", **overridable(SPOTS_QOS))
+        self.pub_aid_rate = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/angular_velocity",
+                                                            **overridable(SPOTS_QOS))
+        self.pub_aid_accel = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/angular_acceleration",
+                                                             **overridable(SPOTS_QOS))
         self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
         self.sub = self.create_subscription(Image, "image_raw", self.on_image, **overridable(IMAGE_QOS))
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
@@ -122,9 +130,10 @@ class CentroiderNode(ManagedNode):
             if getattr(self, name, None) is not None:
                 self.destroy_subscription(getattr(self, name))
                 setattr(self, name, None)
-        if getattr(self, "pub", None) is not None:
-            self.destroy_lifecycle_publisher(self.pub)
-            self.pub = None
+        for name in ("pub", "pub_aid_rate", "pub_aid_accel"):
+            if getattr(self, name, None) is not None:
+                self.destroy_lifecycle_publisher(getattr(self, name))
+                setattr(self, name, None)
         self.camera_info = CameraInfoInput(self, self.diag, self.log)
         self.rate_input.clear()
         self.psf.reset()
@@ -210,6 +219,7 @@ class CentroiderNode(ManagedNode):
             return
         out = convert.spots_to_cloud(spots, stamp_ns, header.frame_id)
         out.header = header  # unchanged stamp and frame
+        self.publish_applied_motion(spots.applied_motion, stamp_ns, header.frame_id)
         self.pub.publish(out)
         processing_s = time.perf_counter() - started
         self.diag.time("processing", processing_s)
@@ -233,6 +243,13 @@ class CentroiderNode(ManagedNode):
                       rate_source=self.rate_source,
                       psf_fit_model=spots.fit_model or "-",
                       **psf_values(spots.psf))
+
+    def publish_applied_motion(self, applied, stamp_ns: int, frame_id: str) -> None:
+        """Publish the frame's smear aid as applied (before its spots: the identifier joins them by stamp)."""
+        if applied.angular_velocity_rad_s is not None:
+            self.pub_aid_rate.publish(convert.vector3_msg(applied.angular_velocity_rad_s, stamp_ns, frame_id))
+        alpha = applied.angular_acceleration_rad_s2
+        self.pub_aid_accel.publish(convert.vector3_msg(np.zeros(3) if alpha is None else alpha, stamp_ns, frame_id))
 
     def content_problem(self, image: np.ndarray, spots) -> str | None:
         """

@@ -62,6 +62,7 @@ from .identifier_parameters import (CALIBRATION_PARAMETERS, DATABASE_PARAMETERS,
                                     IDENTIFY_PARAMETERS, TRACKING_PARAMETERS)
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, overridable
+from .smear_aid_input import SmearAidInput
 from ..track.stamp_order import STAMP_OK, STAMP_RESET, StampOrder
 from .throttled_log import ThrottledLog
 
@@ -132,6 +133,7 @@ class IdentifierNode(ManagedNode):
         self.sensor_frame = ""  # the newest spots' frame_id: the status messages' frame
         guard_parameter_changes(self, self.apply_parameters, self.diag, self.log)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
+        self.smear_aid = SmearAidInput(self.reject)  # what the centroider measured each frame with (smear_aid_input.py)
         self.srv_reset = self.create_service(Trigger, "~/reset", self.on_reset)
 
     def configure(self) -> None:
@@ -168,6 +170,11 @@ class IdentifierNode(ManagedNode):
                                   merge=keep_time_reset)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
                                                  **overridable(IMAGE_QOS))
+        # Before the spots: a frame's aid is published first and should be read first.
+        self.sub_aid_rate = self.create_subscription(Vector3Stamped, "smear_aid/angular_velocity",
+                                                     self.smear_aid.on_rate, **overridable(SPOTS_QOS))
+        self.sub_aid_accel = self.create_subscription(Vector3Stamped, "smear_aid/angular_acceleration",
+                                                      self.smear_aid.on_acceleration, **overridable(SPOTS_QOS))
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, **overridable(SPOTS_QOS))
         self.in_orbit.configure()
 
@@ -185,7 +192,7 @@ class IdentifierNode(ManagedNode):
         if self._worker is not None:
             self._worker.shutdown(wait=True, cancel_futures=True)
             self._worker = None
-        for name in ("sub_info", "sub_spots"):
+        for name in ("sub_info", "sub_aid_rate", "sub_aid_accel", "sub_spots"):
             if getattr(self, name, None) is not None:
                 self.destroy_subscription(getattr(self, name))
                 setattr(self, name, None)
@@ -196,6 +203,7 @@ class IdentifierNode(ManagedNode):
                 self.destroy_lifecycle_publisher(getattr(self, name))
                 setattr(self, name, None)
         self.camera_info = CameraInfoInput(self, self.diag, self.log, check=self.fov_problem)
+        self.smear_aid.clear()
         with self._lock:
             self.database = self.identifier = self.tracker = None
         self.diag.value("mode", MODE_LOST)
@@ -294,6 +302,12 @@ class IdentifierNode(ManagedNode):
 
     def identify_frame(self, frame: SpotsFrame) -> None:
         """Worker thread: track or identify the newest frame and publish its attitude."""
+        applied = self.smear_aid.applied_for(frame.stamp_ns)
+        if applied is not None:
+            frame.spots = replace(frame.spots, applied_motion=applied)
+            self.diag.count("frames_with_smear_aid")
+        elif self.smear_aid.received:  # the centroider states every frame's: this one's was lost
+            self.diag.count("frames_without_smear_aid")
         with self._lock:
             self.sensor_frame = frame.sensor_frame
             if frame.time_reset:

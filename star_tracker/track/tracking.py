@@ -34,6 +34,7 @@ from ..models.attitude import matrix_to_rotation_vector, rotation_vector_to_matr
 from ..models.attitude_estimation import attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
+from ..centroid.applied_motion import AppliedMotion
 from ..centroid.streak.smear import SmearModel
 from ..parameter_spec import parameter, range_problems
 from .rate import ACCELERATION_MAX_AGE_S, AttitudeRateEstimator, RateEstimate
@@ -273,7 +274,8 @@ class Tracker:
             gate_px = tracked.gate_px
         result = self.lost_in_space.identify(spots, camera)
         if result.solved:
-            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, gate_px, 0, started, camera.pixel_scale_rad)
+            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, gate_px, 0, started, camera.pixel_scale_rad,
+                                spots.applied_motion)
         return TrackedFrame(stamp_ns, MODE_LOST, result, None, gate_px, 0, time.perf_counter() - started)
 
     def accept_tracked(self, stamp_ns: int, spots: Spots, camera: CameraModel, prediction: Prediction) -> TrackedFrame:
@@ -281,28 +283,43 @@ class Tracker:
         started = time.perf_counter()
         result, gate_px = self.track(spots, camera, prediction)
         if result.solved:
-            return self._accept(stamp_ns, result, MODE_TRACKING, gate_px, 0, started, camera.pixel_scale_rad)
+            return self._accept(stamp_ns, result, MODE_TRACKING, gate_px, 0, started, camera.pixel_scale_rad,
+                                spots.applied_motion)
         return TrackedFrame(stamp_ns, MODE_LOST, result, None, gate_px, 0, time.perf_counter() - started)
 
     def _accept(self, stamp_ns: int, result: Identification, mode: str, gate_px, bridged: int,
-                started: float, pixel_scale_rad: float | None = None) -> TrackedFrame:
+                started: float, pixel_scale_rad: float | None = None,
+                applied: AppliedMotion | None = None) -> TrackedFrame:
+        """
+        Update the state with a verified frame; return it with the covariance its measurement calls for.
+
+        `applied`: the motion the frame's spots were measured with (Spots.applied_motion). When
+        None (not known), what a centroider aided by this tracker had (_acceleration_aid): the
+        nodes' centroider states it per frame, as its aid may come from an older estimate.
+        """
         solution = result.attitude
         if self._last is not None and stamp_ns <= self._last[0]:
             self.rates.reset()  # time went backwards (replay restarted): a new window
-        # What a rate-aided centroider had for this frame: the last estimate, while it is no older
+        # The estimate a rate-aided centroider had for this frame: the last, while it is no older
         # than ACCELERATION_MAX_AGE_S (the centroider ages its acceleration out by the same rule).
         aid = self._acceleration_aid(stamp_ns)
+        if applied is None:
+            aid_omega = None if aid is None else aid.angular_velocity
+            aid_alpha = None if aid is None else aid.angular_acceleration
+        else:
+            aid_omega, aid_alpha = applied.angular_velocity_rad_s, applied.angular_acceleration_rad_s2
+        # Its uncertainty: the estimate's (an older estimate's differs little; a gyro's is not known).
+        aid_alpha_cov = None if aid_alpha is None or self.rate is None else self.rate.acceleration_covariance
         # What this frame measured: the exposure-average bias of the acceleration its aid missed (rate.py).
         after = self.rates.add(stamp_ns, solution.rotation, solution.covariance,
-                               self.bias_gain(None if aid is None else aid.angular_velocity, pixel_scale_rad),
-                               None if aid is None else aid.angular_acceleration)
+                               self.bias_gain(aid_omega, pixel_scale_rad), aid_alpha)
         known = after if after is not None else aid
         gain = self.bias_gain(None if known is None else known.angular_velocity, pixel_scale_rad)
         step = self._step_covariance(stamp_ns, solution.rotation, solution.covariance, gain) if aid is not None \
             else None
         self.rate = after
         self._last = (stamp_ns, solution.rotation, solution.covariance)  # the measurement's own covariance
-        added = self.acceleration_covariance(aid, step, self.rate, gain)
+        added = self.acceleration_covariance(aid_alpha, aid_alpha_cov, step, self.rate, gain)
         if added is not None:
             result = replace(result, attitude=replace(solution, covariance=solution.covariance + added))
         return TrackedFrame(stamp_ns, mode, result, self.rate, gate_px, bridged, time.perf_counter() - started)
@@ -407,8 +424,9 @@ class Tracker:
         direction = nu / norm
         return bound * bound / 3.0 * np.outer(direction, direction)
 
-    def acceleration_covariance(self, rate: RateEstimate | None, step: np.ndarray | None = None,
-                                after: RateEstimate | None = None, gain: float | None = None) -> np.ndarray | None:
+    def acceleration_covariance(self, aid_alpha: np.ndarray | None, aid_alpha_cov: np.ndarray | None,
+                                step: np.ndarray | None = None, after: RateEstimate | None = None,
+                                gain: float | None = None) -> np.ndarray | None:
         """
         Attitude covariance [rad^2] an uncertain angular acceleration adds to a frame's solution (None: nothing).
 
@@ -417,32 +435,28 @@ class Tracker:
         (SmearModel with the acceleration: path fits on the accelerated path, point-like spots
         moved by the exposure-average offset alpha T^2 / 24); what it gets wrong by d alpha
         moves the attitude by about k d alpha, k = `gain` (bias_gain: T^2 / 24 for point-like
-        spots, up to T^2 / 8 for long streaks; T^2 / 24 when None). `rate` is the estimate the
-        centroider's aid came from (the one before this frame, while no older than
-        ACCELERATION_MAX_AGE_S; else None). When this frame's innovation shows an acceleration
-        that changed since (`step`, _step_covariance): k^2 times that estimate's acceleration
-        covariance (the max_angular_acceleration_rad_s2 bound, uniform per axis, when it had
-        none) plus `step`. Otherwise, with `after` (the estimate that includes this frame)
-        holding an acceleration: k^2 (m m^T + its covariance), m = alpha_after - alpha_aid (the
-        aid's acceleration, zero when it had none: the centroider used none), the mean square
-        of what the centroider missed. Else k^2 times the aid's acceleration covariance, or the
-        bound, (k alpha_max)^2 / 3 per axis. exposure_s = 0 adds nothing.
+        spots, up to T^2 / 8 for long streaks; T^2 / 24 when None). `aid_alpha` is the
+        acceleration the frame was measured with (None: none), `aid_alpha_cov` its covariance
+        (None: not estimated). When this frame's innovation shows an acceleration that changed
+        since (`step`, _step_covariance): k^2 aid_alpha_cov (the max_angular_acceleration_rad_s2
+        bound, uniform per axis, without one) plus `step`. Otherwise, with `after` (the estimate
+        that includes this frame) holding an acceleration: k^2 (m m^T + its covariance),
+        m = alpha_after - aid_alpha (zero when None), the mean square of what the centroider
+        missed. Else k^2 aid_alpha_cov, or the bound, (k alpha_max)^2 / 3 per axis.
+        exposure_s = 0 adds nothing.
         """
         exposure = self.config.exposure_s
         if exposure <= 0.0:
             return None
         gain = exposure * exposure / 24.0 if gain is None else gain
-        known = rate is not None and rate.acceleration_covariance is not None
+        known = aid_alpha is not None and aid_alpha_cov is not None
+        bound = np.eye(3) * (gain * self.config.max_angular_acceleration_rad_s2) ** 2 / 3.0
         if step is not None:  # the aid's acceleration no longer holds: its bound, and the step's
-            base = gain * gain * rate.acceleration_covariance if known else \
-                np.eye(3) * (gain * self.config.max_angular_acceleration_rad_s2) ** 2 / 3.0
-            return base + step
+            return (gain * gain * aid_alpha_cov if known else bound) + step
         if after is not None and after.acceleration_covariance is not None:
-            miss = after.angular_acceleration - (rate.angular_acceleration if known else 0.0)
+            miss = after.angular_acceleration - (aid_alpha if aid_alpha is not None else 0.0)
             return gain * gain * (np.outer(miss, miss) + after.acceleration_covariance)
-        if known:
-            return gain * gain * rate.acceleration_covariance
-        return np.eye(3) * (gain * self.config.max_angular_acceleration_rad_s2) ** 2 / 3.0
+        return gain * gain * aid_alpha_cov if known else bound
 
     def gate_px(self, camera: CameraModel, prediction: Prediction, tolerance_px: float) -> float:
         """
@@ -617,8 +631,10 @@ class Tracker:
         if not pending or not result.solved:
             return None
         stamp_ns = pending[0][0]
+        solved_spots = pending[0][1]
         if not chain:
-            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, None, 0, started, pending[0][2].pixel_scale_rad)
+            return self._accept(stamp_ns, result, MODE_LOST_IN_SPACE, None, 0, started, pending[0][2].pixel_scale_rad,
+                                solved_spots.applied_motion)
         rotation, covariance = result.attitude.rotation, result.attitude.covariance
         for relative, relative_cov in chain:  # R_{j+1} = R_j dR_j; errors expressed in frame j+1
             rotation = rotation @ relative
@@ -631,9 +647,12 @@ class Tracker:
             return None
         # The rate window restarts: the bridged frames' attitudes were not verified one by one.
         self.rates.reset()
+        applied = solved_spots.applied_motion or AppliedMotion()  # not known: measured without a rate (no aid)
         self.rates.add(stamp_ns, result.attitude.rotation, result.attitude.covariance,
-                       self.bias_gain(None, camera.pixel_scale_rad))  # measured without a rate: no aid
-        return self._accept(newest_ns, tracked, MODE_TRACKING, gate, len(chain), started, camera.pixel_scale_rad)
+                       self.bias_gain(applied.angular_velocity_rad_s, pending[0][2].pixel_scale_rad),
+                       applied.angular_acceleration_rad_s2)
+        return self._accept(newest_ns, tracked, MODE_TRACKING, gate, len(chain), started, camera.pixel_scale_rad,
+                            spots.applied_motion)
 
     def relative_rotation(self, spots_a: Spots, camera_a: CameraModel, spots_b: Spots, camera_b: CameraModel,
                           dt: float) -> tuple[np.ndarray, np.ndarray] | None:

@@ -87,5 +87,8 @@ def test_slew_is_tracked_through_the_nodes_and_a_loss_reacquires(ros_graph, tmp_
     assert np.mean(np.abs(normalized) > 4.0) < 0.05, np.abs(normalized).max(axis=0)
     # The mode is reported: tracking after the first lost-in-space solve.
     assert int(centroider.get("frames_rate_aided", "0")) >= 5, centroider  # the aid was in use
+    # Every frame measured came with the aid it was measured with (smear_aid), joined by stamp.
+    assert int(identifier.get("frames_without_smear_aid", "0")) == 0, identifier
+    assert int(identifier["frames_with_smear_aid"]) == int(identifier["frames_received"]) - before_info, identifier
     assert identifier["mode"] == "tracking", identifier
     assert int(identifier["frames_tracking"]) >= len(published) - 3, identifier
