@@ -42,7 +42,7 @@ from ..centroid import CentroidConfig, extract_spots
 from ..centroid.psf.running_prior import RunningPsf
 from ..centroid.warm_up import warm_up
 from ..centroid.streak.smear import SmearModel
-from . import convert
+from . import convert, image_cdr
 from .camera_info_input import CameraInfoInput
 from .diagnostics import Rejections
 from .frame_queue import NewestFrame
@@ -105,7 +105,8 @@ class CentroiderNode(ManagedNode):
         self.pub_aid_accel = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/angular_acceleration",
                                                              **overridable(SPOTS_QOS))
         self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
-        self.sub = self.create_subscription(Image, "image_raw", self.on_image, **overridable(IMAGE_QOS))
+        # Raw: the CDR bytes, read in place (image_cdr.py): a frame dropped for a newer one costs no copy.
+        self.sub = self.create_subscription(Image, "image_raw", self.on_image, **overridable(IMAGE_QOS), raw=True)
         self.sub_info = self.create_subscription(CameraInfo, "camera_info", self.camera_info.update,
                                                  **overridable(IMAGE_QOS))
         # Both rate inputs always exist: rate_source (runtime) picks one per frame.
@@ -175,13 +176,18 @@ class CentroiderNode(ManagedNode):
             omega, alpha = motion  # the identifier's acceleration, else successive samples' slope
         return SmearModel(camera, omega, self.exposure_s, alpha)
 
-    def on_image(self, msg: Image) -> None:
-        """Executor thread: count, check the stamp, decode; the worker measures (measure())."""
+    def on_image(self, raw: bytes) -> None:
+        """Executor thread: count, read the serialized image in place, check it; the worker measures it (measure())."""
         received = time.perf_counter()
         if not self.active:  # inactive: configured, not processing
             self.diag.count("frames_ignored_inactive")
             return
         self.diag.count("frames_received")
+        try:
+            msg = image_cdr.parse_image(raw)
+        except ValueError as exc:
+            self.reject_image("(not readable)", exc)
+            return
         stamp_ns = convert.stamp_to_ns(msg.header.stamp)
         self.diag.time("input_age", (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9)
         verdict = self.stamps.classify(stamp_ns)
@@ -189,15 +195,18 @@ class CentroiderNode(ManagedNode):
             self.reject("time_resets" if verdict == STAMP_RESET else f"frames_{verdict}",
                         self.stamps.describe(verdict, stamp_ns))
         try:
-            image = convert.image_to_array(msg)
+            image = convert.image_to_array(msg)  # a view of the bytes received
         except ValueError as exc:
-            self.diag.count("frames_rejected")
-            self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
-            self.log.warn("bad_image",
-                          f"rejected image (stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}): {exc}")
+            self.reject_image(f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}", exc)
             return
         self.diag.time("decode", time.perf_counter() - received)
         self.frames.put((image, msg.header, stamp_ns), stamp_ns)
+
+    def reject_image(self, stamp: str, exc: Exception) -> None:
+        """Count and report an image that cannot be measured; the next one is."""
+        self.diag.count("frames_rejected")
+        self.diag.set(DiagnosticStatus.WARN, f"rejected frame: {exc}")
+        self.log.warn("bad_image", f"rejected image (stamp {stamp}): {exc}")
 
     def measure(self, item) -> None:
         """Worker thread: extract the spots of one decoded image and publish them."""

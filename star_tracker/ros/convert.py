@@ -45,7 +45,12 @@ def ns_to_stamp(ns: int) -> Time:
 
 # ----------------------------------------------------------------------------- image
 def image_to_array(msg: Image) -> np.ndarray:
-    """Return a mono8/mono16 Image as a (height, width) array view-free copy in native byte order."""
+    """
+    Return a mono8/mono16 Image as a (height, width) array in native byte order.
+
+    A view of the message's data where its layout allows (rows without padding, native byte
+    order): it keeps the message's buffer alive and is read-only when that is (bytes).
+    """
     dtype = _IMAGE_DTYPES.get(msg.encoding)
     if dtype is None:
         raise ValueError(f"unsupported image encoding {msg.encoding!r}; expected one of {sorted(_IMAGE_DTYPES)}")
@@ -58,7 +63,10 @@ def image_to_array(msg: Image) -> np.ndarray:
     if step < width * item:
         raise ValueError(f"step {step} < width*bytes_per_pixel {width * item}")
     data = msg.data
-    buffer = np.frombuffer(data.tobytes() if hasattr(data, "tobytes") else bytes(data), dtype=np.uint8)
+    try:  # a view, not a copy: rclpy's array.array, bytes, a memoryview of a raw message (image_cdr.py)
+        buffer = np.frombuffer(data, dtype=np.uint8)
+    except (TypeError, ValueError):  # a list of ints
+        buffer = np.frombuffer(bytes(data), dtype=np.uint8)
     if buffer.size != step * height:
         raise ValueError(f"data size {buffer.size} != step*height {step * height}")
     rows = buffer.reshape(height, step)[:, : width * item]

@@ -10,6 +10,7 @@ from __future__ import annotations
 from functools import partial
 
 import numpy as np
+from scipy.fft import next_fast_len
 
 from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, levenberg_marquardt
 from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, StreakImage, batches, check_excluded,
@@ -76,8 +77,11 @@ def second_source_on_path(image: StreakImage, x, y, flux, path):
     variance = ((np.maximum(win.data, 0.0) / gain + noise * noise) * win.mask).reshape(shape)
     template, half = _path_templates(offsets, sigma)
     # Correlation with the template centred: score[c] = sum_u left[c + u - h] t[u], i.e. the
-    # full convolution with the flipped template, cropped at (h, h).
-    size = (win.n_rows + template.shape[1] - 1, win.n_cols + template.shape[2] - 1)
+    # full convolution with the flipped template, cropped at (h, h). Transformed at the next
+    # sizes with only small prime factors (a prime size, e.g. 43, costs pocketfft 2-3 times
+    # more); the padding beyond the full convolution is zero and cropped away.
+    size = (next_fast_len(win.n_rows + template.shape[1] - 1, real=True),
+            next_fast_len(win.n_cols + template.shape[2] - 1, real=True))
 
     def correlate(image, kernel):
         full = np.fft.irfft2(np.fft.rfft2(image, size) * np.fft.rfft2(kernel[:, ::-1, ::-1], size), size)
