@@ -115,15 +115,14 @@ def _final_counters(monitor, timeout_s: float = 3.0) -> dict[str, dict[str, int]
     (bridged during a lost-in-space solve, dropped to overload, ...).
     """
     with_truth = sum(1 for f in monitor.frames.values() if f.truth is not None)
-    with_spots = sum(1 for f in monitor.frames.values() if f.spot_count is not None)
 
     def counted(node: str, key: str) -> int:
         return int(monitor.diagnostics.get(f"star_tracker/{node}", {}).get(key, "0"))
 
-    def every_frame_counted() -> bool:
+    def every_frame_counted() -> bool:  # each node has counted what the one before it sent
         return (counted("camera_simulator", "frames_published") >= with_truth
-                and counted("centroider", "frames_received") >= with_truth
-                and counted("identifier", "frames_received") >= with_spots)
+                and counted("centroider", "frames_received") >= counted("camera_simulator", "frames_published")
+                and counted("identifier", "frames_received") >= counted("centroider", "frames_processed"))
 
     monitor.spin_for(timeout_s, until=every_frame_counted)
     counters = {}
@@ -182,28 +181,31 @@ def _frame_status_line(index: int, ns: int, f) -> str:
 
 # Identifier counters of frames it received but could not judge: spots that arrived during a
 # lost-in-space solve (only the newest of them is published when the solve ends: delay
-# compensation), dropped to overload, or before any camera_info.
-UNJUDGED = ("frames_bridged", "frames_dropped_overload", "frames_without_camera_info")
+# compensation), dropped to overload, before any camera_info, or refused by their stamp.
+UNJUDGED = ("frames_bridged", "frames_dropped_overload", "frames_without_camera_info", "frames_rejected",
+            "frames_unstamped", "frames_from_future", "frames_out_of_order")
 
 
 def _summarize_demo(frames, scenario: str, codes: dict[str, int], counters: dict[str, dict[str, int]]) -> dict:
     """
     Return the pipeline summary (ros/pipeline.summarize) with the nodes' counters.
 
-    `judged` counts the frames the identifier had the chance to identify: every frame with truth
-    less those the centroider dropped (overload, rejected, failed) and those the identifier did not
-    judge (UNJUDGED); `identified_of_judged` is the tracker's rate on them, which does not depend
-    on the host's speed.
+    `judged` counts the frames the identifier had the chance to identify: the spots it received
+    less those it did not judge (UNJUDGED); `identified_of_judged` is the tracker's rate on them,
+    which does not depend on the host's pace. `lost_between_nodes`: frames one node sent and the
+    next never received (best-effort image and spots topics on a stalled host).
     """
     from .ros.pipeline import summarize
 
     summary = summarize(frames)
-    centroider, identifier = counters.get("centroider", {}), counters.get("identifier", {})
-    lost_before = sum(centroider.get(key, 0) for key in ("frames_dropped_overload", "frames_rejected", "frames_failed"))
-    unjudged = sum(identifier.get(key, 0) for key in UNJUDGED)
-    judged = max(0, summary["frames"] - lost_before - unjudged)
+    camera, centroider = counters.get("camera_simulator", {}), counters.get("centroider", {})
+    identifier = counters.get("identifier", {})
+    judged = max(0, identifier.get("frames_received", 0) - sum(identifier.get(key, 0) for key in UNJUDGED))
     summary["judged"] = judged
     summary["identified_of_judged"] = summary["identified"] / judged if judged else 0.0
+    summary["lost_between_nodes"] = (
+        max(0, camera.get("frames_published", 0) - centroider.get("frames_received", 0))
+        + max(0, centroider.get("frames_processed", 0) - identifier.get("frames_received", 0)))
     summary["scenario"] = scenario
     summary["node_exit_codes"] = codes
     summary["counters"] = counters
@@ -243,7 +245,8 @@ def print_demo_summary(summary: dict, codes: dict[str, int]) -> None:
     print(f"judged by the identifier: {summary['judged']} frames, {100 * summary['identified_of_judged']:.1f} % "
           f"identified; not judged: {identifier.get('frames_bridged', 0)} during lost-in-space solves (only the "
           f"newest is published), {overload} dropped to overload, "
-          f"{identifier.get('frames_without_camera_info', 0)} before camera_info")
+          f"{identifier.get('frames_without_camera_info', 0)} before camera_info, "
+          f"{summary['lost_between_nodes']} lost between the nodes")
     print(f"latency (mid-exposure stamp -> attitude received): median {summary['latency_ms_median']:.0f} ms, "
           f"max {summary['latency_ms_max']:.0f} ms")
     print(f"node exit codes: {codes}")

@@ -26,17 +26,20 @@ def assert_tracked(summary: dict, least_identified_of_judged: float = 0.9) -> No
     """
     Judge the demo's frames on their counted outcome, not on the host's pace.
 
-    Every frame without an attitude is explained by a node's counter; of the frames the identifier
-    judged (not bridged during a lost-in-space solve, not dropped to overload), at least the given
-    share is identified, and they are at least half of all frames.
+    Every frame without an attitude is explained by a node's counter (or lost between two nodes:
+    one counted it sent, the next never counted it received); of the frames the identifier judged
+    (not bridged during a lost-in-space solve, not dropped to overload), at least the given share
+    is identified, and they are at least half of all frames.
     """
     counters = summary["counters"]
     unpublished = sum(counters[node].get(key, 0) for node, keys in UNPUBLISHED.items() for key in keys)
     not_identified = sum(v for k, v in counters["identifier"].items() if k.startswith("not_identified_"))
-    assert summary["frames"] - summary["identified"] <= unpublished + not_identified, summary
-    assert summary["judged"] >= summary["frames"] // 2, summary
-    assert summary["identified_of_judged"] >= least_identified_of_judged, summary
-    assert summary["wrong_over_60_arcsec"] == 0, summary
+    shown = json.dumps(summary)
+    assert summary["frames"] - summary["identified"] <= unpublished + not_identified \
+        + summary["lost_between_nodes"] + counters["identifier"].get("tracking_failed", 0), shown
+    assert summary["judged"] >= summary["frames"] // 2, shown
+    assert summary["identified_of_judged"] >= least_identified_of_judged, shown
+    assert summary["wrong_over_60_arcsec"] == 0, shown
 
 
 def test_help_lists_every_subcommand_and_option():
