@@ -114,6 +114,8 @@ def _final_counters(monitor, timeout_s: float = 3.0) -> dict[str, dict[str, int]
     cover every frame the monitor saw, so they explain every frame without an attitude
     (bridged during a lost-in-space solve, dropped to overload, ...).
     """
+    from .ros.diagnostics import counters_of
+
     with_truth = sum(1 for f in monitor.frames.values() if f.truth is not None)
 
     def counted(node: str, key: str) -> int:
@@ -125,13 +127,7 @@ def _final_counters(monitor, timeout_s: float = 3.0) -> dict[str, dict[str, int]
                 and counted("identifier", "frames_received") >= counted("centroider", "frames_processed"))
 
     monitor.spin_for(timeout_s, until=every_frame_counted)
-    counters = {}
-    for node in NODES:
-        values = monitor.diagnostics.get(f"star_tracker/{node}", {})
-        counters[node] = {key: int(value) for key, value in values.items()
-                          if key.startswith(("frames_", "not_identified_", "tracking_failed", "bridge_"))
-                          and value.lstrip("-").isdigit()}
-    return counters
+    return {node: counters_of(monitor.diagnostics.get(f"star_tracker/{node}", {})) for node in NODES}
 
 
 def _print_frame_status(monitor, duration_s: float, frames_wanted: int) -> None:

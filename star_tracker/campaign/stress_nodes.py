@@ -59,7 +59,6 @@ STUCK_FRAMES = 3  # this many frames in a row without an outcome end the run (a 
 GYRO_SAMPLES = 5  # gyro samples per frame, across its exposure
 GYRO_BIAS_DEG_S = 0.02  # each axis's constant bias drawn within +- this [deg/s] (--gyro)
 GYRO_NOISE_DEG_S = 0.005  # white noise 1-sigma per sample [deg/s]
-VALUE_PREFIXES = ("last_", "psf_", "calibration_")  # /diagnostics values that are integers but not counters
 WRONG_ARCSEC = 60.0
 TRUTH_PX = 3.0  # a matched star is right when the star it is named after was rendered this close (as the campaigns)
 GUIDE_MAGNITUDE = 6.5  # the shipped database.magnitude_limit: fainter matched stars come from the deep re-match
@@ -164,10 +163,12 @@ class Harness:
             return True
 
     def counters(self, node: str) -> dict[str, int]:
-        """Return the counters of a node's latest /diagnostics (its integer values but VALUE_PREFIXES)."""
+        """Return the counters of a node's latest /diagnostics (diagnostics.counters_of)."""
+        from ..ros.diagnostics import counters_of
+
         with self.changed:
             values = dict(self.diagnostics.get(STATUS_NAMES[node], {}))
-        return {k: int(v) for k, v in values.items() if v.lstrip("-").isdigit() and not k.startswith(VALUE_PREFIXES)}
+        return counters_of(values)
 
     def close(self) -> None:
         self._running = False

@@ -103,3 +103,13 @@ class Rejections:
         self.diag.count(counter, n)
         self.diag.set(DiagnosticStatus.WARN, text)
         self.log.warn(counter, text)
+
+
+# /diagnostics values that are integers but not counters (the latest frame's, the PSF's, the calibration's).
+VALUE_PREFIXES = ("last_", "psf_", "calibration_")
+
+
+def counters_of(values: dict[str, str]) -> dict[str, int]:
+    """Return the counters among one status's key/values as received: its integer values but VALUE_PREFIXES."""
+    return {key: int(value) for key, value in values.items()
+            if value.lstrip("-").isdigit() and not key.startswith(VALUE_PREFIXES)}

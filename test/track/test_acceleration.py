@@ -7,7 +7,6 @@ The rate estimate's acceleration, the smear model's accelerated path, the publis
 Real renderer, real centroider, real database.
 """
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -187,26 +186,44 @@ def test_an_accelerated_frame_is_measured_at_mid_exposure(parts, nominal_camera)
     assert np.linalg.norm(bias["accelerated"]) < 0.25 * scale, (bias, scale)
 
 
-def test_an_accelerating_slew_is_published_with_an_honest_covariance(parts, nominal_camera):
+def track_slew(parts, camera, smear_for):
+    """
+    Track the slew's 22 frames, each centroided with smear_for(tracker, estimates, stamp_ns).
+
+    estimates: the tracker's rate estimate after each earlier frame. Returns per frame the NEES
+    of the published attitude, its error (sensor frame) [rad] and the smear model applied.
+    """
     lis, renderer = parts
     motion = slew()
     tracker = Tracker(lis)
-    nees, ramp_errors = [], []
+    estimates, nees, errors, smears = [], [], [], []
     for k in range(22):
         t = 0.05 + 0.1 * k
         stamp_ns = int(round(t * 1e9))
         frame = renderer.render(motion, t, frame_seed(5, k))
-        smear = aid(tracker, stamp_ns, nominal_camera)
+        smear = smear_for(tracker, estimates, stamp_ns)
         spots = extract_spots(frame.image, CentroidConfig(), smear)
-        result = tracker.process(stamp_ns, spots, nominal_camera)
+        result = tracker.process(stamp_ns, spots, camera)
         ident = result.identification
         assert ident.solved, (k, ident.reason)
+        estimates.append(tracker.rate)
         error = matrix_to_rotation_vector(frame.truth.rotation.T @ ident.attitude.rotation)
         nees.append(float(error @ np.linalg.solve(ident.attitude.covariance, error)))
+        errors.append(error)
+        smears.append(smear)
+    return np.array(nees), errors, smears
+
+
+def test_an_accelerating_slew_is_published_with_an_honest_covariance(parts, nominal_camera):
+    motion = slew()
+    nees, errors, smears = track_slew(parts, nominal_camera,
+                                      lambda tracker, estimates, stamp_ns: aid(tracker, stamp_ns, nominal_camera))
+    ramp_errors = []
+    for k, (error, smear) in enumerate(zip(errors, smears)):
+        t = 0.05 + 0.1 * k
         change = motion.angular_velocity_at(t + 0.05) - motion.angular_velocity_at(t - 0.05)
         if np.linalg.norm(change) > 1e-9 and smear is not None and smear.angular_acceleration_rad_s2 is not None:
             ramp_errors.append(error)
-    nees = np.array(nees)
     # The mean of a consistent covariance is 3; no frame beyond 5 sigma, at most one beyond the
     # 99.7 % ellipsoid (the frame whose exposure the ramp's end cuts, a step the innovation
     # sees only in part).
@@ -218,48 +235,26 @@ def test_an_accelerating_slew_is_published_with_an_honest_covariance(parts, nomi
         np.mean(ramp_errors, axis=0) / ARCSEC
 
 
-def late_aid_slew_nees(parts, camera, lag_frames: int, stated: bool) -> np.ndarray:
-    """
-    NEES per frame of the slew when the centroider's aid is the tracker's estimate lag_frames frames old.
-
-    As through the nodes on a busy host (the identifier's rate reaches the centroider frames
-    late): that estimate's rate carried to the frame by its acceleration, the acceleration while
-    it is no older than ACCELERATION_MAX_AGE_S. stated: the spots say what they were measured
-    with (Spots.applied_motion, the centroider's smear_aid); else the tracker assumes its newest.
-    """
-    lis, renderer = parts
-    motion = slew()
-    tracker = Tracker(lis)
-    estimates, nees = [], []
-    for k in range(22):
-        t = 0.05 + 0.1 * k
-        stamp_ns = int(round(t * 1e9))
-        frame = renderer.render(motion, t, frame_seed(5, k))
-        rate = estimates[-1 - lag_frames] if len(estimates) > lag_frames else None
-        smear = None
-        if rate is not None:
-            omega, alpha = rate.at(stamp_ns)
-            fresh = rate.angular_acceleration is not None and stamp_ns - rate.stamp_ns <= ACCELERATION_MAX_AGE_S * 1e9
-            smear = SmearModel(camera, omega, EXPOSURE_S, alpha if fresh else None)
-        spots = extract_spots(frame.image, CentroidConfig(), smear)
-        if not stated:
-            spots = replace(spots, applied_motion=None)
-        result = tracker.process(stamp_ns, spots, camera)
-        assert result.identification.solved, (k, result.identification.reason)
-        estimates.append(tracker.rate)
-        attitude = result.identification.attitude
-        error = matrix_to_rotation_vector(frame.truth.rotation.T @ attitude.rotation)
-        nees.append(float(error @ np.linalg.solve(attitude.covariance, error)))
-    return np.array(nees)
-
-
 def test_a_slew_aided_frames_late_is_published_with_an_honest_covariance_when_the_spots_say_so(parts, nominal_camera):
-    # Two frames late: what the identifier's input age on a loaded host gives (bench_slew_nodes).
-    # Were the tracker to assume its newest estimate was applied, the frame after the ramp's start
+    # The centroider's aid is the tracker's estimate two frames old (what the identifier's input
+    # age on a loaded host gives, bench_slew_nodes): that estimate's rate carried to the frame by
+    # its acceleration, the acceleration while no older than ACCELERATION_MAX_AGE_S. The spots
+    # say what they were measured with (Spots.applied_motion, the centroider's smear_aid); were
+    # the tracker to assume its newest estimate was applied, the frame after the ramp's start
     # would be published ~12 sigma off (NEES 138 on this slew; mean 8.7).
-    stated = late_aid_slew_nees(parts, nominal_camera, 2, stated=True)
-    assert stated.max() < NEES_5_SIGMA and np.sum(stated > NEES_997) <= 1, np.round(stated, 1)
-    assert 1.5 < stated.mean() < 4.5, np.round(stated, 1)
+    lag_frames = 2
+
+    def late(tracker, estimates, stamp_ns):
+        rate = estimates[-1 - lag_frames] if len(estimates) > lag_frames else None
+        if rate is None:  # no estimate yet (a track's first frames)
+            return None
+        omega, alpha = rate.at(stamp_ns)
+        fresh = rate.angular_acceleration is not None and stamp_ns - rate.stamp_ns <= ACCELERATION_MAX_AGE_S * 1e9
+        return SmearModel(nominal_camera, omega, EXPOSURE_S, alpha if fresh else None)
+
+    nees, _, _ = track_slew(parts, nominal_camera, late)
+    assert nees.max() < NEES_5_SIGMA and np.sum(nees > NEES_997) <= 1, np.round(nees, 1)
+    assert 1.5 < nees.mean() < 4.5, np.round(nees, 1)
 
 
 def solution(rotation, sigma_rad):

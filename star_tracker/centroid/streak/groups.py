@@ -78,8 +78,8 @@ def second_source_on_path(image: StreakImage, x, y, flux, path):
     template, half = _path_templates(offsets, sigma)
     # Correlation with the template centred: score[c] = sum_u left[c + u - h] t[u], i.e. the
     # full convolution with the flipped template, cropped at (h, h). Transformed at the next
-    # sizes with only small prime factors (a prime size, e.g. 43, costs pocketfft 2-3 times
-    # more); the padding beyond the full convolution is zero and cropped away.
+    # sizes with only small prime factors (a prime size, e.g. 43, is pocketfft's slow case);
+    # the padding beyond the full convolution is zero and cropped away.
     size = (next_fast_len(win.n_rows + template.shape[1] - 1, real=True),
             next_fast_len(win.n_cols + template.shape[2] - 1, real=True))
 
