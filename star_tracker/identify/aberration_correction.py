@@ -50,7 +50,7 @@ def corrected_solution(solution: AttitudeSolution, star_vectors: np.ndarray, vel
     covariances as the fit weighted them (the identifier's: Identification.body_vectors and
     identify.base.direction_covariance of the matched spots). Given, the attitude is refitted
     against the apparent directions with those weights from C R (refine_with_covariances, stars
-    beyond FIT_SCREEN_CHI2 under their covariance left out once, as the identifier's own fit), its
+    beyond FIT_SCREEN_CHI2 under their residual's covariance left out once, as the identifier's own fit), its
     covariance the refit's; without, C R (module docstring).
     """
     rotation = aberration_rotation(star_vectors, velocity_m_s) @ solution.rotation

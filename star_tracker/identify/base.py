@@ -716,11 +716,12 @@ class StarIdentifier:
         from `rotation` (the matching fit, sensor -> ICRS, weighted with the floored sigma), a
         maximum-likelihood refinement with each ray's full 2-D covariance
         (attitude_estimation.refine_with_covariances; a streak's error is far larger along its
-        smear than across it). Stars whose residual exceeds FIT_SCREEN_CHI2 under their own
-        covariance (chi^2 with 2 DOF, ~3.7 sigma) are left out of the fit (once; never below
-        MIN_STARS). Returns the solution (sensor -> ICRS; covariance [rad^2] in the sensor
-        frame, the inverse information of the fit: Shuster & Oh's for isotropic covariances),
-        every match's chi^2 (2 DOF) and residual angle [rad] under it.
+        smear than across it). Stars whose studentized residual exceeds FIT_SCREEN_CHI2 (chi^2
+        with 2 DOF, ~3.7 sigma, under the residual's covariance: a bright star the fit leans on
+        is judged by how far it would be from the others' fit) are left out of the fit (once;
+        never below MIN_STARS). Returns the solution (sensor -> ICRS; covariance [rad^2] in the
+        sensor frame, the inverse information of the fit: Shuster & Oh's for isotropic
+        covariances), every match's studentized chi^2 (2 DOF) and residual angle [rad] under it.
         """
         body = geometry.rays[spot_index]
         if geometry.pixel_cov is None:  # isotropic

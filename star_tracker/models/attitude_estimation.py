@@ -17,6 +17,11 @@ from numba import njit
 from .attitude import matrix_to_quaternion, skew
 
 
+# A direction whose residual covariance keeps less than this share of its own (its leverage
+# above 1 - LEVERAGE_FLOOR in both axes together) has no residual to judge by.
+LEVERAGE_FLOOR = 1e-4
+
+
 @dataclass(frozen=True)
 class AttitudeSolution:
     """
@@ -86,9 +91,14 @@ def refine_with_covariances(rotation: np.ndarray, body: np.ndarray, ref: np.ndar
     b_i's tangent plane (orthonormal basis E_i), W_i = (E_i^T ray_cov_i E_i)^-1, perturbation
     R exp([d]x) (the predicted p = R^T r moves by [p]x d). With isotropic covariances this is
     Wahba's problem, whose optimum QUEST finds, and the covariance is Shuster & Oh's.
-    Returns the solution (covariance (sum G_i^T W_i G_i)^-1 over the used directions [rad^2],
-    sensor frame, G_i = E_i^T [p_i]x; loss: their chi^2 / 2), every direction's chi^2
-    r_i^T W_i r_i (2 DOF) and its residual angle arccos(b_i . R^T r_i) [rad] at it.
+    Returns the solution (covariance P = (sum G_i^T W_i G_i)^-1 over the used directions
+    [rad^2], sensor frame, G_i = E_i^T [p_i]x; loss: their chi^2 / 2), every direction's
+    studentized chi^2 (2 DOF) and its residual angle arccos(b_i . R^T r_i) [rad] at it.
+    Studentized: r_i^T S_i^-1 r_i under the residual's own covariance S_i = C_i - G_i P G_i^T for
+    a fitted direction, C_i + G_i P G_i^T for the others (C_i = W_i^-1). A bright star the fit
+    leans on leaves a small residual even when its centroid is biased (the fit follows it):
+    judged by r_i^T W_i r_i alone it would pass any screen. Where S_i is degenerate (the
+    direction alone sets the fit, det S_i < LEVERAGE_FLOOR det C_i) it is r_i^T W_i r_i.
     """
     body = np.ascontiguousarray(body, dtype=float).reshape(-1, 3)
     n = body.shape[0]
@@ -98,7 +108,7 @@ def refine_with_covariances(rotation: np.ndarray, body: np.ndarray, ref: np.ndar
         cov = np.ascontiguousarray(pixel_cov, dtype=float).reshape(n, 2, 2)
         jac = np.ascontiguousarray(jacobian, dtype=float).reshape(n, 3, 2)
     used = np.ones(n, np.bool_) if used is None else np.ascontiguousarray(used, dtype=np.bool_)
-    rotation, covariance, loss, chi2, angle = _refine_kernel(
+    rotation, covariance, loss, _, chi2, angle = _refine_kernel(
         np.ascontiguousarray(rotation, dtype=float), body, np.ascontiguousarray(ref, dtype=float).reshape(-1, 3),
         cov, jac, used, int(iterations))
     return AttitudeSolution(matrix_to_quaternion(rotation), rotation, covariance, loss), chi2, angle
@@ -152,6 +162,8 @@ def _refine_kernel(rotation, body, ref, cov, jac, used, iterations):
     grad = np.zeros(3)
     chi2 = np.zeros(n)
     angle = np.zeros(n)
+    residual = np.zeros((n, 2))
+    gmat = np.zeros((n, 2, 3))
     rot = rotation.copy()
     for step in range(iterations + 1):
         info[:, :] = 0.0
@@ -170,14 +182,17 @@ def _refine_kernel(rotation, body, ref, cov, jac, used, iterations):
             wr0 = w00 * r0 + w01 * r1
             wr1 = w01 * r0 + w11 * r1
             chi2[i] = r0 * wr0 + r1 * wr1
-            if step == iterations:
-                dot = body[i, 0] * px + body[i, 1] * py + body[i, 2] * pz
-                angle[i] = math.acos(min(1.0, max(-1.0, dot)))
-            if not used[i]:
-                continue
             # Rows of E^T [p]x: (e x p)^T and (f x p)^T.
             g0x, g0y, g0z = ey * pz - ez * py, ez * px - ex * pz, ex * py - ey * px
             g1x, g1y, g1z = fy * pz - fz * py, fz * px - fx * pz, fx * py - fy * px
+            if step == iterations:
+                dot = body[i, 0] * px + body[i, 1] * py + body[i, 2] * pz
+                angle[i] = math.acos(min(1.0, max(-1.0, dot)))
+                residual[i, 0], residual[i, 1] = r0, r1
+                gmat[i, 0, 0], gmat[i, 0, 1], gmat[i, 0, 2] = g0x, g0y, g0z
+                gmat[i, 1, 0], gmat[i, 1, 1], gmat[i, 1, 2] = g1x, g1y, g1z
+            if not used[i]:
+                continue
             grad[0] += g0x * wr0 + g1x * wr1
             grad[1] += g0y * wr0 + g1y * wr1
             grad[2] += g0z * wr0 + g1z * wr1
@@ -207,7 +222,26 @@ def _refine_kernel(rotation, body, ref, cov, jac, used, iterations):
     for i in range(n):
         if used[i]:
             loss += 0.5 * chi2[i]
-    return rot, np.linalg.inv(info), loss, chi2, angle
+    covariance = np.linalg.inv(info)
+    studentized = chi2.copy()
+    for i in range(n):
+        # G P G^T: the fitted attitude's error seen in this direction's tangent plane.
+        q00 = q01 = q11 = 0.0
+        for r in range(3):
+            for c in range(3):
+                q00 += gmat[i, 0, r] * covariance[r, c] * gmat[i, 0, c]
+                q01 += gmat[i, 0, r] * covariance[r, c] * gmat[i, 1, c]
+                q11 += gmat[i, 1, r] * covariance[r, c] * gmat[i, 1, c]
+        w00, w01, w11 = weight[i, 0], weight[i, 1], weight[i, 2]
+        det_w = w00 * w11 - w01 * w01
+        c00, c01, c11 = w11 / det_w, -w01 / det_w, w00 / det_w  # the direction's own covariance
+        sign = -1.0 if used[i] else 1.0  # a fitted direction pulled the fit towards itself
+        s00, s01, s11 = c00 + sign * q00, c01 + sign * q01, c11 + sign * q11
+        det_s = s00 * s11 - s01 * s01
+        if det_s > LEVERAGE_FLOOR * (c00 * c11 - c01 * c01) and s00 > 0.0:
+            r0, r1 = residual[i, 0], residual[i, 1]
+            studentized[i] = (s11 * r0 * r0 - 2.0 * s01 * r0 * r1 + s00 * r1 * r1) / det_s
+    return rot, covariance, loss, chi2, studentized, angle
 
 
 def davenport_q_method(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:
