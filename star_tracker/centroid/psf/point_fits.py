@@ -16,6 +16,7 @@ from .empirical import MIN_TEMPLATE_STARS, SMOOTHING_PX, EmpiricalPsf, build_emp
 from ..detection.measure import clean_hot_pixels, secondary_peaks, star_peak_to_neighbour_ratio
 from ..windows import PsfStart, PsfWindows, gather_windows
 from .gaussian_fit import PsfFit, fit_psf_windows
+from ..detection.hidden_neighbours import HIDDEN_MIN_SNR, hidden_neighbour_peaks, hidden_window_half
 from ..records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
 from .single_star_model import fit_frame_model, window_shares
 from ..spots import FLAG_BLENDED
@@ -45,7 +46,9 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
 
     Those whose window shows a second peak get a joint 2-PSF fit (flag BLENDED; kept when it
     determines both stars, _determined, and the brighter has min_snr), the second star
-    returned as an added spot unless it is a spot already or below min_snr. Pixels
+    returned as an added spot unless it is a spot already or below min_snr; in a frame the
+    round Gaussian describes, so do bright stars whose fit leaves a fainter star in its
+    residual (detection/hidden_neighbours.py; kept when both have min_snr). Pixels
     `excluded` (a neighbour's clipped core; None = none) are left out of the fits. The single
     stars are fitted with the frame's model (single_star_model), or its empirical PSF where
     the Gaussian does not describe the frame (_template_fits).
@@ -80,7 +83,37 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     if rows.size:
         spots = spots.with_stars(which[single[rows]], stars)
         label, model = "template", template
+    elif model is None and context.config.split_blends:
+        spots, more = _fit_hidden_neighbours(context, spots, which[single[good]], fit.flux[good, 0] / np.sqrt(
+            np.abs(fit.flux_var[good, 0])), excluded)
+        added = SpotRows.concatenate([added, more])
     return FitOutcome(spots, added, None, label, model)
+
+
+def _fit_hidden_neighbours(context: FitContext, spots: SpotRows, which: np.ndarray, snr: np.ndarray,
+                           excluded: np.ndarray | None) -> tuple[SpotRows, SpotRows]:
+    """
+    Fit bright single stars `which` (flux SNR `snr`) with a fainter star their residual shows.
+
+    detection/hidden_neighbours.py finds it, searched in windows hidden_window_half wide around the fitted star (a fit window ends
+    where such a neighbour's light is). Returns the spots and the stars added.
+    """
+    which = which[snr >= HIDDEN_MIN_SNR]
+    if which.size == 0:
+        return spots, no_spots()
+    half = hidden_window_half(context.sigma)
+    x, y = spots.x[which], spots.y[which]
+    col0, row0 = np.rint(x).astype(np.int64) - half, np.rint(y).astype(np.int64) - half
+    win, valid = cleaned_windows(context, col0, row0, 2 * half + 1, x, y)
+    if excluded is not None:
+        clipped, _ = gather_windows(excluded, col0, row0, 2 * half + 1)
+        valid &= clipped == 0
+    windows = PsfWindows(win, valid, col0, row0)
+    peaks = hidden_neighbour_peaks(context, windows, x, y, spots.flux[which])
+    if not peaks[0].any():
+        return spots, no_spots()
+    spots, added, _ = _fit_second_stars(context, spots, which, windows, peaks)
+    return spots, added
 
 
 def _point_windows(context: FitContext, kept: Candidates, spots: SpotRows, which: np.ndarray,
@@ -110,18 +143,28 @@ def _point_windows(context: FitContext, kept: Candidates, spots: SpotRows, which
     return PsfWindows(win, valid, col0, row0)
 
 
-def _fit_second_stars(context: FitContext, spots: SpotRows, which: np.ndarray, windows: PsfWindows
+def _fit_second_stars(context: FitContext, spots: SpotRows, which: np.ndarray, windows: PsfWindows,
+                      peaks: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
                       ) -> tuple[SpotRows, SpotRows, np.ndarray]:
-    """Fit two PSFs where a spot's window shows a second peak; return the spots, the stars added, which blended."""
+    """
+    Fit two PSFs where a spot's window shows a second star; return the spots, the stars added, which blended.
+
+    peaks: (found, row, col) per window, the second star's pixel; None: a second peak
+    (secondary_peaks). Given (a hidden neighbour, detection/hidden_neighbours.py), the pair is kept only
+    when the second star too has min_snr.
+    """
     config, sigma, noise, gain = context.config, context.sigma, context.noise, context.gain
     win, valid, col0, row0 = windows
-    half = context.window_half
-    size = 2 * half + 1
+    size = win.shape[1]
+    half = size // 2
     x, y, flux = spots.x, spots.y, spots.flux
     added = no_spots()
-    found, pr, pc = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
-                                    min_separation=blend_separation_px(sigma, context.rings), radius=half - 1.5,
-                                    gain=gain, noise=noise)
+    hidden = peaks is not None
+    if peaks is None:
+        peaks = secondary_peaks(win, valid, half, config.detection_sigma * 3.0 * noise,
+                                min_separation=blend_separation_px(sigma, context.rings), radius=half - 1.5,
+                                gain=gain, noise=noise)
+    found, pr, pc = peaks
     px, py = col0 + pc, row0 + pr
     blended = found
     if blended.any():
@@ -140,8 +183,10 @@ def _fit_second_stars(context: FitContext, spots: SpotRows, which: np.ndarray, w
                               noise, gain)
         # Two stars only if the brighter one stands out on its own: a split that leaves both
         # below min_snr is one non-Gaussian star (a defocused ring's two sides), not a pair.
-        brighter = np.max(fit.flux / np.sqrt(np.abs(fit.flux_var)), axis=1)
-        both = fit.converged.all(axis=1) & _determined(fit, size) & (brighter >= config.min_snr)
+        snr = fit.flux / np.sqrt(np.abs(fit.flux_var))
+        both = fit.converged.all(axis=1) & _determined(fit, size) & (snr.max(axis=1) >= config.min_snr)
+        if hidden:
+            both &= snr.min(axis=1) >= config.min_snr
         blended[b[~both]] = False
         j, k = np.flatnonzero(both), b[both]
         t = which[k]
