@@ -95,8 +95,9 @@ def _fit_hidden_neighbours(context: FitContext, spots: SpotRows, which: np.ndarr
     """
     Fit bright single stars `which` (flux SNR `snr`) with a fainter star their residual shows.
 
-    detection/hidden_neighbours.py finds it, searched in windows hidden_window_half wide around the fitted star (a fit window ends
-    where such a neighbour's light is). Returns the spots and the stars added.
+    detection/hidden_neighbours.py finds it, searched in windows hidden_window_half wide around
+    the fitted star (a fit window ends where such a neighbour's light is). Returns the spots
+    and the stars added.
     """
     which = which[snr >= HIDDEN_MIN_SNR]
     if which.size == 0:
