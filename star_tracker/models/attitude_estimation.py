@@ -108,7 +108,7 @@ def refine_with_covariances(rotation: np.ndarray, body: np.ndarray, ref: np.ndar
         cov = np.ascontiguousarray(pixel_cov, dtype=float).reshape(n, 2, 2)
         jac = np.ascontiguousarray(jacobian, dtype=float).reshape(n, 3, 2)
     used = np.ones(n, np.bool_) if used is None else np.ascontiguousarray(used, dtype=np.bool_)
-    rotation, covariance, loss, _, chi2, angle = _refine_kernel(
+    rotation, covariance, loss, chi2, angle = _refine_kernel(
         np.ascontiguousarray(rotation, dtype=float), body, np.ascontiguousarray(ref, dtype=float).reshape(-1, 3),
         cov, jac, used, int(iterations))
     return AttitudeSolution(matrix_to_quaternion(rotation), rotation, covariance, loss), chi2, angle
@@ -121,8 +121,8 @@ def _refine_kernel(rotation, body, ref, cov, jac, used, iterations):
 
     cov: (N, 3, 3) ray covariances when jac is empty, else (N, 2, 2) pixel covariances mapped
     by jac (N, 3, 2). Returns the rotation, the covariance (inverse information of the used
-    directions, 3x3), the loss (half their chi^2), chi^2 (N,) and the residual angles (N,)
-    [rad].
+    directions, 3x3), the loss (half their chi^2), the studentized chi^2 (N,) and the residual
+    angles (N,) [rad].
     """
     n = body.shape[0]
     basis = np.empty((n, 2, 3))  # e1, e2 per direction
@@ -241,7 +241,7 @@ def _refine_kernel(rotation, body, ref, cov, jac, used, iterations):
         if det_s > LEVERAGE_FLOOR * (c00 * c11 - c01 * c01) and s00 > 0.0:
             r0, r1 = residual[i, 0], residual[i, 1]
             studentized[i] = (s11 * r0 * r0 - 2.0 * s01 * r0 * r1 + s00 * r1 * r1) / det_s
-    return rot, covariance, loss, chi2, studentized, angle
+    return rot, covariance, loss, studentized, angle
 
 
 def davenport_q_method(body: np.ndarray, ref: np.ndarray, sigmas: np.ndarray) -> AttitudeSolution:

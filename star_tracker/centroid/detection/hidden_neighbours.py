@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.special import erf
 
 from ..config import blend_separation_px
 from ..records import FitContext
@@ -38,38 +37,36 @@ HIDDEN_MAX_SIGMAS = 4.0  # farthest neighbour searched [PSF sigma]: beyond, it b
 HIDDEN_REACH_SIGMAS = 5.5  # a search window's half-width [PSF sigma]: a neighbour 3 sigma out and its light
 HIDDEN_MIN_Z = 5.0  # matched-filtered residual over its noise [sigma]
 HIDDEN_MIN_ASYMMETRY = 4.0  # its excess over the reflected point, over their joint noise [sigma]
-SYMMETRY_SHARE = 0.5
+SYMMETRY_SHARE = 0.5  # the reflected point's share of the candidate's above which it is the PSF's shape
 HIDDEN_MIN_SIGMA_PX = 1.0  # narrower PSFs: a neighbour 2 sigma out is a second peak, and pixel phase skews the residual
 # A frame where more of its bright stars than this share (and than HIDDEN_MAX_COUNT) show one has
 # an asymmetric PSF (coma, a real lens), not neighbours: none is split.
 HIDDEN_MAX_SHARE = 0.1
-HIDDEN_MAX_COUNT = 2  # the reflected point's share of the candidate's above which it is the PSF's shape
+HIDDEN_MAX_COUNT = 2
 
 
 def hidden_neighbour_peaks(context: FitContext, windows: PsfWindows, x: np.ndarray, y: np.ndarray,
-                           flux: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                           model: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     Return (found (n,), row, col) of a hidden star in each of the n `windows` (module docstring).
 
-    x, y [px], flux [ADU]: the single round-Gaussian fit of the star each window is cut around
-    (wider than a fit window: hidden_window_half). row, col: the candidate's pixel in its window
-    (meaningful where found).
+    x, y [px]: the star each window is cut around (wider than a fit window: hidden_window_half);
+    model (n, S, S) [ADU]: its single round-Gaussian fit over the window. row, col: the
+    candidate's pixel in its window (meaningful where found).
     """
     win, valid, col0, row0 = windows
     n, size, _ = win.shape
     if n == 0 or context.sigma < HIDDEN_MIN_SIGMA_PX:
         return np.zeros(n, bool), np.zeros(n, np.int64), np.zeros(n, np.int64)
     sigma, noise, gain = context.sigma, context.noise, context.gain
-    model = flux[:, None, None] * _gaussian_shares(col0, row0, x, y, size, sigma)
     use = valid
-    residual = np.where(use, win - model, 0.0).astype(np.float32)
-    variance = np.where(use, np.maximum(model, 0.0) / gain + noise * noise, 0.0).astype(np.float32)
+    residual = np.where(use, win - model, 0.0)
+    variance = np.where(use, np.maximum(model, 0.0) / gain + noise * noise, 0.0)
     # Matched filter: the residual weighted by a star's profile, its variance by the profile squared.
     reach = int(np.ceil(2.0 * sigma))
     offsets = np.arange(-reach, reach + 1)
     profile = np.exp(-0.5 * (offsets[:, None] ** 2 + offsets[None, :] ** 2) / (sigma * sigma)).astype(np.float32)
-    filtered = np.stack([cv2.filter2D(r, -1, profile, borderType=cv2.BORDER_CONSTANT) for r in residual])
-    filtered_var = np.stack([cv2.filter2D(v, -1, profile * profile, borderType=cv2.BORDER_CONSTANT) for v in variance])
+    filtered, filtered_var = _filtered(residual, profile, reach), _filtered(variance, profile * profile, reach)
     z = filtered / np.sqrt(np.maximum(filtered_var, 1e-12))
     cx, cy = x - col0, y - row0
     rr, cc = np.mgrid[0:size, 0:size]
@@ -95,6 +92,15 @@ def hidden_neighbour_peaks(context: FitContext, windows: PsfWindows, x: np.ndarr
     return found, best // size, best % size
 
 
+def _filtered(windows: np.ndarray, kernel: np.ndarray, reach: int) -> np.ndarray:
+    """Return the (n, S, S) `windows` correlated with `kernel` ((2 reach + 1)^2), zero outside each window."""
+    n, size, _ = windows.shape
+    stacked = np.zeros((n, size + reach, size), np.float32)  # `reach` zero rows keep the windows apart
+    stacked[:, :size] = windows
+    out = cv2.filter2D(stacked.reshape(n * (size + reach), size), -1, kernel, borderType=cv2.BORDER_CONSTANT)
+    return out.reshape(n, size + reach, size)[:, :size]
+
+
 def _bilinear(values: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
     """Return `values` (n, S, S) read at fractional (row, col) (n, S, S), both inside [0, S - 1]."""
     n, size, _ = values.shape
@@ -109,15 +115,3 @@ def _bilinear(values: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarra
 def hidden_window_half(sigma: float) -> int:
     """Half-width [px] of the window a bright star is searched in for a hidden neighbour (HIDDEN_REACH_SIGMAS)."""
     return int(np.ceil(HIDDEN_REACH_SIGMAS * max(sigma, 1.0)))
-
-
-def _gaussian_shares(col0, row0, x, y, size: int, sigma: float) -> np.ndarray:
-    """(n, size, size) shares of unit-flux round Gaussian stars at (x, y) [px], integrated over each pixel."""
-    steps = np.arange(size, dtype=float)
-    scale = 1.0 / (np.sqrt(2.0) * sigma)
-
-    def profile(start, centre):
-        d = np.asarray(start, float)[:, None] + steps[None] - np.asarray(centre, float)[:, None]
-        return 0.5 * (erf((d + 0.5) * scale) - erf((d - 0.5) * scale))
-
-    return profile(row0, y)[:, :, None] * profile(col0, x)[:, None, :]

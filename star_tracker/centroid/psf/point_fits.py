@@ -110,7 +110,8 @@ def _fit_hidden_neighbours(context: FitContext, spots: SpotRows, which: np.ndarr
         clipped, _ = gather_windows(excluded, col0, row0, 2 * half + 1)
         valid &= clipped == 0
     windows = PsfWindows(win, valid, col0, row0)
-    peaks = hidden_neighbour_peaks(context, windows, x, y, spots.flux[which])
+    model = spots.flux[which][:, None, None] * window_shares(None, col0, row0, x, y, 2 * half + 1, context.sigma)
+    peaks = hidden_neighbour_peaks(context, windows, x, y, model)
     if not peaks[0].any():
         return spots, no_spots()
     spots, added, _ = _fit_second_stars(context, spots, which, windows, peaks)
