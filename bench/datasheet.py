@@ -84,6 +84,11 @@ def _missing(quantity: str, conditions: str) -> Row:
     return Row(quantity, NOT_MEASURED, conditions, None)
 
 
+def catalog_epoch(epoch_jyear: float) -> str:
+    """The identifier's database.epoch_jyear as the datasheet states it (0: the clock's date)."""
+    return f"epoch {epoch_jyear:g}" if epoch_jyear else "the clock's date (to 0.1 year; proper motion applied)"
+
+
 def configuration_rows(config: dict) -> list[tuple[str, str]]:
     """(item, value) of the default camera and solver, from the parameter file's defaults."""
     camera = config["/**/camera_simulator"]["ros__parameters"]
@@ -103,7 +108,7 @@ def configuration_rows(config: dict) -> list[tuple[str, str]]:
                           f"{optics['psf_sigma_px']:g} px (the centroider estimates it from each frame)"),
         ("Frame rate, exposure", f"{camera['rate_hz']:g} Hz, {sensor['exposure_s'] * 1e3:g} ms (both parameters); "
                                  "every output stamped at mid-exposure"),
-        ("Star catalog", f"Hipparcos at epoch {identifier['database']['epoch_jyear']:g}: guide stars to Hp "
+        ("Star catalog", f"Hipparcos at {catalog_epoch(identifier['database']['epoch_jyear'])}: guide stars to Hp "
                          f"{identifier['database']['magnitude_limit']:g}, deep re-match "
                          f"{identifier['deep_match']['magnitude_margin']:g} mag fainter"),
         ("False-positive bound", f"{identifier['false_positive_bound']:g}: a solution is published only below it "

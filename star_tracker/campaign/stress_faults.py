@@ -275,7 +275,8 @@ class FrameSource:
     The renderers of a plan's sensor conditions (built on first use) and the faults applied to the images.
 
     The default camera (1024 x 1024, 15 deg), the simulated camera's sensor
-    (camera_simulator_parameters.SIMULATED_SENSOR) and Hipparcos at the database's epoch,
+    (camera_simulator_parameters.SIMULATED_SENSOR) and Hipparcos at epoch_jyear [Julian year]
+    (the through-nodes run: its stamps' date, as the camera simulator's sky.epoch_jyear 0),
     rendered to Hp 7.5 (the camera simulator's sky.magnitude_limit).
     """
 

@@ -305,13 +305,14 @@ def run_stress_through_nodes(frames: int, seed: int, output: Path, progress=None
     from rclpy.context import Context
 
     from ..ros.middleware import configure_middleware
+    from ..models.catalog import julian_year_from_unix
     from ..ros.pipeline import NodeProcesses, isolated_ros_environment
 
     output = Path(output)
     output.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()
     plan = plan_stress(frames, seed, required, mission_frames)
-    source = FrameSource()
+    source = FrameSource(epoch_jyear=julian_year_from_unix(time.time()))  # the sky of the stamps' date
     env = isolated_ros_environment()
     # This process joins the nodes' private domain: localhost discovery and the project's DDS profile.
     saved = {key: os.environ.get(key) for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOCALHOST_ONLY")}
@@ -736,10 +737,11 @@ def render_section(summary: dict, heading: str = "### Stress through the nodes")
            f"{summary['gyro']['samples_per_frame']} samples per exposure"
            if summary.get("rate_aid") == "gyro" else " as shipped: the identifier's own rate aids the centroider")
         + "), fed by `star_tracker/campaign/stress_nodes.py`, which renders "
-        "each frame (1024², 15°, the simulated camera's sensor, Hipparcos to Hp 7.5) and sends it with its "
-        "CameraInfo, then waits for that frame's outcome before the next: no overload by design, and frames and "
-        "stamps do not depend on the host's speed (the identifier's time budget, `max_time_s`, runs on the wall "
-        f"clock: a solve timed out is counted, `not_identified_timeout`: {i.get('not_identified_timeout', 0)} here). "
+        "each frame (1024², 15°, the simulated camera's sensor, Hipparcos to Hp 7.5 at the stamps' date) and sends "
+        "it with its CameraInfo, then waits for that frame's outcome before the next: no overload by design, and "
+        "frames and stamps do not depend on the host's speed (the identifier's time budget, `max_time_s`, runs on "
+        "the wall clock: a solve timed out is counted, `not_identified_timeout`: "
+        f"{i.get('not_identified_timeout', 0)} here). "
         f"{summary['missions']} missions of "
         f"{'-'.join(str(n) for n in summary.get('mission_frames', MISSION_FRAMES))} frames at 10 Hz "
         "(rest, slews ≤ 2 °/s², tumbles ≤ 5 °/s, jitter ≤ 20″ to 20 Hz; half of them under a hot-pixel storm or "

@@ -59,7 +59,7 @@ from .node_process import exit_node_process, run_node
 from .output_flush import flush_publishers
 from ..parameter_spec import field_values
 from .identifier_parameters import (CALIBRATION_PARAMETERS, DATABASE_PARAMETERS, IDENTIFIER_PARAMETERS,
-                                    IDENTIFY_PARAMETERS, TRACKING_PARAMETERS)
+                                    IDENTIFY_PARAMETERS, TRACKING_PARAMETERS, epoch_from_clock)
 from .parameters import declare_parameters, guard_parameter_changes
 from .qos import IMAGE_QOS, RESULT_QOS, SPOTS_QOS, overridable
 from .smear_aid_input import SmearAidInput
@@ -99,7 +99,9 @@ class IdentifierNode(ManagedNode):
         values = declare_parameters(self, IDENTIFIER_PARAMETERS)  # identifier_parameters.py
         algorithm = values["algorithm"]
         self.frame_id = values["frame_id"]
-        db_config = DatabaseConfig(**field_values(DATABASE_PARAMETERS, values),
+        now_ns = self.get_clock().now().nanoseconds
+        epoch = epoch_from_clock(values["database.epoch_jyear"], now_ns * 1e-9)
+        db_config = DatabaseConfig(**{**field_values(DATABASE_PARAMETERS, values), "epoch_jyear": epoch},
                                    max_pair_angle_rad=np.radians(values["database.max_pair_angle_deg"]))
         self.config = IdentifyConfig(**field_values(IDENTIFY_PARAMETERS, values))
         self.tracking_enabled = values["tracking.enabled"]
@@ -154,7 +156,8 @@ class IdentifierNode(ManagedNode):
         self.diag.count("database_loads")
         self.get_logger().info(
             f"algorithm {self.algorithm}: {self.database.star_count} guide stars to Hp "
-            f"{self.db_config.magnitude_limit}, {self.database.pair_a.size} pairs, loaded in "
+            f"{self.db_config.magnitude_limit} at epoch {self.db_config.epoch_jyear:g}, "
+            f"{self.database.pair_a.size} pairs, loaded in "
             f"{time.perf_counter() - started:.2f} s")
 
         publisher = self.create_lifecycle_publisher

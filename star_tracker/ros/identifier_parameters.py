@@ -12,7 +12,10 @@ stamp checks; read-only: what is built at startup (database, algorithm, deep cat
 """
 from __future__ import annotations
 
+import time
+
 from ..identify import ALGORITHMS, DEFAULT_ALGORITHM, DatabaseConfig, IdentifyConfig
+from ..models.catalog import julian_year_from_unix
 from ..models.sky_geometry import ExclusionModel
 from ..models.online_calibration import OnlineCalibrationConfig
 from ..parameter_spec import ParameterSpec, field_specs
@@ -24,8 +27,28 @@ DATABASE_PARAMETERS = [
     *field_specs(DatabaseConfig, prefix="database.", only=("magnitude_limit",)),
     ParameterSpec("database.max_pair_angle_deg", DatabaseConfig.DEFAULT_PAIR_ANGLE_DEG, "largest stored star "
                   "separation; >= the camera's diagonal field of view", "deg", 0.1, 90.0),
-    *field_specs(DatabaseConfig, prefix="database.", only=("epoch_jyear",)),
+    # The node's own (DatabaseConfig.epoch_jyear takes the year it resolves to, epoch_from_clock).
+    ParameterSpec("database.epoch_jyear", 0.0, "epoch of the guide-star positions; 0 = the node clock's date at "
+                  "startup, to 0.1 year (as the simulator's sky.epoch_jyear)", "Julian year", 0.0, 2200.0),
 ]
+
+# Resolution of database.epoch_jyear = 0: one pattern database per tenth of a year (~0.8 s to
+# build, cached), off the date by at most 0.05 year: a 1"/yr star by 0.05".
+EPOCH_STEP_JYEAR = 0.1
+
+
+def epoch_from_clock(epoch_jyear: float, clock_unix_s: float | None) -> float:
+    """
+    Return the guide-star epoch [Julian year] for database.epoch_jyear (0: the clock's date).
+
+    clock_unix_s: the node's clock [s], None or 0 while a sim clock has not ticked (the wall
+    clock is used). The date is rounded to EPOCH_STEP_JYEAR, so the cached databases are few.
+    """
+    if epoch_jyear:
+        return float(epoch_jyear)
+    year = julian_year_from_unix(clock_unix_s or time.time())
+    return round(round(year / EPOCH_STEP_JYEAR) * EPOCH_STEP_JYEAR, 6)
+
 
 IDENTIFY_PARAMETERS = field_specs(IdentifyConfig, names={"deep_match": "deep_match.enabled",
                                                          "deep_magnitude_margin": "deep_match.magnitude_margin"})

@@ -26,6 +26,7 @@ from conftest import join_isolated_ros_domain, spots_at  # noqa: E402
 from service_calls import answered  # noqa: E402
 from star_tracker.models.attitude import radec_roll_to_matrix  # noqa: E402
 from star_tracker.ros import convert  # noqa: E402
+from star_tracker.ros.identifier_parameters import epoch_from_clock  # noqa: E402
 from star_tracker.ros.pipeline import NodeProcesses, TrackerMonitor  # noqa: E402
 from star_tracker.ros.qos import RESULT_QOS  # noqa: E402
 
@@ -174,6 +175,8 @@ def test_identifier_lifecycle_round_trip_keeps_its_database(monkeypatch, tmp_pat
     log = nodes.log_paths["identifier"].read_text()
     assert code == 0 and codes == {"identifier": 0}, log
     assert log.count("guide stars to Hp") == 1, log  # one database load in the whole round trip
+    # The shipped database.epoch_jyear (0): the guide stars at the clock's date, as the simulator renders them.
+    assert any(f"at epoch {epoch_from_clock(0.0, time.time() - ago):g}," in log for ago in (0.0, 600.0)), log
     assert "transition 'activate' refused in state unconfigured" in log, log
 
 
