@@ -86,3 +86,46 @@ def test_every_fault_through_the_nodes_is_accounted_for(tmp_path, database):  # 
     assert summary["passed"]
     assert "every frame accounted for: **yes**" in render_section(summary)
     assert set(FRAME_FAULTS) <= set(summary["faults"])
+
+
+def test_a_gyros_first_samples_under_jitter_do_not_move_the_spots(database):
+    """
+    The gyro run's worst frame (seed 1, mission 38, its first frame: NEES 7799, 9" off).
+
+    A jitter mission begins; the gyro's only samples are the five inside the first exposure,
+    whose slope, a 5-10 Hz swing, passed as significant and moved every spot by alpha T^2 / 24.
+    As the centroider node takes them (ros/rate_input.RateSamples, the run's gyro bias, no noise),
+    scored as the run scores it: against the exposure's mean attitude, with the tracker's covariance.
+    """
+    from star_tracker.campaign.stress_faults import FrameSource
+    from star_tracker.campaign.stress_nodes import GYRO_SAMPLES, Gyro
+    from star_tracker.centroid import CentroidConfig, extract_spots
+    from star_tracker.centroid.streak.smear import SmearModel
+    from star_tracker.identify import IdentifyConfig, make_identifier
+    from star_tracker.models.attitude import matrix_to_rotation_vector
+    from star_tracker.ros.rate_input import RateSamples
+    from star_tracker.track.tracking import Tracker
+
+    plan = plan_stress(2000, 1)
+    mission = plan.missions[38]
+    first = mission.frames[0]
+    assert "jitter" in mission.motion_kind and first.sent and not first.fault
+    source = FrameSource()
+    rendered = source.render(mission, first)
+    motion, exposure = source.motion(mission), source.sensor.exposure_s
+    stamp = 1_800_000_000_000_000_000
+    samples = RateSamples()
+    for offset in ((np.arange(GYRO_SAMPLES) + 0.5) / GYRO_SAMPLES - 0.5) * exposure:
+        samples.add(stamp + int(round(offset * 1e9)), np.asarray(motion.angular_velocity_at(first.t_s + offset))
+                    + Gyro(1).bias)
+    omega, alpha, verdict = samples.motion_for_frame(stamp, exposure, 0.5)
+    assert verdict == "ok" and alpha is None
+    spots = extract_spots(rendered.image, CentroidConfig(), SmearModel(source.camera, omega, exposure, alpha))
+    result = Tracker(make_identifier("hybrid", database, IdentifyConfig())).process(stamp, spots, source.camera)
+    assert result.identification.solved
+    reference, phase, _ = source.reference(mission, first, rendered.truth)
+    assert phase == "jitter"
+    solution = result.identification.attitude
+    error = matrix_to_rotation_vector(reference.T @ solution.rotation)
+    nees = float(error @ np.linalg.solve(solution.covariance, error))
+    assert nees < 13.9 and np.degrees(np.linalg.norm(error[:2])) * 3600 < 2.0, (nees, np.degrees(error) * 3600)

@@ -224,3 +224,17 @@ def test_a_gyros_slope_under_fast_jitter_is_no_acceleration():
                  * np.cos(2 * np.pi * frequency * t + 0.4))
     omega, acceleration, verdict = gyro.motion_for_frame(T0, 0.1, 0.5)
     assert verdict == "ok" and acceleration is None and omega is not None
+
+
+def test_a_slope_needs_two_exposures_of_samples():
+    # A gyro switched on (or a new track's first samples): one exposure of samples cannot tell a
+    # 2-10 Hz jitter's swing from an acceleration (ACCELERATION_MIN_SPAN_S), two can.
+    alpha = np.array([0.02, -0.01, 0.005])  # [rad/s^2]
+    omega0 = np.array([0.01, 0.02, 0.0])
+    for first_ms, expected in ((-50, None), (-120, None), (-150, alpha)):  # to +50 ms: 0.1, 0.17, 0.2 s
+        gyro = RateSamples()
+        for k in range(first_ms, 51):
+            gyro.add(T0 + k * MS, omega0 + alpha * k * 1e-3)
+        omega, acceleration, verdict = gyro.motion_for_frame(T0, 0.1, 0.5)
+        assert verdict == "ok" and np.allclose(omega, omega0), first_ms
+        assert (acceleration is None) if expected is None else np.allclose(acceleration, expected), first_ms
