@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from .psf.estimate import PsfEstimate
 
 FLAG_SATURATED = 1 << 0  # a pixel of the spot reached the saturation level
-FLAG_EDGE = 1 << 1  # the spot's window touches the image border: position biased inward
+FLAG_EDGE = 1 << 1  # its window touches the image border, or its streak runs past it: not matched (identify)
 FLAG_STREAK = 1 << 2  # measured with the streak model: streak_length / streak_angle are valid
 FLAG_BLENDED = 1 << 3  # split from a blend with a neighbour (fitted jointly with it)
 FLAG_RATE_AIDED = 1 << 4  # fitted on the smear path predicted from a known body rate

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..models.attitude_estimation import AttitudeSolution, quest_rotation, refine_with_covariances
 from ..models.camera import CameraModel
-from ..centroid import Spots
+from ..centroid import FLAG_EDGE, Spots
 from ..parameter_spec import parameter, range_problems
 from . import spot_kernels
 from .kernel_records import Pinhole, PrepareSettings, RawSpots
@@ -332,8 +332,8 @@ class StarIdentifier:
         """
         Return the finite spots' indices (into `spots`) and the geometry algorithms work on.
 
-        The finite spots sorted by flux, brightest first, and their geometry in that order.
-        Resets the per-call stats. Compiled (spot_kernels.prepare_spots) for
+        The finite spots not flagged EDGE sorted by flux, brightest first, and their geometry in
+        that order. Resets the per-call stats. Compiled (spot_kernels.prepare_spots) for
         undistorted cameras, numpy with distortion. A malformed record is refused first
         (Spots.validate: ValueError).
         """
@@ -341,7 +341,10 @@ class StarIdentifier:
         self.stats = {}
         floor_px = self.config.centroid_sigma_floor_px
         as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
-        x, y = as_float(spots.x), as_float(spots.y)
+        # A spot whose light runs past the border (flag EDGE) is not used: what the fit lost can
+        # pull it beyond its covariance, and a faint one then takes a star's name (frame_fits).
+        edge = (np.asarray(spots.flags) & FLAG_EDGE) != 0
+        x, y = as_float(np.where(edge, np.nan, spots.x)), as_float(spots.y)
         if not camera.has_distortion:
             p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)),
                                            Pinhole.of(camera),

@@ -19,6 +19,18 @@ spot after a star whose light made it, and the truth (accuracy.truth_hip) said o
   100412 (1,899 e-) and 100349 (781 e-), 3.75 and 3.40 px from its centre; named 100412,
   within 3 sigma of the spot's own covariance (chi^2 8.8), and scored wrong because 100349 is
   the nearer. The named star counts when the spot's covariance holds it.
+
+Of `--frames 100000` (seed 2026), streaks whose light runs past the image border:
+
+- Task 2217 (gyro aid), frame 31, tracked on 6 stars: HIP 107516's 19.4 px streak (2,735 e-,
+  SNR 6) centred 0.3 px inside the right border, half of it beyond; its fit on the half left
+  sat 1.9 px across the track at a stated 0.24 px, and it was named. Its footprint ends at the
+  border, so it was not flagged edge.
+- Task 1297, frame 20, tracked on 10 stars: a 9.6 px streak (SNR 8) at the bottom-left corner,
+  flagged edge and named HIP 56901, 3.1 px from it, outside its covariance.
+
+A streak whose fitted segment runs past the border is now flagged edge, and the identifier
+leaves edge spots out.
 """
 from __future__ import annotations
 
@@ -44,6 +56,14 @@ def test_a_streak_blended_from_two_stars_named_after_one_of_them_is_right(campai
 def test_a_blend_named_after_the_star_its_covariance_holds_is_right(campaign):
     row = replay_to(campaign, 672, 9)[-1]
     assert row["frame"] == 9 and row["mode"] == "tracking" and row["solved"], row
+    assert not row["wrong_star"] and not row["wrong"], row
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task, frame", [(2217, 31), (1297, 20)])
+def test_a_streak_running_past_the_border_is_not_named(campaign, task, frame):
+    row = replay_to(campaign, task, frame)[-1]
+    assert row["frame"] == frame and row["mode"] == "tracking" and row["solved"], row
     assert not row["wrong_star"] and not row["wrong"], row
 
 
