@@ -85,7 +85,7 @@ def _missing(quantity: str, conditions: str) -> Row:
 
 
 def catalog_epoch(epoch_jyear: float) -> str:
-    """The identifier's database.epoch_jyear as the datasheet states it (0: the clock's date)."""
+    """Return the identifier's database.epoch_jyear as the datasheet states it (0: the clock's date)."""
     return f"epoch {epoch_jyear:g}" if epoch_jyear else "the clock's date (to 0.1 year; proper motion applied)"
 
 
