@@ -82,9 +82,10 @@ class PsfEstimate:
     the estimate agreed with it within its tolerance, see extract.extract_spots); annular:
     the stars are rings (a defocused PSF: less light at the centre than RING_CENTRE_RATIO x
     a Gaussian's), so that a spot's several maxima are one star, not a blend; holds_prior: not
-    estimated for want of anything to measure the PSF on (no detections, a rate-aided frame's
-    streaks too few to measure across, usable stars mostly smeared): no evidence against the
-    prior, which a running prior (running_prior.RunningPsf) keeps.
+    estimated for want of anything to measure the PSF on (no detections, too few isolated
+    point-like stars, a rate-aided frame's streaks too few to measure across, usable stars
+    mostly smeared): no evidence against the prior, which a running prior
+    (running_prior.RunningPsf) keeps.
     """
 
     sigma_px: float
@@ -203,9 +204,12 @@ def estimate_psf(image: np.ndarray, frame: MeasuredFrame, prior_sigma: float, ga
     need = max(MIN_STARS, min_usable)
     if chosen.size < need:
         min_snr = FAINT_STAR_SNR if faint else MIN_STAR_SNR
+        # Too few stars to measure is no evidence against the width held (RunningPsf keeps it):
+        # emptied, a sparse frame's running 2.7 px fell to the configured 1 px and stayed there,
+        # the stars fitted as fragments 60-270" off (stress campaign, seed 2026, task 1033).
         return PsfEstimate.assumed(prior_sigma, "prior", f"{chosen.size} isolated unsaturated point-like stars with "
                                    f"peak SNR >= {MIN_PEAK_SNR:g} or SNR >= {min_snr:g} (need {need})",
-                                   int(chosen.size))
+                                   int(chosen.size), holds_prior=True)
     fit = _fit_stars(image, frame, chosen, prior_sigma, gain)
     if fit is None:
         return PsfEstimate.assumed(prior_sigma, "prior", "no PSF fit converged", 0)
