@@ -130,10 +130,16 @@ def test_best_effort_imu_then_vector3_aid_the_centroider(tmp_path, monkeypatch):
         nodes.wait_ready()
         assert probe.spin(20.0, until=lambda: probe.pub_imu.get_subscription_count() > 0
                           and probe.pub_vector.get_subscription_count() > 0)
-        # Bad gyro messages: another frame, no angular velocity (REP 145). Counted, ignored.
-        stamp = time.time_ns()
-        probe.pub_imu.publish(probe.imu([1.0, 0.0, 0.0], stamp, frame="base_link"))
-        probe.pub_imu.publish(probe.imu([1.0, 0.0, 0.0], stamp, covariance0=-1.0))
+        # Bad gyro messages: another frame, no angular velocity (REP 145). Counted, ignored. Best
+        # effort, as an IMU driver publishes: sent again until the diagnostics count them (a loaded
+        # host may lose the first right after discovery: fresh-clone CI, 0 counted of 1 sent).
+        bad_sent = 0
+        while bad_sent < 10 and not (probe.count("rates_wrong_frame") and probe.count("rates_no_data")):
+            stamp = time.time_ns()
+            probe.pub_imu.publish(probe.imu([1.0, 0.0, 0.0], stamp, frame="base_link"))
+            probe.pub_imu.publish(probe.imu([1.0, 0.0, 0.0], stamp, covariance0=-1.0))
+            bad_sent += 1
+            probe.spin(2.5, until=lambda: probe.count("rates_wrong_frame") and probe.count("rates_no_data"))
         # Imu for the first frames, then rate_source switched at runtime to the Vector3Stamped topic.
         assert probe.spin(60.0, until=lambda: probe.rates_seen >= 5)
         switched = probe.set_parameter("centroider", "rate_source", "topic")
@@ -155,7 +161,7 @@ def test_best_effort_imu_then_vector3_aid_the_centroider(tmp_path, monkeypatch):
     assert codes == {"camera_simulator": 0, "centroider": 0}, logs
     assert switched == [(True, "")] and probe.diag["rate_source"] == "topic", logs["centroider.log"]
     diag = probe.diag
-    assert probe.count("rates_wrong_frame") == 1 and probe.count("rates_no_data") == 1, diag
+    assert 1 <= probe.count("rates_wrong_frame") <= bad_sent and 1 <= probe.count("rates_no_data") <= bad_sent, diag
     assert probe.count("frames_rate_aid_rejected") == 0, diag  # the rotated rate agrees with the streaks
     processed = probe.count("frames_processed")
     assert processed >= FRAMES - 2, diag  # best effort: an image may be lost
