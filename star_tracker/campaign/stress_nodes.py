@@ -304,8 +304,8 @@ def run_stress_through_nodes(frames: int, seed: int, output: Path, progress=None
     import rclpy
     from rclpy.context import Context
 
-    from ..ros.middleware import configure_middleware
     from ..models.catalog import julian_year_from_unix
+    from ..ros.middleware import configure_middleware
     from ..ros.pipeline import NodeProcesses, isolated_ros_environment
 
     output = Path(output)

@@ -114,10 +114,9 @@ def test_a_gyros_first_samples_under_jitter_do_not_move_the_spots(database):
     rendered = source.render(mission, first)
     motion, exposure = source.motion(mission), source.sensor.exposure_s
     stamp = 1_800_000_000_000_000_000
-    samples = RateSamples()
+    samples, bias = RateSamples(), Gyro(1).bias
     for offset in ((np.arange(GYRO_SAMPLES) + 0.5) / GYRO_SAMPLES - 0.5) * exposure:
-        samples.add(stamp + int(round(offset * 1e9)), np.asarray(motion.angular_velocity_at(first.t_s + offset))
-                    + Gyro(1).bias)
+        samples.add(stamp + int(round(offset * 1e9)), np.asarray(motion.angular_velocity_at(first.t_s + offset)) + bias)
     omega, alpha, verdict = samples.motion_for_frame(stamp, exposure, 0.5)
     assert verdict == "ok" and alpha is None
     spots = extract_spots(rendered.image, CentroidConfig(), SmearModel(source.camera, omega, exposure, alpha))
