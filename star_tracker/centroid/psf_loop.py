@@ -14,7 +14,9 @@ The steps, each a trial measured and then judged (`_Step.then`):
   measurement at the prior.
 - A rate-aided frame (its stars smeared): measured at the prior, its PSF estimated across the
   streaks (streak.streak_width) and, when that differs from the prior, measured there, kept;
-  too few streaks to measure across: the prior, held (PsfEstimate.holds_prior). A smear
+  too few streaks to measure across, one or two of them at another width: measured again at
+  theirs, kept when enough streaks there give a width; else the prior, held
+  (PsfEstimate.holds_prior). A smear
   shorter everywhere than a profile across needs (streak_width.MIN_LENGTH_PX) leaves the stars
   nearly round: estimated as a frame without a rate (the steps below).
 - The prior: measured, its PSF estimated (psf.estimate). Too few usable stars among many
@@ -48,7 +50,7 @@ from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .psf.pilot import neighbour_positions, pilot_detections
 from .streak.streak_width import MIN_LENGTH_PX as MIN_STREAK_LENGTH_PX
-from .streak.streak_width import streak_width
+from .streak.streak_width import frame_width, streak_widths
 from .records import PsfTrial
 from .spots import Spots
 from .streak.rate_aid import typical_smear_px
@@ -200,22 +202,60 @@ class PsfLoop:
         """
         Estimate a rate-aided frame's PSF across its streaks (streak.streak_width); measure again there when it differs.
 
-        No star shows the round PSF under a known rate, but a streak's profile across its track does.
+        No star shows the round PSF under a known rate, but a streak's profile across its track
+        does. Fewer than streak_width.MIN_STREAKS streaks measured at the prior, one or two of
+        them beyond RERUN_TOLERANCE of it: the frame is measured again at their width
+        (_after_few_streaks), where a PSF wider than the prior lifts more streaks above
+        streak_width.MIN_SNR.
         """
-        frame = self.kept[1].frame
-        cand = frame.cand
-        unclipped = np.asarray(cand.peak_raw, float) < CLIP_MARGIN * frame.saturation  # a flat top is no profile
-        sigma, uncertainty, used = streak_width(self.image, cand.x[unclipped], cand.y[unclipped],
-                                                cand.snr[unclipped], self.smear)
+        widths = self._streak_widths(self.kept)
+        sigma, uncertainty, used = frame_width(widths)
         if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
-            # Too few bright streaks says nothing against the prior: a running prior holds.
-            self.estimate = PsfEstimate.assumed(trial.sigma_px, "prior", "rate-aided frame: too few streaks to "
-                                                "measure across", used, holds_prior=True)
+            few = float(np.median(widths)) if widths.size else float("nan")
+            if MIN_SIGMA_PX <= few <= MAX_SIGMA_PX and abs(few - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
+                return _Step(PsfTrial(few), self._after_few_streaks)
+            self._hold_prior(used)
             return None
         self.estimate = PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
         if abs(sigma - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
             return _Step(PsfTrial(sigma), self._keep)
         return None
+
+    def _after_few_streaks(self, trial: PsfTrial, measured: FrameMeasurement) -> _Step | None:
+        """
+        Judge a rate-aided frame measured at its few streaks' width: kept when enough streaks there give a width.
+
+        A width from streak_width.MIN_STREAKS streaks or more is the estimate (measured again
+        where it differs beyond RERUN_TOLERANCE); still too few: the measurement at the prior
+        stands, the prior held. A sparse field of sigma-2.7 px stars (stress campaign, seed
+        2026, task 2056) had one or two streaks above MIN_SNR at the 1 px prior for three
+        frames, measured at 1 px and 27-131" off. (Measuring at 2x and 3x the prior when no
+        streak gave a width rescued none of 12 sparse frames of faint 2.7 px streaks of the
+        independent renderer: they are below MIN_SNR at any width.)
+        """
+        sigma, uncertainty, used = frame_width(self._streak_widths((trial, measured)))
+        if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
+            self._hold_prior(used)
+            return None
+        self.kept = (trial, measured)
+        self.estimate = PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
+        if abs(sigma - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
+            return _Step(PsfTrial(sigma), self._keep)
+        return None
+
+    def _streak_widths(self, kept: tuple[PsfTrial, FrameMeasurement]) -> np.ndarray:
+        """Return the widths [px] across a measurement's streaks (streak_width.streak_widths); none without streaks."""
+        frame = kept[1].frame
+        if frame is None or not frame.smeared:
+            return np.zeros(0)
+        cand = frame.cand
+        unclipped = np.asarray(cand.peak_raw, float) < CLIP_MARGIN * frame.saturation  # a flat top is no profile
+        return streak_widths(self.image, cand.x[unclipped], cand.y[unclipped], cand.snr[unclipped], self.smear)
+
+    def _hold_prior(self, used: int) -> None:
+        """Too few bright streaks says nothing against the prior: a running prior holds (its measurement kept)."""
+        self.estimate = PsfEstimate.assumed(self.kept[0].sigma_px, "prior", "rate-aided frame: too few streaks to "
+                                            "measure across", used, holds_prior=True)
 
     def _wider(self, index: int) -> _Step | None:
         """Return the next wider width's step (WIDER_PRIOR_FACTORS[index] x the prior); past them: _unwidened."""

@@ -24,6 +24,16 @@ the campaign.
   which emptied the running PSF prior; every later frame started from the configured 1 px and
   kept it (too few streaks to measure across): stars fitted as fragments, frame 9 85.7" off
   on 5 stars (NEES 750), frames 10-11 as bad. Too few stars now holds the prior.
+- Task 2056 (a tumble in a sparse field, defocused 2.75 px PSF, stray light, bit flips; the
+  identifier's aid), frame 5: its first rate-aided frames found one or two streaks above the
+  width measurement's SNR at the configured 1 px, too few to measure the PSF across; measured
+  at 1 px, frame 5 was 131" off on 4 stars. Measured again at those streaks' width, three
+  streaks there give the PSF (2.8 px): 14" off on 13 stars.
+- Task 1297 (a slew in a sparse field, defocused 2.52 px PSF, cosmic rays, stray light; the
+  identifier's aid), frames 14-27: frame 14 chose cosmic rays among its few stars and no PSF
+  fit converged, which emptied the running 2.55 px; the rate-aided frames after it, too few
+  streaks to measure across, stayed at the configured 1 px: 4 wrong frames (frame 27 76" off)
+  and 6 lost. No fit converged now holds the running width.
 """
 from __future__ import annotations
 
@@ -62,3 +72,20 @@ def test_too_few_stars_for_a_psf_estimate_keep_the_running_width(campaign):
     solved = [r for r in rows if r["solved"] and r["frame"] >= 8]
     assert len(solved) >= 3 and rows[-1]["frame"] == 11, rows
     assert not any(r["wrong"] for r in solved), solved
+
+
+@pytest.mark.slow
+def test_a_sparse_rate_aided_frame_is_measured_again_at_its_few_streaks_width(campaign):
+    rows = replay_to(campaign, 2056, 5)
+    row = rows[-1]
+    assert row["frame"] == 5 and row["aided"] and row["solved"], row
+    assert not row["wrong"] and row["cross_arcsec"] < 60.0, row
+
+
+@pytest.mark.slow
+def test_no_psf_fit_converged_keeps_the_running_width(campaign):
+    rows = replay_to(campaign, 1297, 27)
+    late = [r for r in rows if r["frame"] >= 14]
+    assert rows[-1]["frame"] == 27 and rows[-1]["solved"], rows[-1]
+    assert sum(r["solved"] for r in late) >= 12, late
+    assert not any(r["wrong"] for r in late), [r for r in late if r["wrong"]]

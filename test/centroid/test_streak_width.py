@@ -5,7 +5,8 @@ The PSF width of a rate-aided frame, measured across its streaks (centroid/strea
 On streaks of the independent renderer (bench/alt_renderer.py: each streak a line of
 pixel-integrated Gaussian stamps, its own noise), and end to end on the simulator's frame that
 once was measured at the 1 px prior: a 2.5 px PSF slewing at 1 deg/s, its spots then ~7 times
-more uncertain than they stated.
+more uncertain than they stated; and a sparse field of faint streaks whose PSF only one or two
+of them show at the 1 px prior, measured again at their width.
 """
 from __future__ import annotations
 
@@ -51,6 +52,28 @@ def test_too_few_streaks_give_no_width():
     image, x, y, smear, _ = _alt_streaks(1.5, np.random.default_rng(3))
     width, _, used = streak_width(image, x[:2], y[:2], np.full(2, 100.0), smear)
     assert math.isnan(width) and used == 2
+
+
+@pytest.mark.parametrize("flux_e, seed", [(3000.0, 2), (2500.0, 5)])
+def test_a_sparse_frame_of_faint_wide_streaks_is_measured_at_the_width_its_few_streaks_show(flux_e, seed):
+    # Four 10 px streaks of a 2.7 px PSF (independent renderer): at the 1 px prior two of them
+    # reach the width measurement's SNR, too few for the frame's width; measured at 1 px the
+    # stars were fragments 0.4-1.6 px off. Measured again at those two's width, three streaks
+    # give it.
+    camera = CameraModel.from_fov(SIZE, SIZE, math.radians(8.0))
+    smear = SmearModel(camera, np.array([0.024, -0.014, 0.004]), 0.1)
+    rng = np.random.default_rng(seed)
+    cx, cy = rng.uniform(60, 450, 4), rng.uniform(60, 450, 4)
+    vectors = smear.smear_vectors(cx, cy)
+    steps = 60
+    fractions = (np.arange(steps) + 0.5) / steps - 0.5
+    x = (cx[:, None] + fractions[None] * vectors[:, 0:1]).ravel()
+    y = (cy[:, None] + fractions[None] * vectors[:, 1:2]).ravel()
+    frame = render(StarField.build(GaussianPsf(2.7), x, y), flux_e / steps, Detector(), SIZE, SIZE, rng)
+    spots = extract_spots(frame.image, CentroidConfig(), smear)
+    assert spots.psf.estimated and spots.psf.applied_sigma_px == pytest.approx(2.7, rel=0.15), spots.psf
+    offsets = [float(np.min(np.hypot(spots.x - a, spots.y - b))) for a, b in zip(cx, cy)]
+    assert max(offsets) < 0.3, offsets
 
 
 def test_a_wide_psf_under_a_known_rate_is_measured_at_its_own_width_cold(database):

@@ -18,11 +18,11 @@ class RunningPsf:
     """
     The median [px] of the last `frames` frames' applied PSF widths.
 
-    A frame whose estimate failed on what it measured (source not "estimated": out of range,
-    no fit converged) empties it, so the next frame starts again from the configured prior
-    instead of a stale width; one that had too little to measure its PSF on
-    (PsfEstimate.holds_prior: no detections, too few isolated point-like stars, too few streaks
-    to measure across, usable stars mostly elongated) leaves it as it is.
+    A frame whose estimate failed on what it measured (source not "estimated": a width out of
+    range) empties it, so the next frame starts again from the configured prior instead of a
+    stale width; one that had too little to measure its PSF on (PsfEstimate.holds_prior: no
+    detections, too few isolated point-like stars, no PSF fit converged, too few streaks to
+    measure across, usable stars mostly elongated) leaves it as it is.
     """
 
     def __init__(self, frames: int = 5) -> None:

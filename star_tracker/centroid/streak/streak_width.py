@@ -49,6 +49,12 @@ def streak_width(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarra
 
     image [ADU]; x, y [px], snr [-]: the frame's measured spots (candidates); smear: the aid's model.
     """
+    return frame_width(streak_widths(image, x, y, snr, smear))
+
+
+def streak_widths(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarray, smear: "SmearModel"
+                  ) -> np.ndarray:
+    """Return the PSF widths [px] across the brightest streaks (up to MAX_STREAKS; arguments as streak_width)."""
     x, y, snr = (np.asarray(v, float).ravel() for v in (x, y, snr))
     height, width = image.shape
     index = np.flatnonzero(np.isfinite(snr) & (snr >= MIN_SNR) & np.isfinite(x) & np.isfinite(y))
@@ -60,9 +66,14 @@ def streak_width(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarra
         sigma = _one_streak(image, float(x[i]), float(y[i]), smear, width, height)
         if np.isfinite(sigma):
             widths.append(sigma)
-    if len(widths) < MIN_STREAKS:
-        return float("nan"), float("nan"), len(widths)
-    values = np.asarray(widths)
+    return np.asarray(widths, float)
+
+
+def frame_width(widths: np.ndarray) -> tuple[float, float, int]:
+    """Return (median [px], its 1-sigma uncertainty, count) of streak widths; (nan, nan, count) below MIN_STREAKS."""
+    values = np.asarray(widths, float)
+    if values.size < MIN_STREAKS:
+        return float("nan"), float("nan"), int(values.size)
     median = float(np.median(values))
     spread = 1.4826 * float(np.median(np.abs(values - median)))
     return median, 1.2533 * spread / np.sqrt(values.size), int(values.size)
