@@ -15,8 +15,8 @@ The steps, each a trial measured and then judged (`_Step.then`):
 - A rate-aided frame (its stars smeared): measured at the prior, its PSF estimated across the
   streaks (streak.streak_width) and, when that differs from the prior, measured there, kept;
   too few streaks to measure across, one or two of them at another width: measured again at
-  theirs, kept when enough streaks there give a width; else the prior, held
-  (PsfEstimate.holds_prior). A smear
+  theirs, kept when enough streaks there give a width (three, or two that agree); else the
+  prior, held (PsfEstimate.holds_prior). A smear
   shorter everywhere than a profile across needs (streak_width.MIN_LENGTH_PX) leaves the stars
   nearly round: estimated as a frame without a rate (the steps below).
 - The prior: measured, its PSF estimated (psf.estimate). Too few usable stars among many
@@ -50,7 +50,8 @@ from .psf.estimate import MAX_STARS as MAX_ESTIMATE_STARS
 from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .psf.pilot import neighbour_positions, pilot_detections
 from .streak.streak_width import MIN_LENGTH_PX as MIN_STREAK_LENGTH_PX
-from .streak.streak_width import frame_width, streak_widths
+from .streak.streak_width import AGREEMENT as STREAK_AGREEMENT
+from .streak.streak_width import MIN_AGREEING_STREAKS, frame_width, streak_widths
 from .records import PsfTrial
 from .spots import Spots
 from .streak.rate_aid import typical_smear_px
@@ -226,14 +227,22 @@ class PsfLoop:
         Judge a rate-aided frame measured at its few streaks' width: kept when enough streaks there give a width.
 
         A width from streak_width.MIN_STREAKS streaks or more is the estimate (measured again
-        where it differs beyond RERUN_TOLERANCE); still too few: the measurement at the prior
-        stands, the prior held. A sparse field of sigma-2.7 px stars (stress campaign, seed
-        2026, task 2056) had one or two streaks above MIN_SNR at the 1 px prior for three
-        frames, measured at 1 px and 27-131" off. (Measuring at 2x and 3x the prior when no
+        where it differs beyond RERUN_TOLERANCE), as is one from MIN_AGREEING_STREAKS whose
+        widths agree within streak_width.AGREEMENT (two streaks measured twice, at the prior and
+        at their width, both away from the prior); else the measurement at the prior stands,
+        the prior held. A sparse field of sigma-2.7 px stars (stress campaign, seed 2026, task
+        2056) had one or two streaks above MIN_SNR at the 1 px prior for three frames, measured
+        at 1 px and 27-131" off; a gyro-aided tumble of a 1.76 px PSF (task 2217) showed two
+        streaks of 1.8-2.0 px frame after frame and was measured at 1 px for all its 40 frames
+        (27 lost, frame 39 62" off). (Measuring at 2x and 3x the prior when no
         streak gave a width rescued none of 12 sparse frames of faint 2.7 px streaks of the
         independent renderer: they are below MIN_SNR at any width.)
         """
-        sigma, uncertainty, used = frame_width(self._streak_widths((trial, measured)))
+        widths = self._streak_widths((trial, measured))
+        sigma, uncertainty, used = frame_width(widths)
+        if not np.isfinite(sigma) and widths.size >= MIN_AGREEING_STREAKS \
+                and np.ptp(widths) <= STREAK_AGREEMENT * float(np.median(widths)):
+            sigma, uncertainty, used = frame_width(widths, MIN_AGREEING_STREAKS)
         if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
             self._hold_prior(used)
             return None

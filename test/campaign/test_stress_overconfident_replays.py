@@ -34,6 +34,14 @@ the campaign.
   fit converged, which emptied the running 2.55 px; the rate-aided frames after it, too few
   streaks to measure across, stayed at the configured 1 px: 4 wrong frames (frame 27 76" off)
   and 6 lost. No fit converged now holds the running width.
+- Task 462 (jitter in a sparse field, defocused 2.59 px PSF, cosmic rays, stray light; the
+  identifier's aid), frames 30-39: frame 30 found 3 round stars of 5 (5 needed), which emptied
+  the running 2.6 px; the frames after it at 1 px: 3 wrong (frame 37 75" off), 4 lost. Too few
+  round stars now holds it, as too few stars does.
+- Task 2217 (a gyro-aided tumble, defocused 1.76 px PSF, stray light, a satellite), frames
+  0-39: every frame showed one or two streaks of 1.7-2.0 px, too few to measure across, and was
+  measured at the configured 1 px: 27 of 40 lost, frame 39 62" off. Two streaks whose widths
+  agree when measured again at their width now give the frame's.
 """
 from __future__ import annotations
 
@@ -89,3 +97,18 @@ def test_no_psf_fit_converged_keeps_the_running_width(campaign):
     assert rows[-1]["frame"] == 27 and rows[-1]["solved"], rows[-1]
     assert sum(r["solved"] for r in late) >= 12, late
     assert not any(r["wrong"] for r in late), [r for r in late if r["wrong"]]
+
+
+@pytest.mark.slow
+def test_too_few_round_stars_keep_the_running_width(campaign):
+    rows = replay_to(campaign, 462, 39)
+    late = [r for r in rows if r["frame"] >= 30]
+    assert sum(r["solved"] for r in late) >= 8, late
+    assert not any(r["wrong"] for r in late), [r for r in late if r["wrong"]]
+
+
+@pytest.mark.slow
+def test_two_streaks_that_agree_set_a_sparse_tumbles_psf(campaign):
+    rows = replay_to(campaign, 2217, 39)
+    assert sum(r["solved"] for r in rows) >= 30, rows
+    assert not any(r["wrong"] for r in rows), [r for r in rows if r["wrong"]]

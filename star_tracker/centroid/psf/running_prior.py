@@ -22,7 +22,7 @@ class RunningPsf:
     range) empties it, so the next frame starts again from the configured prior instead of a
     stale width; one that had too little to measure its PSF on (PsfEstimate.holds_prior: no
     detections, too few isolated point-like stars, no PSF fit converged, too few streaks to
-    measure across, usable stars mostly elongated) leaves it as it is.
+    measure across, too few of the usable stars round) leaves it as it is.
     """
 
     def __init__(self, frames: int = 5) -> None:

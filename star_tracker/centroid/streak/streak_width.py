@@ -33,6 +33,10 @@ MIN_SNR = 15.0
 MIN_LENGTH_PX = 3.0
 MAX_STREAKS = 8
 MIN_STREAKS = 3
+# Measured again at their own width, this many streaks whose widths agree within AGREEMENT
+# (relative) give the frame's: psf_loop._after_few_streaks.
+MIN_AGREEING_STREAKS = 2
+AGREEMENT = 0.1
 BIN_PX = 0.5
 PROFILE_FLOOR = 0.15  # fraction of the profile's peak the log-parabola fit keeps
 CORE_FLOOR = 0.5  # the core's fit, compared with the whole profile's
@@ -69,10 +73,10 @@ def streak_widths(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarr
     return np.asarray(widths, float)
 
 
-def frame_width(widths: np.ndarray) -> tuple[float, float, int]:
-    """Return (median [px], its 1-sigma uncertainty, count) of streak widths; (nan, nan, count) below MIN_STREAKS."""
+def frame_width(widths: np.ndarray, min_streaks: int = MIN_STREAKS) -> tuple[float, float, int]:
+    """Return (median [px], its 1-sigma uncertainty, count) of streak widths; (nan, nan, count) below min_streaks."""
     values = np.asarray(widths, float)
-    if values.size < MIN_STREAKS:
+    if values.size < min_streaks:
         return float("nan"), float("nan"), int(values.size)
     median = float(np.median(values))
     spread = 1.4826 * float(np.median(np.abs(values - median)))
