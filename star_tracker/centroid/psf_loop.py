@@ -16,10 +16,11 @@ The steps, each a trial measured and then judged (`_Step.then`):
   streaks (streak.streak_width) and, when that differs from the prior, measured there, kept;
   too few streaks to measure across, one or two of them at another width: measured again at
   theirs, kept when enough streaks there give a width (three, or two that agree); else the
-  prior, held (PsfEstimate.holds_prior). A smear
-  shorter everywhere than a profile across needs (streak_width.MIN_LENGTH_PX) leaves the stars
-  nearly round: estimated as a frame without a rate (the steps below).
-- The prior: measured, its PSF estimated (psf.estimate). Too few usable stars among many
+  prior, held (PsfEstimate.holds_prior). A smear shorter everywhere than a profile across
+  needs (streak_width.MIN_LENGTH_PX), or at most of the bright stars where they are, leaves
+  the stars nearly round: estimated as a frame without a rate (the steps below).
+- The prior: measured, its PSF estimated (psf.estimate); without a rate, when no estimate
+  comes of the round stars, across the streaks' own tracks (_across_own_streaks). Too few usable stars among many
   detections (a defocused camera's faint rings, fragments at a narrow width), or an estimate
   from fewer than a full set of stars that most of the frame's detections contradict (far wider
   than it: short cosmic-ray tracks taken for the stars of a frame of faint wide ones; not one
@@ -34,6 +35,7 @@ The steps, each a trial measured and then judged (`_Step.then`):
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
@@ -51,11 +53,15 @@ from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .psf.pilot import neighbour_positions, pilot_detections
 from .streak.streak_width import MIN_LENGTH_PX as MIN_STREAK_LENGTH_PX
 from .streak.streak_width import AGREEMENT as STREAK_AGREEMENT
-from .streak.streak_width import MIN_AGREEING_STREAKS, frame_width, streak_widths
+from .streak.streak_width import MIN_AGREEING_STREAKS, frame_width, streak_widths, streak_widths_along
+from .streak.streak_width import MIN_SNR as STREAK_MIN_SNR
+from .streak.streak_width import MIN_STREAKS as MIN_STREAKS_ACROSS
+from .streak.smear import segment_length
 from .records import PsfTrial
 from .spots import Spots
 from .streak.rate_aid import typical_smear_px
 
+OWN_TRACK_ANGLE_RAD = math.radians(10.0)  # an unaided frame's streaks measured across: within this of their median axis
 CLIP_MARGIN = 0.98  # a streak peaking within 2 % of the clip level is left out of its width (as psf.estimate)
 
 if TYPE_CHECKING:
@@ -167,9 +173,20 @@ class PsfLoop:
             return None
         if frame.smeared and not self._short_smear():
             return self._across_streaks(trial)
+        return self._round_stars(trial, measured)
+
+    def _round_stars(self, trial: PsfTrial, measured: FrameMeasurement) -> _Step | None:
+        """Estimate the PSF of a frame measured at the prior from its round stars (psf.estimate), then as _settle."""
+        frame = measured.frame
         guess = self._pilot_estimate
         self.estimate = guess if guess is not None and guess.estimated else \
             estimate_psf(self.image, frame, trial.sigma_px, self.config.gain_e_per_adu)
+        if not self.estimate.estimated and self.smear is None:
+            across = self._across_own_streaks(trial, measured)
+            if across is not None:
+                self.kept, self.estimate = (trial, measured), across
+                return _Step(PsfTrial(across.sigma_px), self._keep) \
+                    if abs(across.sigma_px - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px else None
         if not self.estimate.estimated:
             # Many detections but too few usable stars (not: usable ones all elongated, a smear):
             # a PSF much wider than the prior (a defocused camera's faint rings are fragments
@@ -210,6 +227,8 @@ class PsfLoop:
         streak_width.MIN_SNR.
         """
         widths = self._streak_widths(self.kept)
+        if widths.size == 0 and self._bright_smears_short():
+            return self._round_stars(*self.kept)
         sigma, uncertainty, used = frame_width(widths)
         if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
             few = float(np.median(widths)) if widths.size else float("nan")
@@ -251,6 +270,58 @@ class PsfLoop:
         if abs(sigma - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
             return _Step(PsfTrial(sigma), self._keep)
         return None
+
+    def _across_own_streaks(self, trial: PsfTrial, measured: FrameMeasurement) -> PsfEstimate | None:
+        """
+        Return the PSF of a frame smeared by an unknown rate, measured across its streaks' own tracks, or None.
+
+        Without a rate no star shows the round PSF either, and the round-star estimate holds the
+        prior: a tumble's first frame of a 2.84 px PSF, 9 streaks none round, was measured at the
+        1 px prior, 20" off at NEES 51 (stress campaign, seed 2026, task 1832). Each bright
+        candidate's track is its own (its second moments' axis and streak_width's segment length
+        at the prior); the body's motion smears every star alike, so only the candidates within
+        OWN_TRACK_ANGLE_RAD of their median direction are measured (cosmic-ray tracks lie every
+        way), at least streak_width.MIN_STREAKS of them.
+        """
+        cand = measured.frame.cand
+        unclipped = np.asarray(cand.peak_raw, float) < CLIP_MARGIN * measured.frame.saturation
+        length = segment_length(cand.major, trial.sigma_px)
+        track = unclipped & np.isfinite(cand.angle) & (length >= MIN_STREAK_LENGTH_PX) & (cand.snr >= STREAK_MIN_SNR)
+        if np.count_nonzero(track) < MIN_STREAKS_ACROSS:
+            return None
+        # Axes are directions mod pi: their median from the doubled angles.
+        doubled = 2.0 * cand.angle[track]
+        median = 0.5 * math.atan2(float(np.median(np.sin(doubled))), float(np.median(np.cos(doubled))))
+        off = np.abs((cand.angle - median + 0.5 * np.pi) % np.pi - 0.5 * np.pi)
+        track &= off <= OWN_TRACK_ANGLE_RAD
+        vectors = length[:, None] * np.column_stack([np.cos(cand.angle), np.sin(cand.angle)])
+        widths = streak_widths_along(self.image, np.where(track, cand.x, np.nan), cand.y, cand.snr, vectors)
+        sigma, uncertainty, used = frame_width(widths)
+        if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
+            return None
+        return PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
+
+    def _bright_smears_short(self) -> bool:
+        """
+        Whether the aid's smear at the bright candidates is mostly shorter than a profile across needs.
+
+        Fewer than streak_width.MIN_STREAKS of them reach streak_width.MIN_LENGTH_PX, and their
+        median does not: such a frame's stars are nearly round where they are, whatever the smear
+        elsewhere in the field (_short_smear looks at a 3x3 grid), and too few streaks could give
+        a width: its PSF is estimated as an unaided frame's.
+        A gyro-aided tumble's first frame (stress campaign, seed 2026, task 775) had 31 candidates
+        at SNR >= 15 smeared 2.1-3.0 px, a 3.1 px smear at a grid corner: no streak to measure
+        across, a 1.96 px PSF measured at the 1 px prior and the frame 3" off at NEES 48.
+        """
+        frame = self.kept[1].frame
+        cand = frame.cand
+        bright = np.flatnonzero(np.isfinite(cand.snr) & (cand.snr >= STREAK_MIN_SNR) & np.isfinite(cand.x)
+                                & np.isfinite(cand.y))
+        if bright.size == 0:
+            return False
+        lengths = np.nan_to_num(np.linalg.norm(self.smear.smear_vectors(cand.x[bright], cand.y[bright]), axis=1))
+        return bool(np.count_nonzero(lengths >= MIN_STREAK_LENGTH_PX) < MIN_STREAKS_ACROSS
+                    and np.median(lengths) < MIN_STREAK_LENGTH_PX)
 
     def _streak_widths(self, kept: tuple[PsfTrial, FrameMeasurement]) -> np.ndarray:
         """Return the widths [px] across a measurement's streaks (streak_width.streak_widths); none without streaks."""

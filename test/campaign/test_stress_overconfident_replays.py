@@ -42,6 +42,12 @@ the campaign.
   0-39: every frame showed one or two streaks of 1.7-2.0 px, too few to measure across, and was
   measured at the configured 1 px: 27 of 40 lost, frame 39 62" off. Two streaks whose widths
   agree when measured again at their width now give the frame's.
+- Tumbles' first frames, unaided: task 1832 (2.84 px, 9 streaks, none round) held the 1 px
+  prior, 20" off at NEES 51; task 2240 (2.98 px, a hot-pixel storm) read its streaks as a
+  round 5.6 px PSF, out of range, and held 1 px: 30" off. Their PSF is now measured across
+  the streaks' own tracks. Gyro-aided, task 775 (1.96 px): its bright stars smeared 2.1-3.0 px
+  where they were, too short to measure across, while a grid corner of the field predicted
+  3.1 px, so the round-star estimate was not tried: 3" off at NEES 48.
 """
 from __future__ import annotations
 
@@ -112,3 +118,11 @@ def test_two_streaks_that_agree_set_a_sparse_tumbles_psf(campaign):
     rows = replay_to(campaign, 2217, 39)
     assert sum(r["solved"] for r in rows) >= 30, rows
     assert not any(r["wrong"] for r in rows), [r for r in rows if r["wrong"]]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", [1832, 2240, 775])
+def test_a_tumbles_first_frame_is_measured_at_its_psf(campaign, task):
+    row = replay_to(campaign, task, 0)[-1]
+    assert row["frame"] == 0 and row["solved"], row
+    assert not row["wrong"], row

@@ -6,7 +6,8 @@ On streaks of the independent renderer (bench/alt_renderer.py: each streak a lin
 pixel-integrated Gaussian stamps, its own noise), and end to end on the simulator's frame that
 once was measured at the 1 px prior: a 2.5 px PSF slewing at 1 deg/s, its spots then ~7 times
 more uncertain than they stated; and a sparse field of faint streaks whose PSF only one or two
-of them show at the 1 px prior, measured again at their width.
+of them show at the 1 px prior, measured again at their width; and, with no rate known, the
+width across each streak's own track.
 """
 from __future__ import annotations
 
@@ -72,6 +73,28 @@ def test_a_sparse_frame_of_faint_wide_streaks_is_measured_at_the_width_its_few_s
     frame = render(StarField.build(GaussianPsf(2.7), x, y), flux_e / steps, Detector(), SIZE, SIZE, rng)
     spots = extract_spots(frame.image, CentroidConfig(), smear)
     assert spots.psf.estimated and spots.psf.applied_sigma_px == pytest.approx(2.7, rel=0.15), spots.psf
+    offsets = [float(np.min(np.hypot(spots.x - a, spots.y - b))) for a, b in zip(cx, cy)]
+    assert max(offsets) < 0.3, offsets
+
+
+@pytest.mark.parametrize("sigma_px", [2.0, 2.8])
+def test_without_a_rate_the_psf_is_measured_across_the_streaks_own_tracks(sigma_px):
+    # Sixteen 25 px streaks (independent renderer) and no rate: no star is round, so the
+    # round-star estimate held the 1 px prior; at 2.8 px no spot at all was kept.
+    camera = CameraModel.from_fov(SIZE, SIZE, math.radians(8.0))
+    smear = SmearModel(camera, 2.5 * np.array([0.024, -0.014, 0.004]), 0.1)
+    rng = np.random.default_rng(2)
+    grid = np.meshgrid(np.linspace(80, 430, 4), np.linspace(80, 430, 4))
+    cx, cy = (v.ravel() + rng.uniform(-3, 3, 16) for v in grid)
+    vectors = smear.smear_vectors(cx, cy)
+    assert np.median(np.hypot(*vectors.T)) > 20.0
+    steps = 120
+    fractions = (np.arange(steps) + 0.5) / steps - 0.5
+    x = (cx[:, None] + fractions[None] * vectors[:, 0:1]).ravel()
+    y = (cy[:, None] + fractions[None] * vectors[:, 1:2]).ravel()
+    frame = render(StarField.build(GaussianPsf(sigma_px), x, y), 40000.0 / steps, Detector(), SIZE, SIZE, rng)
+    spots = extract_spots(frame.image, CentroidConfig())
+    assert spots.psf.estimated and spots.psf.applied_sigma_px == pytest.approx(sigma_px, rel=0.08), spots.psf
     offsets = [float(np.min(np.hypot(spots.x - a, spots.y - b))) for a, b in zip(cx, cy)]
     assert max(offsets) < 0.3, offsets
 

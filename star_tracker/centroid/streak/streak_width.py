@@ -59,7 +59,24 @@ def streak_width(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarra
 def streak_widths(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarray, smear: "SmearModel"
                   ) -> np.ndarray:
     """Return the PSF widths [px] across the brightest streaks (up to MAX_STREAKS; arguments as streak_width)."""
+    x, y = (np.asarray(v, float).ravel() for v in (x, y))
+    finite = np.isfinite(x) & np.isfinite(y)
+    vectors = np.full((x.size, 2), np.nan)
+    if finite.any():
+        vectors[finite] = smear.smear_vectors(x[finite], y[finite])
+    return streak_widths_along(image, x, y, snr, vectors)
+
+
+def streak_widths_along(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarray, vectors: np.ndarray
+                        ) -> np.ndarray:
+    """
+    Return the PSF widths [px] across the brightest streaks, each along its own smear vector.
+
+    vectors (N, 2): end minus start of each streak [px] (a smear model's, or a streak's own
+    direction and length when the rate is unknown); the rest as streak_width.
+    """
     x, y, snr = (np.asarray(v, float).ravel() for v in (x, y, snr))
+    vectors = np.asarray(vectors, float).reshape(-1, 2)
     height, width = image.shape
     index = np.flatnonzero(np.isfinite(snr) & (snr >= MIN_SNR) & np.isfinite(x) & np.isfinite(y))
     index = index[np.argsort(-snr[index])]
@@ -67,7 +84,7 @@ def streak_widths(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarr
     for i in index:
         if len(widths) >= MAX_STREAKS:
             break
-        sigma = _one_streak(image, float(x[i]), float(y[i]), smear, width, height)
+        sigma = _one_streak(image, float(x[i]), float(y[i]), vectors[i], width, height)
         if np.isfinite(sigma):
             widths.append(sigma)
     return np.asarray(widths, float)
@@ -83,8 +100,7 @@ def frame_width(widths: np.ndarray, min_streaks: int = MIN_STREAKS) -> tuple[flo
     return median, 1.2533 * spread / np.sqrt(values.size), int(values.size)
 
 
-def _one_streak(image: np.ndarray, x: float, y: float, smear: "SmearModel", width: int, height: int) -> float:
-    vector = smear.smear_vectors(np.array([x]), np.array([y]))[0]
+def _one_streak(image: np.ndarray, x: float, y: float, vector: np.ndarray, width: int, height: int) -> float:
     length = float(np.hypot(*vector))
     if not np.isfinite(length) or length < MIN_LENGTH_PX:
         return float("nan")
