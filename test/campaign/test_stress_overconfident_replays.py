@@ -47,7 +47,10 @@ the campaign.
   round 5.6 px PSF, out of range, and held 1 px: 30" off. Their PSF is now measured across
   the streaks' own tracks. Gyro-aided, task 775 (1.96 px): its bright stars smeared 2.1-3.0 px
   where they were, too short to measure across, while a grid corner of the field predicted
-  3.1 px, so the round-star estimate was not tried: 3" off at NEES 48.
+  3.1 px, so the round-star estimate was not tried: 3" off at NEES 48. Task 2344 (a tumble of
+  a 0.44 px PSF, unaided for two frames): frame 0 held 1 px (24.6" off); measured across its
+  streaks' moment axes, frame 1 read 0.83 px (35" off on 8 stars); across the narrowest of
+  each axis turned by up to 6 deg, 0.48-0.57 px.
 """
 from __future__ import annotations
 
@@ -126,3 +129,10 @@ def test_a_tumbles_first_frame_is_measured_at_its_psf(campaign, task):
     row = replay_to(campaign, task, 0)[-1]
     assert row["frame"] == 0 and row["solved"], row
     assert not row["wrong"], row
+
+
+@pytest.mark.slow
+def test_an_undersampled_tumbles_unaided_frames_are_measured_at_its_psf(campaign):
+    rows = replay_to(campaign, 2344, 1)
+    assert [r["frame"] for r in rows] == [0, 1] and all(r["solved"] for r in rows), rows
+    assert not any(r["wrong"] for r in rows), rows

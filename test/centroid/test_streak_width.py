@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from bench.alt_renderer import Detector, GaussianPsf, StarField, render
+from bench.fingerprints import frame_seed
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.streak.streak_width import streak_width
 from star_tracker.centroid.streak.smear import SmearModel
@@ -97,6 +98,26 @@ def test_without_a_rate_the_psf_is_measured_across_the_streaks_own_tracks(sigma_
     assert spots.psf.estimated and spots.psf.applied_sigma_px == pytest.approx(sigma_px, rel=0.08), spots.psf
     offsets = [float(np.min(np.hypot(spots.x - a, spots.y - b))) for a, b in zip(cx, cy)]
     assert max(offsets) < 0.3, offsets
+
+
+def test_cosmic_ray_tracks_beside_round_stars_are_not_measured_as_streaks(database):
+    # A frame at rest under 2000 rays /cm^2/s (the simulator): its elongated spots are tracks,
+    # sharp across; measured as the frame's streaks they read as a 0.37 px PSF of 1 px stars.
+    from star_tracker.models.attitude import radec_roll_to_matrix
+    from star_tracker.models.catalog import load_hipparcos
+    from star_tracker.sim.motion import ConstantRateMotion
+    from star_tracker.sim.render import StarFieldRenderer
+    from star_tracker.sim.sensor import SensorModel
+
+    camera = CameraModel.from_fov(1024, 1024, math.radians(15.0))
+    catalog = load_hipparcos().at_epoch(database.config.epoch_jyear)
+    sensor = SensorModel(exposure_s=0.1, cosmic_ray_rate_per_cm2_s=2000.0)
+    renderer = StarFieldRenderer(camera, sensor, catalog, magnitude_limit=7.5)
+    start = radec_roll_to_matrix(math.radians(80.0), math.radians(20.0), 0.0)
+    frame = renderer.render(ConstantRateMotion(start, body_rate=np.zeros(3)), stamp_s=1.0, seed=frame_seed(7, 5))
+    spots = extract_spots(frame.image, CentroidConfig())
+    applied = spots.psf.applied_sigma_px if spots.psf.estimated else spots.psf.sigma_px
+    assert applied == pytest.approx(sensor.psf_sigma_px, rel=0.1), spots.psf
 
 
 def test_a_wide_psf_under_a_known_rate_is_measured_at_its_own_width_cold(database):

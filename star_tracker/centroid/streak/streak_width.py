@@ -67,13 +67,16 @@ def streak_widths(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarr
     return streak_widths_along(image, x, y, snr, vectors)
 
 
-def streak_widths_along(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarray, vectors: np.ndarray
-                        ) -> np.ndarray:
+def streak_widths_along(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarray, vectors: np.ndarray,
+                        turns_rad: tuple[float, ...] = (0.0,)) -> np.ndarray:
     """
     Return the PSF widths [px] across the brightest streaks, each along its own smear vector.
 
     vectors (N, 2): end minus start of each streak [px] (a smear model's, or a streak's own
-    direction and length when the rate is unknown); the rest as streak_width.
+    direction and length when the rate is unknown); turns_rad: each streak is measured along
+    its vector turned by each of these angles [rad] and the narrowest profile kept (the track's
+    own direction when the vector's is only approximate: a profile across a track at an angle
+    is wider by the track's length times the angle's sine); the rest as streak_width.
     """
     x, y, snr = (np.asarray(v, float).ravel() for v in (x, y, snr))
     vectors = np.asarray(vectors, float).reshape(-1, 2)
@@ -84,7 +87,9 @@ def streak_widths_along(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np
     for i in index:
         if len(widths) >= MAX_STREAKS:
             break
-        sigma = _one_streak(image, float(x[i]), float(y[i]), vectors[i], width, height)
+        across = [_one_streak(image, float(x[i]), float(y[i]), _turned(vectors[i], turn), width, height)
+                  for turn in turns_rad]
+        sigma = min((value for value in across if np.isfinite(value)), default=float("nan"))
         if np.isfinite(sigma):
             widths.append(sigma)
     return np.asarray(widths, float)
@@ -98,6 +103,12 @@ def frame_width(widths: np.ndarray, min_streaks: int = MIN_STREAKS) -> tuple[flo
     median = float(np.median(values))
     spread = 1.4826 * float(np.median(np.abs(values - median)))
     return median, 1.2533 * spread / np.sqrt(values.size), int(values.size)
+
+
+def _turned(vector: np.ndarray, angle: float) -> np.ndarray:
+    """Return `vector` (2,) turned by `angle` [rad]."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([c * vector[0] - s * vector[1], s * vector[0] + c * vector[1]])
 
 
 def _one_streak(image: np.ndarray, x: float, y: float, vector: np.ndarray, width: int, height: int) -> float:
