@@ -20,8 +20,8 @@ The steps, each a trial measured and then judged (`_Step.then`):
   needs (streak_width.MIN_LENGTH_PX), or at most of the bright stars where they are, leaves
   the stars nearly round: estimated as a frame without a rate (the steps below).
 - The prior: measured, its PSF estimated (psf.estimate); without a rate, when no estimate
-  comes of the round stars, across the streaks' own tracks (_across_own_streaks). Too few usable stars among many
-  detections (a defocused camera's faint rings, fragments at a narrow width), or an estimate
+  comes of the round stars, across the streaks' own tracks (streak.own_tracks). Too few
+  usable stars among many detections (a defocused camera's faint rings, fragments at a narrow width), or an estimate
   from fewer than a full set of stars that most of the frame's detections contradict (far wider
   than it: short cosmic-ray tracks taken for the stars of a frame of faint wide ones; not one
   that agrees with a running prior): measured again at WIDER_PRIOR_FACTORS x the prior, until
@@ -35,7 +35,6 @@ The steps, each a trial measured and then judged (`_Step.then`):
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
@@ -53,19 +52,14 @@ from .psf.estimate import MIN_STARS as MIN_ESTIMATE_STARS
 from .psf.pilot import neighbour_positions, pilot_detections
 from .streak.streak_width import MIN_LENGTH_PX as MIN_STREAK_LENGTH_PX
 from .streak.streak_width import AGREEMENT as STREAK_AGREEMENT
-from .streak.streak_width import MIN_AGREEING_STREAKS, frame_width, streak_widths, streak_widths_along
+from .streak.own_tracks import own_track_width
+from .streak.streak_width import MIN_AGREEING_STREAKS, frame_width, streak_widths
 from .streak.streak_width import MIN_SNR as STREAK_MIN_SNR
 from .streak.streak_width import MIN_STREAKS as MIN_STREAKS_ACROSS
-from .streak.smear import segment_length
 from .records import PsfTrial
 from .spots import Spots
 from .streak.rate_aid import typical_smear_px
 
-OWN_TRACK_ANGLE_RAD = math.radians(10.0)  # an unaided frame's streaks measured across: within this of their median axis
-# ... each along its moment axis turned by these, the narrowest profile kept: a short undersampled
-# streak's moment axis is a few degrees off, and its profile across reads wide (a 0.44 px PSF
-# read 0.83 px, stress campaign, seed 2026, task 2344 frame 1).
-OWN_TRACK_TURNS_RAD = tuple(math.radians(a) for a in (-6.0, -4.0, -2.0, 0.0, 2.0, 4.0, 6.0))
 CLIP_MARGIN = 0.98  # a streak peaking within 2 % of the clip level is left out of its width (as psf.estimate)
 
 if TYPE_CHECKING:
@@ -277,35 +271,15 @@ class PsfLoop:
 
     def _across_own_streaks(self, trial: PsfTrial, measured: FrameMeasurement) -> PsfEstimate | None:
         """
-        Return the PSF of a frame smeared by an unknown rate, measured across its streaks' own tracks, or None.
+        Return the PSF of a frame smeared by an unknown rate, across its streaks' own tracks (streak.own_tracks).
 
-        Without a rate no star shows the round PSF either, and the round-star estimate holds the
-        prior: a tumble's first frame of a 2.84 px PSF, 9 streaks none round, was measured at the
-        1 px prior, 20" off at NEES 51 (stress campaign, seed 2026, task 1832). Each bright
-        candidate's track is its own (its second moments' axis and streak_width's segment length
-        at the prior); the body's motion smears every star alike, so only the candidates within
-        OWN_TRACK_ANGLE_RAD of their median direction are measured (cosmic-ray tracks lie every
-        way), at least streak_width.MIN_STREAKS of them, and only when most bright spots are
-        streaks.
+        None when it gives no width. The round-star estimate holds the prior when no star is
+        round: a tumble's first frame of a 2.84 px PSF, 9 streaks none round, was measured at the
+        1 px prior, 20" off at NEES 51 (stress campaign, seed 2026, task 1832).
         """
-        cand = measured.frame.cand
-        unclipped = np.asarray(cand.peak_raw, float) < CLIP_MARGIN * measured.frame.saturation
-        length = segment_length(cand.major, trial.sigma_px)
-        bright = unclipped & np.isfinite(cand.x) & np.isfinite(cand.y) & (cand.snr >= STREAK_MIN_SNR)
-        track = bright & np.isfinite(cand.angle) & (length >= MIN_STREAK_LENGTH_PX)
-        # Most bright spots streaks, or the frame is not smeared: round stars beside cosmic-ray
-        # tracks (a frame at rest, 2000 rays /cm^2/s: 7 tracks read as a 0.37 px PSF of 1 px stars).
-        if np.count_nonzero(track) < max(MIN_STREAKS_ACROSS, 0.5 * np.count_nonzero(bright) + 0.5):
-            return None
-        # Axes are directions mod pi: their median from the doubled angles.
-        doubled = 2.0 * cand.angle[track]
-        median = 0.5 * math.atan2(float(np.median(np.sin(doubled))), float(np.median(np.cos(doubled))))
-        off = np.abs((cand.angle - median + 0.5 * np.pi) % np.pi - 0.5 * np.pi)
-        track &= off <= OWN_TRACK_ANGLE_RAD
-        vectors = length[:, None] * np.column_stack([np.cos(cand.angle), np.sin(cand.angle)])
-        widths = streak_widths_along(self.image, np.where(track, cand.x, np.nan), cand.y, cand.snr, vectors,
-                                     OWN_TRACK_TURNS_RAD)
-        sigma, uncertainty, used = frame_width(widths)
+        frame = measured.frame
+        unclipped = np.asarray(frame.cand.peak_raw, float) < CLIP_MARGIN * frame.saturation
+        sigma, uncertainty, used = own_track_width(self.image, frame.cand, unclipped, trial.sigma_px)
         if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
             return None
         return PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
