@@ -180,11 +180,12 @@ class PsfLoop:
         self.estimate = guess if guess is not None and guess.estimated else \
             estimate_psf(self.image, frame, trial.sigma_px, self.config.gain_e_per_adu)
         if not self.estimate.estimated and self.smear is None:
-            across = self._across_own_streaks(trial, measured)
-            if across is not None:
-                self.kept, self.estimate = (trial, measured), across
-                return _Step(PsfTrial(across.sigma_px), self._keep) \
-                    if abs(across.sigma_px - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px else None
+            # Streaks of an unknown motion, no star round: the width across their own tracks (a
+            # tumble's first frame of a 2.84 px PSF, 9 streaks none round, was measured at the 1 px
+            # prior, 20" off at NEES 51: stress campaign, seed 2026, task 1832).
+            sigma, uncertainty, used = own_track_width(self.image, frame.cand, _unclipped(frame), trial.sigma_px)
+            if _usable_width(sigma):
+                return self._width_across(trial, measured, sigma, uncertainty, used)
         if not self.estimate.estimated:
             # Many detections but too few usable stars (not: usable ones all elongated, a smear):
             # a PSF much wider than the prior (a defocused camera's faint rings are fragments
@@ -228,16 +229,13 @@ class PsfLoop:
         if widths.size == 0 and self._bright_smears_short():
             return self._round_stars(*self.kept)
         sigma, uncertainty, used = frame_width(widths)
-        if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
+        if not _usable_width(sigma):
             few = float(np.median(widths)) if widths.size else float("nan")
-            if MIN_SIGMA_PX <= few <= MAX_SIGMA_PX and abs(few - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
+            if _usable_width(few) and abs(few - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
                 return _Step(PsfTrial(few), self._after_few_streaks)
             self._hold_prior(used)
             return None
-        self.estimate = PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
-        if abs(sigma - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
-            return _Step(PsfTrial(sigma), self._keep)
-        return None
+        return self._width_across(*self.kept, sigma, uncertainty, used)
 
     def _after_few_streaks(self, trial: PsfTrial, measured: FrameMeasurement) -> _Step | None:
         """
@@ -260,29 +258,24 @@ class PsfLoop:
         if not np.isfinite(sigma) and widths.size >= MIN_AGREEING_STREAKS \
                 and np.ptp(widths) <= STREAK_AGREEMENT * float(np.median(widths)):
             sigma, uncertainty, used = frame_width(widths, MIN_AGREEING_STREAKS)
-        if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
+        if not _usable_width(sigma):
             self._hold_prior(used)
             return None
+        return self._width_across(trial, measured, sigma, uncertainty, used)
+
+    def _width_across(self, trial: PsfTrial, measured: FrameMeasurement, sigma: float, uncertainty: float,
+                      used: int) -> _Step | None:
+        """
+        Keep the measurement at `trial` with the PSF `sigma` [px] across streaks; measure again there if needed.
+
+        Again when sigma differs from the trial's width beyond RERUN_TOLERANCE; uncertainty [px]
+        and used (streaks) as streak_width.frame_width.
+        """
         self.kept = (trial, measured)
         self.estimate = PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
         if abs(sigma - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
             return _Step(PsfTrial(sigma), self._keep)
         return None
-
-    def _across_own_streaks(self, trial: PsfTrial, measured: FrameMeasurement) -> PsfEstimate | None:
-        """
-        Return the PSF of a frame smeared by an unknown rate, across its streaks' own tracks (streak.own_tracks).
-
-        None when it gives no width. The round-star estimate holds the prior when no star is
-        round: a tumble's first frame of a 2.84 px PSF, 9 streaks none round, was measured at the
-        1 px prior, 20" off at NEES 51 (stress campaign, seed 2026, task 1832).
-        """
-        frame = measured.frame
-        unclipped = np.asarray(frame.cand.peak_raw, float) < CLIP_MARGIN * frame.saturation
-        sigma, uncertainty, used = own_track_width(self.image, frame.cand, unclipped, trial.sigma_px)
-        if not (np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX):
-            return None
-        return PsfEstimate(sigma, sigma, sigma, 0.0, uncertainty, used, "estimated")
 
     def _bright_smears_short(self) -> bool:
         """
@@ -311,8 +304,7 @@ class PsfLoop:
         frame = kept[1].frame
         if frame is None or not frame.smeared:
             return np.zeros(0)
-        cand = frame.cand
-        unclipped = np.asarray(cand.peak_raw, float) < CLIP_MARGIN * frame.saturation  # a flat top is no profile
+        cand, unclipped = frame.cand, _unclipped(frame)
         return streak_widths(self.image, cand.x[unclipped], cand.y[unclipped], cand.snr[unclipped], self.smear)
 
     def _hold_prior(self, used: int) -> None:
@@ -385,6 +377,16 @@ class PsfLoop:
         if estimate.elongation <= SMEARED_ELONGATION or not still:
             return None
         return EllipticalGaussianPsf(estimate.sigma_major_px, estimate.sigma_minor_px, estimate.angle_rad)
+
+
+def _unclipped(frame) -> np.ndarray:
+    """Return the frame's candidates (bool) peaking below CLIP_MARGIN of the clip level: a flat top is no profile."""
+    return np.asarray(frame.cand.peak_raw, float) < CLIP_MARGIN * frame.saturation
+
+
+def _usable_width(sigma: float) -> bool:
+    """Whether a measured width [px] is one the fits support ([MIN_SIGMA_PX, MAX_SIGMA_PX]; NaN: no)."""
+    return bool(np.isfinite(sigma) and MIN_SIGMA_PX <= sigma <= MAX_SIGMA_PX)
 
 
 def _estimated_width(estimate: PsfEstimate) -> tuple[float, bool]:
