@@ -28,7 +28,7 @@ from . import spot_kernels
 from .kernel_records import Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
 from .deep_catalog import DeepCatalog, load_or_build_deep_catalog
-from .deep_match import error_scale, deep_bound, match_deep, spot_pixel_covariance
+from .deep_match import SpotOffsetCovariance, error_scale, deep_bound, match_deep
 from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 from .deadline import BUDGET_CLOCKS, Deadline
@@ -204,6 +204,9 @@ def _chi2_limit(dof: int) -> float:
 
 # Deep re-match rounds: match at the guide fit, refit, match again at the refined attitude.
 DEEP_PASSES = 2
+# The passes take the view's deep stars from one cone query widened by this much [rad]: their
+# attitudes differ by arcseconds (a farther one queries again).
+DEEP_CONE_MARGIN_RAD = 2e-3
 
 
 @dataclass(frozen=True)
@@ -643,22 +646,28 @@ class StarIdentifier:
         (deep_match.MAX_CHANCE_MATCHES) are named and the attitude refitted to guide and named
         matches. Returns the matches, solution, residuals [rad] and their false-positive bound
         (deep_match.deep_bound), or None when no deep star was named or a bound (the candidates',
-        the named matches') exceeds config.false_positive_bound (the guide solution stands).
+        the named matches') exceeds config.false_positive_bound (the guide solution stands); not
+        run when every spot has its guide star. The spots' offset covariances and the view's
+        deep stars are computed once for all passes.
         Counters in stats: deep_matches (named), deep_candidates, deep_chance_rejected,
         deep_ambiguous, deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view
         (deep_match.DeepMatches).
         """
+        if guide.spot_index.size >= geometry.x.size:
+            self.stats["deep_matches"] = 0  # every spot named by a guide star: nothing left to match
+            return None
         camera, catalog = geometry.camera, self.deep_catalog()
-        floor_px = self.config.centroid_sigma_floor_px
-        cov = spot_pixel_covariance(geometry, camera, solution.covariance, floor_px)
+        offsets = SpotOffsetCovariance(geometry, camera, self.config.centroid_sigma_floor_px)
+        cone = catalog.view_cone(solution.rotation, camera, DEEP_CONE_MARGIN_RAD)
+        cov = offsets.at(solution.covariance)
         scale = error_scale(geometry, camera, solution.rotation, guide.spot_index, guide.star_vectors, cov)
         matches, fitted, residual, found = guide, solution, None, None
         for round_index in range(DEEP_PASSES):
             if round_index:
-                cov = spot_pixel_covariance(geometry, camera, fitted.covariance, floor_px)
+                cov = offsets.at(fitted.covariance)
             cov = scale * cov
             latest = match_deep(catalog, geometry, camera, fitted.rotation, cov, guide.spot_index, guide.hip,
-                                guide.magnitude, max_chance=np.inf)
+                                guide.magnitude, max_chance=np.inf, cone=cone)
             if found is not None and np.array_equal(latest.spot_index, found.spot_index) \
                     and np.array_equal(latest.star_index, found.star_index):
                 break
@@ -681,9 +690,8 @@ class StarIdentifier:
             return None
         # Name only the pairs unlikely by chance (deep_match.MAX_CHANCE_MATCHES), at the attitude
         # the candidates refined; the published attitude is fitted to what is named.
-        cov = scale * spot_pixel_covariance(geometry, camera, fitted.covariance, floor_px)
-        named = match_deep(catalog, geometry, camera, fitted.rotation, cov, guide.spot_index, guide.hip,
-                           guide.magnitude)
+        named = match_deep(catalog, geometry, camera, fitted.rotation, scale * offsets.at(fitted.covariance),
+                           guide.spot_index, guide.hip, guide.magnitude, cone=cone)
         self.stats.update(deep_matches=int(named.spot_index.size), deep_candidates=int(found.spot_index.size),
                           deep_chance_rejected=named.chance_rejected)
         if named.spot_index.size == 0:

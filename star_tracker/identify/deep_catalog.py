@@ -66,20 +66,55 @@ class DeepCatalog:
         """Stars per steradian over the whole sky [1/sr]."""
         return self.star_count / (4.0 * math.pi)
 
-    def stars_in_view(self, rotation: np.ndarray, camera: CameraModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def view_cone(self, rotation: np.ndarray, camera: CameraModel, margin_rad: float = 0.0) -> "ViewCone":
+        """
+        Return the stars within `camera`'s half diagonal + 1 mrad + margin_rad of `rotation`'s boresight.
+
+        A KD-tree cone query; stars_in_view of any attitude whose boresight lies within
+        margin_rad of this one takes its stars from the cone instead of a query of its own
+        (the deep re-match's passes, whose attitudes differ by arcseconds).
+        """
+        half = min(camera.half_diagonal_fov_rad + 1e-3 + margin_rad, math.pi / 2)
+        axis = np.array(rotation[:, 2], float)
+        near = np.asarray(self.tree.query_ball_point(axis, 2.0 * math.sin(0.5 * half)), np.int64)
+        return ViewCone(axis, float(margin_rad), near)
+
+    def stars_in_view(self, rotation: np.ndarray, camera: CameraModel,
+                      cone: "ViewCone | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """
         Return indices of the stars inside `camera`'s image for the sensor -> ICRS `rotation`.
 
-        And their projected pixel positions (u, v) [px]: a KD-tree cone around the boresight of
-        the field's half diagonal (+1 mrad), then the camera model.
+        And their projected pixel positions (u, v) [px]: the stars within the field's half
+        diagonal (+1 mrad) of the boresight, then the camera model. The cone's stars come from
+        `cone` (view_cone) when the boresight lies within its margin, else from a KD-tree query.
         """
         half = min(camera.half_diagonal_fov_rad + 1e-3, math.pi / 2)
-        near = np.asarray(self.tree.query_ball_point(rotation[:, 2], 2.0 * math.sin(0.5 * half)), np.int64)
+        chord = 2.0 * math.sin(0.5 * half)
+        boresight = rotation[:, 2]
+        if cone is not None and cone.holds(boresight):
+            offset = self.vectors[cone.stars] - boresight
+            near = cone.stars[np.einsum("ij,ij->i", offset, offset) <= chord * chord]
+        else:
+            near = np.asarray(self.tree.query_ball_point(boresight, chord), np.int64)
         if near.size == 0:
             return near, np.zeros(0), np.zeros(0)
         u, v, front = camera.project(self.vectors[near] @ rotation)
         inside = front & camera.in_image(u, v)
         return near[inside], u[inside], v[inside]
+
+
+@dataclass(frozen=True)
+class ViewCone:
+    """The deep stars (indices, `stars`) within a field's cone around `axis` (ICRS unit vector), widened by margin_rad."""
+
+    axis: np.ndarray
+    margin_rad: float
+    stars: np.ndarray
+
+    def holds(self, boresight: np.ndarray) -> bool:
+        """Whether a field whose boresight (ICRS unit vector) is this one's cone lies inside it."""
+        gap = np.asarray(boresight, float) - self.axis
+        return float(gap @ gap) <= (2.0 * math.sin(0.5 * self.margin_rad)) ** 2
 
 
 def deep_catalog_identity(magnitude_limit: float, epoch_jyear: float) -> str:

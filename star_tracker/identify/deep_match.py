@@ -42,7 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..models.camera import CameraModel
-from .deep_catalog import DeepCatalog
+from .deep_catalog import DeepCatalog, ViewCone
+from .deep_match_kernel import deep_pairs
 from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement
 
@@ -119,68 +120,41 @@ def error_scale(geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarra
     return 1.0 if d2.size < MIN_STARS else max(1.0, float(np.median(d2)) / MEDIAN_CHI2_2DOF)
 
 
-def spot_pixel_covariance(geometry: SpotGeometry, camera: CameraModel, attitude_covariance: np.ndarray,
-                          floor_px: float) -> np.ndarray:
+class SpotOffsetCovariance:
     """
-    (N, 2, 2) covariance [px^2] of each spot's offset from its star's predicted pixel.
+    Each spot's offset covariance [px^2] from its star's predicted pixel, for any attitude covariance.
 
     The spot's own covariance + floor_px^2 I + the attitude's, J+ [b]x P [b]x^T J+^T with J =
-    d ray / d pixel and P the sensor-frame attitude covariance [rad^2].
+    d ray / d pixel and P the sensor-frame attitude covariance [rad^2]. The per-spot parts (own
+    and the carry J+ [b]x) are computed once per frame; `at(P)` adds the attitude's.
     """
-    rays = geometry.rays
-    n = rays.shape[0]
-    if geometry.pixel_cov is None:
-        own = (geometry.sigma / camera.pixel_scale_rad)[:, None, None] ** 2 * np.eye(2)[None]
-    else:
-        own = geometry.pixel_cov + floor_px ** 2 * np.eye(2)[None]
-    skew = np.zeros((n, 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -rays[:, 2], rays[:, 1], -rays[:, 0]
-    skew -= np.transpose(skew, (0, 2, 1))
-    if geometry.jacobian is None:
-        pinv = np.broadcast_to(np.eye(2, 3) / camera.pixel_scale_rad, (n, 2, 3))
-    else:
-        jac = geometry.jacobian
-        jt = np.transpose(jac, (0, 2, 1))
-        g = jt @ jac  # 2x2 normal matrices, inverted in closed form
-        det = g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] * g[:, 1, 0]
-        g_inv = np.stack([np.stack([g[:, 1, 1], -g[:, 0, 1]], 1),
-                          np.stack([-g[:, 1, 0], g[:, 0, 0]], 1)], 1) / det[:, None, None]
-        pinv = g_inv @ jt
-    carry = pinv @ skew  # d pixel / d attitude error (2 x 3)
-    attitude = carry @ np.asarray(attitude_covariance, float)[None] @ np.transpose(carry, (0, 2, 1))
-    return own + attitude
 
+    def __init__(self, geometry: SpotGeometry, camera: CameraModel, floor_px: float):
+        rays = geometry.rays
+        n = rays.shape[0]
+        if geometry.pixel_cov is None:
+            self.own = (geometry.sigma / camera.pixel_scale_rad)[:, None, None] ** 2 * np.eye(2)[None]
+        else:
+            self.own = geometry.pixel_cov + floor_px ** 2 * np.eye(2)[None]
+        skew = np.zeros((n, 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -rays[:, 2], rays[:, 1], -rays[:, 0]
+        skew -= np.transpose(skew, (0, 2, 1))
+        if geometry.jacobian is None:
+            pinv = np.broadcast_to(np.eye(2, 3) / camera.pixel_scale_rad, (n, 2, 3))
+        else:
+            jac = geometry.jacobian
+            jt = np.transpose(jac, (0, 2, 1))
+            g = jt @ jac  # 2x2 normal matrices, inverted in closed form
+            det = g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] * g[:, 1, 0]
+            g_inv = np.stack([np.stack([g[:, 1, 1], -g[:, 0, 1]], 1),
+                              np.stack([-g[:, 1, 0], g[:, 0, 0]], 1)], 1) / det[:, None, None]
+            pinv = g_inv @ jt
+        self.carry = pinv @ skew  # d pixel / d attitude error (2 x 3)
+        self._carry_t = np.transpose(self.carry, (0, 2, 1))
 
-def _candidate_pairs(spot_xy: np.ndarray, star_xy: np.ndarray, cov: np.ndarray, reach_sigma: float):
-    """
-    Every (spot, star) pair with Mahalanobis distance <= reach_sigma, and its squared distance.
-
-    The stars within each spot's reach along x (sorted, two binary searches per spot), then
-    within its circle of radius reach_sigma x the covariance's largest axis, then the ellipse:
-    half the time of a KD-tree's ball query for ~150 spots and ~800 stars.
-    """
-    empty = np.zeros(0, np.int64)
-    if spot_xy.shape[0] == 0 or star_xy.shape[0] == 0:
-        return empty, empty, np.zeros(0)
-    a, b, c = cov[:, 0, 0], 0.5 * (cov[:, 0, 1] + cov[:, 1, 0]), cov[:, 1, 1]
-    radius = reach_sigma * np.sqrt(0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b ** 2))  # the largest axis
-    radius = np.where(np.isfinite(radius), radius, -1.0)  # no reach: no candidate
-    order = np.argsort(star_xy[:, 0], kind="stable")
-    star_x = star_xy[order, 0]
-    low = np.searchsorted(star_x, spot_xy[:, 0] - radius, side="left")
-    counts = np.maximum(np.searchsorted(star_x, spot_xy[:, 0] + radius, side="right") - low, 0)
-    spot = np.repeat(np.arange(spot_xy.shape[0]), counts)
-    if spot.size == 0:
-        return empty, empty, np.zeros(0)
-    first = np.cumsum(counts) - counts  # each spot's first row
-    star = order[low[spot] + np.arange(spot.size) - first[spot]]
-    dx, dy = (spot_xy[spot] - star_xy[star]).T
-    near = dx * dx + dy * dy <= radius[spot] ** 2
-    spot, star, dx, dy = spot[near], star[near], dx[near], dy[near]
-    a, b, c = a[spot], b[spot], c[spot]
-    d2 = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / (a * c - b * b)  # offset^T cov^-1 offset
-    keep = d2 <= reach_sigma ** 2
-    return spot[keep], star[keep], d2[keep]
+    def at(self, attitude_covariance: np.ndarray) -> np.ndarray:
+        """(N, 2, 2) [px^2] under the sensor-frame attitude covariance (3, 3) [rad^2]."""
+        return self.own + self.carry @ np.asarray(attitude_covariance, float)[None] @ self._carry_t
 
 
 def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tuple[float, float] | None:
@@ -200,64 +174,54 @@ def magnitude_gate(spot_magnitude: np.ndarray, star_magnitude: np.ndarray) -> tu
 
 def match_deep(catalog: DeepCatalog, geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray,
                spot_cov_px: np.ndarray, guide_spots: np.ndarray, guide_hip: np.ndarray,
-               guide_magnitude: np.ndarray, max_chance: float | None = None) -> DeepMatches:
+               guide_magnitude: np.ndarray, max_chance: float | None = None,
+               cone: ViewCone | None = None) -> DeepMatches:
     """
     Return the unambiguous deep matches of the spots not in `guide_spots` (flux-sorted indices).
 
     Under `rotation` (sensor -> ICRS), with each spot's offset covariance spot_cov_px (N, 2, 2)
-    [px^2] (spot_pixel_covariance); guide_hip and guide_magnitude (catalog Hp) of the guide
+    [px^2] (SpotOffsetCovariance); guide_hip and guide_magnitude (catalog Hp) of the guide
     matches, in guide_spots' order (the zero point); max_chance: the frame's chance bound (None:
-    MAX_CHANCE_MATCHES; inf: the candidates every other condition passes). See the module docstring.
+    MAX_CHANCE_MATCHES; inf: the candidates every other condition passes); cone: the view's
+    stars queried once for all passes (DeepCatalog.view_cone). See the module docstring.
     """
-    star, u, v = catalog.stars_in_view(rotation, camera)
-    spot_xy = np.stack([geometry.x, geometry.y], axis=1)
-    n, m = spot_xy.shape[0], star.size
+    star, u, v = catalog.stars_in_view(rotation, camera, cone)
+    n, m = geometry.x.size, star.size
     density_px = m / float(camera.width * camera.height)  # deep stars per pixel in this view
     det = spot_cov_px[:, 0, 0] * spot_cov_px[:, 1, 1] - spot_cov_px[:, 0, 1] * spot_cov_px[:, 1, 0]
     narrow = density_px * np.pi * GATE_SIGMA ** 2 * np.sqrt(np.maximum(det, 0.0)) <= MAX_CHANCE_STARS_IN_GATE
     # A spot too uncertain to be named claims no star either (nor makes one ambiguous): one spot
     # with a runaway covariance would otherwise reach every star in the image.
-    claimant = np.flatnonzero(narrow)
-    spot, star_j, d2 = _candidate_pairs(spot_xy[claimant], np.stack([u, v], axis=1), spot_cov_px[claimant],
-                                        AMBIGUITY_FACTOR * GATE_SIGMA)
-    spot = claimant[spot]
-    stars_near_spot = np.bincount(spot, minlength=n)
-    spots_near_star = np.bincount(star_j, minlength=m)
-    taken = np.isin(catalog.hip[star], guide_hip)
     free = np.ones(n, bool)
     free[guide_spots] = False
     too_uncertain = int(np.count_nonzero(free & ~narrow))
     free &= narrow
-    inside = (d2 <= GATE_SIGMA ** 2) & free[spot]
-    unique = (stars_near_spot[spot] == 1) & (spots_near_star[star_j] == 1) & ~taken[star_j]
-    ambiguous = inside & ~unique
-    spot_i, star_k = spot[inside & unique], star[star_j[inside & unique]]
+    spot_i, star_j, d2_i, ambiguous, uncatalogued = deep_pairs(
+        np.ascontiguousarray(geometry.x, float), np.ascontiguousarray(geometry.y, float),
+        np.ascontiguousarray(spot_cov_px, float), narrow, free, u, v, catalog.hip[star],
+        np.sort(np.asarray(guide_hip, catalog.hip.dtype)), AMBIGUITY_FACTOR * GATE_SIGMA, GATE_SIGMA)
+    star_k = star[star_j]
     rejected = 0
     fraction = np.full(spot_i.size, np.nan)  # share of deep stars as close in brightness (NaN: unknown)
-    gate = magnitude_gate(geometry.magnitude[guide_spots], guide_magnitude)
-    if gate is not None and spot_i.size:
+    gate = magnitude_gate(geometry.magnitude[guide_spots], guide_magnitude) if spot_i.size else None
+    if gate is not None:
         residual = geometry.magnitude[spot_i] - gate[0] - catalog.magnitude[star_k]
         agree = ~(np.abs(residual) > gate[1])  # an unknown (NaN) spot magnitude passes on geometry
         rejected = int(np.count_nonzero(~agree))
         fraction = magnitude_fraction(catalog.sorted_magnitudes, catalog.magnitude[star_k] + residual,
                                       np.abs(residual))
         fraction[~np.isfinite(residual)] = np.nan
-        spot_i, star_k, fraction = spot_i[agree], star_k[agree], fraction[agree]
-        d2_i = d2[inside & unique][agree]
-    else:
-        d2_i = d2[inside & unique]
+        spot_i, star_k, fraction, d2_i = spot_i[agree], star_k[agree], fraction[agree], d2_i[agree]
     gate_stars = density_px * np.pi * GATE_SIGMA ** 2 * np.sqrt(np.maximum(det[spot_i], 0.0))
     chance = chance_pairs(gate_stars * d2_i / GATE_SIGMA ** 2, fraction, gate_stars)
     # The uncatalogued spots (false objects, stars beyond the catalog): those tried without a
     # deep star within reach (an uncatalogued spot has one with probability < 4 x
     # MAX_CHANCE_STARS_IN_GATE), at least one.
-    uncatalogued = max(int(np.count_nonzero(free & (stars_near_spot == 0))), 1)
+    uncatalogued = max(uncatalogued, 1)
     named = chance * uncatalogued <= (MAX_CHANCE_MATCHES if max_chance is None else max_chance)
     chance_rejected = int(np.count_nonzero(~named))
-    spot_i, star_k, chance = spot_i[named], star_k[named], chance[named]
-    order = np.argsort(spot_i, kind="stable")
-    return DeepMatches(spot_i[order], star_k[order], int(m), int(np.unique(spot[ambiguous]).size), rejected,
-                       too_uncertain, chance[order], chance_rejected, uncatalogued)
+    return DeepMatches(spot_i[named], star_k[named], int(m), int(ambiguous), rejected, too_uncertain,
+                       chance[named], chance_rejected, uncatalogued)
 
 
 def magnitude_fraction(sorted_magnitudes: np.ndarray, center: np.ndarray, half_width: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ inline them); the vectorised ones are numpy. Also Mortari's pyramid order of spo
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Iterator
 
 import numpy as np
@@ -28,19 +29,23 @@ def triple_products(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.einsum("ni,ni->n", u, np.cross(v, w))
 
 
+@lru_cache(maxsize=64)
 def pyramid_triangles(n: int) -> np.ndarray:
     """
-    (T, 3) Mortari's pyramid order of the index triples i < j < k < n.
+    (T, 3) Mortari's pyramid order of the index triples i < j < k < n (read-only, shared).
 
     The index gaps (j - i, k - j) grow slowest, so the search leaves a false spot behind as
-    fast as it can.
+    fast as it can. Built once per n: every lost-in-space solve starts from it (building it
+    was a third of the search's time).
     """
     blocks = [np.zeros((0, 3), np.int64)]
     for dj in range(1, n - 1):
         for dk in range(1, n - dj):
             i = np.arange(0, n - dj - dk, dtype=np.int64)
             blocks.append(np.stack([i, i + dj, i + dj + dk], axis=1))
-    return np.concatenate(blocks)
+    triangles = np.concatenate(blocks)
+    triangles.flags.writeable = False
+    return triangles
 
 
 def pyramid_order(n: int) -> Iterator[tuple[int, int, int]]:

@@ -44,12 +44,13 @@ PYRAMID_BATCH = 16
 BATCH_TRIANGLES = 16
 
 
-@lru_cache(maxsize=128)
 @lru_cache(maxsize=256)
 def triangles_closing_at(k: int) -> np.ndarray:
-    """(C(k, 2), 3) triangles (i, j, k), i < j < k: the ones spot k adds."""
+    """(C(k, 2), 3) triangles (i, j, k), i < j < k: the ones spot k adds (read-only, shared)."""
     i, j = np.triu_indices(k, 1)
-    return np.stack([i, j, np.full(i.size, k)], axis=1).astype(np.int64)
+    triangles = np.stack([i, j, np.full(i.size, k)], axis=1).astype(np.int64)
+    triangles.flags.writeable = False
+    return triangles
 
 
 def triangle_batches(pattern_count: int, spot_count: int):

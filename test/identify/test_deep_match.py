@@ -249,28 +249,57 @@ def test_deep_rematch_on_real_images(image_id, least):
             assert separation < 30.0 or component, (deep.hip[k], separation)
 
 
-def test_candidate_pairs_are_every_pair_inside_the_ellipse():
-    # Brute force over every (spot, star) pair: the same pairs and squared distances, whatever
-    # the covariances (elongated, rotated, tiny, a non-finite one that reaches nothing).
-    from star_tracker.identify.deep_match import _candidate_pairs
+def test_deep_pairs_is_the_pairing_rule_by_brute_force():
+    # Every (spot, star) pair by brute force under random covariances (elongated, rotated, tiny,
+    # a non-finite one that reaches nothing), then the rule of deep_match: a free spot's pair is
+    # named when it is its only pair within reach, inside the gate, its star has no other
+    # claimant within reach and is not a guide match's; the other free spots with a pair in
+    # the gate are ambiguous, those with none within reach uncatalogued.
+    from star_tracker.identify.deep_match_kernel import deep_pairs
 
     rng = np.random.default_rng(21)
-    for trial in range(20):
-        spots, stars = rng.uniform(0, 200, (int(rng.integers(1, 60)), 2)), rng.uniform(0, 200, (400, 2))
+    named_total = ambiguous_total = 0
+    for trial in range(40):
+        n = int(rng.integers(1, 60))
+        spots, stars = rng.uniform(0, 200, (n, 2)), rng.uniform(0, 200, (400, 2))
         stars[:5] = spots[:1] + rng.normal(0, 1.0, (5, 2))  # a crowded spot
-        angle = rng.uniform(0, np.pi, spots.shape[0])
-        major, minor = rng.uniform(0.05, 3.0, spots.shape[0]), rng.uniform(0.05, 1.0, spots.shape[0])
+        stars[5:5 + min(n, 20)] = spots[:min(n, 20)] + rng.normal(0, 0.3, (min(n, 20), 2))  # most spots a star
+        angle = rng.uniform(0, np.pi, n)
+        major, minor = rng.uniform(0.05, 3.0, n), rng.uniform(0.05, 1.0, n)
         cos, sin = np.cos(angle), np.sin(angle)
         turn = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], 1)
         cov = turn @ (np.stack([major, minor], -1)[:, :, None] ** 2 * np.eye(2)[None]) @ np.transpose(turn, (0, 2, 1))
         if trial % 4 == 0:
             cov[-1] = np.nan
+        claimant = rng.uniform(size=n) < 0.9
+        free = claimant & (rng.uniform(size=n) < 0.7)
+        star_hip = rng.permutation(np.arange(1, 401)).astype(np.int32)
+        guide_hip = np.sort(rng.choice(star_hip, 8, replace=False))
         offset = spots[:, None, :] - stars[None, :, :]
         with np.errstate(invalid="ignore"):
             d2_all = np.einsum("nki,nij,nkj->nk", offset, np.linalg.inv(cov), offset)
-        want = {(i, j) for i, j in zip(*np.nonzero(d2_all <= 8.0 ** 2))}
-        spot, star, d2 = _candidate_pairs(spots, stars, cov, 8.0)
-        assert set(zip(spot.tolist(), star.tolist())) == want and len(spot) == len(want)
+        pair = (d2_all <= 8.0 ** 2) & claimant[:, None]
+        per_spot, per_star = pair.sum(1), pair.sum(0)
+        want, ambiguous = [], 0
+        for i in np.flatnonzero(free):
+            inside = np.flatnonzero(pair[i] & (d2_all[i] <= 4.0 ** 2))
+            if inside.size == 0:
+                continue
+            j = inside[0]
+            if per_spot[i] == 1 and per_star[j] == 1 and star_hip[j] not in guide_hip:
+                want.append((i, j))
+            else:
+                ambiguous += 1
+        uncatalogued = int(np.count_nonzero(free & (per_spot == 0)))
+        spot, star, d2, got_ambiguous, got_uncatalogued = deep_pairs(
+            spots[:, 0].copy(), spots[:, 1].copy(), cov, claimant, free, stars[:, 0].copy(), stars[:, 1].copy(),
+            star_hip, guide_hip, 8.0, 4.0)
+        assert list(zip(spot.tolist(), star.tolist())) == want
         assert np.allclose(d2, d2_all[spot, star], rtol=1e-9)
-    empty = _candidate_pairs(np.zeros((0, 2)), stars, np.zeros((0, 2, 2)), 8.0)
-    assert all(part.size == 0 for part in empty)
+        assert (got_ambiguous, got_uncatalogued) == (ambiguous, uncatalogued)
+        named_total += len(want)
+        ambiguous_total += ambiguous
+    assert named_total > 100 and ambiguous_total > 10  # the cases were exercised
+    empty = deep_pairs(np.zeros(0), np.zeros(0), np.zeros((0, 2, 2)), np.zeros(0, bool), np.zeros(0, bool),
+                       stars[:, 0].copy(), stars[:, 1].copy(), star_hip, guide_hip, 8.0, 4.0)
+    assert empty[0].size == 0 and empty[3:] == (0, 0)
