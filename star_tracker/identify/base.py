@@ -662,6 +662,7 @@ class StarIdentifier:
         cov = offsets.at(solution.covariance)
         scale = error_scale(geometry, camera, solution.rotation, guide.spot_index, guide.star_vectors, cov)
         matches, fitted, residual, found = guide, solution, None, None
+        at_fitted = None  # the candidates at `fitted` itself, when a pass found them there
         for round_index in range(DEEP_PASSES):
             if round_index:
                 cov = offsets.at(fitted.covariance)
@@ -670,6 +671,7 @@ class StarIdentifier:
                                 guide.magnitude, max_chance=np.inf, cone=cone)
             if found is not None and np.array_equal(latest.spot_index, found.spot_index) \
                     and np.array_equal(latest.star_index, found.star_index):
+                at_fitted = latest
                 break
             found = latest
             if found.spot_index.size == 0:
@@ -690,8 +692,11 @@ class StarIdentifier:
             return None
         # Name only the pairs unlikely by chance (deep_match.MAX_CHANCE_MATCHES), at the attitude
         # the candidates refined; the published attitude is fitted to what is named.
-        named = match_deep(catalog, geometry, camera, fitted.rotation, scale * offsets.at(fitted.covariance),
-                           guide.spot_index, guide.hip, guide.magnitude, cone=cone)
+        if at_fitted is not None:  # the last pass matched at this attitude and covariance already
+            named = at_fitted.within_chance()
+        else:
+            named = match_deep(catalog, geometry, camera, fitted.rotation, scale * offsets.at(fitted.covariance),
+                               guide.spot_index, guide.hip, guide.magnitude, cone=cone)
         self.stats.update(deep_matches=int(named.spot_index.size), deep_candidates=int(found.spot_index.size),
                           deep_chance_rejected=named.chance_rejected)
         if named.spot_index.size == 0:

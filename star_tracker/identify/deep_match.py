@@ -100,6 +100,18 @@ class DeepMatches:
     chance_rejected: int = 0
     uncatalogued: int = 1
 
+    def within_chance(self, max_chance: float | None = None) -> "DeepMatches":
+        """
+        Return these candidates (a match_deep call with max_chance=inf) that pass the frame's chance bound.
+
+        What match_deep returns at the same attitude and covariances with `max_chance` (None:
+        MAX_CHANCE_MATCHES).
+        """
+        named = self.chance * self.uncatalogued <= (MAX_CHANCE_MATCHES if max_chance is None else max_chance)
+        return DeepMatches(self.spot_index[named], self.star_index[named], self.stars_in_view, self.ambiguous,
+                           self.magnitude_rejected, self.too_uncertain, self.chance[named],
+                           self.chance_rejected + int(np.count_nonzero(~named)), self.uncatalogued)
+
 
 def error_scale(geometry: SpotGeometry, camera: CameraModel, rotation: np.ndarray, spot_index: np.ndarray,
                 star_vectors: np.ndarray, cov_px: np.ndarray) -> float:
