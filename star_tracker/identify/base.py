@@ -20,15 +20,16 @@ from typing import Iterator
 
 import numpy as np
 
+from ..models.attitude import matrix_to_quaternion
 from ..models.attitude_estimation import AttitudeSolution, quest_rotation, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import FLAG_EDGE, Spots
 from ..parameter_spec import parameter, range_problems
 from . import spot_kernels
-from .kernel_records import Pinhole, PrepareSettings, RawSpots
+from .kernel_records import GuideMatches, Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
-from .deep_catalog import DeepCatalog, load_or_build_deep_catalog
-from .deep_match import SpotOffsetCovariance, error_scale, deep_bound, match_deep
+from .deep_catalog import DeepCatalog, ViewCone, load_or_build_deep_catalog
+from .deep_match import SpotOffsetCovariance, deep_bound, deep_rematch_pinhole, error_scale, match_deep
 from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 from .deadline import BUDGET_CLOCKS, Deadline
@@ -657,8 +658,12 @@ class StarIdentifier:
             self.stats["deep_matches"] = 0  # every spot named by a guide star: nothing left to match
             return None
         camera, catalog = geometry.camera, self.deep_catalog()
-        offsets = SpotOffsetCovariance(geometry, camera, self.config.centroid_sigma_floor_px)
         cone = catalog.view_cone(solution.rotation, camera, DEEP_CONE_MARGIN_RAD)
+        if not camera.has_distortion:
+            done = self._deep_rematch_compiled(geometry, guide, solution, catalog, cone)
+            if done is not False:
+                return done
+        offsets = SpotOffsetCovariance(geometry, camera, self.config.centroid_sigma_floor_px)
         cov = offsets.at(solution.covariance)
         scale = error_scale(geometry, camera, solution.rotation, guide.spot_index, guide.star_vectors, cov)
         matches, fitted, residual, found = guide, solution, None, None
@@ -721,6 +726,36 @@ class StarIdentifier:
         """
         solution, _, residual = self._fit(geometry, spot_index, self.database.vectors[star_index], rotation)
         return solution, residual
+
+    def _deep_rematch_compiled(self, geometry: SpotGeometry, guide: "_Matches", solution: AttitudeSolution,
+                               catalog: DeepCatalog, cone: ViewCone):
+        """
+        deep_rematch's result from its compiled form (deep_match.deep_rematch_pinhole), for a camera without distortion.
+
+        False when it could not run (an attitude left the queried cone): the Python path decides.
+        """
+        outcome = deep_rematch_pinhole(
+            geometry, geometry.camera, catalog, cone,
+            GuideMatches(np.ascontiguousarray(guide.spot_index, np.int64), np.ascontiguousarray(guide.star_vectors, float),
+                         np.ascontiguousarray(guide.hip, np.int64), np.ascontiguousarray(guide.magnitude, float)),
+            solution.rotation, solution.covariance, self.config.centroid_sigma_floor_px,
+            self.config.false_positive_bound, self.magnitude_floor, FIT_SCREEN_CHI2, DEEP_PASSES)
+        if outcome.status < 0:
+            return False
+        stats = outcome.stats.tolist()
+        self.stats.update(deep_matches=stats[0], deep_ambiguous=stats[1], deep_magnitude_rejected=stats[2],
+                          deep_too_uncertain=stats[3], deep_stars_in_view=stats[4])
+        if stats[5]:  # the candidates passed their bound: pairs were named
+            self.stats.update(deep_candidates=stats[5], deep_chance_rejected=stats[6])
+        if stats[7]:
+            self.stats["deep_bound_rejected"] = 1
+        if outcome.status == 0:
+            return None
+        star = outcome.star
+        matches = guide.extended(outcome.spot, catalog.vectors[star], catalog.hip[star], catalog.magnitude[star])
+        rotation = outcome.rotation
+        fitted = AttitudeSolution(matrix_to_quaternion(rotation), rotation, outcome.covariance, float(outcome.loss))
+        return matches, fitted, outcome.residual, float(outcome.fp)
 
     def _fit(self, geometry: SpotGeometry, spot_index: np.ndarray, stars: np.ndarray,
              rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray, np.ndarray]:

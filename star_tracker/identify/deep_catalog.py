@@ -15,6 +15,7 @@ fails its checks is rebuilt. Loaded catalogs are shared in memory.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
@@ -26,6 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..models.camera import CameraModel
+from .kernel_records import DeepArrays
 from ..models.catalog import cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
 
 DEEP_CATALOG_FORMAT_VERSION = 1
@@ -56,6 +58,13 @@ class DeepCatalog:
            magnitude: np.ndarray) -> "DeepCatalog":
         return DeepCatalog(float(magnitude_limit), float(epoch_jyear), vectors, hip, magnitude, np.sort(magnitude),
                            cKDTree(vectors))
+
+    @functools.cached_property
+    def arrays(self) -> DeepArrays:
+        """The catalog as the compiled deep re-match reads it (deep_match_kernel)."""
+        return DeepArrays(np.ascontiguousarray(self.vectors, float), np.ascontiguousarray(self.hip),
+                          np.ascontiguousarray(self.magnitude, float), np.ascontiguousarray(self.sorted_magnitudes,
+                                                                                             float))
 
     @property
     def star_count(self) -> int:

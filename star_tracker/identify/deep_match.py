@@ -43,7 +43,9 @@ import numpy as np
 
 from ..models.camera import CameraModel
 from .deep_catalog import DeepCatalog, ViewCone
+from . import deep_match_kernel
 from .deep_match_kernel import deep_pairs
+from .kernel_records import DeepArrays, DeepRematchOutcome, DeepRematchSettings, DeepSpots, GuideMatches, Pinhole
 from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement
 
@@ -288,3 +290,34 @@ def deep_bound(geometry: SpotGeometry, spot_index: np.ndarray, star_vectors: np.
     log_t += log_magnitude_agreement(geometry.magnitude[spot_index][keep], star_magnitude[keep],
                                      catalog.sorted_magnitudes, magnitude_floor)
     return false_positive_bound(log_t, geometry.x.size, int(np.count_nonzero(keep)))
+
+
+def deep_rematch_pinhole(geometry: SpotGeometry, camera: CameraModel, catalog: DeepCatalog, cone: ViewCone,
+                         guide: GuideMatches, rotation: np.ndarray, covariance: np.ndarray, floor_px: float,
+                         fp_limit: float, magnitude_floor: float, fit_screen_chi2: float,
+                         passes: int) -> DeepRematchOutcome:
+    """
+    The deep re-match (base.StarIdentifier.deep_rematch) in one compiled call, for a camera without distortion.
+
+    `cone`: the view's deep stars (DeepCatalog.view_cone at the guide fit); guide: the guide
+    matches; rotation (sensor -> ICRS) and covariance [rad^2]: the guide fit; floor_px: the
+    matching floor [px]; fp_limit: the false-positive bound; magnitude_floor [mag];
+    fit_screen_chi2: the final fit's screen; passes: match-and-refit rounds. The same
+    conditions and counters as the Python path (match_deep, error_scale, deep_bound).
+    """
+    isotropic = geometry.pixel_cov is None
+    spots = DeepSpots(np.ascontiguousarray(geometry.rays, float), np.ascontiguousarray(geometry.sigma, float),
+                      np.ascontiguousarray(geometry.magnitude, float), np.ascontiguousarray(geometry.x, float),
+                      np.ascontiguousarray(geometry.y, float),
+                      np.zeros((0, 2, 2)) if isotropic else np.ascontiguousarray(geometry.pixel_cov, float),
+                      np.zeros((0, 3, 2)) if isotropic else np.ascontiguousarray(geometry.jacobian, float))
+    half = min(camera.half_diagonal_fov_rad + 1e-3, np.pi / 2)
+    settings = DeepRematchSettings(
+        float(camera.pixel_scale_rad), float(floor_px), float(camera.width * camera.height),
+        float(2.0 * np.sin(0.5 * half)), cone.axis, float(2.0 * np.sin(0.5 * cone.margin_rad)), float(fp_limit),
+        float(magnitude_floor), float(fit_screen_chi2), MIN_STARS, int(passes), GATE_SIGMA, AMBIGUITY_FACTOR,
+        MAX_CHANCE_STARS_IN_GATE, MAX_CHANCE_MATCHES, MIN_ZERO_POINT_STARS, MAGNITUDE_SIGMA,
+        MAGNITUDE_TOLERANCE_FLOOR, MEDIAN_CHI2_2DOF, float(catalog.mean_density))
+    return deep_match_kernel.deep_rematch(spots, catalog.arrays, cone.stars, guide,
+                                          np.ascontiguousarray(rotation, float),
+                                          np.ascontiguousarray(covariance, float), Pinhole.of(camera), settings)

@@ -14,6 +14,10 @@ import math
 import numpy as np
 from numba import njit
 
+from ..models.attitude_estimation import _refine_kernel as refine_kernel
+from .kernel_records import DeepRematchOutcome
+from .kernels import false_positive_bound, log_chance_tuples, log_magnitude_agreement
+
 
 @njit(cache=True)
 def deep_pairs(spot_x, spot_y, cov, claimant, free, star_u, star_v, star_hip, guide_hip, reach_sigma, gate_sigma):
@@ -91,3 +95,405 @@ def deep_pairs(spot_x, spot_y, cov, claimant, free, star_u, star_v, star_hip, gu
         else:
             ambiguous += 1
     return out_spot[:k], out_star[:k], out_d2[:k], ambiguous, uncatalogued
+
+
+@njit(cache=True)
+def offset_parts(spots, pixel_scale, floor_px):
+    """
+    The per-spot parts of deep_match.SpotOffsetCovariance: own (N, 2, 2) [px^2] and carry (N, 2, 3) [px/rad].
+
+    own: the spot's covariance + floor_px^2 I (isotropic sigma / pixel_scale when it has none);
+    carry: d pixel / d attitude error, J+ [b]x.
+    """
+    rays = spots.rays
+    n = rays.shape[0]
+    own = np.zeros((n, 2, 2))
+    carry = np.zeros((n, 2, 3))
+    isotropic = spots.pixel_cov.shape[0] == 0
+    for i in range(n):
+        if isotropic:
+            s = spots.sigma[i] / pixel_scale
+            own[i, 0, 0] = own[i, 1, 1] = s * s
+        else:
+            own[i, 0, 0] = spots.pixel_cov[i, 0, 0] + floor_px * floor_px
+            own[i, 0, 1] = spots.pixel_cov[i, 0, 1]
+            own[i, 1, 0] = spots.pixel_cov[i, 1, 0]
+            own[i, 1, 1] = spots.pixel_cov[i, 1, 1] + floor_px * floor_px
+        bx, by, bz = rays[i, 0], rays[i, 1], rays[i, 2]
+        skew = np.array([[0.0, -bz, by], [bz, 0.0, -bx], [-by, bx, 0.0]])
+        pinv = np.zeros((2, 3))
+        if isotropic or spots.jacobian.shape[0] == 0:
+            pinv[0, 0] = pinv[1, 1] = 1.0 / pixel_scale
+        else:
+            jac = spots.jacobian[i]  # (3, 2)
+            g00 = g01 = g10 = g11 = 0.0
+            for r in range(3):
+                g00 += jac[r, 0] * jac[r, 0]
+                g01 += jac[r, 0] * jac[r, 1]
+                g10 += jac[r, 1] * jac[r, 0]
+                g11 += jac[r, 1] * jac[r, 1]
+            det = g00 * g11 - g01 * g10
+            for r in range(3):
+                pinv[0, r] = (g11 * jac[r, 0] - g01 * jac[r, 1]) / det
+                pinv[1, r] = (-g10 * jac[r, 0] + g00 * jac[r, 1]) / det
+        for a in range(2):
+            for c in range(3):
+                total = 0.0
+                for r in range(3):
+                    total += pinv[a, r] * skew[r, c]
+                carry[i, a, c] = total
+    return own, carry
+
+
+@njit(cache=True)
+def offset_covariance(own, carry, attitude_covariance, scale):
+    """scale x (own + carry P carry^T): each spot's offset covariance (N, 2, 2) [px^2] under P (3, 3) [rad^2]."""
+    n = own.shape[0]
+    out = np.empty((n, 2, 2))
+    for i in range(n):
+        for a in range(2):
+            for b in range(2):
+                total = 0.0
+                for r in range(3):
+                    row = 0.0
+                    for c in range(3):
+                        row += attitude_covariance[r, c] * carry[i, b, c]
+                    total += carry[i, a, r] * row
+                out[i, a, b] = scale * (own[i, a, b] + total)
+    return out
+
+
+@njit(cache=True)
+def _project(vector, rotation, pin):
+    """Pixel (u, v) of an ICRS unit vector under `rotation` (sensor -> ICRS), and whether it is imaged."""
+    x = vector[0] * rotation[0, 0] + vector[1] * rotation[1, 0] + vector[2] * rotation[2, 0]
+    y = vector[0] * rotation[0, 1] + vector[1] * rotation[1, 1] + vector[2] * rotation[2, 1]
+    z = vector[0] * rotation[0, 2] + vector[1] * rotation[1, 2] + vector[2] * rotation[2, 2]
+    if not z > 1e-9:
+        return 0.0, 0.0, False
+    u = pin.fx * (x / z) + pin.cx
+    v = pin.fy * (y / z) + pin.cy
+    inside = -0.5 <= u <= pin.width - 0.5 and -0.5 <= v <= pin.height - 0.5
+    return u, v, inside
+
+
+@njit(cache=True)
+def view_stars(deep, cone_stars, rotation, pin, view_chord):
+    """The cone's deep stars inside the image at `rotation`: catalog indices, u, v [px] (DeepCatalog.stars_in_view)."""
+    m = cone_stars.size
+    star = np.empty(m, np.int64)
+    us = np.empty(m)
+    vs = np.empty(m)
+    count = 0
+    bx, by, bz = rotation[0, 2], rotation[1, 2], rotation[2, 2]
+    chord2 = view_chord * view_chord
+    for q in range(m):
+        s = cone_stars[q]
+        dx, dy, dz = deep.vectors[s, 0] - bx, deep.vectors[s, 1] - by, deep.vectors[s, 2] - bz
+        if dx * dx + dy * dy + dz * dz > chord2:
+            continue
+        u, v, inside = _project(deep.vectors[s], rotation, pin)
+        if inside:
+            star[count], us[count], vs[count] = s, u, v
+            count += 1
+    return star[:count], us[:count], vs[:count]
+
+
+@njit(cache=True)
+def magnitude_zero_point(spot_magnitude, star_magnitude, min_stars, sigmas, floor):
+    """(known, zero point, tolerance) [mag] of deep_match.magnitude_gate."""
+    diff = np.empty(spot_magnitude.size)
+    count = 0
+    for i in range(spot_magnitude.size):
+        d = spot_magnitude[i] - star_magnitude[i]
+        if np.isfinite(d):
+            diff[count] = d
+            count += 1
+    if count < min_stars:
+        return False, 0.0, 0.0
+    zero = np.median(diff[:count])
+    spread = np.empty(count)
+    for i in range(count):
+        spread[i] = abs(diff[i] - zero)
+    robust_sigma = 1.4826 * np.median(spread)
+    return True, zero, max(sigmas * robust_sigma, floor)
+
+
+@njit(cache=True)
+def match_view(spots, deep, star, u, v, cov, guide_spot, guide_hip_sorted, guide_magnitude, max_chance, settings):
+    """
+    deep_match.match_deep on the view's deep stars (star, u, v: view_stars) under offset covariances cov (N, 2, 2).
+
+    Returns (spot, star, chance, stars_in_view, ambiguous, magnitude_rejected, too_uncertain,
+    chance_rejected, uncatalogued): spot (K,) increasing, star (K,) deep catalog indices.
+    """
+    n, m = spots.x.size, star.size
+    density_px = m / settings.image_area
+    gate2 = settings.gate_sigma * settings.gate_sigma
+    det = np.empty(n)
+    narrow = np.empty(n, np.bool_)
+    free = np.ones(n, np.bool_)
+    free[guide_spot] = False
+    too_uncertain = 0
+    for i in range(n):
+        det[i] = cov[i, 0, 0] * cov[i, 1, 1] - cov[i, 0, 1] * cov[i, 1, 0]
+        narrow[i] = density_px * np.pi * gate2 * math.sqrt(max(det[i], 0.0)) <= settings.max_chance_stars_in_gate
+        if free[i] and not narrow[i]:
+            too_uncertain += 1
+        free[i] = free[i] and narrow[i]
+    spot_i, star_j, d2, ambiguous, uncatalogued = deep_pairs(
+        spots.x, spots.y, cov, narrow, free, u, v, deep.hip[star], guide_hip_sorted,
+        settings.ambiguity_factor * settings.gate_sigma, settings.gate_sigma)
+    k = spot_i.size
+    star_k = star[star_j]
+    fraction = np.full(k, np.nan)  # share of deep stars as close in brightness (NaN: unknown)
+    keep = np.ones(k, np.bool_)
+    rejected = 0
+    if k:
+        known, zero, tolerance = magnitude_zero_point(spots.magnitude[guide_spot], guide_magnitude,
+                                                      settings.min_zero_point_stars, settings.magnitude_sigma,
+                                                      settings.magnitude_tolerance_floor)
+        if known:
+            count = max(deep.sorted_magnitudes.size, 1)
+            for q in range(k):
+                residual = spots.magnitude[spot_i[q]] - zero - deep.magnitude[star_k[q]]
+                if abs(residual) > tolerance:  # an unknown (NaN) spot magnitude passes on geometry
+                    keep[q] = False
+                    rejected += 1
+                    continue
+                if np.isfinite(residual):
+                    center, half = deep.magnitude[star_k[q]] + residual, abs(residual)
+                    low = np.searchsorted(deep.sorted_magnitudes, center - half, side="left")
+                    high = np.searchsorted(deep.sorted_magnitudes, center + half, side="right")
+                    fraction[q] = (high - low) / count
+    uncatalogued = max(uncatalogued, 1)
+    out_spot = np.empty(k, np.int64)
+    out_star = np.empty(k, np.int64)
+    out_chance = np.empty(k)
+    named = chance_rejected = 0
+    for q in range(k):
+        if not keep[q]:
+            continue
+        gate_stars = density_px * np.pi * gate2 * math.sqrt(max(det[spot_i[q]], 0.0))
+        near = gate_stars * d2[q] / gate2
+        t = near * fraction[q]
+        if np.isfinite(t):  # deep_match.chance_pairs
+            chance = t * (1.0 + math.log(max(gate_stars / t, 1.0))) if t > 0.0 else 0.0
+        else:
+            chance = near
+        if chance * uncatalogued <= max_chance:
+            out_spot[named], out_star[named], out_chance[named] = spot_i[q], star_k[q], chance
+            named += 1
+        else:
+            chance_rejected += 1
+    return (out_spot[:named], out_star[:named], out_chance[:named], m, ambiguous, rejected, too_uncertain,
+            chance_rejected, uncatalogued)
+
+
+@njit(cache=True)
+def error_scale(spots, guide_spot, guide_vectors, rotation, cov, pin, min_stars, median_chi2):
+    """deep_match.error_scale for a pinhole camera: the gate's variance scale (>= 1)."""
+    g = guide_spot.size
+    d2 = np.empty(g)
+    count = 0
+    for q in range(g):
+        vec = guide_vectors[q]
+        x = vec[0] * rotation[0, 0] + vec[1] * rotation[1, 0] + vec[2] * rotation[2, 0]
+        y = vec[0] * rotation[0, 1] + vec[1] * rotation[1, 1] + vec[2] * rotation[2, 1]
+        z = vec[0] * rotation[0, 2] + vec[1] * rotation[1, 2] + vec[2] * rotation[2, 2]
+        z = z if z > 1e-9 else 1.0
+        i = guide_spot[q]
+        dx, dy = spots.x[i] - (pin.fx * (x / z) + pin.cx), spots.y[i] - (pin.fy * (y / z) + pin.cy)
+        a, c = cov[i, 0, 0], cov[i, 1, 1]
+        b = 0.5 * (cov[i, 0, 1] + cov[i, 1, 0])
+        value = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / (a * c - b * b)
+        if np.isfinite(value):
+            d2[count] = value
+            count += 1
+    if count < min_stars:
+        return 1.0
+    return max(1.0, np.median(d2[:count]) / median_chi2)
+
+
+@njit(cache=True)
+def fit_matches(spots, spot_index, star_vectors, rotation, screen_chi2, min_stars):
+    """
+    base.StarIdentifier._fit: the published attitude of the matches, their outliers screened once.
+
+    Returns (rotation, covariance [rad^2], loss, residual angles (M,) [rad]).
+    """
+    m = spot_index.size
+    body = np.empty((m, 3))
+    for q in range(m):
+        body[q] = spots.rays[spot_index[q]]
+    if spots.pixel_cov.shape[0] == 0:  # isotropic
+        cov = np.empty((m, 3, 3))
+        for q in range(m):
+            s2 = spots.sigma[spot_index[q]] ** 2
+            for r in range(3):
+                for c in range(3):
+                    cov[q, r, c] = s2 * ((1.0 if r == c else 0.0) - body[q, r] * body[q, c])
+        jac = np.zeros((0, 3, 2))
+    else:
+        cov = np.empty((m, 2, 2))
+        jac = np.empty((m, 3, 2))
+        for q in range(m):
+            cov[q] = spots.pixel_cov[spot_index[q]]
+            jac[q] = spots.jacobian[spot_index[q]]
+    used = np.ones(m, np.bool_)
+    rotation, covariance, loss, chi2, angle = refine_kernel(rotation, body, star_vectors, cov, jac, used, 2)
+    inlier = chi2 <= screen_chi2
+    if not inlier.all() and inlier.sum() >= min_stars:
+        rotation, covariance, loss, chi2, angle = refine_kernel(rotation, body, star_vectors, cov, jac, inlier, 2)
+    return np.ascontiguousarray(rotation), np.ascontiguousarray(covariance), loss, angle
+
+
+@njit(cache=True)
+def bound(spots, spot_index, star_vectors, star_magnitude, rotation, stars_in_view, deep, settings):
+    """deep_match.deep_bound: the false-positive bound of the matches at `rotation`."""
+    m = spot_index.size
+    keep = np.empty(m, np.int64)
+    kept = 0
+    chi2 = 0.0
+    normalized = np.empty(m)
+    for q in range(m):
+        i = spot_index[q]
+        total = 0.0
+        for a in range(3):
+            pred = star_vectors[q, 0] * rotation[0, a] + star_vectors[q, 1] * rotation[1, a] \
+                + star_vectors[q, 2] * rotation[2, a]
+            total += (spots.rays[i, a] - pred) ** 2
+        normalized[q] = math.sqrt(total) / spots.sigma[i]
+        if normalized[q] <= 5.0:
+            keep[kept] = q
+            kept += 1
+    if kept < settings.min_stars:
+        return 1.0
+    body = np.empty((kept, 3))
+    sigma = np.empty(kept)
+    spot_mag = np.empty(kept)
+    star_mag = np.empty(kept)
+    for r in range(kept):
+        q = keep[r]
+        body[r] = spots.rays[spot_index[q]]
+        sigma[r] = spots.sigma[spot_index[q]]
+        spot_mag[r] = spots.magnitude[spot_index[q]]
+        star_mag[r] = star_magnitude[q]
+        chi2 += normalized[q] ** 2
+    density = max(settings.mean_density, stars_in_view / (settings.image_area * settings.pixel_scale ** 2))
+    log_t = log_chance_tuples(body, sigma, chi2, density)
+    log_t += log_magnitude_agreement(spot_mag, star_mag, deep.sorted_magnitudes, settings.magnitude_floor)
+    return false_positive_bound(log_t, spots.x.size, kept, settings.min_stars)
+
+
+@njit(cache=True)
+def _same(a_spot, a_star, b_spot, b_star):
+    if a_spot.size != b_spot.size:
+        return False
+    for q in range(a_spot.size):
+        if a_spot[q] != b_spot[q] or a_star[q] != b_star[q]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _extended(guide_spot, guide_vectors, guide_magnitude, deep, spot, star):
+    """The guide matches followed by deep ones: spot indices, ICRS vectors, catalog magnitudes."""
+    g, k = guide_spot.size, spot.size
+    spot_index = np.empty(g + k, np.int64)
+    vectors = np.empty((g + k, 3))
+    magnitude = np.empty(g + k)
+    spot_index[:g] = guide_spot
+    vectors[:g] = guide_vectors
+    magnitude[:g] = guide_magnitude
+    for q in range(k):
+        spot_index[g + q] = spot[q]
+        vectors[g + q] = deep.vectors[star[q]]
+        magnitude[g + q] = deep.magnitude[star[q]]
+    return spot_index, vectors, magnitude
+
+
+@njit(cache=True)
+def deep_rematch(spots, deep, cone_stars, guide, rotation, covariance, pin, settings):
+    """
+    base.StarIdentifier.deep_rematch for a pinhole camera, in one call (see its docstring and deep_match's).
+
+    spots: DeepSpots; deep: DeepArrays; cone_stars: the deep stars of DeepCatalog.view_cone
+    (settings.cone_axis, cone_chord); guide: GuideMatches; rotation (sensor -> ICRS),
+    covariance [rad^2]: the guide fit. Returns a DeepRematchOutcome: status 1 with the deep
+    matches (spot, star), the fitted rotation, covariance, loss, residual angles of guide then
+    deep matches and their bound; 0 when the guide solution stands; -1 when an attitude left
+    the cone (the caller matches with the catalog's own queries).
+    """
+    n = spots.x.size
+    stats = np.zeros(8, np.int64)  # matches, ambiguous, magnitude, uncertain, in view, candidates, chance, bound
+    empty_i = np.zeros(0, np.int64)
+    none = DeepRematchOutcome(0, empty_i, empty_i, rotation, covariance, 0.0, np.zeros(0), 1.0, stats)
+    guide_hip_sorted = np.sort(guide.hip)
+    own, carry = offset_parts(spots, settings.pixel_scale, settings.floor_px)
+    cov = offset_covariance(own, carry, covariance, 1.0)
+    scale = error_scale(spots, guide.spot, guide.vectors, rotation, cov, pin, settings.min_stars,
+                        settings.median_chi2_2dof)
+    fitted, fitted_cov, loss = rotation, covariance, 0.0
+    residual = np.zeros(0)
+    match_spot, match_vectors, match_magnitude = guide.spot, guide.vectors, guide.magnitude
+    found = (empty_i, empty_i, np.zeros(0), 0, 0, 0, 0, 0, 1)
+    latest = found
+    at_fitted = False  # `latest` holds the candidates at `fitted` itself
+    for round_index in range(settings.passes):
+        cov = offset_covariance(own, carry, fitted_cov if round_index else covariance, scale)
+        if not _in_cone(fitted, settings):
+            return DeepRematchOutcome(-1, empty_i, empty_i, rotation, covariance, 0.0, np.zeros(0), 1.0, stats)
+        star, u, v = view_stars(deep, cone_stars, fitted, pin, settings.view_chord)
+        latest = match_view(spots, deep, star, u, v, cov, guide.spot, guide_hip_sorted, guide.magnitude, np.inf,
+                            settings)
+        if round_index and _same(latest[0], latest[1], found[0], found[1]):
+            at_fitted = True
+            break
+        found = latest
+        if found[0].size == 0:
+            break
+        match_spot, match_vectors, match_magnitude = _extended(guide.spot, guide.vectors, guide.magnitude, deep,
+                                                               found[0], found[1])
+        fitted, fitted_cov, loss, residual = fit_matches(spots, match_spot, match_vectors, fitted,
+                                                         settings.fit_screen_chi2, settings.min_stars)
+    stats[0], stats[1], stats[2], stats[3], stats[4] = found[0].size, found[4], found[5], found[6], found[3]
+    if found[0].size == 0:
+        return none
+    if bound(spots, match_spot, match_vectors, match_magnitude, fitted, found[3], deep, settings) > settings.fp_limit:
+        stats[0], stats[7] = 0, 1
+        return none
+    # Name only the pairs unlikely by chance, at the attitude the candidates refined.
+    if at_fitted:  # the last pass matched at this attitude and covariance already
+        keep = latest[2] * latest[8] <= settings.max_chance_matches
+        named_spot, named_star = latest[0][keep], latest[1][keep]
+        chance_rejected = latest[7] + int(np.count_nonzero(~keep))
+        in_view = latest[3]
+    else:
+        if not _in_cone(fitted, settings):
+            return DeepRematchOutcome(-1, empty_i, empty_i, rotation, covariance, 0.0, np.zeros(0), 1.0, stats)
+        star, u, v = view_stars(deep, cone_stars, fitted, pin, settings.view_chord)
+        named = match_view(spots, deep, star, u, v, offset_covariance(own, carry, fitted_cov, scale), guide.spot,
+                           guide_hip_sorted, guide.magnitude, settings.max_chance_matches, settings)
+        named_spot, named_star, chance_rejected, in_view = named[0], named[1], named[7], named[3]
+    stats[0], stats[5], stats[6] = named_spot.size, found[0].size, chance_rejected
+    if named_spot.size == 0:
+        return none
+    match_spot, match_vectors, match_magnitude = _extended(guide.spot, guide.vectors, guide.magnitude, deep,
+                                                           named_spot, named_star)
+    fitted, fitted_cov, loss, residual = fit_matches(spots, match_spot, match_vectors, fitted,
+                                                     settings.fit_screen_chi2, settings.min_stars)
+    fp = bound(spots, match_spot, match_vectors, match_magnitude, fitted, in_view, deep, settings)
+    if fp > settings.fp_limit:
+        stats[0], stats[7] = 0, 1
+        return none
+    return DeepRematchOutcome(1, named_spot, named_star, fitted, fitted_cov, loss, residual, fp, stats)
+
+
+@njit(cache=True)
+def _in_cone(rotation, settings):
+    """Whether the boresight of `rotation` lies within the cone's margin of its axis (ViewCone.holds)."""
+    gap = 0.0
+    for a in range(3):
+        gap += (rotation[a, 2] - settings.cone_axis[a]) ** 2
+    return gap <= settings.cone_chord * settings.cone_chord

@@ -207,3 +207,96 @@ class PreparedSpots(NamedTuple):
     y: np.ndarray
     pixel_cov: np.ndarray
     jacobian: np.ndarray
+
+
+class DeepSpots(NamedTuple):
+    """
+    The flux-sorted spots as the deep re-match reads them (base.SpotGeometry).
+
+    rays (N, 3) sensor-frame unit vectors; sigma (N,) matching sigmas [rad]; magnitude (N,)
+    instrumental [mag]; x, y (N,) [px]; pixel_cov (N, 2, 2) [px^2] and jacobian (N, 3, 2)
+    [rad/px] of the final fit, both (0, ...) when the spots are isotropic (sigma only).
+    """
+
+    rays: np.ndarray
+    sigma: np.ndarray
+    magnitude: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    pixel_cov: np.ndarray
+    jacobian: np.ndarray
+
+
+class DeepArrays(NamedTuple):
+    """The deep catalog (deep_catalog.DeepCatalog): vectors (N, 3) ICRS; hip (N,); magnitude, sorted_magnitudes (N,)."""
+
+    vectors: np.ndarray
+    hip: np.ndarray
+    magnitude: np.ndarray
+    sorted_magnitudes: np.ndarray
+
+
+class GuideMatches(NamedTuple):
+    """The accepted guide matches: spot (G,) indices; vectors (G, 3) ICRS; hip (G,); magnitude (G,) catalog Hp."""
+
+    spot: np.ndarray
+    vectors: np.ndarray
+    hip: np.ndarray
+    magnitude: np.ndarray
+
+
+class DeepRematchSettings(NamedTuple):
+    """
+    The deep re-match's constants and the frame's camera figures (deep_match, base).
+
+    pixel_scale [rad/px]; floor_px: matching floor [px]; image_area [px^2]; view_chord: chord
+    of the field's half diagonal + 1 mrad; cone_axis (3,), cone_chord: the queried cone's axis
+    and margin chord (ViewCone); fp_limit: the false-positive bound; magnitude_floor [mag];
+    fit_screen_chi2; min_stars; passes; gate_sigma, ambiguity_factor, max_chance_stars_in_gate,
+    max_chance_matches, min_zero_point_stars, magnitude_sigma, magnitude_tolerance_floor,
+    median_chi2_2dof (deep_match); mean_density: the deep catalog's [1/sr].
+    """
+
+    pixel_scale: float
+    floor_px: float
+    image_area: float
+    view_chord: float
+    cone_axis: np.ndarray
+    cone_chord: float
+    fp_limit: float
+    magnitude_floor: float
+    fit_screen_chi2: float
+    min_stars: int
+    passes: int
+    gate_sigma: float
+    ambiguity_factor: float
+    max_chance_stars_in_gate: float
+    max_chance_matches: float
+    min_zero_point_stars: int
+    magnitude_sigma: float
+    magnitude_tolerance_floor: float
+    median_chi2_2dof: float
+    mean_density: float
+
+
+class DeepRematchOutcome(NamedTuple):
+    """
+    deep_match_kernel.deep_rematch's result.
+
+    status: 1 named (spot (K,), star (K,) deep catalog indices), 0 the guide solution stands,
+    -1 not computed (an attitude left the queried cone); rotation (sensor -> ICRS), covariance
+    [rad^2], loss: the fit to guide and named matches; residual (G + K,) their angles [rad];
+    fp: their false-positive bound; stats (8,): deep_matches, deep_ambiguous,
+    deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view, deep_candidates,
+    deep_chance_rejected, deep_bound_rejected.
+    """
+
+    status: int
+    spot: np.ndarray
+    star: np.ndarray
+    rotation: np.ndarray
+    covariance: np.ndarray
+    loss: float
+    residual: np.ndarray
+    fp: float
+    stats: np.ndarray

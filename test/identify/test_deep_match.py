@@ -153,6 +153,60 @@ def test_deep_rematch_on_rendered_frames(database, nominal_camera, catalog):
     assert rms[True] <= 1.1 * rms[False], {key: value / ARCSEC for key, value in rms.items()}
 
 
+@pytest.mark.parametrize("cone_margin_rad", [None, 0.0])
+def test_compiled_deep_rematch_is_the_python_one(database, nominal_camera, catalog, monkeypatch, cone_margin_rad):
+    """
+    The compiled deep re-match (pinhole cameras) names the same stars, with the same fit, bound and counters, as the
+    Python path (which distorted cameras take).
+
+    On rendered frames with a hundred deep stars or more and on sparse synthetic scenes. With a
+    zero cone margin every pass after the first leaves the queried cone: the compiled call
+    gives way and the Python path must still give the same answer.
+    """
+    import star_tracker.identify.base as base
+
+    if cone_margin_rad is not None:
+        monkeypatch.setattr(base, "DEEP_CONE_MARGIN_RAD", cone_margin_rad)
+    compiled = base.StarIdentifier._deep_rematch_compiled
+    calls = {"compiled": 0, "gave_way": 0}
+
+    def counted(self, *args):
+        done = compiled(self, *args)
+        calls["gave_way" if done is False else "compiled"] += 1
+        return done
+
+    renderer = StarFieldRenderer(nominal_camera, SensorModel(), catalog.at_epoch(database.config.epoch_jyear),
+                                 magnitude_limit=8.5)
+    rng = np.random.default_rng(35)
+    frames = [extract_spots(renderer.render(ConstantRateMotion(random_rotation(rng), np.zeros(3)), 0.0, seed).image,
+                            CentroidConfig()) for seed in range(3)]
+    frames += [synthetic_scene(catalog, nominal_camera, random_rotation(rng), rng, magnitude_limit=7.5)[0]
+               for _ in range(4)]
+    identifier = make_identifier("hybrid", database, IdentifyConfig(max_time_s=5.0))
+    deep_named = 0
+    for spots in frames:
+        monkeypatch.setattr(base.StarIdentifier, "_deep_rematch_compiled", counted)
+        fast = identifier.identify(spots, nominal_camera)
+        monkeypatch.setattr(base.StarIdentifier, "_deep_rematch_compiled", lambda *args: False)
+        slow = identifier.identify(spots, nominal_camera)
+        assert fast.solved and slow.solved
+        np.testing.assert_array_equal(fast.hip, slow.hip)
+        np.testing.assert_array_equal(fast.spot_index, slow.spot_index)
+        np.testing.assert_array_equal(fast.deep, slow.deep)
+        np.testing.assert_allclose(fast.attitude.rotation, slow.attitude.rotation, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast.attitude.covariance, slow.attitude.covariance, rtol=1e-9)
+        np.testing.assert_allclose(fast.residual_rad, slow.residual_rad, rtol=1e-6, atol=1e-15)
+        assert fast.false_positive_probability == pytest.approx(slow.false_positive_probability, rel=1e-9, abs=1e-300)
+        assert {k: v for k, v in fast.stats.items() if k.startswith("deep")} == \
+            {k: v for k, v in slow.stats.items() if k.startswith("deep")}
+        deep_named += fast.deep_count
+    assert deep_named > 200  # the frames' faint stars were named
+    if cone_margin_rad is None:
+        assert calls == {"compiled": len(frames), "gave_way": 0}
+    else:
+        assert calls["gave_way"] > 0
+
+
 def test_deep_match_off_changes_nothing(database, nominal_camera, catalog):
     rng = np.random.default_rng(34)
     spots, _ = synthetic_scene(catalog, nominal_camera, random_rotation(rng), rng, magnitude_limit=8.5)
