@@ -56,7 +56,14 @@ NEWEST = {"queue_depth": 1}
 
 
 # ----------------------------------------------------------------------------- 1. rate sweep
-def sweep(env: dict, log_dir: Path, rates: list[float], seconds: float, exposure_s: float, warmup_s: float = 3.0):
+def sweep(env: dict, log_dir: Path, rates: list[float], seconds: float, exposure_s: float, warmup_s: float = 3.0,
+          camera_parameters: dict | None = None):
+    """
+    Run the three nodes at each of `rates` [Hz]; per rate the figures of the module docstring's part 1.
+
+    camera_parameters: camera_simulator parameters over the sweep's own (e.g. image.width and
+    image.height for a larger sensor).
+    """
     from star_tracker.models.attitude import attitude_error, quaternion_to_matrix
     from star_tracker.ros.pipeline import NodeProcesses
 
@@ -64,7 +71,7 @@ def sweep(env: dict, log_dir: Path, rates: list[float], seconds: float, exposure
     # default 5 delivers late frames like hardware, so an overloaded camera would add up to 5
     # periods of latency of its own); the frames it skips are counted as camera overruns.
     camera = {"rate_hz": rates[0], "sensor.exposure_s": exposure_s, "attitude.body_rate_deg_s": BODY_RATE_DEG_S,
-              "max_backlog_frames": 1}
+              "max_backlog_frames": 1, **(camera_parameters or {})}
     nodes = NodeProcesses(env, log_dir,
                           {"camera_simulator": camera, "centroider": {"exposure_time_s": exposure_s, **NEWEST},
                            "identifier": NEWEST}, CONFIG, nodes=("centroider", "identifier"))

@@ -95,6 +95,8 @@ BENCHES = (
           "rosbag2 replay throughput through the nodes"),
     Bench("pipeline", "bench.bench_pipeline", ("--output", "{out}"), ("--quick", "--output", "{out}"),
           "pipeline throughput and overload through the nodes"),
+    Bench("large_sensor", "bench.bench_large_sensor", ("--output", "{out}"), ("--seconds", "8", "--output", "{out}"),
+          "2048² frames at 10 Hz through the three nodes: identified, latency"),
     Bench("soak", "bench.bench_soak", ("--minutes", "10", "--output", "{out}"), ("--minutes", "2", "--output", "{out}"),
           "memory growth and latency drift of the nodes over 10 min, 2 with --quick"),
     Bench("realdata", "bench.bench_realdata", ("--output", "{out}"),
