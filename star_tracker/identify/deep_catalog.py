@@ -24,11 +24,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from ..models.camera import CameraModel
-from .kernel_records import DeepArrays
 from ..models.catalog import cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
+from .kernel_records import DeepArrays
+from .skygrid import cell_centres, cells_of
 
 DEEP_CATALOG_FORMAT_VERSION = 1
 log = logging.getLogger(__name__)
@@ -79,14 +81,21 @@ class DeepCatalog:
         """
         Return the stars within `camera`'s half diagonal + 1 mrad + margin_rad of `rotation`'s boresight.
 
-        A KD-tree cone query; stars_in_view of any attitude whose boresight lies within
-        margin_rad of this one takes its stars from the cone instead of a query of its own
-        (the deep re-match's passes, whose attitudes differ by arcseconds).
+        A compiled query of the cells of `cells` (CellIndex); stars_in_view of any attitude whose
+        boresight lies within margin_rad of this one takes its stars from the cone instead of a
+        query of its own (the deep re-match's passes, whose attitudes differ by arcseconds).
         """
         half = min(camera.half_diagonal_fov_rad + 1e-3 + margin_rad, math.pi / 2)
         axis = np.array(rotation[:, 2], float)
-        near = np.asarray(self.tree.query_ball_point(axis, 2.0 * math.sin(0.5 * half)), np.int64)
+        cells = self.cells
+        near = cone_stars(self.vectors, cells.cell_start, cells.star_of_cell, cells.centres, cells.reach, axis,
+                          2.0 * math.sin(0.5 * half))
         return ViewCone(axis, float(margin_rad), near)
+
+    @functools.cached_property
+    def cells(self) -> "CellIndex":
+        """The stars by cube-map cell, for cone queries (CellIndex)."""
+        return CellIndex.build(self.vectors)
 
     def stars_in_view(self, rotation: np.ndarray, camera: CameraModel,
                       cone: "ViewCone | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -110,6 +119,62 @@ class DeepCatalog:
         u, v, front = camera.project(self.vectors[near] @ rotation)
         inside = front & camera.in_image(u, v)
         return near[inside], u[inside], v[inside]
+
+
+@dataclass(frozen=True)
+class CellIndex:
+    """
+    Stars sorted by cube-map cell (skygrid.cell_of, CELL_GRID cells per face edge).
+
+    cell_start (C + 1,) offsets into star_of_cell; centres (C, 3) unit vectors of the cells'
+    centres; reach (C,) chord from each centre to the farthest of its stars (-1: none). A star
+    of cell c lies within chord `reach[c]` of its centre, so a cone can hold it only when the
+    centre is within the cone's angle + the cell's (cone_stars takes the largest for all).
+    """
+
+    cell_start: np.ndarray
+    star_of_cell: np.ndarray
+    centres: np.ndarray
+    reach: np.ndarray
+
+    @staticmethod
+    def build(vectors: np.ndarray, grid: int = 16) -> "CellIndex":
+        vectors = np.ascontiguousarray(vectors, float)
+        cells = cells_of(vectors, grid)
+        order = np.argsort(cells, kind="stable").astype(np.int64)
+        count = 6 * grid * grid
+        cell_start = np.concatenate([[0], np.cumsum(np.bincount(cells, minlength=count))]).astype(np.int64)
+        centres = cell_centres(grid)
+        reach = np.full(count, -1.0)
+        np.maximum.at(reach, cells, np.linalg.norm(vectors - centres[cells], axis=1))
+        return CellIndex(cell_start, order, centres, reach)
+
+
+@njit(cache=True)
+def cone_stars(vectors, cell_start, star_of_cell, centres, reach, axis, chord):
+    """
+    Indices of the `vectors` within `chord` (a chord length: 2 sin(angle / 2)) of the unit vector `axis`.
+
+    Only the cells whose centre lies within the cone's angle + the largest cell reach are read.
+    """
+    out = np.empty(vectors.shape[0], np.int64)
+    count = 0
+    widest = 0.0
+    for c in range(reach.size):
+        widest = max(widest, reach[c])
+    angle = 2.0 * math.asin(min(1.0, 0.5 * chord)) + 2.0 * math.asin(min(1.0, 0.5 * widest))
+    least_cos = math.cos(angle) - 1e-12 if angle < math.pi else -2.0
+    chord2 = chord * chord
+    for c in range(centres.shape[0]):
+        if reach[c] < 0.0 or centres[c, 0] * axis[0] + centres[c, 1] * axis[1] + centres[c, 2] * axis[2] < least_cos:
+            continue
+        for q in range(cell_start[c], cell_start[c + 1]):
+            s = star_of_cell[q]
+            dx, dy, dz = vectors[s, 0] - axis[0], vectors[s, 1] - axis[1], vectors[s, 2] - axis[2]
+            if dx * dx + dy * dy + dz * dz <= chord2:
+                out[count] = s
+                count += 1
+    return out[:count].copy()
 
 
 @dataclass(frozen=True)

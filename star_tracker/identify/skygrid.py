@@ -90,11 +90,11 @@ class SkyGrid:
 
     @staticmethod
     def build(vectors: np.ndarray, grid: int = 32, density_radius_rad: float = math.radians(8.0)) -> "SkyGrid":
-        cells = _cells_of(np.ascontiguousarray(vectors, dtype=float), grid)
+        cells = cells_of(np.ascontiguousarray(vectors, dtype=float), grid)
         order = np.argsort(cells, kind="stable")
         counts = np.bincount(cells, minlength=6 * grid * grid)
         cell_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        centres = _cell_centres(grid)
+        centres = cell_centres(grid)
         chord = 2.0 * math.sin(0.5 * density_radius_rad)
         near = cKDTree(vectors).query_ball_point(centres, chord, return_length=True)
         cap = 2.0 * math.pi * (1.0 - math.cos(density_radius_rad))
@@ -104,14 +104,15 @@ class SkyGrid:
 
 
 @njit(cache=True)
-def _cells_of(vectors: np.ndarray, grid: int) -> np.ndarray:
+def cells_of(vectors: np.ndarray, grid: int) -> np.ndarray:
+    """Cell index (cell_of) of each of the (N, 3) direction `vectors`."""
     out = np.empty(vectors.shape[0], np.int64)
     for i in range(vectors.shape[0]):
         out[i] = cell_of(vectors[i, 0], vectors[i, 1], vectors[i, 2], grid)
     return out
 
 
-def _cell_centres(grid: int) -> np.ndarray:
+def cell_centres(grid: int) -> np.ndarray:
     """Return unit vectors at the centre of every cell, in cell-index order."""
     centre = (np.arange(grid) + 0.5) / grid * 2.0 - 1.0
     u, v = np.meshgrid(centre, centre, indexing="ij")

@@ -207,6 +207,28 @@ def test_compiled_deep_rematch_is_the_python_one(database, nominal_camera, catal
         assert calls["gave_way"] > 0
 
 
+def test_cone_query_is_every_star_within_the_cone(database):
+    # The cell index's cone query against brute force over the whole deep catalog: small, field-
+    # sized and hemisphere-wide cones anywhere, the poles and cube edges included.
+    from star_tracker.identify.deep_catalog import cone_stars
+
+    catalog = load_or_build_deep_catalog(database.config.magnitude_limit + 2.0, database.config.epoch_jyear,
+                                         database.cache_directory)
+    cells = catalog.cells
+    rng = np.random.default_rng(5)
+    axes = np.vstack([rng.normal(size=(150, 3)), np.eye(3), -np.eye(3), [[1, 1, 0], [1, 1, 1], [0, -1, 1]]])
+    found = 0
+    for axis in axes / np.linalg.norm(axes, axis=1, keepdims=True):
+        for half in (1e-3, 0.02, 0.19, 1.0, 2.0):
+            chord = 2.0 * math.sin(0.5 * half)
+            got = cone_stars(catalog.vectors, cells.cell_start, cells.star_of_cell, cells.centres, cells.reach, axis,
+                             chord)
+            want = np.flatnonzero(np.sum((catalog.vectors - axis) ** 2, axis=1) <= chord * chord)
+            np.testing.assert_array_equal(np.sort(got), want)
+            found += want.size
+    assert found > 1e6
+
+
 def test_deep_match_off_changes_nothing(database, nominal_camera, catalog):
     rng = np.random.default_rng(34)
     spots, _ = synthetic_scene(catalog, nominal_camera, random_rotation(rng), rng, magnitude_limit=8.5)
