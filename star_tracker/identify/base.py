@@ -727,6 +727,31 @@ class StarIdentifier:
         solution, _, residual = self._fit(geometry, spot_index, self.database.vectors[star_index], rotation)
         return solution, residual
 
+    def warm_up_deep_rematch(self, camera: CameraModel) -> None:
+        """
+        Compile (or load from numba's cache) the compiled deep re-match and its cone query.
+
+        On a synthetic frame: deep stars in view at the identity attitude, four of them as guide
+        matches. A node calls it at start, so that its first solve compiles nothing.
+        """
+        if not self.config.deep_match or camera.has_distortion:
+            return
+        catalog = self.deep_catalog()
+        rotation = np.eye(3)
+        cone = catalog.view_cone(rotation, camera, DEEP_CONE_MARGIN_RAD)
+        star, u, v = catalog.stars_in_view(rotation, camera, cone)
+        n = min(star.size, 12)
+        if n <= MIN_STARS:
+            return
+        spots = Spots(u[:n], v[:n], np.linspace(2e4, 1e3, n), np.full(n, 50.0), np.tile(np.eye(2) * 0.01, (n, 1, 1)),
+                      np.zeros(n, np.uint32), np.full(n, 9, np.int32), np.full(n, 1e3), camera.width, camera.height)
+        order, geometry = self.prepare(spots, camera)
+        named = star[order[:MIN_STARS]]
+        guide = _Matches(np.arange(MIN_STARS), catalog.vectors[named], catalog.hip[named], catalog.magnitude[named],
+                         np.zeros(MIN_STARS, bool))
+        solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, np.eye(3) * 1e-10, 0.0)
+        self._deep_rematch_compiled(geometry, guide, solution, catalog, cone)
+
     def _deep_rematch_compiled(self, geometry: SpotGeometry, guide: "_Matches", solution: AttitudeSolution,
                                catalog: DeepCatalog, cone: ViewCone):
         """
@@ -734,10 +759,12 @@ class StarIdentifier:
 
         False when it could not run (an attitude left the queried cone): the Python path decides.
         """
+        guide_record = GuideMatches(np.ascontiguousarray(guide.spot_index, np.int64),
+                                    np.ascontiguousarray(guide.star_vectors, float),
+                                    np.ascontiguousarray(guide.hip, np.int64),
+                                    np.ascontiguousarray(guide.magnitude, float))
         outcome = deep_rematch_pinhole(
-            geometry, geometry.camera, catalog, cone,
-            GuideMatches(np.ascontiguousarray(guide.spot_index, np.int64), np.ascontiguousarray(guide.star_vectors, float),
-                         np.ascontiguousarray(guide.hip, np.int64), np.ascontiguousarray(guide.magnitude, float)),
+            geometry, geometry.camera, catalog, cone, guide_record,
             solution.rotation, solution.covariance, self.config.centroid_sigma_floor_px,
             self.config.false_positive_bound, self.magnitude_floor, FIT_SCREEN_CHI2, DEEP_PASSES)
         if outcome.status < 0:

@@ -6,8 +6,9 @@ Identification searches the pattern database (guide stars, database.py); once an
 accepted, the spots left unmatched are matched against this catalog (deep_match.py), so a
 real frame's faint stars count in the attitude and the false-positive bound. It holds ICRS
 unit vectors at the epoch, HIP ids and Hp magnitudes of every star to `magnitude_limit`
-(blended pairs included: the matcher refuses an ambiguous spot), and a KD-tree on the unit
-vectors that returns the stars of one field of view.
+(blended pairs included: the matcher refuses an ambiguous spot); the stars of one field of
+view come from a compiled query of a cube-map cell index (CellIndex, cone_stars; view_cone),
+or from a KD-tree on the unit vectors (stars_in_view without a cone).
 
 Cached like the databases: a checksum-validated .npz (catalog.save_validated_npz) in the
 pattern database's cache directory, keyed by limit, epoch and format version; a file that
@@ -64,9 +65,9 @@ class DeepCatalog:
     @functools.cached_property
     def arrays(self) -> DeepArrays:
         """The catalog as the compiled deep re-match reads it (deep_match_kernel)."""
-        return DeepArrays(np.ascontiguousarray(self.vectors, float), np.ascontiguousarray(self.hip),
-                          np.ascontiguousarray(self.magnitude, float), np.ascontiguousarray(self.sorted_magnitudes,
-                                                                                             float))
+        as_float = lambda a: np.ascontiguousarray(a, float)  # noqa: E731
+        return DeepArrays(as_float(self.vectors), np.ascontiguousarray(self.hip), as_float(self.magnitude),
+                          as_float(self.sorted_magnitudes))
 
     @property
     def star_count(self) -> int:
@@ -153,7 +154,7 @@ class CellIndex:
 @njit(cache=True)
 def cone_stars(vectors, cell_start, star_of_cell, centres, reach, axis, chord):
     """
-    Indices of the `vectors` within `chord` (a chord length: 2 sin(angle / 2)) of the unit vector `axis`.
+    Return the indices of the `vectors` within `chord` (a chord: 2 sin(angle / 2)) of the unit vector `axis`.
 
     Only the cells whose centre lies within the cone's angle + the largest cell reach are read.
     """
@@ -179,7 +180,7 @@ def cone_stars(vectors, cell_start, star_of_cell, centres, reach, axis, chord):
 
 @dataclass(frozen=True)
 class ViewCone:
-    """The deep stars (indices, `stars`) within a field's cone around `axis` (ICRS unit vector), widened by margin_rad."""
+    """The deep stars (indices, `stars`) within a field's cone around `axis` (ICRS unit vector) + margin_rad."""
 
     axis: np.ndarray
     margin_rad: float

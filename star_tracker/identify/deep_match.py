@@ -45,7 +45,7 @@ from ..models.camera import CameraModel
 from .deep_catalog import DeepCatalog, ViewCone
 from . import deep_match_kernel
 from .deep_match_kernel import deep_pairs
-from .kernel_records import DeepArrays, DeepRematchOutcome, DeepRematchSettings, DeepSpots, GuideMatches, Pinhole
+from .kernel_records import DeepRematchOutcome, DeepRematchSettings, GuideMatches, Pinhole, PreparedSpots
 from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement
 
@@ -297,7 +297,7 @@ def deep_rematch_pinhole(geometry: SpotGeometry, camera: CameraModel, catalog: D
                          fp_limit: float, magnitude_floor: float, fit_screen_chi2: float,
                          passes: int) -> DeepRematchOutcome:
     """
-    The deep re-match (base.StarIdentifier.deep_rematch) in one compiled call, for a camera without distortion.
+    Run the deep re-match (base.StarIdentifier.deep_rematch) in one compiled call, for a camera without distortion.
 
     `cone`: the view's deep stars (DeepCatalog.view_cone at the guide fit); guide: the guide
     matches; rotation (sensor -> ICRS) and covariance [rad^2]: the guide fit; floor_px: the
@@ -305,12 +305,12 @@ def deep_rematch_pinhole(geometry: SpotGeometry, camera: CameraModel, catalog: D
     fit_screen_chi2: the final fit's screen; passes: match-and-refit rounds. The same
     conditions and counters as the Python path (match_deep, error_scale, deep_bound).
     """
-    isotropic = geometry.pixel_cov is None
-    spots = DeepSpots(np.ascontiguousarray(geometry.rays, float), np.ascontiguousarray(geometry.sigma, float),
-                      np.ascontiguousarray(geometry.magnitude, float), np.ascontiguousarray(geometry.x, float),
-                      np.ascontiguousarray(geometry.y, float),
-                      np.zeros((0, 2, 2)) if isotropic else np.ascontiguousarray(geometry.pixel_cov, float),
-                      np.zeros((0, 3, 2)) if isotropic else np.ascontiguousarray(geometry.jacobian, float))
+    isotropic = geometry.pixel_cov is None  # then both (0, ...): the kernels weight by sigma alone
+    spots = PreparedSpots(np.zeros(0, np.int64), np.ascontiguousarray(geometry.rays, float),
+                          np.ascontiguousarray(geometry.sigma, float), np.ascontiguousarray(geometry.magnitude, float),
+                          np.ascontiguousarray(geometry.x, float), np.ascontiguousarray(geometry.y, float),
+                          np.zeros((0, 2, 2)) if isotropic else np.ascontiguousarray(geometry.pixel_cov, float),
+                          np.zeros((0, 3, 2)) if isotropic else np.ascontiguousarray(geometry.jacobian, float))
     half = min(camera.half_diagonal_fov_rad + 1e-3, np.pi / 2)
     settings = DeepRematchSettings(
         float(camera.pixel_scale_rad), float(floor_px), float(camera.width * camera.height),

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..models.attitude_estimation import _refine_kernel as refine_kernel
+from ..models.attitude_estimation import refine_kernel
 from .kernel_records import DeepRematchOutcome
 from .kernels import false_positive_bound, log_chance_tuples, log_magnitude_agreement
 
@@ -100,7 +100,7 @@ def deep_pairs(spot_x, spot_y, cov, claimant, free, star_u, star_v, star_hip, gu
 @njit(cache=True)
 def offset_parts(spots, pixel_scale, floor_px):
     """
-    The per-spot parts of deep_match.SpotOffsetCovariance: own (N, 2, 2) [px^2] and carry (N, 2, 3) [px/rad].
+    Return the per-spot parts of deep_match.SpotOffsetCovariance: own (N, 2, 2) [px^2], carry (N, 2, 3) [px/rad].
 
     own: the spot's covariance + floor_px^2 I (isotropic sigma / pixel_scale when it has none);
     carry: d pixel / d attitude error, J+ [b]x.
@@ -147,7 +147,7 @@ def offset_parts(spots, pixel_scale, floor_px):
 
 @njit(cache=True)
 def offset_covariance(own, carry, attitude_covariance, scale):
-    """scale x (own + carry P carry^T): each spot's offset covariance (N, 2, 2) [px^2] under P (3, 3) [rad^2]."""
+    """Return scale x (own + carry P carry^T): each spot's offset covariance (N, 2, 2) [px^2] under P [rad^2]."""
     n = own.shape[0]
     out = np.empty((n, 2, 2))
     for i in range(n):
@@ -179,7 +179,7 @@ def _project(vector, rotation, pin):
 
 @njit(cache=True)
 def view_stars(deep, cone_stars, rotation, pin, view_chord):
-    """The cone's deep stars inside the image at `rotation`: catalog indices, u, v [px] (DeepCatalog.stars_in_view)."""
+    """Return the cone's deep stars inside the image at `rotation`: catalog indices, u, v [px] (stars_in_view)."""
     m = cone_stars.size
     star = np.empty(m, np.int64)
     us = np.empty(m)
@@ -398,7 +398,7 @@ def _same(a_spot, a_star, b_spot, b_star):
 
 @njit(cache=True)
 def _extended(guide_spot, guide_vectors, guide_magnitude, deep, spot, star):
-    """The guide matches followed by deep ones: spot indices, ICRS vectors, catalog magnitudes."""
+    """Return the guide matches followed by deep ones: spot indices, ICRS vectors, catalog magnitudes."""
     g, k = guide_spot.size, spot.size
     spot_index = np.empty(g + k, np.int64)
     vectors = np.empty((g + k, 3))
@@ -418,14 +418,14 @@ def deep_rematch(spots, deep, cone_stars, guide, rotation, covariance, pin, sett
     """
     base.StarIdentifier.deep_rematch for a pinhole camera, in one call (see its docstring and deep_match's).
 
-    spots: DeepSpots; deep: DeepArrays; cone_stars: the deep stars of DeepCatalog.view_cone
-    (settings.cone_axis, cone_chord); guide: GuideMatches; rotation (sensor -> ICRS),
+    spots: PreparedSpots (pixel_cov and jacobian (0, ...) when isotropic; order unused);
+    deep: DeepArrays; cone_stars: the deep stars of DeepCatalog.view_cone (settings.cone_axis,
+    cone_chord); guide: GuideMatches; rotation (sensor -> ICRS),
     covariance [rad^2]: the guide fit. Returns a DeepRematchOutcome: status 1 with the deep
     matches (spot, star), the fitted rotation, covariance, loss, residual angles of guide then
     deep matches and their bound; 0 when the guide solution stands; -1 when an attitude left
     the cone (the caller matches with the catalog's own queries).
     """
-    n = spots.x.size
     stats = np.zeros(8, np.int64)  # matches, ambiguous, magnitude, uncertain, in view, candidates, chance, bound
     empty_i = np.zeros(0, np.int64)
     none = DeepRematchOutcome(0, empty_i, empty_i, rotation, covariance, 0.0, np.zeros(0), 1.0, stats)

@@ -122,6 +122,7 @@ class HybridIdentifier(StarIdentifier):
             self.config = saved
         refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
         log_chance_tuples(np.eye(3), np.full(3, 1e-5), 3.0, 1e3)  # the bound after the deep re-match
+        self.warm_up_deep_rematch(camera)
         HybridIdentifier._kernels_ready = True
 
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:

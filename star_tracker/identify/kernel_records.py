@@ -209,24 +209,6 @@ class PreparedSpots(NamedTuple):
     jacobian: np.ndarray
 
 
-class DeepSpots(NamedTuple):
-    """
-    The flux-sorted spots as the deep re-match reads them (base.SpotGeometry).
-
-    rays (N, 3) sensor-frame unit vectors; sigma (N,) matching sigmas [rad]; magnitude (N,)
-    instrumental [mag]; x, y (N,) [px]; pixel_cov (N, 2, 2) [px^2] and jacobian (N, 3, 2)
-    [rad/px] of the final fit, both (0, ...) when the spots are isotropic (sigma only).
-    """
-
-    rays: np.ndarray
-    sigma: np.ndarray
-    magnitude: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    pixel_cov: np.ndarray
-    jacobian: np.ndarray
-
-
 class DeepArrays(NamedTuple):
     """The deep catalog (deep_catalog.DeepCatalog): vectors (N, 3) ICRS; hip (N,); magnitude, sorted_magnitudes (N,)."""
 

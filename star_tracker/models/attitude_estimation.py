@@ -108,14 +108,14 @@ def refine_with_covariances(rotation: np.ndarray, body: np.ndarray, ref: np.ndar
         cov = np.ascontiguousarray(pixel_cov, dtype=float).reshape(n, 2, 2)
         jac = np.ascontiguousarray(jacobian, dtype=float).reshape(n, 3, 2)
     used = np.ones(n, np.bool_) if used is None else np.ascontiguousarray(used, dtype=np.bool_)
-    rotation, covariance, loss, chi2, angle = _refine_kernel(
+    rotation, covariance, loss, chi2, angle = refine_kernel(
         np.ascontiguousarray(rotation, dtype=float), body, np.ascontiguousarray(ref, dtype=float).reshape(-1, 3),
         cov, jac, used, int(iterations))
     return AttitudeSolution(matrix_to_quaternion(rotation), rotation, covariance, loss), chi2, angle
 
 
 @njit(cache=True)
-def _refine_kernel(rotation, body, ref, cov, jac, used, iterations):
+def refine_kernel(rotation, body, ref, cov, jac, used, iterations):
     """
     refine_with_covariances' loops, scalar arithmetic (no temporaries).
 

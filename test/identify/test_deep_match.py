@@ -156,8 +156,9 @@ def test_deep_rematch_on_rendered_frames(database, nominal_camera, catalog):
 @pytest.mark.parametrize("cone_margin_rad", [None, 0.0])
 def test_compiled_deep_rematch_is_the_python_one(database, nominal_camera, catalog, monkeypatch, cone_margin_rad):
     """
-    The compiled deep re-match (pinhole cameras) names the same stars, with the same fit, bound and counters, as the
-    Python path (which distorted cameras take).
+    The compiled deep re-match (pinhole cameras) gives the Python path's stars, fit, bound and counters.
+
+    The Python path is the one distorted cameras take.
 
     On rendered frames with a hundred deep stars or more and on sparse synthetic scenes. With a
     zero cone margin every pass after the first leaves the queried cone: the compiled call
