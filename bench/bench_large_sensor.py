@@ -32,6 +32,7 @@ from pathlib import Path
 
 from .bench_pipeline import fmt, sweep
 from .machine import cpu_model
+from .nodes import join_private_ros
 from .report import write_section
 
 LATENCY_GOAL_MS = 100.0
@@ -39,7 +40,7 @@ HEADER = "## Larger sensor through the nodes"
 
 
 def render_section(data: dict) -> str:
-    """The Markdown section of one run's raw numbers."""
+    """Return the Markdown section of one run's raw numbers."""
     r = data["result"]
     lat, cpu, st = r["latency_ms"], r["cpu_ms_per_frame"], r["stages_ms"]
     cam, cen, ide = st["camera_simulator"], st["centroider"], st["identifier"]
@@ -96,13 +97,7 @@ def main(argv: list[str] | None = None) -> None:
 
     import rclpy
 
-    from star_tracker.ros.pipeline import isolated_ros_environment
-
-    env = isolated_ros_environment()
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        os.environ[key] = env[key]
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
-    rclpy.init()
+    env = join_private_ros()
     log_dir = Path(tempfile.mkdtemp(prefix="bench_large_sensor_"))
     try:
         results, codes = sweep(env, log_dir, [args.rate], args.seconds, args.exposure,

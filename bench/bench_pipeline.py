@@ -44,7 +44,7 @@ import numpy as np
 
 from .machine import cpu_model
 from .nodes import (BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu, host_usage,
-                    latency_stats, stage_medians)
+                    join_private_ros, latency_stats, stage_medians)
 from .report import write_section
 
 REPO = Path(__file__).resolve().parents[1]
@@ -556,13 +556,7 @@ def main(argv: list[str] | None = None) -> None:
 
     import rclpy
 
-    from star_tracker.ros.pipeline import isolated_ros_environment
-
-    env = isolated_ros_environment()
-    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
-        os.environ[key] = env[key]
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
-    rclpy.init()
+    env = join_private_ros()
     log_dir = Path(tempfile.mkdtemp(prefix="bench_pipeline_"))
     try:
         stages = stages_in_process(args.exposure)

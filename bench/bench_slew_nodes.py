@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from .machine import cpu_model
-from .nodes import CONFIG
+from .nodes import CONFIG, join_private_ros
 from .report import write_section
 
 EXPOSURE_S = 0.1
@@ -211,13 +211,7 @@ def main(argv: list[str] | None = None) -> None:
 
     import rclpy
 
-    from star_tracker.ros.pipeline import isolated_ros_environment
-
-    env = isolated_ros_environment()
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE",
-                                           "FASTRTPS_DEFAULT_PROFILES_FILE")})
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
-    rclpy.init()
+    join_private_ros()
     load_before = os.getloadavg()[0]
     runs = []
     try:

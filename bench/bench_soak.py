@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from .nodes import (BODY_RATE_DEG_S, CONFIG, STATUS, Watcher, counter_delta, cpu_seconds, host_cpu, host_usage,
-                    rss_mib)
+                    join_private_ros, rss_mib)
 from .machine import cpu_model
 from .report import write_section
 
@@ -227,13 +227,7 @@ def main(argv: list[str] | None = None) -> None:
 
     import rclpy
 
-    from star_tracker.ros.pipeline import isolated_ros_environment
-
-    env = isolated_ros_environment()
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE",
-                                           "FASTRTPS_DEFAULT_PROFILES_FILE")})
-    os.environ.pop("ROS_LOCALHOST_ONLY", None)
-    rclpy.init()
+    join_private_ros()
     try:
         run = soak(args.minutes, args.rate, args.exposure, args.sample, args.rehearse_stall)
     finally:

@@ -227,7 +227,7 @@ def centroid_rows(data: dict | None, psf: dict | None) -> list[Row]:
     return rows
 
 
-def node_rows(pipeline: dict | None, soak: dict | None, cold: dict | None) -> list[Row]:
+def node_rows(pipeline: dict | None, soak: dict | None, cold: dict | None, large: dict | None = None) -> list[Row]:
     rows = []
     if pipeline is None:
         rows.append(_missing("Output rate and latency", "bench_pipeline"))
@@ -245,6 +245,15 @@ def node_rows(pipeline: dict | None, soak: dict | None, cold: dict | None) -> li
                 rows.append(Row(f"Latency at {r['rate_hz']:g} Hz", f"{r['latency_ms']['median']:.0f} ms median, "
                                 f"{r['latency_ms']['p95']:.0f} ms p95", "mid-exposure stamp → attitude received "
                                 "by a subscriber (half the exposure included)", src))
+    if large is None:
+        rows.append(_missing("Larger sensor", "bench_large_sensor"))
+    else:
+        r = large["result"]
+        rows.append(Row(f"{large['size']}² frames at {large['rate_hz']:g} Hz", f"{r['identified']} of {r['frames']} "
+                        f"identified, {r['wrong']} wrong; latency {r['latency_ms']['median']:.0f} ms median, "
+                        f"{r['latency_ms']['p95']:.0f} ms p95", f"three nodes over DDS, {large['size']}² mono16, "
+                        f"{large['exposure_ms']:g} ms exposure, 2 cores",
+                        source(large, "Larger sensor through the nodes")))
     if soak is None:
         rows.append(_missing("Soak", "bench_soak"))
     else:
@@ -439,7 +448,8 @@ def render(config: dict, results: Path) -> str:
     rows = [*attitude_rows(load(results, "attitude")), *identification_rows(load(results, "identify")),
             *tracking_rows(load(results, "tracking")),
             *centroid_rows(load(results, "centroid"), load(results, "psf_range")),
-            *node_rows(load(results, "pipeline"), load(results, "soak"), load(results, "cold_start")),
+            *node_rows(load(results, "pipeline"), load(results, "soak"), load(results, "cold_start"),
+                       load(results, "large_sensor")),
             *realdata_rows(load(results, "realdata")),
             *orbit_rows(load(results, "orbit"), load(results, "environment")),
             *campaign_rows(load_campaign(results, "false-id"), load_campaign(results, "sky-coverage"),

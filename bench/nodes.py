@@ -24,6 +24,25 @@ STATUS = {"camera_simulator": "star_tracker/camera_simulator", "centroider": "st
           "identifier": "star_tracker/identifier"}
 
 
+def join_private_ros() -> dict[str, str]:
+    """
+    Put this process on a private localhost DDS domain (the nodes' environment) and start rclpy.
+
+    Returns the environment to start the node processes with (isolated_ros_environment); the
+    caller shuts rclpy down (rclpy.try_shutdown()).
+    """
+    import rclpy
+
+    from star_tracker.ros.pipeline import isolated_ros_environment
+
+    env = isolated_ros_environment()
+    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
+        os.environ[key] = env[key]
+    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    rclpy.init()
+    return env
+
+
 # ----------------------------------------------------------------------------- host figures
 def cpu_seconds(pid: int) -> float:
     """Return utime + stime of a process [s]."""
