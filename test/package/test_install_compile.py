@@ -4,8 +4,10 @@ Cold start (issue 18 part 6).
 
 The kernels compiled at install time (install_compile.py, run by setup.py's build_py) are
 found by the installed copy, which then compiles nothing, and they give the same results as
-kernels compiled at the first start. Counted outcomes only, never timing: numba's
-per-dispatcher cache hits and misses, frames identified, the attitudes' bytes.
+the source tree's own kernels (compiled by its first start, or by `make`'s warm-up). Counted
+outcomes only, never timing: numba's per-dispatcher cache hits and misses, frames identified,
+the attitudes' bytes. (A first start that compiles everything is bench_cold_start's case; a
+second cold compile here cost a minute of the suite's 15.)
 
 The "install" is what install_lib does to the built copy: the whole tree (sources and numba's
 __pycache__ files) copied to another path, so numba's cache must not depend on the path.
@@ -88,7 +90,7 @@ def copy_package(source: Path, parent: Path) -> Path:
 
 
 @pytest.mark.timeout(3600)
-@pytest.mark.slow  # compiles every node kernel twice: at "install" and cold at a first start
+@pytest.mark.slow  # compiles every node kernel at "install"
 def test_kernels_compiled_at_install_are_loaded_by_the_installed_copy_with_the_same_results(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", SKIP_ENV, "PYTHONPATH")}
     env["STAR_TRACKER_CACHE"] = str(tmp_path / "cache")
@@ -104,14 +106,11 @@ def test_kernels_compiled_at_install_are_loaded_by_the_installed_copy_with_the_s
     assert installed["misses"] == "0", installed  # nothing compiled after the install
     assert int(installed["hits"]) > 0, installed
 
-    # The first start without an install-time compile: every kernel compiles now (cold).
-    cold_copy = copy_package(PACKAGE, tmp_path / "cold")
-    for stale in (cold_copy / "star_tracker").rglob("__pycache__"):
-        shutil.rmtree(stale)
-    cold = run_script(cold_copy, env)
-    assert int(cold["misses"]) > 0, cold
-    assert cold["identified"] == installed["identified"] == "4"
-    assert cold["attitudes"] == installed["attitudes"]  # bit-identical results
+    # The source tree itself, with whatever kernels it compiled (or compiles now) on its own.
+    tree = run_script(PACKAGE.parent, env)
+    assert tree["package"].startswith(str(PACKAGE)), tree
+    assert tree["identified"] == installed["identified"] == "4"
+    assert tree["attitudes"] == installed["attitudes"]  # bit-identical results
 
 
 def test_the_install_compile_is_skipped_on_request(tmp_path, capsys):
