@@ -28,8 +28,8 @@ from ..parameter_spec import parameter, range_problems
 from . import spot_kernels
 from .kernel_records import GuideMatches, Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
-from .deep_catalog import DeepCatalog, ViewCone, load_or_build_deep_catalog
-from .deep_match import SpotOffsetCovariance, deep_bound, deep_rematch_pinhole, error_scale, match_deep
+from .deep_catalog import DeepCatalog, load_or_build_deep_catalog
+from . import deep_match
 from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 from .deadline import BUDGET_CLOCKS, Deadline
@@ -201,13 +201,6 @@ def _chi2_limit(dof: int) -> float:
     from scipy.stats import chi2
 
     return float(chi2.isf(LEVER_TEST_PROBABILITY, dof))
-
-
-# Deep re-match rounds: match at the guide fit, refit, match again at the refined attitude.
-DEEP_PASSES = 2
-# The passes take the view's deep stars from one cone query widened by this much [rad]: their
-# attitudes differ by arcseconds (a farther one queries again).
-DEEP_CONE_MARGIN_RAD = 2e-3
 
 
 @dataclass(frozen=True)
@@ -639,83 +632,46 @@ class StarIdentifier:
     def deep_rematch(self, geometry: SpotGeometry, guide: "_Matches",
                      solution: AttitudeSolution) -> tuple["_Matches", AttitudeSolution, np.ndarray, float] | None:
         """
-        Extend the guide matches by the deep catalog (deep_match.match_deep) and refit.
+        Extend the guide matches by the deep catalog and refit (deep_match.deep_rematch, one compiled call).
 
-        At their fitted `solution` (their offsets scale the match gate: deep_match.error_scale), the
-        candidates (every condition but the chance bound) refitted, matched again at the refined
-        attitude and refitted (DEEP_PASSES); at that attitude the pairs within the chance bound
+        At their fitted `solution` (their offsets scale the match gate), the candidates (every
+        condition but the chance bound) refitted, matched again at the refined attitude and
+        refitted (deep_match.PASSES); at that attitude the pairs within the chance bound
         (deep_match.MAX_CHANCE_MATCHES) are named and the attitude refitted to guide and named
-        matches. Returns the matches, solution, residuals [rad] and their false-positive bound
-        (deep_match.deep_bound), or None when no deep star was named or a bound (the candidates',
-        the named matches') exceeds config.false_positive_bound (the guide solution stands); not
-        run when every spot has its guide star. The spots' offset covariances and the view's
-        deep stars are computed once for all passes.
-        Counters in stats: deep_matches (named), deep_candidates, deep_chance_rejected,
-        deep_ambiguous, deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view
-        (deep_match.DeepMatches).
+        matches. Returns the matches, solution, residuals [rad] and their false-positive bound,
+        or None when no deep star was named or a bound (the candidates', the named matches')
+        exceeds config.false_positive_bound (the guide solution stands); not run when every
+        spot has its guide star.
+        Counters in stats: deep_matches (named), deep_ambiguous, deep_magnitude_rejected,
+        deep_too_uncertain, deep_stars_in_view; deep_candidates and deep_chance_rejected when
+        the candidates passed their bound; deep_bound_rejected when a bound failed.
         """
         if guide.spot_index.size >= geometry.x.size:
             self.stats["deep_matches"] = 0  # every spot named by a guide star: nothing left to match
             return None
-        camera, catalog = geometry.camera, self.deep_catalog()
-        cone = catalog.view_cone(solution.rotation, camera, DEEP_CONE_MARGIN_RAD)
-        if not camera.has_distortion:
-            done = self._deep_rematch_compiled(geometry, guide, solution, catalog, cone)
-            if done is not False:
-                return done
-        offsets = SpotOffsetCovariance(geometry, camera, self.config.centroid_sigma_floor_px)
-        cov = offsets.at(solution.covariance)
-        scale = error_scale(geometry, camera, solution.rotation, guide.spot_index, guide.star_vectors, cov)
-        matches, fitted, residual, found = guide, solution, None, None
-        at_fitted = None  # the candidates at `fitted` itself, when a pass found them there
-        for round_index in range(DEEP_PASSES):
-            if round_index:
-                cov = offsets.at(fitted.covariance)
-            cov = scale * cov
-            latest = match_deep(catalog, geometry, camera, fitted.rotation, cov, guide.spot_index, guide.hip,
-                                guide.magnitude, max_chance=np.inf, cone=cone)
-            if found is not None and np.array_equal(latest.spot_index, found.spot_index) \
-                    and np.array_equal(latest.star_index, found.star_index):
-                at_fitted = latest
-                break
-            found = latest
-            if found.spot_index.size == 0:
-                break
-            matches = guide.extended(found.spot_index, catalog.vectors[found.star_index], catalog.hip[found.star_index],
-                                     catalog.magnitude[found.star_index])
-            fitted, _, residual = self._fit(geometry, matches.spot_index, matches.star_vectors, fitted.rotation)
-        self.stats.update(deep_matches=int(found.spot_index.size), deep_ambiguous=found.ambiguous,
-                          deep_magnitude_rejected=found.magnitude_rejected, deep_too_uncertain=found.too_uncertain,
-                          deep_stars_in_view=found.stars_in_view)
-        if found.spot_index.size == 0:
-            return None
-        fp = deep_bound(geometry, matches.spot_index, matches.star_vectors, matches.magnitude, fitted.rotation, catalog,
-                        found.stars_in_view, camera, self.magnitude_floor)
-        if fp > self.config.false_positive_bound:
-            self.stats["deep_matches"] = 0
+        catalog = self.deep_catalog()
+        guide_record = GuideMatches(np.ascontiguousarray(guide.spot_index, np.int64),
+                                    np.ascontiguousarray(guide.star_vectors, float),
+                                    np.ascontiguousarray(guide.hip, np.int64),
+                                    np.ascontiguousarray(guide.magnitude, float))
+        outcome = deep_match.deep_rematch(
+            geometry, geometry.camera, catalog, guide_record, solution.rotation, solution.covariance,
+            self.config.centroid_sigma_floor_px, self.config.false_positive_bound, self.magnitude_floor,
+            FIT_SCREEN_CHI2)
+        stats = outcome.stats.tolist()
+        self.stats.update(deep_matches=stats[0], deep_ambiguous=stats[1], deep_magnitude_rejected=stats[2],
+                          deep_too_uncertain=stats[3], deep_stars_in_view=stats[4])
+        if stats[5]:  # the candidates passed their bound: pairs were named
+            self.stats.update(deep_candidates=stats[5], deep_chance_rejected=stats[6])
+        if stats[7]:
             self.stats["deep_bound_rejected"] = 1
+        if outcome.status == 0:
             return None
-        # Name only the pairs unlikely by chance (deep_match.MAX_CHANCE_MATCHES), at the attitude
-        # the candidates refined; the published attitude is fitted to what is named.
-        if at_fitted is not None:  # the last pass matched at this attitude and covariance already
-            named = at_fitted.within_chance()
-        else:
-            named = match_deep(catalog, geometry, camera, fitted.rotation, scale * offsets.at(fitted.covariance),
-                               guide.spot_index, guide.hip, guide.magnitude, cone=cone)
-        self.stats.update(deep_matches=int(named.spot_index.size), deep_candidates=int(found.spot_index.size),
-                          deep_chance_rejected=named.chance_rejected)
-        if named.spot_index.size == 0:
-            return None
-        matches = guide.extended(named.spot_index, catalog.vectors[named.star_index], catalog.hip[named.star_index],
-                                 catalog.magnitude[named.star_index])
-        fitted, _, residual = self._fit(geometry, matches.spot_index, matches.star_vectors, fitted.rotation)
-        fp = deep_bound(geometry, matches.spot_index, matches.star_vectors, matches.magnitude, fitted.rotation, catalog,
-                        named.stars_in_view, camera, self.magnitude_floor)
-        if fp > self.config.false_positive_bound:
-            self.stats["deep_matches"] = 0
-            self.stats["deep_bound_rejected"] = 1
-            return None
-        return matches, fitted, residual, fp
+        star = outcome.star
+        matches = guide.extended(outcome.spot, catalog.vectors[star], catalog.hip[star], catalog.magnitude[star])
+        rotation = outcome.rotation
+        fitted = AttitudeSolution(matrix_to_quaternion(rotation), rotation, outcome.covariance, float(outcome.loss))
+        return matches, fitted, outcome.residual, float(outcome.fp)
 
     def final_fit(self, geometry: SpotGeometry, spot_index: np.ndarray, star_index: np.ndarray,
                   rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray]:
@@ -734,12 +690,11 @@ class StarIdentifier:
         On a synthetic frame: deep stars in view at the identity attitude, four of them as guide
         matches. A node calls it at start, so that its first solve compiles nothing.
         """
-        if not self.config.deep_match or camera.has_distortion:
+        if not self.config.deep_match:
             return
         catalog = self.deep_catalog()
         rotation = np.eye(3)
-        cone = catalog.view_cone(rotation, camera, DEEP_CONE_MARGIN_RAD)
-        star, u, v = catalog.stars_in_view(rotation, camera, cone)
+        star, u, v = deep_match.deep_stars_in_view(catalog, rotation, camera)
         n = min(star.size, 12)
         if n <= MIN_STARS:
             return
@@ -750,39 +705,7 @@ class StarIdentifier:
         guide = _Matches(np.arange(MIN_STARS), catalog.vectors[named], catalog.hip[named], catalog.magnitude[named],
                          np.zeros(MIN_STARS, bool))
         solution = AttitudeSolution(matrix_to_quaternion(rotation), rotation, np.eye(3) * 1e-10, 0.0)
-        self._deep_rematch_compiled(geometry, guide, solution, catalog, cone)
-
-    def _deep_rematch_compiled(self, geometry: SpotGeometry, guide: "_Matches", solution: AttitudeSolution,
-                               catalog: DeepCatalog, cone: ViewCone):
-        """
-        deep_rematch's result from its compiled form (deep_match.deep_rematch_pinhole), for a camera without distortion.
-
-        False when it could not run (an attitude left the queried cone): the Python path decides.
-        """
-        guide_record = GuideMatches(np.ascontiguousarray(guide.spot_index, np.int64),
-                                    np.ascontiguousarray(guide.star_vectors, float),
-                                    np.ascontiguousarray(guide.hip, np.int64),
-                                    np.ascontiguousarray(guide.magnitude, float))
-        outcome = deep_rematch_pinhole(
-            geometry, geometry.camera, catalog, cone, guide_record,
-            solution.rotation, solution.covariance, self.config.centroid_sigma_floor_px,
-            self.config.false_positive_bound, self.magnitude_floor, FIT_SCREEN_CHI2, DEEP_PASSES)
-        if outcome.status < 0:
-            return False
-        stats = outcome.stats.tolist()
-        self.stats.update(deep_matches=stats[0], deep_ambiguous=stats[1], deep_magnitude_rejected=stats[2],
-                          deep_too_uncertain=stats[3], deep_stars_in_view=stats[4])
-        if stats[5]:  # the candidates passed their bound: pairs were named
-            self.stats.update(deep_candidates=stats[5], deep_chance_rejected=stats[6])
-        if stats[7]:
-            self.stats["deep_bound_rejected"] = 1
-        if outcome.status == 0:
-            return None
-        star = outcome.star
-        matches = guide.extended(outcome.spot, catalog.vectors[star], catalog.hip[star], catalog.magnitude[star])
-        rotation = outcome.rotation
-        fitted = AttitudeSolution(matrix_to_quaternion(rotation), rotation, outcome.covariance, float(outcome.loss))
-        return matches, fitted, outcome.residual, float(outcome.fp)
+        self.deep_rematch(geometry, guide, solution)
 
     def _fit(self, geometry: SpotGeometry, spot_index: np.ndarray, stars: np.ndarray,
              rotation: np.ndarray) -> tuple[AttitudeSolution, np.ndarray, np.ndarray]:

@@ -7,8 +7,7 @@ accepted, the spots left unmatched are matched against this catalog (deep_match.
 real frame's faint stars count in the attitude and the false-positive bound. It holds ICRS
 unit vectors at the epoch, HIP ids and Hp magnitudes of every star to `magnitude_limit`
 (blended pairs included: the matcher refuses an ambiguous spot); the stars of one field of
-view come from a compiled query of a cube-map cell index (CellIndex, cone_stars; view_cone),
-or from a KD-tree on the unit vectors (stars_in_view without a cone).
+view come from a compiled query of a cube-map cell index (CellIndex, cone_stars).
 
 Cached like the databases: a checksum-validated .npz (catalog.save_validated_npz) in the
 pattern database's cache directory, keyed by limit, epoch and format version; a file that
@@ -23,12 +22,11 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 
-from ..models.camera import CameraModel
 from ..models.catalog import cache_dir, load_hipparcos, load_validated_npz, save_validated_npz
 from .kernel_records import DeepArrays
 from .skygrid import cell_centres, cells_of
@@ -44,8 +42,8 @@ class DeepCatalog:
 
     Faintest star [Hp mag]; epoch_jyear: epoch of the positions [Julian year]; vectors (N, 3)
     ICRS unit vectors; hip (N,) Hipparcos ids (increasing); magnitude (N,) Hp [mag];
-    sorted_magnitudes: `magnitude` sorted (the magnitude CDF of the false-positive bound); tree:
-    KD-tree on `vectors` (chord distances). Made by `of`.
+    sorted_magnitudes: `magnitude` sorted (the magnitude CDF of the false-positive bound). Made
+    by `of`.
     """
 
     magnitude_limit: float
@@ -54,13 +52,11 @@ class DeepCatalog:
     hip: np.ndarray
     magnitude: np.ndarray
     sorted_magnitudes: np.ndarray = field(repr=False, compare=False)
-    tree: cKDTree = field(repr=False, compare=False)
 
     @staticmethod
     def of(magnitude_limit: float, epoch_jyear: float, vectors: np.ndarray, hip: np.ndarray,
            magnitude: np.ndarray) -> "DeepCatalog":
-        return DeepCatalog(float(magnitude_limit), float(epoch_jyear), vectors, hip, magnitude, np.sort(magnitude),
-                           cKDTree(vectors))
+        return DeepCatalog(float(magnitude_limit), float(epoch_jyear), vectors, hip, magnitude, np.sort(magnitude))
 
     @functools.cached_property
     def arrays(self) -> DeepArrays:
@@ -78,52 +74,19 @@ class DeepCatalog:
         """Stars per steradian over the whole sky [1/sr]."""
         return self.star_count / (4.0 * math.pi)
 
-    def view_cone(self, rotation: np.ndarray, camera: CameraModel, margin_rad: float = 0.0) -> "ViewCone":
-        """
-        Return the stars within `camera`'s half diagonal + 1 mrad + margin_rad of `rotation`'s boresight.
-
-        A compiled query of the cells of `cells` (CellIndex); stars_in_view of any attitude whose
-        boresight lies within margin_rad of this one takes its stars from the cone instead of a
-        query of its own (the deep re-match's passes, whose attitudes differ by arcseconds).
-        """
-        half = min(camera.half_diagonal_fov_rad + 1e-3 + margin_rad, math.pi / 2)
-        axis = np.array(rotation[:, 2], float)
+    def cone(self, axis: np.ndarray, chord: float) -> np.ndarray:
+        """Return the indices of the stars within `chord` (2 sin(angle / 2)) of the ICRS unit vector `axis`."""
         cells = self.cells
-        near = cone_stars(self.vectors, cells.cell_start, cells.star_of_cell, cells.centres, cells.reach, axis,
-                          2.0 * math.sin(0.5 * half))
-        return ViewCone(axis, float(margin_rad), near)
+        return cone_stars(self.vectors, cells.cell_start, cells.star_of_cell, cells.centres, cells.reach,
+                          np.ascontiguousarray(axis, float), float(chord))
 
     @functools.cached_property
     def cells(self) -> "CellIndex":
         """The stars by cube-map cell, for cone queries (CellIndex)."""
         return CellIndex.build(self.vectors)
 
-    def stars_in_view(self, rotation: np.ndarray, camera: CameraModel,
-                      cone: "ViewCone | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """
-        Return indices of the stars inside `camera`'s image for the sensor -> ICRS `rotation`.
 
-        And their projected pixel positions (u, v) [px]: the stars within the field's half
-        diagonal (+1 mrad) of the boresight, then the camera model. The cone's stars come from
-        `cone` (view_cone) when the boresight lies within its margin, else from a KD-tree query.
-        """
-        half = min(camera.half_diagonal_fov_rad + 1e-3, math.pi / 2)
-        chord = 2.0 * math.sin(0.5 * half)
-        boresight = rotation[:, 2]
-        if cone is not None and cone.holds(boresight):
-            offset = self.vectors[cone.stars] - boresight
-            near = cone.stars[np.einsum("ij,ij->i", offset, offset) <= chord * chord]
-        else:
-            near = np.asarray(self.tree.query_ball_point(boresight, chord), np.int64)
-        if near.size == 0:
-            return near, np.zeros(0), np.zeros(0)
-        u, v, front = camera.project(self.vectors[near] @ rotation)
-        inside = front & camera.in_image(u, v)
-        return near[inside], u[inside], v[inside]
-
-
-@dataclass(frozen=True)
-class CellIndex:
+class CellIndex(NamedTuple):
     """
     Stars sorted by cube-map cell (skygrid.cell_of, CELL_GRID cells per face edge).
 
@@ -176,20 +139,6 @@ def cone_stars(vectors, cell_start, star_of_cell, centres, reach, axis, chord):
                 out[count] = s
                 count += 1
     return out[:count].copy()
-
-
-@dataclass(frozen=True)
-class ViewCone:
-    """The deep stars (indices, `stars`) within a field's cone around `axis` (ICRS unit vector) + margin_rad."""
-
-    axis: np.ndarray
-    margin_rad: float
-    stars: np.ndarray
-
-    def holds(self, boresight: np.ndarray) -> bool:
-        """Whether a field whose boresight (ICRS unit vector) is this one's cone lies inside it."""
-        gap = np.asarray(boresight, float) - self.axis
-        return float(gap @ gap) <= (2.0 * math.sin(0.5 * self.margin_rad)) ** 2
 
 
 def deep_catalog_identity(magnitude_limit: float, epoch_jyear: float) -> str:

@@ -1,11 +1,14 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Compiled pairing of the deep re-match (deep_match.match_deep): spots and projected deep stars.
+The deep re-match, compiled: deep_rematch runs it whole in one call, for every camera.
 
-One call finds every (spot, star) pair within the ambiguity reach, counts each spot's and
-star's pairs, and returns the unambiguous pairs inside the gate, with the counts
-match_deep reports. Pixel positions [px], covariances [px^2], distances in sigmas
-(Mahalanobis); the conditions are deep_match's (its module docstring).
+Its rules and constants are deep_match's (its module docstring); deep_match.deep_rematch
+builds the records and calls it. The view's deep stars come from one cone query of the deep
+catalog's cell index (deep_catalog.cone_stars) shared by every pass whose boresight stays
+within its margin (a farther one queries again), projected with the camera's Brown-Conrady
+model (LensModel, as models.camera.CameraModel.project). Pixel positions [px], covariances
+[px^2], distances in sigmas (Mahalanobis), rotations sensor -> ICRS, attitude covariances
+[rad^2] in the sensor frame.
 """
 from __future__ import annotations
 
@@ -15,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from ..models.attitude_estimation import refine_kernel
+from .deep_catalog import cone_stars
 from .kernel_records import DeepRematchOutcome
 from .kernels import false_positive_bound, log_chance_tuples, log_magnitude_agreement
 
@@ -100,10 +104,12 @@ def deep_pairs(spot_x, spot_y, cov, claimant, free, star_u, star_v, star_hip, gu
 @njit(cache=True)
 def offset_parts(spots, pixel_scale, floor_px):
     """
-    Return the per-spot parts of deep_match.SpotOffsetCovariance: own (N, 2, 2) [px^2], carry (N, 2, 3) [px/rad].
+    Return the per-spot parts of each spot's offset covariance: own (N, 2, 2) [px^2], carry (N, 2, 3) [px/rad].
 
-    own: the spot's covariance + floor_px^2 I (isotropic sigma / pixel_scale when it has none);
-    carry: d pixel / d attitude error, J+ [b]x.
+    A spot's offset from its star's predicted pixel has covariance own + carry P carry^T under
+    the sensor-frame attitude covariance P (offset_covariance): own, the spot's covariance +
+    floor_px^2 I (isotropic sigma / pixel_scale when it has none); carry, d pixel / d attitude
+    error, J+ [b]x with J = d ray / d pixel. Computed once per frame.
     """
     rays = spots.rays
     n = rays.shape[0]
@@ -164,23 +170,43 @@ def offset_covariance(own, carry, attitude_covariance, scale):
 
 
 @njit(cache=True)
-def _project(vector, rotation, pin):
-    """Pixel (u, v) of an ICRS unit vector under `rotation` (sensor -> ICRS), and whether it is imaged."""
-    x = vector[0] * rotation[0, 0] + vector[1] * rotation[1, 0] + vector[2] * rotation[2, 0]
-    y = vector[0] * rotation[0, 1] + vector[1] * rotation[1, 1] + vector[2] * rotation[2, 1]
-    z = vector[0] * rotation[0, 2] + vector[1] * rotation[1, 2] + vector[2] * rotation[2, 2]
-    if not z > 1e-9:
-        return 0.0, 0.0, False
-    u = pin.fx * (x / z) + pin.cx
-    v = pin.fy * (y / z) + pin.cy
-    inside = -0.5 <= u <= pin.width - 0.5 and -0.5 <= v <= pin.height - 0.5
-    return u, v, inside
+def pixel_of(x, y, z, lens):
+    """
+    Pixel (u, v) [px] of the sensor-frame direction (x, y, z) and whether the camera images it.
+
+    models.camera.CameraModel.project for one ray: in front (z > 1e-9; behind, u and v are
+    those of z = 1) and, with distortion, within lens.max_radius2 (beyond it the polynomial
+    folds directions back into the image). In the image or not is the caller's question.
+    """
+    imaged = z > 1e-9
+    if not imaged:
+        z = 1.0
+    x, y = x / z, y / z
+    if lens.distorted:
+        r2 = x * x + y * y
+        imaged = imaged and r2 <= lens.max_radius2
+        radial = 1.0 + r2 * (lens.k1 + r2 * (lens.k2 + r2 * lens.k3))
+        x, y = (x * radial + 2.0 * lens.p1 * x * y + lens.p2 * (r2 + 2.0 * x * x),
+                y * radial + lens.p1 * (r2 + 2.0 * y * y) + 2.0 * lens.p2 * x * y)
+    return lens.fx * x + lens.cx, lens.fy * y + lens.cy, imaged
 
 
 @njit(cache=True)
-def view_stars(deep, cone_stars, rotation, pin, view_chord):
-    """Return the cone's deep stars inside the image at `rotation`: catalog indices, u, v [px] (stars_in_view)."""
-    m = cone_stars.size
+def _sensor(vector, rotation):
+    """Return the ICRS unit vector in the sensor frame (rotation^T vector)."""
+    return (vector[0] * rotation[0, 0] + vector[1] * rotation[1, 0] + vector[2] * rotation[2, 0],
+            vector[0] * rotation[0, 1] + vector[1] * rotation[1, 1] + vector[2] * rotation[2, 1],
+            vector[0] * rotation[0, 2] + vector[1] * rotation[1, 2] + vector[2] * rotation[2, 2])
+
+
+@njit(cache=True)
+def view_stars(deep, cone, rotation, lens, view_chord):
+    """
+    Return the `cone`'s deep stars imaged inside the image at `rotation`: catalog indices, u, v [px].
+
+    Those within view_chord of the boresight, projected (pixel_of) inside the pixel area.
+    """
+    m = cone.size
     star = np.empty(m, np.int64)
     us = np.empty(m)
     vs = np.empty(m)
@@ -188,20 +214,67 @@ def view_stars(deep, cone_stars, rotation, pin, view_chord):
     bx, by, bz = rotation[0, 2], rotation[1, 2], rotation[2, 2]
     chord2 = view_chord * view_chord
     for q in range(m):
-        s = cone_stars[q]
+        s = cone[q]
         dx, dy, dz = deep.vectors[s, 0] - bx, deep.vectors[s, 1] - by, deep.vectors[s, 2] - bz
         if dx * dx + dy * dy + dz * dz > chord2:
             continue
-        u, v, inside = _project(deep.vectors[s], rotation, pin)
-        if inside:
+        x, y, z = _sensor(deep.vectors[s], rotation)
+        u, v, imaged = pixel_of(x, y, z, lens)
+        if imaged and -0.5 <= u <= lens.width - 0.5 and -0.5 <= v <= lens.height - 0.5:
             star[count], us[count], vs[count] = s, u, v
             count += 1
     return star[:count], us[:count], vs[:count]
 
 
 @njit(cache=True)
+def magnitude_fraction(sorted_magnitudes, center, half_width):
+    """
+    Return the share of catalog stars within half_width [mag] of center [mag] (sorted_magnitudes: the catalog's).
+
+    Under chance (a star unrelated to the spot, its magnitude drawn from the catalog's), the
+    share of stars at least as close in brightness: uniform on [0, 1].
+    """
+    count = max(sorted_magnitudes.size, 1)
+    out = np.empty(center.size)
+    for q in range(center.size):
+        low = np.searchsorted(sorted_magnitudes, center[q] - half_width[q], side="left")
+        high = np.searchsorted(sorted_magnitudes, center[q] + half_width[q], side="right")
+        out[q] = (high - low) / count
+    return out
+
+
+@njit(cache=True)
+def chance_pairs(near_stars, fraction, gate_stars):
+    """
+    Return the expected number of unrelated deep stars in a spot's gate as good as its candidate.
+
+    near_stars: the expected unrelated stars nearer than the candidate (density x its Mahalanobis
+    ellipse's area); fraction: the share as close in brightness (magnitude_fraction; NaN when
+    unknown: geometry alone); gate_stars: those expected in the whole gate. Unrelated stars
+    fall uniformly in the image (expected count `a` up to gate_stars) with a brightness share
+    `b` uniform on [0, 1]; the expected number with a b <= t = near_stars x fraction is
+    t (1 + ln(gate_stars / t)), or near_stars alone without magnitudes.
+    """
+    out = np.empty(near_stars.size)
+    for q in range(near_stars.size):
+        t = near_stars[q] * fraction[q]
+        if not np.isfinite(t):
+            out[q] = near_stars[q]
+        elif t > 0.0:
+            out[q] = t * (1.0 + math.log(max(gate_stars[q] / t, 1.0)))
+        else:
+            out[q] = 0.0
+    return out
+
+
+@njit(cache=True)
 def magnitude_zero_point(spot_magnitude, star_magnitude, min_stars, sigmas, floor):
-    """(known, zero point, tolerance) [mag] of deep_match.magnitude_gate."""
+    """
+    Return (known, zero point, tolerance) [mag] from the guide matches' instrumental and catalog magnitudes.
+
+    The zero point: the median difference; the tolerance: `sigmas` robust sigmas of their
+    scatter, at least `floor`; not known with fewer than min_stars finite differences.
+    """
     diff = np.empty(spot_magnitude.size)
     count = 0
     for i in range(spot_magnitude.size):
@@ -222,10 +295,14 @@ def magnitude_zero_point(spot_magnitude, star_magnitude, min_stars, sigmas, floo
 @njit(cache=True)
 def match_view(spots, deep, star, u, v, cov, guide_spot, guide_hip_sorted, guide_magnitude, max_chance, settings):
     """
-    deep_match.match_deep on the view's deep stars (star, u, v: view_stars) under offset covariances cov (N, 2, 2).
+    Return the unambiguous deep pairs of the spots without a guide star, on the view's deep stars (view_stars).
 
-    Returns (spot, star, chance, stars_in_view, ambiguous, magnitude_rejected, too_uncertain,
-    chance_rejected, uncatalogued): spot (K,) increasing, star (K,) deep catalog indices.
+    star, u, v: the view's stars and pixels; cov (N, 2, 2) [px^2] the spots' offset covariances
+    (offset_covariance); guide_spot, guide_hip_sorted, guide_magnitude: the guide matches (the
+    zero point; their stars are taken); max_chance: the frame's chance bound (inf: the
+    candidates every other condition passes). Returns (spot, star, chance, stars_in_view,
+    ambiguous, magnitude_rejected, too_uncertain, chance_rejected, uncatalogued): spot (K,)
+    increasing, star (K,) deep catalog indices.
     """
     n, m = spots.x.size, star.size
     density_px = m / settings.image_area
@@ -254,18 +331,26 @@ def match_view(spots, deep, star, u, v, cov, guide_spot, guide_hip_sorted, guide
                                                       settings.min_zero_point_stars, settings.magnitude_sigma,
                                                       settings.magnitude_tolerance_floor)
         if known:
-            count = max(deep.sorted_magnitudes.size, 1)
+            residual = np.empty(k)
             for q in range(k):
-                residual = spots.magnitude[spot_i[q]] - zero - deep.magnitude[star_k[q]]
-                if abs(residual) > tolerance:  # an unknown (NaN) spot magnitude passes on geometry
+                residual[q] = spots.magnitude[spot_i[q]] - zero - deep.magnitude[star_k[q]]
+                if abs(residual[q]) > tolerance:  # an unknown (NaN) spot magnitude passes on geometry
                     keep[q] = False
                     rejected += 1
-                    continue
-                if np.isfinite(residual):
-                    center, half = deep.magnitude[star_k[q]] + residual, abs(residual)
-                    low = np.searchsorted(deep.sorted_magnitudes, center - half, side="left")
-                    high = np.searchsorted(deep.sorted_magnitudes, center + half, side="right")
-                    fraction[q] = (high - low) / count
+            fraction = magnitude_fraction(deep.sorted_magnitudes, deep.magnitude[star_k] + residual,
+                                          np.abs(residual))
+            for q in range(k):
+                if not np.isfinite(residual[q]):
+                    fraction[q] = np.nan
+    gate_stars = np.empty(k)
+    near = np.empty(k)
+    for q in range(k):
+        gate_stars[q] = density_px * np.pi * gate2 * math.sqrt(max(det[spot_i[q]], 0.0))
+        near[q] = gate_stars[q] * d2[q] / gate2
+    chance = chance_pairs(near, fraction, gate_stars)
+    # The uncatalogued spots (false objects, stars beyond the catalog): those tried without a
+    # deep star within reach (an uncatalogued spot has one with probability < 4 x
+    # max_chance_stars_in_gate), at least one.
     uncatalogued = max(uncatalogued, 1)
     out_spot = np.empty(k, np.int64)
     out_star = np.empty(k, np.int64)
@@ -274,15 +359,8 @@ def match_view(spots, deep, star, u, v, cov, guide_spot, guide_hip_sorted, guide
     for q in range(k):
         if not keep[q]:
             continue
-        gate_stars = density_px * np.pi * gate2 * math.sqrt(max(det[spot_i[q]], 0.0))
-        near = gate_stars * d2[q] / gate2
-        t = near * fraction[q]
-        if np.isfinite(t):  # deep_match.chance_pairs
-            chance = t * (1.0 + math.log(max(gate_stars / t, 1.0))) if t > 0.0 else 0.0
-        else:
-            chance = near
-        if chance * uncatalogued <= max_chance:
-            out_spot[named], out_star[named], out_chance[named] = spot_i[q], star_k[q], chance
+        if chance[q] * uncatalogued <= max_chance:
+            out_spot[named], out_star[named], out_chance[named] = spot_i[q], star_k[q], chance[q]
             named += 1
         else:
             chance_rejected += 1
@@ -291,19 +369,23 @@ def match_view(spots, deep, star, u, v, cov, guide_spot, guide_hip_sorted, guide
 
 
 @njit(cache=True)
-def error_scale(spots, guide_spot, guide_vectors, rotation, cov, pin, min_stars, median_chi2):
-    """deep_match.error_scale for a pinhole camera: the gate's variance scale (>= 1)."""
+def error_scale(spots, guide_spot, guide_vectors, rotation, cov, lens, min_stars, median_chi2):
+    """
+    Return the match gate's variance scale (>= 1).
+
+    The median squared Mahalanobis offset of the guide matches (guide_spot, their ICRS
+    guide_vectors) from their stars projected at `rotation`, under the offset covariances cov
+    (N, 2, 2) [px^2] of all spots, over its expectation for a 2-D Gaussian, median_chi2 (robust
+    to a few outliers); 1 with fewer than min_stars known.
+    """
     g = guide_spot.size
     d2 = np.empty(g)
     count = 0
     for q in range(g):
-        vec = guide_vectors[q]
-        x = vec[0] * rotation[0, 0] + vec[1] * rotation[1, 0] + vec[2] * rotation[2, 0]
-        y = vec[0] * rotation[0, 1] + vec[1] * rotation[1, 1] + vec[2] * rotation[2, 1]
-        z = vec[0] * rotation[0, 2] + vec[1] * rotation[1, 2] + vec[2] * rotation[2, 2]
-        z = z if z > 1e-9 else 1.0
+        x, y, z = _sensor(guide_vectors[q], rotation)
+        u, v, _ = pixel_of(x, y, z, lens)
         i = guide_spot[q]
-        dx, dy = spots.x[i] - (pin.fx * (x / z) + pin.cx), spots.y[i] - (pin.fy * (y / z) + pin.cy)
+        dx, dy = spots.x[i] - u, spots.y[i] - v
         a, c = cov[i, 0, 0], cov[i, 1, 1]
         b = 0.5 * (cov[i, 0, 1] + cov[i, 1, 0])
         value = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / (a * c - b * b)
@@ -350,7 +432,14 @@ def fit_matches(spots, spot_index, star_vectors, rotation, screen_chi2, min_star
 
 @njit(cache=True)
 def bound(spots, spot_index, star_vectors, star_magnitude, rotation, stars_in_view, deep, settings):
-    """deep_match.deep_bound: the false-positive bound of the matches at `rotation`."""
+    """
+    Return the false-positive bound of verify.py over the matches at `rotation`.
+
+    The matches: spot_index into the spots, their ICRS star_vectors and catalog magnitudes;
+    with the deep catalog's density (the larger of its mean and its density in this view,
+    stars_in_view) and magnitude distribution; the matching sigmas as in verification. Matches
+    beyond 5 sigma count for nothing (left out, as verification leaves them out).
+    """
     m = spot_index.size
     keep = np.empty(m, np.int64)
     kept = 0
@@ -414,25 +503,27 @@ def _extended(guide_spot, guide_vectors, guide_magnitude, deep, spot, star):
 
 
 @njit(cache=True)
-def deep_rematch(spots, deep, cone_stars, guide, rotation, covariance, pin, settings):
+def deep_rematch(spots, deep, cells, guide, rotation, covariance, lens, settings):
     """
-    base.StarIdentifier.deep_rematch for a pinhole camera, in one call (see its docstring and deep_match's).
+    base.StarIdentifier.deep_rematch in one call (see its docstring and deep_match's).
 
     spots: PreparedSpots (pixel_cov and jacobian (0, ...) when isotropic; order unused);
-    deep: DeepArrays; cone_stars: the deep stars of DeepCatalog.view_cone (settings.cone_axis,
-    cone_chord); guide: GuideMatches; rotation (sensor -> ICRS),
-    covariance [rad^2]: the guide fit. Returns a DeepRematchOutcome: status 1 with the deep
-    matches (spot, star), the fitted rotation, covariance, loss, residual angles of guide then
-    deep matches and their bound; 0 when the guide solution stands; -1 when an attitude left
-    the cone (the caller matches with the catalog's own queries).
+    deep: DeepArrays; cells: the deep catalog's CellIndex; guide: GuideMatches; rotation
+    (sensor -> ICRS), covariance [rad^2]: the guide fit; lens: LensModel. Returns a
+    DeepRematchOutcome: status 1 with the deep matches (spot, star), the fitted rotation,
+    covariance, loss, residual angles of guide then deep matches and their bound; 0 when the
+    guide solution stands.
     """
     stats = np.zeros(8, np.int64)  # matches, ambiguous, magnitude, uncertain, in view, candidates, chance, bound
     empty_i = np.zeros(0, np.int64)
     none = DeepRematchOutcome(0, empty_i, empty_i, rotation, covariance, 0.0, np.zeros(0), 1.0, stats)
     guide_hip_sorted = np.sort(guide.hip)
+    axis = rotation[:, 2].copy()
+    cone = cone_stars(deep.vectors, cells.cell_start, cells.star_of_cell, cells.centres, cells.reach, axis,
+                      settings.cone_chord)
     own, carry = offset_parts(spots, settings.pixel_scale, settings.floor_px)
     cov = offset_covariance(own, carry, covariance, 1.0)
-    scale = error_scale(spots, guide.spot, guide.vectors, rotation, cov, pin, settings.min_stars,
+    scale = error_scale(spots, guide.spot, guide.vectors, rotation, cov, lens, settings.min_stars,
                         settings.median_chi2_2dof)
     fitted, fitted_cov, loss = rotation, covariance, 0.0
     residual = np.zeros(0)
@@ -442,9 +533,11 @@ def deep_rematch(spots, deep, cone_stars, guide, rotation, covariance, pin, sett
     at_fitted = False  # `latest` holds the candidates at `fitted` itself
     for round_index in range(settings.passes):
         cov = offset_covariance(own, carry, fitted_cov if round_index else covariance, scale)
-        if not _in_cone(fitted, settings):
-            return DeepRematchOutcome(-1, empty_i, empty_i, rotation, covariance, 0.0, np.zeros(0), 1.0, stats)
-        star, u, v = view_stars(deep, cone_stars, fitted, pin, settings.view_chord)
+        if not _within(fitted, axis, settings.margin_chord):  # the refit moved far: query its own cone
+            axis = fitted[:, 2].copy()
+            cone = cone_stars(deep.vectors, cells.cell_start, cells.star_of_cell, cells.centres, cells.reach, axis,
+                              settings.cone_chord)
+        star, u, v = view_stars(deep, cone, fitted, lens, settings.view_chord)
         latest = match_view(spots, deep, star, u, v, cov, guide.spot, guide_hip_sorted, guide.magnitude, np.inf,
                             settings)
         if round_index and _same(latest[0], latest[1], found[0], found[1]):
@@ -470,9 +563,11 @@ def deep_rematch(spots, deep, cone_stars, guide, rotation, covariance, pin, sett
         chance_rejected = latest[7] + int(np.count_nonzero(~keep))
         in_view = latest[3]
     else:
-        if not _in_cone(fitted, settings):
-            return DeepRematchOutcome(-1, empty_i, empty_i, rotation, covariance, 0.0, np.zeros(0), 1.0, stats)
-        star, u, v = view_stars(deep, cone_stars, fitted, pin, settings.view_chord)
+        if not _within(fitted, axis, settings.margin_chord):
+            axis = fitted[:, 2].copy()
+            cone = cone_stars(deep.vectors, cells.cell_start, cells.star_of_cell, cells.centres, cells.reach, axis,
+                              settings.cone_chord)
+        star, u, v = view_stars(deep, cone, fitted, lens, settings.view_chord)
         named = match_view(spots, deep, star, u, v, offset_covariance(own, carry, fitted_cov, scale), guide.spot,
                            guide_hip_sorted, guide.magnitude, settings.max_chance_matches, settings)
         named_spot, named_star, chance_rejected, in_view = named[0], named[1], named[7], named[3]
@@ -491,9 +586,9 @@ def deep_rematch(spots, deep, cone_stars, guide, rotation, covariance, pin, sett
 
 
 @njit(cache=True)
-def _in_cone(rotation, settings):
-    """Whether the boresight of `rotation` lies within the cone's margin of its axis (ViewCone.holds)."""
+def _within(rotation, axis, chord):
+    """Whether the boresight of `rotation` lies within `chord` of the unit vector `axis`."""
     gap = 0.0
     for a in range(3):
-        gap += (rotation[a, 2] - settings.cone_axis[a]) ** 2
-    return gap <= settings.cone_chord * settings.cone_chord
+        gap += (rotation[a, 2] - axis[a]) ** 2
+    return gap <= chord * chord

@@ -7,6 +7,7 @@ names a few records instead of dozens of arrays.
 """
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -169,6 +170,39 @@ class Pinhole(NamedTuple):
                        float(camera.width), float(camera.height))
 
 
+class LensModel(NamedTuple):
+    """
+    A camera as the compiled deep re-match projects with it (models.camera.CameraModel.project).
+
+    fx, fy, cx, cy, width, height [px]; k1, k2, p1, p2, k3: Brown-Conrady distortion [-];
+    distorted: any of them non-zero; max_radius2: squared normalized radius beyond which a
+    distorted camera images nothing (CameraModel.max_imaged_radius2; inf: no limit).
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: float
+    height: float
+    k1: float
+    k2: float
+    p1: float
+    p2: float
+    k3: float
+    distorted: bool
+    max_radius2: float
+
+    @staticmethod
+    def of(camera) -> "LensModel":
+        """Return the projection of a models.camera.CameraModel."""
+        k1, k2, p1, p2, k3 = (float(d) for d in camera.distortion)
+        distorted = bool(camera.has_distortion)
+        return LensModel(float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), float(camera.width),
+                         float(camera.height), k1, k2, p1, p2, k3, distorted,
+                         float(camera.max_imaged_radius2) if distorted else math.inf)
+
+
 class RawSpots(NamedTuple):
     """Spots as the centroider gives them: x, y (N,) [px]; flux (N,); cov (N, 2, 2) [px^2]."""
 
@@ -232,8 +266,9 @@ class DeepRematchSettings(NamedTuple):
     The deep re-match's constants and the frame's camera figures (deep_match, base).
 
     pixel_scale [rad/px]; floor_px: matching floor [px]; image_area [px^2]; view_chord: chord
-    of the field's half diagonal + 1 mrad; cone_axis (3,), cone_chord: the queried cone's axis
-    and margin chord (ViewCone); fp_limit: the false-positive bound; magnitude_floor [mag];
+    of the field's half diagonal + 1 mrad; cone_chord: that + the cone margin, margin_chord: the
+    margin's (one cone query serves every pass whose boresight lies within the margin of the
+    query's axis); fp_limit: the false-positive bound; magnitude_floor [mag];
     fit_screen_chi2; min_stars; passes; gate_sigma, ambiguity_factor, max_chance_stars_in_gate,
     max_chance_matches, min_zero_point_stars, magnitude_sigma, magnitude_tolerance_floor,
     median_chi2_2dof (deep_match); mean_density: the deep catalog's [1/sr].
@@ -243,8 +278,8 @@ class DeepRematchSettings(NamedTuple):
     floor_px: float
     image_area: float
     view_chord: float
-    cone_axis: np.ndarray
     cone_chord: float
+    margin_chord: float
     fp_limit: float
     magnitude_floor: float
     fit_screen_chi2: float
@@ -265,8 +300,8 @@ class DeepRematchOutcome(NamedTuple):
     """
     deep_match_kernel.deep_rematch's result.
 
-    status: 1 named (spot (K,), star (K,) deep catalog indices), 0 the guide solution stands,
-    -1 not computed (an attitude left the queried cone); rotation (sensor -> ICRS), covariance
+    status: 1 named (spot (K,), star (K,) deep catalog indices), 0 the guide solution stands;
+    rotation (sensor -> ICRS), covariance
     [rad^2], loss: the fit to guide and named matches; residual (G + K,) their angles [rad];
     fp: their false-positive bound; stats (8,): deep_matches, deep_ambiguous,
     deep_magnitude_rejected, deep_too_uncertain, deep_stars_in_view, deep_candidates,

@@ -153,57 +153,75 @@ def test_deep_rematch_on_rendered_frames(database, nominal_camera, catalog):
     assert rms[True] <= 1.1 * rms[False], {key: value / ARCSEC for key, value in rms.items()}
 
 
-def test_compiled_deep_rematch_is_the_python_one(database, nominal_camera, catalog, monkeypatch):
+def test_the_lens_projection_is_opencvs():
     """
-    The compiled deep re-match (pinhole cameras) gives the Python path's stars, fit, bound and counters.
+    The compiled re-match's projection (pixel_of) is cv2.projectPoints with K and D, and images what the camera does.
 
-    The Python path is the one distorted cameras take. On rendered frames with a hundred deep
-    stars or more and on sparse synthetic scenes; then, with a zero cone margin, every pass after
-    the first leaves the queried cone: the compiled call gives way and the Python path must still
-    give the same answer.
+    Pinhole and Brown-Conrady lenses (barrel, pincushion, tangential, k3), rays across and
+    beyond the field, behind the camera, and past the radius where the distortion folds back
+    (CameraModel.project's mask).
     """
-    import star_tracker.identify.base as base
+    import cv2
 
-    compiled = base.StarIdentifier._deep_rematch_compiled
-    calls = {"compiled": 0, "gave_way": 0}
+    from star_tracker.identify.deep_match_kernel import pixel_of
+    from star_tracker.identify.kernel_records import LensModel
+    from star_tracker.models.camera import CameraModel
 
-    def counted(self, *args):
-        done = compiled(self, *args)
-        calls["gave_way" if done is False else "compiled"] += 1
-        return done
+    rng = np.random.default_rng(8)
+    lenses = [(0.0, 0.0, 0.0, 0.0, 0.0), (-0.12, 0.03, 2e-4, -1e-4, 0.0), (0.08, -0.02, 0.0, 0.0, 0.01),
+              (-0.3, 0.0, 0.0, 0.0, 0.0)]
+    folded = 0
+    for distortion in lenses:
+        camera = CameraModel.from_fov(1280, 1024, math.radians(20.0), distortion)
+        lens = LensModel.of(camera)
+        rays = rng.normal(size=(3000, 3)) * [0.4, 0.4, 1.0]
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        got = np.array([pixel_of(x, y, z, lens) for x, y, z in rays])
+        u, v, imaged = camera.project(rays)
+        np.testing.assert_array_equal(got[:, 2].astype(bool), imaged)
+        front = rays[:, 2] > 1e-9
+        reference, _ = cv2.projectPoints(rays[front], np.zeros(3), np.zeros(3), camera.intrinsic_matrix(),
+                                         np.array(distortion, float))
+        np.testing.assert_allclose(got[front, :2], reference[:, 0], rtol=1e-10, atol=1e-6)
+        folded += np.count_nonzero(front & ~imaged)
+    assert folded > 100  # the strong barrel lens folds rays back: they are not imaged
 
-    renderer = StarFieldRenderer(nominal_camera, SensorModel(), catalog.at_epoch(database.config.epoch_jyear),
+
+def test_deep_rematch_through_a_distorted_lens_names_the_stars_drawn_there(database, catalog, monkeypatch):
+    """
+    Rendered frames through a lens with barrel and tangential distortion (stars to Hp 8.5).
+
+    Every match, guide or deep, is the star the renderer drew at that spot, and the faint stars
+    are named. Then with a zero cone margin every pass after the first queries its own cone:
+    the same answer.
+    """
+    from star_tracker.identify import deep_match
+    from star_tracker.models.camera import CameraModel
+
+    camera = CameraModel.from_fov(1024, 1024, math.radians(20.0), (-0.12, 0.03, 2e-4, -1e-4, 0.0))
+    renderer = StarFieldRenderer(camera, SensorModel(), catalog.at_epoch(database.config.epoch_jyear),
                                  magnitude_limit=8.5)
-    rng = np.random.default_rng(35)
-    frames = [extract_spots(renderer.render(ConstantRateMotion(random_rotation(rng), np.zeros(3)), 0.0, seed).image,
-                            CentroidConfig()) for seed in range(3)]
-    frames += [synthetic_scene(catalog, nominal_camera, random_rotation(rng), rng, magnitude_limit=7.5)[0]
-               for _ in range(4)]
     identifier = make_identifier("hybrid", database, IdentifyConfig(max_time_s=5.0))
-
-    def both_ways(spots):
-        monkeypatch.setattr(base.StarIdentifier, "_deep_rematch_compiled", counted)
-        fast = identifier.identify(spots, nominal_camera)
-        monkeypatch.setattr(base.StarIdentifier, "_deep_rematch_compiled", lambda *args: False)
-        slow = identifier.identify(spots, nominal_camera)
-        assert fast.solved and slow.solved
-        np.testing.assert_array_equal(fast.hip, slow.hip)
-        np.testing.assert_array_equal(fast.spot_index, slow.spot_index)
-        np.testing.assert_array_equal(fast.deep, slow.deep)
-        np.testing.assert_allclose(fast.attitude.rotation, slow.attitude.rotation, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(fast.attitude.covariance, slow.attitude.covariance, rtol=1e-9)
-        np.testing.assert_allclose(fast.residual_rad, slow.residual_rad, rtol=1e-6, atol=1e-15)
-        assert fast.false_positive_probability == pytest.approx(slow.false_positive_probability, rel=1e-9, abs=1e-300)
-        assert {k: v for k, v in fast.stats.items() if k.startswith("deep")} == \
-            {k: v for k, v in slow.stats.items() if k.startswith("deep")}
-        return fast.deep_count
-
-    assert sum(both_ways(spots) for spots in frames) > 200  # the frames' faint stars were named
-    assert calls == {"compiled": len(frames), "gave_way": 0}
-    monkeypatch.setattr(base, "DEEP_CONE_MARGIN_RAD", 0.0)
-    for spots in frames:
-        both_ways(spots)
-    assert calls["gave_way"] > 0
+    rng = np.random.default_rng(36)
+    results = []
+    for seed in range(3):
+        frame = renderer.render(ConstantRateMotion(random_rotation(rng), np.zeros(3)), 0.0, seed)
+        spots = extract_spots(frame.image, CentroidConfig())
+        result = identifier.identify(spots, camera)
+        assert result.solved, result.reason
+        star = frame.truth.kind == KIND_STAR
+        i = result.spot_index
+        gap = np.hypot(spots.x[i][:, None] - frame.truth.x[star][None], spots.y[i][:, None] - frame.truth.y[star][None])
+        nearest = np.argmin(gap, axis=1)
+        assert np.all(gap[np.arange(i.size), nearest] < 1.0)
+        np.testing.assert_array_equal(result.hip, frame.truth.hip[star][nearest])
+        assert result.deep_count > 2 * np.count_nonzero(~result.deep), result.stats
+        results.append((spots, result))
+    monkeypatch.setattr(deep_match, "CONE_MARGIN_RAD", 0.0)
+    for spots, result in results:
+        again = identifier.identify(spots, camera)
+        np.testing.assert_array_equal(again.hip, result.hip)
+        np.testing.assert_array_equal(again.attitude.rotation, result.attitude.rotation)
 
 
 def test_cone_query_is_every_star_within_the_cone(database):
