@@ -192,11 +192,12 @@ def replay(kind, spec, task: int) -> int:
 
 
 def run_one(kind, spec, output: Path, workers: int | None, scheduler: str | None, command: str,
-            campaign_name: str | None = None):
+            campaign_name: str | None = None, client=None):
     """
     Run (or resume) one campaign into output; write its summary.json and report; return (summary, table, files).
 
-    campaign_name: the datasheet campaign it is (summary's `datasheet_campaign`), None for a lone one.
+    campaign_name: the datasheet campaign it is (summary's `datasheet_campaign`), None for a lone one;
+    client: a Dask client to run on (engine.connect; kept open), None for a cluster of its own.
     """
     from ..campaign import run_campaign
     from ..campaign.engine import engine_totals
@@ -207,7 +208,7 @@ def run_one(kind, spec, output: Path, workers: int | None, scheduler: str | None
           f"{spec.seed}, output {output}", file=sys.stderr)
     started = time.perf_counter()
     campaign = run_campaign(kind, spec, output, workers=workers, scheduler=scheduler,
-                            on_batch=lambda done, total, batch: progress.update(done))
+                            on_batch=lambda done, total, batch: progress.update(done), client=client)
     progress.update(spec.trials)
     options = kind.options(spec.options)
     store = ResultStore(output, spec, kind.schema())
@@ -237,6 +238,7 @@ def run_datasheet(args: argparse.Namespace) -> int:
 
     from ..campaign import CampaignSpec
     from ..campaign import datasheet_figures as figures
+    from ..campaign.engine import connect
     from ..campaign.datasheet import FALSE_ID_TRIALS, datasheet_campaigns, datasheet_data, render_report
     from ..campaign.presets import KINDS
 
@@ -248,14 +250,24 @@ def run_datasheet(args: argparse.Namespace) -> int:
     seed = args.seed if args.seed is not None else 2026
     started = time.perf_counter()
     summaries, tables = {}, {}
+    planned = []
     for item in datasheet_campaigns(args.trials or FALSE_ID_TRIALS, quick=args.quick):
         kind = KINDS[item.preset]()
-        options = kind.options(item.options)
+        options = kind.options(item.options)  # every campaign's options checked before a cluster starts
         trials = item.trials or getattr(options, "trials", None) or kind.default_trials
-        spec = CampaignSpec(preset=kind.name, trials=trials, seed=seed, batch=args.batch or kind.default_batch,
-                            options=item.options)
-        summaries[item.name], tables[item.name], _ = run_one(kind, spec, output / item.name, args.workers,
-                                                             args.scheduler, command, campaign_name=item.name)
+        planned.append((item, kind, CampaignSpec(preset=kind.name, trials=trials, seed=seed,
+                                                 batch=args.batch or kind.default_batch, options=item.options)))
+    client = connect(args.workers, args.scheduler)  # one cluster for all: its workers start once
+    try:
+        for item, kind, spec in planned:
+            summaries[item.name], tables[item.name], _ = run_one(kind, spec, output / item.name, args.workers,
+                                                                 args.scheduler, command, campaign_name=item.name,
+                                                                 client=client)
+    finally:
+        cluster = getattr(client, "cluster", None)
+        client.close()
+        if cluster is not None:
+            cluster.close()
     # The campaigns' own work (added up over resumed runs), not this call's: a finished datasheet
     # run again only rewrites the report.
     meta = {"command": command, "date_utc": max(s["date_utc"] for s in summaries.values()),
