@@ -222,6 +222,7 @@ class Ros2:
         self.log_dir = log_dir
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs: dict[str, Path] = {}
+        self.described: dict[str, dict[str, dict[str, str]]] = {}  # describe(): node -> name -> fields
 
     def __call__(self, *args: str, timeout: float = CLI_TIMEOUT_S, check: bool = True,
                  rerun_hung: bool | None = None) -> str:
@@ -387,7 +388,14 @@ class Ros2:
 
 
 def describe(ros2: Ros2, node: str, names: list[str]) -> dict[str, dict[str, str]]:
-    """Return `ros2 param describe` of the names as {name: {field: text}} (Constraints flattened)."""
+    """
+    Return `ros2 param describe` of the names as {name: {field: text}} (Constraints flattened).
+
+    Descriptors never change while a node runs: names described once on this shell are not asked again.
+    """
+    known = ros2.described.setdefault(node, {})
+    if all(name in known for name in names):
+        return {name: known[name] for name in names}
     out = ros2("param", "describe", node, *names)
     described = {}
     for block in out.split("Parameter name: ")[1:]:
@@ -398,6 +406,7 @@ def describe(ros2: Ros2, node: str, names: list[str]) -> dict[str, dict[str, str
                 key, _, value = line.strip().partition(":")
                 fields[key.strip()] = value.strip()
         described[lines[0].strip()] = fields
+    known.update(described)
     return described
 
 
