@@ -189,6 +189,16 @@ FIT_OUTLIER_SIGMA = 5.0
 FIT_SCREEN_CHI2 = 13.815510557964274  # scipy.stats.chi2.isf(1e-3, 2)
 
 
+# A matched spot is named only when its match gate (FIT_OUTLIER_SIGMA sigmas of its own
+# covariance + the matching floor) would hold at most this many unrelated guide stars on
+# average at the guide catalog's mean density: the deep re-match's rule
+# (deep_match.MAX_CHANCE_STARS_IN_GATE) for the guide stars. A spot whose position is that
+# uncertain (a saturated hot-pixel cluster stated at 1.4 x 20 px: stress campaign, seed 2026,
+# task 1484, named after a guide star 25 px away while tracking a tumble) adds nothing to the
+# attitude, only a name it may not have.
+MAX_CHANCE_GUIDE_STARS_IN_GATE = deep_match.MAX_CHANCE_STARS_IN_GATE
+
+
 # An accepted match whose fit's chi^2 (matching sigmas) is less likely than this is examined
 # for one wrong star on a long lever arm (StarIdentifier.without_lever_outlier).
 LEVER_TEST_PROBABILITY = 1e-6
@@ -584,6 +594,7 @@ class StarIdentifier:
         again at that attitude (verify_hypothesis) and, when that names as many stars as the
         rest, solved from it (`renamed`: already done once).
         """
+        match = self.without_unnameable(geometry, match)
         guide = _Matches(match.spot_index, self.database.vectors[match.star_index], self.database.hip[match.star_index],
                          self.database.magnitude[match.star_index], np.zeros(match.spot_index.size, bool))
         solution, _, residual = self._fit(geometry, guide.spot_index, guide.star_vectors, match.rotation)
@@ -615,6 +626,33 @@ class StarIdentifier:
             body_vectors=geometry.rays[spot_index], residual_rad=residual[by_spot],
             magnitude=matches.magnitude[by_spot], deep=deep, attitude=solution, false_positive_probability=fp,
             stats=dict(self.stats))
+
+    def without_unnameable(self, geometry: SpotGeometry, match: AcceptedMatch) -> AcceptedMatch:
+        """
+        Return the match without the spots too uncertain to name (MAX_CHANCE_GUIDE_STARS_IN_GATE).
+
+        A spot's gate: the ellipse of FIT_OUTLIER_SIGMA sigmas of its own covariance +
+        config.centroid_sigma_floor_px^2 I [px^2] (isotropic spots: sigma / pixel scale); its
+        unrelated guide stars: the guide catalog's mean density times that area. The match
+        unchanged when fewer than MIN_STARS would stay (the frame's solve rests on them: its
+        bound, not this rule, decides) or without a camera. Counter: stats guide_too_uncertain.
+        """
+        camera = geometry.camera
+        if camera is None or match.spot_index.size <= MIN_STARS:
+            return match
+        spot = match.spot_index
+        if geometry.pixel_cov is None:
+            det = (geometry.sigma[spot] / camera.pixel_scale_rad) ** 4
+        else:
+            cov = geometry.pixel_cov[spot] + self.config.centroid_sigma_floor_px ** 2 * np.eye(2)[None]
+            det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
+        density_px = self._mean_density * camera.pixel_scale_rad ** 2  # guide stars per pixel
+        chance = density_px * np.pi * FIT_OUTLIER_SIGMA ** 2 * np.sqrt(np.maximum(det, 0.0))
+        keep = ~(chance > MAX_CHANCE_GUIDE_STARS_IN_GATE)  # a NaN covariance counts as unknown: kept, as before
+        if keep.all() or np.count_nonzero(keep) < MIN_STARS:
+            return match
+        self.stats["guide_too_uncertain"] = int(np.count_nonzero(~keep))
+        return AcceptedMatch(spot[keep], match.star_index[keep], match.rotation, match.false_positive_probability)
 
     def deep_catalog(self) -> DeepCatalog:
         """

@@ -31,6 +31,12 @@ Of `--frames 100000` (seed 2026), streaks whose light runs past the image border
 
 A streak whose fitted segment runs past the border is now flagged edge, and the identifier
 leaves edge spots out.
+
+- Task 1484 (a tumble through a hot-pixel storm, gyro aid), frame 39, tracked after a lost
+  frame: a saturated hot-pixel cluster, its position stated at 1.4 x 20 px (1 sigma), was named
+  after HIP 7361 25 px away, inside its own 5 sigma and the verification radius the tumble's
+  streaks widened. Its gate would hold ~0.1 unrelated guide stars: a spot is now named only
+  when that is at most base.MAX_CHANCE_GUIDE_STARS_IN_GATE (the deep re-match's rule).
 """
 from __future__ import annotations
 
@@ -65,6 +71,13 @@ def test_a_streak_running_past_the_border_is_not_named(campaign, task, frame):
     row = replay_to(campaign, task, frame)[-1]
     assert row["frame"] == frame and row["mode"] == "tracking" and row["solved"], row
     assert not row["wrong_star"] and not row["wrong"], row
+
+
+@pytest.mark.slow
+def test_a_spot_too_uncertain_to_name_is_not_named(campaign):
+    row = replay_to(campaign, 1484, 39)[-1]
+    assert row["frame"] == 39 and row["mode"] == "tracking" and row["solved"], row
+    assert not row["wrong_star"] and not row["wrong"] and row["matched"] >= 8, row
 
 
 def test_truth_names_a_blend_after_any_of_its_stars_and_a_lone_spot_after_no_far_star():
