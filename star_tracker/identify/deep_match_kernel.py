@@ -188,7 +188,8 @@ def pixel_of(x, y, z, lens):
         radial = 1.0 + r2 * (lens.k1 + r2 * (lens.k2 + r2 * lens.k3))
         x, y = (x * radial + 2.0 * lens.p1 * x * y + lens.p2 * (r2 + 2.0 * x * x),
                 y * radial + lens.p1 * (r2 + 2.0 * y * y) + 2.0 * lens.p2 * x * y)
-    return lens.fx * x + lens.cx, lens.fy * y + lens.cy, imaged
+    pin = lens.pinhole
+    return pin.fx * x + pin.cx, pin.fy * y + pin.cy, imaged
 
 
 @njit(cache=True)
@@ -220,7 +221,7 @@ def view_stars(deep, cone, rotation, lens, view_chord):
             continue
         x, y, z = _sensor(deep.vectors[s], rotation)
         u, v, imaged = pixel_of(x, y, z, lens)
-        if imaged and -0.5 <= u <= lens.width - 0.5 and -0.5 <= v <= lens.height - 0.5:
+        if imaged and -0.5 <= u <= lens.pinhole.width - 0.5 and -0.5 <= v <= lens.pinhole.height - 0.5:
             star[count], us[count], vs[count] = s, u, v
             count += 1
     return star[:count], us[:count], vs[:count]

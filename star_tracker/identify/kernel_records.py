@@ -174,17 +174,12 @@ class LensModel(NamedTuple):
     """
     A camera as the compiled deep re-match projects with it (models.camera.CameraModel.project).
 
-    fx, fy, cx, cy, width, height [px]; k1, k2, p1, p2, k3: Brown-Conrady distortion [-];
-    distorted: any of them non-zero; max_radius2: squared normalized radius beyond which a
-    distorted camera images nothing (CameraModel.max_imaged_radius2; inf: no limit).
+    pinhole: its Pinhole; k1, k2, p1, p2, k3: Brown-Conrady distortion [-]; distorted: any of
+    them non-zero; max_radius2: squared normalized radius beyond which a distorted camera
+    images nothing (CameraModel.max_imaged_radius2; inf: no limit).
     """
 
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: float
-    height: float
+    pinhole: Pinhole
     k1: float
     k2: float
     p1: float
@@ -198,8 +193,7 @@ class LensModel(NamedTuple):
         """Return the projection of a models.camera.CameraModel."""
         k1, k2, p1, p2, k3 = (float(d) for d in camera.distortion)
         distorted = bool(camera.has_distortion)
-        return LensModel(float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), float(camera.width),
-                         float(camera.height), k1, k2, p1, p2, k3, distorted,
+        return LensModel(Pinhole.of(camera), k1, k2, p1, p2, k3, distorted,
                          float(camera.max_imaged_radius2) if distorted else math.inf)
 
 
