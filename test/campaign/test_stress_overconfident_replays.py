@@ -51,12 +51,6 @@ the campaign.
   a 0.44 px PSF, unaided for two frames): frame 0 held 1 px (24.6" off); measured across its
   streaks' moment axes, frame 1 read 0.83 px (35" off on 8 stars); across the narrowest of
   each axis turned by up to 6 deg, 0.48-0.57 px.
-- Task 1278 (at rest, nominal 1 px PSF, hot-pixel storm; the identifier's aid), frame 19: 5 of
-  its 16-18 bright stars misfit the Gaussian (28-31 %, above TEMPLATE_MIN_SHARE; the frame's
-  PSF is the nominal Gaussian, so the storm's pixels are the likely cause), so the frame's
-  empirical profile was built from those five and fitted to every star: the bright stars
-  0.1-0.2 px off at a stated 0.005-0.02 px, the roll 12.7" off, NEES 119. A profile built from
-  misfits is now kept only when it describes the bright stars better than the Gaussian.
 """
 from __future__ import annotations
 
@@ -142,10 +136,3 @@ def test_an_undersampled_tumbles_unaided_frames_are_measured_at_its_psf(campaign
     rows = replay_to(campaign, 2344, 1)
     assert [r["frame"] for r in rows] == [0, 1] and all(r["solved"] for r in rows), rows
     assert not any(r["wrong"] for r in rows), rows
-
-
-@pytest.mark.slow
-def test_a_profile_of_contaminated_misfits_does_not_replace_the_gaussian(campaign):
-    row = replay_to(campaign, 1278, 19)[-1]
-    assert row["frame"] == 19 and row["mode"] == "tracking" and row["solved"], row
-    assert not row["wrong"] and row["nees"] < 13.9, row

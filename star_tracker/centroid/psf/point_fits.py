@@ -18,7 +18,7 @@ from ..windows import PsfStart, PsfWindows, gather_windows
 from .gaussian_fit import PsfFit, fit_psf_windows
 from ..detection.hidden_neighbours import HIDDEN_MIN_SNR, hidden_neighbour_peaks, hidden_window_half
 from ..records import FitContext, FitOutcome, FittedStars, SpotRows, no_spots
-from .single_star_model import fit_frame_model, median_reduced_chi2, window_shares
+from .single_star_model import fit_frame_model, window_shares
 from ..spots import FLAG_BLENDED
 
 
@@ -78,7 +78,7 @@ def fit_points(context: FitContext, kept: Candidates, spots: SpotRows, which: np
     # Enough bright stars the Gaussian does not describe (round or elongated alike: an
     # astigmatic PSF): the frame's own PSF fits every one.
     rows, stars, template = _template_fits(context, alone, fit, not_gaussian, spots.x[which[single]],
-                                           spots.y[which[single]], model)
+                                           spots.y[which[single]])
     label = "gaussian" if model is None else model.label
     if rows.size:
         spots = spots.with_stars(which[single[rows]], stars)
@@ -200,8 +200,8 @@ def _fit_second_stars(context: FitContext, spots: SpotRows, which: np.ndarray, w
     return spots, added, blended
 
 
-def _template_fits(context: FitContext, windows: PsfWindows, fit: PsfFit, misfit: np.ndarray, x, y,
-                   frame_model=None) -> tuple[np.ndarray, FittedStars, "EmpiricalPsf | None"]:
+def _template_fits(context: FitContext, windows: PsfWindows, fit: PsfFit, misfit: np.ndarray, x, y
+                   ) -> tuple[np.ndarray, FittedStars, "EmpiricalPsf | None"]:
     """
     Fit the single-star windows with the frame's empirical PSF, where the Gaussian does not describe the frame.
 
@@ -209,14 +209,8 @@ def _template_fits(context: FitContext, windows: PsfWindows, fit: PsfFit, misfit
     TEMPLATE_MIN_SHARE of the bright ones (flux SNR >= MISFIT_MIN_SNR); or, in a frame of
     ring stars (context.rings), where MIN_TEMPLATE_STARS are bright. Never where
     context.own_psf is False. The profile is built from those stars; every window is fitted
-    with it, from the Gaussian fit's position where it converged, else from (x, y). A profile
-    built from the misfits is kept only when it describes the frame's bright stars better
-    than the frame's model `frame_model` (the one `fit` used; None: the round Gaussian), by
-    their median reduced chi^2: misfits the frame's shape does not explain make no profile (a
-    hot-pixel storm's frame of the nominal 1 px Gaussian, stress campaign seed 2026, task 1278
-    frame 19: a profile of its 5 misfits moved every bright star 0.1-0.2 px).
-    Returns the windows fitted (indices), their stars and the profile (None when none was
-    built).
+    with it, from the Gaussian fit's position where it converged, else from (x, y). Returns
+    the windows fitted (indices), their stars and the profile (None when none was built).
     """
     win, valid, col0, row0 = windows
     empty = np.zeros(0, np.int64), FittedStars(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 2, 2)),
@@ -227,7 +221,6 @@ def _template_fits(context: FitContext, windows: PsfWindows, fit: PsfFit, misfit
         bright = fit.converged[:, 0] & (fit.flux[:, 0] / np.sqrt(np.abs(fit.flux_var[:, 0])) >= MISFIT_MIN_SNR)
     # The PSF's shape is the frame's: many bright stars misfit (a few: smear onset, blends; 6 of 54).
     template = misfit if misfit.sum() >= TEMPLATE_MIN_SHARE * bright.sum() else np.zeros_like(misfit)
-    from_misfits = template.sum() >= MIN_TEMPLATE_STARS
     smoothing, faint = SMOOTHING_PX, False
     if template.sum() < MIN_TEMPLATE_STARS and context.rings:  # a ring the Gaussian fits within its noise
         template = bright
@@ -250,12 +243,6 @@ def _template_fits(context: FitContext, windows: PsfWindows, fit: PsfFit, misfit
     flux0 = np.where(valid, win, 0.0).sum(axis=(1, 2))
     start = PsfStart(start_x, start_y, np.where(fit.converged[:, 0], fit.flux[:, 0], flux0))
     fx, fy, flux, cov, flux_var, ok = fit_empirical(psf, windows, start, context.noise, context.gain)
-    judged = np.flatnonzero(bright & ok)
-    if from_misfits and judged.size:
-        own = PsfFit(fx[:, None], fy[:, None], flux[:, None], cov[:, None], ok[:, None], flux_var[:, None])
-        if not (median_reduced_chi2(psf, windows, own, judged, context)
-                < median_reduced_chi2(frame_model, windows, fit, judged, context)):
-            return empty
     rows = np.flatnonzero(ok)
     return rows, FittedStars(fx[rows], fy[rows], flux[rows], cov[rows], flux[rows] / np.sqrt(flux_var[rows])), psf
 

@@ -50,13 +50,13 @@ def fit_frame_model(context: FitContext, windows: PsfWindows, fit: PsfFit, start
     if context.elliptical is not None:
         refit = _refit(context, context.elliptical, windows, fit, start)
         judged = np.flatnonzero(bright & refit.converged[:, 0])
-        if judged.size < MIN_JUDGED or (median_reduced_chi2(context.elliptical, windows, refit, judged, context)
-                                        < median_reduced_chi2(gaussian, windows, fit, judged, context)):
+        if judged.size < MIN_JUDGED or (_median_chi2(context.elliptical, windows, refit, judged, context)
+                                        < _median_chi2(gaussian, windows, fit, judged, context)):
             return context.elliptical, refit
     judged = np.flatnonzero(bright & round_)
     if judged.size < WINGS_MIN_STARS:
         return None, fit
-    one = median_reduced_chi2(gaussian, windows, fit, judged, context)
+    one = _median_chi2(gaussian, windows, fit, judged, context)
     if not one > WINGS_MIN_CHI2:
         return None, fit
     pick = judged[np.argsort(-snr[judged])[:SHAPE_STARS]]
@@ -66,7 +66,7 @@ def fit_frame_model(context: FitContext, windows: PsfWindows, fit: PsfFit, start
         return None, fit
     refit = _refit(context, psf, windows, fit, start)
     ok = judged[refit.converged[judged, 0]]
-    if ok.size < WINGS_MIN_STARS or not median_reduced_chi2(psf, windows, refit, ok, context) < WINGS_GAIN * one:
+    if ok.size < WINGS_MIN_STARS or not _median_chi2(psf, windows, refit, ok, context) < WINGS_GAIN * one:
         return None, fit
     return psf, refit
 
@@ -101,7 +101,7 @@ def window_shares(psf, col0, row0, x, y, size: int, sigma: float) -> np.ndarray:
     return share
 
 
-def median_reduced_chi2(psf, windows: PsfWindows, fit: PsfFit, rows: np.ndarray, context: FitContext) -> float:
+def _median_chi2(psf, windows: PsfWindows, fit: PsfFit, rows: np.ndarray, context: FitContext) -> float:
     """Return the median reduced chi^2 of fits `rows` under `psf` (any model with `sample`)."""
     data, valid = windows.data[rows], windows.valid[rows]
     share = window_shares(psf, np.asarray(windows.col0)[rows], np.asarray(windows.row0)[rows], fit.x[rows, 0],
