@@ -174,6 +174,9 @@ class CentroiderNode(ManagedNode):
             if motion is None:
                 return None
             omega, alpha = motion  # the identifier's acceleration, else successive samples' slope
+            samples = self.rate_input.around_exposure(RATE_TOPICS[source], stamp_ns, self.exposure_s)
+            if samples is not None:  # a gyro: the path it measured within the exposure, when not smooth
+                return SmearModel(camera, omega, self.exposure_s, alpha).with_exposure_path(*samples)
         return SmearModel(camera, omega, self.exposure_s, alpha)
 
     def on_image(self, raw: bytes) -> None:
@@ -241,6 +244,8 @@ class CentroiderNode(ManagedNode):
                           f"({omega[0]:.3f}, {omega[1]:.3f}, {omega[2]:.3f}) deg/s; measured without it")
         elif smear is not None:
             self.diag.count("frames_rate_aided")
+            if smear.exposure_path is not None:
+                self.diag.count("frames_on_gyro_path")
         self.diag.count("spots_rejected_shape", spots.rejected_shape)
         self.diag.count("spots_rejected_extended", spots.rejected_extended)
         problem = self.content_problem(image, spots)

@@ -120,6 +120,23 @@ class RateSamples:
             return None, "too_old"
         return rates[nearest], "ok"
 
+    def around_exposure(self, frame_stamp: int, exposure_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """
+        Return a gyro's samples around a frame's exposure: (offsets [s from its stamp] (n,), rates (n, 3)), or None.
+
+        Those within an exposure's length of either end, for the path within the exposure
+        (centroid/streak/exposure_path.py). None for an input that came with accelerations
+        (the identifier's estimates: one per frame, no path to draw) or without samples.
+        """
+        reach = 1.0 * exposure_s * 1e9
+        with self._lock:
+            if self._accelerations or not self._samples:
+                return None
+            near = [(s, r) for s, r in self._samples if abs(s - frame_stamp) <= 0.5 * exposure_s * 1e9 + reach]
+        if not near:
+            return None
+        return (np.array([(s - frame_stamp) * 1e-9 for s, _ in near]), np.array([r for _, r in near]))
+
     def motion_for_frame(self, frame_stamp: int, exposure_s: float, max_age_s: float
                          ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
         """
@@ -260,3 +277,8 @@ class RateInput:
             self.for_frame(topic, frame_stamp, exposure_s, max_age_s)  # counts why
             return None
         return omega, alpha
+
+    def around_exposure(self, topic: str, frame_stamp: int, exposure_s: float
+                        ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Return `topic`'s gyro samples around a frame's exposure (RateSamples.around_exposure)."""
+        return self.samples[topic].around_exposure(frame_stamp, exposure_s)

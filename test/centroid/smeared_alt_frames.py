@@ -74,3 +74,50 @@ def found(spots, x: np.ndarray, y: np.ndarray, reach_px: float = 1.0) -> tuple[i
     if d.size == 0:
         return 0, len(spots)
     return int((d.min(axis=0) < reach_px).sum()), int((d.min(axis=1) >= reach_px).sum())
+
+
+class JitteredFrame(NamedTuple):
+    image: np.ndarray  # uint16 [ADU]
+    x: np.ndarray  # the stars' exposure-average positions [px]
+    y: np.ndarray
+    gyro_offsets_s: np.ndarray  # (n,) the gyro's sample times [s from mid-exposure]
+    gyro_rates: np.ndarray  # (n, 3) its noise-free samples [rad/s, sensor frame]
+
+
+def jittered_frame(psf, drift_rad_s: np.ndarray, jitter_rad: np.ndarray, jitter_hz: float, phase_rad: float,
+                   seed: int, flux_e: float = 40000.0, stars: int = 40, steps: int = 200, gyro_hz: float = 100.0
+                   ) -> JitteredFrame:
+    """
+    Return a frame whose stars move by a drift plus a sinusoidal jitter about the cross-boresight axes.
+
+    The body turns by phi(t) = drift t + jitter sin(2 pi f t + phase) (drift_rad_s, jitter_rad: (2,)
+    about the camera's x and y axes); near the optical axis a turn phi moves a star by
+    (-fx phi_y, fy phi_x) [px] (the sign convention of smeared_frame's rate). Each star is the
+    mean of its PSF at `steps` instants evenly spread over the exposure, placed so that its
+    exposure-average position is (x, y). The gyro: the rate d phi / dt at gyro_hz over the
+    exposure and the 0.15 s before it (as a gyro's last samples), noise free.
+    """
+    rng = np.random.default_rng(seed)
+    x, y = alt.place_stars(SIZE, SIZE, stars, 40.0, 30.0, rng)
+    flux = flux_e * np.exp(rng.uniform(-1.0, 1.0, x.size))
+    drift, jitter = np.asarray(drift_rad_s, float), np.asarray(jitter_rad, float)
+    omega_j = 2.0 * math.pi * jitter_hz
+
+    def turn(t):
+        return np.multiply.outer(t, drift) + np.multiply.outer(np.sin(omega_j * t + phase_rad), jitter)
+
+    times = ((np.arange(steps) + 0.5) / steps - 0.5) * EXPOSURE_S
+    phi = turn(times)
+    phi = phi - phi.mean(axis=0)
+    dx, dy = -CAMERA.fx * phi[:, 1], CAMERA.fy * phi[:, 0]
+    signal = np.zeros((SIZE, SIZE))
+    for k in range(x.size):
+        for step in range(steps):
+            _add_clipped(signal, alt.star_stamp(psf, x[k] + dx[step], y[k] + dy[step]), flux[k] / steps)
+    detector = alt.Detector()
+    electrons = rng.poisson(signal + detector.sky_e) + rng.normal(0.0, detector.read_noise_e, signal.shape)
+    image = np.clip(np.rint(electrons / detector.gain_e_per_adu + detector.bias_adu), 0, 65535).astype(np.uint16)
+    offsets = 0.5 * EXPOSURE_S - (np.arange(int(round(0.25 * gyro_hz))) + 0.5) / gyro_hz
+    swing = omega_j * np.cos(omega_j * offsets + phase_rad)
+    rate = np.multiply.outer(np.ones_like(offsets), drift) + np.multiply.outer(swing, jitter)
+    return JitteredFrame(image, x, y, offsets, np.column_stack([rate, np.zeros(offsets.size)]))

@@ -238,3 +238,29 @@ def test_a_slope_needs_two_exposures_of_samples():
         omega, acceleration, verdict = gyro.motion_for_frame(T0, 0.1, 0.5)
         assert verdict == "ok" and np.allclose(omega, omega0), first_ms
         assert (acceleration is None) if expected is None else np.allclose(acceleration, expected), first_ms
+
+
+def test_a_gyros_samples_around_the_exposure_draw_its_path():
+    # The samples within an exposure's length of either end, relative to the frame's stamp; the
+    # identifier's estimates (they come with accelerations) draw none.
+    from star_tracker.centroid.streak.exposure_path import ExposurePath
+
+    amplitude, frequency = np.radians(20.0 / 3600.0), 10.0
+    gyro = RateSamples()
+    for k in range(-300, 151, 10):  # a 100 Hz gyro
+        t = k * 1e-3
+        gyro.add(T0 + k * MS, np.array([amplitude * 2 * np.pi * frequency * np.cos(2 * np.pi * frequency * t), 0.0,
+                                        0.0]))
+    offsets, rates = gyro.around_exposure(T0, 0.1)
+    assert offsets.min() == pytest.approx(-0.15) and offsets.max() == pytest.approx(0.15)
+    path = ExposurePath.from_rate_samples(offsets, rates, 0.1)
+    # phi_x(t) = A sin(2 pi f t), its exposure mean zero (a whole period): the path's swing, to
+    # the 3 % a rate interpolated linearly between 10 samples per period loses.
+    probe = np.array([-0.025, 0.0, 0.025])
+    assert np.allclose(path.at(probe)[:, 0], amplitude * np.sin(2 * np.pi * frequency * probe), atol=0.04 * amplitude)
+    estimates = RateSamples()
+    for k in range(-300, 151, 10):
+        estimates.add(T0 + k * MS, np.zeros(3))
+        estimates.add_acceleration(T0 + k * MS, np.zeros(3))
+    assert estimates.around_exposure(T0, 0.1) is None
+    assert RateSamples().around_exposure(T0, 0.1) is None

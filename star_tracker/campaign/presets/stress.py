@@ -433,7 +433,7 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
                 + mission.gyro_bias_rad_s + rng.normal(0.0, GYRO_NOISE_RAD_S, size=(offsets.size, 3))
             inside = np.abs(offsets) <= 0.5 * shared.exposure_s
             smear = SmearModel(shared.camera, samples[inside].mean(axis=0), shared.exposure_s,
-                               significant(*from_samples(offsets, samples)))
+                               significant(*from_samples(offsets, samples))).with_exposure_path(offsets, samples)
         else:
             # The identifier's estimate carried to the frame by its acceleration, as the centroider does.
             smear = tracker.centroider_aid(stamp_ns, shared.camera, shared.exposure_s, MAX_RATE_AGE_S)

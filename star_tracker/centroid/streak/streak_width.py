@@ -62,13 +62,31 @@ def streak_widths(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarr
     x, y = (np.asarray(v, float).ravel() for v in (x, y))
     finite = np.isfinite(x) & np.isfinite(y)
     vectors = np.full((x.size, 2), np.nan)
+    spread = None
     if finite.any():
         vectors[finite] = smear.smear_vectors(x[finite], y[finite])
-    return streak_widths_along(image, x, y, snr, vectors)
+        if smear.exposure_path is not None:
+            spread = np.zeros(x.size)
+            spread[finite] = path_variance_across(smear.path(x[finite], y[finite]), vectors[finite])
+    return streak_widths_along(image, x, y, snr, vectors, path_variance_px2=spread)
+
+
+def path_variance_across(path: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """
+    Return the variance [px^2] across each streak's chord of its path's samples (N,).
+
+    path (N, K, 2) [px], vectors (N, 2) end minus start [px]: a gyro-measured path (jitter)
+    sways across its chord, which widens the profile across the track by this variance.
+    """
+    length = np.linalg.norm(vectors, axis=1, keepdims=True)
+    unit = np.divide(vectors, length, out=np.zeros_like(vectors), where=length > 0)
+    across = path[:, :, 0] * -unit[:, None, 1] + path[:, :, 1] * unit[:, None, 0]
+    return np.nan_to_num(np.var(across, axis=1))
 
 
 def streak_widths_along(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarray, vectors: np.ndarray,
-                        turns_rad: tuple[float, ...] = (0.0,)) -> np.ndarray:
+                        turns_rad: tuple[float, ...] = (0.0,), path_variance_px2: np.ndarray | None = None
+                        ) -> np.ndarray:
     """
     Return the PSF widths [px] across the brightest streaks, each along its own smear vector.
 
@@ -76,7 +94,9 @@ def streak_widths_along(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np
     direction and length when the rate is unknown); turns_rad: each streak is measured along
     its vector turned by each of these angles [rad] and the narrowest profile kept (the track's
     own direction when the vector's is only approximate: a profile across a track at an angle
-    is wider by the track's length times the angle's sine); the rest as streak_width.
+    is wider by the track's length times the angle's sine); path_variance_px2 (N,): the
+    variance across the track its known path adds (path_variance_across), taken off each
+    profile's; the rest as streak_width.
     """
     x, y, snr = (np.asarray(v, float).ravel() for v in (x, y, snr))
     vectors = np.asarray(vectors, float).reshape(-1, 2)
@@ -90,6 +110,9 @@ def streak_widths_along(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np
         across = [_one_streak(image, float(x[i]), float(y[i]), _turned(vectors[i], turn), width, height)
                   for turn in turns_rad]
         sigma = min((value for value in across if np.isfinite(value)), default=float("nan"))
+        if path_variance_px2 is not None and np.isfinite(sigma):
+            variance = sigma * sigma - float(path_variance_px2[i])
+            sigma = float(np.sqrt(variance)) if variance > 0 else float("nan")
         if np.isfinite(sigma):
             widths.append(sigma)
     return np.asarray(widths, float)
