@@ -209,8 +209,9 @@ def _template_fits(context: FitContext, windows: PsfWindows, fit: PsfFit, misfit
     TEMPLATE_MIN_SHARE of the bright ones (flux SNR >= MISFIT_MIN_SNR); or, in a frame of
     ring stars (context.rings), where MIN_TEMPLATE_STARS are bright. Never where
     context.own_psf is False. The profile is built from those stars; every window is fitted
-    with it, from the Gaussian fit's position where it converged, else from (x, y). Returns
-    the windows fitted (indices), their stars and the profile (None when none was built).
+    with it, from the Gaussian fit's position where it converged, else from (x, y), unless it
+    scatters the bright stars (_scatters_stars). Returns the windows fitted (indices), their
+    stars and the profile (None when none was built or used).
     """
     win, valid, col0, row0 = windows
     empty = np.zeros(0, np.int64), FittedStars(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 2, 2)),
@@ -243,8 +244,33 @@ def _template_fits(context: FitContext, windows: PsfWindows, fit: PsfFit, misfit
     flux0 = np.where(valid, win, 0.0).sum(axis=(1, 2))
     start = PsfStart(start_x, start_y, np.where(fit.converged[:, 0], fit.flux[:, 0], flux0))
     fx, fy, flux, cov, flux_var, ok = fit_empirical(psf, windows, start, context.noise, context.gain)
+    if _scatters_stars(fx, fy, cov, fit, ok & bright):
+        return empty
     rows = np.flatnonzero(ok)
     return rows, FittedStars(fx[rows], fy[rows], flux[rows], cov[rows], flux[rows] / np.sqrt(flux_var[rows])), psf
+
+
+def _scatters_stars(fx, fy, cov, fit: PsfFit, bright: np.ndarray) -> bool:
+    """
+    Whether a profile's fits move the bright stars from their Gaussian fits in differing directions beyond their noise.
+
+    A profile that describes the stars moves each of them from its Gaussian fit by the two
+    models' difference in centre (the same for every star of one PSF: a coma's offset) and
+    noise of the order of its stated sigma: median shift less the frames' median shift, in
+    stated sigmas, 0.5-2.0 on the real corpus's and the second renderer's template frames.
+    One built from stars that share no shape (their misfits a hot-pixel storm's pixels, a
+    blur that differs across the field) moved every bright star 0.1-0.3 px in its own
+    direction at a stated 0.005-0.02 px: 5-23 sigmas (stress campaign, seed 2026, tasks 1278
+    and 265). Beyond TEMPLATE_MAX_SCATTER the profile is not used. Needs
+    TEMPLATE_SCATTER_MIN_STARS bright stars fitted by both.
+    """
+    both = np.flatnonzero(bright & fit.converged[:, 0])
+    if both.size < TEMPLATE_SCATTER_MIN_STARS:
+        return False
+    dx, dy = fx[both] - fit.x[both, 0], fy[both] - fit.y[both, 0]
+    sigma = np.sqrt(np.maximum(0.5 * (cov[both, 0, 0] + cov[both, 1, 1]), 1e-12))
+    scatter = np.hypot(dx - np.median(dx), dy - np.median(dy)) / sigma
+    return bool(np.median(scatter) > TEMPLATE_MAX_SCATTER)
 
 
 MISFIT_MIN_SNR = 30.0  # fainter spots' residuals are noise whatever the PSF
@@ -259,6 +285,8 @@ RING_TEMPLATE_MIN_STARS = 15  # ... (noise pooled over their pixels)
 # bound on SNR-11 rings of sigma 3 px; over 0.25 sigma 1.0-1.2x: their edges are as soft)
 FAINT_RING_SMOOTHING_SIGMAS = 0.25
 TEMPLATE_MIN_SHARE = 0.25  # the empirical PSF replaces the Gaussian when this share of the bright stars misfit
+TEMPLATE_MAX_SCATTER = 4.0  # ... unless it moves them apart by more than this many stated sigmas (_scatters_stars)
+TEMPLATE_SCATTER_MIN_STARS = 3  # judged on at least this many bright stars
 
 
 def _misfits(win, valid, col0, row0, fit: PsfFit, context: FitContext, psf_model=None) -> np.ndarray:
