@@ -128,11 +128,11 @@ class RateSamples:
         (centroid/streak/exposure_path.py). None for an input that came with accelerations
         (the identifier's estimates: one per frame, no path to draw) or without samples.
         """
-        reach = 1.0 * exposure_s * 1e9
+        reach = 1.5 * exposure_s * 1e9  # from the stamp: half the exposure and one more
         with self._lock:
             if self._accelerations or not self._samples:
                 return None
-            near = [(s, r) for s, r in self._samples if abs(s - frame_stamp) <= 0.5 * exposure_s * 1e9 + reach]
+            near = [(s, r) for s, r in self._samples if abs(s - frame_stamp) <= reach]
         if not near:
             return None
         return (np.array([(s - frame_stamp) * 1e-9 for s, _ in near]), np.array([r for _, r in near]))

@@ -97,16 +97,12 @@ class SmearModel:
         """Mid-points of `samples` equal slices of the exposure, from mid-exposure [s]."""
         return ((np.arange(samples) + 0.5) / samples - 0.5) * self.exposure_s
 
-    def positions_at(self, x, y, times: np.ndarray) -> np.ndarray:
+    def _positions(self, x, y, times: np.ndarray) -> np.ndarray:
         """
-        Offsets (N, K, 2) [px] at `times` (K,) [s from mid-exposure] from the stars' pixels (x, y).
+        Offsets (N, K, 2) [px] at `times` [s from mid-exposure] from the stars' reference pixels (x, y).
 
         (x, y): mid-exposure positions, or exposure-average ones with an exposure_path.
         """
-        return self._positions(x, y, np.asarray(times, float).ravel())
-
-    def _positions(self, x, y, times: np.ndarray) -> np.ndarray:
-        """Offsets (N, K, 2) [px] at `times` [s] from the stars' reference pixels (x, y) (positions_at)."""
         x, y = _pixels(x, y)
         rays = self.camera.pixel_to_ray(x, y)  # (N, 3) directions at the reference time
         u0, v0, _ = self.camera.project(rays)  # reference: cancels the undistortion round trip

@@ -65,9 +65,11 @@ def streak_widths(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarr
     spread = None
     if finite.any():
         vectors[finite] = smear.smear_vectors(x[finite], y[finite])
-        if smear.exposure_path is not None:
+        if smear.exposure_path is not None:  # only for the streaks bright enough to be measured
             spread = np.zeros(x.size)
-            spread[finite] = path_variance_across(smear.path(x[finite], y[finite]), vectors[finite])
+            bright = finite & (np.asarray(snr, float).ravel() >= MIN_SNR)
+            if bright.any():
+                spread[bright] = path_variance_across(smear.path(x[bright], y[bright]), vectors[bright])
     return streak_widths_along(image, x, y, snr, vectors, path_variance_px2=spread)
 
 
