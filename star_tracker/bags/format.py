@@ -13,7 +13,8 @@ from functools import lru_cache
 # The topics of a star_tracker run (msg_docs/README.md), as absolute names in the root namespace.
 CAMERA_TOPICS = ("/image_raw", "/camera_info")
 TRUTH_TOPICS = ("/truth/attitude", "/truth/angular_velocity", "/truth/objects")
-OUTPUT_TOPICS = ("/spots", "/smear_aid/angular_velocity", "/smear_aid/angular_acceleration",
+OUTPUT_TOPICS = ("/spots", "/smear_aid/angular_velocity", "/smear_aid/exposure_path_offset",
+                 "/smear_aid/angular_acceleration",
                  "/attitude", "/attitude_with_covariance", "/angular_velocity",
                  "/angular_velocity_with_covariance", "/matched_stars")
 DEFAULT_RECORD_TOPICS = CAMERA_TOPICS + TRUTH_TOPICS + OUTPUT_TOPICS

@@ -22,6 +22,7 @@ from .applied_motion import AppliedMotion
 from .config import CentroidConfig
 from .psf_loop import PsfLoop
 from .spots import FLAG_RATE_AIDED, Spots
+from .streak.rate_aid import typical_smear_px
 
 if TYPE_CHECKING:
     from .streak.smear import SmearModel
@@ -61,7 +62,8 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     spots = PsfLoop(image, config, smear, psf_prior, prior_rings).run()
     if smear is not None and smear.angular_acceleration_rad_s2 is not None:
         spots = to_mid_exposure(spots, smear)
-    return replace(spots, applied_motion=AppliedMotion.of(smear, spots.rate_aid_rejected))
+    streaks_fitted = smear is not None and typical_smear_px(smear, spots.width, spots.height) >= config.min_smear_px
+    return replace(spots, applied_motion=AppliedMotion.of(smear, spots.rate_aid_rejected, streaks_fitted))
 
 
 def to_mid_exposure(spots: Spots, smear: "SmearModel") -> Spots:

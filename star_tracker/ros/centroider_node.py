@@ -20,9 +20,10 @@ topic (Vector3Stamped), the `imu` topic (sensor_msgs/Imu from a gyro, rotated by
 each star's smear over the exposure is predicted; detection uses the matched streak filter
 and positions come from a fit on the predicted (possibly curved) path. Each measured frame's
 aid, as applied, goes out before its spots, stamped as them: `smear_aid/angular_velocity`
-(aided frames) and `smear_aid/angular_acceleration` (every frame; zero when the positions
-are exposure averages), so the identifier knows what each frame measured even when the rate
-it sent arrived frames late (msg_docs/smear_aid.md).
+(aided frames), `smear_aid/exposure_path_offset` (frames whose streaks were fitted on a gyro's
+path within the exposure) and `smear_aid/angular_acceleration` (every frame; zero when the
+positions are exposure averages), so the identifier knows what each frame measured even when
+the rate it sent arrived frames late (msg_docs/smear_aid.md).
 
 A managed node (managed_node.py): `configure` compiles the kernels and creates the topics,
 `activate` starts measuring; images arriving while inactive are counted
@@ -101,6 +102,8 @@ class CentroiderNode(ManagedNode):
         warm_up()  # compile the kernels before the first frame (~25 s the first time, then cached: ~0.4 s)
         self.pub = self.create_lifecycle_publisher(PointCloud2, "spots", **overridable(SPOTS_QOS))
         self.pub_aid_rate = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/angular_velocity",
+                                                            **overridable(SPOTS_QOS))
+        self.pub_aid_path = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/exposure_path_offset",
                                                             **overridable(SPOTS_QOS))
         self.pub_aid_accel = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/angular_acceleration",
                                                              **overridable(SPOTS_QOS))
@@ -259,9 +262,11 @@ class CentroiderNode(ManagedNode):
                       **psf_values(spots.psf))
 
     def publish_applied_motion(self, applied, stamp_ns: int, frame_id: str) -> None:
-        """Publish the frame's smear aid as applied (before its spots: the identifier joins them by stamp)."""
+        """Publish the frame's smear aid as applied, before its spots (joined by stamp); the acceleration last."""
         if applied.angular_velocity_rad_s is not None:
             self.pub_aid_rate.publish(convert.vector3_msg(applied.angular_velocity_rad_s, stamp_ns, frame_id))
+        if applied.exposure_path_offset_rad is not None:
+            self.pub_aid_path.publish(convert.vector3_msg(applied.exposure_path_offset_rad, stamp_ns, frame_id))
         alpha = applied.angular_acceleration_rad_s2
         self.pub_aid_accel.publish(convert.vector3_msg(np.zeros(3) if alpha is None else alpha, stamp_ns, frame_id))
 

@@ -7,7 +7,10 @@ The centroider publishes them before the frame's spots, stamped as them
 knows what each attitude measured (Spots.applied_motion) even when the rate the identifier
 sent reached the centroider frames late. `smear_aid/angular_acceleration` comes with every
 measured frame (zero: none applied) and completes a frame's entry; `smear_aid/angular_velocity`
-only with rate-aided ones. Messages are only read here (duck-typed): no running ROS needed.
+only with rate-aided ones, `smear_aid/exposure_path_offset` only with frames fitted on a gyro's
+path (one that arrives after its frame's acceleration is not waited for: the frame is taken as
+not fitted on a path, and its covariance bounds an acceleration instead). Messages are only
+read here (duck-typed): no running ROS needed.
 """
 from __future__ import annotations
 
@@ -41,6 +44,7 @@ class SmearAidInput:
         """reject(counter, text): count and report a refused message (`smear_aid_rejected`: non-finite)."""
         self.reject = reject
         self._rates: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._path_offsets: OrderedDict[int, np.ndarray] = OrderedDict()
         self._accelerations: OrderedDict[int, np.ndarray] = OrderedDict()
         self._arrived = threading.Condition()
 
@@ -52,6 +56,9 @@ class SmearAidInput:
 
     def on_rate(self, msg) -> None:
         self._add(self._rates, msg)
+
+    def on_path_offset(self, msg) -> None:
+        self._add(self._path_offsets, msg)
 
     def on_acceleration(self, msg) -> None:
         self._add(self._accelerations, msg)
@@ -84,9 +91,14 @@ class SmearAidInput:
             if alpha is None:
                 return None
             omega = self._rates.get(stamp_ns)
-        return AppliedMotion(omega, alpha if np.any(alpha) else None)
+            offset = self._path_offsets.get(stamp_ns)
+        alpha = alpha if np.any(alpha) else None
+        if offset is not None and (omega is None or alpha is not None):
+            offset = None  # not a frame fitted on a path after all (AppliedMotion's rule)
+        return AppliedMotion(omega, alpha, offset)
 
     def clear(self) -> None:
         with self._arrived:
             self._rates.clear()
+            self._path_offsets.clear()
             self._accelerations.clear()

@@ -295,7 +295,9 @@ class Tracker:
 
         `applied`: the motion the frame's spots were measured with (Spots.applied_motion). When
         None (not known), what a centroider aided by this tracker had (_acceleration_aid): the
-        nodes' centroider states it per frame, as its aid may come from an older estimate.
+        nodes' centroider states it per frame, as its aid may come from an older estimate. A
+        frame fitted on a gyro's path (applied.exposure_path_offset_rad) also adds that fit's
+        residual (AppliedMotion.path_residual_covariance).
         """
         solution = result.attitude
         if self._last is not None and stamp_ns <= self._last[0]:
@@ -320,6 +322,10 @@ class Tracker:
         self.rate = after
         self._last = (stamp_ns, solution.rotation, solution.covariance)  # the measurement's own covariance
         added = self.acceleration_covariance(aid_alpha, aid_alpha_cov, step, self.rate, gain)
+        # Fitted on a gyro's path within the exposure: also what that fit leaves (AppliedMotion).
+        path_residual = None if applied is None else applied.path_residual_covariance()
+        if path_residual is not None:
+            added = path_residual if added is None else added + path_residual
         if added is not None:
             result = replace(result, attitude=replace(solution, covariance=solution.covariance + added))
         return TrackedFrame(stamp_ns, mode, result, self.rate, gate_px, bridged, time.perf_counter() - started)

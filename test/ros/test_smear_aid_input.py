@@ -5,6 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from star_tracker.centroid.streak.exposure_path import PATH_FIT_RESIDUAL_FRACTION
 from star_tracker.ros.smear_aid_input import KEPT, SmearAidInput
 
 
@@ -49,3 +50,20 @@ def test_only_the_newest_frames_are_kept():
     assert aid.applied_for((KEPT + 9) * 100_000_000, wait_s=0.0).angular_acceleration_rad_s2[2] == KEPT + 9
     aid.clear()
     assert not aid.received
+
+
+def test_a_frame_fitted_on_a_gyros_path_gets_its_offset_and_the_path_residual():
+    aid = SmearAidInput(lambda counter, text: None)
+    offset = (2e-5, -1e-4, 0.0)  # rad: about 21" from mid-exposure to the exposure average
+    aid.on_rate(message(7_000_000_000, (0.001, 0.007, 0.0)))
+    aid.on_path_offset(message(7_000_000_000, offset))
+    aid.on_acceleration(message(7_000_000_000, (0.0, 0.0, 0.0)))  # none applied on a path
+    applied = aid.applied_for(7_000_000_000)
+    assert np.allclose(applied.exposure_path_offset_rad, offset) and applied.angular_acceleration_rad_s2 is None
+    sigma = np.sqrt(np.diag(applied.path_residual_covariance()))
+    assert np.allclose(sigma, PATH_FIT_RESIDUAL_FRACTION * np.linalg.norm(offset))
+    # An offset without the rate it was fitted with (that message lost) is not a path fit.
+    aid.on_path_offset(message(7_100_000_000, offset))
+    aid.on_acceleration(message(7_100_000_000, (0.0, 0.0, 0.0)))
+    lone = aid.applied_for(7_100_000_000)
+    assert lone.exposure_path_offset_rad is None and lone.path_residual_covariance() is None

@@ -312,6 +312,33 @@ def test_the_added_covariance_is_what_the_acceleration_can_do_to_one_exposure(pa
     assert np.allclose(gap, np.eye(3) * bound)
 
 
+def test_a_frame_fitted_on_a_gyros_path_adds_its_path_residual(parts):
+    # At a steady rate: the rate window knows the motion, so a frame measured without an
+    # acceleration adds next to nothing; a frame fitted on a gyro's path also states that fit's
+    # residual (AppliedMotion.path_residual_covariance: 1.5 % of the 30" offset from
+    # mid-exposure), the rest unchanged.
+    from star_tracker.centroid.applied_motion import AppliedMotion
+    from star_tracker.centroid.streak.exposure_path import PATH_FIT_RESIDUAL_FRACTION
+
+    lis, _ = parts
+    base = radec_roll_to_matrix(1.4, 0.35, 0.2)
+    offset = np.array([30.0, 0.0, 0.0]) * ARCSEC
+    omega = np.array([0.0, math.radians(0.3), 0.0])
+    added = {}
+    for on_path in (False, True):
+        tracker = Tracker(lis)
+        for k in range(8):
+            t = 0.1 * k
+            rotation = base @ rotation_vector_to_matrix(omega * t)
+            applied = AppliedMotion(omega, None, offset if on_path else None)
+            frame = tracker._accept(int(round(t * 1e9)), solution(rotation, ARCSEC), "tracking", None, 0, 0.0,
+                                    None, applied)
+        added[on_path] = frame.identification.attitude.covariance - np.eye(3) * ARCSEC ** 2
+    residual = (PATH_FIT_RESIDUAL_FRACTION * 30.0 * ARCSEC) ** 2
+    assert np.max(np.abs(added[False])) < 0.01 * residual
+    assert np.allclose(added[True] - added[False], np.eye(3) * residual)
+
+
 def test_the_bias_gain_covers_a_constant_rate_fit_of_an_accelerated_streak(parts, nominal_camera):
     lis, renderer = parts
     motion = slew()
