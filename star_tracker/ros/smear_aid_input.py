@@ -8,9 +8,9 @@ knows what each attitude measured (Spots.applied_motion) even when the rate the 
 sent reached the centroider frames late. `smear_aid/angular_acceleration` comes with every
 measured frame (zero: none applied) and completes a frame's entry; `smear_aid/angular_velocity`
 only with rate-aided ones, `smear_aid/exposure_path_offset` only with frames fitted on a gyro's
-path (one that arrives after its frame's acceleration is not waited for: the frame is taken as
-not fitted on a path, and its covariance bounds an acceleration instead). Messages are only
-read here (duck-typed): no running ROS needed.
+path (one that arrives after its frame's acceleration is not waited for: that frame's
+covariance then lacks the path fit's residual). Messages are only read here (duck-typed): no
+running ROS needed.
 """
 from __future__ import annotations
 
