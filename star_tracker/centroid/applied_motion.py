@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .streak.exposure_path import PATH_FIT_RESIDUAL_FRACTION
+
 if TYPE_CHECKING:
     from .streak.smear import SmearModel
 
@@ -57,8 +59,6 @@ class AppliedMotion:
         """
         if self.exposure_path_offset_rad is None:
             return None
-        from .streak.exposure_path import PATH_FIT_RESIDUAL_FRACTION
-
         sigma = PATH_FIT_RESIDUAL_FRACTION * float(np.linalg.norm(self.exposure_path_offset_rad))
         return np.eye(3) * sigma * sigma
 
@@ -67,8 +67,8 @@ class AppliedMotion:
         """
         Return what extract_spots applied of `smear` (None: nothing); a rejected aid leaves only its acceleration.
 
-        streaks_fitted: the streaks were fitted on the smear's paths (its smear at least
-        CentroidConfig.min_smear_px long); only then does a gyro's path give the offset.
+        streaks_fitted: spots were fitted on the smear's paths (FLAG_RATE_AIDED); only then does
+        a gyro's path give the offset.
         """
         if smear is None:
             return NOT_AIDED

@@ -22,7 +22,6 @@ from .applied_motion import AppliedMotion
 from .config import CentroidConfig
 from .psf_loop import PsfLoop
 from .spots import FLAG_RATE_AIDED, Spots
-from .streak.rate_aid import typical_smear_px
 
 if TYPE_CHECKING:
     from .streak.smear import SmearModel
@@ -62,7 +61,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     spots = PsfLoop(image, config, smear, psf_prior, prior_rings).run()
     if smear is not None and smear.angular_acceleration_rad_s2 is not None:
         spots = to_mid_exposure(spots, smear)
-    streaks_fitted = smear is not None and typical_smear_px(smear, spots.width, spots.height) >= config.min_smear_px
+    streaks_fitted = bool(np.any(np.asarray(spots.flags) & FLAG_RATE_AIDED))  # fitted on the smear's paths
     return replace(spots, applied_motion=AppliedMotion.of(smear, spots.rate_aid_rejected, streaks_fitted))
 
 

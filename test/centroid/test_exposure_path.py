@@ -13,8 +13,8 @@ import pytest
 
 from bench import alt_renderer as alt
 from star_tracker.centroid import CentroidConfig, extract_spots
-from star_tracker.centroid.streak.exposure_path import MIN_SAMPLES_INSIDE, PATH_MIN_DEVIATION_PX, ExposurePath
 from star_tracker.centroid.applied_motion import AppliedMotion
+from star_tracker.centroid.streak.exposure_path import MIN_SAMPLES_INSIDE, PATH_MIN_DEVIATION_PX, ExposurePath
 from star_tracker.centroid.streak.smear import SmearModel
 
 from smeared_alt_frames import CAMERA, EXPOSURE_S, jittered_frame
