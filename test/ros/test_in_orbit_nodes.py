@@ -160,6 +160,7 @@ def test_a_bad_orbit_leaves_the_camera_unconfigured_and_says_why(ros_graph, tmp_
                           nodes=("camera_simulator",))
     try:
         nodes.start()
+        nodes.wait_ready()  # a camera started alone is not waited for: its process may still be importing
         assert nodes.get_state("camera_simulator") == "unconfigured"
         assert not nodes.change_state("camera_simulator", "configure")
         assert nodes.get_state("camera_simulator") == "unconfigured"
