@@ -95,6 +95,7 @@ class Harness:
         self.poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # stamp -> (quaternion xyzw, 3x3 covariance)
         self.matches: dict[int, np.ndarray] = {}
         self.status: dict[int, str] = {}  # stamp -> the identifier's status message
+        self.path_frames: set[int] = set()  # stamps of frames fitted on a gyro's path (their attitude: mid-exposure)
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.diagnostics_seen: dict[str, int] = {}  # status name -> messages received
         n = self.node
@@ -103,6 +104,8 @@ class Harness:
         self.pub_imu = n.create_publisher(Imu, "imu", RATE_INPUT_QOS)
         n.create_subscription(PointCloud2, "spots", self._on_spots, MONITOR_SENSOR_QOS)
         n.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, MONITOR_RESULT_QOS)
+        n.create_subscription(PoseWithCovarianceStamped, "smear_aid/exposure_path_offset", self._on_path_offset,
+                              MONITOR_SENSOR_QOS)
         n.create_subscription(PointCloud2, "matched_stars", self._on_matches, MONITOR_RESULT_QOS)
         n.create_subscription(DiagnosticArray, "status", self._on_status, MONITOR_RESULT_QOS)
         n.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
@@ -131,6 +134,10 @@ class Harness:
         with self.changed:
             self.poses[self.convert.stamp_to_ns(msg.header.stamp)] = (np.array([q.x, q.y, q.z, q.w]), cov)
             self.changed.notify_all()
+
+    def _on_path_offset(self, msg) -> None:
+        with self.changed:
+            self.path_frames.add(self.convert.stamp_to_ns(msg.header.stamp))
 
     def _on_matches(self, msg) -> None:
         records = self.convert.cloud_to_records(msg, self.convert.MATCH_FIELDS, self.convert.MATCH_DTYPE).copy()
@@ -472,7 +479,10 @@ def _drive(plan: StressPlan, source: FrameSource, nodes, harness: Harness, recor
             record["status"] = h.status.get(stamp)
             pose = h.poses.get(stamp)
             if pose is not None and record["fault"] != "stamp_future":
-                record.update(score_attitude(pose[0], pose[1], record["reference"]), attitude=True)
+                # A frame fitted on a gyro's path is published at mid-exposure (Tracker._accept_on_path).
+                on_path = stamp in h.path_frames
+                reference = record["truth"].rotation if on_path else record["reference"]
+                record.update(score_attitude(pose[0], pose[1], reference), attitude=True, on_path=on_path)
                 matches = h.matches.get(stamp)
                 if matches is not None:
                     scored = score_matches(matches, record["truth"])

@@ -7,8 +7,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .streak.exposure_path import PATH_FIT_RESIDUAL_FRACTION
-
 if TYPE_CHECKING:
     from .streak.smear import SmearModel
 
@@ -25,9 +23,10 @@ class AppliedMotion:
     the positions are the exposure averages, off mid-exposure by alpha T^2 / 24 under an
     acceleration alpha. exposure_path_offset_rad: (3,) [rad] when the streaks were fitted on
     the path a gyro measured within the exposure (SmearModel.exposure_path), its
-    mid_exposure_offset_rad (R_mid = R_mean exp([offset x])); the positions are then that path's
-    exposure averages (angular_acceleration_rad_s2 None), with the path fit's residual
-    (path_residual_covariance) beside the offset to mid-exposure. The tracker reads it to know
+    mid_exposure_offset_rad (R_mid = R_mean exp([offset x])): the positions are then that path's
+    exposure averages (angular_acceleration_rad_s2 None), which the tracker carries to
+    mid-exposure by this offset; exposure_path_offset_covariance: (3, 3) [rad^2] that offset's
+    (ExposurePath.mid_exposure_offset_covariance), given with it. The tracker reads it to know
     what each attitude measured (track/rate.py, tracking.py); over ROS it travels on the
     centroider's `smear_aid/*` topics.
     """
@@ -35,6 +34,7 @@ class AppliedMotion:
     angular_velocity_rad_s: np.ndarray | None = None
     angular_acceleration_rad_s2: np.ndarray | None = None
     exposure_path_offset_rad: np.ndarray | None = None
+    exposure_path_offset_covariance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("angular_velocity_rad_s", "angular_acceleration_rad_s2", "exposure_path_offset_rad"):
@@ -49,18 +49,16 @@ class AppliedMotion:
                                                           or self.angular_acceleration_rad_s2 is not None):
             raise ValueError("AppliedMotion.exposure_path_offset_rad needs the rate the path was fitted with "
                              "and no angular acceleration")
-
-    def path_residual_covariance(self) -> np.ndarray | None:
-        """
-        Attitude covariance [rad^2] (3, 3) of what a fit on a gyro's path leaves (None: not fitted on one).
-
-        (PATH_FIT_RESIDUAL_FRACTION |offset|)^2 per axis (exposure_path.py): an error common to
-        every star, not reduced by their number.
-        """
-        if self.exposure_path_offset_rad is None:
-            return None
-        sigma = PATH_FIT_RESIDUAL_FRACTION * float(np.linalg.norm(self.exposure_path_offset_rad))
-        return np.eye(3) * sigma * sigma
+        covariance = self.exposure_path_offset_covariance
+        if (covariance is None) != (self.exposure_path_offset_rad is None):
+            raise ValueError("AppliedMotion.exposure_path_offset_rad and exposure_path_offset_covariance come together")
+        if covariance is not None:
+            matrix = np.array(covariance, dtype=float)
+            if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)) or not np.allclose(matrix, matrix.T) \
+                    or np.any(np.linalg.eigvalsh(0.5 * (matrix + matrix.T)) < 0):
+                raise ValueError("AppliedMotion.exposure_path_offset_covariance must be a finite symmetric positive "
+                                 f"semi-definite 3x3 [rad^2], got {covariance!r}")
+            object.__setattr__(self, "exposure_path_offset_covariance", matrix)
 
     @staticmethod
     def of(smear: "SmearModel | None", rate_aid_rejected: bool, streaks_fitted: bool = False) -> "AppliedMotion":
@@ -76,8 +74,10 @@ class AppliedMotion:
         if rate_aid_rejected:
             return AppliedMotion(None, alpha)
         path = smear.exposure_path if streaks_fitted else None
-        return AppliedMotion(smear.angular_velocity_rad_s, alpha,
-                             None if path is None else path.mid_exposure_offset_rad)
+        if path is None:
+            return AppliedMotion(smear.angular_velocity_rad_s, alpha)
+        return AppliedMotion(smear.angular_velocity_rad_s, alpha, path.mid_exposure_offset_rad,
+                             path.mid_exposure_offset_covariance)
 
 
 NOT_AIDED = AppliedMotion()

@@ -36,7 +36,7 @@ from dataclasses import replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import Vector3Stamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, Vector3Stamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, PointCloud2
 
 from ..centroid import CentroidConfig, extract_spots
@@ -103,8 +103,8 @@ class CentroiderNode(ManagedNode):
         self.pub = self.create_lifecycle_publisher(PointCloud2, "spots", **overridable(SPOTS_QOS))
         self.pub_aid_rate = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/angular_velocity",
                                                             **overridable(SPOTS_QOS))
-        self.pub_aid_path = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/exposure_path_offset",
-                                                            **overridable(SPOTS_QOS))
+        self.pub_aid_path = self.create_lifecycle_publisher(PoseWithCovarianceStamped,
+                                                            "smear_aid/exposure_path_offset", **overridable(SPOTS_QOS))
         self.pub_aid_accel = self.create_lifecycle_publisher(Vector3Stamped, "smear_aid/angular_acceleration",
                                                              **overridable(SPOTS_QOS))
         self.frames = NewestFrame(self, self.measure, self.diag, self.log, self.queue_depth)
@@ -266,7 +266,9 @@ class CentroiderNode(ManagedNode):
         if applied.angular_velocity_rad_s is not None:
             self.pub_aid_rate.publish(convert.vector3_msg(applied.angular_velocity_rad_s, stamp_ns, frame_id))
         if applied.exposure_path_offset_rad is not None:
-            self.pub_aid_path.publish(convert.vector3_msg(applied.exposure_path_offset_rad, stamp_ns, frame_id))
+            self.pub_aid_path.publish(convert.path_offset_msg(applied.exposure_path_offset_rad,
+                                                              applied.exposure_path_offset_covariance, stamp_ns,
+                                                              frame_id))
         alpha = applied.angular_acceleration_rad_s2
         self.pub_aid_accel.publish(convert.vector3_msg(np.zeros(3) if alpha is None else alpha, stamp_ns, frame_id))
 

@@ -15,6 +15,8 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
+from ..models.attitude import (matrix_to_quaternion, matrix_to_rotation_vector, quaternion_to_matrix,
+                               rotation_vector_to_matrix)
 from ..models.attitude_estimation import AttitudeSolution
 from ..models.camera import CameraModel
 from ..centroid import Spots
@@ -330,6 +332,40 @@ def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int,
     o.x, o.y, o.z, o.w = (float(v) for v in solution.quaternion)
     msg.pose.covariance = _rotation_block_covariance(solution.covariance)
     return msg
+
+
+def path_offset_msg(offset_rad: np.ndarray, covariance: np.ndarray, stamp_ns: int,
+                    frame_id: str) -> PoseWithCovarianceStamped:
+    """
+    A frame's offset from its exposure-average attitude to mid-exposure (smear_aid/exposure_path_offset).
+
+    Orientation: exp([offset x]) (R_mid = R_mean exp([offset x]), in the sensor frame
+    `frame_id`); the rotation block of the covariance: the offset's [rad^2]; the position
+    block unknown (-1 on its diagonal).
+    """
+    msg = PoseWithCovarianceStamped()
+    msg.header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame_id)
+    o = msg.pose.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in matrix_to_quaternion(rotation_vector_to_matrix(offset_rad)))
+    msg.pose.covariance = _rotation_block_covariance(covariance)
+    return msg
+
+
+def path_offset_from_msg(msg) -> tuple[np.ndarray, np.ndarray] | None:
+    """
+    Return (offset [rad] (3,), covariance [rad^2] (3, 3)) of a path_offset_msg, or None when malformed.
+
+    Malformed: a non-finite or non-unit quaternion (beyond 1e-3), a rotation block not finite,
+    symmetric and positive semi-definite. Duck-typed (pose.pose.orientation, pose.covariance).
+    """
+    o = msg.pose.pose.orientation
+    q = np.array([o.x, o.y, o.z, o.w], float)
+    block = np.asarray(msg.pose.covariance, float).reshape(6, 6)[3:, 3:] if len(msg.pose.covariance) == 36 else None
+    if block is None or not (np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1.0) <= 1e-3) \
+            or not np.all(np.isfinite(block)) or not np.allclose(block, block.T) \
+            or np.any(np.linalg.eigvalsh(0.5 * (block + block.T)) < 0):
+        return None
+    return matrix_to_rotation_vector(quaternion_to_matrix(q / np.linalg.norm(q))), block
 
 
 def _rotation_block_covariance(block: np.ndarray) -> list[float]:

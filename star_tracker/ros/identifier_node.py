@@ -176,8 +176,9 @@ class IdentifierNode(ManagedNode):
         # Before the spots: a frame's aid is published first and should be read first.
         self.sub_aid_rate = self.create_subscription(Vector3Stamped, "smear_aid/angular_velocity",
                                                      self.smear_aid.on_rate, **overridable(SPOTS_QOS))
-        self.sub_aid_path = self.create_subscription(Vector3Stamped, "smear_aid/exposure_path_offset",
-                                                     self.smear_aid.on_path_offset, **overridable(SPOTS_QOS))
+        self.sub_aid_path = self.create_subscription(PoseWithCovarianceStamped,
+                                                     "smear_aid/exposure_path_offset", self.smear_aid.on_path_offset,
+                                                     **overridable(SPOTS_QOS))
         self.sub_aid_accel = self.create_subscription(Vector3Stamped, "smear_aid/angular_acceleration",
                                                       self.smear_aid.on_acceleration, **overridable(SPOTS_QOS))
         self.sub_spots = self.create_subscription(PointCloud2, "spots", self.on_spots, **overridable(SPOTS_QOS))

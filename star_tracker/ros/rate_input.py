@@ -21,6 +21,7 @@ here (duck-typed), so this module needs no running ROS.
 """
 from __future__ import annotations
 
+import math
 import threading
 from collections import deque
 from typing import Callable
@@ -76,16 +77,20 @@ class RateSamples:
 
     def __init__(self, kept: int = SAMPLES_KEPT):
         self._samples: deque[tuple[int, np.ndarray]] = deque(maxlen=kept)
+        self._noise: deque[float] = deque(maxlen=kept)  # each sample's stated noise, 1 sigma [rad/s] (0: not stated)
         # Angular accelerations stamped as rate samples (the identifier's estimate of both).
         self._accelerations: deque[tuple[int, np.ndarray]] = deque(maxlen=ACCELERATIONS_KEPT)
         self._lock = threading.Lock()
 
-    def add(self, stamp: int, omega: np.ndarray) -> None:
+    def add(self, stamp: int, omega: np.ndarray, noise_rad_s: float = 0.0) -> None:
+        """Add a sample [ns, rad/s in the sensor frame] with its stated white noise, 1 sigma per axis [rad/s]."""
         with self._lock:
             if self._samples and stamp < self._samples[-1][0] - TIME_RESET_S * 1e9:
                 self._samples.clear()  # the old timeline's samples must not serve the new one's frames
+                self._noise.clear()
                 self._accelerations.clear()
             self._samples.append((stamp, omega))
+            self._noise.append(float(noise_rad_s))
 
     def add_acceleration(self, stamp: int, alpha: np.ndarray) -> None:
         """Add the angular acceleration [rad/s^2] estimated with the rate sample of the same stamp."""
@@ -120,22 +125,25 @@ class RateSamples:
             return None, "too_old"
         return rates[nearest], "ok"
 
-    def around_exposure(self, frame_stamp: int, exposure_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+    def around_exposure(self, frame_stamp: int, exposure_s: float) -> tuple[np.ndarray, np.ndarray, float] | None:
         """
-        Return a gyro's samples around a frame's exposure: (offsets [s from its stamp] (n,), rates (n, 3)), or None.
+        Return a gyro's samples around a frame's exposure, (offsets [s] (n,), rates (n, 3), noise), or None.
 
-        Those within an exposure's length of either end, for the path within the exposure
-        (centroid/streak/exposure_path.py). None for an input that came with accelerations
-        (the identifier's estimates: one per frame, no path to draw) or without samples.
+        Those within an exposure's length of either end (offsets from the frame's stamp), for
+        the path within the exposure (centroid/streak/exposure_path.py); noise: the largest
+        white noise they state, 1 sigma per axis [rad/s] (an Imu's angular_velocity_covariance;
+        0 when none is stated). None for an input that came with accelerations (the
+        identifier's estimates: one per frame, no path to draw) or without samples.
         """
         reach = 1.5 * exposure_s * 1e9  # from the stamp: half the exposure and one more
         with self._lock:
             if self._accelerations or not self._samples:
                 return None
-            near = [(s, r) for s, r in self._samples if abs(s - frame_stamp) <= reach]
+            near = [(s, r, n) for (s, r), n in zip(self._samples, self._noise) if abs(s - frame_stamp) <= reach]
         if not near:
             return None
-        return (np.array([(s - frame_stamp) * 1e-9 for s, _ in near]), np.array([r for _, r in near]))
+        return (np.array([(s - frame_stamp) * 1e-9 for s, _, _ in near]), np.array([r for _, r, _ in near]),
+                max(n for _, _, n in near))
 
     def motion_for_frame(self, frame_stamp: int, exposure_s: float, max_age_s: float
                          ) -> tuple[np.ndarray | None, np.ndarray | None, str]:
@@ -242,9 +250,13 @@ class RateInput:
             self.reject("rates_no_data", "ignored imu without angular velocity (angular_velocity_covariance[0] == -1)")
             return
         w = msg.angular_velocity
-        self._add("imu", msg.header, np.array([w.x, w.y, w.z], float), rotate=True)
+        # Its stated noise: the largest variance on the diagonal (all zeros: not stated, REP 145).
+        variance = max(float(v) for v in (msg.angular_velocity_covariance[0], msg.angular_velocity_covariance[4],
+                                          msg.angular_velocity_covariance[8]))
+        noise = math.sqrt(variance) if math.isfinite(variance) and variance > 0.0 else 0.0
+        self._add("imu", msg.header, np.array([w.x, w.y, w.z], float), rotate=True, noise_rad_s=noise)
 
-    def _add(self, topic: str, header, vector: np.ndarray, rotate: bool) -> None:
+    def _add(self, topic: str, header, vector: np.ndarray, rotate: bool, noise_rad_s: float = 0.0) -> None:
         if not np.all(np.isfinite(vector)):
             self.reject("rates_rejected", f"rejected {topic} with non-finite values {vector}")
             return
@@ -252,7 +264,7 @@ class RateInput:
         if stamp == 0:
             self.reject("rates_rejected", f"rejected {topic}: unstamped (stamp 0)")
             return
-        self.samples[topic].add(stamp, self.mounting @ vector if rotate else vector)
+        self.samples[topic].add(stamp, self.mounting @ vector if rotate else vector, noise_rad_s)
 
     def for_frame(self, topic: str, frame_stamp: int, exposure_s: float, max_age_s: float) -> np.ndarray | None:
         """Return the body rate [rad/s, sensor frame] from `topic` for a frame, or None (counted)."""
@@ -279,6 +291,6 @@ class RateInput:
         return omega, alpha
 
     def around_exposure(self, topic: str, frame_stamp: int, exposure_s: float
-                        ) -> tuple[np.ndarray, np.ndarray] | None:
+                        ) -> tuple[np.ndarray, np.ndarray, float] | None:
         """Return `topic`'s gyro samples around a frame's exposure (RateSamples.around_exposure)."""
         return self.samples[topic].around_exposure(frame_stamp, exposure_s)

@@ -7,10 +7,11 @@ The centroider publishes them before the frame's spots, stamped as them
 knows what each attitude measured (Spots.applied_motion) even when the rate the identifier
 sent reached the centroider frames late. `smear_aid/angular_acceleration` comes with every
 measured frame (zero: none applied) and completes a frame's entry; `smear_aid/angular_velocity`
-only with rate-aided ones, `smear_aid/exposure_path_offset` only with frames fitted on a gyro's
-path (one that arrives after its frame's acceleration is not waited for: that frame's
-covariance then lacks the path fit's residual). Messages are only read here (duck-typed): no
-running ROS needed.
+only with rate-aided ones, `smear_aid/exposure_path_offset` (PoseWithCovarianceStamped: the
+offset to mid-exposure and its covariance) only with frames fitted on a gyro's path (one that
+arrives after its frame's acceleration is not waited for: that frame is then taken as its
+exposure average, the acceleration terms bounding its offset). Messages are only read here
+(duck-typed): no running ROS needed.
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from typing import Callable
 import numpy as np
 
 from ..centroid.applied_motion import AppliedMotion
+from .convert import path_offset_from_msg
 
 KEPT = 64  # frames: a few seconds at the usual rates, more than the spots queues hold
 # A frame's acceleration message is published just before its spots, on another topic: the
@@ -44,7 +46,7 @@ class SmearAidInput:
         """reject(counter, text): count and report a refused message (`smear_aid_rejected`: non-finite)."""
         self.reject = reject
         self._rates: OrderedDict[int, np.ndarray] = OrderedDict()
-        self._path_offsets: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._path_offsets: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._accelerations: OrderedDict[int, np.ndarray] = OrderedDict()
         self._arrived = threading.Condition()
 
@@ -58,7 +60,12 @@ class SmearAidInput:
         self._add(self._rates, msg)
 
     def on_path_offset(self, msg) -> None:
-        self._add(self._path_offsets, msg)
+        offset = path_offset_from_msg(msg)
+        if offset is None:
+            self.reject("smear_aid_rejected", f"smear_aid/exposure_path_offset with a malformed orientation or "
+                        f"covariance (stamp {_stamp_ns(msg.header) * 1e-9:.6f}); ignored")
+            return
+        self._store(self._path_offsets, _stamp_ns(msg.header), offset)
 
     def on_acceleration(self, msg) -> None:
         self._add(self._accelerations, msg)
@@ -69,8 +76,11 @@ class SmearAidInput:
             self.reject("smear_aid_rejected", f"smear_aid message with a non-finite vector (stamp "
                         f"{_stamp_ns(msg.header) * 1e-9:.6f}); ignored")
             return
+        self._store(store, _stamp_ns(msg.header), vector)
+
+    def _store(self, store: OrderedDict, stamp_ns: int, value) -> None:
         with self._arrived:
-            store[_stamp_ns(msg.header)] = vector
+            store[stamp_ns] = value
             while len(store) > KEPT:
                 store.popitem(last=False)
             self._arrived.notify_all()
@@ -93,9 +103,9 @@ class SmearAidInput:
             omega = self._rates.get(stamp_ns)
             offset = self._path_offsets.get(stamp_ns)
         alpha = alpha if np.any(alpha) else None
-        if offset is not None and (omega is None or alpha is not None):
-            offset = None  # not a frame fitted on a path after all (AppliedMotion's rule)
-        return AppliedMotion(omega, alpha, offset)
+        if offset is None or omega is None or alpha is not None:
+            return AppliedMotion(omega, alpha)  # no path, or not a frame fitted on one after all (AppliedMotion's rule)
+        return AppliedMotion(omega, alpha, *offset)
 
     def clear(self) -> None:
         with self._arrived:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..models.attitude import matrix_to_rotation_vector, rotation_vector_to_matrix
+from ..models.attitude import matrix_to_quaternion, matrix_to_rotation_vector, rotation_vector_to_matrix
 from ..models.attitude_estimation import attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
@@ -295,13 +295,20 @@ class Tracker:
 
         `applied`: the motion the frame's spots were measured with (Spots.applied_motion). When
         None (not known), what a centroider aided by this tracker had (_acceleration_aid): the
-        nodes' centroider states it per frame, as its aid may come from an older estimate. A
-        frame fitted on a gyro's path (applied.exposure_path_offset_rad) also adds that fit's
-        residual (AppliedMotion.path_residual_covariance).
+        nodes' centroider states it per frame, as its aid may come from an older estimate.
+
+        A frame fitted on a gyro's path (applied.exposure_path_offset_rad) measured the
+        exposure-average attitude of a known path: it is carried to mid-exposure by the path's
+        own offset (R_mid = R_mean exp([phi(0) x])) with that offset's covariance
+        (AppliedMotion.exposure_path_offset_covariance) in place of the acceleration terms, which bound
+        the offset of a path not known; the rate window gets it as unbiased.
         """
         solution = result.attitude
         if self._last is not None and stamp_ns <= self._last[0]:
             self.rates.reset()  # time went backwards (replay restarted): a new window
+        path_offset = None if applied is None else applied.exposure_path_offset_rad
+        if path_offset is not None:
+            return self._accept_on_path(stamp_ns, result, mode, gate_px, bridged, started, applied)
         # The estimate a rate-aided centroider had for this frame: the last, while it is no older
         # than ACCELERATION_MAX_AGE_S (the centroider ages its acceleration out by the same rule).
         aid = self._acceleration_aid(stamp_ns)
@@ -322,13 +329,22 @@ class Tracker:
         self.rate = after
         self._last = (stamp_ns, solution.rotation, solution.covariance)  # the measurement's own covariance
         added = self.acceleration_covariance(aid_alpha, aid_alpha_cov, step, self.rate, gain)
-        # Fitted on a gyro's path within the exposure: also what that fit leaves (AppliedMotion).
-        path_residual = None if applied is None else applied.path_residual_covariance()
-        if path_residual is not None:
-            added = path_residual if added is None else added + path_residual
         if added is not None:
             result = replace(result, attitude=replace(solution, covariance=solution.covariance + added))
         return TrackedFrame(stamp_ns, mode, result, self.rate, gate_px, bridged, time.perf_counter() - started)
+
+    def _accept_on_path(self, stamp_ns: int, result: Identification, mode: str, gate_px, bridged: int,
+                        started: float, applied: AppliedMotion) -> TrackedFrame:
+        """_accept for a frame fitted on a gyro's path: carried to mid-exposure by the path's offset."""
+        solution = result.attitude
+        rotation = solution.rotation @ rotation_vector_to_matrix(applied.exposure_path_offset_rad)
+        covariance = solution.covariance + applied.exposure_path_offset_covariance
+        mid = replace(solution, quaternion=matrix_to_quaternion(rotation), rotation=rotation, covariance=covariance)
+        # A mid-exposure attitude: no acceleration biases it (bias gain 0).
+        self.rate = self.rates.add(stamp_ns, rotation, covariance, 0.0, None)
+        self._last = (stamp_ns, rotation, covariance)
+        return TrackedFrame(stamp_ns, mode, replace(result, attitude=mid), self.rate, gate_px, bridged,
+                            time.perf_counter() - started)
 
     def centroider_aid(self, stamp_ns: int, camera: CameraModel, exposure_s: float,
                        max_rate_age_s: float = ACCELERATION_MAX_AGE_S) -> SmearModel | None:
@@ -657,9 +673,13 @@ class Tracker:
         # The rate window restarts: the bridged frames' attitudes were not verified one by one.
         self.rates.reset()
         applied = solved_spots.applied_motion or AppliedMotion()  # not known: measured without a rate (no aid)
-        self.rates.add(stamp_ns, result.attitude.rotation, result.attitude.covariance,
-                       self.bias_gain(applied.angular_velocity_rad_s, pending[0][2].pixel_scale_rad),
-                       applied.angular_acceleration_rad_s2)
+        if applied.exposure_path_offset_rad is not None:  # on a gyro's path: its mid-exposure attitude, unbiased
+            self.rates.add(stamp_ns, result.attitude.rotation @ rotation_vector_to_matrix(
+                applied.exposure_path_offset_rad), result.attitude.covariance + applied.exposure_path_offset_covariance)
+        else:
+            self.rates.add(stamp_ns, result.attitude.rotation, result.attitude.covariance,
+                           self.bias_gain(applied.angular_velocity_rad_s, pending[0][2].pixel_scale_rad),
+                           applied.angular_acceleration_rad_s2)
         return self._accept(newest_ns, tracked, MODE_TRACKING, gate, len(chain), started, camera.pixel_scale_rad,
                             spots.applied_motion)
 

@@ -69,7 +69,8 @@ the campaign.
   12-13: fitted on the gyro's path, 0.5" off in common at a stated 0.1" (NEES 34-42): the
   covariance added the acceleration the rate window estimated (about none) where the path
   fit leaves a residual in proportion to the path's offset. A frame fitted on a gyro's path
-  now adds that residual (AppliedMotion.path_residual_covariance).
+  is carried to mid-exposure by the path's offset, stated with that residual and the gyro's
+  noise (AppliedMotion.exposure_path_offset_covariance).
 """
 from __future__ import annotations
 

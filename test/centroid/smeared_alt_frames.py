@@ -82,6 +82,7 @@ class JitteredFrame(NamedTuple):
     y: np.ndarray
     gyro_offsets_s: np.ndarray  # (n,) the gyro's sample times [s from mid-exposure]
     gyro_rates: np.ndarray  # (n, 3) its noise-free samples [rad/s, sensor frame]
+    mid_exposure_offset_rad: np.ndarray  # (3,) phi(0) less phi's exposure mean: R_mid = R_mean exp([phi x])
 
 
 def jittered_frame(psf, drift_rad_s: np.ndarray, jitter_rad: np.ndarray, jitter_hz: float, phase_rad: float,
@@ -108,6 +109,7 @@ def jittered_frame(psf, drift_rad_s: np.ndarray, jitter_rad: np.ndarray, jitter_
 
     times = ((np.arange(steps) + 0.5) / steps - 0.5) * EXPOSURE_S
     phi = turn(times)
+    mid = turn(np.zeros(1))[0] - phi.mean(axis=0)
     phi = phi - phi.mean(axis=0)
     dx, dy = -CAMERA.fx * phi[:, 1], CAMERA.fy * phi[:, 0]
     signal = np.zeros((SIZE, SIZE))
@@ -120,4 +122,4 @@ def jittered_frame(psf, drift_rad_s: np.ndarray, jitter_rad: np.ndarray, jitter_
     offsets = 0.5 * EXPOSURE_S - (np.arange(int(round(0.25 * gyro_hz))) + 0.5) / gyro_hz
     swing = omega_j * np.cos(omega_j * offsets + phase_rad)
     rate = np.multiply.outer(np.ones_like(offsets), drift) + np.multiply.outer(swing, jitter)
-    return JitteredFrame(image, x, y, offsets, np.column_stack([rate, np.zeros(offsets.size)]))
+    return JitteredFrame(image, x, y, offsets, np.column_stack([rate, np.zeros(offsets.size)]), np.append(mid, 0.0))

@@ -1,11 +1,11 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The identifier's smear_aid inputs, joined to frames by stamp (duck-typed messages: no ROS needed)."""
+"""The identifier's smear_aid inputs, joined to frames by stamp (no running ROS needed)."""
 import threading
 from types import SimpleNamespace
 
 import numpy as np
 
-from star_tracker.centroid.streak.exposure_path import PATH_FIT_RESIDUAL_FRACTION
+from star_tracker.ros import convert
 from star_tracker.ros.smear_aid_input import KEPT, SmearAidInput
 
 
@@ -52,18 +52,30 @@ def test_only_the_newest_frames_are_kept():
     assert not aid.received
 
 
-def test_a_frame_fitted_on_a_gyros_path_gets_its_offset_and_the_path_residual():
-    aid = SmearAidInput(lambda counter, text: None)
-    offset = (2e-5, -1e-4, 0.0)  # rad: about 21" from mid-exposure to the exposure average
+def path_message(stamp_ns, offset, covariance):
+    return convert.path_offset_msg(np.asarray(offset), covariance, stamp_ns, "star_tracker_optical")
+
+
+def test_a_frame_fitted_on_a_gyros_path_gets_its_offset_and_covariance():
+    rejected = []
+    aid = SmearAidInput(lambda counter, text: rejected.append(counter))
+    offset = np.array([2e-5, -1e-4, 0.0])  # rad: about 21" from the exposure average to mid-exposure
+    covariance = np.diag([1.0, 2.0, 3.0]) * 1e-12
     aid.on_rate(message(7_000_000_000, (0.001, 0.007, 0.0)))
-    aid.on_path_offset(message(7_000_000_000, offset))
+    aid.on_path_offset(path_message(7_000_000_000, offset, covariance))
     aid.on_acceleration(message(7_000_000_000, (0.0, 0.0, 0.0)))  # none applied on a path
     applied = aid.applied_for(7_000_000_000)
-    assert np.allclose(applied.exposure_path_offset_rad, offset) and applied.angular_acceleration_rad_s2 is None
-    sigma = np.sqrt(np.diag(applied.path_residual_covariance()))
-    assert np.allclose(sigma, PATH_FIT_RESIDUAL_FRACTION * np.linalg.norm(offset))
+    assert np.allclose(applied.exposure_path_offset_rad, offset, rtol=0, atol=1e-12)
+    assert np.allclose(applied.exposure_path_offset_covariance, covariance)
+    assert applied.angular_acceleration_rad_s2 is None
     # An offset without the rate it was fitted with (that message lost) is not a path fit.
-    aid.on_path_offset(message(7_100_000_000, offset))
+    aid.on_path_offset(path_message(7_100_000_000, offset, covariance))
     aid.on_acceleration(message(7_100_000_000, (0.0, 0.0, 0.0)))
     lone = aid.applied_for(7_100_000_000)
-    assert lone.exposure_path_offset_rad is None and lone.path_residual_covariance() is None
+    assert lone.exposure_path_offset_rad is None and lone.exposure_path_offset_covariance is None
+    # A malformed offset (a quaternion not of unit norm, a covariance not positive) is counted and ignored.
+    bad = path_message(7_200_000_000, offset, covariance)
+    bad.pose.pose.orientation.w = 2.0
+    aid.on_path_offset(bad)
+    aid.on_path_offset(path_message(7_200_000_000, offset, -covariance))
+    assert rejected == ["smear_aid_rejected"] * 2

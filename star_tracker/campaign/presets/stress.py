@@ -433,7 +433,8 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
                 + mission.gyro_bias_rad_s + rng.normal(0.0, GYRO_NOISE_RAD_S, size=(offsets.size, 3))
             inside = np.abs(offsets) <= 0.5 * shared.exposure_s
             smear = SmearModel(shared.camera, samples[inside].mean(axis=0), shared.exposure_s,
-                               significant(*from_samples(offsets, samples))).with_exposure_path(offsets, samples)
+                               significant(*from_samples(offsets, samples)))
+            smear = smear.with_exposure_path(offsets, samples, GYRO_NOISE_RAD_S)
         else:
             # The identifier's estimate carried to the frame by its acceleration, as the centroider does.
             smear = tracker.centroider_aid(stamp_ns, shared.camera, shared.exposure_s, MAX_RATE_AGE_S)
@@ -445,9 +446,11 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
         ident = result.identification
         if ident.solved:
             # Jitter faster than a frame is unobservable in it: the head measures, and is judged
-            # against, the exposure's mean attitude (the mid-exposure one elsewhere).
+            # against, the exposure's mean attitude (the mid-exposure one elsewhere), unless a
+            # gyro's path carried it to mid-exposure (Tracker._accept_on_path).
+            on_path = spots.applied_motion.exposure_path_offset_rad is not None
             reference = exposure_average_rotation(mission.motion, tau, shared.exposure_s) \
-                if mission.motion_kind == "jitter" else truth.rotation
+                if mission.motion_kind == "jitter" and not on_path else truth.rotation
             scored = score(ident, truth_hip(truth, spots, ident), reference, options.wrong_arcsec)
             row["jitter_arcsec"] = float(np.linalg.norm(matrix_to_rotation_vector(truth.rotation.T @ reference))) \
                 / ARCSEC

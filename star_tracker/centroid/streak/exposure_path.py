@@ -13,15 +13,23 @@ PATH_MIN_DEVIATION_PX.
 
 The path is taken relative to the exposure-average attitude, so the spots fitted on it are the
 exposure-average positions: a fit on a path of the right shape puts its centre at the light's
-mean whatever the gyro's noise and bias add to that mean, and jitter within an exposure is not
-otherwise observable from the image (the frame is judged against its exposure-average attitude,
-as without a gyro).
+mean whatever the gyro's noise and bias add to that mean. The path's own offset of
+mid-exposure from that mean, phi(0) (mid_exposure_offset_rad), then carries the frame's
+attitude to mid-exposure (the tracker: R_mid = R_mean exp([phi(0) x])), with its covariance
+(mid_exposure_offset_covariance): what the gyro's noise leaves in phi(0) (a bias moves it by
+nothing, its time mean being zero) and what the interpolation and the fit on the path leave
+(PATH_FIT_RESIDUAL_FRACTION).
+
+The rate is interpolated between samples by a cubic spline: under a 20 Hz jitter sampled at
+100 Hz, straight lines between samples lose about a fifth of the swing, enough to put phi(0)
+several times its stated error off (the stress campaign's gyro-aided jitter frames).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 MIN_SAMPLES_INSIDE = 3  # rate samples within the exposure a path needs (fewer: no shape to speak of)
 KNOTS = 65  # times across the exposure the path is integrated at
@@ -31,12 +39,13 @@ PATH_MIN_DEVIATION_PX = 0.02  # a path departing less from the smooth model's is
 SAMPLES_PER_RATE_SAMPLE = 4  # path samples per rate sample inside the exposure (SmearModel.path),
 MAX_PATH_SAMPLES = 48  # up to this many (the streak fits' grouping compares samples pairwise)
 PROBE_FRACTION = 0.45  # deviation probed at the centre and at these fractions of the field toward its corners
-# Streaks fitted on a path keep an error common to every star of up to a few percent of the
-# exposure's offset from mid-exposure (ExposurePath.mid_exposure_offset_rad): the frame's PSF
-# estimate includes the path's spread on short streaks. Stated as this fraction of it, 1 sigma per
-# axis (AppliedMotion.path_residual_covariance): on the independent renderer's jittered frames
-# (test_exposure_path) it takes the common error's chi^2_2 from up to 123 to at most 3.0.
-PATH_FIT_RESIDUAL_FRACTION = 0.015
+# A frame carried to mid-exposure by phi(0) keeps an error common to every star that grows with
+# |phi(0)|: its streaks' fit on the path (the frame's PSF estimate includes the path's spread on
+# short streaks) and phi(0)'s interpolation between gyro samples (a 19 Hz jitter sampled at
+# 100 Hz: up to 1.2 % of it). Stated as this fraction of |phi(0)|, 1 sigma per axis
+# (ExposurePath.mid_exposure_offset_covariance): on the independent renderer's jittered frames
+# (test_exposure_path) the mid-exposure error's chi^2_2 is at most 8 with it (136 without).
+PATH_FIT_RESIDUAL_FRACTION = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,45 +56,55 @@ class ExposurePath:
     times_s: (K,) increasing, from -exposure_s / 2 to +exposure_s / 2 [s from mid-exposure];
     rotation_vectors_rad: (K, 3) phi(t_k), with a time mean of zero over the exposure (the
     attitude is R(t) = R_mean exp([phi(t) x]), R_mean the exposure-average attitude);
-    samples: the rate samples inside the exposure it was integrated from.
+    samples: the rate samples inside the exposure it was integrated from;
+    mid_exposure_offset_covariance: (3, 3) [rad^2] of phi(0) as the frame's offset to
+    mid-exposure: the samples' noise through the integration and PATH_FIT_RESIDUAL_FRACTION.
     """
 
     times_s: np.ndarray
     rotation_vectors_rad: np.ndarray
     samples: int
+    mid_exposure_offset_covariance: np.ndarray
 
     @classmethod
-    def from_rate_samples(cls, offsets_s, rates_rad_s, exposure_s: float) -> "ExposurePath | None":
+    def from_rate_samples(cls, offsets_s, rates_rad_s, exposure_s: float,
+                          rate_noise_rad_s: float = 0.0) -> "ExposurePath | None":
         """
         Integrate body-rate samples over the exposure; None without MIN_SAMPLES_INSIDE of them inside it.
 
         offsets_s: (n,) sample times [s] from mid-exposure; rates_rad_s: (n, 3) [rad/s] in the
-        sensor frame. The rate is interpolated linearly between samples and held constant
-        beyond the first and last (samples outside the exposure help at its ends).
+        sensor frame; rate_noise_rad_s: each sample's white noise, 1 sigma per axis [rad/s]. The
+        rate is interpolated by a cubic spline through the samples (not-a-knot; a repeated time
+        keeps its first sample) and held constant beyond the first and last (samples outside
+        the exposure help at its ends). phi(0) is linear in the samples, phi(0) = sum_i c_i w_i,
+        so the noise's part of its covariance is rate_noise^2 sum_i c_i^2 per axis, exactly for
+        this interpolation; (PATH_FIT_RESIDUAL_FRACTION |phi(0)|)^2 per axis is added.
         """
         t = np.asarray(offsets_s, float).ravel()
         w = np.asarray(rates_rad_s, float).reshape(-1, 3)
         exposure = float(exposure_s)
-        if t.size != w.shape[0] or not (np.isfinite(exposure) and exposure > 0):
-            raise ValueError(f"expected n offsets and (n, 3) rates with exposure_s > 0, got {t.size}, "
-                             f"{w.shape}, {exposure_s!r}")
+        noise = float(rate_noise_rad_s)
+        if t.size != w.shape[0] or not (np.isfinite(exposure) and exposure > 0) \
+                or not (np.isfinite(noise) and noise >= 0):
+            raise ValueError(f"expected n offsets and (n, 3) rates with exposure_s > 0 and rate_noise_rad_s >= 0, "
+                             f"got {t.size}, {w.shape}, {exposure_s!r}, {rate_noise_rad_s!r}")
         finite = np.isfinite(t) & np.all(np.isfinite(w), axis=1)
-        t, w = t[finite], w[finite]
+        t, first = np.unique(t[finite], return_index=True)
+        w = w[finite][first]
         inside = int(np.count_nonzero(np.abs(t) <= 0.5 * exposure))
         if inside < MIN_SAMPLES_INSIDE:
             return None
-        order = np.argsort(t, kind="stable")
-        t, w = t[order], w[order]
         knots = np.linspace(-0.5 * exposure, 0.5 * exposure, KNOTS)
-        omega = np.column_stack([np.interp(knots, t, w[:, axis]) for axis in range(3)])
-        steps = 0.5 * (omega[1:] + omega[:-1]) * np.diff(knots)[:, None]
-        phi = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
-        # The time mean (trapezoid) is the exposure-average attitude's offset.
-        mean = np.sum(0.5 * (phi[1:] + phi[:-1]) * np.diff(knots)[:, None], axis=0) / exposure
-        phi = phi - mean
+        # Integrated for the samples' unit vectors at once: the weights of each sample in phi(t).
+        weights = _integrated(CubicSpline(t, np.eye(t.size), axis=0)(np.clip(knots, t[0], t[-1])), knots, exposure)
+        phi = weights @ w
+        at_mid = np.array([np.interp(0.0, knots, weights[:, i]) for i in range(t.size)])
+        residual = PATH_FIT_RESIDUAL_FRACTION * float(np.linalg.norm(at_mid @ w))
+        covariance = np.eye(3) * (noise * noise * float(at_mid @ at_mid) + residual * residual)
         knots.flags.writeable = False
         phi.flags.writeable = False
-        return cls(knots, phi, inside)
+        covariance.flags.writeable = False
+        return cls(knots, phi, inside, covariance)
 
     @property
     def mid_exposure_offset_rad(self) -> np.ndarray:
@@ -101,3 +120,11 @@ class ExposurePath:
         """Return phi (M, 3) [rad] at `times_s` (M,) [s from mid-exposure] (held beyond the exposure)."""
         t = np.asarray(times_s, float).ravel()
         return np.column_stack([np.interp(t, self.times_s, self.rotation_vectors_rad[:, axis]) for axis in range(3)])
+
+
+def _integrated(omega: np.ndarray, knots: np.ndarray, exposure: float) -> np.ndarray:
+    """The integral of omega (K, m) over knots (trapezoid), less its time mean over the exposure: phi (K, m)."""
+    steps = 0.5 * (omega[1:] + omega[:-1]) * np.diff(knots)[:, None]
+    phi = np.vstack([np.zeros((1, omega.shape[1])), np.cumsum(steps, axis=0)])
+    mean = np.sum(0.5 * (phi[1:] + phi[:-1]) * np.diff(knots)[:, None], axis=0) / exposure
+    return phi - mean

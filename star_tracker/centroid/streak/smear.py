@@ -138,12 +138,14 @@ class SmearModel:
             raise ValueError(f"samples must be an integer >= 1, got {samples!r}")
         return self._positions(x, y, self.sample_times(int(samples)))
 
-    def with_exposure_path(self, offsets_s, rates_rad_s) -> "SmearModel":
+    def with_exposure_path(self, offsets_s, rates_rad_s, rate_noise_rad_s: float = 0.0) -> "SmearModel":
         """
         Return this model on the path rate samples measure, when it departs from this one's by PATH_MIN_DEVIATION_PX.
 
         offsets_s (n,) [s from mid-exposure] and rates_rad_s (n, 3) [rad/s, sensor frame]: the
-        samples around the exposure (a gyro's; exposure_path.py). The departure: the largest
+        samples around the exposure (a gyro's; exposure_path.py); rate_noise_rad_s: each
+        sample's white noise, 1 sigma per axis [rad/s] (ExposurePath.mid_exposure_offset_covariance).
+        The departure: the largest
         distance between the two models' image positions (each relative to its exposure mean)
         at the field's centre and toward its corners. Otherwise (fewer than
         exposure_path.MIN_SAMPLES_INSIDE samples inside, or a path as smooth as this model's)
@@ -151,7 +153,7 @@ class SmearModel:
         """
         if self.exposure_path is not None or self.exposure_s <= 0:
             return self
-        path = ExposurePath.from_rate_samples(offsets_s, rates_rad_s, self.exposure_s)
+        path = ExposurePath.from_rate_samples(offsets_s, rates_rad_s, self.exposure_s, rate_noise_rad_s)
         if path is None:
             return self
         measured = SmearModel(self.camera, self.angular_velocity_rad_s, self.exposure_s, exposure_path=path)
