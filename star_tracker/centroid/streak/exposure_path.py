@@ -46,6 +46,13 @@ PROBE_FRACTION = 0.45  # deviation probed at the centre and at these fractions o
 # (ExposurePath.mid_exposure_offset_covariance): on the independent renderer's jittered frames
 # (test_exposure_path) the mid-exposure error's chi^2_2 is at most 8 with it (136 without).
 PATH_FIT_RESIDUAL_FRACTION = 0.01
+# How far phi(0) is off where the samples do not resolve the motion: each interior sample within
+# the exposure predicted by the spline through the others, their rms error e [rad/s], gives
+# phi(0)'s error as this gain times e times the sample spacing, 1 sigma per axis. On 20"
+# sinusoids sampled at 2.6-10 samples per period (10-25 Hz at 50 and 100 Hz) the largest error
+# over phases is 0.16-0.65 of the sigma stated (test_exposure_path; at 19 Hz and 50 Hz up to
+# 1.65" off); jitter above half the sample rate is not seen at all.
+INTERPOLATION_ERROR_GAIN = 0.1
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,7 +65,8 @@ class ExposurePath:
     attitude is R(t) = R_mean exp([phi(t) x]), R_mean the exposure-average attitude);
     samples: the rate samples inside the exposure it was integrated from;
     mid_exposure_offset_covariance: (3, 3) [rad^2] of phi(0) as the frame's offset to
-    mid-exposure: the samples' noise through the integration and PATH_FIT_RESIDUAL_FRACTION.
+    mid-exposure: the samples' noise through the integration, PATH_FIT_RESIDUAL_FRACTION and
+    what the samples leave unresolved (INTERPOLATION_ERROR_GAIN).
     """
 
     times_s: np.ndarray
@@ -78,7 +86,9 @@ class ExposurePath:
         keeps its first sample) and held constant beyond the first and last (samples outside
         the exposure help at its ends). phi(0) is linear in the samples, phi(0) = sum_i c_i w_i,
         so the noise's part of its covariance is rate_noise^2 sum_i c_i^2 per axis, exactly for
-        this interpolation; (PATH_FIT_RESIDUAL_FRACTION |phi(0)|)^2 per axis is added.
+        this interpolation; (PATH_FIT_RESIDUAL_FRACTION |phi(0)|)^2 and the interpolation's
+        (INTERPOLATION_ERROR_GAIN e dt)^2 per axis are added (e: the samples' left-out error, dt:
+        their median spacing).
         """
         t = np.asarray(offsets_s, float).ravel()
         w = np.asarray(rates_rad_s, float).reshape(-1, 3)
@@ -100,7 +110,9 @@ class ExposurePath:
         phi = weights @ w
         at_mid = np.array([np.interp(0.0, knots, weights[:, i]) for i in range(t.size)])
         residual = PATH_FIT_RESIDUAL_FRACTION * float(np.linalg.norm(at_mid @ w))
-        covariance = np.eye(3) * (noise * noise * float(at_mid @ at_mid) + residual * residual)
+        unresolved = INTERPOLATION_ERROR_GAIN * _left_out_error(t, w, exposure) * float(np.median(np.diff(t)))
+        covariance = np.eye(3) * (noise * noise * float(at_mid @ at_mid) + residual * residual
+                                  + unresolved * unresolved)
         knots.flags.writeable = False
         phi.flags.writeable = False
         covariance.flags.writeable = False
@@ -120,6 +132,13 @@ class ExposurePath:
         """Return phi (M, 3) [rad] at `times_s` (M,) [s from mid-exposure] (held beyond the exposure)."""
         t = np.asarray(times_s, float).ravel()
         return np.column_stack([np.interp(t, self.times_s, self.rotation_vectors_rad[:, axis]) for axis in range(3)])
+
+
+def _left_out_error(t: np.ndarray, w: np.ndarray, exposure: float) -> float:
+    """The rms error [rad/s, per axis] of the interior samples within the exposure, each from the others' spline."""
+    errors = [CubicSpline(np.delete(t, i), np.delete(w, i, axis=0), axis=0)(t[i]) - w[i]
+              for i in range(1, t.size - 1) if abs(t[i]) <= 0.5 * exposure]
+    return float(np.sqrt(np.mean(np.square(errors)))) if errors else 0.0
 
 
 def _integrated(omega: np.ndarray, knots: np.ndarray, exposure: float) -> np.ndarray:
