@@ -95,7 +95,7 @@ class Harness:
         self.poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # stamp -> (quaternion xyzw, 3x3 covariance)
         self.matches: dict[int, np.ndarray] = {}
         self.status: dict[int, str] = {}  # stamp -> the identifier's status message
-        self.path_frames: set[int] = set()  # stamps of frames fitted on a gyro's path (their attitude: mid-exposure)
+        self.path_frames: set[int] = set()  # stamps of attitudes carried to mid-exposure by a gyro's path (status)
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.diagnostics_seen: dict[str, int] = {}  # status name -> messages received
         n = self.node
@@ -104,8 +104,6 @@ class Harness:
         self.pub_imu = n.create_publisher(Imu, "imu", RATE_INPUT_QOS)
         n.create_subscription(PointCloud2, "spots", self._on_spots, MONITOR_SENSOR_QOS)
         n.create_subscription(PoseWithCovarianceStamped, "attitude_with_covariance", self._on_pose, MONITOR_RESULT_QOS)
-        n.create_subscription(PoseWithCovarianceStamped, "smear_aid/exposure_path_offset", self._on_path_offset,
-                              MONITOR_SENSOR_QOS)
         n.create_subscription(PointCloud2, "matched_stars", self._on_matches, MONITOR_RESULT_QOS)
         n.create_subscription(DiagnosticArray, "status", self._on_status, MONITOR_RESULT_QOS)
         n.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
@@ -135,10 +133,6 @@ class Harness:
             self.poses[self.convert.stamp_to_ns(msg.header.stamp)] = (np.array([q.x, q.y, q.z, q.w]), cov)
             self.changed.notify_all()
 
-    def _on_path_offset(self, msg) -> None:
-        with self.changed:
-            self.path_frames.add(self.convert.stamp_to_ns(msg.header.stamp))
-
     def _on_matches(self, msg) -> None:
         records = self.convert.cloud_to_records(msg, self.convert.MATCH_FIELDS, self.convert.MATCH_DTYPE).copy()
         with self.changed:
@@ -147,8 +141,11 @@ class Harness:
 
     def _on_status(self, msg) -> None:
         with self.changed:
+            stamp = self.convert.stamp_to_ns(msg.header.stamp)
             for status in msg.status:
-                self.status[self.convert.stamp_to_ns(msg.header.stamp)] = status.message
+                self.status[stamp] = status.message
+                if any(kv.key == "exposure_path" and kv.value == "true" for kv in status.values):
+                    self.path_frames.add(stamp)
             self.changed.notify_all()
 
     def _on_diagnostics(self, msg) -> None:
@@ -479,7 +476,7 @@ def _drive(plan: StressPlan, source: FrameSource, nodes, harness: Harness, recor
             record["status"] = h.status.get(stamp)
             pose = h.poses.get(stamp)
             if pose is not None and record["fault"] != "stamp_future":
-                # A frame fitted on a gyro's path is published at mid-exposure (Tracker._accept_on_path).
+                # An attitude carried to mid-exposure by a gyro's path (its status says so) is judged there.
                 on_path = stamp in h.path_frames
                 reference = record["truth"].rotation if on_path else record["reference"]
                 record.update(score_attitude(pose[0], pose[1], reference), attitude=True, on_path=on_path)
@@ -604,6 +601,8 @@ def summarize(plan: StressPlan, records: list[dict], run: dict) -> dict:
             "by_mode": _count(r.get("status") for r in attitudes),
             "by_phase": {phase: _phase_figures([r for r in attitudes if r["phase"] == phase])
                          for phase in sorted({r["phase"] for r in attitudes})},
+            # Carried to mid-exposure by a gyro's path (the identifier's status says so): judged there.
+            "on_exposure_path": _phase_figures([r for r in attitudes if r.get("on_path")]),
         },
         "stars": {"matched": sum(r.get("matched", 0) for r in attitudes),
                   "wrong_guide": sum(r.get("wrong_guide", 0) for r in attitudes),

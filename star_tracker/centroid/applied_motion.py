@@ -61,19 +61,20 @@ class AppliedMotion:
             object.__setattr__(self, "exposure_path_offset_covariance", matrix)
 
     @staticmethod
-    def of(smear: "SmearModel | None", rate_aid_rejected: bool, streaks_fitted: bool = False) -> "AppliedMotion":
+    def of(smear: "SmearModel | None", rate_aid_rejected: bool) -> "AppliedMotion":
         """
         Return what extract_spots applied of `smear` (None: nothing); a rejected aid leaves only its acceleration.
 
-        streaks_fitted: spots were fitted on the smear's paths (FLAG_RATE_AIDED); only then does
-        a gyro's path give the offset.
+        On a gyro's path (smear.exposure_path) every position is an exposure average, fitted on
+        the path (a streak) or not (a point-like spot, smear under min_smear_px): the path's
+        offset carries either to mid-exposure.
         """
         if smear is None:
             return NOT_AIDED
         alpha = smear.angular_acceleration_rad_s2
         if rate_aid_rejected:
             return AppliedMotion(None, alpha)
-        path = smear.exposure_path if streaks_fitted else None
+        path = smear.exposure_path
         if path is None:
             return AppliedMotion(smear.angular_velocity_rad_s, alpha)
         return AppliedMotion(smear.angular_velocity_rad_s, alpha, path.mid_exposure_offset_rad,

@@ -61,8 +61,7 @@ def extract_spots(image: np.ndarray, config: CentroidConfig = CentroidConfig(),
     spots = PsfLoop(image, config, smear, psf_prior, prior_rings).run()
     if smear is not None and smear.angular_acceleration_rad_s2 is not None:
         spots = to_mid_exposure(spots, smear)
-    streaks_fitted = bool(np.any(np.asarray(spots.flags) & FLAG_RATE_AIDED))  # fitted on the smear's paths
-    return replace(spots, applied_motion=AppliedMotion.of(smear, spots.rate_aid_rejected, streaks_fitted))
+    return replace(spots, applied_motion=AppliedMotion.of(smear, spots.rate_aid_rejected))
 
 
 def to_mid_exposure(spots: Spots, smear: "SmearModel") -> Spots:

@@ -404,12 +404,13 @@ class IdentifierNode(ManagedNode):
         self.publish_status(stamp_ns, None, None, 0)
 
     def publish_status(self, stamp_ns: int, mode: str | None, rotation: np.ndarray | None, stars: int,
-                       state=None) -> None:
+                       state=None, on_exposure_path: bool = False) -> None:
         """
         Publish the frame's head status (in_orbit.py).
 
         mode None: no attitude (then the last one, propagated, tells what the head faced); state:
-        the observer at the frame (looked up when None).
+        the observer at the frame (looked up when None); on_exposure_path: the attitude was
+        carried to mid-exposure by a gyro's path (TrackedFrame.on_exposure_path).
         """
         tracker, camera = self.tracker, self.camera_info.camera
         if state is None:
@@ -419,7 +420,8 @@ class IdentifierNode(ManagedNode):
         rate = tracker.rate.angular_velocity if tracker is not None and tracker.rate is not None else None
         report = self.in_orbit.status(stamp_ns, mode, state, rotation, rate,
                                       camera.half_diagonal_fov_rad if camera is not None else None)
-        self.in_orbit.publish_status(stamp_ns, report, self.sensor_frame or convert.OPTICAL_FRAME, stars)
+        self.in_orbit.publish_status(stamp_ns, report, self.sensor_frame or convert.OPTICAL_FRAME, stars,
+                                     on_exposure_path)
 
     def internal_error(self, stamp_ns: int, exc: Exception) -> None:
         self.diag.count("frames_failed")
@@ -447,7 +449,8 @@ class IdentifierNode(ManagedNode):
             self.refine_camera(spots, result)
         self.diag.count("frames_identified")
         self.diag.count(f"frames_{tracked.mode}")
-        self.publish_status(stamp_ns, tracked.mode, solution.rotation, int(result.hip.size), state)
+        self.publish_status(stamp_ns, tracked.mode, solution.rotation, int(result.hip.size), state,
+                            tracked.on_exposure_path)
         self.diag.value("mode", tracked.mode)
         latency_s = time.perf_counter() - received
         self.diag.time("processing", latency_s)

@@ -88,8 +88,14 @@ class InOrbit:
             geometry = head_geometry(rotation[:, 2], half_fov_rad, self.observer.sky.bodies(state), self.exclusion)
         return head_frame_status(mode, geometry, rate, self.max_rate_rad_s)
 
-    def publish_status(self, stamp_ns: int, report: HeadFrameStatus, frame_id: str, stars: int) -> None:
-        """Publish the frame's status on `status` and count it (status_<name> on /diagnostics)."""
+    def publish_status(self, stamp_ns: int, report: HeadFrameStatus, frame_id: str, stars: int,
+                       on_exposure_path: bool = False) -> None:
+        """
+        Publish the frame's status on `status` and count it (status_<name> on /diagnostics).
+
+        on_exposure_path: the attitude was carried to mid-exposure by a gyro's path within the
+        exposure (the `exposure_path` key).
+        """
         self.diag.count(f"status_{report.status}")
         self.diag.value("status", report.status)
         if self.pub is None:
@@ -100,7 +106,7 @@ class InOrbit:
                   "predicted": report.predicted, "sun_angle_rad": _number(report.sun_angle_rad),
                   "moon_angle_rad": _number(report.moon_angle_rad),
                   "earth_limb_angle_rad": _number(report.earth_limb_angle_rad),
-                  "rate_rad_s": _number(report.rate_rad_s)}
+                  "rate_rad_s": _number(report.rate_rad_s), "exposure_path": str(bool(on_exposure_path)).lower()}
         entry.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         self.pub.publish(DiagnosticArray(header=Header(stamp=convert.ns_to_stamp(stamp_ns), frame_id=frame_id),
                                          status=[entry]))

@@ -119,7 +119,9 @@ class TrackedFrame:
     mode: "tracking" (local recognition), "lost_in_space" or "lost" (no verified attitude);
     identification: the result (its attitude when solved); rate: body rate at this frame when
     estimated; gate_px: searched radius when a prediction was used [px]; bridged_frames: frames
-    chained by delay compensation to reach this one; elapsed_s: processing time [s].
+    chained by delay compensation to reach this one; elapsed_s: processing time [s];
+    on_exposure_path: the attitude was carried to mid-exposure by the path a gyro measured
+    within the exposure (its spots were that path's exposure averages: Tracker._accept_on_path).
     """
 
     stamp_ns: int
@@ -129,6 +131,7 @@ class TrackedFrame:
     gate_px: float | None = None
     bridged_frames: int = 0
     elapsed_s: float = 0.0
+    on_exposure_path: bool = False
 
     @property
     def solved(self) -> bool:
@@ -344,7 +347,7 @@ class Tracker:
         self.rate = self.rates.add(stamp_ns, rotation, covariance, 0.0, None)
         self._last = (stamp_ns, rotation, covariance)
         return TrackedFrame(stamp_ns, mode, replace(result, attitude=mid), self.rate, gate_px, bridged,
-                            time.perf_counter() - started)
+                            time.perf_counter() - started, on_exposure_path=True)
 
     def centroider_aid(self, stamp_ns: int, camera: CameraModel, exposure_s: float,
                        max_rate_age_s: float = ACCELERATION_MAX_AGE_S) -> SmearModel | None:

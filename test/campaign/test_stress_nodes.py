@@ -128,3 +128,24 @@ def test_a_gyros_first_samples_under_jitter_do_not_move_the_spots(database):
     error = matrix_to_rotation_vector(reference.T @ solution.rotation)
     nees = float(error @ np.linalg.solve(solution.covariance, error))
     assert nees < 13.9 and np.degrees(np.linalg.norm(error[:2])) * 3600 < 2.0, (nees, np.degrees(error) * 3600)
+
+
+@pytest.mark.slow
+@pytest.mark.integration
+def test_jitter_through_the_nodes_with_a_gyro_is_published_at_mid_exposure(tmp_path, database):
+    """
+    A noisy, biased gyro on `imu` (5 samples per exposure): jittered frames carried to mid-exposure.
+
+    Seed 6's three missions are jitter (two on slews). The identifier's status says which
+    attitudes its gyro path carried to mid-exposure (`exposure_path`); the run judges those
+    against the mid-exposure truth, the rest against the exposure's mean: none wrong.
+    """
+    pytest.importorskip("rclpy")
+    from star_tracker.campaign.stress_nodes import run_stress_through_nodes
+
+    summary = run_stress_through_nodes(40, 6, tmp_path, mission_frames=(12, 20), gyro=True)
+    attitudes = summary["attitudes"]
+    assert summary["nodes"]["all_alive"] and summary["accounting"]["unaccounted"] == 0, summary["nodes"]
+    assert attitudes["on_exposure_path"]["scored"] >= 10, attitudes
+    assert attitudes["wrong"] == 0, attitudes["wrong_frames"]
+    assert summary["stars"]["wrong_guide"] == 0, summary["stars"]

@@ -14,6 +14,7 @@ import pytest
 from bench import alt_renderer as alt
 from star_tracker.centroid import CentroidConfig, extract_spots
 from star_tracker.centroid.applied_motion import AppliedMotion
+from star_tracker.centroid.spots import FLAG_RATE_AIDED
 from star_tracker.centroid.streak.exposure_path import MIN_SAMPLES_INSIDE, PATH_MIN_DEVIATION_PX, ExposurePath
 from star_tracker.centroid.streak.smear import SmearModel
 
@@ -135,19 +136,23 @@ def _mid_exposure_chi2(frame, spots) -> tuple[float, float]:
             float(total @ np.linalg.solve(common_cov, total)))
 
 
-def test_a_frame_carried_to_mid_exposure_by_its_path_lies_within_its_stated_covariance_on_the_independent_renderer():
+@pytest.mark.parametrize("drift, streaks", [(DRIFT, True), (np.radians([0.02, 0.08]), False)],
+                         ids=["streaks", "point-like"])
+def test_a_frame_carried_to_mid_exposure_by_its_path_lies_within_its_stated_covariance_on_the_independent_renderer(
+        drift, streaks):
     """
     Carried by phi(0), the frame's mid-exposure error is within the spots' and the offset's covariance.
 
     24 frames (8 seeds, jitter at 5, 10 and 19 Hz, a noise-free 100 Hz gyro), those measured on
     the path (the aid not rejected): chi^2_2 at 0.997 on every frame with the offset's
-    covariance (its PATH_FIT_RESIDUAL_FRACTION: the fit on the path and phi(0)'s interpolation,
-    up to 0.3" at 19 Hz), not without it (chi^2_2 up to 136).
+    covariance (the fit on the path and phi(0)'s interpolation, up to 0.3" at 19 Hz), not
+    without it (chi^2_2 up to 136). With 2.5 px streaks fitted on the path (22 frames: max 8.1)
+    and with 0.6 px of smear, point-like fits of the exposure averages (24 frames: max 4.9).
     """
     with_offset, without = [], []
     for seed in range(1, 9):
         for hz in (5.0, JITTER_HZ, 19.0):
-            frame = jittered_frame(alt.GaussianPsf(1.0), DRIFT, JITTER, hz, 1.0 + seed, seed)
+            frame = jittered_frame(alt.GaussianPsf(1.0), drift, JITTER, hz, 1.0 + seed, seed)
             inside = np.abs(frame.gyro_offsets_s) <= 0.5 * EXPOSURE_S
             measured = SmearModel(CAMERA, frame.gyro_rates[inside].mean(axis=0),
                                   EXPOSURE_S).with_exposure_path(frame.gyro_offsets_s, frame.gyro_rates)
@@ -158,6 +163,7 @@ def test_a_frame_carried_to_mid_exposure_by_its_path_lies_within_its_stated_cova
                 continue
             assert applied.exposure_path_offset_rad is not None and applied.angular_acceleration_rad_s2 is None
             assert np.allclose(applied.exposure_path_offset_rad, measured.exposure_path.at(np.zeros(1))[0])
+            assert bool(np.any(np.asarray(spots.flags) & FLAG_RATE_AIDED)) == streaks
             chi2, bare = _mid_exposure_chi2(frame, spots)
             with_offset.append(chi2)
             without.append(bare)
@@ -216,3 +222,14 @@ def test_a_path_its_samples_barely_resolve_states_how_far_its_offset_may_be(gyro
     assert worst < 1.5, worst
     if gyro_hz == 50.0 and jitter_hz == 19.0:
         assert worst_error > 0.05 * amplitude  # what the fit's residual alone (1 %) would not cover
+
+
+def test_samples_that_stop_short_of_the_exposures_end_draw_no_path():
+    # A 50 Hz gyro's last sample within the exposure not yet received (its message later than
+    # the image): holding the rate over the 0.03 s left would guess the path's end, so none.
+    t = np.arange(-0.14, 0.0401, 0.02)
+    rates = np.outer(np.cos(2 * math.pi * 15 * t), [1e-3, 0.0, 0.0])
+    assert ExposurePath.from_rate_samples(t, rates, EXPOSURE_S) is not None
+    assert ExposurePath.from_rate_samples(t[:-1], rates[:-1], EXPOSURE_S) is None
+    assert ExposurePath.from_rate_samples(t[5:], rates[5:], EXPOSURE_S) is not None  # from -0.04: within 0.02
+    assert ExposurePath.from_rate_samples(t[6:], rates[6:], EXPOSURE_S) is None

@@ -80,6 +80,9 @@ class ExposurePath:
         """
         Integrate body-rate samples over the exposure; None without MIN_SAMPLES_INSIDE of them inside it.
 
+        None as well when either end of the exposure is more than the samples' median spacing
+        from the nearest sample (the samples do not cover it).
+
         offsets_s: (n,) sample times [s] from mid-exposure; rates_rad_s: (n, 3) [rad/s] in the
         sensor frame; rate_noise_rad_s: each sample's white noise, 1 sigma per axis [rad/s]. The
         rate is interpolated by a cubic spline through the samples (not-a-knot; a repeated time
@@ -104,13 +107,18 @@ class ExposurePath:
         inside = int(np.count_nonzero(np.abs(t) <= 0.5 * exposure))
         if inside < MIN_SAMPLES_INSIDE:
             return None
+        # Each end of the exposure within a sample spacing of a sample: the rate is held beyond
+        # the last, so a missing one (a gyro message not yet received) would leave a guess.
+        spacing = float(np.median(np.diff(t)))
+        if t[0] > -0.5 * exposure + spacing or t[-1] < 0.5 * exposure - spacing:
+            return None
         knots = np.linspace(-0.5 * exposure, 0.5 * exposure, KNOTS)
         # Integrated for the samples' unit vectors at once: the weights of each sample in phi(t).
         weights = _integrated(CubicSpline(t, np.eye(t.size), axis=0)(np.clip(knots, t[0], t[-1])), knots, exposure)
         phi = weights @ w
         at_mid = np.array([np.interp(0.0, knots, weights[:, i]) for i in range(t.size)])
         residual = PATH_FIT_RESIDUAL_FRACTION * float(np.linalg.norm(at_mid @ w))
-        unresolved = INTERPOLATION_ERROR_GAIN * _left_out_error(t, w, exposure) * float(np.median(np.diff(t)))
+        unresolved = INTERPOLATION_ERROR_GAIN * _left_out_error(t, w, exposure) * spacing
         covariance = np.eye(3) * (noise * noise * float(at_mid @ at_mid) + residual * residual
                                   + unresolved * unresolved)
         knots.flags.writeable = False
