@@ -21,7 +21,7 @@ class AppliedMotion:
     free streak fits. angular_acceleration_rad_s2: (3,) [rad/s^2] the positions were corrected
     by to mid-exposure (extract.to_mid_exposure, the accelerated paths), None when none was:
     the positions are the exposure averages, off mid-exposure by alpha T^2 / 24 under an
-    acceleration alpha. exposure_path_offset_rad: (3,) [rad] when the streaks were fitted on
+    acceleration alpha. exposure_path_offset_rad: (3,) [rad] when the frame was measured on
     the path a gyro measured within the exposure (SmearModel.exposure_path), its
     mid_exposure_offset_rad (R_mid = R_mean exp([offset x])): the positions are then that path's
     exposure averages (angular_acceleration_rad_s2 None), which the tracker carries to

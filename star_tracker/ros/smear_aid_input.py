@@ -8,7 +8,7 @@ knows what each attitude measured (Spots.applied_motion) even when the rate the 
 sent reached the centroider frames late. `smear_aid/angular_acceleration` comes with every
 measured frame (zero: none applied) and completes a frame's entry; `smear_aid/angular_velocity`
 only with rate-aided ones, `smear_aid/exposure_path_offset` (PoseWithCovarianceStamped: the
-offset to mid-exposure and its covariance) only with frames fitted on a gyro's path (one that
+offset to mid-exposure and its covariance) only with frames measured on a gyro's path (one that
 arrives after its frame's acceleration is not waited for: that frame is then taken as its
 exposure average, the acceleration terms bounding its offset). Messages are only read here
 (duck-typed): no running ROS needed.

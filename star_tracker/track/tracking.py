@@ -300,11 +300,11 @@ class Tracker:
         None (not known), what a centroider aided by this tracker had (_acceleration_aid): the
         nodes' centroider states it per frame, as its aid may come from an older estimate.
 
-        A frame fitted on a gyro's path (applied.exposure_path_offset_rad) measured the
+        A frame measured on a gyro's path (applied.exposure_path_offset_rad) measured the
         exposure-average attitude of a known path: it is carried to mid-exposure by the path's
         own offset (R_mid = R_mean exp([phi(0) x])) with that offset's covariance
-        (AppliedMotion.exposure_path_offset_covariance) in place of the acceleration terms, which bound
-        the offset of a path not known; the rate window gets it as unbiased.
+        (AppliedMotion.exposure_path_offset_covariance) in place of the acceleration terms,
+        which bound the offset of a path not known; the rate window gets it as unbiased.
         """
         solution = result.attitude
         if self._last is not None and stamp_ns <= self._last[0]:
@@ -338,7 +338,7 @@ class Tracker:
 
     def _accept_on_path(self, stamp_ns: int, result: Identification, mode: str, gate_px, bridged: int,
                         started: float, applied: AppliedMotion) -> TrackedFrame:
-        """_accept for a frame fitted on a gyro's path: carried to mid-exposure by the path's offset."""
+        """_accept for a frame measured on a gyro's path: carried to mid-exposure by the path's offset."""
         solution = result.attitude
         rotation = solution.rotation @ rotation_vector_to_matrix(applied.exposure_path_offset_rad)
         covariance = solution.covariance + applied.exposure_path_offset_covariance

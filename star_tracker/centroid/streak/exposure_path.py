@@ -42,9 +42,10 @@ PROBE_FRACTION = 0.45  # deviation probed at the centre and at these fractions o
 # A frame carried to mid-exposure by phi(0) keeps an error common to every star that grows with
 # |phi(0)|: its streaks' fit on the path (the frame's PSF estimate includes the path's spread on
 # short streaks) and phi(0)'s interpolation between gyro samples (a 19 Hz jitter sampled at
-# 100 Hz: up to 1.2 % of it). Stated as this fraction of |phi(0)|, 1 sigma per axis
-# (ExposurePath.mid_exposure_offset_covariance): on the independent renderer's jittered frames
-# (test_exposure_path) the mid-exposure error's chi^2_2 is at most 8 with it (136 without).
+# 100 Hz: up to 1.2 % of it). Stated as this fraction of |phi(0)|, 1 sigma per axis, with the
+# terms below (ExposurePath.mid_exposure_offset_covariance): on the independent renderer's
+# jittered frames (test_exposure_path) the mid-exposure error's chi^2_2 is at most 8.1 with
+# them (136 without; with 0.5 % here, 23).
 PATH_FIT_RESIDUAL_FRACTION = 0.01
 # How far phi(0) is off where the samples do not resolve the motion: each interior sample within
 # the exposure predicted by the spline through the others, their rms error e [rad/s], gives

@@ -145,9 +145,8 @@ class SmearModel:
         offsets_s (n,) [s from mid-exposure] and rates_rad_s (n, 3) [rad/s, sensor frame]: the
         samples around the exposure (a gyro's; exposure_path.py); rate_noise_rad_s: each
         sample's white noise, 1 sigma per axis [rad/s] (ExposurePath.mid_exposure_offset_covariance).
-        The departure: the largest
-        distance between the two models' image positions (each relative to its exposure mean)
-        at the field's centre and toward its corners. Otherwise (fewer than
+        The departure: the largest distance between the two models' image positions (each
+        relative to its exposure mean) at the field's centre and toward its corners. Otherwise (fewer than
         exposure_path.MIN_SAMPLES_INSIDE samples inside, or a path as smooth as this model's)
         this model itself.
         """
