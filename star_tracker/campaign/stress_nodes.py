@@ -713,6 +713,7 @@ BEGIN, END = "<!-- stress_nodes -->", "<!-- /stress_nodes -->"
 def render_section(summary: dict, heading: str = "### Stress through the nodes") -> str:
     """Return the docs/RELIABILITY.md section of a run's summary (between BEGIN and END), under `heading`."""
     acc, att, stars, rec = summary["accounting"], summary["attitudes"], summary["stars"], summary["recovery"]
+    on_path = att.get("on_exposure_path", {})
     c, i = summary["centroider"]["counters"], summary["identifier"]["counters"]
     nodes = summary["nodes"]
     faults = ", ".join(f"{kind.replace('_', ' ')} {n}" for kind, n in summary["faults"].items())
@@ -773,11 +774,15 @@ def render_section(summary: dict, heading: str = "### Stress through the nodes")
         f"{summary['bad_camera_info_sent']} bad CameraInfo; time_resets {i.get('time_resets', 0)}).",
         f"- nodes alive at the end: **{'yes' if nodes['all_alive'] else 'no'}**; exit codes after SIGINT "
         f"{nodes['exit_codes']}; tracebacks in the logs {sum(nodes['tracebacks_in_logs'].values())}.",
-        f"- attitudes: {att['scored']:,} scored against the truth (the exposure's mean attitude under jitter), "
+        f"- attitudes: {att['scored']:,} scored against the truth (the exposure's mean attitude under jitter, "
+        f"unless the identifier's status says a gyro's path carried it to mid-exposure), "
         f"**{att['wrong']} wrong** (boresight > 60″ or NEES > 31.8): {beyond_60} beyond 60″ (boresight error "
         f"median {att['cross_arcsec_median']:.2f}″, max {att['cross_arcsec_max']:.2f}″), {att['nees_beyond_5_sigma']} "
         f"with NEES beyond 31.8; NEES mean {att['nees_mean']:.2f}. NEES beyond 31.8 by motion phase (from the "
-        f"truth: the rate changing within the exposure is accelerating): {phases}.",
+        f"truth: the rate changing within the exposure is accelerating): {phases}."
+        + (f" Carried to mid-exposure by the gyro's path (`exposure_path: true`): {on_path['scored']:,}, "
+           f"{on_path['nees_beyond_5_sigma']} beyond 31.8, NEES mean {on_path['nees_mean']:.2f}."
+           if on_path.get("scored") else ""),
         f"- star IDs: {stars['matched']:,} matched stars, **{stars['wrong_guide']} wrong guide stars**, "
         f"{stars['wrong_deep']} wrong deep-catalog stars.",
         f"- recovery (frames from the end of a stamp jump or dropped burst to the next attitude, goal ≤ 2): "
