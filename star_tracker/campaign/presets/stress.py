@@ -25,7 +25,8 @@ from the trial's seed (draw_mission):
   to the frame by its angular acceleration, or a gyro: 100 Hz samples of the true rate plus a
   bias (0.01 deg/s per axis, 1 sigma) and noise (0.005 deg/s per sample), their mean over the
   exposure the rate and the slope of the last 0.25 s of them the acceleration, as the centroider
-  takes them (an acceleration only when significant: track/aid_acceleration.py).
+  takes them (an acceleration only when significant: track/aid_acceleration.py), and under
+  jitter the path they draw within the exposure (centroid/streak/exposure_path.py).
 
 Each delivered frame goes where the nodes send it: its stamp judged by the nodes' rule
 (track/stamp_order.py on the simulated clock: out of order and from the future refused and
@@ -33,12 +34,14 @@ counted, a jump back of more than 2 s restarts the track), centroided with the a
 smear model when the aid is at most 0.5 s from the frame (the centroider's max_rate_age_s)
 and the running PSF prior (centroid/psf/running_prior.py, as the centroider node), and
 tracked (`Tracker.process`: tracking, lost-in-space when it fails). A solved frame is scored
-(scoring.py): wrong when its boresight is more than `wrong_arcsec` off or its error lies
-outside 5 sigma of its stated covariance (NEES > 31.8), or when any matched star is not the
-star behind its spot. Each frame's stratum is its motion phase (rest, accelerating: the rate
-changes within the exposure, constant rate, tumble, jitter); each mission's draws are its
-strata too. Recovery: after a dropped-frame burst, a loop or a gap that interrupted tracking,
-the frames delivered until the first tracked one (1: tracked at once).
+(scoring.py) against the truth at mid-exposure, a jitter frame against the exposure's mean
+attitude unless a gyro's path carried it to mid-exposure: wrong when its boresight is more
+than `wrong_arcsec` off or its error lies outside 5 sigma of its stated covariance
+(NEES > 31.8), or when any matched star is not the star behind its spot. Each frame's
+stratum is its motion phase (rest, accelerating: the rate changes within the exposure,
+constant rate, tumble, jitter); each mission's draws are its strata too. Recovery: after a
+dropped-frame burst, a loop or a gap that interrupted tracking, the frames delivered until
+the first tracked one (1: tracked at once).
 
 The summary: frames, wrong, wrong star IDs, NEES mean and the share above chi^2_3(0.997),
 availability (right / accepted frames), per stratum (a frame fault's stratum: the missions
