@@ -337,7 +337,7 @@ def pose_with_covariance_msg(solution: AttitudeSolution, stamp_ns: int,
 def path_offset_msg(offset_rad: np.ndarray, covariance: np.ndarray, stamp_ns: int,
                     frame_id: str) -> PoseWithCovarianceStamped:
     """
-    A frame's offset from its exposure-average attitude to mid-exposure (smear_aid/exposure_path_offset).
+    Return a frame's offset from its exposure-average attitude to mid-exposure (smear_aid/exposure_path_offset).
 
     Orientation: exp([offset x]) (R_mid = R_mean exp([offset x]), in the sensor frame
     `frame_id`); the rotation block of the covariance: the offset's [rad^2]; the position

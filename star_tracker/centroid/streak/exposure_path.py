@@ -144,14 +144,18 @@ class ExposurePath:
 
 
 def _left_out_error(t: np.ndarray, w: np.ndarray, exposure: float) -> float:
-    """The rms error [rad/s, per axis] of the interior samples within the exposure, each from the others' spline."""
+    """
+    Return the rms left-out error [rad/s, per axis] of the interior samples within the exposure.
+
+    Each sample predicted by the cubic spline through the others.
+    """
     errors = [CubicSpline(np.delete(t, i), np.delete(w, i, axis=0), axis=0)(t[i]) - w[i]
               for i in range(1, t.size - 1) if abs(t[i]) <= 0.5 * exposure]
     return float(np.sqrt(np.mean(np.square(errors)))) if errors else 0.0
 
 
 def _integrated(omega: np.ndarray, knots: np.ndarray, exposure: float) -> np.ndarray:
-    """The integral of omega (K, m) over knots (trapezoid), less its time mean over the exposure: phi (K, m)."""
+    """Return the integral phi (K, m) of omega (K, m) over knots (trapezoid), less its time mean over the exposure."""
     steps = 0.5 * (omega[1:] + omega[:-1]) * np.diff(knots)[:, None]
     phi = np.vstack([np.zeros((1, omega.shape[1])), np.cumsum(steps, axis=0)])
     mean = np.sum(0.5 * (phi[1:] + phi[:-1]) * np.diff(knots)[:, None], axis=0) / exposure
