@@ -7,6 +7,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..models.attitude import rotation_vector_to_matrix
+from ..models.matrix_checks import covariance_problem
+
 if TYPE_CHECKING:
     from .streak.smear import SmearModel
 
@@ -53,12 +56,23 @@ class AppliedMotion:
         if (covariance is None) != (self.exposure_path_offset_rad is None):
             raise ValueError("AppliedMotion.exposure_path_offset_rad and exposure_path_offset_covariance come together")
         if covariance is not None:
-            matrix = np.array(covariance, dtype=float)
-            if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)) or not np.allclose(matrix, matrix.T) \
-                    or np.any(np.linalg.eigvalsh(0.5 * (matrix + matrix.T)) < 0):
-                raise ValueError("AppliedMotion.exposure_path_offset_covariance must be a finite symmetric positive "
-                                 f"semi-definite 3x3 [rad^2], got {covariance!r}")
-            object.__setattr__(self, "exposure_path_offset_covariance", matrix)
+            problem = covariance_problem(covariance, definite=False)
+            if problem is not None:
+                raise ValueError(f"AppliedMotion.exposure_path_offset_covariance [rad^2] is {problem}")
+            object.__setattr__(self, "exposure_path_offset_covariance", np.array(covariance, dtype=float))
+
+    def at_mid_exposure(self, rotation: np.ndarray, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Return an exposure-average attitude on the gyro's path carried to mid-exposure, with its covariance.
+
+        rotation: (3, 3) sensor -> ICRS measured from this frame's spots; covariance: (3, 3)
+        [rad^2, sensor frame]. R_mid = R exp([exposure_path_offset_rad x]); the offset's
+        covariance added. Only for a frame measured on a path (exposure_path_offset_rad set).
+        """
+        if self.exposure_path_offset_rad is None:
+            raise ValueError("AppliedMotion.at_mid_exposure: the frame was not measured on a gyro's path")
+        return (np.asarray(rotation, float) @ rotation_vector_to_matrix(self.exposure_path_offset_rad),
+                np.asarray(covariance, float) + self.exposure_path_offset_covariance)
 
     @staticmethod
     def of(smear: "SmearModel | None", rate_aid_rejected: bool) -> "AppliedMotion":

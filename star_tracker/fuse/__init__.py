@@ -7,7 +7,7 @@ attitude at a stamp (FusionState.fused_at); see docs/FUSION.md.
 """
 from .alignment import AlignmentConfig, AlignmentEstimate, AlignmentFilter, AlignmentSample, PeriodicDrift
 from .joint_fit import HeadRays, JointFit, fit_heads
-from .checks import rotation_problem
+from ..models.matrix_checks import rotation_problem
 from .mounting import corrected_mounting, implied_body_attitude
 from .records import BodyRate, FusedAttitude, HeadObservation, HeadResidual
 from .state import Admission, FusionConfig, FusionCounters, FusionState, FusionUnavailable

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..models.attitude import ARCSEC, matrix_to_rotation_vector, rotation_vector_to_matrix
-from .checks import covariance_problem, rate_problem, rotation_problem
+from ..models.matrix_checks import covariance_problem, rate_problem, rotation_problem
 from .records import BodyRate
 from .time_alignment import acceleration_covariance, propagate_attitude, stamp_difference_s
 

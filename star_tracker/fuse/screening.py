@@ -15,7 +15,7 @@ from typing import Iterable, NamedTuple
 
 import numpy as np
 
-from .checks import covariance_problem, rotation_problem
+from ..models.matrix_checks import covariance_problem, rotation_problem
 from .records import HeadObservation
 
 UNIT_TOLERANCE = 1e-3  # largest | |v| - 1 | of a usable unit vector (float32 messages are good to 1e-7)

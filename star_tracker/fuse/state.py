@@ -23,7 +23,7 @@ import numpy as np
 from ..models.attitude import matrix_to_quaternion
 from ..models.attitude_estimation import attitude_covariance, svd_rotation
 from .alignment import AlignmentFilter, AlignmentSample
-from .checks import rate_problem
+from ..models.matrix_checks import rate_problem
 from .joint_fit import HeadRays, fit_heads
 from .mounting import corrected_mounting, implied_body_attitude
 from .records import BodyRate, FusedAttitude, HeadObservation

@@ -45,7 +45,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_msgs.msg import Header
 
 from ..fuse import AlignmentFilter, BodyRate, FusedAttitude, FusionState, FusionUnavailable, HeadObservation
-from ..fuse.checks import covariance_problem, rate_problem
+from ..models.matrix_checks import covariance_problem, rate_problem
 from ..fuse.schedule import FusionSchedule
 from ..models.aberration import aberrate
 from ..models.attitude import ARCSEC, matrix_to_quaternion, normalize_quaternion, quaternion_to_matrix, \

@@ -18,6 +18,7 @@ from std_msgs.msg import Header
 from ..models.attitude import (matrix_to_quaternion, matrix_to_rotation_vector, quaternion_to_matrix,
                                rotation_vector_to_matrix)
 from ..models.attitude_estimation import AttitudeSolution
+from ..models.matrix_checks import covariance_problem
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from ..identify.base import Identification, direction_covariance
@@ -355,15 +356,16 @@ def path_offset_from_msg(msg) -> tuple[np.ndarray, np.ndarray] | None:
     """
     Return (offset [rad] (3,), covariance [rad^2] (3, 3)) of a path_offset_msg, or None when malformed.
 
-    Malformed: a non-finite or non-unit quaternion (beyond 1e-3), a rotation block not finite,
-    symmetric and positive semi-definite. Duck-typed (pose.pose.orientation, pose.covariance).
+    Malformed: a non-finite or non-unit quaternion (beyond 1e-3), a rotation block that
+    matrix_checks.covariance_problem refuses (semi-definite allowed). Duck-typed
+    (pose.pose.orientation, pose.covariance).
     """
     o = msg.pose.pose.orientation
     q = np.array([o.x, o.y, o.z, o.w], float)
-    block = np.asarray(msg.pose.covariance, float).reshape(6, 6)[3:, 3:] if len(msg.pose.covariance) == 36 else None
-    if block is None or not (np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1.0) <= 1e-3) \
-            or not np.all(np.isfinite(block)) or not np.allclose(block, block.T) \
-            or np.any(np.linalg.eigvalsh(0.5 * (block + block.T)) < 0):
+    if len(msg.pose.covariance) != 36 or not (np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1.0) <= 1e-3):
+        return None
+    block = np.asarray(msg.pose.covariance, float).reshape(6, 6)[3:, 3:]
+    if covariance_problem(block, definite=False) is not None:
         return None
     return matrix_to_rotation_vector(quaternion_to_matrix(q / np.linalg.norm(q))), block
 

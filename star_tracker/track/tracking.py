@@ -340,8 +340,7 @@ class Tracker:
                         started: float, applied: AppliedMotion) -> TrackedFrame:
         """_accept for a frame measured on a gyro's path: carried to mid-exposure by the path's offset."""
         solution = result.attitude
-        rotation = solution.rotation @ rotation_vector_to_matrix(applied.exposure_path_offset_rad)
-        covariance = solution.covariance + applied.exposure_path_offset_covariance
+        rotation, covariance = applied.at_mid_exposure(solution.rotation, solution.covariance)
         mid = replace(solution, quaternion=matrix_to_quaternion(rotation), rotation=rotation, covariance=covariance)
         # A mid-exposure attitude: no acceleration biases it (bias gain 0).
         self.rate = self.rates.add(stamp_ns, rotation, covariance, 0.0, None)
@@ -677,8 +676,7 @@ class Tracker:
         self.rates.reset()
         applied = solved_spots.applied_motion or AppliedMotion()  # not known: measured without a rate (no aid)
         if applied.exposure_path_offset_rad is not None:  # on a gyro's path: its mid-exposure attitude, unbiased
-            self.rates.add(stamp_ns, result.attitude.rotation @ rotation_vector_to_matrix(
-                applied.exposure_path_offset_rad), result.attitude.covariance + applied.exposure_path_offset_covariance)
+            self.rates.add(stamp_ns, *applied.at_mid_exposure(result.attitude.rotation, result.attitude.covariance))
         else:
             self.rates.add(stamp_ns, result.attitude.rotation, result.attitude.covariance,
                            self.bias_gain(applied.angular_velocity_rad_s, pending[0][2].pixel_scale_rad),

@@ -451,9 +451,8 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
             # Jitter faster than a frame is unobservable in it: the head measures, and is judged
             # against, the exposure's mean attitude (the mid-exposure one elsewhere), unless a
             # gyro's path carried it to mid-exposure (Tracker._accept_on_path).
-            on_path = spots.applied_motion.exposure_path_offset_rad is not None
             reference = exposure_average_rotation(mission.motion, tau, shared.exposure_s) \
-                if mission.motion_kind == "jitter" and not on_path else truth.rotation
+                if mission.motion_kind == "jitter" and not result.on_exposure_path else truth.rotation
             scored = score(ident, truth_hip(truth, spots, ident), reference, options.wrong_arcsec)
             row["jitter_arcsec"] = float(np.linalg.norm(matrix_to_rotation_vector(truth.rotation.T @ reference))) \
                 / ARCSEC

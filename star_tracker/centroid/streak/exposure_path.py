@@ -26,13 +26,15 @@ several times its stated error off (the stress campaign's gyro-aided jitter fram
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Callable
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 MIN_SAMPLES_INSIDE = 3  # rate samples within the exposure a path needs (fewer: no shape to speak of)
-KNOTS = 65  # times across the exposure the path is integrated at
+KNOTS = 65  # times across the exposure the path is integrated at (odd: the middle one is mid-exposure)
 PATH_MIN_DEVIATION_PX = 0.02  # a path departing less from the smooth model's is not used [px]
 # (a gyro of 0.005 deg/s per sample at 100 Hz wanders 0.4" = 0.008 px in half a 0.1 s exposure
 # of a 15 deg 1024 px camera; 20" of jitter at 20 Hz departs by up to 0.4 px)
@@ -65,15 +67,26 @@ class ExposurePath:
     rotation_vectors_rad: (K, 3) phi(t_k), with a time mean of zero over the exposure (the
     attitude is R(t) = R_mean exp([phi(t) x]), R_mean the exposure-average attitude);
     samples: the rate samples inside the exposure it was integrated from;
-    mid_exposure_offset_covariance: (3, 3) [rad^2] of phi(0) as the frame's offset to
-    mid-exposure: the samples' noise through the integration, PATH_FIT_RESIDUAL_FRACTION and
-    what the samples leave unresolved (INTERPOLATION_ERROR_GAIN).
+    offset_covariance: returns mid_exposure_offset_covariance (computed when first read: a
+    path SmearModel.with_exposure_path does not keep never needs it).
     """
 
     times_s: np.ndarray
     rotation_vectors_rad: np.ndarray
     samples: int
-    mid_exposure_offset_covariance: np.ndarray
+    offset_covariance: Callable[[], np.ndarray] = field(repr=False)
+
+    @cached_property
+    def mid_exposure_offset_covariance(self) -> np.ndarray:
+        """
+        (3, 3) [rad^2] of phi(0) as the frame's offset to mid-exposure (from_rate_samples).
+
+        The samples' noise through the integration, PATH_FIT_RESIDUAL_FRACTION and what the
+        samples leave unresolved (INTERPOLATION_ERROR_GAIN).
+        """
+        covariance = self.offset_covariance()
+        covariance.flags.writeable = False
+        return covariance
 
     @classmethod
     def from_rate_samples(cls, offsets_s, rates_rad_s, exposure_s: float,
@@ -117,15 +130,16 @@ class ExposurePath:
         # Integrated for the samples' unit vectors at once: the weights of each sample in phi(t).
         weights = _integrated(CubicSpline(t, np.eye(t.size), axis=0)(np.clip(knots, t[0], t[-1])), knots, exposure)
         phi = weights @ w
-        at_mid = np.array([np.interp(0.0, knots, weights[:, i]) for i in range(t.size)])
-        residual = PATH_FIT_RESIDUAL_FRACTION * float(np.linalg.norm(at_mid @ w))
-        unresolved = INTERPOLATION_ERROR_GAIN * _left_out_error(t, w, exposure) * spacing
-        covariance = np.eye(3) * (noise * noise * float(at_mid @ at_mid) + residual * residual
-                                  + unresolved * unresolved)
+        at_mid = weights[KNOTS // 2]  # each sample's weight in phi(0)
+
+        def offset_covariance() -> np.ndarray:
+            residual = PATH_FIT_RESIDUAL_FRACTION * float(np.linalg.norm(at_mid @ w))
+            unresolved = INTERPOLATION_ERROR_GAIN * _left_out_error(t, w, exposure) * spacing
+            return np.eye(3) * (noise * noise * float(at_mid @ at_mid) + residual * residual + unresolved * unresolved)
+
         knots.flags.writeable = False
         phi.flags.writeable = False
-        covariance.flags.writeable = False
-        return cls(knots, phi, inside, covariance)
+        return cls(knots, phi, inside, offset_covariance)
 
     @property
     def mid_exposure_offset_rad(self) -> np.ndarray:

@@ -2,8 +2,9 @@
 """
 What makes an input matrix or rate unusable, in words: each check returns the problem or None.
 
-Shared by the observation screening, FusionState.fused_at (the body rate) and the alignment
-filter (the heads' solutions), so every entry point refuses the same inputs the same way.
+Shared by the fusion's observation screening, FusionState.fused_at (the body rate) and
+alignment filter (the heads' solutions), and by AppliedMotion and the identifier's smear aid
+(a gyro path's offset covariance), so every entry point refuses the same inputs the same way.
 """
 from __future__ import annotations
 
