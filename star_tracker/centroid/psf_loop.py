@@ -223,10 +223,15 @@ class PsfLoop:
         does. Fewer than streak_width.MIN_STREAKS streaks measured at the prior, one or two of
         them beyond RERUN_TOLERANCE of it: the frame is measured again at their width
         (_after_few_streaks), where a PSF wider than the prior lifts more streaks above
-        streak_width.MIN_SNR.
+        streak_width.MIN_SNR. No streak measured and no running prior (a cold frame: the
+        configured width is a guess, not the last frames' measurement): the PSF is estimated
+        from its round stars, as where the bright smears are short. A gyro-aided jitter's
+        first frames of a defocused 2.46 px PSF (stress campaign, seed 2026, task 1987) had
+        3 of 22 bright stars smeared to the 3 px a width across needs, none measured there;
+        held at the configured 1 px, frame 0 was lost and frame 1 72" off at NEES 886.
         """
         widths = self._streak_widths(self.kept)
-        if widths.size == 0 and self._bright_smears_short():
+        if widths.size == 0 and (self._bright_smears_short() or not self.prior_given):
             return self._round_stars(*self.kept)
         sigma, uncertainty, used = frame_width(widths)
         if not _usable_width(sigma):

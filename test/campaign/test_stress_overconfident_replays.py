@@ -42,6 +42,11 @@ the campaign.
   0-39: every frame showed one or two streaks of 1.7-2.0 px, too few to measure across, and was
   measured at the configured 1 px: 27 of 40 lost, frame 39 62" off. Two streaks whose widths
   agree when measured again at their width now give the frame's.
+- Task 1987 (jitter, gyro aid, defocused 2.46 px PSF, 49 bit flips), frames 0-1: the
+  mission's first frames, no running PSF, found no streak to measure across (3 of 22 bright
+  stars smeared to 3 px), and held the configured 1 px: frame 0 lost, frame 1 identified
+  lost-in-space 71.8" off at NEES 886. A cold rate-aided frame with no streak width now
+  estimates its PSF from its round stars: 2.5 px, frame 0 1.3" off.
 - Tumbles' first frames, unaided: task 1832 (2.84 px, 9 streaks, none round) held the 1 px
   prior, 20" off at NEES 51; task 2240 (2.98 px, a hot-pixel storm) read its streaks as a
   round 5.6 px PSF, out of range, and held 1 px: 30" off. Their PSF is now measured across
@@ -149,6 +154,14 @@ def test_a_tumbles_first_frame_is_measured_at_its_psf(campaign, task):
     row = replay_to(campaign, task, 0)[-1]
     assert row["frame"] == 0 and row["solved"], row
     assert not row["wrong"], row
+
+
+@pytest.mark.slow
+def test_a_cold_rate_aided_frame_without_streak_widths_is_measured_at_its_round_stars_psf(campaign):
+    rows = replay_to(campaign, 1987, 1)
+    assert [r["frame"] for r in rows] == [0, 1] and all(r["solved"] for r in rows), rows
+    assert not any(r["wrong"] for r in rows), rows
+    assert all(r["cross_arcsec"] < 10.0 for r in rows), rows
 
 
 @pytest.mark.slow

@@ -8,6 +8,12 @@ cold start (or an emptied running prior) that was the configured 1 px, where eac
 split into fragments holding ~20 % of its light, shifted 1-2.5 px alike. Task 99: its first
 frame (gyro aid, 2.1 px smear) named 8 stars, 4.3" off. On the independent renderer (2 px of
 smear, cold): 4-11 of 40 stars found at 1 px; 40 of 40, 0.05 px RMS, at the estimate.
+
+A cold rate-aided frame whose streaks are too faint to measure across (none above
+streak_width.MIN_SNR) is estimated from its round stars too. Task 1987 (gyro-aided jitter,
+2.46 px PSF): held at the configured 1 px, frame 1 was 72" off at NEES 886. On the
+independent renderer (60 faint stars of 2.5-3 px smeared 3-4 px, cold): 13-21 stars and 47-62
+fragments at 1 px; 42-52 stars at the estimate.
 """
 from __future__ import annotations
 
@@ -35,6 +41,16 @@ def test_a_cold_rate_aided_frame_of_short_smears_estimates_its_psf(psf, smear_px
     assert abs(spots.psf.applied_sigma_px / psf.equivalent_sigma_px - 1.0) < tolerance, spots.psf
     stars, stray = found(spots, frame.x, frame.y)
     assert stars >= frame.x.size - 1 and stray == 0, (stars, stray, len(spots))
+
+
+@pytest.mark.parametrize("sigma_px, smear_px, seed", [(2.5, 3.0, 2), (3.0, 3.0, 1), (3.0, 4.0, 2)])
+def test_a_cold_rate_aided_frame_of_faint_streaks_estimates_its_psf_from_its_round_stars(sigma_px, smear_px, seed):
+    frame = smeared_frame(alt.GaussianPsf(sigma_px), smear_px, 0.3 + seed, seed, flux_e=1000.0, stars=60)
+    spots = extract_spots(frame.image, CentroidConfig(), frame.smear)
+    assert spots.psf.estimated, spots.psf
+    assert abs(spots.psf.applied_sigma_px / sigma_px - 1.0) < 0.15, spots.psf
+    stars, stray = found(spots, frame.x, frame.y)
+    assert stars >= 40 and stray <= 10, (stars, stray, len(spots))
 
 
 @pytest.fixture(scope="module")
