@@ -78,7 +78,8 @@ class CentroiderNode(ManagedNode):
                                  values["stamp.reset_after_s"])
         # The gyro's mounting (read-only): its vectors are rotated into the sensor frame.
         self.rate_input = RateInput(lambda counter, text: self.reject(counter, text),
-                                    list(values["gyro.mounting_quaternion"]), values["gyro.frame_id"])
+                                    list(values["gyro.mounting_quaternion"]), values["gyro.frame_id"],
+                                    values["gyro.noise_rad_s"])
         problems = []
         if self.rate_source not in RATE_SOURCES:
             problems.append(f"rate_source={self.rate_source!r} must be one of {RATE_SOURCES}")

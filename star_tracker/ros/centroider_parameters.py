@@ -34,6 +34,9 @@ NODE_PARAMETERS = [
                   "(replay, simulation reset), counted as a time reset", "s", 0.0, 1e9, dynamic=True),
     ParameterSpec("gyro.mounting_quaternion", (0.0, 0.0, 0.0, 1.0), "orientation (x, y, z, w) of the gyro frame in "
                   "the sensor frame: v_sensor = R(q) v_gyro (imu, and angular_velocity in gyro.frame_id); unit norm"),
+    ParameterSpec("gyro.noise_rad_s", 0.0, "the gyro's white noise per sample, 1 sigma per axis, for the covariance "
+                  "of a frame carried along the gyro's path when its messages state none (angular_velocity; an imu "
+                  "whose angular_velocity_covariance is all zeros); 0 = not known", "rad/s", 0.0, 1.0),
     ParameterSpec("gyro.frame_id", "", "frame_id of the gyro's messages; an imu message in another frame is "
                   "ignored, counted (rates_wrong_frame); '' = not checked"),
     AUTOSTART,

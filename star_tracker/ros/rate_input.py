@@ -208,11 +208,19 @@ class RateInput:
     """Both rate topics' messages -> RateSamples in the sensor frame, with the checks above."""
 
     def __init__(self, reject: Callable[[str, str], None], mounting_quaternion=IDENTITY_MOUNTING,
-                 gyro_frame_id: str = ""):
-        """reject(counter, text): count and report a refused message or an unaided frame."""
+                 gyro_frame_id: str = "", gyro_noise_rad_s: float = 0.0):
+        """
+        Keep the samples of both rate topics.
+
+        reject(counter, text): count and report a refused message or an unaided frame;
+        gyro_noise_rad_s: the gyro's white noise per sample, 1 sigma per axis [rad/s], for the
+        messages that state none (angular_velocity; an imu whose covariance is all zeros);
+        0: not known.
+        """
         self.reject = reject
         self.mounting = mounting_matrix(mounting_quaternion)
         self.gyro_frame_id = gyro_frame_id
+        self.gyro_noise_rad_s = float(gyro_noise_rad_s)
         self.samples = {"angular_velocity": RateSamples(), "imu": RateSamples()}
 
     def clear(self) -> None:
@@ -223,7 +231,8 @@ class RateInput:
         """geometry_msgs/Vector3Stamped: in the gyro frame (when configured) or the sensor frame."""
         v = msg.vector
         in_gyro_frame = bool(self.gyro_frame_id) and msg.header.frame_id == self.gyro_frame_id
-        self._add("angular_velocity", msg.header, np.array([v.x, v.y, v.z], float), rotate=in_gyro_frame)
+        self._add("angular_velocity", msg.header, np.array([v.x, v.y, v.z], float), rotate=in_gyro_frame,
+                  noise_rad_s=self.gyro_noise_rad_s)
 
     def on_acceleration(self, msg) -> None:
         """geometry_msgs/Vector3Stamped angular_acceleration (the identifier's): kept with its input's rate samples."""
@@ -250,10 +259,11 @@ class RateInput:
             self.reject("rates_no_data", "ignored imu without angular velocity (angular_velocity_covariance[0] == -1)")
             return
         w = msg.angular_velocity
-        # Its stated noise: the largest variance on the diagonal (all zeros: not stated, REP 145).
+        # Its stated noise: the largest variance on the diagonal (all zeros: not stated, REP 145,
+        # then the configured gyro noise).
         variance = max(float(v) for v in (msg.angular_velocity_covariance[0], msg.angular_velocity_covariance[4],
                                           msg.angular_velocity_covariance[8]))
-        noise = math.sqrt(variance) if math.isfinite(variance) and variance > 0.0 else 0.0
+        noise = math.sqrt(variance) if math.isfinite(variance) and variance > 0.0 else self.gyro_noise_rad_s
         self._add("imu", msg.header, np.array([w.x, w.y, w.z], float), rotate=True, noise_rad_s=noise)
 
     def _add(self, topic: str, header, vector: np.ndarray, rotate: bool, noise_rad_s: float = 0.0) -> None:

@@ -14,6 +14,7 @@ from sensor_msgs.msg import Imu
 from star_tracker.models.attitude import matrix_to_quaternion, quaternion_to_matrix
 from star_tracker.ros import convert
 from star_tracker.ros.qos import RATE_INPUT_QOS, SPOTS_QOS, is_qos_override, overridable
+from star_tracker.centroid.streak.exposure_path import ExposurePath
 from star_tracker.ros.rate_input import RateInput, RateSamples, mounting_matrix
 
 T0 = 1_700_000_000 * 10**9
@@ -243,7 +244,6 @@ def test_a_slope_needs_two_exposures_of_samples():
 def test_a_gyros_samples_around_the_exposure_draw_its_path():
     # The samples within an exposure's length of either end, relative to the frame's stamp; the
     # identifier's estimates (they come with accelerations) draw none.
-    from star_tracker.centroid.streak.exposure_path import ExposurePath
 
     amplitude, frequency = np.radians(20.0 / 3600.0), 10.0
     gyro = RateSamples()
@@ -283,3 +283,27 @@ def test_an_imus_stated_noise_comes_with_its_samples_around_the_exposure():
         plain.on_vector3(vector3([0.0, 0.01, 0.0], T0 + k * 10 * MS))
     assert plain.around_exposure("imu", T0, 0.1)[2] == 0.0
     assert plain.around_exposure("angular_velocity", T0, 0.1)[2] == 0.0
+
+
+def test_the_configured_gyro_noise_stands_for_messages_that_state_none():
+    # gyro.noise_rad_s: a Vector3Stamped states no noise, nor does an Imu whose covariance is all
+    # zeros (REP 145: not known); an Imu that states its noise keeps its own.
+    counted = Counted()
+    rates = RateInput(counted, gyro_noise_rad_s=2e-4)
+    for k in range(-5, 6):
+        rates.on_vector3(vector3([0.0, 0.01, 0.0], T0 + k * 10 * MS))
+        rates.on_imu(imu([0.0, 0.01, 0.0], T0 + k * 10 * MS))
+    assert rates.around_exposure("angular_velocity", T0, 0.1)[2] == pytest.approx(2e-4)
+    assert rates.around_exposure("imu", T0, 0.1)[2] == pytest.approx(2e-4)
+    stated = RateInput(counted, gyro_noise_rad_s=2e-4)
+    for k in range(-5, 6):
+        stated.on_imu(imu([0.0, 0.01, 0.0], T0 + k * 10 * MS, covariance0=(5e-5) ** 2))
+    assert stated.around_exposure("imu", T0, 0.1)[2] == pytest.approx(5e-5)
+    # The noise reaches the covariance of the path's offset to mid-exposure (white noise through
+    # the integration): larger with it than without, by the exact propagation's scale.
+    offsets, samples, noise = rates.around_exposure("angular_velocity", T0, 0.1)
+    swing = samples + np.outer(np.sin(2 * np.pi * 15.0 * offsets), [1e-3, 0.0, 0.0])
+    quiet = ExposurePath.from_rate_samples(offsets, swing, 0.1).mid_exposure_offset_covariance
+    noisy = ExposurePath.from_rate_samples(offsets, swing, 0.1, noise).mid_exposure_offset_covariance
+    added = np.diag(noisy - quiet)
+    assert np.all(added > 0.0) and np.allclose(added, added[0]), added
