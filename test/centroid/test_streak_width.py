@@ -6,8 +6,9 @@ On streaks of the independent renderer (bench/alt_renderer.py: each streak a lin
 pixel-integrated Gaussian stamps, its own noise), and end to end on the simulator's frame that
 once was measured at the 1 px prior: a 2.5 px PSF slewing at 1 deg/s, its spots then ~7 times
 more uncertain than they stated; and a sparse field of faint streaks whose PSF only one or two
-of them show at the 1 px prior, measured again at their width; and, with no rate known, the
-width across each streak's own track.
+of them show at the 1 px prior, measured again at their width; with no rate known, the
+width across each streak's own track; and the width across an undersampled PSF's streaks
+(streak/narrow_width.py), which the profile's few bins read 20-30 % narrow.
 """
 from __future__ import annotations
 
@@ -20,9 +21,12 @@ import pytest
 from bench.alt_renderer import Detector, GaussianPsf, StarField, render
 from bench.fingerprints import frame_seed
 from star_tracker.centroid import CentroidConfig, extract_spots
+from star_tracker.centroid.streak.narrow_width import streak_pixels
 from star_tracker.centroid.streak.streak_width import streak_width
 from star_tracker.centroid.streak.smear import SmearModel
 from star_tracker.models.camera import CameraModel
+
+from smeared_alt_frames import found, smeared_frame
 
 SIZE = 512
 
@@ -48,6 +52,47 @@ def test_the_width_across_an_independent_renderers_streaks_is_its_psf(sigma_px):
     width, uncertainty, used = streak_width(image, x, y, np.full(x.size, 100.0), smear)
     assert used >= 5
     assert width == pytest.approx(sigma_px, rel=0.07), (width, uncertainty)
+
+
+@pytest.mark.parametrize("sigma_px, angle_rad",
+                         [(0.4, 0.0), (0.4, 0.3), (0.4, math.pi / 4), (0.4, 3.3), (0.5, 1.2), (0.6, 2.0)])
+def test_the_width_across_an_undersampled_psfs_streaks_is_its_psf(sigma_px, angle_rad):
+    # 0.4 px streaks smeared 3 px at 3.3 rad read 0.27-0.30 px for every streak of the frame by
+    # the log-parabola over the profile's bins (below the fits' 0.3 px: the frame held 1 px).
+    frame = smeared_frame(GaussianPsf(sigma_px), 3.0, angle_rad, 3)
+    width, _, used = streak_width(frame.image, frame.x, frame.y, np.full(frame.x.size, 100.0), frame.smear)
+    assert used >= 5
+    assert width == pytest.approx(sigma_px, rel=0.05), width
+
+
+@pytest.mark.parametrize("smear_px", [3.0, 4.0])
+def test_a_cold_rate_aided_frame_of_undersampled_streaks_is_measured_at_its_psf(smear_px):
+    # Read 0.28 px across, below the fits' range, the 3 px frame held the configured 1 px and
+    # refused its 40 sharp streaks as cosmic-ray tracks (0 spots); read 0.32 px, the 4 px frame
+    # split 26 of its 40 streaks.
+    frame = smeared_frame(GaussianPsf(0.4), smear_px, 3.3, 3)
+    spots = extract_spots(frame.image, CentroidConfig(), frame.smear)
+    assert spots.psf.estimated and spots.psf.applied_sigma_px == pytest.approx(0.4, rel=0.05), spots.psf
+    stars, stray = found(spots, frame.x, frame.y)
+    assert stars == frame.x.size and stray == 0, (stars, stray, len(spots))
+
+
+@pytest.mark.parametrize("angle_rad", [0.0, 0.5, math.pi / 4])
+def test_a_streaks_pixels_hold_its_flux_and_its_pixel_integrated_profile(angle_rad):
+    # The unit-flux streak's pixel means sum to 1 (over a window holding all its light) and,
+    # along x, its profile across is the normal CDF's difference over each pixel (erf).
+    unit = np.array([math.cos(angle_rad), math.sin(angle_rad)])
+    cols, rows = np.meshgrid(np.arange(-12, 13), np.arange(-12, 13))
+    along = (cols * unit[0] + rows * unit[1]).ravel().astype(float)
+    across = (-cols * unit[1] + rows * unit[0]).ravel().astype(float)
+    pixels = streak_pixels(along, across, unit, 5.0, 0.4, 0.0, 0.2)
+    assert pixels.sum() == pytest.approx(1.0, abs=2e-3)
+    if angle_rad == 0.0:
+        from scipy.special import ndtr
+        centre_column = np.abs(along) < 0.5  # the pixels at the streak's middle, all its length's light along
+        expected = (ndtr((across[centre_column] + 0.5 - 0.2) / 0.4) - ndtr((across[centre_column] - 0.5 - 0.2) / 0.4))
+        along_light = ndtr(2.5 / 0.4) - ndtr(-2.5 / 0.4)  # the middle pixel's along-track share, times L
+        assert np.allclose(pixels[centre_column] * 5.0, expected * along_light, atol=3e-3)
 
 
 def test_too_few_streaks_give_no_width():

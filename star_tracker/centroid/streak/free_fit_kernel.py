@@ -22,8 +22,11 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .narrow_width import NARROW_PX
+
 NODE_SPACING_SIGMA = 1.0  # Simpson nodes along the segment this far apart [PSF sigma]
 N_PAR = 5  # x, y, F, L, theta
+_NARROW_VARIANCE = NARROW_PX * NARROW_PX  # a PSF variance below this gets the exact pixel integral [px^2]
 _EXPONENT_FLOOR = 30.0  # exp(-30) ~ 1e-13: the profiles' floor, as streak.model._profiles
 _FLOOR = math.exp(-_EXPONENT_FLOOR)
 # The pixel loops may sum in any order and fuse multiply-adds (so they vectorize), with no
@@ -373,6 +376,9 @@ def _profile(centre, scale, weight, count, table, g, vg):
     scale^2): two exp per node, the powers of b by products (~1e-14 off at most).
     """
     floor = weight * _FLOOR
+    if 0.5 / (scale * scale) - 1.0 / 12.0 < _NARROW_VARIANCE:
+        _integrated_profile(centre, scale, weight, count, g, vg)
+        return
     nearest = round(centre)
     f = centre - nearest
     scale2 = scale * scale
@@ -393,6 +399,27 @@ def _profile(centre, scale, weight, count, table, g, vg):
             value = table[abs(d)] * power
         g[i] = value
         vg[i] = v * value
+
+
+@njit(cache=True, error_model="numpy")
+def _integrated_profile(centre, scale, weight, count, g, vg):
+    """
+    Write _profile's g and v g for a PSF narrower than narrow_width.NARROW_PX: the Gaussian integrated over each pixel.
+
+    As streak.model._integrated_profiles: g = weight sqrt(pi) / scale (Phi(u+) - Phi(u-)), u+-
+    = (pixel +- 1/2 - centre) / sigma, and v g = (dg/dcentre) / (2 scale); floored as _profile.
+    """
+    sigma = math.sqrt(max(0.5 / (scale * scale) - 1.0 / 12.0, 1e-6))
+    norm = weight * math.sqrt(math.pi) / scale
+    floor = weight * _FLOOR
+    root2 = math.sqrt(2.0)
+    density = 1.0 / (math.sqrt(2.0 * math.pi) * sigma)
+    for i in range(count):
+        upper = (i - centre + 0.5) / sigma
+        lower = (i - centre - 0.5) / sigma
+        share = norm * 0.5 * (math.erf(upper / root2) - math.erf(lower / root2))
+        g[i] = share if share > floor else floor
+        vg[i] = norm * density * (math.exp(-0.5 * lower * lower) - math.exp(-0.5 * upper * upper)) / (2.0 * scale)
 
 
 @njit(cache=True, error_model="numpy")

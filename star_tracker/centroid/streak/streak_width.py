@@ -16,15 +16,21 @@ parabola over the bins above PROFILE_FLOOR of the peak (a Gaussian's log is one)
 curvature) - 1/12; a profile whose peak lies more than MAX_VERTEX_OFFSET of that width from the
 streak's centre of light, or whose core (above CORE_FLOOR) gives a width more than
 MAX_CORE_MISMATCH from it, is two stars merged across the track and left out. The frame's width
-is the median over at least MIN_STREAKS streaks. A field whose brightest streaks mostly have a
-companion 2-3 sigma across their track, merged into one detection and not caught by those
-tests, reads wider than its PSF (test_centroid_scenes' field of pairs: 1.7 px for 1 px).
+is the median over at least MIN_STREAKS streaks. When most profiles read narrower than
+narrow_width.NARROW_PX (or too narrow for the parabola), the PSF is undersampled and each
+streak's width is fitted on its pixels with their integral instead (narrow_width.py). A field
+whose brightest streaks mostly have a companion 2-3 sigma across their track, merged into one
+detection and not caught by those tests, reads wider than its PSF (test_centroid_scenes' field
+of pairs: 1.7 px for 1 px).
 """
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from .narrow_width import NARROW_PX, narrow_width
 
 if TYPE_CHECKING:
     from .smear import SmearModel
@@ -44,6 +50,7 @@ MAX_CORE_MISMATCH = 0.12  # relative difference of the core's width from the pro
 MAX_ACROSS_PX = 12.0  # the widest profile looked at: 4 x the 3 px PSF
 PIXEL_VARIANCE = 1.0 / 12.0
 MAX_VERTEX_OFFSET = 0.25  # the profile's peak this far (in its own sigmas) from the streak's centre: a blend
+_UNPROFILED, _NARROW, _WIDE = "unprofiled", "narrow", "wide"  # a streak's profile: none; below NARROW_PX; wider
 
 
 def streak_width(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np.ndarray, smear: "SmearModel"
@@ -102,22 +109,36 @@ def streak_widths_along(image: np.ndarray, x: np.ndarray, y: np.ndarray, snr: np
     """
     x, y, snr = (np.asarray(v, float).ravel() for v in (x, y, snr))
     vectors = np.asarray(vectors, float).reshape(-1, 2)
-    height, width = image.shape
     index = np.flatnonzero(np.isfinite(snr) & (snr >= MIN_SNR) & np.isfinite(x) & np.isfinite(y))
     index = index[np.argsort(-snr[index])]
-    widths = []
+    widths, narrow, profiled = _widths(image, x, y, vectors, index, turns_rad, path_variance_px2, False)
+    # Most profiles narrower than NARROW_PX (or too narrow to fit): an undersampled PSF, each
+    # streak fitted again with the pixels' integral (narrow_width). A few narrow ones among
+    # wider (a hot pixel on a track) keep their reading.
+    if narrow > 0.5 * profiled:
+        widths, _, _ = _widths(image, x, y, vectors, index, turns_rad, path_variance_px2, True)
+    return widths
+
+
+def _widths(image: np.ndarray, x, y, vectors, index, turns_rad, path_variance_px2, refit_narrow: bool
+            ) -> tuple[np.ndarray, int, int]:
+    """Return (widths [px] of streaks `index`, up to MAX_STREAKS; profiles read narrow; streaks profiled)."""
+    height, width = image.shape
+    widths, narrow, profiled = [], 0, 0
     for i in index:
         if len(widths) >= MAX_STREAKS:
             break
-        across = [_one_streak(image, float(x[i]), float(y[i]), _turned(vectors[i], turn), width, height)
+        across = [_one_streak(image, float(x[i]), float(y[i]), _turned(vectors[i], turn), width, height, refit_narrow)
                   for turn in turns_rad]
-        sigma = min((value for value in across if np.isfinite(value)), default=float("nan"))
+        profiled += any(shape != _UNPROFILED for _, shape in across)
+        narrow += any(shape == _NARROW for _, shape in across)
+        sigma = min((value for value, _ in across if np.isfinite(value)), default=float("nan"))
         if path_variance_px2 is not None and np.isfinite(sigma):
             variance = sigma * sigma - float(path_variance_px2[i])
             sigma = float(np.sqrt(variance)) if variance > 0 else float("nan")
         if np.isfinite(sigma):
             widths.append(sigma)
-    return np.asarray(widths, float)
+    return np.asarray(widths, float), narrow, profiled
 
 
 def frame_width(widths: np.ndarray, min_streaks: int = MIN_STREAKS) -> tuple[float, float, int]:
@@ -136,16 +157,23 @@ def _turned(vector: np.ndarray, angle: float) -> np.ndarray:
     return np.array([c * vector[0] - s * vector[1], s * vector[0] + c * vector[1]])
 
 
-def _one_streak(image: np.ndarray, x: float, y: float, vector: np.ndarray, width: int, height: int) -> float:
+def _one_streak(image: np.ndarray, x: float, y: float, vector: np.ndarray, width: int, height: int,
+                refit_narrow: bool = False) -> tuple[float, str]:
+    """
+    Return (the PSF width [px] across one streak or NaN, its profile's shape: _UNPROFILED, _NARROW or _WIDE).
+
+    refit_narrow: a narrow profile's width is fitted with the pixels' integral (narrow_width).
+    """
+    nothing = (float("nan"), _UNPROFILED)
     length = float(np.hypot(*vector))
     if not np.isfinite(length) or length < MIN_LENGTH_PX:
-        return float("nan")
+        return nothing
     along_unit = vector / length
     across_unit = np.array([-along_unit[1], along_unit[0]])
     half = int(np.ceil(0.5 * length + MAX_ACROSS_PX))
     col0, row0 = int(round(x)) - half, int(round(y)) - half
     if col0 < 0 or row0 < 0 or col0 + 2 * half + 1 > width or row0 + 2 * half + 1 > height:
-        return float("nan")
+        return nothing
     window = image[row0:row0 + 2 * half + 1, col0:col0 + 2 * half + 1].astype(float)
     rows, cols = np.mgrid[row0:row0 + 2 * half + 1, col0:col0 + 2 * half + 1]
     dx, dy = cols - x, rows - y
@@ -154,7 +182,7 @@ def _one_streak(image: np.ndarray, x: float, y: float, vector: np.ndarray, width
     on_track = np.abs(along) <= 0.5 * length
     outer = on_track & (np.abs(across) > 0.75 * MAX_ACROSS_PX)
     if np.count_nonzero(outer) < 8:
-        return float("nan")
+        return nothing
     background = float(np.median(window[outer]))
     inside = on_track & (np.abs(across) <= MAX_ACROSS_PX)
     bins = np.floor(across[inside] / BIN_PX).astype(int)
@@ -166,20 +194,47 @@ def _one_streak(image: np.ndarray, x: float, y: float, vector: np.ndarray, width
     profile = sums[filled] / counts[filled]
     peak = profile.max()
     if not peak > 0:
-        return float("nan")
+        return nothing
     wide = _log_parabola(centres, profile, PROFILE_FLOOR)
+    shape = _NARROW if _narrow_profile(centres, profile, wide) else _WIDE
+    if shape == _NARROW and refit_narrow:
+        # A PSF narrower than the pixel: its few bins' shape is the pixel's as much as the PSF's.
+        narrow = narrow_width((window - background).ravel(), along.ravel(), across.ravel(), along_unit, length,
+                              math.sqrt(wide[0]) if wide is not None else float("nan"))
+        if narrow is not None:
+            sigma, offset = narrow
+            # Off the streak's centre of light across the track: two stars merged (as below).
+            merged = abs(offset) > MAX_VERTEX_OFFSET * math.sqrt(sigma * sigma + PIXEL_VARIANCE)
+            return (float("nan") if merged else sigma), shape
     if wide is None:
-        return float("nan")
+        return float("nan"), shape
     variance, vertex = wide
     # A single star's profile peaks on its centre of light, and its core and its wings give the
     # same width; two stars merged across the track (one detection) peak off that centre, or
     # make a core flatter than the wings: not one PSF's profile.
     if abs(vertex) > MAX_VERTEX_OFFSET * np.sqrt(variance):
-        return float("nan")
+        return float("nan"), shape
     core = _log_parabola(centres, profile, CORE_FLOOR)
     if core is not None and abs(np.sqrt(core[0] / variance) - 1.0) > MAX_CORE_MISMATCH:
+        return float("nan"), shape
+    return float(np.sqrt(variance)), shape
+
+
+def _narrow_profile(centres: np.ndarray, profile: np.ndarray, wide: tuple[float, float] | None) -> bool:
+    """Whether a profile reads narrower than NARROW_PX: its log-parabola's width, or too few bins above the floor."""
+    if wide is not None:
+        return wide[0] < NARROW_PX * NARROW_PX
+    above = profile > PROFILE_FLOOR * profile.max()
+    return int(np.count_nonzero(above)) < 4 or _log_parabola_variance(centres, profile) <= 0.0
+
+
+def _log_parabola_variance(centres: np.ndarray, profile: np.ndarray) -> float:
+    """Return the log-parabola's PSF variance [px^2] over the bins above the floor (any sign; NaN: not concave)."""
+    keep = profile > PROFILE_FLOOR * profile.max()
+    if np.count_nonzero(keep) < 3:
         return float("nan")
-    return float(np.sqrt(variance))
+    curvature = np.polyfit(centres[keep], np.log(profile[keep]), 2, w=np.sqrt(profile[keep]))[0]
+    return float(-0.5 / curvature - PIXEL_VARIANCE) if curvature < 0 else float("nan")
 
 
 def _log_parabola(centres: np.ndarray, profile: np.ndarray, floor: float) -> tuple[float, float] | None:
