@@ -223,9 +223,11 @@ class PsfLoop:
         does. Fewer than streak_width.MIN_STREAKS streaks measured at the prior, one or two of
         them beyond RERUN_TOLERANCE of it: the frame is measured again at their width
         (_after_few_streaks), where a PSF wider than the prior lifts more streaks above
-        streak_width.MIN_SNR. No streak measured and no running prior (a cold frame: the
-        configured width is a guess, not the last frames' measurement): the PSF is estimated
-        from its round stars, as where the bright smears are short. A gyro-aided jitter's
+        streak_width.MIN_SNR. No width across the streaks and no running prior (a cold frame:
+        the configured width is a guess, not the last frames' measurement): the PSF is
+        estimated from its round stars, as where the bright smears are short (on the
+        independent renderer's cold frames of faint 1.5-3 px streaks smeared 3 px, held at
+        1 px, their positions were 3-43 times their stated variance; bench_psf_cold). A gyro-aided jitter's
         first frames of a defocused 2.46 px PSF (stress campaign, seed 2026, task 1987) had
         3 of 22 bright stars smeared to the 3 px a width across needs, none measured there;
         held at the configured 1 px, frame 0 was lost and frame 1 72" off at NEES 886.
@@ -238,6 +240,8 @@ class PsfLoop:
             few = float(np.median(widths)) if widths.size else float("nan")
             if _usable_width(few) and abs(few - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
                 return _Step(PsfTrial(few), self._after_few_streaks)
+            if not self.prior_given:
+                return self._round_stars(*self.kept)
             self._hold_prior(used)
             return None
         return self._width_across(*self.kept, sigma, uncertainty, used)
@@ -250,9 +254,10 @@ class PsfLoop:
         where it differs beyond RERUN_TOLERANCE), as is one from MIN_AGREEING_STREAKS whose
         widths agree within streak_width.AGREEMENT (two streaks measured twice, at the prior and
         at their width, both away from the prior); else the measurement at the prior stands,
-        the prior held. A sparse field of sigma-2.7 px stars (stress campaign, seed 2026, task
-        2056) had one or two streaks above MIN_SNR at the 1 px prior for three frames, measured
-        at 1 px and 27-131" off; a gyro-aided tumble of a 1.76 px PSF (task 2217) showed two
+        the prior held (a cold frame's PSF from its round stars, as _across_streaks). A sparse
+        field of sigma-2.7 px stars (stress campaign, seed 2026, task 2056) had one or two
+        streaks above MIN_SNR at the 1 px prior for three frames, measured at 1 px and
+        27-131" off; a gyro-aided tumble of a 1.76 px PSF (task 2217) showed two
         streaks of 1.8-2.0 px frame after frame and was measured at 1 px for all its 40 frames
         (27 lost, frame 39 62" off). (Measuring at 2x and 3x the prior when no
         streak gave a width rescued none of 12 sparse frames of faint 2.7 px streaks of the
@@ -264,6 +269,8 @@ class PsfLoop:
                 and np.ptp(widths) <= STREAK_AGREEMENT * float(np.median(widths)):
             sigma, uncertainty, used = frame_width(widths, MIN_AGREEING_STREAKS)
         if not _usable_width(sigma):
+            if not self.prior_given:
+                return self._round_stars(*self.kept)
             self._hold_prior(used)
             return None
         return self._width_across(trial, measured, sigma, uncertainty, used)

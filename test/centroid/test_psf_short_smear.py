@@ -13,10 +13,12 @@ A cold rate-aided frame whose streaks are too faint to measure across (none abov
 streak_width.MIN_SNR) is estimated from its round stars too. Task 1987 (gyro-aided jitter,
 2.46 px PSF): held at the configured 1 px, frame 1 was 72" off at NEES 886. On the
 independent renderer (60 faint stars of 2.5-3 px smeared 3-4 px, cold): 13-21 stars and 47-62
-fragments at 1 px; 42-52 stars at the estimate.
+fragments at 1 px; 42-52 stars at the estimate. So is one whose streaks give too few widths
+(bench_psf_cold's faint 1.5-3 px streaks smeared 3 px: held at 1 px, chi^2 3-43).
 """
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from bench import alt_renderer as alt
@@ -51,6 +53,21 @@ def test_a_cold_rate_aided_frame_of_faint_streaks_estimates_its_psf_from_its_rou
     assert abs(spots.psf.applied_sigma_px / sigma_px - 1.0) < 0.15, spots.psf
     stars, stray = found(spots, frame.x, frame.y)
     assert stars >= 40 and stray <= 10, (stars, stray, len(spots))
+
+
+@pytest.mark.parametrize("sigma_px, flux_e, seed", [(3.0, 3000.0, 0), (3.0, 3000.0, 4), (2.0, 1000.0, 0)])
+def test_a_cold_rate_aided_frame_whose_streaks_give_no_width_estimates_its_psf_from_its_round_stars(
+        sigma_px, flux_e, seed):
+    # bench_psf_cold's rate-aided frames (60 stars smeared 3 px, the alt renderer): one or two
+    # faint streaks measured across, too few; the frame held the configured 1 px, its spots'
+    # positions 3-43 times their stated variance (chi^2 per cell). Cold, that width is a guess.
+    from bench.bench_psf_cold import alt_streak_frame, position_chi2, scored_stars
+
+    image, x, y, snr, dx, dy, extent, smear = alt_streak_frame(sigma_px, flux_e, seed)
+    spots = extract_spots(image, CentroidConfig(), smear)
+    assert spots.psf.estimated and spots.psf.applied_sigma_px == pytest.approx(sigma_px, rel=0.15), spots.psf
+    chi2 = position_chi2(spots, x, y, scored_stars(x, y, snr, dx, dy, extent, sigma_px), sigma_px)
+    assert len(chi2) >= 45 and np.mean(chi2) < 4.0, (len(chi2), np.mean(chi2))
 
 
 @pytest.fixture(scope="module")
