@@ -112,13 +112,15 @@ def test_pattern_match_refitted_over_the_spots_it_matched(catalog, database, nom
 
 
 @pytest.mark.slow
-def test_trailed_real_frame_solves_at_the_field_its_patterns_give():
+def test_trailed_real_frame_solves_within_an_arcminute_and_is_refined():
     """
     gran_pleyades_8sec (an 8 s trailed exposure) centroided at PSF sigma 0.585 px, 10 % under its estimate.
 
     Its pattern matches came 0.9-1.4 % off in scale, their attitudes failed verification, and
-    the frame went unsolved after 2.6 s of searches; refitted (_refined), the first field found
-    verifies and the solve is within 1' of the astrometry.net reference.
+    the frame went unsolved after 2.6 s of searches; refitted (_refined), the field found
+    verifies and the solve is within 1' of the astrometry.net reference. Since its trails
+    (a PSF under 0.7 px) are fitted with the pixels' exact integral (streak/model.py), no
+    pattern matches at the nominal field and the stepped search finds the field (31" off).
     """
     import sys
     from pathlib import Path
@@ -133,8 +135,8 @@ def test_trailed_real_frame_solves_at_the_field_its_patterns_give():
         pytest.skip("real-image corpus absent (../shared/realdata)")
     code, record, _, err = bench.run_solve_command(bench.solve_argv(image) + ["--psf-sigma", "0.585"])
     assert code == 0, (record or {}).get("reason", err[-300:])
-    searched = [a for a in record["attempts"] if a.get("search") == "patterns"]
-    assert searched[0]["fields_deg"] and record["attempts"][1]["status"] == "solved"
+    solved = [a for a in record["attempts"] if a["status"] == "solved"]
+    assert solved and any(a.get("refined") for a in solved), record["attempts"]
     boresight, _ = bench.attitude_errors(quaternion_to_matrix(np.asarray(record["quaternion_xyzw"], float)),
                                          image.reference)
     assert boresight < math.radians(1.0 / 60.0)
