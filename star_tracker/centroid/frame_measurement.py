@@ -25,12 +25,21 @@ from .detection.texture import point_every_way, rank_last
 from .psf.estimate import MeasuredFrame
 from .records import FitContext, PsfTrial, SpotRows
 from .spots import FLAG_BLENDED, FLAG_EDGE, FLAG_SATURATED, Spots
-from .streak.rate_aid import rate_aid_disagrees, smear_kernel, typical_smear_px
+from .streak.rate_aid import footprints_as_predicted, rate_aid_disagrees, smear_kernel, typical_smear_px
 from .tracks.blend_screen import blends_beside_tracks
 
 if TYPE_CHECKING:
     from .streak.smear import SmearModel
 
+# A thin footprint in a rate-aided frame is the predicted streak within this many times the
+# rate-aid check's tolerance (_choose_candidates): a faint streak's footprint moments are noisy
+# (independent renderer, SNR ~25 streaks of 3 px: 0.4-1.0 px from the prediction; cosmic-ray
+# tracks >= 2 px).
+THIN_STREAK_SLACK = 1.5
+# ... and the frame's thin footprints are streaks only when at least this share of them is:
+# undersampled streak frames 41-58 of 45-58 (at the 1 px prior), defects in wide-PSF frames
+# 0-3 of 2-8.
+ON_TRACK_SHARE = 0.75
 EMPIRICAL_MAX_SMEAR_PX = 0.5  # predicted smear [px] below which stars keep the optics' shape
 # Only the FIT_CANDIDATES_PER_SPOT x max_spots brightest candidates (footprint flux) are fitted:
 # the fits rank the spots by fitted flux and keep max_spots, and a deep photograph's thousands of
@@ -156,7 +165,7 @@ def measure_frame(image: np.ndarray, config: CentroidConfig, trial: PsfTrial, sm
     chosen = _choose_candidates(context, cand, trial, aid, saturation)
     kept, clip = chosen.kept, chosen.clip
     saturated = np.isfinite(clip)
-    frame = MeasuredFrame(det, cand, _frame_clip_level(kept, clip, saturation), aid is not None)
+    frame = MeasuredFrame(det, cand, _frame_clip_level(kept, clip, saturation), aid is not None, chosen.off_track)
     # Several separate peaks with dips between them: stars blended into one footprint, not a streak.
     multi = np.array([len(p) >= 2 for p in kept.peaks], bool) & ~saturated
     if aid is not None and rate_aid_disagrees(kept, ~saturated & ~kept.edge & ~multi, sigma, aid):
@@ -202,7 +211,8 @@ class _Chosen(NamedTuple):
     kept: them; clip (n,) their clip levels [ADU] (inf: not clipped); track_peaks: per kept
     blend index with cosmic-ray tracks, its track peaks and PeakShapes; rejected_shape: the
     detections the shape test dropped; rejected_extended: the candidates dropped as extended
-    objects.
+    objects; off_track (per candidate): thin footprints of a rate-aided frame that are not the
+    predicted streak (cosmic-ray tracks).
     """
 
     kept: Candidates
@@ -210,6 +220,7 @@ class _Chosen(NamedTuple):
     track_peaks: dict
     rejected_shape: int
     rejected_extended: int
+    off_track: np.ndarray
 
 
 def _choose_candidates(context: FitContext, cand: Candidates, trial: PsfTrial, aid: "SmearModel | None",
@@ -222,6 +233,22 @@ def _choose_candidates(context: FitContext, cand: Candidates, trial: PsfTrial, a
     config, sigma = context.config, context.sigma
     narrowest = sigma if trial.narrowest_px is None else min(sigma, trial.narrowest_px)
     rejected, thin = _shape_defects(cand, config, sigma, narrowest)
+    off_track = np.zeros(cand.x.size, bool)
+    if aid is not None:
+        thin_only = np.flatnonzero(thin)
+        on_track = footprints_as_predicted(cand, thin_only, sigma, aid, THIN_STREAK_SLACK, thin=True)
+        if narrowest < STREAK_COUNT_MIN_SIGMA_PX:
+            # An undersampled PSF's streak is as thin as a cosmic-ray track, so the width test
+            # cannot tell them apart there; the aid can: a thin footprint that is the predicted
+            # streak stays.
+            rejected[thin_only[on_track]] = False
+        # Where the PSF is still to be measured across the streaks, thin footprints give it only
+        # when they agree with the aid as a population, as stars' streaks do; defects agree by
+        # chance (a third of short cosmic-ray tracks lie within the tolerance of a 3 px
+        # streak's direction).
+        if thin_only.size and np.mean(on_track) < ON_TRACK_SHARE:
+            on_track[:] = False
+        off_track[thin_only[~on_track]] = True
     track_peaks = {}
     if config.split_blends and aid is None and narrowest >= STREAK_COUNT_MIN_SIGMA_PX:
         rejected, track_peaks = blends_beside_tracks(context, cand, rejected, thin, narrowest)
@@ -239,7 +266,7 @@ def _choose_candidates(context: FitContext, cand: Candidates, trial: PsfTrial, a
         kept, clip = kept.take(remaining), clip[~extended]
         if track_peaks:
             track_peaks = {j: track_peaks[i] for j, i in enumerate(remaining) if i in track_peaks}
-    return _Chosen(kept, clip, track_peaks, int(rejected.sum()), int(extended.sum()))
+    return _Chosen(kept, clip, track_peaks, int(rejected.sum()), int(extended.sum()), off_track)
 
 
 def _shape_defects(cand: Candidates, config: CentroidConfig, sigma: float, narrowest: float | None = None

@@ -317,6 +317,8 @@ class PsfLoop:
         if frame is None or not frame.smeared:
             return np.zeros(0)
         cand, unclipped = frame.cand, _unclipped(frame)
+        if frame.off_track is not None:  # a cosmic-ray track's width is not the PSF's
+            unclipped &= ~frame.off_track
         return streak_widths(self.image, cand.x[unclipped], cand.y[unclipped], cand.snr[unclipped], self.smear)
 
     def _hold_prior(self, used: int) -> None:

@@ -176,14 +176,16 @@ class MeasuredFrame:
     What a measurement of a frame leaves for the PSF estimate.
 
     Its detections, every measured candidate (shape-test rejects included), the saturation
-    level [ADU] and whether a body rate predicted smears (then no star shows the optics'
-    PSF).
+    level [ADU], whether a body rate predicted smears (then no star shows the optics' PSF) and
+    which candidates are thin footprints off the predicted smear (cosmic-ray tracks: no
+    profile across a streak; None: none known).
     """
 
     det: Detections
     cand: Candidates
     saturation: float
     smeared: bool = False
+    off_track: np.ndarray | None = None
 
 
 def estimate_psf(image: np.ndarray, frame: MeasuredFrame, prior_sigma: float, gain: float, faint: bool = False,

@@ -50,15 +50,33 @@ def rate_aid_disagrees(kept: Candidates, usable: np.ndarray, sigma: float, smear
     if candidates.size < AID_CHECK_MIN_STREAKS:
         return False
     c = candidates[np.argsort(-snr[candidates], kind="stable")[:AID_CHECK_STREAKS]]
-    predicted = smear.smear_vectors(kept.x[c], kept.y[c])
+    return bool(np.mean(~footprints_as_predicted(kept, c, sigma, smear)) >= AID_REJECT_FRACTION)
+
+
+def footprints_as_predicted(cand: Candidates, index: np.ndarray, sigma: float, smear: "SmearModel",
+                            slack: float = 1.0, thin: bool = False) -> np.ndarray:
+    """
+    Return whether each candidate `index`'s footprint is the streak `smear` predicts there (bool per index).
+
+    Its smear vector from the footprint's moments (length sqrt(12 (major - sigma^2 - 1/12))
+    along the major axis) within slack x (AID_TOLERANCE_PX or AID_TOLERANCE_FRACTION of the
+    predicted length) of the predicted one; sigma: the PSF 1-sigma [px]. thin: footprints
+    narrower than that PSF (the width test's), whose own PSF lies anywhere in [0, sigma]: their
+    length is the one in the range those PSFs give nearest the prediction.
+    """
+    predicted = smear.smear_vectors(cand.x[index], cand.y[index])
+    predicted_length = np.linalg.norm(predicted, axis=1)
     # A pixel-integrated PSF's second moment is sigma^2 + 1/12 [px^2].
-    length = segment_length(kept.major[c], np.sqrt(sigma ** 2 + 1.0 / 12.0))
-    angle = np.nan_to_num(kept.angle[c])
-    measured = np.nan_to_num(length)[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    length = np.nan_to_num(segment_length(cand.major[index], np.sqrt(sigma ** 2 + 1.0 / 12.0)))
+    if thin:
+        longest = np.nan_to_num(segment_length(cand.major[index], np.sqrt(1.0 / 12.0)))
+        length = np.clip(predicted_length, length, longest)
+    angle = np.nan_to_num(cand.angle[index])
+    measured = length[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
     # A footprint has no sense (start or end): compare with the nearer of +-measured.
     distance = np.minimum(np.linalg.norm(measured - predicted, axis=1), np.linalg.norm(measured + predicted, axis=1))
-    tolerance = np.maximum(AID_TOLERANCE_PX, AID_TOLERANCE_FRACTION * np.linalg.norm(predicted, axis=1))
-    return bool(np.mean(~(distance <= tolerance)) >= AID_REJECT_FRACTION)
+    tolerance = slack * np.maximum(AID_TOLERANCE_PX, AID_TOLERANCE_FRACTION * predicted_length)
+    return distance <= tolerance
 
 
 def typical_smear_px(smear: "SmearModel", width: int, height: int) -> float:
