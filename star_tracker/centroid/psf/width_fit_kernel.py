@@ -23,7 +23,7 @@ def fit_psf_width(data, valid, col0, row0, x0, y0, flux0, sigma0, noise, gain, i
     S) background-subtracted windows [ADU], valid (n, S, S) bool, col0/row0 (n,) top-left
     pixels [px]; starts x0, y0, flux0, sigma0 (n,). Returns x, y, flux, sigma (n,), sigma_var
     (n,) [px^2] (inverse Fisher information), chi2 (n,) (reduced: per degree of freedom),
-    converged (n,).
+    converged (n,), offset (n,) [ADU] (the background the windows still hold).
     """
     n, size, _ = data.shape
     x, y, flux, sigma = x0.copy(), y0.copy(), np.maximum(flux0.copy(), 1e-9), sigma0.copy()
@@ -100,7 +100,7 @@ def fit_psf_width(data, valid, col0, row0, x0, y0, flux0, sigma0, noise, gain, i
         chi2[s] = total / max(count - 5, 1)
         converged[s] = (math.isfinite(x[s]) and math.isfinite(y[s]) and col0[s] + 0.5 < x[s] < col0[s] + size - 1.5
                         and row0[s] + 0.5 < y[s] < row0[s] + size - 1.5 and sigma_var[s] > 0.0)
-    return x, y, flux, sigma, sigma_var, chi2, converged
+    return x, y, flux, sigma, sigma_var, chi2, converged, offset
 
 
 def warm_up() -> None:
