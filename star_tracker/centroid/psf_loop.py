@@ -240,10 +240,7 @@ class PsfLoop:
             few = float(np.median(widths)) if widths.size else float("nan")
             if _usable_width(few) and abs(few - trial.sigma_px) > RERUN_TOLERANCE * trial.sigma_px:
                 return _Step(PsfTrial(few), self._after_few_streaks)
-            if not self.prior_given:
-                return self._round_stars(*self.kept)
-            self._hold_prior(used)
-            return None
+            return self._without_width_across(used)
         return self._width_across(*self.kept, sigma, uncertainty, used)
 
     def _after_few_streaks(self, trial: PsfTrial, measured: FrameMeasurement) -> _Step | None:
@@ -269,11 +266,20 @@ class PsfLoop:
                 and np.ptp(widths) <= STREAK_AGREEMENT * float(np.median(widths)):
             sigma, uncertainty, used = frame_width(widths, MIN_AGREEING_STREAKS)
         if not _usable_width(sigma):
-            if not self.prior_given:
-                return self._round_stars(*self.kept)
-            self._hold_prior(used)
-            return None
+            return self._without_width_across(used)
         return self._width_across(trial, measured, sigma, uncertainty, used)
+
+    def _without_width_across(self, used: int) -> _Step | None:
+        """
+        Settle a rate-aided frame whose streaks gave no width across (`used` streaks measured).
+
+        A running prior holds (_hold_prior); a cold frame's configured width is a guess, not a
+        measurement, so its PSF is estimated from its round stars (_across_streaks).
+        """
+        if not self.prior_given:
+            return self._round_stars(*self.kept)
+        self._hold_prior(used)
+        return None
 
     def _width_across(self, trial: PsfTrial, measured: FrameMeasurement, sigma: float, uncertainty: float,
                       used: int) -> _Step | None:

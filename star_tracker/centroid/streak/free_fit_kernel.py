@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .model import PIXEL_VARIANCE
 from .narrow_width import NARROW_PX
 
 NODE_SPACING_SIGMA = 1.0  # Simpson nodes along the segment this far apart [PSF sigma]
@@ -98,7 +99,7 @@ def _even_intervals(count: float) -> int:
 def _fit_segments(data, mask, origin, size, start, max_length, valid, settings):
     """Compute fit_segments (compiled): returns its FreeFitSolution's arrays."""
     n = data.shape[0]
-    var_eff = settings.sigma * settings.sigma + 1.0 / 12.0
+    var_eff = settings.sigma * settings.sigma + PIXEL_VARIANCE
     node_spacing = NODE_SPACING_SIGMA * math.sqrt(var_eff)
     params = start.copy()
     fisher = np.zeros((n, N_PAR, N_PAR))
@@ -158,7 +159,7 @@ def _fit_spot(data, mask, col0, row0, rows, cols, p, max_length, normal, setting
     correction) damped by Nielsen's rule; stop when the Gauss-Newton decrement is below
     settings.decrement_tolerance, or when no step lowers chi^2.
     """
-    var_eff = settings.sigma * settings.sigma + 1.0 / 12.0
+    var_eff = settings.sigma * settings.sigma + PIXEL_VARIANCE
     scale = 1.0 / math.sqrt(2.0 * var_eff)
     node_spacing = NODE_SPACING_SIGMA * math.sqrt(var_eff)
     noise2 = settings.noise * settings.noise
@@ -376,7 +377,7 @@ def _profile(centre, scale, weight, count, table, g, vg):
     scale^2): two exp per node, the powers of b by products (~1e-14 off at most).
     """
     floor = weight * _FLOOR
-    if 0.5 / (scale * scale) - 1.0 / 12.0 < _NARROW_VARIANCE:
+    if 0.5 / (scale * scale) - PIXEL_VARIANCE < _NARROW_VARIANCE:
         _integrated_profile(centre, scale, weight, count, g, vg)
         return
     nearest = round(centre)
@@ -409,7 +410,7 @@ def _integrated_profile(centre, scale, weight, count, g, vg):
     As streak.model._integrated_profiles: g = weight sqrt(pi) / scale (Phi(u+) - Phi(u-)), u+-
     = (pixel +- 1/2 - centre) / sigma, and v g = (dg/dcentre) / (2 scale); floored as _profile.
     """
-    sigma = math.sqrt(max(0.5 / (scale * scale) - 1.0 / 12.0, 1e-6))
+    sigma = math.sqrt(max(0.5 / (scale * scale) - PIXEL_VARIANCE, 1e-6))
     norm = weight * math.sqrt(math.pi) / scale
     floor = weight * _FLOOR
     root2 = math.sqrt(2.0)

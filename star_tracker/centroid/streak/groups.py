@@ -16,7 +16,7 @@ from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, 
 from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, StreakImage, batches, check_excluded,
                          flux_scaled_units, position_flux_max_step, set_path_extent, store_batch, unconstrained,
                          window_bounds)
-from .model import StreakWindows, cut_windows, sample_sums
+from .model import PIXEL_VARIANCE, StreakWindows, cut_windows, sample_sums
 
 
 def _path_windows(residual, x, y, path, reach, valid):
@@ -34,7 +34,7 @@ def _path_windows(residual, x, y, path, reach, valid):
 
 def _path_model(win: StreakWindows, x, y, flux, offsets, sigma: float) -> np.ndarray:
     """(n, R*C) model [ADU] of one star per window on its path (the fits' PSF model)."""
-    var_eff = sigma * sigma + 1.0 / 12.0
+    var_eff = sigma * sigma + PIXEL_VARIANCE
     scale = 1.0 / np.sqrt(2.0 * var_eff)
     sx = (x - win.origin[:, 0])[:, None] + offsets[:, :, 0]
     sy = (y - win.origin[:, 1])[:, None] + offsets[:, :, 1]
@@ -111,7 +111,7 @@ def _path_templates(offsets: np.ndarray, sigma: float) -> tuple[np.ndarray, np.n
     The fits' PSF model (variance sigma^2 + 1/12 px^2) on a grid centred on the mid-exposure
     point, one size for all: separable sums over the path samples `offsets` (n, K, 2) [px].
     """
-    var_eff = sigma * sigma + 1.0 / 12.0
+    var_eff = sigma * sigma + PIXEL_VARIANCE
     half = np.ceil(np.max(np.abs(offsets), axis=(0, 1)) + 3.0 * np.sqrt(var_eff)).astype(int)
     gx = np.arange(-half[0], half[0] + 1, dtype=float)
     gy = np.arange(-half[1], half[1] + 1, dtype=float)
@@ -194,7 +194,7 @@ def _group_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: f
 
     Each star moves along the window's `offsets` (n, K, 2) [px].
     """
-    var_eff = sigma * sigma + 1.0 / 12.0
+    var_eff = sigma * sigma + PIXEL_VARIANCE
     scale = 1.0 / np.sqrt(2.0 * var_eff)
     amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)
     n_par = 3 * m_stars

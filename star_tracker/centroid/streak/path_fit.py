@@ -16,7 +16,7 @@ from .levenberg_marquardt import LeastSquaresModel, PixelNoise, inverse_fisher, 
 from .fit_common import (PSF_RADIUS_SIGMA, StreakFit, StreakFitSetup, StreakImage, batches, check_common_inputs,
                          check_excluded, flux_scaled_units, flux_start, position_flux_max_step, set_path_extent,
                          store_batch, unconstrained, window_bounds)
-from .model import StreakWindows, cut_windows, sample_sums
+from .model import PIXEL_VARIANCE, StreakWindows, cut_windows, sample_sums
 
 
 def fit_streaks_on_path(image: StreakImage, x0, y0, flux0, path, iterations: int = 20) -> StreakFit:
@@ -106,7 +106,7 @@ def _path_model(win: StreakWindows, offsets: np.ndarray, sigma: float, noise: fl
     The model is the mean of K PSF copies.
     """
     weights = np.full(offsets.shape[:2], 1.0 / offsets.shape[1])
-    var_eff = sigma * sigma + 1.0 / 12.0
+    var_eff = sigma * sigma + PIXEL_VARIANCE
     scale = 1.0 / np.sqrt(2.0 * var_eff)
     amplitude_unit = 1.0 / (2.0 * np.pi * var_eff)
 

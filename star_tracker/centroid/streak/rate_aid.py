@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..detection.candidates import Candidates
+from .model import PIXEL_VARIANCE
 from .smear import SmearModel, segment_length
 
 # Rate-aid check. An aiding rate that disagrees with the image (an estimate lagging an
@@ -67,9 +68,9 @@ def footprints_as_predicted(cand: Candidates, index: np.ndarray, sigma: float, s
     predicted = smear.smear_vectors(cand.x[index], cand.y[index])
     predicted_length = np.linalg.norm(predicted, axis=1)
     # A pixel-integrated PSF's second moment is sigma^2 + 1/12 [px^2].
-    length = np.nan_to_num(segment_length(cand.major[index], np.sqrt(sigma ** 2 + 1.0 / 12.0)))
+    length = np.nan_to_num(segment_length(cand.major[index], np.sqrt(sigma ** 2 + PIXEL_VARIANCE)))
     if thin:
-        longest = np.nan_to_num(segment_length(cand.major[index], np.sqrt(1.0 / 12.0)))
+        longest = np.nan_to_num(segment_length(cand.major[index], np.sqrt(PIXEL_VARIANCE)))
         length = np.clip(predicted_length, length, longest)
     angle = np.nan_to_num(cand.angle[index])
     measured = length[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])

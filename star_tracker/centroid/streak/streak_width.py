@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .model import PIXEL_VARIANCE
 from .narrow_width import NARROW_PX, narrow_width
 
 if TYPE_CHECKING:
@@ -48,7 +49,6 @@ PROFILE_FLOOR = 0.15  # fraction of the profile's peak the log-parabola fit keep
 CORE_FLOOR = 0.5  # the core's fit, compared with the whole profile's
 MAX_CORE_MISMATCH = 0.12  # relative difference of the core's width from the profile's beyond which it is a blend
 MAX_ACROSS_PX = 12.0  # the widest profile looked at: 4 x the 3 px PSF
-PIXEL_VARIANCE = 1.0 / 12.0
 MAX_VERTEX_OFFSET = 0.25  # the profile's peak this far (in its own sigmas) from the streak's centre: a blend
 _UNPROFILED, _NARROW, _WIDE = "unprofiled", "narrow", "wide"  # a streak's profile: none; below NARROW_PX; wider
 
