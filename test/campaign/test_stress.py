@@ -191,3 +191,27 @@ def test_the_summary_and_its_reliability_section_count_each_stratum(tmp_path):
     write_section(doc, text)
     write_section(doc, text)  # again: replaced, not appended twice
     assert doc.read_text().count(BEGIN) == 1 and doc.read_text().count(END) == 1
+
+
+def _delivery(verdict: str, mode: str = "", solved: bool = False) -> dict:
+    return {"verdict": verdict, "mode": mode, "solved": solved}
+
+
+def test_recovery_counts_the_frames_the_tracker_processed_after_the_last_interruption():
+    track, lis = "tracking", "lost_in_space"
+    tracked = _delivery("ok", track, True)
+    # A duplicate refused between the lost-in-space frame and the tracked one is no frame.
+    frames = [tracked, _delivery("ok", lis, True), _delivery("out_of_order"), tracked]
+    assert stress._recoveries(frames, [1], track) == [2]
+    # A frame from the future, refused, neither.
+    frames = [tracked, _delivery("from_future"), _delivery("ok", lis, True), tracked]
+    assert stress._recoveries(frames, [1], track) == [2]
+    # A loop cut short by a gap on the next frame: the gap is judged (lost-in-space, then tracked).
+    frames = [tracked, _delivery("time_reset", lis, True), _delivery("ok", lis, True), tracked]
+    assert stress._recoveries(frames, [1, 2], track) == [2]
+    # Lost-in-space twice before tracking: 3; never tracked again: -1.
+    frames = [tracked, _delivery("ok", lis, True), _delivery("ok", lis, True), tracked]
+    assert stress._recoveries(frames, [1], track) == [3]
+    assert stress._recoveries([tracked, _delivery("ok", "lost"), _delivery("ok", "lost")], [1], track) == [-1]
+    # An interruption after a frame that was not solved cut no track.
+    assert stress._recoveries([_delivery("ok", "lost"), _delivery("ok", lis, True), tracked], [1], track) == []

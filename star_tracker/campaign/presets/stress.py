@@ -40,8 +40,10 @@ than `wrong_arcsec` off or its error lies outside 5 sigma of its stated covarian
 (NEES > 31.8), or when any matched star is not the star behind its spot. Each frame's
 stratum is its motion phase (rest, accelerating: the rate changes within the exposure,
 constant rate, tumble, jitter); each mission's draws are its strata too. Recovery: after a
-dropped-frame burst, a loop or a gap that interrupted tracking, the frames delivered until
-the first tracked one (1: tracked at once).
+dropped-frame burst, a loop or a gap that interrupted tracking, the frames processed until
+the first tracked one (1: tracked at once); deliveries refused by their stamps (duplicates,
+out of order, from the future) are no frames the tracker could use, and an interruption cut
+short by the next one before a frame was tracked is judged by that next one.
 
 The summary: frames, wrong, wrong star IDs, NEES mean and the share above chi^2_3(0.997),
 availability (right / accepted frames), per stratum (a frame fault's stratum: the missions
@@ -470,19 +472,30 @@ def run_mission(shared: _Shared, options: StressOptions, rng: np.random.Generato
 
 def _recoveries(frames: list[dict], events: list[int], tracking: str) -> list[int]:
     """
-    Return, per interruption that cut a track, the frames delivered until the first tracked one (-1: none).
+    Return, per interruption that cut a track, the frames processed until the first tracked one (-1: none).
 
     An interruption cuts a track when the last delivered frame before it was tracked or solved.
+    Processed: accepted by its stamp (DELIVERED_OK); a refused delivery (a duplicate, out of
+    order, from the future) is not counted. An interruption followed by another before a
+    frame was tracked is left to that one (a loop and a gap back to back: the gap's frames
+    are the first the tracker could have tracked).
     """
     out = []
-    for event in events:
+    events = sorted(set(events))
+    for index, event in enumerate(events):
         if event == 0 or event >= len(frames) or not frames[event - 1]["solved"]:
             continue
-        count = -1
-        for k in range(event, len(frames)):
+        following = events[index + 1] if index + 1 < len(events) else len(frames)
+        count, processed = -1, 0
+        for k in range(event, following):
+            if frames[k]["verdict"] not in DELIVERED_OK:
+                continue
+            processed += 1
             if frames[k]["mode"] == tracking:
-                count = k - event + 1
+                count = processed
                 break
+        if count < 0 and following < len(frames):
+            continue  # cut short by the next interruption: that one is judged
         out.append(count)
     return out
 
