@@ -36,7 +36,7 @@ KNOWN_SHORT = {
     "openstartracker_img1": "not solved: no pattern matched, no stepped field identified",
     # No reference to 1' exists for these two: astrometry.net on the image itself moves its own
     # centre by more than that between SIP orders 2-4.
-    "gran_IMG_007985": "2.0' off with 46 stars (the peers 84-88\" off with 15-22); astrometry.net on the image "
+    "gran_IMG_007985": "1.5-2.2' off with 41-46 stars (the peers 84-88\" off with 15-22); astrometry.net on the image "
                        "itself (80-102 matches, mostly in its top half) moves its centre 170-174\" between SIP orders: "
                        "not settled",
     "ubst_webcam_w1": "1-2.3' off; astrometry.net on the image itself (34-43 matches) moves its centre 91-212\" "
