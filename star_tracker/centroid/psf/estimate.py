@@ -364,8 +364,9 @@ def _fit_widths(image, x, y, background, half: int, start: float, noise: float, 
     # fit found left in them: under a weight wider than the star a constant offset dominates the
     # moments (a 12-bit sensor at 16 e-/ADU: a median background off by up to half an ADU, faint
     # stars' weighted moments negative, a round 1 px PSF read 3.8x elongated).
-    data = np.where(valid, data - offset[:, None, None], 0.0)
-    return fx[keep], fy[keep], flux[keep], width[keep], (data[keep], valid[keep], col0[keep], row0[keep])
+    data, valid = data[keep], valid[keep]
+    data = np.where(valid, data - offset[keep, None, None], 0.0)
+    return fx[keep], fy[keep], flux[keep], width[keep], (data, valid, col0[keep], row0[keep])
 
 
 ADAPTIVE_ITERATIONS = 12  # adaptive moments' (half-step) weight updates: ratios within 0.1 % of 60 updates'
