@@ -66,10 +66,6 @@ class RateEstimate:
     otherwise (a shorter window's rate, the constant-rate slope, is carried to stamp_ns by the
     newest three's exact quadratic, and the lag's bound (alpha_max lag)^2 / 3 per axis stays in
     covariance).
-    newest_cross: (3, 3, 3) with the acceleration, else None: the fit's cross-covariances
-    [Cov(omega, e), Cov(alpha, e), Cov(omega, alpha)] [rad^2/s, rad^2/s^2, rad^2/s^3], e the
-    newest attitude's own error. That attitude is in the fit, so a prediction from it by the
-    fitted rate carries both errors together (Tracker._step_covariance).
     """
 
     stamp_ns: int
@@ -78,7 +74,6 @@ class RateEstimate:
     frames: int
     angular_acceleration: np.ndarray | None = None
     acceleration_covariance: np.ndarray | None = None
-    newest_cross: np.ndarray | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -177,7 +172,7 @@ class AttitudeRateEstimator:
         phi = _relative_rotation_vectors(self._rotations[:count])
         tau = (stamps - stamps[-1]) * 1e-9
         gains = self._gains[:count]
-        ok, omega, covariance, frames, alpha, alpha_cov, lag, cross = _window_fit(
+        ok, omega, covariance, frames, alpha, alpha_cov, lag = _window_fit(
             tau, phi, gains, self._information[:count], self._covariances[count - 1], self.alpha_max, self._limits)
         if not ok:
             return None
@@ -188,13 +183,13 @@ class AttitudeRateEstimator:
             # constant-rate slope over its lag to the newest frame; the lag's bound stays in the
             # covariance (the acceleration may have changed inside the three frames). Untested,
             # the acceleration itself is not published (module docstring).
-            ok3, _, _, _, _, alpha, alpha_cov, _ = _gls(tau[-3:], phi[-3:], gains[-3:], self._information[count - 3:count],
+            ok3, _, _, _, _, alpha, alpha_cov = _gls(tau[-3:], phi[-3:], gains[-3:], self._information[count - 3:count],
                                                      self._covariances[count - 1], 3)
             if ok3:
                 omega = omega + alpha * lag
                 covariance = covariance + lag * lag * alpha_cov
             return RateEstimate(int(stamps[-1]), omega, covariance, int(frames))
-        return RateEstimate(int(stamps[-1]), omega, covariance, int(frames), alpha, alpha_cov, cross)
+        return RateEstimate(int(stamps[-1]), omega, covariance, int(frames), alpha, alpha_cov)
 
 
 @lru_cache(maxsize=8)
@@ -280,17 +275,17 @@ def _window_fit(tau, phi, gains, weight, newest_covariance, alpha_max, limits):
     slope is the rate at the weighted mean time: its lag times alpha_max is added to the
     covariance. Returns (ok, omega [rad/s], covariance, frames, alpha [rad/s^2], its
     covariance, lag [s]: how long before the newest frame the rate refers to); alpha and its
-    covariance are zero and lag > 0 when the fit had no acceleration term; cross: _gls's.
+    covariance are zero and lag > 0 when the fit had no acceleration term.
     """
     count = tau.size
     for first in range(count - 1):
         frames = count - first
         terms = 3 if frames >= 4 else 2
         lag = 0.0
-        ok, omega, covariance, chi2, newest_chi2, alpha, alpha_cov, cross = _gls(
-            tau[first:], phi[first:], gains[first:], weight[first:], newest_covariance, terms)
+        ok, omega, covariance, chi2, newest_chi2, alpha, alpha_cov = _gls(tau[first:], phi[first:], gains[first:],
+                                                                          weight[first:], newest_covariance, terms)
         if not ok:
-            return False, omega, covariance, 0, alpha, alpha_cov, 0.0, cross
+            return False, omega, covariance, 0, alpha, alpha_cov, 0.0
         if terms == 2:
             trace_sum = 0.0
             weighted = 0.0
@@ -303,8 +298,8 @@ def _window_fit(tau, phi, gains, weight, newest_covariance, alpha_max, limits):
                 covariance[i, i] += (alpha_max * lag) ** 2 / 3.0
         dof = 3 * frames - 3 * terms
         if ((dof == 0 or chi2 <= limits[dof]) and newest_chi2 <= limits[3]) or frames == 2:
-            return True, omega, covariance, frames, alpha, alpha_cov, lag, cross
-    return False, np.zeros(3), np.zeros((3, 3)), 0, np.zeros(3), np.zeros((3, 3)), 0.0, np.zeros((3, 3, 3))
+            return True, omega, covariance, frames, alpha, alpha_cov, lag
+    return False, np.zeros(3), np.zeros((3, 3)), 0, np.zeros(3), np.zeros((3, 3)), 0.0
 
 
 @njit(cache=True)
@@ -313,10 +308,7 @@ def _gls(tau, phi, gains, weight, newest_covariance, terms):
     phi_k = sum_a basis_a(tau_k) theta_a, basis = (1, tau, tau^2/2 + g_k)[:terms], weights W_k.
 
     (ok, omega = theta_1, its covariance, chi^2, chi^2 of the newest residual, alpha = theta_2
-    and its covariance (zero when terms == 2), cross (3, 3, 3): Cov(omega, e), Cov(alpha, e)
-    and Cov(omega, alpha), e the newest attitude's error (tau = 0, basis (1, 0, g)): the GLS
-    estimate's error is Sigma B^T W e summed over the frames, so Cov(theta, e_newest) =
-    Sigma B_newest^T (zero when terms == 2)). Compiled: the rate fit runs on every tracked
+    and its covariance (zero when terms == 2)). Compiled: the rate fit runs on every tracked
     frame.
     """
     count = tau.size
@@ -339,7 +331,7 @@ def _gls(tau, phi, gains, weight, newest_covariance, terms):
                         info[3 * a + i, 3 * b + j] += basis[k, a] * basis[k, b] * weight[k, i, j]
     empty = np.zeros((3, 3))
     if abs(np.linalg.det(info)) == 0.0:
-        return False, np.zeros(3), empty, 0.0, 0.0, np.zeros(3), np.zeros((3, 3)), np.zeros((3, 3, 3))
+        return False, np.zeros(3), empty, 0.0, 0.0, np.zeros(3), np.zeros((3, 3))
     cov_full = np.linalg.inv(info)
     params = cov_full @ rhs
     chi2 = 0.0
@@ -359,14 +351,7 @@ def _gls(tau, phi, gains, weight, newest_covariance, terms):
     covariance = cov_full[3:6, 3:6]
     alpha = np.zeros(3)
     alpha_cov = np.zeros((3, 3))
-    cross = np.zeros((3, 3, 3))
     if terms == 3:
         alpha = params[6:9].copy()
         alpha_cov = 0.5 * (cov_full[6:9, 6:9] + cov_full[6:9, 6:9].T)
-        g = gains[count - 1]
-        for i in range(3):
-            for j in range(3):
-                cross[0, i, j] = cov_full[3 + i, j] + g * cov_full[3 + i, 6 + j]
-                cross[1, i, j] = cov_full[6 + i, j] + g * cov_full[6 + i, 6 + j]
-                cross[2, i, j] = cov_full[3 + i, 6 + j]
-    return True, params[3:6].copy(), 0.5 * (covariance + covariance.T), chi2, newest_chi2, alpha, alpha_cov, cross
+    return True, params[3:6].copy(), 0.5 * (covariance + covariance.T), chi2, newest_chi2, alpha, alpha_cov

@@ -47,10 +47,9 @@ from ..identify.skygrid import SkyGrid, cell_of
 MODE_TRACKING = "tracking"
 MODE_LOST_IN_SPACE = "lost_in_space"
 MODE_LOST = "lost"
-# An innovation beyond 1 % of its noise across the boresight or in roll is taken for an
-# acceleration step (Tracker._step_covariance): scipy.stats.chi2.ppf(0.99, 2) and (0.99, 1).
-CROSS_STEP_CHI2 = 9.2103
-ROLL_STEP_CHI2 = 6.6349
+# An innovation beyond chi^2_3 at 1 % is taken for an acceleration step (Tracker._step_covariance);
+# scipy.stats.chi2.ppf(0.99, 3).
+STEP_CHI2 = 11.345
 # Streak length [px] at which a constant-rate path fit's bias under an unknown acceleration is
 # halfway from the point-like T^2 / 24 to the long streak's T^2 / 8 (Tracker.bias_gain).
 STREAK_BIAS_HALF_PX = 12.0
@@ -401,31 +400,23 @@ class Tracker:
         Covariance [rad^2] for an acceleration the last rate estimate did not know, from this frame's innovation.
 
         The innovation nu (sensor frame) of the new attitude against the last one carried by
-        the last rate and acceleration, with its expected covariance S: both attitudes', the
-        rate's and the acceleration's (the max_angular_acceleration_rad_s2 bound's when none was
-        estimated), and, since the last attitude is in the fit that gave the rate and the
-        acceleration, their cross-covariances with it (RateEstimate.newest_cross; without them
-        S missed a third of the innovation's spread: NIS mean 5 at rest in the stress
-        campaign's missions). An acceleration that changed since by d alpha (a slew starting or
+        the last rate and acceleration, with its expected covariance S (both attitudes', the
+        rate's and the acceleration's, or the max_angular_acceleration_rad_s2 bound's when none
+        was estimated). An acceleration that changed since by d alpha (a slew starting or
         ending) biases this frame by the offset of the unexpected path within the exposure: at
         most |d alpha| k (a point-like spot, k = T^2 / 24, exactly that for a change before the
         exposure, whose innovation is larger by the path since the change), and never more than
         the innovation; a streak fitted on a constant-rate path more (k = `gain`, bias_gain;
-        T^2 / 24 when None). A step is taken when the innovation across the boresight (nu_xy
-        against S_xy) exceeds CROSS_STEP_CHI2 or in roll (nu_z^2 / S_zz) ROLL_STEP_CHI2, each
-        chi^2 at 1 %: noise alone rarely does, and testing the two apart keeps roll's noise, ten
-        times the cross-boresight one, out of a slew's test (a slew's first frame shows its step
-        across the boresight only, a few sigma: stress campaign, seed 2026, tasks 715 frame 7 and
-        1635 frame 5, 1.4" off, nu_xy^2 / S_xy 10.5-11.1, the three axes' nu^T S^-1 nu 10.9-11.1
-        under chi^2_3's 11.3). Then |nu| bounds the bias (this frame's bias is part of nu; the
-        part of nu noise does not explain, nu_x = |nu| (1 - 1 / sqrt(r)), r the larger of the two
-        statistics over its threshold, is a small share of it near the threshold: a ramp starting
-        inside the exposure left a frame 1.1" off with nu_x 0.2", task 1976 frame 8), capped at
-        k d alpha_max, d alpha_max the larger of |alpha_last| + alpha_max (any acceleration
-        within the bound after the estimated one) and the least change that explains nu_x over
-        dt, 2 nu_x / (dt^2 + T^2 / 12). The bias is taken uniform within +-B along nu: B^2 / 3
-        along its direction. None when there is no previous attitude or no rate, or the
-        innovation is within the noise.
+        T^2 / 24 when None). When nu^T S^-1 nu = m2 exceeds STEP_CHI2 (chi^2_3 at 1 %: noise
+        alone rarely does), |nu| bounds the bias (this frame's bias is part of nu; the part of
+        nu noise does not explain, nu_x = |nu| (1 - sqrt(STEP_CHI2 / m2)), is a small share of it
+        near the threshold: a ramp starting inside the exposure left a frame 1.1" off with nu_x
+        0.2", stress campaign, seed 2026, task 1976 frame 8), capped at k d alpha_max,
+        d alpha_max the larger of |alpha_last| + alpha_max (any acceleration within the bound
+        after the estimated one) and the least change that explains nu_x over dt,
+        2 nu_x / (dt^2 + T^2 / 12). The bias is taken uniform within +-B along nu: B^2 / 3 along
+        its direction. None when there is no previous attitude or no rate, or the innovation is
+        within the noise.
         """
         if self._last is None or self.rate is None or self.config.exposure_s <= 0.0:
             return None
@@ -440,25 +431,18 @@ class Tracker:
         spread = last_covariance + covariance + dt * dt * rate.covariance
         if rate.angular_acceleration is not None:
             spread = spread + (0.5 * dt * dt) ** 2 * rate.acceleration_covariance
-            if rate.newest_cross is not None and rate.stamp_ns == last_ns:
-                # The last attitude is in the rate's fit: their errors move the prediction together.
-                together = dt * rate.newest_cross[0] + 0.5 * dt * dt * rate.newest_cross[1] \
-                    + 0.5 * dt ** 3 * rate.newest_cross[2]
-                spread = spread + together + together.T
         else:
             spread = spread + np.eye(3) * (0.5 * self.config.max_angular_acceleration_rad_s2 * dt * dt) ** 2 / 3.0
         predicted = last_rotation @ rotation_vector_to_matrix(turn)
         nu = matrix_to_rotation_vector(predicted.T @ rotation)
         try:
-            cross_m2 = float(nu[:2] @ np.linalg.solve(spread[:2, :2], nu[:2]))
+            m2 = float(nu @ np.linalg.solve(spread, nu))
         except np.linalg.LinAlgError:
             return None
-        roll_m2 = float(nu[2] * nu[2] / spread[2, 2]) if spread[2, 2] > 0.0 else math.inf
-        ratio = max(cross_m2 / CROSS_STEP_CHI2, roll_m2 / ROLL_STEP_CHI2)
-        if not ratio > 1.0:
+        if not m2 > STEP_CHI2:
             return None
         norm = float(np.linalg.norm(nu))
-        unexplained = norm * (1.0 - 1.0 / math.sqrt(ratio))
+        unexplained = norm * (1.0 - math.sqrt(STEP_CHI2 / m2))
         exposure = self.config.exposure_s
         known = 0.0 if rate.angular_acceleration is None else float(np.linalg.norm(rate.angular_acceleration))
         change = max(known + self.config.max_angular_acceleration_rad_s2,
