@@ -8,7 +8,10 @@ a sequence at rest at 10 Hz, centroided and tracked by the real chain. Two thing
 against the truth: the published attitude's NEES (an honest covariance: mean 3), and how often
 the step test (Tracker._step_covariance: an acceleration step taken from the innovation, each
 firing inflating the frame's published covariance along it) fires on a body that does not
-move: at its stated rate (across the boresight and in roll, each at 1 %: about 2 %).
+move. Its threshold is chi^2_3 at 1 %, but the innovation's expected spread leaves out that the
+last attitude is in the rate fit (Tracker._step_covariance), so it fires on about 8 % of the
+frames at rest: a margin that covers a slew's first frame, whose step is barely above the noise
+(docs/TRACKING.md).
 """
 from __future__ import annotations
 
@@ -53,7 +56,7 @@ def _frame(groups, detector, width, height, rng):
 
 
 @pytest.mark.slow  # ~20 s
-def test_at_rest_the_step_test_fires_at_its_rate_and_the_nees_is_honest(catalog, database, nominal_camera):
+def test_at_rest_the_tracked_nees_is_honest_and_the_step_test_keeps_its_margin(catalog, database, nominal_camera):
     camera = nominal_camera
     rotation = radec_roll_to_matrix(np.radians(83.0), np.radians(-5.0), np.radians(20.0))  # Orion's belt
     groups = _field_groups(catalog, camera, rotation)
@@ -82,11 +85,12 @@ def test_at_rest_the_step_test_fires_at_its_rate_and_the_nees_is_honest(catalog,
     assert modes.count(MODE_TRACKING) == FRAMES - 1
     tested = len(fired)
     assert tested > 0.9 * FRAMES
-    # About 2 % (3 of ~145 expected; 9 % before the rate fit's cross-covariances were in the
-    # innovation's spread): at most 8 here, a binomial tail of ~0.3 %.
-    assert sum(fired) <= 8, (sum(fired), tested)
+    # About 8 % (11 of 146 here): the margin is kept on purpose; a spread with the fit's
+    # cross-covariances fires on ~2 % (1 of 146 here) and left more slews' first frames beyond
+    # 5 sigma (docs/TRACKING.md). Between 3 % and 15 %: either change shows here.
+    assert 0.03 * tested <= sum(fired) <= 0.15 * tested, (sum(fired), tested)
     # One pointing: the frames share their stars, so the mean NEES scatters more than 150
-    # independent draws would; 2.2-4.0 brackets an honest covariance (3) and refuses one
-    # inflated on a tenth of the frames or overconfident by a third.
+    # independent draws would. Here 2.65 (median 1.83, chi^2_3's 2.37: the firings' inflation);
+    # 2.2-4.0 refuses a covariance overconfident by a third or inflated on most frames.
     tracked = np.array(nees[1:])
     assert 2.2 < tracked.mean() < 4.0, tracked.mean()
