@@ -420,14 +420,19 @@ def optimal_snr(field_: StarField, flux_e: float, detector: Detector) -> np.ndar
                      for s in field_.stamps])
 
 
-def render(field_: StarField, flux_e: float, detector: Detector, width: int, height: int,
-           rng: np.random.Generator) -> Frame:
-    """One frame [ADU] of the star field at flux `flux_e` [e-] per star, with its truth."""
-    expected = star_signal(field_, flux_e, width, height) + detector.sky_e
+def expose(star_e: np.ndarray, detector: Detector, rng: np.random.Generator):
+    """
+    Read expected star electrons per pixel `star_e` (height, width) [e-] through the detector.
+
+    Returns the image [ADU] (uint16), the hot pixels (columns, rows, dark charge [e-]) and the
+    cosmic rays (x, y centres [px], charge [e-], length [px]).
+    """
+    height, width = star_e.shape
+    expected = star_e + detector.sky_e
     hot_cols, hot_rows, hot_e = hot_pixels(detector, width, height)
     expected[hot_rows, hot_cols] += hot_e
     electrons = rng.poisson(expected).astype(np.float64)
-    ray_charge, (ray_x, ray_y, ray_e, ray_length) = cosmic_rays(detector, width, height, rng)
+    ray_charge, rays = cosmic_rays(detector, width, height, rng)
     electrons += ray_charge
     electrons += rng.normal(0.0, detector.read_noise_e, electrons.shape)
     if detector.blooms:
@@ -435,6 +440,14 @@ def render(field_: StarField, flux_e: float, detector: Detector, width: int, hei
     electrons = np.minimum(electrons, detector.full_well_e)
     adu = np.rint(electrons / detector.gain_e_per_adu + detector.bias_adu)
     image = np.clip(adu, 0, 2 ** detector.adc_bits - 1).astype(np.uint16)
+    return image, (hot_cols, hot_rows, hot_e), rays
+
+
+def render(field_: StarField, flux_e: float, detector: Detector, width: int, height: int,
+           rng: np.random.Generator) -> Frame:
+    """One frame [ADU] of the star field at flux `flux_e` [e-] per star, with its truth."""
+    image, (hot_cols, hot_rows, hot_e), (ray_x, ray_y, ray_e, ray_length) = expose(
+        star_signal(field_, flux_e, width, height), detector, rng)
     truth = Truth(field_.x, field_.y, flux_e * field_.deposited_fractions(width, height),
                   optimal_snr(field_, flux_e, detector),
                   np.r_[hot_cols.astype(float), ray_x], np.r_[hot_rows.astype(float), ray_y], np.r_[hot_e, ray_e],

@@ -408,10 +408,10 @@ class Tracker:
         exposure, whose innovation is larger by the path since the change), and never more than
         the innovation; a streak fitted on a constant-rate path more (k = `gain`, bias_gain;
         T^2 / 24 when None). When nu^T S^-1 nu = m2 exceeds STEP_CHI2 (chi^2_3 at 1 %), |nu|
-        bounds the bias (this frame's bias is part of nu; the part of
-        nu noise does not explain, nu_x = |nu| (1 - sqrt(STEP_CHI2 / m2)), is a small share of it
-        near the threshold: a ramp starting inside the exposure left a frame 1.1" off with nu_x
-        0.2", stress campaign, seed 2026, task 1976 frame 8), capped at k d alpha_max,
+        bounds the bias (this frame's bias is part of nu; the part of nu noise does not explain,
+        nu_x = |nu| (1 - sqrt(STEP_CHI2 / m2)), is a small share of it near the threshold: a
+        ramp starting inside the exposure left a frame 1.1" off with nu_x 0.2", stress
+        campaign, seed 2026, task 1976 frame 8), capped at k d alpha_max,
         d alpha_max the larger of |alpha_last| + alpha_max (any acceleration within the bound
         after the estimated one) and the least change that explains nu_x over dt,
         2 nu_x / (dt^2 + T^2 / 12). The bias is taken uniform within +-B along nu: B^2 / 3 along

@@ -3,7 +3,7 @@
 The tracker's covariance at rest on frames of the independent renderer (bench/alt_renderer.py).
 
 Hipparcos stars projected by a pinhole at a known attitude, each drawn with the second
-renderer's own pixel-integrated Gaussian, Poisson and read noise (nothing of star_tracker.sim):
+renderer's own pixel-integrated Gaussian and detector, `alt.expose` (nothing of star_tracker.sim):
 a sequence at rest at 10 Hz, centroided and tracked by the real chain. Two things are judged
 against the truth: the published attitude's NEES (an honest covariance: mean 3), and how often
 the step test (Tracker._step_covariance: an acceleration step taken from the innovation, each
@@ -46,15 +46,6 @@ def _field_groups(catalog, camera, rotation):
     return groups
 
 
-def _frame(groups, detector, width, height, rng):
-    """One frame [ADU] of the groups' stars: the second renderer's signal, its noise steps."""
-    expected = sum(alt.star_signal(field_, flux, width, height) for field_, flux in groups) + detector.sky_e
-    electrons = rng.poisson(expected).astype(np.float64) + rng.normal(0.0, detector.read_noise_e, expected.shape)
-    electrons = np.minimum(electrons, detector.full_well_e)
-    adu = np.rint(electrons / detector.gain_e_per_adu + detector.bias_adu)
-    return np.clip(adu, 0, 2 ** detector.adc_bits - 1).astype(np.uint16)
-
-
 @pytest.mark.slow  # ~20 s
 def test_at_rest_the_tracked_nees_is_honest_and_the_step_test_keeps_its_margin(catalog, database, nominal_camera):
     camera = nominal_camera
@@ -75,7 +66,8 @@ def test_at_rest_the_tracked_nees_is_honest_and_the_step_test_keeps_its_margin(c
     rng = np.random.default_rng(2026)
     nees, modes = [], []
     for k in range(FRAMES):
-        image = _frame(groups, detector, camera.width, camera.height, rng)
+        signal = sum(alt.star_signal(field_, flux, camera.width, camera.height) for field_, flux in groups)
+        image = alt.expose(signal, detector, rng)[0]
         result = tracker.process(int(round((1000.0 + 0.1 * k) * 1e9)), extract_spots(image, CentroidConfig()), camera)
         modes.append(result.mode)
         attitude = result.identification.attitude
