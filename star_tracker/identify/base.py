@@ -21,7 +21,7 @@ from typing import Iterator
 import numpy as np
 
 from ..models.attitude import matrix_to_quaternion
-from ..models.attitude_estimation import AttitudeSolution, quest_rotation, refine_with_covariances
+from ..models.attitude_estimation import AttitudeSolution, quest_rotation
 from ..models.camera import CameraModel
 from ..centroid import FLAG_EDGE, Spots
 from ..parameter_spec import parameter, range_problems
@@ -29,7 +29,7 @@ from . import spot_kernels
 from .kernel_records import GuideMatches, Pinhole, PrepareSettings, RawSpots
 from .database import StarDatabase
 from .deep_catalog import DeepCatalog, load_or_build_deep_catalog
-from . import deep_match
+from . import deep_match, final_fit_kernel
 from .spot_geometry import SpotGeometry
 from .verify import MIN_STARS, false_positive_bound, log_chance_tuples, log_magnitude_agreement, verify
 from .deadline import BUDGET_CLOCKS, Deadline
@@ -203,6 +203,16 @@ MAX_CHANCE_GUIDE_STARS_IN_GATE = deep_match.MAX_CHANCE_STARS_IN_GATE
 # for one wrong star on a long lever arm (StarIdentifier.without_lever_outlier).
 LEVER_TEST_PROBABILITY = 1e-6
 MAX_LEVER_OUTLIERS = 2  # wrong stars the examination may leave out
+
+
+# The isotropic spots' placeholders in final_fit_kernel's signatures (SpotGeometry.pixel_cov None).
+_NO_PIXEL_COV = np.zeros((0, 2, 2))
+_NO_JACOBIAN = np.zeros((0, 3, 2))
+
+
+def _pixel_cov_or_empty(geometry: SpotGeometry) -> np.ndarray:
+    """Return the spots' pixel covariances, or an empty (0, 2, 2) array for isotropic spots (final_fit_kernel)."""
+    return _NO_PIXEL_COV if geometry.pixel_cov is None else geometry.pixel_cov
 
 
 @functools.lru_cache(maxsize=None)
@@ -458,10 +468,10 @@ class StarIdentifier:
         n = spot_index.size
         if n <= MIN_STARS:
             return match
+        if final_fit_kernel.match_chi2(geometry.rays, geometry.sigma, self.database.vectors, spot_index, star_index,
+                                       match.rotation) <= _chi2_limit(2 * n - 3):
+            return match  # the match's own fit is consistent
         body, stars, sigma = geometry.rays[spot_index], self.database.vectors[star_index], geometry.sigma[spot_index]
-        normalized = np.linalg.norm(body - stars @ match.rotation, axis=1) / sigma  # the match's own fit
-        if float(normalized @ normalized) <= _chi2_limit(2 * n - 3):
-            return match
         kept = np.ones(n, bool)
         for _ in range(MAX_LEVER_OUTLIERS):
             if kept.sum() <= MIN_STARS:
@@ -641,14 +651,10 @@ class StarIdentifier:
         if camera is None or match.spot_index.size <= MIN_STARS:
             return match
         spot = match.spot_index
-        if geometry.pixel_cov is None:
-            det = (geometry.sigma[spot] / camera.pixel_scale_rad) ** 4
-        else:
-            cov = geometry.pixel_cov[spot] + self.config.centroid_sigma_floor_px ** 2 * np.eye(2)[None]
-            det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
         density_px = self._mean_density * camera.pixel_scale_rad ** 2  # guide stars per pixel
-        chance = density_px * np.pi * FIT_OUTLIER_SIGMA ** 2 * np.sqrt(np.maximum(det, 0.0))
-        keep = ~(chance > MAX_CHANCE_GUIDE_STARS_IN_GATE)  # a NaN covariance counts as unknown: kept, as before
+        keep = final_fit_kernel.nameable(_pixel_cov_or_empty(geometry), geometry.sigma, spot,
+                                         float(camera.pixel_scale_rad), float(self.config.centroid_sigma_floor_px),
+                                         density_px, FIT_OUTLIER_SIGMA, MAX_CHANCE_GUIDE_STARS_IN_GATE)
         if keep.all() or np.count_nonzero(keep) < MIN_STARS:
             return match
         self.stats["guide_too_uncertain"] = int(np.count_nonzero(~keep))
@@ -762,17 +768,12 @@ class StarIdentifier:
         sensor frame, the inverse information of the fit: Shuster & Oh's for isotropic
         covariances), every match's studentized chi^2 (2 DOF) and residual angle [rad] under it.
         """
-        body = geometry.rays[spot_index]
-        if geometry.pixel_cov is None:  # isotropic
-            weights = dict(ray_cov=geometry.sigma[spot_index, None, None] ** 2
-                           * (np.eye(3)[None] - body[:, :, None] * body[:, None, :]))
-        else:
-            weights = dict(pixel_cov=geometry.pixel_cov[spot_index], jacobian=geometry.jacobian[spot_index])
-        solution, chi2, residual = refine_with_covariances(rotation, body, stars, **weights)
-        inlier = chi2 <= FIT_SCREEN_CHI2
-        if not inlier.all() and inlier.sum() >= MIN_STARS:
-            solution, chi2, residual = refine_with_covariances(solution.rotation, body, stars, used=inlier, **weights)
-        return solution, chi2, residual
+        pixel_cov = _pixel_cov_or_empty(geometry)
+        fitted, covariance, loss, chi2, residual = final_fit_kernel.published_fit(
+            geometry.rays, geometry.sigma, pixel_cov, geometry.jacobian if pixel_cov.size else _NO_JACOBIAN,
+            np.ascontiguousarray(spot_index, np.int64), np.ascontiguousarray(stars, float),
+            np.ascontiguousarray(rotation, float), FIT_SCREEN_CHI2, MIN_STARS)
+        return AttitudeSolution(matrix_to_quaternion(fitted), fitted, covariance, loss), chi2, residual
 
     def _fail(self, status: str, reason: str, started: float, tested: int) -> Identification:
         return Identification(status=status, reason=reason, algorithm=self.name,
