@@ -26,7 +26,7 @@ from ..models.camera import CameraModel
 from ..centroid import FLAG_EDGE, Spots
 from ..parameter_spec import parameter, range_problems
 from . import spot_kernels
-from .kernel_records import GuideMatches, Pinhole, PrepareSettings, RawSpots
+from .kernel_records import DeepRematchOutcome, GuideMatches, Pinhole, PrepareSettings, PreparedSpots, RawSpots
 from .database import StarDatabase
 from .deep_catalog import DeepCatalog, load_or_build_deep_catalog
 from . import deep_match, final_fit_kernel
@@ -223,6 +223,15 @@ def _chi2_limit(dof: int) -> float:
     return float(chi2.isf(LEVER_TEST_PROBABILITY, dof))
 
 
+def lever_limits(max_dof: int) -> np.ndarray:
+    """Return _chi2_limit(dof) for dof = 0..max_dof - 1 (inf at 0), as one array (solve_kernel)."""
+    from scipy.stats import chi2
+
+    limits = np.full(max_dof, np.inf)
+    limits[1:] = chi2.isf(LEVER_TEST_PROBABILITY, np.arange(1, max_dof))
+    return limits
+
+
 @dataclass(frozen=True)
 class _Matches:
     """
@@ -354,21 +363,12 @@ class StarIdentifier:
         undistorted cameras, numpy with distortion. A malformed record is refused first
         (Spots.validate: ValueError).
         """
-        spots.validate()
-        self.stats = {}
-        floor_px = self.config.centroid_sigma_floor_px
-        as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
-        # A spot whose light runs past the border (flag EDGE) is not used: what the fit lost can
-        # pull it beyond its covariance, and a faint one then takes a star's name (frame_fits).
-        edge = (np.asarray(spots.flags) & FLAG_EDGE) != 0
-        x, y = as_float(np.where(edge, np.nan, spots.x)), as_float(spots.y)
+        raw = self.raw_spots(spots)
         if not camera.has_distortion:
-            p = spot_kernels.prepare_spots(RawSpots(x, y, as_float(spots.flux), as_float(spots.cov)),
-                                           Pinhole.of(camera),
-                                           PrepareSettings(float(floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX))
-            return p.order, SpotGeometry(p.rays, p.sigma, min(p.order.size, self.config.max_pattern_spots),
-                                         p.magnitude, p.x, p.y, p.pixel_cov, p.jacobian, camera)
-        flux = spots.flux
+            return self.geometry_of(spot_kernels.prepare_spots(raw, Pinhole.of(camera), self.prepare_settings()),
+                                    camera)
+        floor_px = self.config.centroid_sigma_floor_px
+        x, y, flux = raw.x, raw.y, spots.flux
         finite = np.isfinite(x) & np.isfinite(y) & ~spot_kernels.coincident_later(x, y, COINCIDENT_SEPARATION_PX)
         brightness = np.where(np.isnan(flux), -np.inf, flux)
         kept = np.flatnonzero(finite)
@@ -386,6 +386,32 @@ class StarIdentifier:
                                    magnitude=magnitude, x=x, y=y, pixel_cov=sanitized_covariance(cov),
                                    jacobian=ray_jacobian(camera, x, y), camera=camera)
 
+    def raw_spots(self, spots: Spots) -> RawSpots:
+        """
+        Return `spots` as prepare's kernels read them, after Spots.validate (ValueError); resets the per-call stats.
+
+        Float64 arrays; x NaN where the spot is flagged EDGE: a spot whose light runs past the
+        border is not used (what the fit lost can pull it beyond its covariance, and a faint
+        one then takes a star's name: frame_fits).
+        """
+        spots.validate()
+        self.stats = {}
+        as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
+        edge = (np.asarray(spots.flags) & FLAG_EDGE) != 0
+        return RawSpots(as_float(np.where(edge, np.nan, spots.x)), as_float(spots.y), as_float(spots.flux),
+                        as_float(spots.cov))
+
+    def prepare_settings(self) -> PrepareSettings:
+        """Return spot_kernels.prepare_spots' floors for this identifier's config."""
+        return PrepareSettings(float(self.config.centroid_sigma_floor_px), MIN_FIT_SIGMA_PX, COINCIDENT_SEPARATION_PX)
+
+    def geometry_of(self, prepared: PreparedSpots, camera: CameraModel) -> tuple[np.ndarray, SpotGeometry]:
+        """Return prepare's (order, SpotGeometry) from spot_kernels.prepare_spots' record."""
+        return prepared.order, SpotGeometry(prepared.rays, prepared.sigma,
+                                            min(prepared.order.size, self.config.max_pattern_spots),
+                                            prepared.magnitude, prepared.x, prepared.y, prepared.pixel_cov,
+                                            prepared.jacobian, camera)
+
     def identify(self, spots: Spots, camera: CameraModel) -> Identification:
         """
         Identify the stars behind `spots` (pixel positions in `camera`); see Identification.
@@ -400,7 +426,16 @@ class StarIdentifier:
         n = order.size
         if n < MIN_STARS:
             return self._fail(TOO_FEW_SPOTS, f"{n} spots; at least {MIN_STARS} are needed", started, 0)
-        outcome = self.search(geometry, camera, deadline)
+        return self.after_search(spots, camera, geometry, order, self.search(geometry, camera, deadline), deadline,
+                                 started)
+
+    def after_search(self, spots: Spots, camera: CameraModel, geometry: SpotGeometry, order: np.ndarray,
+                     outcome: SearchOutcome, deadline: Deadline, started: float) -> Identification:
+        """
+        Finish identify() from the search's outcome: the lever-arm check, the final fit (solved), a second opinion.
+
+        `started`: the call's time.perf_counter() [s].
+        """
         if outcome.match is None:
             return self._fail(outcome.status, outcome.reason, started, outcome.tested)
         match = self.without_lever_outlier(geometry, camera, outcome.match)
@@ -408,7 +443,14 @@ class StarIdentifier:
             self.stats["lever_outlier_rejected"] = 1
             return self._fail(NO_MATCH, "the accepted match's fit held a lever-arm outlier, and without it the frame "
                               "did not verify", started, outcome.tested)
-        result = self.solved(geometry, order, match, outcome.tested, started)
+        return self.with_second_opinion(spots, camera, geometry, order, match,
+                                        self.solved(geometry, order, match, outcome.tested, started), deadline,
+                                        started)
+
+    def with_second_opinion(self, spots: Spots, camera: CameraModel, geometry: SpotGeometry, order: np.ndarray,
+                            match: AcceptedMatch, result: Identification, deadline: Deadline,
+                            started: float) -> Identification:
+        """Return `result`, or second_opinion's when its bound is above config.second_opinion_bound."""
         if result.false_positive_probability > self.config.second_opinion_bound:
             result = self.second_opinion(spots, camera, geometry, order, match, result, deadline, started)
         return result
@@ -605,8 +647,7 @@ class StarIdentifier:
         rest, solved from it (`renamed`: already done once).
         """
         match = self.without_unnameable(geometry, match)
-        guide = _Matches(match.spot_index, self.database.vectors[match.star_index], self.database.hip[match.star_index],
-                         self.database.magnitude[match.star_index], np.zeros(match.spot_index.size, bool))
+        guide = self.guide_matches(match.spot_index, match.star_index)
         solution, _, residual = self._fit(geometry, guide.spot_index, guide.star_vectors, match.rotation)
         matches, fp = guide, match.false_positive_probability
         if deep_match and self.config.deep_match and geometry.camera is not None:
@@ -623,6 +664,17 @@ class StarIdentifier:
                 if again is not None and again.spot_index.size >= guide.spot_index.size - int(off.sum()):
                     self.stats["guide_renamed"] = int(off.sum())
                     return self.solved(geometry, order, again, tested, started, algorithm, deep_match, renamed=True)
+        return self.published(geometry, order, matches, solution, residual, fp, tested, started, algorithm)
+
+    def published(self, geometry: SpotGeometry, order: np.ndarray, matches: "_Matches", solution: AttitudeSolution,
+                  residual: np.ndarray, fp: float, tested: int, started: float,
+                  algorithm: str | None = None) -> Identification:
+        """
+        Return the solved Identification of final `matches` (spot_index into the flux-sorted spots), sorted by spot.
+
+        solution: their fit; residual (M,) their angles [rad]; fp their false-positive bound;
+        tested: hypotheses; started: the call's time.perf_counter() [s].
+        """
         by_spot = np.argsort(matches.spot_index)
         spot_index = matches.spot_index[by_spot]
         deep = matches.deep[by_spot]
@@ -636,6 +688,11 @@ class StarIdentifier:
             body_vectors=geometry.rays[spot_index], residual_rad=residual[by_spot],
             magnitude=matches.magnitude[by_spot], deep=deep, attitude=solution, false_positive_probability=fp,
             stats=dict(self.stats))
+
+    def guide_matches(self, spot_index: np.ndarray, star_index: np.ndarray) -> "_Matches":
+        """Return the matches of flux-sorted spots `spot_index` to database stars `star_index`, as published."""
+        return _Matches(spot_index, self.database.vectors[star_index], self.database.hip[star_index],
+                        self.database.magnitude[star_index], np.zeros(spot_index.size, bool))
 
     def without_unnameable(self, geometry: SpotGeometry, match: AcceptedMatch) -> AcceptedMatch:
         """
@@ -702,6 +759,12 @@ class StarIdentifier:
             geometry, geometry.camera, catalog, guide_record, solution.rotation, solution.covariance,
             self.config.centroid_sigma_floor_px, self.config.false_positive_bound, self.magnitude_floor,
             FIT_SCREEN_CHI2)
+        return self.deep_result(outcome, guide)
+
+    def deep_result(self, outcome: DeepRematchOutcome,
+                    guide: "_Matches") -> tuple["_Matches", AttitudeSolution, np.ndarray, float] | None:
+        """Return deep_rematch's result from the compiled re-match's `outcome` on `guide`; its counters go to stats."""
+        catalog = self.deep_catalog()
         stats = outcome.stats.tolist()
         self.stats.update(deep_matches=stats[0], deep_ambiguous=stats[1], deep_magnitude_rejected=stats[2],
                           deep_too_uncertain=stats[3], deep_stars_in_view=stats[4])

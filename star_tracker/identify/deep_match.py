@@ -99,17 +99,24 @@ def deep_rematch(geometry: SpotGeometry, camera: CameraModel, catalog: DeepCatal
                           np.ascontiguousarray(geometry.x, float), np.ascontiguousarray(geometry.y, float),
                           np.zeros((0, 2, 2)) if isotropic else np.ascontiguousarray(geometry.pixel_cov, float),
                           np.zeros((0, 3, 2)) if isotropic else np.ascontiguousarray(geometry.jacobian, float))
+    return deep_match_kernel.deep_rematch(spots, catalog.arrays, catalog.cells, guide,
+                                          np.ascontiguousarray(rotation, float),
+                                          np.ascontiguousarray(covariance, float), LensModel.of(camera),
+                                          rematch_settings(camera, catalog, floor_px, fp_limit, magnitude_floor,
+                                                           fit_screen_chi2))
+
+
+def rematch_settings(camera: CameraModel, catalog: DeepCatalog, floor_px: float, fp_limit: float,
+                     magnitude_floor: float, fit_screen_chi2: float) -> DeepRematchSettings:
+    """Return the compiled re-match's constants for `camera` and `catalog` (arguments as deep_rematch's)."""
     half = min(camera.half_diagonal_fov_rad + 1e-3, math.pi / 2)
     cone_half = min(half + CONE_MARGIN_RAD, math.pi / 2)
-    settings = DeepRematchSettings(
+    return DeepRematchSettings(
         float(camera.pixel_scale_rad), float(floor_px), float(camera.width * camera.height),
         2.0 * math.sin(0.5 * half), 2.0 * math.sin(0.5 * cone_half), 2.0 * math.sin(0.5 * CONE_MARGIN_RAD),
         float(fp_limit), float(magnitude_floor), float(fit_screen_chi2), MIN_STARS, PASSES, GATE_SIGMA,
         AMBIGUITY_FACTOR, MAX_CHANCE_STARS_IN_GATE, MAX_CHANCE_MATCHES, MIN_ZERO_POINT_STARS, MAGNITUDE_SIGMA,
         MAGNITUDE_TOLERANCE_FLOOR, MEDIAN_CHI2_2DOF, float(catalog.mean_density))
-    return deep_match_kernel.deep_rematch(spots, catalog.arrays, catalog.cells, guide,
-                                          np.ascontiguousarray(rotation, float),
-                                          np.ascontiguousarray(covariance, float), LensModel.of(camera), settings)
 
 
 def deep_stars_in_view(catalog: DeepCatalog, rotation: np.ndarray,

@@ -38,14 +38,24 @@ def pyramid_triangles(n: int) -> np.ndarray:
     fast as it can. Built once per n: every lost-in-space solve starts from it (building it
     was a third of the search's time).
     """
-    blocks = [np.zeros((0, 3), np.int64)]
-    for dj in range(1, n - 1):
-        for dk in range(1, n - dj):
-            i = np.arange(0, n - dj - dk, dtype=np.int64)
-            blocks.append(np.stack([i, i + dj, i + dj + dk], axis=1))
-    triangles = np.concatenate(blocks)
+    triangles = pyramid_rows(n, math.comb(n, 3) if n >= 3 else 0)
     triangles.flags.writeable = False
     return triangles
+
+
+@njit(cache=True)
+def pyramid_rows(n, count):
+    """Return the first `count` rows of pyramid_triangles(n) (compiled: the one-call solve builds its first batch)."""
+    rows = np.empty((count, 3), np.int64)
+    t = 0
+    for dj in range(1, n - 1):
+        for dk in range(1, n - dj):
+            for i in range(0, n - dj - dk):
+                if t == count:
+                    return rows
+                rows[t, 0], rows[t, 1], rows[t, 2] = i, i + dj, i + dj + dk
+                t += 1
+    return rows[:t]
 
 
 def pyramid_order(n: int) -> Iterator[tuple[int, int, int]]:

@@ -17,19 +17,24 @@ triangles, so the time budget is checked between batches.
 """
 from __future__ import annotations
 
+import itertools
 import math
+import time
 import weakref
 from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
 
-from ..models.attitude_estimation import refine_with_covariances
+from ..models.attitude import matrix_to_quaternion
+from ..models.attitude_estimation import AttitudeSolution, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
-from . import kernels
-from .kernel_records import CatalogArrays, PairIndex, SearchScratch, SpotArrays, TriangleTolerances, VerifySettings
-from .base import NO_MATCH, TIMEOUT, AcceptedMatch, IdentifyConfig, SearchOutcome, StarIdentifier
+from . import deep_match, kernels, solve_kernel
+from .base import (FIT_OUTLIER_SIGMA, FIT_SCREEN_CHI2, MAX_CHANCE_GUIDE_STARS_IN_GATE, NO_MATCH, TIMEOUT, TOO_FEW_SPOTS,
+                   AcceptedMatch, Identification, IdentifyConfig, SearchOutcome, StarIdentifier, lever_limits)
+from .kernel_records import (CatalogArrays, LensModel, PairIndex, Pinhole, SearchScratch, SpotArrays,
+                             TriangleTolerances, VerifySettings)
 from .spot_geometry import SpotGeometry
 from .database import StarDatabase
 from .geometry import pyramid_triangles
@@ -42,6 +47,9 @@ from .deadline import Deadline
 # checks it every ~0.03-0.06 s; an easy frame solves within the first call.
 PYRAMID_BATCH = 16
 BATCH_TRIANGLES = 16
+# Degrees of freedom the one-call solve has lever-arm limits for (2 x matches - 3): more
+# matches finish in Python, which computes the limit itself.
+LEVER_LIMIT_DOF = 1024
 
 
 @lru_cache(maxsize=256)
@@ -98,6 +106,8 @@ class HybridIdentifier(StarIdentifier):
         # Search scratch: heads of the adjacency lists, all -1 between calls (search_triangles).
         self._head_ik = np.full(database.star_count, -1, np.int64)
         self._head_jk = np.full(database.star_count, -1, np.int64)
+        # The lever-arm check's chi^2 limits by degrees of freedom (base._chi2_limit), for solve_kernel.
+        self._lever_limits = lever_limits(LEVER_LIMIT_DOF)
 
     def warm_up(self, camera: CameraModel) -> None:
         """
@@ -125,23 +135,84 @@ class HybridIdentifier(StarIdentifier):
         self.warm_up_deep_rematch(camera)
         HybridIdentifier._kernels_ready = True
 
+    def identify(self, spots: Spots, camera: CameraModel) -> Identification:
+        """
+        StarIdentifier.identify with its common path in one compiled call (solve_kernel.solve), same results.
+
+        For a camera without distortion with the deep re-match on: the spots prepared, the first
+        batch of triangles searched, the match checked and fitted and the deep re-match run in
+        one call; the Python steps take over where that path ends (no match in the first
+        batch, a lever-arm outlier to examine, guide stars to name again). Otherwise
+        StarIdentifier.identify.
+        """
+        config = self.config  # read per call: a caller may replace it (commands/solve.py)
+        if camera.has_distortion or not config.deep_match or config.max_pattern_spots < 3:
+            return super().identify(spots, camera)
+        started = time.perf_counter()
+        deadline = Deadline(config.max_time_s, config.budget_clock)
+        raw = self.raw_spots(spots)
+        catalog = self.deep_catalog()
+        pixel_scale = float(camera.pixel_scale_rad)
+        search = (int(config.max_pattern_spots), PYRAMID_BATCH, float(config.match_radius_px), pixel_scale,
+                  float(self.grid.max_radius_rad), MIN_STARS, float(self.magnitude_floor))
+        unnameable = (self._mean_density * pixel_scale ** 2, float(config.centroid_sigma_floor_px), FIT_OUTLIER_SIGMA,
+                      MAX_CHANCE_GUIDE_STARS_IN_GATE)
+        finish = (self._lever_limits, self.catalog.vectors, self.database.hip, self.catalog.magnitude, unnameable,
+                  FIT_SCREEN_CHI2, FIT_OUTLIER_SIGMA)
+        settings = deep_match.rematch_settings(camera, catalog, config.centroid_sigma_floor_px,
+                                               config.false_positive_bound, self.magnitude_floor, FIT_SCREEN_CHI2)
+        (verdict, prepared, tested, tried, spot, star, rotation, fp, guide_spot, guide_star, too_uncertain, fitted,
+         covariance, loss, residual, ran_deep, outcome) = solve_kernel.solve(
+            raw, Pinhole.of(camera), self.prepare_settings(), search, self._pairs, self.catalog,
+            self._tolerances(), (self._head_ik, self._head_jk), finish, catalog.arrays, catalog.cells,
+            LensModel.of(camera), settings)
+        order, geometry = self.geometry_of(prepared, camera)
+        if verdict == solve_kernel.TOO_FEW_SPOTS:
+            return self._fail(TOO_FEW_SPOTS, f"{order.size} spots; at least {MIN_STARS} are needed", started, 0)
+        if verdict == solve_kernel.NOT_FOUND:
+            outcome = self._search_batches(geometry, camera, deadline, 1, tested, tried)
+            return self.after_search(spots, camera, geometry, order, outcome, deadline, started)
+        self.stats["triangles"] = tried
+        match = AcceptedMatch(spot, star, rotation, fp)
+        if verdict == solve_kernel.FINISH_IN_PYTHON:
+            return self.after_search(spots, camera, geometry, order, SearchOutcome(match, tested), deadline, started)
+        if too_uncertain:
+            self.stats["guide_too_uncertain"] = too_uncertain
+        matches = self.guide_matches(guide_spot, guide_star)
+        solution, final_fp = AttitudeSolution(matrix_to_quaternion(fitted), fitted, covariance, loss), fp
+        if not ran_deep:
+            self.stats["deep_matches"] = 0  # every spot named by a guide star: nothing left to match
+        else:
+            extended = self.deep_result(outcome, matches)
+            if extended is not None:
+                matches, solution, residual, final_fp = extended
+        result = self.published(geometry, order, matches, solution, residual, final_fp, tested, started)
+        return self.with_second_opinion(spots, camera, geometry, order, match, result, deadline, started)
+
+    def _tolerances(self) -> TriangleTolerances:
+        config = self.config
+        return TriangleTolerances(float(config.sigma_multiplier), float(config.angle_tolerance_floor_rad),
+                                  int(config.max_candidates_per_pattern), float(config.false_positive_bound))
+
     def search(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline) -> SearchOutcome:
         """
         Run kernels.search_triangles, the compiled triangle search, in batches.
 
         The deadline is checked between batches; each candidate triangle is verified inside the kernel.
         """
+        return self._search_batches(geometry, camera, deadline, 0, 0, 0)
+
+    def _search_batches(self, geometry: SpotGeometry, camera: CameraModel, deadline: Deadline, skip: int,
+                        tested: int, tried: int) -> SearchOutcome:
+        """Search from batch `skip` of triangle_batches on, after `tested` hypotheses in `tried` triangles."""
         n = geometry.x.size
         radius_rad = min(self.verification_radius_px(geometry, camera) * camera.pixel_scale_rad,
                          self.grid.max_radius_rad)
-        config = self.config  # read per call: a caller may replace it (commands/solve.py)
-        tolerances = TriangleTolerances(float(config.sigma_multiplier), float(config.angle_tolerance_floor_rad),
-                                        int(config.max_candidates_per_pattern), float(config.false_positive_bound))
+        tolerances = self._tolerances()
         verification = VerifySettings(2.0 * math.sin(0.5 * radius_rad), MIN_STARS, self.magnitude_floor)
         spots = SpotArrays(geometry.rays, geometry.sigma, geometry.magnitude)
         scratch = SearchScratch(self._head_ik, self._head_jk, np.empty(n, np.int64), np.empty(n, np.int64))
-        tested = tried = 0
-        for triangles, screen_limit in triangle_batches(geometry.pattern_count, n):
+        for triangles, screen_limit in itertools.islice(triangle_batches(geometry.pattern_count, n), skip, None):
             if deadline.passed():
                 self.stats["triangles"] = tried
                 return SearchOutcome(None, tested, TIMEOUT, f"time budget {self.config.max_time_s:.3f} s spent "

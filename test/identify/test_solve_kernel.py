@@ -1,0 +1,81 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The hybrid identifier's one-call solve (solve_kernel) against the Python steps it stands in for.
+
+HybridIdentifier.identify runs prepare, the first batch of the search, the final fit and the
+deep re-match in one compiled call, and hands over to StarIdentifier's Python steps where a
+rare branch starts. Both must publish the same result to the bit, on every branch.
+"""
+import numpy as np
+import pytest
+
+from star_tracker.identify import IdentifyConfig, hybrid, make_identifier, solve_kernel
+from star_tracker.identify.base import StarIdentifier
+from star_tracker.identify.geometry import pyramid_triangles
+from star_tracker.sim.scenes import SETUPS, make_scene
+
+
+def assert_same(fused, steps):
+    """Every field of two Identifications equal, arrays and floats bit for bit (elapsed time aside)."""
+    for name in ("status", "reason", "algorithm", "hypotheses", "false_positive_probability", "stats"):
+        assert getattr(fused, name) == getattr(steps, name), name
+    for name in ("spot_index", "hip", "star_vectors", "body_vectors", "residual_rad", "magnitude", "deep"):
+        assert np.array_equal(getattr(fused, name), getattr(steps, name)), name
+    assert (fused.attitude is None) == (steps.attitude is None)
+    if fused.attitude is not None:
+        for name in ("quaternion", "rotation", "covariance"):
+            assert np.array_equal(getattr(fused.attitude, name), getattr(steps.attitude, name)), name
+        assert fused.attitude.loss == steps.attitude.loss
+
+
+@pytest.fixture()
+def verdicts(monkeypatch):
+    """Count the verdicts of solve_kernel's solve: the branch each solve took."""
+    counts = {}
+    solve = solve_kernel.solve
+
+    def counted(*args):
+        result = solve(*args)
+        counts[result[0]] = counts.get(result[0], 0) + 1
+        return result
+
+    monkeypatch.setattr(hybrid.solve_kernel, "solve", counted)
+    return counts
+
+
+def test_pyramid_order_is_mortaris():
+    """pyramid_triangles (compiled pyramid_rows) against the order written out: gaps j - i, then k - j, then i."""
+    for n in range(0, 14):
+        expected = [(i, i + dj, i + dj + dk) for dj in range(1, n - 1) for dk in range(1, n - dj)
+                    for i in range(n - dj - dk)]
+        got = pyramid_triangles(n)
+        assert got.shape == (len(expected), 3)
+        assert [tuple(row) for row in got.tolist()] == expected
+
+
+def test_same_result_on_every_branch(database, catalog, verdicts):
+    camera = SETUPS["nominal"].camera
+    identifier = make_identifier("hybrid", database, IdentifyConfig(max_time_s=60.0))
+    rng = np.random.default_rng(47)
+    scenes = [make_scene(SETUPS["nominal"], catalog, rng) for _ in range(40)]
+    # Many false spots among few stars: the first batch of triangles often verifies nothing.
+    scenes += [make_scene(SETUPS["toloei_6_50"], catalog, rng) for _ in range(6)]
+    solved_right = 0
+    for scene in scenes:
+        fused = identifier.identify(scene.spots, camera)
+        assert_same(fused, StarIdentifier.identify(identifier, scene.spots, camera))
+        if fused.solved:
+            assert np.array_equal(fused.hip, scene.hip[fused.spot_index])
+            solved_right += 1
+    # Too few spots.
+    assert_same(identifier.identify(scenes[0].spots.take(np.arange(2)), camera),
+                StarIdentifier.identify(identifier, scenes[0].spots.take(np.arange(2)), camera))
+    # The lever-arm examination is Python's: with every limit at zero each match goes there.
+    identifier._lever_limits = np.zeros_like(identifier._lever_limits)
+    for scene in scenes[:5]:
+        assert_same(identifier.identify(scene.spots, camera), StarIdentifier.identify(identifier, scene.spots, camera))
+    assert solved_right >= 40
+    assert verdicts.get(solve_kernel.SOLVED, 0) >= 30
+    assert verdicts.get(solve_kernel.NOT_FOUND, 0) >= 1
+    assert verdicts.get(solve_kernel.TOO_FEW_SPOTS, 0) == 1
+    assert verdicts.get(solve_kernel.FINISH_IN_PYTHON, 0) >= 5
