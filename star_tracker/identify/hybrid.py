@@ -108,6 +108,8 @@ class HybridIdentifier(StarIdentifier):
         self._head_jk = np.full(database.star_count, -1, np.int64)
         # The lever-arm check's chi^2 limits by degrees of freedom (base._chi2_limit), for solve_kernel.
         self._lever_limits = lever_limits(LEVER_LIMIT_DOF)
+        self._inputs_key: tuple | None = None  # (camera, config) of _inputs (_solve_inputs)
+        self._inputs: tuple = ()
 
     def warm_up(self, camera: CameraModel) -> None:
         """
@@ -151,21 +153,8 @@ class HybridIdentifier(StarIdentifier):
         started = time.perf_counter()
         deadline = Deadline(config.max_time_s, config.budget_clock)
         raw = self.raw_spots(spots)
-        catalog = self.deep_catalog()
-        pixel_scale = float(camera.pixel_scale_rad)
-        search = (int(config.max_pattern_spots), PYRAMID_BATCH, float(config.match_radius_px), pixel_scale,
-                  float(self.grid.max_radius_rad), MIN_STARS, float(self.magnitude_floor))
-        unnameable = (self._mean_density * pixel_scale ** 2, float(config.centroid_sigma_floor_px), FIT_OUTLIER_SIGMA,
-                      MAX_CHANCE_GUIDE_STARS_IN_GATE)
-        finish = (self._lever_limits, self.catalog.vectors, self.database.hip, self.catalog.magnitude, unnameable,
-                  FIT_SCREEN_CHI2, FIT_OUTLIER_SIGMA)
-        settings = deep_match.rematch_settings(camera, catalog, config.centroid_sigma_floor_px,
-                                               config.false_positive_bound, self.magnitude_floor, FIT_SCREEN_CHI2)
         (verdict, prepared, tested, tried, spot, star, rotation, fp, guide_spot, guide_star, too_uncertain, fitted,
-         covariance, loss, residual, ran_deep, outcome) = solve_kernel.solve(
-            raw, Pinhole.of(camera), self.prepare_settings(), search, self._pairs, self.catalog,
-            self._tolerances(), (self._head_ik, self._head_jk), finish, catalog.arrays, catalog.cells,
-            LensModel.of(camera), settings)
+         covariance, loss, residual, ran_deep, outcome) = solve_kernel.solve(raw, *self._solve_inputs(camera))
         order, geometry = self.geometry_of(prepared, camera)
         if verdict == solve_kernel.TOO_FEW_SPOTS:
             return self._fail(TOO_FEW_SPOTS, f"{order.size} spots; at least {MIN_STARS} are needed", started, 0)
@@ -188,6 +177,31 @@ class HybridIdentifier(StarIdentifier):
                 matches, solution, residual, final_fp = extended
         result = self.published(geometry, order, matches, solution, residual, final_fp, tested, started)
         return self.with_second_opinion(spots, camera, geometry, order, match, result, deadline, started)
+
+    def _solve_inputs(self, camera: CameraModel) -> tuple:
+        """
+        Return solve_kernel.solve's arguments after the spots for `camera` and the current config.
+
+        Built once per camera and config (a caller may replace either; both are immutable).
+        """
+        config = self.config
+        if self._inputs_key is not None and self._inputs_key[0] is camera and self._inputs_key[1] is config:
+            return self._inputs
+        catalog = self.deep_catalog()
+        pixel_scale = float(camera.pixel_scale_rad)
+        search = (int(config.max_pattern_spots), PYRAMID_BATCH, float(config.match_radius_px), pixel_scale,
+                  float(self.grid.max_radius_rad), MIN_STARS, float(self.magnitude_floor))
+        unnameable = (self._mean_density * pixel_scale ** 2, float(config.centroid_sigma_floor_px), FIT_OUTLIER_SIGMA,
+                      MAX_CHANCE_GUIDE_STARS_IN_GATE)
+        finish = (self._lever_limits, self.catalog.vectors, self.database.hip, self.catalog.magnitude, unnameable,
+                  FIT_SCREEN_CHI2, FIT_OUTLIER_SIGMA)
+        settings = deep_match.rematch_settings(camera, catalog, config.centroid_sigma_floor_px,
+                                               config.false_positive_bound, self.magnitude_floor, FIT_SCREEN_CHI2)
+        self._inputs = (Pinhole.of(camera), self.prepare_settings(), search, self._pairs, self.catalog,
+                        self._tolerances(), (self._head_ik, self._head_jk), finish, catalog.arrays, catalog.cells,
+                        LensModel.of(camera), settings)
+        self._inputs_key = (camera, config)
+        return self._inputs
 
     def _tolerances(self) -> TriangleTolerances:
         config = self.config

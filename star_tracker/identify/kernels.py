@@ -287,6 +287,15 @@ def refit(rays, sigma, vectors, spot_index, star_index, count):
 
 
 @njit(cache=True)
+def _same_pairs(spot_a, star_a, spot_b, star_b, count):
+    """Whether the first `count` (spot, star) pairs of a and b are the same, in the same order."""
+    for i in range(count):
+        if spot_a[i] != spot_b[i] or star_a[i] != star_b[i]:
+            return False
+    return True
+
+
+@njit(cache=True)
 def verify_candidate(rotation, spots, catalog, verification, out_spot, out_star, match_passes=3):
     """
     Match every spot (SpotArrays) to the catalog (CatalogArrays) under `rotation` and verify.
@@ -302,10 +311,18 @@ def verify_candidate(rotation, spots, catalog, verification, out_spot, out_star,
     n = rays.shape[0]
     dots = np.empty(n)
     count = 0
+    last_spot = np.empty(n, np.int64)
+    last_star = np.empty(n, np.int64)
+    last_count = -1
     for _ in range(match_passes):  # match, refit; each match uses the previous refit
         count = match_all(rays, rotation, catalog, chord, out_spot, out_star, dots)
         if count < min_stars:
             return CandidateCheck(count, rotation, 1.0, 0.0)
+        if count == last_count and _same_pairs(out_spot, out_star, last_spot, last_star, count):
+            break  # the matches the rotation was fitted to: every further pass would repeat it exactly
+        last_count = count
+        last_spot[:count] = out_spot[:count]
+        last_star[:count] = out_star[:count]
         rotation = refit(rays, sigma, vectors, out_spot, out_star, count)
     kept = count
     chi2 = 0.0
