@@ -689,6 +689,16 @@ class StarIdentifier:
             magnitude=matches.magnitude[by_spot], deep=deep, attitude=solution, false_positive_probability=fp,
             stats=dict(self.stats))
 
+    def unnameable_settings(self, camera: CameraModel) -> tuple[float, float, float, float]:
+        """
+        Return final_fit_kernel.nameable's rule for `camera`: (floor_px, density_px, gate_sigma, max_chance).
+
+        The matching floor [px], the guide stars per pixel, FIT_OUTLIER_SIGMA and
+        MAX_CHANCE_GUIDE_STARS_IN_GATE (without_unnameable), in nameable's order.
+        """
+        return (float(self.config.centroid_sigma_floor_px), self._mean_density * camera.pixel_scale_rad ** 2,
+                FIT_OUTLIER_SIGMA, MAX_CHANCE_GUIDE_STARS_IN_GATE)
+
     def guide_matches(self, spot_index: np.ndarray, star_index: np.ndarray) -> "_Matches":
         """Return the matches of flux-sorted spots `spot_index` to database stars `star_index`, as published."""
         return _Matches(spot_index, self.database.vectors[star_index], self.database.hip[star_index],
@@ -708,10 +718,8 @@ class StarIdentifier:
         if camera is None or match.spot_index.size <= MIN_STARS:
             return match
         spot = match.spot_index
-        density_px = self._mean_density * camera.pixel_scale_rad ** 2  # guide stars per pixel
         keep = final_fit_kernel.nameable(_pixel_cov_or_empty(geometry), geometry.sigma, spot,
-                                         float(camera.pixel_scale_rad), float(self.config.centroid_sigma_floor_px),
-                                         density_px, FIT_OUTLIER_SIGMA, MAX_CHANCE_GUIDE_STARS_IN_GATE)
+                                         float(camera.pixel_scale_rad), *self.unnameable_settings(camera))
         if keep.all() or np.count_nonzero(keep) < MIN_STARS:
             return match
         self.stats["guide_too_uncertain"] = int(np.count_nonzero(~keep))

@@ -30,9 +30,9 @@ from ..models.attitude import matrix_to_quaternion
 from ..models.attitude_estimation import AttitudeSolution, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
-from . import deep_match, kernels, solve_kernel
-from .base import (FIT_OUTLIER_SIGMA, FIT_SCREEN_CHI2, MAX_CHANCE_GUIDE_STARS_IN_GATE, NO_MATCH, TIMEOUT, TOO_FEW_SPOTS,
-                   AcceptedMatch, Identification, IdentifyConfig, SearchOutcome, StarIdentifier, lever_limits)
+from . import base, deep_match, kernels, solve_kernel
+from .base import (NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, AcceptedMatch, Identification, IdentifyConfig, SearchOutcome,
+                   StarIdentifier, lever_limits)
 from .kernel_records import (CatalogArrays, LensModel, PairIndex, Pinhole, SearchScratch, SpotArrays,
                              TriangleTolerances, VerifySettings)
 from .spot_geometry import SpotGeometry
@@ -182,26 +182,26 @@ class HybridIdentifier(StarIdentifier):
         """
         Return solve_kernel.solve's arguments after the spots for `camera` and the current config.
 
-        Built once per camera and config (a caller may replace either; both are immutable).
+        What depends on the camera and the config alone is built once per pair (a caller may
+        replace either; both are immutable); the rules' constants (base, deep_match) are read
+        per call.
         """
         config = self.config
-        if self._inputs_key is not None and self._inputs_key[0] is camera and self._inputs_key[1] is config:
-            return self._inputs
+        if self._inputs_key is None or self._inputs_key[0] is not camera or self._inputs_key[1] is not config:
+            search = (int(config.max_pattern_spots), PYRAMID_BATCH, float(config.match_radius_px),
+                      float(camera.pixel_scale_rad), float(self.grid.max_radius_rad), MIN_STARS,
+                      float(self.magnitude_floor))
+            self._inputs = (Pinhole.of(camera), self.prepare_settings(), search, self._tolerances(),
+                            LensModel.of(camera))
+            self._inputs_key = (camera, config)
+        pinhole, prepare_settings, search, tolerances, lens = self._inputs
         catalog = self.deep_catalog()
-        pixel_scale = float(camera.pixel_scale_rad)
-        search = (int(config.max_pattern_spots), PYRAMID_BATCH, float(config.match_radius_px), pixel_scale,
-                  float(self.grid.max_radius_rad), MIN_STARS, float(self.magnitude_floor))
-        unnameable = (self._mean_density * pixel_scale ** 2, float(config.centroid_sigma_floor_px), FIT_OUTLIER_SIGMA,
-                      MAX_CHANCE_GUIDE_STARS_IN_GATE)
-        finish = (self._lever_limits, self.catalog.vectors, self.database.hip, self.catalog.magnitude, unnameable,
-                  FIT_SCREEN_CHI2, FIT_OUTLIER_SIGMA)
+        finish = (self._lever_limits, self.catalog.vectors, self.database.hip, self.catalog.magnitude,
+                  self.unnameable_settings(camera), base.FIT_SCREEN_CHI2, base.FIT_OUTLIER_SIGMA)
         settings = deep_match.rematch_settings(camera, catalog, config.centroid_sigma_floor_px,
-                                               config.false_positive_bound, self.magnitude_floor, FIT_SCREEN_CHI2)
-        self._inputs = (Pinhole.of(camera), self.prepare_settings(), search, self._pairs, self.catalog,
-                        self._tolerances(), (self._head_ik, self._head_jk), finish, catalog.arrays, catalog.cells,
-                        LensModel.of(camera), settings)
-        self._inputs_key = (camera, config)
-        return self._inputs
+                                               config.false_positive_bound, self.magnitude_floor, base.FIT_SCREEN_CHI2)
+        return (pinhole, prepare_settings, search, self._pairs, self.catalog, tolerances,
+                (self._head_ik, self._head_jk), finish, catalog.arrays, catalog.cells, lens, settings)
 
     def _tolerances(self) -> TriangleTolerances:
         config = self.config

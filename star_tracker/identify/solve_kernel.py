@@ -47,8 +47,8 @@ def solve(raw, camera, prepare_settings, search, pairs, catalog, tolerances, hea
     search: (max_pattern_spots, first_batch, match_radius_px, pixel_scale [rad/px],
     grid_max_radius [rad], min_stars, magnitude_floor [mag]); heads: (head_ik, head_jk) the
     search scratch (all -1); finish: (lever_limits (D,) chi^2 limits by degrees of freedom,
-    guide vectors (S, 3), guide hip (S,), guide magnitude (S,), unnameable (density_px,
-    floor_px, gate_sigma, max_chance), fit_screen_chi2, outlier_sigma); deep, cells, lens,
+    guide vectors (S, 3), guide hip (S,), guide magnitude (S,), unnameable (floor_px,
+    density_px, gate_sigma, max_chance), fit_screen_chi2, outlier_sigma); deep, cells, lens,
     deep_settings: the deep re-match's records. Returns (verdict, prepared (PreparedSpots),
     hypotheses, triangles tried, the accepted match (spot, star, rotation, fp), the guide
     matches published (spot, star), guide stars too uncertain (count), the guide fit (rotation,
@@ -57,7 +57,7 @@ def solve(raw, camera, prepare_settings, search, pairs, catalog, tolerances, hea
     """
     max_pattern_spots, first_batch, match_radius_px, pixel_scale, grid_max_radius, min_stars, magnitude_floor = search
     lever_limits, vectors, hip, magnitude, unnameable, screen_chi2, outlier_sigma = finish
-    density_px, floor_px, gate_sigma, max_chance = unnameable
+    floor_px, density_px, gate_sigma, max_chance = unnameable
     prepared = prepare_spots(raw, camera, prepare_settings)
     n = prepared.order.size
     empty_i = np.zeros(0, np.int64)

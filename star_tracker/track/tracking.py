@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..models.attitude import matrix_to_quaternion, matrix_to_rotation_vector, rotation_vector_to_matrix
-from ..models.attitude_estimation import attitude_covariance
+from ..models.attitude_estimation import AttitudeSolution, attitude_covariance
 from ..models.camera import CameraModel
 from ..centroid import Spots
 from ..centroid.applied_motion import AppliedMotion
@@ -41,7 +41,10 @@ from .rate import ACCELERATION_MAX_AGE_S, AttitudeRateEstimator, RateEstimate
 from . import kernels as track_kernels
 from ..identify import kernels
 from ..identify.kernel_records import CatalogArrays, Pinhole, SpotArrays, VerifySettings
+from ..identify import base as identify_base
 from ..identify.base import AcceptedMatch, Identification, StarIdentifier
+from ..identify.verify import MIN_STARS
+from . import recognize_kernel
 from ..identify.skygrid import SkyGrid, cell_of
 
 MODE_TRACKING = "tracking"
@@ -197,6 +200,17 @@ def unique_nearest(spot_x, spot_y, ref_x, ref_y, radius_px: float) -> tuple[np.n
     as_float = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731  one compiled signature
     return track_kernels.unique_nearest(as_float(spot_x), as_float(spot_y), as_float(ref_x), as_float(ref_y),
                                         float(radius_px))
+
+
+# A tracked frame's failures (recognize_kernel's verdicts) and their reasons.
+_FAILURES = {
+    recognize_kernel.TOO_FEW_SPOTS: "{count} spots; tracking needs {min_stars}",
+    recognize_kernel.TOO_FEW_STARS_NEAR: "{count} catalog stars near the predicted attitude",
+    recognize_kernel.TOO_FEW_PAIRS: "{count} spots near predicted stars",
+    recognize_kernel.TOO_FEW_VERIFIED: "{count} stars verified; tracking needs {min_stars}",
+    recognize_kernel.OUTSIDE_GATE: "solution {sigma:.1f} sigma from the prediction (gate {gate_sigma:g})",
+    recognize_kernel.BOUND_FAILED: "{count} stars matched but false-positive bound {fp:.1e} > {bound:.0e}",
+}
 
 
 class Tracker:
@@ -511,17 +525,66 @@ class Tracker:
         return min(self.config.gate_sigma * sigma_px + tolerance_px, cap)
 
     def track(self, spots: Spots, camera: CameraModel, prediction: Prediction) -> tuple[Identification, float]:
-        """Local recognition of `spots` around `prediction`: (result, gate [px])."""
+        """
+        Local recognition of `spots` around `prediction`: (result, gate [px]).
+
+        For a camera without distortion its common path is one compiled call
+        (recognize_kernel.recognize), same results; a wide gate (the displacement voted) and a
+        guide star to name again run in the Python steps (_track_steps, StarIdentifier.solved).
+        """
         started = time.perf_counter()
+        if camera.has_distortion:
+            return self._track_steps(spots, camera, prediction, started)
+        lis = self.lost_in_space
+        (verdict, prepared, gate, count, mahalanobis2, fp, spot, star, verified, guide_spot, guide_star, too_uncertain,
+         fitted, covariance, loss, residual) = recognize_kernel.recognize(
+            lis.raw_spots(spots), Pinhole.of(camera), lis.prepare_settings(), self._recognize_settings(camera),
+            np.ascontiguousarray(prediction.rotation, float), np.ascontiguousarray(prediction.covariance, float),
+            self.catalog, self.grid.cell_density, self._finish_settings(camera))
+        if verdict == recognize_kernel.VOTE_IN_PYTHON:
+            return self._track_steps(spots, camera, prediction, started)
+        order, geometry = lis.geometry_of(prepared, camera)
+        if verdict == recognize_kernel.NAME_IN_PYTHON:
+            return lis.solved(geometry, order, AcceptedMatch(spot, star, verified, fp), 1, started,
+                              algorithm="tracking", deep_match=False), gate
+        if verdict != recognize_kernel.SOLVED:
+            return self._failed(verdict, started, gate, count=count, sigma=math.sqrt(mahalanobis2), fp=fp)
+        if too_uncertain:
+            lis.stats["guide_too_uncertain"] = too_uncertain
+        solution = AttitudeSolution(matrix_to_quaternion(fitted), fitted, covariance, loss)
+        return lis.published(geometry, order, lis.guide_matches(guide_spot, guide_star), solution, residual, fp, 1,
+                             started, "tracking"), gate
+
+    def _recognize_settings(self, camera: CameraModel) -> tuple:
+        """Return recognize_kernel.recognize's `tracking` settings for `camera`."""
+        config, lis = self.config, self.lost_in_space
+        return (int(config.min_stars), int(config.max_pattern_spots), float(config.gate_sigma),
+                float(config.max_gate_fov_radii), float(config.false_positive_bound),
+                float(lis.config.match_radius_px), float(camera.pixel_scale_rad), float(self._half_diagonal(camera)),
+                float(self.grid.max_radius_rad), int(self.grid.grid), float(lis.magnitude_floor))
+
+    def _finish_settings(self, camera: CameraModel) -> tuple:
+        """Return recognize_kernel.recognize's `finish` settings: StarIdentifier.solved's for `camera`."""
+        lis = self.lost_in_space
+        unnameable = lis.unnameable_settings(camera)
+        return (MIN_STARS, unnameable, identify_base.FIT_SCREEN_CHI2, identify_base.FIT_OUTLIER_SIGMA)
+
+    def _failed(self, verdict: int, started: float, gate: float, **values) -> tuple[Identification, float]:
+        """Return a failed tracked frame (`verdict`, recognize_kernel's) with its reason, and the gate [px]."""
+        reason = _FAILURES[verdict].format(min_stars=self.config.min_stars, gate_sigma=self.config.gate_sigma,
+                                           bound=self.config.false_positive_bound, **values)
+        return Identification("no_match", reason, "tracking", time.perf_counter() - started), gate
+
+    def _track_steps(self, spots: Spots, camera: CameraModel, prediction: Prediction,
+                     started: float) -> tuple[Identification, float]:
+        """Tracker.track step by step: any camera, any gate."""
         lis = self.lost_in_space
         order, geometry = self.lost_in_space.prepare(spots, camera)
         n = order.size
         tolerance_px = lis.verification_radius_px(geometry, camera) if n else lis.config.match_radius_px
         gate = self.gate_px(camera, prediction, tolerance_px)
-        fail = lambda reason: (Identification("no_match", reason, "tracking",  # noqa: E731
-                                              time.perf_counter() - started), gate)
         if n < self.config.min_stars:
-            return fail(f"{n} spots; tracking needs {self.config.min_stars}")
+            return self._failed(recognize_kernel.TOO_FEW_SPOTS, started, gate, count=n)
         # Catalog stars the predicted attitude puts in (or within the gate of) the image.
         rotation = prediction.rotation
         half_diagonal = self._half_diagonal(camera)
@@ -536,7 +599,7 @@ class Tracker:
             near, u, v = track_kernels.stars_in_view(self._vectors, rotation, cos_reach, Pinhole.of(camera),
                                                      -float(gate))
         if near.size < self.config.min_stars:
-            return fail(f"{near.size} catalog stars near the predicted attitude")
+            return self._failed(recognize_kernel.TOO_FEW_STARS_NEAR, started, gate, count=near.size)
         voters = min(n, self.config.max_pattern_spots)
         sx, sy = geometry.x[:voters], geometry.y[:voters]
         # Roll error spreads the displacement over the field; the bins must hold that spread.
@@ -548,11 +611,12 @@ class Tracker:
         else:
             dx, dy, votes = vote_displacement(sx, sy, u, v, gate, max(2.0 * tolerance_px, roll_spread))
             if votes < 2:
-                return fail(f"no displacement shared by two stars within the {gate:.0f} px gate")
+                return Identification("no_match", f"no displacement shared by two stars within the {gate:.0f} px gate",
+                                      "tracking", time.perf_counter() - started), gate
             radius = max(tolerance_px, min(roll_spread, gate))
         spot_i, star_j = unique_nearest(sx, sy, u + dx, v + dy, radius)
         if spot_i.size < 2:
-            return fail(f"{spot_i.size} spots near predicted stars")
+            return self._failed(recognize_kernel.TOO_FEW_PAIRS, started, gate, count=spot_i.size)
         rough = kernels.q_method(geometry.rays[spot_i], self._vectors[near[star_j]], 1.0 / geometry.sigma[spot_i] ** 2)
         return self._verify_in_region(geometry, order, camera, rough, prediction, gate, tolerance_px, started)
 
@@ -567,15 +631,12 @@ class Tracker:
             VerifySettings(chord, self.config.min_stars, lis.magnitude_floor),
             out_spot, out_star, 1)  # the rough rotation is already fitted to the voters' pairs
         count, rotation, chi2 = check.count, check.rotation, check.chi2
-        elapsed = lambda: time.perf_counter() - started  # noqa: E731
         if count < self.config.min_stars:
-            return Identification("no_match", f"{count} stars verified; tracking needs {self.config.min_stars}",
-                                  "tracking", elapsed()), gate
+            return self._failed(recognize_kernel.TOO_FEW_VERIFIED, started, gate, count=count)
         # The bound holds for the searched region only: a solution outside it was not searched for.
         mahalanobis2 = float(track_kernels.offset_mahalanobis2(prediction.rotation, rotation, prediction.covariance))
         if mahalanobis2 > self.config.gate_sigma**2:
-            return Identification("no_match", f"solution {math.sqrt(mahalanobis2):.1f} sigma from the prediction "
-                                  f"(gate {self.config.gate_sigma:g})", "tracking", elapsed()), gate
+            return self._failed(recognize_kernel.OUTSIDE_GATE, started, gate, sigma=math.sqrt(mahalanobis2))
         spot_index, star_index = out_spot[:count].copy(), out_star[:count].copy()
         body, sigma = geometry.rays[spot_index], geometry.sigma[spot_index]
         density = max(self.catalog.mean_density, float(self.grid.cell_density[self._cell(rotation[:, 2])]))
@@ -586,8 +647,7 @@ class Tracker:
                                                        self.catalog.sorted_magnitudes, lis.magnitude_floor))
         fp = float(kernels.false_positive_bound(log_t, n, count, self.config.min_stars))
         if fp > self.config.false_positive_bound:
-            return Identification("no_match", f"{count} stars matched but false-positive bound {fp:.1e} > "
-                                  f"{self.config.false_positive_bound:.0e}", "tracking", elapsed()), gate
+            return self._failed(recognize_kernel.BOUND_FAILED, started, gate, count=count, fp=fp)
         # No deep re-match on tracked frames: under a slew the faint spots' covariances are
         # optimistic and the rate's NEES leaves its bound (test_tracking's slew: 4.4 on one axis
         # with it); lost-in-space solves keep it.

@@ -14,18 +14,7 @@ from star_tracker.identify.base import StarIdentifier
 from star_tracker.identify.geometry import pyramid_triangles
 from star_tracker.sim.scenes import SETUPS, make_scene
 
-
-def assert_same(fused, steps):
-    """Every field of two Identifications equal, arrays and floats bit for bit (elapsed time aside)."""
-    for name in ("status", "reason", "algorithm", "hypotheses", "false_positive_probability", "stats"):
-        assert getattr(fused, name) == getattr(steps, name), name
-    for name in ("spot_index", "hip", "star_vectors", "body_vectors", "residual_rad", "magnitude", "deep"):
-        assert np.array_equal(getattr(fused, name), getattr(steps, name)), name
-    assert (fused.attitude is None) == (steps.attitude is None)
-    if fused.attitude is not None:
-        for name in ("quaternion", "rotation", "covariance"):
-            assert np.array_equal(getattr(fused.attitude, name), getattr(steps.attitude, name)), name
-        assert fused.attitude.loss == steps.attitude.loss
+from same_identification import assert_same
 
 
 @pytest.fixture()
