@@ -152,6 +152,8 @@ class HybridIdentifier(StarIdentifier):
             return super().identify(spots, camera)
         started = time.perf_counter()
         deadline = Deadline(config.max_time_s, config.budget_clock)
+        if deadline.passed():  # a budget spent before the first batch: the Python steps say so
+            return super().identify(spots, camera)
         raw = self.raw_spots(spots)
         (verdict, prepared, tested, tried, spot, star, rotation, fp, guide_spot, guide_star, too_uncertain, fitted,
          covariance, loss, residual, ran_deep, outcome) = solve_kernel.solve(raw, *self._solve_inputs(camera))
