@@ -14,6 +14,9 @@ identifier with its budget on the CPU clock; frames seeded from SEED):
 - slewing: the same on a frame slewing at 1.8 deg/s across the boresight, rate-aided as the
   nodes aid it (`SmearModel(camera, omega, exposure_s)`);
 - lost_in_space: the default identifier's `identify(spots, camera)` on the nominal frame's spots;
+- lost_in_space_cold: the same with the caches cold: EVICT_BYTES written before each call (untimed),
+  as a node's solve follows the image's decoding and centroiding (a solve reads scattered parts of
+  the pair index, the catalogs and its scratch: their cache misses are then part of its time);
 - tracking: `Tracker.process` per frame at 0.5 deg/s (10 Hz, mid-exposure stamps 0.05 + 0.1 k s),
   after TRACK_LEAD frames of tracking; each frame centroided (untimed) with the tracker's own aid
   (`Tracker.centroider_aid`). Every call is a new frame, so the tracker's state moves on as in flight;
@@ -98,7 +101,8 @@ PERIOD_S = 0.1
 TRACK_LEAD = 5  # frames processed before the measured ones: lost-in-space, then tracking with a rate
 TOP = 12  # functions listed per workload
 REAL_IMAGES = ("openstartracker_img0", "gran_vega_05sec", "lost_img_7660")
-SIMULATED = ("nominal", "slewing", "lost_in_space", "tracking")
+SIMULATED = ("nominal", "slewing", "lost_in_space", "lost_in_space_cold", "tracking")
+EVICT_BYTES = 64 << 20  # written before each lost_in_space_cold call: more than any cache of the host
 LIBRARIES = ("numpy", "scipy", "cv2", "PIL", "astropy", "pyarrow", "erfa")
 OTHER_CENTROID, OTHER_PACKAGE, LIBRARY, PYTHON = ("centroiding, other", "star_tracker, other", "library", "Python")
 HARNESS = "benchmark harness"
@@ -319,14 +323,23 @@ def simulated_workloads(only: set[str]) -> list[Workload]:
                                   lambda: lambda: extract_spots(slewing_image, config, smear), spots_text,
                                   f"extract_spots(image, CentroidConfig(), SmearModel(camera, omega, {exposure:g} s)),"
                                   f" {SLEW_RATE_DEG_S:g} °/s across the boresight"))
-    if "lost_in_space" in only or "tracking" in only:
+    if only & {"lost_in_space", "lost_in_space_cold", "tracking"}:
         Tracker(chain.identifier).warm_up(camera)  # the identifier's and the tracker's kernels
-    if "lost_in_space" in only:
+    if only & {"lost_in_space", "lost_in_space_cold"}:
         nominal_spots = extract_spots(nominal_image, config)
-        workloads.append(Workload("lost_in_space", "Lost-in-space solve",
-                                  lambda: lambda: chain.identifier.identify(nominal_spots, camera), solved_text,
-                                  f"hybrid identifier's identify(spots, camera) on the nominal frame's "
-                                  f"{len(nominal_spots)} spots"))
+        solve = lambda: chain.identifier.identify(nominal_spots, camera)  # noqa: E731
+        what = f"hybrid identifier's identify(spots, camera) on the nominal frame's {len(nominal_spots)} spots"
+    if "lost_in_space" in only:
+        workloads.append(Workload("lost_in_space", "Lost-in-space solve", lambda: solve, solved_text, what))
+    if "lost_in_space_cold" in only:
+        scratch = np.zeros(EVICT_BYTES // 8)
+
+        def evicted():
+            np.add(scratch, 1.0, out=scratch)  # every cache line of EVICT_BYTES written: the solve's data evicted
+            return solve
+
+        workloads.append(Workload("lost_in_space_cold", "Lost-in-space solve, caches evicted", evicted, solved_text,
+                                  f"{what}, after writing {EVICT_BYTES >> 20} MiB (untimed)"))
     if "tracking" in only:
         tracker = Tracker(chain.identifier)
         motion = ConstantRateMotion(start, math.radians(TRACK_RATE_DEG_S) * across)

@@ -13,7 +13,8 @@ It combines what measured best in the seed papers:
   confirmation of the pyramid generalised), with the false-positive bound of `verify`,
   which uses magnitudes when they are known (van Bezooijen) and never needs them.
 The search, the q-method, the matching and the bound run in numba (kernels.py) in batches of
-triangles, so the time budget is checked between batches.
+triangles, so the time budget is checked between batches. For a camera without distortion the
+whole common path of a solve, the first batch included, is one compiled call (solve_kernel.py).
 """
 from __future__ import annotations
 
