@@ -22,3 +22,21 @@ def assert_same(fused, steps):
         for name in ("quaternion", "rotation", "covariance"):
             assert np.array_equal(getattr(fused.attitude, name), getattr(steps.attitude, name)), name
         assert fused.attitude.loss == steps.attitude.loss
+
+
+def count_verdicts(monkeypatch, module, name: str) -> dict:
+    """
+    Count the verdicts of a one-call kernel (`module`.`name`, its result's first entry), call by call.
+
+    Returns the counts by verdict, filled as the test runs (the branch each frame took).
+    """
+    counts = {}
+    kernel = getattr(module, name)
+
+    def counted(*args):
+        result = kernel(*args)
+        counts[result[0]] = counts.get(result[0], 0) + 1
+        return result
+
+    monkeypatch.setattr(module, name, counted)
+    return counts

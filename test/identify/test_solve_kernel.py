@@ -14,22 +14,13 @@ from star_tracker.identify.base import StarIdentifier
 from star_tracker.identify.geometry import pyramid_triangles
 from star_tracker.sim.scenes import SETUPS, make_scene
 
-from same_identification import assert_same
+from same_identification import assert_same, count_verdicts
 
 
 @pytest.fixture()
 def verdicts(monkeypatch):
-    """Count the verdicts of solve_kernel's solve: the branch each solve took."""
-    counts = {}
-    solve = solve_kernel.solve
-
-    def counted(*args):
-        result = solve(*args)
-        counts[result[0]] = counts.get(result[0], 0) + 1
-        return result
-
-    monkeypatch.setattr(hybrid.solve_kernel, "solve", counted)
-    return counts
+    """Count the one-call kernel's verdicts: the branch each frame took."""
+    return count_verdicts(monkeypatch, hybrid.solve_kernel, "solve")
 
 
 def test_pyramid_order_is_mortaris():

@@ -22,24 +22,15 @@ from star_tracker.sim.sensor import SensorModel
 from star_tracker.track import recognize_kernel, tracking
 from star_tracker.track.tracking import MODE_TRACKING, Prediction, Tracker
 
-from same_identification import assert_same
+from same_identification import assert_same, count_verdicts
 
 ARCSEC = math.pi / 180 / 3600
 
 
 @pytest.fixture()
 def verdicts(monkeypatch):
-    """Count the verdicts of recognize_kernel's recognize: the branch each tracked frame took."""
-    counts = {}
-    recognize = recognize_kernel.recognize
-
-    def counted(*args):
-        result = recognize(*args)
-        counts[result[0]] = counts.get(result[0], 0) + 1
-        return result
-
-    monkeypatch.setattr(tracking.recognize_kernel, "recognize", counted)
-    return counts
+    """Count the one-call kernel's verdicts: the branch each frame took."""
+    return count_verdicts(monkeypatch, tracking.recognize_kernel, "recognize")
 
 
 def assert_same_frame(tracker, spots, camera, prediction):
