@@ -8,9 +8,9 @@ vote), their q-method attitude, the verification (one match pass), the offset fr
 prediction, the region's false-positive bound, then what StarIdentifier.solved does for a
 tracked frame: the guide stars too uncertain to name left out and the published fit. Each
 step calls the kernel Tracker.track and StarIdentifier.solved call, with the same arguments,
-so the result is the same to the bit (test_recognize_kernel). Where a rare branch starts (a
-wide gate whose displacement is voted, a guide star to name again) the call says so and the
-Python steps run the frame.
+so the result is the same to the bit (test_recognize_kernel). A wide gate's displacement is
+voted in Python (tracking.vote_displacement), and from_pairs goes on from the vote; a guide
+star to name again is left to StarIdentifier.solved.
 """
 from __future__ import annotations
 
@@ -52,16 +52,17 @@ def recognize(raw, camera, prepare_settings, tracking, rotation, covariance, cat
     outlier_sigma). Returns (verdict, prepared (PreparedSpots), gate [px], the verdict's count
     (spots, stars near, pairs, verified), squared offset from the prediction [sigma^2], fp,
     the verified matches (spot, star) and attitude, the published guide matches (spot, star),
-    guide stars too uncertain (count), their fit (rotation, covariance, loss, residual)).
-    Entries past what the verdict needs are placeholders.
+    guide stars too uncertain (count), their fit (rotation, covariance, loss, residual), and
+    for VOTE_IN_PYTHON the catalog stars in view (indices, u, v [px]: from_pairs goes on from
+    them), then the verification radius [px]). Entries past what the verdict needs are
+    placeholders.
     """
     (min_stars, max_pattern_spots, gate_sigma, max_gate_fov_radii, fp_limit, match_radius_px, pixel_scale,
      half_diagonal, grid_max_radius, grid, magnitude_floor) = tracking
-    min_fit_stars, unnameable, screen_chi2, outlier_sigma = finish
-    floor_px, density_px, unnameable_sigma, max_chance = unnameable
     prepared = prepare_spots(raw, camera, prepare_settings)
     n = prepared.order.size
     empty_i = np.zeros(0, np.int64)
+    empty = np.zeros(0)
     eye = np.eye(3)
     # The verification radius (StarIdentifier.verification_radius_px) and the gate (Tracker.gate_px).
     if n:
@@ -74,20 +75,42 @@ def recognize(raw, camera, prepare_settings, tracking, rotation, covariance, cat
     gate = min(gate_sigma * (math.hypot(cross, roll) / pixel_scale) + tolerance_px, cap)
     if n < min_stars:
         return (TOO_FEW_SPOTS, prepared, gate, n, 0.0, 1.0, empty_i, empty_i, eye, empty_i, empty_i, 0, eye, eye,
-                0.0, np.zeros(0))
+                0.0, empty, empty_i, empty, empty, tolerance_px)
     reach = half_diagonal + gate * pixel_scale
     near, u, v = stars_in_view(catalog.vectors, rotation, math.cos(min(reach, math.pi / 2)), camera, -gate)
     if near.size < min_stars:
         return (TOO_FEW_STARS_NEAR, prepared, gate, near.size, 0.0, 1.0, empty_i, empty_i, eye, empty_i, empty_i, 0,
-                eye, eye, 0.0, np.zeros(0))
-    if gate > 3.0 * tolerance_px:  # the displacement is voted (Tracker.track, vote_displacement)
-        return (VOTE_IN_PYTHON, prepared, gate, 0, 0.0, 1.0, empty_i, empty_i, eye, empty_i, empty_i, 0, eye, eye, 0.0,
-                np.zeros(0))
+                eye, eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
+    if gate > 3.0 * tolerance_px:  # the displacement is voted (Tracker.track, vote_displacement): in view so far
+        return (VOTE_IN_PYTHON, prepared, gate, near.size, 0.0, 1.0, empty_i, empty_i, eye, empty_i, empty_i, 0, eye,
+                eye, 0.0, empty, near, u, v, tolerance_px)
+    return from_pairs(prepared, gate, tolerance_px, near, u, v, 0.0, 0.0, gate, tracking, rotation, covariance, catalog,
+                      cell_density, finish)
+
+
+@njit(cache=True)
+def from_pairs(prepared, gate, tolerance_px, near, u, v, dx, dy, radius, tracking, rotation, covariance, catalog,
+               cell_density, finish):
+    """
+    Go on from the catalog stars in view: (near, u, v [px]) from stars_in_view, moved by (dx, dy) [px].
+
+    The nearest pairs within `radius` [px], their attitude, the verification, the bound and
+    the published fit; arguments and result as recognize's (prepared: the spots; gate and
+    tolerance_px [px]: the frame's gate and verification radius).
+    """
+    (min_stars, max_pattern_spots, gate_sigma, max_gate_fov_radii, fp_limit, match_radius_px, pixel_scale,
+     half_diagonal, grid_max_radius, grid, magnitude_floor) = tracking
+    min_fit_stars, unnameable, screen_chi2, outlier_sigma = finish
+    floor_px, density_px, unnameable_sigma, max_chance = unnameable
+    n = prepared.order.size
+    empty_i = np.zeros(0, np.int64)
+    empty = np.zeros(0)
+    eye = np.eye(3)
     voters = min(n, max_pattern_spots)
-    spot_i, star_j = unique_nearest(prepared.x[:voters], prepared.y[:voters], u, v, gate)
+    spot_i, star_j = unique_nearest(prepared.x[:voters], prepared.y[:voters], u + dx, v + dy, radius)
     if spot_i.size < 2:
         return (TOO_FEW_PAIRS, prepared, gate, spot_i.size, 0.0, 1.0, empty_i, empty_i, eye, empty_i, empty_i, 0, eye,
-                eye, 0.0, np.zeros(0))
+                eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
     body = np.empty((spot_i.size, 3))
     ref = np.empty((spot_i.size, 3))
     weights = np.empty(spot_i.size)
@@ -105,11 +128,11 @@ def recognize(raw, camera, prepare_settings, tracking, rotation, covariance, cat
     count, verified = check.count, check.rotation
     if count < min_stars:
         return (TOO_FEW_VERIFIED, prepared, gate, count, 0.0, 1.0, empty_i, empty_i, eye, empty_i, empty_i, 0, eye,
-                eye, 0.0, np.zeros(0))
+                eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
     mahalanobis2 = offset_mahalanobis2(rotation, verified, covariance)
     if mahalanobis2 > gate_sigma ** 2:
         return (OUTSIDE_GATE, prepared, gate, count, mahalanobis2, 1.0, empty_i, empty_i, eye, empty_i, empty_i, 0,
-                eye, eye, 0.0, np.zeros(0))
+                eye, eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
     spot = out_spot[:count].copy()
     star = out_star[:count].copy()
     matched = np.empty((count, 3))
@@ -128,7 +151,7 @@ def recognize(raw, camera, prepare_settings, tracking, rotation, covariance, cat
     fp = false_positive_bound(log_t, n, count, min_stars)
     if fp > fp_limit:
         return (BOUND_FAILED, prepared, gate, count, mahalanobis2, fp, spot, star, verified, empty_i, empty_i, 0, eye,
-                eye, 0.0, np.zeros(0))
+                eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
     # StarIdentifier.solved for a tracked frame (no deep re-match).
     guide_spot, guide_star, too_uncertain = spot, star, 0
     if count > min_fit_stars:
@@ -146,6 +169,7 @@ def recognize(raw, camera, prepare_settings, tracking, rotation, covariance, cat
     for q in range(guide_spot.size):
         if residual[q] / prepared.sigma[guide_spot[q]] > outlier_sigma:
             return (NAME_IN_PYTHON, prepared, gate, count, mahalanobis2, fp, spot, star, verified, empty_i, empty_i, 0,
-                    eye, eye, 0.0, np.zeros(0))
+                    eye, eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
     return (SOLVED, prepared, gate, count, mahalanobis2, fp, spot, star, verified, guide_spot, guide_star,
-            too_uncertain, fitted, np.ascontiguousarray(fitted_covariance), loss, residual)
+            too_uncertain, fitted, np.ascontiguousarray(fitted_covariance), loss, residual, empty_i, empty, empty,
+            tolerance_px)

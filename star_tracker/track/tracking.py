@@ -529,21 +529,31 @@ class Tracker:
         Local recognition of `spots` around `prediction`: (result, gate [px]).
 
         For a camera without distortion its common path is one compiled call
-        (recognize_kernel.recognize), same results; a wide gate (the displacement voted) and a
-        guide star to name again run in the Python steps (_track_steps, StarIdentifier.solved).
+        (recognize_kernel.recognize), same results as the Python steps (_track_steps); a wide
+        gate's displacement is voted here (_vote) and the kernel goes on from it
+        (recognize_kernel.from_pairs); a guide star to name again goes to StarIdentifier.solved.
         """
         started = time.perf_counter()
         if camera.has_distortion:
             return self._track_steps(spots, camera, prediction, started)
         lis = self.lost_in_space
+        settings = self._recognize_settings(camera)
+        rotation = np.ascontiguousarray(prediction.rotation, float)
+        covariance = np.ascontiguousarray(prediction.covariance, float)
+        finish = self._finish_settings(camera)
         (verdict, prepared, gate, count, mahalanobis2, fp, spot, star, verified, guide_spot, guide_star, too_uncertain,
-         fitted, covariance, loss, residual) = recognize_kernel.recognize(
-            lis.raw_spots(spots), Pinhole.of(camera), lis.prepare_settings(), self._recognize_settings(camera),
-            np.ascontiguousarray(prediction.rotation, float), np.ascontiguousarray(prediction.covariance, float),
-            self.catalog, self.grid.cell_density, self._finish_settings(camera))
-        if verdict == recognize_kernel.VOTE_IN_PYTHON:
-            return self._track_steps(spots, camera, prediction, started)
+         fitted, fitted_covariance, loss, residual, near, u, v, tolerance_px) = recognize_kernel.recognize(
+            lis.raw_spots(spots), Pinhole.of(camera), lis.prepare_settings(), settings, rotation, covariance,
+            self.catalog, self.grid.cell_density, finish)
         order, geometry = lis.geometry_of(prepared, camera)
+        if verdict == recognize_kernel.VOTE_IN_PYTHON:  # voted here, then the kernel goes on from the vote
+            voted = self._vote(geometry, camera, prediction, u, v, gate, tolerance_px)
+            if voted is None:
+                return self._no_displacement(started, gate)
+            (verdict, prepared, gate, count, mahalanobis2, fp, spot, star, verified, guide_spot, guide_star,
+             too_uncertain, fitted, fitted_covariance, loss, residual, near, u, v, tolerance_px) = \
+                recognize_kernel.from_pairs(prepared, gate, tolerance_px, near, u, v, *voted, settings, rotation,
+                                            covariance, self.catalog, self.grid.cell_density, finish)
         if verdict == recognize_kernel.NAME_IN_PYTHON:
             return lis.solved(geometry, order, AcceptedMatch(spot, star, verified, fp), 1, started,
                               algorithm="tracking", deep_match=False), gate
@@ -551,7 +561,7 @@ class Tracker:
             return self._failed(verdict, started, gate, count=count, sigma=math.sqrt(mahalanobis2), fp=fp)
         if too_uncertain:
             lis.stats["guide_too_uncertain"] = too_uncertain
-        solution = AttitudeSolution(matrix_to_quaternion(fitted), fitted, covariance, loss)
+        solution = AttitudeSolution(matrix_to_quaternion(fitted), fitted, fitted_covariance, loss)
         return lis.published(geometry, order, lis.guide_matches(guide_spot, guide_star), solution, residual, fp, 1,
                              started, "tracking"), gate
 
@@ -574,6 +584,29 @@ class Tracker:
         reason = _FAILURES[verdict].format(min_stars=self.config.min_stars, gate_sigma=self.config.gate_sigma,
                                            bound=self.config.false_positive_bound, **values)
         return Identification("no_match", reason, "tracking", time.perf_counter() - started), gate
+
+    def _vote(self, geometry, camera: CameraModel, prediction: Prediction, u: np.ndarray, v: np.ndarray, gate: float,
+              tolerance_px: float) -> tuple[float, float, float] | None:
+        """
+        Return (dx, dy, radius) [px]: the displacement the brightest spots vote for, and the pairing radius.
+
+        The stars in view at (u, v) [px]; None when no displacement is shared by two stars
+        within the gate [px].
+        """
+        voters = min(geometry.x.size, self.config.max_pattern_spots)
+        # Roll error spreads the displacement over the field; the bins must hold that spread.
+        roll_spread = (self.config.gate_sigma * math.sqrt(max(prediction.covariance[2, 2], 0.0))
+                       * self._half_diagonal(camera) / camera.pixel_scale_rad)
+        dx, dy, votes = vote_displacement(geometry.x[:voters], geometry.y[:voters], u, v, gate,
+                                          max(2.0 * tolerance_px, roll_spread))
+        if votes < 2:
+            return None
+        return dx, dy, max(tolerance_px, min(roll_spread, gate))
+
+    @staticmethod
+    def _no_displacement(started: float, gate: float) -> tuple[Identification, float]:
+        return Identification("no_match", f"no displacement shared by two stars within the {gate:.0f} px gate",
+                              "tracking", time.perf_counter() - started), gate
 
     def _track_steps(self, spots: Spots, camera: CameraModel, prediction: Prediction,
                      started: float) -> tuple[Identification, float]:
@@ -602,18 +635,14 @@ class Tracker:
             return self._failed(recognize_kernel.TOO_FEW_STARS_NEAR, started, gate, count=near.size)
         voters = min(n, self.config.max_pattern_spots)
         sx, sy = geometry.x[:voters], geometry.y[:voters]
-        # Roll error spreads the displacement over the field; the bins must hold that spread.
-        roll_spread = (self.config.gate_sigma * math.sqrt(max(prediction.covariance[2, 2], 0.0))
-                       * half_diagonal / camera.pixel_scale_rad)
         if gate <= 3.0 * tolerance_px:  # small gate: nearest stars directly
             dx = dy = 0.0
             radius = gate
         else:
-            dx, dy, votes = vote_displacement(sx, sy, u, v, gate, max(2.0 * tolerance_px, roll_spread))
-            if votes < 2:
-                return Identification("no_match", f"no displacement shared by two stars within the {gate:.0f} px gate",
-                                      "tracking", time.perf_counter() - started), gate
-            radius = max(tolerance_px, min(roll_spread, gate))
+            voted = self._vote(geometry, camera, prediction, u, v, gate, tolerance_px)
+            if voted is None:
+                return self._no_displacement(started, gate)
+            dx, dy, radius = voted
         spot_i, star_j = unique_nearest(sx, sy, u + dx, v + dy, radius)
         if spot_i.size < 2:
             return self._failed(recognize_kernel.TOO_FEW_PAIRS, started, gate, count=spot_i.size)
