@@ -586,9 +586,8 @@ class StarIdentifier:
 
     def verification_radius_px(self, geometry: SpotGeometry, camera: CameraModel) -> float:
         """Verification radius: the configured one, widened to 4 sigma of the typical spot."""
-        typical_px = (float(np.partition(geometry.sigma, geometry.sigma.size // 2)[geometry.sigma.size // 2])
-                      / camera.pixel_scale_rad)
-        return max(self.config.match_radius_px, 4.0 * typical_px)
+        return float(final_fit_kernel.verification_radius_px(geometry.sigma, float(camera.pixel_scale_rad),
+                                                             float(self.config.match_radius_px)))
 
     def verify_hypothesis(self, geometry: SpotGeometry, camera: CameraModel,
                           rotation: np.ndarray) -> AcceptedMatch | None:
@@ -831,7 +830,7 @@ class StarIdentifier:
         centroider's, without the matching floor):
         from `rotation` (the matching fit, sensor -> ICRS, weighted with the floored sigma), a
         maximum-likelihood refinement with each ray's full 2-D covariance
-        (attitude_estimation.refine_with_covariances; a streak's error is far larger along its
+        (final_fit_kernel.published_fit, attitude_estimation.refine_kernel; a streak's error is far larger along its
         smear than across it). Stars whose studentized residual exceeds FIT_SCREEN_CHI2 (chi^2
         with 2 DOF, ~3.7 sigma, under the residual's covariance: a bright star the fit leans on
         is judged by how far it would be from the others' fit) are left out of the fit (once;

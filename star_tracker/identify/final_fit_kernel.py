@@ -2,8 +2,8 @@
 """
 The accepted match's published fit, compiled: its screens and its fit each one call.
 
-base.StarIdentifier's rules (its docstrings: without_lever_outlier, without_unnameable,
-_fit) run here on the flux-sorted spots' arrays (SpotGeometry), so that finishing a solve
+base.StarIdentifier's rules (its docstrings: verification_radius_px, without_lever_outlier,
+without_unnameable, _fit, solved) run here on the flux-sorted spots' arrays (SpotGeometry), so that finishing a solve
 costs a few compiled calls rather than dozens of small numpy ones. Rotations sensor -> ICRS;
 rays and catalog vectors unit vectors; sigmas [rad]; pixel covariances [px^2]; jacobians
 [rad/px]. An empty pixel_cov (0, 2, 2) means isotropic spots (sigma alone).
@@ -102,3 +102,74 @@ def published_fit(rays, sigma, pixel_cov, jacobian, spot, stars, rotation, scree
     if inliers < n and inliers >= min_stars:
         fitted, covariance, loss, chi2, angle = refine_kernel(fitted, body, stars, cov, jac, used, 2)
     return fitted, covariance, loss, chi2, angle
+
+
+@njit(cache=True)
+def verification_radius_px(sigma, pixel_scale, match_radius_px):
+    """
+    Return the verification radius [px]: match_radius_px, widened to 4 sigma of the median spot.
+
+    sigma (N,) the spots' matching sigmas [rad]; pixel_scale [rad/px]. match_radius_px when
+    there are no spots.
+    """
+    n = sigma.size
+    if n == 0:
+        return match_radius_px
+    return max(match_radius_px, 4.0 * (np.sort(sigma)[n // 2] / pixel_scale))
+
+
+@njit(cache=True)
+def guide_fit(prepared, spot, star, vectors, rotation, pixel_scale, unnameable, screen_chi2, min_stars):
+    """
+    StarIdentifier.solved's first steps on a match: leave out the unnameable guide stars, fit the published attitude.
+
+    prepared: PreparedSpots; spot, star (M,) the match (star: rows of `vectors` (S, 3), ICRS);
+    rotation (sensor -> ICRS) its matching fit; unnameable: (floor_px, density_px, gate_sigma,
+    max_chance) (StarIdentifier.unnameable_settings). Returns (guide spot, guide star, guide
+    stars left out, their vectors, fitted rotation, its covariance [rad^2] (C order), loss,
+    residual angles [rad]).
+    """
+    floor_px, density_px, gate_sigma, max_chance = unnameable
+    count = spot.size
+    guide_spot, guide_star, too_uncertain = spot, star, 0
+    if count > min_stars:
+        keep = nameable(prepared.pixel_cov, prepared.sigma, spot, pixel_scale, floor_px, density_px, gate_sigma,
+                        max_chance)
+        kept = int(np.count_nonzero(keep))
+        if kept < count and kept >= min_stars:
+            guide_spot, guide_star, too_uncertain = spot[keep], star[keep], count - kept
+    guide_vectors = np.empty((guide_spot.size, 3))
+    for i in range(guide_spot.size):
+        guide_vectors[i] = vectors[guide_star[i]]
+    fitted, covariance, loss, _, residual = published_fit(prepared.rays, prepared.sigma, prepared.pixel_cov,
+                                                          prepared.jacobian, guide_spot, guide_vectors, rotation,
+                                                          screen_chi2, min_stars)
+    return (guide_spot, guide_star, too_uncertain, guide_vectors, fitted, np.ascontiguousarray(covariance), loss,
+            residual)
+
+
+@njit(cache=True)
+def any_beyond(residual, sigma, spot, limit):
+    """Whether any match's residual [rad] exceeds `limit` times its spot's sigma (spot (M,) into sigma)."""
+    for i in range(spot.size):
+        if residual[i] / sigma[spot[i]] > limit:
+            return True
+    return False
+
+
+def warm_up() -> None:
+    """Compile (or load) the kernels the Python steps call (StarIdentifier), with the argument types they pass."""
+    n = 6
+    angle = np.linspace(-0.05, 0.05, n)
+    rays = np.ascontiguousarray(np.stack([np.sin(angle), np.sin(angle[::-1]) * 0.5, np.ones(n)], axis=1))
+    rays /= np.linalg.norm(rays, axis=1)[:, None]
+    sigma = np.full(n, 1e-4)
+    spot = np.arange(n, dtype=np.int64)
+    pixel_cov = np.tile(np.eye(2) * 0.01, (n, 1, 1))
+    jacobian = np.zeros((n, 3, 2))
+    jacobian[:, 0, 0] = jacobian[:, 1, 1] = 1e-4
+    rotation = np.eye(3)
+    match_chi2(rays, sigma, rays, spot, spot, rotation)
+    nameable(pixel_cov, sigma, spot, 1e-4, 0.1, 1e-6, 5.0, 0.01)
+    published_fit(rays, sigma, pixel_cov, jacobian, spot, rays.copy(), rotation, 13.8, 4)
+    verification_radius_px(sigma, 1e-4, 2.0)

@@ -31,7 +31,7 @@ from ..models.attitude import matrix_to_quaternion
 from ..models.attitude_estimation import AttitudeSolution, refine_with_covariances
 from ..models.camera import CameraModel
 from ..centroid import Spots
-from . import base, deep_match, kernels, solve_kernel
+from . import base, deep_match, final_fit_kernel, kernels, solve_kernel
 from .base import (NO_MATCH, TIMEOUT, TOO_FEW_SPOTS, AcceptedMatch, Identification, IdentifyConfig, SearchOutcome,
                    StarIdentifier, lever_limits)
 from .kernel_records import (CatalogArrays, LensModel, PairIndex, Pinhole, SearchScratch, SpotArrays,
@@ -133,7 +133,8 @@ class HybridIdentifier(StarIdentifier):
                                 np.full(n, 1e3), camera.width, camera.height), camera)
         finally:
             self.config = saved
-        refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # the final fit
+        final_fit_kernel.warm_up()  # the Python steps' final fit and screens (rare branches, distorted cameras)
+        refine_with_covariances(np.eye(3), np.eye(3), np.eye(3), np.tile(np.eye(3), (3, 1, 1)))  # aberration's fit
         log_chance_tuples(np.eye(3), np.full(3, 1e-5), 3.0, 1e3)  # the bound after the deep re-match
         self.warm_up_deep_rematch(camera)
         HybridIdentifier._kernels_ready = True

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from .deep_match_kernel import deep_rematch
-from .final_fit_kernel import match_chi2, nameable, published_fit
+from .final_fit_kernel import any_beyond, guide_fit, match_chi2, verification_radius_px
 from .geometry import pyramid_rows
 from .kernel_records import DeepRematchOutcome, GuideMatches, SearchScratch, SpotArrays, VerifySettings
 from .kernels import search_triangles
@@ -57,7 +57,6 @@ def solve(raw, camera, prepare_settings, search, pairs, catalog, tolerances, hea
     """
     max_pattern_spots, first_batch, match_radius_px, pixel_scale, grid_max_radius, min_stars, magnitude_floor = search
     lever_limits, vectors, hip, magnitude, unnameable, screen_chi2, outlier_sigma = finish
-    floor_px, density_px, gate_sigma, max_chance = unnameable
     prepared = prepare_spots(raw, camera, prepare_settings)
     n = prepared.order.size
     empty_i = np.zeros(0, np.int64)
@@ -67,9 +66,8 @@ def solve(raw, camera, prepare_settings, search, pairs, catalog, tolerances, hea
         return (TOO_FEW_SPOTS, prepared, 0, 0, empty_i, empty_i, eye, 1.0, empty_i, empty_i, 0, eye, eye, 0.0,
                 np.zeros(0), False, nothing)
     pattern_count = min(n, max_pattern_spots)
-    # The verification radius (StarIdentifier.verification_radius_px): 4 sigma of the median spot at least.
-    typical_px = np.sort(prepared.sigma)[n // 2] / pixel_scale
-    radius_rad = min(max(match_radius_px, 4.0 * typical_px) * pixel_scale, grid_max_radius)
+    radius_rad = min(verification_radius_px(prepared.sigma, pixel_scale, match_radius_px) * pixel_scale,
+                     grid_max_radius)
     verification = VerifySettings(2.0 * math.sin(0.5 * radius_rad), min_stars, magnitude_floor)
     spots = SpotArrays(prepared.rays, prepared.sigma, prepared.magnitude)
     scratch = SearchScratch(heads[0], heads[1], np.empty(n, np.int64), np.empty(n, np.int64))
@@ -89,21 +87,8 @@ def solve(raw, camera, prepare_settings, search, pairs, catalog, tolerances, hea
                                                   found.rotation) > lever_limits[dof]:
             return (FINISH_IN_PYTHON, prepared, found.hypotheses, found.stopped, spot, star, found.rotation, found.fp,
                     empty_i, empty_i, 0, eye, eye, 0.0, np.zeros(0), False, nothing)
-    # The guide stars too uncertain to name (StarIdentifier.without_unnameable).
-    guide_spot, guide_star, too_uncertain = spot, star, 0
-    if count > min_stars:
-        keep = nameable(prepared.pixel_cov, prepared.sigma, spot, pixel_scale, floor_px, density_px, gate_sigma,
-                        max_chance)
-        kept = int(np.count_nonzero(keep))
-        if kept < count and kept >= min_stars:
-            guide_spot, guide_star, too_uncertain = spot[keep], star[keep], count - kept
-    guide_vectors = np.empty((guide_spot.size, 3))
-    for i in range(guide_spot.size):
-        guide_vectors[i] = vectors[guide_star[i]]
-    fitted, fitted_covariance, loss, _, residual = published_fit(
-        prepared.rays, prepared.sigma, prepared.pixel_cov, prepared.jacobian, guide_spot, guide_vectors, found.rotation,
-        screen_chi2, min_stars)
-    covariance = np.ascontiguousarray(fitted_covariance)  # as the Python path hands it on (deep_match.deep_rematch)
+    guide_spot, guide_star, too_uncertain, guide_vectors, fitted, covariance, loss, residual = guide_fit(
+        prepared, spot, star, vectors, found.rotation, pixel_scale, unnameable, screen_chi2, min_stars)
     ran_deep = guide_spot.size < n  # with every spot named there is nothing left to match
     outcome = nothing
     final_residual = residual
@@ -119,9 +104,8 @@ def solve(raw, camera, prepare_settings, search, pairs, catalog, tolerances, hea
         if outcome.status != 0:
             final_residual = outcome.residual
     # A guide star beyond outlier_sigma of the published attitude: named again in Python (StarIdentifier.solved).
-    for i in range(guide_spot.size):
-        if final_residual[i] / prepared.sigma[guide_spot[i]] > outlier_sigma:
-            return (FINISH_IN_PYTHON, prepared, found.hypotheses, found.stopped, spot, star, found.rotation, found.fp,
-                    empty_i, empty_i, 0, eye, eye, 0.0, np.zeros(0), False, nothing)
+    if any_beyond(final_residual, prepared.sigma, guide_spot, outlier_sigma):
+        return (FINISH_IN_PYTHON, prepared, found.hypotheses, found.stopped, spot, star, found.rotation, found.fp,
+                empty_i, empty_i, 0, eye, eye, 0.0, np.zeros(0), False, nothing)
     return (SOLVED, prepared, found.hypotheses, found.stopped, spot, star, found.rotation, found.fp, guide_spot,
             guide_star, too_uncertain, fitted, covariance, loss, residual, ran_deep, outcome)

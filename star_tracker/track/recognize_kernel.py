@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..identify.final_fit_kernel import nameable, published_fit
+from ..identify.final_fit_kernel import any_beyond, guide_fit, verification_radius_px
 from ..identify.kernel_records import SpotArrays, VerifySettings
 from ..identify.kernels import false_positive_bound, log_magnitude_agreement, q_method, verify_candidate
 from ..identify.skygrid import cell_of
@@ -65,10 +65,7 @@ def recognize(raw, camera, prepare_settings, tracking, rotation, covariance, cat
     empty = np.zeros(0)
     eye = np.eye(3)
     # The verification radius (StarIdentifier.verification_radius_px) and the gate (Tracker.gate_px).
-    if n:
-        tolerance_px = max(match_radius_px, 4.0 * (np.sort(prepared.sigma)[n // 2] / pixel_scale))
-    else:
-        tolerance_px = match_radius_px
+    tolerance_px = verification_radius_px(prepared.sigma, pixel_scale, match_radius_px)
     cross = math.sqrt(max(covariance[0, 0], covariance[1, 1], 0.0))
     roll = math.sqrt(max(covariance[2, 2], 0.0)) * half_diagonal
     cap = max_gate_fov_radii * half_diagonal / pixel_scale
@@ -101,7 +98,6 @@ def from_pairs(prepared, gate, tolerance_px, near, u, v, dx, dy, radius, trackin
     (min_stars, max_pattern_spots, gate_sigma, max_gate_fov_radii, fp_limit, match_radius_px, pixel_scale,
      half_diagonal, grid_max_radius, grid, magnitude_floor) = tracking
     min_fit_stars, unnameable, screen_chi2, outlier_sigma = finish
-    floor_px, density_px, unnameable_sigma, max_chance = unnameable
     n = prepared.order.size
     empty_i = np.zeros(0, np.int64)
     empty = np.zeros(0)
@@ -153,23 +149,11 @@ def from_pairs(prepared, gate, tolerance_px, near, u, v, dx, dy, radius, trackin
         return (BOUND_FAILED, prepared, gate, count, mahalanobis2, fp, spot, star, verified, empty_i, empty_i, 0, eye,
                 eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
     # StarIdentifier.solved for a tracked frame (no deep re-match).
-    guide_spot, guide_star, too_uncertain = spot, star, 0
-    if count > min_fit_stars:
-        keep = nameable(prepared.pixel_cov, prepared.sigma, spot, pixel_scale, floor_px, density_px,
-                        unnameable_sigma, max_chance)
-        kept = int(np.count_nonzero(keep))
-        if kept < count and kept >= min_fit_stars:
-            guide_spot, guide_star, too_uncertain = spot[keep], star[keep], count - kept
-    guide_vectors = np.empty((guide_spot.size, 3))
-    for q in range(guide_spot.size):
-        guide_vectors[q] = catalog.vectors[guide_star[q]]
-    fitted, fitted_covariance, loss, _, residual = published_fit(
-        prepared.rays, prepared.sigma, prepared.pixel_cov, prepared.jacobian, guide_spot, guide_vectors, verified,
-        screen_chi2, min_fit_stars)
-    for q in range(guide_spot.size):
-        if residual[q] / prepared.sigma[guide_spot[q]] > outlier_sigma:
-            return (NAME_IN_PYTHON, prepared, gate, count, mahalanobis2, fp, spot, star, verified, empty_i, empty_i, 0,
-                    eye, eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
+    guide_spot, guide_star, too_uncertain, _, fitted, fitted_covariance, loss, residual = guide_fit(
+        prepared, spot, star, catalog.vectors, verified, pixel_scale, unnameable, screen_chi2, min_fit_stars)
+    if any_beyond(residual, prepared.sigma, guide_spot, outlier_sigma):
+        return (NAME_IN_PYTHON, prepared, gate, count, mahalanobis2, fp, spot, star, verified, empty_i, empty_i, 0,
+                eye, eye, 0.0, empty, empty_i, empty, empty, tolerance_px)
     return (SOLVED, prepared, gate, count, mahalanobis2, fp, spot, star, verified, guide_spot, guide_star,
-            too_uncertain, fitted, np.ascontiguousarray(fitted_covariance), loss, residual, empty_i, empty, empty,
+            too_uncertain, fitted, fitted_covariance, loss, residual, empty_i, empty, empty,
             tolerance_px)

@@ -614,7 +614,7 @@ class Tracker:
         lis = self.lost_in_space
         order, geometry = self.lost_in_space.prepare(spots, camera)
         n = order.size
-        tolerance_px = lis.verification_radius_px(geometry, camera) if n else lis.config.match_radius_px
+        tolerance_px = lis.verification_radius_px(geometry, camera)
         gate = self.gate_px(camera, prediction, tolerance_px)
         if n < self.config.min_stars:
             return self._failed(recognize_kernel.TOO_FEW_SPOTS, started, gate, count=n)
